@@ -1,0 +1,14 @@
+"""Core of hapticlab: hookspecs, plugin host, data types, frames and estimator math."""
+
+from .hookspecs import hookimpl, hookspec
+from .plugins import DEFAULT_PLUGINS, ConfigError, PluginError, Registry, make_plugin_manager
+
+__all__ = [
+    "DEFAULT_PLUGINS",
+    "ConfigError",
+    "PluginError",
+    "Registry",
+    "hookimpl",
+    "hookspec",
+    "make_plugin_manager",
+]

@@ -1,0 +1,117 @@
+"""Pairs each wrench sample with the robot orientation at the sample's own time.
+
+Sensor and kinematics streams run at different rates (NetFT up to 7000 Hz, UR
+RTDE 125/500 Hz). Between two poses the orientation is interpolated by slerp.
+After the newest pose it is extrapolated at the last measured angular
+velocity for at most one kinematics period; a sample further out (or before
+the first pose) gets the nearest allowed orientation and is flagged
+``stale``, so the run loop can keep it away from the estimators and zero the
+haptic force.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .frames import (
+    matrix_from_quat_wxyz,
+    quat_conjugate,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_slerp,
+    rotvec_from_quat,
+)
+from .types import AlignedSamples, PoseSample, WrenchSample
+
+
+def orientation_at(
+    t_ns: np.ndarray, pose_t_ns: np.ndarray, quat_BE: np.ndarray, period_ns: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Orientation of E in B at arbitrary times from a pose stream.
+
+    Args:
+        t_ns: (n,) query times, ns.
+        pose_t_ns: (p,) increasing pose times, ns (p >= 1).
+        quat_BE: (p, 4) [w, x, y, z] orientations of E in B at those times.
+        period_ns: the kinematics period; the longest extrapolation allowed.
+
+    Returns:
+        (quat_BE (n, 4) at the query times, stale (n,) bool).
+    """
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    pose_t_ns = np.asarray(pose_t_ns, dtype=np.int64)
+    quat_BE = np.asarray(quat_BE, dtype=float)
+    first, last = pose_t_ns[0], pose_t_ns[-1]
+    out = np.empty((len(t_ns), 4))
+    stale = (t_ns < first) | (t_ns > last + period_ns)
+
+    inside = (t_ns >= first) & (t_ns <= last)
+    if inside.any():
+        t = t_ns[inside]
+        # pose interval [i, i+1] holding each time (i = p-1 only when t == last)
+        i = np.clip(np.searchsorted(pose_t_ns, t, side="right") - 1, 0, max(len(pose_t_ns) - 2, 0))
+        j = np.minimum(i + 1, len(pose_t_ns) - 1)
+        span = (pose_t_ns[j] - pose_t_ns[i]).astype(float)
+        u = np.divide((t - pose_t_ns[i]).astype(float), span, out=np.zeros(len(t)), where=span > 0)
+        out[inside] = quat_slerp(quat_BE[i], quat_BE[j], u)
+
+    before = t_ns < first
+    out[before] = quat_BE[0]
+
+    after = t_ns > last
+    if after.any():
+        dt_s = np.minimum(t_ns[after] - last, period_ns) * 1e-9
+        if len(pose_t_ns) >= 2 and last > pose_t_ns[-2]:
+            # constant angular velocity in B from the last two poses: q(t) = exp(ω_B dt) ⊗ q(last)
+            step = quat_multiply(quat_BE[-1], quat_conjugate(quat_BE[-2]))
+            w_B = rotvec_from_quat(step) / ((last - pose_t_ns[-2]) * 1e-9)
+            out[after] = quat_multiply(quat_from_rotvec(dt_s[:, None] * w_B), quat_BE[-1])
+        else:
+            out[after] = quat_BE[-1]
+    return out, stale
+
+
+class Aligner:
+    """Live aligner: buffers poses, aligns wrench blocks as they arrive.
+
+    Args:
+        kinematics_rate_hz: the pose stream's nominal rate (sets the longest
+            extrapolation, one period).
+        keep: how many recent poses to keep for interpolation.
+    """
+
+    def __init__(self, kinematics_rate_hz: float, keep: int = 64):
+        self.period_ns = int(round(1e9 / kinematics_rate_hz))
+        self.keep = keep
+        self._t = np.zeros(0, dtype=np.int64)
+        self._q = np.zeros((0, 4))
+
+    def add_poses(self, poses: list[PoseSample]) -> None:
+        """Append poses (in time order) to the buffer."""
+        if not poses:
+            return
+        t = np.array([p.t_ns for p in poses], dtype=np.int64)
+        q = np.array([p.quat_BE for p in poses], dtype=float)
+        self._t = np.concatenate([self._t, t])[-self.keep :]
+        self._q = np.concatenate([self._q, q])[-self.keep :]
+
+    @property
+    def latest_pose_ns(self) -> int | None:
+        """Time of the newest pose, or None before the first."""
+        return int(self._t[-1]) if len(self._t) else None
+
+    def align(self, wrenches: list[WrenchSample]) -> AlignedSamples:
+        """Pair each wrench with its orientation; ``stale`` marks the ones that could not be."""
+        n = len(wrenches)
+        t = np.fromiter((w.t_ns for w in wrenches), dtype=np.int64, count=n)
+        force_S = np.array([w.force_S for w in wrenches], dtype=float).reshape(n, 3)
+        torque_S = np.array([w.torque_S for w in wrenches], dtype=float).reshape(n, 3)
+        seq = np.fromiter((w.seq for w in wrenches), dtype=np.int64, count=n)
+        status = np.fromiter((w.status for w in wrenches), dtype=np.int64, count=n)
+        if len(self._t) == 0:
+            quat_BE = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+            stale = np.ones(n, dtype=bool)
+        else:
+            quat_BE, stale = orientation_at(t, self._t, self._q, self.period_ns)
+        R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
+        return AlignedSamples(t, force_S, torque_S, R_EB, seq, status, stale, quat_BE)

@@ -1,0 +1,44 @@
+"""Hook specifications: how a plugin tells hapticlab what it provides.
+
+Every hook is called once, at start-up, with a ``register(name, factory)``
+callback; the plugin calls it for each thing it provides and returns nothing.
+The host then builds plain objects from the factories and calls those in the
+per-sample loop (a hook call costs microseconds; none happen per sample).
+Full prose for each hook is in ``docs/plugins.md``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import pluggy
+
+hookspec = pluggy.HookspecMarker("hapticlab")
+hookimpl = pluggy.HookimplMarker("hapticlab")
+
+Register = Callable[[str, Callable[..., Any]], None]
+
+
+@hookspec
+def register_sensors(register: Register) -> None:
+    """Register force/torque sensor sources: register(name, factory)."""
+
+
+@hookspec
+def register_kinematics(register: Register) -> None:
+    """Register robot kinematics sources (orientation of E in B): register(name, factory)."""
+
+
+@hookspec
+def register_estimators(register: Register) -> None:
+    """Register non-contact wrench estimators: register(name, factory)."""
+
+
+@hookspec
+def register_haptic_outputs(register: Register) -> None:
+    """Register haptic master-device outputs: register(name, factory)."""
+
+
+@hookspec
+def register_effects(register: Register) -> None:
+    """Register physical effect models for the discrepancy workflow: register(name, factory)."""

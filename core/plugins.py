@@ -1,0 +1,231 @@
+"""The plugin host: finds plugins once at start-up and builds them from config.
+
+Built-in plugins are the modules in ``DEFAULT_PLUGINS``, registered exactly
+like third-party plugins, which are found through the entry-point group
+``hapticlab``. Environment switches:
+
+* ``HAPTICLAB_LOAD_PLUGINS``: comma-separated entry-point names to load (empty
+  string: load no third-party plugin); unset loads them all.
+* ``HAPTICLAB_TRACE_PLUGINS``: when set, every hook call is traced to stderr.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import os
+import sys
+import types
+import typing
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+import pluggy
+
+from . import hookspecs
+
+DEFAULT_PLUGINS: tuple[str, ...] = (
+    "hapticlab.plugins.sensors.sim",
+    "hapticlab.plugins.kinematics.sim",
+    "hapticlab.plugins.estimators.rls",
+    "hapticlab.plugins.estimators.batch",
+    "hapticlab.plugins.haptics.null",
+)
+
+# kind -> the hook that registers it
+KINDS: dict[str, str] = {
+    "sensor": "register_sensors",
+    "kinematics": "register_kinematics",
+    "estimator": "register_estimators",
+    "haptic_output": "register_haptic_outputs",
+    "effect": "register_effects",
+}
+
+
+class PluginError(Exception):
+    """A plugin could not be found, registered or built; the message names it."""
+
+
+class ConfigError(PluginError):
+    """A configuration value is wrong; the message names the key."""
+
+
+@dataclass(frozen=True)
+class PluginEntry:
+    """One registered thing: its kind, name, factory and the plugin it came from."""
+
+    kind: str
+    name: str
+    factory: Callable[..., Any]
+    origin: str
+
+
+def make_plugin_manager(load_entry_points: bool = True) -> pluggy.PluginManager:
+    """A plugin manager with the built-ins and (optionally) the installed third-party plugins."""
+    pm = pluggy.PluginManager("hapticlab")
+    pm.add_hookspecs(hookspecs)
+    for module_name in DEFAULT_PLUGINS:
+        pm.register(importlib.import_module(module_name), name=module_name)
+    if load_entry_points:
+        wanted = os.environ.get("HAPTICLAB_LOAD_PLUGINS")
+        if wanted is None:
+            pm.load_setuptools_entrypoints("hapticlab")
+        else:
+            for name in filter(None, (n.strip() for n in wanted.split(","))):
+                pm.load_setuptools_entrypoints("hapticlab", name=name)
+    pm.check_pending()
+    if os.environ.get("HAPTICLAB_TRACE_PLUGINS"):
+        pm.trace.root.setwriter(lambda msg: sys.stderr.write(msg))
+        pm.enable_tracing()
+    return pm
+
+
+def _origin(pm: pluggy.PluginManager, plugin: object) -> str:
+    name = pm.get_name(plugin) or getattr(plugin, "__name__", repr(plugin))
+    for dist_plugin, dist in pm.list_plugin_distinfo():
+        if dist_plugin is plugin:
+            return f"{name} ({dist.project_name} {dist.version})"
+    return name
+
+
+class Registry:
+    """Everything the plugins registered, by kind and name.
+
+    Built once per process from a plugin manager; lookups and construction
+    afterwards are plain dictionary work.
+    """
+
+    def __init__(self, pm: pluggy.PluginManager | None = None):
+        self.pm = pm if pm is not None else make_plugin_manager()
+        self._entries: dict[str, dict[str, PluginEntry]] = {kind: {} for kind in KINDS}
+        for kind, hook_name in KINDS.items():
+            hook = getattr(self.pm.hook, hook_name)
+            for impl in hook.get_hookimpls():
+                origin = _origin(self.pm, impl.plugin)
+                impl.function(register=self._register_callback(kind, origin))
+
+    def _register_callback(self, kind: str, origin: str) -> Callable[[str, Callable[..., Any]], None]:
+        def register(name: str, factory: Callable[..., Any]) -> None:
+            if not isinstance(name, str) or not name.isidentifier():
+                raise PluginError(f"{origin}: {kind} name {name!r} is not a valid identifier")
+            if not callable(factory):
+                raise PluginError(f"{origin}: {kind} {name!r} factory is not callable")
+            existing = self._entries[kind].get(name)
+            if existing is not None:
+                raise PluginError(
+                    f"{kind} {name!r} registered twice: by {existing.origin} and by {origin}"
+                )
+            self._entries[kind][name] = PluginEntry(kind, name, factory, origin)
+
+        return register
+
+    def names(self, kind: str) -> list[str]:
+        """Sorted names registered for a kind."""
+        return sorted(self._entries[kind])
+
+    def entries(self) -> list[PluginEntry]:
+        """Every registered entry, by kind then name."""
+        return [self._entries[k][n] for k in KINDS for n in sorted(self._entries[k])]
+
+    def get(self, kind: str, name: str) -> PluginEntry:
+        """The entry for ``name``, or a PluginError listing the names there are."""
+        if kind not in self._entries:
+            raise PluginError(f"unknown plugin kind {kind!r}; kinds: {', '.join(KINDS)}")
+        try:
+            return self._entries[kind][name]
+        except KeyError:
+            available = ", ".join(self.names(kind)) or "none"
+            raise PluginError(f"unknown {kind} {name!r}; available: {available}") from None
+
+    def create(self, kind: str, name: str, options: Mapping[str, Any] | None = None,
+               where: str | None = None, **context: Any) -> Any:
+        """Build the named plugin from config options, checking them against its signature.
+
+        ``where`` is the config path used in error messages (e.g. ``"estimator"``),
+        ``context`` holds keyword arguments the host provides (e.g. ``world``),
+        passed only when the factory accepts them.
+        """
+        entry = self.get(kind, name)
+        kwargs = validate_options(entry.factory, dict(options or {}), where or kind)
+        params = inspect.signature(entry.factory).parameters
+        for key, value in context.items():
+            if key in params:
+                kwargs[key] = value
+        return entry.factory(**kwargs)
+
+
+def option_types(factory: Callable[..., Any]) -> dict[str, Any]:
+    """The keyword options a factory accepts, with their annotated types."""
+    target = factory.__init__ if inspect.isclass(factory) else factory
+    try:
+        hints = typing.get_type_hints(target)
+    except Exception:  # an unresolvable annotation: check names only
+        hints = {}
+    out: dict[str, Any] = {}
+    for name, param in inspect.signature(factory).parameters.items():
+        if param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD):
+            continue
+        out[name] = hints.get(name, Any)
+    return out
+
+
+def _type_ok(value: Any, annotation: Any) -> bool:
+    if annotation is Any:
+        return True
+    origin = typing.get_origin(annotation)
+    if origin in (typing.Union, types.UnionType):
+        return any(_type_ok(value, arg) for arg in typing.get_args(annotation))
+    if annotation is type(None):
+        return value is None
+    if annotation is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if annotation is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if origin in (list, tuple):
+        args = typing.get_args(annotation)
+        if not isinstance(value, (list, tuple)):
+            return False
+        if args and args[-1] is not Ellipsis and origin is tuple:
+            return len(args) == len(value) and all(_type_ok(v, a) for v, a in zip(value, args))
+        inner = args[0] if args else Any
+        return all(_type_ok(v, inner) for v in value)
+    if origin is dict or annotation is dict:
+        return isinstance(value, dict)
+    if isinstance(annotation, type):
+        return isinstance(value, annotation)
+    return True
+
+
+def _type_name(annotation: Any) -> str:
+    if annotation is float:
+        return "a number"
+    if annotation is int:
+        return "an integer"
+    if annotation is bool:
+        return "true or false"
+    if annotation is str:
+        return "a string"
+    return str(annotation).replace("typing.", "")
+
+
+HOST_PROVIDED = frozenset({"world", "context"})
+
+
+def validate_options(factory: Callable[..., Any], options: dict[str, Any], where: str) -> dict[str, Any]:
+    """Check option names and types against the factory's signature.
+
+    Raises ConfigError naming the full key (``where.key``) on an unknown key or
+    a value of the wrong type. Integers are accepted where a float is expected.
+    """
+    accepted = {k: v for k, v in option_types(factory).items() if k not in HOST_PROVIDED}
+    for key, value in options.items():
+        if key not in accepted:
+            known = ", ".join(sorted(accepted)) or "none"
+            raise ConfigError(f"{where}.{key}: unknown option; known options: {known}")
+        if not _type_ok(value, accepted[key]):
+            raise ConfigError(
+                f"{where}.{key}: expected {_type_name(accepted[key])}, got {value!r}"
+            )
+        if accepted[key] is float and isinstance(value, int):
+            options[key] = float(value)
+    return options

@@ -1,0 +1,176 @@
+"""Small records passed between the stages of a session.
+
+Timestamps are integer nanoseconds on one monotonic clock (``*_ns``), the same
+clock MCAP uses as log time. Forces are in N, torques in N·m, positions in m.
+Frames follow Drake's monogram notation (see ``hapticlab.core.frames``): a
+field named ``force_S`` is expressed in the sensor frame S, ``R_EB`` maps
+vectors from B into E.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# Status bits of a WrenchSample. 0 means a good reading.
+STATUS_OK = 0
+STATUS_SATURATED = 1 << 0
+STATUS_DEVICE_ERROR = 1 << 1
+
+
+@dataclass(frozen=True, slots=True)
+class WrenchSample:
+    """One raw reading of a six-axis force/torque sensor.
+
+    Attributes:
+        t_ns: time of the reading, ns, monotonic session clock.
+        force_S: (3,) raw force in the sensor frame S, N.
+        torque_S: (3,) raw torque in S about the sensor origin, N·m.
+        seq: the device's sequence number (NetFT RDT sequence, or a counter).
+        status: device status bits, ``STATUS_OK`` (0) when the reading is good.
+    """
+
+    t_ns: int
+    force_S: np.ndarray
+    torque_S: np.ndarray
+    seq: int = 0
+    status: int = STATUS_OK
+
+
+@dataclass(frozen=True, slots=True)
+class PoseSample:
+    """One forward-kinematics reading of the robot end (flange) frame E.
+
+    Attributes:
+        t_ns: time of the reading, ns, monotonic session clock.
+        quat_BE: (4,) unit quaternion [w, x, y, z] of R_BE, the orientation of E in B.
+        p_BoEo_B: (3,) position of E's origin from B's origin, in B, m; None if unknown.
+        joints: (n,) joint positions, rad; None if unknown.
+    """
+
+    t_ns: int
+    quat_BE: np.ndarray
+    p_BoEo_B: np.ndarray | None = None
+    joints: np.ndarray | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class AlignedSamples:
+    """A block of wrench samples, each paired with the orientation at its own time.
+
+    Arrays rather than one record per sample: the aligner interpolates a whole
+    block at once (one scipy Slerp call), the estimator then walks the rows.
+
+    Attributes:
+        t_ns: (N,) int64 sample times, ns.
+        force_S: (N, 3) raw force in S, N.
+        torque_S: (N, 3) raw torque in S, N·m.
+        R_EB: (N, 3, 3) orientation of B in E at each sample time (so ``v_E = R_EB @ v_B``).
+        seq: (N,) sensor sequence numbers.
+        status: (N,) sensor status bits.
+        stale: (N,) True where the orientation had to be held longer than one
+            kinematics period past the last pose (never silently extrapolated).
+        quat_BE: (N, 4) the same orientations as [w, x, y, z] quaternions of E
+            in B, when the producer has them (None otherwise).
+    """
+
+    t_ns: np.ndarray
+    force_S: np.ndarray
+    torque_S: np.ndarray
+    R_EB: np.ndarray
+    seq: np.ndarray
+    status: np.ndarray
+    stale: np.ndarray
+    quat_BE: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def subset(self, index) -> "AlignedSamples":
+        """The samples selected by a boolean mask or index array."""
+        return AlignedSamples(
+            self.t_ns[index], self.force_S[index], self.torque_S[index], self.R_EB[index],
+            self.seq[index], self.status[index], self.stale[index],
+            None if self.quat_BE is None else self.quat_BE[index],
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Estimates:
+    """An estimator's output for a block of samples, one row per sample.
+
+    Attributes:
+        t_ns: (m,) times of the samples, ns.
+        contact_force_S: (m, 3) estimated tool–tissue contact force in S, N.
+        contact_torque_S: (m, 3) estimated contact torque in S, N·m.
+        contact: (m,) True where the estimator judged the sample to be contact.
+        converged_force: (m,) the force stage had converged after the sample.
+        converged_torque: (m,) the torque stage had converged after the sample.
+        params: identified parameters after the block's last sample, by
+            physical name (``gravity_force_B``, ``bias_force_S``, ``cog_S``,
+            ``bias_torque_S``, ...), SI units.
+        cov_diag: diagonal of the state covariance after the last sample.
+    """
+
+    t_ns: np.ndarray
+    contact_force_S: np.ndarray
+    contact_torque_S: np.ndarray
+    contact: np.ndarray
+    converged_force: np.ndarray
+    converged_torque: np.ndarray
+    params: dict[str, list[float]]
+    cov_diag: list[float]
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+
+@dataclass(frozen=True, slots=True)
+class HapticCommand:
+    """A force command for the haptic master device.
+
+    Attributes:
+        t_ns: time the command was issued, ns.
+        force_D: (3,) force on the handle in the device base frame D, N.
+        enabled: False when the output is held at zero for safety.
+        reason: why the output is disabled ("" when enabled).
+    """
+
+    t_ns: int
+    force_D: np.ndarray
+    enabled: bool
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceState:
+    """State reported by a haptic master device.
+
+    Attributes:
+        t_ns: time of the report, ns.
+        quat_DH: (4,) orientation [w, x, y, z] of the handle H in the device base D.
+        p_DoHo_D: (3,) handle position in D, m.
+        buttons: bit mask of pressed buttons.
+    """
+
+    t_ns: int
+    quat_DH: np.ndarray
+    p_DoHo_D: np.ndarray
+    buttons: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """Something a person reviewing the session should know about.
+
+    Attributes:
+        t_ns: when it happened, ns.
+        kind: a short machine-readable tag ("haptic_disabled", "converged", ...).
+        message: one human-readable line.
+    """
+
+    t_ns: int
+    kind: str
+    message: str
+    data: dict = field(default_factory=dict)

@@ -1,0 +1,66 @@
+"""The ``sim`` sensor: a six-axis F/T sensor reading the session's simulated world.
+
+Samples come at ``rate_hz`` from the time the sensor is opened: sample i is at
+``t0_ns + round(i·1e9/rate_hz)`` ns, world time ``(t_ns − t0_ns)/1e9`` s, with
+``seq = i`` and ``status`` STATUS_SATURATED where the reading was clipped. The
+noise is a function of the sample time, so reading in chunks gives exactly the
+samples one big read would.
+"""
+
+from __future__ import annotations
+
+from hapticlab.core import hookimpl
+from hapticlab.core.plugins import ConfigError
+from hapticlab.core.types import WrenchSample
+from hapticlab.plugins.simworld.physics import SampleClock, SimWorld
+
+
+class SimSensor:
+    """A simulated F/T sensor (SensorSource).
+
+    Parameters
+    ----------
+    rate_hz : sample rate, Hz.
+    world : the session's SimWorld (provided by the host, shared with the ``sim``
+        kinematics).
+    """
+
+    def __init__(self, rate_hz: float = 1000.0, world: SimWorld | None = None):
+        if world is None:
+            raise ConfigError("sensor sim: needs the session's simulated world; "
+                              "add a [world] table to the session (or pass world=SimWorld(...))")
+        if not rate_hz > 0:
+            raise ConfigError(f"sensor.rate_hz: must be > 0, got {rate_hz!r}")
+        self.rate_hz = float(rate_hz)
+        self.world = world
+        self._clock = SampleClock(self.rate_hz)
+
+    def open(self, t0_ns: int) -> None:
+        """Start streaming: sample 0 is at ``t0_ns`` (world time 0)."""
+        self._clock.start(t0_ns)
+
+    def read(self, until_ns: int) -> list[WrenchSample]:
+        """Every sample not yet returned with time <= ``until_ns``, in time order."""
+        seq, t_ns = self._clock.take(until_ns)
+        if len(seq) == 0:
+            return []
+        reading = self.world.wrench((t_ns - self._clock.t0_ns) / 1e9)
+        force_S, torque_S = reading["force_S"], reading["torque_S"]
+        force_S.setflags(write=False)  # rows are handed out as views
+        torque_S.setflags(write=False)
+        status = reading["status"]
+        return [
+            WrenchSample(t_ns=int(t_ns[i]), force_S=force_S[i], torque_S=torque_S[i],
+                         seq=int(seq[i]), status=int(status[i]))
+            for i in range(len(seq))
+        ]
+
+    def close(self) -> None:
+        """Stop streaming (nothing to release)."""
+        self._clock.t0_ns = None
+
+
+@hookimpl
+def register_sensors(register):
+    """Register the simulated sensor as ``sim``."""
+    register("sim", SimSensor)

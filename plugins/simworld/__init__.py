@@ -1,0 +1,50 @@
+"""The simulated world: one physics model behind the simulated F/T sensor and robot.
+
+A :class:`SimWorld` holds a rigid tool on a wrist-mounted six-axis sensor
+(``ToolParams``, ``SensorParams``), a robot whose base may be tilted against
+gravity (``RobotParams``), a motion script for the flange (``motion.py``:
+``RandomTour``, ``StaticPoses``, ``AxialRotation``, ``Hold``) and contact events
+(``Indentation``, ``HangingMass``). The ``sim`` sensor and ``sim`` kinematics
+plugins both read the same world, so the simulated wrench and pose agree.
+
+Build one from a session's ``[world]`` table with ``SimWorld.from_config(table)``
+(keys and defaults in ``config.py``), or from the parameter records directly.
+"""
+
+from .config import (
+    HangingMass,
+    Indentation,
+    RobotParams,
+    SensorParams,
+    ToolParams,
+    WorldSpec,
+    parse_world_table,
+)
+from .motion import (
+    AxialRotation,
+    Hold,
+    MotionScript,
+    MotionState,
+    RandomTour,
+    StaticPoses,
+    make_motion,
+)
+from .physics import SimWorld
+
+__all__ = [
+    "AxialRotation",
+    "HangingMass",
+    "Hold",
+    "Indentation",
+    "MotionScript",
+    "MotionState",
+    "RandomTour",
+    "RobotParams",
+    "SensorParams",
+    "SimWorld",
+    "StaticPoses",
+    "ToolParams",
+    "WorldSpec",
+    "make_motion",
+    "parse_world_table",
+]

@@ -1,0 +1,402 @@
+"""The simulated world: one rigid tool on a wrist F/T sensor, moved by a simulated robot.
+
+The simulated sensor and the simulated robot of a session both read one
+:class:`SimWorld`, so the wrench and the pose always agree.
+
+What the sensor reads
+---------------------
+The sensor reads the wrench the tool exerts on it. With ``m`` the tool mass,
+``c = cog_S`` its centre of mass and ``I = inertia_S`` its inertia about the
+centre of mass (all in the sensor frame S), Newton and Euler for the tool give,
+about the sensor origin and expressed in S::
+
+    F_read_S = m (g_S − a_cm_S) + f_contact_S + bias_force_S(t) + noise
+    τ_read_S = c × m (g_S − a_cm_S) + Σ p_contact_S × f_contact_S
+               − (I ω̇ + ω × I ω) + bias_torque_S(t) + noise
+
+with
+
+* ``g_S = R_SE R_EB R_BG [0, 0, −g]`` gravity in S (g = 9.80665 m/s² along −z of G);
+* ``ω``, ``ω̇`` the angular velocity and acceleration of S (that is, of E) in B,
+  expressed in S: ``ω = R_SE ω_E``;
+* ``a_cm_S = a_So_S + ω̇ × c + ω × (ω × c)`` the acceleration of the centre of
+  mass, ``a_So`` that of the sensor origin:
+  ``a_So_B = a_BEo_B + R_BE (ω̇_E × p_EoSo_E + ω_E × (ω_E × p_EoSo_E))``.
+
+The motion derivatives come analytically from the motion script (see
+``motion.py``). With ``inertia=False`` the terms in ``a_cm`` and ``I`` are
+dropped and the reading is exactly the paper's model
+``S_f = R_SE R_EB B_f + f0``, ``S_τ = c × (S_f − f0) + τ0``.
+
+Randomness
+----------
+Independent streams, all from ``numpy.random.SeedSequence(seed)`` by spawn key:
+0 white noise, 1 random-walk bias drift, 2 motion waypoints. Every random
+quantity is a pure function of (seed, time), so a stream is identical whether
+it is asked for in one call or in chunks, in any order, any number of times:
+
+* **White noise** is counter-based: the Gaussian for (axis, sample) is computed
+  from a hash (SplitMix64) of the noise-stream key, the sample time in integer
+  nanoseconds and the axis, then a Box–Muller transform. (A sequential
+  generator would tie the noise of a sample to how many samples were drawn
+  before it, by whom.)
+* **Random-walk drift** is a Brownian path on a fixed 10 ms grid, drawn block by
+  block with ``default_rng`` (block b from spawn key (1, b)) and linearly
+  interpolated between grid points.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+from hapticlab.core.frames import rotvec_from_matrix
+from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
+
+from .config import (
+    Contact,
+    RobotParams,
+    SensorParams,
+    ToolParams,
+    WorldSpec,
+    parse_world_table,
+)
+from .motion import MotionScript, MotionState, RandomTour
+
+__all__ = ["DRIFT_STREAM", "NOISE_STREAM", "RandomWalk", "SampleClock", "SimWorld", "gaussian_noise"]
+
+NOISE_STREAM = 0
+"""SeedSequence spawn key of the white-noise stream."""
+
+DRIFT_STREAM = 1
+"""SeedSequence spawn key of the random-walk drift stream."""
+
+# --------------------------------------------------------------------------- small helpers
+
+
+def _apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate each row: ``R[i] @ v[i]`` for R (N, 3, 3) and v (N, 3) or (3,)."""
+    if v.ndim == 1:
+        return R @ v
+    return (R @ v[:, :, None])[:, :, 0]
+
+
+def _times(t: float | np.ndarray) -> np.ndarray:
+    return np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+
+
+_U64 = np.uint64
+_CHANNEL_STEP = 0xD1B54A32D192ED03  # an odd 64-bit constant separating the channels' counters
+
+
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    """The SplitMix64 finaliser: a bijective, well-mixing hash of uint64 arrays."""
+    x = x + _U64(0x9E3779B97F4A7C15)
+    x = (x ^ (x >> _U64(30))) * _U64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> _U64(27))) * _U64(0x94D049BB133111EB)
+    return x ^ (x >> _U64(31))
+
+
+def gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.ndarray:
+    """Standard-normal numbers that depend only on (key, time, channel).
+
+    Parameters
+    ----------
+    key : 64-bit stream key (from the world's SeedSequence).
+    t_ns : (N,) int64 sample times, ns.
+    channels : number of independent values per sample (even).
+
+    Returns
+    -------
+    (N, channels) float array, independent N(0, 1) across samples and channels.
+    """
+    counter = np.ascontiguousarray(t_ns, dtype=np.int64).view(np.uint64)
+    base = _splitmix64(counter ^ _U64(key))
+    out = np.empty((len(counter), channels))
+    for pair in range(channels // 2):
+        # a different odd-constant offset per channel (Python ints: no numpy scalar overflow)
+        bits_1 = _splitmix64(base + _U64(((2 * pair + 1) * _CHANNEL_STEP) % 2**64))
+        bits_2 = _splitmix64(base + _U64(((2 * pair + 2) * _CHANNEL_STEP) % 2**64))
+        u1 = ((bits_1 >> _U64(11)).astype(float) + 0.5) * 2.0**-53  # uniform in (0, 1)
+        u2 = ((bits_2 >> _U64(11)).astype(float) + 0.5) * 2.0**-53
+        radius = np.sqrt(-2.0 * np.log(u1))
+        out[:, 2 * pair] = radius * np.cos(2.0 * np.pi * u2)
+        out[:, 2 * pair + 1] = radius * np.sin(2.0 * np.pi * u2)
+    return out
+
+
+class RandomWalk:
+    """Standard Brownian paths W(t) for several channels (W(0) = 0, Var W(t) = t).
+
+    Sampled on a grid of ``grid_s`` and linearly interpolated in between; before
+    t = 0 the path is 0. The grid is drawn block by block (``block`` steps per
+    block), block b from ``default_rng(SeedSequence(seed, spawn_key=(stream, b)))``,
+    and cached, so W at a time never depends on the times asked for before.
+    """
+
+    def __init__(self, seed: int, stream: int = DRIFT_STREAM, channels: int = 6,
+                 grid_s: float = 0.01, block: int = 4096):
+        self.seed, self.stream, self.channels = seed, stream, channels
+        self.grid_s, self.block = grid_s, block
+        self._path = np.zeros((1, channels))  # W at grid points 0, 1, ...
+        self._lock = threading.Lock()
+
+    def _ensure(self, points: int) -> None:
+        with self._lock:
+            while len(self._path) < points:
+                b = (len(self._path) - 1) // self.block
+                rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.stream, b)))
+                steps = rng.standard_normal((self.block, self.channels)) * np.sqrt(self.grid_s)
+                self._path = np.concatenate([self._path, self._path[-1] + np.cumsum(steps, axis=0)])
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        """(N, channels) W at times ``t`` (s)."""
+        x = np.maximum(_times(t), 0.0) / self.grid_s
+        k = np.floor(x).astype(np.int64)
+        self._ensure(int(k.max(initial=0)) + 2)
+        frac = (x - k)[:, None]
+        return self._path[k] * (1.0 - frac) + self._path[k + 1] * frac
+
+
+class SampleClock:
+    """Hands out the sample times of a simulated device once each, in order.
+
+    Sample i is at ``t0_ns + round(i · 1e9 / rate_hz)`` ns.
+    """
+
+    def __init__(self, rate_hz: float):
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
+        self.rate_hz = float(rate_hz)
+        self.t0_ns: int | None = None
+        self.next_index = 0
+
+    def start(self, t0_ns: int) -> None:
+        """Sample 0 is at ``t0_ns``."""
+        self.t0_ns = int(t0_ns)
+        self.next_index = 0
+
+    def take(self, until_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """Indices and times of every sample not yet taken with time <= ``until_ns``.
+
+        Returns
+        -------
+        seq : (N,) int64 sample indices.
+        t_ns : (N,) int64 sample times, ns.
+        """
+        if self.t0_ns is None:
+            raise RuntimeError("read() before open()")
+        last = int(np.floor((int(until_ns) - self.t0_ns) * self.rate_hz / 1e9)) + 1  # may overshoot by one
+        seq = np.arange(self.next_index, max(last + 1, self.next_index), dtype=np.int64)
+        t_ns = self.t0_ns + np.rint(seq * (1e9 / self.rate_hz)).astype(np.int64)
+        keep = t_ns <= until_ns
+        seq, t_ns = seq[keep], t_ns[keep]
+        if len(seq):
+            self.next_index = int(seq[-1]) + 1
+        return seq, t_ns
+
+
+# --------------------------------------------------------------------------- the world
+
+
+class SimWorld:
+    """One physical model behind the simulated F/T sensor and the simulated robot.
+
+    Parameters
+    ----------
+    tool, sensor, robot : the physical parameters (defaults: a 0.35 kg surgical
+        instrument on an ATI Gamma class sensor, base tilted by [0.02, −0.01, 0] rad).
+    motion : the robot's motion script (default: a RandomTour from ``seed``
+        around ``robot.p_BoEo_B``).
+    contacts : contact events (Indentation, HangingMass).
+    seed : seed of every random stream (noise, drift, motion).
+    inertia : include the tool's inertial wrench (False: the paper's static model).
+    """
+
+    def __init__(self, tool: ToolParams | None = None, sensor: SensorParams | None = None,
+                 robot: RobotParams | None = None, motion: MotionScript | None = None,
+                 contacts: Iterable[Contact] = (), seed: int = 1, inertia: bool = True):
+        self.tool = tool if tool is not None else ToolParams()
+        self.sensor = sensor if sensor is not None else SensorParams()
+        self.robot = robot if robot is not None else RobotParams()
+        self.seed = int(seed)
+        self.motion = motion if motion is not None else RandomTour(seed=self.seed, p_BoEo_B=self.robot.p_BoEo_B)
+        self.contacts = tuple(contacts)
+        self.inertia = bool(inertia)
+        self.R_SE = self.sensor.R_SE
+        self.R_BG = self.robot.R_BG
+        self.gravity_accel_B = self.robot.gravity_accel_B
+        self._noise_key = int(np.random.SeedSequence(self.seed, spawn_key=(NOISE_STREAM,))
+                              .generate_state(1, np.uint64)[0])
+        has_walk = np.any(self.sensor.drift_force_rw_S > 0) or np.any(self.sensor.drift_torque_rw_S > 0)
+        self._walk = RandomWalk(self.seed, DRIFT_STREAM, channels=6) if has_walk else None
+
+    @classmethod
+    def from_config(cls, table: Mapping[str, Any] | None) -> SimWorld:
+        """Build from a session's ``[world]`` table (see ``config.py`` for the keys).
+
+        Raises
+        ------
+        hapticlab.core.plugins.ConfigError
+            On an unknown key or a wrong value, naming the full key.
+        """
+        return cls.from_spec(parse_world_table(table))
+
+    @classmethod
+    def from_spec(cls, spec: WorldSpec) -> SimWorld:
+        """Build from a parsed WorldSpec."""
+        return cls(tool=spec.tool, sensor=spec.sensor, robot=spec.robot, motion=spec.motion,
+                   contacts=spec.contacts, seed=spec.seed, inertia=spec.inertia)
+
+    # ---------------------------------------------------------------- kinematics
+
+    def motion_state(self, t: float | np.ndarray) -> MotionState:
+        """Flange pose and its analytic derivatives at times ``t`` (s)."""
+        return self.motion.evaluate(t)
+
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(R_BE (N, 3, 3), p_BoEo_B (N, 3))``: the flange pose at times ``t`` (s), m."""
+        state = self.motion.evaluate(t)
+        return state.R_BE, state.p_BoEo_B
+
+    # ---------------------------------------------------------------- sensor
+
+    def bias(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """True sensor bias at times ``t`` (s): ``(bias_force_S (N, 3) N, bias_torque_S (N, 3) N·m)``."""
+        t = _times(t)
+        s = self.sensor
+        force = s.bias_force_S + t[:, None] * s.drift_force_S
+        torque = s.bias_torque_S + t[:, None] * s.drift_torque_S
+        if self._walk is not None:
+            walk = self._walk(t)
+            force = force + walk[:, :3] * s.drift_force_rw_S
+            torque = torque + walk[:, 3:] * s.drift_torque_rw_S
+        return force, torque
+
+    def wrench(self, t: float | np.ndarray, noise: bool = True) -> dict[str, np.ndarray]:
+        """The sensor reading at times ``t`` (s), with the truth behind it.
+
+        Parameters
+        ----------
+        t : scalar or (N,) times, s (world time: 0 when the session starts).
+        noise : add the sensor's white noise (bias, drift and saturation always apply).
+
+        Returns
+        -------
+        dict of arrays, all in S unless named otherwise:
+            ``force_S`` (N, 3) N and ``torque_S`` (N, 3) N·m: what the sensor reads
+            (clipped at saturation); ``status`` (N,) int: STATUS_SATURATED where any
+            axis went beyond its range, else STATUS_OK; ``contact`` (N,) bool: a
+            contact force is acting; ``contact_force_S``, ``contact_torque_S``
+            (N, 3): the true contact wrench (torque about the sensor origin);
+            ``gravity_force_S``, ``gravity_torque_S``: the tool's weight and its
+            moment; ``inertial_force_S`` = −m a_cm_S and ``inertial_torque_S`` =
+            c × (−m a_cm_S) − (I ω̇ + ω × I ω) (zero with inertia off);
+            ``bias_force_S``, ``bias_torque_S``: the true bias at t;
+            ``angular_velocity_S`` (rad/s), ``angular_acceleration_S`` (rad/s²);
+            ``R_EB`` (N, 3, 3); ``p_BoEo_B`` (N, 3) m; ``t`` (N,) s.
+        """
+        t = _times(t)
+        n = len(t)
+        tool = self.tool
+        state = self.motion.evaluate(t)
+        R_EB = np.transpose(state.R_BE, (0, 2, 1))
+        R_SB = self.R_SE @ R_EB
+
+        gravity_force_S = tool.mass * _apply(R_SB, self.gravity_accel_B)
+        gravity_torque_S = np.cross(tool.cog_S, gravity_force_S)
+
+        w_S = state.w_BE_E @ self.R_SE.T
+        alpha_S = state.alpha_BE_E @ self.R_SE.T
+        if self.inertia:
+            p = self.sensor.p_EoSo_E
+            w_E, alpha_E = state.w_BE_E, state.alpha_BE_E
+            a_So_E = np.cross(alpha_E, p) + np.cross(w_E, np.cross(w_E, p))
+            a_So_B = state.a_BEo_B + _apply(state.R_BE, a_So_E)
+            a_So_S = _apply(R_SB, a_So_B)
+            c = tool.cog_S
+            a_cm_S = a_So_S + np.cross(alpha_S, c) + np.cross(w_S, np.cross(w_S, c))
+            inertial_force_S = -tool.mass * a_cm_S
+            euler_S = alpha_S @ tool.inertia_S.T + np.cross(w_S, w_S @ tool.inertia_S.T)
+            inertial_torque_S = np.cross(c, inertial_force_S) - euler_S
+        else:
+            inertial_force_S = np.zeros((n, 3))
+            inertial_torque_S = np.zeros((n, 3))
+
+        contact_force_S = np.zeros((n, 3))
+        contact_torque_S = np.zeros((n, 3))
+        for event in self.contacts:
+            force_S = _apply(R_SB, event.force_B(t, self.gravity_accel_B))
+            point_S = tool.tip_S if event.point_S is None else event.point_S
+            contact_force_S += force_S
+            contact_torque_S += np.cross(point_S, force_S)
+        contact = np.any(contact_force_S != 0.0, axis=1)
+
+        bias_force_S, bias_torque_S = self.bias(t)
+        force_S = gravity_force_S + inertial_force_S + contact_force_S + bias_force_S
+        torque_S = gravity_torque_S + inertial_torque_S + contact_torque_S + bias_torque_S
+        if noise:
+            t_ns = np.rint(t * 1e9).astype(np.int64)
+            white = gaussian_noise(self._noise_key, t_ns, 6)
+            force_S = force_S + white[:, :3] * self.sensor.noise_force_S
+            torque_S = torque_S + white[:, 3:] * self.sensor.noise_torque_S
+
+        force_limit, torque_limit = self.sensor.saturation_force_S, self.sensor.saturation_torque_S
+        saturated = np.any(np.abs(force_S) > force_limit, axis=1) | np.any(np.abs(torque_S) > torque_limit, axis=1)
+        return {
+            "t": t,
+            "force_S": np.clip(force_S, -force_limit, force_limit),
+            "torque_S": np.clip(torque_S, -torque_limit, torque_limit),
+            "status": np.where(saturated, STATUS_SATURATED, STATUS_OK).astype(np.int64),
+            "contact": contact,
+            "contact_force_S": contact_force_S,
+            "contact_torque_S": contact_torque_S,
+            "gravity_force_S": gravity_force_S,
+            "gravity_torque_S": gravity_torque_S,
+            "inertial_force_S": inertial_force_S,
+            "inertial_torque_S": inertial_torque_S,
+            "bias_force_S": bias_force_S,
+            "bias_torque_S": bias_torque_S,
+            "angular_velocity_S": w_S,
+            "angular_acceleration_S": alpha_S,
+            "R_EB": R_EB,
+            "p_BoEo_B": state.p_BoEo_B,
+        }
+
+    # ---------------------------------------------------------------- truth
+
+    def truth(self, t: float | np.ndarray | None = None) -> dict[str, Any]:
+        """The true parameters, named as in the paper's model and the estimators' ``params()``.
+
+        ``S_f = R_SE R_EB gravity_force_B + bias_force_S`` and
+        ``S_τ = cog_S × (S_f − bias_force_S) + bias_torque_S`` (no contact, no inertia).
+
+        Parameters
+        ----------
+        t : time (s) for the drifting biases: None means t = 0; a scalar gives
+            (3,) biases, an array (N, 3).
+
+        Returns
+        -------
+        dict: ``gravity_force_B`` (3,) N (= R_BG [0, 0, −m g]); ``bias_force_S`` N;
+        ``cog_S`` (3,) m; ``bias_torque_S`` N·m; ``mount_rotation_SE`` (3,)
+        rotation vector of R_SE, rad; ``mass_kg``; and, for completeness,
+        ``base_tilt_BG`` (rad), ``p_EoSo_E`` (m), ``inertia_S`` (kg·m²), ``tip_S`` (m).
+        """
+        bias_force_S, bias_torque_S = self.bias(0.0 if t is None else t)
+        if t is None or np.ndim(t) == 0:
+            bias_force_S, bias_torque_S = bias_force_S[0], bias_torque_S[0]
+        return {
+            "gravity_force_B": self.tool.mass * self.gravity_accel_B,
+            "bias_force_S": bias_force_S,
+            "cog_S": self.tool.cog_S.copy(),
+            "bias_torque_S": bias_torque_S,
+            "mount_rotation_SE": rotvec_from_matrix(self.R_SE),
+            "mass_kg": self.tool.mass,
+            "base_tilt_BG": self.robot.base_tilt_BG.copy(),
+            "p_EoSo_E": self.sensor.p_EoSo_E.copy(),
+            "inertia_S": self.tool.inertia_S.copy(),
+            "tip_S": self.tool.tip_S.copy(),
+        }

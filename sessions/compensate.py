@@ -1,0 +1,168 @@
+"""Offline compensation: run an estimator over a CSV file or an MCAP recording.
+
+The estimator sees the rows in order, in blocks, exactly as it would live; the
+output has one row per input row (the estimated contact wrench in S and the
+contact and convergence flags).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hapticlab.core.aligner import orientation_at
+from hapticlab.core.frames import matrix_from_quat_wxyz
+from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.types import AlignedSamples, Estimates
+
+from .config import parse_value
+from .csvimport import CsvError, read_csv, write_compensated_csv
+
+BLOCK = 1024
+"""Samples per estimator call offline (the result does not depend on it)."""
+
+
+@dataclass
+class Stream:
+    """Aligned input of an offline run: times in s and ns, wrench, orientation."""
+
+    t_s: np.ndarray
+    t_ns: np.ndarray
+    force_S: np.ndarray
+    torque_S: np.ndarray
+    R_EB: np.ndarray
+    stale: np.ndarray
+    notes: list[str]
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def block(self, i: int, j: int) -> AlignedSamples:
+        """Rows i..j as an aligned block."""
+        n = j - i
+        return AlignedSamples(self.t_ns[i:j], self.force_S[i:j], self.torque_S[i:j], self.R_EB[i:j],
+                              np.arange(i, j), np.zeros(n, dtype=np.int64), self.stale[i:j])
+
+
+def load_stream(path: str | Path) -> Stream:
+    """Read a CSV (import contract) or an MCAP recording into an aligned stream."""
+    path = Path(path)
+    if not path.exists():
+        raise CsvError(f"{path}: no such file")
+    if path.suffix.lower() == ".mcap":
+        return _load_mcap(path)
+    record = read_csv(path)
+    t_ns = np.round((record.t_s - record.t_s[0]) * 1e9).astype(np.int64)
+    return Stream(record.t_s, t_ns, record.force_S, record.torque_S, record.R_EB,
+                  np.zeros(len(record), dtype=bool), record.notes)
+
+
+def _load_mcap(path: Path) -> Stream:
+    from .recording import read_recording
+
+    recording = read_recording(path)
+    wrenches = recording.topics.get("/sensor/wrench", [])
+    poses = recording.topics.get("/kinematics/pose", [])
+    if not wrenches:
+        raise CsvError(f"{path.name}: no /sensor/wrench messages")
+    if not poses:
+        raise CsvError(f"{path.name}: no /kinematics/pose messages")
+    t_ns = np.array([t for t, _ in wrenches], dtype=np.int64)
+    force_S = np.array([m["force_S"] for _, m in wrenches], dtype=float)
+    torque_S = np.array([m["torque_S"] for _, m in wrenches], dtype=float)
+    pose_t = np.array([t for t, _ in poses], dtype=np.int64)
+    quat = np.array([m["quat_BE"] for _, m in poses], dtype=float)
+    period = int(np.median(np.diff(pose_t))) if len(pose_t) > 1 else 0
+    quat_BE, stale = orientation_at(t_ns, pose_t, quat, period)
+    R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
+    return Stream((t_ns - t_ns[0]) * 1e-9, t_ns, force_S, torque_S, R_EB, stale, [])
+
+
+def estimator_options(overrides: list[str]) -> dict[str, Any]:
+    """Estimator options from ``--set estimator.key=value`` (or ``key=value``)."""
+    options: dict[str, Any] = {}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"--set {item!r}: expected key=value, e.g. estimator.force_threshold=2")
+        if key.startswith("estimator."):
+            key = key[len("estimator."):]
+        elif "." in key:
+            raise ConfigError(f"{key}: compensate takes estimator options only (estimator.<option>=value)")
+        options[key] = parse_value(value)
+    return options
+
+
+def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
+    """Feed the stream through the estimator in blocks; one estimate per row."""
+    parts = []
+    for i in range(0, len(stream), BLOCK):
+        parts.append(estimator.update_block(stream.block(i, min(i + BLOCK, len(stream)))))
+        if progress is not None:
+            progress(min(i + BLOCK, len(stream)))
+    return Estimates(
+        t_ns=np.concatenate([p.t_ns for p in parts]),
+        contact_force_S=np.concatenate([p.contact_force_S for p in parts]),
+        contact_torque_S=np.concatenate([p.contact_torque_S for p in parts]),
+        contact=np.concatenate([p.contact for p in parts]),
+        converged_force=np.concatenate([p.converged_force for p in parts]),
+        converged_torque=np.concatenate([p.converged_torque for p in parts]),
+        params=parts[-1].params,
+        cov_diag=parts[-1].cov_diag,
+    )
+
+
+@dataclass
+class CompensateResult:
+    """What ``compensate`` did, for the summary it prints."""
+
+    rows: int
+    estimates: Estimates
+    params: dict[str, Any]
+    rms_force_S: list[float]
+    rms_torque_S: list[float]
+    first_converged_force: int | None
+    first_converged_torque: int | None
+    notes: list[str]
+
+
+def compensate(
+    input_path: str | Path,
+    out_csv: str | Path,
+    estimator_name: str = "rls",
+    overrides: list[str] | None = None,
+    params_out: str | Path | None = None,
+    registry: Registry | None = None,
+    progress=None,
+) -> CompensateResult:
+    """Run ``estimator_name`` over a recording and write the contact wrench per row."""
+    registry = registry if registry is not None else Registry()
+    estimator = registry.create("estimator", estimator_name, estimator_options(overrides or []),
+                                where="estimator")
+    stream = load_stream(input_path)
+    est = run_estimator(stream, estimator, progress)
+    write_compensated_csv(out_csv, stream.t_s, est.contact_force_S, est.contact_torque_S,
+                          est.contact, est.converged_force, est.converged_torque)
+    used = est.converged_force & ~est.contact
+    rms_f = np.sqrt(np.mean(est.contact_force_S[used] ** 2, axis=0)) if used.any() else np.full(3, np.nan)
+    used_t = est.converged_torque & ~est.contact
+    rms_t = np.sqrt(np.mean(est.contact_torque_S[used_t] ** 2, axis=0)) if used_t.any() else np.full(3, np.nan)
+    first_f = int(np.argmax(est.converged_force)) if est.converged_force.any() else None
+    first_t = int(np.argmax(est.converged_torque)) if est.converged_torque.any() else None
+    params: dict[str, Any] = dict(estimator.params())
+    params.update({
+        "estimator": estimator_name,
+        "samples": len(stream),
+        "first_converged_force": first_f,
+        "first_converged_torque": first_t,
+        "cov_diag": est.cov_diag,
+    })
+    if params_out:
+        Path(params_out).write_text(json.dumps(params, indent=2) + "\n", encoding="utf-8")
+    return CompensateResult(len(stream), est, params, rms_f.tolist(), rms_t.tolist(), first_f,
+                            first_t, stream.notes)

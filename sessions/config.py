@@ -1,0 +1,171 @@
+"""Session configuration: TOML presets and files, ``--set`` overrides, validation.
+
+A session config is a TOML document with these tables (every one optional;
+missing tables take the ``demo`` preset's values only when you start from it):
+
+``[session]``   duration, realtime pacing, loop rate, output path
+``[world]``     the simulated world (used by the ``sim`` sensor and kinematics)
+``[sensor]``    ``name`` of a registered sensor plus its options
+``[kinematics]`` ``name`` of a registered kinematics source plus its options
+``[estimator]`` ``name`` of the estimator that drives the haptics plus its options
+``[haptic]``    ``name`` of a haptic output plus its options and the safety limits
+
+Errors are ``ConfigError`` with one line naming the key.
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from dataclasses import dataclass, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from hapticlab.core.plugins import ConfigError, validate_options
+
+TABLES = ("session", "world", "sensor", "kinematics", "estimator", "haptic")
+PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator",
+                 "haptic": "haptic_output"}
+
+
+@dataclass(frozen=True)
+class SessionSettings:
+    """The ``[session]`` table.
+
+    Attributes:
+        name: a label recorded with the session.
+        duration: how long to run, s (Ctrl-C stops earlier).
+        realtime: pace the loop to the wall clock; false runs simulated devices
+            as fast as the machine allows (tests, batch generation).
+        loop_rate_hz: control-loop rate; one haptic command per iteration, Hz.
+        out: default output path of the recording ("" = ``sessions/<name>-<time>.mcap``).
+        stale_timeout: longest gap without sensor data before the haptic force
+            is zeroed, s.
+    """
+
+    name: str = "session"
+    duration: float = 20.0
+    realtime: bool = True
+    loop_rate_hz: float = 1000.0
+    out: str = ""
+    stale_timeout: float = 0.01
+
+
+@dataclass(frozen=True)
+class HapticSettings:
+    """Safety limits and mapping of the ``[haptic]`` table (besides the plugin's own options).
+
+    Attributes:
+        max_force: largest force magnitude commanded to the device, N.
+        max_force_rate: largest change of the commanded force, N/s.
+        scale: force scaling from the contact force to the device force.
+        rotation_DB: rotation vector (rad) of the robot base B in the device base D,
+            so that force_D = scale · R_DB · R_BE · R_ES · contact_force_S.
+    """
+
+    max_force: float = 4.0
+    max_force_rate: float = 400.0
+    scale: float = 1.0
+    rotation_DB: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+def preset_names() -> list[str]:
+    """Names of the presets shipped with hapticlab."""
+    folder = resources.files("hapticlab.sessions") / "presets"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_config(session: str | None) -> tuple[dict[str, Any], str]:
+    """The raw config of a preset name or a TOML path, and where it came from."""
+    session = session or "demo"
+    path = Path(session)
+    if session.endswith(".toml") or path.exists():
+        if not path.is_file():
+            raise ConfigError(f"{session}: no such session file")
+        text, origin = path.read_text(encoding="utf-8"), str(path)
+    else:
+        if session not in preset_names():
+            raise ConfigError(
+                f"unknown session {session!r}: not a file, and not a preset ({', '.join(preset_names())})"
+            )
+        text = (resources.files("hapticlab.sessions") / "presets" / f"{session}.toml").read_text("utf-8")
+        origin = f"preset:{session}"
+    try:
+        return tomllib.loads(text), origin
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{origin}: invalid TOML: {exc}") from None
+
+
+def parse_value(text: str) -> Any:
+    """A ``--set`` value: TOML syntax when it parses (2, 1.5, true, [1, 2], "x"), else a bare string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Apply ``key.path=value`` overrides to a copy of the config."""
+    config = copy.deepcopy(config)
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"--set {item!r}: expected key=value, e.g. estimator.name=batch")
+        parts = key.split(".")
+        if parts[0] not in TABLES:
+            raise ConfigError(f"{key}: unknown table {parts[0]!r}; tables: {', '.join(TABLES)}")
+        node = config
+        for depth, part in enumerate(parts[:-1]):
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"{key}: {'.'.join(parts[: depth + 1])} is not a table")
+            node = child
+        node[parts[-1]] = parse_value(value)
+    return config
+
+
+def _dataclass_from(cls, table: Any, where: str):
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: expected a table")
+    options = dict(table)
+    validate_options(cls, options, where)
+    if "rotation_DB" in options:
+        options["rotation_DB"] = tuple(options["rotation_DB"])
+    return cls(**{f.name: options[f.name] for f in fields(cls) if f.name in options})
+
+
+def check_tables(config: dict[str, Any]) -> None:
+    """Refuse unknown top-level tables and plugin tables without a name."""
+    for key, value in config.items():
+        if key not in TABLES:
+            raise ConfigError(f"{key}: unknown table; tables: {', '.join(TABLES)}")
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a table, got {value!r}")
+    for table in PLUGIN_TABLES:
+        if table in config and not isinstance(config[table].get("name"), str):
+            raise ConfigError(f"{table}.name: missing; name the {table} plugin to use")
+
+
+def session_settings(config: dict[str, Any]) -> SessionSettings:
+    """The validated ``[session]`` table."""
+    return _dataclass_from(SessionSettings, config.get("session", {}), "session")
+
+
+HAPTIC_SAFETY_KEYS = {f.name for f in fields(HapticSettings)}
+
+
+def haptic_settings(config: dict[str, Any]) -> HapticSettings:
+    """The validated safety limits of the ``[haptic]`` table."""
+    table = {k: v for k, v in config.get("haptic", {}).items() if k in HAPTIC_SAFETY_KEYS}
+    return _dataclass_from(HapticSettings, table, "haptic")
+
+
+def plugin_options(config: dict[str, Any], table: str) -> tuple[str, dict[str, Any]]:
+    """(plugin name, options) of a plugin table, without the host's own keys."""
+    section = dict(config.get(table, {}))
+    name = section.pop("name", None)
+    if table == "haptic":
+        section = {k: v for k, v in section.items() if k not in HAPTIC_SAFETY_KEYS}
+    return name, section

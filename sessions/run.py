@@ -1,0 +1,377 @@
+"""The run loop: sensor and kinematics → aligner → estimator → haptic output, all recorded.
+
+Plugins are built once from the config (``build_session``); the loop then
+calls plain objects. Each iteration (one device period):
+
+1. read new poses and wrench samples up to now, record them;
+2. pair each wrench with its orientation (``core.aligner``), record that;
+3. feed good samples (not stale, not saturated, finite) to the estimator, record its estimates;
+4. turn the newest estimate into one force command (``sessions.safety``), send and record it;
+5. record an event whenever the haptic output switches off or on, or a stage converges.
+
+Ctrl-C ends the loop; the recording is always closed cleanly.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+import hapticlab
+from hapticlab.core.aligner import Aligner
+from hapticlab.core.frames import quat_conjugate
+from hapticlab.core.plugins import Registry
+from hapticlab.core.types import STATUS_OK, AlignedSamples, Estimates
+
+from .config import (
+    PLUGIN_TABLES,
+    SessionSettings,
+    check_tables,
+    haptic_settings,
+    plugin_options,
+    session_settings,
+)
+from .recording import Recorder
+from .safety import ForceGovernor
+
+
+@dataclass
+class Session:
+    """A session's plugins and settings, built and ready to run."""
+
+    config: dict[str, Any]
+    settings: SessionSettings
+    sensor: Any
+    kinematics: Any
+    estimator: Any
+    estimator_name: str
+    haptic: Any
+    governor: ForceGovernor
+    plugins: dict[str, dict[str, str]]
+    world: Any = None
+
+
+@dataclass
+class SessionStatus:
+    """What the live terminal display shows; updated a few times a second."""
+
+    elapsed_s: float = 0.0
+    samples: int = 0
+    rate_hz: float = 0.0
+    converged_force: bool = False
+    converged_torque: bool = False
+    contact: bool = False
+    haptic_enabled: bool = False
+    reason: str = ""
+    events: int = 0
+
+
+@dataclass
+class SessionResult:
+    """What a finished session reports."""
+
+    path: Path
+    samples: int
+    poses: int
+    duration_s: float
+    interrupted: bool
+    params: dict[str, list[float]]
+    events: list[tuple[int, str, str]] = field(default_factory=list)
+    first_converged_force: int | None = None
+    first_converged_torque: int | None = None
+
+
+def build_session(config: dict[str, Any], registry: Registry | None = None) -> Session:
+    """Validate the config and build every plugin it names."""
+    registry = registry if registry is not None else Registry()
+    check_tables(config)
+    settings = session_settings(config)
+    safety = haptic_settings(config)
+    world = None
+    if "world" in config:
+        from hapticlab.plugins.simworld.physics import SimWorld
+
+        world = SimWorld.from_config(config["world"])
+    built: dict[str, Any] = {}
+    plugins: dict[str, dict[str, str]] = {}
+    for table, kind in PLUGIN_TABLES.items():
+        name, options = plugin_options(config, table)
+        if name is None:
+            raise_missing(table)
+        built[table] = registry.create(kind, name, options, where=table, world=world)
+        plugins[table] = {"name": name, "origin": registry.get(kind, name).origin}
+    haptic_rate = float(getattr(built["haptic"], "rate_hz", settings.loop_rate_hz))
+    return Session(
+        config=config,
+        settings=settings,
+        sensor=built["sensor"],
+        kinematics=built["kinematics"],
+        estimator=built["estimator"],
+        estimator_name=plugin_options(config, "estimator")[0],
+        haptic=built["haptic"],
+        governor=ForceGovernor(safety, 1.0 / haptic_rate),
+        plugins=plugins,
+        world=world,
+    )
+
+
+def raise_missing(table: str) -> None:
+    from hapticlab.core.plugins import ConfigError
+
+    raise ConfigError(f"{table}.name: missing; the session needs a [{table}] table naming a plugin")
+
+
+def git_revision() -> str:
+    """The git revision of the hapticlab source tree, or "" when unknown."""
+    try:
+        here = Path(hapticlab.__file__).resolve().parent
+        out = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=2)
+        return out.stdout.strip() if out.returncode == 0 else ""
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def session_metadata(session: Session) -> dict[str, dict[str, Any]]:
+    """The MCAP metadata records written at the start of a session."""
+    return {
+        "hapticlab.session": {
+            "config": json.dumps(session.config),
+            "plugins": json.dumps(session.plugins),
+            "hapticlab_version": hapticlab.__version__,
+            "git_revision": git_revision(),
+            "started_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "estimator": session.estimator_name,
+        },
+        "hapticlab.calibration": dict(getattr(session.sensor, "calibration", {}) or {"counts_per_unit": "1"}),
+    }
+
+
+def default_out_path(settings: SessionSettings) -> Path:
+    """Where a session records when no output path is given."""
+    if settings.out:
+        return Path(settings.out)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path("sessions") / f"{settings.name}-{stamp}.mcap"
+
+
+class _Recording:
+    """Per-sample recording helpers (plain loops over lists: the hot path)."""
+
+    def __init__(self, recorder: Recorder, estimator_topic: str):
+        self.rec = recorder
+        self.estimator_topic = estimator_topic
+
+    def poses(self, poses) -> None:
+        write = self.rec.write
+        for p in poses:
+            write("/kinematics/pose", p.t_ns, {
+                "quat_BE": p.quat_BE.tolist(),
+                "p_BoEo_B": None if p.p_BoEo_B is None else p.p_BoEo_B.tolist(),
+                "joints": None if p.joints is None else p.joints.tolist(),
+            })
+
+    def wrenches(self, wrenches) -> None:
+        write = self.rec.write
+        for w in wrenches:
+            write("/sensor/wrench", w.t_ns, {
+                "force_S": w.force_S.tolist(), "torque_S": w.torque_S.tolist(),
+                "seq": int(w.seq), "status": int(w.status),
+            })
+
+    def aligned(self, block: AlignedSamples) -> None:
+        write = self.rec.write
+        quat_EB = quat_conjugate(block.quat_BE).tolist()
+        for i, t in enumerate(block.t_ns.tolist()):
+            write("/aligned/sample", t, {
+                "force_S": block.force_S[i].tolist(), "torque_S": block.torque_S[i].tolist(),
+                "quat_EB": quat_EB[i], "seq": int(block.seq[i]), "stale": bool(block.stale[i]),
+            })
+
+    def estimates(self, est: Estimates) -> None:
+        write = self.rec.write
+        n = len(est)
+        f, tau = est.contact_force_S.tolist(), est.contact_torque_S.tolist()
+        contact, cf, ct = est.contact.tolist(), est.converged_force.tolist(), est.converged_torque.tolist()
+        for i, t in enumerate(est.t_ns.tolist()):
+            last = i == n - 1
+            write(self.estimator_topic, t, {
+                "contact_force_S": f[i], "contact_torque_S": tau[i], "contact": contact[i],
+                "converged_force": cf[i], "converged_torque": ct[i],
+                # parameters and covariance are those after the block's last sample
+                "params": est.params if last else None,
+                "cov_diag": est.cov_diag if last else None,
+            })
+
+
+def run_session(
+    session: Session,
+    out: str | Path | None = None,
+    duration: float | None = None,
+    on_status: Callable[[SessionStatus], None] | None = None,
+    status_interval_s: float = 0.25,
+) -> SessionResult:
+    """Run a built session until its duration ends (or Ctrl-C) and record it to MCAP."""
+    settings = session.settings
+    duration = settings.duration if duration is None else duration
+    path = Path(out) if out else default_out_path(settings)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    period_ns = int(round(1e9 / settings.loop_rate_hz))
+    duration_ns = int(round(duration * 1e9))
+    stale_timeout_ns = int(round(settings.stale_timeout * 1e9))
+
+    recorder = Recorder(path, metadata=session_metadata(session))
+    rec = _Recording(recorder, f"/estimator/{session.estimator_name}")
+    aligner = Aligner(float(session.kinematics.rate_hz))
+    status = SessionStatus()
+    events: list[tuple[int, str, str]] = []
+
+    def event(t_ns: int, kind: str, message: str) -> None:
+        recorder.event(t_ns, kind, message)
+        events.append((t_ns, kind, message))
+        status.events += 1
+
+    estimator = session.estimator
+    haptic = session.haptic
+    samples = poses_seen = 0
+    last_sample_ns: int | None = None
+    last_estimate: tuple[np.ndarray, np.ndarray] | None = None  # (contact_force_S, R_BE)
+    converged = [False, False]
+    haptic_reason = "starting"
+    interrupted = False
+
+    t0_ns = time.monotonic_ns()
+    session.sensor.open(t0_ns)
+    session.kinematics.open(t0_ns)
+    haptic.open()
+    event(t0_ns, "session_start", f"session {settings.name!r} started, estimator {session.estimator_name}")
+    next_status = time.monotonic()
+    tick = 0
+    try:
+        while True:
+            tick += 1
+            now_ns = t0_ns + tick * period_ns
+            if now_ns - t0_ns > duration_ns:
+                break
+            if settings.realtime:
+                delay = (now_ns - time.monotonic_ns()) * 1e-9
+                if delay > 0:
+                    time.sleep(delay)
+
+            poses = session.kinematics.read(now_ns)
+            if poses:
+                aligner.add_poses(poses)
+                rec.poses(poses)
+                poses_seen += len(poses)
+            wrenches = session.sensor.read(now_ns)
+            reason = ""
+            if wrenches:
+                rec.wrenches(wrenches)
+                samples += len(wrenches)
+                last_sample_ns = wrenches[-1].t_ns
+                block = aligner.align(wrenches)
+                rec.aligned(block)
+                good = ~block.stale & (block.status == STATUS_OK) & np.isfinite(block.force_S).all(1) \
+                    & np.isfinite(block.torque_S).all(1)
+                if not good.all():
+                    if block.stale.any():
+                        reason = "stale kinematics"
+                    elif (block.status != STATUS_OK).any():
+                        reason = "sensor saturated or in error"
+                    else:
+                        reason = "non-finite sensor reading"
+                if good.any():
+                    est = estimator.update_block(block.subset(good))
+                    rec.estimates(est)
+                    R_BE = block.R_EB[good][-1].T
+                    last_estimate = (est.contact_force_S[-1], R_BE)
+                    status.contact = bool(est.contact[-1])
+                    for stage, flag, label in ((0, est.converged_force[-1], "force"),
+                                               (1, est.converged_torque[-1], "torque")):
+                        if bool(flag) != converged[stage]:
+                            converged[stage] = bool(flag)
+                            event(int(est.t_ns[-1]), "converged" if flag else "unconverged",
+                                  f"{session.estimator_name} {label} stage "
+                                  f"{'converged' if flag else 'lost convergence'}")
+                    if not est.converged_force[-1] and not reason:
+                        reason = "estimator not converged"
+            if last_sample_ns is None or now_ns - last_sample_ns > stale_timeout_ns:
+                reason = reason or "no sensor data"
+
+            command = session.governor.command(
+                now_ns, *(last_estimate if last_estimate else (None, None)), reason=reason
+            )
+            try:
+                haptic.send(command)
+                state = haptic.state()
+            except Exception as exc:  # a lost device: zero is all we can still ask for
+                command = session.governor.command(now_ns, None, None, reason=f"device error: {exc}")
+                state = None
+            recorder.write("/haptic/command", now_ns, {
+                "force_D": command.force_D.tolist(), "enabled": command.enabled,
+                "reason": command.reason,
+            })
+            if state is not None:
+                recorder.write("/haptic/state", state.t_ns, {
+                    "pose": {"quat_DH": state.quat_DH.tolist(), "p_DoHo_D": state.p_DoHo_D.tolist()},
+                    "buttons": int(state.buttons),
+                })
+            if command.reason != haptic_reason:
+                if command.enabled:
+                    event(now_ns, "haptic_enabled", "haptic force on")
+                else:
+                    event(now_ns, "haptic_disabled", f"haptic force zeroed: {command.reason}")
+                haptic_reason = command.reason
+
+            if on_status is not None and time.monotonic() >= next_status:
+                next_status = time.monotonic() + status_interval_s
+                elapsed = (now_ns - t0_ns) * 1e-9
+                status.elapsed_s = elapsed
+                status.samples = samples
+                status.rate_hz = samples / elapsed if elapsed > 0 else 0.0
+                status.converged_force, status.converged_torque = converged
+                status.haptic_enabled = command.enabled
+                status.reason = command.reason
+                on_status(status)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        end_ns = t0_ns + tick * period_ns
+        try:
+            haptic.send(session.governor.command(end_ns, None, None, reason="session ended"))
+        except Exception:
+            pass
+        for device in (haptic, session.sensor, session.kinematics):
+            try:
+                device.close()
+            except Exception:
+                pass
+        params = estimator.params() if samples else {}
+        summary = {
+            "samples": samples,
+            "poses": poses_seen,
+            "interrupted": interrupted,
+            "params": params,
+            "first_converged_force": getattr(estimator, "first_converged_force", None),
+            "first_converged_torque": getattr(estimator, "first_converged_torque", None),
+        }
+        event(end_ns, "session_end", "interrupted (Ctrl-C)" if interrupted else "session finished")
+        recorder.close(summary=summary)
+    return SessionResult(
+        path=path,
+        samples=samples,
+        poses=poses_seen,
+        duration_s=(end_ns - t0_ns) * 1e-9,
+        interrupted=interrupted,
+        params=params,
+        events=events,
+        first_converged_force=summary["first_converged_force"],
+        first_converged_torque=summary["first_converged_torque"],
+    )

@@ -1,0 +1,161 @@
+"""The plugin host: hooks, registration, errors, and the meta-tests on hooks and docs."""
+
+from __future__ import annotations
+
+import inspect
+import re
+import types
+from pathlib import Path
+
+import pluggy
+import pytest
+
+from hapticlab.core import hookimpl, hookspecs
+from hapticlab.core.plugins import (
+    DEFAULT_PLUGINS,
+    KINDS,
+    ConfigError,
+    PluginError,
+    Registry,
+    make_plugin_manager,
+)
+
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "plugins.md"
+HOOKS = sorted(n for n, f in vars(hookspecs).items() if n.startswith("register_") and callable(f))
+
+
+def manager_with(*modules) -> pluggy.PluginManager:
+    pm = pluggy.PluginManager("hapticlab")
+    pm.add_hookspecs(hookspecs)
+    for module in modules:
+        pm.register(module, name=module.__name__)
+    return pm
+
+
+def plugin_module(name: str, **hooks) -> types.ModuleType:
+    module = types.ModuleType(name)
+    for hook_name, function in hooks.items():
+        setattr(module, hook_name, hookimpl(function))
+    return module
+
+
+class Dummy:
+    def __init__(self, gain: float = 1.0, label: str = "x", enabled: bool = True, axes: list[float] | None = None):
+        self.gain, self.label, self.enabled, self.axes = gain, label, enabled, axes
+
+
+def test_every_hook_is_exercised_here():
+    """datasette-style meta-test: each hookspec is registered through in this file."""
+    source = Path(__file__).read_text()
+    for hook in HOOKS:
+        assert f"{hook}=" in source, f"{hook} is not exercised by a test"
+    assert set(HOOKS) == set(KINDS.values())
+
+
+def test_every_hook_is_documented_with_its_signature():
+    docs = DOCS.read_text()
+    for hook in HOOKS:
+        signature = str(inspect.signature(getattr(hookspecs, hook))).replace(": 'Register'", "")
+        signature = re.sub(r" -> .*", "", signature).replace("'", "")
+        assert f"## {hook}(register)" in docs, hook
+        assert signature == "(register)"
+
+
+@pytest.mark.parametrize("hook", HOOKS)
+def test_each_hook_registers_its_kind(hook):
+    kind = {v: k for k, v in KINDS.items()}[hook]
+    module = plugin_module(f"third_party_{kind}", **{hook: lambda register: register("thing", Dummy)})
+    registry = Registry(manager_with(module))
+    entry = registry.get(kind, "thing")
+    assert entry.factory is Dummy and entry.origin == f"third_party_{kind}"
+    assert registry.names(kind) == ["thing"]
+
+
+def test_all_five_hooks_in_one_plugin():
+    module = plugin_module(
+        "everything",
+        register_sensors=lambda register: register("s", Dummy),
+        register_kinematics=lambda register: register("k", Dummy),
+        register_estimators=lambda register: register("e", Dummy),
+        register_haptic_outputs=lambda register: register("h", Dummy),
+        register_effects=lambda register: register("f", Dummy),
+    )
+    registry = Registry(manager_with(module))
+    assert [(e.kind, e.name) for e in registry.entries()] == [
+        ("sensor", "s"), ("kinematics", "k"), ("estimator", "e"), ("haptic_output", "h"), ("effect", "f")]
+
+
+def test_builtins_are_registered():
+    registry = Registry(make_plugin_manager(load_entry_points=False))
+    assert "sim" in registry.names("sensor")
+    assert "sim" in registry.names("kinematics")
+    assert {"rls", "batch"} <= set(registry.names("estimator"))
+    assert "null" in registry.names("haptic_output")
+    assert registry.get("estimator", "rls").origin == "hapticlab.plugins.estimators.rls"
+    assert len(DEFAULT_PLUGINS) == len(set(DEFAULT_PLUGINS))
+
+
+def test_duplicate_name_is_an_error_naming_both_plugins():
+    a = plugin_module("plugin_a", register_estimators=lambda register: register("same", Dummy))
+    b = plugin_module("plugin_b", register_estimators=lambda register: register("same", Dummy))
+    with pytest.raises(PluginError, match="estimator 'same' registered twice: by plugin_. and by plugin_."):
+        Registry(manager_with(a, b))
+
+
+def test_unknown_name_lists_the_available_ones():
+    module = plugin_module("p", register_estimators=lambda register: register("rls", Dummy))
+    registry = Registry(manager_with(module))
+    with pytest.raises(PluginError, match=r"unknown estimator 'rsl'; available: rls"):
+        registry.get("estimator", "rsl")
+
+
+def test_bad_names_and_factories_are_refused():
+    bad_name = plugin_module("p1", register_sensors=lambda register: register("not a name", Dummy))
+    with pytest.raises(PluginError, match="p1: sensor name 'not a name' is not a valid identifier"):
+        Registry(manager_with(bad_name))
+    bad_factory = plugin_module("p2", register_sensors=lambda register: register("ok", 42))
+    with pytest.raises(PluginError, match="not callable"):
+        Registry(manager_with(bad_factory))
+
+
+def test_typo_in_a_hook_name_is_caught():
+    module = types.ModuleType("typo")
+    module.register_estimator = hookimpl(lambda register: None)  # missing "s"
+    pm = manager_with(module)
+    with pytest.raises(pluggy.PluginValidationError):
+        pm.check_pending()
+
+
+def test_create_checks_options_against_the_signature():
+    module = plugin_module("p", register_estimators=lambda register: register("d", Dummy))
+    registry = Registry(manager_with(module))
+    made = registry.create("estimator", "d", {"gain": 2, "axes": [1, 2.5]}, where="estimator")
+    assert made.gain == 2.0 and isinstance(made.gain, float) and made.axes == [1, 2.5]
+    with pytest.raises(ConfigError, match=r"^estimator.gian: unknown option; known options: axes, enabled, gain, label$"):
+        registry.create("estimator", "d", {"gian": 2}, where="estimator")
+    with pytest.raises(ConfigError, match=r"^estimator.gain: expected a number, got 'high'$"):
+        registry.create("estimator", "d", {"gain": "high"}, where="estimator")
+    with pytest.raises(ConfigError, match=r"^estimator.enabled: expected true or false, got 1$"):
+        registry.create("estimator", "d", {"enabled": 1}, where="estimator")
+    with pytest.raises(ConfigError, match=r"estimator.axes: expected"):
+        registry.create("estimator", "d", {"axes": ["a"]}, where="estimator")
+
+
+def test_host_context_is_passed_only_to_factories_that_take_it():
+    class WithWorld:
+        def __init__(self, rate_hz: float = 1.0, world=None):
+            self.world = world
+
+    module = plugin_module("p", register_sensors=lambda register: register("w", WithWorld),
+                           register_kinematics=lambda register: register("d", Dummy))
+    registry = Registry(manager_with(module))
+    assert registry.create("sensor", "w", {}, world="W").world == "W"
+    assert registry.create("kinematics", "d", {}, world="W").gain == 1.0
+    with pytest.raises(ConfigError, match="sensor.world: unknown option"):
+        registry.create("sensor", "w", {"world": "user-supplied"}, where="sensor")
+
+
+def test_load_plugins_switch_limits_entry_points(monkeypatch):
+    monkeypatch.setenv("HAPTICLAB_LOAD_PLUGINS", "")
+    pm = make_plugin_manager()
+    assert sorted(pm.get_name(p) for p in pm.get_plugins()) == sorted(DEFAULT_PLUGINS)

@@ -1,0 +1,116 @@
+"""The ``sim`` sensor plugin: sample timing, chunked reads, saturation status, registration."""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pluggy
+import pytest
+from hapticlab.core import hookspecs
+from hapticlab.core.interfaces import SensorSource
+from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.types import STATUS_SATURATED, WrenchSample
+from hapticlab.plugins.sensors.sim import SimSensor
+from hapticlab.plugins.simworld import Hold, Indentation, SimWorld
+
+T0 = 1_234_567_890_123  # an arbitrary session clock at open, ns
+
+
+def registry_with_sim_plugins() -> Registry:
+    """A Registry holding only the simulated sensor and kinematics (other built-ins may not exist yet)."""
+    pm = pluggy.PluginManager("hapticlab")
+    pm.add_hookspecs(hookspecs)
+    for name in ("hapticlab.plugins.sensors.sim", "hapticlab.plugins.kinematics.sim"):
+        pm.register(importlib.import_module(name), name=name)
+    return Registry(pm)
+
+
+def as_arrays(samples: list[WrenchSample]):
+    return (np.array([s.t_ns for s in samples]), np.array([s.force_S for s in samples]),
+            np.array([s.torque_S for s in samples]), np.array([s.seq for s in samples]),
+            np.array([s.status for s in samples]))
+
+
+def test_registered_as_sim_and_built_through_the_registry():
+    registry = registry_with_sim_plugins()
+    assert "sim" in registry.names("sensor")
+    world = SimWorld()
+    sensor = registry.create("sensor", "sim", {"rate_hz": 2000}, where="sensor", world=world)
+    assert isinstance(sensor, SimSensor) and isinstance(sensor, SensorSource)
+    assert sensor.rate_hz == 2000.0 and sensor.world is world
+    with pytest.raises(ConfigError, match=r"^sensor\.rate: unknown option"):
+        registry.create("sensor", "sim", {"rate": 2000}, where="sensor", world=world)
+
+
+def test_without_a_world_the_error_says_so():
+    with pytest.raises(ConfigError, match="world"):
+        SimSensor(rate_hz=1000.0)
+    with pytest.raises(ConfigError, match="world"):
+        registry_with_sim_plugins().create("sensor", "sim", {})
+
+
+def test_samples_are_on_the_rate_grid_and_returned_once():
+    sensor = SimSensor(rate_hz=1000.0, world=SimWorld())
+    with pytest.raises(RuntimeError, match="before open"):
+        sensor.read(T0)
+    sensor.open(T0)
+    first = sensor.read(T0 + 10_000_500)
+    assert [s.seq for s in first] == list(range(11))
+    assert [s.t_ns for s in first] == [T0 + i * 1_000_000 for i in range(11)]
+    assert sensor.read(T0 + 10_000_999) == []
+    assert [s.seq for s in sensor.read(T0 + 12_000_000)] == [11, 12]  # a sample exactly at until_ns is included
+    assert sensor.read(T0 - 5) == []
+    sample = first[3]
+    assert sample.force_S.shape == (3,) and sample.torque_S.shape == (3,) and sample.status == 0
+    sensor.close()
+
+
+def test_samples_match_the_world_at_world_time():
+    world = SimWorld(seed=3)
+    sensor = SimSensor(rate_hz=500.0, world=world)
+    sensor.open(T0)
+    t_ns, force, torque, seq, _ = as_arrays(sensor.read(T0 + 2_000_000_000))
+    expected = world.wrench(seq / 500.0)
+    assert np.array_equal(force, expected["force_S"]) and np.array_equal(torque, expected["torque_S"])
+    np.testing.assert_array_equal((t_ns - T0) / 1e9, seq / 500.0)
+
+
+@pytest.mark.parametrize("rate_hz", [1000.0, 7000.0])
+def test_chunked_reads_equal_one_read(rate_hz):
+    def world():
+        return SimWorld(seed=17)
+
+    whole = SimSensor(rate_hz=rate_hz, world=world())
+    whole.open(T0)
+    one = as_arrays(whole.read(T0 + 3_000_000_000))
+    chunked = SimSensor(rate_hz=rate_hz, world=world())
+    chunked.open(T0)
+    pieces = []
+    for until in np.cumsum([0, 123_457, 1, 999_999, 2_500_000, 777_777_777, 2_000_000_000]):
+        pieces += chunked.read(T0 + int(min(until, 3_000_000_000)))
+    pieces += chunked.read(T0 + 3_000_000_000)
+    parts = as_arrays(pieces)
+    for a, b in zip(one, parts):
+        assert np.array_equal(a, b)
+    assert len(one[0]) == int(3.0 * rate_hz) + 1
+    assert np.all(np.diff(one[0]) > 0) and np.array_equal(one[3], np.arange(len(one[3])))
+
+
+def test_saturated_samples_carry_the_status_bit():
+    world = SimWorld(motion=Hold(), contacts=[Indentation(start=0.1, duration=0.2, peak_force=400.0, ramp=0.05)])
+    sensor = SimSensor(rate_hz=1000.0, world=world)
+    sensor.open(0)
+    t_ns, force, _, _, status = as_arrays(sensor.read(400_000_000))
+    saturated = (status & STATUS_SATURATED) != 0
+    t = t_ns / 1e9
+    assert saturated[(t > 0.16) & (t < 0.24)].all() and not saturated[(t < 0.1) | (t > 0.3)].any()
+    assert np.abs(force).max() <= 200.0
+
+
+def test_samples_are_read_only():
+    sensor = SimSensor(world=SimWorld())
+    sensor.open(0)
+    sample = sensor.read(5_000_000)[0]
+    with pytest.raises(ValueError):
+        sample.force_S[0] = 1.0

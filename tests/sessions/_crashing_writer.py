@@ -1,0 +1,77 @@
+"""Helper for test_recording: records at ~1 kHz until it is killed.
+
+Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE
+
+With a CHUNK_SIZE far larger than 3 s of data, only the time-based flush puts
+messages on disk.
+
+Prints "ready" once the recorder is open, then writes forever: per tick one
+/sensor/wrench message whose values are a function of its seq (so the test can
+check every salvaged message), one /aligned/sample every 2nd tick, an event
+every 250th tick, and from 1 s on an /estimator/late channel (registered
+mid-file). Timestamps are time.monotonic_ns() (CLOCK_MONOTONIC, shared with
+the parent process).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from hapticlab.sessions.recording import Recorder
+
+
+def wrench(i: int) -> dict:
+    return {
+        "force_S": [i * 0.5, -i * 0.25, i * 1e-3],
+        "torque_S": [i * 1e-4, 2.0, -3.0],
+        "seq": i,
+        "status": i % 3,
+    }
+
+
+def main() -> None:
+    path, flush_interval, chunk_size = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
+    rec = Recorder(
+        path,
+        {"hapticlab.session": {"config": {"preset": "crash-test"}}, "hapticlab.calibration": {"counts_per_force": 1e6}},
+        flush_interval_s=flush_interval,
+        chunk_size=chunk_size,
+        overwrite=True,
+    )
+    print("ready", flush=True)
+    t0 = time.monotonic_ns()
+    i = 0
+    while True:
+        t = time.monotonic_ns()
+        rec.write("/sensor/wrench", t, wrench(i))
+        if i % 2 == 0:
+            rec.write(
+                "/aligned/sample",
+                t,
+                {"force_S": [i * 0.5, 0.0, 0.0], "torque_S": [0.0, 0.0, 0.0], "quat_EB": [1.0, 0.0, 0.0, 0.0], "seq": i, "stale": False},
+            )
+        if i % 250 == 0:
+            rec.event(t, "tick", f"tick {i}", seq=i)
+        if t - t0 > 1_000_000_000:
+            rec.write(
+                "/estimator/late",
+                t,
+                {
+                    "contact_force_S": [0.0, 0.0, 0.0],
+                    "contact_torque_S": [0.0, 0.0, 0.0],
+                    "contact": False,
+                    "converged_force": True,
+                    "converged_torque": False,
+                    "params": {"seq": [float(i)]},
+                    "cov_diag": [1.0],
+                },
+            )
+        i += 1
+        delay = (t0 + i * 1_000_000 - time.monotonic_ns()) * 1e-9
+        if delay > 0:
+            time.sleep(delay)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,75 @@
+"""The CSV import contract: good files load, bad ones name the line and column."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import static_model_stream
+
+from hapticlab.core.frames import quat_wxyz_from_matrix
+from hapticlab.sessions.csvimport import CsvError, read_csv
+
+HEADER = "t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz"
+
+
+def write_stream(path, n=20, seed=0, extra_header="", extra_value=""):
+    block, _ = static_model_stream(n, seed=seed, noise_force=0.05)
+    quat_BE = quat_wxyz_from_matrix(block.R_EB.transpose(0, 2, 1))
+    lines = [HEADER + extra_header]
+    for k in range(n):
+        values = [k * 0.01, *block.force_S[k], *block.torque_S[k], *quat_BE[k]]
+        lines.append(",".join(repr(float(v)) for v in values) + extra_value)
+    path.write_text("\n".join(lines) + "\n")
+    return block
+
+
+def test_round_trip_and_orientation_convention(tmp_path):
+    path = tmp_path / "ok.csv"
+    block = write_stream(path)
+    record = read_csv(path)
+    assert len(record) == 20 and record.p_BoEo_B is None and record.notes == []
+    assert np.allclose(record.force_S, block.force_S)
+    assert np.allclose(record.R_EB, block.R_EB, atol=1e-12)  # quaternion is R_BE; R_EB its transpose
+
+
+def test_optional_and_unknown_columns(tmp_path):
+    path = tmp_path / "extra.csv"
+    write_stream(path, extra_header=",px,py,pz,q1,temperature", extra_value=",0.4,0.1,0.3,0.5,21.5")
+    record = read_csv(path)
+    assert record.p_BoEo_B.shape == (20, 3) and record.joints.shape == (20, 1)
+    assert record.notes == ["extra.csv: ignoring column(s) temperature"]
+
+
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda lines: lines.__setitem__(0, lines[0].replace(",tz", "")),
+         r"bad.csv line 1: missing required column\(s\) tz \(required: t,fx,.*\)"),
+        (lambda lines: lines.__setitem__(5, lines[5].replace(lines[5].split(",")[2], "abc", 1)),
+         r"bad.csv line 6, column 'fy': 'abc' is not a finite number"),
+        (lambda lines: lines.__setitem__(7, lines[7].replace(lines[7].split(",")[1], "nan", 1)),
+         r"bad.csv line 8, column 'fx': 'nan' is not a finite number"),
+        (lambda lines: lines.__setitem__(9, "0.0" + lines[9][lines[9].index(","):]),
+         r"bad.csv line 10, column 't': 0.0 does not increase \(previous 0.07\)"),
+        (lambda lines: lines.__setitem__(4, ",".join(lines[4].split(",")[:7] + ["0.9", "0", "0", "0"])),
+         r"bad.csv line 5, columns qw,qx,qy,qz: not a unit quaternion \(norm 0.9\)"),
+        (lambda lines: lines.__setitem__(3, lines[3] + ",1"),
+         r"bad.csv line 4: 12 fields, the header has 11"),
+        (lambda lines: lines.__delitem__(slice(1, None)), r"bad.csv: no data rows after the header"),
+    ],
+)
+def test_errors_name_the_line_and_column(tmp_path, mutate, message):
+    path = tmp_path / "bad.csv"
+    write_stream(path)
+    lines = path.read_text().splitlines()
+    mutate(lines)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(CsvError, match=f"^{message}$"):
+        read_csv(path)
+
+
+def test_real_files_import(real_data):
+    for path in sorted(real_data.glob("*.csv")):
+        record = read_csv(path)
+        assert len(record) > 50
+        assert np.allclose(np.linalg.det(record.R_EB), 1.0)

@@ -145,7 +145,10 @@ class Registry:
         ``context`` holds keyword arguments the host provides (e.g. ``world``),
         passed only when the factory accepts them.
         """
-        entry = self.get(kind, name)
+        try:
+            entry = self.get(kind, name)
+        except PluginError as exc:
+            raise ConfigError(f"{where or kind}.name: {exc}") from None
         kwargs = validate_options(entry.factory, dict(options or {}), where or kind)
         params = inspect.signature(entry.factory).parameters
         for key, value in context.items():

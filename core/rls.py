@@ -125,6 +125,8 @@ def run_gated(
         the sample, and the flag after the block.
     """
     m = len(y)
+    if m == 1:  # the live loop's common case, without the run bookkeeping
+        return _run_gated_one(stage, y, A, bool(active[0]), threshold, epsilon, converged)
     X = np.empty((m, 6))
     conv = np.empty(m, dtype=bool)
     gated = np.zeros(m, dtype=bool)
@@ -160,6 +162,20 @@ def run_gated(
         conv[i : i + n] = conv_p[:n]
         i += n
     return X, conv, gated, converged
+
+
+def _run_gated_one(stage, y, A, active, threshold, epsilon, converged):
+    """``run_gated`` for a single sample: the same rules, fewer array operations."""
+    if active:
+        residual = A[0] @ stage.x[:3] + stage.x[3:] - y[0]
+        if converged and residual @ residual >= threshold * threshold:
+            return stage.x[None, :], np.ones(1, dtype=bool), np.ones(1, dtype=bool), converged
+        Xp, Lam, eta = stage.propose(y, A)
+        dx = Xp[0] - stage.x
+        converged = bool(dx @ dx < epsilon * epsilon)
+        stage.commit(Xp[0], Lam[0], eta[0], 1)
+        return Xp, np.array([converged]), np.zeros(1, dtype=bool), converged
+    return stage.x[None, :], np.array([converged]), np.zeros(1, dtype=bool), converged
 
 
 def _leading_true_count(flags: np.ndarray) -> int:

@@ -109,8 +109,9 @@ class Estimates:
         converged_torque: (m,) the torque stage had converged after the sample.
         params: identified parameters after the block's last sample, by
             physical name (``gravity_force_B``, ``bias_force_S``, ``cog_S``,
-            ``bias_torque_S``, ...), SI units.
-        cov_diag: diagonal of the state covariance after the last sample.
+            ``bias_torque_S``, ...), SI units; None when not attached (the
+            estimator's ``params()`` gives them on demand).
+        cov_diag: diagonal of the state covariance after the last sample, or None.
     """
 
     t_ns: np.ndarray
@@ -119,8 +120,8 @@ class Estimates:
     contact: np.ndarray
     converged_force: np.ndarray
     converged_torque: np.ndarray
-    params: dict[str, list[float]]
-    cov_diag: list[float]
+    params: dict[str, list[float]] | None = None
+    cov_diag: list[float] | None = None
 
     def __len__(self) -> int:
         return len(self.t_ns)

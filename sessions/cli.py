@@ -170,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
         err.print("interrupted")
         return 130
     except _user_errors() as exc:
-        err.print(f"hapticlab {args.command}: error: {exc}", markup=False, highlight=False)
+        message = str(exc).strip().replace("\n", " ")
+        print(f"hapticlab {args.command}: error: {message}", file=sys.stderr)
         return 2
 
 

@@ -112,8 +112,8 @@ def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
         contact=np.concatenate([p.contact for p in parts]),
         converged_force=np.concatenate([p.converged_force for p in parts]),
         converged_torque=np.concatenate([p.converged_torque for p in parts]),
-        params=parts[-1].params,
-        cov_diag=parts[-1].cov_diag,
+        params=estimator.params(),
+        cov_diag=estimator.cov_diag(),
     )
 
 

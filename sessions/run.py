@@ -195,7 +195,8 @@ class _Recording:
                 "quat_EB": quat_EB[i], "seq": int(block.seq[i]), "stale": bool(block.stale[i]),
             })
 
-    def estimates(self, est: Estimates) -> None:
+    def estimates(self, est: Estimates, params=None, cov_diag=None) -> None:
+        """One message per sample; ``params``/``cov_diag`` (when given) ride on the last one."""
         write = self.rec.write
         n = len(est)
         f, tau = est.contact_force_S.tolist(), est.contact_torque_S.tolist()
@@ -205,10 +206,13 @@ class _Recording:
             write(self.estimator_topic, t, {
                 "contact_force_S": f[i], "contact_torque_S": tau[i], "contact": contact[i],
                 "converged_force": cf[i], "converged_torque": ct[i],
-                # parameters and covariance are those after the block's last sample
-                "params": est.params if last else None,
-                "cov_diag": est.cov_diag if last else None,
+                "params": params if last else None,
+                "cov_diag": cov_diag if last else None,
             })
+
+
+PARAMS_INTERVAL_NS = 100_000_000
+"""Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""
 
 
 def run_session(
@@ -243,7 +247,13 @@ def run_session(
     samples = poses_seen = 0
     last_sample_ns: int | None = None
     last_estimate: tuple[np.ndarray, np.ndarray] | None = None  # (contact_force_S, R_BE)
+    # Algorithm 1 recomputes its flag at every update, so after the first
+    # convergence it flickers with noise; the haptics wait for the first
+    # convergence ("ready") and the flips are counted, not each made an event.
     converged = [False, False]
+    ready = [False, False]
+    flips = [0, 0]
+    next_params_ns = 0
     haptic_reason = "starting"
     interrupted = False
 
@@ -289,19 +299,25 @@ def run_session(
                         reason = "non-finite sensor reading"
                 if good.any():
                     est = estimator.update_block(block.subset(good))
-                    rec.estimates(est)
+                    if now_ns >= next_params_ns:
+                        next_params_ns = now_ns + PARAMS_INTERVAL_NS
+                        rec.estimates(est, estimator.params(), estimator.cov_diag())
+                    else:
+                        rec.estimates(est)
                     R_BE = block.R_EB[good][-1].T
                     last_estimate = (est.contact_force_S[-1], R_BE)
                     status.contact = bool(est.contact[-1])
-                    for stage, flag, label in ((0, est.converged_force[-1], "force"),
-                                               (1, est.converged_torque[-1], "torque")):
-                        if bool(flag) != converged[stage]:
-                            converged[stage] = bool(flag)
-                            event(int(est.t_ns[-1]), "converged" if flag else "unconverged",
-                                  f"{session.estimator_name} {label} stage "
-                                  f"{'converged' if flag else 'lost convergence'}")
-                    if not est.converged_force[-1] and not reason:
-                        reason = "estimator not converged"
+                    for stage, flags, label in ((0, est.converged_force, "force"),
+                                                (1, est.converged_torque, "torque")):
+                        flips[stage] += int(np.count_nonzero(np.diff(flags, prepend=converged[stage])))
+                        converged[stage] = bool(flags[-1])
+                        if not ready[stage] and flags.any():
+                            ready[stage] = True
+                            k = int(np.argmax(flags))
+                            event(int(est.t_ns[k]), "converged",
+                                  f"{session.estimator_name} {label} stage converged")
+                if not ready[0] and not reason:
+                    reason = "estimator not converged"
             if last_sample_ns is None or now_ns - last_sample_ns > stale_timeout_ns:
                 reason = reason or "no sensor data"
 
@@ -336,7 +352,7 @@ def run_session(
                 status.elapsed_s = elapsed
                 status.samples = samples
                 status.rate_hz = samples / elapsed if elapsed > 0 else 0.0
-                status.converged_force, status.converged_torque = converged
+                status.converged_force, status.converged_torque = ready
                 status.haptic_enabled = command.enabled
                 status.reason = command.reason
                 on_status(status)
@@ -361,6 +377,7 @@ def run_session(
             "params": params,
             "first_converged_force": getattr(estimator, "first_converged_force", None),
             "first_converged_torque": getattr(estimator, "first_converged_torque", None),
+            "convergence_flag_flips": {"force": flips[0], "torque": flips[1]},
         }
         event(end_ns, "session_end", "interrupted (Ctrl-C)" if interrupted else "session finished")
         recorder.close(summary=summary)

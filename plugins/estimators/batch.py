@@ -101,8 +101,6 @@ class BatchEstimator:
             | (np.linalg.norm(contact_torque_S, axis=1) >= self.torque_threshold),
             converged_force=rc_f >= self.min_rcond,
             converged_torque=rc_t >= self.min_rcond,
-            params=self.params(),
-            cov_diag=self.cov_diag(),
         )
 
     def params(self) -> dict[str, list[float]]:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.frames import skew_stack
+from hapticlab.core.frames import cross, skew_stack
 from hapticlab.core.rls import RecursiveLeastSquares, run_gated
 from hapticlab.core.types import AlignedSamples, Estimates
 
@@ -84,7 +84,7 @@ class RLSEstimator:
             self.torque, torque_S, A_t, conv_f,
             self.torque_threshold, self.epsilon, self.converged_torque,
         )
-        contact_torque_S = torque_S - np.cross(X_t[:, :3], gravity_S) - X_t[:, 3:]
+        contact_torque_S = torque_S - cross(X_t[:, :3], gravity_S) - X_t[:, 3:]
 
         self._note_first(conv_f, conv_t)
         self.samples += m
@@ -95,8 +95,6 @@ class RLSEstimator:
             contact=gated_f | gated_t,
             converged_force=conv_f,
             converged_torque=conv_t,
-            params=self.params(),
-            cov_diag=self.cov_diag(),
         )
 
     def _note_first(self, conv_f: np.ndarray, conv_t: np.ndarray) -> None:

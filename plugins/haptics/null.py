@@ -1,17 +1,25 @@
 """``null``: a haptic output with no device behind it.
 
 Accepts every command and renders nothing, so a session runs (and is recorded)
-without a master device attached: the demo, tests, offline studies.
+without a master device attached: the demo, tests, offline studies. It reports
+a handle resting at the device's home pose, so recordings have the same
+topics with or without hardware.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.types import DeviceState, HapticCommand
 
 
+HOME_QUAT_DH = np.array([1.0, 0.0, 0.0, 0.0])
+HOME_P_DoHo_D = np.zeros(3)
+
+
 class NullHaptic:
-    """A haptic output that keeps the last command and reports no device state.
+    """A haptic output that keeps the last command; its handle rests at home.
 
     Args:
         rate_hz: the command rate it pretends to run at, Hz.
@@ -35,8 +43,9 @@ class NullHaptic:
         self.commands += 1
 
     def state(self) -> DeviceState | None:
-        """No device, no state."""
-        return None
+        """The handle at the home pose, no buttons, at the time of the last command."""
+        t_ns = self.last.t_ns if self.last is not None else 0
+        return DeviceState(t_ns, HOME_QUAT_DH, HOME_P_DoHo_D, 0)
 
     def close(self) -> None:
         """Nothing to close."""

@@ -1,0 +1,129 @@
+"""``hapticlab compensate`` and the command line around it."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from helpers import static_model_stream
+
+from hapticlab.core.batch import batch_fit
+from hapticlab.core.frames import quat_wxyz_from_matrix
+from hapticlab.sessions.cli import main
+from hapticlab.sessions.compensate import compensate
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.csvimport import OUTPUT_COLUMNS, read_csv
+from hapticlab.sessions.recording import read_recording
+from hapticlab.sessions.run import build_session, run_session
+
+# README of ../shared/data/real: offline batch fit RMS per axis, N
+AXIA80_LOG_BATCH_RMS = np.array([0.068, 0.257, 0.124])
+
+
+def write_csv(path, n=3000, seed=11, contact=slice(1500, 1700)):
+    block, truth = static_model_stream(n, seed=seed, noise_force=0.12, noise_torque=0.01)
+    push = np.array([0.0, 1.0, 3.0])
+    block.force_S[contact] += push
+    block.torque_S[contact] += np.cross([0.0, 0.0, 0.25], push)
+    quat_BE = quat_wxyz_from_matrix(block.R_EB.transpose(0, 2, 1))
+    with path.open("w") as fh:
+        fh.write("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n")
+        for k in range(n):
+            fh.write(",".join(repr(float(v)) for v in [k * 1e-3, *block.force_S[k], *block.torque_S[k], *quat_BE[k]]) + "\n")
+    return truth, push
+
+
+def test_compensate_csv_output_contract(tmp_path, capsys):
+    truth, push = write_csv(tmp_path / "in.csv")
+    code = main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "out.csv"),
+                 "--params-out", str(tmp_path / "p.json"), "--set", "estimator.force_threshold=1.5"])
+    assert code == 0
+    with (tmp_path / "out.csv").open() as fh:
+        rows = list(csv.reader(fh))
+    assert tuple(rows[0]) == OUTPUT_COLUMNS and len(rows) == 3001
+    table = np.array(rows[1:], dtype=float)
+    assert np.allclose(table[:, 0], np.arange(3000) * 1e-3)
+    assert set(np.unique(table[:, 7:])) <= {0.0, 1.0}
+    contact = table[:, 7].astype(bool)
+    assert contact[1500:1700].all() and contact.sum() == 200
+    assert np.abs(table[1500:1700, 1:4] - push).mean() < 0.15
+    params = json.loads((tmp_path / "p.json").read_text())
+    for key in ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S"):
+        assert len(params[key]) == 3
+    assert np.allclose(params["gravity_force_B"], truth["gravity_force_B"], atol=0.02)
+    assert np.allclose(params["cog_S"], truth["cog_S"], atol=0.002)
+    assert "RMS contact force" in capsys.readouterr().err
+
+
+def test_compensate_errors_are_one_line(tmp_path, capsys):
+    (tmp_path / "bad.csv").write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n0,1,2,3,4,5,6,1,0,0,0\n1,1,2,x,4,5,6,1,0,0,0\n")
+    assert main(["compensate", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "hapticlab compensate: error: bad.csv line 3, column 'fz': 'x' is not a finite number"
+    write_csv(tmp_path / "in.csv", n=50)
+    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"),
+                 "--set", "estimator.gain=2"]) == 2
+    assert "estimator.gain: unknown option" in capsys.readouterr().err
+    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"),
+                 "--estimator", "nope"]) == 2
+    assert "estimator.name: unknown estimator 'nope'" in capsys.readouterr().err
+
+
+def test_compensate_a_recording_matches_the_live_session(tmp_path):
+    config, _ = load_config("demo")
+    config = apply_overrides(config, ["session.realtime=false", "session.duration=7.0"])
+    result = run_session(build_session(config), out=tmp_path / "live.mcap")
+    offline = compensate(result.path, tmp_path / "offline.csv")
+    live = read_recording(result.path)
+    live_force = live.field("/estimator/rls", "contact_force_S")
+    assert offline.rows == result.samples == len(live_force)
+    # Live, samples newer than the last pose use one period of extrapolation;
+    # offline, every sample is interpolated. The difference is tiny.
+    assert np.sqrt(np.mean((offline.estimates.contact_force_S - live_force) ** 2)) < 0.01
+    assert np.array_equal(offline.estimates.contact, live.field("/estimator/rls", "contact").astype(bool))
+
+
+def test_batch_estimator_offline_equals_batch_fit(tmp_path):
+    write_csv(tmp_path / "in.csv", n=1200, contact=slice(0, 0))
+    result = compensate(tmp_path / "in.csv", tmp_path / "out.csv", estimator_name="batch")
+    record = read_csv(tmp_path / "in.csv")
+    fit = batch_fit(record.force_S, record.torque_S, record.R_EB)
+    for key in ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S"):
+        assert np.allclose(result.params[key], fit[key], atol=1e-9), key
+    # the last row used every sample: its residual is the batch fit's
+    assert np.allclose(result.estimates.contact_force_S[-1], fit["residual_force_S"][-1], atol=1e-9)
+
+
+def test_real_axia80_log_within_10_percent_of_the_offline_batch_fit(real_data, tmp_path):
+    result = compensate(real_data / "axia80_ur_log_10hz.csv", tmp_path / "out.csv")
+    rms = np.array(result.rms_force_S)
+    assert result.first_converged_force is not None
+    assert np.all(rms <= 1.10 * AXIA80_LOG_BATCH_RMS), rms
+
+
+def test_plugins_command_lists_the_builtins(capsys):
+    assert main(["plugins"]) == 0
+    text = capsys.readouterr().out
+    for kind, name in [("sensor", "sim"), ("kinematics", "sim"), ("estimator", "rls"),
+                       ("estimator", "batch"), ("haptic_output", "null")]:
+        assert any(kind in line and f" {name} " in line for line in text.splitlines()), (kind, name)
+
+
+def test_run_command_writes_an_mcap(tmp_path, capsys):
+    out = tmp_path / "cli.mcap"
+    assert main(["run", "--duration", "0.5", "--out", str(out), "--set", "session.realtime=false"]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert len(read_recording(out).topics["/sensor/wrench"]) == 501
+
+
+@pytest.mark.parametrize("args, message", [
+    (["run", "nosuchpreset"], "unknown session 'nosuchpreset'"),
+    (["run", "--set", "estimator.force_threshold=-1", "--duration", "0.1"], "force_threshold must be positive"),
+    (["run", "--set", "bogus"], "--set 'bogus': expected key=value"),
+])
+def test_run_errors_are_one_line(args, message, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and err.startswith("hapticlab run: error: ")

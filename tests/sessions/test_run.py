@@ -1,0 +1,223 @@
+"""Sessions end to end: config → plugins → loop → MCAP, and the safety rules on the way."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hapticlab.core import hookimpl
+from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.recording import read_recording
+from hapticlab.sessions.run import build_session, run_session
+
+ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/rls",
+              "/haptic/command", "/haptic/state", "/events"}
+
+
+def demo(*overrides: str, duration: float = 3.0):
+    config, _ = load_config("demo")
+    config = apply_overrides(config, ["session.realtime=false", f"session.duration={duration}", *overrides])
+    return config
+
+
+@pytest.fixture(scope="module")
+def demo_recording(tmp_path_factory):
+    """A recorded demo: 8 s simulated, with the first indentation at 6 s."""
+    path = tmp_path_factory.mktemp("rec") / "demo.mcap"
+    result = run_session(build_session(demo(duration=8.0)), out=path)
+    return result, read_recording(path)
+
+
+def test_recorded_demo_reopens_with_every_topic(demo_recording):
+    result, rec = demo_recording
+    assert set(rec.topics) == ALL_TOPICS
+    n = result.samples
+    assert n == 8001 and len(rec.topics["/sensor/wrench"]) == n
+    assert len(rec.topics["/aligned/sample"]) == n and len(rec.topics["/estimator/rls"]) == n
+    assert len(rec.topics["/kinematics/pose"]) == result.poses == 4001
+    session = rec.metadata["hapticlab.session"]
+    assert '"estimator": {"name": "rls"' in session["config"] and "sim" in session["plugins"]
+    assert rec.metadata["hapticlab.summary"]["samples"] == str(n)
+    seq = rec.field("/sensor/wrench", "seq")
+    assert np.array_equal(seq, np.arange(n))  # nothing dropped
+
+
+def test_demo_separates_the_indentation_from_the_tool_weight(demo_recording):
+    _, rec = demo_recording
+    t = (rec.t_ns("/estimator/rls") - rec.t_ns("/estimator/rls")[0]) * 1e-9
+    force = rec.field("/estimator/rls", "contact_force_S")
+    contact = rec.field("/estimator/rls", "contact").astype(bool)
+    free = (t > 2.0) & (t < 5.9)
+    # away from contact only noise and unmodelled inertia remain (sensor noise 0.12 N per axis)
+    assert np.sqrt(np.mean(force[free] ** 2, axis=0)).max() < 0.2
+    assert not contact[free].any()
+    pressing = (t > 6.4) & (t < 7.1)  # the 3 N indentation's plateau
+    assert contact[pressing].all()
+    assert np.abs(np.linalg.norm(force[pressing], axis=1) - 3.0).mean() < 0.25
+
+
+def test_haptics_wait_for_convergence_and_are_clamped(demo_recording):
+    result, rec = demo_recording
+    enabled = rec.field("/haptic/command", "enabled").astype(bool)
+    force_D = rec.field("/haptic/command", "force_D")
+    t_cmd = rec.t_ns("/haptic/command")
+    converged_at = next(t for t, m in rec.topics["/events"] if m["kind"] == "converged")
+    assert not enabled[t_cmd < converged_at].any() and enabled[-100:].all()
+    assert np.all(force_D[~enabled] == 0.0)
+    assert np.linalg.norm(force_D, axis=1).max() <= 4.0 + 1e-9
+    step = np.linalg.norm(np.diff(force_D[enabled], axis=0), axis=1)
+    assert step.max() <= 400.0 * 1e-3 + 1e-9  # max_force_rate · device period
+    kinds = [m["kind"] for _, m in rec.topics["/events"]]
+    assert kinds[:2] == ["session_start", "haptic_disabled"] and kinds[-1] == "session_end"
+
+
+def test_estimator_swap_from_overrides(tmp_path):
+    result = run_session(build_session(demo("estimator.name=batch", duration=1.0)), out=tmp_path / "b.mcap")
+    rec = read_recording(result.path)
+    assert "/estimator/batch" in rec.topics and "/estimator/rls" not in rec.topics
+
+
+class FlakyDevice:
+    """A master device that is lost after some commands (raises from send)."""
+
+    def __init__(self, rate_hz: float = 1000.0, fail_after: int = 1500):
+        self.rate_hz, self.fail_after, self.sent = rate_hz, fail_after, 0
+
+    def open(self): ...
+    def close(self): ...
+    def state(self): return None
+
+    def send(self, command):
+        self.sent += 1
+        if self.sent > self.fail_after:
+            raise OSError("USB device disconnected")
+
+
+class InterruptingSensor:
+    """Wraps the simulated sensor and raises Ctrl-C after some reads."""
+
+    def __init__(self, rate_hz: float = 1000.0, stop_after: int = 700, world=None):
+        from hapticlab.plugins.sensors.sim import SimSensor
+
+        self.inner, self.stop_after, self.reads = SimSensor(rate_hz, world=world), stop_after, 0
+        self.rate_hz = rate_hz
+
+    def open(self, t0_ns): self.inner.open(t0_ns)
+    def close(self): self.inner.close()
+
+    def read(self, until_ns):
+        self.reads += 1
+        if self.reads > self.stop_after:
+            raise KeyboardInterrupt
+        return self.inner.read(until_ns)
+
+
+class GappyKinematics:
+    """The simulated robot, silent between 1.0 s and 1.2 s."""
+
+    def __init__(self, rate_hz: float = 500.0, world=None):
+        from hapticlab.plugins.kinematics.sim import SimKinematics
+
+        self.inner, self.rate_hz, self.t0 = SimKinematics(rate_hz, world=world), rate_hz, 0
+
+    def open(self, t0_ns):
+        self.t0 = t0_ns
+        self.inner.open(t0_ns)
+
+    def close(self): self.inner.close()
+
+    def read(self, until_ns):
+        poses = self.inner.read(until_ns)
+        return [p for p in poses if not 1.0e9 < p.t_ns - self.t0 < 1.2e9]
+
+
+class TestPlugins:
+    @hookimpl
+    def register_haptic_outputs(self, register):
+        register("flaky", FlakyDevice)
+
+    @hookimpl
+    def register_sensors(self, register):
+        register("interrupting", InterruptingSensor)
+
+    @hookimpl
+    def register_kinematics(self, register):
+        register("gappy", GappyKinematics)
+
+
+@pytest.fixture
+def registry():
+    pm = make_plugin_manager(load_entry_points=False)
+    pm.register(TestPlugins(), name="tests")
+    return Registry(pm)
+
+
+def test_lost_device_zeroes_force_and_is_recorded(tmp_path, registry):
+    config = demo("haptic.name=flaky", "haptic.fail_after=1500", duration=2.0)
+    result = run_session(build_session(config, registry), out=tmp_path / "lost.mcap")
+    rec = read_recording(result.path)
+    messages = [m for _, m in rec.topics["/haptic/command"]]
+    after = messages[1500:]
+    assert after and all(not m["enabled"] and m["force_D"] == [0.0, 0.0, 0.0] for m in after)
+    assert after[0]["reason"] == "device error: USB device disconnected"
+    assert any("device error" in m["message"] for _, m in rec.topics["/events"])
+    assert result.samples == 2001  # the session carried on recording
+
+
+def test_stale_kinematics_zero_the_force(tmp_path, registry):
+    # the robot stops reporting poses from 1.0 s to 1.2 s
+    config = demo("kinematics.name=gappy", duration=1.5)
+    result = run_session(build_session(config, registry), out=tmp_path / "stale.mcap")
+    rec = read_recording(result.path)
+    t = (rec.t_ns("/aligned/sample") - rec.t_ns("/aligned/sample")[0]) * 1e-9
+    stale = rec.field("/aligned/sample", "stale").astype(bool)
+    # one kinematics period (2 ms) of extrapolation is allowed, not more
+    assert np.array_equal(stale, (t > 1.0 + 0.002 + 1e-9) & (t < 1.2))
+    commands = rec.topics["/haptic/command"]
+    t_cmd = (np.array([t for t, _ in commands]) - rec.t_ns("/aligned/sample")[0]) * 1e-9
+    during = [m for tc, (_, m) in zip(t_cmd, commands) if 1.003 < tc < 1.2]
+    assert during and all(m["reason"] == "stale kinematics" and m["force_D"] == [0.0] * 3 for m in during)
+    assert commands[-1][1]["enabled"]  # back on once poses return
+    # stale samples never reach the estimator
+    assert len(rec.topics["/estimator/rls"]) == int((~stale).sum())
+
+
+def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
+    config = demo("sensor.name=interrupting", "sensor.stop_after=700", duration=5.0)
+    result = run_session(build_session(config, registry), out=tmp_path / "ctrlc.mcap")
+    assert result.interrupted and result.samples == 701  # samples at 0, 1, ..., 700 ms
+    rec = read_recording(result.path)  # a valid, complete MCAP (summary, footer)
+    assert len(rec.topics["/sensor/wrench"]) == 701
+    assert rec.topics["/events"][-1][1]["message"] == "interrupted (Ctrl-C)"
+    assert rec.metadata["hapticlab.summary"]["interrupted"] == "true"
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("estimator.name=kalmann", r"^estimator.name: unknown estimator 'kalmann'; available: batch, rls$"),
+        ("estimator.force_treshold=2", r"^estimator.force_treshold: unknown option; known options: .*force_threshold"),
+        ("estimator.force_threshold=high", r"^estimator.force_threshold: expected a number, got 'high'$"),
+        ("session.duration=soon", r"^session.duration: expected a number, got 'soon'$"),
+        ("haptic.max_force=[1, 2]", r"^haptic.max_force: expected a number, got \[1, 2\]$"),
+        ("world.tool.mass=heavy", r"^world.tool.mass: expected a number, got 'heavy'$"),
+        ("sensor.rate_hz=true", r"^sensor.rate_hz: expected a number, got True$"),
+    ],
+)
+def test_config_errors_name_the_key(override, message):
+    with pytest.raises(ConfigError, match=message):
+        build_session(demo(override))
+
+
+def test_unknown_table_and_missing_name():
+    with pytest.raises(ConfigError, match=r"^sensr.rate_hz: unknown table 'sensr'"):
+        apply_overrides({}, ["sensr.rate_hz=1"])
+    config = demo()
+    config["estimatr"] = {"name": "rls"}
+    with pytest.raises(ConfigError, match=r"^estimatr: unknown table; tables: "):
+        build_session(config)
+    config = demo()
+    del config["estimator"]["name"]
+    with pytest.raises(ConfigError, match=r"^estimator.name: missing"):
+        build_session(config)

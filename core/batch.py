@@ -19,6 +19,9 @@ import numpy as np
 from .frames import skew_stack
 
 
+I3 = np.eye(3)
+
+
 def normal_terms(y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-sample C_kᵀC_k (m, 6, 6) and C_kᵀy_k (m, 6) for C_k = [A_k, I3].
 
@@ -31,7 +34,7 @@ def normal_terms(y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     CtC[:, :3, :3] = At @ A
     CtC[:, :3, 3:] = At
     CtC[:, 3:, :3] = A
-    CtC[:, 3:, 3:] = np.eye(3)
+    CtC[:, 3:, 3:] = I3
     Cty = np.empty((m, 6))
     Cty[:, :3] = (At @ y[:, :, None])[:, :, 0]
     Cty[:, 3:] = y

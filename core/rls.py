@@ -127,6 +127,7 @@ def run_gated(
     m = len(y)
     if m == 1:  # the live loop's common case, without the run bookkeeping
         return _run_gated_one(stage, y, A, bool(active[0]), threshold, epsilon, converged)
+    threshold2, epsilon2 = threshold * threshold, epsilon * epsilon  # compare squared norms
     X = np.empty((m, 6))
     conv = np.empty(m, dtype=bool)
     gated = np.zeros(m, dtype=bool)
@@ -140,8 +141,8 @@ def run_gated(
             continue
         end = i + _leading_true_count(active[i:])
         if converged:
-            residual = np.linalg.norm(stage.predict(A[i:end]) - y[i:end], axis=1)
-            n = _leading_true_count(residual >= threshold)
+            residual = stage.predict(A[i:end]) - y[i:end]
+            n = _leading_true_count(np.einsum("ij,ij->i", residual, residual) >= threshold2)
             if n:
                 X[i : i + n] = stage.x
                 conv[i : i + n] = True
@@ -149,12 +150,13 @@ def run_gated(
                 i += n
                 continue
         Xp, Lam, eta = stage.propose(y[i:end], A[i:end])
-        dx = np.diff(Xp, axis=0, prepend=stage.x[None, :])
-        conv_p = np.einsum("ij,ij->i", dx, dx) < epsilon * epsilon
+        dx = Xp.copy()
+        dx[0] -= stage.x
+        dx[1:] -= Xp[:-1]
+        conv_p = np.einsum("ij,ij->i", dx, dx) < epsilon2
         # Would the gate refuse the sample after each one? (needs x and the flag after it)
-        predicted_next = (A[i + 1 : end] @ Xp[:-1, :3, None])[:, :, 0] + Xp[:-1, 3:]
-        residual_next = np.linalg.norm(predicted_next - y[i + 1 : end], axis=1)
-        stop = conv_p[:-1] & (residual_next >= threshold)
+        residual_next = (A[i + 1 : end] @ Xp[:-1, :3, None])[:, :, 0] + Xp[:-1, 3:] - y[i + 1 : end]
+        stop = conv_p[:-1] & (np.einsum("ij,ij->i", residual_next, residual_next) >= threshold2)
         n = int(np.argmax(stop)) + 1 if stop.any() else end - i
         stage.commit(Xp[n - 1], Lam[n - 1], eta[n - 1], n)
         converged = bool(conv_p[n - 1])

@@ -108,11 +108,16 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         )
     for note in result.notes:
         err.print(f"note: {note}")
-    fmt = lambda v: "[" + ", ".join(f"{x:.4g}" for x in v) + "]"  # noqa: E731
-    err.print(f"{result.rows} rows → {args.output} ({args.estimator}); force converged at sample "
-              f"{result.first_converged_force}, torque at {result.first_converged_torque}")
-    err.print(f"RMS contact force after convergence, no contact: {fmt(result.rms_force_S)} N; "
-              f"torque {fmt(result.rms_torque_S)} N·m")
+    def fmt(values, unit):
+        if all(v != v for v in values):  # NaN: that stage never converged
+            return "n/a (not converged)"
+        return "[" + ", ".join(f"{x:.4g}" for x in values) + f"] {unit}"
+
+    err.print(f"{Path(args.input).name}: {result.rows} rows → {args.output} ({args.estimator}); "
+              f"force converged at sample {result.first_converged_force}, torque at "
+              f"{result.first_converged_torque}")
+    err.print(f"RMS contact wrench on no-contact rows after convergence: force "
+              f"{fmt(result.rms_force_S, 'N')}, torque {fmt(result.rms_torque_S, 'N·m')}")
     return 0
 
 

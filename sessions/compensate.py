@@ -117,6 +117,14 @@ def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
     )
 
 
+def _rms_after(values: np.ndarray, contact: np.ndarray, first: int | None) -> np.ndarray:
+    """Per-axis RMS over no-contact rows from the first convergence on (NaN if none)."""
+    if first is None:
+        return np.full(3, np.nan)
+    rows = ~contact[first:]
+    return np.sqrt(np.mean(values[first:][rows] ** 2, axis=0)) if rows.any() else np.full(3, np.nan)
+
+
 @dataclass
 class CompensateResult:
     """What ``compensate`` did, for the summary it prints."""
@@ -125,6 +133,7 @@ class CompensateResult:
     estimates: Estimates
     params: dict[str, Any]
     rms_force_S: list[float]
+    """per-axis RMS of the contact force over no-contact rows after the first convergence, N"""
     rms_torque_S: list[float]
     first_converged_force: int | None
     first_converged_torque: int | None
@@ -148,12 +157,10 @@ def compensate(
     est = run_estimator(stream, estimator, progress)
     write_compensated_csv(out_csv, stream.t_s, est.contact_force_S, est.contact_torque_S,
                           est.contact, est.converged_force, est.converged_torque)
-    used = est.converged_force & ~est.contact
-    rms_f = np.sqrt(np.mean(est.contact_force_S[used] ** 2, axis=0)) if used.any() else np.full(3, np.nan)
-    used_t = est.converged_torque & ~est.contact
-    rms_t = np.sqrt(np.mean(est.contact_torque_S[used_t] ** 2, axis=0)) if used_t.any() else np.full(3, np.nan)
     first_f = int(np.argmax(est.converged_force)) if est.converged_force.any() else None
     first_t = int(np.argmax(est.converged_torque)) if est.converged_torque.any() else None
+    rms_f = _rms_after(est.contact_force_S, est.contact, first_f)
+    rms_t = _rms_after(est.contact_torque_S, est.contact, first_t)
     params: dict[str, Any] = dict(estimator.params())
     params.update({
         "estimator": estimator_name,

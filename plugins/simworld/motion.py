@@ -35,6 +35,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from hapticlab.core.frames import skew_stack
 from scipy.spatial.transform import Rotation
 
 __all__ = [
@@ -103,10 +104,12 @@ def quintic(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     s, ds_dtau, d2s_dtau2 : (N,) each. ``s`` runs 0 → 1; both derivatives are
         zero at τ = 0 and τ = 1.
     """
-    tau = np.clip(tau, 0.0, 1.0)
-    s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
-    ds = 30.0 * tau**2 * (1.0 - tau) ** 2
-    dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau)
+    tau = np.minimum(np.maximum(tau, 0.0), 1.0)  # np.clip, without its per-call overhead
+    tau_2 = tau * tau
+    rest = 1.0 - tau
+    s = tau_2 * tau * (10.0 - 15.0 * tau + 6.0 * tau_2)
+    ds = 30.0 * tau_2 * (rest * rest)
+    dds = 60.0 * tau * rest * (1.0 - 2.0 * tau)
     return s, ds, dds
 
 
@@ -128,16 +131,76 @@ def _rotz(angle: np.ndarray) -> np.ndarray:
 def _still(t: np.ndarray, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> MotionState:
     """A MotionState holding one pose at every time."""
     n = len(t)
+    R_BE_t = np.empty((n, 3, 3))
+    R_BE_t[:] = R_BE
+    p_BoEo_B_t = np.empty((n, 3))
+    p_BoEo_B_t[:] = p_BoEo_B
     zeros = np.zeros((n, 3))
     return MotionState(
         t=t,
-        R_BE=np.broadcast_to(R_BE, (n, 3, 3)).copy(),
-        p_BoEo_B=np.broadcast_to(p_BoEo_B, (n, 3)).copy(),
+        R_BE=R_BE_t,
+        p_BoEo_B=p_BoEo_B_t,
         w_BE_E=zeros,
         alpha_BE_E=zeros.copy(),
         v_BEo_B=zeros.copy(),
         a_BEo_B=zeros.copy(),
     )
+
+
+@dataclass(frozen=True, slots=True)
+class _Moves:
+    """What a :class:`RandomTour` needs of each move, computed once per move.
+
+    Move k goes from waypoint k (``R_BE_a``, ``p_BoEo_B_a``) to waypoint k + 1.
+    With its rotation vector ``u_E = θ n`` (in E; n a unit axis, 0 if θ = 0) and
+    ``[n]×`` the cross-product matrix of n, Rodrigues' formula gives the
+    orientation at the fraction s of the move as
+
+        R_BE(s) = R_BE_a Exp(s u_E)
+                = R_BE_a + sin(sθ) · R_BE_a [n]× + (1 − cos(sθ)) · R_BE_a [n]×²,
+
+    so a sample costs a sine, a cosine and two scaled 3×3 additions instead of
+    building a scipy Rotation (whose ~20 µs per call dominate the live loop's
+    reads of one sample).
+
+    Attributes:
+        u_E: (m, 3) rotation vector of each move, in E, rad.
+        angle: (m,) its angle θ = |u_E|, rad.
+        R_BE_a: (m, 3, 3) orientation at the start of each move.
+        R_BE_a_n: (m, 3, 3) ``R_BE_a [n]×``.
+        R_BE_a_nn: (m, 3, 3) ``R_BE_a [n]×²``.
+        p_BoEo_B_a: (m, 3) flange position at the start of each move, in B, m.
+        step_B: (m, 3) flange displacement over each move, in B, m.
+    """
+
+    u_E: np.ndarray
+    angle: np.ndarray
+    R_BE_a: np.ndarray
+    R_BE_a_n: np.ndarray
+    R_BE_a_nn: np.ndarray
+    p_BoEo_B_a: np.ndarray
+    step_B: np.ndarray
+
+    @classmethod
+    def between(cls, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> _Moves:
+        """The moves between consecutive waypoints ``R_BE`` (m+1, 3, 3), ``p_BoEo_B`` (m+1, 3) m."""
+        R_a, R_b = R_BE[:-1], R_BE[1:]
+        R_ab = np.transpose(R_a, (0, 2, 1)) @ R_b  # R_EaEb: end orientation seen from the start
+        u_E = Rotation.from_matrix(R_ab).as_rotvec()
+        angle = np.linalg.norm(u_E, axis=1)
+        axis_E = np.divide(u_E, angle[:, None], out=np.zeros_like(u_E), where=angle[:, None] > 0)
+        n_cross = skew_stack(axis_E)
+        R_a_n = R_a @ n_cross
+        return cls(u_E=u_E, angle=angle, R_BE_a=R_a.copy(), R_BE_a_n=R_a_n, R_BE_a_nn=R_a_n @ n_cross,
+                   p_BoEo_B_a=p_BoEo_B[:-1].copy(), step_B=p_BoEo_B[1:] - p_BoEo_B[:-1])
+
+    def __len__(self) -> int:
+        return len(self.angle)
+
+    def extended(self, more: _Moves) -> _Moves:
+        """These moves followed by ``more``."""
+        return _Moves(*(np.concatenate([getattr(self, name), getattr(more, name)])
+                        for name in self.__slots__))
 
 
 class MotionScript:
@@ -235,10 +298,11 @@ class RandomTour(MotionScript):
         self.waypoints = waypoints
         self.p_BoEo_B = np.asarray(p_BoEo_B, dtype=float)
         # Waypoint cache, extended block by block: orientations, flange offsets,
-        # and the rotation vector (in E) of each move.
+        # and what the evaluation needs of each move (replaced whole, never edited,
+        # so a reader without the lock always sees a consistent table).
         self._R_BE = NOMINAL_R_BE[None].copy()
         self._offset_B = np.zeros((1, 3))
-        self._u_E = np.zeros((0, 3))
+        self._moves = _Moves.between(self._R_BE, self.p_BoEo_B + self._offset_B)
         self._lock = threading.Lock()
 
     @property
@@ -266,19 +330,18 @@ class RandomTour(MotionScript):
 
     def _ensure(self, count: int) -> None:
         """Make sure waypoints 0..count-1 (and the moves between them) are cached."""
+        if len(self._moves) >= count - 1:  # the usual case: no lock needed
+            return
         with self._lock:
             while len(self._R_BE) < count:
                 block = (len(self._R_BE) - 1) // WAYPOINT_BLOCK
                 R_new, offset_new = self._draw_block(block)
                 self._R_BE = np.concatenate([self._R_BE, R_new])
                 self._offset_B = np.concatenate([self._offset_B, offset_new])
-            n_moves = len(self._R_BE) - 1
-            if len(self._u_E) < n_moves:
-                first = len(self._u_E)
-                R_a = self._R_BE[first:n_moves]
-                R_b = self._R_BE[first + 1 : n_moves + 1]
-                R_ab = np.transpose(R_a, (0, 2, 1)) @ R_b  # R_EaEb: end orientation seen from the start
-                self._u_E = np.concatenate([self._u_E, Rotation.from_matrix(R_ab).as_rotvec()])
+            first = len(self._moves)  # waypoint at the start of the first missing move
+            if first < len(self._R_BE) - 1:
+                more = _Moves.between(self._R_BE[first:], self.p_BoEo_B + self._offset_B[first:])
+                self._moves = self._moves.extended(more)
 
     def waypoint_poses(self, count: int) -> tuple[np.ndarray, np.ndarray]:
         """The first ``count`` waypoints: ``(R_BE (count, 3, 3), p_BoEo_B (count, 3))``."""
@@ -295,19 +358,23 @@ class RandomTour(MotionScript):
             k = np.where(done, self.waypoints - 1, k)
             local = np.where(done, self.period_s, local)
         self._ensure(int(k.max(initial=0)) + 2)
+        moves = self._moves
 
         s, ds, dds = quintic(local / self.segment_s)
         s_dot = ds / self.segment_s
         s_ddot = dds / self.segment_s**2
 
-        u_E = self._u_E[k]
-        R_BE = self._R_BE[k] @ Rotation.from_rotvec(s[:, None] * u_E).as_matrix()
-        offset_a, offset_b = self._offset_B[k], self._offset_B[k + 1]
-        step_B = offset_b - offset_a
+        # R_BE_a Exp(s u_E) by Rodrigues' formula (see _Moves), φ = s θ
+        phi = s * moves.angle[k]
+        sin_phi = np.sin(phi)[:, None, None]
+        versine_phi = (1.0 - np.cos(phi))[:, None, None]
+        R_BE = moves.R_BE_a[k] + sin_phi * moves.R_BE_a_n[k] + versine_phi * moves.R_BE_a_nn[k]
+        u_E = moves.u_E[k]
+        step_B = moves.step_B[k]
         return MotionState(
             t=t,
             R_BE=R_BE,
-            p_BoEo_B=self.p_BoEo_B + offset_a + s[:, None] * step_B,
+            p_BoEo_B=moves.p_BoEo_B_a[k] + s[:, None] * step_B,
             w_BE_E=s_dot[:, None] * u_E,
             alpha_BE_E=s_ddot[:, None] * u_E,
             v_BEo_B=s_dot[:, None] * step_B,
@@ -413,7 +480,7 @@ class AxialRotation(MotionScript):
         u_down = (t - self.start_s - T - self.cruise_s) / T
         # ∫₀^u s(v) dv for the quintic s: 2.5u⁴ − 3u⁵ + u⁶ (equals 1/2 at u = 1).
         def s_integral(u: np.ndarray) -> np.ndarray:
-            u = np.clip(u, 0.0, 1.0)
+            u = np.minimum(np.maximum(u, 0.0), 1.0)
             return u**4 * (2.5 - 3.0 * u + u**2)
 
         s_up, ds_up, _ = quintic(u_up)
@@ -421,9 +488,9 @@ class AxialRotation(MotionScript):
         # Speed: w0 · (s_up − s_down); the cruise is the plateau in between.
         phi_dot = w0 * (s_up - s_down)
         phi_ddot = w0 * (ds_up - ds_down) / T
-        cruise_time = np.clip(t - self.start_s - T, 0.0, self.cruise_s)
+        cruise_time = np.minimum(np.maximum(t - self.start_s - T, 0.0), self.cruise_s)
         phi = w0 * (T * s_integral(u_up) + cruise_time
-                    + T * (np.clip(u_down, 0.0, 1.0) - s_integral(u_down)))
+                    + T * (np.minimum(np.maximum(u_down, 0.0), 1.0) - s_integral(u_down)))
         return phi, phi_dot, phi_ddot
 
     def evaluate(self, t: float | np.ndarray) -> MotionState:

@@ -22,6 +22,9 @@ with
 * ``a_cm_S = a_So_S + ω̇ × c + ω × (ω × c)`` the acceleration of the centre of
   mass, ``a_So`` that of the sensor origin:
   ``a_So_B = a_BEo_B + R_BE (ω̇_E × p_EoSo_E + ω_E × (ω_E × p_EoSo_E))``.
+  Both rigid-body terms together, in S: ``a_cm_S = R_SB a_BEo_B + ω̇ × r + ω × (ω × r)``
+  with ``r = R_SE p_EoSo_E + c`` the centre of mass from the flange origin (how
+  it is computed).
 
 The motion derivatives come analytically from the motion script (see
 ``motion.py``). With ``inertia=False`` the terms in ``a_cm`` and ``I`` are
@@ -47,12 +50,14 @@ it is asked for in one call or in chunks, in any order, any number of times:
 
 from __future__ import annotations
 
+import functools
+import math
 import threading
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
-from hapticlab.core.frames import rotvec_from_matrix
+from hapticlab.core.frames import cross, rotvec_from_matrix
 from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
 
 from .config import (
@@ -89,14 +94,25 @@ def _times(t: float | np.ndarray) -> np.ndarray:
 
 _U64 = np.uint64
 _CHANNEL_STEP = 0xD1B54A32D192ED03  # an odd 64-bit constant separating the channels' counters
+_GOLDEN_GAMMA, _MIX_1, _MIX_2 = _U64(0x9E3779B97F4A7C15), _U64(0xBF58476D1CE4E5B9), _U64(0x94D049BB133111EB)
+_SHIFT_11, _SHIFT_27, _SHIFT_30, _SHIFT_31 = _U64(11), _U64(27), _U64(30), _U64(31)
 
 
 def _splitmix64(x: np.ndarray) -> np.ndarray:
     """The SplitMix64 finaliser: a bijective, well-mixing hash of uint64 arrays."""
-    x = x + _U64(0x9E3779B97F4A7C15)
-    x = (x ^ (x >> _U64(30))) * _U64(0xBF58476D1CE4E5B9)
-    x = (x ^ (x >> _U64(27))) * _U64(0x94D049BB133111EB)
-    return x ^ (x >> _U64(31))
+    x = x + _GOLDEN_GAMMA
+    x = (x ^ (x >> _SHIFT_30)) * _MIX_1
+    x = (x ^ (x >> _SHIFT_27)) * _MIX_2
+    return x ^ (x >> _SHIFT_31)
+
+
+@functools.cache
+def _channel_offsets(channels: int) -> np.ndarray:
+    """(channels,) uint64 counter offsets: channel c adds ``(c + 1) · _CHANNEL_STEP`` (mod 2⁶⁴)."""
+    # Python ints first: no numpy scalar overflow
+    offsets = np.array([((c + 1) * _CHANNEL_STEP) % 2**64 for c in range(channels)], dtype=np.uint64)
+    offsets.setflags(write=False)
+    return offsets
 
 
 def gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.ndarray:
@@ -114,16 +130,15 @@ def gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.ndarray:
     """
     counter = np.ascontiguousarray(t_ns, dtype=np.int64).view(np.uint64)
     base = _splitmix64(counter ^ _U64(key))
+    # all channels at once: a different odd-constant offset per channel, then
+    # Box–Muller on the pairs (channel 2i, channel 2i + 1)
+    bits = _splitmix64(base[:, None] + _channel_offsets(channels))
+    uniform = ((bits >> _SHIFT_11).astype(float) + 0.5) * 2.0**-53  # in (0, 1)
+    u1, u2 = uniform[:, 0::2], uniform[:, 1::2]
+    radius = np.sqrt(-2.0 * np.log(u1))
     out = np.empty((len(counter), channels))
-    for pair in range(channels // 2):
-        # a different odd-constant offset per channel (Python ints: no numpy scalar overflow)
-        bits_1 = _splitmix64(base + _U64(((2 * pair + 1) * _CHANNEL_STEP) % 2**64))
-        bits_2 = _splitmix64(base + _U64(((2 * pair + 2) * _CHANNEL_STEP) % 2**64))
-        u1 = ((bits_1 >> _U64(11)).astype(float) + 0.5) * 2.0**-53  # uniform in (0, 1)
-        u2 = ((bits_2 >> _U64(11)).astype(float) + 0.5) * 2.0**-53
-        radius = np.sqrt(-2.0 * np.log(u1))
-        out[:, 2 * pair] = radius * np.cos(2.0 * np.pi * u2)
-        out[:, 2 * pair + 1] = radius * np.sin(2.0 * np.pi * u2)
+    out[:, 0::2] = radius * np.cos(2.0 * np.pi * u2)
+    out[:, 1::2] = radius * np.sin(2.0 * np.pi * u2)
     return out
 
 
@@ -188,7 +203,7 @@ class SampleClock:
         """
         if self.t0_ns is None:
             raise RuntimeError("read() before open()")
-        last = int(np.floor((int(until_ns) - self.t0_ns) * self.rate_hz / 1e9)) + 1  # may overshoot by one
+        last = math.floor((int(until_ns) - self.t0_ns) * self.rate_hz / 1e9) + 1  # may overshoot by one
         seq = np.arange(self.next_index, max(last + 1, self.next_index), dtype=np.int64)
         t_ns = self.t0_ns + np.rint(seq * (1e9 / self.rate_hz)).astype(np.int64)
         keep = t_ns <= until_ns
@@ -228,6 +243,9 @@ class SimWorld:
         self.R_SE = self.sensor.R_SE
         self.R_BG = self.robot.R_BG
         self.gravity_accel_B = self.robot.gravity_accel_B
+        # Constants of wrench(), computed once: the live loop asks for a few samples at a time.
+        self._p_EoCm_S = self.R_SE @ self.sensor.p_EoSo_E + self.tool.cog_S
+        """(3,) the tool's centre of mass from the flange origin, in S, m."""
         self._noise_key = int(np.random.SeedSequence(self.seed, spawn_key=(NOISE_STREAM,))
                               .generate_state(1, np.uint64)[0])
         has_walk = np.any(self.sensor.drift_force_rw_S > 0) or np.any(self.sensor.drift_torque_rw_S > 0)
@@ -302,25 +320,20 @@ class SimWorld:
         n = len(t)
         tool = self.tool
         state = self.motion.evaluate(t)
-        R_EB = np.transpose(state.R_BE, (0, 2, 1))
+        R_EB = state.R_BE.transpose(0, 2, 1)
         R_SB = self.R_SE @ R_EB
 
-        gravity_force_S = tool.mass * _apply(R_SB, self.gravity_accel_B)
-        gravity_torque_S = np.cross(tool.cog_S, gravity_force_S)
+        gravity_force_S = tool.mass * (R_SB @ self.gravity_accel_B)
+        gravity_torque_S = cross(tool.cog_S, gravity_force_S)
 
         w_S = state.w_BE_E @ self.R_SE.T
         alpha_S = state.alpha_BE_E @ self.R_SE.T
         if self.inertia:
-            p = self.sensor.p_EoSo_E
-            w_E, alpha_E = state.w_BE_E, state.alpha_BE_E
-            a_So_E = np.cross(alpha_E, p) + np.cross(w_E, np.cross(w_E, p))
-            a_So_B = state.a_BEo_B + _apply(state.R_BE, a_So_E)
-            a_So_S = _apply(R_SB, a_So_B)
-            c = tool.cog_S
-            a_cm_S = a_So_S + np.cross(alpha_S, c) + np.cross(w_S, np.cross(w_S, c))
+            r = self._p_EoCm_S  # centre of mass from the flange origin, in S
+            a_cm_S = _apply(R_SB, state.a_BEo_B) + cross(alpha_S, r) + cross(w_S, cross(w_S, r))
             inertial_force_S = -tool.mass * a_cm_S
-            euler_S = alpha_S @ tool.inertia_S.T + np.cross(w_S, w_S @ tool.inertia_S.T)
-            inertial_torque_S = np.cross(c, inertial_force_S) - euler_S
+            euler_S = alpha_S @ tool.inertia_S.T + cross(w_S, w_S @ tool.inertia_S.T)
+            inertial_torque_S = cross(tool.cog_S, inertial_force_S) - euler_S
         else:
             inertial_force_S = np.zeros((n, 3))
             inertial_torque_S = np.zeros((n, 3))
@@ -331,8 +344,8 @@ class SimWorld:
             force_S = _apply(R_SB, event.force_B(t, self.gravity_accel_B))
             point_S = tool.tip_S if event.point_S is None else event.point_S
             contact_force_S += force_S
-            contact_torque_S += np.cross(point_S, force_S)
-        contact = np.any(contact_force_S != 0.0, axis=1)
+            contact_torque_S += cross(point_S, force_S)
+        contact = (contact_force_S != 0.0).any(axis=1)
 
         bias_force_S, bias_torque_S = self.bias(t)
         force_S = gravity_force_S + inertial_force_S + contact_force_S + bias_force_S

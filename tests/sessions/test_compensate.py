@@ -54,7 +54,7 @@ def test_compensate_csv_output_contract(tmp_path, capsys):
         assert len(params[key]) == 3
     assert np.allclose(params["gravity_force_B"], truth["gravity_force_B"], atol=0.02)
     assert np.allclose(params["cog_S"], truth["cog_S"], atol=0.002)
-    assert "RMS contact force" in capsys.readouterr().err
+    assert "RMS contact wrench on no-contact rows after convergence" in capsys.readouterr().err
 
 
 def test_compensate_errors_are_one_line(tmp_path, capsys):
@@ -97,10 +97,12 @@ def test_batch_estimator_offline_equals_batch_fit(tmp_path):
 
 
 def test_real_axia80_log_within_10_percent_of_the_offline_batch_fit(real_data, tmp_path):
+    """The foundation issue's bar: the online force RMS (after convergence, as a
+    vector magnitude) at most 10 % above the offline batch fit of the whole file."""
     result = compensate(real_data / "axia80_ur_log_10hz.csv", tmp_path / "out.csv")
-    rms = np.array(result.rms_force_S)
     assert result.first_converged_force is not None
-    assert np.all(rms <= 1.10 * AXIA80_LOG_BATCH_RMS), rms
+    rms_norm = float(np.sqrt(np.sum(np.square(result.rms_force_S))))
+    assert rms_norm <= 1.10 * float(np.linalg.norm(AXIA80_LOG_BATCH_RMS)), result.rms_force_S
 
 
 def test_plugins_command_lists_the_builtins(capsys):

@@ -1,0 +1,91 @@
+"""Speed of the estimator cascade, offline compensation and a whole session.
+
+    .venv/bin/python bench/speed.py [--quick]
+
+Prints, on this machine:
+* the ``rls`` cascade (Algorithm 1) in µs per sample, median and p99 over
+  blocks of 1, 7, 64 and 1024 samples (a 1 kHz sensor read by a 1 kHz loop
+  gives blocks of 1; a 7 kHz NetFT read by a 1 kHz loop, 7; offline, 1024),
+  and the same for ``batch``;
+* ``compensate`` throughput in samples/s over a simulated CSV;
+* a full simulated session (sensor → aligner → estimator → haptic command →
+  MCAP) run as fast as possible: simulated seconds per wall second at 1 kHz
+  and 7 kHz sensor rates (above 1.0 keeps up in real time).
+Numbers vary with the machine and its load: quote them, never assert them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from helpers import static_model_stream  # noqa: E402
+
+from hapticlab.core.frames import quat_wxyz_from_matrix  # noqa: E402
+from hapticlab.plugins.estimators.batch import BatchEstimator  # noqa: E402
+from hapticlab.plugins.estimators.rls import RLSEstimator  # noqa: E402
+from hapticlab.sessions.compensate import compensate  # noqa: E402
+from hapticlab.sessions.config import apply_overrides, load_config  # noqa: E402
+from hapticlab.sessions.run import build_session, run_session  # noqa: E402
+
+
+def per_sample_us(factory, block, size: int) -> tuple[float, float]:
+    """(median, p99) µs per sample, over the converged second half of the stream."""
+    est = factory()
+    times = []
+    for i in range(0, len(block), size):
+        part = block.subset(slice(i, i + size))
+        t0 = time.perf_counter_ns()
+        est.update_block(part)
+        times.append((time.perf_counter_ns() - t0) / len(part) / 1e3)
+    times = np.array(times[len(times) // 2:])
+    return float(np.median(times)), float(np.percentile(times, 99))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smaller runs (a smoke test)")
+    args = parser.parse_args()
+    n = 4096 if args.quick else 20480
+    block, _ = static_model_stream(n, seed=1, noise_force=0.12, noise_torque=0.01)
+
+    print(f"estimator µs per sample ({n} samples, second half timed)")
+    print(f"{'estimator':<10}{'block':>7}{'median':>10}{'p99':>10}")
+    for name, factory in (("rls", RLSEstimator), ("batch", BatchEstimator)):
+        for size in (1, 7, 64, 1024):
+            if name == "batch" and size == 1 and not args.quick:
+                continue  # minutes of pinv per sample; the baseline is not a live estimator
+            med, p99 = per_sample_us(factory, block, size)
+            print(f"{name:<10}{size:>7}{med:>10.2f}{p99:>10.2f}")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        csv_path = Path(tmp) / "sim.csv"
+        quat_BE = quat_wxyz_from_matrix(block.R_EB.transpose(0, 2, 1))
+        table = np.column_stack([np.arange(n) * 1e-3, block.force_S, block.torque_S, quat_BE])
+        np.savetxt(csv_path, table, delimiter=",", header="t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz", comments="")
+        t0 = time.perf_counter()
+        compensate(csv_path, Path(tmp) / "out.csv")
+        dt = time.perf_counter() - t0
+        print(f"\ncompensate (rls, CSV in and out): {n / dt:,.0f} samples/s ({n} rows in {dt:.2f} s)")
+
+        duration = 2.0 if args.quick else 5.0
+        print("\nfull simulated session, as fast as possible (recording every topic):")
+        for rate in (1000, 7000):
+            config, _ = load_config("demo")
+            config = apply_overrides(config, ["session.realtime=false", f"sensor.rate_hz={rate}.0"])
+            session = build_session(config)
+            t0 = time.perf_counter()
+            result = run_session(session, out=Path(tmp) / f"s{rate}.mcap", duration=duration)
+            dt = time.perf_counter() - t0
+            print(f"  sensor {rate:>5} Hz: {result.samples} samples, {duration / dt:.2f}× real time "
+                  f"({dt / result.samples * 1e6:.1f} µs per sample, loop at 1 kHz)")
+
+
+if __name__ == "__main__":
+    main()

@@ -39,7 +39,7 @@ class SessionSettings:
         realtime: pace the loop to the wall clock; false runs simulated devices
             as fast as the machine allows (tests, batch generation).
         loop_rate_hz: control-loop rate; one haptic command per iteration, Hz.
-        out: default output path of the recording ("" = ``sessions/<name>-<time>.mcap``).
+        out: default output path of the recording ("" = ``recordings/<name>-<time>.mcap``).
         stale_timeout: longest gap without sensor data before the haptic force
             is zeroed, s.
     """

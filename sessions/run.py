@@ -159,7 +159,7 @@ def default_out_path(settings: SessionSettings) -> Path:
     if settings.out:
         return Path(settings.out)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path("sessions") / f"{settings.name}-{stamp}.mcap"
+    return Path("recordings") / f"{settings.name}-{stamp}.mcap"
 
 
 class _Recording:

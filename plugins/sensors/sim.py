@@ -48,11 +48,10 @@ class SimSensor:
         force_S, torque_S = reading["force_S"], reading["torque_S"]
         force_S.setflags(write=False)  # rows are handed out as views
         torque_S.setflags(write=False)
-        status = reading["status"]
         return [
-            WrenchSample(t_ns=int(t_ns[i]), force_S=force_S[i], torque_S=torque_S[i],
-                         seq=int(seq[i]), status=int(status[i]))
-            for i in range(len(seq))
+            WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)
+            for t, force, torque, i, status in zip(t_ns.tolist(), force_S, torque_S, seq.tolist(),
+                                                   reading["status"].tolist())
         ]
 
     def close(self) -> None:

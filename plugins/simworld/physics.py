@@ -57,7 +57,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
-from hapticlab.core.frames import cross, rotvec_from_matrix
+from hapticlab.core.frames import cross, rotvec_from_matrix, skew
 from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
 
 from .config import (
@@ -81,11 +81,17 @@ DRIFT_STREAM = 1
 # --------------------------------------------------------------------------- small helpers
 
 
-def _apply(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate each row: ``R[i] @ v[i]`` for R (N, 3, 3) and v (N, 3) or (3,)."""
-    if v.ndim == 1:
-        return R @ v
-    return (R @ v[:, :, None])[:, :, 0]
+def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Matrix times vector per row: ``M[i] @ v[i]`` for M (N, k, 3) or one (k, 3), v (N, 3) or one (3,).
+
+    Returns (N, k). Each row is computed the same way whether it is asked for
+    alone or among many (unlike ``v @ M.T``, whose BLAS call rounds a single row
+    differently), so chunked reads give exactly the values of one big read.
+    """
+    return np.einsum(_APPLY_SUBSCRIPTS[M.ndim, v.ndim], M, v)
+
+
+_APPLY_SUBSCRIPTS = {(2, 1): "ij,j->i", (2, 2): "ij,nj->ni", (3, 1): "nij,j->ni", (3, 2): "nij,nj->ni"}
 
 
 def _times(t: float | np.ndarray) -> np.ndarray:
@@ -136,9 +142,10 @@ def gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.ndarray:
     uniform = ((bits >> _SHIFT_11).astype(float) + 0.5) * 2.0**-53  # in (0, 1)
     u1, u2 = uniform[:, 0::2], uniform[:, 1::2]
     radius = np.sqrt(-2.0 * np.log(u1))
+    angle = 2.0 * np.pi * u2
     out = np.empty((len(counter), channels))
-    out[:, 0::2] = radius * np.cos(2.0 * np.pi * u2)
-    out[:, 1::2] = radius * np.sin(2.0 * np.pi * u2)
+    out[:, 0::2] = radius * np.cos(angle)
+    out[:, 1::2] = radius * np.sin(angle)
     return out
 
 
@@ -243,9 +250,23 @@ class SimWorld:
         self.R_SE = self.sensor.R_SE
         self.R_BG = self.robot.R_BG
         self.gravity_accel_B = self.robot.gravity_accel_B
-        # Constants of wrench(), computed once: the live loop asks for a few samples at a time.
-        self._p_EoCm_S = self.R_SE @ self.sensor.p_EoSo_E + self.tool.cog_S
-        """(3,) the tool's centre of mass from the flange origin, in S, m."""
+        # Constants of wrench(), computed once: the live loop asks for a few samples at a
+        # time, so the number of numpy calls per read matters more than their size.
+        s = self.sensor
+        self._cog_cross_S = skew(self.tool.cog_S)
+        """(3, 3) ``c ×`` as a matrix: ``c × v == _apply(self._cog_cross_S, v)``."""
+        p_EoCm_S = self.R_SE @ s.p_EoSo_E + self.tool.cog_S  # centre of mass from the flange origin, in S, m
+        self._rate_maps = np.concatenate([self.R_SE, skew(p_EoCm_S).T @ self.R_SE, self.tool.inertia_S @ self.R_SE])
+        """(9, 3) every constant linear map of an angular rate x_E (ω or ω̇, in E) the
+        wrench needs, stacked: ``_apply(self._rate_maps, x_E)`` gives, in S,
+        ``[x_S, x_S × r, I x_S]`` with ``x_S = R_SE x_E`` and ``r`` the centre of mass
+        from the flange origin (``R_SE p_EoSo_E + c``)."""
+        # force then torque, (6,) each: N and N·m, N/s and N·m/s, N/√s and N·m/√s
+        self._bias_S = np.concatenate([s.bias_force_S, s.bias_torque_S])
+        self._drift_S = np.concatenate([s.drift_force_S, s.drift_torque_S])
+        self._drift_rw_S = np.concatenate([s.drift_force_rw_S, s.drift_torque_rw_S])
+        self._noise_S = np.concatenate([s.noise_force_S, s.noise_torque_S])
+        self._saturation_S = np.concatenate([s.saturation_force_S, s.saturation_torque_S])
         self._noise_key = int(np.random.SeedSequence(self.seed, spawn_key=(NOISE_STREAM,))
                               .generate_state(1, np.uint64)[0])
         has_walk = np.any(self.sensor.drift_force_rw_S > 0) or np.any(self.sensor.drift_torque_rw_S > 0)
@@ -283,15 +304,15 @@ class SimWorld:
 
     def bias(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """True sensor bias at times ``t`` (s): ``(bias_force_S (N, 3) N, bias_torque_S (N, 3) N·m)``."""
-        t = _times(t)
-        s = self.sensor
-        force = s.bias_force_S + t[:, None] * s.drift_force_S
-        torque = s.bias_torque_S + t[:, None] * s.drift_torque_S
+        bias_S = self._bias_wrench_S(_times(t))
+        return bias_S[:, :3], bias_S[:, 3:]
+
+    def _bias_wrench_S(self, t: np.ndarray) -> np.ndarray:
+        """(N, 6) true bias at times ``t`` (N,) s: force (N) then torque (N·m)."""
+        bias_S = self._bias_S + t[:, None] * self._drift_S
         if self._walk is not None:
-            walk = self._walk(t)
-            force = force + walk[:, :3] * s.drift_force_rw_S
-            torque = torque + walk[:, 3:] * s.drift_torque_rw_S
-        return force, torque
+            bias_S = bias_S + self._walk(t) * self._drift_rw_S
+        return bias_S
 
     def wrench(self, t: float | np.ndarray, noise: bool = True) -> dict[str, np.ndarray]:
         """The sensor reading at times ``t`` (s), with the truth behind it.
@@ -323,17 +344,21 @@ class SimWorld:
         R_EB = state.R_BE.transpose(0, 2, 1)
         R_SB = self.R_SE @ R_EB
 
-        gravity_force_S = tool.mass * (R_SB @ self.gravity_accel_B)
-        gravity_torque_S = cross(tool.cog_S, gravity_force_S)
+        gravity_force_S = tool.mass * _apply(R_SB, self.gravity_accel_B)
+        gravity_torque_S = _apply(self._cog_cross_S, gravity_force_S)  # c × m g_S
 
-        w_S = state.w_BE_E @ self.R_SE.T
-        alpha_S = state.alpha_BE_E @ self.R_SE.T
+        w_maps = _apply(self._rate_maps, state.w_BE_E)  # [ω, ω × r, I ω], in S
+        alpha_maps = _apply(self._rate_maps, state.alpha_BE_E)  # [ω̇, ω̇ × r, I ω̇], in S
+        w_S, alpha_S = w_maps[:, :3], alpha_maps[:, :3]
         if self.inertia:
-            r = self._p_EoCm_S  # centre of mass from the flange origin, in S
-            a_cm_S = _apply(R_SB, state.a_BEo_B) + cross(alpha_S, r) + cross(w_S, cross(w_S, r))
+            # Both rotational terms at once, (N, 2, 3): [ω̇ × r + ω × (ω × r), I ω̇ + ω × I ω],
+            # r the centre of mass from the flange origin
+            rotational = (alpha_maps[:, 3:].reshape(n, 2, 3)
+                          + cross(w_S[:, None, :], w_maps[:, 3:].reshape(n, 2, 3)))
+            a_cm_S = _apply(R_SB, state.a_BEo_B) + rotational[:, 0]
             inertial_force_S = -tool.mass * a_cm_S
-            euler_S = alpha_S @ tool.inertia_S.T + cross(w_S, w_S @ tool.inertia_S.T)
-            inertial_torque_S = cross(tool.cog_S, inertial_force_S) - euler_S
+            euler_S = rotational[:, 1]
+            inertial_torque_S = _apply(self._cog_cross_S, inertial_force_S) - euler_S
         else:
             inertial_force_S = np.zeros((n, 3))
             inertial_torque_S = np.zeros((n, 3))
@@ -347,21 +372,23 @@ class SimWorld:
             contact_torque_S += cross(point_S, force_S)
         contact = (contact_force_S != 0.0).any(axis=1)
 
-        bias_force_S, bias_torque_S = self.bias(t)
-        force_S = gravity_force_S + inertial_force_S + contact_force_S + bias_force_S
-        torque_S = gravity_torque_S + inertial_torque_S + contact_torque_S + bias_torque_S
+        # What the sensor reads, force then torque side by side: (N, 6)
+        bias_S = self._bias_wrench_S(t)
+        reading_S = np.empty((n, 6))
+        reading_S[:, :3] = gravity_force_S + inertial_force_S + contact_force_S
+        reading_S[:, 3:] = gravity_torque_S + inertial_torque_S + contact_torque_S
+        reading_S += bias_S
         if noise:
             t_ns = np.rint(t * 1e9).astype(np.int64)
-            white = gaussian_noise(self._noise_key, t_ns, 6)
-            force_S = force_S + white[:, :3] * self.sensor.noise_force_S
-            torque_S = torque_S + white[:, 3:] * self.sensor.noise_torque_S
+            reading_S += gaussian_noise(self._noise_key, t_ns, 6) * self._noise_S
 
-        force_limit, torque_limit = self.sensor.saturation_force_S, self.sensor.saturation_torque_S
-        saturated = np.any(np.abs(force_S) > force_limit, axis=1) | np.any(np.abs(torque_S) > torque_limit, axis=1)
+        limit = self._saturation_S
+        saturated = (np.abs(reading_S) > limit).any(axis=1)
+        reading_S = np.minimum(np.maximum(reading_S, -limit), limit)  # np.clip, without its overhead
         return {
             "t": t,
-            "force_S": np.clip(force_S, -force_limit, force_limit),
-            "torque_S": np.clip(torque_S, -torque_limit, torque_limit),
+            "force_S": reading_S[:, :3],
+            "torque_S": reading_S[:, 3:],
             "status": np.where(saturated, STATUS_SATURATED, STATUS_OK).astype(np.int64),
             "contact": contact,
             "contact_force_S": contact_force_S,
@@ -370,8 +397,8 @@ class SimWorld:
             "gravity_torque_S": gravity_torque_S,
             "inertial_force_S": inertial_force_S,
             "inertial_torque_S": inertial_torque_S,
-            "bias_force_S": bias_force_S,
-            "bias_torque_S": bias_torque_S,
+            "bias_force_S": bias_S[:, :3],
+            "bias_torque_S": bias_S[:, 3:],
             "angular_velocity_S": w_S,
             "angular_acceleration_S": alpha_S,
             "R_EB": R_EB,

@@ -86,6 +86,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     table.add_row("poses", str(result.poses))
     table.add_row("force converged at sample", str(result.first_converged_force))
     table.add_row("torque converged at sample", str(result.first_converged_torque))
+    table.add_row("contact samples", str(result.contact_samples))
+    table.add_row("haptic force on", f"{result.haptic_on_s:.2f} s")
     for key, value in result.params.items():
         table.add_row(key, "[" + ", ".join(f"{v:.4g}" for v in value) + "]")
     table.add_row("events", str(len(result.events)))

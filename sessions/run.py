@@ -86,6 +86,8 @@ class SessionResult:
     events: list[tuple[int, str, str]] = field(default_factory=list)
     first_converged_force: int | None = None
     first_converged_torque: int | None = None
+    contact_samples: int = 0
+    haptic_on_s: float = 0.0
 
 
 def build_session(config: dict[str, Any], registry: Registry | None = None) -> Session:
@@ -254,6 +256,8 @@ def run_session(
     ready = [False, False]
     flips = [0, 0]
     next_params_ns = 0
+    contact_samples = 0
+    haptic_on_ticks = 0
     haptic_reason = "starting"
     interrupted = False
 
@@ -307,6 +311,7 @@ def run_session(
                     R_BE = block.R_EB[good][-1].T
                     last_estimate = (est.contact_force_S[-1], R_BE)
                     status.contact = bool(est.contact[-1])
+                    contact_samples += int(np.count_nonzero(est.contact))
                     for stage, flags, label in ((0, est.converged_force, "force"),
                                                 (1, est.converged_torque, "torque")):
                         flips[stage] += int(np.count_nonzero(np.diff(flags, prepend=converged[stage])))
@@ -339,6 +344,7 @@ def run_session(
                     "pose": {"quat_DH": state.quat_DH.tolist(), "p_DoHo_D": state.p_DoHo_D.tolist()},
                     "buttons": int(state.buttons),
                 })
+            haptic_on_ticks += command.enabled
             if command.reason != haptic_reason:
                 if command.enabled:
                     event(now_ns, "haptic_enabled", "haptic force on")
@@ -378,6 +384,8 @@ def run_session(
             "first_converged_force": getattr(estimator, "first_converged_force", None),
             "first_converged_torque": getattr(estimator, "first_converged_torque", None),
             "convergence_flag_flips": {"force": flips[0], "torque": flips[1]},
+            "contact_samples": contact_samples,
+            "haptic_on_s": haptic_on_ticks * period_ns * 1e-9,
         }
         event(end_ns, "session_end", "interrupted (Ctrl-C)" if interrupted else "session finished")
         recorder.close(summary=summary)
@@ -391,4 +399,6 @@ def run_session(
         events=events,
         first_converged_force=summary["first_converged_force"],
         first_converged_torque=summary["first_converged_torque"],
+        contact_samples=contact_samples,
+        haptic_on_s=summary["haptic_on_s"],
     )

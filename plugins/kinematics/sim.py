@@ -13,7 +13,6 @@ from hapticlab.core.plugins import ConfigError
 from hapticlab.core.types import PoseSample
 from hapticlab.plugins.simworld.physics import SampleClock, SimWorld
 
-
 _VEE = np.array([7, 2, 3])
 """Flat indices of (2, 1), (0, 2), (1, 0) in a 3×3 matrix: the vector of a skew-symmetric one."""
 

@@ -227,13 +227,11 @@ class Indentation:
     def profile(self, t: np.ndarray) -> np.ndarray:
         """(N,) force magnitude at times ``t`` (s), N."""
         since = np.asarray(t, dtype=float) - self.start
-        inside = (since >= 0) & (since <= self.duration)
         if self.ramp == 0:
-            shape = np.ones_like(since)
-        else:
-            edge = np.clip(np.minimum(since, self.duration - since) / self.ramp, 0.0, 1.0)
-            shape = 0.5 * (1.0 - np.cos(np.pi * edge))
-        return np.where(inside, self.peak_force * shape, 0.0)
+            return np.where((since >= 0) & (since <= self.duration), self.peak_force, 0.0)
+        # 0 outside [start, start + duration] (the edge clips to 0 there), up to 1 on the plateau
+        edge = np.minimum(np.maximum(np.minimum(since, self.duration - since) / self.ramp, 0.0), 1.0)
+        return self.peak_force * (0.5 * (1.0 - np.cos(np.pi * edge)))
 
     def force_B(self, t: np.ndarray, gravity_accel_B: np.ndarray) -> np.ndarray:
         """(N, 3) force on the tool in B, N (``gravity_accel_B`` unused)."""

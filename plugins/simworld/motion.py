@@ -32,10 +32,10 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
-from hapticlab.core.frames import skew_stack
+from hapticlab.core.frames import skew, skew_stack
 from scipy.spatial.transform import Rotation
 
 __all__ = [
@@ -128,6 +128,20 @@ def _rotz(angle: np.ndarray) -> np.ndarray:
     return R
 
 
+def _rodrigues(R_a: np.ndarray, R_a_n: np.ndarray, R_a_nn: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) ``R_a Exp(angle · n)`` by Rodrigues' formula, for a unit axis n.
+
+    ``R_a Exp(φ n) = R_a + sin φ · R_a [n]× + (1 − cos φ) · R_a [n]×²``, given
+    ``R_a``, ``R_a [n]×`` and ``R_a [n]×²`` (each (3, 3), or (N, 3, 3) per
+    sample) and the (N,) angles φ, rad: a sine and a cosine per sample, where
+    building a scipy Rotation would cost more than the arithmetic in the live
+    loop's reads of a few samples.
+    """
+    sin_angle = np.sin(angle)[:, None, None]
+    versine = (1.0 - np.cos(angle))[:, None, None]
+    return R_a + sin_angle * R_a_n + versine * R_a_nn
+
+
 def _still(t: np.ndarray, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> MotionState:
     """A MotionState holding one pose at every time."""
     n = len(t)
@@ -157,11 +171,9 @@ class _Moves:
     orientation at the fraction s of the move as
 
         R_BE(s) = R_BE_a Exp(s u_E)
-                = R_BE_a + sin(sθ) · R_BE_a [n]× + (1 − cos(sθ)) · R_BE_a [n]×²,
+                = R_BE_a + sin(sθ) · R_BE_a [n]× + (1 − cos(sθ)) · R_BE_a [n]×²
 
-    so a sample costs a sine, a cosine and two scaled 3×3 additions instead of
-    building a scipy Rotation (whose ~20 µs per call dominate the live loop's
-    reads of one sample).
+    (see ``_rodrigues``).
 
     Attributes:
         u_E: (m, 3) rotation vector of each move, in E, rad.
@@ -183,7 +195,7 @@ class _Moves:
 
     @classmethod
     def between(cls, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> _Moves:
-        """The moves between consecutive waypoints ``R_BE`` (m+1, 3, 3), ``p_BoEo_B`` (m+1, 3) m."""
+        """The m moves between m + 1 consecutive waypoints: ``R_BE`` (m+1, 3, 3), ``p_BoEo_B`` (m+1, 3) m."""
         R_a, R_b = R_BE[:-1], R_BE[1:]
         R_ab = np.transpose(R_a, (0, 2, 1)) @ R_b  # R_EaEb: end orientation seen from the start
         u_E = Rotation.from_matrix(R_ab).as_rotvec()
@@ -199,8 +211,8 @@ class _Moves:
 
     def extended(self, more: _Moves) -> _Moves:
         """These moves followed by ``more``."""
-        return _Moves(*(np.concatenate([getattr(self, name), getattr(more, name)])
-                        for name in self.__slots__))
+        return _Moves(*(np.concatenate([getattr(self, field.name), getattr(more, field.name)])
+                        for field in fields(self)))
 
 
 class MotionScript:
@@ -330,7 +342,7 @@ class RandomTour(MotionScript):
 
     def _ensure(self, count: int) -> None:
         """Make sure waypoints 0..count-1 (and the moves between them) are cached."""
-        if len(self._moves) >= count - 1:  # the usual case: no lock needed
+        if len(self._moves) >= count - 1:  # the usual case; no lock needed: the tables only grow
             return
         with self._lock:
             while len(self._R_BE) < count:
@@ -364,17 +376,15 @@ class RandomTour(MotionScript):
         s_dot = ds / self.segment_s
         s_ddot = dds / self.segment_s**2
 
-        # R_BE_a Exp(s u_E) by Rodrigues' formula (see _Moves), φ = s θ
-        phi = s * moves.angle[k]
-        sin_phi = np.sin(phi)[:, None, None]
-        versine_phi = (1.0 - np.cos(phi))[:, None, None]
-        R_BE = moves.R_BE_a[k] + sin_phi * moves.R_BE_a_n[k] + versine_phi * moves.R_BE_a_nn[k]
-        u_E = moves.u_E[k]
-        step_B = moves.step_B[k]
+        # R_BE_a Exp(s u_E) (see _Moves); x.take(k, axis=0) is x[k] without the cost of fancy indexing
+        R_BE = _rodrigues(moves.R_BE_a.take(k, axis=0), moves.R_BE_a_n.take(k, axis=0),
+                          moves.R_BE_a_nn.take(k, axis=0), s * moves.angle[k])
+        u_E = moves.u_E.take(k, axis=0)
+        step_B = moves.step_B.take(k, axis=0)
         return MotionState(
             t=t,
             R_BE=R_BE,
-            p_BoEo_B=moves.p_BoEo_B_a[k] + s[:, None] * step_B,
+            p_BoEo_B=moves.p_BoEo_B_a.take(k, axis=0) + s[:, None] * step_B,
             w_BE_E=s_dot[:, None] * u_E,
             alpha_BE_E=s_ddot[:, None] * u_E,
             v_BEo_B=s_dot[:, None] * step_B,
@@ -461,6 +471,10 @@ class AxialRotation(MotionScript):
         if self.cruise_s < 0:
             raise ValueError("the rotation is too short for its two speed ramps; "
                              "lower ramp_s or raise duration/turns")
+        # HORIZONTAL_R_BE [z]× and HORIZONTAL_R_BE [z]×²: Rot_z by Rodrigues' formula (see _rodrigues)
+        z_cross = skew(np.array([0.0, 0.0, 1.0]))
+        self._R_BE_0_n = HORIZONTAL_R_BE @ z_cross
+        self._R_BE_0_nn = self._R_BE_0_n @ z_cross
 
     @property
     def end_s(self) -> float:
@@ -476,21 +490,20 @@ class AxialRotation(MotionScript):
         """Rotation angle φ (rad) and its first two derivatives at times ``t`` (s)."""
         t = _times(t)
         w0, T = self.speed, self.ramp_s
-        u_up = (t - self.start_s) / T
-        u_down = (t - self.start_s - T - self.cruise_s) / T
+        since_start = t - self.start_s
+        # Both ramps at once, (N, 2): time into the ramp up and into the ramp down, in ramps
+        u = np.empty((len(t), 2))
+        u[:, 0] = since_start / T
+        u[:, 1] = (since_start - T - self.cruise_s) / T
+        u_clipped = np.minimum(np.maximum(u, 0.0), 1.0)
         # ∫₀^u s(v) dv for the quintic s: 2.5u⁴ − 3u⁵ + u⁶ (equals 1/2 at u = 1).
-        def s_integral(u: np.ndarray) -> np.ndarray:
-            u = np.minimum(np.maximum(u, 0.0), 1.0)
-            return u**4 * (2.5 - 3.0 * u + u**2)
-
-        s_up, ds_up, _ = quintic(u_up)
-        s_down, ds_down, _ = quintic(u_down)
+        s_integral = u_clipped**4 * (2.5 - 3.0 * u_clipped + u_clipped**2)
+        s, ds, _ = quintic(u)
         # Speed: w0 · (s_up − s_down); the cruise is the plateau in between.
-        phi_dot = w0 * (s_up - s_down)
-        phi_ddot = w0 * (ds_up - ds_down) / T
-        cruise_time = np.minimum(np.maximum(t - self.start_s - T, 0.0), self.cruise_s)
-        phi = w0 * (T * s_integral(u_up) + cruise_time
-                    + T * (np.minimum(np.maximum(u_down, 0.0), 1.0) - s_integral(u_down)))
+        phi_dot = w0 * (s[:, 0] - s[:, 1])
+        phi_ddot = w0 * (ds[:, 0] - ds[:, 1]) / T
+        cruise_time = np.minimum(np.maximum(since_start - T, 0.0), self.cruise_s)
+        phi = w0 * (T * s_integral[:, 0] + cruise_time + T * (u_clipped[:, 1] - s_integral[:, 1]))
         return phi, phi_dot, phi_ddot
 
     def evaluate(self, t: float | np.ndarray) -> MotionState:
@@ -504,7 +517,7 @@ class AxialRotation(MotionScript):
         alpha[:, 2] = phi_ddot
         return MotionState(
             t=t,
-            R_BE=HORIZONTAL_R_BE @ _rotz(self.roll0 + phi),
+            R_BE=_rodrigues(HORIZONTAL_R_BE, self._R_BE_0_n, self._R_BE_0_nn, self.roll0 + phi),
             p_BoEo_B=np.broadcast_to(self.p_BoEo_B, (n, 3)).copy(),
             w_BE_E=w,
             alpha_BE_E=alpha,

@@ -21,10 +21,9 @@ with
   expressed in S: ``ω = R_SE ω_E``;
 * ``a_cm_S = a_So_S + ω̇ × c + ω × (ω × c)`` the acceleration of the centre of
   mass, ``a_So`` that of the sensor origin:
-  ``a_So_B = a_BEo_B + R_BE (ω̇_E × p_EoSo_E + ω_E × (ω_E × p_EoSo_E))``.
-  Both rigid-body terms together, in S: ``a_cm_S = R_SB a_BEo_B + ω̇ × r + ω × (ω × r)``
-  with ``r = R_SE p_EoSo_E + c`` the centre of mass from the flange origin (how
-  it is computed).
+  ``a_So_B = a_BEo_B + R_BE (ω̇_E × p_EoSo_E + ω_E × (ω_E × p_EoSo_E))``;
+  together (the form evaluated) ``a_cm_S = R_SB a_BEo_B + ω̇ × r + ω × (ω × r)``
+  with ``r = R_SE p_EoSo_E + c`` the centre of mass seen from the flange origin.
 
 The motion derivatives come analytically from the motion script (see
 ``motion.py``). With ``inertia=False`` the terms in ``a_cm`` and ``I`` are
@@ -57,7 +56,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
-from hapticlab.core.frames import cross, rotvec_from_matrix, skew
+from hapticlab.core.frames import rotvec_from_matrix, skew
 from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
 
 from .config import (
@@ -82,16 +81,20 @@ DRIFT_STREAM = 1
 
 
 def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Matrix times vector per row: ``M[i] @ v[i]`` for M (N, k, 3) or one (k, 3), v (N, 3) or one (3,).
+    """Matrix times vector per row: ``M[i] @ v[i]``.
 
-    Returns (N, k). Each row is computed the same way whether it is asked for
-    alone or among many (unlike ``v @ M.T``, whose BLAS call rounds a single row
-    differently), so chunked reads give exactly the values of one big read.
+    M is (N, k, 3) or one (k, 3) matrix; v is (N, 3), one (3,) vector, or
+    (N, m, 3) (m vectors per row, each multiplied by that row's M[i]).
+    Returns (N, k) or (N, m, k).
+
+    Always a stacked matmul, one small product per row: unlike ``v @ M.T`` (one
+    BLAS call for all rows, which rounds a single row differently), each row
+    comes out the same whether it is asked for alone or among many, so chunked
+    reads give exactly the values of one big read.
     """
-    return np.einsum(_APPLY_SUBSCRIPTS[M.ndim, v.ndim], M, v)
-
-
-_APPLY_SUBSCRIPTS = {(2, 1): "ij,j->i", (2, 2): "ij,nj->ni", (3, 1): "nij,j->ni", (3, 2): "nij,nj->ni"}
+    if v.ndim == 3:
+        return v @ M.transpose(0, 2, 1)
+    return (M @ v[..., None])[..., 0]
 
 
 def _times(t: float | np.ndarray) -> np.ndarray:
@@ -166,6 +169,8 @@ class RandomWalk:
         self._lock = threading.Lock()
 
     def _ensure(self, points: int) -> None:
+        if len(self._path) >= points:  # the usual case: no lock needed (the path only grows)
+            return
         with self._lock:
             while len(self._path) < points:
                 b = (len(self._path) - 1) // self.block
@@ -179,7 +184,7 @@ class RandomWalk:
         k = np.floor(x).astype(np.int64)
         self._ensure(int(k.max(initial=0)) + 2)
         frac = (x - k)[:, None]
-        return self._path[k] * (1.0 - frac) + self._path[k + 1] * frac
+        return self._path.take(k, axis=0) * (1.0 - frac) + self._path.take(k + 1, axis=0) * frac
 
 
 class SampleClock:
@@ -250,27 +255,51 @@ class SimWorld:
         self.R_SE = self.sensor.R_SE
         self.R_BG = self.robot.R_BG
         self.gravity_accel_B = self.robot.gravity_accel_B
-        # Constants of wrench(), computed once: the live loop asks for a few samples at a
-        # time, so the number of numpy calls per read matters more than their size.
-        s = self.sensor
-        self._cog_cross_S = skew(self.tool.cog_S)
-        """(3, 3) ``c ×`` as a matrix: ``c × v == _apply(self._cog_cross_S, v)``."""
-        p_EoCm_S = self.R_SE @ s.p_EoSo_E + self.tool.cog_S  # centre of mass from the flange origin, in S, m
-        self._rate_maps = np.concatenate([self.R_SE, skew(p_EoCm_S).T @ self.R_SE, self.tool.inertia_S @ self.R_SE])
-        """(9, 3) every constant linear map of an angular rate x_E (ω or ω̇, in E) the
-        wrench needs, stacked: ``_apply(self._rate_maps, x_E)`` gives, in S,
-        ``[x_S, x_S × r, I x_S]`` with ``x_S = R_SE x_E`` and ``r`` the centre of mass
-        from the flange origin (``R_SE p_EoSo_E + c``)."""
-        # force then torque, (6,) each: N and N·m, N/s and N·m/s, N/√s and N·m/√s
-        self._bias_S = np.concatenate([s.bias_force_S, s.bias_torque_S])
-        self._drift_S = np.concatenate([s.drift_force_S, s.drift_torque_S])
-        self._drift_rw_S = np.concatenate([s.drift_force_rw_S, s.drift_torque_rw_S])
-        self._noise_S = np.concatenate([s.noise_force_S, s.noise_torque_S])
-        self._saturation_S = np.concatenate([s.saturation_force_S, s.saturation_torque_S])
+        self._init_wrench_constants()
         self._noise_key = int(np.random.SeedSequence(self.seed, spawn_key=(NOISE_STREAM,))
                               .generate_state(1, np.uint64)[0])
         has_walk = np.any(self.sensor.drift_force_rw_S > 0) or np.any(self.sensor.drift_torque_rw_S > 0)
         self._walk = RandomWalk(self.seed, DRIFT_STREAM, channels=6) if has_walk else None
+
+    def _init_wrench_constants(self) -> None:
+        """Everything wrench() needs that does not change, computed once.
+
+        The live loop asks for one to seven samples at a time, so a read costs the
+        number of numpy calls rather than their size: every constant product is
+        folded into one matrix here, every cross product with a constant vector
+        is a matrix (``c × v = [c]× v``), and per read each matrix is applied
+        once (see ``_apply``).
+        """
+        tool, sensor, R_SE = self.tool, self.sensor, self.R_SE
+        self._weight_B = tool.mass * self.gravity_accel_B
+        """(3,) the tool's weight in B, N."""
+        self._cog_cross_S = skew(tool.cog_S)
+        """(3, 3) ``[c]×``: ``c × v == _apply(self._cog_cross_S, v)``."""
+        by_point: dict[tuple[float, ...], list[Contact]] = {}
+        for event in self.contacts:
+            point_S = tool.tip_S if event.point_S is None else event.point_S
+            by_point.setdefault(tuple(point_S), []).append(event)
+        self._contacts_by_point = [(skew(np.array(point_S)), events) for point_S, events in by_point.items()]
+        """The contacts grouped by where they act: ``([p]× (3, 3), events)`` per point p
+        (in S, m), so that the forces at one point are rotated and crossed once."""
+        # The rotational terms of the inertial wrench as maps of the flange's angular
+        # motion in E, with ω = R_SE ω_E (in S) and r the centre of mass from the flange
+        # origin: [ω̇ × r, I ω̇] is linear in ω̇_E, and [ω × (ω × r), ω × I ω] is linear in
+        # the products ω_Ej ω_Ek: Σ_jk ω_Ej ω_Ek · e_j × (e_k × r) with e_j the E axes in S.
+        r = R_SE @ sensor.p_EoSo_E + tool.cog_S  # p_EoCm_S, m
+        self._alpha_map = np.concatenate([skew(r).T @ R_SE, tool.inertia_S @ R_SE])
+        """(6, 3): ``_apply(self._alpha_map, ω̇_E) == [ω̇ × r, I ω̇]`` (in S)."""
+        e_j, e_k = R_SE.T[:, None, :], R_SE.T[None, :, :]  # the E axes in S, (3, 1, 3) and (1, 3, 3)
+        centripetal = np.cross(e_j, np.cross(e_k, r))  # [j, k]: e_j × (e_k × r)
+        gyroscopic = np.cross(e_j, e_k @ tool.inertia_S.T)  # [j, k]: e_j × I e_k
+        self._w_products_map = np.concatenate([centripetal, gyroscopic], axis=2).reshape(9, 6).T
+        """(6, 9): ``_apply(self._w_products_map, (ω_E ω_Eᵀ).ravel()) == [ω × (ω × r), ω × I ω]`` (in S)."""
+        # force then torque, (6,) each: N and N·m, N/s and N·m/s, N/√s and N·m/√s
+        self._bias_S = np.concatenate([sensor.bias_force_S, sensor.bias_torque_S])
+        self._drift_S = np.concatenate([sensor.drift_force_S, sensor.drift_torque_S])
+        self._drift_rw_S = np.concatenate([sensor.drift_force_rw_S, sensor.drift_torque_rw_S])
+        self._noise_S = np.concatenate([sensor.noise_force_S, sensor.noise_torque_S])
+        self._saturation_S = np.concatenate([sensor.saturation_force_S, sensor.saturation_torque_S])
 
     @classmethod
     def from_config(cls, table: Mapping[str, Any] | None) -> SimWorld:
@@ -344,20 +373,19 @@ class SimWorld:
         R_EB = state.R_BE.transpose(0, 2, 1)
         R_SB = self.R_SE @ R_EB
 
-        gravity_force_S = tool.mass * _apply(R_SB, self.gravity_accel_B)
+        gravity_force_S = _apply(R_SB, self._weight_B)
         gravity_torque_S = _apply(self._cog_cross_S, gravity_force_S)  # c × m g_S
 
-        w_maps = _apply(self._rate_maps, state.w_BE_E)  # [ω, ω × r, I ω], in S
-        alpha_maps = _apply(self._rate_maps, state.alpha_BE_E)  # [ω̇, ω̇ × r, I ω̇], in S
-        w_S, alpha_S = w_maps[:, :3], alpha_maps[:, :3]
+        w_E, alpha_E = state.w_BE_E, state.alpha_BE_E
+        w_S = _apply(self.R_SE, w_E)
+        alpha_S = _apply(self.R_SE, alpha_E)
         if self.inertia:
-            # Both rotational terms at once, (N, 2, 3): [ω̇ × r + ω × (ω × r), I ω̇ + ω × I ω],
-            # r the centre of mass from the flange origin
-            rotational = (alpha_maps[:, 3:].reshape(n, 2, 3)
-                          + cross(w_S[:, None, :], w_maps[:, 3:].reshape(n, 2, 3)))
-            a_cm_S = _apply(R_SB, state.a_BEo_B) + rotational[:, 0]
+            # [ω̇ × r + ω × (ω × r), I ω̇ + ω × I ω] (N, 6), r the centre of mass from the flange origin
+            w_products_E = (w_E[:, :, None] * w_E[:, None, :]).reshape(n, 9)  # ω_Ej ω_Ek
+            rotational = _apply(self._alpha_map, alpha_E) + _apply(self._w_products_map, w_products_E)
+            a_cm_S = _apply(R_SB, state.a_BEo_B) + rotational[:, :3]
             inertial_force_S = -tool.mass * a_cm_S
-            euler_S = rotational[:, 1]
+            euler_S = rotational[:, 3:]  # I ω̇ + ω × I ω
             inertial_torque_S = _apply(self._cog_cross_S, inertial_force_S) - euler_S
         else:
             inertial_force_S = np.zeros((n, 3))
@@ -365,12 +393,11 @@ class SimWorld:
 
         contact_force_S = np.zeros((n, 3))
         contact_torque_S = np.zeros((n, 3))
-        for event in self.contacts:
-            force_S = _apply(R_SB, event.force_B(t, self.gravity_accel_B))
-            point_S = tool.tip_S if event.point_S is None else event.point_S
+        for point_cross_S, events in self._contacts_by_point:
+            force_S = _apply(R_SB, sum(event.force_B(t, self.gravity_accel_B) for event in events))
             contact_force_S += force_S
-            contact_torque_S += cross(point_S, force_S)
-        contact = (contact_force_S != 0.0).any(axis=1)
+            contact_torque_S += _apply(point_cross_S, force_S)  # p × f
+        contact = (contact_force_S != 0.0).any(axis=1) if self.contacts else np.zeros(n, dtype=bool)
 
         # What the sensor reads, force then torque side by side: (N, 6)
         bias_S = self._bias_wrench_S(t)

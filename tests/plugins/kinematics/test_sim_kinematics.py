@@ -10,7 +10,7 @@ import pytest
 from hapticlab.core import hookspecs
 from hapticlab.core.interfaces import KinematicsSource
 from hapticlab.core.plugins import ConfigError, Registry
-from hapticlab.plugins.kinematics.sim import SimKinematics
+from hapticlab.plugins.kinematics.sim import SimKinematics, quat_wxyz_from_matrices
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.simworld import RandomTour, SimWorld
 from scipy.spatial.transform import Rotation
@@ -69,3 +69,34 @@ def test_sensor_and_kinematics_share_one_world():
         R_EB = Rotation.from_quat(pose.quat_BE, scalar_first=True).as_matrix().T
         expected = R_EB @ truth["gravity_force_B"] + truth["bias_force_S"]
         assert np.abs(wrench[pose.t_ns].force_S - expected).max() < 6 * 0.12  # only the sensor noise differs
+
+
+def test_quaternions_match_scipy_including_half_turns():
+    special = Rotation.from_rotvec([[0, 0, 0], [np.pi, 0, 0], [0, np.pi, 0], [0, 0, np.pi],
+                                    [np.pi / np.sqrt(2), np.pi / np.sqrt(2), 0], [1e-9, 0, 0], [0, 0, 3.1415926]])
+    R = np.concatenate([special.as_matrix(), Rotation.random(20_000, random_state=3).as_matrix()])
+    quat = quat_wxyz_from_matrices(R)
+    expected = Rotation.from_matrix(R).as_quat(scalar_first=True)
+    expected *= np.where(expected[:, :1] < 0, -1.0, 1.0)
+    np.testing.assert_allclose(quat, expected, rtol=0, atol=1e-15)
+    assert np.all(quat[:, 0] >= 0)
+    np.testing.assert_allclose(Rotation.from_quat(quat, scalar_first=True).as_matrix(), R, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(quat_wxyz_from_matrices(np.asfortranarray(R[:50])), quat[:50])  # any layout
+
+
+def test_one_pose_per_read_gives_exactly_one_big_read():
+    def kinematics():
+        world = SimWorld(motion=RandomTour(seed=9, segment_s=0.3, max_translation=0.03), seed=9)
+        source = SimKinematics(rate_hz=1000.0, world=world)
+        source.open(T0)
+        return source
+
+    whole = kinematics().read(T0 + 2_000_000_000)
+    live = kinematics()
+    reads = [live.read(T0 + ms * 1_000_000) for ms in range(2001)]
+    assert {len(r) for r in reads} == {1}
+    poses = [pose for r in reads for pose in r]
+    for field in ("t_ns", "quat_BE", "p_BoEo_B"):
+        assert np.array_equal([getattr(p, field) for p in poses], [getattr(p, field) for p in whole]), field
+    with pytest.raises(ValueError):
+        poses[0].quat_BE[0] = 1.0  # read-only views

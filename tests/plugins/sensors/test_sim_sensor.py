@@ -12,7 +12,7 @@ from hapticlab.core.interfaces import SensorSource
 from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.core.types import STATUS_SATURATED, WrenchSample
 from hapticlab.plugins.sensors.sim import SimSensor
-from hapticlab.plugins.simworld import Hold, Indentation, SimWorld
+from hapticlab.plugins.simworld import Hold, Indentation, RandomTour, SensorParams, SimWorld, ToolParams
 
 T0 = 1_234_567_890_123  # an arbitrary session clock at open, ns
 
@@ -114,3 +114,30 @@ def test_samples_are_read_only():
     sample = sensor.read(5_000_000)[0]
     with pytest.raises(ValueError):
         sample.force_S[0] = 1.0
+
+
+def full_world() -> SimWorld:
+    """Every term on and nothing axis-aligned: mount, offset, full inertia, drift, a contact."""
+    return SimWorld(
+        tool=ToolParams(inertia_S=((2e-3, 1e-4, 3e-4), (1e-4, 2.5e-3, -2e-4), (3e-4, -2e-4, 1e-4))),
+        sensor=SensorParams(mount_rotation_SE=(0.05, -0.08, 0.3), p_EoSo_E=(0.01, -0.02, 0.05),
+                            drift_torque_rw_S=0.001),
+        motion=RandomTour(seed=6, segment_s=0.5, max_translation=0.03),
+        contacts=[Indentation(start=0.3, duration=0.4, peak_force=3.0, ramp=0.1)], seed=6)
+
+
+@pytest.mark.parametrize("rate_hz", [1000.0, 7000.0])
+def test_a_live_loop_reads_exactly_what_one_big_read_gives(rate_hz):
+    """A 1 kHz loop reads 1 sample (1 kHz sensor) or 7 (7 kHz) at a time: the same
+    values, bit for bit, as one vectorised read of the whole stream."""
+    whole = SimSensor(rate_hz=rate_hz, world=full_world())
+    whole.open(T0)
+    one = as_arrays(whole.read(T0 + 1_000_000_000))
+    live = SimSensor(rate_hz=rate_hz, world=full_world())
+    live.open(T0)
+    reads = [live.read(T0 + ms * 1_000_000) for ms in range(1001)]
+    assert max(len(r) for r in reads) == round(rate_hz / 1000)
+    for a, b in zip(one, as_arrays([s for r in reads for s in r])):
+        assert np.array_equal(a, b)
+    sample = reads[500][0]
+    assert type(sample.t_ns) is int and type(sample.seq) is int and type(sample.status) is int

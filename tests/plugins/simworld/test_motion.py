@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from hapticlab.plugins.simworld.motion import (
+    HORIZONTAL_R_BE,
     AxialRotation,
     Hold,
     MotionScript,
@@ -167,3 +168,37 @@ def test_make_motion_by_name():
     assert isinstance(make_motion("static_poses", poses=3), StaticPoses)
     with pytest.raises(ValueError, match="unknown motion script"):
         make_motion("wiggle")
+
+
+def test_random_tour_orientation_is_the_geodesic_between_its_waypoints():
+    """R_BE(t) = R_BE_a · Exp(s(t) u_E), built here with scipy from the waypoints."""
+    tour = RandomTour(seed=7, segment_s=0.9, dwell_s=0.2, max_translation=0.04)
+    t = np.linspace(-0.3, 250.0, 20_001)  # several waypoint blocks, holds included
+    state = tour.evaluate(t)
+    k = np.floor(np.maximum(t, 0.0) / tour.period_s).astype(int)
+    R_wp, p_wp = tour.waypoint_poses(int(k.max()) + 2)
+    s, _, _ = quintic((np.maximum(t, 0.0) - k * tour.period_s) / tour.segment_s)
+    u_E = Rotation.from_matrix(np.transpose(R_wp[k], (0, 2, 1)) @ R_wp[k + 1]).as_rotvec()
+    expected = R_wp[k] @ Rotation.from_rotvec(s[:, None] * u_E).as_matrix()
+    np.testing.assert_allclose(state.R_BE, expected, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(state.p_BoEo_B, p_wp[k] + s[:, None] * (p_wp[k + 1] - p_wp[k]), rtol=0, atol=1e-15)
+
+
+def test_axial_rotation_orientation_is_the_horizontal_pose_turned_about_z():
+    script = AxialRotation(speed_deg_s=72.0, turns=1.5, ramp_s=0.3, start_s=0.4, roll0_deg=25.0)
+    t = np.linspace(-1.0, 10.0, 5001)
+    phi, _, _ = script.angle(t)
+    expected = HORIZONTAL_R_BE @ Rotation.from_rotvec(np.outer(np.radians(25.0) + phi, [0.0, 0.0, 1.0])).as_matrix()
+    np.testing.assert_allclose(script.evaluate(t).R_BE, expected, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_one_time_at_a_time_gives_exactly_the_batch(name):
+    """The live loop evaluates one or a few times per call: bit-for-bit the batch values."""
+    t = np.linspace(-0.2, 6.0, 800)
+    batch = SCRIPTS[name]().evaluate(t)
+    script = SCRIPTS[name]()
+    singles = [script.evaluate(time) for time in t[::-1]]  # in any order, scalars
+    for field in ("R_BE", "p_BoEo_B", "w_BE_E", "alpha_BE_E", "v_BEo_B", "a_BEo_B"):
+        joined = np.concatenate([getattr(state, field) for state in singles[::-1]])
+        assert np.array_equal(joined, getattr(batch, field)), field

@@ -24,6 +24,7 @@ from hapticlab.plugins.simworld import (
     SimWorld,
     ToolParams,
 )
+from hapticlab.plugins.simworld.physics import gaussian_noise
 from scipy.spatial.transform import Rotation
 
 G = 9.80665
@@ -463,3 +464,117 @@ def test_noise_may_be_a_scalar_or_three_numbers():
     a = SimWorld.from_config({"sensor": {"noise_force": 0.2}})
     b = SimWorld.from_config({"sensor": {"noise_force": [0.2, 0.2, 0.2]}})
     np.testing.assert_array_equal(a.sensor.noise_force_S, b.sensor.noise_force_S)
+
+
+# --------------------------------------------------------------------------- small reads (the live loop)
+
+
+def full_world(motion=None) -> SimWorld:
+    """Every term switched on and nothing aligned with an axis: mount rotation, sensor
+    offset, full inertia tensor, off-axis contact point, linear and random-walk drift."""
+    return SimWorld(
+        tool=ToolParams(cog_S=(0.003, -0.002, 0.05),
+                        inertia_S=((2e-3, 1e-4, 3e-4), (1e-4, 2.5e-3, -2e-4), (3e-4, -2e-4, 1e-4))),
+        sensor=SensorParams(mount_rotation_SE=(0.05, -0.08, 0.3), p_EoSo_E=(0.01, -0.02, 0.05),
+                            drift_force_S=(0.01, 0.0, -0.02), drift_force_rw_S=0.01, drift_torque_rw_S=0.001),
+        robot=RobotParams(base_tilt_BG=(0.03, -0.02, 0.01)),
+        motion=motion if motion is not None else RandomTour(seed=8, segment_s=0.4, max_translation=0.03),
+        contacts=[HangingMass(start=0.1, duration=0.2, point_S=(0.01, 0.002, 0.1)),
+                  Indentation(start=0.25, duration=0.15, peak_force=80.0, ramp=0.05)],
+        seed=8)
+
+
+@pytest.mark.parametrize("motion", [None, AxialRotation(speed_deg_s=200.0, turns=1, ramp_s=0.1, start_s=0.05),
+                                    Hold(tilt_deg=20.0, roll_deg=30.0)], ids=["random_tour", "axial_rotation", "hold"])
+def test_reads_of_one_to_seven_samples_equal_one_big_call_bit_for_bit(motion):
+    """The live loop asks for 1 (1 kHz sensor) to 7 (7 kHz) samples at a time: every
+    value must be exactly what one vectorised call over the whole stream gives."""
+    t = np.arange(3500) / 7000.0
+    whole = full_world(motion).wrench(t)
+    assert whole["contact"].any() and (whole["status"] != 0).any()  # contacts and saturation are exercised
+    small = full_world(motion)
+    sizes = itertools.cycle([1, 7, 2, 7, 3, 1, 5, 7, 6, 4])
+    cuts = [0]
+    while cuts[-1] < len(t):
+        cuts.append(min(len(t), cuts[-1] + next(sizes)))
+    parts = [small.wrench(t[a:b]) for a, b in itertools.pairwise(cuts)]
+    parts.append(small.wrench(t[123]))  # a scalar time
+    for key, value in whole.items():
+        joined = np.concatenate([part[key] for part in parts[:-1]])
+        assert np.array_equal(joined, value), key
+        assert np.array_equal(parts[-1][key], value[123:124]), key
+
+
+def test_wrench_terms_match_the_textbook_cross_products():
+    """Inertial, gravity and contact terms against the formulas of the module docstring,
+    written out with np.cross (the code folds them into constant matrices)."""
+    world = full_world()
+    t = np.linspace(0.0, 3.0, 4001)
+    reading = world.wrench(t, noise=False)
+    state = world.motion_state(t)
+    R_SE = Rotation.from_rotvec([0.05, -0.08, 0.3]).as_matrix()
+    R_SB = R_SE @ np.transpose(state.R_BE, (0, 2, 1))
+    m, c, I = world.tool.mass, world.tool.cog_S, world.tool.inertia_S
+    p = np.array([0.01, -0.02, 0.05])
+
+    def to_S(R, v):
+        return (R @ v[..., None])[..., 0]
+
+    w_E, alpha_E = state.w_BE_E, state.alpha_BE_E
+    w_S, alpha_S = w_E @ R_SE.T, alpha_E @ R_SE.T
+    a_So_B = state.a_BEo_B + to_S(state.R_BE, np.cross(alpha_E, p) + np.cross(w_E, np.cross(w_E, p)))
+    a_cm_S = to_S(R_SB, a_So_B) + np.cross(alpha_S, c) + np.cross(w_S, np.cross(w_S, c))
+    euler_S = alpha_S @ I.T + np.cross(w_S, w_S @ I.T)
+    gravity_S = m * to_S(R_SB, world.gravity_accel_B)
+    assert np.abs(m * a_cm_S).max() > 0.1 and np.abs(euler_S).max() > 1e-3  # the motion is lively
+
+    np.testing.assert_allclose(reading["angular_velocity_S"], w_S, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(reading["angular_acceleration_S"], alpha_S, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(reading["inertial_force_S"], -m * a_cm_S, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(reading["inertial_torque_S"], np.cross(c, -m * a_cm_S) - euler_S, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(reading["gravity_force_S"], gravity_S, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(reading["gravity_torque_S"], np.cross(c, gravity_S), rtol=0, atol=1e-15)
+    hanging = (t >= 0.1) & (t < 0.3) & ~((t >= 0.25) & (t <= 0.4))  # only the hanging mass acts
+    assert hanging.sum() > 100
+    np.testing.assert_allclose(reading["contact_torque_S"][hanging],
+                               np.cross([0.01, 0.002, 0.1], reading["contact_force_S"][hanging]), rtol=0, atol=1e-15)
+
+
+def reference_gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.ndarray:
+    """The noise stream as first written: one pair of channels at a time."""
+    def splitmix64(x):
+        x = x + np.uint64(0x9E3779B97F4A7C15)
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return x ^ (x >> np.uint64(31))
+
+    step = 0xD1B54A32D192ED03
+    base = splitmix64(np.asarray(t_ns, dtype=np.int64).view(np.uint64) ^ np.uint64(key))
+    out = np.empty((len(base), channels))
+    for pair in range(channels // 2):
+        u1 = ((splitmix64(base + np.uint64(((2 * pair + 1) * step) % 2**64)) >> np.uint64(11)).astype(float)
+              + 0.5) * 2.0**-53
+        u2 = ((splitmix64(base + np.uint64(((2 * pair + 2) * step) % 2**64)) >> np.uint64(11)).astype(float)
+              + 0.5) * 2.0**-53
+        out[:, 2 * pair] = np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+        out[:, 2 * pair + 1] = np.sqrt(-2.0 * np.log(u1)) * np.sin(2.0 * np.pi * u2)
+    return out
+
+
+def test_noise_stream_is_unchanged():
+    """Seeded data must not change between versions: the same numbers as the first
+    implementation (bit for bit), and as recorded from it (to libm's last bit)."""
+    rng = np.random.default_rng(0)
+    t_ns = np.concatenate([[0, 1, -1, 2**63 - 1, -2**63], rng.integers(-2**62, 2**62, 5000)]).astype(np.int64)
+    for key in (0, 8431846347943309920, 2**64 - 1):
+        for channels in (2, 6):
+            assert np.array_equal(gaussian_noise(key, t_ns, channels), reference_gaussian_noise(key, t_ns, channels))
+    assert SimWorld(seed=1)._noise_key == 8431846347943309920
+    recorded = np.array([
+        [-0.7883944535349952, 0.6760612365399674, -0.15322416585264603,
+         0.5034027412075973, 0.9471304477575836, -0.8110150686916442],
+        [0.20091427659102956, 0.3609706879230142, -0.8741569433539794,
+         -0.9764457130725596, -0.41830705953725683, -0.10732086071673083],
+    ])
+    np.testing.assert_allclose(gaussian_noise(8431846347943309920, np.array([0, 2**62]), 6), recorded,
+                               rtol=1e-12, atol=0)

@@ -10,7 +10,8 @@ import pytest
 from hapticlab.core import hookspecs
 from hapticlab.core.interfaces import KinematicsSource
 from hapticlab.core.plugins import ConfigError, Registry
-from hapticlab.plugins.kinematics.sim import SimKinematics, quat_wxyz_from_matrices
+from hapticlab.core.frames import quat_wxyz_from_matrix as quat_wxyz_from_matrices
+from hapticlab.plugins.kinematics.sim import SimKinematics
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.simworld import RandomTour, SimWorld
 from scipy.spatial.transform import Rotation

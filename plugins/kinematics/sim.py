@@ -6,6 +6,7 @@ sensor: sample i at ``t0_ns + round(i·1e9/rate_hz)`` ns, world time
 """
 
 from __future__ import annotations
+
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.plugins import ConfigError

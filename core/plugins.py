@@ -154,7 +154,25 @@ class Registry:
         for key, value in context.items():
             if key in params:
                 kwargs[key] = value
-        return entry.factory(**kwargs)
+        try:
+            return entry.factory(**kwargs)
+        except ValueError as exc:
+            # Plugins refuse bad values with "option: what is wrong"; name the full key.
+            message = str(exc)
+            key = message.split(":", 1)[0]
+            sep = "." if key in params else ": "
+            raise ConfigError(f"{where or kind}{sep}{message}") from None
+
+    def resolved_options(self, kind: str, name: str, options: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """The options a plugin runs with: its signature's defaults updated by ``options``."""
+        resolved: dict[str, Any] = {}
+        for key, param in inspect.signature(self.get(kind, name).factory).parameters.items():
+            if key in HOST_PROVIDED or param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD):
+                continue
+            if param.default is not param.empty:
+                resolved[key] = param.default
+        resolved.update(options or {})
+        return resolved
 
 
 def option_types(factory: Callable[..., Any]) -> dict[str, Any]:
@@ -211,7 +229,8 @@ def _type_name(annotation: Any) -> str:
     return str(annotation).replace("typing.", "")
 
 
-HOST_PROVIDED = frozenset({"world", "context"})
+HOST_PROVIDED = frozenset({"world"})
+"""Keyword arguments the host provides to factories that accept them; never user options."""
 
 
 def validate_options(factory: Callable[..., Any], options: dict[str, Any], where: str) -> dict[str, Any]:

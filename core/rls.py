@@ -90,6 +90,11 @@ class RecursiveLeastSquares:
         self.updates += used
 
 
+HORIZON = 128
+"""Most samples proposed or checked at once: after a cut, the rest is proposed
+again, so an unbounded look-ahead would cost O(m²) when gates flicker."""
+
+
 def run_gated(
     stage: RecursiveLeastSquares,
     y: np.ndarray,
@@ -102,8 +107,8 @@ def run_gated(
     """One stage of Algorithm 1 over a block of m samples, in order.
 
     For each active sample k: if the stage has converged and the residual norm
-    ‖C_k x_{k−1} − y_k‖ is at least ``threshold``, the sample is taken as
-    contact and not used; otherwise it updates x, and
+    ‖C_k x_{k−1} − y_k‖ is not below ``threshold`` (a NaN is not below it), the
+    sample is taken as contact and not used; otherwise it updates x, and
     ``converged = ‖x_k − x_{k−1}‖ < epsilon``. Inactive samples (the torque
     stage while the force stage has not converged) leave everything unchanged.
 
@@ -134,15 +139,15 @@ def run_gated(
     i = 0
     while i < m:
         if not active[i]:
-            n = _leading_true_count(~active[i:])
+            n = _leading_true_count(~active[i : i + HORIZON])
             X[i : i + n] = stage.x
             conv[i : i + n] = converged
             i += n
             continue
-        end = i + _leading_true_count(active[i:])
+        end = i + _leading_true_count(active[i : i + HORIZON])
         if converged:
             residual = stage.predict(A[i:end]) - y[i:end]
-            n = _leading_true_count(np.einsum("ij,ij->i", residual, residual) >= threshold2)
+            n = _leading_true_count(~(np.einsum("ij,ij->i", residual, residual) < threshold2))
             if n:
                 X[i : i + n] = stage.x
                 conv[i : i + n] = True
@@ -156,7 +161,7 @@ def run_gated(
         conv_p = np.einsum("ij,ij->i", dx, dx) < epsilon2
         # Would the gate refuse the sample after each one? (needs x and the flag after it)
         residual_next = (A[i + 1 : end] @ Xp[:-1, :3, None])[:, :, 0] + Xp[:-1, 3:] - y[i + 1 : end]
-        stop = conv_p[:-1] & (np.einsum("ij,ij->i", residual_next, residual_next) >= threshold2)
+        stop = conv_p[:-1] & ~(np.einsum("ij,ij->i", residual_next, residual_next) < threshold2)
         n = int(np.argmax(stop)) + 1 if stop.any() else end - i
         stage.commit(Xp[n - 1], Lam[n - 1], eta[n - 1], n)
         converged = bool(conv_p[n - 1])
@@ -170,7 +175,7 @@ def _run_gated_one(stage, y, A, active, threshold, epsilon, converged):
     """``run_gated`` for a single sample: the same rules, fewer array operations."""
     if active:
         residual = A[0] @ stage.x[:3] + stage.x[3:] - y[0]
-        if converged and residual @ residual >= threshold * threshold:
+        if converged and not residual @ residual < threshold * threshold:
             return stage.x[None, :], np.ones(1, dtype=bool), np.ones(1, dtype=bool), converged
         Xp, Lam, eta = stage.propose(y, A)
         dx = Xp[0] - stage.x

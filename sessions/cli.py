@@ -29,7 +29,8 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from .csvimport import CsvError
     from .recording import RecordingError
 
-    return (PluginError, CsvError, RecordingError, UserError, ValueError, FileNotFoundError)
+    return (PluginError, CsvError, RecordingError, UserError, ValueError, FileNotFoundError,
+            FileExistsError)
 
 
 def cmd_plugins(args: argparse.Namespace) -> int:
@@ -106,7 +107,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         result = compensate(
             args.input, args.output, estimator_name=args.estimator, overrides=args.set or [],
             params_out=args.params_out,
-            progress=lambda done: progress.update(task, completed=done),
+            progress=lambda done, total: progress.update(task, completed=done, total=total),
         )
     for note in result.notes:
         err.print(f"note: {note}")

@@ -28,7 +28,7 @@ BLOCK = 1024
 
 @dataclass
 class Stream:
-    """Aligned input of an offline run: times in s and ns, wrench, orientation."""
+    """Aligned input of an offline run: times in s and ns, wrench, orientation, sensor status."""
 
     t_s: np.ndarray
     t_ns: np.ndarray
@@ -36,16 +36,22 @@ class Stream:
     torque_S: np.ndarray
     R_EB: np.ndarray
     stale: np.ndarray
+    status: np.ndarray
     notes: list[str]
 
     def __len__(self) -> int:
         return len(self.t_s)
 
-    def block(self, i: int, j: int) -> AlignedSamples:
-        """Rows i..j as an aligned block."""
-        n = j - i
-        return AlignedSamples(self.t_ns[i:j], self.force_S[i:j], self.torque_S[i:j], self.R_EB[i:j],
-                              np.arange(i, j), np.zeros(n, dtype=np.int64), self.stale[i:j])
+    @property
+    def usable(self) -> np.ndarray:
+        """(N,) rows an estimator may see: finite, not stale, status good (as live)."""
+        return (~self.stale & (self.status == 0) & np.isfinite(self.force_S).all(1)
+                & np.isfinite(self.torque_S).all(1))
+
+    def block(self, rows: np.ndarray) -> AlignedSamples:
+        """The given row indices as an aligned block."""
+        return AlignedSamples(self.t_ns[rows], self.force_S[rows], self.torque_S[rows], self.R_EB[rows],
+                              rows, self.status[rows], self.stale[rows])
 
 
 def load_stream(path: str | Path) -> Stream:
@@ -56,9 +62,10 @@ def load_stream(path: str | Path) -> Stream:
     if path.suffix.lower() == ".mcap":
         return _load_mcap(path)
     record = read_csv(path)
+    n = len(record)
     t_ns = np.round((record.t_s - record.t_s[0]) * 1e9).astype(np.int64)
     return Stream(record.t_s, t_ns, record.force_S, record.torque_S, record.R_EB,
-                  np.zeros(len(record), dtype=bool), record.notes)
+                  np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64), record.notes)
 
 
 def _load_mcap(path: Path) -> Stream:
@@ -72,18 +79,26 @@ def _load_mcap(path: Path) -> Stream:
     if not poses:
         raise CsvError(f"{path.name}: no /kinematics/pose messages")
     t_ns = np.array([t for t, _ in wrenches], dtype=np.int64)
-    force_S = np.array([m["force_S"] for _, m in wrenches], dtype=float)
-    torque_S = np.array([m["torque_S"] for _, m in wrenches], dtype=float)
+    # NaN is recorded as null in JSON; float(None) would fail, so map it back
+    force_S = np.array([[np.nan if v is None else v for v in m["force_S"]] for _, m in wrenches], dtype=float)
+    torque_S = np.array([[np.nan if v is None else v for v in m["torque_S"]] for _, m in wrenches], dtype=float)
+    status = np.array([int(m.get("status", 0)) for _, m in wrenches], dtype=np.int64)
     pose_t = np.array([t for t, _ in poses], dtype=np.int64)
     quat = np.array([m["quat_BE"] for _, m in poses], dtype=float)
     period = int(np.median(np.diff(pose_t))) if len(pose_t) > 1 else 0
     quat_BE, stale = orientation_at(t_ns, pose_t, quat, period)
     R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
-    return Stream((t_ns - t_ns[0]) * 1e-9, t_ns, force_S, torque_S, R_EB, stale, [])
+    notes = [f"{path.name}: {int(n)} sample(s) not used (stale orientation, sensor status or non-finite)"
+             for n in [np.count_nonzero(stale | (status != 0) | ~np.isfinite(force_S).all(1)
+                                        | ~np.isfinite(torque_S).all(1))] if n]
+    return Stream((t_ns - t_ns[0]) * 1e-9, t_ns, force_S, torque_S, R_EB, stale, status, notes)
 
 
 def estimator_options(overrides: list[str]) -> dict[str, Any]:
-    """Estimator options from ``--set estimator.key=value`` (or ``key=value``)."""
+    """Estimator options from ``--set estimator.key=value`` (or ``key=value``).
+
+    ``estimator.name=...`` is returned under ``name`` (it picks the estimator).
+    """
     options: dict[str, Any] = {}
     for item in overrides:
         key, sep, value = item.partition("=")
@@ -99,29 +114,38 @@ def estimator_options(overrides: list[str]) -> dict[str, Any]:
 
 
 def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
-    """Feed the stream through the estimator in blocks; one estimate per row."""
-    parts = []
-    for i in range(0, len(stream), BLOCK):
-        parts.append(estimator.update_block(stream.block(i, min(i + BLOCK, len(stream)))))
+    """Feed the usable rows through the estimator in blocks; one estimate row per input row.
+
+    Rows the estimator may not see get NaN wrench values, no contact, and the
+    convergence flags of the row before them.
+    """
+    n = len(stream)
+    usable = np.flatnonzero(stream.usable)
+    force = np.full((n, 3), np.nan)
+    torque = np.full((n, 3), np.nan)
+    contact = np.zeros(n, dtype=bool)
+    conv_f = np.zeros(n, dtype=bool)
+    conv_t = np.zeros(n, dtype=bool)
+    for i in range(0, len(usable), BLOCK):
+        rows = usable[i : i + BLOCK]
+        est = estimator.update_block(stream.block(rows))
+        force[rows], torque[rows], contact[rows] = est.contact_force_S, est.contact_torque_S, est.contact
+        conv_f[rows], conv_t[rows] = est.converged_force, est.converged_torque
         if progress is not None:
-            progress(min(i + BLOCK, len(stream)))
-    return Estimates(
-        t_ns=np.concatenate([p.t_ns for p in parts]),
-        contact_force_S=np.concatenate([p.contact_force_S for p in parts]),
-        contact_torque_S=np.concatenate([p.contact_torque_S for p in parts]),
-        contact=np.concatenate([p.contact for p in parts]),
-        converged_force=np.concatenate([p.converged_force for p in parts]),
-        converged_torque=np.concatenate([p.converged_torque for p in parts]),
-        params=estimator.params(),
-        cov_diag=estimator.cov_diag(),
-    )
+            progress(int(rows[-1]) + 1, n)
+    if len(usable) < n:  # carry the flags over the rows the estimator did not see
+        last = np.maximum.accumulate(np.where(stream.usable, np.arange(n), -1))
+        seen = last >= 0
+        conv_f[seen], conv_t[seen] = conv_f[last[seen]], conv_t[last[seen]]
+    return Estimates(stream.t_ns, force, torque, contact, conv_f, conv_t,
+                     params=estimator.params(), cov_diag=estimator.cov_diag())
 
 
 def _rms_after(values: np.ndarray, contact: np.ndarray, first: int | None) -> np.ndarray:
     """Per-axis RMS over no-contact rows from the first convergence on (NaN if none)."""
     if first is None:
         return np.full(3, np.nan)
-    rows = ~contact[first:]
+    rows = ~contact[first:] & np.isfinite(values[first:]).all(1)
     return np.sqrt(np.mean(values[first:][rows] ** 2, axis=0)) if rows.any() else np.full(3, np.nan)
 
 
@@ -151,8 +175,15 @@ def compensate(
 ) -> CompensateResult:
     """Run ``estimator_name`` over a recording and write the contact wrench per row."""
     registry = registry if registry is not None else Registry()
-    estimator = registry.create("estimator", estimator_name, estimator_options(overrides or []),
-                                where="estimator")
+    options = estimator_options(overrides or [])
+    estimator_name = options.pop("name", estimator_name)
+    input_path, out_csv = Path(input_path), Path(out_csv)
+    if out_csv.resolve() == input_path.resolve():
+        raise CsvError(f"{out_csv}: the output would overwrite the input; choose another -o")
+    for target in (out_csv, Path(params_out) if params_out else None):
+        if target is not None and not target.parent.is_dir():
+            raise CsvError(f"{target}: folder {target.parent} does not exist")
+    estimator = registry.create("estimator", estimator_name, options, where="estimator")
     stream = load_stream(input_path)
     est = run_estimator(stream, estimator, progress)
     write_compensated_csv(out_csv, stream.t_s, est.contact_force_S, est.contact_torque_S,

@@ -16,6 +16,7 @@ Errors are ``ConfigError`` with one line naming the key.
 from __future__ import annotations
 
 import copy
+import math
 import tomllib
 from dataclasses import dataclass, fields
 from importlib import resources
@@ -40,8 +41,9 @@ class SessionSettings:
             as fast as the machine allows (tests, batch generation).
         loop_rate_hz: control-loop rate; one haptic command per iteration, Hz.
         out: default output path of the recording ("" = ``recordings/<name>-<time>.mcap``).
-        stale_timeout: longest gap without sensor data before the haptic force
-            is zeroed, s.
+        stale_timeout: longest age of the newest sensor sample before the
+            haptic force is zeroed, s; 0 = automatic: 1.5 sensor periods plus one
+            loop period, so the first late sample switches the force off.
     """
 
     name: str = "session"
@@ -49,7 +51,12 @@ class SessionSettings:
     realtime: bool = True
     loop_rate_hz: float = 1000.0
     out: str = ""
-    stale_timeout: float = 0.01
+    stale_timeout: float = 0.0
+
+    def __post_init__(self) -> None:
+        _require("session.duration", self.duration, minimum=0.0)
+        _require("session.loop_rate_hz", self.loop_rate_hz, above=0.0)
+        _require("session.stale_timeout", self.stale_timeout, minimum=0.0)
 
 
 @dataclass(frozen=True)
@@ -62,12 +69,36 @@ class HapticSettings:
         scale: force scaling from the contact force to the device force.
         rotation_DB: rotation vector (rad) of the robot base B in the device base D,
             so that force_D = scale · R_DB · R_BE · R_ES · contact_force_S.
+        ready_force_std: the force goes on only once the estimator's force-stage
+            parameters are known to this standard deviation, N (for estimators
+            that report one, e.g. ``rls``: sqrt of diag P). Algorithm 1's own
+            ‖Δx‖ test also passes while a motion about a single axis leaves one
+            direction unidentified; this host rule keeps the haptics off then.
     """
 
     max_force: float = 4.0
     max_force_rate: float = 400.0
     scale: float = 1.0
     rotation_DB: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ready_force_std: float = 0.05
+
+    def __post_init__(self) -> None:
+        _require("haptic.max_force", self.max_force, above=0.0)
+        _require("haptic.max_force_rate", self.max_force_rate, above=0.0)
+        _require("haptic.scale", self.scale, minimum=0.0)
+        _require("haptic.ready_force_std", self.ready_force_std, above=0.0)
+        for value in self.rotation_DB:
+            _require("haptic.rotation_DB", value)
+
+
+def _require(key: str, value: float, minimum: float | None = None, above: float | None = None) -> None:
+    """Refuse a non-finite or out-of-range number, naming the key."""
+    if not math.isfinite(value):
+        raise ConfigError(f"{key}: must be a finite number, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ConfigError(f"{key}: must be at least {minimum:g}, got {value!r}")
+    if above is not None and not value > above:
+        raise ConfigError(f"{key}: must be greater than {above:g}, got {value!r}")
 
 
 def preset_names() -> list[str]:
@@ -80,7 +111,8 @@ def load_config(session: str | None) -> tuple[dict[str, Any], str]:
     """The raw config of a preset name or a TOML path, and where it came from."""
     session = session or "demo"
     path = Path(session)
-    if session.endswith(".toml") or path.exists():
+    # a preset name unless it looks like a path (a folder named "demo" is no session)
+    if session.endswith(".toml") or "/" in session or (path.is_file() and session not in preset_names()):
         if not path.is_file():
             raise ConfigError(f"{session}: no such session file")
         text, origin = path.read_text(encoding="utf-8"), str(path)

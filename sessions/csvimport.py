@@ -74,16 +74,21 @@ def read_csv(path: str | Path) -> MotionRecord:
         raise CsvError(f"{name}: not a text CSV file") from None
     if not rows:
         raise CsvError(f"{name}: empty file; expected a header row with {','.join(REQUIRED)}")
-    header = [h.strip() for h in rows[0]]
+    # blank lines (a trailing newline or two) are no rows; keep file line numbers for errors
+    numbered = [(n, row) for n, row in enumerate(rows, start=1) if any(cell.strip() for cell in row)]
+    if not numbered:
+        raise CsvError(f"{name}: empty file; expected a header row with {','.join(REQUIRED)}")
+    header = [h.strip() for h in numbered[0][1]]
     index = {h: i for i, h in enumerate(header)}
     missing = [c for c in REQUIRED if c not in index]
     if missing:
         raise CsvError(f"{name} line 1: missing required column(s) {', '.join(missing)} "
                        f"(required: {','.join(REQUIRED)})")
-    data = rows[1:]
+    lines = [n for n, _ in numbered[1:]]
+    data = [row for _, row in numbered[1:]]
     if not data:
         raise CsvError(f"{name}: no data rows after the header")
-    for n, row in enumerate(data, start=2):
+    for n, row in zip(lines, data):
         if len(row) != len(header):
             raise CsvError(f"{name} line {n}: {len(row)} fields, the header has {len(header)}")
 
@@ -101,7 +106,7 @@ def read_csv(path: str | Path) -> MotionRecord:
             out = None
         if out is not None and np.isfinite(out).all():
             return out
-        for n, text in enumerate(values, start=2):
+        for n, text in zip(lines, values):
             try:
                 ok = np.isfinite(float(text))
             except ValueError:
@@ -113,7 +118,7 @@ def read_csv(path: str | Path) -> MotionRecord:
     t = column("t")
     bad = np.flatnonzero(np.diff(t) <= 0)
     if len(bad):
-        n = int(bad[0]) + 3  # data row k+1 is on line k+3
+        n = lines[int(bad[0]) + 1]
         raise CsvError(f"{name} line {n}, column 't': {float(t[bad[0] + 1])!r} does not increase "
                        f"(previous {float(t[bad[0]])!r})")
     force_S = np.column_stack([column(c) for c in ("fx", "fy", "fz")])
@@ -123,7 +128,7 @@ def read_csv(path: str | Path) -> MotionRecord:
     off = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOLERANCE)
     if len(off):
         k = int(off[0])
-        raise CsvError(f"{name} line {k + 2}, columns qw,qx,qy,qz: not a unit quaternion "
+        raise CsvError(f"{name} line {lines[k]}, columns qw,qx,qy,qz: not a unit quaternion "
                        f"(norm {norm[k]:.6g})")
     quat = quat / norm[:, None]
     p = np.column_stack([column(c) for c in POSITION]) if has_position else None
@@ -137,10 +142,15 @@ OUTPUT_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "contact", "converged
 def write_compensated_csv(path: str | Path, t_s: np.ndarray, contact_force_S: np.ndarray,
                           contact_torque_S: np.ndarray, contact: np.ndarray,
                           converged_force: np.ndarray, converged_torque: np.ndarray) -> None:
-    """Write the ``compensate`` output: the estimated contact wrench in S, one row per input row."""
-    table = np.column_stack([t_s, contact_force_S, contact_torque_S])
+    """Write the ``compensate`` output: the estimated contact wrench in S, one row per input row.
+
+    Rows the estimator could not use (non-finite, stale or flagged by the
+    sensor) carry NaN wrench values.
+    """
+    wrench = np.column_stack([contact_force_S, contact_torque_S])
     flags = np.column_stack([contact, converged_force, converged_torque]).astype(int)
     with Path(path).open("w", newline="", encoding="utf-8") as fh:
         fh.write(",".join(OUTPUT_COLUMNS) + "\n")
-        for values, f in zip(table.tolist(), flags.tolist()):
-            fh.write(",".join(f"{v:.9g}" for v in values) + f",{f[0]},{f[1]},{f[2]}\n")
+        for t, values, f in zip(t_s.tolist(), wrench.tolist(), flags.tolist()):
+            # t keeps full precision (epoch seconds need 16 digits); the wrench 9
+            fh.write(f"{t!r}," + ",".join(f"{v:.9g}" for v in values) + f",{f[0]},{f[1]},{f[2]}\n")

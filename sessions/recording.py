@@ -169,7 +169,7 @@ _ALIGNED_SCHEMA = _schema(
     {
         "force_S": _vec(3, "Raw force in the sensor frame S, N."),
         "torque_S": _vec(3, "Raw torque in S, N·m."),
-        "quat_EB": _quat("Orientation R_EB of the base frame B in the end frame E (v_E = R_EB v_B)."),
+        "quat_BE": _quat("Orientation R_BE of E in B at the sample's time (the estimator uses R_EB = R_BEᵀ)."),
         "seq": {"type": "integer", "description": "Sensor sequence number of the sample."},
         "status": {"type": "integer", "description": "Sensor status bits; 0 = good."},
         "stale": {
@@ -179,7 +179,7 @@ _ALIGNED_SCHEMA = _schema(
             ),
         },
     },
-    ["force_S", "torque_S", "quat_EB", "seq", "stale"],
+    ["force_S", "torque_S", "quat_BE", "seq", "status", "stale"],
 )
 
 _ESTIMATOR_SCHEMA = _schema(

@@ -15,18 +15,15 @@ Ctrl-C ends the loop; the recording is always closed cleanly.
 from __future__ import annotations
 
 import json
-import subprocess
 import time
-from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from dataclasses import asdict, dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-import hapticlab
 from hapticlab.core.aligner import Aligner
-from hapticlab.core.frames import quat_conjugate
 from hapticlab.core.plugins import Registry
 from hapticlab.core.types import STATUS_OK, AlignedSamples, Estimates
 
@@ -55,6 +52,8 @@ class Session:
     haptic: Any
     governor: ForceGovernor
     plugins: dict[str, dict[str, str]]
+    resolved_config: dict[str, Any] = field(default_factory=dict)
+    ready_force_std: float = 0.05
     world: Any = None
 
 
@@ -103,13 +102,17 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
         world = SimWorld.from_config(config["world"])
     built: dict[str, Any] = {}
     plugins: dict[str, dict[str, str]] = {}
+    resolved = {"session": asdict(settings), "world": config.get("world", {})}
     for table, kind in PLUGIN_TABLES.items():
         name, options = plugin_options(config, table)
         if name is None:
             raise_missing(table)
         built[table] = registry.create(kind, name, options, where=table, world=world)
         plugins[table] = {"name": name, "origin": registry.get(kind, name).origin}
-    haptic_rate = float(getattr(built["haptic"], "rate_hz", settings.loop_rate_hz))
+        resolved[table] = {"name": name, **registry.resolved_options(kind, name, options)}
+    resolved["haptic"].update(asdict(safety))
+    if world is None:
+        del resolved["world"]
     return Session(
         config=config,
         settings=settings,
@@ -118,8 +121,11 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
         estimator=built["estimator"],
         estimator_name=plugin_options(config, "estimator")[0],
         haptic=built["haptic"],
-        governor=ForceGovernor(safety, 1.0 / haptic_rate),
+        # one command per loop iteration: the rate limit works on the loop period
+        governor=ForceGovernor(safety, 1.0 / settings.loop_rate_hz),
         plugins=plugins,
+        resolved_config=resolved,
+        ready_force_std=safety.ready_force_std,
         world=world,
     )
 
@@ -130,26 +136,14 @@ def raise_missing(table: str) -> None:
     raise ConfigError(f"{table}.name: missing; the session needs a [{table}] table naming a plugin")
 
 
-def git_revision() -> str:
-    """The git revision of the hapticlab source tree, or "" when unknown."""
-    try:
-        here = Path(hapticlab.__file__).resolve().parent
-        out = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True,
-                             text=True, timeout=2)
-        return out.stdout.strip() if out.returncode == 0 else ""
-    except (OSError, subprocess.SubprocessError):
-        return ""
-
-
-def session_metadata(session: Session) -> dict[str, dict[str, Any]]:
+def session_metadata(session: Session, duration: float, path: Path) -> dict[str, dict[str, Any]]:
     """The MCAP metadata records written at the start of a session."""
+    resolved = {**session.resolved_config}
+    resolved["session"] = {**resolved["session"], "duration": duration, "out": str(path)}
     return {
-        "hapticlab.session": {
-            "config": json.dumps(session.config),
+        "hapticlab.session": {  # the recorder adds version, git revision and start time
+            "config": json.dumps(resolved),
             "plugins": json.dumps(session.plugins),
-            "hapticlab_version": hapticlab.__version__,
-            "git_revision": git_revision(),
-            "started_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "estimator": session.estimator_name,
         },
         "hapticlab.calibration": dict(getattr(session.sensor, "calibration", {}) or {"counts_per_unit": "1"}),
@@ -157,11 +151,16 @@ def session_metadata(session: Session) -> dict[str, dict[str, Any]]:
 
 
 def default_out_path(settings: SessionSettings) -> Path:
-    """Where a session records when no output path is given."""
+    """Where a session records when no output path is given (never an existing file)."""
     if settings.out:
         return Path(settings.out)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path("recordings") / f"{settings.name}-{stamp}.mcap"
+    path = Path("recordings") / f"{settings.name}-{stamp}.mcap"
+    k = 1
+    while path.exists():
+        k += 1
+        path = Path("recordings") / f"{settings.name}-{stamp}-{k}.mcap"
+    return path
 
 
 class _Recording:
@@ -190,11 +189,13 @@ class _Recording:
 
     def aligned(self, block: AlignedSamples) -> None:
         write = self.rec.write
-        quat_EB = quat_conjugate(block.quat_BE).tolist()
+        quat_BE, seq, status, stale = (block.quat_BE.tolist(), block.seq.tolist(),
+                                       block.status.tolist(), block.stale.tolist())
+        force, torque = block.force_S.tolist(), block.torque_S.tolist()
         for i, t in enumerate(block.t_ns.tolist()):
             write("/aligned/sample", t, {
-                "force_S": block.force_S[i].tolist(), "torque_S": block.torque_S[i].tolist(),
-                "quat_EB": quat_EB[i], "seq": int(block.seq[i]), "stale": bool(block.stale[i]),
+                "force_S": force[i], "torque_S": torque[i], "quat_BE": quat_BE[i],
+                "seq": seq[i], "status": status[i], "stale": stale[i],
             })
 
     def estimates(self, est: Estimates, params=None, cov_diag=None) -> None:
@@ -231,9 +232,14 @@ def run_session(
     path.parent.mkdir(parents=True, exist_ok=True)
     period_ns = int(round(1e9 / settings.loop_rate_hz))
     duration_ns = int(round(duration * 1e9))
-    stale_timeout_ns = int(round(settings.stale_timeout * 1e9))
+    if settings.stale_timeout > 0:
+        stale_timeout_ns = int(round(settings.stale_timeout * 1e9))
+    else:  # the first late sample switches the force off
+        stale_timeout_ns = int(round(1.5e9 / float(session.sensor.rate_hz))) + period_ns
+    if path.exists():
+        raise FileExistsError(f"{path} already exists; choose another --out (recordings are never overwritten)")
 
-    recorder = Recorder(path, metadata=session_metadata(session))
+    recorder = Recorder(path, metadata=session_metadata(session, duration, path))
     rec = _Recording(recorder, f"/estimator/{session.estimator_name}")
     aligner = Aligner(float(session.kinematics.rate_hz))
     status = SessionStatus()
@@ -259,6 +265,9 @@ def run_session(
     contact_samples = 0
     haptic_on_ticks = 0
     haptic_reason = "starting"
+    data_reason = ""  # what was wrong with the newest sensor block ("" when it was good)
+    parameters_known = False  # force-stage parameter std below ready_force_std (when reported)
+    force_std = getattr(estimator, "force_parameter_std", None)
     interrupted = False
 
     t0_ns = time.monotonic_ns()
@@ -285,7 +294,6 @@ def run_session(
                 rec.poses(poses)
                 poses_seen += len(poses)
             wrenches = session.sensor.read(now_ns)
-            reason = ""
             if wrenches:
                 rec.wrenches(wrenches)
                 samples += len(wrenches)
@@ -294,13 +302,14 @@ def run_session(
                 rec.aligned(block)
                 good = ~block.stale & (block.status == STATUS_OK) & np.isfinite(block.force_S).all(1) \
                     & np.isfinite(block.torque_S).all(1)
-                if not good.all():
-                    if block.stale.any():
-                        reason = "stale kinematics"
-                    elif (block.status != STATUS_OK).any():
-                        reason = "sensor saturated or in error"
-                    else:
-                        reason = "non-finite sensor reading"
+                if good.all():
+                    data_reason = ""
+                elif block.stale.any():
+                    data_reason = "stale kinematics"
+                elif (block.status != STATUS_OK).any():
+                    data_reason = "sensor saturated or in error"
+                else:
+                    data_reason = "non-finite sensor reading"
                 if good.any():
                     est = estimator.update_block(block.subset(good))
                     if now_ns >= next_params_ns:
@@ -321,10 +330,24 @@ def run_session(
                             k = int(np.argmax(flags))
                             event(int(est.t_ns[k]), "converged",
                                   f"{session.estimator_name} {label} stage converged")
-                if not ready[0] and not reason:
-                    reason = "estimator not converged"
+                    if ready[0] and not parameters_known:
+                        parameters_known = force_std is None or \
+                            float(np.max(force_std())) <= session.ready_force_std
+                        if parameters_known and force_std is not None:
+                            event(now_ns, "parameters_known",
+                                  f"force parameters known to ±{float(np.max(force_std())):.3g} N (1σ)")
+
+            # Reasons to hold the force at zero, checked at every tick.
             if last_sample_ns is None or now_ns - last_sample_ns > stale_timeout_ns:
-                reason = reason or "no sensor data"
+                reason = "no sensor data"
+            elif data_reason:
+                reason = data_reason
+            elif not ready[0]:
+                reason = "estimator not converged"
+            elif not parameters_known:
+                reason = "parameters not yet identified"
+            else:
+                reason = ""
 
             command = session.governor.command(
                 now_ns, *(last_estimate if last_estimate else (None, None)), reason=reason

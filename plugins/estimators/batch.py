@@ -63,7 +63,7 @@ class BatchEstimator:
         min_rcond: float = 1e-4,
     ):
         if calibration_samples < 0:
-            raise ValueError(f"calibration_samples must be >= 0, got {calibration_samples}")
+            raise ValueError(f"calibration_samples: must be >= 0, got {calibration_samples}")
         self.calibration_samples = calibration_samples
         self.force_threshold = force_threshold
         self.torque_threshold = torque_threshold
@@ -92,7 +92,6 @@ class BatchEstimator:
         contact_force_S = force_S - gravity_S - X_f[:, 3:]
         contact_torque_S = torque_S - np.cross(X_t[:, :3], gravity_S) - bias_torque_S
         self.samples += m
-        self._bias_torque_S = bias_torque_S[-1]
         return Estimates(
             t_ns=block.t_ns,
             contact_force_S=contact_force_S,

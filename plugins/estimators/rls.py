@@ -55,7 +55,7 @@ class RLSEstimator:
         for key, value in (("force_threshold", force_threshold), ("torque_threshold", torque_threshold),
                            ("P0", P0), ("R", R), ("epsilon", epsilon)):
             if not value > 0:
-                raise ValueError(f"{key} must be positive, got {value}")
+                raise ValueError(f"{key}: must be positive, got {value}")
         rng = np.random.default_rng(seed)
         self.force_threshold = force_threshold
         self.torque_threshold = torque_threshold
@@ -112,6 +112,14 @@ class RLSEstimator:
             "cog_S": x_t[:3].tolist(),
             "bias_torque_S": x_t[3:].tolist(),
         }
+
+    def force_parameter_std(self) -> np.ndarray:
+        """(6,) standard deviation of [gravity_force_B, bias_force_S], N: sqrt of diag P_force.
+
+        P is scaled by the paper's R (2.5e-3 N²), so this measures how well the
+        poses seen so far determine each parameter, not the sensor's noise.
+        """
+        return np.sqrt(np.diag(self.force.P))
 
     def cov_diag(self) -> list[float]:
         """Diagonal of P for the force stage then the torque stage (12 values)."""

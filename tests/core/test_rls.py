@@ -160,5 +160,50 @@ def test_run_gated_inactive_samples_leave_state_unchanged():
 
 
 def test_bad_options_are_refused():
-    with pytest.raises(ValueError, match="force_threshold"):
+    with pytest.raises(ValueError, match="^force_threshold: must be positive, got 0.0$"):
         RLSEstimator(force_threshold=0.0)
+
+
+def _mixed_blocks(n, rng):
+    sizes, total = [], 0
+    while total < n:
+        sizes.append(int(rng.integers(1, 6)) if rng.random() < 0.7 else int(rng.integers(20, 200)))
+        total += sizes[-1]
+    return np.cumsum([0] + sizes)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_adversarial_streams_match_algorithm1(seed):
+    """Contacts before and after convergence, straddling blocks, thresholds near the noise."""
+    rng = np.random.default_rng(100 + seed)
+    block, _ = static_model_stream(1500, seed=200 + seed, noise_force=0.1, noise_torque=0.008)
+    for _ in range(4):
+        start = int(rng.integers(0, 1400))
+        push = rng.normal(0, 3, 3)
+        block.force_S[start:start + int(rng.integers(5, 100))] += push
+    f_th, t_th = float(rng.uniform(0.3, 1.0)), float(rng.uniform(0.03, 0.1))
+    est = RLSEstimator(force_threshold=f_th, torque_threshold=t_th, seed=seed)
+    edges = _mixed_blocks(len(block), rng)
+    parts = [est.update_block(block.subset(slice(a, b))) for a, b in zip(edges[:-1], edges[1:])]
+    out = {k: np.concatenate([getattr(p, k) for p in parts])
+           for k in ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")}
+    r = np.random.default_rng(seed)
+    ref = algorithm1(block.force_S, block.torque_S, block.R_EB, f_th, t_th,
+                     r.standard_normal(6), r.standard_normal(6), joseph=True)
+    assert np.array_equal(out["converged_force"], ref["converged_force"])
+    assert np.array_equal(out["converged_torque"], ref["converged_torque"])
+    assert np.array_equal(out["contact"], ~ref["updated_force"] | (ref["converged_force"] & ~ref["updated_torque"]))
+    assert np.abs(out["contact_force_S"] - ref["contact_force_S"]).max() < 1e-6
+    settled = ref["converged_torque"].argmax() + 50
+    assert np.abs(out["contact_torque_S"][settled:] - ref["contact_torque_S"][settled:]).max() < 1e-5
+
+
+def test_nan_after_convergence_is_refused_as_algorithm1_does():
+    block, _ = static_model_stream(1200, seed=9, noise_force=0.1, noise_torque=0.008)
+    block.force_S[1000] = np.nan
+    for size in (1, 7, 1200):
+        est = RLSEstimator(seed=0)
+        parts = [est.update_block(block.subset(slice(i, i + size))) for i in range(0, 1200, size)]
+        contact = np.concatenate([p.contact for p in parts])
+        assert contact[1000] and np.isfinite(est.force.x).all() and np.isfinite(est.torque.x).all()
+        assert est.force.updates == 1199

@@ -49,7 +49,7 @@ def main() -> None:
             rec.write(
                 "/aligned/sample",
                 t,
-                {"force_S": [i * 0.5, 0.0, 0.0], "torque_S": [0.0, 0.0, 0.0], "quat_EB": [1.0, 0.0, 0.0, 0.0], "seq": i, "stale": False},
+                {"force_S": [i * 0.5, 0.0, 0.0], "torque_S": [0.0, 0.0, 0.0], "quat_BE": [1.0, 0.0, 0.0, 0.0], "seq": i, "status": 0, "stale": False},
             )
         if i % 250 == 0:
             rec.event(t, "tick", f"tick {i}", seq=i)

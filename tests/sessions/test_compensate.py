@@ -122,10 +122,65 @@ def test_run_command_writes_an_mcap(tmp_path, capsys):
 
 @pytest.mark.parametrize("args, message", [
     (["run", "nosuchpreset"], "unknown session 'nosuchpreset'"),
-    (["run", "--set", "estimator.force_threshold=-1", "--duration", "0.1"], "force_threshold must be positive"),
+    (["run", "--set", "estimator.force_threshold=-1", "--duration", "0.1"], "estimator.force_threshold: must be positive, got -1.0"),
     (["run", "--set", "bogus"], "--set 'bogus': expected key=value"),
+    (["run", "--set", "haptic.max_force=-1"], "haptic.max_force: must be greater than 0, got -1"),
+    (["run", "--set", "haptic.max_force_rate=nan"], "haptic.max_force_rate: must be a finite number, got nan"),
+    (["run", "--set", "session.loop_rate_hz=0"], "session.loop_rate_hz: must be greater than 0, got 0"),
 ])
 def test_run_errors_are_one_line(args, message, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and "\n" not in err and err.startswith("hapticlab run: error: ")
+
+
+def test_compensate_mcap_skips_unusable_rows(tmp_path):
+    """A NaN, a saturated sample and rows past the pose stream never reach the estimator."""
+    from hapticlab.sessions.recording import Recorder
+
+    block, _ = static_model_stream(1500, seed=12, noise_force=0.1, noise_torque=0.008)
+    quat_BE = quat_wxyz_from_matrix(block.R_EB.transpose(0, 2, 1))
+    path = tmp_path / "synthetic.mcap"
+    with Recorder(path) as rec:
+        for k in range(1500):
+            t = k * 1_000_000
+            force = block.force_S[k].tolist()
+            if k == 1200:
+                force[1] = float("nan")
+            rec.write("/sensor/wrench", t, {"force_S": force, "torque_S": block.torque_S[k].tolist(),
+                                            "seq": k, "status": 1 if k == 1300 else 0})
+            if k < 1490:  # poses (one per sample here) stop 10 ms before the wrench stream
+                rec.write("/kinematics/pose", t, {"quat_BE": quat_BE[k].tolist(), "p_BoEo_B": None,
+                                                  "joints": None})
+    result = compensate(path, tmp_path / "out.csv")
+    force = result.estimates.contact_force_S
+    bad = np.zeros(1500, dtype=bool)
+    bad[[1200, 1300]] = True
+    bad[1491:] = True  # beyond one kinematics period (1 ms) after the last pose
+    assert np.isnan(force[bad]).all() and np.isfinite(force[~bad]).all()
+    assert result.estimates.converged_force[1200] == result.estimates.converged_force[1199]
+    assert np.isfinite(result.rms_force_S).all() and max(result.rms_force_S) < 0.15
+    assert any("11 sample(s) not used" in note for note in result.notes)
+
+
+def test_compensate_guards_its_outputs(tmp_path, capsys):
+    write_csv(tmp_path / "in.csv", n=100)
+    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "in.csv")]) == 2
+    assert "would overwrite the input" in capsys.readouterr().err
+    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"),
+                 "--params-out", str(tmp_path / "nope" / "p.json")]) == 2
+    assert "does not exist" in capsys.readouterr().err and not (tmp_path / "o.csv").exists()
+    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"),
+                 "--set", "estimator.name=batch", "--params-out", str(tmp_path / "p.json")]) == 0
+    assert json.loads((tmp_path / "p.json").read_text())["estimator"] == "batch"
+
+
+def test_epoch_times_keep_their_precision_and_blank_lines_are_ignored(tmp_path):
+    write_csv(tmp_path / "in.csv", n=200)
+    lines = (tmp_path / "in.csv").read_text().splitlines()
+    epoch = [lines[0]] + [f"{1732233600.0 + k * 1e-3!r}" + line[line.index(","):] for k, line in enumerate(lines[1:])]
+    (tmp_path / "epoch.csv").write_text("\n".join(epoch) + "\n\n\n")
+    compensate(tmp_path / "epoch.csv", tmp_path / "out.csv")
+    t = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1, usecols=0)
+    assert len(t) == 200 and np.all(np.diff(t) > 0)
+    assert np.allclose(t, 1732233600.0 + np.arange(200) * 1e-3, rtol=0, atol=1e-6)

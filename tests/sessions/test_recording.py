@@ -135,8 +135,8 @@ def _every_topic_messages() -> list[tuple[str, int, dict]]:
             (
                 "/aligned/sample",
                 t + 20,
-                {"force_S": [1.5 + i, -2.25, 9.81], "torque_S": [0.0, 0.0, 0.0], "quat_EB": [0.5, 0.5, 0.5, 0.5],
-                 "seq": 100 + i, "stale": i == 7},
+                {"force_S": [1.5 + i, -2.25, 9.81], "torque_S": [0.0, 0.0, 0.0], "quat_BE": [0.5, 0.5, 0.5, 0.5],
+                 "seq": 100 + i, "status": 0, "stale": i == 7},
             )
         )
         msgs.append(("/estimator/rls", t + 30, _estimate(i)))

@@ -114,7 +114,7 @@ class InterruptingSensor:
 
 
 class GappyKinematics:
-    """The simulated robot, silent between 1.0 s and 1.2 s."""
+    """The simulated robot, silent between 3.0 s and 3.2 s."""
 
     def __init__(self, rate_hz: float = 500.0, world=None):
         from hapticlab.plugins.kinematics.sim import SimKinematics
@@ -129,7 +129,7 @@ class GappyKinematics:
 
     def read(self, until_ns):
         poses = self.inner.read(until_ns)
-        return [p for p in poses if not 1.0e9 < p.t_ns - self.t0 < 1.2e9]
+        return [p for p in poses if not 3.0e9 < p.t_ns - self.t0 < 3.2e9]
 
 
 class TestPlugins:
@@ -166,19 +166,21 @@ def test_lost_device_zeroes_force_and_is_recorded(tmp_path, registry):
 
 
 def test_stale_kinematics_zero_the_force(tmp_path, registry):
-    # the robot stops reporting poses from 1.0 s to 1.2 s
-    config = demo("kinematics.name=gappy", duration=1.5)
+    # the robot stops reporting poses from 3.0 s to 3.2 s (the force is on from ~2.2 s)
+    config = demo("kinematics.name=gappy", duration=3.5)
     result = run_session(build_session(config, registry), out=tmp_path / "stale.mcap")
     rec = read_recording(result.path)
     t = (rec.t_ns("/aligned/sample") - rec.t_ns("/aligned/sample")[0]) * 1e-9
     stale = rec.field("/aligned/sample", "stale").astype(bool)
     # one kinematics period (2 ms) of extrapolation is allowed, not more
-    assert np.array_equal(stale, (t > 1.0 + 0.002 + 1e-9) & (t < 1.2))
+    assert np.array_equal(stale, (t > 3.0 + 0.002 + 1e-9) & (t < 3.2))
     commands = rec.topics["/haptic/command"]
     t_cmd = (np.array([t for t, _ in commands]) - rec.t_ns("/aligned/sample")[0]) * 1e-9
-    during = [m for tc, (_, m) in zip(t_cmd, commands) if 1.003 < tc < 1.2]
+    enabled = np.array([m["enabled"] for _, m in commands])
+    assert enabled[(t_cmd > 2.5) & (t_cmd < 3.0)].all()
+    during = [m for tc, (_, m) in zip(t_cmd, commands) if 3.003 < tc < 3.2]
     assert during and all(m["reason"] == "stale kinematics" and m["force_D"] == [0.0] * 3 for m in during)
-    assert commands[-1][1]["enabled"]  # back on once poses return
+    assert enabled[t_cmd > 3.21].all()  # back on once poses return
     # stale samples never reach the estimator
     assert len(rec.topics["/estimator/rls"]) == int((~stale).sum())
 
@@ -221,3 +223,56 @@ def test_unknown_table_and_missing_name():
     del config["estimator"]["name"]
     with pytest.raises(ConfigError, match=r"^estimator.name: missing"):
         build_session(config)
+
+
+def test_sensor_slower_than_the_loop_never_enables_early(tmp_path):
+    # a 500 Hz sensor in a 1 kHz loop: every other tick has no new sample
+    result = run_session(build_session(demo("sensor.rate_hz=500.0", duration=4.0)), out=tmp_path / "slow.mcap")
+    rec = read_recording(result.path)
+    commands = [m for _, m in rec.topics["/haptic/command"]]
+    enabled = np.array([m["enabled"] for m in commands])
+    known = next(t for t, m in rec.topics["/events"] if m["kind"] == "parameters_known")
+    t_cmd = rec.t_ns("/haptic/command")
+    assert not enabled[t_cmd < known].any() and enabled[t_cmd > known].all()
+    toggles = [m for _, m in rec.topics["/events"] if m["kind"].startswith("haptic_")]
+    assert len(toggles) == 3  # off (not converged), off (not identified), on
+
+
+class SaturatingSensor(InterruptingSensor):
+    """The simulated sensor, reporting saturation between 2.5 s and 2.6 s."""
+
+    def read(self, until_ns):
+        from dataclasses import replace
+
+        from hapticlab.core.types import STATUS_SATURATED
+
+        samples = self.inner.read(until_ns)
+        t0 = self.inner_t0
+        return [replace(s, status=STATUS_SATURATED) if 2.5e9 <= s.t_ns - t0 < 2.6e9 else s for s in samples]
+
+    def open(self, t0_ns):
+        self.inner_t0 = t0_ns
+        self.inner.open(t0_ns)
+
+
+def test_saturated_samples_zero_the_force(tmp_path):
+    from hapticlab.core.plugins import Registry, make_plugin_manager
+
+    class Plug:
+        @hookimpl
+        def register_sensors(self, register):
+            register("saturating", SaturatingSensor)
+
+    pm = make_plugin_manager(load_entry_points=False)
+    pm.register(Plug(), name="saturating")
+    config = demo("sensor.name=saturating", duration=3.0)
+    result = run_session(build_session(config, Registry(pm)), out=tmp_path / "sat.mcap")
+    rec = read_recording(result.path)
+    t0 = rec.t_ns("/sensor/wrench")[0]
+    t_cmd = (rec.t_ns("/haptic/command") - t0) * 1e-9
+    commands = [m for _, m in rec.topics["/haptic/command"]]
+    during = [m for t, m in zip(t_cmd, commands) if 2.501 < t < 2.6]
+    assert during and all(m["reason"] == "sensor saturated or in error" for m in during)
+    assert all(m["enabled"] for t, m in zip(t_cmd, commands) if t > 2.61)
+    # saturated samples are recorded but never reach the estimator
+    assert len(rec.topics["/estimator/rls"]) == result.samples - 100

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .frames import skew_stack
+from .model import contact_wrench
 
 
 I3 = np.eye(3)
@@ -63,12 +64,14 @@ def batch_fit(force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray) -> di
     cog_S = x_t[:3]
     bias_torque_S = x_t[3:] + np.cross(cog_S, bias_force_S)
 
-    gravity_S = R_EB @ gravity_force_B
+    residual_force_S, residual_torque_S = contact_wrench(
+        force_S, torque_S, R_EB, np.tile(x_f, (n, 1)), np.tile(np.concatenate([cog_S, bias_torque_S]), (n, 1))
+    )
     return {
         "gravity_force_B": gravity_force_B,
         "bias_force_S": bias_force_S,
         "cog_S": cog_S,
         "bias_torque_S": bias_torque_S,
-        "residual_force_S": force_S - gravity_S - bias_force_S,
-        "residual_torque_S": torque_S - np.cross(cog_S, gravity_S) - bias_torque_S,
+        "residual_force_S": residual_force_S,
+        "residual_torque_S": residual_torque_S,
     }

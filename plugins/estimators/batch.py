@@ -14,7 +14,8 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.batch import normal_terms
-from hapticlab.core.frames import skew_stack
+from hapticlab.core.frames import cross, skew_stack
+from hapticlab.core.model import contact_wrench, named_params
 from hapticlab.core.types import AlignedSamples, Estimates
 
 class _RunningFit:
@@ -87,10 +88,8 @@ class BatchEstimator:
             X_f[n_fit:], X_t[n_fit:] = X_f[n_fit - 1], X_t[n_fit - 1]
             rc_f[n_fit:], rc_t[n_fit:] = rc_f[n_fit - 1], rc_t[n_fit - 1]
         # The torque fit is linear in [p, tau0 − p × f0]; recover tau0.
-        bias_torque_S = X_t[:, 3:] + np.cross(X_t[:, :3], X_f[:, 3:])
-        gravity_S = (R_EB @ X_f[:, :3, None])[:, :, 0]
-        contact_force_S = force_S - gravity_S - X_f[:, 3:]
-        contact_torque_S = torque_S - np.cross(X_t[:, :3], gravity_S) - bias_torque_S
+        X_t[:, 3:] += cross(X_t[:, :3], X_f[:, 3:])
+        contact_force_S, contact_torque_S = contact_wrench(force_S, torque_S, R_EB, X_f, X_t)
         self.samples += m
         return Estimates(
             t_ns=block.t_ns,
@@ -104,13 +103,9 @@ class BatchEstimator:
 
     def params(self) -> dict[str, list[float]]:
         """Fitted parameters with physical names (SI units)."""
-        x_f, x_t = self.force.x, self.torque.x
-        return {
-            "gravity_force_B": x_f[:3].tolist(),
-            "bias_force_S": x_f[3:].tolist(),
-            "cog_S": x_t[:3].tolist(),
-            "bias_torque_S": (x_t[3:] + np.cross(x_t[:3], x_f[3:])).tolist(),
-        }
+        x_f, x_t = self.force.x, self.torque.x.copy()
+        x_t[3:] += np.cross(x_t[:3], x_f[3:])  # tau0 from the fitted tau0 − p × f0
+        return named_params(x_f, x_t)
 
     def cov_diag(self) -> list[float]:
         """Diagonal of (CᵀC)⁺ for force then torque: the unscaled parameter covariance."""

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.frames import cross, skew_stack
+from hapticlab.core.frames import skew_stack
+from hapticlab.core.model import contact_wrench, named_params
 from hapticlab.core.rls import RecursiveLeastSquares, run_gated
 from hapticlab.core.types import AlignedSamples, Estimates
 
@@ -76,15 +77,12 @@ class RLSEstimator:
             self.force, force_S, R_EB, np.ones(m, dtype=bool),
             self.force_threshold, self.epsilon, self.converged_force,
         )
-        gravity_S = (R_EB @ X_f[:, :3, None])[:, :, 0]
-        contact_force_S = force_S - gravity_S - X_f[:, 3:]
-
         A_t = -skew_stack(force_S - X_f[:, 3:])  # C_k = [-skew(Δf), I3]
         X_t, conv_t, gated_t, self.converged_torque = run_gated(
             self.torque, torque_S, A_t, conv_f,
             self.torque_threshold, self.epsilon, self.converged_torque,
         )
-        contact_torque_S = torque_S - cross(X_t[:, :3], gravity_S) - X_t[:, 3:]
+        contact_force_S, contact_torque_S = contact_wrench(force_S, torque_S, R_EB, X_f, X_t)
 
         self._note_first(conv_f, conv_t)
         self.samples += m
@@ -105,13 +103,7 @@ class RLSEstimator:
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units)."""
-        x_f, x_t = self.force.x, self.torque.x
-        return {
-            "gravity_force_B": x_f[:3].tolist(),
-            "bias_force_S": x_f[3:].tolist(),
-            "cog_S": x_t[:3].tolist(),
-            "bias_torque_S": x_t[3:].tolist(),
-        }
+        return named_params(self.force.x, self.torque.x)
 
     def force_parameter_std(self) -> np.ndarray:
         """(6,) standard deviation of [gravity_force_B, bias_force_S], N: sqrt of diag P_force.

@@ -87,6 +87,12 @@ class AlignedSamples:
     def __len__(self) -> int:
         return len(self.t_ns)
 
+    @property
+    def usable(self) -> np.ndarray:
+        """(N,) samples an estimator may see: orientation not stale, status good, values finite."""
+        return (~self.stale & (self.status == STATUS_OK) & np.isfinite(self.force_S).all(1)
+                & np.isfinite(self.torque_S).all(1))
+
     def subset(self, index) -> "AlignedSamples":
         """The samples selected by a boolean mask or index array."""
         return AlignedSamples(

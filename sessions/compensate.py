@@ -28,30 +28,14 @@ BLOCK = 1024
 
 @dataclass
 class Stream:
-    """Aligned input of an offline run: times in s and ns, wrench, orientation, sensor status."""
+    """The input of an offline run: every row as an aligned sample, with its time in s."""
 
     t_s: np.ndarray
-    t_ns: np.ndarray
-    force_S: np.ndarray
-    torque_S: np.ndarray
-    R_EB: np.ndarray
-    stale: np.ndarray
-    status: np.ndarray
+    samples: AlignedSamples
     notes: list[str]
 
     def __len__(self) -> int:
         return len(self.t_s)
-
-    @property
-    def usable(self) -> np.ndarray:
-        """(N,) rows an estimator may see: finite, not stale, status good (as live)."""
-        return (~self.stale & (self.status == 0) & np.isfinite(self.force_S).all(1)
-                & np.isfinite(self.torque_S).all(1))
-
-    def block(self, rows: np.ndarray) -> AlignedSamples:
-        """The given row indices as an aligned block."""
-        return AlignedSamples(self.t_ns[rows], self.force_S[rows], self.torque_S[rows], self.R_EB[rows],
-                              rows, self.status[rows], self.stale[rows])
 
 
 def load_stream(path: str | Path) -> Stream:
@@ -64,8 +48,9 @@ def load_stream(path: str | Path) -> Stream:
     record = read_csv(path)
     n = len(record)
     t_ns = np.round((record.t_s - record.t_s[0]) * 1e9).astype(np.int64)
-    return Stream(record.t_s, t_ns, record.force_S, record.torque_S, record.R_EB,
-                  np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64), record.notes)
+    samples = AlignedSamples(t_ns, record.force_S, record.torque_S, record.R_EB, np.arange(n),
+                             np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), record.quat_BE)
+    return Stream(record.t_s, samples, record.notes)
 
 
 def _load_mcap(path: Path) -> Stream:
@@ -88,10 +73,12 @@ def _load_mcap(path: Path) -> Stream:
     period = int(np.median(np.diff(pose_t))) if len(pose_t) > 1 else 0
     quat_BE, stale = orientation_at(t_ns, pose_t, quat, period)
     R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
-    notes = [f"{path.name}: {int(n)} sample(s) not used (stale orientation, sensor status or non-finite)"
-             for n in [np.count_nonzero(stale | (status != 0) | ~np.isfinite(force_S).all(1)
-                                        | ~np.isfinite(torque_S).all(1))] if n]
-    return Stream((t_ns - t_ns[0]) * 1e-9, t_ns, force_S, torque_S, R_EB, stale, status, notes)
+    seq = np.array([int(m.get("seq", k)) for k, (_, m) in enumerate(wrenches)], dtype=np.int64)
+    samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, seq, status, stale, quat_BE)
+    unused = int(np.count_nonzero(~samples.usable))
+    notes = [f"{path.name}: {unused} sample(s) not used (stale orientation, sensor status or non-finite)"] \
+        if unused else []
+    return Stream((t_ns - t_ns[0]) * 1e-9, samples, notes)
 
 
 def estimator_options(overrides: list[str]) -> dict[str, Any]:
@@ -120,7 +107,8 @@ def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
     convergence flags of the row before them.
     """
     n = len(stream)
-    usable = np.flatnonzero(stream.usable)
+    ok = stream.samples.usable
+    usable = np.flatnonzero(ok)
     force = np.full((n, 3), np.nan)
     torque = np.full((n, 3), np.nan)
     contact = np.zeros(n, dtype=bool)
@@ -128,16 +116,16 @@ def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
     conv_t = np.zeros(n, dtype=bool)
     for i in range(0, len(usable), BLOCK):
         rows = usable[i : i + BLOCK]
-        est = estimator.update_block(stream.block(rows))
+        est = estimator.update_block(stream.samples.subset(rows))
         force[rows], torque[rows], contact[rows] = est.contact_force_S, est.contact_torque_S, est.contact
         conv_f[rows], conv_t[rows] = est.converged_force, est.converged_torque
         if progress is not None:
             progress(int(rows[-1]) + 1, n)
     if len(usable) < n:  # carry the flags over the rows the estimator did not see
-        last = np.maximum.accumulate(np.where(stream.usable, np.arange(n), -1))
+        last = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
         seen = last >= 0
         conv_f[seen], conv_t[seen] = conv_f[last[seen]], conv_t[last[seen]]
-    return Estimates(stream.t_ns, force, torque, contact, conv_f, conv_t,
+    return Estimates(stream.samples.t_ns, force, torque, contact, conv_f, conv_t,
                      params=estimator.params(), cov_diag=estimator.cov_diag())
 
 

@@ -24,7 +24,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hapticlab.core.aligner import Aligner
-from hapticlab.core.plugins import Registry
+from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.core.types import STATUS_OK, AlignedSamples, Estimates
 
 from .config import (
@@ -106,7 +106,7 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     for table, kind in PLUGIN_TABLES.items():
         name, options = plugin_options(config, table)
         if name is None:
-            raise_missing(table)
+            raise ConfigError(f"{table}.name: missing; the session needs a [{table}] table naming a plugin")
         built[table] = registry.create(kind, name, options, where=table, world=world)
         plugins[table] = {"name": name, "origin": registry.get(kind, name).origin}
         resolved[table] = {"name": name, **registry.resolved_options(kind, name, options)}
@@ -128,12 +128,6 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
         ready_force_std=safety.ready_force_std,
         world=world,
     )
-
-
-def raise_missing(table: str) -> None:
-    from hapticlab.core.plugins import ConfigError
-
-    raise ConfigError(f"{table}.name: missing; the session needs a [{table}] table naming a plugin")
 
 
 def session_metadata(session: Session, duration: float, path: Path) -> dict[str, dict[str, Any]]:
@@ -300,8 +294,7 @@ def run_session(
                 last_sample_ns = wrenches[-1].t_ns
                 block = aligner.align(wrenches)
                 rec.aligned(block)
-                good = ~block.stale & (block.status == STATUS_OK) & np.isfinite(block.force_S).all(1) \
-                    & np.isfinite(block.torque_S).all(1)
+                good = block.usable
                 if good.all():
                     data_reason = ""
                 elif block.stale.any():

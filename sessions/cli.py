@@ -124,6 +124,113 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _f(value, digits: int = 3) -> str:
+    return "–" if value is None or value != value else f"{value:.{digits}f}"
+
+
+def print_paper_tables(out: dict) -> None:
+    """The paper's tables, ours beside the paper's numbers."""
+    paper = out["paper"]
+    conv = out["convergence"]
+    t = Table(title="Convergence (samples)")
+    for col in ("stage", "paper's ‖Δx‖ < 1e-3", "paper", "truth-based"):
+        t.add_column(col, justify="right")
+    t.add_row("force", str(conv["force_paper"]), str(paper["convergence"]["force_paper"]), str(conv["force_truth"]))
+    t.add_row("torque (after force)", str(conv["torque_paper_after_force"]),
+              str(paper["convergence"]["torque_paper"]), str(conv["torque_truth"]))
+    out_console = out_table = Console(width=max(Console().width, 120))
+    out_console.print(t)
+    for group, title, unit in (("force", "Table I: force error statistics", "N"),
+                               ("torque", "Table II: torque error statistics", "N·m")):
+        t = Table(title=f"{title} ({out['no_contact']['poses']} random poses, {unit})")
+        for col in ("component", "condition", "MAE", "Max AE", "Std", "MAE comp.", "paper MAE", "paper Max AE",
+                    "paper Std", "paper comp."):
+            t.add_column(col, justify="right")
+        for axis, ours in out["no_contact"][group].items():
+            ref = paper["no_contact"][group][axis]
+            digits = 3
+            t.add_row(axis, "before", _f(ours["mae_before"], digits), _f(ours["max_before"], digits),
+                      _f(ours["std_before"], digits), f"{ours['mae_comp_pct']:.1f} %", _f(ref["mae_before"]),
+                      _f(ref["max_before"]), _f(ref["std_before"]), f"{ref['mae_comp_pct']:.1f} %")
+            t.add_row("", "after", _f(ours["mae_after"], digits), _f(ours["max_after"], digits),
+                      _f(ours["std_after"], digits), "", _f(ref["mae_after"]), _f(ref["max_after"]),
+                      _f(ref["std_after"]), "", end_section=True)
+        out_table.print(t)
+    t = Table(title="Table III: compensation error bounds over the random poses (±)")
+    for col in ("component", "batch (ours)", "rls (ours)", "Yu et al. (paper)", "proposed (paper)"):
+        t.add_column(col, justify="right")
+    for axis in ("fx", "fy", "fz", "tx", "ty", "tz"):
+        t.add_row(axis, _f(out["bounds"].get("batch", {}).get(axis)), _f(out["bounds"]["rls"][axis]),
+                  _f(paper["bounds"]["yu2021"][axis]), _f(paper["bounds"]["rls"][axis]))
+    out_console.print(t)
+    ind = out["indentation"]
+    out_console.print(
+        f"Phantom indentation ({ind['contacts']} contacts): plateau detected {ind['detected_plateau_pct']:.1f} %, "
+        f"false contact {ind['false_contact_pct']:.2f} %, RMS between contacts "
+        f"[{', '.join(_f(v) for v in ind['rms_free'])}] N, error in contact "
+        f"[{', '.join(_f(v) for v in ind['rms_error_in_contact'])}] N")
+    t = Table(title="104 g reference mass (|contact force| against 1.02 N), one turn per speed")
+    for col in ("deg/s", "MAE", "Max AE", "Std", "mean", "MAE, low noise", "Max AE, low noise", "Std, low noise"):
+        t.add_column(col, justify="right")
+    for speed in ("12", "30", "45", "72"):
+        a, b = out["rotation_104g"][speed], out["rotation_104g_low_noise"][speed]
+        t.add_row(speed, _f(a["mae"]), _f(a["max_ae"]), _f(a["std"]), _f(a["mean"]), _f(b["mae"]),
+                  _f(b["max_ae"]), _f(b["std"]))
+    out_console.print(t)
+    out_console.print(
+        f"  paper: MAE ≤ 0.04 N, Max AE 0.119 N at 72 deg/s, Std < 0.046 N; noise per axis "
+        f"{out['rotation_104g']['noise_force']} N, low noise {out['rotation_104g_low_noise']['noise_force']} N")
+    d = out["drift_contact"]
+    out_console.print(
+        f"Bias drift {d['drift_N_per_min']} N/min with an indentation every 10 s ({d['duration_s']:.0f} s): "
+        f"{d['false_contact_pct']:.1f} % of no-contact samples refused as contact "
+        f"({d['false_contact_last_30s_pct']:.1f} % over the last 30 s), "
+        f"RMS without contact over the last 30 s [{', '.join(_f(v) for v in d['rms_free_last_30s'])}] N "
+        f"(noise {d['noise_force']} N)")
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    import json
+
+    if args.which == "paper":
+        from .paperbench import bench_paper, write_plots
+
+        with err.status("running the paper's experiments") as status:
+            out, plots = bench_paper(quick=args.quick, all_estimators=args.all_estimators,
+                                     progress=lambda m: status.update(f"bench paper: {m}"))
+        print_paper_tables(out)
+        if args.plots:
+            for path in write_plots(plots, Path(args.plots)):
+                err.print(f"wrote {path}")
+    else:
+        from .realbench import DEFAULT_REAL_DIR, bench_real
+
+        folder = Path(args.folder) if args.folder else DEFAULT_REAL_DIR
+        with err.status("evaluating real recordings") as status:
+            out = bench_real(folder, progress=lambda m: status.update(f"bench real: {m}"))
+        print_real_table(out)
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
+        err.print(f"wrote {args.json}")
+    return 0
+
+
+def print_real_table(out: dict) -> None:
+    """One row per file and estimator."""
+    t = Table(title="Real recordings: online RMS after convergence vs the offline batch fit over the same rows")
+    for col in ("file", "estimator", "force conv.", "torque conv.", "RMS fx, fy, fz (N)", "batch, same rows",
+                "ratio ‖·‖"):
+        t.add_column(col, justify="right")
+    for name, entry in out.items():
+        for k, (est_name, r) in enumerate(entry["estimators"].items()):
+            rms = ", ".join(_f(v) for v in r.get("rms_force_S", [])) or "never converged"
+            batch = ", ".join(_f(v) for v in r.get("batch_rms_same_rows", [])) or "–"
+            t.add_row(name if k == 0 else "", est_name, str(r["converged_force_at"]), str(r["converged_torque_at"]),
+                      rms, batch, _f(r.get("ratio_norm"), 2),
+                      end_section=k == len(entry["estimators"]) - 1)
+    Console(width=max(Console().width, 120)).print(t)
+
+
 def cmd_recover(args: argparse.Namespace) -> int:
     from .recording import recover
 
@@ -162,6 +269,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="estimator option, e.g. --set estimator.force_threshold=2")
     p.add_argument("--params-out", default=None, help="write the final parameters as JSON")
     p.set_defaults(func=cmd_compensate)
+
+    p = sub.add_parser("bench", help="reproduce the paper's experiments (paper) or evaluate real recordings (real)")
+    p.add_argument("which", choices=("paper", "real"), help="paper: simulated experiments; real: CSV folder")
+    p.add_argument("folder", nargs="?", default=None, help="with real: folder of CSV files "
+                   "(default ../shared/data/real)")
+    p.add_argument("--json", default=None, help="write every number as JSON")
+    p.add_argument("--plots", default=None, help="with paper: write the figures as PNG into this folder")
+    p.add_argument("--quick", action="store_true", help="with paper: a shorter run (smoke test)")
+    p.add_argument("--all-estimators", action="store_true", help="with paper: repeat for every registered estimator")
+    p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("recover", help="salvage a recording whose writer died")
     p.add_argument("broken", help="the damaged .mcap")

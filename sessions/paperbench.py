@@ -1,0 +1,483 @@
+"""``hapticlab bench paper``: the paper's experiments (section V) in the simulated world.
+
+Set up as the paper describes: sensor at 1 kHz, ATI Gamma-class noise
+(0.12 N, 0.01 N·m per axis), tool centre of gravity 4.35 cm along the sensor
+z axis, robot moved through random orientations without contact to identify
+the parameters, then:
+
+1. parameter identification (Figs. 3–4) and convergence, counted two ways;
+2. 150 random poses without contact: Tables I and II;
+3. error bounds against the batch method over the 150 poses (Table III);
+4. repeated tip indentations of a phantom (Fig. 7);
+5. a 104 g reference mass on the horizontal instrument's tip, rotated 360°
+   about the instrument axis at 12, 30, 45 and 72 deg/s (Figs. 8–9);
+6. one run the paper does not show: a drifting bias with repeated
+   indentations, where the fixed contact threshold can lock the estimator out.
+
+Every experiment runs the estimator exactly as a session would (samples in
+order, in blocks); only the world is simulated. Numbers are from physics with
+fixed seeds, so a run repeats exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from hapticlab.core.batch import batch_fit
+from hapticlab.core.frames import GRAVITY_M_S2
+from hapticlab.core.plugins import Registry
+from hapticlab.core.types import AlignedSamples, Estimates
+from hapticlab.plugins.simworld import SimWorld
+
+AXES_F = ("fx", "fy", "fz")
+AXES_T = ("tx", "ty", "tz")
+SPEEDS_DEG_S = (12, 30, 45, 72)
+REFERENCE_MASS_KG = 0.104
+
+PAPER = {
+    "no_contact": {
+        "force": {
+            "fx": {"mae_before": 5.055, "max_before": 7.317, "std_before": 0.998,
+                   "mae_after": 0.113, "max_after": 0.578, "std_after": 0.151, "mae_comp_pct": 97.8},
+            "fy": {"mae_before": 2.702, "max_before": 4.302, "std_before": 1.271,
+                   "mae_after": 0.127, "max_after": 0.573, "std_after": 0.172, "mae_comp_pct": 95.3},
+            "fz": {"mae_before": 3.049, "max_before": 3.530, "std_before": 0.262,
+                   "mae_after": 0.059, "max_after": 0.254, "std_after": 0.076, "mae_comp_pct": 98.1},
+        },
+        "torque": {
+            "tx": {"mae_before": 0.082, "max_before": 0.132, "std_before": 0.064,
+                   "mae_after": 0.007, "max_after": 0.048, "std_after": 0.010, "mae_comp_pct": 91.4},
+            "ty": {"mae_before": 0.112, "max_before": 0.181, "std_before": 0.041,
+                   "mae_after": 0.008, "max_after": 0.029, "std_after": 0.011, "mae_comp_pct": 92.8},
+            "tz": {"mae_before": 0.024, "max_before": 0.035, "std_before": 0.003,
+                   "mae_after": 0.001, "max_after": 0.015, "std_after": 0.003, "mae_comp_pct": 94.0},
+        },
+    },
+    "bounds": {
+        "yu2021": {"fx": 1.259, "fy": 1.122, "fz": 1.260, "tx": 0.078, "ty": 0.084, "tz": 0.079},
+        "rls": {"fx": 0.578, "fy": 0.573, "fz": 0.254, "tx": 0.048, "ty": 0.029, "tz": 0.015},
+    },
+    "convergence": {"force_paper": 242, "torque_paper": 238},
+    "rotation_104g": {"72": {"mae": 0.04, "max_ae": 0.119}, "std_max": 0.046, "grand_mean": 1.014},
+}
+
+
+@dataclass(frozen=True)
+class PaperSetup:
+    """The simulated set-up of the paper's experiments.
+
+    The paper does not publish its tool's mass, the sensor's bias or noise.
+    The tool and bias here are chosen so that the raw readings over the random
+    poses have magnitudes like Table I's "before" rows (mean |f| of about 5, 2.7
+    and 3 N), because the MAE compensation % divides by them; the noise is
+    ATI Gamma-class (finer about z, as Gamma's resolution is). Everything else
+    is as the paper describes.
+
+    Attributes:
+        seed: seed of the world (noise, motion).
+        rate_hz: sensor rate, Hz.
+        noise_force: sensor noise std per axis, N. noise_torque: the same, N·m.
+        mass: tool mass, kg. cog_S: tool centre of gravity in S, m (paper: 4.35 cm along z).
+        bias_force_S, bias_torque_S: sensor bias, N and N·m.
+        identification_s: length of the random-orientation identification run, s.
+        identification_tilt_deg, identification_segment_s: its orientation spread and move time.
+        poses: random poses for Tables I–III. pose_tilt_deg: their spread;
+            hold_s, move_s: their hold and move times, s.
+        force_threshold, torque_threshold: the contact thresholds given to ``rls``
+            (the paper tuned its own experimentally and does not publish them).
+    """
+
+    seed: int = 2025
+    rate_hz: float = 1000.0
+    noise_force: tuple[float, float, float] = (0.12, 0.12, 0.06)
+    noise_torque: tuple[float, float, float] = (0.008, 0.008, 0.0015)
+    mass: float = 0.2
+    cog_S: tuple[float, float, float] = (0.0, 0.0, 0.0435)
+    bias_force_S: tuple[float, float, float] = (5.0, 2.7, 1.1)
+    bias_torque_S: tuple[float, float, float] = (0.075, 0.11, 0.024)
+    identification_s: float = 20.0
+    identification_tilt_deg: float = 60.0
+    identification_segment_s: float = 3.0
+    poses: int = 150
+    pose_tilt_deg: float = 35.0
+    hold_s: float = 0.5
+    move_s: float = 1.0
+    force_threshold: float = 0.6
+    torque_threshold: float = 0.06
+
+    def world(self, motion: dict[str, Any], contacts: list[dict] | None = None, **sensor: Any) -> SimWorld:
+        """A world with this set-up's tool and sensor, moving and touched as given."""
+        table = {"noise_force": list(self.noise_force), "noise_torque": list(self.noise_torque),
+                 "bias_force": list(self.bias_force_S), "bias_torque": list(self.bias_torque_S)}
+        table.update(sensor)
+        return SimWorld.from_config({
+            "seed": self.seed,
+            "tool": {"mass": self.mass, "cog": list(self.cog_S)},
+            "sensor": table,
+            "motion": motion,
+            "contacts": contacts or [],
+        })
+
+
+@dataclass
+class Run:
+    """The samples of one simulated experiment, what the world knows, and the estimates."""
+
+    block: AlignedSamples
+    world: dict[str, np.ndarray]
+    estimates: Estimates
+    trace_index: np.ndarray | None = None
+    trace: dict[str, np.ndarray] | None = None
+
+
+def simulate(world: SimWorld, seconds: float, rate_hz: float, t0: float = 0.0) -> tuple[AlignedSamples, dict]:
+    """Sample the world's sensor and orientation for ``seconds`` from ``t0``."""
+    t = t0 + np.arange(int(round(seconds * rate_hz))) / rate_hz
+    w = world.wrench(t)
+    n = len(t)
+    block = AlignedSamples(
+        t_ns=np.round(t * 1e9).astype(np.int64), force_S=np.array(w["force_S"]), torque_S=np.array(w["torque_S"]),
+        R_EB=w["R_EB"], seq=np.arange(n), status=np.asarray(w["status"]), stale=np.zeros(n, dtype=bool),
+    )
+    return block, w
+
+
+def feed(estimator: Any, block: AlignedSamples, chunk: int = 1024, trace_until: int = 0) -> tuple[Estimates, Any]:
+    """Run a block through the estimator; trace its parameters sample by sample for ``trace_until`` samples.
+
+    Returns (estimates, (trace sample indices, {name: (k, 3)})) or (estimates, None).
+    """
+    parts: list[Estimates] = []
+    index: list[int] = []
+    trace: dict[str, list] = {}
+    i = 0
+    n = len(block)
+    while i < n:
+        step = 1 if i < trace_until else (chunk if not trace_until else max(1, min(chunk, 100)))
+        part = estimator.update_block(block.subset(slice(i, i + step)))
+        parts.append(part)
+        i += len(part)
+        if trace_until:
+            index.append(i - 1)
+            for key, value in estimator.params().items():
+                trace.setdefault(key, []).append(value)
+    est = Estimates(
+        t_ns=np.concatenate([p.t_ns for p in parts]),
+        contact_force_S=np.concatenate([p.contact_force_S for p in parts]),
+        contact_torque_S=np.concatenate([p.contact_torque_S for p in parts]),
+        contact=np.concatenate([p.contact for p in parts]),
+        converged_force=np.concatenate([p.converged_force for p in parts]),
+        converged_torque=np.concatenate([p.converged_torque for p in parts]),
+        params=estimator.params(),
+    )
+    traced = (np.array(index), {k: np.array(v) for k, v in trace.items()}) if trace_until else None
+    return est, traced
+
+
+def error_stats(before: np.ndarray, after: np.ndarray, axes: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    """The paper's per-axis metrics: MAE, Max AE and Std before (raw) and after, MAE compensation %."""
+    out = {}
+    for k, axis in enumerate(axes):
+        b, a = before[:, k], after[:, k]
+        mae_b, mae_a = float(np.mean(np.abs(b))), float(np.mean(np.abs(a)))
+        out[axis] = {
+            "mae_before": mae_b, "max_before": float(np.max(np.abs(b))), "std_before": float(np.std(b)),
+            "mae_after": mae_a, "max_after": float(np.max(np.abs(a))), "std_after": float(np.std(a)),
+            "mae_comp_pct": 100.0 * (1.0 - mae_a / mae_b) if mae_b > 0 else float("nan"),
+        }
+    return out
+
+
+def first_stays(ok: np.ndarray, index: np.ndarray) -> int | None:
+    """The first sample index from which ``ok`` holds to the end of the trace."""
+    if not ok[-1]:
+        return None
+    bad = np.flatnonzero(~ok)
+    return int(index[bad[-1] + 1]) if len(bad) else int(index[0])
+
+
+def truth_convergence(index: np.ndarray, trace: dict[str, np.ndarray], truth: dict) -> tuple[int | None, int | None]:
+    """Truth-based convergence: gravity within 1 % and force bias within 0.05 N; torque bias within 0.002 N·m."""
+    g = np.linalg.norm(trace["gravity_force_B"] - truth["gravity_force_B"], axis=1) \
+        <= 0.01 * np.linalg.norm(truth["gravity_force_B"])
+    f0 = np.abs(trace["bias_force_S"] - truth["bias_force_S"]).max(axis=1) <= 0.05
+    t0 = np.abs(trace["bias_torque_S"] - truth["bias_torque_S"]).max(axis=1) <= 0.002
+    return first_stays(g & f0, index), first_stays(t0, index)
+
+
+def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], quick: bool = False,
+              progress: Callable[[str], None] | None = None, with_batch_bounds: bool = True) -> dict[str, Any]:
+    """All experiments for one estimator; returns numbers (JSON-ready) and arrays for plots."""
+    say = progress or (lambda message: None)
+    rate = setup.rate_hz
+    poses = 30 if quick else setup.poses
+    result: dict[str, Any] = {}
+    plots: dict[str, Any] = {}
+
+    # 1. identification: random orientations, no contact
+    say("identification")
+    world = setup.world({"script": "random_tour", "max_tilt_deg": setup.identification_tilt_deg,
+                         "segment_s": setup.identification_segment_s})
+    truth = world.truth()
+    ident_s = 8.0 if quick else setup.identification_s
+    block, _ = simulate(world, ident_s, rate)
+    estimator = make_estimator()
+    est, (index, trace) = feed(estimator, block, trace_until=3000)
+    force_truth, torque_truth = truth_convergence(index, trace, truth)
+    first_f = int(np.argmax(est.converged_force)) if est.converged_force.any() else None
+    first_t = int(np.argmax(est.converged_torque)) if est.converged_torque.any() else None
+    result["convergence"] = {
+        "force_paper": first_f,
+        "torque_paper": first_t,
+        "torque_paper_after_force": None if first_t is None or first_f is None else first_t - first_f,
+        "force_truth": force_truth,
+        "torque_truth": torque_truth,
+    }
+    result["identification"] = {
+        "samples": len(block),
+        "params": {k: list(map(float, v)) for k, v in estimator.params().items()},
+        "truth": {k: np.asarray(truth[k]).tolist() for k in ("gravity_force_B", "bias_force_S", "cog_S",
+                                                              "bias_torque_S")},
+    }
+    plots["identification"] = (index, trace, truth)
+
+    # 2. + 3. random poses, no contact; the same estimator carries on (as in the paper)
+    say(f"{poses} random poses")
+    pose_world = setup.world({"script": "static_poses", "hold_s": setup.hold_s, "move_s": setup.move_s,
+                              "poses": poses + 1, "max_tilt_deg": setup.pose_tilt_deg})
+    period = setup.hold_s + setup.move_s
+    block, w = simulate(pose_world, (poses + 1) * period + setup.move_s, rate)
+    est, _ = feed(estimator, block)
+    at = np.round(pose_world.motion.hold_midpoints(poses) * rate).astype(int)
+    result["no_contact"] = {
+        "force": error_stats(block.force_S[at], est.contact_force_S[at], AXES_F),
+        "torque": error_stats(block.torque_S[at], est.contact_torque_S[at], AXES_T),
+        "poses": poses,
+    }
+    bounds = {"rls": {axis: float(np.max(np.abs(est.contact_force_S[at][:, k]))) for k, axis in enumerate(AXES_F)}}
+    bounds["rls"].update({axis: float(np.max(np.abs(est.contact_torque_S[at][:, k])))
+                          for k, axis in enumerate(AXES_T)})
+    if with_batch_bounds:
+        # Yu et al. style: a least-squares calibration over the identification run, then held
+        ident_block, _ = simulate(world, ident_s, rate)
+        fit = batch_fit(ident_block.force_S, ident_block.torque_S, ident_block.R_EB)
+        gravity_S = block.R_EB[at] @ fit["gravity_force_B"]
+        f_err = block.force_S[at] - gravity_S - fit["bias_force_S"]
+        t_err = block.torque_S[at] - np.cross(fit["cog_S"], gravity_S) - fit["bias_torque_S"]
+        bounds["batch"] = {axis: float(np.max(np.abs(f_err[:, k]))) for k, axis in enumerate(AXES_F)}
+        bounds["batch"].update({axis: float(np.max(np.abs(t_err[:, k]))) for k, axis in enumerate(AXES_T)})
+    result["bounds"] = bounds
+    plots["poses"] = (block.force_S[at], est.contact_force_S[at], block.torque_S[at], est.contact_torque_S[at])
+
+    # 4. phantom indentation: tool held pointing down, five indentations
+    say("phantom indentation")
+    contacts = [{"kind": "indentation", "start": 2.0 + 4.0 * k, "duration": 2.0, "peak_force": 2.0 + 0.5 * k,
+                 "ramp": 0.4} for k in range(5)]
+    ind_world = setup.world({"script": "hold", "tilt_deg": 20.0}, contacts)
+    block, w = simulate(ind_world, 22.0, rate)
+    est, _ = feed(estimator, block)
+    touching = np.asarray(w["contact"], dtype=bool)
+    plateau = np.linalg.norm(w["contact_force_S"], axis=1) >= 1.5
+    free = ~touching
+    err = est.contact_force_S - w["contact_force_S"]
+    result["indentation"] = {
+        "contacts": len(contacts),
+        "detected_plateau_pct": 100.0 * float(np.mean(est.contact[plateau])),
+        "false_contact_pct": 100.0 * float(np.mean(est.contact[free])),
+        "rms_free": np.sqrt(np.mean(est.contact_force_S[free] ** 2, axis=0)).tolist(),
+        "rms_error_in_contact": np.sqrt(np.mean(err[touching] ** 2, axis=0)).tolist(),
+    }
+    plots["indentation"] = (block.t_ns * 1e-9, block.force_S, est.contact_force_S, est.contact)
+
+    # 5. 104 g reference mass on the horizontal instrument's tip, one full turn per speed.
+    # Table I's residuals imply ~0.12 N of noise per axis, but Fig. 9's Std of
+    # |f| below 0.046 N implies much less; the test is run at both levels.
+    load = REFERENCE_MASS_KG * GRAVITY_M_S2
+    for key, noise in (("rotation_104g", {}), ("rotation_104g_low_noise", LOW_NOISE)):
+        result[key] = {"load_N": load, "noise_force": list(noise.get("noise_force", setup.noise_force))}
+        plots.setdefault("rotation", {})
+        for speed in SPEEDS_DEG_S:
+            say(f"104 g mass at {speed} deg/s" + (" (low noise)" if noise else ""))
+            numbers, angle, magnitude = rotation_test(setup, make_estimator, speed, noise)
+            result[key][str(speed)] = numbers
+            if not noise:
+                plots["rotation"][speed] = (angle, magnitude)
+
+    # 6. not in the paper: bias drift 0.5 N/min with an indentation every 10 s
+    say("drift with contacts")
+    drift_s = 180.0  # the drift needs minutes to show; cheap to simulate
+    contacts = [{"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
+                for k in range(int(drift_s // 10))]
+    drift_world = setup.world({"script": "random_tour", "max_tilt_deg": setup.identification_tilt_deg,
+                               "segment_s": setup.identification_segment_s}, contacts,
+                              drift_force=[0.5 / 60.0 / np.sqrt(2), 0.5 / 60.0 / np.sqrt(2), 0.0])
+    block, w = simulate(drift_world, drift_s, rate)
+    fresh = make_estimator()
+    est, _ = feed(fresh, block)
+    touching = np.asarray(w["contact"], dtype=bool)
+    t_s = block.t_ns * 1e-9
+    err = est.contact_force_S - w["contact_force_S"]
+    last = t_s >= drift_s - 30.0
+    result["drift_contact"] = {
+        "drift_N_per_min": 0.5,
+        "duration_s": drift_s,
+        "false_contact_pct": 100.0 * float(np.mean(est.contact[~touching])),
+        "false_contact_last_30s_pct": 100.0 * float(np.mean(est.contact[~touching & last])),
+        "rms_free_last_30s": np.sqrt(np.mean(err[~touching & last] ** 2, axis=0)).tolist(),
+        "rms_contact_error": np.sqrt(np.mean(err[touching] ** 2, axis=0)).tolist(),
+        "noise_force": list(setup.noise_force),
+    }
+    plots["drift"] = (t_s, w["contact_force_S"], est.contact_force_S, est.contact, touching)
+    return {"result": result, "plots": plots}
+
+
+LOW_NOISE = {"noise_force": [0.03, 0.03, 0.015], "noise_torque": [0.002, 0.002, 0.0005]}
+"""Sensor noise that Fig. 9's Std (< 0.046 N) allows: a quarter of the set-up's."""
+
+
+def rotation_test(setup: PaperSetup, make_estimator: Callable[[], Any], speed: float,
+                  noise: dict[str, Any]) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+    """Identify on a random tour, then turn the horizontal instrument once with the 104 g mass on its tip.
+
+    Returns the metrics of |contact force| against the load (MAE, Max AE, Std,
+    mean, % of samples detected as contact), and |contact force| against angle.
+    """
+    rate = setup.rate_hz
+    estimator = make_estimator()
+    tour = setup.world({"script": "random_tour", "max_tilt_deg": setup.identification_tilt_deg,
+                        "segment_s": setup.identification_segment_s}, **noise)
+    feed(estimator, simulate(tour, setup.identification_s, rate)[0])
+    ramp, start = 0.3, 0.5
+    turn_s = 360.0 / speed + ramp
+    world = setup.world(
+        {"script": "axial_rotation", "speed_deg_s": float(speed), "turns": 1.0, "ramp_s": ramp, "start_s": start},
+        [{"kind": "hanging_mass", "start": 0.0, "duration": 1e9, "mass": REFERENCE_MASS_KG}], **noise,
+    )
+    block, _ = simulate(world, start + turn_s + 0.5, rate)
+    est, _ = feed(estimator, block)
+    t = block.t_ns * 1e-9
+    turning = (t >= start) & (t <= start + turn_s)
+    magnitude = np.linalg.norm(est.contact_force_S[turning], axis=1)
+    e = magnitude - REFERENCE_MASS_KG * GRAVITY_M_S2
+    numbers = {
+        "mae": float(np.mean(np.abs(e))), "max_ae": float(np.max(np.abs(e))), "std": float(np.std(magnitude)),
+        "mean": float(np.mean(magnitude)), "contact_detected_pct": 100.0 * float(np.mean(est.contact[turning])),
+    }
+    return numbers, np.linspace(0.0, 360.0, len(magnitude)), magnitude
+
+
+def estimator_factory(registry: Registry, name: str, setup: PaperSetup) -> Callable[[], Any]:
+    """A factory building ``name`` with the bench's contact thresholds when it takes them."""
+    options = {}
+    accepted = registry.resolved_options("estimator", name)
+    if "force_threshold" in accepted:
+        options["force_threshold"] = setup.force_threshold
+    if "torque_threshold" in accepted:
+        options["torque_threshold"] = setup.torque_threshold
+    return lambda: registry.create("estimator", name, options, where="estimator")
+
+
+def bench_paper(quick: bool = False, all_estimators: bool = False, registry: Registry | None = None,
+                progress: Callable[[str], None] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Run the benchmark; returns (JSON-ready results, plot data)."""
+    registry = registry if registry is not None else Registry()
+    setup = PaperSetup()
+    main = run_paper(setup, estimator_factory(registry, "rls", setup), quick=quick, progress=progress)
+    out: dict[str, Any] = {"setup": {**asdict(setup), "quick": quick, "estimator": "rls"}, **main["result"],
+                           "paper": PAPER}
+    if all_estimators:
+        out["estimators"] = {}
+        for name in registry.names("estimator"):
+            say = (lambda m, n=name: progress(f"{n}: {m}")) if progress else None
+            run = main if name == "rls" else run_paper(setup, estimator_factory(registry, name, setup), quick=quick,
+                                                        progress=say, with_batch_bounds=False)
+            out["estimators"][name] = run["result"]
+    return out, main["plots"]
+
+
+def write_plots(plots: dict[str, Any], folder: Path) -> list[Path]:
+    """The paper's figures as PNG files; returns their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder.mkdir(parents=True, exist_ok=True)
+    written = []
+
+    def save(fig, name):
+        path = folder / name
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+
+    index, trace, truth = plots["identification"]
+    for name, keys, units in (("fig3_force_parameters.png", ("gravity_force_B", "bias_force_S"), ("N", "N")),
+                              ("fig4_torque_parameters.png", ("cog_S", "bias_torque_S"), ("m", "N·m"))):
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+        for ax, key, unit in zip(axes, keys, units):
+            for k, c in enumerate("rgb"):
+                ax.plot(index + 1, trace[key][:, k], c, lw=1, label=f"{key}[{'xyz'[k]}]")
+                ax.axhline(np.asarray(truth[key])[k], color=c, ls="--", lw=0.8)
+            span = np.ptp(np.asarray(truth[key])) or 1.0
+            mid = float(np.mean(truth[key]))
+            ax.set_ylim(mid - 2.0 * span, mid + 2.0 * span)
+            ax.set_xscale("log")
+            ax.set_xlabel("sample (log scale)")
+            ax.set_ylabel(unit)
+            ax.set_title(f"{key} (dashed: truth)")
+            ax.legend(fontsize=7, loc="upper right")
+        save(fig, name)
+
+    raw_f, comp_f, raw_t, comp_t = plots["poses"]
+    for name, raw, comp, unit, axes_names in (("fig5_force_compensation.png", raw_f, comp_f, "N", AXES_F),
+                                              ("fig6_torque_compensation.png", raw_t, comp_t, "N·m", AXES_T)):
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharex=True)
+        for k, c in enumerate("rgb"):
+            axes[0].plot(raw[:, k], c, lw=1, label=axes_names[k])
+            axes[1].plot(comp[:, k], c, lw=1, label=axes_names[k])
+        axes[0].set_title("raw")
+        axes[1].set_title("compensated")
+        for ax in axes:
+            ax.set_xlabel("pose")
+            ax.set_ylabel(unit)
+            ax.legend(fontsize=7, loc="upper right")
+        save(fig, name)
+
+    t, raw, comp, contact = plots["indentation"]
+    fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
+    for k, ax in enumerate(axes):
+        ax.plot(t, raw[:, k], "r", lw=0.8, label="raw")
+        ax.plot(t, comp[:, k], "b", lw=0.8, label="compensated")
+        ax.fill_between(t, 0, 1, where=contact, transform=ax.get_xaxis_transform(), color="0.9", label="contact")
+        ax.set_ylabel(f"{AXES_F[k]} (N)")
+    axes[0].legend(fontsize=7, loc="upper right")
+    axes[-1].set_xlabel("time (s)")
+    save(fig, "fig7_indentation.png")
+
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    for speed, (angle, magnitude) in plots["rotation"].items():
+        ax.plot(angle, magnitude, lw=0.8, label=f"{speed} deg/s")
+    ax.axhline(REFERENCE_MASS_KG * GRAVITY_M_S2, color="k", ls="--", lw=0.8, label="1.02 N")
+    ax.set_xlabel("rotation (deg)")
+    ax.set_ylabel("|contact force| (N)")
+    ax.legend(fontsize=7, loc="upper right")
+    save(fig, "fig8_rotation_104g.png")
+
+    t, truth_f, comp, contact, touching = plots["drift"]
+    fig, ax = plt.subplots(figsize=(10, 3.4))
+    ax.plot(t, np.linalg.norm(truth_f, axis=1), "k", lw=0.8, label="true contact")
+    ax.plot(t, np.linalg.norm(comp, axis=1), "b", lw=0.6, label="rls |contact force|")
+    ax.fill_between(t, 0, 1, where=contact & ~touching, transform=ax.get_xaxis_transform(), color="mistyrose",
+                    label="refused as contact, no contact")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("N")
+    ax.set_title("bias drifting 0.5 N/min, indentation every 10 s")
+    ax.legend(fontsize=7, loc="upper left")
+    save(fig, "drift_contact.png")
+    return written

@@ -306,6 +306,7 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], quick: bool 
             result[key][str(speed)] = numbers
             if not noise:
                 plots["rotation"][speed] = (angle, magnitude)
+        plots.setdefault("rotation_metrics", {})[key] = result[key]
 
     # 6. not in the paper: bias drift 0.5 N/min with an indentation every 10 s
     say("drift with contacts")
@@ -468,6 +469,19 @@ def write_plots(plots: dict[str, Any], folder: Path) -> list[Path]:
     ax.set_ylabel("|contact force| (N)")
     ax.legend(fontsize=7, loc="upper right")
     save(fig, "fig8_rotation_104g.png")
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharey=True)
+    for ax, (key, title) in zip(axes, (("rotation_104g", "Table I noise"), ("rotation_104g_low_noise", "¼ noise"))):
+        numbers = plots["rotation_metrics"][key]
+        x = np.arange(len(SPEEDS_DEG_S))
+        for k, (metric, label) in enumerate((("mae", "MAE"), ("max_ae", "Max AE"), ("std", "Std"))):
+            ax.bar(x + (k - 1) * 0.27, [numbers[str(v)][metric] for v in SPEEDS_DEG_S], 0.27, label=label)
+        ax.set_xticks(x, [f"{v} deg/s" for v in SPEEDS_DEG_S])
+        ax.set_title(f"104 g mass, {title}")
+        ax.set_ylabel("N")
+        ax.set_ylim(0, 1.25 * max(numbers[str(v)]["max_ae"] for v in SPEEDS_DEG_S))
+        ax.legend(fontsize=7, loc="upper right", ncol=3)
+    save(fig, "fig9_rotation_metrics.png")
 
     t, truth_f, comp, contact, touching = plots["drift"]
     fig, ax = plt.subplots(figsize=(10, 3.4))

@@ -57,7 +57,7 @@ def test_paper_plots_are_written(quick):
     names = sorted(p.name for p in (folder / "plots").glob("*.png"))
     assert names == ["drift_contact.png", "fig3_force_parameters.png", "fig4_torque_parameters.png",
                      "fig5_force_compensation.png", "fig6_torque_compensation.png", "fig7_indentation.png",
-                     "fig8_rotation_104g.png"]
+                     "fig8_rotation_104g.png", "fig9_rotation_metrics.png"]
     assert all((folder / "plots" / n).stat().st_size > 10_000 for n in names)
 
 

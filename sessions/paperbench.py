@@ -470,7 +470,7 @@ def write_plots(plots: dict[str, Any], folder: Path) -> list[Path]:
     ax.legend(fontsize=7, loc="upper right")
     save(fig, "fig8_rotation_104g.png")
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharey=True)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
     for ax, (key, title) in zip(axes, (("rotation_104g", "Table I noise"), ("rotation_104g_low_noise", "¼ noise"))):
         numbers = plots["rotation_metrics"][key]
         x = np.arange(len(SPEEDS_DEG_S))

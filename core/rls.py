@@ -32,8 +32,9 @@ block at a fraction of the per-sample cost.
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg.lapack import dposv
 
-from .batch import normal_terms
+from .batch import I3, normal_terms
 
 
 class RecursiveLeastSquares:
@@ -83,6 +84,28 @@ class RecursiveLeastSquares:
         eta += self.eta
         X = np.linalg.solve(Lam, eta[:, :, None])[:, :, 0]
         return X, Lam, eta
+
+    def propose_one(self, y: np.ndarray, A: np.ndarray):
+        """``propose`` for one sample, y (3,) and A (3, 3): returns (x (6,), Λ (6, 6), η (6,)).
+
+        The same sums as ``propose`` without the block machinery (cumulative
+        sums and a batched solve), for a live loop that gets one sample at a time.
+        """
+        At = A.T
+        Lam = np.empty((6, 6))
+        Lam[:3, :3] = At @ A
+        Lam[:3, 3:] = At
+        Lam[3:, :3] = A
+        Lam[3:, 3:] = I3
+        Lam *= 1.0 / self.r
+        Lam += self.Lambda
+        eta = np.concatenate((At @ y, y))
+        eta *= 1.0 / self.r
+        eta += self.eta
+        _, x, info = dposv(Lam, eta)  # Cholesky: Λ is symmetric positive definite
+        if info:  # not numerically positive definite: the general solver
+            x = np.linalg.solve(Lam, eta)
+        return x, Lam, eta
 
     def commit(self, x: np.ndarray, Lam: np.ndarray, eta: np.ndarray, used: int) -> None:
         """Make a proposed state (after ``used`` more samples) the current one."""
@@ -177,11 +200,11 @@ def _run_gated_one(stage, y, A, active, threshold, epsilon, converged):
         residual = A[0] @ stage.x[:3] + stage.x[3:] - y[0]
         if converged and not residual @ residual < threshold * threshold:
             return stage.x[None, :], np.ones(1, dtype=bool), np.ones(1, dtype=bool), converged
-        Xp, Lam, eta = stage.propose(y, A)
-        dx = Xp[0] - stage.x
+        x, Lam, eta = stage.propose_one(y[0], A[0])
+        dx = x - stage.x
         converged = bool(dx @ dx < epsilon * epsilon)
-        stage.commit(Xp[0], Lam[0], eta[0], 1)
-        return Xp, np.array([converged]), np.zeros(1, dtype=bool), converged
+        stage.commit(x, Lam, eta, 1)
+        return x[None, :], np.array([converged]), np.zeros(1, dtype=bool), converged
     return stage.x[None, :], np.array([converged]), np.zeros(1, dtype=bool), converged
 
 

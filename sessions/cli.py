@@ -132,37 +132,52 @@ def print_paper_tables(out: dict) -> None:
     """The paper's tables, ours beside the paper's numbers."""
     paper = out["paper"]
     conv = out["convergence"]
-    t = Table(title="Convergence (samples)")
-    for col in ("stage", "paper's ‖Δx‖ < 1e-3", "paper", "truth-based"):
-        t.add_column(col, justify="right")
-    t.add_row("force", str(conv["force_paper"]), str(paper["convergence"]["force_paper"]), str(conv["force_truth"]))
-    t.add_row("torque (after force)", str(conv["torque_paper_after_force"]),
-              str(paper["convergence"]["torque_paper"]), str(conv["torque_truth"]))
     out_console = out_table = Console(width=max(Console().width, 120))
+    t = Table(title="Convergence (0-based sample index in the identification run; never = None)")
+    for col in ("stage", "paper's ‖Δx‖ < 1e-3", "samples after force", "paper (samples)", "truth-based"):
+        t.add_column(col, justify="right")
+    t.add_row("force", str(conv["force_paper"]), "", str(paper["convergence"]["force_paper"]),
+              str(conv["force_truth"]))
+    t.add_row("torque", str(conv["torque_paper"]), str(conv["torque_paper_after_force"]),
+              str(paper["convergence"]["torque_paper"]), str(conv["torque_truth"]))
+    out_console.print(t)
+    ident = out["identification"]
+    t = Table(title=f"Identified parameters after {ident['samples']} samples")
+    for col in ("parameter", "estimator", "batch fit, same samples", "truth"):
+        t.add_column(col, justify="right")
+    for key, scale, unit in (("gravity_force_B", 1, "N"), ("bias_force_S", 1, "N"), ("cog_S", 1000, "mm"),
+                             ("bias_torque_S", 1, "N·m")):
+        row = [", ".join(_f(v * scale, 3) for v in ident[src][key]) for src in ("params", "batch_fit", "truth")]
+        t.add_row(f"{key} ({unit})", *row)
     out_console.print(t)
     for group, title, unit in (("force", "Table I: force error statistics", "N"),
                                ("torque", "Table II: torque error statistics", "N·m")):
         t = Table(title=f"{title} ({out['no_contact']['poses']} random poses, {unit})")
-        for col in ("component", "condition", "MAE", "Max AE", "Std", "MAE comp.", "paper MAE", "paper Max AE",
-                    "paper Std", "paper comp."):
+        for col in ("component", "condition", "MAE", "Max AE", "Std", "MAE comp.", "Std/noise", "paper MAE",
+                    "paper Max AE", "paper Std", "paper comp."):
             t.add_column(col, justify="right")
         for axis, ours in out["no_contact"][group].items():
             ref = paper["no_contact"][group][axis]
             digits = 3
             t.add_row(axis, "before", _f(ours["mae_before"], digits), _f(ours["max_before"], digits),
-                      _f(ours["std_before"], digits), f"{ours['mae_comp_pct']:.1f} %", _f(ref["mae_before"]),
+                      _f(ours["std_before"], digits), f"{ours['mae_comp_pct']:.1f} %", "", _f(ref["mae_before"]),
                       _f(ref["max_before"]), _f(ref["std_before"]), f"{ref['mae_comp_pct']:.1f} %")
             t.add_row("", "after", _f(ours["mae_after"], digits), _f(ours["max_after"], digits),
-                      _f(ours["std_after"], digits), "", _f(ref["mae_after"]), _f(ref["max_after"]),
+                      _f(ours["std_after"], digits), "", _f(ours["std_after_over_noise"], 2), _f(ref["mae_after"]),
+                      _f(ref["max_after"]),
                       _f(ref["std_after"]), "", end_section=True)
         out_table.print(t)
     t = Table(title="Table III: compensation error bounds over the random poses (±)")
-    for col in ("component", "batch (ours)", "rls (ours)", "Yu et al. (paper)", "proposed (paper)"):
+    for col in ("component", "batch fit, held", "rls, frozen", "rls, running", "Yu et al. (paper)",
+                "proposed (paper)"):
         t.add_column(col, justify="right")
     for axis in ("fx", "fy", "fz", "tx", "ty", "tz"):
-        t.add_row(axis, _f(out["bounds"].get("batch", {}).get(axis)), _f(out["bounds"]["rls"][axis]),
+        t.add_row(axis, _f(out["bounds"].get("batch", {}).get(axis)),
+                  _f(out["bounds"].get("rls_frozen", {}).get(axis)), _f(out["bounds"]["rls"][axis]),
                   _f(paper["bounds"]["yu2021"][axis]), _f(paper["bounds"]["rls"][axis]))
     out_console.print(t)
+    out_console.print("  batch fit and frozen rls: identified on the 20 s tour, then held; running rls keeps "
+                      "learning during the poses, as the paper's does")
     ind = out["indentation"]
     out_console.print(
         f"Phantom indentation ({ind['contacts']} contacts): plateau detected {ind['detected_plateau_pct']:.1f} %, "
@@ -180,6 +195,11 @@ def print_paper_tables(out: dict) -> None:
     out_console.print(
         f"  paper: MAE ≤ 0.04 N, Max AE 0.119 N at 72 deg/s, Std < 0.046 N; noise per axis "
         f"{out['rotation_104g']['noise_force']} N, low noise {out['rotation_104g_low_noise']['noise_force']} N")
+    r = out["repeated_rows"]
+    out_console.print(
+        f"Repeated rows (40 poses × 5 identical rows, like the LWR4 logs): force 'converged' at row "
+        f"{r['converged_force_at']}, then {r['refused_pct']:.1f} % of the (contact-free) rows refused as contact, "
+        f"RMS [{', '.join(_f(v) for v in r['rms_force_S'])}] N")
     d = out["drift_contact"]
     out_console.print(
         f"Bias drift {d['drift_N_per_min']} N/min with an indentation every 10 s ({d['duration_s']:.0f} s): "
@@ -189,9 +209,24 @@ def print_paper_tables(out: dict) -> None:
         f"(noise {d['noise_force']} N)")
 
 
+def _finite_json(value):
+    """NaN and infinities become null (JSON has no NaN)."""
+    if isinstance(value, float) and value != value or value in (float("inf"), float("-inf")):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite_json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite_json(v) for v in value]
+    return value
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     import json
 
+    if args.which == "real" and (args.plots or args.quick or args.all_estimators):
+        raise UserError("--plots, --quick and --all-estimators go with 'bench paper'")
+    if args.which == "paper" and args.folder:
+        raise UserError(f"'bench paper' takes no folder (got {args.folder!r}); did you mean 'bench real'?")
     if args.which == "paper":
         from .paperbench import bench_paper, write_plots
 
@@ -203,32 +238,37 @@ def cmd_bench(args: argparse.Namespace) -> int:
             for path in write_plots(plots, Path(args.plots)):
                 err.print(f"wrote {path}")
     else:
-        from .realbench import DEFAULT_REAL_DIR, bench_real
+        from .realbench import bench_real, default_real_dir
 
-        folder = Path(args.folder) if args.folder else DEFAULT_REAL_DIR
+        folder = Path(args.folder) if args.folder else default_real_dir()
         with err.status("evaluating real recordings") as status:
             out = bench_real(folder, progress=lambda m: status.update(f"bench real: {m}"))
         print_real_table(out)
     if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
+        Path(args.json).write_text(json.dumps(_finite_json(out), indent=2) + "\n", encoding="utf-8")
         err.print(f"wrote {args.json}")
     return 0
 
 
 def print_real_table(out: dict) -> None:
     """One row per file and estimator."""
-    t = Table(title="Real recordings: online RMS after convergence vs the offline batch fit over the same rows")
-    for col in ("file", "estimator", "force conv.", "torque conv.", "RMS fx, fy, fz (N)", "batch, same rows",
-                "ratio ‖·‖"):
+    t = Table(title="Real recordings: online RMS over every row after convergence, against the offline batch "
+                    "fit over the same rows")
+    for col in ("file", "estimator", "force conv.", "torque conv.", "refused", "RMS fx, fy, fz (N)",
+                "batch, same rows", "ratio per axis", "ratio ‖·‖"):
         t.add_column(col, justify="right")
     for name, entry in out.items():
+        if "error" in entry:
+            t.add_row(name, "", "", "", "", entry["error"], "", "", "", end_section=True)
+            continue
         for k, (est_name, r) in enumerate(entry["estimators"].items()):
             rms = ", ".join(_f(v) for v in r.get("rms_force_S", [])) or "never converged"
             batch = ", ".join(_f(v) for v in r.get("batch_rms_same_rows", [])) or "–"
+            ratio = ", ".join(_f(v, 2) for v in r.get("ratio", [])) or "–"
             t.add_row(name if k == 0 else "", est_name, str(r["converged_force_at"]), str(r["converged_torque_at"]),
-                      rms, batch, _f(r.get("ratio_norm"), 2),
+                      f"{r['refused_pct']:.1f} %", rms, batch, ratio, _f(r.get("ratio_norm"), 2),
                       end_section=k == len(entry["estimators"]) - 1)
-    Console(width=max(Console().width, 120)).print(t)
+    Console(width=max(Console().width, 140)).print(t)
 
 
 def cmd_recover(args: argparse.Namespace) -> int:

@@ -29,7 +29,8 @@ import numpy as np
 
 from hapticlab.core.batch import batch_fit
 from hapticlab.core.frames import GRAVITY_M_S2
-from hapticlab.core.plugins import Registry
+from hapticlab.core.model import contact_wrench
+from hapticlab.core.plugins import Registry, option_types
 from hapticlab.core.types import AlignedSamples, Estimates
 from hapticlab.plugins.simworld import SimWorld
 
@@ -70,12 +71,14 @@ PAPER = {
 class PaperSetup:
     """The simulated set-up of the paper's experiments.
 
-    The paper does not publish its tool's mass, the sensor's bias or noise.
-    The tool and bias here are chosen so that the raw readings over the random
-    poses have magnitudes like Table I's "before" rows (mean |f| of about 5, 2.7
-    and 3 N), because the MAE compensation % divides by them; the noise is
-    ATI Gamma-class (finer about z, as Gamma's resolution is). Everything else
-    is as the paper describes.
+    The paper does not publish its tool's mass, its sensor's bias or noise, or
+    its contact thresholds. They are chosen here from the paper's own tables:
+    the bias (with a 0.2 kg tool and poses within 35° of vertical) so the raw
+    readings have Table I's and II's "before" MAE, and the noise per axis in
+    proportion to their "after" Std. MAE compensation % = 1 − MAE_after /
+    MAE_before then lands near the paper's *by construction*; what the tables
+    test is that the method reaches the noise floor (``std_after_over_noise``
+    ≈ 1). Everything else is as the paper describes.
 
     Attributes:
         seed: seed of the world (noise, motion).
@@ -157,7 +160,7 @@ def feed(estimator: Any, block: AlignedSamples, chunk: int = 1024, trace_until: 
     i = 0
     n = len(block)
     while i < n:
-        step = 1 if i < trace_until else (chunk if not trace_until else max(1, min(chunk, 100)))
+        step = 1 if i < trace_until else chunk
         part = estimator.update_block(block.subset(slice(i, i + step)))
         parts.append(part)
         i += len(part)
@@ -209,9 +212,12 @@ def truth_convergence(index: np.ndarray, trace: dict[str, np.ndarray], truth: di
     return first_stays(g & f0, index), first_stays(t0, index)
 
 
-def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], quick: bool = False,
+PARAMS = ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S")
+
+
+def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = "rls", quick: bool = False,
               progress: Callable[[str], None] | None = None, with_batch_bounds: bool = True) -> dict[str, Any]:
-    """All experiments for one estimator; returns numbers (JSON-ready) and arrays for plots."""
+    """All experiments for one estimator (called ``name`` in the results); numbers and plot data."""
     say = progress or (lambda message: None)
     rate = setup.rate_hz
     poses = 30 if quick else setup.poses
@@ -226,24 +232,27 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], quick: bool 
     ident_s = 8.0 if quick else setup.identification_s
     block, _ = simulate(world, ident_s, rate)
     estimator = make_estimator()
-    est, (index, trace) = feed(estimator, block, trace_until=3000)
-    force_truth, torque_truth = truth_convergence(index, trace, truth)
+    est, (index, trace) = feed(estimator, block, trace_until=len(block))  # every sample traced
+    named = all(k in trace for k in PARAMS)  # a third-party estimator may name its parameters otherwise
+    force_truth, torque_truth = truth_convergence(index, trace, truth) if named else (None, None)
     first_f = int(np.argmax(est.converged_force)) if est.converged_force.any() else None
     first_t = int(np.argmax(est.converged_torque)) if est.converged_torque.any() else None
-    result["convergence"] = {
+    result["convergence"] = {  # 0-based sample indices into the identification run
         "force_paper": first_f,
         "torque_paper": first_t,
         "torque_paper_after_force": None if first_t is None or first_f is None else first_t - first_f,
         "force_truth": force_truth,
         "torque_truth": torque_truth,
     }
+    params = estimator.params()
+    fit = batch_fit(block.force_S, block.torque_S, block.R_EB)
     result["identification"] = {
         "samples": len(block),
-        "params": {k: list(map(float, v)) for k, v in estimator.params().items()},
-        "truth": {k: np.asarray(truth[k]).tolist() for k in ("gravity_force_B", "bias_force_S", "cog_S",
-                                                              "bias_torque_S")},
+        "params": {k: list(map(float, v)) for k, v in params.items()},
+        "truth": {k: np.asarray(truth[k]).tolist() for k in PARAMS},
+        "batch_fit": {k: fit[k].tolist() for k in PARAMS},
     }
-    plots["identification"] = (index, trace, truth)
+    plots["identification"] = (index, trace, truth) if named else None
 
     # 2. + 3. random poses, no contact; the same estimator carries on (as in the paper)
     say(f"{poses} random poses")
@@ -257,19 +266,22 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], quick: bool 
         "force": error_stats(block.force_S[at], est.contact_force_S[at], AXES_F),
         "torque": error_stats(block.torque_S[at], est.contact_torque_S[at], AXES_T),
         "poses": poses,
+        "converged": bool(est.converged_force[at].any()),
     }
-    bounds = {"rls": {axis: float(np.max(np.abs(est.contact_force_S[at][:, k]))) for k, axis in enumerate(AXES_F)}}
-    bounds["rls"].update({axis: float(np.max(np.abs(est.contact_torque_S[at][:, k])))
-                          for k, axis in enumerate(AXES_T)})
+    for group, axes, noise in (("force", AXES_F, setup.noise_force), ("torque", AXES_T, setup.noise_torque)):
+        for axis, sigma in zip(axes, noise):
+            result["no_contact"][group][axis]["std_after_over_noise"] = \
+                result["no_contact"][group][axis]["std_after"] / sigma
+    # Error bounds over the poses (Table III): the estimator as it runs (it keeps
+    # learning during the poses, as the paper's does), the same estimator frozen
+    # after identification, and Yu et al.'s way: a batch fit of the identification
+    # run, then held. The last two have seen the same data.
+    bounds = {name: _bounds(est.contact_force_S[at], est.contact_torque_S[at])}
+    if named:
+        frozen = _model_error(block, at, {k: np.asarray(v) for k, v in params.items()})
+        bounds[f"{name}_frozen"] = _bounds(*frozen)
     if with_batch_bounds:
-        # Yu et al. style: a least-squares calibration over the identification run, then held
-        ident_block, _ = simulate(world, ident_s, rate)
-        fit = batch_fit(ident_block.force_S, ident_block.torque_S, ident_block.R_EB)
-        gravity_S = block.R_EB[at] @ fit["gravity_force_B"]
-        f_err = block.force_S[at] - gravity_S - fit["bias_force_S"]
-        t_err = block.torque_S[at] - np.cross(fit["cog_S"], gravity_S) - fit["bias_torque_S"]
-        bounds["batch"] = {axis: float(np.max(np.abs(f_err[:, k]))) for k, axis in enumerate(AXES_F)}
-        bounds["batch"].update({axis: float(np.max(np.abs(t_err[:, k]))) for k, axis in enumerate(AXES_T)})
+        bounds["batch"] = _bounds(*_model_error(block, at, fit))
     result["bounds"] = bounds
     plots["poses"] = (block.force_S[at], est.contact_force_S[at], block.torque_S[at], est.contact_torque_S[at])
 
@@ -308,7 +320,29 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], quick: bool 
                 plots["rotation"][speed] = (angle, magnitude)
         plots.setdefault("rotation_metrics", {})[key] = result[key]
 
-    # 6. not in the paper: bias drift 0.5 N/min with an indentation every 10 s
+    # 6. not in the paper: a log whose rows repeat (a sensor read faster than it
+    # updates, as in the LWR4 files): ‖Δx‖ < 1e-3 holds at the second row
+    say("repeated rows")
+    rep_world = setup.world({"script": "static_poses", "hold_s": 0.5, "move_s": 1.0, "poses": 40,
+                             "max_tilt_deg": setup.identification_tilt_deg})
+    held = rep_world.motion.hold_midpoints(40)
+    t_rows = np.repeat(held, 5)  # five identical rows per pose
+    w = rep_world.wrench(held)
+    n = len(t_rows)
+    block = AlignedSamples(
+        t_ns=np.round(np.arange(n) * 1e6).astype(np.int64), force_S=np.repeat(np.array(w["force_S"]), 5, axis=0),
+        torque_S=np.repeat(np.array(w["torque_S"]), 5, axis=0), R_EB=np.repeat(w["R_EB"], 5, axis=0),
+        seq=np.arange(n), status=np.zeros(n, dtype=np.int64), stale=np.zeros(n, dtype=bool),
+    )
+    est, _ = feed(make_estimator(), block)
+    result["repeated_rows"] = {
+        "rows": n,
+        "converged_force_at": int(np.argmax(est.converged_force)) if est.converged_force.any() else None,
+        "refused_pct": 100.0 * float(np.mean(est.contact)),
+        "rms_force_S": np.sqrt(np.mean(est.contact_force_S ** 2, axis=0)).tolist(),
+    }
+
+    # 7. not in the paper: bias drift 0.5 N/min with an indentation every 10 s
     say("drift with contacts")
     drift_s = 180.0  # the drift needs minutes to show; cheap to simulate
     contacts = [{"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
@@ -368,13 +402,29 @@ def rotation_test(setup: PaperSetup, make_estimator: Callable[[], Any], speed: f
         "mae": float(np.mean(np.abs(e))), "max_ae": float(np.max(np.abs(e))), "std": float(np.std(magnitude)),
         "mean": float(np.mean(magnitude)), "contact_detected_pct": 100.0 * float(np.mean(est.contact[turning])),
     }
-    return numbers, np.linspace(0.0, 360.0, len(magnitude)), magnitude
+    angle_deg = np.rad2deg(world.motion.angle(t[turning])[0] - world.motion.angle(np.array([start]))[0][0])
+    return numbers, angle_deg, magnitude
+
+
+def _bounds(force_err: np.ndarray, torque_err: np.ndarray) -> dict[str, float]:
+    """Largest |error| per axis (the ± bounds of Table III)."""
+    out = {axis: float(np.max(np.abs(force_err[:, k]))) for k, axis in enumerate(AXES_F)}
+    out.update({axis: float(np.max(np.abs(torque_err[:, k]))) for k, axis in enumerate(AXES_T)})
+    return out
+
+
+def _model_error(block: AlignedSamples, rows: np.ndarray, params: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Contact wrench at ``rows`` with fixed parameters (what a held calibration reports)."""
+    n = len(rows)
+    x_f = np.tile(np.concatenate([params["gravity_force_B"], params["bias_force_S"]]), (n, 1))
+    x_t = np.tile(np.concatenate([params["cog_S"], params["bias_torque_S"]]), (n, 1))
+    return contact_wrench(block.force_S[rows], block.torque_S[rows], block.R_EB[rows], x_f, x_t)
 
 
 def estimator_factory(registry: Registry, name: str, setup: PaperSetup) -> Callable[[], Any]:
     """A factory building ``name`` with the bench's contact thresholds when it takes them."""
     options = {}
-    accepted = registry.resolved_options("estimator", name)
+    accepted = option_types(registry.get("estimator", name).factory)
     if "force_threshold" in accepted:
         options["force_threshold"] = setup.force_threshold
     if "torque_threshold" in accepted:
@@ -387,15 +437,15 @@ def bench_paper(quick: bool = False, all_estimators: bool = False, registry: Reg
     """Run the benchmark; returns (JSON-ready results, plot data)."""
     registry = registry if registry is not None else Registry()
     setup = PaperSetup()
-    main = run_paper(setup, estimator_factory(registry, "rls", setup), quick=quick, progress=progress)
+    main = run_paper(setup, estimator_factory(registry, "rls", setup), "rls", quick=quick, progress=progress)
     out: dict[str, Any] = {"setup": {**asdict(setup), "quick": quick, "estimator": "rls"}, **main["result"],
                            "paper": PAPER}
     if all_estimators:
         out["estimators"] = {}
         for name in registry.names("estimator"):
             say = (lambda m, n=name: progress(f"{n}: {m}")) if progress else None
-            run = main if name == "rls" else run_paper(setup, estimator_factory(registry, name, setup), quick=quick,
-                                                        progress=say, with_batch_bounds=False)
+            run = main if name == "rls" else run_paper(setup, estimator_factory(registry, name, setup), name,
+                                                        quick=quick, progress=say, with_batch_bounds=False)
             out["estimators"][name] = run["result"]
     return out, main["plots"]
 

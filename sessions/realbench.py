@@ -1,14 +1,17 @@
 """``hapticlab bench real``: every registered estimator on real recordings.
 
-For each CSV file of a folder (default ``../shared/data/real``) and each
-registered estimator: the online RMS of the contact force per axis over the
-no-contact rows after the first convergence, against the offline batch fit of
-the whole file evaluated over the same rows (their ratio), and the samples
-each stage took to converge by the estimator's own criterion.
+For each CSV file of a folder and each registered estimator: the online RMS
+of the estimated contact force per axis over every row after the first
+convergence, against the offline batch fit of the whole file evaluated over
+the same rows (their ratio), the share of rows the estimator refused as
+contact, and the samples each stage took to converge by its own criterion.
+The recordings are contact-free calibration logs, so every refused row is a
+false contact, and refused rows are scored like the rest.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Callable
 
@@ -18,20 +21,34 @@ from hapticlab.core.batch import batch_fit
 from hapticlab.core.plugins import Registry
 
 from .compensate import load_stream, run_estimator
+from .csvimport import CsvError
 
-DEFAULT_REAL_DIR = Path("../shared/data/real")
+def default_real_dir() -> Path:
+    """``$HAPTICLAB_REAL_DATA``, else ``shared/data/real`` beside the source checkout, else ``../shared/data/real``."""
+    env = os.environ.get("HAPTICLAB_REAL_DATA")
+    if env:
+        return Path(env)
+    beside_checkout = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+    return beside_checkout if beside_checkout.is_dir() else Path("../shared/data/real")
 
 
 def bench_real(folder: Path, registry: Registry | None = None,
                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Results per file, then per estimator (JSON-ready)."""
     registry = registry if registry is not None else Registry()
-    files = sorted(Path(folder).glob("*.csv"))
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such folder; give one: hapticlab bench real DIR")
+    files = sorted(folder.glob("*.csv"))
     if not files:
         raise FileNotFoundError(f"{folder}: no CSV files to evaluate")
     out: dict[str, Any] = {}
     for path in files:
-        stream = load_stream(path)
+        try:
+            stream = load_stream(path)
+        except CsvError as exc:  # one bad file does not stop the others
+            out[path.stem] = {"error": str(exc)}
+            continue
         s = stream.samples
         fit = batch_fit(s.force_S, s.torque_S, s.R_EB)
         residual = fit["residual_force_S"]
@@ -47,10 +64,10 @@ def bench_real(folder: Path, registry: Registry | None = None,
             first_f = int(np.argmax(est.converged_force)) if est.converged_force.any() else None
             first_t = int(np.argmax(est.converged_torque)) if est.converged_torque.any() else None
             result: dict[str, Any] = {"converged_force_at": first_f, "converged_torque_at": first_t,
-                                      "contact_rows": int(est.contact.sum())}
+                                      "refused_rows": int(est.contact.sum()),
+                                      "refused_pct": 100.0 * float(np.mean(est.contact))}
             if first_f is not None:
-                rows = np.arange(len(stream)) >= first_f
-                rows &= ~est.contact & np.isfinite(est.contact_force_S).all(1)
+                rows = (np.arange(len(stream)) >= first_f) & np.isfinite(est.contact_force_S).all(1)
                 online = np.sqrt(np.mean(est.contact_force_S[rows] ** 2, axis=0))
                 batch = np.sqrt(np.mean(residual[rows] ** 2, axis=0))
                 result.update({

@@ -31,23 +31,25 @@ def test_paper_json_has_every_key_the_issue_lists(quick):
     assert set(out["convergence"]) >= {"force_paper", "torque_paper", "force_truth", "torque_truth"}
     for speed in ("12", "30", "45", "72"):
         assert set(out["rotation_104g"][speed]) >= {"mae", "max_ae", "std"}
-    assert set(out["estimators"]) == {"rls", "batch"}
+    assert set(out["estimators"]) >= {"rls", "batch"}
     assert set(out["estimators"]["batch"]["no_contact"]["force"]) == {"fx", "fy", "fz"}
+    assert set(out["estimators"]["batch"]["bounds"]) == {"batch", "batch_frozen"}
 
 
 def test_paper_method_reaches_the_noise_floor(quick):
     """What the tables claim, checked: rls leaves only the sensor noise (Gamma-class, 0.12/0.12/0.06 N)."""
     out, _ = quick
     noise = np.array(out["setup"]["noise_force"])
-    std_after = np.array([out["no_contact"]["force"][a]["std_after"] for a in ("fx", "fy", "fz")])
-    assert np.all(std_after < 1.25 * noise) and np.all(std_after > 0.75 * noise)
-    assert all(out["no_contact"]["force"][a]["mae_comp_pct"] > 95.0 for a in ("fx", "fy", "fz"))
+    ratio = np.array([out["no_contact"]["force"][a]["std_after_over_noise"] for a in ("fx", "fy", "fz")])
+    assert np.all(np.abs(ratio - 1.0) < 0.25)
     assert out["convergence"]["force_paper"] is not None
     assert out["indentation"]["detected_plateau_pct"] > 99.0 and out["indentation"]["false_contact_pct"] < 1.0
     # with the 104 g mass on, |contact force| stays near 1.02 N, within the noise
     for speed in ("12", "72"):
         assert abs(out["rotation_104g_low_noise"][speed]["mean"] - 1.02) < 0.02
-    # the fixed threshold loses hold of a drifting bias: free-space error well above the noise
+    # the weaknesses the issue asks to expose: repeated first rows fake convergence ...
+    assert out["repeated_rows"]["converged_force_at"] == 1 and out["repeated_rows"]["refused_pct"] > 50.0
+    # ... and the fixed threshold loses hold of a drifting bias: free-space error well above the noise
     drift = out["drift_contact"]
     assert drift["rms_free_last_30s"][0] > 2 * noise[0] and drift["false_contact_last_30s_pct"] > 5.0
 
@@ -71,6 +73,46 @@ def test_bench_real_on_a_folder(tmp_path, capsys):
     rls = out["sim"]["estimators"]["rls"]
     assert rls["converged_force_at"] is not None and 0.9 < rls["ratio_norm"] < 1.1
     assert "sim" in capsys.readouterr().out
+
+
+def test_bench_options_that_do_not_belong_are_refused(capsys):
+    assert main(["bench", "real", "--plots", "x"]) == 2
+    assert "go with 'bench paper'" in capsys.readouterr().err
+    assert main(["bench", "real", "/nonexistent/folder"]) == 2
+    assert "no such folder; give one: hapticlab bench real DIR" in capsys.readouterr().err
+
+
+def test_bench_real_keeps_going_past_a_bad_file(tmp_path):
+    (tmp_path / "bad.csv").write_text("t,fx\n0,1\n")
+    block, _ = static_model_stream(500, seed=22, noise_force=0.1)
+    quat_BE = quat_wxyz_from_matrix(block.R_EB.transpose(0, 2, 1))
+    table = np.column_stack([np.arange(500) * 1e-3, block.force_S, block.torque_S, quat_BE])
+    np.savetxt(tmp_path / "good.csv", table, delimiter=",", header="t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz", comments="")
+    assert main(["bench", "real", str(tmp_path), "--json", str(tmp_path / "r.json")]) == 0
+    out = json.loads((tmp_path / "r.json").read_text())
+    assert "missing required column" in out["bad"]["error"] and "rls" in out["good"]["estimators"]
+
+
+def test_metric_helpers_on_hand_made_input():
+    from hapticlab.sessions.paperbench import error_stats, first_stays, truth_convergence
+
+    before = np.array([[2.0], [-4.0], [6.0]])
+    after = np.array([[0.1], [-0.3], [0.2]])
+    stats = error_stats(before, after, ("fx",))["fx"]
+    assert stats["mae_before"] == 4.0 and stats["max_before"] == 6.0
+    assert np.isclose(stats["mae_after"], 0.2) and np.isclose(stats["max_after"], 0.3)
+    assert np.isclose(stats["std_after"], np.std([0.1, -0.3, 0.2]))
+    assert np.isclose(stats["mae_comp_pct"], 95.0)
+    index = np.array([0, 1, 2, 3, 4, 5])
+    assert first_stays(np.array([0, 1, 1, 0, 1, 1], bool), index) == 4  # left the band at 3
+    assert first_stays(np.array([1, 1, 1, 1, 1, 0], bool), index) is None
+    truth = {"gravity_force_B": np.array([0.0, 0.0, -2.0]), "bias_force_S": np.zeros(3),
+             "bias_torque_S": np.zeros(3)}
+    g = np.tile([0.0, 0.0, -2.0], (6, 1))
+    g[2, 2] = -2.1  # 5 % off once
+    trace = {"gravity_force_B": g, "bias_force_S": np.zeros((6, 3)), "bias_torque_S": np.full((6, 3), 0.001)}
+    trace["bias_torque_S"][:4] = 0.01
+    assert truth_convergence(index, trace, truth) == (3, 4)
 
 
 def test_bench_real_exposes_the_repeated_first_samples(real_data, tmp_path):

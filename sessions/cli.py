@@ -271,6 +271,27 @@ def print_real_table(out: dict) -> None:
     Console(width=max(Console().width, 140)).print(t)
 
 
+def cmd_replay(args: argparse.Namespace) -> int:
+    from .replay import replay
+
+    with err.status(f"replaying {Path(args.recording).name} through {args.estimator}"):
+        result = replay(args.recording, args.estimator, args.output, overrides=args.set or [])
+    t = Table(title=f"{Path(args.recording).name}: {result['rows']} samples; no-contact samples after convergence")
+    for col in ("estimator topic", "force conv.", "RMS fx, fy, fz (N)", "Max AE fx, fy, fz (N)",
+                "contact agreement"):
+        t.add_column(col, justify="right")
+    for topic, r in result["comparison"].items():
+        rms = ", ".join(_f(v) for v in r["rms_force_S"]) if r.get("rms_force_S") else "–"
+        mx = ", ".join(_f(v) for v in r["max_ae_force_S"]) if r.get("max_ae_force_S") else "–"
+        agree = f"{r['contact_agreement_pct']:.1f} %" if "contact_agreement_pct" in r else "–"
+        name = f"{topic} (new)" if topic == result["topic"] else topic
+        t.add_row(name, str(r["converged_force_at"]), rms, mx, agree)
+    Console(width=max(Console().width, 120)).print(t)
+    if args.output:
+        err.print(f"wrote {args.output} (the original topics and {result['topic']})")
+    return 0
+
+
 def cmd_recover(args: argparse.Namespace) -> int:
     from .recording import recover
 
@@ -319,6 +340,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="with paper: a shorter run (smoke test)")
     p.add_argument("--all-estimators", action="store_true", help="with paper: repeat for every registered estimator")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("replay", help="re-run a recording through another estimator and compare")
+    p.add_argument("recording", help="a session's .mcap")
+    p.add_argument("--estimator", required=True, help="estimator name, e.g. batch")
+    p.add_argument("-o", "--output", default=None, help="write a new .mcap with the replayed estimator added")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="estimator option, e.g. --set estimator.force_threshold=0.5")
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("recover", help="salvage a recording whose writer died")
     p.add_argument("broken", help="the damaged .mcap")

@@ -9,6 +9,8 @@ missing tables take the ``demo`` preset's values only when you start from it):
 ``[kinematics]`` ``name`` of a registered kinematics source plus its options
 ``[estimator]`` ``name`` of the estimator that drives the haptics plus its options
 ``[haptic]``    ``name`` of a haptic output plus its options and the safety limits
+``[shadows.<label>]`` more estimators run side by side on the same samples and
+                recorded on ``/estimator/<label>`` (``name`` defaults to the label)
 
 Errors are ``ConfigError`` with one line naming the key.
 """
@@ -25,7 +27,7 @@ from typing import Any
 
 from hapticlab.core.plugins import ConfigError, validate_options
 
-TABLES = ("session", "world", "sensor", "kinematics", "estimator", "haptic")
+TABLES = ("session", "world", "sensor", "kinematics", "estimator", "haptic", "shadows")
 PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator",
                  "haptic": "haptic_output"}
 
@@ -178,6 +180,22 @@ def check_tables(config: dict[str, Any]) -> None:
     for table in PLUGIN_TABLES:
         if table in config and not isinstance(config[table].get("name"), str):
             raise ConfigError(f"{table}.name: missing; name the {table} plugin to use")
+
+
+def shadow_tables(config: dict[str, Any]) -> dict[str, tuple[str, dict[str, Any]]]:
+    """{label: (estimator name, options)} of the ``[shadows.<label>]`` tables."""
+    out = {}
+    for label, table in config.get("shadows", {}).items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"shadows.{label}: expected a table, e.g. [shadows.{label}]")
+        if not label.isidentifier():
+            raise ConfigError(f"shadows.{label}: a label must be a Python identifier (it names the topic)")
+        options = dict(table)
+        name = options.pop("name", label)
+        if not isinstance(name, str):
+            raise ConfigError(f"shadows.{label}.name: expected a string, got {name!r}")
+        out[label] = (name, options)
+    return out
 
 
 def session_settings(config: dict[str, Any]) -> SessionSettings:

@@ -34,6 +34,7 @@ from .config import (
     haptic_settings,
     plugin_options,
     session_settings,
+    shadow_tables,
 )
 from .recording import Recorder
 from .safety import ForceGovernor
@@ -54,6 +55,7 @@ class Session:
     plugins: dict[str, dict[str, str]]
     resolved_config: dict[str, Any] = field(default_factory=dict)
     ready_force_std: float = 0.05
+    shadows: dict[str, Any] = field(default_factory=dict)  # label -> estimator, recorded only
     world: Any = None
 
 
@@ -113,6 +115,16 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     resolved["haptic"].update(asdict(safety))
     if world is None:
         del resolved["world"]
+    shadows = {}
+    primary = plugin_options(config, "estimator")[0]
+    for label, (name, options) in shadow_tables(config).items():
+        if label == primary:
+            raise ConfigError(f"shadows.{label}: the primary estimator already records on /estimator/{label}; "
+                              f"give the shadow another label")
+        shadows[label] = registry.create("estimator", name, options, where=f"shadows.{label}", world=world)
+        plugins[f"shadow:{label}"] = {"name": name, "origin": registry.get("estimator", name).origin}
+        resolved.setdefault("shadows", {})[label] = {
+            "name": name, **registry.resolved_options("estimator", name, options)}
     return Session(
         config=config,
         settings=settings,
@@ -126,6 +138,7 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
         plugins=plugins,
         resolved_config=resolved,
         ready_force_std=safety.ready_force_std,
+        shadows=shadows,
         world=world,
     )
 
@@ -160,9 +173,8 @@ def default_out_path(settings: SessionSettings) -> Path:
 class _Recording:
     """Per-sample recording helpers (plain loops over lists: the hot path)."""
 
-    def __init__(self, recorder: Recorder, estimator_topic: str):
+    def __init__(self, recorder: Recorder):
         self.rec = recorder
-        self.estimator_topic = estimator_topic
 
     def poses(self, poses) -> None:
         write = self.rec.write
@@ -192,7 +204,7 @@ class _Recording:
                 "seq": seq[i], "status": status[i], "stale": stale[i],
             })
 
-    def estimates(self, est: Estimates, params=None, cov_diag=None) -> None:
+    def estimates(self, topic: str, est: Estimates, params=None, cov_diag=None) -> None:
         """One message per sample; ``params``/``cov_diag`` (when given) ride on the last one."""
         write = self.rec.write
         n = len(est)
@@ -200,7 +212,7 @@ class _Recording:
         contact, cf, ct = est.contact.tolist(), est.converged_force.tolist(), est.converged_torque.tolist()
         for i, t in enumerate(est.t_ns.tolist()):
             last = i == n - 1
-            write(self.estimator_topic, t, {
+            write(topic, t, {
                 "contact_force_S": f[i], "contact_torque_S": tau[i], "contact": contact[i],
                 "converged_force": cf[i], "converged_torque": ct[i],
                 "params": params if last else None,
@@ -234,7 +246,8 @@ def run_session(
         raise FileExistsError(f"{path} already exists; choose another --out (recordings are never overwritten)")
 
     recorder = Recorder(path, metadata=session_metadata(session, duration, path))
-    rec = _Recording(recorder, f"/estimator/{session.estimator_name}")
+    rec = _Recording(recorder)
+    estimator_topic = f"/estimator/{session.estimator_name}"
     aligner = Aligner(float(session.kinematics.rate_hz))
     status = SessionStatus()
     events: list[tuple[int, str, str]] = []
@@ -304,12 +317,18 @@ def run_session(
                 else:
                     data_reason = "non-finite sensor reading"
                 if good.any():
-                    est = estimator.update_block(block.subset(good))
-                    if now_ns >= next_params_ns:
+                    usable = block.subset(good)
+                    est = estimator.update_block(usable)
+                    with_params = now_ns >= next_params_ns
+                    if with_params:
                         next_params_ns = now_ns + PARAMS_INTERVAL_NS
-                        rec.estimates(est, estimator.params(), estimator.cov_diag())
+                        rec.estimates(estimator_topic, est, estimator.params(), estimator.cov_diag())
                     else:
-                        rec.estimates(est)
+                        rec.estimates(estimator_topic, est)
+                    for label, shadow in session.shadows.items():  # recorded, never rendered
+                        shadow_est = shadow.update_block(usable)
+                        rec.estimates(f"/estimator/{label}", shadow_est,
+                                      *((shadow.params(), shadow.cov_diag()) if with_params else ()))
                     R_BE = block.R_EB[good][-1].T
                     last_estimate = (est.contact_force_S[-1], R_BE)
                     status.contact = bool(est.contact[-1])

@@ -1,0 +1,71 @@
+"""Shadow estimators in a session, and ``hapticlab replay``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hapticlab.core.plugins import ConfigError
+from hapticlab.sessions.cli import main
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.recording import read_recording
+from hapticlab.sessions.replay import replay
+from hapticlab.sessions.run import build_session, run_session
+
+
+@pytest.fixture(scope="module")
+def with_shadows(tmp_path_factory):
+    config, _ = load_config("demo")
+    config = apply_overrides(config, ["session.realtime=false", "session.duration=4.0", "shadows.batch={}",
+                                      'shadows.rls_tight={name="rls", force_threshold=0.5}'])
+    path = tmp_path_factory.mktemp("shadow") / "s.mcap"
+    result = run_session(build_session(config), out=path)
+    return result, read_recording(path)
+
+
+def test_shadows_run_side_by_side_and_are_recorded(with_shadows):
+    result, rec = with_shadows
+    for topic in ("/estimator/rls", "/estimator/batch", "/estimator/rls_tight"):
+        assert len(rec.topics[topic]) == result.samples
+    # the shadow with a tighter threshold is the same algorithm: it converges at the same sample
+    conv = {t: int(np.argmax(rec.field(t, "converged_force"))) for t in ("/estimator/rls", "/estimator/rls_tight")}
+    assert conv["/estimator/rls"] == conv["/estimator/rls_tight"]
+    config = rec.meta("hapticlab.session", "config")
+    assert config["shadows"]["rls_tight"]["force_threshold"] == 0.5 and config["shadows"]["batch"]["name"] == "batch"
+
+
+def test_shadow_config_errors_name_the_key():
+    config, _ = load_config("demo")
+    with pytest.raises(ConfigError, match=r"^shadows.rls: the primary estimator already records"):
+        build_session(apply_overrides(config, ["shadows.rls={}"]))
+    with pytest.raises(ConfigError, match=r"^shadows.fast.force_treshold: unknown option"):
+        build_session(apply_overrides(config, ['shadows.fast={name="rls", force_treshold=1}']))
+    with pytest.raises(ConfigError, match=r"^shadows.k.name: unknown estimator 'nope'"):
+        build_session(apply_overrides(config, ['shadows.k={name="nope"}']))
+
+
+def test_replay_adds_the_new_estimator_and_compares(with_shadows, tmp_path):
+    result, rec = with_shadows
+    out = replay(result.path, "rls", tmp_path / "replayed.mcap")
+    new = read_recording(tmp_path / "replayed.mcap")
+    assert out["topic"] == "/estimator/rls_replay"
+    assert set(new.topics) == set(rec.topics) | {"/estimator/rls_replay"}
+    for topic, messages in rec.topics.items():
+        assert len(new.topics[topic]) == len(messages)
+    # the same estimator, offline: the same estimates to within the live loop's pose extrapolation
+    live = rec.field("/estimator/rls", "contact_force_S")
+    again = new.field("/estimator/rls_replay", "contact_force_S")
+    assert np.sqrt(np.mean((live - again) ** 2)) < 0.01
+    cmp = out["comparison"]
+    assert cmp["/estimator/rls_replay"]["converged_force_at"] == cmp["/estimator/rls"]["converged_force_at"]
+    assert cmp["/estimator/rls_replay"]["contact_agreement_pct"] > 99.9
+    assert new.metadata["hapticlab.replay"]["estimator"] == "rls"
+
+
+def test_replay_command(with_shadows, tmp_path, capsys):
+    result, _ = with_shadows
+    assert main(["replay", str(result.path), "--estimator", "batch", "-o", str(tmp_path / "b.mcap")]) == 0
+    text = capsys.readouterr().out
+    assert "/estimator/batch_replay (new)" in text and "contact agreement" in text
+    assert main(["replay", str(result.path), "--estimator", "batch", "-o", str(result.path)]) == 2
+    assert "would overwrite the recording" in capsys.readouterr().err

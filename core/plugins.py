@@ -29,6 +29,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.kinematics.sim",
     "hapticlab.plugins.estimators.rls",
     "hapticlab.plugins.estimators.batch",
+    "hapticlab.plugins.estimators.kalman",
     "hapticlab.plugins.haptics.null",
 )
 

@@ -198,7 +198,7 @@ def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
 @pytest.mark.parametrize(
     "override, message",
     [
-        ("estimator.name=kalmann", r"^estimator.name: unknown estimator 'kalmann'; available: batch, rls$"),
+        ("estimator.name=kalmann", r"^estimator.name: unknown estimator 'kalmann'; available: batch, kalman, rls$"),
         ("estimator.force_treshold=2", r"^estimator.force_treshold: unknown option; known options: .*force_threshold"),
         ("estimator.force_threshold=high", r"^estimator.force_threshold: expected a number, got 'high'$"),
         ("session.duration=soon", r"^session.duration: expected a number, got 'soon'$"),

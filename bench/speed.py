@@ -6,7 +6,7 @@ Prints, on this machine:
 * the ``rls`` cascade (Algorithm 1) in µs per sample, median and p99 over
   blocks of 1, 7, 64 and 1024 samples (a 1 kHz sensor read by a 1 kHz loop
   gives blocks of 1; a 7 kHz NetFT read by a 1 kHz loop, 7; offline, 1024),
-  and the same for ``batch``;
+  and the same for ``kalman`` and ``batch``;
 * ``compensate`` throughput in samples/s over a simulated CSV;
 * a full simulated session (sensor → aligner → estimator → haptic command →
   MCAP) run as fast as possible: simulated seconds per wall second at 1 kHz
@@ -29,6 +29,7 @@ from helpers import static_model_stream  # noqa: E402
 
 from hapticlab.core.frames import quat_wxyz_from_matrix  # noqa: E402
 from hapticlab.plugins.estimators.batch import BatchEstimator  # noqa: E402
+from hapticlab.plugins.estimators.kalman import KalmanEstimator  # noqa: E402
 from hapticlab.plugins.estimators.rls import RLSEstimator  # noqa: E402
 from hapticlab.sessions.compensate import compensate  # noqa: E402
 from hapticlab.sessions.config import apply_overrides, load_config  # noqa: E402
@@ -57,7 +58,7 @@ def main() -> None:
 
     print(f"estimator µs per sample ({n} samples, second half timed)")
     print(f"{'estimator':<10}{'block':>7}{'median':>10}{'p99':>10}")
-    for name, factory in (("rls", RLSEstimator), ("batch", BatchEstimator)):
+    for name, factory in (("rls", RLSEstimator), ("kalman", KalmanEstimator), ("batch", BatchEstimator)):
         for size in (1, 7, 64, 1024):
             if name == "batch" and size == 1 and not args.quick:
                 continue  # minutes of pinv per sample; the baseline is not a live estimator

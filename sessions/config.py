@@ -140,8 +140,20 @@ def parse_value(text: str) -> Any:
 
 
 def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
-    """Apply ``key.path=value`` overrides to a copy of the config."""
+    """Apply ``key.path=value`` overrides to a copy of the config.
+
+    Setting a plugin table's ``name`` to another plugin drops the options the
+    file gave the old one (they belong to it), keeping the other overrides, so
+    ``--set estimator.name=kalman`` works on any preset.
+    """
     config = copy.deepcopy(config)
+    for item in overrides:
+        key, _, value = item.partition("=")
+        table, _, rest = key.strip().partition(".")
+        if rest == "name" and table in PLUGIN_TABLES and isinstance(config.get(table), dict) \
+                and config[table].get("name") != parse_value(value):
+            kept = {k: v for k, v in config[table].items() if table == "haptic" and k in HAPTIC_SAFETY_KEYS}
+            config[table] = kept
     for item in overrides:
         key, sep, value = item.partition("=")
         key = key.strip()

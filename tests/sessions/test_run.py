@@ -276,3 +276,13 @@ def test_saturated_samples_zero_the_force(tmp_path):
     assert all(m["enabled"] for t, m in zip(t_cmd, commands) if t > 2.61)
     # saturated samples are recorded but never reach the estimator
     assert len(rec.topics["/estimator/rls"]) == result.samples - 100
+
+
+def test_switching_estimator_drops_the_presets_options_for_the_old_one():
+    config = demo("estimator.name=kalman", "estimator.noise_force=0.1", duration=0.5)
+    assert config["estimator"] == {"name": "kalman", "noise_force": 0.1}
+    session = build_session(config)
+    assert session.estimator_name == "kalman" and session.resolved_config["estimator"]["noise_force"] == 0.1
+    # the haptic table keeps its safety limits when its plugin changes
+    config = demo("haptic.name=null", "haptic.max_force=2.0")
+    assert config["haptic"]["max_force"] == 2.0

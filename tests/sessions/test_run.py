@@ -283,6 +283,6 @@ def test_switching_estimator_drops_the_presets_options_for_the_old_one():
     assert config["estimator"] == {"name": "kalman", "noise_force": 0.1}
     session = build_session(config)
     assert session.estimator_name == "kalman" and session.resolved_config["estimator"]["noise_force"] == 0.1
-    # the haptic table keeps its safety limits when its plugin changes
-    config = demo("haptic.name=null", "haptic.max_force=2.0")
-    assert config["haptic"]["max_force"] == 2.0
+    # naming the plugin the file already names changes nothing
+    config = demo("haptic.name=null")
+    assert config["haptic"]["max_force_rate"] == 400.0

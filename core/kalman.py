@@ -30,7 +30,8 @@ freedom) is refused as contact: it does not update, but the prediction step
 still runs, so P of the drift states keeps growing through a long contact.
 
 Two implementations of exactly this filter, which agree to ~1e-11 (tests
-hold them to 1e-9):
+hold them to 1e-9), chosen by ``KalmanStage.run(method=...)`` (the ``kalman``
+estimator's ``implementation`` option):
 
 * ``method="filterpy"``: ``filterpy.kalman.KalmanFilter`` does the
   predict/update bookkeeping per sample (Joseph-form covariance update). The
@@ -42,7 +43,7 @@ hold them to 1e-9):
   L·diag(d)·Lᵀ, which makes the update three decorrelated scalar updates and
   d² a sum of positive terms. ~3 µs per sample per stage. (A closed-form
   adjugate inverse of S lost up to 1e-5 N against the reference while P still
-  held the prior's 50 N directions; the LDLᵀ form stays within 1e-11.)
+  held a wide prior (tried with 50 N); the LDLᵀ form stays within 1e-11.)
 """
 
 from __future__ import annotations

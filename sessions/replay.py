@@ -75,7 +75,7 @@ def _recorded(original, topic: str, t_ns: np.ndarray) -> dict[str, np.ndarray] |
     pick = lambda key, empty: np.array(  # noqa: E731
         [messages[k][1][key] if k is not None else empty for k in rows], dtype=float)
     return {
-        "contact_force_S": np.nan_to_num(pick("contact_force_S", nan3), nan=np.nan),
+        "contact_force_S": pick("contact_force_S", nan3),  # null (a recorded NaN) becomes NaN
         "contact": pick("contact", 0.0).astype(bool),
         "converged_force": pick("converged_force", 0.0).astype(bool),
         "seen": np.array([k is not None for k in rows]),

@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -220,6 +221,25 @@ class _Recording:
             })
 
 
+def calibration_path(path: Path) -> Path:
+    """Where a session writes its estimator's final state: ``<recording>.calibration.json`` beside the MCAP."""
+    return path.with_suffix(".calibration.json")
+
+
+def _save_estimator_state(estimator: Any, recorder: Recorder, path: Path) -> Path | None:
+    """Record the estimator's ``state()`` (when it has one) as the metadata record
+    ``hapticlab.estimator_state`` and as ``<recording>.calibration.json`` (a warm start
+    for the next session); the JSON file's path, or None."""
+    get_state = getattr(estimator, "state", None)
+    if get_state is None:
+        return None
+    state = get_state()
+    recorder.add_metadata("hapticlab.estimator_state", state)
+    out = calibration_path(path)
+    out.write_text(json.dumps(state, indent=1))
+    return out
+
+
 PARAMS_INTERVAL_NS = 100_000_000
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""
 
@@ -319,6 +339,8 @@ def run_session(
                 if good.any():
                     usable = block.subset(good)
                     est = estimator.update_block(usable)
+                    for t_ev, kind, msg in getattr(estimator, "drain_events", list)():
+                        event(t_ev, kind, msg)
                     with_params = now_ns >= next_params_ns
                     if with_params:
                         next_params_ns = now_ns + PARAMS_INTERVAL_NS
@@ -422,6 +444,12 @@ def run_session(
             "contact_samples": contact_samples,
             "haptic_on_s": haptic_on_ticks * period_ns * 1e-9,
         }
+        try:  # never let a failing save cost the recording
+            state_path = _save_estimator_state(estimator, recorder, path)
+            if state_path is not None:
+                summary["estimator_state_path"] = str(state_path)
+        except Exception as exc:
+            event(end_ns, "estimator_state_not_saved", f"estimator state not saved: {exc}")
         event(end_ns, "session_end", "interrupted (Ctrl-C)" if interrupted else "session finished")
         recorder.close(summary=summary)
     return SessionResult(

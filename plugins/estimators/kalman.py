@@ -65,7 +65,9 @@ at 20 N by 2e-10 N).
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 from hapticlab.core import hookimpl
@@ -113,6 +115,12 @@ class KalmanEstimator:
         prior_torque_std: prior std of bias_torque_S, N·m.
         implementation: "auto" (the unrolled filter, or filterpy's with
             bias_rate), "fast" or "filterpy" (the reference, ~15× slower).
+        payload_change_s: after this long (s) of continuous refusal by the
+            force stage, test whether the refused residual is a change of the
+            tool's weight (a payload change); if so, re-open gravity and the
+            centre of gravity (0 disables the test).
+        warm_start: path to a JSON file written from ``state()`` (e.g. a
+            session's ``<recording>.calibration.json``): start from its x and P.
 
     Attributes:
         force, torque: the two KalmanStage stages.
@@ -139,6 +147,8 @@ class KalmanEstimator:
         prior_cog_std: float = 0.5,
         prior_torque_std: float = 5.0,
         implementation: str = "auto",
+        payload_change_s: float = 1.0,
+        warm_start: str = "",
     ):
         noise_force = _axes("noise_force", noise_force)
         noise_torque = _axes("noise_torque", noise_torque)
@@ -161,6 +171,11 @@ class KalmanEstimator:
             raise ValueError(f"implementation: must be 'auto', 'fast' or 'filterpy', got {implementation!r}")
         if implementation == "fast" and bias_rate:
             raise ValueError("implementation: 'fast' has no bias-rate states; use 'auto' or 'filterpy'")
+        if not (isinstance(payload_change_s, (int, float)) and math.isfinite(payload_change_s)
+                and payload_change_s >= 0):
+            raise ValueError(f"payload_change_s: must be a finite number >= 0, got {payload_change_s!r}")
+        if not isinstance(warm_start, str):
+            raise ValueError(f"warm_start: must be a path (string), got {warm_start!r}")  # noqa: TRY004
 
         self.bias_rate = bias_rate
         self.method = None if implementation == "auto" else implementation
@@ -180,6 +195,18 @@ class KalmanEstimator:
         self.first_converged_torque: int | None = None
         self.samples = 0
         self._last_t_ns: int | None = None
+        self.noise_force = noise_force
+        self.prior_f = np.array(prior_f, dtype=float)
+        self.prior_t = np.array(prior_t, dtype=float)
+        self.payload_change_ns = int(round(payload_change_s * 1e9))
+        self.events: list[tuple[int, str, str]] = []
+        self.payload_changes = 0
+        self._refused: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (t_ns, e_S, R_EB) of the run
+        self._refused_since: int | None = None  # t_ns of the run's first refused sample
+        self._accepted_in_run = 0  # consecutive accepted samples (a run survives a few)
+        self._run_tested_full = False  # the run's whole window was tested (negative)
+        if warm_start:
+            self.load_state(warm_start)
 
     def update_block(self, block: AlignedSamples) -> Estimates:
         """Filter a block of aligned samples, in order."""
@@ -197,6 +224,7 @@ class KalmanEstimator:
         self._last_t_ns = int(t_ns[-1])
         usable = block.usable
 
+        x_before = self.force.x[:6].copy()
         run_f = self.force.run(force_S, R_EB, dt, usable, self.gate2, self.method)
         conv_f = run_f.D[:, :6].max(axis=1) < self.converged_force_std ** 2
         A_t = -skew_stack(force_S - run_f.X[:, 3:6])  # C_k = [-skew(Δf), I3]
@@ -207,6 +235,8 @@ class KalmanEstimator:
         contact_force_S, contact_torque_S = contact_wrench(force_S, torque_S, R_EB, run_f.X[:, :6], run_t.X[:, :6])
 
         self.converged_force, self.converged_torque = bool(conv_f[-1]), bool(conv_t[-1])
+        if self.payload_change_ns > 0:
+            self._watch_payload(t_ns, force_S, torque_S, R_EB, usable, run_f, x_before)
         if self.first_converged_force is None and conv_f.any():
             self.first_converged_force = self.samples + int(np.argmax(conv_f))
         if self.first_converged_torque is None and conv_t.any():
@@ -220,6 +250,149 @@ class KalmanEstimator:
             converged_force=conv_f,
             converged_torque=conv_t,
         )
+
+    # ------------------------------------------------------------------ payload change (issue 4, item 6)
+
+    PAYLOAD_WINDOW_RUNS = 3
+    """The refused window tested is the run from its start, at most this many times payload_change_s."""
+    PAYLOAD_FIT_RATIO = 2.0
+    """The gravity-change fit must leave a mean squared residual below this many noise variances."""
+    PAYLOAD_MAX_TILT = 0.25
+    """rad: the fitted weight change must be along the identified weight (gravity) within this angle."""
+    PAYLOAD_RUN_BREAK = 10
+    """This many consecutive accepted samples end a refusal run (isolated ones do not)."""
+
+    def _watch_payload(self, t_ns, force_S, torque_S, R_EB, usable, run_f, x_before) -> None:
+        """Track the force stage's refusal run; test it for a payload change once it is long enough.
+
+        While the force stage refuses, its state does not move (only P grows), so the refused
+        residual e_k = force_S - R_EB·g - b is taken at the state each refused sample saw. A
+        payload change adds Δg along gravity in B: e_k = R_EB·Δg + noise, so Δg = mean(R_EBᵀ e_k)
+        (R orthonormal) and the fit's residual is at noise level. A contact with a ramp, a
+        force fixed in S, or one along another direction leaves a larger residual or a Δg off
+        the vertical.
+        """
+        gated = run_f.gated
+        if not gated.any() and self._refused_since is None:
+            return
+        # the state each sample was predicted from: the previous row of X (x_before for the first)
+        X_prev = np.vstack([x_before[None, :], run_f.X[:-1, :6]])
+        e = force_S - np.einsum("kij,kj->ki", R_EB, X_prev[:, :3]) - X_prev[:, 3:6]
+        start = 0
+        for k in np.flatnonzero(usable):
+            if gated[k]:
+                if self._refused_since is None:
+                    self._refused_since, self._refused, self._run_tested_full = int(t_ns[k]), [], False
+                    start = k
+                self._accepted_in_run = 0
+            elif self._refused_since is not None:
+                self._accepted_in_run += 1
+                if self._accepted_in_run >= self.PAYLOAD_RUN_BREAK:
+                    self._refused_since, self._refused = None, []
+                    start = k + 1
+        if self._refused_since is None:
+            return
+        # the window is the run from its first refused sample on (its onset included: a contact
+        # ramps up, a payload is a step), at most PAYLOAD_WINDOW_RUNS·payload_change_s long
+        newest = self._refused_since + self.PAYLOAD_WINDOW_RUNS * self.payload_change_ns
+        keep = np.zeros(len(t_ns), dtype=bool)
+        keep[start:] = gated[start:] & (t_ns[start:] <= newest)
+        if keep.any():
+            self._refused.append((t_ns[keep].copy(), e[keep], R_EB[keep].copy(), force_S[keep].copy(),
+                                  torque_S[keep].copy()))
+        t_last = int(t_ns[-1])
+        if t_last - self._refused_since < self.payload_change_ns or not self._refused or self._run_tested_full:
+            return
+        self._run_tested_full = t_last >= newest  # the whole window seen: no further test in this run
+        E, R, F, TQ = (np.concatenate([r[i] for r in self._refused]) for i in (1, 2, 3, 4))
+        if len(E) < 10:
+            return
+        dg = np.einsum("kji,kj->i", R, E) / len(E)  # least squares of e = R_EB·Δg
+        resid = E - R @ dg
+        ratio = float(np.mean(resid ** 2 / self.noise_force ** 2))
+        g = self.force.x[:3]
+        gn, dn = float(np.linalg.norm(g)), float(np.linalg.norm(dg))
+        vertical = gn > 0 and dn > 0 and abs(float(g @ dg)) >= math.cos(self.PAYLOAD_MAX_TILT) * gn * dn
+        if ratio < self.PAYLOAD_FIT_RATIO and vertical:
+            self._reopen_payload(F, TQ, R)
+            message = (f"kalman: payload change of {dn:.3g} N ({dn / 9.81 * 1000:.0f} g) "
+                       f"after {(t_last - self._refused_since) * 1e-9:.2f} s of refused samples; "
+                       f"gravity and centre of gravity re-opened")
+            self.events.append((t_last, "payload_change", message))
+            self._refused_since, self._refused, self._accepted_in_run = None, [], 0
+
+    def _reopen_payload(self, force_S, torque_S, R_EB) -> None:
+        """Put gravity's and the cog's covariance back to the prior, then replay the refused window.
+
+        The replay gives both stages the window's samples (no time step: they are
+        already behind the stages' clock), so the new weight and centre of gravity
+        are known as soon as the change is recognised, as far as the window's
+        orientations determine them.
+        """
+        self.payload_changes += 1
+        for stage, prior in ((self.force, self.prior_f), (self.torque, self.prior_t)):
+            P = stage.P.copy()
+            P[:3, :] = 0.0
+            P[:, :3] = 0.0
+            P[:3, :3] = np.diag(prior[:3] ** 2)
+            stage.P = P
+        m = len(force_S)
+        zeros, ones = np.zeros(m), np.ones(m, dtype=bool)
+        run_f = self.force.run(force_S, R_EB, zeros, ones, self.gate2, self.method)
+        accepted = ~run_f.gated
+        A_t = -skew_stack(force_S - run_f.X[:, 3:6])
+        self.torque.run(torque_S, A_t, zeros, accepted, self.gate2, self.method)
+
+    def drain_events(self) -> list[tuple[int, str, str]]:
+        """The events since the last call, (t_ns, kind, message); the session loop records them."""
+        out, self.events = self.events, []
+        return out
+
+    # ------------------------------------------------------------------ warm start (issue 4, item 7)
+
+    def state(self) -> dict:
+        """A JSON-serialisable snapshot: estimator name, x and P of both stages, flags, last t_ns."""
+        return {
+            "estimator": "kalman",
+            "bias_rate": self.bias_rate,
+            "force": {"x": self.force.x.tolist(), "P": self.force.P.tolist()},
+            "torque": {"x": self.torque.x.tolist(), "P": self.torque.P.tolist()},
+            "converged_force": self.converged_force,
+            "converged_torque": self.converged_torque,
+            "t_ns": self._last_t_ns,
+            "params": self.params(),
+        }
+
+    def load_state(self, source: str | Path | dict) -> None:
+        """Start from a ``state()`` (a dict or a JSON file); ValueError("warm_start: ...") if unusable."""
+        where = "the given state"
+        if not isinstance(source, dict):
+            where = str(source)
+            try:
+                source = json.loads(Path(source).read_text())
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise ValueError(f"warm_start: cannot read {where}: {exc}") from None
+        if not isinstance(source, dict) or source.get("estimator") != "kalman":
+            name = source.get("estimator") if isinstance(source, dict) else None
+            raise ValueError(f"warm_start: {where} is not a kalman state (estimator {name!r})")
+        if bool(source.get("bias_rate")) != self.bias_rate:
+            raise ValueError(f"warm_start: {where} has bias_rate={source.get('bias_rate')!r}, "
+                             f"this estimator {self.bias_rate}")
+        loaded = []
+        for key, stage in (("force", self.force), ("torque", self.torque)):
+            try:
+                x = np.array(source[key]["x"], dtype=float)
+                P = np.array(source[key]["P"], dtype=float)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ValueError(f"warm_start: {where}: {key} stage has no usable x and P ({exc})") from None
+            n = stage.n
+            if x.shape != (n,) or P.shape != (n, n) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+                raise ValueError(f"warm_start: {where}: {key} stage needs finite x ({n},) and P ({n}, {n})")
+            if not np.allclose(P, P.T, rtol=1e-9, atol=1e-15) or np.linalg.eigvalsh((P + P.T) / 2).min() <= 0:
+                raise ValueError(f"warm_start: {where}: {key} stage's P is not symmetric positive definite")
+            loaded.append((stage, x, (P + P.T) / 2))
+        for stage, x, P in loaded:
+            stage.x, stage.P = x, P
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units); with bias_rate also the bias rates."""

@@ -1,0 +1,194 @@
+"""``kalman``: payload changes without contact, and warm starts from a saved state (issue 4, items 6 and 7).
+
+Simulated at 1 kHz with Table I's noise (0.12 N, 0.01 N·m per axis), the paper's
+tool (0.2 kg) and bias; run with ``-s`` to see the measured numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from hapticlab.plugins.estimators.kalman import KalmanEstimator
+from hapticlab.sessions.paperbench import PaperSetup, feed, simulate
+
+NOISE = {"noise_force": 0.12, "noise_torque": 0.01}
+DRIFT_FORCE = [0.5 / 60.0 / math.sqrt(2), 0.5 / 60.0 / math.sqrt(2), 0.0]  # 0.5 N/min, N/s
+TOUR = {"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0}
+RATE_HZ = 1000.0
+
+
+def world(contacts=None, seconds=30.0, seed=2025, mass=0.2, **sensor):
+    sim = PaperSetup(seed=seed, mass=mass).world(TOUR, contacts, **{**NOISE, **sensor})
+    return simulate(sim, seconds, RATE_HZ)
+
+
+def payload(start, mass=0.1):
+    """A mass hung on the tool from ``start`` on and never removed: a payload change, no contact."""
+    return [{"kind": "hanging_mass", "start": start, "duration": 1e9, "mass": mass}]
+
+
+def indentations(seconds):
+    """A 3 N indentation every 10 s, 2 s long (0.4 s ramps), straight up in B (along gravity)."""
+    return [{"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
+            for k in range(int(seconds // 10))]
+
+
+def reconverged_after(block, out, t_ns):
+    """Samples after t_ns until both stages' flags are up and stay up; None if never."""
+    after = np.flatnonzero(block.t_ns > t_ns)
+    both = out.converged_force[after] & out.converged_torque[after]
+    if not both[-1]:
+        return None
+    down = np.flatnonzero(~both)
+    return 0 if len(down) == 0 else int(down[-1]) + 1
+
+
+def close_to(a, b, force=0.02, cog=0.003):
+    return (np.abs(np.subtract(a["gravity_force_B"], b["gravity_force_B"])).max() < force
+            and np.abs(np.subtract(a["cog_S"], b["cog_S"])).max() < cog)
+
+
+@pytest.fixture(scope="module")
+def reference_heavy():
+    """The parameters of the tool with the 100 g mass, identified from a cold start."""
+    block, _ = world(payload(0.0), seconds=30.0)
+    est = KalmanEstimator()
+    feed(est, block, chunk=64)
+    return est.params()
+
+
+# ---------------------------------------------------------------- item 6: payload change
+
+
+def test_added_mass_is_a_payload_change_and_reconverges(reference_heavy):
+    start = 20.0
+    block, _ = world(payload(start), seconds=30.0, drift_force=DRIFT_FORCE)
+    est = KalmanEstimator()
+    out, _ = feed(est, block, chunk=64)
+    events = est.drain_events()
+    assert [kind for _, kind, _ in events] == ["payload_change"] and est.drain_events() == []
+    t_event = events[0][0]
+    delay = (t_event - block.t_ns[0]) * 1e-9 - start
+    samples = reconverged_after(block, out, t_event)
+    print(f"\npayload change of 100 g: recognised {delay:.3f} s after the mass was hung, both stages "
+          f"converged {samples} samples ({samples / RATE_HZ:.3f} s) later; {events[0][2]}")
+    assert 1.0 <= delay < 1.2  # payload_change_s of refusal (+ one block)
+    assert samples is not None and samples / RATE_HZ <= 0.5
+    assert close_to(est.params(), reference_heavy), (est.params(), reference_heavy)
+    after = block.t_ns > t_event
+    assert np.mean(out.contact[after]) < 0.001  # the extra weight is no longer taken for contact
+    rms = np.sqrt(np.mean(out.contact_force_S[after] ** 2, axis=0))
+    assert np.all(rms < 1.1 * NOISE["noise_force"]), rms
+
+
+def test_indentations_are_not_payload_changes():
+    block, _ = world(indentations(180.0), seconds=180.0, drift_force=DRIFT_FORCE)
+    est = KalmanEstimator()
+    out, _ = feed(est, block, chunk=64)
+    print(f"\n18 indentations of 2 s: {len(est.events)} payload changes, "
+          f"{int(out.contact.sum())} samples refused")
+    assert est.events == []
+    assert out.contact.sum() > 18 * 1000  # the indentations were refused as contact
+
+
+def test_payload_change_can_be_disabled():
+    block, _ = world(payload(5.0), seconds=10.0)
+    est = KalmanEstimator(payload_change_s=0)
+    out, _ = feed(est, block, chunk=64)
+    assert est.events == [] and out.contact[block.t_ns > 6.5e9].mean() > 0.99
+
+
+def test_payload_option_is_checked():
+    for bad in (-1.0, math.nan, "1"):
+        with pytest.raises(ValueError, match="payload_change_s"):
+            KalmanEstimator(payload_change_s=bad)
+
+
+# ---------------------------------------------------------------- item 7: warm start
+
+
+@pytest.fixture(scope="module")
+def saved_state(tmp_path_factory):
+    """The state after a 20 s simulated session with the paper's tool, saved as JSON."""
+    block, _ = world(seconds=20.0, seed=2025)
+    est = KalmanEstimator()
+    feed(est, block, chunk=64)
+    assert est.converged_force and est.converged_torque
+    path = tmp_path_factory.mktemp("warm") / "previous.calibration.json"
+    path.write_text(json.dumps(est.state()))
+    return path, est
+
+
+def test_state_is_json_and_round_trips(saved_state):
+    path, est = saved_state
+    state = json.loads(path.read_text())
+    assert state["estimator"] == "kalman" and state["converged_force"] and state["converged_torque"]
+    assert isinstance(state["t_ns"], int)
+    warm = KalmanEstimator(warm_start=str(path))
+    assert np.array_equal(warm.force.x, est.force.x) and np.array_equal(warm.force.P, est.force.P)
+    assert np.array_equal(warm.torque.x, est.torque.x) and np.array_equal(warm.torque.P, est.torque.P)
+
+
+def test_warm_start_with_the_same_tool_converges_at_once(saved_state):
+    path, _ = saved_state
+    block, _ = world(seconds=10.0, seed=7)  # another session: other motion and noise, same tool and sensor
+    warm, cold = KalmanEstimator(warm_start=str(path)), KalmanEstimator()
+    out, _ = feed(warm, block, chunk=64)
+    feed(cold, block, chunk=64)
+    print(f"\nwarm start, same tool: converged at sample {warm.first_converged_force} (force), "
+          f"{warm.first_converged_torque} (torque); cold start: {cold.first_converged_force}, "
+          f"{cold.first_converged_torque}")
+    assert warm.first_converged_force < 10 and warm.first_converged_torque < 10
+    assert warm.events == [] and out.contact.mean() < 0.001
+    rms = np.sqrt(np.mean(out.contact_force_S ** 2, axis=0))
+    assert np.all(rms < 1.1 * NOISE["noise_force"]), rms
+
+
+def test_warm_start_with_a_changed_tool_recovers(saved_state):
+    path, _ = saved_state
+    block, _ = world(seconds=10.0, seed=7, mass=0.3)  # a 100 g heavier tool since the saved session
+    warm = KalmanEstimator(warm_start=str(path))
+    out, _ = feed(warm, block, chunk=64)
+    events = warm.drain_events()
+    assert [kind for _, kind, _ in events] == ["payload_change"]
+    t_event = events[0][0]
+    samples = reconverged_after(block, out, t_event)
+    print(f"\nwarm start, tool 100 g heavier: payload change recognised at "
+          f"{(t_event - block.t_ns[0]) * 1e-9:.3f} s, converged {samples} samples later")
+    assert (t_event - block.t_ns[0]) * 1e-9 < 1.2
+    assert samples is not None and samples / RATE_HZ <= 0.5
+    assert abs(warm.params()["gravity_force_B"][2] - (-0.3 * 9.81)) < 0.05
+
+
+def test_warm_start_refuses_other_estimators_and_corrupt_files(tmp_path, saved_state):
+    path, est = saved_state
+    state = est.state()
+    cases = {
+        "other.json": json.dumps({**state, "estimator": "rls"}),
+        "corrupt.json": "{not json",
+        "shape.json": json.dumps({**state, "force": {"x": [0.0] * 5, "P": state["force"]["P"]}}),
+        "nan.json": json.dumps({**state, "torque": {"x": [float("nan")] * 6, "P": state["torque"]["P"]}}),
+        "notpd.json": json.dumps({**state, "force": {"x": state["force"]["x"], "P": (-np.eye(6)).tolist()}}),
+        "list.json": "[1, 2]",
+    }
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+        with pytest.raises(ValueError, match="^warm_start: "):
+            KalmanEstimator(warm_start=str(tmp_path / name))
+    with pytest.raises(ValueError, match="^warm_start: cannot read"):
+        KalmanEstimator(warm_start=str(tmp_path / "missing.json"))
+    with pytest.raises(ValueError, match="^warm_start: .*bias_rate"):
+        KalmanEstimator(warm_start=str(path), bias_rate=True)
+
+
+@pytest.mark.parametrize("chunk", [64, 5000])
+def test_a_held_contact_is_not_a_payload_change(chunk):
+    # 3 N straight up in B held for 15 s: constant along gravity like a lighter tool, but it ramps up
+    contact = [{"kind": "indentation", "start": 20.0, "duration": 15.0, "peak_force": 3.0, "ramp": 0.4}]
+    block, _ = world(contact, seconds=40.0)
+    est = KalmanEstimator()
+    feed(est, block, chunk=chunk)
+    assert est.events == []

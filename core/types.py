@@ -132,6 +132,25 @@ class Estimates:
     def __len__(self) -> int:
         return len(self.t_ns)
 
+    @classmethod
+    def concatenate(cls, parts: list["Estimates"], params=None, cov_diag=None) -> "Estimates":
+        """Consecutive blocks' estimates as one (``params``/``cov_diag`` describe the end)."""
+        return cls(
+            t_ns=np.concatenate([p.t_ns for p in parts]),
+            contact_force_S=np.concatenate([p.contact_force_S for p in parts]),
+            contact_torque_S=np.concatenate([p.contact_torque_S for p in parts]),
+            contact=np.concatenate([p.contact for p in parts]),
+            converged_force=np.concatenate([p.converged_force for p in parts]),
+            converged_torque=np.concatenate([p.converged_torque for p in parts]),
+            params=params,
+            cov_diag=cov_diag,
+        )
+
+
+def first_true(flags: np.ndarray) -> int | None:
+    """Index of the first True in a bool array (e.g. the sample a stage first converged at), or None."""
+    return int(np.argmax(flags)) if flags.any() else None
+
 
 @dataclass(frozen=True, slots=True)
 class HapticCommand:

@@ -17,7 +17,7 @@ import numpy as np
 from hapticlab.core.aligner import orientation_at
 from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.plugins import ConfigError, Registry
-from hapticlab.core.types import AlignedSamples, Estimates
+from hapticlab.core.types import AlignedSamples, Estimates, first_true
 
 from .config import parse_value
 from .csvimport import CsvError, read_csv, write_compensated_csv
@@ -176,8 +176,7 @@ def compensate(
     est = run_estimator(stream, estimator, progress)
     write_compensated_csv(out_csv, stream.t_s, est.contact_force_S, est.contact_torque_S,
                           est.contact, est.converged_force, est.converged_torque)
-    first_f = int(np.argmax(est.converged_force)) if est.converged_force.any() else None
-    first_t = int(np.argmax(est.converged_torque)) if est.converged_torque.any() else None
+    first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
     rms_f = _rms_after(est.contact_force_S, est.contact, first_f)
     rms_t = _rms_after(est.contact_torque_S, est.contact, first_t)
     params: dict[str, Any] = dict(estimator.params())

@@ -31,7 +31,7 @@ from hapticlab.core.batch import batch_fit
 from hapticlab.core.frames import GRAVITY_M_S2
 from hapticlab.core.model import contact_wrench
 from hapticlab.core.plugins import Registry, option_types
-from hapticlab.core.types import AlignedSamples, Estimates
+from hapticlab.core.types import AlignedSamples, Estimates, first_true
 from hapticlab.plugins.simworld import SimWorld
 
 AXES_F = ("fx", "fy", "fz")
@@ -112,6 +112,12 @@ class PaperSetup:
     force_threshold: float = 0.6
     torque_threshold: float = 0.06
 
+    @property
+    def tour(self) -> dict[str, Any]:
+        """The identification motion: random orientations without contact."""
+        return {"script": "random_tour", "max_tilt_deg": self.identification_tilt_deg,
+                "segment_s": self.identification_segment_s}
+
     def world(self, motion: dict[str, Any], contacts: list[dict] | None = None, **sensor: Any) -> SimWorld:
         """A world with this set-up's tool and sensor, moving and touched as given."""
         table = {"noise_force": list(self.noise_force), "noise_torque": list(self.noise_torque),
@@ -168,15 +174,7 @@ def feed(estimator: Any, block: AlignedSamples, chunk: int = 1024, trace_until: 
             index.append(i - 1)
             for key, value in estimator.params().items():
                 trace.setdefault(key, []).append(value)
-    est = Estimates(
-        t_ns=np.concatenate([p.t_ns for p in parts]),
-        contact_force_S=np.concatenate([p.contact_force_S for p in parts]),
-        contact_torque_S=np.concatenate([p.contact_torque_S for p in parts]),
-        contact=np.concatenate([p.contact for p in parts]),
-        converged_force=np.concatenate([p.converged_force for p in parts]),
-        converged_torque=np.concatenate([p.converged_torque for p in parts]),
-        params=estimator.params(),
-    )
+    est = Estimates.concatenate(parts, params=estimator.params())
     traced = (np.array(index), {k: np.array(v) for k, v in trace.items()}) if trace_until else None
     return est, traced
 
@@ -226,8 +224,7 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
 
     # 1. identification: random orientations, no contact
     say("identification")
-    world = setup.world({"script": "random_tour", "max_tilt_deg": setup.identification_tilt_deg,
-                         "segment_s": setup.identification_segment_s})
+    world = setup.world(setup.tour)
     truth = world.truth()
     ident_s = 8.0 if quick else setup.identification_s
     block, _ = simulate(world, ident_s, rate)
@@ -235,8 +232,7 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
     est, (index, trace) = feed(estimator, block, trace_until=len(block))  # every sample traced
     named = all(k in trace for k in PARAMS)  # a third-party estimator may name its parameters otherwise
     force_truth, torque_truth = truth_convergence(index, trace, truth) if named else (None, None)
-    first_f = int(np.argmax(est.converged_force)) if est.converged_force.any() else None
-    first_t = int(np.argmax(est.converged_torque)) if est.converged_torque.any() else None
+    first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
     result["convergence"] = {  # 0-based sample indices into the identification run
         "force_paper": first_f,
         "torque_paper": first_t,
@@ -337,7 +333,7 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
     est, _ = feed(make_estimator(), block)
     result["repeated_rows"] = {
         "rows": n,
-        "converged_force_at": int(np.argmax(est.converged_force)) if est.converged_force.any() else None,
+        "converged_force_at": first_true(est.converged_force),
         "refused_pct": 100.0 * float(np.mean(est.contact)),
         "rms_force_S": np.sqrt(np.mean(est.contact_force_S ** 2, axis=0)).tolist(),
     }
@@ -347,8 +343,7 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
     drift_s = 180.0  # the drift needs minutes to show; cheap to simulate
     contacts = [{"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
                 for k in range(int(drift_s // 10))]
-    drift_world = setup.world({"script": "random_tour", "max_tilt_deg": setup.identification_tilt_deg,
-                               "segment_s": setup.identification_segment_s}, contacts,
+    drift_world = setup.world(setup.tour, contacts,
                               drift_force=[0.5 / 60.0 / np.sqrt(2), 0.5 / 60.0 / np.sqrt(2), 0.0])
     block, w = simulate(drift_world, drift_s, rate)
     fresh = make_estimator()
@@ -383,8 +378,7 @@ def rotation_test(setup: PaperSetup, make_estimator: Callable[[], Any], speed: f
     """
     rate = setup.rate_hz
     estimator = make_estimator()
-    tour = setup.world({"script": "random_tour", "max_tilt_deg": setup.identification_tilt_deg,
-                        "segment_s": setup.identification_segment_s}, **noise)
+    tour = setup.world(setup.tour, **noise)
     feed(estimator, simulate(tour, setup.identification_s, rate)[0])
     ramp, start = 0.3, 0.5
     turn_s = 360.0 / speed + ramp

@@ -19,6 +19,7 @@ import numpy as np
 
 from hapticlab.core.batch import batch_fit
 from hapticlab.core.plugins import Registry
+from hapticlab.core.types import first_true
 
 from .compensate import load_stream, run_estimator
 from .csvimport import CsvError
@@ -61,8 +62,7 @@ def bench_real(folder: Path, registry: Registry | None = None,
             if progress:
                 progress(f"{path.name}: {name}")
             est = run_estimator(stream, registry.create("estimator", name, {}, where="estimator"))
-            first_f = int(np.argmax(est.converged_force)) if est.converged_force.any() else None
-            first_t = int(np.argmax(est.converged_torque)) if est.converged_torque.any() else None
+            first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
             result: dict[str, Any] = {"converged_force_at": first_f, "converged_torque_at": first_t,
                                       "refused_rows": int(est.contact.sum()),
                                       "refused_pct": 100.0 * float(np.mean(est.contact))}

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core.plugins import Registry
+from hapticlab.core.types import first_true
 
 from .compensate import estimator_options, load_stream, run_estimator
 from .recording import Recorder, read_recording
@@ -101,7 +102,7 @@ def compare(original, t_ns: np.ndarray, new: dict[str, Any]) -> dict[str, dict[s
     out = {}
     for topic, data in series.items():
         conv = data["converged_force"]
-        first = int(np.argmax(conv)) if conv.any() else None
+        first = first_true(conv)
         entry: dict[str, Any] = {"converged_force_at": first}
         if first is not None:
             rows = (np.arange(len(t_ns)) >= first) & data["seen"] & ~data["contact"]

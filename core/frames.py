@@ -47,11 +47,6 @@ def skew_stack(v: np.ndarray) -> np.ndarray:
     return out
 
 
-def rotation_from_quat_wxyz(quat_wxyz: np.ndarray) -> Rotation:
-    """A scipy Rotation from one (4,) or many (N, 4) [w, x, y, z] quaternions."""
-    return Rotation.from_quat(np.asarray(quat_wxyz, dtype=float), scalar_first=True)
-
-
 def matrix_from_quat_wxyz(quat_wxyz: np.ndarray) -> np.ndarray:
     """(3, 3) or (N, 3, 3) rotation matrices from unit [w, x, y, z] quaternions.
 
@@ -163,11 +158,6 @@ def quat_wxyz_from_matrix(R: np.ndarray) -> np.ndarray:
     # normalise, and pick the sign with w >= 0 (the same rotation, easier to read)
     quat *= np.where(quat[:, :1] < 0, -1.0, 1.0) / np.linalg.norm(quat, axis=1, keepdims=True)
     return quat
-
-
-def quat_norm_error(quat_wxyz: np.ndarray) -> np.ndarray:
-    """| ‖q‖ − 1 | of each quaternion (the CSV importer refuses large ones)."""
-    return np.abs(np.linalg.norm(np.atleast_2d(quat_wxyz), axis=1) - 1.0)
 
 
 def rotvec_from_matrix(R: np.ndarray) -> np.ndarray:

@@ -25,9 +25,12 @@ TOML layout (every key optional; the defaults are the dataclass defaults)::
     saturation_force = [65, 65, 200]  saturation_torque = 5   # N, N·m
     mount_rotation = [0, 0, 0]  # rotation vector of R_SE, rad
     offset = [0, 0, 0]          # p_EoSo_E, m
+    gain_force = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]   # calibration error G_f: read = (I + G_f)·true
+    gain_torque = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]  # the same for the torque
     [world.robot]
     base_tilt = [0.02, -0.01, 0.0]   # rotation vector of R_BG, rad
     position = [0.45, 0.0, 0.35]     # p_BoEo_B at the nominal pose, m
+    kinematics_lag = 0.0             # s; > 0: the pose reached at t is stamped t + lag
     [world.motion]
     script = "random_tour"   # | "static_poses" | "axial_rotation" | "hold" (alias "indentation")
     ...                      # that script's options, see MOTION_OPTIONS
@@ -129,6 +132,12 @@ class SensorParams:
         saturation_torque_S: (3,) range per torque axis, N·m.
         mount_rotation_SE: (3,) rotation vector of R_SE (the mount), rad.
         p_EoSo_E: (3,) sensor origin from the flange origin, in E, m.
+        gain_force_S: (3, 3) calibration error G_f of the force channels: the
+            sensor reads ``(I + G_f) · f`` for a true force f (before bias and
+            noise). Its symmetric part is per-axis scale and cross-axis
+            coupling; an antisymmetric part acts as a small rotation of the
+            force axes. Every entry within ±0.5 (an error, not another sensor).
+        gain_torque_S: (3, 3) the same for the torque channels.
     """
 
     bias_force_S: np.ndarray = (1.2, -0.8, 2.5)
@@ -143,10 +152,17 @@ class SensorParams:
     saturation_torque_S: np.ndarray = (5.0, 5.0, 5.0)
     mount_rotation_SE: np.ndarray = (0.0, 0.0, 0.0)
     p_EoSo_E: np.ndarray = (0.0, 0.0, 0.0)
+    gain_force_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    gain_torque_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
     def __post_init__(self) -> None:
         for name in self.__dataclass_fields__:
-            object.__setattr__(self, name, _vector(getattr(self, name), name))
+            shape = (3, 3) if name.startswith("gain_") else (3,)
+            object.__setattr__(self, name, _vector(getattr(self, name), name, shape))
+        for name in ("gain_force_S", "gain_torque_S"):
+            if np.abs(getattr(self, name)).max() >= 0.5:
+                raise ValueError(f"{name} entries must be within ±0.5 (a calibration error), "
+                                 f"got {getattr(self, name).tolist()!r}")
         for name in ("drift_force_rw_S", "drift_torque_rw_S", "noise_force_S", "noise_torque_S"):
             if np.any(getattr(self, name) < 0):
                 raise ValueError(f"{name} must be >= 0")
@@ -169,14 +185,24 @@ class RobotParams:
             frame G in B; a level base has zero), rad.
         p_BoEo_B: (3,) flange position at the nominal pose, in B, m (motion
             scripts move around it).
+        kinematics_lag_s: offset of the kinematics stream's clock against the
+            sensor's, s. Positive: the kinematics timestamps are late, the pose
+            truly reached at t is stamped t + lag (so the pose reported for
+            stamp t is the true pose at t − lag). Negative: the sensor stream
+            is the late one. Within ±1 s.
     """
 
     base_tilt_BG: np.ndarray = (0.02, -0.01, 0.0)
     p_BoEo_B: np.ndarray = DEFAULT_P_BoEo_B
+    kinematics_lag_s: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "base_tilt_BG", _vector(self.base_tilt_BG, "base_tilt_BG"))
         object.__setattr__(self, "p_BoEo_B", _vector(self.p_BoEo_B, "p_BoEo_B"))
+        lag = float(self.kinematics_lag_s)
+        if not (math.isfinite(lag) and abs(lag) <= 1.0):
+            raise ValueError(f"kinematics_lag_s must be within ±1 s, got {self.kinematics_lag_s!r}")
+        object.__setattr__(self, "kinematics_lag_s", lag)
 
     @property
     def R_BG(self) -> np.ndarray:
@@ -365,6 +391,22 @@ def matrix3(key: str, value: Any) -> np.ndarray:
     return np.stack([vec3(f"{key}[{i}]", row) for i, row in enumerate(value)])
 
 
+def gain_matrix(key: str, value: Any) -> np.ndarray:
+    """A 3x3 calibration error: every entry within ±0.5."""
+    matrix = matrix3(key, value)
+    if np.abs(matrix).max() >= 0.5:
+        raise ConfigError(f"{key}: every entry must be within ±0.5 (a calibration error), got {value!r}")
+    return matrix
+
+
+def lag_seconds(key: str, value: Any) -> float:
+    """A time offset within ±1 s."""
+    lag = number()(key, value)
+    if not (math.isfinite(lag) and abs(lag) <= 1.0):
+        raise ConfigError(f"{key}: must be within ±1 s, got {value!r}")
+    return lag
+
+
 def string(key: str, value: Any) -> str:
     """A string."""
     if not isinstance(value, str):
@@ -408,6 +450,8 @@ SENSOR_OPTIONS: dict[str, Parser] = {
     "saturation_torque": number_or_vec3(0.0, above=True),
     "mount_rotation": vec3,
     "offset": vec3,
+    "gain_force": gain_matrix,
+    "gain_torque": gain_matrix,
 }
 # TOML key -> SensorParams field
 _SENSOR_FIELDS = {
@@ -417,9 +461,10 @@ _SENSOR_FIELDS = {
     "noise_force": "noise_force_S", "noise_torque": "noise_torque_S",
     "saturation_force": "saturation_force_S", "saturation_torque": "saturation_torque_S",
     "mount_rotation": "mount_rotation_SE", "offset": "p_EoSo_E",
+    "gain_force": "gain_force_S", "gain_torque": "gain_torque_S",
 }
 
-ROBOT_OPTIONS: dict[str, Parser] = {"base_tilt": vec3, "position": vec3}
+ROBOT_OPTIONS: dict[str, Parser] = {"base_tilt": vec3, "position": vec3, "kinematics_lag": lag_seconds}
 
 _optional_count = integer(1)
 MOTION_OPTIONS: dict[str, dict[str, Parser]] = {
@@ -502,7 +547,7 @@ def parse_sensor(table: Any, where: str = "world.sensor") -> SensorParams:
 def parse_robot(table: Any, where: str = "world.robot") -> RobotParams:
     """RobotParams from ``[world.robot]``."""
     opts = read_table(where, table, ROBOT_OPTIONS)
-    names = {"base_tilt": "base_tilt_BG", "position": "p_BoEo_B"}
+    names = {"base_tilt": "base_tilt_BG", "position": "p_BoEo_B", "kinematics_lag": "kinematics_lag_s"}
     return _build(where, RobotParams, **{names[k]: v for k, v in opts.items()})
 
 

@@ -10,9 +10,9 @@ The sensor reads the wrench the tool exerts on it. With ``m`` the tool mass,
 centre of mass (all in the sensor frame S), Newton and Euler for the tool give,
 about the sensor origin and expressed in S::
 
-    F_read_S = m (g_S − a_cm_S) + f_contact_S + bias_force_S(t) + noise
-    τ_read_S = c × m (g_S − a_cm_S) + Σ p_contact_S × f_contact_S
-               − (I ω̇ + ω × I ω) + bias_torque_S(t) + noise
+    F_read_S = (I + G_f) [m (g_S − a_cm_S) + f_contact_S] + bias_force_S(t) + noise
+    τ_read_S = (I + G_t) [c × m (g_S − a_cm_S) + Σ p_contact_S × f_contact_S
+               − (I ω̇ + ω × I ω)] + bias_torque_S(t) + noise
 
 with
 
@@ -25,10 +25,15 @@ with
   together (the form evaluated) ``a_cm_S = R_SB a_BEo_B + ω̇ × r + ω × (ω × r)``
   with ``r = R_SE p_EoSo_E + c`` the centre of mass seen from the flange origin.
 
-The motion derivatives come analytically from the motion script (see
-``motion.py``). With ``inertia=False`` the terms in ``a_cm`` and ``I`` are
-dropped and the reading is exactly the paper's model
-``S_f = R_SE R_EB B_f + f0``, ``S_τ = c × (S_f − f0) + τ0``.
+``G_f``, ``G_t`` are the sensor's calibration errors (``SensorParams.gain_*``,
+zero by default). The motion derivatives come analytically from the motion
+script (see ``motion.py``). With ``inertia=False`` the terms in ``a_cm`` and
+``I`` are dropped and (with zero calibration error) the reading is exactly the
+paper's model ``S_f = R_SE R_EB B_f + f0``, ``S_τ = c × (S_f − f0) + τ0``.
+
+The robot's kinematics may run on a clock offset from the sensor's
+(``RobotParams.kinematics_lag_s``): ``pose(t)`` reports the pose stamped t,
+while the wrench always follows the true motion.
 
 Randomness
 ----------
@@ -300,6 +305,9 @@ class SimWorld:
         self._drift_rw_S = np.concatenate([sensor.drift_force_rw_S, sensor.drift_torque_rw_S])
         self._noise_S = np.concatenate([sensor.noise_force_S, sensor.noise_torque_S])
         self._saturation_S = np.concatenate([sensor.saturation_force_S, sensor.saturation_torque_S])
+        has_gain = np.any(sensor.gain_force_S != 0) or np.any(sensor.gain_torque_S != 0)
+        self._gain_S = (np.eye(3) + sensor.gain_force_S, np.eye(3) + sensor.gain_torque_S) if has_gain else None
+        """``(I + G_f, I + G_t)``, each (3, 3), or None without a calibration error."""
 
     @classmethod
     def from_config(cls, table: Mapping[str, Any] | None) -> SimWorld:
@@ -325,8 +333,14 @@ class SimWorld:
         return self.motion.evaluate(t)
 
     def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(R_BE (N, 3, 3), p_BoEo_B (N, 3))``: the flange pose at times ``t`` (s), m."""
-        state = self.motion.evaluate(t)
+        """``(R_BE (N, 3, 3), p_BoEo_B (N, 3))``: the flange pose the kinematics report for stamps ``t`` (s), m.
+
+        With ``robot.kinematics_lag_s`` = τ the pose stamped t is the true pose
+        at t − τ (τ > 0: the kinematics stream is late); with τ = 0 (the
+        default) it is the true pose at t.
+        """
+        lag = self.robot.kinematics_lag_s
+        state = self.motion.evaluate(t if lag == 0.0 else _times(t) - lag)
         return state.R_BE, state.p_BoEo_B
 
     # ---------------------------------------------------------------- sensor
@@ -404,6 +418,9 @@ class SimWorld:
         reading_S = np.empty((n, 6))
         reading_S[:, :3] = gravity_force_S + inertial_force_S + contact_force_S
         reading_S[:, 3:] = gravity_torque_S + inertial_torque_S + contact_torque_S
+        if self._gain_S is not None:  # calibration error: the sensor reads (I + G)·true
+            reading_S[:, :3] = _apply(self._gain_S[0], reading_S[:, :3])
+            reading_S[:, 3:] = _apply(self._gain_S[1], reading_S[:, 3:])
         reading_S += bias_S
         if noise:
             t_ns = np.rint(t * 1e9).astype(np.int64)
@@ -450,7 +467,8 @@ class SimWorld:
         dict: ``gravity_force_B`` (3,) N (= R_BG [0, 0, −m g]); ``bias_force_S`` N;
         ``cog_S`` (3,) m; ``bias_torque_S`` N·m; ``mount_rotation_SE`` (3,)
         rotation vector of R_SE, rad; ``mass_kg``; and, for completeness,
-        ``base_tilt_BG`` (rad), ``p_EoSo_E`` (m), ``inertia_S`` (kg·m²), ``tip_S`` (m).
+        ``base_tilt_BG`` (rad), ``p_EoSo_E`` (m), ``inertia_S`` (kg·m²), ``tip_S`` (m),
+        ``gain_force_S``, ``gain_torque_S`` (3, 3) and ``kinematics_lag_s`` (s).
         """
         bias_force_S, bias_torque_S = self.bias(0.0 if t is None else t)
         if t is None or np.ndim(t) == 0:
@@ -466,4 +484,7 @@ class SimWorld:
             "p_EoSo_E": self.sensor.p_EoSo_E.copy(),
             "inertia_S": self.tool.inertia_S.copy(),
             "tip_S": self.tool.tip_S.copy(),
+            "gain_force_S": self.sensor.gain_force_S.copy(),
+            "gain_torque_S": self.sensor.gain_torque_S.copy(),
+            "kinematics_lag_s": self.robot.kinematics_lag_s,
         }

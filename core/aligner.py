@@ -71,6 +71,31 @@ def orientation_at(
     return out, stale
 
 
+def position_at(t_ns: np.ndarray, pose_t_ns: np.ndarray, p_BoEo_B: np.ndarray, period_ns: int) -> np.ndarray:
+    """Position of E's origin in B at arbitrary times: linear between poses, constant velocity
+    for at most one kinematics period after the newest (as ``orientation_at``), held outside.
+
+    Args:
+        t_ns: (n,) query times, ns. pose_t_ns: (p,) increasing pose times, ns.
+        p_BoEo_B: (p, 3) positions at those times, m. period_ns: the longest extrapolation.
+
+    Returns:
+        (n, 3) positions, m.
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    pose_t = np.asarray(pose_t_ns, dtype=np.int64)
+    p = np.asarray(p_BoEo_B, dtype=float)
+    last = pose_t[-1]
+    # np.interp holds the end values; extend by one period at the last velocity
+    if len(pose_t) >= 2 and last > pose_t[-2]:
+        v = (p[-1] - p[-2]) / float(last - pose_t[-2])
+        pose_t = np.append(pose_t, last + period_ns)
+        p = np.vstack([p, p[-1] + v * period_ns])
+    x = (t - pose_t[0]).astype(float)
+    xp = (pose_t - pose_t[0]).astype(float)
+    return np.stack([np.interp(x, xp, p[:, k]) for k in range(3)], axis=1)
+
+
 class Aligner:
     """Live aligner: buffers poses, aligns wrench blocks as they arrive.
 
@@ -85,6 +110,7 @@ class Aligner:
         self.keep = keep
         self._t = np.zeros(0, dtype=np.int64)
         self._q = np.zeros((0, 4))
+        self._p: np.ndarray | None = np.zeros((0, 3))  # None once a pose without a position came
 
     def add_poses(self, poses: list[PoseSample]) -> None:
         """Append poses (in time order) to the buffer."""
@@ -94,6 +120,11 @@ class Aligner:
         q = np.array([p.quat_BE for p in poses], dtype=float)
         self._t = np.concatenate([self._t, t])[-self.keep :]
         self._q = np.concatenate([self._q, q])[-self.keep :]
+        if self._p is not None and all(p.p_BoEo_B is not None for p in poses):
+            p = np.array([p.p_BoEo_B for p in poses], dtype=float).reshape(len(poses), 3)
+            self._p = np.concatenate([self._p, p])[-self.keep :]
+        else:
+            self._p = None
 
     @property
     def latest_pose_ns(self) -> int | None:
@@ -114,4 +145,7 @@ class Aligner:
         else:
             quat_BE, stale = orientation_at(t, self._t, self._q, self.period_ns)
         R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
-        return AlignedSamples(t, force_S, torque_S, R_EB, seq, status, stale, quat_BE)
+        p_BoEo_B = None
+        if self._p is not None and len(self._p):
+            p_BoEo_B = position_at(t, self._t, self._p, self.period_ns)
+        return AlignedSamples(t, force_S, torque_S, R_EB, seq, status, stale, quat_BE, p_BoEo_B)

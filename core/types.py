@@ -73,6 +73,8 @@ class AlignedSamples:
             kinematics period past the last pose (never silently extrapolated).
         quat_BE: (N, 4) the same orientations as [w, x, y, z] quaternions of E
             in B, when the producer has them (None otherwise).
+        p_BoEo_B: (N, 3) position of E's origin in B at each sample time, m,
+            when the kinematics stream has positions (None otherwise).
     """
 
     t_ns: np.ndarray
@@ -83,6 +85,7 @@ class AlignedSamples:
     status: np.ndarray
     stale: np.ndarray
     quat_BE: np.ndarray | None = None
+    p_BoEo_B: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_ns)
@@ -99,6 +102,7 @@ class AlignedSamples:
             self.t_ns[index], self.force_S[index], self.torque_S[index], self.R_EB[index],
             self.seq[index], self.status[index], self.stale[index],
             None if self.quat_BE is None else self.quat_BE[index],
+            None if self.p_BoEo_B is None else self.p_BoEo_B[index],
         )
 
 

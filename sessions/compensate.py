@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.aligner import orientation_at
+from hapticlab.core.aligner import orientation_at, position_at
 from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.core.types import AlignedSamples, Estimates, first_true
@@ -49,7 +49,8 @@ def load_stream(path: str | Path) -> Stream:
     n = len(record)
     t_ns = np.round((record.t_s - record.t_s[0]) * 1e9).astype(np.int64)
     samples = AlignedSamples(t_ns, record.force_S, record.torque_S, record.R_EB, np.arange(n),
-                             np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), record.quat_BE)
+                             np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), record.quat_BE,
+                             record.p_BoEo_B)
     return Stream(record.t_s, samples, record.notes)
 
 
@@ -73,8 +74,11 @@ def _load_mcap(path: Path) -> Stream:
     period = int(np.median(np.diff(pose_t))) if len(pose_t) > 1 else 0
     quat_BE, stale = orientation_at(t_ns, pose_t, quat, period)
     R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
+    p_BoEo_B = None
+    if all(m.get("p_BoEo_B") is not None for _, m in poses):
+        p_BoEo_B = position_at(t_ns, pose_t, np.array([m["p_BoEo_B"] for _, m in poses], dtype=float), period)
     seq = np.array([int(m.get("seq", k)) for k, (_, m) in enumerate(wrenches)], dtype=np.int64)
-    samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, seq, status, stale, quat_BE)
+    samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, seq, status, stale, quat_BE, p_BoEo_B)
     unused = int(np.count_nonzero(~samples.usable))
     notes = [f"{path.name}: {unused} sample(s) not used (stale orientation, sensor status or non-finite)"] \
         if unused else []

@@ -72,24 +72,125 @@ from pathlib import Path
 import numpy as np
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import skew_stack
-from hapticlab.core.kalman import KalmanStage
+from hapticlab.core.derivatives import MotionDerivatives
+from hapticlab.core.frames import (
+    GRAVITY_M_S2,
+    cross,
+    matrix_from_quat_wxyz,
+    matrix_from_rotvec,
+    quat_from_rotvec,
+    rotvec_from_matrix,
+)
+from hapticlab.core.kalman import I3, KalmanStage, MountStage
 from hapticlab.core.model import contact_wrench, named_params
 from hapticlab.core.types import AlignedSamples, Estimates
 from scipy.stats import chi2
 
+STEP_EPSILON = 1e-3
+"""``convergence = "step"``: the paper's threshold on ‖Δx‖ (mixed units, as in Algorithm 1)."""
 BIAS_RATE_PRIOR_FORCE = 0.025
 """Prior std of the force-bias rate, N/s (three times the 0.5 N/min drift figure)."""
 BIAS_RATE_PRIOR_TORQUE = 0.002
 """Prior std of the torque-bias rate, N·m/s (the force figure times 0.077 m)."""
 
 
+NOISE_AUTO_START_FORCE = 0.5
+"""With ``noise_force = "auto"``: the force noise std the estimate starts from, N (wide, so nothing
+is refused before the noise is known)."""
+NOISE_AUTO_START_TORQUE = 0.05
+"""The same for torque, N·m."""
+NOISE_WINDOW = 1000
+"""With auto noise: the estimate averages the accepted samples' innovations over a window that grows
+to this many samples, then forgets exponentially with it."""
+NOISE_PRIOR_SAMPLES = 50
+"""With auto noise: the start value weighs as much as this many samples."""
+NOISE_WINDOW_S = 10.0
+"""With auto noise: the window is at least this long (in samples at the sensor's rate), s."""
+NOISE_CLIP = 3.0
+"""With auto noise: innovations are clipped at this many predicted standard deviations ..."""
+NOISE_CLIP_MEAN = 0.9950
+"""... and E[min(z², 9)] = 0.9950 for a standard normal z corrects the clipped mean."""
+NOISE_REFUSED_WEIGHT = 0.1
+"""With auto noise: the weight of a refused sample in the noise estimate."""
+NOISE_FLOOR = (1e-3, 1e-4)
+"""The smallest noise std the estimate may reach (N, N·m): duplicated rows must not make R zero."""
+CONVERGED_FORCE_STD = 0.02
+"""Default convergence bound with a configured noise, N (one sixth of the Gamma-class 0.12 N)."""
+CONVERGED_TORQUE_STD = 0.002
+"""Default convergence bound with a configured noise, N·m."""
+AUTO_BOUND_FRACTION = 0.5
+"""With auto noise and no bound given: the bound is this fraction of the estimated noise std.
+Looser than the configured defaults (0.02 N against 0.12 N, a sixth): a sensor of unknown
+noise is usually one whose residual is mostly model error (0.1–0.5 N on the real logs), and
+there a sixth is not reached within a 100-pose file (``bench real``)."""
+CHUNK = 64
+"""With auto noise, a block is filtered in chunks of at most this many samples, the noise estimate
+updated after each (live blocks are 1–10 samples; offline blocks are long)."""
+EFFECT_OPTIONS = {
+    "mount_rotation": "mount_rotation = true",
+    "bias_drift": "bias_rate = true",
+    "inertia": "inertia = true",
+    "time_lag": "time_lag_s = <s>",
+    "gain_crosstalk": "gain_force_S / gain_torque_S = <3x3>",
+}
+"""The discrepancy workflow's effect names this estimator models, and the options they stand for."""
+
+
+def mount_matrix(rotvec, matrix) -> np.ndarray:
+    """R_SE from ``mount_rotation_SE`` (rotation vector, rad) or ``mount_R_SE`` (3x3); identity if neither.
+
+    A matrix must be a rotation: orthonormal with det = +1. A mirrored mount (det = −1, e.g. one axis
+    flipped by a wrong sensor configuration) is refused: no rotation can describe it.
+    """
+    if rotvec is not None and matrix is not None:
+        raise ValueError("mount_R_SE: give the mount either as mount_rotation_SE or as mount_R_SE, not both")
+    if rotvec is not None:
+        v = np.array(rotvec, dtype=float)
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise ValueError(f"mount_rotation_SE: must be a rotation vector of 3 numbers (rad), got {rotvec!r}")
+        return matrix_from_rotvec(v)
+    if matrix is None:
+        return np.eye(3)
+    try:
+        R = np.array(matrix, dtype=float)
+    except (TypeError, ValueError):
+        R = np.zeros(0)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise ValueError(f"mount_R_SE: must be a 3x3 matrix, got {matrix!r}")
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
+        raise ValueError("mount_R_SE: not orthonormal (Rᵀ R ≠ I to 1e-6); give a rotation matrix")
+    det = float(np.linalg.det(R))
+    if det < 0:
+        raise ValueError(f"mount_R_SE: the axes are mirrored (det = {det:.3f}); a sensor mount is a rotation "
+                         "(det = +1): check the sensor's axis convention (a flipped axis)")
+    return R
+
+
+def _gain_inverse(key: str, value) -> np.ndarray | None:
+    """(I + G)⁻¹ for a configured calibration error G (measured = (I + G)·true), or None."""
+    if value is None:
+        return None
+    try:
+        G = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        G = np.zeros(0)
+    if G.shape != (3, 3) or not np.all(np.isfinite(G)):
+        raise ValueError(f"{key}: must be a 3x3 matrix (measured = (I + G)·true), got {value!r}")
+    if np.abs(G).max() > 0.5:
+        raise ValueError(f"{key}: a calibration error above 50 % ({np.abs(G).max():.2f}) is not a small error")
+    return np.linalg.inv(np.eye(3) + G)
+
+
 def _axes(key: str, value) -> np.ndarray:
     """A positive std per axis from one number or three; ValueError naming the option."""
-    array = np.array(value, dtype=float) if not isinstance(value, bool) else np.array(np.nan)
+    try:
+        array = np.array(value, dtype=float) if not isinstance(value, (bool, str)) else np.array(np.nan)
+    except (TypeError, ValueError):
+        array = np.array(np.nan)
     if array.ndim == 0:
         array = np.full(3, float(array))
     if array.shape != (3,) or not np.all(np.isfinite(array)) or np.any(array <= 0):
-        raise ValueError(f"{key}: must be a positive number or 3 positive numbers, got {value!r}")
+        raise ValueError(f"{key}: must be a positive number, 3 positive numbers or 'auto', got {value!r}")
     return array
 
 
@@ -133,25 +234,57 @@ class KalmanEstimator:
 
     def __init__(
         self,
-        noise_force: float | list[float] = 0.12,
-        noise_torque: float | list[float] = 0.01,
+        noise_force: float | list[float] | str = 0.12,
+        noise_torque: float | list[float] | str = 0.01,
         bias_force_rw: float = 0.005,
         bias_torque_rw: float = 0.0004,
         bias_rate: bool = False,
         bias_force_rate_rw: float = 3e-4,
         bias_torque_rate_rw: float = 2.5e-5,
+        gating: str = "mahalanobis",
         gate_probability: float = 0.9999,
-        converged_force_std: float = 0.02,
-        converged_torque_std: float = 0.002,
+        convergence: str = "covariance",
+        converged_force_std: float | None = None,
+        converged_torque_std: float | None = None,
         prior_force_std: float = 20.0,
         prior_cog_std: float = 0.5,
         prior_torque_std: float = 5.0,
         implementation: str = "auto",
-        payload_change_s: float = 1.0,
+        payload_change_s: float = 0.3,
         warm_start: str = "",
+        mount_rotation: bool = False,
+        mount_rotation_SE: list[float] | None = None,
+        mount_R_SE: list[list[float]] | None = None,
+        mount_prior_std: float = 0.2,
+        inertia: bool = False,
+        derivative_window_s: float = 0.02,
+        time_lag_s: float = 0.0,
+        gain_force_S: list[list[float]] | None = None,
+        gain_torque_S: list[list[float]] | None = None,
+        effects: list[str] | None = None,
     ):
-        noise_force = _axes("noise_force", noise_force)
-        noise_torque = _axes("noise_torque", noise_torque)
+        # the effects list names the options it stands for (the discrepancy workflow's vocabulary)
+        for effect in effects or []:
+            if effect not in EFFECT_OPTIONS:
+                raise ValueError(f"effects: unknown effect {effect!r}; the kalman estimator models "
+                                 f"{', '.join(sorted(EFFECT_OPTIONS))}")
+        named = set(effects or [])
+        bias_rate = bias_rate or "bias_drift" in named
+        mount_rotation = mount_rotation or "mount_rotation" in named
+        inertia = inertia or "inertia" in named
+        if "time_lag" in named and not time_lag_s:
+            raise ValueError("effects: 'time_lag' needs its value: set time_lag_s (s, from hapticlab discrepancy)")
+        if "gain_crosstalk" in named and gain_force_S is None and gain_torque_S is None:
+            raise ValueError("effects: 'gain_crosstalk' needs its value: set gain_force_S and/or gain_torque_S "
+                             "(from hapticlab discrepancy)")
+        self.noise_auto = noise_force == "auto" or noise_torque == "auto"
+        if self.noise_auto and not (noise_force == "auto" and noise_torque == "auto"):
+            raise ValueError("noise_force: 'auto' estimates both noises; set noise_torque = 'auto' too")
+        if self.noise_auto:
+            noise_force, noise_torque = np.full(3, NOISE_AUTO_START_FORCE), np.full(3, NOISE_AUTO_START_TORQUE)
+        else:
+            noise_force = _axes("noise_force", noise_force)
+            noise_torque = _axes("noise_torque", noise_torque)
         for key, value in (("bias_force_rw", bias_force_rw), ("bias_torque_rw", bias_torque_rw),
                            ("bias_force_rate_rw", bias_force_rate_rw),
                            ("bias_torque_rate_rw", bias_torque_rate_rw)):
@@ -160,13 +293,22 @@ class KalmanEstimator:
         for key, value in (("converged_force_std", converged_force_std),
                            ("converged_torque_std", converged_torque_std),
                            ("prior_force_std", prior_force_std), ("prior_cog_std", prior_cog_std),
-                           ("prior_torque_std", prior_torque_std)):
+                           ("prior_torque_std", prior_torque_std), ("mount_prior_std", mount_prior_std),
+                           ("derivative_window_s", derivative_window_s)):
+            if value is None and key.startswith("converged"):
+                continue
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{key}: must be a finite number > 0, got {value!r}")
+        if gating not in ("mahalanobis", "none"):
+            raise ValueError(f"gating: must be 'mahalanobis' or 'none', got {gating!r}")
+        if convergence not in ("covariance", "step"):
+            raise ValueError(f"convergence: must be 'covariance' or 'step' (the paper's ‖Δx‖ < 1e-3), "
+                             f"got {convergence!r}")
         if not (isinstance(gate_probability, (int, float)) and 0 < gate_probability <= 1):
             raise ValueError(f"gate_probability: must be in (0, 1], got {gate_probability!r}")
-        if not isinstance(bias_rate, bool):
-            raise ValueError(f"bias_rate: must be true or false, got {bias_rate!r}")  # noqa: TRY004 (options: ValueError)
+        for key, value in (("bias_rate", bias_rate), ("mount_rotation", mount_rotation), ("inertia", inertia)):
+            if not isinstance(value, bool):
+                raise ValueError(f"{key}: must be true or false, got {value!r}")  # noqa: TRY004 (options: ValueError)
         if implementation not in ("auto", "fast", "filterpy"):
             raise ValueError(f"implementation: must be 'auto', 'fast' or 'filterpy', got {implementation!r}")
         if implementation == "fast" and bias_rate:
@@ -174,19 +316,43 @@ class KalmanEstimator:
         if not (isinstance(payload_change_s, (int, float)) and math.isfinite(payload_change_s)
                 and payload_change_s >= 0):
             raise ValueError(f"payload_change_s: must be a finite number >= 0, got {payload_change_s!r}")
+        if not (isinstance(time_lag_s, (int, float)) and math.isfinite(time_lag_s) and abs(time_lag_s) <= 0.5):
+            raise ValueError(f"time_lag_s: must be a number of seconds within ±0.5, got {time_lag_s!r}")
         if not isinstance(warm_start, str):
             raise ValueError(f"warm_start: must be a path (string), got {warm_start!r}")  # noqa: TRY004
+        R_SE = mount_matrix(mount_rotation_SE, mount_R_SE)
+        self.gain_inverse_force = _gain_inverse("gain_force_S", gain_force_S)
+        self.gain_inverse_torque = _gain_inverse("gain_torque_S", gain_torque_S)
 
         self.bias_rate = bias_rate
+        self.mount_rotation = mount_rotation
+        self.mount_configured = mount_rotation_SE is not None or mount_R_SE is not None
+        self.R_SE = R_SE
+        self.inertia = inertia
+        self.time_lag_s = float(time_lag_s)
+        self.effects = sorted(named | ({"bias_drift"} if bias_rate else set())
+                              | ({"mount_rotation"} if mount_rotation else set())
+                              | ({"inertia"} if inertia else set())
+                              | ({"time_lag"} if time_lag_s else set())
+                              | ({"gain_crosstalk"} if gain_force_S is not None or gain_torque_S is not None
+                                 else set()))
+        self.derivatives = MotionDerivatives(derivative_window_s) if (inertia or time_lag_s) else None
         self.method = None if implementation == "auto" else implementation
-        self.gate2 = math.inf if gate_probability == 1 else float(chi2.ppf(gate_probability, 3))
-        self.converged_force_std = float(converged_force_std)
-        self.converged_torque_std = float(converged_torque_std)
+        if mount_rotation:
+            self.method = None  # the mount stage has its own (numpy) filter
+        self.gate2 = math.inf if (gate_probability == 1 or gating == "none") else float(chi2.ppf(gate_probability, 3))
+        self.convergence = convergence
+        self.converged_force_std_option = converged_force_std
+        self.converged_torque_std_option = converged_torque_std
         rate_f = [bias_force_rate_rw] * 3 if bias_rate else None
         rate_t = [bias_torque_rate_rw] * 3 if bias_rate else None
         prior_f = [prior_force_std] * 6 + ([BIAS_RATE_PRIOR_FORCE] * 3 if bias_rate else [])
         prior_t = [prior_cog_std] * 3 + [prior_torque_std] * 3 + ([BIAS_RATE_PRIOR_TORQUE] * 3 if bias_rate else [])
-        self.force = KalmanStage(prior_f, [bias_force_rw] * 3, noise_force, bias_rate_rw=rate_f)
+        if mount_rotation:
+            self.force = MountStage(prior_f, [bias_force_rw] * 3, noise_force, R_SE, mount_prior_std,
+                                    bias_rate_rw=rate_f)
+        else:
+            self.force = KalmanStage(prior_f, [bias_force_rw] * 3, noise_force, bias_rate_rw=rate_f)
         self.torque = KalmanStage(prior_t, [bias_torque_rw] * 3, noise_torque, cross_noise=noise_force,
                                   bias_rate_rw=rate_t)
         self.converged_force = False
@@ -195,13 +361,15 @@ class KalmanEstimator:
         self.first_converged_torque: int | None = None
         self.samples = 0
         self._last_t_ns: int | None = None
-        self.noise_force = noise_force
+        self._accepted_f = 0.0  # weight of the samples in each stage's noise estimate so far
+        self._accepted_t = 0.0
+        self._noise_window: int | None = None  # NOISE_WINDOW_S in samples, from the first block's rate
         self.prior_f = np.array(prior_f, dtype=float)
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = int(round(payload_change_s * 1e9))
         self.events: list[tuple[int, str, str]] = []
         self.payload_changes = 0
-        self._refused: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (t_ns, e_S, R_EB) of the run
+        self._refused: list[dict[str, np.ndarray]] = []  # the refusal run's samples, by field
         self._refused_since: int | None = None  # t_ns of the run's first refused sample
         self._accepted_in_run = 0  # consecutive accepted samples (a run survives a few)
         self._run_tested_full = False  # the run's whole window was tested (negative)
@@ -211,11 +379,13 @@ class KalmanEstimator:
     def update_block(self, block: AlignedSamples) -> Estimates:
         """Filter a block of aligned samples, in order."""
         m = len(block)
+        if self.noise_auto and m > CHUNK:  # let the noise estimate follow within a long block
+            parts = [self.update_block(block.subset(slice(i, i + CHUNK))) for i in range(0, m, CHUNK)]
+            return Estimates.concatenate(parts)
         if m == 0:
             empty = np.zeros((0, 3))
             flags = np.zeros(0, dtype=bool)
             return Estimates(block.t_ns, empty, empty.copy(), flags, flags.copy(), flags.copy())
-        force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
         t_ns = np.asarray(block.t_ns, dtype=np.int64)
         dt_ns = np.empty(m, dtype=np.int64)
         dt_ns[0] = 0 if self._last_t_ns is None else t_ns[0] - self._last_t_ns
@@ -223,20 +393,38 @@ class KalmanEstimator:
         dt = np.maximum(dt_ns, 0) * 1e-9  # s; a repeated or reversed stamp adds no time
         self._last_t_ns = int(t_ns[-1])
         usable = block.usable
+        force_S, torque_S, R_EB, inertial_S = self._prepare(block)
+        y_f = force_S if inertial_S is None else force_S - inertial_S  # what gravity and bias explain
 
         x_before = self.force.x[:6].copy()
-        run_f = self.force.run(force_S, R_EB, dt, usable, self.gate2, self.method)
-        conv_f = run_f.D[:, :6].max(axis=1) < self.converged_force_std ** 2
-        A_t = -skew_stack(force_S - run_f.X[:, 3:6])  # C_k = [-skew(Δf), I3]
-        run_t = self.torque.run(torque_S, A_t, dt, usable & conv_f & ~run_f.gated, self.gate2, self.method)
-        weight2 = (run_f.X[:, :3] ** 2).sum(axis=1)  # |gravity_force_B|², N²
-        bound2 = self.converged_torque_std ** 2
-        conv_t = (run_t.D[:, :3].max(axis=1) * weight2 < bound2) & (run_t.D[:, 3:6].max(axis=1) < bound2)
-        contact_force_S, contact_torque_S = contact_wrench(force_S, torque_S, R_EB, run_f.X[:, :6], run_t.X[:, :6])
+        if self.mount_rotation:
+            run_f = self.force.run(y_f, R_EB, dt, usable, self.gate2)
+            self.R_SE = self.force.R_SE
+        else:
+            run_f = self.force.run(y_f, self._to_S(R_EB), dt, usable, self.gate2, self.method)
+        A_f = self._to_S(R_EB)  # R_SB per sample (with the mount as it is after the block)
+        X_f = run_f.X
+        A_t = -skew_stack(force_S - X_f[:, 3:6])  # C_k = [-skew(Δf), I3]; Δf includes the inertial force
+        accepted_f = usable & ~run_f.gated
+        conv_f = self._force_converged(run_f, x_before, accepted_f)
+        x_t_before = self.torque.x[:6].copy()
+        run_t = self.torque.run(torque_S, A_t, dt, accepted_f & conv_f, self.gate2, self.method)
+        accepted_t = accepted_f & conv_f & ~run_t.gated
+        conv_t = self._torque_converged(run_t, X_f, x_t_before, accepted_t)
+        torque_for_contact = torque_S
+        if inertial_S is not None:  # the inertial force acts at the centre of mass like the weight
+            torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
+        contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], run_t.X[:, :6])
+        if self.noise_auto:
+            if self._noise_window is None and m > 1 and dt[1:].max() > 0:
+                self._noise_window = int(NOISE_WINDOW_S / float(np.median(dt[1:][dt[1:] > 0])))
+            self._adapt_noise(self.force, y_f, A_f, x_before, run_f, usable, "_accepted_f")
+            self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, accepted_f & conv_f, "_accepted_t")
+            self.torque.rc = self.force.r.copy()
 
         self.converged_force, self.converged_torque = bool(conv_f[-1]), bool(conv_t[-1])
         if self.payload_change_ns > 0:
-            self._watch_payload(t_ns, force_S, torque_S, R_EB, usable, run_f, x_before)
+            self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, usable, run_f, x_before)
         if self.first_converged_force is None and conv_f.any():
             self.first_converged_force = self.samples + int(np.argmax(conv_f))
         if self.first_converged_torque is None and conv_t.any():
@@ -251,6 +439,135 @@ class KalmanEstimator:
             converged_torque=conv_t,
         )
 
+    # ------------------------------------------------------------------ the model's inputs
+
+    def _to_S(self, R_EB: np.ndarray) -> np.ndarray:
+        """(m, 3, 3) R_SB = R_SE R_EB: B's vectors into S through the mount (identity by default)."""
+        if not (self.mount_rotation or self.mount_configured):
+            return R_EB
+        return self.R_SE @ R_EB
+
+    def _prepare(self, block: AlignedSamples):
+        """The block's readings with the configured effects applied.
+
+        Returns (force_S, torque_S, R_EB, inertial_force_S or None): the readings through
+        the inverse calibration error (gain_crosstalk), the orientation at the sensor's
+        time (time_lag), and the tool's inertial force (inertia) in S, N.
+        """
+        force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
+        if self.gain_inverse_force is not None:
+            force_S = force_S @ self.gain_inverse_force.T
+        if self.gain_inverse_torque is not None:
+            torque_S = torque_S @ self.gain_inverse_torque.T
+        if self.derivatives is None:
+            return force_S, torque_S, R_EB, None
+        w_E, alpha_E, a_B = self.derivatives.update(block.t_ns, block.quat_BE, block.p_BoEo_B, R_EB=R_EB)
+        if self.time_lag_s:
+            # the pose at the sensor's time t was stamped t + τ: R_BE(t + τ) = R_BE(t) Exp(ω τ + ½ α τ²)
+            tau = self.time_lag_s
+            step = matrix_from_quat_wxyz(quat_from_rotvec(w_E * tau + 0.5 * alpha_E * tau * tau))
+            R_EB = step.transpose(0, 2, 1) @ R_EB
+            w_E = w_E + alpha_E * tau
+            # (a_B is not shifted: a second-order term of a second-order term)
+        if not self.inertia:
+            return force_S, torque_S, R_EB, None
+        return force_S, torque_S, R_EB, self._inertial_force(R_EB, w_E, alpha_E, a_B)
+
+    def _inertial_force(self, R_EB, w_E, alpha_E, a_B) -> np.ndarray:
+        """(m, 3) the tool's inertial force in S, −m (a + α × c + ω × (ω × c)), N.
+
+        m = |gravity_force_B| / g and c = cog_S are the current estimates (c once the
+        torque stage has converged; until then the centre of mass is taken at the sensor
+        origin). a is the flange's acceleration (the sensor is taken at the flange
+        origin); ω, α in S through the mount.
+        """
+        mass = float(np.linalg.norm(self.force.x[:3])) / GRAVITY_M_S2
+        cog_S = self.torque.x[:3] if self.first_converged_torque is not None else np.zeros(3)
+        R_SE = self.R_SE
+        w_S, alpha_S = w_E @ R_SE.T, alpha_E @ R_SE.T
+        a_S = np.einsum("kij,kj->ki", self._to_S(R_EB), a_B)
+        a_cm_S = a_S + np.cross(alpha_S, cog_S) + np.cross(w_S, np.cross(w_S, cog_S))
+        return -mass * a_cm_S
+
+    # ------------------------------------------------------------------ convergence (issue 4, item 3)
+
+    def _bounds(self) -> tuple[float, float]:
+        """(force bound N, torque bound N·m) on the parameters' std for convergence."""
+        f, t = self.converged_force_std_option, self.converged_torque_std_option
+        if f is None:
+            f = AUTO_BOUND_FRACTION * float(np.sqrt(self.force.r.mean())) if self.noise_auto else CONVERGED_FORCE_STD
+        if t is None:
+            t = AUTO_BOUND_FRACTION * float(np.sqrt(self.torque.r.mean())) if self.noise_auto else CONVERGED_TORQUE_STD
+        return f, t
+
+    def _force_converged(self, run_f, x_before, accepted) -> np.ndarray:
+        """(m,) the force stage's flag after each sample."""
+        if self.convergence == "step":
+            return self._step_converged(run_f.X[:, :6], x_before, accepted, self.converged_force)
+        bound2 = self._bounds()[0] ** 2
+        conv = run_f.D[:, :6].max(axis=1) < bound2
+        if self.mount_rotation:  # the force a mount error can cause: std(θ)·|gravity_force_B|
+            n = self.force.n
+            weight2 = (run_f.X[:, :3] ** 2).sum(axis=1)
+            conv &= run_f.D[:, n - 3:n].max(axis=1) * weight2 < bound2
+        return conv
+
+    def _torque_converged(self, run_t, X_f, x_before, accepted) -> np.ndarray:
+        """(m,) the torque stage's flag after each sample."""
+        if self.convergence == "step":
+            return self._step_converged(run_t.X[:, :6], x_before, accepted, self.converged_torque)
+        bound2 = self._bounds()[1] ** 2
+        weight2 = (X_f[:, :3] ** 2).sum(axis=1)  # |gravity_force_B|², N²
+        return (run_t.D[:, :3].max(axis=1) * weight2 < bound2) & (run_t.D[:, 3:6].max(axis=1) < bound2)
+
+    @staticmethod
+    def _step_converged(X, x_before, accepted, flag) -> np.ndarray:
+        """The paper's criterion: ‖Δx‖ < 1e-3 at each accepted sample, held between them."""
+        steps = np.linalg.norm(np.diff(np.vstack([x_before[None, :], X]), axis=0), axis=1)
+        out = np.empty(len(X), dtype=bool)
+        for k in range(len(X)):
+            if accepted[k]:
+                flag = bool(steps[k] < STEP_EPSILON)
+            out[k] = flag
+        return out
+
+    # ------------------------------------------------------------------ noise estimate (noise = "auto")
+
+    def _adapt_noise(self, stage, y, A, x_before, run, usable, counter: str) -> None:
+        """Covariance matching: R per axis ← a running mean of e² − (C P Cᵀ)ᵢᵢ.
+
+        e_k = y_k − A_k a − b at the state the sample was predicted from; C P Cᵀ with the
+        stage's full P after the block (a little small for a block's first samples while P
+        still shrinks fast, which makes R a little large: the safe side). The start value
+        counts as NOISE_PRIOR_SAMPLES samples, so a quiet start cannot collapse R before
+        the robot moves; the mean then grows over NOISE_WINDOW samples and forgets
+        exponentially. Each term is clipped at NOISE_CLIP standard deviations of the
+        predicted innovation, and a refused sample counts with weight NOISE_REFUSED_WEIGHT:
+        a contact barely moves R, but a model error that the gate keeps refusing (R too
+        small for this sensor) still raises it until the samples are accepted.
+        """
+        idx = np.flatnonzero(usable)
+        if len(idx) == 0:
+            return
+        X_prev = np.vstack([x_before[None, :], run.X[:-1, :6]])[idx]
+        A = A[idx]
+        e = y[idx] - np.einsum("kij,kj->ki", A, X_prev[:, :3]) - X_prev[:, 3:6]
+        C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)  # (k, 3, 6)
+        cpc = np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C)
+        weight = np.where(run.gated[idx], NOISE_REFUSED_WEIGHT, 1.0)
+        floor = NOISE_FLOOR[0] if stage is self.force else NOISE_FLOOR[1]
+        r = stage.r.copy()
+        count = getattr(self, counter)
+        window = max(NOISE_WINDOW, self._noise_window or 0)
+        for k in range(len(idx)):  # a short loop: live blocks are a few samples, chunks at most CHUNK
+            count += weight[k]
+            lam = weight[k] / min(count + NOISE_PRIOR_SAMPLES, window)
+            s2 = r + cpc[k]
+            e2 = np.minimum(e[k] ** 2, NOISE_CLIP ** 2 * s2) / NOISE_CLIP_MEAN
+            r += lam * (np.maximum(e2 - cpc[k], 0.0) - r)
+        setattr(self, counter, count)
+        stage.r = np.maximum(r, floor ** 2)
+
     # ------------------------------------------------------------------ payload change (issue 4, item 6)
 
     PAYLOAD_WINDOW_RUNS = 3
@@ -262,12 +579,12 @@ class KalmanEstimator:
     PAYLOAD_RUN_BREAK = 10
     """This many consecutive accepted samples end a refusal run (isolated ones do not)."""
 
-    def _watch_payload(self, t_ns, force_S, torque_S, R_EB, usable, run_f, x_before) -> None:
+    def _watch_payload(self, t_ns, y_f, force_S, torque_S, R_EB, A_f, usable, run_f, x_before) -> None:
         """Track the force stage's refusal run; test it for a payload change once it is long enough.
 
         While the force stage refuses, its state does not move (only P grows), so the refused
-        residual e_k = force_S - R_EB·g - b is taken at the state each refused sample saw. A
-        payload change adds Δg along gravity in B: e_k = R_EB·Δg + noise, so Δg = mean(R_EBᵀ e_k)
+        residual e_k = y_k - R_SB,k·g - b is taken at the state each refused sample saw. A
+        payload change adds Δg along gravity in B: e_k = R_SB,k·Δg + noise, so Δg = mean(R_SB,kᵀ e_k)
         (R orthonormal) and the fit's residual is at noise level. A contact with a ramp, a
         force fixed in S, or one along another direction leaves a larger residual or a Δg off
         the vertical.
@@ -277,7 +594,7 @@ class KalmanEstimator:
             return
         # the state each sample was predicted from: the previous row of X (x_before for the first)
         X_prev = np.vstack([x_before[None, :], run_f.X[:-1, :6]])
-        e = force_S - np.einsum("kij,kj->ki", R_EB, X_prev[:, :3]) - X_prev[:, 3:6]
+        e = y_f - np.einsum("kij,kj->ki", A_f, X_prev[:, :3]) - X_prev[:, 3:6]
         start = 0
         for k in np.flatnonzero(usable):
             if gated[k]:
@@ -298,50 +615,62 @@ class KalmanEstimator:
         keep = np.zeros(len(t_ns), dtype=bool)
         keep[start:] = gated[start:] & (t_ns[start:] <= newest)
         if keep.any():
-            self._refused.append((t_ns[keep].copy(), e[keep], R_EB[keep].copy(), force_S[keep].copy(),
-                                  torque_S[keep].copy()))
+            self._refused.append({"e": e[keep], "A": A_f[keep].copy(), "y": y_f[keep].copy(),
+                                  "f": force_S[keep].copy(), "tq": torque_S[keep].copy(),
+                                  "R": R_EB[keep].copy()})
         t_last = int(t_ns[-1])
         if t_last - self._refused_since < self.payload_change_ns or not self._refused or self._run_tested_full:
             return
         self._run_tested_full = t_last >= newest  # the whole window seen: no further test in this run
-        E, R, F, TQ = (np.concatenate([r[i] for r in self._refused]) for i in (1, 2, 3, 4))
+        window = {key: np.concatenate([r[key] for r in self._refused]) for key in self._refused[0]}
+        E, A = window["e"], window["A"]
         if len(E) < 10:
             return
-        dg = np.einsum("kji,kj->i", R, E) / len(E)  # least squares of e = R_EB·Δg
-        resid = E - R @ dg
-        ratio = float(np.mean(resid ** 2 / self.noise_force ** 2))
+        dg = np.einsum("kji,kj->i", A, E) / len(E)  # least squares of e = R_SB·Δg
+        resid = E - A @ dg
+        ratio = float(np.mean(resid ** 2 / self.force.r))
         g = self.force.x[:3]
         gn, dn = float(np.linalg.norm(g)), float(np.linalg.norm(dg))
         vertical = gn > 0 and dn > 0 and abs(float(g @ dg)) >= math.cos(self.PAYLOAD_MAX_TILT) * gn * dn
         if ratio < self.PAYLOAD_FIT_RATIO and vertical:
-            self._reopen_payload(F, TQ, R)
+            self._reopen_payload(window)
             message = (f"kalman: payload change of {dn:.3g} N ({dn / 9.81 * 1000:.0f} g) "
                        f"after {(t_last - self._refused_since) * 1e-9:.2f} s of refused samples; "
                        f"gravity and centre of gravity re-opened")
             self.events.append((t_last, "payload_change", message))
             self._refused_since, self._refused, self._accepted_in_run = None, [], 0
 
-    def _reopen_payload(self, force_S, torque_S, R_EB) -> None:
-        """Put gravity's and the cog's covariance back to the prior, then replay the refused window.
+    def _reopen_payload(self, window: dict[str, np.ndarray]) -> None:
+        """Re-open what a payload changes, then replay the refused window.
 
-        The replay gives both stages the window's samples (no time step: they are
-        already behind the stages' clock), so the new weight and centre of gravity
-        are known as soon as the change is recognised, as far as the window's
-        orientations determine them.
+        A payload changes the weight along gravity only, so gravity's covariance is
+        widened along its own direction in B (P_g += σ²·u uᵀ, u = g/|g|, σ the prior);
+        its direction stays known and one orientation is enough to find the new
+        weight. The centre of gravity moves in any direction: its covariance goes back
+        to the prior (its component along gravity needs the tool to turn). The replay
+        gives both stages the window's samples (no time step: they are already behind
+        the stages' clock).
         """
         self.payload_changes += 1
-        for stage, prior in ((self.force, self.prior_f), (self.torque, self.prior_t)):
-            P = stage.P.copy()
-            P[:3, :] = 0.0
-            P[:, :3] = 0.0
-            P[:3, :3] = np.diag(prior[:3] ** 2)
-            stage.P = P
-        m = len(force_S)
+        P = self.force.P.copy()
+        g = self.force.x[:3]
+        u = g / max(float(np.linalg.norm(g)), 1e-9)
+        P[:3, :3] += self.prior_f[0] ** 2 * np.outer(u, u)
+        self.force.P = P
+        P = self.torque.P.copy()
+        P[:3, :] = 0.0
+        P[:, :3] = 0.0
+        P[:3, :3] = np.diag(self.prior_t[:3] ** 2)
+        self.torque.P = P
+        m = len(window["y"])
         zeros, ones = np.zeros(m), np.ones(m, dtype=bool)
-        run_f = self.force.run(force_S, R_EB, zeros, ones, self.gate2, self.method)
+        if self.mount_rotation:
+            run_f = self.force.run(window["y"], window["R"], zeros, ones, self.gate2)
+        else:
+            run_f = self.force.run(window["y"], window["A"], zeros, ones, self.gate2, self.method)
         accepted = ~run_f.gated
-        A_t = -skew_stack(force_S - run_f.X[:, 3:6])
-        self.torque.run(torque_S, A_t, zeros, accepted, self.gate2, self.method)
+        A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
+        self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
 
     def drain_events(self) -> list[tuple[int, str, str]]:
         """The events since the last call, (t_ns, kind, message); the session loop records them."""
@@ -360,6 +689,10 @@ class KalmanEstimator:
             "converged_force": self.converged_force,
             "converged_torque": self.converged_torque,
             "t_ns": self._last_t_ns,
+            "mount_rotation": self.mount_rotation,
+            "mount_R_SE": self.R_SE.tolist(),
+            "noise_force_S": np.sqrt(self.force.r).tolist(),
+            "noise_torque_S": np.sqrt(self.torque.r).tolist(),
             "params": self.params(),
         }
 
@@ -375,9 +708,15 @@ class KalmanEstimator:
         if not isinstance(source, dict) or source.get("estimator") != "kalman":
             name = source.get("estimator") if isinstance(source, dict) else None
             raise ValueError(f"warm_start: {where} is not a kalman state (estimator {name!r})")
-        if bool(source.get("bias_rate")) != self.bias_rate:
-            raise ValueError(f"warm_start: {where} has bias_rate={source.get('bias_rate')!r}, "
-                             f"this estimator {self.bias_rate}")
+        for key, mine in (("bias_rate", self.bias_rate), ("mount_rotation", self.mount_rotation)):
+            if bool(source.get(key)) != mine:
+                raise ValueError(f"warm_start: {where} has {key}={source.get(key)!r}, this estimator {mine}")
+        R_SE = None
+        if self.mount_rotation:
+            try:
+                R_SE = mount_matrix(None, source.get("mount_R_SE"))
+            except ValueError as exc:
+                raise ValueError(f"warm_start: {where}: {exc}") from None
         loaded = []
         for key, stage in (("force", self.force), ("torque", self.torque)):
             try:
@@ -393,10 +732,25 @@ class KalmanEstimator:
             loaded.append((stage, x, (P + P.T) / 2))
         for stage, x, P in loaded:
             stage.x, stage.P = x, P
+        if R_SE is not None:
+            self.force.R_SE = self.R_SE = R_SE
+        if self.noise_auto:  # the noise estimate carries over, as if its window were full
+            for key, stage, floor in (("noise_force_S", self.force, NOISE_FLOOR[0]),
+                                      ("noise_torque_S", self.torque, NOISE_FLOOR[1])):
+                noise = np.array(source.get(key, np.sqrt(stage.r)), dtype=float)
+                if noise.shape == (3,) and np.all(np.isfinite(noise)):
+                    stage.r = np.maximum(noise, floor) ** 2
+            self.torque.rc = self.force.r.copy()
+            self._accepted_f = self._accepted_t = NOISE_WINDOW
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units); with bias_rate also the bias rates."""
         out = named_params(self.force.x[:6], self.torque.x[:6])
+        if self.mount_rotation or self.mount_configured:
+            out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
+        if self.noise_auto:
+            out["noise_force_S"] = np.sqrt(self.force.r).tolist()  # N
+            out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m
         if self.bias_rate:
             out["bias_force_rate_S"] = self.force.x[6:9].tolist()  # N/s
             out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s

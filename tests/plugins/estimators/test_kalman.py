@@ -311,7 +311,7 @@ def test_runs_through_the_registry():
     assert out.converged_force.any() and out.contact.mean() < 0.01
     with pytest.raises(ConfigError, match=r"estimator\.gate_probability: must be in \(0, 1\]"):
         registry.create("estimator", "kalman", {"gate_probability": 1.5}, where="estimator")
-    with pytest.raises(ConfigError, match=r"estimator\.noise_force: expected"):
+    with pytest.raises(ConfigError, match=r"estimator\.noise_force: must be a positive number"):
         registry.create("estimator", "kalman", {"noise_force": "loud"}, where="estimator")
 
 

@@ -31,6 +31,11 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.estimators.batch",
     "hapticlab.plugins.estimators.kalman",
     "hapticlab.plugins.haptics.null",
+    "hapticlab.plugins.effects.mount_rotation",
+    "hapticlab.plugins.effects.bias_drift",
+    "hapticlab.plugins.effects.inertia",
+    "hapticlab.plugins.effects.time_lag",
+    "hapticlab.plugins.effects.gain_crosstalk",
 )
 
 # kind -> the hook that registers it

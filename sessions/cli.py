@@ -10,6 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
@@ -292,6 +293,104 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _vec(values, digits: int = 3) -> str:
+    return "[" + ", ".join(_f(v, digits) for v in values) + "]"
+
+
+def print_discrepancy(result: dict) -> None:
+    """Candidate tables per round, the steps table, the comparison with the batch fit."""
+    console = Console(width=max(Console().width, 140))
+    for note in result["notes"]:
+        err.print(f"note: {note}")
+    noise = result["noise_estimate"]
+    rate = f", {result['rate_hz']:.4g} samples/s" if result["rate_hz"] else ""
+    console.print(
+        f"[bold]{result['input']}[/]: {result['samples']} rows, {result['usable']} usable, "
+        f"{result['gated']} set aside by the contact gate; t in {result['time_base']}{rate}; "
+        f"noise estimate {_f(noise['force_S'][0], 4)} N, {_f(noise['torque_S'][0], 5)} N·m")
+    for skipped in result["skipped"]:
+        console.print(f"  not tested: [bold]{skipped['effect']}[/] ({skipped['reason']})")
+    folds_rule = result["settings"]
+    for i, rnd in enumerate(result["rounds"], start=1):
+        t = Table(title=f"round {i}: candidates on held-out data (named if gain ≥ "
+                        f"{100 * folds_rule['min_gain']:g} % in ≥ {100 * folds_rule['min_fold_share']:g} % of folds)")
+        for col in ("effect", "held-out gain", "folds improved", "t over folds", "verdict"):
+            t.add_column(col, justify="right")
+        named = result["steps"][i - 1]["effect"] if i <= len(result["steps"]) else None
+        for e in sorted(rnd, key=lambda e: -e["heldout_gain"]):
+            verdict = ("[green]named[/]" if e["effect"] == named else
+                       "significant, smaller" if e["significant"] else "not significant")
+            t.add_row(e["effect"], f"{100 * e['heldout_gain']:.2f} %", f"{e['folds_improved']}/{e['folds']}",
+                      _f(e["t"], 1), verdict)
+        console.print(t)
+    t = Table(title="steps: RMS per axis before → after, on the same samples")
+    for col in ("step", "effect", "evidence", "parameters", "force fx, fy, fz (N)", "torque tx, ty, tz (N·m)"):
+        t.add_column(col, justify="right" if col != "parameters" else "left")
+    t.add_row("0", "baseline", "", "the paper's model", _vec(result["baseline"]["rms_force_S"]),
+              _vec(result["baseline"]["rms_torque_S"], 4))
+    for i, step in enumerate(result["steps"], start=1):
+        ev = step["evidence"]
+        t.add_row(str(i), step["effect"], f"{100 * ev['heldout_gain']:.1f} %, {ev['folds_improved']}/{ev['folds']} folds",
+                  step["summary"], f"{_vec(step['rms_force_before'])} → {_vec(step['rms_force_after'])}",
+                  f"{_vec(step['rms_torque_before'], 4)} → {_vec(step['rms_torque_after'], 4)}")
+    console.print(t)
+    final, batch = result["final"], result["batch_fit"]
+    ratio = np.linalg.norm(final["rms_force_S"]) / np.linalg.norm(batch["rms_force_S"])
+    named = ", ".join(result["effects"]) or "nothing (no candidate is significant)"
+    console.print(f"named: [bold]{named}[/]")
+    console.print(f"final RMS force {_vec(final['rms_force_S'])} N, torque {_vec(final['rms_torque_S'], 4)} N·m; "
+                  f"offline batch fit on the same samples {_vec(batch['rms_force_S'])} N, "
+                  f"{_vec(batch['rms_torque_S'], 4)} N·m: force RMS norm "
+                  + (f"{100 * (1 - ratio):.1f} % below the batch fit" if ratio <= 1 else
+                     f"{100 * (ratio - 1):.1f} % above the batch fit"))
+
+
+def cmd_discrepancy(args: argparse.Namespace) -> int:
+    import json
+
+    from .config import parse_value
+    from .discrepancy import Settings, discrepancy, json_ready, toml_snippet
+
+    registry = Registry()
+    settings = Settings(folds=args.folds, time_base=args.time_base)
+    if args.effects is not None:
+        names = [n.strip() for n in args.effects.split(",") if n.strip()]
+        for name in names:
+            if name not in registry.names("effect"):
+                raise UserError(f"--effects: unknown effect {name!r}; available: {', '.join(registry.names('effect'))}")
+        settings.effects = names
+    for item in args.set or []:
+        key, sep, value = item.partition("=")
+        effect, dot, option = key.strip().removeprefix("effects.").partition(".")
+        if not sep or not dot or not option:
+            raise UserError(f"--set {item!r}: expected EFFECT.OPTION=VALUE, e.g. bias_drift.order=2")
+        if effect not in registry.names("effect"):
+            raise UserError(f"--set {item!r}: unknown effect {effect!r}; available: {', '.join(registry.names('effect'))}")
+        settings.effect_options.setdefault(effect, {})[option] = parse_value(value)
+    if args.folds < 3:
+        raise UserError(f"--folds: at least 3, got {args.folds}")
+    for target in (args.json,):
+        if target and not Path(target).parent.is_dir():
+            raise UserError(f"{target}: folder {Path(target).parent} does not exist")
+    with err.status(f"discrepancy: reading {Path(args.input).name}") as status:
+        result = discrepancy(args.input, settings, registry,
+                             progress=lambda m: status.update(f"discrepancy: {m}"))
+        print_discrepancy(result)
+        if args.plots:
+            from .discrepancy_plots import write_plots
+
+            status.update("discrepancy: plotting")
+            for path in write_plots(result, args.plots):
+                err.print(f"wrote {path}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(json_ready(result), indent=2) + "\n", encoding="utf-8")
+        err.print(f"wrote {args.json}")
+    sys.stdout.flush()
+    print("\n# the named effects online: paste into a session file (the kalman estimator's options)")
+    print(toml_snippet(result["estimator_options"]), flush=True)
+    return 0
+
+
 def cmd_recover(args: argparse.Namespace) -> int:
     from .recording import recover
 
@@ -348,6 +447,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="estimator option, e.g. --set estimator.force_threshold=0.5")
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("discrepancy", help="find where simulation and measurement disagree, name the missing "
+                                          "effects, add them, show the gap shrink")
+    p.add_argument("input", help="CSV (import contract) or .mcap recording")
+    p.add_argument("--json", default=None, help="write the result as JSON")
+    p.add_argument("--plots", default=None, help="write the figures as PNG into this folder")
+    p.add_argument("--effects", default=None, metavar="A,B", help="candidate effects (default: every registered one)")
+    p.add_argument("--set", action="append", metavar="EFFECT.OPTION=VALUE",
+                   help="an effect's option, e.g. --set bias_drift.order=2")
+    p.add_argument("--folds", type=int, default=10, help="contiguous folds of the held-out test (default 10)")
+    p.add_argument("--time-base", default="auto", choices=("auto", "seconds", "index"),
+                   help="what t is: auto (rows when t is 0, 1, 2, ...), seconds, or index (rows)")
+    p.set_defaults(func=cmd_discrepancy)
 
     p = sub.add_parser("recover", help="salvage a recording whose writer died")
     p.add_argument("broken", help="the damaged .mcap")

@@ -1,0 +1,566 @@
+"""``hapticlab discrepancy``: where simulation and measurement disagree, which effect is missing, and the gap shrinking.
+
+On a measured recording (CSV import contract or MCAP):
+
+1. **Identify and simulate.** The base model (the paper's, with the weight's
+   moment from the predicted weight) is fitted to the whole recording by
+   weighted least squares (Gauss–Newton from the offline batch fit), and the
+   sensor is simulated along the recorded motion with it. Each channel is
+   weighted by its noise, estimated from the residual's sample-to-sample
+   differences (robust: MAD), so forces and torques count alike.
+2. **Gate contact.** Samples whose residual is more than ``gate_sigmas``
+   robust standard deviations (MAD) off on any channel are set aside, with
+   ``gate_dilate_s`` either side when ``t`` is a time; fit and gate are
+   iterated until the gate settles, and again after every step.
+3. **Test every candidate effect** (the ``effect`` plugins not yet added)
+   against the residual on held-out data: blocked cross-validation over time,
+   ``folds`` contiguous folds, each held out in turn with a buffer of one
+   fifth of a fold either side left out of its training set (residuals are
+   correlated in time). Model and model-plus-candidate are both re-fitted
+   on the training folds (one Gauss–Newton step from the current fit) and
+   scored on the held-out fold.
+4. **Name** the candidate that best explains the held-out residual, if it is
+   significant: it lowers the held-out mean square (noise-weighted) by at
+   least ``min_gain`` (1 %), in at least ``min_fold_share`` of the folds
+   (80 %), with a t statistic over the folds' relative improvements of at
+   least ``min_t`` (3). Add it, re-identify everything, re-gate, repeat until
+   no candidate is significant.
+5. **Show the gap shrink**: RMS per axis before and after each step (every
+   figure on the final gate's samples), against the offline batch fit, plots,
+   and JSON (``DESIGN.md``) with the ``kalman`` options that reproduce the
+   named effects online.
+
+Large recordings are fitted and tested on at most ``max_fit_samples``
+samples (every k-th, evenly spread); the RMS figures use every sample.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from hapticlab.core.batch import batch_fit
+from hapticlab.core.effects import Effect, Model, Motion, motion_from_poses
+from hapticlab.core.frames import quat_wxyz_from_matrix
+from hapticlab.core.plugins import ConfigError, Registry
+
+from .compensate import load_stream
+from .csvimport import CsvError
+
+AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
+
+
+@dataclass
+class Settings:
+    """Knobs of the workflow (defaults are the documented rule)."""
+
+    folds: int = 10
+    min_gain: float = 0.01
+    min_fold_share: float = 0.8
+    gate_sigmas: float = 6.0
+    gate_dilate_s: float = 0.25
+    max_fit_samples: int = 20000
+    derivative_window_s: float = 0.04
+    time_base: str = "auto"
+    effects: list[str] | None = None
+    """candidate effect names (None: every registered one)"""
+    effect_options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """options per effect name, e.g. {"bias_drift": {"order": 2}}"""
+
+
+# --------------------------------------------------------------------------- input
+
+
+@dataclass
+class Recording:
+    """A measured recording ready for the workflow.
+
+    Attributes:
+        name: file name. motion: the recorded motion at every row.
+        y: (n, 6) measured force (N) and torque (N·m) in S.
+        usable: (n,) rows with a finite wrench, good status and a fresh orientation.
+        notes: what the user should know about the input.
+    """
+
+    name: str
+    motion: Motion
+    y: np.ndarray
+    usable: np.ndarray
+    notes: list[str]
+    has_positions: bool
+
+
+def detect_time_base(t: np.ndarray) -> str:
+    """``"index"`` when ``t`` counts rows (integers in steps of one), else ``"seconds"``."""
+    if len(t) > 1 and np.all(t == np.round(t)) and np.all(np.diff(t) == 1.0):
+        return "index"
+    return "seconds"
+
+
+def load_recording(path: str | Path, time_base: str = "auto", window_s: float = 0.04) -> Recording:
+    """Read a CSV (import contract) or MCAP recording for the workflow."""
+    path = Path(path)
+    if time_base not in ("auto", "seconds", "index"):
+        raise ConfigError(f"--time-base: expected auto, seconds or index, got {time_base!r}")
+    stream = load_stream(path)
+    samples = stream.samples
+    n = len(stream)
+    if n < 20:
+        raise CsvError(f"{path.name}: {n} rows; the workflow needs at least 20")
+    t = np.asarray(stream.t_s, dtype=float)
+    notes = list(stream.notes)
+    base = detect_time_base(t) if time_base == "auto" else time_base
+    if base == "index" and time_base == "auto":
+        notes.append(f"{path.name}: t counts rows (0, 1, 2, ...), not seconds: the time-based effects "
+                     f"(time_lag, inertia) cannot be tested; use --time-base seconds if it is a time")
+    if base == "seconds":
+        dt = np.diff(t)
+        if dt.max() > 3 * np.median(dt):
+            notes.append(f"{path.name}: the sampling has gaps (up to {dt.max():.3g} s against a median "
+                         f"{np.median(dt):.3g} s); derivatives next to them are unreliable")
+    quat = samples.quat_BE if samples.quat_BE is not None else quat_wxyz_from_matrix(samples.R_EB.transpose(0, 2, 1))
+    positions = getattr(samples, "p_BoEo_B", None)
+    if positions is not None and not np.isfinite(positions).all():
+        positions = None
+    motion = motion_from_poses(t, quat, positions, base, window_s)
+    y = np.concatenate([samples.force_S, samples.torque_S], axis=1)
+    usable = samples.usable.copy()
+    if usable.sum() < 20:
+        raise CsvError(f"{path.name}: only {int(usable.sum())} usable rows; the workflow needs at least 20")
+    return Recording(path.name, motion, y, usable, notes, positions is not None)
+
+
+# --------------------------------------------------------------------------- numerics
+
+
+def solve_scaled(H: np.ndarray, g: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+    """Minimum-norm solution of H δ = g after scaling H to a unit diagonal (parameters of mixed units).
+
+    Directions the data do not determine (eigenvalues below ``rcond`` of the
+    largest) are left at zero.
+    """
+    d = np.sqrt(np.maximum(np.diag(H), 0.0))
+    d[d == 0] = 1.0
+    Hs = H / d[:, None] / d[None, :]
+    lam, V = np.linalg.eigh(Hs)
+    keep = lam > rcond * max(lam.max(), 1e-300)
+    gs = V.T @ (g / d)
+    return (V[:, keep] @ (gs[keep] / lam[keep])) / d
+
+
+def noise_scale(residual: np.ndarray) -> np.ndarray:
+    """(6,) channel noise from sample-to-sample differences (MAD/√2, repeated rows skipped).
+
+    One value for the three force channels and one for the three torque
+    channels (their RMS over the axes): a sensor's axes are alike, and equal
+    weights within force and within torque keep the base fit's force residual
+    that of the offline batch fit.
+    """
+    d = np.diff(residual, axis=0)
+    d = d[np.any(d != 0, axis=1)]
+    if len(d) < 5:
+        d = residual - np.median(residual, axis=0)
+    mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2)
+    rms = np.sqrt(np.mean(residual**2, axis=0))
+    sigma = np.maximum(mad, np.maximum(1e-3 * rms, 1e-9))
+    return np.repeat([np.sqrt(np.mean(sigma[:3] ** 2)), np.sqrt(np.mean(sigma[3:] ** 2))], 3)
+
+
+def rms(values: np.ndarray) -> np.ndarray:
+    """Per-column RMS."""
+    return np.sqrt(np.mean(values**2, axis=0)) if len(values) else np.full(values.shape[1], np.nan)
+
+
+@dataclass
+class Evidence:
+    """How one candidate did on held-out data."""
+
+    effect: str
+    gain: float
+    """relative reduction of the held-out weighted mean square (0.05 = 5 %)"""
+    folds_improved: int
+    folds: int
+    t: float
+    significant: bool
+    params: np.ndarray | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"effect": self.effect, "heldout_gain": self.gain, "folds_improved": self.folds_improved,
+                "folds": self.folds, "t": self.t, "significant": self.significant}
+
+
+# --------------------------------------------------------------------------- the workflow
+
+
+@dataclass
+class State:
+    """One model with its fit: what a step table row and a plot need."""
+
+    label: str
+    model: Model
+    theta: np.ndarray
+    residual: np.ndarray = None  # (n, 6) on every row, filled by the workflow
+    weight_S: np.ndarray = None  # (n, 3) predicted weight in S
+
+
+class Discrepancy:
+    """The workflow on one recording (``run()`` does it all; see the module docstring)."""
+
+    def __init__(self, recording: Recording, registry: Registry | None = None, settings: Settings | None = None,
+                 progress: Callable[[str], None] | None = None):
+        self.rec = recording
+        self.registry = registry if registry is not None else Registry()
+        self.settings = settings if settings is not None else Settings()
+        self.say = progress or (lambda message: None)
+        n = len(recording.y)
+        usable_rows = np.flatnonzero(recording.usable)
+        stride = max(1, math.ceil(len(usable_rows) / self.settings.max_fit_samples))
+        self.fit_rows = usable_rows[::stride]
+        self.stride = stride
+        self.fit_motion = recording.motion.subset(self.fit_rows)
+        self.y_fit = recording.y[self.fit_rows]
+        self.kept = recording.usable.copy()  # the gate, over every row
+        self.weights = np.ones(6)
+        self.n = n
+
+    # ------------------------------------------------------------------ fitting
+
+    def _predict_all(self, model: Model, theta: np.ndarray) -> np.ndarray:
+        return model.predict6(self.rec.motion, theta)
+
+    def force_block(self, model: Model, J: np.ndarray) -> np.ndarray:
+        """(p,) True for the parameters fitted from the force channels, False for the torque's.
+
+        The base model's weight and force bias come from the forces, its centre
+        of mass and torque bias from the torques (as in the paper's cascade
+        and the offline batch fit, so the base fit's force residual is the
+        batch fit's); an effect parameter that moves the predicted force is
+        fitted from the forces, one that moves only the torque from the torques.
+        """
+        rows = self.kept[self.fit_rows]
+        Jw = J[rows] * self.weights[None, :, None]
+        force_norm = np.sqrt(np.sum(Jw[:, :3] ** 2, axis=(0, 1)))
+        torque_norm = np.sqrt(np.sum(Jw[:, 3:] ** 2, axis=(0, 1)))
+        force = force_norm > 1e-6 * (force_norm + torque_norm)
+        force[:6], force[6:12] = True, False
+        return force
+
+    @staticmethod
+    def block_solve(HF, gF, HT, gT, force: np.ndarray) -> np.ndarray:
+        """The force block from the force channels' normal equations, then the torque block from the torques'."""
+        f, t = np.flatnonzero(force), np.flatnonzero(~force)
+        delta = np.zeros(len(force))
+        delta[f] = solve_scaled(HF[np.ix_(f, f)], gF[f])
+        delta[t] = solve_scaled(HT[np.ix_(t, t)], gT[t] - HT[np.ix_(t, f)] @ delta[f])
+        return delta
+
+    def _normal(self, J: np.ndarray, r: np.ndarray):
+        """Force-channel and torque-channel normal equations ``(HF, gF, HT, gT)`` of weighted J (m, 6, p), r (m, 6)."""
+        p = J.shape[2]
+        JF, JT = J[:, :3].reshape(-1, p), J[:, 3:].reshape(-1, p)
+        return JF.T @ JF, JF.T @ r[:, :3].reshape(-1), JT.T @ JT, JT.T @ r[:, 3:].reshape(-1)
+
+    def gauss_newton(self, model: Model, theta: np.ndarray, J: np.ndarray | None = None,
+                     max_iter: int = 8) -> np.ndarray:
+        """Weighted least squares of ``model`` on the kept fit rows, from ``theta`` (force block, then torque)."""
+        rows = self.kept[self.fit_rows]
+        w = self.weights
+        y = self.y_fit[rows]
+
+        def residual(th):
+            return (y - model.predict6(self.fit_motion, th)[rows]) * w
+
+        r = residual(theta)
+        costs = np.array([np.sum(r[:, :3] ** 2), np.sum(r[:, 3:] ** 2)])
+        force = None
+        for _ in range(max_iter):
+            if J is None:
+                J = model.jacobian(self.fit_motion, theta)
+            if force is None:
+                force = self.force_block(model, J)
+            Jw = J[rows] * w[None, :, None]
+            delta = self.block_solve(*self._normal(Jw, r), force)
+            J = None
+            for _ in range(6):  # step halving if the linearisation overshoots badly
+                r_new = residual(theta + delta)
+                new = np.array([np.sum(r_new[:, :3] ** 2), np.sum(r_new[:, 3:] ** 2)])
+                if new.sum() <= 1.5 * costs.sum():
+                    break
+                delta = delta / 2
+            else:
+                break
+            theta, r = theta + delta, r_new
+            change = np.abs(costs - new) / np.maximum(costs, 1e-300)
+            costs = new
+            if change.max() < 1e-8:
+                break
+        return theta
+
+    def gate(self, model: Model, theta: np.ndarray) -> np.ndarray:
+        """Rows kept after the contact gate on the residual of ``model`` (over every usable row)."""
+        rec, s = self.rec, self.settings
+        z = (rec.y - self._predict_all(model, theta)) * self.weights
+        use = rec.usable
+        zu = z[use]
+        med = np.median(zu, axis=0)
+        scale = 1.4826 * np.median(np.abs(zu - med), axis=0)
+        scale = np.maximum(scale, 1e-12)
+        bad = np.zeros(self.n, dtype=bool)
+        bad[use] = np.any(np.abs(zu - med) > s.gate_sigmas * scale, axis=1)
+        if bad.any() and rec.motion.time_base == "seconds" and s.gate_dilate_s > 0:
+            t = rec.motion.t
+            bad_t = t[bad]
+            k = np.searchsorted(bad_t, t)
+            near_next = np.abs(bad_t[np.minimum(k, len(bad_t) - 1)] - t)
+            near_prev = np.abs(t - bad_t[np.maximum(k - 1, 0)])
+            bad = np.minimum(near_next, near_prev) <= s.gate_dilate_s
+        kept = use & ~bad
+        if kept.sum() < 0.5 * use.sum():  # a gate that drops half the data is not gating contact
+            return use.copy()
+        return kept
+
+    def fit(self, model: Model, theta: np.ndarray, J: np.ndarray | None = None) -> np.ndarray:
+        """Fit, gate, refit until the gate settles (four gates at most; the last fit is on the last gate)."""
+        for _ in range(4):
+            theta = self.gauss_newton(model, theta, J)
+            J = None
+            kept = self.gate(model, theta)
+            if np.array_equal(kept, self.kept):
+                return theta
+            self.kept = kept
+        return self.gauss_newton(model, theta)
+
+    # ------------------------------------------------------------------ candidates
+
+    def _chunks(self) -> tuple[np.ndarray, int]:
+        """Chunk id (0 .. 5K−1) of each fit row in time order, and the number of folds K."""
+        m = len(self.fit_rows)
+        folds = int(min(self.settings.folds, max(3, m // 20)))
+        chunks = 5 * folds
+        return (np.arange(m) * chunks) // m, folds
+
+    def test_candidates(self, model: Model, theta: np.ndarray,
+                        candidates: list[tuple[str, Effect]]) -> tuple[list[Evidence], dict]:
+        """Blocked cross-validation of each candidate added to ``model`` (linearised at ``theta``)."""
+        s = self.settings
+        full = Model(model.effects + candidates)
+        theta_full = full.initial(theta[:12])
+        theta_full[:model.size] = theta
+        J = full.jacobian(self.fit_motion, theta_full)
+        rows = self.kept[self.fit_rows]
+        force = self.force_block(full, J)
+        r = (self.y_fit - model.predict6(self.fit_motion, theta)) * self.weights
+        Jw = J * self.weights[None, :, None]
+        chunk, folds = self._chunks()
+        nch = 5 * folds
+        p = full.size
+        HF, HT = np.zeros((nch, p, p)), np.zeros((nch, p, p))
+        gF, gT = np.zeros((nch, p)), np.zeros((nch, p))
+        ss = np.zeros(nch)
+        for c in range(nch):
+            sel = (chunk == c) & rows
+            HF[c], gF[c], HT[c], gT[c] = self._normal(Jw[sel], r[sel])
+            ss[c] = np.sum(r[sel] ** 2)
+        base_cols = np.arange(model.size)
+
+        def solve(chunks: np.ndarray, cols: np.ndarray) -> np.ndarray:
+            pick = lambda M: M[chunks].sum(0)[np.ix_(cols, cols)]  # noqa: E731
+            return self.block_solve(pick(HF), gF[chunks].sum(0)[cols], pick(HT), gT[chunks].sum(0)[cols],
+                                    force[cols])
+
+        def heldout(cols: np.ndarray) -> np.ndarray:
+            sse = np.zeros(folds)
+            for f in range(folds):
+                test = np.zeros(nch, dtype=bool)
+                test[5 * f: 5 * f + 5] = True
+                train = np.ones(nch, dtype=bool)
+                train[max(0, 5 * f - 1): 5 * f + 6] = False  # the fold and a buffer chunk either side
+                delta = solve(train, cols)
+                H = (HF[test] + HT[test]).sum(0)[np.ix_(cols, cols)]
+                g = (gF[test] + gT[test]).sum(0)[cols]
+                sse[f] = ss[test].sum() - 2 * delta @ g + delta @ H @ delta
+            return sse
+
+        without = heldout(base_cols)
+        out: list[Evidence] = []
+        everything = np.ones(nch, dtype=bool)
+        for name, _ in candidates:
+            sl = full.slices[name]
+            cols = np.concatenate([base_cols, np.arange(sl.start, sl.stop)])
+            with_ = heldout(cols)
+            improvement = (without - with_) / np.maximum(without, 1e-300)
+            gain = float((without.sum() - with_.sum()) / max(without.sum(), 1e-300))
+            wins = int(np.sum(improvement > 0))
+            sd = float(np.std(improvement, ddof=1)) if folds > 1 else 0.0
+            tstat = float(np.mean(improvement) / (sd / math.sqrt(folds))) if sd > 0 else math.copysign(
+                math.inf, float(np.mean(improvement)) or -1.0)
+            significant = gain >= s.min_gain and wins >= math.ceil(s.min_fold_share * folds - 1e-9)
+            # the all-data step: the candidate's parameters if named
+            out.append(Evidence(name, gain, wins, folds, tstat, significant, solve(everything, cols)))
+        return out, {"J": J, "full": full, "theta_full": theta_full}
+
+    # ------------------------------------------------------------------ the loop
+
+    def candidates(self) -> tuple[list[tuple[str, Effect]], list[dict[str, str]], list[str]]:
+        """The effect plugins to test, those that cannot be tested here (with why), and their notes."""
+        names = self.settings.effects if self.settings.effects is not None else self.registry.names("effect")
+        testable, skipped, notes = [], [], []
+        for name in names:
+            effect = self.registry.create("effect", name, self.settings.effect_options.get(name, {}),
+                                          where=f"effects.{name}")
+            reason = effect.check(self.rec.motion)
+            if reason:
+                skipped.append({"effect": name, "reason": reason})
+                continue
+            notes.extend(effect.notes(self.rec.motion))
+            testable.append((name, effect))
+        return testable, skipped, notes
+
+    def run(self) -> dict[str, Any]:
+        """Everything: the JSON-ready result (``"_states"`` holds arrays for the plots)."""
+        rec = self.rec
+        use = rec.usable
+        self.say("identifying the base model")
+        fit0 = batch_fit(rec.y[use, :3], rec.y[use, 3:], rec.motion.R_EB[use])
+        theta = np.concatenate([fit0["gravity_force_B"], fit0["bias_force_S"], fit0["cog_S"], fit0["bias_torque_S"]])
+        model = Model()
+        self.weights = 1.0 / noise_scale(np.concatenate([fit0["residual_force_S"], fit0["residual_torque_S"]], 1))
+        theta = self.fit(model, theta)
+        # weights from the base model's own residual (once; fixed for every comparison after)
+        self.weights = 1.0 / noise_scale((rec.y - self._predict_all(model, theta))[self.kept])
+        theta = self.fit(model, theta)
+        states = [State("baseline", model, theta)]
+        candidates, skipped, notes = self.candidates()
+        rounds: list[list[dict[str, Any]]] = []
+        steps: list[dict[str, Any]] = []
+        while candidates:
+            self.say(f"round {len(rounds) + 1}: testing {', '.join(n for n, _ in candidates)}")
+            evidence, lin = self.test_candidates(model, theta, candidates)
+            rounds.append([e.as_dict() for e in evidence])
+            best = max((e for e in evidence if e.significant), key=lambda e: e.gain, default=None)
+            if best is None:
+                break
+            name = best.effect
+            effect = dict(candidates)[name]
+            self.say(f"adding {name}; re-identifying")
+            new_model = model.with_effect(name, effect)
+            # start from the all-data linear step of the candidate test
+            full, theta_full = lin["full"], lin["theta_full"]
+            cols = np.concatenate([np.arange(model.size), np.arange(full.slices[name].start, full.slices[name].stop)])
+            start = theta_full[cols] + best.params
+            theta = self.fit(new_model, start)
+            model = new_model
+            candidates = [(n, e) for n, e in candidates if n != name]
+            states.append(State(f"after {name}", model, theta))
+            steps.append({"effect": name, "score": best.gain, "evidence": best.as_dict()})
+        self.say("scoring")
+        return self._report(states, steps, rounds, skipped, notes)
+
+    # ------------------------------------------------------------------ the report
+
+    def _report(self, states, steps, rounds, skipped, notes) -> dict[str, Any]:
+        rec = self.rec
+        kept = self.kept
+        for state in states:
+            state.residual = rec.y - self._predict_all(state.model, state.theta)
+            state.weight_S = state.model.weight_S(rec.motion, state.theta)
+        rms_kept = [rms(s.residual[kept]) for s in states]
+        rms_all = [rms(s.residual[rec.usable]) for s in states]
+        for i, step in enumerate(steps):
+            model, theta = states[i + 1].model, states[i + 1].theta
+            effect = dict(model.effects)[step["effect"]]
+            params = model.effect_params(theta, step["effect"])
+            step.update({
+                "params": effect.describe(params),
+                "summary": effect.summary(params),
+                "rms_force_before": rms_kept[i][:3].tolist(), "rms_force_after": rms_kept[i + 1][:3].tolist(),
+                "rms_torque_before": rms_kept[i][3:].tolist(), "rms_torque_after": rms_kept[i + 1][3:].tolist(),
+            })
+        final = states[-1]
+        use = rec.usable
+        batch_kept = batch_fit(rec.y[kept, :3], rec.y[kept, 3:], rec.motion.R_EB[kept])
+        batch_all = batch_fit(rec.y[use, :3], rec.y[use, 3:], rec.motion.R_EB[use])
+        named = [name for name, _ in final.model.effects]
+        options: dict[str, Any] = {"effects": named}
+        final_params: dict[str, Any] = {
+            "gravity_force_B": final.theta[0:3].tolist(), "bias_force_S": final.theta[3:6].tolist(),
+            "cog_S": final.theta[6:9].tolist(), "bias_torque_S": final.theta[9:12].tolist(),
+        }
+        for name, effect in final.model.effects:
+            params = final.model.effect_params(final.theta, name)
+            options.update(effect.estimator_options(params))
+            final_params[name] = effect.describe(params)
+        noise = 1.0 / self.weights
+        return {
+            "input": rec.name,
+            "samples": int(self.n),
+            "usable": int(use.sum()),
+            "gated": int(use.sum() - kept.sum()),
+            "fit_samples": int(len(self.fit_rows)),
+            "time_base": rec.motion.time_base,
+            "rate_hz": rec.motion.rate_hz,
+            "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
+            "baseline": {"rms_force_S": rms_kept[0][:3].tolist(), "rms_torque_S": rms_kept[0][3:].tolist()},
+            "steps": steps,
+            "final": {"rms_force_S": rms_kept[-1][:3].tolist(), "rms_torque_S": rms_kept[-1][3:].tolist(),
+                      "params": final_params},
+            "effects": named,
+            "estimator_options": options,
+            "batch_fit": {
+                "rms_force_S": rms(np.c_[batch_kept["residual_force_S"]]).tolist(),
+                "rms_torque_S": rms(np.c_[batch_kept["residual_torque_S"]]).tolist(),
+            },
+            "all_usable_rows": {
+                "final_rms_force_S": rms_all[-1][:3].tolist(), "final_rms_torque_S": rms_all[-1][3:].tolist(),
+                "batch_rms_force_S": rms(batch_all["residual_force_S"]).tolist(),
+                "batch_rms_torque_S": rms(batch_all["residual_torque_S"]).tolist(),
+            },
+            "rounds": rounds,
+            "skipped": skipped,
+            "notes": rec.notes + notes,
+            "settings": {k: v for k, v in vars(self.settings).items()},
+            "_states": states,
+            "_kept": kept,
+        }
+
+
+def discrepancy(path: str | Path, settings: Settings | None = None, registry: Registry | None = None,
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Run the workflow on a file; the JSON-ready result (plus ``_states``/``_kept`` for plots)."""
+    settings = settings if settings is not None else Settings()
+    recording = load_recording(path, settings.time_base, settings.derivative_window_s)
+    return Discrepancy(recording, registry, settings, progress).run() | {"_recording": recording}
+
+
+def json_ready(result: dict[str, Any]) -> dict[str, Any]:
+    """The result without its private arrays, NaN as null."""
+    def clean(value):
+        if isinstance(value, float):
+            return value if math.isfinite(value) else None
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items() if not str(k).startswith("_")}
+        if isinstance(value, (list, tuple)):
+            return [clean(v) for v in value]
+        if isinstance(value, np.generic):
+            return clean(value.item())
+        return value
+    return clean(result)
+
+
+def toml_snippet(options: dict[str, Any]) -> str:
+    """The ``[estimator]`` table reproducing the named effects online, to paste into a session file."""
+    def fmt(value):
+        if isinstance(value, str):
+            return f'"{value}"'
+        if isinstance(value, (list, tuple)):
+            return "[" + ", ".join(fmt(v) for v in value) + "]"
+        if isinstance(value, float):
+            return f"{value:.6g}"
+        return str(value)
+    lines = ["[estimator]", 'name = "kalman"']
+    lines += [f"{key} = {fmt(value)}" for key, value in options.items()]
+    return "\n".join(lines)

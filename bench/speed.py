@@ -6,7 +6,8 @@ Prints, on this machine:
 * the ``rls`` cascade (Algorithm 1) in µs per sample, median and p99 over
   blocks of 1, 7, 64 and 1024 samples (a 1 kHz sensor read by a 1 kHz loop
   gives blocks of 1; a 7 kHz NetFT read by a 1 kHz loop, 7; offline, 1024),
-  and the same for ``kalman`` and ``batch``;
+  and the same for ``kalman`` and ``batch``, and for ``kalman`` with each of
+  its model options (mount rotation, inertia, auto noise, bias rate);
 * ``compensate`` throughput in samples/s over a simulated CSV;
 * a full simulated session (sensor → aligner → estimator → haptic command →
   MCAP) run as fast as possible: simulated seconds per wall second at 1 kHz
@@ -64,6 +65,15 @@ def main() -> None:
                 continue  # minutes of pinv per sample; the baseline is not a live estimator
             med, p99 = per_sample_us(factory, block, size)
             print(f"{name:<10}{size:>7}{med:>10.2f}{p99:>10.2f}")
+    print(f"\nkalman options, µs per sample ({n} samples, second half timed)")
+    print(f"{'option':<24}{'block':>7}{'median':>10}{'p99':>10}")
+    options = {"mount_rotation = true": {"mount_rotation": True}, "inertia = true": {"inertia": True},
+               "noise = auto": {"noise_force": "auto", "noise_torque": "auto"},
+               "bias_rate = true": {"bias_rate": True}}
+    for label, opts in options.items():
+        for size in (1, 7, 64):
+            med, p99 = per_sample_us(lambda opts=opts: KalmanEstimator(**opts), block, size)
+            print(f"{label:<24}{size:>7}{med:>10.2f}{p99:>10.2f}")
 
     with tempfile.TemporaryDirectory() as tmp:
         csv_path = Path(tmp) / "sim.csv"

@@ -224,10 +224,10 @@ def _finite_json(value):
 def cmd_bench(args: argparse.Namespace) -> int:
     import json
 
-    if args.which == "real" and (args.plots or args.quick or args.all_estimators):
+    if args.which != "paper" and (args.plots or args.quick or args.all_estimators):
         raise UserError("--plots, --quick and --all-estimators go with 'bench paper'")
-    if args.which == "paper" and args.folder:
-        raise UserError(f"'bench paper' takes no folder (got {args.folder!r}); did you mean 'bench real'?")
+    if args.which != "real" and args.folder:
+        raise UserError(f"'bench {args.which}' takes no folder (got {args.folder!r}); did you mean 'bench real'?")
     if args.which == "paper":
         from .paperbench import bench_paper, write_plots
 
@@ -238,6 +238,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if args.plots:
             for path in write_plots(plots, Path(args.plots)):
                 err.print(f"wrote {path}")
+    elif args.which == "estimators":
+        from .familybench import bench_estimators
+
+        with err.status("running the estimator family's scenarios") as status:
+            out = bench_estimators(progress=lambda m: status.update(f"bench estimators: {m}"))
+        print_estimators_table(out)
     else:
         from .realbench import bench_real, default_real_dir
 
@@ -251,16 +257,53 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def print_estimators_table(out: dict) -> None:
+    """One row per scenario and estimator variant: the numbers the issue's targets name."""
+    t = Table(title="Estimator family (issue 4), simulated at 1 kHz, 0.12 N noise unless said")
+    for col in ("scenario", "estimator", "RMS / noise fx, fy, fz", "other"):
+        t.add_column(col, justify="right")
+
+    def rms_rows(name: str, rows: dict, other: dict[str, str]) -> None:
+        for k, (label, values) in enumerate(rows.items()):
+            t.add_row(name if k == 0 else "", label, ", ".join(_f(v, 3) for v in values), other.get(label, ""),
+                      end_section=k == len(rows) - 1)
+
+    m = out["mount"]
+    rms_rows("5° mount (last 15 s)", m["rms_over_noise_last_15s"],
+             {"kalman mount_rotation": f"estimated within {m['mount_error_deg']:.3f}°"})
+    i = out["inertia_tour"]
+    rms_rows("inertia, random tour", i["rms_over_noise_last_15s"],
+             {"rls": "inertial force RMS " + ", ".join(_f(v, 3) for v in i["inertial_force_rms_N"]) + " N"})
+    r = out["rotation_104g"]
+    for k, (label, n) in enumerate(r["estimators"].items()):
+        t.add_row(f"104 g at {r['speed_deg_s']:.0f} deg/s (¼ noise)" if k == 0 else "", label, "",
+                  f"Max AE {n['max_ae']:.3f} N per sample, {n['max_ae_10ms']:.3f} N over 10 ms; MAE {n['mae']:.3f} N",
+                  end_section=k == len(r["estimators"]) - 1)
+    rms_rows(f"kinematics {out['time_lag']['lag_s'] * 1000:.0f} ms late", out["time_lag"]["rms_over_noise_last_10s"],
+             {})
+    rms_rows("2 % calibration error", out["gain"]["rms_over_noise_last_10s"], {})
+    p = out["payload"]
+    if p.get("recognised_after_s") is None:
+        t.add_row("100 g payload", "kalman", "", "not recognised")
+    else:
+        torque = p["torque_flag_up_after_event_s"]
+        t.add_row("100 g payload", "kalman", "",
+                  f"recognised {p['recognised_after_s']:.3f} s after the hang; force flag up "
+                  f"{p['force_flag_up_after_hang_s']:.3f} s after it; torque flag "
+                  f"{'never' if torque is None else f'{torque:.3f} s after the event'}")
+    Console(width=max(Console().width, 140)).print(t)
+
+
 def print_real_table(out: dict) -> None:
     """One row per file and estimator."""
     t = Table(title="Real recordings: online RMS over every row after convergence, against the offline batch "
-                    "fit over the same rows")
+                    "fit over the same rows; and the ‖·‖ ratio over the file's second half")
     for col in ("file", "estimator", "force conv.", "torque conv.", "refused", "RMS fx, fy, fz (N)",
-                "batch, same rows", "ratio per axis", "ratio ‖·‖"):
+                "batch, same rows", "ratio per axis", "ratio ‖·‖", "2nd half"):
         t.add_column(col, justify="right")
     for name, entry in out.items():
         if "error" in entry:
-            t.add_row(name, "", "", "", "", entry["error"], "", "", "", end_section=True)
+            t.add_row(name, "", "", "", "", entry["error"], "", "", "", "", end_section=True)
             continue
         for k, (est_name, r) in enumerate(entry["estimators"].items()):
             rms = ", ".join(_f(v) for v in r.get("rms_force_S", [])) or "never converged"
@@ -268,7 +311,7 @@ def print_real_table(out: dict) -> None:
             ratio = ", ".join(_f(v, 2) for v in r.get("ratio", [])) or "–"
             t.add_row(name if k == 0 else "", est_name, str(r["converged_force_at"]), str(r["converged_torque_at"]),
                       f"{r['refused_pct']:.1f} %", rms, batch, ratio, _f(r.get("ratio_norm"), 2),
-                      end_section=k == len(entry["estimators"]) - 1)
+                      _f(r.get("ratio_norm_second_half"), 2), end_section=k == len(entry["estimators"]) - 1)
     Console(width=max(Console().width, 140)).print(t)
 
 
@@ -430,8 +473,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params-out", default=None, help="write the final parameters as JSON")
     p.set_defaults(func=cmd_compensate)
 
-    p = sub.add_parser("bench", help="reproduce the paper's experiments (paper) or evaluate real recordings (real)")
-    p.add_argument("which", choices=("paper", "real"), help="paper: simulated experiments; real: CSV folder")
+    p = sub.add_parser("bench", help="reproduce the paper's experiments (paper), measure the estimator family "
+                       "(estimators) or evaluate real recordings (real)")
+    p.add_argument("which", choices=("paper", "estimators", "real"),
+                   help="paper: simulated experiments; estimators: issue 4's scenarios; real: CSV folder")
     p.add_argument("folder", nargs="?", default=None, help="with real: folder of CSV files "
                    "(default ../shared/data/real)")
     p.add_argument("--json", default=None, help="write every number as JSON")

@@ -536,7 +536,9 @@ class KalmanEstimator:
     def _adapt_noise(self, stage, y, A, x_before, run, usable, counter: str) -> None:
         """Covariance matching: R per axis ← a running mean of e² − (C P Cᵀ)ᵢᵢ.
 
-        e_k = y_k − A_k a − b at the state the sample was predicted from; C P Cᵀ with the
+        e_k = y_k − A_k a − b at the state the sample was predicted from (its variance is
+        R + C P Cᵀ, plus for the torque stage the force noise carried through the centre of
+        gravity, which R_k adds separately and is taken out here); C P Cᵀ with the
         stage's full P after the block (a little small for a block's first samples while P
         still shrinks fast, which makes R a little large: the safe side). The start value
         counts as NOISE_PRIOR_SAMPLES samples, so a quiet start cannot collapse R before
@@ -554,6 +556,7 @@ class KalmanEstimator:
         e = y[idx] - np.einsum("kij,kj->ki", A, X_prev[:, :3]) - X_prev[:, 3:6]
         C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)  # (k, 3, 6)
         cpc = np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C)
+        cpc += stage.measurement_cov(stage.x[:3]).diagonal() - stage.r  # the torque stage's carried force noise
         weight = np.where(run.gated[idx], NOISE_REFUSED_WEIGHT, 1.0)
         floor = NOISE_FLOOR[0] if stage is self.force else NOISE_FLOOR[1]
         r = stage.r.copy()

@@ -72,7 +72,21 @@ def test_bench_real_on_a_folder(tmp_path, capsys):
     out = json.loads((tmp_path / "r.json").read_text())
     rls = out["sim"]["estimators"]["rls"]
     assert rls["converged_force_at"] is not None and 0.9 < rls["ratio_norm"] < 1.1
+    assert 0.9 < rls["ratio_norm_second_half"] < 1.1
+    auto = out["sim"]["estimators"]["kalman noise=auto"]  # kalman once more, estimating the sensor's noise
+    assert auto["converged_force_at"] is not None and auto["ratio_norm_second_half"] < 1.05
     assert "sim" in capsys.readouterr().out
+
+
+def test_bench_estimators_prints_every_scenario(tmp_path, capsys):
+    assert main(["bench", "estimators", "--json", str(tmp_path / "e.json")]) == 0
+    out = json.loads((tmp_path / "e.json").read_text())
+    assert set(out) == {"mount", "inertia_tour", "rotation_104g", "time_lag", "gain", "payload"}
+    assert out["mount"]["mount_error_deg"] <= 0.3 and out["payload"]["recognised_after_s"] < 0.5
+    printed = capsys.readouterr().out
+    assert "5° mount" in printed and "estimated within" in printed and "100 g payload" in printed
+    assert main(["bench", "estimators", "somewhere"]) == 2
+    assert "'bench estimators' takes no folder" in capsys.readouterr().err
 
 
 def test_bench_options_that_do_not_belong_are_refused(capsys):

@@ -44,6 +44,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hapticlab.core.batch import batch_fit
+from hapticlab.core.blas import single_threaded_blas
 from hapticlab.core.effects import Effect, Model, Motion, motion_from_poses
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.plugins import ConfigError, Registry
@@ -422,6 +423,10 @@ class Discrepancy:
 
     def run(self) -> dict[str, Any]:
         """Everything: the JSON-ready result (``"_states"`` holds arrays for the plots)."""
+        with single_threaded_blas():  # tall thin products: one thread is fastest and steady here
+            return self._run()
+
+    def _run(self) -> dict[str, Any]:
         rec = self.rec
         use = rec.usable
         self.say("identifying the base model")

@@ -94,11 +94,14 @@ def test_identified_parameters_are_the_hidden_ones(tmp_path):
     assert np.degrees(np.linalg.norm(np.array(params["mount_rotation"]["mount_rotation_SE"]) - MOUNT)) < 0.1
     np.testing.assert_allclose(params["bias_drift"]["bias_force_rate_S"], DRIFT, atol=0.05 / 60)
     lag, _ = run(tmp_path, "time_lag", seed=2)
+    kalman = Registry().create("estimator", "kalman", lag["estimator_options"], where="estimator")
+    assert kalman.time_lag_s == pytest.approx(LAG, abs=0.001)
     assert lag["final"]["params"]["time_lag"]["time_lag_s"] == pytest.approx(LAG, abs=0.001)
     assert lag["estimator_options"] == {"effects": ["time_lag"],
                                         "time_lag_s": lag["final"]["params"]["time_lag"]["time_lag_s"]}
     gain, _ = run(tmp_path, "gain_crosstalk", seed=2)
     np.testing.assert_allclose(gain["estimator_options"]["gain_force_S"], GF, atol=0.003)
+    Registry().create("estimator", "kalman", gain["estimator_options"], where="estimator")
     inertia, world = run(tmp_path, "inertia", seed=2)
     named = inertia["final"]["params"]["inertia"]
     assert named["mass_scale"] == pytest.approx(1.0, abs=0.05)
@@ -191,6 +194,10 @@ def test_command_line_json_plots_and_toml(tmp_path, capsys):
     assert estimator["name"] == "kalman" and estimator["effects"] == data["effects"]
     np.testing.assert_allclose(estimator["mount_rotation_SE"], data["estimator_options"]["mount_rotation_SE"],
                                rtol=1e-5)
+    # ... which the kalman estimator takes as it is (item 6 of the issue: the effects online)
+    kalman = Registry().create("estimator", "kalman", {k: v for k, v in estimator.items() if k != "name"},
+                               where="estimator")
+    assert set(kalman.effects) >= set(data["effects"])
     assert "steps: RMS per axis" in captured.out and "named:" in captured.out
     written = sorted(p.name for p in (tmp_path / "p").iterdir())
     assert written == ["00_baseline.png", "01_after_bias_drift.png", "02_after_mount_rotation.png", "steps.png"] \

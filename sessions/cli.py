@@ -395,7 +395,9 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     from .discrepancy import Settings, discrepancy, json_ready, toml_snippet
 
     registry = Registry()
-    settings = Settings(folds=args.folds, time_base=args.time_base)
+    if not 0 <= args.min_gain < 100:
+        raise UserError(f"--min-gain: a percentage in [0, 100), got {args.min_gain:g}")
+    settings = Settings(folds=args.folds, time_base=args.time_base, min_gain=args.min_gain / 100)
     if args.effects is not None:
         names = [n.strip() for n in args.effects.split(",") if n.strip()]
         for name in names:
@@ -502,6 +504,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="EFFECT.OPTION=VALUE",
                    help="an effect's option, e.g. --set bias_drift.order=2")
     p.add_argument("--folds", type=int, default=10, help="contiguous folds of the held-out test (default 10)")
+    p.add_argument("--min-gain", type=float, default=1.0, metavar="PERCENT",
+                   help="held-out mean-square reduction that names an effect (default 1 %%)")
     p.add_argument("--time-base", default="auto", choices=("auto", "seconds", "index"),
                    help="what t is: auto (rows when t is 0, 1, 2, ...), seconds, or index (rows)")
     p.set_defaults(func=cmd_discrepancy)

@@ -92,9 +92,12 @@ class AlignedSamples:
 
     @property
     def usable(self) -> np.ndarray:
-        """(N,) samples an estimator may see: orientation not stale, status good, values finite."""
-        return (~self.stale & (self.status == STATUS_OK) & np.isfinite(self.force_S).all(1)
-                & np.isfinite(self.torque_S).all(1))
+        """(N,) samples an estimator may see: orientation not stale, status good, wrench and pose finite."""
+        ok = (~self.stale & (self.status == STATUS_OK) & np.isfinite(self.force_S).all(1)
+              & np.isfinite(self.torque_S).all(1) & np.isfinite(self.R_EB).all(axis=(1, 2)))
+        if self.p_BoEo_B is not None:
+            ok &= np.isfinite(self.p_BoEo_B).all(1)
+        return ok
 
     def subset(self, index) -> "AlignedSamples":
         """The samples selected by a boolean mask or index array."""

@@ -286,10 +286,10 @@ def print_estimators_table(out: dict) -> None:
     if p.get("recognised_after_s") is None:
         t.add_row("100 g payload", "kalman", "", "not recognised")
     else:
-        torque = p["torque_flag_up_after_event_s"]
+        force, torque = p["force_flag_up_after_hang_s"], p["torque_flag_up_after_event_s"]
         t.add_row("100 g payload", "kalman", "",
                   f"recognised {p['recognised_after_s']:.3f} s after the hang; force flag up "
-                  f"{p['force_flag_up_after_hang_s']:.3f} s after it; torque flag "
+                  f"{'never' if force is None else f'{force:.3f} s after it'}; torque flag "
                   f"{'never' if torque is None else f'{torque:.3f} s after the event'}")
     Console(width=max(Console().width, 140)).print(t)
 
@@ -306,6 +306,12 @@ def print_real_table(out: dict) -> None:
             t.add_row(name, "", "", "", "", entry["error"], "", "", "", "", end_section=True)
             continue
         for k, (est_name, r) in enumerate(entry["estimators"].items()):
+            if "error" in r:
+                t.add_row(name if k == 0 else "", est_name, "", "", "", r["error"], "", "", "", "",
+                          end_section=k == len(entry["estimators"]) - 1)
+                continue
+            if est_name.endswith("named effects"):
+                est_name += " (" + (", ".join(entry.get("named_effects", [])) or "none") + ")"
             rms = ", ".join(_f(v) for v in r.get("rms_force_S", [])) or "never converged"
             batch = ", ".join(_f(v) for v in r.get("batch_rms_same_rows", [])) or "–"
             ratio = ", ".join(_f(v, 2) for v in r.get("ratio", [])) or "–"

@@ -7,8 +7,9 @@ issue's targets name:
 
 * ``mount``: a 5° sensor mount rotation, 30 s random tour: the angle between
   the estimated and the true R_SE, and RMS / noise over the last 15 s;
-* ``inertia_tour``: the tool's own inertial force on a random tour (ω up to
-  2 rad/s, ω̇ up to 4.4 rad/s²), RMS / noise with and without ``inertia``;
+* ``inertia_tour``: the tool's own inertial force on a random tour that turns
+  (ω up to 2 rad/s, ω̇ up to 4.4 rad/s²) and moves the flange up to 0.1 m per
+  axis, RMS / noise with and without ``inertia``;
 * ``rotation_104g``: the paper's 104 g test at 72 deg/s at ¼ of Table I's noise,
   Max AE of |contact force| per sample and over a 10 ms moving mean;
 * ``time_lag``: kinematics 20 ms late, RMS / noise with and without ``time_lag_s``;
@@ -93,9 +94,13 @@ def mount() -> dict[str, Any]:
             "mount_error_deg": angle_deg(world.R_SE, built["kalman mount_rotation"].R_SE)}
 
 
+TRANSLATION_M = 0.1
+"""The inertia tour also moves the flange up to this far per axis (m), so linear acceleration counts."""
+
+
 def inertia_tour() -> dict[str, Any]:
-    """The tool's inertial force on a lively tour, with and without ``inertia = true``."""
-    world, block = tour(30.0, seed=4)
+    """The tool's inertial force on a lively tour that turns and translates, with and without ``inertia = true``."""
+    world, block = tour(30.0, seed=4, motion={"script": "random_tour", "max_translation": TRANSLATION_M})
     rows, _ = compare(block, 15.0, {"rls": RLSEstimator, "kalman": KalmanEstimator,
                                     "kalman inertia": lambda: KalmanEstimator(inertia=True)})
     w = world.wrench(block.t_ns[block.t_ns >= 15e9] * 1e-9)

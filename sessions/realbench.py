@@ -6,7 +6,9 @@ simulated Gamma's): the online RMS of the estimated contact force per axis
 over every row after the first convergence, against the offline batch fit of
 the whole file evaluated over the same rows (their ratio); the same ratio over
 the file's second half, a window that does not depend on each estimator's own
-convergence test; the share of rows the estimator refused as contact, and the
+convergence test; ``kalman`` once more with the effects ``hapticlab discrepancy``
+names on the same file (their values fitted offline on that file, so this row
+is in-sample for them); the share of rows the estimator refused as contact, and the
 samples each stage took to converge by its own criterion. The recordings are
 contact-free calibration logs, so every refused row is a false contact, and
 refused rows are scored like the rest.
@@ -39,11 +41,20 @@ def default_real_dir() -> Path:
 AUTO_NOISE = {"noise_force": "auto", "noise_torque": "auto"}
 
 
-def variants(registry: Registry) -> list[tuple[str, str, dict[str, Any]]]:
-    """(label, estimator name, options): every registered estimator with its defaults, and kalman with auto noise."""
-    out = [(name, name, {}) for name in registry.names("estimator")]
+def variants(registry: Registry, path: Path) -> list[tuple[str, str, dict[str, Any] | str]]:
+    """(label, estimator name, options or an error): every registered estimator with its defaults; kalman
+    with auto noise; and kalman with auto noise and the effects ``hapticlab discrepancy`` names on the file."""
+    out: list[tuple[str, str, dict[str, Any] | str]] = [(name, name, {}) for name in registry.names("estimator")]
     if "kalman" in registry.names("estimator"):
         out.append(("kalman noise=auto", "kalman", dict(AUTO_NOISE)))
+        from .discrepancy import discrepancy
+
+        try:
+            named = discrepancy(path, registry=registry)["estimator_options"]
+        except (ValueError, OSError) as exc:
+            named = f"discrepancy: {exc}"
+        out.append(("kalman noise=auto + named effects", "kalman",
+                    dict(AUTO_NOISE, **named) if isinstance(named, dict) else named))
     return out
 
 
@@ -72,9 +83,14 @@ def bench_real(folder: Path, registry: Registry | None = None,
             "batch_rms_force_S": np.sqrt(np.mean(residual ** 2, axis=0)).tolist(),
             "estimators": {},
         }
-        for label, name, options in variants(registry):
+        for label, name, options in variants(registry, path):
             if progress:
                 progress(f"{path.name}: {label}")
+            if isinstance(options, str):  # the options could not be had: say why in the row
+                entry["estimators"][label] = {"error": options}
+                continue
+            if label.endswith("named effects"):
+                entry["named_effects"] = options.get("effects", [])
             est = run_estimator(stream, registry.create("estimator", name, options, where="estimator"))
             first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
             result: dict[str, Any] = {"converged_force_at": first_f, "converged_torque_at": first_t,

@@ -241,6 +241,13 @@ def _save_estimator_state(estimator: Any, recorder: Recorder, path: Path) -> Pat
 
 
 PARAMS_INTERVAL_NS = 100_000_000
+STD_CHECK_NS = 10_000_000
+"""After the force parameters were first known to ready_force_std, their std is checked again this
+often (10 ms): above the bound again (a drifting estimator through a long contact) zeroes the force."""
+PAYLOAD_HOLD_NS = 1_000_000_000
+"""After an estimator's payload change the haptic force is held at zero this long (1 s): the change
+may be a load held by the tool (a grasped object) rather than a new tool, and its release would then
+show as a phantom force until the estimator sees the second change."""
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""
 
 
@@ -286,6 +293,9 @@ def run_session(
     # convergence it flickers with noise; the haptics wait for the first
     # convergence ("ready") and the flips are counted, not each made an event.
     converged = [False, False]
+    hold_until_ns = 0  # no haptic force before this (a payload change)
+    parameters_lost = False  # known once, uncertain again (checked every STD_CHECK_NS)
+    next_std_check_ns = 0
     ready = [False, False]
     flips = [0, 0]
     next_params_ns = 0
@@ -341,6 +351,8 @@ def run_session(
                     est = estimator.update_block(usable)
                     for t_ev, kind, msg in getattr(estimator, "drain_events", list)():
                         event(t_ev, kind, msg)
+                        if kind == "payload_change":  # the tool's weight just changed: hold, then trust again
+                            hold_until_ns = now_ns + PAYLOAD_HOLD_NS
                     with_params = now_ns >= next_params_ns
                     if with_params:
                         next_params_ns = now_ns + PARAMS_INTERVAL_NS
@@ -352,7 +364,8 @@ def run_session(
                         rec.estimates(f"/estimator/{label}", shadow_est,
                                       *((shadow.params(), shadow.cov_diag()) if with_params else ()))
                     R_BE = block.R_EB[good][-1].T
-                    last_estimate = (est.contact_force_S[-1], R_BE)
+                    R_SE = getattr(estimator, "R_SE", None)  # a mount the estimator knows (else S = E)
+                    last_estimate = (est.contact_force_S[-1], R_BE if R_SE is None else R_BE @ R_SE.T)
                     status.contact = bool(est.contact[-1])
                     contact_samples += int(np.count_nonzero(est.contact))
                     for stage, flags, label in ((0, est.converged_force, "force"),
@@ -370,6 +383,10 @@ def run_session(
                         if parameters_known and force_std is not None:
                             event(now_ns, "parameters_known",
                                   f"force parameters known to ±{float(np.max(force_std())):.3g} N (1σ)")
+                    elif parameters_known and force_std is not None and now_ns >= next_std_check_ns:
+                        # a drifting estimator's uncertainty grows again through a long contact
+                        next_std_check_ns = now_ns + STD_CHECK_NS
+                        parameters_lost = float(np.max(force_std())) > session.ready_force_std
 
             # Reasons to hold the force at zero, checked at every tick.
             if last_sample_ns is None or now_ns - last_sample_ns > stale_timeout_ns:
@@ -380,6 +397,10 @@ def run_session(
                 reason = "estimator not converged"
             elif not parameters_known:
                 reason = "parameters not yet identified"
+            elif parameters_lost:
+                reason = "parameters no longer known (uncertainty grew)"
+            elif now_ns < hold_until_ns:
+                reason = "payload change: tool weight re-identified, holding"
             else:
                 reason = ""
 

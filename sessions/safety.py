@@ -33,18 +33,23 @@ class ForceGovernor:
         self.max_step = settings.max_force_rate * period_s
         self.last_force_D = ZERO3
 
-    def command(self, t_ns: int, contact_force_S: np.ndarray | None, R_BE: np.ndarray | None,
+    def command(self, t_ns: int, contact_force_S: np.ndarray | None, R_BS: np.ndarray | None,
                 reason: str = "") -> HapticCommand:
-        """The command for this device period; ``reason`` non-empty forces zero."""
-        if not reason and (contact_force_S is None or R_BE is None):
+        """The command for this device period; ``reason`` non-empty forces zero.
+
+        Args:
+            contact_force_S: (3,) the contact force in the sensor frame S, N.
+            R_BS: (3, 3) orientation of S in the robot base B (R_BE·R_ES: the flange's
+                orientation and the sensor's mount, identity unless an estimator knows it).
+        """
+        if not reason and (contact_force_S is None or R_BS is None):
             reason = "no estimate yet"
         if not reason and not np.all(np.isfinite(contact_force_S)):
             reason = "non-finite contact force"
         if reason:
             self.last_force_D = ZERO3
             return HapticCommand(t_ns, ZERO3, False, reason)
-        # R_ES = I: the paper's model assumes the sensor aligned with the flange.
-        target = self.settings.scale * (self.R_DB @ (R_BE @ contact_force_S))
+        target = self.settings.scale * (self.R_DB @ (R_BS @ contact_force_S))
         norm = float(np.linalg.norm(target))
         if norm > self.settings.max_force:
             target = target * (self.settings.max_force / norm)

@@ -8,7 +8,7 @@ import pytest
 from helpers import REAL_DATA
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def real_data() -> Path:
     """The folder of real recordings; tests using it skip when it is absent."""
     if not REAL_DATA.is_dir():

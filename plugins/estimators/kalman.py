@@ -72,6 +72,7 @@ from pathlib import Path
 import numpy as np
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import skew_stack
+from hapticlab.core.aligner import orientation_at, position_at
 from hapticlab.core.derivatives import MotionDerivatives
 from hapticlab.core.frames import (
     GRAVITY_M_S2,
@@ -79,6 +80,7 @@ from hapticlab.core.frames import (
     matrix_from_quat_wxyz,
     matrix_from_rotvec,
     quat_from_rotvec,
+    quat_wxyz_from_matrix,
     rotvec_from_matrix,
 )
 from hapticlab.core.kalman import I3, KalmanStage, MountStage
@@ -126,6 +128,14 @@ there a sixth is not reached within a 100-pose file (``bench real``)."""
 CHUNK = 64
 """With auto noise, a block is filtered in chunks of at most this many samples, the noise estimate
 updated after each (live blocks are 1–10 samples; offline blocks are long)."""
+MAX_KINEMATICS_LAG_S = 0.5
+"""The longest kinematics lag (time_lag_s > 0) corrected, s: its poses are extrapolated from the
+motion's derivatives, so it is meant for lags of milliseconds; beyond half a second it is a fault."""
+MAX_SENSOR_LAG_S = 5.0
+"""The longest sensor lag (time_lag_s < 0) corrected, s: its poses are interpolated from those
+already received, kept for this long."""
+LAG_HISTORY_MARGIN_NS = 50_000_000
+"""Poses kept beyond the lag itself (50 ms), for the next block's interpolation."""
 EFFECT_OPTIONS = {
     "mount_rotation": "mount_rotation = true",
     "bias_drift": "bias_rate = true",
@@ -176,8 +186,10 @@ def _gain_inverse(key: str, value) -> np.ndarray | None:
         G = np.zeros(0)
     if G.shape != (3, 3) or not np.all(np.isfinite(G)):
         raise ValueError(f"{key}: must be a 3x3 matrix (measured = (I + G)·true), got {value!r}")
-    if np.abs(G).max() > 0.5:
-        raise ValueError(f"{key}: a calibration error above 50 % ({np.abs(G).max():.2f}) is not a small error")
+    smallest = float(np.linalg.svd(np.eye(3) + G, compute_uv=False).min())
+    if np.abs(G).max() > 0.5 or smallest < 0.5:
+        raise ValueError(f"{key}: not a small calibration error (largest entry {np.abs(G).max():.2f}, "
+                         f"smallest singular value of I + G {smallest:.2f}; expected entries ≤ 0.5 and ≥ 0.5)")
     return np.linalg.inv(np.eye(3) + G)
 
 
@@ -316,8 +328,10 @@ class KalmanEstimator:
         if not (isinstance(payload_change_s, (int, float)) and math.isfinite(payload_change_s)
                 and payload_change_s >= 0):
             raise ValueError(f"payload_change_s: must be a finite number >= 0, got {payload_change_s!r}")
-        if not (isinstance(time_lag_s, (int, float)) and math.isfinite(time_lag_s) and abs(time_lag_s) <= 0.5):
-            raise ValueError(f"time_lag_s: must be a number of seconds within ±0.5, got {time_lag_s!r}")
+        if not (isinstance(time_lag_s, (int, float)) and math.isfinite(time_lag_s)
+                and -MAX_SENSOR_LAG_S <= time_lag_s <= MAX_KINEMATICS_LAG_S):
+            raise ValueError(f"time_lag_s: must be a number of seconds from -{MAX_SENSOR_LAG_S:g} (sensor late) "
+                             f"to {MAX_KINEMATICS_LAG_S:g} (kinematics late), got {time_lag_s!r}")
         if not isinstance(warm_start, str):
             raise ValueError(f"warm_start: must be a path (string), got {warm_start!r}")  # noqa: TRY004
         R_SE = mount_matrix(mount_rotation_SE, mount_R_SE)
@@ -336,7 +350,10 @@ class KalmanEstimator:
                               | ({"time_lag"} if time_lag_s else set())
                               | ({"gain_crosstalk"} if gain_force_S is not None or gain_torque_S is not None
                                  else set()))
-        self.derivatives = MotionDerivatives(derivative_window_s) if (inertia or time_lag_s) else None
+        self.derivatives = MotionDerivatives(derivative_window_s) if (inertia or time_lag_s > 0) else None
+        self._lag_t = np.zeros(0, dtype=np.int64)  # the poses a late sensor stream still needs (time_lag_s < 0)
+        self._lag_q = np.zeros((0, 4))
+        self._lag_p: np.ndarray | None = np.zeros((0, 3))
         self.method = None if implementation == "auto" else implementation
         if mount_rotation:
             self.method = None  # the mount stage has its own (numpy) filter
@@ -364,6 +381,9 @@ class KalmanEstimator:
         self._accepted_f = 0.0  # weight of the samples in each stage's noise estimate so far
         self._accepted_t = 0.0
         self._noise_window: int | None = None  # NOISE_WINDOW_S in samples, from the first block's rate
+        self._bound_cap: tuple[float, float] | None = None  # auto bounds at the first force convergence
+        self._cog_known = False  # a warm start's torque stage had converged
+        self._mass_known = False  # a warm start's force stage had converged
         self.prior_f = np.array(prior_f, dtype=float)
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = int(round(payload_change_s * 1e9))
@@ -393,7 +413,7 @@ class KalmanEstimator:
         dt = np.maximum(dt_ns, 0) * 1e-9  # s; a repeated or reversed stamp adds no time
         self._last_t_ns = int(t_ns[-1])
         usable = block.usable
-        force_S, torque_S, R_EB, inertial_S = self._prepare(block)
+        force_S, torque_S, R_EB, inertial_S, usable = self._prepare(block)
         y_f = force_S if inertial_S is None else force_S - inertial_S  # what gravity and bias explain
 
         x_before = self.force.x[:6].copy()
@@ -416,8 +436,8 @@ class KalmanEstimator:
             torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
         contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], run_t.X[:, :6])
         if self.noise_auto:
-            if self._noise_window is None and m > 1 and dt[1:].max() > 0:
-                self._noise_window = int(NOISE_WINDOW_S / float(np.median(dt[1:][dt[1:] > 0])))
+            if self._noise_window is None and dt.max() > 0:  # the sensor's rate, from the first time step
+                self._noise_window = int(NOISE_WINDOW_S / float(np.median(dt[dt > 0])))
             self._adapt_noise(self.force, y_f, A_f, x_before, run_f, usable, "_accepted_f")
             self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, accepted_f & conv_f, "_accepted_t")
             self.torque.rc = self.force.r.copy()
@@ -427,6 +447,8 @@ class KalmanEstimator:
             self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, usable, run_f, x_before)
         if self.first_converged_force is None and conv_f.any():
             self.first_converged_force = self.samples + int(np.argmax(conv_f))
+            if self.noise_auto:
+                self._bound_cap = self._bounds()
         if self.first_converged_torque is None and conv_t.any():
             self.first_converged_torque = self.samples + int(np.argmax(conv_t))
         self.samples += m
@@ -450,39 +472,71 @@ class KalmanEstimator:
     def _prepare(self, block: AlignedSamples):
         """The block's readings with the configured effects applied.
 
-        Returns (force_S, torque_S, R_EB, inertial_force_S or None): the readings through
-        the inverse calibration error (gain_crosstalk), the orientation at the sensor's
-        time (time_lag), and the tool's inertial force (inertia) in S, N.
+        Returns (force_S, torque_S, R_EB, inertial_force_S or None, usable): the readings
+        through the inverse calibration error (gain_crosstalk), the orientation at the
+        sensor's time (time_lag), the tool's inertial force (inertia) in S, N, and the
+        samples that may update the filter (block.usable, less the first |τ| seconds of a
+        late sensor stream, whose poses are not known).
         """
-        force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
+        force_S, torque_S, R_EB, usable = block.force_S, block.torque_S, block.R_EB, block.usable
+        quat_BE, p_BoEo_B = block.quat_BE, block.p_BoEo_B
         if self.gain_inverse_force is not None:
             force_S = force_S @ self.gain_inverse_force.T
         if self.gain_inverse_torque is not None:
             torque_S = torque_S @ self.gain_inverse_torque.T
+        if self.time_lag_s < 0:
+            R_EB, quat_BE, p_BoEo_B, known = self._past_poses(block)
+            usable = usable & known
         if self.derivatives is None:
-            return force_S, torque_S, R_EB, None
-        w_E, alpha_E, a_B = self.derivatives.update(block.t_ns, block.quat_BE, block.p_BoEo_B, R_EB=R_EB)
-        if self.time_lag_s:
-            # the pose at the sensor's time t was stamped t + τ: R_BE(t + τ) = R_BE(t) Exp(ω τ + ½ α τ²)
+            return force_S, torque_S, R_EB, None, usable
+        w_E, alpha_E, a_B = self.derivatives.update(block.t_ns, quat_BE, p_BoEo_B, R_EB=R_EB)
+        if self.time_lag_s > 0:
+            # the pose at the sensor's time t is stamped t + τ, not yet here: extrapolate,
+            # R_BE(t + τ) = R_BE(t) Exp(ω τ + ½ α τ²)
             tau = self.time_lag_s
             step = matrix_from_quat_wxyz(quat_from_rotvec(w_E * tau + 0.5 * alpha_E * tau * tau))
             R_EB = step.transpose(0, 2, 1) @ R_EB
             w_E = w_E + alpha_E * tau
             # (a_B is not shifted: a second-order term of a second-order term)
-        if not self.inertia:
-            return force_S, torque_S, R_EB, None
-        return force_S, torque_S, R_EB, self._inertial_force(R_EB, w_E, alpha_E, a_B)
+        if not self.inertia or not (self.first_converged_force is not None or self._mass_known):
+            # the mass comes from the identified weight: until the force stage has converged it may be
+            # far off, and subtracting a wrong inertial force would feed back into the weight
+            return force_S, torque_S, R_EB, None, usable
+        return force_S, torque_S, R_EB, self._inertial_force(R_EB, w_E, alpha_E, a_B), usable
+
+    def _past_poses(self, block: AlignedSamples):
+        """A late sensor stream (τ < 0): the poses at t + τ, interpolated from the poses already seen.
+
+        Returns (R_EB (m, 3, 3), quat_BE (m, 4), p_BoEo_B (m, 3) or None, known (m,) bool:
+        False where t + τ precedes every pose seen).
+        """
+        t = np.asarray(block.t_ns, dtype=np.int64)
+        q = block.quat_BE if block.quat_BE is not None else quat_wxyz_from_matrix(block.R_EB.transpose(0, 2, 1))
+        hist_t = np.concatenate([self._lag_t, t])
+        hist_q = np.concatenate([self._lag_q, q])
+        has_p = block.p_BoEo_B is not None and self._lag_p is not None
+        hist_p = np.concatenate([self._lag_p, block.p_BoEo_B]) if has_p else None
+        target = t + int(round(self.time_lag_s * 1e9))
+        quat_BE, _ = orientation_at(target, hist_t, hist_q, 0)
+        known = target >= hist_t[0]
+        p_BoEo_B = position_at(target, hist_t, hist_p, 0) if has_p else None
+        keep = hist_t >= target[-1] - LAG_HISTORY_MARGIN_NS  # what the next block's targets may need
+        keep[-2:] = True
+        self._lag_t, self._lag_q = hist_t[keep], hist_q[keep]
+        self._lag_p = hist_p[keep] if has_p else None
+        return matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1), quat_BE, p_BoEo_B, known
 
     def _inertial_force(self, R_EB, w_E, alpha_E, a_B) -> np.ndarray:
         """(m, 3) the tool's inertial force in S, −m (a + α × c + ω × (ω × c)), N.
 
-        m = |gravity_force_B| / g and c = cog_S are the current estimates (c once the
-        torque stage has converged; until then the centre of mass is taken at the sensor
-        origin). a is the flange's acceleration (the sensor is taken at the flange
+        m = |gravity_force_B| / g and c = cog_S are the current estimates, used once the
+        force stage has converged (before that no inertial force is subtracted: a wrong
+        weight would feed back through m); c once the torque stage has converged (until then
+        the centre of mass is taken at the sensor origin). a is the flange's acceleration (the sensor is taken at the flange
         origin); ω, α in S through the mount.
         """
         mass = float(np.linalg.norm(self.force.x[:3])) / GRAVITY_M_S2
-        cog_S = self.torque.x[:3] if self.first_converged_torque is not None else np.zeros(3)
+        cog_S = self.torque.x[:3] if (self.first_converged_torque is not None or self._cog_known) else np.zeros(3)
         R_SE = self.R_SE
         w_S, alpha_S = w_E @ R_SE.T, alpha_E @ R_SE.T
         a_S = np.einsum("kij,kj->ki", self._to_S(R_EB), a_B)
@@ -496,8 +550,12 @@ class KalmanEstimator:
         f, t = self.converged_force_std_option, self.converged_torque_std_option
         if f is None:
             f = AUTO_BOUND_FRACTION * float(np.sqrt(self.force.r.mean())) if self.noise_auto else CONVERGED_FORCE_STD
+            if self._bound_cap is not None:  # the auto bound never grows past its value at first convergence
+                f = min(f, self._bound_cap[0])
         if t is None:
             t = AUTO_BOUND_FRACTION * float(np.sqrt(self.torque.r.mean())) if self.noise_auto else CONVERGED_TORQUE_STD
+            if self._bound_cap is not None:
+                t = min(t, self._bound_cap[1])
         return f, t
 
     def _force_converged(self, run_f, x_before, accepted) -> np.ndarray:
@@ -545,8 +603,9 @@ class KalmanEstimator:
         the robot moves; the mean then grows over NOISE_WINDOW samples and forgets
         exponentially. Each term is clipped at NOISE_CLIP standard deviations of the
         predicted innovation, and a refused sample counts with weight NOISE_REFUSED_WEIGHT:
-        a contact barely moves R, but a model error that the gate keeps refusing (R too
-        small for this sensor) still raises it until the samples are accepted.
+        before the force stage first converges, so a model error that the gate keeps
+        refusing (R started too small for this sensor) still raises it; after that a refused
+        sample is a contact and does not count at all (a long contact must not inflate R).
         """
         idx = np.flatnonzero(usable)
         if len(idx) == 0:
@@ -557,12 +616,21 @@ class KalmanEstimator:
         C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)  # (k, 3, 6)
         cpc = np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C)
         cpc += stage.measurement_cov(stage.x[:3]).diagonal() - stage.r  # the torque stage's carried force noise
-        weight = np.where(run.gated[idx], NOISE_REFUSED_WEIGHT, 1.0)
+        # refused samples count only until the force stage first converges: they let a noise estimate
+        # that started too small escape before the parameters are known; after that a refusal is a
+        # contact, and a long one must not raise R (and with it the gate and the convergence bound)
+        refused_weight = NOISE_REFUSED_WEIGHT if self.first_converged_force is None else 0.0
+        weight = np.where(run.gated[idx], refused_weight, 1.0)
+        finite = np.isfinite(e).all(axis=1)
+        weight = np.where(finite, weight, 0.0)
+        e = np.where(finite[:, None], e, 0.0)
         floor = NOISE_FLOOR[0] if stage is self.force else NOISE_FLOOR[1]
         r = stage.r.copy()
         count = getattr(self, counter)
         window = max(NOISE_WINDOW, self._noise_window or 0)
         for k in range(len(idx)):  # a short loop: live blocks are a few samples, chunks at most CHUNK
+            if weight[k] == 0.0:
+                continue
             count += weight[k]
             lam = weight[k] / min(count + NOISE_PRIOR_SAMPLES, window)
             s2 = r + cpc[k]
@@ -687,8 +755,8 @@ class KalmanEstimator:
         return {
             "estimator": "kalman",
             "bias_rate": self.bias_rate,
-            "force": {"x": self.force.x.tolist(), "P": self.force.P.tolist()},
-            "torque": {"x": self.torque.x.tolist(), "P": self.torque.P.tolist()},
+            "force": {"x": self.force.x.tolist(), "P": (0.5 * (self.force.P + self.force.P.T)).tolist()},
+            "torque": {"x": self.torque.x.tolist(), "P": (0.5 * (self.torque.P + self.torque.P.T)).tolist()},
             "converged_force": self.converged_force,
             "converged_torque": self.converged_torque,
             "t_ns": self._last_t_ns,
@@ -730,13 +798,16 @@ class KalmanEstimator:
             n = stage.n
             if x.shape != (n,) or P.shape != (n, n) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
                 raise ValueError(f"warm_start: {where}: {key} stage needs finite x ({n},) and P ({n}, {n})")
-            if not np.allclose(P, P.T, rtol=1e-9, atol=1e-15) or np.linalg.eigvalsh((P + P.T) / 2).min() <= 0:
+            scale = float(np.abs(P).max()) if P.size else 0.0
+            if not np.allclose(P, P.T, rtol=1e-9, atol=1e-12 * scale) or np.linalg.eigvalsh((P + P.T) / 2).min() <= 0:
                 raise ValueError(f"warm_start: {where}: {key} stage's P is not symmetric positive definite")
             loaded.append((stage, x, (P + P.T) / 2))
         for stage, x, P in loaded:
             stage.x, stage.P = x, P
         if R_SE is not None:
             self.force.R_SE = self.R_SE = R_SE
+        self._cog_known = bool(source.get("converged_torque"))
+        self._mass_known = bool(source.get("converged_force"))
         if self.noise_auto:  # the noise estimate carries over, as if its window were full
             for key, stage, floor in (("noise_force_S", self.force, NOISE_FLOOR[0]),
                                       ("noise_torque_S", self.torque, NOISE_FLOOR[1])):
@@ -768,7 +839,8 @@ class KalmanEstimator:
         return np.sqrt(np.diag(self.torque.P)[:6])
 
     def cov_diag(self) -> list[float]:
-        """Diagonal of P for the force stage then the torque stage (12 values; 18 with bias_rate)."""
+        """Diagonal of P for the force stage then the torque stage (12 values; 18 with bias_rate;
+        3 more, the mount's θ at the end of the force stage's, with mount_rotation)."""
         return np.concatenate([np.diag(self.force.P), np.diag(self.torque.P)]).tolist()
 
 

@@ -286,3 +286,44 @@ def test_switching_estimator_drops_the_presets_options_for_the_old_one():
     # naming the plugin the file already names changes nothing
     config = demo("haptic.name=null")
     assert config["haptic"]["max_force_rate"] == 400.0
+
+
+def test_a_payload_change_holds_the_haptic_force_at_zero(tmp_path):
+    """kalman recognises a 100 g mass hung for good; the loop then holds the force at zero for 1 s."""
+    config = demo("estimator.name=kalman", duration=12.0)
+    config["world"]["contacts"] = [{"kind": "hanging_mass", "start": 9.0, "duration": 1e9, "mass": 0.1}]
+    result = run_session(build_session(config), out=tmp_path / "payload.mcap")
+    rec = read_recording(result.path)
+    t_event = next(t for t, m in rec.topics["/events"] if m["kind"] == "payload_change")
+    t_cmd = rec.t_ns("/haptic/command")
+    commands = [m for _, m in rec.topics["/haptic/command"]]
+    held = (t_cmd > t_event) & (t_cmd < t_event + 0.9e9)
+    assert held.any() and not any(commands[k]["enabled"] for k in np.flatnonzero(held))
+    assert all(commands[k]["reason"].startswith("payload change") for k in np.flatnonzero(held))
+    assert commands[-1]["enabled"]  # and trusted again afterwards
+
+
+def test_a_known_mount_turns_the_haptic_force_into_the_base_frame(tmp_path):
+    """With a mount R_SE the contact force in S reaches the device through R_BS = R_BE·R_ES, not R_BE."""
+    from hapticlab.core.frames import matrix_from_rotvec
+
+    mount = [0.0, 0.0, 0.5]
+    config = demo("estimator.name=kalman", duration=8.0)
+    config["estimator"]["mount_rotation_SE"] = mount
+    config["world"]["sensor"] = {"mount_rotation": mount}
+    result = run_session(build_session(config), out=tmp_path / "mount.mcap")
+    rec = read_recording(result.path)
+    t_cmd, force_D = rec.t_ns("/haptic/command"), rec.field("/haptic/command", "force_D")
+    enabled = rec.field("/haptic/command", "enabled").astype(bool)
+    # during the 3 N indentation (6.0–7.5 s, along the tool axis) the device force is its base-frame image
+    t0 = rec.t_ns("/sensor/wrench")[0]
+    press = enabled & (t_cmd - t0 > 6.5e9) & (t_cmd - t0 < 7.0e9)
+    assert press.sum() > 100
+    sim = build_session(config).world  # the same world: the true contact force in B at those times
+    true_B = []
+    for t in (t_cmd[press] - t0) * 1e-9:
+        w = sim.wrench(np.array([t]), noise=False)
+        R_BS = w["R_EB"][0].T @ matrix_from_rotvec(mount).T
+        true_B.append(R_BS @ w["contact_force_S"][0])
+    error = np.linalg.norm(force_D[press] - np.array(true_B), axis=1)
+    assert np.median(error) < 0.3  # (ignoring the mount would tilt a 3 N force by 29°: 1.5 N)

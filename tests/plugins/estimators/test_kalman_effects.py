@@ -70,6 +70,43 @@ def test_mirrored_or_malformed_mounts_are_refused():
         registry.create("estimator", "kalman", {"mount_rotation_SE": [0.1, 0.2]}, where="estimator")
 
 
+@pytest.mark.parametrize("options", [{"bias_rate": True}, {"implementation": "filterpy"},
+                                     {"noise_force": "auto", "noise_torque": "auto", "inertia": True}])
+def test_warm_start_round_trips_with_every_option(options, tmp_path):
+    import json
+
+    _, block = familybench.tour(12.0, seed=10, inertia=False)
+    est = KalmanEstimator(**options)
+    feed(est, block.subset(slice(0, 10000)), chunk=64)
+    path = tmp_path / "state.json"
+    path.write_text(json.dumps(est.state()))
+    warm = KalmanEstimator(warm_start=str(path), **options)
+    np.testing.assert_allclose(warm.force.x, est.force.x)
+    np.testing.assert_allclose(warm.torque.P, est.torque.P, rtol=1e-12, atol=1e-18)
+    assert warm.params().keys() == est.params().keys()
+
+
+def test_a_non_finite_pose_is_left_out():
+    _, block = familybench.tour(8.0, seed=11, inertia=False)
+    quat = block.quat_BE.copy()
+    quat[6000] = np.nan
+    R_EB = block.R_EB.copy()
+    R_EB[6000] = np.nan
+    from hapticlab.core.types import AlignedSamples
+
+    bad = AlignedSamples(block.t_ns, block.force_S, block.torque_S, R_EB, block.seq, block.status, block.stale,
+                         quat, block.p_BoEo_B)
+    assert not bad.usable[6000] and bad.usable[5999] and bad.usable[6001]
+    est = KalmanEstimator(inertia=True, noise_force="auto", noise_torque="auto")
+    out, _ = feed(est, bad.subset(bad.usable), chunk=1)
+    assert np.isfinite(out.contact_force_S).all() and np.isfinite(est.force.r).all()
+    # and given to the estimator anyway, it only spoils that one sample
+    est = KalmanEstimator(inertia=True, noise_force="auto", noise_torque="auto")
+    out, _ = feed(est, bad, chunk=7)
+    finite = np.isfinite(out.contact_force_S).all(axis=1)
+    assert finite.sum() >= len(bad) - 1 and np.isfinite(est.force.r).all()
+
+
 def test_warm_start_carries_the_mount(mounted, tmp_path):
     world, block = mounted
     est = KalmanEstimator(mount_rotation=True)
@@ -112,16 +149,33 @@ def test_derivatives_give_linear_acceleration_from_positions():
 
 
 def test_inertia_closes_the_gap_on_a_lively_tour():
+    # the tour turns and translates: angular and linear acceleration both count
     result = familybench.inertia_tour()
     rms = result["rms_over_noise_last_15s"]
     print(f"\nrandom tour (tool inertial force RMS {np.round(result['inertial_force_rms_N'], 3)} N): RMS / noise "
           f"{({k: np.round(v, 3).tolist() for k, v in rms.items()})}")
     assert max(rms["kalman inertia"]) <= 1.02
-    assert np.linalg.norm(rms["kalman inertia"]) < np.linalg.norm(rms["kalman"])
+    assert min(rms["kalman"]) >= 1.05  # without the option the inertial force shows
+
+
+def test_the_inertial_force_matches_the_simulated_one():
+    world, block = familybench.tour(20.0, seed=4, motion={"script": "random_tour", "max_translation": 0.1})
+    est = KalmanEstimator(inertia=True)
+    feed(est, block.subset(slice(0, 10000)), chunk=64)  # identify (mass, centre of gravity)
+    rest = block.subset(slice(10000, None))
+    force_S, torque_S, R_EB, inertial_S, usable = est._prepare(rest)
+    true = world.wrench(rest.t_ns * 1e-9, noise=False)["inertial_force_S"]
+    error = np.sqrt(np.mean((inertial_S - true) ** 2)) / np.sqrt(np.mean(true ** 2))
+    assert error < 0.1, error
 
 
 def test_104_g_at_72_deg_s_with_inertia():
-    """The paper's rotation test (Figs. 8–9) at ¼ of Table I's noise; the mass is a load, not a payload."""
+    """The paper's rotation test (Figs. 8–9) at ¼ of Table I's noise; the mass is a load, not a payload.
+
+    The issue's target scenario. The instrument turns about its own axis, on which its centre of
+    mass lies, so its inertial force is nil here and the option does not change the result (the
+    tour tests above are the ones the option must pass).
+    """
     result = familybench.rotation_104g(72.0)
     print(f"\n104 g at 72 deg/s, noise {result['noise_force']} N: {result['estimators']}")
     numbers = result["estimators"]["kalman inertia"]
@@ -137,6 +191,19 @@ def test_time_lag_option_follows_a_late_kinematics_stream():
     print(f"\nkinematics 20 ms late: RMS / noise {rms}")
     assert max(rms["kalman time_lag_s"]) <= 1.02
     assert np.linalg.norm(rms["kalman"]) > 1.03 * np.linalg.norm(rms["kalman time_lag_s"])
+
+
+@pytest.mark.parametrize("chunk", [1, 64])
+def test_a_late_sensor_stream_is_matched_with_past_poses(chunk):
+    # τ < 0: the pose at the sensor's time t was stamped t − 0.3 s: interpolated from the poses seen
+    world, block = familybench.tour(20.0, seed=5, robot={"kinematics_lag": -0.3}, inertia=False)
+    out, _ = feed(KalmanEstimator(time_lag_s=-0.3), block, chunk=chunk)
+    plain, _ = feed(KalmanEstimator(), block, chunk=64)
+    rms, rms_plain = familybench.rms_after(out, block, 10.0), familybench.rms_after(plain, block, 10.0)
+    print(f"\nsensor 0.3 s late: RMS {np.round(rms / NOISE_F, 3)} × noise with time_lag_s, "
+          f"{np.round(rms_plain / NOISE_F, 3)} without")
+    assert np.all(rms <= 1.02 * NOISE_F) and np.linalg.norm(rms_plain) > 2 * np.linalg.norm(rms)
+    assert not out.converged_force[:300].any()  # its first 0.3 s have no pose yet: they never update
 
 
 def test_gain_option_undoes_a_calibration_error():
@@ -158,10 +225,12 @@ def test_effects_name_the_options():
         KalmanEstimator(effects=["time_lag"])
     with pytest.raises(ValueError, match=r"^effects: 'gain_crosstalk' needs its value"):
         KalmanEstimator(effects=["gain_crosstalk"])
-    with pytest.raises(ValueError, match=r"^time_lag_s: must be a number of seconds within ±0\.5"):
+    with pytest.raises(ValueError, match=r"^time_lag_s: must be a number of seconds from -5 \(sensor late\) to 0\.5"):
         KalmanEstimator(time_lag_s=2.0)
     with pytest.raises(ValueError, match=r"^gain_force_S: must be a 3x3 matrix"):
         KalmanEstimator(gain_force_S=[[1, 2]])
+    with pytest.raises(ValueError, match=r"^gain_force_S: not a small calibration error"):
+        KalmanEstimator(gain_force_S=(-np.ones((3, 3)) / 3).tolist())  # I + G singular
 
 
 # ---------------------------------------------------------------- noise, gating and convergence options
@@ -175,7 +244,7 @@ def test_auto_noise_learns_the_sensor_noise():
     noise_t = np.array(est.params()["noise_torque_S"])
     print(f"\nauto noise: force {np.round(noise, 4)} N (true 0.12), torque {np.round(noise_t, 5)} N·m (true 0.01); "
           f"force converged at sample {est.first_converged_force}")
-    assert np.allclose(noise, NOISE_F, rtol=0.05) and np.allclose(noise_t, 0.01, rtol=0.1)
+    assert np.allclose(noise, NOISE_F, rtol=0.03) and np.allclose(noise_t, 0.01, rtol=0.06)
     assert np.all(familybench.rms_after(out, block, 15.0) <= 1.05 * NOISE_F)
     assert out.contact.mean() < 0.002
 
@@ -189,7 +258,23 @@ def test_auto_noise_refuses_contact_once_it_knows_the_noise():
     truth = world.wrench(block.t_ns * 1e-9)
     touching = truth["contact"] & (np.linalg.norm(truth["contact_force_S"], axis=1) > 1.0)
     assert out.contact[touching].mean() > 0.95
-    assert np.array(est.params()["noise_force_S"]).max() < 1.2 * NOISE_F  # contacts did not inflate it
+    assert np.array(est.params()["noise_force_S"]).max() < 1.05 * NOISE_F  # contacts did not inflate it
+
+
+def test_auto_noise_is_not_inflated_by_a_long_contact_in_a_live_loop():
+    """A 3 N push held for 15 s, one sample per block (a 1 kHz loop): the estimate stays at the noise."""
+    contacts = [{"kind": "indentation", "start": 15.0, "duration": 15.0, "peak_force": 3.0, "ramp": 0.4}]
+    world, block = familybench.tour(35.0, seed=8, inertia=False, contacts=contacts)
+    est = KalmanEstimator(noise_force="auto", noise_torque="auto")
+    out, _ = feed(est, block, chunk=1)
+    truth = world.wrench(block.t_ns * 1e-9, noise=False)
+    plateau = np.linalg.norm(truth["contact_force_S"], axis=1) > 2.9
+    error = np.linalg.norm(out.contact_force_S[plateau] - truth["contact_force_S"][plateau], axis=1)
+    noise = np.array(est.params()["noise_force_S"])
+    print(f"\n15 s push, blocks of 1: noise estimate {np.round(noise, 4)} N, {100 * out.contact[plateau].mean():.1f} % "
+          f"of the plateau refused, contact error median {np.median(error):.3f} N")
+    assert noise.max() < 1.05 * NOISE_F
+    assert out.contact[plateau].mean() > 0.99 and np.median(error) < 0.3
 
 
 def test_gating_none_accepts_everything_and_step_convergence_is_the_papers():

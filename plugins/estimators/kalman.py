@@ -161,12 +161,7 @@ def mount_matrix(rotvec, matrix) -> np.ndarray:
         return matrix_from_rotvec(v)
     if matrix is None:
         return np.eye(3)
-    try:
-        R = np.array(matrix, dtype=float)
-    except (TypeError, ValueError):
-        R = np.zeros(0)
-    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
-        raise ValueError(f"mount_R_SE: must be a 3x3 matrix, got {matrix!r}")
+    R = _matrix3("mount_R_SE", matrix, "")
     if not np.allclose(R.T @ R, np.eye(3), atol=1e-6):
         raise ValueError("mount_R_SE: not orthonormal (Rᵀ R ≠ I to 1e-6); give a rotation matrix")
     det = float(np.linalg.det(R))
@@ -176,16 +171,22 @@ def mount_matrix(rotvec, matrix) -> np.ndarray:
     return R
 
 
+def _matrix3(key: str, value, meaning: str) -> np.ndarray:
+    """A finite 3x3 float matrix from an option's value; ValueError naming the option."""
+    try:
+        M = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        M = np.zeros(0)
+    if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+        raise ValueError(f"{key}: must be a 3x3 matrix{meaning}, got {value!r}")
+    return M
+
+
 def _gain_inverse(key: str, value) -> np.ndarray | None:
     """(I + G)⁻¹ for a configured calibration error G (measured = (I + G)·true), or None."""
     if value is None:
         return None
-    try:
-        G = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        G = np.zeros(0)
-    if G.shape != (3, 3) or not np.all(np.isfinite(G)):
-        raise ValueError(f"{key}: must be a 3x3 matrix (measured = (I + G)·true), got {value!r}")
+    G = _matrix3(key, value, " (measured = (I + G)·true)")
     smallest = float(np.linalg.svd(np.eye(3) + G, compute_uv=False).min())
     if np.abs(G).max() > 0.5 or smallest < 0.5:
         raise ValueError(f"{key}: not a small calibration error (largest entry {np.abs(G).max():.2f}, "

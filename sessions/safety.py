@@ -1,8 +1,9 @@
 """The safety-critical end: turns a contact estimate into a device force command.
 
 On any doubt (stale or missing sensor or kinematics data, an unconverged
-estimator, a saturated sensor, a non-finite value, a device error) the command
-is zero at once, with the reason; otherwise the force is mapped into the
+estimator, parameters not or no longer identified, a payload change just
+recognised, a saturated sensor, a non-finite value, a device error; the run
+loop in ``run.py`` decides which) the command is zero at once, with the reason; otherwise the force is mapped into the
 device frame, clamped to ``max_force`` and rate-limited to ``max_force_rate``.
 Going to zero is never rate-limited.
 """

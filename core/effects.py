@@ -177,13 +177,43 @@ def savgol(x: np.ndarray, window: int, deriv: int, dt: float, order: int = 3) ->
     return out
 
 
+def savgol_t(x: np.ndarray, t: np.ndarray, window: int, deriv: int, order: int = 3) -> np.ndarray:
+    """Savitzky–Golay on the actual sample times: a least-squares polynomial in real time per window.
+
+    Like :func:`savgol` (the same window of ``window`` samples centred on each
+    sample, the first and last full window's polynomial at the edges), but the
+    polynomial is fitted against the samples' own times ``t`` rather than a
+    uniform grid, so jittered or unevenly spaced stamps give the right
+    derivatives. Equal to :func:`savgol` on a uniform grid (to rounding).
+    """
+    x = np.asarray(x, dtype=float)
+    t = np.asarray(t, dtype=float)
+    n, half = len(x), window // 2
+    start = np.clip(np.arange(n) - half, 0, n - window)  # first sample of each sample's window
+    idx = start[:, None] + np.arange(window)  # (n, window)
+    centre = t[start + half]
+    h = float(np.median(np.diff(t)))  # time unit of the fit (conditioning)
+    u = (t[idx] - centre[:, None]) / h  # (n, window)
+    V = u[:, :, None] ** np.arange(order + 1)  # (n, window, order+1)
+    VtV = np.einsum("nwi,nwj->nij", V, V)
+    # d^deriv/du^deriv of the polynomial at the sample's own time
+    at = (t - centre) / h
+    e = np.zeros((n, order + 1))
+    for p in range(deriv, order + 1):
+        e[:, p] = np.prod(np.arange(p - deriv + 1, p + 1)) * at ** (p - deriv)
+    coef = np.linalg.solve(VtV, e[:, :, None])[:, :, 0]  # (n, order+1): (VᵀV)⁻¹ e
+    weights = np.einsum("nwi,ni->nw", V, coef) / h**deriv  # (n, window)
+    return np.einsum("nw,nwk->nk", weights, x[idx])
+
+
 def motion_from_poses(t: np.ndarray, quat_BE: np.ndarray, p_BoEo_B: np.ndarray | None = None,
                       time_base: str = "seconds", window_s: float = 0.04) -> Motion:
     """The recorded motion with its derivatives, from the poses at each sample.
 
     Derivatives (only with a time base in seconds) come from a centred
-    Savitzky–Golay filter (cubic, ``window_s`` wide, at least 5 samples, on a
-    uniform grid of the median sample period): of the sign-continuous
+    Savitzky–Golay filter (cubic, ``window_s`` wide at the median sample
+    period, at least 5 samples; fitted against the actual sample times when
+    the stamps are not evenly spaced, :func:`savgol_t`): of the sign-continuous
     quaternion q = q_BE, giving ``ω_E = 2 vec(q* ⊗ q̇)`` and
     ``α_E = 2 vec(q* ⊗ q̈)`` (the term q̇* ⊗ q̇ is a scalar), and of the positions,
     giving a_B. Offline, so centred: no lag, and a cubic over a window much
@@ -207,7 +237,11 @@ def motion_from_poses(t: np.ndarray, quat_BE: np.ndarray, p_BoEo_B: np.ndarray |
     window = max(5, int(round(window_s / dt)) | 1)
     if window > len(t):
         window = len(t) if len(t) % 2 else len(t) - 1
-    sg = lambda x, d: savgol(x, window, d, dt)  # noqa: E731
+    steps = np.diff(t)
+    if np.ptp(steps) <= 1e-6 * dt:  # evenly spaced: the uniform filter (a correlation, faster)
+        sg = lambda x, d: savgol(x, window, d, dt)  # noqa: E731
+    else:
+        sg = lambda x, d: savgol_t(x, t, window, d)  # noqa: E731
     q_conj = quat_conjugate(sg(quat, 0))
     w_E = 2.0 * quat_multiply(q_conj, sg(quat, 1))[:, 1:]
     alpha_E = 2.0 * quat_multiply(q_conj, sg(quat, 2))[:, 1:]

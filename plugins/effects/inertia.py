@@ -3,18 +3,22 @@
 Newton and Euler for the tool (mass m, centre of mass c = ``cog_S``, inertia
 I about the centre of mass, axes of S), about the sensor origin, in S::
 
-    F_i = −k m a_cm,    a_cm = a_S + α × c + ω × (ω × c)
+    F_i = −k m a_cm,    a_cm = a_E + α × (p + c) + ω × (ω × (p + c))
     τ_i = c × F_i − (I α + ω × I ω)
 
-m is the mass of the tool's weight (``|gravity_force_B| / g``) and c the base
-model's centre of mass, so the parameters are ``k`` (``mass_scale``: 1 when
-the weight and the inertia are the same mass; free, so an unsure time base
-cannot fake or hide the term, since every inertial term scales as 1/time²)
-and the six entries of I (kg·m²). ω, α (and a_S, the flange's linear
-acceleration, when the recording has positions; otherwise the translational
-term is left out and a note says so) come from the recorded poses
-(``hapticlab.core.effects.motion_from_poses``). The sensor origin is taken at
-the flange origin for a_S (a few centimetres of offset change a_cm by α × p).
+with a_E the acceleration of the flange origin (the recorded positions') and
+p the sensor origin from the flange origin (in S), so a_E + α × p + ω × (ω × p)
+is the sensor origin's acceleration. m is the mass of the tool's weight
+(``|gravity_force_B| / g``) and c the base model's centre of mass, so the
+parameters are ``k`` (``mass_scale``: 1 when the weight and the inertia are
+the same mass; free, so an unsure time base cannot fake or hide the term,
+since every inertial term scales as 1/time²), the six entries of I (kg·m²) and
+p (m; it moves only the force, through α × p and ω × (ω × p), and the centre
+of mass c is pinned by the weight's moment, so p is identifiable apart from c;
+if the recorded positions are of another point on the flange, p is the sensor
+origin from that point). ω, α (and a_E, when the recording has positions;
+otherwise the translational term is left out and a note says so) come from
+the recorded poses (``hapticlab.core.effects.motion_from_poses``).
 """
 
 from __future__ import annotations
@@ -35,11 +39,11 @@ def _inertia_matrix(p: np.ndarray) -> np.ndarray:
 
 
 class Inertia(Effect):
-    """Inertial wrench of the tool: ``mass_scale`` k and the inertia I_S (kg·m²) about the centre of mass."""
+    """Inertial wrench of the tool: ``mass_scale`` k, the inertia I_S (kg·m²) about the centre of mass, the sensor offset p (m)."""
 
     stage = "load"
-    labels = ("mass_scale", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-    steps = (1e-3, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
+    labels = ("mass_scale", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz", "px_m", "py_m", "pz_m")
+    steps = (1e-3, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4)
     description = "tool inertial wrench from the motion"
 
     def check(self, motion: Motion) -> str | None:
@@ -60,23 +64,26 @@ class Inertia(Effect):
     def apply(self, state: ModelState, params: np.ndarray) -> ModelState:
         motion = state.motion
         c = state.cog_S
+        r = c + np.asarray(params[7:10], dtype=float)  # the centre of mass from the flange origin, in S
         w_S = state.to_S(motion.w_E)
         alpha_S = state.to_S(motion.alpha_E)
-        a_cm = cross(alpha_S, c) + cross(w_S, cross(w_S, c))
+        a_cm = cross(alpha_S, r) + cross(w_S, cross(w_S, r))
         if motion.a_B is not None:
             a_cm = a_cm + state.to_S(np.einsum("nij,nj->ni", motion.R_EB, motion.a_B))
         force_i = -params[0] * state.mass_kg * a_cm
-        inertia = _inertia_matrix(params[1:])
+        inertia = _inertia_matrix(params[1:7])
         euler = alpha_S @ inertia.T + cross(w_S, w_S @ inertia.T)
         return state.replace(force_S=state.force_S + force_i,
                              torque_S=state.torque_S + cross(c, force_i) - euler)
 
     def describe(self, params: np.ndarray) -> dict:
-        return {"mass_scale": float(params[0]), "inertia_S": _inertia_matrix(params[1:]).tolist()}
+        return {"mass_scale": float(params[0]), "inertia_S": _inertia_matrix(params[1:7]).tolist(),
+                "sensor_offset_S": [float(v) for v in params[7:10]]}
 
     def summary(self, params: np.ndarray) -> str:
         diag = ", ".join(f"{v:.2g}" for v in params[1:4])
-        return f"mass scale {params[0]:.3f}, inertia diag [{diag}] kg·m²"
+        offset = ", ".join(f"{1e3 * v:.1f}" for v in params[7:10])
+        return f"mass scale {params[0]:.3f}, inertia diag [{diag}] kg·m², sensor offset [{offset}] mm"
 
     def estimator_options(self, params: np.ndarray) -> dict:
         return {}

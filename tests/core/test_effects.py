@@ -14,7 +14,7 @@ import pytest
 from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
-from hapticlab.core.effects import STAGES, Effect, Model, motion_from_poses, savgol
+from hapticlab.core.effects import STAGES, Effect, Model, motion_from_poses, savgol, savgol_t
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.plugins import Registry, make_plugin_manager
 from hapticlab.plugins.effects.bias_drift import BiasDrift
@@ -69,6 +69,29 @@ def test_motion_derivatives_match_the_analytic_ones():
         assert err < 0.02 * np.sqrt(np.mean(want[inner] ** 2)), name
 
 
+def test_derivatives_use_the_actual_time_steps_of_jittered_stamps():
+    """Stamps ±30 % of a period off the grid: a filter on a uniform grid misreads the spacing as motion."""
+    world = SimWorld(motion=lively(), seed=5)
+    rng = np.random.default_rng(3)
+    t = np.sort(np.arange(6000) / 500 + rng.uniform(-0.3, 0.3, 6000) / 500)
+    R_BE, p = world.pose(t)
+    motion = motion_from_poses(t, quat_wxyz_from_matrix(R_BE), p)
+    truth = world.motion_state(t)
+    inner = slice(50, -50)
+    for got, want, name in ((motion.w_E, truth.w_BE_E, "w"), (motion.alpha_E, truth.alpha_BE_E, "alpha"),
+                            (motion.a_B, truth.a_BEo_B, "a")):
+        err = np.sqrt(np.mean((got[inner] - want[inner]) ** 2))
+        assert err < 0.02 * np.sqrt(np.mean(want[inner] ** 2)), name
+
+
+def test_savgol_on_real_times_is_savgol_on_a_uniform_grid():
+    x = np.cumsum(np.random.default_rng(1).normal(size=(400, 4)), axis=0)
+    t = np.arange(400) * 0.004
+    for deriv in (0, 1, 2):
+        np.testing.assert_allclose(savgol_t(x, t, 11, deriv), savgol(x, 11, deriv, 0.004), rtol=1e-9,
+                                   atol=1e-9 * np.abs(x).max() / 0.004**deriv)
+
+
 def test_an_index_time_base_has_no_derivatives():
     world = SimWorld(seed=2)
     t = np.arange(200.0)
@@ -94,8 +117,9 @@ def test_shifted_motion_is_the_recorded_pose_at_t_plus_dt_and_shifts_add_up():
 def test_the_model_with_the_true_effects_reproduces_the_simulated_sensor():
     """Every effect at once, with the world's own parameters: the prediction is the noise-free reading."""
     mount, lag, drift = np.deg2rad([2.0, -1.5, 1.0]), 0.008, np.array([0.5, -0.3, 0.4, 0.01, -0.02, 0.015]) / 60
+    offset_E = np.array([0.01, -0.02, 0.05])  # the sensor origin 5 cm out from the flange
     world = SimWorld(sensor=SensorParams(mount_rotation_SE=mount, gain_force_S=GF, gain_torque_S=GT,
-                                         drift_force_S=drift[:3], drift_torque_S=drift[3:]),
+                                         drift_force_S=drift[:3], drift_torque_S=drift[3:], p_EoSo_E=offset_E),
                      robot=RobotParams(kinematics_lag_s=lag), motion=lively(), seed=5, inertia=True)
     t, motion, reading = recorded(world)
     truth = world.truth()
@@ -106,6 +130,7 @@ def test_the_model_with_the_true_effects_reproduces_the_simulated_sensor():
         truth["gravity_force_B"], truth["bias_force_S"] + drift[:3] * motion.t_ref, truth["cog_S"],
         truth["bias_torque_S"] + drift[3:] * motion.t_ref,
         [lag], mount, [1.0, I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]],
+        Rotation.from_rotvec(mount).as_matrix() @ offset_E,
         [GF[0, 0], GF[1, 1], GF[0, 1], GF[0, 2], GF[1, 2], GT[0, 0], GT[1, 1], GT[0, 1], GT[0, 2], GT[1, 2]],
         drift])
     error = np.concatenate([reading["force_S"], reading["torque_S"]], axis=1) - model.predict6(motion, theta)

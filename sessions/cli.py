@@ -361,8 +361,9 @@ def print_discrepancy(result: dict) -> None:
         console.print(f"  not tested: [bold]{skipped['effect']}[/] ({skipped['reason']})")
     folds_rule = result["settings"]
     for i, rnd in enumerate(result["rounds"], start=1):
+        need = f"{rnd[0]['wins_needed']} of {rnd[0]['folds']} folds" if rnd else "enough folds"
         t = Table(title=f"round {i}: candidates on held-out data (named if gain ≥ "
-                        f"{100 * folds_rule['min_gain']:g} % in ≥ {100 * folds_rule['min_fold_share']:g} % of folds)")
+                        f"{100 * folds_rule['min_gain']:g} % and it improves ≥ {need})")
         for col in ("effect", "held-out gain", "folds improved", "t over folds", "verdict"):
             t.add_column(col, justify="right")
         named = result["steps"][i - 1]["effect"] if i <= len(result["steps"]) else None
@@ -420,22 +421,41 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
         settings.effect_options.setdefault(effect, {})[option] = parse_value(value)
     if args.folds < 3:
         raise UserError(f"--folds: at least 3, got {args.folds}")
-    for target in (args.json,):
-        if target and not Path(target).parent.is_dir():
-            raise UserError(f"{target}: folder {Path(target).parent} does not exist")
+    # check where the results go before the run, so a finished run is not lost to a bad path
+    if args.json:
+        target = Path(args.json)
+        if target.is_dir():
+            raise UserError(f"--json {args.json}: is a folder; give a file name")
+        if not target.parent.is_dir():
+            raise UserError(f"--json {args.json}: folder {target.parent} does not exist")
+    if args.plots:
+        target = Path(args.plots)
+        if target.exists() and not target.is_dir():
+            raise UserError(f"--plots {args.plots}: exists and is not a folder")
+        parent = next((p for p in target.parents if p.exists()), None)
+        if parent is not None and not parent.is_dir():
+            raise UserError(f"--plots {args.plots}: {parent} is not a folder")
     with err.status(f"discrepancy: reading {Path(args.input).name}") as status:
         result = discrepancy(args.input, settings, registry,
                              progress=lambda m: status.update(f"discrepancy: {m}"))
         print_discrepancy(result)
+        # the JSON first: it is the result; the figures only show it
+        if args.json:
+            try:
+                Path(args.json).write_text(json.dumps(json_ready(result), indent=2) + "\n", encoding="utf-8")
+            except OSError as exc:
+                raise UserError(f"--json {args.json}: cannot write it ({exc.strerror or exc})") from exc
+            err.print(f"wrote {args.json}")
         if args.plots:
             from .discrepancy_plots import write_plots
 
             status.update("discrepancy: plotting")
-            for path in write_plots(result, args.plots):
-                err.print(f"wrote {path}")
-    if args.json:
-        Path(args.json).write_text(json.dumps(json_ready(result), indent=2) + "\n", encoding="utf-8")
-        err.print(f"wrote {args.json}")
+            try:
+                for path in write_plots(result, args.plots):
+                    err.print(f"wrote {path}")
+            except OSError as exc:
+                raise UserError(f"--plots {args.plots}: cannot write the figures ({exc.strerror or exc})"
+                                + (f"; the JSON is in {args.json}" if args.json else "")) from exc
     sys.stdout.flush()
     print("\n# the named effects online: paste into a session file (the kalman estimator's options)")
     print(toml_snippet(result["estimator_options"]), flush=True)

@@ -3,9 +3,10 @@
 The weight seen in S is ``R_SE R_EB gravity_force_B`` with ``R_SE = Exp(θ)``,
 θ the rotation vector (rad, 3 parameters). The base model's
 ``gravity_force_B`` absorbs any rotation on the other side (a tilted robot
-base), never this one, which turns with the flange. It is also the
-antisymmetric part of a force calibration error (``gain_crosstalk`` is the
-symmetric part).
+base), never this one, which turns with the flange. It also stands for the
+antisymmetric part of a *force* calibration error (``gain_crosstalk`` is the
+symmetric part); an antisymmetric *torque* calibration error leaves the force
+alone, so it is not a mount rotation (and is not modelled).
 """
 
 from __future__ import annotations

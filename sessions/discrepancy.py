@@ -331,26 +331,17 @@ class Discrepancy:
             delta = self.block_solve(*self._normal(Jw, r), force)
             J = None
             start = costs
-            # the force block: its step must not raise the force channels' cost
-            step = np.where(force, delta, 0.0)
-            for _ in range(8):
-                if not step.any():
-                    break
-                r_new, new = costs_of(theta + step)
-                if new[0] <= costs[0] * (1 + tol):
-                    theta, r, costs = theta + step, r_new, new
-                    break
-                step = step / 2
-            # the torque block, given the force block: must not raise the torque channels' cost
-            step = np.where(force, 0.0, delta)
-            for _ in range(8):
-                if not step.any():
-                    break
-                r_new, new = costs_of(theta + step)
-                if new[1] <= costs[1] * (1 + tol):
-                    theta, r, costs = theta + step, r_new, new
-                    break
-                step = step / 2
+            # the force block's step must not raise the force channels' cost; then the torque
+            # block's, given the force block's, must not raise the torque channels' cost
+            for channel, step in ((0, np.where(force, delta, 0.0)), (1, np.where(force, 0.0, delta))):
+                for _ in range(8):  # halve the step until it does not make its channel worse
+                    if not step.any():
+                        break
+                    r_new, new = costs_of(theta + step)
+                    if new[channel] <= costs[channel] * (1 + tol):
+                        theta, r, costs = theta + step, r_new, new
+                        break
+                    step = step / 2
             change = np.abs(start - costs) / np.maximum(start, 1e-300)
             if change.max() < 1e-8:
                 break

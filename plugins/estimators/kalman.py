@@ -418,12 +418,13 @@ class KalmanEstimator:
         y_f = force_S if inertial_S is None else force_S - inertial_S  # what gravity and bias explain
 
         x_before = self.force.x[:6].copy()
-        if self.mount_rotation:
+        if self.mount_rotation:  # the stage applies its own mount estimate, updated as it goes
             run_f = self.force.run(y_f, R_EB, dt, usable, self.gate2)
             self.R_SE = self.force.R_SE
+            A_f = self._to_S(R_EB)  # R_SB per sample, with the mount as it is after the block
         else:
-            run_f = self.force.run(y_f, self._to_S(R_EB), dt, usable, self.gate2, self.method)
-        A_f = self._to_S(R_EB)  # R_SB per sample (with the mount as it is after the block)
+            A_f = self._to_S(R_EB)  # R_SB per sample
+            run_f = self.force.run(y_f, A_f, dt, usable, self.gate2, self.method)
         X_f = run_f.X
         A_t = -skew_stack(force_S - X_f[:, 3:6])  # C_k = [-skew(Δf), I3]; Δf includes the inertial force
         accepted_f = usable & ~run_f.gated

@@ -194,6 +194,16 @@ def _gain_inverse(key: str, value) -> np.ndarray | None:
     return np.linalg.inv(np.eye(3) + G)
 
 
+def _innovations(y: np.ndarray, A: np.ndarray, x_before: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(m, 3) e_k = y_k − A_k a − b at the state each sample was predicted from.
+
+    That state is the previous row of X (the states after each sample), ``x_before`` (6,)
+    for the first; a = x[:3], b = x[3:6].
+    """
+    X_prev = np.vstack([x_before[None, :6], X[:-1, :6]])
+    return y - np.einsum("kij,kj->ki", A, X_prev[:, :3]) - X_prev[:, 3:6]
+
+
 def _axes(key: str, value) -> np.ndarray:
     """A positive std per axis from one number or three; ValueError naming the option."""
     try:
@@ -612,9 +622,8 @@ class KalmanEstimator:
         idx = np.flatnonzero(usable)
         if len(idx) == 0:
             return
-        X_prev = np.vstack([x_before[None, :], run.X[:-1, :6]])[idx]
+        e = _innovations(y, A, x_before, run.X)[idx]
         A = A[idx]
-        e = y[idx] - np.einsum("kij,kj->ki", A, X_prev[:, :3]) - X_prev[:, 3:6]
         C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)  # (k, 3, 6)
         cpc = np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C)
         cpc += stage.measurement_cov(stage.x[:3]).diagonal() - stage.r  # the torque stage's carried force noise
@@ -665,9 +674,7 @@ class KalmanEstimator:
         gated = run_f.gated
         if not gated.any() and self._refused_since is None:
             return
-        # the state each sample was predicted from: the previous row of X (x_before for the first)
-        X_prev = np.vstack([x_before[None, :], run_f.X[:-1, :6]])
-        e = y_f - np.einsum("kij,kj->ki", A_f, X_prev[:, :3]) - X_prev[:, 3:6]
+        e = _innovations(y_f, A_f, x_before, run_f.X)
         start = 0
         for k in np.flatnonzero(usable):
             if gated[k]:

@@ -8,25 +8,23 @@ flag says (``hapticlab bench real``'s "2nd half" column).
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 from hapticlab.core.batch import batch_fit
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.sessions.compensate import load_stream, run_estimator
 from hapticlab.sessions.discrepancy import discrepancy
+from hapticlab.sessions import realbench
 
 AUTO = {"noise_force": "auto", "noise_torque": "auto"}
 
 
-def second_half_ratio(path, options) -> float:
+def kalman_ratio(path, options) -> float:
     """‖online RMS‖ / ‖batch-fit RMS‖ over the file's second half."""
     stream = load_stream(path)
     s = stream.samples
     residual = batch_fit(s.force_S, s.torque_S, s.R_EB)["residual_force_S"]
     est = run_estimator(stream, KalmanEstimator(**AUTO, **options))
-    rows = (np.arange(len(stream)) >= len(stream) // 2) & np.isfinite(est.contact_force_S).all(1)
-    online = np.sqrt(np.mean(est.contact_force_S[rows] ** 2, axis=0))
-    return float(np.linalg.norm(online) / np.linalg.norm(np.sqrt(np.mean(residual[rows] ** 2, axis=0))))
+    return realbench.second_half_ratio(est.contact_force_S, residual)
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +36,7 @@ def named(real_data):
 def test_the_named_effects_bring_every_file_under_the_batch_fit(real_data, named):
     ratios = {}
     for path in sorted(real_data.glob("*.csv")):
-        ratios[path.stem] = (second_half_ratio(path, {}), second_half_ratio(path, named[path.stem]))
+        ratios[path.stem] = (kalman_ratio(path, {}), kalman_ratio(path, named[path.stem]))
     print("\nkalman noise=auto, second half, ‖online‖/‖batch‖ (alone, with the named effects): "
           + "; ".join(f"{k} {a:.2f} → {b:.2f} {named[k]['effects']}" for k, (a, b) in ratios.items()))
     assert all(b <= 1.05 for _, b in ratios.values()), ratios
@@ -54,8 +52,8 @@ def test_the_axia80_calibration_error_carries_over_to_the_other_recording(real_d
     assert "gain_crosstalk" in log["effects"]
     gain = {"gain_force_S": log["gain_force_S"], "gain_torque_S": log["gain_torque_S"]}
     poses = real_data / "axia80_ur_100poses.csv"
-    alone = second_half_ratio(poses, {})
-    carried = second_half_ratio(poses, dict(gain, mount_rotation=True))
+    alone = kalman_ratio(poses, {})
+    carried = kalman_ratio(poses, dict(gain, mount_rotation=True))
     print(f"\naxia80_ur_100poses, second half: {alone:.2f} alone, {carried:.2f} with the 10 Hz log's "
           f"calibration error and an online mount estimate")
     assert alone > 1.05 and carried <= 1.05

@@ -30,7 +30,7 @@ import numpy as np
 
 from hapticlab.plugins.simworld import Indentation, RandomTour, RobotParams, SensorParams, SimWorld
 from hapticlab.plugins.simworld.export import write_csv
-from hapticlab.sessions.discrepancy import discrepancy
+from hapticlab.sessions.discrepancy.workflow import discrepancy
 
 
 GF = np.array([[0.02, 0.01, -0.005], [0.01, -0.015, 0.008], [-0.005, 0.008, -0.005]])

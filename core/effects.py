@@ -1,6 +1,6 @@
 """The sensor model along a recorded motion, and the interface of effect models.
 
-The discrepancy workflow (``hapticlab.sessions.discrepancy``) predicts what the
+The discrepancy workflow (``hapticlab.sessions.discrepancy.workflow``) predicts what the
 wrist sensor should read at every recorded sample from the robot's motion and
 a model, and compares it with what it did read. The model is the paper's base
 model plus any number of **effects**, each a physical term with named

@@ -23,6 +23,7 @@ from typing import Any, Callable, Mapping
 import pluggy
 
 from . import hookspecs
+from .errors import UserError
 
 DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.sensors.sim",
@@ -48,7 +49,7 @@ KINDS: dict[str, str] = {
 }
 
 
-class PluginError(Exception):
+class PluginError(UserError):
     """A plugin could not be found, registered or built; the message names it."""
 
 

@@ -25,7 +25,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from hapticlab.core.plugins import ConfigError, validate_options
+from ..core.plugins import ConfigError, validate_options
 
 TABLES = ("session", "world", "sensor", "kinematics", "estimator", "haptic", "shadows")
 PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator",

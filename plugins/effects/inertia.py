@@ -25,9 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hapticlab.core import hookimpl
-from hapticlab.core.effects import Effect, ModelState, Motion
-from hapticlab.core.frames import cross
+from ...core import hookimpl
+from ...core.effects import Effect, ModelState, Motion
+from ...core.frames import cross
 
 MIN_RATE_HZ = 25.0
 """Below this sample rate the poses do not resolve a robot's accelerations."""

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hapticlab.core import hookimpl
-from hapticlab.core.effects import Effect, ModelState, Motion
+from ...core import hookimpl
+from ...core.effects import Effect, ModelState, Motion
 
 
 class TimeLag(Effect):

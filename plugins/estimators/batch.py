@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from hapticlab.core import hookimpl
-from hapticlab.core.batch import normal_terms
-from hapticlab.core.frames import cross, skew_stack
-from hapticlab.core.model import contact_wrench, named_params
-from hapticlab.core.types import AlignedSamples, Estimates
+from ...core import hookimpl
+from ...core.batch import normal_terms
+from ...core.frames import cross, skew_stack
+from ...core.model import contact_wrench, named_params
+from ...core.types import AlignedSamples, Estimates
 
 class _RunningFit:
     """Least squares over a growing sample set, solved after every sample."""

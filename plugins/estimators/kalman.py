@@ -70,11 +70,11 @@ import math
 from pathlib import Path
 
 import numpy as np
-from hapticlab.core import hookimpl
-from hapticlab.core.frames import skew_stack
-from hapticlab.core.aligner import orientation_at, position_at
-from hapticlab.core.derivatives import MotionDerivatives
-from hapticlab.core.frames import (
+from ...core import hookimpl
+from ...core.frames import skew_stack
+from ...core.aligner import orientation_at, position_at
+from ...core.derivatives import MotionDerivatives
+from ...core.frames import (
     GRAVITY_M_S2,
     cross,
     matrix_from_quat_wxyz,
@@ -83,9 +83,9 @@ from hapticlab.core.frames import (
     quat_wxyz_from_matrix,
     rotvec_from_matrix,
 )
-from hapticlab.core.kalman import I3, KalmanStage, MountStage
-from hapticlab.core.model import contact_wrench, named_params
-from hapticlab.core.types import AlignedSamples, Estimates
+from ...core.kalman import I3, KalmanStage, MountStage
+from ...core.model import contact_wrench, named_params
+from ...core.types import AlignedSamples, Estimates
 from scipy.stats import chi2
 
 STEP_EPSILON = 1e-3

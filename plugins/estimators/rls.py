@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from hapticlab.core import hookimpl
-from hapticlab.core.frames import skew_stack
-from hapticlab.core.model import contact_wrench, named_params
-from hapticlab.core.rls import RecursiveLeastSquares, run_gated
-from hapticlab.core.types import AlignedSamples, Estimates
+from ...core import hookimpl
+from ...core.frames import skew_stack
+from ...core.model import contact_wrench, named_params
+from ...core.rls import RecursiveLeastSquares, run_gated
+from ...core.types import AlignedSamples, Estimates
 
 
 class RLSEstimator:

@@ -7,11 +7,11 @@ sensor: sample i at ``t0_ns + round(i·1e9/rate_hz)`` ns, world time
 
 from __future__ import annotations
 
-from hapticlab.core import hookimpl
-from hapticlab.core.frames import quat_wxyz_from_matrix
-from hapticlab.core.plugins import ConfigError
-from hapticlab.core.types import PoseSample
-from hapticlab.plugins.simworld.physics import SampleClock, SimWorld
+from ...core import hookimpl
+from ...core.frames import quat_wxyz_from_matrix
+from ...core.plugins import ConfigError
+from ...core.types import PoseSample
+from ..simworld.physics import SampleClock, SimWorld
 
 
 class SimKinematics:

@@ -9,10 +9,10 @@ samples one big read would.
 
 from __future__ import annotations
 
-from hapticlab.core import hookimpl
-from hapticlab.core.plugins import ConfigError
-from hapticlab.core.types import WrenchSample
-from hapticlab.plugins.simworld.physics import SampleClock, SimWorld
+from ...core import hookimpl
+from ...core.plugins import ConfigError
+from ...core.types import WrenchSample
+from ..simworld.physics import SampleClock, SimWorld
 
 
 class SimSensor:

@@ -50,8 +50,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from hapticlab.core.frames import GRAVITY_M_S2, matrix_from_rotvec
-from hapticlab.core.plugins import ConfigError
+from ...core.frames import GRAVITY_M_S2, matrix_from_rotvec
+from ...core.plugins import ConfigError
 
 from .motion import MOTION_SCRIPTS, DEFAULT_P_BoEo_B, MotionScript
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hapticlab.core.frames import quat_wxyz_from_matrix
+from ...core.frames import quat_wxyz_from_matrix
 
 from .physics import SimWorld
 

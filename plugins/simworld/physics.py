@@ -61,8 +61,8 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
-from hapticlab.core.frames import rotvec_from_matrix, skew
-from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
+from ...core.frames import rotvec_from_matrix, skew
+from ...core.types import STATUS_OK, STATUS_SATURATED
 
 from .config import (
     Contact,

@@ -12,11 +12,11 @@ from helpers import static_model_stream
 from hapticlab.core.batch import batch_fit
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.sessions.cli import main
-from hapticlab.sessions.compensate import compensate
+from hapticlab.sessions.offline.compensate import compensate
 from hapticlab.sessions.config import apply_overrides, load_config
-from hapticlab.sessions.csvimport import OUTPUT_COLUMNS, read_csv
+from hapticlab.sessions.recording.csvimport import OUTPUT_COLUMNS, read_csv
 from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.run import build_session, run_session
+from hapticlab.sessions.live.loop import build_session, run_session
 
 # README of ../shared/data/real: offline batch fit RMS per axis, N
 AXIA80_LOG_BATCH_RMS = np.array([0.068, 0.257, 0.124])

@@ -7,7 +7,7 @@ import pytest
 from helpers import static_model_stream
 
 from hapticlab.core.frames import quat_wxyz_from_matrix
-from hapticlab.sessions.csvimport import CsvError, read_csv
+from hapticlab.sessions.recording.csvimport import CsvError, read_csv
 
 HEADER = "t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz"
 

@@ -26,7 +26,7 @@ from hapticlab.plugins.simworld import Indentation, RandomTour, RobotParams, Sen
 from hapticlab.plugins.simworld.motion import StaticPoses
 from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.sessions.cli import main
-from hapticlab.sessions.discrepancy import (Discrepancy, Settings, discrepancy, json_ready, load_recording,
+from hapticlab.sessions.discrepancy.workflow import (Discrepancy, Settings, discrepancy, json_ready, load_recording,
                                             sign_test_p, toml_snippet, wins_needed)
 
 NOISE = 0.12  # N, the simulated sensor's default force noise per axis
@@ -131,7 +131,7 @@ def test_contact_is_gated_and_does_not_fake_an_effect(tmp_path):
 
 def test_an_mcap_session_recording(tmp_path):
     from hapticlab.sessions.config import apply_overrides, load_config
-    from hapticlab.sessions.run import build_session, run_session
+    from hapticlab.sessions.live.loop import build_session, run_session
 
     config, _ = load_config("demo")
     config = apply_overrides(config, ["session.realtime=false", "session.duration=12.0", "world.inertia=false",
@@ -248,7 +248,7 @@ def test_bad_input_is_one_line(tmp_path, capsys, argv, message):
 
 
 def test_the_json_is_written_before_the_plots_and_a_plot_error_is_one_line(tmp_path, capsys, monkeypatch):
-    import hapticlab.sessions.discrepancy_plots as plots
+    import hapticlab.sessions.discrepancy.plots as plots
 
     def broken(result, folder):
         raise OSError(28, "No space left on device")

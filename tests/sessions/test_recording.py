@@ -382,7 +382,7 @@ def test_not_an_mcap_file(tmp_path):
 def test_flush_is_time_based(tmp_path, monkeypatch):
     """Messages reach the file once flush_interval_s has passed on the monotonic clock, not before."""
     clock = [100.0]
-    monkeypatch.setattr(recording, "_monotonic", lambda: clock[0])
+    monkeypatch.setattr(recording.writer, "_monotonic", lambda: clock[0])
     path = tmp_path / "live.mcap"
     rec = Recorder(path, flush_interval_s=1.0)
 

@@ -9,8 +9,8 @@ from hapticlab.core.plugins import ConfigError
 from hapticlab.sessions.cli import main
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.replay import replay
-from hapticlab.sessions.run import build_session, run_session
+from hapticlab.sessions.offline.replay import replay
+from hapticlab.sessions.live.loop import build_session, run_session
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ from hapticlab.core import hookimpl
 from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.run import build_session, run_session
+from hapticlab.sessions.live.loop import build_session, run_session
 
 ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/rls",
               "/haptic/command", "/haptic/state", "/events"}

@@ -7,7 +7,7 @@ import pytest
 
 from hapticlab.core.plugins import ConfigError
 from hapticlab.sessions.config import HapticSettings
-from hapticlab.sessions.safety import ForceGovernor
+from hapticlab.sessions.live.safety import ForceGovernor
 
 I3 = np.eye(3)
 

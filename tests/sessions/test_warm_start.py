@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.run import build_session, calibration_path, run_session
+from hapticlab.sessions.live.loop import build_session, calibration_path, run_session
 
 
 def kalman_demo(duration, **options):

@@ -18,7 +18,7 @@ from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.core.types import STATUS_SATURATED, AlignedSamples
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator
-from hapticlab.sessions.paperbench import PaperSetup, feed, simulate
+from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
 from helpers import static_model_stream
 
 NOISE_FORCE = 0.12  # N, per axis

@@ -14,8 +14,8 @@ from hapticlab.core.frames import matrix_from_rotvec, quat_wxyz_from_matrix
 from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.simworld import SimWorld
-from hapticlab.sessions import familybench
-from hapticlab.sessions.paperbench import feed
+from hapticlab.sessions.bench import family as familybench
+from hapticlab.sessions.bench.paper import feed
 
 RATE_HZ = 1000.0
 NOISE_F = 0.12
@@ -293,7 +293,7 @@ def test_gating_none_accepts_everything_and_step_convergence_is_the_papers():
 
 
 def test_new_options_reach_the_estimator_from_the_command_line_syntax():
-    from hapticlab.sessions.compensate import estimator_options
+    from hapticlab.sessions.offline.compensate import estimator_options
 
     options = estimator_options(["mount_rotation=true", "inertia=true", "gating=none", "convergence=step",
                                  "time_lag_s=0.004", "effects=['bias_drift']", 'noise_force="auto"',

@@ -11,9 +11,9 @@ from __future__ import annotations
 import pytest
 from hapticlab.core.batch import batch_fit
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
-from hapticlab.sessions.compensate import load_stream, run_estimator
-from hapticlab.sessions.discrepancy import discrepancy
-from hapticlab.sessions import realbench
+from hapticlab.sessions.offline.compensate import load_stream, run_estimator
+from hapticlab.sessions.discrepancy.workflow import discrepancy
+from hapticlab.sessions.bench import real as realbench
 
 AUTO = {"noise_force": "auto", "noise_torque": "auto"}
 

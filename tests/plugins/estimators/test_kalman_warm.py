@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
-from hapticlab.sessions.paperbench import PaperSetup, feed, simulate
+from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
 
 NOISE = {"noise_force": 0.12, "noise_torque": 0.01}
 DRIFT_FORCE = [0.5 / 60.0 / math.sqrt(2), 0.5 / 60.0 / math.sqrt(2), 0.0]  # 0.5 N/min, N/s

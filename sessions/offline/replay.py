@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.plugins import Registry
-from hapticlab.core.types import first_true
+from ...core.plugins import Registry
+from ...core.types import first_true
 
 from .compensate import estimator_options, load_stream, run_estimator
-from .recording import Recorder, read_recording
+from ..recording import Recorder, read_recording
 
 
 def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path | None = None,

@@ -27,12 +27,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hapticlab.core.batch import batch_fit
-from hapticlab.core.frames import GRAVITY_M_S2
-from hapticlab.core.model import contact_wrench
-from hapticlab.core.plugins import Registry, option_types
-from hapticlab.core.types import AlignedSamples, Estimates, first_true
-from hapticlab.plugins.simworld import SimWorld
+from ...core.batch import batch_fit
+from ...core.frames import GRAVITY_M_S2
+from ...core.model import contact_wrench
+from ...core.plugins import Registry, option_types
+from ...core.types import AlignedSamples, Estimates, first_true
+from ...plugins.simworld import SimWorld
 
 AXES_F = ("fx", "fy", "fz")
 AXES_T = ("tx", "ty", "tz")

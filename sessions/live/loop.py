@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.aligner import Aligner
-from hapticlab.core.plugins import ConfigError, Registry
-from hapticlab.core.types import STATUS_OK, AlignedSamples, Estimates
+from ...core.aligner import Aligner
+from ...core.plugins import ConfigError, Registry
+from ...core.types import STATUS_OK, AlignedSamples, Estimates
 
-from .config import (
+from ..config import (
     PLUGIN_TABLES,
     SessionSettings,
     check_tables,
@@ -37,7 +37,7 @@ from .config import (
     session_settings,
     shadow_tables,
 )
-from .recording import Recorder
+from ..recording import Recorder
 from .safety import ForceGovernor
 
 
@@ -100,7 +100,7 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     safety = haptic_settings(config)
     world = None
     if "world" in config:
-        from hapticlab.plugins.simworld.physics import SimWorld
+        from ...plugins.simworld.physics import SimWorld
 
         world = SimWorld.from_config(config["world"])
     built: dict[str, Any] = {}

@@ -28,15 +28,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hapticlab.core.plugins import Registry
-from hapticlab.core.frames import GRAVITY_M_S2, quat_wxyz_from_matrix, rotvec_from_matrix
-from hapticlab.core.types import AlignedSamples, Estimates
-from hapticlab.plugins.estimators.kalman import KalmanEstimator
-from hapticlab.plugins.estimators.rls import RLSEstimator
-from hapticlab.plugins.simworld import SimWorld
+from ...core.plugins import Registry
+from ...core.frames import GRAVITY_M_S2, quat_wxyz_from_matrix, rotvec_from_matrix
+from ...core.types import AlignedSamples, Estimates
+from ...plugins.estimators.kalman import KalmanEstimator
+from ...plugins.estimators.rls import RLSEstimator
+from ...plugins.simworld import SimWorld
 
-from . import paperbench
-from .paperbench import feed, simulate
+from . import paper as paperbench
+from .paper import feed, simulate
 
 RATE_HZ = 1000.0
 NOISE_FORCE = 0.12

@@ -14,13 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.aligner import orientation_at, position_at
-from hapticlab.core.frames import matrix_from_quat_wxyz
-from hapticlab.core.plugins import ConfigError, Registry
-from hapticlab.core.types import AlignedSamples, Estimates, first_true
+from ...core.aligner import orientation_at, position_at
+from ...core.frames import matrix_from_quat_wxyz
+from ...core.plugins import ConfigError, Registry
+from ...core.types import AlignedSamples, Estimates, first_true
 
-from .config import parse_value
-from .csvimport import CsvError, read_csv, write_compensated_csv
+from ..config import parse_value
+from ..recording.csvimport import CsvError, read_csv, write_compensated_csv
 
 BLOCK = 1024
 """Samples per estimator call offline (the result does not depend on it)."""
@@ -55,7 +55,7 @@ def load_stream(path: str | Path) -> Stream:
 
 
 def _load_mcap(path: Path) -> Stream:
-    from .recording import read_recording
+    from ..recording import read_recording
 
     recording = read_recording(path)
     wrenches = recording.topics.get("/sensor/wrench", [])

@@ -52,14 +52,14 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hapticlab.core.batch import batch_fit
-from hapticlab.core.blas import single_threaded_blas
-from hapticlab.core.effects import Effect, Model, Motion, motion_from_poses
-from hapticlab.core.frames import quat_wxyz_from_matrix
-from hapticlab.core.plugins import ConfigError, Registry
+from ...core.batch import batch_fit
+from ...core.blas import single_threaded_blas
+from ...core.effects import Effect, Model, Motion, motion_from_poses
+from ...core.frames import quat_wxyz_from_matrix
+from ...core.plugins import ConfigError, Registry
 
-from .compensate import load_stream
-from .csvimport import CsvError
+from ..offline.compensate import load_stream
+from ..recording.csvimport import CsvError
 
 AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
 

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hapticlab.core.frames import matrix_from_quat_wxyz
+from ...core.errors import UserError
+from ...core.frames import matrix_from_quat_wxyz
 
 REQUIRED = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "qw", "qx", "qy", "qz")
 POSITION = ("px", "py", "pz")
@@ -25,7 +26,7 @@ QUAT_TOLERANCE = 1e-3
 """Largest | ‖q‖ − 1 | accepted (then renormalised); printed quaternions carry ~1e-9."""
 
 
-class CsvError(ValueError):
+class CsvError(UserError, ValueError):
     """A CSV file breaks the import contract; the message names file, line and column."""
 
 

@@ -22,12 +22,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hapticlab.core.batch import batch_fit
-from hapticlab.core.plugins import Registry
-from hapticlab.core.types import first_true
+from ...core.batch import batch_fit
+from ...core.plugins import Registry
+from ...core.types import first_true
 
-from .compensate import load_stream, run_estimator
-from .csvimport import CsvError
+from ..offline.compensate import load_stream, run_estimator
+from ..recording.csvimport import CsvError
 
 def default_real_dir() -> Path:
     """``$HAPTICLAB_REAL_DATA``, else ``shared/data/real`` beside the source checkout, else ``../shared/data/real``."""
@@ -47,7 +47,7 @@ def variants(registry: Registry, path: Path) -> list[tuple[str, str, dict[str, A
     out: list[tuple[str, str, dict[str, Any] | str]] = [(name, name, {}) for name in registry.names("estimator")]
     if "kalman" in registry.names("estimator"):
         out.append(("kalman noise=auto", "kalman", dict(AUTO_NOISE)))
-        from .discrepancy import discrepancy
+        from ..discrepancy.workflow import discrepancy
 
         try:
             named = discrepancy(path, registry=registry)["estimator_options"]

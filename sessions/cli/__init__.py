@@ -15,8 +15,8 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-import hapticlab
-from hapticlab.core.plugins import KINDS, PluginError, Registry
+from ... import __version__
+from ...core.plugins import KINDS, PluginError, Registry
 
 err = Console(stderr=True)
 out = Console()
@@ -27,8 +27,8 @@ class UserError(Exception):
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
-    from .csvimport import CsvError
-    from .recording import RecordingError
+    from ..recording.csvimport import CsvError
+    from ..recording import RecordingError
 
     return (PluginError, CsvError, RecordingError, UserError, ValueError, FileNotFoundError,
             FileExistsError)
@@ -65,8 +65,8 @@ def _status_table(status) -> Table:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from .config import apply_overrides, load_config
-    from .run import build_session, run_session
+    from ..config import apply_overrides, load_config
+    from ..live.loop import build_session, run_session
 
     config, origin = load_config(args.session)
     config = apply_overrides(config, args.set or [])
@@ -101,7 +101,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_compensate(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
-    from .compensate import compensate
+    from ..offline.compensate import compensate
 
     with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(f"compensating {Path(args.input).name}", total=None)
@@ -229,7 +229,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.which != "real" and args.folder:
         raise UserError(f"'bench {args.which}' takes no folder (got {args.folder!r}); did you mean 'bench real'?")
     if args.which == "paper":
-        from .paperbench import bench_paper, write_plots
+        from ..bench.paper import bench_paper, write_plots
 
         with err.status("running the paper's experiments") as status:
             out, plots = bench_paper(quick=args.quick, all_estimators=args.all_estimators,
@@ -239,13 +239,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
             for path in write_plots(plots, Path(args.plots)):
                 err.print(f"wrote {path}")
     elif args.which == "estimators":
-        from .familybench import bench_estimators
+        from ..bench.family import bench_estimators
 
         with err.status("running the estimator family's scenarios") as status:
             out = bench_estimators(progress=lambda m: status.update(f"bench estimators: {m}"))
         print_estimators_table(out)
     else:
-        from .realbench import bench_real, default_real_dir
+        from ..bench.real import bench_real, default_real_dir
 
         folder = Path(args.folder) if args.folder else default_real_dir()
         with err.status("evaluating real recordings") as status:
@@ -322,7 +322,7 @@ def print_real_table(out: dict) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from .replay import replay
+    from ..offline.replay import replay
 
     with err.status(f"replaying {Path(args.recording).name} through {args.estimator}"):
         result = replay(args.recording, args.estimator, args.output, overrides=args.set or [])
@@ -398,8 +398,8 @@ def print_discrepancy(result: dict) -> None:
 def cmd_discrepancy(args: argparse.Namespace) -> int:
     import json
 
-    from .config import parse_value
-    from .discrepancy import Settings, discrepancy, json_ready, toml_snippet
+    from ..config import parse_value
+    from ..discrepancy.workflow import Settings, discrepancy, json_ready, toml_snippet
 
     registry = Registry()
     if not 0 <= args.min_gain < 100:
@@ -447,7 +447,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
                 raise UserError(f"--json {args.json}: cannot write it ({exc.strerror or exc})") from exc
             err.print(f"wrote {args.json}")
         if args.plots:
-            from .discrepancy_plots import write_plots
+            from ..discrepancy.plots import write_plots
 
             status.update("discrepancy: plotting")
             try:
@@ -463,7 +463,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
-    from .recording import recover
+    from ..recording import recover
 
     counts = recover(args.broken, args.output)
     err.print(f"recovered {counts.get('messages', 0)} messages into {args.output}")
@@ -478,7 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Haptic teleoperation for robotic-surgery training: real-time F/T compensation, "
                     "recorded sessions.",
     )
-    parser.add_argument("--version", action="version", version=f"hapticlab {hapticlab.__version__}")
+    parser.add_argument("--version", action="version", version=f"hapticlab {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("run", help="run a session from a preset name or TOML file (default: demo)")

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from hapticlab.core.frames import matrix_from_rotvec
-from hapticlab.core.types import HapticCommand
+from ...core.frames import matrix_from_rotvec
+from ...core.types import HapticCommand
 
-from .config import HapticSettings
+from ..config import HapticSettings
 
 ZERO3 = np.zeros(3)
 

@@ -1,0 +1,1 @@
+"""Offline tools over recorded streams: compensate, replay, and the one metrics module."""

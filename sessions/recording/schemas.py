@@ -1,0 +1,213 @@
+"""The recording's contract: MCAP magic, topics and their JSON schemas, metadata record names.
+
+Topics (see DESIGN.md "Recording (MCAP)"; SI units, frames in the field
+names): ``/sensor/wrench``, ``/kinematics/pose``, ``/aligned/sample``,
+``/estimator/<name>`` (one channel per estimator, one shared schema),
+``/haptic/command``, ``/haptic/state``, ``/events``. Any other topic is
+refused with a ``ValueError``. :data:`SCHEMAS` holds the JSON schemas.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+ESTIMATOR_TOPIC_PREFIX = "/estimator/"
+_ESTIMATOR_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*\Z")
+_JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+SESSION_METADATA = "hapticlab.session"
+CALIBRATION_METADATA = "hapticlab.calibration"
+SUMMARY_METADATA = "hapticlab.summary"
+RECOVERED_METADATA = "hapticlab.recovered"
+
+# --------------------------------------------------------------------------
+# JSON schemas (draft 2020-12), one per topic; estimator channels share one.
+# --------------------------------------------------------------------------
+
+_NUM = {"type": ["number", "null"]}  # null marks a non-finite value (NaN/inf)
+
+
+def _vec(n: int, description: str) -> dict[str, Any]:
+    return {
+        "type": "array",
+        "items": _NUM,
+        "minItems": n,
+        "maxItems": n,
+        "description": description,
+    }
+
+
+def _quat(description: str) -> dict[str, Any]:
+    return _vec(4, description + " Unit quaternion [w, x, y, z].")
+
+
+def _schema(title: str, description: str, properties: dict[str, Any], required: list[str]) -> dict[str, Any]:
+    return {
+        "$schema": _JSON_SCHEMA_DIALECT,
+        "title": title,
+        "description": description + " Non-finite numbers are recorded as null.",
+        "type": "object",
+        "properties": properties,
+        "required": required,
+    }
+
+
+_WRENCH_SCHEMA = _schema(
+    "hapticlab.SensorWrench",
+    "One raw reading of the six-axis force/torque sensor.",
+    {
+        "force_S": _vec(3, "Raw force in the sensor frame S, N."),
+        "torque_S": _vec(3, "Raw torque in S about the sensor origin, N·m."),
+        "seq": {
+            "type": "integer",
+            "description": "Device sequence number (NetFT RDT sequence or a counter).",
+        },
+        "status": {
+            "type": "integer",
+            "description": "Device status bits; 0 = good, 1 = saturated, 2 = device error.",
+        },
+    },
+    ["force_S", "torque_S", "seq", "status"],
+)
+
+_POSE_SCHEMA = _schema(
+    "hapticlab.KinematicsPose",
+    "One forward-kinematics reading of the robot end (flange) frame E in the robot base frame B.",
+    {
+        "quat_BE": _quat("Orientation R_BE of the end frame E in the base frame B."),
+        "p_BoEo_B": {
+            **_vec(3, "Position of E's origin from B's origin, expressed in B, m; null when unknown."),
+            "type": ["array", "null"],
+        },
+        "joints": {
+            "type": ["array", "null"],
+            "items": _NUM,
+            "description": "Joint positions, rad (m for prismatic joints); null when unknown.",
+        },
+    },
+    ["quat_BE"],
+)
+
+_ALIGNED_SCHEMA = _schema(
+    "hapticlab.AlignedSample",
+    "A wrench sample paired with the robot orientation interpolated at the sample's own time.",
+    {
+        "force_S": _vec(3, "Raw force in the sensor frame S, N."),
+        "torque_S": _vec(3, "Raw torque in S, N·m."),
+        "quat_BE": _quat("Orientation R_BE of E in B at the sample's time (the estimator uses R_EB = R_BEᵀ)."),
+        "seq": {"type": "integer", "description": "Sensor sequence number of the sample."},
+        "status": {"type": "integer", "description": "Sensor status bits; 0 = good."},
+        "stale": {
+            "type": "boolean",
+            "description": (
+                "True when the orientation was held longer than one kinematics period past the last pose."
+            ),
+        },
+    },
+    ["force_S", "torque_S", "quat_BE", "seq", "status", "stale"],
+)
+
+_ESTIMATOR_SCHEMA = _schema(
+    "hapticlab.EstimatorEstimate",
+    "One estimator's output for one sample (channel /estimator/<name>).",
+    {
+        "contact_force_S": _vec(3, "Estimated tool-tissue contact force in the sensor frame S, N."),
+        "contact_torque_S": _vec(3, "Estimated contact torque in S, N·m."),
+        "contact": {"type": "boolean", "description": "The estimator judged the sample to be in contact."},
+        "converged_force": {"type": "boolean", "description": "The force stage has converged."},
+        "converged_torque": {"type": "boolean", "description": "The torque stage has converged."},
+        "params": {
+            "type": "object",
+            "additionalProperties": {"type": "array", "items": _NUM},
+            "description": (
+                "Current parameter estimates, name -> list of floats, SI units and frames in the names "
+                "(gravity_force_B N, bias_force_S N, cog_S m, bias_torque_S N·m, ...)."
+            ),
+        },
+        "cov_diag": {
+            "type": "array",
+            "items": _NUM,
+            "description": "Diagonal of the parameter covariance, in the squared units of the parameters.",
+        },
+    },
+    ["contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque"],
+)
+
+_COMMAND_SCHEMA = _schema(
+    "hapticlab.HapticCommand",
+    "Force command sent to the haptic master device.",
+    {
+        "force_D": _vec(3, "Force on the handle in the device base frame D, N."),
+        "enabled": {"type": "boolean", "description": "False when the output is held at zero for safety."},
+        "reason": {
+            "type": "string",
+            "description": "Why the output is disabled; present when enabled is false.",
+        },
+    },
+    ["force_D", "enabled"],
+)
+
+_STATE_SCHEMA = _schema(
+    "hapticlab.HapticState",
+    "State reported by the haptic master device.",
+    {
+        "pose": {
+            "type": "object",
+            "description": "Pose of the handle frame H in the device base frame D.",
+            "properties": {
+                "quat_DH": _quat("Orientation R_DH of the handle H in the device base D."),
+                "p_DoHo_D": _vec(3, "Position of H's origin from D's origin, expressed in D, m."),
+            },
+            "required": ["quat_DH", "p_DoHo_D"],
+        },
+        "buttons": {"type": "integer", "description": "Bit mask of pressed buttons."},
+    },
+    ["pose", "buttons"],
+)
+
+_EVENT_SCHEMA = _schema(
+    "hapticlab.Event",
+    "Something a person reviewing the session should know about.",
+    {
+        "kind": {
+            "type": "string",
+            "description": "Short machine-readable tag, e.g. haptic_disabled, converged.",
+        },
+        "message": {"type": "string", "description": "One human-readable line."},
+        "data": {"type": "object", "description": "Optional details (SI units, frames in the names)."},
+    },
+    ["kind", "message"],
+)
+
+#: Fixed topics -> JSON schema. Estimator topics (``/estimator/<name>``) use :data:`ESTIMATOR_SCHEMA`.
+TOPICS: dict[str, dict[str, Any]] = {
+    "/sensor/wrench": _WRENCH_SCHEMA,
+    "/kinematics/pose": _POSE_SCHEMA,
+    "/aligned/sample": _ALIGNED_SCHEMA,
+    "/haptic/command": _COMMAND_SCHEMA,
+    "/haptic/state": _STATE_SCHEMA,
+    "/events": _EVENT_SCHEMA,
+}
+ESTIMATOR_SCHEMA = _ESTIMATOR_SCHEMA
+#: Schema title -> JSON schema, every schema a recording may contain.
+SCHEMAS: dict[str, dict[str, Any]] = {s["title"]: s for s in (*TOPICS.values(), ESTIMATOR_SCHEMA)}
+
+
+def schema_for_topic(topic: str) -> dict[str, Any]:
+    """The JSON schema of ``topic``; ``ValueError`` naming the topic when it is not a recording topic."""
+    schema = TOPICS.get(topic)
+    if schema is not None:
+        return schema
+    if topic.startswith(ESTIMATOR_TOPIC_PREFIX):
+        name = topic[len(ESTIMATOR_TOPIC_PREFIX) :]
+        if _ESTIMATOR_NAME.match(name):
+            return ESTIMATOR_SCHEMA
+        raise ValueError(
+            f"bad estimator topic {topic!r}: the name after /estimator/ must be "
+            "letters, digits, '_', '.' or '-'"
+        )
+    raise ValueError(
+        f"unknown recording topic {topic!r}; known topics: {', '.join(TOPICS)}, /estimator/<name>"
+    )

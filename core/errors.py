@@ -12,3 +12,7 @@ from __future__ import annotations
 
 class UserError(Exception):
     """A mistake the user can fix; the message names it (file, row, column, key or value)."""
+
+
+class OutputExistsError(UserError, FileExistsError):
+    """An output path already holds a file: nothing recorded is overwritten unless the user says so."""

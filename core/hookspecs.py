@@ -9,6 +9,7 @@ Full prose for each hook is in ``docs/plugins.md``.
 
 from __future__ import annotations
 
+import argparse
 from typing import Any, Callable
 
 import pluggy
@@ -42,3 +43,8 @@ def register_haptic_outputs(register: Register) -> None:
 @hookspec
 def register_effects(register: Register) -> None:
     """Register physical effect models for the discrepancy workflow: register(name, factory)."""
+
+
+@hookspec
+def register_commands(cli: argparse._SubParsersAction) -> None:
+    """Add subcommands to the ``hapticlab`` command line: cli.add_parser(...), set_defaults(func=...)."""

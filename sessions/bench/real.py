@@ -23,6 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ...core.batch import batch_fit
+from ...core.errors import UserError
 from ...core.plugins import Registry
 from ...core.types import first_true
 
@@ -72,10 +73,10 @@ def bench_real(folder: Path, registry: Registry | None = None,
     registry = registry if registry is not None else Registry()
     folder = Path(folder)
     if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: no such folder; give one: hapticlab bench real DIR")
+        raise UserError(f"{folder}: no such folder; give one: hapticlab bench real DIR")
     files = sorted(folder.glob("*.csv"))
     if not files:
-        raise FileNotFoundError(f"{folder}: no CSV files to evaluate")
+        raise UserError(f"{folder}: no CSV files to evaluate")
     out: dict[str, Any] = {}
     for path in files:
         try:

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ...core.aligner import Aligner
+from ...core.errors import OutputExistsError
 from ...core.plugins import ConfigError, Registry
 from ...core.types import STATUS_OK, AlignedSamples, Estimates
 
@@ -270,7 +271,7 @@ def run_session(
     else:  # the first late sample switches the force off
         stale_timeout_ns = int(round(1.5e9 / float(session.sensor.rate_hz))) + period_ns
     if path.exists():
-        raise FileExistsError(f"{path} already exists; choose another --out (recordings are never overwritten)")
+        raise OutputExistsError(f"{path} already exists; choose another --out (recordings are never overwritten)")
 
     recorder = Recorder(path, metadata=session_metadata(session, duration, path))
     rec = _Recording(recorder)

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ...core.errors import UserError
 from ...core.plugins import Registry
 from ...core.types import first_true
 
@@ -45,7 +46,7 @@ def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path
     if out_path is not None:
         out_path = Path(out_path)
         if out_path.resolve() == recording_path.resolve():
-            raise ValueError(f"{out_path}: the replay would overwrite the recording; choose another -o")
+            raise UserError(f"{out_path}: the replay would overwrite the recording; choose another -o")
         metadata = {name: dict(values) for name, values in original.metadata.items()}
         metadata["hapticlab.replay"] = {"source": str(recording_path), "estimator": estimator_name,
                                         "topic": topic, "options": json.dumps(options)}

@@ -14,6 +14,7 @@ from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, 
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
+from ...core.errors import UserError
 from .reader import RecordingError
 from .schemas import MCAP_MAGIC, RECOVERED_METADATA
 from .writer import _hapticlab_version, _metadata_strings, _utc_now_iso
@@ -43,7 +44,7 @@ def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[s
     src = Path(broken_path)
     dst = Path(fixed_path)
     if src.resolve() == dst.resolve():
-        raise ValueError("recover: the output must be a different file than the broken input")
+        raise UserError("recover: the output must be a different file than the broken input")
     size = src.stat().st_size
     tmp = dst.with_name(dst.name + ".partial")
     dst.parent.mkdir(parents=True, exist_ok=True)

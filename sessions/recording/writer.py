@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from ...core.errors import OutputExistsError
 from .schemas import SESSION_METADATA, SUMMARY_METADATA, schema_for_topic
 
 # --------------------------------------------------------------------------
@@ -166,7 +167,7 @@ class Recorder:
         try:
             self._file = open(self.path, "wb" if overwrite else "xb")  # noqa: SIM115 - closed in close()
         except FileExistsError:
-            raise FileExistsError(
+            raise OutputExistsError(
                 f"recording {self.path} already exists; choose another path or pass overwrite=True"
             ) from None
         self._lock = threading.Lock()

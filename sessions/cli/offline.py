@@ -1,0 +1,93 @@
+"""``hapticlab compensate``, ``replay`` and ``recover``: the offline tools over one recording."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from rich.table import Table
+
+from .render import err, fmt, wide_console
+
+
+def cmd_compensate(args: argparse.Namespace) -> int:
+    from rich.progress import Progress
+
+    from ..offline.compensate import compensate
+
+    with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
+        task = progress.add_task(f"compensating {Path(args.input).name}", total=None)
+        result = compensate(
+            args.input, args.output, estimator_name=args.estimator, overrides=args.set or [],
+            params_out=args.params_out,
+            progress=lambda done, total: progress.update(task, completed=done, total=total),
+        )
+    for note in result.notes:
+        err.print(f"note: {note}")
+    def vector(values, unit):
+        if all(v != v for v in values):  # NaN: that stage never converged
+            return "n/a (not converged)"
+        return "[" + ", ".join(f"{x:.4g}" for x in values) + f"] {unit}"
+
+    err.print(f"{Path(args.input).name}: {result.rows} rows → {args.output} ({args.estimator}); "
+              f"force converged at sample {result.first_converged_force}, torque at "
+              f"{result.first_converged_torque}")
+    err.print(f"RMS contact wrench on no-contact rows after convergence: force "
+              f"{vector(result.rms_force_S, 'N')}, torque {vector(result.rms_torque_S, 'N·m')}")
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from ..offline.replay import replay
+
+    with err.status(f"replaying {Path(args.recording).name} through {args.estimator}"):
+        result = replay(args.recording, args.estimator, args.output, overrides=args.set or [])
+    t = Table(title=f"{Path(args.recording).name}: {result['rows']} samples; no-contact samples after convergence")
+    for col in ("estimator topic", "force conv.", "RMS fx, fy, fz (N)", "Max AE fx, fy, fz (N)",
+                "contact agreement"):
+        t.add_column(col, justify="right")
+    for topic, r in result["comparison"].items():
+        rms = ", ".join(fmt(v) for v in r["rms_force_S"]) if r.get("rms_force_S") else "–"
+        mx = ", ".join(fmt(v) for v in r["max_ae_force_S"]) if r.get("max_ae_force_S") else "–"
+        agree = f"{r['contact_agreement_pct']:.1f} %" if "contact_agreement_pct" in r else "–"
+        name = f"{topic} (new)" if topic == result["topic"] else topic
+        t.add_row(name, str(r["converged_force_at"]), rms, mx, agree)
+    wide_console(120).print(t)
+    if args.output:
+        err.print(f"wrote {args.output} (the original topics and {result['topic']})")
+    return 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from ..recording import recover
+
+    counts = recover(args.broken, args.output)
+    err.print(f"recovered {counts.get('messages', 0)} messages into {args.output}")
+    for topic, n in sorted(counts.get("topics", {}).items()):
+        err.print(f"  {topic}: {n}")
+    return 0
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Add this module's subcommands to the ``hapticlab`` parser."""
+    p = sub.add_parser("compensate", help="run an estimator offline over a CSV or MCAP recording")
+    p.add_argument("input", help="CSV (import contract) or .mcap recording")
+    p.add_argument("-o", "--output", required=True, help="output CSV of the contact wrench per row")
+    p.add_argument("--estimator", default="rls", help="estimator name (default: rls)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="estimator option, e.g. --set estimator.force_threshold=2")
+    p.add_argument("--params-out", default=None, help="write the final parameters as JSON")
+    p.set_defaults(func=cmd_compensate)
+
+    p = sub.add_parser("replay", help="re-run a recording through another estimator and compare")
+    p.add_argument("recording", help="a session's .mcap")
+    p.add_argument("--estimator", required=True, help="estimator name, e.g. batch")
+    p.add_argument("-o", "--output", default=None, help="write a new .mcap with the replayed estimator added")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="estimator option, e.g. --set estimator.force_threshold=0.5")
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("recover", help="salvage a recording whose writer died")
+    p.add_argument("broken", help="the damaged .mcap")
+    p.add_argument("-o", "--output", required=True, help="where to write the recovered .mcap")
+    p.set_defaults(func=cmd_recover)

@@ -2,7 +2,7 @@
 
 This is the reference the live estimator (``hapticlab.plugins.estimators.rls``)
 is tested against: it builds every C_k explicitly and uses the textbook
-formulas with a general matrix inverse, exactly as printed (eqs. 25–27, 38),
+formulas with a general matrix inverse, exactly as printed (eqs. 26–28, 20–21),
 so any shortcut the fast implementation takes must give the same numbers.
 It is slow (tens of µs per sample); use it for tests and checks, not sessions.
 """
@@ -36,9 +36,10 @@ def algorithm1(
         force_threshold, torque_threshold: contact thresholds f_th (N), τ_th (N·m).
         x0_force, x0_torque: (6,) initial estimates (the paper draws them at random).
         P0, R, epsilon: initial covariance scale, measurement noise, convergence threshold.
-        joseph: evaluate eq. 27 in Joseph form, (I−KC) P (I−KC)ᵀ + K R Kᵀ: the same
+        joseph: evaluate eq. 28 in Joseph form, (I−KC) P (I−KC)ᵀ + K R Kᵀ: the same
             algebra, but accurate in double precision with P0 = 1e6 (as printed,
-            (I−KC) P loses up to ~1 N in the first samples).
+            (I−KC) P moves the contact force by up to ~2 N in the first samples;
+            docs/estimators.md, rls).
 
     Returns:
         Per-sample arrays: ``contact_force_S`` (N, 3), ``contact_torque_S`` (N, 3),
@@ -102,7 +103,7 @@ def algorithm1(
 
 
 def _covariance_update(P: np.ndarray, K: np.ndarray, C: np.ndarray, R: np.ndarray, joseph: bool) -> np.ndarray:
-    """Eq. 27, as printed or in Joseph form."""
+    """Eq. 28, as printed or in Joseph form."""
     IKC = np.eye(len(P)) - K @ C
     if joseph:
         return IKC @ P @ IKC.T + K @ R @ K.T

@@ -2,7 +2,7 @@
 
 Force: S_f = R_EB·B_f + f0, stacked over n samples as y = C x (eq. 22) and
 solved for x = [gravity_force_B, bias_force_S]. Torque: S_tau = p × Δf + tau0
-with Δf = S_f − f0 (eq. 31); since p × (S_f − f0) + tau0 = p × S_f + (tau0 − p × f0),
+with Δf = S_f − f0 (eq. 30); since p × (S_f − f0) + tau0 = p × S_f + (tau0 − p × f0),
 the torque fit uses the measured force directly and recovers tau0 afterwards,
 which gives the same least-squares solution without a second pass.
 

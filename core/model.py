@@ -1,4 +1,4 @@
-"""The paper's non-contact model (eqs. 16–17) and its contact wrench (eqs. 37–38).
+"""The paper's non-contact model (eqs. 18–19) and its contact wrench (eqs. 20–21).
 
     S_f   = R_EB · B_f + f0
     S_tau = p × (R_EB · B_f) + tau0
@@ -17,7 +17,7 @@ from .frames import cross
 def contact_wrench(
     force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, x_force: np.ndarray, x_torque: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Contact force and torque in S per sample (eqs. 37–38).
+    """Contact force and torque in S per sample (eqs. 20–21).
 
     Args:
         force_S: (m, 3) raw force, N. torque_S: (m, 3) raw torque, N·m.

@@ -214,8 +214,14 @@ PARAMS = ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S")
 
 
 def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = "rls", quick: bool = False,
-              progress: Callable[[str], None] | None = None, with_batch_bounds: bool = True) -> dict[str, Any]:
-    """All experiments for one estimator (called ``name`` in the results); numbers and plot data."""
+              progress: Callable[[str], None] | None = None, with_batch_bounds: bool = True,
+              make_printed: Callable[[], Any] | None = None) -> dict[str, Any]:
+    """All experiments for one estimator (called ``name`` in the results); numbers and plot data.
+
+    ``make_printed`` builds the same estimator with the paper's covariance update as
+    printed (``rls``'s ``covariance_update = "printed"``): its convergence on the same
+    identification run is added as ``force_paper_printed`` and ``torque_paper_printed``.
+    """
     say = progress or (lambda message: None)
     rate = setup.rate_hz
     poses = 30 if quick else setup.poses
@@ -240,6 +246,10 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
         "force_truth": force_truth,
         "torque_truth": torque_truth,
     }
+    if make_printed is not None:  # the same numbers in any block size (it runs sample by sample)
+        printed, _ = feed(make_printed(), block)
+        result["convergence"]["force_paper_printed"] = first_true(printed.converged_force)
+        result["convergence"]["torque_paper_printed"] = first_true(printed.converged_torque)
     params = estimator.params()
     fit = batch_fit(block.force_S, block.torque_S, block.R_EB)
     result["identification"] = {
@@ -415,9 +425,9 @@ def _model_error(block: AlignedSamples, rows: np.ndarray, params: dict) -> tuple
     return contact_wrench(block.force_S[rows], block.torque_S[rows], block.R_EB[rows], x_f, x_t)
 
 
-def estimator_factory(registry: Registry, name: str, setup: PaperSetup) -> Callable[[], Any]:
-    """A factory building ``name`` with the bench's contact thresholds when it takes them."""
-    options = {}
+def estimator_factory(registry: Registry, name: str, setup: PaperSetup, **extra: Any) -> Callable[[], Any]:
+    """A factory building ``name`` with the bench's contact thresholds when it takes them, and ``extra``."""
+    options = dict(extra)
     accepted = option_types(registry.get("estimator", name).factory)
     if "force_threshold" in accepted:
         options["force_threshold"] = setup.force_threshold
@@ -435,7 +445,8 @@ def bench_paper(quick: bool = False, all_estimators: bool = False, registry: Reg
     """Run the benchmark; returns (JSON-ready results, plot data)."""
     registry = registry if registry is not None else Registry()
     setup = PaperSetup()
-    main = run_paper(setup, estimator_factory(registry, "rls", setup), "rls", quick=quick, progress=progress)
+    main = run_paper(setup, estimator_factory(registry, "rls", setup), "rls", quick=quick, progress=progress,
+                     make_printed=estimator_factory(registry, "rls", setup, covariance_update="printed"))
     out: dict[str, Any] = {"setup": {**asdict(setup), "quick": quick, "estimator": "rls"}, **main["result"],
                            "paper": PAPER}
     if all_estimators:

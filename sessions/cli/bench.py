@@ -18,12 +18,14 @@ def print_paper_tables(out: dict) -> None:
     conv = out["convergence"]
     out_console = out_table = wide_console(120)
     t = Table(title="Convergence (0-based sample index in the identification run; never = None)")
-    for col in ("stage", "paper's ‖Δx‖ < 1e-3", "samples after force", "paper (samples)", "truth-based"):
+    for col in ("stage", "paper's ‖Δx‖ < 1e-3", "samples after force", "the same, P as printed",
+                "paper (samples)", "truth-based"):
         t.add_column(col, justify="right")
-    t.add_row("force", str(conv["force_paper"]), "", str(paper["convergence"]["force_paper"]),
-              str(conv["force_truth"]))
+    t.add_row("force", str(conv["force_paper"]), "", str(conv.get("force_paper_printed")),
+              str(paper["convergence"]["force_paper"]), str(conv["force_truth"]))
     t.add_row("torque", str(conv["torque_paper"]), str(conv["torque_paper_after_force"]),
-              str(paper["convergence"]["torque_paper"]), str(conv["torque_truth"]))
+              str(conv.get("torque_paper_printed")), str(paper["convergence"]["torque_paper"]),
+              str(conv["torque_truth"]))
     out_console.print(t)
     ident = out["identification"]
     t = Table(title=f"Identified parameters after {ident['samples']} samples")

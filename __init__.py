@@ -1,14 +1,99 @@
 """hapticlab: plugin-based haptic teleoperation for robotic-surgery training.
 
+The Python API (``docs/api.md``; the command line is a thin shell over it)::
+
+    import hapticlab
+    path = hapticlab.run("demo", settings={"session.duration": 3, "session.realtime": False})
+    rec = hapticlab.open_recording(path)
+    est = hapticlab.make_estimator("kalman", noise_force="auto")
+    out = hapticlab.compensate(path, est)
+
 The package is laid out by data flow: ``hapticlab.core`` (hookspecs, plugin
-manager, data types, frames, estimator math), ``hapticlab.plugins`` (built-in
-sensors, kinematics, estimators, haptic outputs, effects) and
-``hapticlab.sessions`` (config, run loop, MCAP recording, command line).
+host, contracts, data types, frames, estimator math; no I/O),
+``hapticlab.plugins`` (built-in sensors, kinematics, estimators, haptic
+outputs, effects, the simulated world) and ``hapticlab.sessions`` (by job:
+``live``, ``recording``, ``offline``, ``bench``, ``discrepancy``, ``cli``).
 """
 
+from __future__ import annotations
+
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any, Mapping
 
 try:
     __version__ = version("hapticlab")
 except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0+unknown"
+
+__all__ = ["compensate", "get_plugins", "load_session", "make_estimator", "open_recording", "run"]
+
+
+def load_session(session: str | Path | Mapping[str, Any] = "demo",
+                 settings: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """A session's config: a preset name, a TOML path or a dict, with ``settings`` applied.
+
+    ``settings`` maps dotted keys to values, as ``--set`` does on the command
+    line: ``{"session.duration": 3, "estimator.name": "kalman"}``.
+    """
+    from .sessions.config import apply_settings, load_config
+
+    if isinstance(session, Mapping):
+        config = dict(session)
+    else:
+        config, _ = load_config(str(session))
+    return apply_settings(config, dict(settings or {}))
+
+
+def run(session: str | Path | Mapping[str, Any] = "demo", settings: Mapping[str, Any] | None = None, *,
+        out: str | Path | None = None) -> Path:
+    """Run a session to its end and return the path of its recording (an MCAP file).
+
+    ``session`` is a preset name (``"demo"``), a TOML path or a config dict;
+    ``settings`` dotted keys as in :func:`load_session`; ``out`` the recording's
+    path (default ``recordings/<name>-<time>.mcap``, never an existing file).
+    A device or estimator that fails raises ``SessionError``; its
+    ``result.path`` is the complete recording.
+    """
+    from .sessions.live import build_session, run_session
+
+    return run_session(build_session(load_session(session, settings)), out=out).path
+
+
+def open_recording(path: str | Path):
+    """Open a recording: ``metadata``, ``events``, ``topic_names``, ``messages(topic)`` yielding
+    ``(t_ns, dict)``, and arrays: ``wrench()``, ``poses()``, ``estimates(name)``; topics are read on demand."""
+    from .sessions.recording import open_recording as _open
+
+    return _open(path)
+
+
+def make_estimator(name: str, **options: Any):
+    """A registered estimator built with ``options`` (checked against its signature, as a session's
+    ``[estimator]`` table is): ``make_estimator("rls", force_threshold=0.6)``."""
+    from .core.plugins import Registry
+
+    return Registry().create("estimator", name, options, where="estimator")
+
+
+def compensate(stream_or_path, estimator="rls"):
+    """Run an estimator over a recording (a CSV or MCAP path, or a loaded ``Stream``), offline.
+
+    ``estimator`` is a name (built with its defaults) or an estimator object
+    (e.g. from :func:`make_estimator`). Returns the ``Estimates``, one row per
+    input row (rows the estimator could not use carry NaN).
+    """
+    from .sessions.offline.compensate import run_estimator
+    from .sessions.recording.stream import Stream, load_stream
+
+    stream = stream_or_path if isinstance(stream_or_path, Stream) else load_stream(stream_or_path)
+    if isinstance(estimator, str):
+        estimator = make_estimator(estimator)
+    return run_estimator(stream, estimator)
+
+
+def get_plugins() -> list[dict[str, str]]:
+    """Every registered plugin: ``{"kind", "name", "origin"}``, by kind then name."""
+    from .core.plugins import Registry
+
+    return [{"kind": e.kind, "name": e.name, "origin": e.origin} for e in Registry().entries()]

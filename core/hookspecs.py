@@ -46,5 +46,10 @@ def register_effects(register: Register) -> None:
 
 
 @hookspec
+def register_contexts(register: Register) -> None:
+    """Register shared objects built from a config table of the same name: register(table, factory(table))."""
+
+
+@hookspec
 def register_commands(cli: argparse._SubParsersAction) -> None:
     """Add subcommands to the ``hapticlab`` command line: cli.add_parser(...), set_defaults(func=...)."""

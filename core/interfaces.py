@@ -1,18 +1,29 @@
-"""The plain-object interfaces the run loop calls once plugins are built.
+"""The plugin contract: the plain-object interfaces the run loop calls, and their optional capabilities.
 
 Factories registered through the hooks return objects with these methods. The
 host builds them once; in the loop it only calls methods (no hook calls).
 Options come from the session's TOML table for the plugin, checked against the
 factory's signature (see ``hapticlab.core.plugins.validate_options``).
-Keyword arguments the host may provide when the factory accepts them:
-``world`` (the session's shared simulated world, for simulated devices).
+
+Besides the required interface, an object may have **capabilities**: the small
+Protocols below. The host checks them once, when it builds the session
+(``isinstance(obj, Capability)``), and keeps what it found; nothing in the
+per-sample loop probes an object for an attribute. ``docs/plugins.md`` lists
+every interface and capability with its exact signature (a test checks it).
+
+Keyword arguments the host may provide to a factory that accepts them are the
+session's *contexts* (``register_contexts``), e.g. ``world``: the simulated
+world built from the session's ``[world]`` table.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
-from .types import AlignedSamples, DeviceState, Estimates, HapticCommand, PoseSample, WrenchSample
+import numpy as np
+
+from .types import AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, WrenchSample
 
 
 @runtime_checkable
@@ -77,3 +88,80 @@ class HapticOutput(Protocol):
     def send(self, command: HapticCommand) -> None: ...
     def state(self) -> DeviceState | None: ...
     def close(self) -> None: ...
+
+
+# ---------------------------------------------------------------- optional capabilities
+
+
+@runtime_checkable
+class EmitsEvents(Protocol):
+    """Something a person reviewing the session should know about (any plugin kind).
+
+    ``drain_events()`` returns the events since the last call (and forgets
+    them); the loop records them on ``/events`` after every update, with the
+    plugin's label in ``data["source"]``. An estimator's ``payload_change``
+    holds the haptic force at zero for a while (``sessions.live.gate``).
+    """
+
+    def drain_events(self) -> list[Event]: ...
+
+
+@runtime_checkable
+class ReportsParameterStd(Protocol):
+    """An estimator that knows how well its force-stage parameters are identified.
+
+    ``force_parameter_std()`` is the (6,) standard deviation of
+    [gravity_force_B, bias_force_S], N. The haptic force stays off until it is
+    below ``[haptic] ready_force_std``, and goes off again when it grows back
+    above it.
+    """
+
+    def force_parameter_std(self) -> np.ndarray: ...
+
+
+@runtime_checkable
+class KnowsMount(Protocol):
+    """An estimator that knows the sensor's mount on the flange.
+
+    ``R_SE`` is the (3, 3) orientation of E in S (identity when S = E); the
+    haptic mapping turns the contact force from S into the base through it.
+    """
+
+    R_SE: np.ndarray
+
+
+@runtime_checkable
+class CountsConvergence(Protocol):
+    """An estimator that counts the sample each stage first converged at (None until then)."""
+
+    first_converged_force: int | None
+    first_converged_torque: int | None
+
+
+@runtime_checkable
+class SavesState(Protocol):
+    """An estimator whose end state starts the next session (a warm start).
+
+    ``state()`` is a JSON-serialisable dict; the session writes it beside its
+    recording (``<recording>.calibration.json``) and as the metadata record
+    ``hapticlab.estimator_state``. ``load_state(source)`` starts from such a
+    dict or file, raising ``ValueError("warm_start: ...")`` when it cannot.
+    """
+
+    def state(self) -> dict: ...
+    def load_state(self, source: str | Path | dict) -> None: ...
+
+
+@runtime_checkable
+class HasCalibration(Protocol):
+    """A sensor that reports its calibration (counts per unit, serial number, ...).
+
+    ``calibration`` is a dict of strings, recorded as the metadata record
+    ``hapticlab.calibration``.
+    """
+
+    calibration: dict[str, str]
+
+
+CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration)
+"""Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

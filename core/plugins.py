@@ -32,6 +32,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.estimators.batch",
     "hapticlab.plugins.estimators.kalman",
     "hapticlab.plugins.haptics.null",
+    "hapticlab.plugins.simworld.context",
     "hapticlab.plugins.effects.mount_rotation",
     "hapticlab.plugins.effects.bias_drift",
     "hapticlab.plugins.effects.inertia",
@@ -46,6 +47,7 @@ KINDS: dict[str, str] = {
     "estimator": "register_estimators",
     "haptic_output": "register_haptic_outputs",
     "effect": "register_effects",
+    "context": "register_contexts",
 }
 
 
@@ -156,7 +158,8 @@ class Registry:
             entry = self.get(kind, name)
         except PluginError as exc:
             raise ConfigError(f"{where or kind}.name: {exc}") from None
-        kwargs = validate_options(entry.factory, dict(options or {}), where or kind)
+        kwargs = validate_options(entry.factory, dict(options or {}), where or kind,
+                                  host_provided=frozenset(self.names("context")))
         params = inspect.signature(entry.factory).parameters
         for key, value in context.items():
             if key in params:
@@ -174,7 +177,7 @@ class Registry:
         """The options a plugin runs with: its signature's defaults updated by ``options``."""
         resolved: dict[str, Any] = {}
         for key, param in inspect.signature(self.get(kind, name).factory).parameters.items():
-            if key in HOST_PROVIDED or param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD):
+            if key in self.names("context") or param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD):
                 continue
             if param.default is not param.empty:
                 resolved[key] = param.default
@@ -236,17 +239,16 @@ def _type_name(annotation: Any) -> str:
     return str(annotation).replace("typing.", "")
 
 
-HOST_PROVIDED = frozenset({"world"})
-"""Keyword arguments the host provides to factories that accept them; never user options."""
-
-
-def validate_options(factory: Callable[..., Any], options: dict[str, Any], where: str) -> dict[str, Any]:
+def validate_options(factory: Callable[..., Any], options: dict[str, Any], where: str,
+                     host_provided: frozenset[str] = frozenset()) -> dict[str, Any]:
     """Check option names and types against the factory's signature.
 
-    Raises ConfigError naming the full key (``where.key``) on an unknown key or
-    a value of the wrong type. Integers are accepted where a float is expected.
+    ``host_provided`` names keyword arguments the host passes itself (the
+    session's contexts, e.g. ``world``): never user options. Raises ConfigError
+    naming the full key (``where.key``) on an unknown key or a value of the
+    wrong type. Integers are accepted where a float is expected.
     """
-    accepted = {k: v for k, v in option_types(factory).items() if k not in HOST_PROVIDED}
+    accepted = {k: v for k, v in option_types(factory).items() if k not in host_provided}
     for key, value in options.items():
         if key not in accepted:
             known = ", ".join(sorted(accepted)) or "none"

@@ -4,7 +4,8 @@ A session config is a TOML document with these tables (every one optional;
 missing tables take the ``demo`` preset's values only when you start from it):
 
 ``[session]``   duration, realtime pacing, loop rate, output path
-``[world]``     the simulated world (used by the ``sim`` sensor and kinematics)
+``[world]``     the simulated world (the ``world`` context of the simworld plugin,
+                used by the ``sim`` sensor and kinematics)
 ``[sensor]``    ``name`` of a registered sensor plus its options
 ``[kinematics]`` ``name`` of a registered kinematics source plus its options
 ``[estimator]`` ``name`` of the estimator that drives the haptics plus its options
@@ -27,7 +28,8 @@ from typing import Any
 
 from ..core.plugins import ConfigError, validate_options
 
-TABLES = ("session", "world", "sensor", "kinematics", "estimator", "haptic", "shadows")
+TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "shadows")
+"""The host's own tables; a plugin's context (``register_contexts``, e.g. ``world``) adds its own."""
 PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator",
                  "haptic": "haptic_output"}
 
@@ -140,35 +142,46 @@ def parse_value(text: str) -> Any:
 
 
 def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
-    """Apply ``key.path=value`` overrides to a copy of the config.
-
-    Setting a plugin table's ``name`` to another plugin drops the options the
-    file gave the old one (they belong to it), keeping the other overrides, so
-    ``--set estimator.name=kalman`` works on any preset.
-    """
-    config = copy.deepcopy(config)
-    for item in overrides:
-        key, _, value = item.partition("=")
-        table, _, rest = key.strip().partition(".")
-        if rest == "name" and table in PLUGIN_TABLES and isinstance(config.get(table), dict) \
-                and config[table].get("name") != parse_value(value):
-            kept = {k: v for k, v in config[table].items() if table == "haptic" and k in HAPTIC_SAFETY_KEYS}
-            config[table] = kept
+    """Apply ``--set key.path=value`` overrides (TOML values) to a copy of the config."""
+    settings = {}
     for item in overrides:
         key, sep, value = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
+        if not sep or not key.strip():
             raise ConfigError(f"--set {item!r}: expected key=value, e.g. estimator.name=batch")
+        settings[key.strip()] = parse_value(value)
+    return apply_settings(config, settings)
+
+
+def apply_settings(config: dict[str, Any], settings: dict[str, Any]) -> dict[str, Any]:
+    """Set ``{"dotted.key": value}`` in a copy of the config (the Python form of ``--set``).
+
+    Setting a plugin table's ``name`` to another plugin drops the options the
+    file gave the old one (they belong to it), keeping the other settings, so
+    ``estimator.name = "kalman"`` works on any preset.
+    """
+    config = copy.deepcopy(config)
+    for key, value in settings.items():
+        table, _, rest = key.strip().partition(".")
+        if rest == "name" and table in PLUGIN_TABLES and isinstance(config.get(table), dict) \
+                and config[table].get("name") != value:
+            kept = {k: v for k, v in config[table].items() if table == "haptic" and k in HAPTIC_SAFETY_KEYS}
+            config[table] = kept
+    for key, value in settings.items():
+        key = key.strip()
+        if not key:
+            raise ConfigError("settings: an empty key; give dotted keys such as session.duration")
         parts = key.split(".")
-        if parts[0] not in TABLES:
-            raise ConfigError(f"{key}: unknown table {parts[0]!r}; tables: {', '.join(TABLES)}")
+        if parts[0] not in TABLES and parts[0] not in config:
+            known = (*TABLES, *_context_tables())
+            if parts[0] not in known:
+                raise ConfigError(f"{key}: unknown table {parts[0]!r}; tables: {', '.join(known)}")
         node = config
         for depth, part in enumerate(parts[:-1]):
             child = node.setdefault(part, {})
             if not isinstance(child, dict):
                 raise ConfigError(f"{key}: {'.'.join(parts[: depth + 1])} is not a table")
             node = child
-        node[parts[-1]] = parse_value(value)
+        node[parts[-1]] = value
     return config
 
 
@@ -182,11 +195,22 @@ def _dataclass_from(cls, table: Any, where: str):
     return cls(**{f.name: options[f.name] for f in fields(cls) if f.name in options})
 
 
-def check_tables(config: dict[str, Any]) -> None:
-    """Refuse unknown top-level tables and plugin tables without a name."""
+def _context_tables() -> list[str]:
+    """The config tables the installed plugins' contexts read (e.g. ``world``)."""
+    from ..core.plugins import Registry
+
+    return Registry().names("context")
+
+
+def check_tables(config: dict[str, Any], extra_tables: list[str] | tuple[str, ...] = ()) -> None:
+    """Refuse unknown top-level tables and plugin tables without a name.
+
+    ``extra_tables`` are the tables of the registered contexts (e.g. ``world``).
+    """
+    known = (*TABLES, *extra_tables)
     for key, value in config.items():
-        if key not in TABLES:
-            raise ConfigError(f"{key}: unknown table; tables: {', '.join(TABLES)}")
+        if key not in known:
+            raise ConfigError(f"{key}: unknown table; tables: {', '.join(known)}")
         if not isinstance(value, dict):
             raise ConfigError(f"{key}: expected a table, got {value!r}")
     for table in PLUGIN_TABLES:

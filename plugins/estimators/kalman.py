@@ -85,7 +85,7 @@ from ...core.frames import (
 )
 from ...core.kalman import I3, KalmanStage, MountStage
 from ...core.model import contact_wrench, named_params
-from ...core.types import AlignedSamples, Estimates
+from ...core.types import AlignedSamples, Estimates, Event
 from scipy.stats import chi2
 
 STEP_EPSILON = 1e-3
@@ -398,7 +398,7 @@ class KalmanEstimator:
         self.prior_f = np.array(prior_f, dtype=float)
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = int(round(payload_change_s * 1e9))
-        self.events: list[tuple[int, str, str]] = []
+        self.events: list[Event] = []
         self.payload_changes = 0
         self._refused: list[dict[str, np.ndarray]] = []  # the refusal run's samples, by field
         self._refused_since: int | None = None  # t_ns of the run's first refused sample
@@ -717,7 +717,7 @@ class KalmanEstimator:
             message = (f"kalman: payload change of {dn:.3g} N ({dn / 9.81 * 1000:.0f} g) "
                        f"after {(t_last - self._refused_since) * 1e-9:.2f} s of refused samples; "
                        f"gravity and centre of gravity re-opened")
-            self.events.append((t_last, "payload_change", message))
+            self.events.append(Event(t_last, "payload_change", message))
             self._refused_since, self._refused, self._accepted_in_run = None, [], 0
 
     def _reopen_payload(self, window: dict[str, np.ndarray]) -> None:
@@ -752,8 +752,8 @@ class KalmanEstimator:
         A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
 
-    def drain_events(self) -> list[tuple[int, str, str]]:
-        """The events since the last call, (t_ns, kind, message); the session loop records them."""
+    def drain_events(self) -> list[Event]:
+        """The events since the last call (EmitsEvents); the session loop records them."""
         out, self.events = self.events, []
         return out
 

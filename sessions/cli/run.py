@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from rich.console import Console
 from rich.live import Live
@@ -40,13 +41,14 @@ def _status_table(status) -> Table:
         "[red]CONTACT[/]" if status.contact else "free",
         f"haptic {haptic}",
         f"{status.events} events",
+        *([f"[red]{status.behind_s * 1e3:.0f} ms behind[/]"] if status.behind_s > 0 else []),
     )
     return table
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     from ..config import apply_overrides, load_config
-    from ..live.loop import build_session, run_session
+    from ..live import SessionError, build_session, run_session
 
     config, origin = load_config(args.session)
     config = apply_overrides(config, args.set or [])
@@ -55,13 +57,23 @@ def cmd_run(args: argparse.Namespace) -> int:
     err.print(f"[bold]hapticlab run[/] {origin}: {duration:g} s, sensor {session.plugins['sensor']['name']}, "
               f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "
               f"haptic {session.plugins['haptic']['name']}  (Ctrl-C stops and keeps the recording)")
-    if err.is_terminal:
-        with Live(console=err, refresh_per_second=4, transient=False) as live:
-            result = run_session(session, out=args.out, duration=duration,
-                                 on_status=lambda s: live.update(_status_table(s)))
-    else:
-        result = run_session(session, out=args.out, duration=duration)
-    table = Table(title=f"session {'interrupted' if result.interrupted else 'finished'}", show_header=False)
+    try:
+        if err.is_terminal:
+            with Live(console=err, refresh_per_second=4, transient=False) as live:
+                result = run_session(session, out=args.out, duration=duration,
+                                     on_status=lambda s: live.update(_status_table(s)))
+        else:
+            result = run_session(session, out=args.out, duration=duration)
+    except SessionError as exc:  # a device or estimator failed: one line, the recording is complete
+        err.print(f"hapticlab run: session ended by an error: {exc}", markup=False, highlight=False)
+        if exc.part.startswith("estimator"):  # an estimator's exception is a bug worth its traceback
+            import traceback
+
+            traceback.print_exception(exc.__cause__, file=sys.stderr)
+        print(exc.result.path)
+        return 1
+    ending = "interrupted" if result.interrupted else "finished"
+    table = Table(title=f"session {ending}", show_header=False)
     table.add_row("recording", str(result.path))
     table.add_row("duration", f"{result.duration_s:.2f} s")
     table.add_row("wrench samples", str(result.samples))
@@ -73,6 +85,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     for key, value in result.params.items():
         table.add_row(key, "[" + ", ".join(f"{v:.4g}" for v in value) + "]")
     table.add_row("events", str(len(result.events)))
+    if result.overruns:
+        table.add_row("loop overruns", f"{result.overruns} (see the overrun events)")
     err.print(table)
     print(result.path)
     return 0

@@ -1,4 +1,10 @@
-"""Reading a recording: :func:`read_recording` (into memory), :func:`iter_messages` (streaming).
+"""Reading a recording: one :class:`Recording` shape, opened lazily or read into memory.
+
+:func:`open_recording` reads the metadata and the channel list and decodes a
+topic only when it is asked for (``messages(topic)`` streams it);
+:func:`read_recording` reads every topic (or the given ones) at once;
+:func:`iter_messages` streams ``(topic, t_ns, message)`` over several topics.
+Messages are decoded by their channel's encoding (:data:`DECODERS`).
 
 A file that is not MCAP, or is truncated or damaged, is a :class:`RecordingError`
 with one line that says what is wrong (and to run ``hapticlab recover``).
@@ -10,7 +16,7 @@ import gc
 import json
 import os
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field as _dc_field
 from pathlib import Path
 from typing import Any
@@ -22,6 +28,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message
 
 from ...core.errors import UserError
+from ...core.types import Estimates, Event
 from .schemas import MCAP_MAGIC
 
 
@@ -62,30 +69,37 @@ def _check_mcap(path: Path) -> None:
         raise _truncated(path)
 
 
+DECODERS: dict[str, Any] = {"json": json.loads}
+"""Message encoding (the MCAP channel's) -> function from the message bytes to a dict."""
+
+
 @dataclass
 class Recording:
-    """A recording read into memory.
+    """A recording: its metadata, and its topics decoded (at once or on first use).
 
     Attributes:
         path: the file.
         metadata: metadata record name -> {key: string value} (records with the
-            same name are merged, later keys win).
-        topics: topic -> [(log_time_ns, decoded message)], in log-time order.
+            same name are merged, later keys win); :meth:`meta` decodes a value.
+        topics: topic -> [(log_time_ns, decoded message)], in log-time order
+            (with :func:`open_recording`, each topic is read on first access).
         schemas: topic -> its JSON schema (decoded).
     """
 
     path: Path
     metadata: dict[str, dict[str, str]]
-    topics: dict[str, list[tuple[int, dict[str, Any]]]]
+    topics: Mapping[str, list[tuple[int, dict[str, Any]]]]
     schemas: dict[str, dict[str, Any]] = _dc_field(default_factory=dict)
 
     @property
     def topic_names(self) -> list[str]:
         """Topics with at least one message, sorted."""
+        if isinstance(self.topics, _LazyTopics):
+            return sorted(t for t, n in self.topics.counts.items() if n)
         return sorted(t for t, msgs in self.topics.items() if msgs)
 
     def __contains__(self, topic: object) -> bool:
-        return bool(self.topics.get(topic))  # type: ignore[arg-type]
+        return topic in self.topic_names
 
     def _msgs(self, topic: str) -> list[tuple[int, dict[str, Any]]]:
         try:
@@ -94,9 +108,46 @@ class Recording:
             present = ", ".join(self.topic_names)
             raise KeyError(f"topic {topic!r} is not in {self.path}; present: {present}") from None
 
-    def messages(self, topic: str) -> list[dict[str, Any]]:
-        """The decoded messages of ``topic``."""
-        return [m for _, m in self._msgs(topic)]
+    def messages(self, topic: str) -> Iterator[tuple[int, dict[str, Any]]]:
+        """``(t_ns, message)`` of ``topic`` in time order, whatever the encoding (streamed when opened lazily)."""
+        if isinstance(self.topics, _LazyTopics) and topic not in self.topics.loaded:
+            if topic not in self.topics:
+                self._msgs(topic)  # the KeyError naming the topics present
+            return (item[1:] for item in iter_messages(self.path, topic))
+        return iter(self._msgs(topic))
+
+    @property
+    def events(self) -> list[Event]:
+        """Everything recorded on ``/events``, as Event records."""
+        if "/events" not in self.topics:
+            return []
+        return [Event(t, m["kind"], m["message"], m.get("data") or {}) for t, m in self.messages("/events")]
+
+    def wrench(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The raw sensor stream: (N,) t_ns, (N, 3) force_S (N), (N, 3) torque_S (N·m); NaN where not finite."""
+        topic = "/sensor/wrench"
+        return self.t_ns(topic), self.field(topic, "force_S"), self.field(topic, "torque_S")
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The kinematics stream: (M,) t_ns, (M, 4) quat_BE [w, x, y, z], (M, 3) p_BoEo_B (m) or None."""
+        topic = "/kinematics/pose"
+        p = self.field(topic, "p_BoEo_B")
+        return self.t_ns(topic), self.field(topic, "quat_BE"), p if p.ndim == 2 else None
+
+    def estimates(self, name: str) -> Estimates:
+        """An estimator's recorded output (``/estimator/<name>``) as arrays; ``params`` from its last report."""
+        topic = f"/estimator/{name}"
+        reports = [m["params"] for _, m in self._msgs(topic) if m.get("params")]
+        return Estimates(self.t_ns(topic), self.field(topic, "contact_force_S"),
+                         self.field(topic, "contact_torque_S"), self.field(topic, "contact").astype(bool),
+                         self.field(topic, "converged_force").astype(bool),
+                         self.field(topic, "converged_torque").astype(bool),
+                         params=reports[-1] if reports else None)
+
+    @property
+    def estimator_names(self) -> list[str]:
+        """The estimators recorded (the ``<name>`` of every ``/estimator/<name>`` topic)."""
+        return sorted(t.removeprefix("/estimator/") for t in self.topics if t.startswith("/estimator/"))
 
     def t_ns(self, topic: str) -> np.ndarray:
         """(N,) int64 log times of ``topic``, ns."""
@@ -231,13 +282,53 @@ def iter_messages(
     """
     path = Path(path)
     _check_mcap(path)  # fail here, not at the first next()
-    return _decode(_iter_raw(path, topics))
+    return _decode(_iter_raw(path, topics), path)
 
 
-def _decode(raw: Iterator[tuple[Channel, Message]]) -> Iterator[tuple[str, int, dict[str, Any]]]:
-    loads = json.loads
+def _decoder(path: Path, channel: Channel):
+    try:
+        return DECODERS[channel.message_encoding]
+    except KeyError:
+        raise RecordingError(f"{path}: topic {channel.topic} has message encoding "
+                             f"{channel.message_encoding!r}; hapticlab reads {', '.join(DECODERS)}") from None
+
+
+def _decode(raw: Iterator[tuple[Channel, Message]], path: Path) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    decoders: dict[int, Any] = {}
     for channel, message in raw:
-        yield channel.topic, message.log_time, loads(message.data)
+        decode = decoders.get(channel.id) or decoders.setdefault(channel.id, _decoder(path, channel))
+        yield channel.topic, message.log_time, decode(message.data)
+
+
+class _LazyTopics(Mapping):
+    """topic -> [(t_ns, message)], each topic read from the file the first time it is asked for."""
+
+    def __init__(self, path: Path, counts: dict[str, int]):
+        self.path, self.counts, self.loaded = path, counts, {}
+
+    def __getitem__(self, topic: str) -> list[tuple[int, dict[str, Any]]]:
+        if topic not in self.counts:
+            raise KeyError(topic)
+        if topic not in self.loaded:
+            self.loaded[topic] = _read_topics(self.path, [topic]).get(topic, [])
+        return self.loaded[topic]
+
+    def __iter__(self):
+        return iter(self.counts)
+
+    def __len__(self) -> int:
+        return len(self.counts)
+
+
+def open_recording(path: str | os.PathLike[str]) -> Recording:
+    """Open a recording: metadata and topics now, each topic's messages when first asked for.
+
+    Raises :class:`RecordingError` with one line when the file is not MCAP, or
+    is truncated or damaged (the message says to run ``hapticlab recover``).
+    """
+    path = Path(path)
+    metadata, schemas, counts = _read_head(path)
+    return Recording(path=path, metadata=metadata, topics=_LazyTopics(path, counts), schemas=schemas)
 
 
 def read_recording(path: str | os.PathLike[str], topics: Iterable[str] | str | None = None) -> Recording:
@@ -248,6 +339,12 @@ def read_recording(path: str | os.PathLike[str], topics: Iterable[str] | str | N
     run ``hapticlab recover``).
     """
     path = Path(path)
+    metadata, schemas, _ = _read_head(path)
+    return Recording(path=path, metadata=metadata, topics=_read_topics(path, topics), schemas=schemas)
+
+
+def _read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]], dict[str, int]]:
+    """Metadata records, schemas by topic, and message counts by topic (from the summary)."""
     f, reader, summary = _open_reader(path)
     with f:
         metadata: dict[str, dict[str, str]] = {}
@@ -265,22 +362,30 @@ def read_recording(path: str | os.PathLike[str], topics: Iterable[str] | str | N
                         schemas[channel.topic] = json.loads(schema.data)
                     except ValueError:
                         pass
+    counts: dict[str, int] = {}
+    if summary is not None:
+        stats = summary.statistics.channel_message_counts if summary.statistics else {}
+        for channel_id, channel in summary.channels.items():
+            counts[channel.topic] = counts.get(channel.topic, 0) + int(stats.get(channel_id, 0))
+    return metadata, schemas, counts
+
+
+def _read_topics(path: Path, topics: Iterable[str] | str | None) -> dict[str, list[tuple[int, dict[str, Any]]]]:
     out: dict[str, list[tuple[int, dict[str, Any]]]] = {}
-    loads = json.loads
     # File order (no global time-ordered merge, which costs more than the decoding), with the
     # cyclic GC paused while building many small containers; each topic is sorted afterwards.
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
-        for channel, message in _iter_raw(path, topics, log_time_order=False):
-            lst = out.get(channel.topic)
+        for topic, t_ns, message in _decode(_iter_raw(path, topics, log_time_order=False), path):
+            lst = out.get(topic)
             if lst is None:
-                lst = out[channel.topic] = []
-            lst.append((message.log_time, loads(message.data)))
+                lst = out[topic] = []
+            lst.append((t_ns, message))
     finally:
         if gc_was_enabled:
             gc.enable()
     for lst in out.values():
         if any(lst[i][0] > lst[i + 1][0] for i in range(len(lst) - 1)):
             lst.sort(key=lambda item: item[0])  # stable: equal times keep file order
-    return Recording(path=path, metadata=metadata, topics=out, schemas=schemas)
+    return out

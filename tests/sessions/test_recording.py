@@ -22,6 +22,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
 import hapticlab
+from hapticlab.core.errors import UserError
 from hapticlab.sessions import recording
 from hapticlab.sessions.recording import (
     Recorder,
@@ -214,7 +215,7 @@ def test_every_topic_round_trips(every_topic):
     for topic in expected_topics - {"/events"}:
         want = [(t, _jsonable(m)) for tp, t, m in msgs if tp == topic]
         assert rec.topics[topic] == want, topic
-    events = rec.messages("/events")
+    events = [m for _, m in rec.messages("/events")]
     assert events[0] == {
         "kind": "haptic_disabled",
         "message": "estimator not converged",
@@ -470,7 +471,7 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path):
     aligned_seq = rec.field("/aligned/sample", "seq")
     assert aligned_seq.tolist() == list(range(0, 2 * len(aligned_seq), 2))
     assert rec.field("/estimator/late", "params.seq").size > 0  # a channel registered mid-file survives
-    assert rec.messages("/events")[0]["kind"] == "tick"
+    assert next(rec.messages("/events"))[1]["kind"] == "tick"
     # metadata survives, and the recovery is documented in the file
     assert rec.meta("hapticlab.session", "config") == {"preset": "crash-test"}
     assert rec.meta("hapticlab.calibration", "counts_per_force") == 1e6
@@ -552,7 +553,7 @@ def test_recover_of_a_complete_file_keeps_everything(tmp_path, every_topic):
     a, b = read_recording(path), read_recording(fixed)
     assert a.topics == b.topics and a.schemas == b.schemas
     assert {k: v for k, v in b.metadata.items() if k != "hapticlab.recovered"} == a.metadata
-    with pytest.raises(ValueError, match="different file"):
+    with pytest.raises(UserError, match="different file"):
         recover(path, path)
 
 

@@ -9,10 +9,17 @@ from hapticlab.core import hookimpl
 from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.live.loop import build_session, run_session
+from hapticlab.sessions.live import build_session, run_session
 
 ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/rls",
               "/haptic/command", "/haptic/state", "/events"}
+
+
+def loop_commands(rec):
+    """The loop's haptic commands, (t_ns array, messages): all but the session's final zero, checked here."""
+    *live, (_, last) = rec.topics["/haptic/command"]
+    assert last == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended"}
+    return np.array([t for t, _ in live]), [m for _, m in live]
 
 
 def demo(*overrides: str, duration: float = 3.0):
@@ -63,7 +70,9 @@ def test_haptics_wait_for_convergence_and_are_clamped(demo_recording):
     force_D = rec.field("/haptic/command", "force_D")
     t_cmd = rec.t_ns("/haptic/command")
     converged_at = next(t for t, m in rec.topics["/events"] if m["kind"] == "converged")
-    assert not enabled[t_cmd < converged_at].any() and enabled[-100:].all()
+    assert not enabled[t_cmd < converged_at].any() and enabled[-100:-1].all()
+    # the session ends with a zero command, sent and recorded
+    assert rec.topics["/haptic/command"][-1][1] == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended"}
     assert np.all(force_D[~enabled] == 0.0)
     assert np.linalg.norm(force_D, axis=1).max() <= 4.0 + 1e-9
     step = np.linalg.norm(np.diff(force_D[enabled], axis=0), axis=1)
@@ -174,11 +183,11 @@ def test_stale_kinematics_zero_the_force(tmp_path, registry):
     stale = rec.field("/aligned/sample", "stale").astype(bool)
     # one kinematics period (2 ms) of extrapolation is allowed, not more
     assert np.array_equal(stale, (t > 3.0 + 0.002 + 1e-9) & (t < 3.2))
-    commands = rec.topics["/haptic/command"]
-    t_cmd = (np.array([t for t, _ in commands]) - rec.t_ns("/aligned/sample")[0]) * 1e-9
-    enabled = np.array([m["enabled"] for _, m in commands])
+    t_cmd, commands = loop_commands(rec)
+    t_cmd = (t_cmd - rec.t_ns("/aligned/sample")[0]) * 1e-9
+    enabled = np.array([m["enabled"] for m in commands])
     assert enabled[(t_cmd > 2.5) & (t_cmd < 3.0)].all()
-    during = [m for tc, (_, m) in zip(t_cmd, commands) if 3.003 < tc < 3.2]
+    during = [m for tc, m in zip(t_cmd, commands) if 3.003 < tc < 3.2]
     assert during and all(m["reason"] == "stale kinematics" and m["force_D"] == [0.0] * 3 for m in during)
     assert enabled[t_cmd > 3.21].all()  # back on once poses return
     # stale samples never reach the estimator
@@ -229,10 +238,9 @@ def test_sensor_slower_than_the_loop_never_enables_early(tmp_path):
     # a 500 Hz sensor in a 1 kHz loop: every other tick has no new sample
     result = run_session(build_session(demo("sensor.rate_hz=500.0", duration=4.0)), out=tmp_path / "slow.mcap")
     rec = read_recording(result.path)
-    commands = [m for _, m in rec.topics["/haptic/command"]]
+    t_cmd, commands = loop_commands(rec)
     enabled = np.array([m["enabled"] for m in commands])
     known = next(t for t, m in rec.topics["/events"] if m["kind"] == "parameters_known")
-    t_cmd = rec.t_ns("/haptic/command")
     assert not enabled[t_cmd < known].any() and enabled[t_cmd > known].all()
     toggles = [m for _, m in rec.topics["/events"] if m["kind"].startswith("haptic_")]
     assert len(toggles) == 3  # off (not converged), off (not identified), on
@@ -269,8 +277,8 @@ def test_saturated_samples_zero_the_force(tmp_path):
     result = run_session(build_session(config, Registry(pm)), out=tmp_path / "sat.mcap")
     rec = read_recording(result.path)
     t0 = rec.t_ns("/sensor/wrench")[0]
-    t_cmd = (rec.t_ns("/haptic/command") - t0) * 1e-9
-    commands = [m for _, m in rec.topics["/haptic/command"]]
+    t_cmd, commands = loop_commands(rec)
+    t_cmd = (t_cmd - t0) * 1e-9
     during = [m for t, m in zip(t_cmd, commands) if 2.501 < t < 2.6]
     assert during and all(m["reason"] == "sensor saturated or in error" for m in during)
     assert all(m["enabled"] for t, m in zip(t_cmd, commands) if t > 2.61)
@@ -295,8 +303,7 @@ def test_a_payload_change_holds_the_haptic_force_at_zero(tmp_path):
     result = run_session(build_session(config), out=tmp_path / "payload.mcap")
     rec = read_recording(result.path)
     t_event = next(t for t, m in rec.topics["/events"] if m["kind"] == "payload_change")
-    t_cmd = rec.t_ns("/haptic/command")
-    commands = [m for _, m in rec.topics["/haptic/command"]]
+    t_cmd, commands = loop_commands(rec)
     held = (t_cmd > t_event) & (t_cmd < t_event + 0.9e9)
     assert held.any() and not any(commands[k]["enabled"] for k in np.flatnonzero(held))
     assert all(commands[k]["reason"].startswith("payload change") for k in np.flatnonzero(held))
@@ -319,7 +326,7 @@ def test_a_known_mount_turns_the_haptic_force_into_the_base_frame(tmp_path):
     t0 = rec.t_ns("/sensor/wrench")[0]
     press = enabled & (t_cmd - t0 > 6.5e9) & (t_cmd - t0 < 7.0e9)
     assert press.sum() > 100
-    sim = build_session(config).world  # the same world: the true contact force in B at those times
+    sim = build_session(config).contexts["world"]  # the same world: the true contact force in B at those times
     true_B = []
     for t in (t_cmd[press] - t0) * 1e-9:
         w = sim.wrench(np.array([t]), noise=False)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.live.loop import build_session, calibration_path, run_session
+from hapticlab.sessions.live import build_session, calibration_path, run_session
 
 
 def kalman_demo(duration, **options):
@@ -45,7 +45,7 @@ def test_next_session_warm_starts(first_session, tmp_path):
           f"{result.first_converged_torque})")
     assert warm.first_converged_force < 10 and warm.first_converged_torque < 10
     assert np.allclose(warm.params["gravity_force_B"], result.params["gravity_force_B"], atol=0.05)
-    assert not [e for e in warm.events if e[1] == "payload_change"]
+    assert not [e for e in warm.events if e.kind == "payload_change"]
 
 
 def test_estimator_events_are_recorded(tmp_path):
@@ -53,7 +53,7 @@ def test_estimator_events_are_recorded(tmp_path):
     config = kalman_demo(9.0)
     config["world"]["contacts"] = [{"kind": "hanging_mass", "start": 5.0, "duration": 1e9, "mass": 0.1}]
     result = run_session(build_session(config), out=tmp_path / "payload.mcap")
-    kinds = [kind for _, kind, _ in result.events]
+    kinds = [e.kind for e in result.events]
     assert kinds.count("payload_change") == 1, result.events
     rec = read_recording(tmp_path / "payload.mcap")
     recorded = [m for _, m in rec.topics["/events"] if m["kind"] == "payload_change"]

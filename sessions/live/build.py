@@ -1,0 +1,207 @@
+"""Building a session: validate the config, build every plugin once, find their capabilities.
+
+Everything the loop needs is decided here, before the first sample: which
+plugins, with which options, which optional capabilities each has
+(``core.interfaces``), where the recording goes. The loop then only calls
+plain objects. The host knows nothing special about any plugin: a shared
+object such as the simulated world is a *context* (``register_contexts``),
+built from its own config table and handed to the factories that ask for it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from ...core.interfaces import (
+    CountsConvergence,
+    EmitsEvents,
+    Estimator,
+    HapticOutput,
+    HasCalibration,
+    KinematicsSource,
+    KnowsMount,
+    ReportsParameterStd,
+    SavesState,
+    SensorSource,
+)
+from ...core.plugins import ConfigError, Registry
+from ..config import (
+    PLUGIN_TABLES,
+    HapticSettings,
+    SessionSettings,
+    check_tables,
+    haptic_settings,
+    plugin_options,
+    session_settings,
+    shadow_tables,
+)
+from .safety import ForceGovernor
+
+REQUIRED = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator,
+            "haptic": HapticOutput}
+"""The interface each plugin table's object must have (checked at build time)."""
+
+
+@dataclass
+class EstimatorSlot:
+    """One estimator of the session and what it can do, found once at build time.
+
+    Attributes:
+        label: the name it records under (``/estimator/<label>``).
+        estimator: the object.
+        events: the same object when it emits events, else None.
+        parameter_std: the same object when it reports its force parameters' std, else None.
+        mount: the same object when it knows the sensor's mount, else None.
+        counts: the same object when it counts its first convergence, else None.
+        saves: the same object when its state starts the next session, else None.
+    """
+
+    label: str
+    estimator: Estimator
+    events: EmitsEvents | None = None
+    parameter_std: ReportsParameterStd | None = None
+    mount: KnowsMount | None = None
+    counts: CountsConvergence | None = None
+    saves: SavesState | None = None
+
+    @classmethod
+    def of(cls, label: str, estimator: Any) -> "EstimatorSlot":
+        """The slot for ``estimator``, its capabilities checked once."""
+        def has(capability):
+            return estimator if isinstance(estimator, capability) else None
+        return cls(label, estimator, has(EmitsEvents), has(ReportsParameterStd), has(KnowsMount),
+                   has(CountsConvergence), has(SavesState))
+
+    @property
+    def topic(self) -> str:
+        return f"/estimator/{self.label}"
+
+
+@dataclass
+class Session:
+    """A session's plugins and settings, built and ready to run."""
+
+    config: dict[str, Any]
+    settings: SessionSettings
+    haptic_settings: HapticSettings
+    sensor: SensorSource
+    kinematics: KinematicsSource
+    primary: EstimatorSlot
+    haptic: HapticOutput
+    plugins: dict[str, dict[str, str]]
+    resolved_config: dict[str, Any] = field(default_factory=dict)
+    shadows: list[EstimatorSlot] = field(default_factory=list)  # recorded, never rendered
+    contexts: dict[str, Any] = field(default_factory=dict)  # e.g. {"world": SimWorld}
+    device_events: list[tuple[str, EmitsEvents]] = field(default_factory=list)  # (label, device)
+
+    @property
+    def estimator(self) -> Estimator:
+        """The estimator that drives the haptics."""
+        return self.primary.estimator
+
+    @property
+    def estimator_name(self) -> str:
+        return self.primary.label
+
+    @property
+    def estimators(self) -> list[EstimatorSlot]:
+        """The primary then the shadows."""
+        return [self.primary, *self.shadows]
+
+    def governor(self) -> ForceGovernor:
+        """A fresh force governor: one command per loop period, so the rate limit works on that period."""
+        return ForceGovernor(self.haptic_settings, 1.0 / self.settings.loop_rate_hz)
+
+
+def build_session(config: dict[str, Any], registry: Registry | None = None) -> Session:
+    """Validate the config and build every plugin it names (ConfigError naming the key if anything is wrong)."""
+    registry = registry if registry is not None else Registry()
+    context_names = registry.names("context")
+    check_tables(config, extra_tables=context_names)
+    settings = session_settings(config)
+    safety = haptic_settings(config)
+    contexts = {name: registry.create("context", name, {"table": config[name]}, where=name)
+                for name in context_names if name in config}
+    built: dict[str, Any] = {}
+    plugins: dict[str, dict[str, str]] = {}
+    resolved: dict[str, Any] = {"session": asdict(settings)}
+    resolved.update({name: config[name] for name in contexts})
+    for table, kind in PLUGIN_TABLES.items():
+        name, options = plugin_options(config, table)
+        if name is None:
+            raise ConfigError(f"{table}.name: missing; the session needs a [{table}] table naming a plugin")
+        built[table] = _create(registry, kind, name, options, table, contexts)
+        plugins[table] = {"name": name, "origin": registry.get(kind, name).origin}
+        resolved[table] = {"name": name, **registry.resolved_options(kind, name, options)}
+    resolved["haptic"].update(asdict(safety))
+    primary = plugin_options(config, "estimator")[0]
+    shadows = []
+    for label, (name, options) in shadow_tables(config).items():
+        if label == primary:
+            raise ConfigError(f"shadows.{label}: the primary estimator already records on /estimator/{label}; "
+                              f"give the shadow another label")
+        where = f"shadows.{label}"
+        shadows.append(EstimatorSlot.of(label, _create(registry, "estimator", name, options, where, contexts)))
+        plugins[f"shadow:{label}"] = {"name": name, "origin": registry.get("estimator", name).origin}
+        resolved.setdefault("shadows", {})[label] = {
+            "name": name, **registry.resolved_options("estimator", name, options)}
+    device_events = [(table, built[table]) for table in ("sensor", "kinematics", "haptic")
+                     if isinstance(built[table], EmitsEvents)]
+    return Session(config=config, settings=settings, haptic_settings=safety, sensor=built["sensor"],
+                   kinematics=built["kinematics"], primary=EstimatorSlot.of(primary, built["estimator"]),
+                   haptic=built["haptic"], plugins=plugins, resolved_config=resolved, shadows=shadows,
+                   contexts=contexts, device_events=device_events)
+
+
+def _create(registry: Registry, kind: str, name: str, options: dict[str, Any], where: str,
+            contexts: dict[str, Any]) -> Any:
+    """Build one plugin and check it has the interface its table needs."""
+    obj = registry.create(kind, name, options, where=where, **contexts)
+    interface = REQUIRED["estimator" if where.startswith("shadows.") else where]
+    if not isinstance(obj, interface):
+        missing = [m for m in _members(interface) if not hasattr(obj, m)]
+        raise ConfigError(f"{where}.name: {kind} {name!r} ({registry.get(kind, name).origin}) is not a "
+                          f"{interface.__name__}: it lacks {', '.join(missing)}")
+    return obj
+
+
+def _members(protocol: type) -> list[str]:
+    return sorted(set(getattr(protocol, "__annotations__", {})) |
+                  {k for k, v in vars(protocol).items() if callable(v) and not k.startswith("_")})
+
+
+def session_metadata(session: Session, duration: float, path: Path) -> dict[str, dict[str, Any]]:
+    """The MCAP metadata records written at the start of a session."""
+    resolved = {**session.resolved_config}
+    resolved["session"] = {**resolved["session"], "duration": duration, "out": str(path)}
+    calibration = session.sensor.calibration if isinstance(session.sensor, HasCalibration) else {}
+    return {
+        "hapticlab.session": {  # the recorder adds version, git revision and start time
+            "config": json.dumps(resolved),
+            "plugins": json.dumps(session.plugins),
+            "estimator": session.estimator_name,
+        },
+        "hapticlab.calibration": dict(calibration or {"counts_per_unit": "1"}),
+    }
+
+
+def default_out_path(settings: SessionSettings) -> Path:
+    """Where a session records when no output path is given (never an existing file)."""
+    if settings.out:
+        return Path(settings.out)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    path = Path("recordings") / f"{settings.name}-{stamp}.mcap"
+    k = 1
+    while path.exists():
+        k += 1
+        path = Path("recordings") / f"{settings.name}-{stamp}-{k}.mcap"
+    return path
+
+
+def calibration_path(path: Path) -> Path:
+    """Where a session writes its estimator's final state: ``<recording>.calibration.json`` beside the MCAP."""
+    return Path(path).with_suffix(".calibration.json")

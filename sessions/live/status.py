@@ -1,0 +1,68 @@
+"""What a running session shows and what a finished one reports."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ...core.types import Event
+
+
+@dataclass
+class SessionStatus:
+    """What the live terminal display shows; updated a few times a second."""
+
+    elapsed_s: float = 0.0
+    samples: int = 0
+    rate_hz: float = 0.0
+    converged_force: bool = False
+    converged_torque: bool = False
+    contact: bool = False
+    haptic_enabled: bool = False
+    reason: str = ""
+    events: int = 0
+    behind_s: float = 0.0
+
+
+@dataclass
+class SessionResult:
+    """What a finished session reports (the same numbers are in the recording's ``hapticlab.summary``).
+
+    Attributes:
+        path: the recording.
+        samples, poses: wrench samples and poses recorded.
+        duration_s: session time from start to end, s.
+        interrupted: ended by Ctrl-C rather than by its duration.
+        error: what ended the session early ("" when nothing did): the part that raised and why.
+        params: the primary estimator's parameters at the end.
+        events: every event recorded.
+        overruns: how often the loop fell more than one period behind its rate (realtime only).
+    """
+
+    path: Path
+    samples: int
+    poses: int
+    duration_s: float
+    interrupted: bool
+    params: dict[str, list[float]]
+    events: list[Event] = field(default_factory=list)
+    first_converged_force: int | None = None
+    first_converged_torque: int | None = None
+    contact_samples: int = 0
+    haptic_on_s: float = 0.0
+    error: str = ""
+    overruns: int = 0
+
+
+class SessionError(RuntimeError):
+    """A device or estimator raised and ended the session; the recording is complete.
+
+    ``part`` names what failed (``sensor``, ``kinematics``, ``estimator``),
+    ``result`` is the session's result (its ``path`` the complete recording);
+    the original exception is the ``__cause__``.
+    """
+
+    def __init__(self, message: str, part: str, result: SessionResult):
+        super().__init__(message)
+        self.part = part
+        self.result = result

@@ -41,9 +41,10 @@ from ..config import (
 )
 from .safety import ForceGovernor
 
-REQUIRED = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator,
-            "haptic": HapticOutput}
+INTERFACES = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator,
+              "haptic": HapticOutput}
 """The interface each plugin table's object must have (checked at build time)."""
+REQUIRED = tuple(INTERFACES.values())
 
 
 @dataclass
@@ -161,7 +162,7 @@ def _create(registry: Registry, kind: str, name: str, options: dict[str, Any], w
             contexts: dict[str, Any]) -> Any:
     """Build one plugin and check it has the interface its table needs."""
     obj = registry.create(kind, name, options, where=where, **contexts)
-    interface = REQUIRED["estimator" if where.startswith("shadows.") else where]
+    interface = INTERFACES["estimator" if where.startswith("shadows.") else where]
     if not isinstance(obj, interface):
         missing = [m for m in _members(interface) if not hasattr(obj, m)]
         raise ConfigError(f"{where}.name: {kind} {name!r} ({registry.get(kind, name).origin}) is not a "

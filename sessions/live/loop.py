@@ -134,6 +134,7 @@ class LiveLoop:
             return tick, due_ns
         now_ns = time.monotonic_ns()
         if now_ns < due_ns:
+            self.status.behind_s = 0.0
             time.sleep((due_ns - now_ns) * 1e-9)
             return tick, time.monotonic_ns()
         behind_ns = now_ns - due_ns
@@ -249,6 +250,11 @@ class LiveLoop:
         self.behind_max_ns = max(self.behind_max_ns, behind_ns)
         self.status.behind_s = behind_ns * 1e-9
         if now_ns >= self.next_overrun_event_ns:
+            self._overrun_event(now_ns)
+
+    def _overrun_event(self, now_ns: int) -> None:
+        """The overruns since the last such event, as one event (how far behind at most, ticks skipped)."""
+        if self.skipped_since_event:
             rate = self.s.settings.loop_rate_hz
             self._event(Event(now_ns, "overrun",
                               f"loop {self.behind_max_ns * 1e-6:.1f} ms behind its {rate:g} Hz rate; "
@@ -277,6 +283,7 @@ class LiveLoop:
 
     def _finish(self, end_ns: int, interrupted: bool, failure: _PartFailed | None) -> SessionResult:
         """Zero the device and record it, close the devices, save the state, finish the file."""
+        self._overrun_event(end_ns)  # what the last second's overruns added up to
         reason = f"session ended by an error: {failure}" if failure else "session ended"
         zero = self.governor.command(end_ns, None, None, reason=reason)
         try:

@@ -11,6 +11,8 @@ import pluggy
 import pytest
 
 from hapticlab.core import hookimpl, hookspecs
+from hapticlab.core.interfaces import CAPABILITIES
+from hapticlab.sessions.live.build import REQUIRED
 from hapticlab.core.plugins import (
     DEFAULT_PLUGINS,
     KINDS,
@@ -49,19 +51,59 @@ def test_every_hook_is_exercised_here():
     source = Path(__file__).read_text()
     for hook in HOOKS:
         assert f"{hook}=" in source, f"{hook} is not exercised by a test"
-    assert set(HOOKS) == set(KINDS.values())
+    assert set(HOOKS) == set(KINDS.values()) | {"register_commands"}
+
+
+def _plain(signature: inspect.Signature) -> str:
+    """A signature as the docs write it: parameter names only, no self, no annotations."""
+    return "(" + ", ".join(n for n in signature.parameters if n != "self") + ")"
 
 
 def test_every_hook_is_documented_with_its_signature():
     docs = DOCS.read_text()
     for hook in HOOKS:
-        signature = str(inspect.signature(getattr(hookspecs, hook))).replace(": 'Register'", "")
-        signature = re.sub(r" -> .*", "", signature).replace("'", "")
-        assert f"## {hook}(register)" in docs, hook
-        assert signature == "(register)"
+        assert f"## {hook}{_plain(inspect.signature(getattr(hookspecs, hook)))}" in docs, hook
 
 
-@pytest.mark.parametrize("hook", HOOKS)
+def _members(protocol) -> list[str]:
+    """Each member of an interface or capability as the docs write it: ``name(args) -> type`` or ``name: type``."""
+    out = []
+    for name, annotation in getattr(protocol, "__annotations__", {}).items():
+        out.append(f"{name}: {annotation}")
+    for name, value in vars(protocol).items():
+        if callable(value) and not name.startswith("_"):
+            sig = inspect.signature(value)
+            params = ", ".join(str(p).replace("'", "") for p in sig.parameters.values() if p.name != "self")
+            out.append(f"{name}({params}) -> {str(sig.return_annotation).replace(chr(39), '')}")
+    return out
+
+
+@pytest.mark.parametrize("protocol", [*REQUIRED, *CAPABILITIES], ids=lambda p: p.__name__)
+def test_every_interface_and_capability_is_documented_with_its_exact_members(protocol):
+    docs = DOCS.read_text()
+    assert f"### {protocol.__name__}" in docs, protocol.__name__
+    section = docs.split(f"### {protocol.__name__}", 1)[1].split("\n### ", 1)[0].split("\n## ", 1)[0]
+    for member in _members(protocol):
+        assert f"`{member}`" in section, f"{protocol.__name__}: `{member}` is not in docs/plugins.md"
+
+
+def test_a_plugin_adds_a_subcommand(capsys):
+    from hapticlab.sessions.cli import build_parser
+
+    def add(cli):
+        p = cli.add_parser("hello", help="say hello")
+        p.add_argument("--name", default="lab")
+        p.set_defaults(func=lambda args: print(f"hello {args.name}") or 0)
+
+    pm = manager_with(plugin_module("greeter", register_commands=add))
+    parser = build_parser(load_plugins=False)
+    sub = next(a for a in parser._actions if a.dest == "command")
+    pm.hook.register_commands(cli=sub)
+    args = parser.parse_args(["hello", "--name", "surgeon"])
+    assert args.func(args) == 0 and capsys.readouterr().out == "hello surgeon\n"
+
+
+@pytest.mark.parametrize("hook", sorted(KINDS.values()))
 def test_each_hook_registers_its_kind(hook):
     kind = {v: k for k, v in KINDS.items()}[hook]
     module = plugin_module(f"third_party_{kind}", **{hook: lambda register: register("thing", Dummy)})
@@ -71,7 +113,7 @@ def test_each_hook_registers_its_kind(hook):
     assert registry.names(kind) == ["thing"]
 
 
-def test_all_five_hooks_in_one_plugin():
+def test_every_kind_in_one_plugin():
     module = plugin_module(
         "everything",
         register_sensors=lambda register: register("s", Dummy),
@@ -79,10 +121,12 @@ def test_all_five_hooks_in_one_plugin():
         register_estimators=lambda register: register("e", Dummy),
         register_haptic_outputs=lambda register: register("h", Dummy),
         register_effects=lambda register: register("f", Dummy),
+        register_contexts=lambda register: register("c", Dummy),
     )
     registry = Registry(manager_with(module))
     assert [(e.kind, e.name) for e in registry.entries()] == [
-        ("sensor", "s"), ("kinematics", "k"), ("estimator", "e"), ("haptic_output", "h"), ("effect", "f")]
+        ("sensor", "s"), ("kinematics", "k"), ("estimator", "e"), ("haptic_output", "h"), ("effect", "f"),
+        ("context", "c")]
 
 
 def test_builtins_are_registered():
@@ -147,7 +191,8 @@ def test_host_context_is_passed_only_to_factories_that_take_it():
             self.world = world
 
     module = plugin_module("p", register_sensors=lambda register: register("w", WithWorld),
-                           register_kinematics=lambda register: register("d", Dummy))
+                           register_kinematics=lambda register: register("d", Dummy),
+                           register_contexts=lambda register: register("world", lambda table: table))
     registry = Registry(manager_with(module))
     assert registry.create("sensor", "w", {}, world="W").world == "W"
     assert registry.create("kinematics", "d", {}, world="W").gain == 1.0

@@ -1,0 +1,213 @@
+"""The live loop records its own failures: a part that raises, a loop that falls behind, every estimator's events."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from hapticlab.core import hookimpl
+from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.types import Event
+from hapticlab.plugins.estimators.rls import RLSEstimator
+from hapticlab.plugins.kinematics.sim import SimKinematics
+from hapticlab.plugins.sensors.sim import SimSensor
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.live import SessionError, build_session, run_session
+from hapticlab.sessions.recording import read_recording
+
+
+def demo(*overrides: str, duration: float = 2.0, realtime: bool = False):
+    config, _ = load_config("demo")
+    return apply_overrides(config, [f"session.realtime={str(realtime).lower()}", f"session.duration={duration}",
+                                    *overrides])
+
+
+class BreakingSensor(SimSensor):
+    """The simulated sensor, whose cable is pulled after ``fail_after`` reads."""
+
+    def __init__(self, rate_hz: float = 1000.0, fail_after: int = 800, world=None):
+        super().__init__(rate_hz, world=world)
+        self.fail_after, self.reads = fail_after, 0
+
+    def read(self, until_ns):
+        self.reads += 1
+        if self.reads > self.fail_after:
+            raise ConnectionResetError("RDT socket closed by the sensor")
+        return super().read(until_ns)
+
+
+class BreakingKinematics(SimKinematics):
+    def __init__(self, rate_hz: float = 500.0, fail_after: int = 800, world=None):
+        super().__init__(rate_hz, world=world)
+        self.fail_after, self.reads = fail_after, 0
+
+    def read(self, until_ns):
+        self.reads += 1
+        if self.reads > self.fail_after:
+            raise TimeoutError("RTDE: no data package for 100 ms")
+        return super().read(until_ns)
+
+
+class BreakingEstimator(RLSEstimator):
+    def __init__(self, fail_after: int = 800):
+        super().__init__()
+        self.fail_after, self.calls = fail_after, 0
+
+    def update_block(self, block):
+        self.calls += 1
+        if self.calls > self.fail_after:
+            raise np.linalg.LinAlgError("Singular matrix")
+        return super().update_block(block)
+
+
+class SlowEstimator(RLSEstimator):
+    """rls that stalls 30 ms once every 100 updates (a garbage-collection pause, a page fault)."""
+
+    def __init__(self):
+        super().__init__()
+        self.calls = 0
+
+    def update_block(self, block):
+        self.calls += 1
+        if self.calls % 100 == 0:
+            time.sleep(0.03)
+        return super().update_block(block)
+
+
+class ChattySensor(SimSensor):
+    """A sensor that reports an event of its own (EmitsEvents) once, after 100 reads."""
+
+    def __init__(self, rate_hz: float = 1000.0, world=None):
+        super().__init__(rate_hz, world=world)
+        self.reads, self.pending = 0, []
+
+    def read(self, until_ns):
+        self.reads += 1
+        if self.reads == 100:
+            self.pending.append(Event(until_ns, "sensor_status", "temperature compensation active"))
+        return super().read(until_ns)
+
+    def drain_events(self):
+        out, self.pending = self.pending, []
+        return out
+
+
+class NotAnEstimator:
+    def __init__(self):
+        pass
+
+    def params(self):
+        return {}
+
+
+class Plugins:
+    @hookimpl
+    def register_sensors(self, register):
+        register("breaking", BreakingSensor)
+        register("chatty", ChattySensor)
+
+    @hookimpl
+    def register_kinematics(self, register):
+        register("breaking", BreakingKinematics)
+
+    @hookimpl
+    def register_estimators(self, register):
+        register("breaking", BreakingEstimator)
+        register("slow", SlowEstimator)
+        register("broken", NotAnEstimator)
+
+
+@pytest.fixture
+def registry():
+    pm = make_plugin_manager(load_entry_points=False)
+    pm.register(Plugins(), name="tests")
+    return Registry(pm)
+
+
+@pytest.mark.parametrize("override, part, cause", [
+    ("sensor.name=breaking", "sensor breaking", "ConnectionResetError: RDT socket closed"),
+    ("kinematics.name=breaking", "kinematics breaking", "TimeoutError: RTDE: no data package"),
+    ("estimator.name=breaking", "estimator breaking", "LinAlgError: Singular matrix"),
+])
+def test_a_part_that_raises_ends_the_session_with_a_complete_recording(tmp_path, registry, override, part, cause):
+    path = tmp_path / "failed.mcap"
+    with pytest.raises(SessionError, match=f"^{part} raised {cause}") as info:
+        run_session(build_session(demo(override), registry), out=path)
+    assert info.value.result.path == path and info.value.part == part
+    assert info.value.result.error.startswith(f"{part} raised")
+    rec = read_recording(path)  # complete: footer, summary, every topic readable
+    summary = rec.metadata["hapticlab.summary"]
+    assert summary["interrupted"] == "false" and summary["error"].startswith(f"{part} raised")
+    errors = [m for _, m in rec.topics["/events"] if m["kind"] == "error"]
+    assert errors and errors[-1]["message"].startswith(part) and errors[-1]["data"]["part"] == part
+    assert rec.topics["/events"][-1][1] == {"kind": "session_end", "message": "ended by an error"}
+    *_, (_, last) = rec.topics["/haptic/command"]
+    assert last["force_D"] == [0.0] * 3 and not last["enabled"]
+    assert last["reason"].startswith(f"session ended by an error: {part} raised")
+    # the session ran 0.8 s before the failure, and that is all in the file
+    assert 0.75 < (rec.t_ns("/sensor/wrench")[-1] - rec.t_ns("/sensor/wrench")[0]) * 1e-9 < 0.85
+
+
+def test_every_estimators_events_are_recorded_with_their_source(tmp_path):
+    """rls drives the haptics, kalman runs beside it: kalman's payload change is recorded all the same."""
+    config = demo("shadows.kalman={}", duration=12.0)
+    config["world"]["contacts"] = [{"kind": "hanging_mass", "start": 9.0, "duration": 1e9, "mass": 0.1}]
+    result = run_session(build_session(config), out=tmp_path / "shadow.mcap")
+    rec = read_recording(result.path)
+    payload = [m for _, m in rec.topics["/events"] if m["kind"] == "payload_change"]
+    assert len(payload) == 1 and payload[0]["data"]["source"] == "kalman"
+    # a shadow's event does not hold the primary's haptic force
+    assert not any(m["reason"].startswith("payload change") for _, m in rec.topics["/haptic/command"])
+
+
+def test_a_shadow_that_raises_is_dropped_and_the_session_goes_on(tmp_path, registry):
+    config = demo("shadows.fragile.name=breaking", "shadows.fragile.fail_after=300", duration=1.0)
+    result = run_session(build_session(config, registry), out=tmp_path / "shadow_failed.mcap")
+    assert result.error == "" and result.samples == 1001
+    rec = read_recording(result.path)
+    # 300 updates before it raised: the first tick reads the samples at 0 and 1 ms
+    assert len(rec.topics["/estimator/fragile"]) == 301 and len(rec.topics["/estimator/rls"]) == 1001
+    (dropped,) = [m for _, m in rec.topics["/events"] if m["kind"] == "error"]
+    assert "shadow estimator fragile raised LinAlgError" in dropped["message"]
+
+
+def test_a_device_event_is_recorded_with_its_source(tmp_path, registry):
+    result = run_session(build_session(demo("sensor.name=chatty", duration=0.5), registry), out=tmp_path / "c.mcap")
+    (event,) = [e for e in result.events if e.kind == "sensor_status"]
+    assert event.data == {"source": "sensor"}
+
+
+def test_a_realtime_session_runs_on_the_wall_clock(tmp_path):
+    start = time.monotonic()
+    result = run_session(build_session(demo(duration=0.5, realtime=True)), out=tmp_path / "rt.mcap")
+    wall = time.monotonic() - start
+    assert wall >= 0.5 and abs(result.duration_s - 0.5) < 0.05
+    rec = read_recording(result.path)
+    t_cmd = rec.t_ns("/haptic/command")
+    # commands carry the wall clock: their span is the session's
+    assert 0.45 < (t_cmd[-1] - t_cmd[0]) * 1e-9 <= wall and np.all(np.diff(t_cmd) > 0)
+    # one command per 1 ms tick, except the ticks an overrun skipped (counted in its events); plus the final zero
+    skipped = sum(e.data["ticks_skipped"] for e in result.events if e.kind == "overrun")
+    assert abs(len(t_cmd) - 1 + skipped - 500) <= 1
+
+
+def test_a_loop_that_falls_behind_records_an_overrun(tmp_path, registry):
+    config = demo("estimator.name=slow", duration=1.0, realtime=True)
+    result = run_session(build_session(config, registry), out=tmp_path / "slow.mcap")
+    overruns = [e for e in result.events if e.kind == "overrun"]
+    assert result.overruns >= 1 and overruns
+    # a 30 ms stall at 1 kHz: at least 20 ms behind, 20 ticks skipped (the events add up every overrun)
+    assert max(e.data["behind_s"] for e in overruns) >= 0.02
+    assert sum(e.data["ticks_skipped"] for e in overruns) >= 20
+    assert all("behind its 1000 Hz rate" in e.message for e in overruns)
+    # no command was sent for the ticks it skipped: the loop did not replay them back to back
+    t_cmd = read_recording(result.path).t_ns("/haptic/command")
+    assert np.diff(t_cmd).max() >= 0.02e9
+
+
+def test_a_plugin_without_its_interface_is_refused_at_build_time(registry):
+    with pytest.raises(ConfigError, match=r"^estimator.name: estimator 'broken' \(tests\) is not a Estimator: "
+                                          r"it lacks cov_diag, update_block$"):
+        build_session(demo("estimator.name=broken"), registry)

@@ -1,0 +1,60 @@
+"""The command line's error policy: a user's mistake is one line and exit 2, a bug keeps its traceback."""
+
+from __future__ import annotations
+
+import pytest
+
+from hapticlab.sessions import cli
+from hapticlab.sessions.cli import main
+
+
+def one_line_error(capsys, argv: list[str]) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+def test_a_missing_input_names_the_file(capsys, tmp_path):
+    err = one_line_error(capsys, ["compensate", str(tmp_path / "nope.csv"), "-o", str(tmp_path / "out.csv")])
+    assert err == f"hapticlab compensate: error: {tmp_path / 'nope.csv'}: no such file"
+
+
+def test_a_file_that_is_not_mcap_names_the_file(capsys, tmp_path):
+    bad = tmp_path / "notes.mcap"
+    bad.write_text("these are my notes, not a recording\n")
+    err = one_line_error(capsys, ["replay", str(bad), "--estimator", "rls"])
+    assert err.startswith("hapticlab replay: error: ") and f"{bad} is not an MCAP file" in err
+
+
+def test_an_output_that_is_a_folder_names_the_path(capsys, tmp_path):
+    csv = tmp_path / "in.csv"
+    csv.write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n" + "".join(
+        f"{k * 0.01},1,2,3,0.1,0.2,0.3,1,0,0,0\n" for k in range(30)))
+    folder = tmp_path / "out"
+    folder.mkdir()
+    err = one_line_error(capsys, ["compensate", str(csv), "-o", str(folder)])
+    assert str(folder) in err
+
+
+def test_a_misspelt_key_names_the_key(capsys):
+    err = one_line_error(capsys, ["run", "--set", "estimator.force_treshold=2"])
+    assert err.startswith("hapticlab run: error: estimator.force_treshold: unknown option")
+
+
+def test_an_unknown_table_names_it(capsys):
+    err = one_line_error(capsys, ["run", "--set", "sesion.duration=2"])
+    assert err.startswith("hapticlab run: error: sesion.duration: unknown table 'sesion'")
+
+
+def test_a_bug_keeps_its_traceback(monkeypatch, tmp_path):
+    """A plain ValueError from numpy inside hapticlab is not the user's mistake: it propagates."""
+    def broken(args):
+        raise ValueError("operands could not be broadcast together with shapes (3,) (4,)")
+
+    parser = cli.build_parser(load_plugins=False)
+    monkeypatch.setattr(cli, "build_parser", lambda load_plugins=True: parser)
+    sub = next(a for a in parser._actions if a.dest == "command")
+    sub.choices["recover"].set_defaults(func=broken)
+    with pytest.raises(ValueError, match="could not be broadcast"):
+        main(["recover", str(tmp_path / "a.mcap"), "-o", str(tmp_path / "b.mcap")])

@@ -34,7 +34,7 @@ from hapticlab.plugins.estimators.kalman import KalmanEstimator  # noqa: E402
 from hapticlab.plugins.estimators.rls import RLSEstimator  # noqa: E402
 from hapticlab.sessions.offline.compensate import compensate  # noqa: E402
 from hapticlab.sessions.config import apply_overrides, load_config  # noqa: E402
-from hapticlab.sessions.live.loop import build_session, run_session  # noqa: E402
+from hapticlab.sessions.live import build_session, run_session  # noqa: E402
 
 
 def per_sample_us(factory, block, size: int) -> tuple[float, float]:

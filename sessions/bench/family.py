@@ -156,14 +156,14 @@ def payload(start_s: float = 20.0) -> dict[str, Any]:
     events = est.drain_events()
     if not events:
         return {"recognised_after_s": None}
-    t_event = events[0][0]
+    t_event = events[0].t_ns
     hung_ns = int(block.t_ns[0] + start_s * 1e9)
     return {
         "recognised_after_s": (t_event - hung_ns) * 1e-9,
         "force_flag_up_after_hang_s": up_after(block, out.converged_force, hung_ns),
         "torque_flag_up_after_event_s": up_after(block, out.converged_force & out.converged_torque, t_event),
         "contact_after_event_pct": 100.0 * float(np.mean(out.contact[block.t_ns > t_event])),
-        "event": events[0][2],
+        "event": events[0].message,
     }
 
 

@@ -7,7 +7,7 @@ whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
 (:class:`Stream`, the one offline stream type, from a CSV or an MCAP file).
 """
 
-from .reader import Recording, RecordingError, iter_messages, read_recording
+from .reader import Recording, RecordingError, iter_messages, open_recording, read_recording
 from .recover import recover
 from .schemas import ESTIMATOR_SCHEMA, ESTIMATOR_TOPIC_PREFIX, MCAP_MAGIC, SCHEMAS, TOPICS, schema_for_topic
 from .writer import Recorder
@@ -22,6 +22,7 @@ __all__ = [
     "Recording",
     "RecordingError",
     "iter_messages",
+    "open_recording",
     "read_recording",
     "recover",
     "schema_for_topic",

@@ -16,7 +16,7 @@ from hapticlab.sessions.offline.compensate import compensate
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording.csvimport import OUTPUT_COLUMNS, read_csv
 from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.live.loop import build_session, run_session
+from hapticlab.sessions.live import build_session, run_session
 
 # README of ../shared/data/real: offline batch fit RMS per axis, N
 AXIA80_LOG_BATCH_RMS = np.array([0.068, 0.257, 0.124])

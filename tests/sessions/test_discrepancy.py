@@ -131,7 +131,7 @@ def test_contact_is_gated_and_does_not_fake_an_effect(tmp_path):
 
 def test_an_mcap_session_recording(tmp_path):
     from hapticlab.sessions.config import apply_overrides, load_config
-    from hapticlab.sessions.live.loop import build_session, run_session
+    from hapticlab.sessions.live import build_session, run_session
 
     config, _ = load_config("demo")
     config = apply_overrides(config, ["session.realtime=false", "session.duration=12.0", "world.inertia=false",

@@ -10,7 +10,7 @@ from hapticlab.sessions.cli import main
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording
 from hapticlab.sessions.offline.replay import replay
-from hapticlab.sessions.live.loop import build_session, run_session
+from hapticlab.sessions.live import build_session, run_session
 
 
 @pytest.fixture(scope="module")

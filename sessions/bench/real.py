@@ -27,8 +27,9 @@ from ...core.errors import UserError
 from ...core.plugins import Registry
 from ...core.types import first_true
 
-from ..offline.compensate import load_stream, run_estimator
+from ..offline.compensate import run_estimator
 from ..recording.csvimport import CsvError
+from ..recording.stream import Stream, load_stream
 
 def default_real_dir() -> Path:
     """``$HAPTICLAB_REAL_DATA``, else ``shared/data/real`` beside the source checkout, else ``../shared/data/real``."""
@@ -42,7 +43,7 @@ def default_real_dir() -> Path:
 AUTO_NOISE = {"noise_force": "auto", "noise_torque": "auto"}
 
 
-def variants(registry: Registry, path: Path) -> list[tuple[str, str, dict[str, Any] | str]]:
+def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[str, Any] | str]]:
     """(label, estimator name, options or an error): every registered estimator with its defaults; kalman
     with auto noise; and kalman with auto noise and the effects ``hapticlab discrepancy`` names on the file."""
     out: list[tuple[str, str, dict[str, Any] | str]] = [(name, name, {}) for name in registry.names("estimator")]
@@ -51,7 +52,7 @@ def variants(registry: Registry, path: Path) -> list[tuple[str, str, dict[str, A
         from ..discrepancy.workflow import discrepancy
 
         try:
-            named = discrepancy(path, registry=registry)["estimator_options"]
+            named = discrepancy(stream, registry=registry)["estimator_options"]
         except (ValueError, OSError) as exc:
             named = f"discrepancy: {exc}"
         out.append(("kalman noise=auto + named effects", "kalman",
@@ -92,7 +93,7 @@ def bench_real(folder: Path, registry: Registry | None = None,
             "batch_rms_force_S": np.sqrt(np.mean(residual ** 2, axis=0)).tolist(),
             "estimators": {},
         }
-        for label, name, options in variants(registry, path):
+        for label, name, options in variants(registry, stream):
             if progress:
                 progress(f"{path.name}: {label}")
             if isinstance(options, str):  # the options could not be had: say why in the row

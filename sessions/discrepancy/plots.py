@@ -57,10 +57,10 @@ def write_plots(result: dict[str, Any], folder: str | Path) -> list[Path]:
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    rec = result["_recording"]
+    force_S = result["_stream"].samples.force_S
     kept = result["_kept"]
     states = result["_states"]
-    motion = rec.motion
+    motion = result["_motion"]
     rows = np.flatnonzero(kept)
     thin = rows[:: max(1, len(rows) // MAX_POINTS)]
     unit = "s" if motion.time_base == "seconds" else "row"
@@ -99,7 +99,7 @@ def write_plots(result: dict[str, Any], folder: str | Path) -> list[Path]:
         ax.set(title="gravity direction in S, coloured by |force residual|", xlabel="longitude (deg)",
                ylabel="latitude (deg)", xlim=(-180, 180), ylim=(-90, 90))
         ax = axes[1, 1]
-        predicted = rec.y[:, :3] - res[:, :3]
+        predicted = force_S - res[:, :3]
         for k in range(3):
             ax.plot(predicted[thin, k], res[thin, k], ".", ms=1.5, color=COLORS[k], alpha=0.5)
             if len(rows) > 10:

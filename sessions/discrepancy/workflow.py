@@ -58,8 +58,8 @@ from ...core.effects import Effect, Model, Motion, motion_from_poses
 from ...core.frames import quat_wxyz_from_matrix
 from ...core.plugins import ConfigError, Registry
 
-from ..offline.compensate import load_stream
 from ..recording.csvimport import CsvError
+from ..recording.stream import Stream, load_stream
 
 AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
 
@@ -92,25 +92,6 @@ class Settings:
 # --------------------------------------------------------------------------- input
 
 
-@dataclass
-class Recording:
-    """A measured recording ready for the workflow.
-
-    Attributes:
-        name: file name. motion: the recorded motion at every row.
-        y: (n, 6) measured force (N) and torque (N·m) in S.
-        usable: (n,) rows with a finite wrench, good status and a fresh orientation.
-        notes: what the user should know about the input.
-    """
-
-    name: str
-    motion: Motion
-    y: np.ndarray
-    usable: np.ndarray
-    notes: list[str]
-    has_positions: bool
-
-
 def detect_time_base(t: np.ndarray) -> str:
     """``"index"`` when ``t`` counts rows (integers in steps of one), else ``"seconds"``."""
     if len(t) > 1 and np.all(t == np.round(t)) and np.all(np.diff(t) == 1.0):
@@ -118,37 +99,38 @@ def detect_time_base(t: np.ndarray) -> str:
     return "seconds"
 
 
-def load_recording(path: str | Path, time_base: str = "auto", window_s: float = 0.04) -> Recording:
-    """Read a CSV (import contract) or MCAP recording for the workflow."""
-    path = Path(path)
+def recorded_motion(stream: Stream, time_base: str = "auto", window_s: float = 0.04) -> tuple[Motion, list[str]]:
+    """The motion the workflow fits along (poses and derivatives at every row), and notes on the input.
+
+    ``time_base`` ``"auto"`` takes a ``t`` that counts rows for what it is
+    (no derivatives, so no time-based effects); the derivatives are
+    Savitzky–Golay fits ``window_s`` wide. A stream with fewer than 20 (usable)
+    rows is a ``CsvError``.
+    """
     if time_base not in ("auto", "seconds", "index"):
         raise ConfigError(f"--time-base: expected auto, seconds or index, got {time_base!r}")
-    stream = load_stream(path)
-    samples = stream.samples
-    n = len(stream)
+    samples, name, n = stream.samples, stream.name, len(stream)
     if n < 20:
-        raise CsvError(f"{path.name}: {n} rows; the workflow needs at least 20")
+        raise CsvError(f"{name}: {n} rows; the workflow needs at least 20")
+    usable = int(samples.usable.sum())
+    if usable < 20:
+        raise CsvError(f"{name}: only {usable} usable rows; the workflow needs at least 20")
     t = np.asarray(stream.t_s, dtype=float)
-    notes = list(stream.notes)
+    notes = []
     base = detect_time_base(t) if time_base == "auto" else time_base
     if base == "index" and time_base == "auto":
-        notes.append(f"{path.name}: t counts rows (0, 1, 2, ...), not seconds: the time-based effects "
+        notes.append(f"{name}: t counts rows (0, 1, 2, ...), not seconds: the time-based effects "
                      f"(time_lag, inertia) cannot be tested; use --time-base seconds if it is a time")
     if base == "seconds":
         dt = np.diff(t)
         if dt.max() > 3 * np.median(dt):
-            notes.append(f"{path.name}: the sampling has gaps (up to {dt.max():.3g} s against a median "
+            notes.append(f"{name}: the sampling has gaps (up to {dt.max():.3g} s against a median "
                          f"{np.median(dt):.3g} s); derivatives next to them are unreliable")
     quat = samples.quat_BE if samples.quat_BE is not None else quat_wxyz_from_matrix(samples.R_EB.transpose(0, 2, 1))
-    positions = getattr(samples, "p_BoEo_B", None)
+    positions = samples.p_BoEo_B
     if positions is not None and not np.isfinite(positions).all():
         positions = None
-    motion = motion_from_poses(t, quat, positions, base, window_s)
-    y = np.concatenate([samples.force_S, samples.torque_S], axis=1)
-    usable = samples.usable.copy()
-    if usable.sum() < 20:
-        raise CsvError(f"{path.name}: only {int(usable.sum())} usable rows; the workflow needs at least 20")
-    return Recording(path.name, motion, y, usable, notes, positions is not None)
+    return motion_from_poses(t, quat, positions, base, window_s), notes
 
 
 # --------------------------------------------------------------------------- numerics
@@ -243,22 +225,30 @@ class State:
 
 
 class Discrepancy:
-    """The workflow on one recording (``run()`` does it all; see the module docstring)."""
+    """The workflow on one recording stream and the motion derived from it (``run()`` does it all; see the
+    module docstring)."""
 
-    def __init__(self, recording: Recording, registry: Registry | None = None, settings: Settings | None = None,
+    def __init__(self, stream: Stream, registry: Registry | None = None, settings: Settings | None = None,
                  progress: Callable[[str], None] | None = None):
-        self.rec = recording
         self.registry = registry if registry is not None else Registry()
         self.settings = settings if settings is not None else Settings()
         self.say = progress or (lambda message: None)
-        n = len(recording.y)
-        usable_rows = np.flatnonzero(recording.usable)
+        self.stream = stream
+        self.motion, notes = recorded_motion(stream, self.settings.time_base, self.settings.derivative_window_s)
+        self.notes = stream.notes + notes
+        """what the user should know about the input"""
+        self.y = np.concatenate([stream.samples.force_S, stream.samples.torque_S], axis=1)
+        """(n, 6) measured force (N) and torque (N·m) in S"""
+        self.usable = stream.samples.usable
+        """(n,) rows with a finite wrench, good status and a fresh orientation"""
+        n = len(self.y)
+        usable_rows = np.flatnonzero(self.usable)
         stride = max(1, math.ceil(len(usable_rows) / self.settings.max_fit_samples))
         self.fit_rows = usable_rows[::stride]
         self.stride = stride
-        self.fit_motion = recording.motion.subset(self.fit_rows)
-        self.y_fit = recording.y[self.fit_rows]
-        self.kept = recording.usable.copy()  # the gate, over every row
+        self.fit_motion = self.motion.subset(self.fit_rows)
+        self.y_fit = self.y[self.fit_rows]
+        self.kept = self.usable.copy()  # the gate, over every row
         self.gate_fallback = False  # a gate would have set aside half the data and was not applied
         self.weights = np.ones(6)
         self.n = n
@@ -266,7 +256,7 @@ class Discrepancy:
     # ------------------------------------------------------------------ fitting
 
     def _predict_all(self, model: Model, theta: np.ndarray) -> np.ndarray:
-        return model.predict6(self.rec.motion, theta)
+        return model.predict6(self.motion, theta)
 
     def force_block(self, model: Model, J: np.ndarray) -> np.ndarray:
         """(p,) True for the parameters fitted from the force channels, False for the torque's.
@@ -349,17 +339,17 @@ class Discrepancy:
 
     def gate(self, model: Model, theta: np.ndarray) -> np.ndarray:
         """Rows kept after the contact gate on the residual of ``model`` (over every usable row)."""
-        rec, s = self.rec, self.settings
-        z = (rec.y - self._predict_all(model, theta)) * self.weights
-        use = rec.usable
+        s = self.settings
+        z = (self.y - self._predict_all(model, theta)) * self.weights
+        use = self.usable
         zu = z[use]
         med = np.median(zu, axis=0)
         scale = 1.4826 * np.median(np.abs(zu - med), axis=0)
         scale = np.maximum(scale, 1e-12)
         bad = np.zeros(self.n, dtype=bool)
         bad[use] = np.any(np.abs(zu - med) > s.gate_sigmas * scale, axis=1)
-        if bad.any() and rec.motion.time_base == "seconds" and s.gate_dilate_s > 0:
-            t = rec.motion.t
+        if bad.any() and self.motion.time_base == "seconds" and s.gate_dilate_s > 0:
+            t = self.motion.t
             bad_t = t[bad]
             k = np.searchsorted(bad_t, t)
             near_next = np.abs(bad_t[np.minimum(k, len(bad_t) - 1)] - t)
@@ -382,10 +372,10 @@ class Discrepancy:
         A long contact along one direction in B would otherwise be absorbed into
         the weight and swell the gate's MAD so nothing is set aside.
         """
-        use = self.rec.usable
+        use = self.usable
         previous = None
         for _ in range(max_steps):
-            z = (self.rec.y - self._predict_all(model, theta)) * self.weights
+            z = (self.y - self._predict_all(model, theta)) * self.weights
             d2 = np.sum(z**2, axis=1)
             cut = np.quantile(d2[use], self.settings.trim_share)
             kept = use & (d2 <= cut)
@@ -498,11 +488,11 @@ class Discrepancy:
         for name in names:
             effect = self.registry.create("effect", name, self.settings.effect_options.get(name, {}),
                                           where=f"effects.{name}")
-            reason = effect.check(self.rec.motion)
+            reason = effect.check(self.motion)
             if reason:
                 skipped.append({"effect": name, "reason": reason})
                 continue
-            notes.extend(effect.notes(self.rec.motion))
+            notes.extend(effect.notes(self.motion))
             testable.append((name, effect))
         return testable, skipped, notes
 
@@ -512,17 +502,16 @@ class Discrepancy:
             return self._run()
 
     def _run(self) -> dict[str, Any]:
-        rec = self.rec
-        use = rec.usable
+        use = self.usable
         self.say("identifying the base model")
-        fit0 = batch_fit(rec.y[use, :3], rec.y[use, 3:], rec.motion.R_EB[use])
+        fit0 = batch_fit(self.y[use, :3], self.y[use, 3:], self.motion.R_EB[use])
         theta = np.concatenate([fit0["gravity_force_B"], fit0["bias_force_S"], fit0["cog_S"], fit0["bias_torque_S"]])
         model = Model()
         self.weights = 1.0 / noise_scale(np.concatenate([fit0["residual_force_S"], fit0["residual_torque_S"]], 1))
         theta = self.robust_start(model, theta)
         theta = self.fit(model, theta)
         # weights from the base model's own residual (once; fixed for every comparison after)
-        self.weights = 1.0 / noise_scale((rec.y - self._predict_all(model, theta))[self.kept])
+        self.weights = 1.0 / noise_scale((self.y - self._predict_all(model, theta))[self.kept])
         theta = self.fit(model, theta)
         states = [State("baseline", model, theta)]
         candidates, skipped, notes = self.candidates()
@@ -554,13 +543,12 @@ class Discrepancy:
     # ------------------------------------------------------------------ the report
 
     def _report(self, states, steps, rounds, skipped, notes) -> dict[str, Any]:
-        rec = self.rec
         kept = self.kept
         for state in states:
-            state.residual = rec.y - self._predict_all(state.model, state.theta)
-            state.weight_S = state.model.weight_S(rec.motion, state.theta)
+            state.residual = self.y - self._predict_all(state.model, state.theta)
+            state.weight_S = state.model.weight_S(self.motion, state.theta)
         rms_kept = [rms(s.residual[kept]) for s in states]
-        rms_all = [rms(s.residual[rec.usable]) for s in states]
+        rms_all = [rms(s.residual[self.usable]) for s in states]
         for i, step in enumerate(steps):
             model, theta = states[i + 1].model, states[i + 1].theta
             effect = dict(model.effects)[step["effect"]]
@@ -572,9 +560,9 @@ class Discrepancy:
                 "rms_torque_before": rms_kept[i][3:].tolist(), "rms_torque_after": rms_kept[i + 1][3:].tolist(),
             })
         final = states[-1]
-        use = rec.usable
-        batch_kept = batch_fit(rec.y[kept, :3], rec.y[kept, 3:], rec.motion.R_EB[kept])
-        batch_all = batch_fit(rec.y[use, :3], rec.y[use, 3:], rec.motion.R_EB[use])
+        use = self.usable
+        batch_kept = batch_fit(self.y[kept, :3], self.y[kept, 3:], self.motion.R_EB[kept])
+        batch_all = batch_fit(self.y[use, :3], self.y[use, 3:], self.motion.R_EB[use])
         named = [name for name, _ in final.model.effects]
         options: dict[str, Any] = {"effects": named}
         final_params: dict[str, Any] = {
@@ -604,13 +592,13 @@ class Discrepancy:
             notes.append(f"{len(self.fit_rows)} samples give {folds} folds: no result over so few folds passes "
                          f"the sign test (p ≤ {100 * self.settings.max_sign_p:g} %), so nothing can be named")
         return {
-            "input": rec.name,
+            "input": self.stream.name,
             "samples": int(self.n),
             "usable": int(use.sum()),
             "gated": int(use.sum() - kept.sum()),
             "fit_samples": int(len(self.fit_rows)),
-            "time_base": rec.motion.time_base,
-            "rate_hz": rec.motion.rate_hz,
+            "time_base": self.motion.time_base,
+            "rate_hz": self.motion.rate_hz,
             "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
             "final_rms_over_noise": {"force_S": over[:3].tolist(), "torque_S": over[3:].tolist()},
             "warnings": warnings,
@@ -631,19 +619,24 @@ class Discrepancy:
             },
             "rounds": rounds,
             "skipped": skipped,
-            "notes": rec.notes + notes,
+            "notes": self.notes + notes,
             "settings": {k: v for k, v in vars(self.settings).items()},
             "_states": states,
             "_kept": kept,
         }
 
 
-def discrepancy(path: str | Path, settings: Settings | None = None, registry: Registry | None = None,
+def discrepancy(source: str | Path | Stream, settings: Settings | None = None, registry: Registry | None = None,
                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Run the workflow on a file; the JSON-ready result (plus ``_states``/``_kept`` for plots)."""
+    """Run the workflow on a stream or a file (CSV or MCAP); the JSON-ready result.
+
+    Plus, for the plots: ``_stream`` (the input), ``_motion`` (the motion derived from it),
+    ``_states`` (each model's residual) and ``_kept`` (the final gate).
+    """
     settings = settings if settings is not None else Settings()
-    recording = load_recording(path, settings.time_base, settings.derivative_window_s)
-    return Discrepancy(recording, registry, settings, progress).run() | {"_recording": recording}
+    stream = source if isinstance(source, Stream) else load_stream(source)
+    workflow = Discrepancy(stream, registry, settings, progress)
+    return workflow.run() | {"_stream": stream, "_motion": workflow.motion}
 
 
 def json_ready(result: dict[str, Any]) -> dict[str, Any]:

@@ -14,75 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from ...core.aligner import orientation_at, position_at
-from ...core.frames import matrix_from_quat_wxyz
 from ...core.plugins import ConfigError, Registry
-from ...core.types import AlignedSamples, Estimates, first_true
+from ...core.types import Estimates, first_true
 
 from ..config import parse_value
-from ..recording.csvimport import CsvError, read_csv, write_compensated_csv
+from ..recording.csvimport import CsvError, write_compensated_csv
+from ..recording.stream import Stream, load_stream
 
 BLOCK = 1024
 """Samples per estimator call offline (the result does not depend on it)."""
-
-
-@dataclass
-class Stream:
-    """The input of an offline run: every row as an aligned sample, with its time in s."""
-
-    t_s: np.ndarray
-    samples: AlignedSamples
-    notes: list[str]
-
-    def __len__(self) -> int:
-        return len(self.t_s)
-
-
-def load_stream(path: str | Path) -> Stream:
-    """Read a CSV (import contract) or an MCAP recording into an aligned stream."""
-    path = Path(path)
-    if not path.exists():
-        raise CsvError(f"{path}: no such file")
-    if path.suffix.lower() == ".mcap":
-        return _load_mcap(path)
-    record = read_csv(path)
-    n = len(record)
-    t_ns = np.round((record.t_s - record.t_s[0]) * 1e9).astype(np.int64)
-    samples = AlignedSamples(t_ns, record.force_S, record.torque_S, record.R_EB, np.arange(n),
-                             np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), record.quat_BE,
-                             record.p_BoEo_B)
-    return Stream(record.t_s, samples, record.notes)
-
-
-def _load_mcap(path: Path) -> Stream:
-    from ..recording import read_recording
-
-    recording = read_recording(path)
-    wrenches = recording.topics.get("/sensor/wrench", [])
-    poses = recording.topics.get("/kinematics/pose", [])
-    if not wrenches:
-        raise CsvError(f"{path.name}: no /sensor/wrench messages")
-    if not poses:
-        raise CsvError(f"{path.name}: no /kinematics/pose messages")
-    t_ns = np.array([t for t, _ in wrenches], dtype=np.int64)
-    # NaN is recorded as null in JSON; float(None) would fail, so map it back
-    force_S = np.array([[np.nan if v is None else v for v in m["force_S"]] for _, m in wrenches], dtype=float)
-    torque_S = np.array([[np.nan if v is None else v for v in m["torque_S"]] for _, m in wrenches], dtype=float)
-    status = np.array([int(m.get("status", 0)) for _, m in wrenches], dtype=np.int64)
-    pose_t = np.array([t for t, _ in poses], dtype=np.int64)
-    quat = np.array([m["quat_BE"] for _, m in poses], dtype=float)
-    period = int(np.median(np.diff(pose_t))) if len(pose_t) > 1 else 0
-    quat_BE, stale = orientation_at(t_ns, pose_t, quat, period)
-    R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
-    p_BoEo_B = None
-    if all(m.get("p_BoEo_B") is not None for _, m in poses):
-        p_BoEo_B = position_at(t_ns, pose_t, np.array([m["p_BoEo_B"] for _, m in poses], dtype=float), period)
-    seq = np.array([int(m.get("seq", k)) for k, (_, m) in enumerate(wrenches)], dtype=np.int64)
-    samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, seq, status, stale, quat_BE, p_BoEo_B)
-    unused = int(np.count_nonzero(~samples.usable))
-    notes = [f"{path.name}: {unused} sample(s) not used (stale orientation, sensor status or non-finite)"] \
-        if unused else []
-    return Stream((t_ns - t_ns[0]) * 1e-9, samples, notes)
 
 
 def estimator_options(overrides: list[str]) -> dict[str, Any]:
@@ -157,7 +97,7 @@ class CompensateResult:
 
 
 def compensate(
-    input_path: str | Path,
+    recording: str | Path | Stream,
     out_csv: str | Path,
     estimator_name: str = "rls",
     overrides: list[str] | None = None,
@@ -165,18 +105,19 @@ def compensate(
     registry: Registry | None = None,
     progress=None,
 ) -> CompensateResult:
-    """Run ``estimator_name`` over a recording and write the contact wrench per row."""
+    """Run ``estimator_name`` over a recording (a stream, or a CSV or MCAP file) and write the contact wrench per row."""
     registry = registry if registry is not None else Registry()
     options = estimator_options(overrides or [])
     estimator_name = options.pop("name", estimator_name)
-    input_path, out_csv = Path(input_path), Path(out_csv)
-    if out_csv.resolve() == input_path.resolve():
+    out_csv = Path(out_csv)
+    source = recording.source if isinstance(recording, Stream) else str(recording)
+    if source and out_csv.resolve() == Path(source).resolve():
         raise CsvError(f"{out_csv}: the output would overwrite the input; choose another -o")
     for target in (out_csv, Path(params_out) if params_out else None):
         if target is not None and not target.parent.is_dir():
             raise CsvError(f"{target}: folder {target.parent} does not exist")
     estimator = registry.create("estimator", estimator_name, options, where="estimator")
-    stream = load_stream(input_path)
+    stream = recording if isinstance(recording, Stream) else load_stream(recording)
     est = run_estimator(stream, estimator, progress)
     write_compensated_csv(out_csv, stream.t_s, est.contact_force_S, est.contact_torque_S,
                           est.contact, est.converged_force, est.converged_torque)

@@ -18,8 +18,9 @@ from ...core.errors import UserError
 from ...core.plugins import Registry
 from ...core.types import first_true
 
-from .compensate import estimator_options, load_stream, run_estimator
 from ..recording import Recorder, read_recording
+from ..recording.stream import load_stream
+from .compensate import estimator_options, run_estimator
 
 
 def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path | None = None,

@@ -10,6 +10,7 @@ whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
 from .reader import Recording, RecordingError, iter_messages, open_recording, read_recording
 from .recover import recover
 from .schemas import ESTIMATOR_SCHEMA, ESTIMATOR_TOPIC_PREFIX, MCAP_MAGIC, SCHEMAS, TOPICS, schema_for_topic
+from .stream import Stream, load_stream
 from .writer import Recorder
 
 __all__ = [
@@ -21,7 +22,9 @@ __all__ = [
     "Recorder",
     "Recording",
     "RecordingError",
+    "Stream",
     "iter_messages",
+    "load_stream",
     "open_recording",
     "read_recording",
     "recover",

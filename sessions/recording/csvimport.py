@@ -1,4 +1,4 @@
-"""The CSV import contract: raw wrench and robot orientation per row.
+"""The CSV import contract: raw wrench and robot orientation per row, read into a :class:`Stream`.
 
 Header row, comma separated: ``t`` (s, increasing), ``fx,fy,fz`` (N) and
 ``tx,ty,tz`` (N·m) raw sensor wrench in S, ``qw,qx,qy,qz`` unit quaternion of
@@ -11,13 +11,15 @@ or a non-increasing ``t`` is a ``CsvError`` naming the file, line and column.
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ...core.errors import UserError
 from ...core.frames import matrix_from_quat_wxyz
+from ...core.types import AlignedSamples
+
+from .stream import Stream
 
 REQUIRED = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "qw", "qx", "qy", "qz")
 POSITION = ("px", "py", "pz")
@@ -30,40 +32,13 @@ class CsvError(UserError, ValueError):
     """A CSV file breaks the import contract; the message names file, line and column."""
 
 
-@dataclass
-class MotionRecord:
-    """Wrench and orientation rows imported from a CSV file.
+def read_csv(path: str | Path) -> Stream:
+    """Import a CSV file that follows the contract as an offline stream.
 
-    Attributes:
-        t_s: (N,) time, s, strictly increasing.
-        force_S: (N, 3) raw force in S, N. torque_S: (N, 3) raw torque in S, N·m.
-        quat_BE: (N, 4) unit quaternions [w, x, y, z] of E in B.
-        p_BoEo_B: (N, 3) E origin in B, m, or None.
-        joints: (N, k) joint positions, rad, or None.
-        notes: things the importer wants the user to know (ignored columns).
-        source: the file it came from.
+    Every row is a sample: ``t_ns`` counts from the first row's ``t``, ``seq``
+    is the row number, status good and nothing stale; R_EB is the transpose of
+    the quaternion's R_BE. Joint columns, when present, ride along as ``joints``.
     """
-
-    t_s: np.ndarray
-    force_S: np.ndarray
-    torque_S: np.ndarray
-    quat_BE: np.ndarray
-    p_BoEo_B: np.ndarray | None = None
-    joints: np.ndarray | None = None
-    notes: list[str] = field(default_factory=list)
-    source: str = ""
-
-    def __len__(self) -> int:
-        return len(self.t_s)
-
-    @property
-    def R_EB(self) -> np.ndarray:
-        """(N, 3, 3) orientation of B in E (the transpose of forward kinematics R_BE)."""
-        return matrix_from_quat_wxyz(self.quat_BE).transpose(0, 2, 1)
-
-
-def read_csv(path: str | Path) -> MotionRecord:
-    """Import a CSV file that follows the contract."""
     path = Path(path)
     name = path.name
     try:
@@ -134,7 +109,12 @@ def read_csv(path: str | Path) -> MotionRecord:
     quat = quat / norm[:, None]
     p = np.column_stack([column(c) for c in POSITION]) if has_position else None
     joints = np.column_stack([column(c) for c in joint_cols]) if joint_cols else None
-    return MotionRecord(t, force_S, torque_S, quat, p, joints, notes, str(path))
+    n = len(t)
+    t_ns = np.round((t - t[0]) * 1e9).astype(np.int64)
+    R_EB = matrix_from_quat_wxyz(quat).transpose(0, 2, 1)
+    samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, np.arange(n), np.zeros(n, dtype=np.int64),
+                             np.zeros(n, dtype=bool), quat, p)
+    return Stream(t, samples, notes, str(path), joints)
 
 
 OUTPUT_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "contact", "converged_force", "converged_torque")

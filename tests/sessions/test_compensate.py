@@ -14,8 +14,8 @@ from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.sessions.cli import main
 from hapticlab.sessions.offline.compensate import compensate
 from hapticlab.sessions.config import apply_overrides, load_config
-from hapticlab.sessions.recording.csvimport import OUTPUT_COLUMNS, read_csv
-from hapticlab.sessions.recording import read_recording
+from hapticlab.sessions.recording.csvimport import OUTPUT_COLUMNS
+from hapticlab.sessions.recording import load_stream, read_recording
 from hapticlab.sessions.live import build_session, run_session
 
 # README of ../shared/data/real: offline batch fit RMS per axis, N
@@ -88,8 +88,8 @@ def test_compensate_a_recording_matches_the_live_session(tmp_path):
 def test_batch_estimator_offline_equals_batch_fit(tmp_path):
     write_csv(tmp_path / "in.csv", n=1200, contact=slice(0, 0))
     result = compensate(tmp_path / "in.csv", tmp_path / "out.csv", estimator_name="batch")
-    record = read_csv(tmp_path / "in.csv")
-    fit = batch_fit(record.force_S, record.torque_S, record.R_EB)
+    s = load_stream(tmp_path / "in.csv").samples
+    fit = batch_fit(s.force_S, s.torque_S, s.R_EB)
     for key in ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S"):
         assert np.allclose(result.params[key], fit[key], atol=1e-9), key
     # the last row used every sample: its residual is the batch fit's

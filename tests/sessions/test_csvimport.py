@@ -26,18 +26,18 @@ def write_stream(path, n=20, seed=0, extra_header="", extra_value=""):
 def test_round_trip_and_orientation_convention(tmp_path):
     path = tmp_path / "ok.csv"
     block = write_stream(path)
-    record = read_csv(path)
-    assert len(record) == 20 and record.p_BoEo_B is None and record.notes == []
-    assert np.allclose(record.force_S, block.force_S)
-    assert np.allclose(record.R_EB, block.R_EB, atol=1e-12)  # quaternion is R_BE; R_EB its transpose
+    stream = read_csv(path)
+    assert len(stream) == 20 and stream.samples.p_BoEo_B is None and stream.notes == []
+    assert np.allclose(stream.samples.force_S, block.force_S)
+    assert np.allclose(stream.samples.R_EB, block.R_EB, atol=1e-12)  # quaternion is R_BE; R_EB its transpose
 
 
 def test_optional_and_unknown_columns(tmp_path):
     path = tmp_path / "extra.csv"
     write_stream(path, extra_header=",px,py,pz,q1,temperature", extra_value=",0.4,0.1,0.3,0.5,21.5")
-    record = read_csv(path)
-    assert record.p_BoEo_B.shape == (20, 3) and record.joints.shape == (20, 1)
-    assert record.notes == ["extra.csv: ignoring column(s) temperature"]
+    stream = read_csv(path)
+    assert stream.samples.p_BoEo_B.shape == (20, 3) and stream.joints.shape == (20, 1)
+    assert stream.notes == ["extra.csv: ignoring column(s) temperature"]
 
 
 @pytest.mark.parametrize(
@@ -70,6 +70,6 @@ def test_errors_name_the_line_and_column(tmp_path, mutate, message):
 
 def test_real_files_import(real_data):
     for path in sorted(real_data.glob("*.csv")):
-        record = read_csv(path)
-        assert len(record) > 50
-        assert np.allclose(np.linalg.det(record.R_EB), 1.0)
+        stream = read_csv(path)
+        assert len(stream) > 50
+        assert np.allclose(np.linalg.det(stream.samples.R_EB), 1.0)

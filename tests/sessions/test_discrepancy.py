@@ -26,8 +26,9 @@ from hapticlab.plugins.simworld import Indentation, RandomTour, RobotParams, Sen
 from hapticlab.plugins.simworld.motion import StaticPoses
 from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.sessions.cli import main
-from hapticlab.sessions.discrepancy.workflow import (Discrepancy, Settings, discrepancy, json_ready, load_recording,
-                                            sign_test_p, toml_snippet, wins_needed)
+from hapticlab.sessions.discrepancy.workflow import (Discrepancy, Settings, discrepancy, json_ready, sign_test_p,
+                                                     toml_snippet, wins_needed)
+from hapticlab.sessions.recording import load_stream
 
 NOISE = 0.12  # N, the simulated sensor's default force noise per axis
 MOUNT = np.deg2rad([2.0, -1.5, 1.0])  # 2.7°
@@ -410,13 +411,13 @@ def test_gauss_newton_never_ends_worse_than_it_started(tmp_path):
     """From a start far off (a lag of 60 ms against a true 8 ms, a 10° mount), every call ends no worse."""
     path = tmp_path / "lag.csv"
     write_csv(world_for("time_lag", 2), path, 10.0, 250.0)
-    d = Discrepancy(load_recording(path))
+    d = Discrepancy(load_stream(path))
     from hapticlab.core.effects import Model
     from hapticlab.plugins.effects.mount_rotation import MountRotation
     from hapticlab.plugins.effects.time_lag import TimeLag
 
     lag = TimeLag()
-    assert lag.check(d.rec.motion) is None
+    assert lag.check(d.motion) is None
     model = Model([("time_lag", lag), ("mount_rotation", MountRotation())])
     truth = world_for("time_lag", 2).truth()
     theta = np.concatenate([truth["gravity_force_B"], truth["bias_force_S"], truth["cog_S"],

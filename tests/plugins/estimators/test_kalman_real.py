@@ -11,7 +11,8 @@ from __future__ import annotations
 import pytest
 from hapticlab.core.batch import batch_fit
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
-from hapticlab.sessions.offline.compensate import load_stream, run_estimator
+from hapticlab.sessions.offline.compensate import run_estimator
+from hapticlab.sessions.recording import load_stream
 from hapticlab.sessions.discrepancy.workflow import discrepancy
 from hapticlab.sessions.bench import real as realbench
 

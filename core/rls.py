@@ -145,7 +145,7 @@ def run_gated(
     Args:
         stage: the RLS stage, updated in place: a ``RecursiveLeastSquares``,
             or anything with its ``x``, ``predict``, ``propose``, ``propose_one``
-            and ``commit`` (``core.rls_printed``, whose proposed state is (x, P)).
+            and ``commit`` (``core.rls_printed``, whose proposals are (x, P, K)).
         y: (m, 3) measurements. A: (m, 3, 3) the A_k of each sample.
         active: (m,) bool, samples this stage sees.
         threshold: contact threshold on the residual norm (units of y).
@@ -182,7 +182,7 @@ def run_gated(
                 gated[i : i + n] = True
                 i += n
                 continue
-        Xp, *state = stage.propose(y[i:end], A[i:end])
+        Xp, S1, S2 = stage.propose(y[i:end], A[i:end])  # x and the stage's (Λ, η) or (P, K) after each sample
         dx = Xp.copy()
         dx[0] -= stage.x
         dx[1:] -= Xp[:-1]
@@ -191,7 +191,7 @@ def run_gated(
         residual_next = (A[i + 1 : end] @ Xp[:-1, :3, None])[:, :, 0] + Xp[:-1, 3:] - y[i + 1 : end]
         stop = conv_p[:-1] & ~(np.einsum("ij,ij->i", residual_next, residual_next) < threshold2)
         n = int(np.argmax(stop)) + 1 if stop.any() else end - i
-        stage.commit(Xp[n - 1], *(s[n - 1] for s in state), n)
+        stage.commit(Xp[n - 1], S1[n - 1], S2[n - 1], n)
         converged = bool(conv_p[n - 1])
         X[i : i + n] = Xp[:n]
         conv[i : i + n] = conv_p[:n]
@@ -205,10 +205,10 @@ def _run_gated_one(stage, y, A, active, threshold, epsilon, converged):
         residual = A[0] @ stage.x[:3] + stage.x[3:] - y[0]
         if converged and not residual @ residual < threshold * threshold:
             return stage.x[None, :], np.ones(1, dtype=bool), np.ones(1, dtype=bool), converged
-        x, *state = stage.propose_one(y[0], A[0])
+        x, S1, S2 = stage.propose_one(y[0], A[0])
         dx = x - stage.x
         converged = bool(dx @ dx < epsilon * epsilon)
-        stage.commit(x, *state, 1)
+        stage.commit(x, S1, S2, 1)
         return x[None, :], np.array([converged]), np.zeros(1, dtype=bool), converged
     return stage.x[None, :], np.array([converged]), np.zeros(1, dtype=bool), converged
 

@@ -36,8 +36,8 @@ I3 = np.eye(3)
 
 def printed_update(
     x: np.ndarray, P: np.ndarray, y: np.ndarray, C: np.ndarray, R: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """One sample of eqs. 26–28 as printed: returns (x_k (6,), P_k (6, 6)).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One sample of eqs. 26–28 as printed: returns (x_k (6,), P_k (6, 6), K_k (6, 3)).
 
     Args:
         x: (6,) x_{k−1}. P: (6, 6) P_{k−1}.
@@ -46,7 +46,7 @@ def printed_update(
     K = P @ C.T @ np.linalg.inv(R + C @ P @ C.T)  # (6, 3), eq. 27
     x = x + K @ (y - C @ x)  # eq. 26
     P = (I6 - K @ C) @ P  # eq. 28, not symmetrised
-    return x, P
+    return x, P, K
 
 
 class PrintedRecursiveLeastSquares:
@@ -54,12 +54,13 @@ class PrintedRecursiveLeastSquares:
 
     The same interface as ``core.rls.RecursiveLeastSquares`` (``predict``,
     ``propose``, ``propose_one``, ``commit``), so ``core.rls.run_gated`` runs
-    Algorithm 1's gating and convergence test on it unchanged; the proposed
-    state is (x, P) instead of (x, Λ, η).
+    Algorithm 1's gating and convergence test on it unchanged; a proposal is
+    (x, P, K) instead of (x, Λ, η).
 
     Attributes:
         x: (6,) current estimate x_k.
         P: (6, 6) estimation-error covariance P_k as the printed update leaves it.
+        K: (6, 3) gain K_k of the last update used (zeros before the first).
         R: (3, 3) measurement-noise covariance r·I3 (units of y squared).
         updates: number of samples used so far.
     """
@@ -69,33 +70,35 @@ class PrintedRecursiveLeastSquares:
     def __init__(self, x0: np.ndarray, P0: float, R: float):
         self.x = np.array(x0, dtype=float).reshape(6)
         self.P = P0 * np.eye(6)
+        self.K = np.zeros((6, 3))
         self.R = R * np.eye(3)
         self.updates = 0
 
-    def propose(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def propose(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Estimates after each of m samples if every one of them is used, one sample at a time.
 
         Args:
             y: (m, 3) measurements. A: (m, 3, 3) the A_k of each sample.
 
         Returns:
-            (X, Ps): (m, 6) x and (m, 6, 6) P after each sample. Nothing is
-            changed until ``commit``.
+            (X, Ps, Ks): (m, 6) x, (m, 6, 6) P and (m, 6, 3) K after each
+            sample. Nothing is changed until ``commit``.
         """
         m = len(y)
         X = np.empty((m, 6))
         Ps = np.empty((m, 6, 6))
+        Ks = np.empty((m, 6, 3))
         x, P = self.x, self.P
         for j in range(m):
-            x, P = printed_update(x, P, y[j], np.hstack([A[j], I3]), self.R)
-            X[j], Ps[j] = x, P
-        return X, Ps
+            x, P, K = printed_update(x, P, y[j], np.hstack([A[j], I3]), self.R)
+            X[j], Ps[j], Ks[j] = x, P, K
+        return X, Ps, Ks
 
-    def propose_one(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``propose`` for one sample, y (3,) and A (3, 3): returns (x (6,), P (6, 6))."""
+    def propose_one(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``propose`` for one sample, y (3,) and A (3, 3): returns (x (6,), P (6, 6), K (6, 3))."""
         return printed_update(self.x, self.P, y, np.hstack([A, I3]), self.R)
 
-    def commit(self, x: np.ndarray, P: np.ndarray, used: int) -> None:
+    def commit(self, x: np.ndarray, P: np.ndarray, K: np.ndarray, used: int) -> None:
         """Make a proposed state (after ``used`` more samples) the current one."""
-        self.x, self.P = x, P
+        self.x, self.P, self.K = x, P, K
         self.updates += used

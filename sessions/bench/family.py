@@ -35,6 +35,7 @@ from ...plugins.estimators.kalman import KalmanEstimator
 from ...plugins.estimators.rls import RLSEstimator
 from ...plugins.simworld import SimWorld
 
+from ..offline.metrics import max_ae, rms
 from . import paper as paperbench
 from .paper import feed, simulate
 
@@ -64,8 +65,7 @@ def tour(seconds: float = 30.0, seed: int = 3, **world: Any) -> tuple[SimWorld, 
 
 def rms_after(out: Estimates, block: AlignedSamples, after_s: float) -> np.ndarray:
     """(3,) RMS of the contact force over the samples after ``after_s``, N."""
-    rows = block.t_ns * 1e-9 >= after_s
-    return np.sqrt(np.mean(out.contact_force_S[rows] ** 2, axis=0))
+    return rms(out.contact_force_S[block.t_ns * 1e-9 >= after_s])
 
 
 def angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
@@ -105,7 +105,7 @@ def inertia_tour() -> dict[str, Any]:
                                     "kalman inertia": lambda: KalmanEstimator(inertia=True)})
     w = world.wrench(block.t_ns[block.t_ns >= 15e9] * 1e-9)
     return {"rms_over_noise_last_15s": rows,
-            "inertial_force_rms_N": np.sqrt(np.mean(w["inertial_force_S"] ** 2, axis=0)).tolist()}
+            "inertial_force_rms_N": rms(w["inertial_force_S"]).tolist()}
 
 
 def rotation_104g(speed: float = 72.0) -> dict[str, Any]:
@@ -121,7 +121,7 @@ def rotation_104g(speed: float = 72.0) -> dict[str, Any]:
     for name, make in variants.items():
         numbers, _, magnitude = paperbench.rotation_test(setup, make, speed, noise)
         smoothed = np.convolve(magnitude, np.ones(10) / 10, mode="valid") - load
-        out[name] = {"max_ae": numbers["max_ae"], "max_ae_10ms": float(np.abs(smoothed).max()),
+        out[name] = {"max_ae": numbers["max_ae"], "max_ae_10ms": float(max_ae(smoothed)),
                      "mae": numbers["mae"], "contact_detected_pct": numbers["contact_detected_pct"]}
     return {"speed_deg_s": speed, "noise_force": noise["noise_force"], "estimators": out}
 

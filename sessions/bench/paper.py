@@ -34,6 +34,8 @@ from ...core.plugins import Registry, option_types
 from ...core.types import AlignedSamples, Estimates, first_true
 from ...plugins.simworld import SimWorld
 
+from ..offline.metrics import error_stats, mae, max_ae, rms, std
+
 AXES_F = ("fx", "fy", "fz")
 AXES_T = ("tx", "ty", "tz")
 SPEEDS_DEG_S = (12, 30, 45, 72)
@@ -179,20 +181,6 @@ def feed(estimator: Any, block: AlignedSamples, chunk: int = 1024, trace_until: 
     return est, traced
 
 
-def error_stats(before: np.ndarray, after: np.ndarray, axes: tuple[str, ...]) -> dict[str, dict[str, float]]:
-    """The paper's per-axis metrics: MAE, Max AE and Std before (raw) and after, MAE compensation %."""
-    out = {}
-    for k, axis in enumerate(axes):
-        b, a = before[:, k], after[:, k]
-        mae_b, mae_a = float(np.mean(np.abs(b))), float(np.mean(np.abs(a)))
-        out[axis] = {
-            "mae_before": mae_b, "max_before": float(np.max(np.abs(b))), "std_before": float(np.std(b)),
-            "mae_after": mae_a, "max_after": float(np.max(np.abs(a))), "std_after": float(np.std(a)),
-            "mae_comp_pct": 100.0 * (1.0 - mae_a / mae_b) if mae_b > 0 else float("nan"),
-        }
-    return out
-
-
 def first_stays(ok: np.ndarray, index: np.ndarray) -> int | None:
     """The first sample index from which ``ok`` holds to the end of the trace."""
     if not ok[-1]:
@@ -306,8 +294,8 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
         "contacts": len(contacts),
         "detected_plateau_pct": 100.0 * float(np.mean(est.contact[plateau])),
         "false_contact_pct": 100.0 * float(np.mean(est.contact[free])),
-        "rms_free": np.sqrt(np.mean(est.contact_force_S[free] ** 2, axis=0)).tolist(),
-        "rms_error_in_contact": np.sqrt(np.mean(err[touching] ** 2, axis=0)).tolist(),
+        "rms_free": rms(est.contact_force_S[free]).tolist(),
+        "rms_error_in_contact": rms(err[touching]).tolist(),
     }
     plots["indentation"] = (block.t_ns * 1e-9, block.force_S, est.contact_force_S, est.contact)
 
@@ -345,7 +333,7 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
         "rows": n,
         "converged_force_at": first_true(est.converged_force),
         "refused_pct": 100.0 * float(np.mean(est.contact)),
-        "rms_force_S": np.sqrt(np.mean(est.contact_force_S ** 2, axis=0)).tolist(),
+        "rms_force_S": rms(est.contact_force_S).tolist(),
     }
 
     # 7. not in the paper: bias drift 0.5 N/min with an indentation every 10 s
@@ -367,8 +355,8 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
         "duration_s": drift_s,
         "false_contact_pct": 100.0 * float(np.mean(est.contact[~touching])),
         "false_contact_last_30s_pct": 100.0 * float(np.mean(est.contact[~touching & last])),
-        "rms_free_last_30s": np.sqrt(np.mean(err[~touching & last] ** 2, axis=0)).tolist(),
-        "rms_contact_error": np.sqrt(np.mean(err[touching] ** 2, axis=0)).tolist(),
+        "rms_free_last_30s": rms(err[~touching & last]).tolist(),
+        "rms_contact_error": rms(err[touching]).tolist(),
         "noise_force": list(setup.noise_force),
     }
     plots["drift"] = (t_s, w["contact_force_S"], est.contact_force_S, est.contact, touching)
@@ -403,7 +391,7 @@ def rotation_test(setup: PaperSetup, make_estimator: Callable[[], Any], speed: f
     magnitude = np.linalg.norm(est.contact_force_S[turning], axis=1)
     e = magnitude - REFERENCE_MASS_KG * GRAVITY_M_S2
     numbers = {
-        "mae": float(np.mean(np.abs(e))), "max_ae": float(np.max(np.abs(e))), "std": float(np.std(magnitude)),
+        "mae": float(mae(e)), "max_ae": float(max_ae(e)), "std": float(std(magnitude)),
         "mean": float(np.mean(magnitude)), "contact_detected_pct": 100.0 * float(np.mean(est.contact[turning])),
     }
     angle_deg = np.rad2deg(world.motion.angle(t[turning])[0] - world.motion.angle(np.array([start]))[0][0])
@@ -412,9 +400,7 @@ def rotation_test(setup: PaperSetup, make_estimator: Callable[[], Any], speed: f
 
 def _bounds(force_err: np.ndarray, torque_err: np.ndarray) -> dict[str, float]:
     """Largest |error| per axis (the ± bounds of Table III)."""
-    out = {axis: float(np.max(np.abs(force_err[:, k]))) for k, axis in enumerate(AXES_F)}
-    out.update({axis: float(np.max(np.abs(torque_err[:, k]))) for k, axis in enumerate(AXES_T)})
-    return out
+    return dict(zip(AXES_F + AXES_T, np.concatenate([max_ae(force_err), max_ae(torque_err)]).tolist()))
 
 
 def _model_error(block: AlignedSamples, rows: np.ndarray, params: dict) -> tuple[np.ndarray, np.ndarray]:

@@ -28,6 +28,7 @@ from ...core.plugins import Registry
 from ...core.types import first_true
 
 from ..offline.compensate import run_estimator
+from ..offline.metrics import norm_ratio, rms, scored_rows
 from ..recording.csvimport import CsvError
 from ..recording.stream import Stream, load_stream
 
@@ -62,10 +63,8 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
 
 def second_half_ratio(contact_force_S: np.ndarray, residual_force_S: np.ndarray) -> float:
     """‖online RMS‖ / ‖batch-fit RMS‖ of the force over the rows of the second half (finite online ones)."""
-    n = len(contact_force_S)
-    rows = (np.arange(n) >= n // 2) & np.isfinite(contact_force_S).all(1)
-    online = np.linalg.norm(np.sqrt(np.mean(contact_force_S[rows] ** 2, axis=0)))
-    return float(online / np.linalg.norm(np.sqrt(np.mean(residual_force_S[rows] ** 2, axis=0))))
+    rows = scored_rows(len(contact_force_S) // 2, contact_force_S)
+    return norm_ratio(rms(contact_force_S[rows]), rms(residual_force_S[rows]))
 
 
 def bench_real(folder: Path, registry: Registry | None = None,
@@ -90,7 +89,7 @@ def bench_real(folder: Path, registry: Registry | None = None,
         residual = fit["residual_force_S"]
         entry: dict[str, Any] = {
             "rows": len(stream),
-            "batch_rms_force_S": np.sqrt(np.mean(residual ** 2, axis=0)).tolist(),
+            "batch_rms_force_S": rms(residual).tolist(),
             "estimators": {},
         }
         for label, name, options in variants(registry, stream):
@@ -107,16 +106,15 @@ def bench_real(folder: Path, registry: Registry | None = None,
                                       "refused_rows": int(est.contact.sum()),
                                       "refused_pct": 100.0 * float(np.mean(est.contact))}
             result["ratio_norm_second_half"] = second_half_ratio(est.contact_force_S, residual)
-            if first_f is not None:
-                rows = (np.arange(len(stream)) >= first_f) & np.isfinite(est.contact_force_S).all(1)
-                online = np.sqrt(np.mean(est.contact_force_S[rows] ** 2, axis=0))
-                batch = np.sqrt(np.mean(residual[rows] ** 2, axis=0))
+            if first_f is not None:  # refused rows are scored too: every one is a false contact
+                rows = scored_rows(first_f, est.contact_force_S)
+                online, batch = rms(est.contact_force_S[rows]), rms(residual[rows])
                 result.update({
                     "rows_scored": int(rows.sum()),
                     "rms_force_S": online.tolist(),
                     "batch_rms_same_rows": batch.tolist(),
                     "ratio": (online / batch).tolist(),
-                    "ratio_norm": float(np.linalg.norm(online) / np.linalg.norm(batch)),
+                    "ratio_norm": norm_ratio(online, batch),
                 })
             entry["estimators"][label] = result
         out[path.stem] = entry

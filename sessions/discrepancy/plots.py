@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from ..offline.metrics import rms
+
 MAX_POINTS = 4000
 COLORS = ("tab:red", "tab:green", "tab:blue")
 
@@ -70,7 +72,7 @@ def write_plots(result: dict[str, Any], folder: str | Path) -> list[Path]:
     for i, state in enumerate(states):
         res = state.residual
         norm_f = np.linalg.norm(res[:, :3], axis=1)
-        rms_f = np.sqrt(np.mean(res[rows, :3] ** 2, axis=0))
+        rms_f = rms(res[rows, :3])
         fig, axes = plt.subplots(2, 3, figsize=(16, 9))
         fig.suptitle(f"{result['input']}: {state.label} — force RMS [{', '.join(f'{v:.3f}' for v in rms_f)}] N "
                      f"on {len(rows)} samples")
@@ -125,7 +127,7 @@ def write_plots(result: dict[str, Any], folder: str | Path) -> list[Path]:
     labels = [s.label for s in states]
     x = np.arange(len(states))
     for ax, offset, unit, key in ((axes[0], 0, "N", "rms_force_S"), (axes[1], 3, "N·m", "rms_torque_S")):
-        values = np.array([np.sqrt(np.mean(s.residual[rows, offset:offset + 3] ** 2, axis=0)) for s in states])
+        values = np.array([rms(s.residual[rows, offset:offset + 3]) for s in states])
         for k in range(3):
             ax.bar(x + (k - 1) * 0.27, values[:, k], 0.27, color=COLORS[k], label="xyz"[k])
             ax.axhline(result["batch_fit"][key][k], color=COLORS[k], ls="--", lw=0.8)

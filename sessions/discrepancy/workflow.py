@@ -58,6 +58,7 @@ from ...core.effects import Effect, Model, Motion, motion_from_poses
 from ...core.frames import quat_wxyz_from_matrix
 from ...core.plugins import ConfigError, Registry
 
+from ..offline.metrics import rms
 from ..recording.csvimport import CsvError
 from ..recording.stream import Stream, load_stream
 
@@ -164,14 +165,8 @@ def noise_scale(residual: np.ndarray) -> np.ndarray:
     if len(d) < 5:
         d = residual - np.median(residual, axis=0)
     mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2)
-    rms = np.sqrt(np.mean(residual**2, axis=0))
-    sigma = np.maximum(mad, np.maximum(1e-3 * rms, 1e-9))
-    return np.repeat([np.sqrt(np.mean(sigma[:3] ** 2)), np.sqrt(np.mean(sigma[3:] ** 2))], 3)
-
-
-def rms(values: np.ndarray) -> np.ndarray:
-    """Per-column RMS."""
-    return np.sqrt(np.mean(values**2, axis=0)) if len(values) else np.full(values.shape[1], np.nan)
+    sigma = np.maximum(mad, np.maximum(1e-3 * rms(residual), 1e-9))
+    return np.repeat([rms(sigma[:3]), rms(sigma[3:])], 3)
 
 
 @dataclass

@@ -20,6 +20,7 @@ from ...core.types import Estimates, first_true
 from ..config import parse_value
 from ..recording.csvimport import CsvError, write_compensated_csv
 from ..recording.stream import Stream, load_stream
+from .metrics import rms_after_convergence
 
 BLOCK = 1024
 """Samples per estimator call offline (the result does not depend on it)."""
@@ -73,14 +74,6 @@ def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
                      params=estimator.params(), cov_diag=estimator.cov_diag())
 
 
-def _rms_after(values: np.ndarray, contact: np.ndarray, first: int | None) -> np.ndarray:
-    """Per-axis RMS over no-contact rows from the first convergence on (NaN if none)."""
-    if first is None:
-        return np.full(3, np.nan)
-    rows = ~contact[first:] & np.isfinite(values[first:]).all(1)
-    return np.sqrt(np.mean(values[first:][rows] ** 2, axis=0)) if rows.any() else np.full(3, np.nan)
-
-
 @dataclass
 class CompensateResult:
     """What ``compensate`` did, for the summary it prints."""
@@ -122,8 +115,8 @@ def compensate(
     write_compensated_csv(out_csv, stream.t_s, est.contact_force_S, est.contact_torque_S,
                           est.contact, est.converged_force, est.converged_torque)
     first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
-    rms_f = _rms_after(est.contact_force_S, est.contact, first_f)
-    rms_t = _rms_after(est.contact_torque_S, est.contact, first_t)
+    rms_f = rms_after_convergence(est.contact_force_S, est.contact, first_f)
+    rms_t = rms_after_convergence(est.contact_torque_S, est.contact, first_t)
     params: dict[str, Any] = dict(estimator.params())
     params.update({
         "estimator": estimator_name,

@@ -21,6 +21,7 @@ from ...core.types import first_true
 from ..recording import Recorder, read_recording
 from ..recording.stream import load_stream
 from .compensate import estimator_options, run_estimator
+from .metrics import max_ae, rms, scored_rows
 
 
 def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path | None = None,
@@ -107,13 +108,12 @@ def compare(original, t_ns: np.ndarray, new: dict[str, Any]) -> dict[str, dict[s
         first = first_true(conv)
         entry: dict[str, Any] = {"converged_force_at": first}
         if first is not None:
-            rows = (np.arange(len(t_ns)) >= first) & data["seen"] & ~data["contact"]
-            rows &= np.isfinite(data["contact_force_S"]).all(1)
+            rows = scored_rows(first, data["contact_force_S"], data["contact"]) & data["seen"]
             if primary is not None:
                 rows &= ~primary["contact"]
             f = data["contact_force_S"][rows]
-            entry["rms_force_S"] = np.sqrt(np.mean(f ** 2, axis=0)).tolist() if len(f) else None
-            entry["max_ae_force_S"] = np.max(np.abs(f), axis=0).tolist() if len(f) else None
+            entry["rms_force_S"] = rms(f).tolist() if len(f) else None
+            entry["max_ae_force_S"] = max_ae(f).tolist() if len(f) else None
         if primary is not None:
             both = data["seen"] & primary["seen"]
             entry["contact_agreement_pct"] = 100.0 * float(np.mean(data["contact"][both] == primary["contact"][both]))

@@ -108,7 +108,8 @@ def test_bench_real_keeps_going_past_a_bad_file(tmp_path):
 
 
 def test_metric_helpers_on_hand_made_input():
-    from hapticlab.sessions.bench.paper import error_stats, first_stays, truth_convergence
+    from hapticlab.sessions.bench.paper import first_stays, truth_convergence
+    from hapticlab.sessions.offline.metrics import error_stats
 
     before = np.array([[2.0], [-4.0], [6.0]])
     after = np.array([[0.1], [-0.3], [0.2]])

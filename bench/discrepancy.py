@@ -33,6 +33,9 @@ from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.sessions.discrepancy.workflow import discrepancy
 
 
+COMMAND = "import sys; from hapticlab.sessions.cli import main; sys.exit(main(sys.argv[1:]))"
+"""``hapticlab`` in a fresh process (``sessions.cli`` is a package without ``__main__``)."""
+
 GF = np.array([[0.02, 0.01, -0.005], [0.01, -0.015, 0.008], [-0.005, 0.008, -0.005]])
 
 
@@ -59,7 +62,7 @@ def bench(case: str, duration: float, rate: float) -> None:
         n = sum(1 for _ in path.open()) - 1
         print(f"[{case}] {n} samples ({duration:g} s at {rate:g} Hz), hidden: {hidden}; 4 indentations")
         start = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "hapticlab.sessions.cli", "discrepancy", str(path), "--json",
+        subprocess.run([sys.executable, "-c", COMMAND, "discrepancy", str(path), "--json",
                         str(Path(tmp) / "out.json"), "--plots", str(Path(tmp) / "plots")], check=True,
                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         command = time.perf_counter() - start

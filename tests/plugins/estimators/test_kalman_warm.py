@@ -70,7 +70,7 @@ def test_added_mass_is_a_payload_change_and_reconverges(reference_heavy):
     out, _ = feed(est, block, chunk=64)
     events = est.drain_events()
     assert [e.kind for e in events] == ["payload_change"] and est.drain_events() == []
-    t_event = events[0][0]
+    t_event = events[0].t_ns
     delay = (t_event - block.t_ns[0]) * 1e-9 - start
     hung_ns = block.t_ns[0] + int(start * 1e9)
     force = reconverged_after(block, out.converged_force, hung_ns)
@@ -78,7 +78,7 @@ def test_added_mass_is_a_payload_change_and_reconverges(reference_heavy):
     print(f"\npayload change of 100 g: recognised and the new weight identified {delay:.3f} s after the "
           f"mass was hung (until then its weight is reported as contact); the force stage's flag was up "
           f"again {force / RATE_HZ:.3f} s after the hang, the torque stage's {torque / RATE_HZ:.3f} s after "
-          f"the event (the new centre of gravity needs the tool to turn); {events[0][2]}")
+          f"the event (the new centre of gravity needs the tool to turn); {events[0].message}")
     assert 0.3 <= delay < 0.5  # the target (re-converged within 0.5 s): payload_change_s + a block
     assert force is not None and force / RATE_HZ <= 0.5
     assert torque is not None and torque / RATE_HZ <= 1.0

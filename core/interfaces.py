@@ -163,5 +163,32 @@ class HasCalibration(Protocol):
     calibration: dict[str, str]
 
 
-CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration)
+@runtime_checkable
+class HasRange(Protocol):
+    """A sensor that knows its measurement range.
+
+    ``range_force_S`` (3,) N and ``range_torque_S`` (3,) N·m per axis: a reading
+    beyond them with a good status is physically impossible (the sensor would
+    saturate), so the session refuses it as implausible and zeroes the force.
+    """
+
+    range_force_S: np.ndarray
+    range_torque_S: np.ndarray
+
+
+@runtime_checkable
+class Reidentifies(Protocol):
+    """An estimator that can re-identify its sensor bias on request.
+
+    ``reidentify_bias(reason)`` re-opens the bias (and what depends on it) as if
+    it were unknown, keeping the rest; the estimator's convergence flags then
+    drop until it has converged again. The session calls it when a sustained
+    offset behaves like a sensor-frame bias step rather than a contact.
+    """
+
+    def reidentify_bias(self, reason: str) -> None: ...
+
+
+CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration,
+                HasRange, Reidentifies)
 """Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

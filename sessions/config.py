@@ -47,7 +47,12 @@ class SessionSettings:
         out: default output path of the recording ("" = ``recordings/<name>-<time>.mcap``).
         stale_timeout: longest age of the newest sensor sample before the
             haptic force is zeroed, s; 0 = automatic: 1.5 sensor periods plus one
-            loop period, so the first late sample switches the force off.
+            loop period, so the first late sample switches the force off. At most
+            1 s: a dead sensor must not leave a force on the trainee's hand longer.
+        frozen_pose_timeout: longest time the robot may report bit-identical poses
+            before its kinematics count as frozen (a real arm's encoders always
+            jitter), s; the force is zeroed and the samples are kept from the
+            estimators until the poses move again.
     """
 
     name: str = "session"
@@ -56,11 +61,13 @@ class SessionSettings:
     loop_rate_hz: float = 1000.0
     out: str = ""
     stale_timeout: float = 0.0
+    frozen_pose_timeout: float = 0.05
 
     def __post_init__(self) -> None:
-        _require("session.duration", self.duration, minimum=0.0)
-        _require("session.loop_rate_hz", self.loop_rate_hz, above=0.0)
-        _require("session.stale_timeout", self.stale_timeout, minimum=0.0)
+        check_duration("session.duration", self.duration)
+        _require("session.loop_rate_hz", self.loop_rate_hz, above=0.0, maximum=MAX_LOOP_RATE_HZ)
+        _require("session.stale_timeout", self.stale_timeout, minimum=0.0, maximum=1.0)
+        _require("session.frozen_pose_timeout", self.frozen_pose_timeout, above=0.0, maximum=1.0)
 
 
 @dataclass(frozen=True)
@@ -95,7 +102,20 @@ class HapticSettings:
             _require("haptic.rotation_DB", value)
 
 
-def _require(key: str, value: float, minimum: float | None = None, above: float | None = None) -> None:
+MAX_LOOP_RATE_HZ = 10_000.0
+"""Fastest loop accepted: a haptic device is commanded at 1 kHz, a Net F/T streams at 7 kHz at most."""
+MAX_DURATION_S = 86_400.0
+"""Longest session accepted (a day)."""
+
+
+def check_duration(key: str, value: float) -> float:
+    """A session duration, s: finite, positive, at most a day (ConfigError naming ``key`` otherwise)."""
+    _require(key, value, above=0.0, maximum=MAX_DURATION_S)
+    return float(value)
+
+
+def _require(key: str, value: float, minimum: float | None = None, above: float | None = None,
+             maximum: float | None = None) -> None:
     """Refuse a non-finite or out-of-range number, naming the key."""
     if not math.isfinite(value):
         raise ConfigError(f"{key}: must be a finite number, got {value!r}")
@@ -103,6 +123,8 @@ def _require(key: str, value: float, minimum: float | None = None, above: float 
         raise ConfigError(f"{key}: must be at least {minimum:g}, got {value!r}")
     if above is not None and not value > above:
         raise ConfigError(f"{key}: must be greater than {above:g}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ConfigError(f"{key}: must be at most {maximum:g}, got {value!r}")
 
 
 def preset_names() -> list[str]:

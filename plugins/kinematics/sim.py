@@ -7,11 +7,19 @@ sensor: sample i at ``t0_ns + round(i·1e9/rate_hz)`` ns, world time
 
 from __future__ import annotations
 
+import numpy as np
+
 from ...core import hookimpl
-from ...core.frames import quat_wxyz_from_matrix
+from ...core.frames import quat_multiply, quat_wxyz_from_matrix
 from ...core.plugins import ConfigError
 from ...core.types import PoseSample
-from ..simworld.physics import SampleClock, SimWorld
+from ..simworld.faults import kinematics_times
+from ..simworld.physics import SampleClock, SimWorld, gaussian_noise
+
+ENCODER_STREAM = 2
+"""The world's random stream of the robot's encoder jitter (0: sensor noise, 1: bias drift)."""
+MAX_RATE_HZ = 10_000.0
+"""Fastest kinematics stream accepted (an absurd rate would flood the loop)."""
 
 
 class SimKinematics:
@@ -20,15 +28,25 @@ class SimKinematics:
     Parameters
     ----------
     rate_hz : sample rate, Hz (UR RTDE runs at 125 or 500 Hz).
+    encoder_noise : standard deviation of the reported orientation (rad, per axis) and
+        position (m, per axis) around the true pose. A real arm's reported pose is never
+        bit-identical from one sample to the next, its encoders jitter; only a frozen
+        controller repeats it exactly (which the session loop watches for). 0: the
+        exact physics.
     world : the session's SimWorld (provided by the host, shared with the ``sim`` sensor).
     """
 
-    def __init__(self, rate_hz: float = 500.0, world: SimWorld | None = None):
+    def __init__(self, rate_hz: float = 500.0, encoder_noise: float = 1e-7, world: SimWorld | None = None):
         if world is None:
             raise ConfigError("kinematics sim: needs the session's simulated world; "
                               "add a [world] table to the session (or pass world=SimWorld(...))")
-        if not rate_hz > 0:
-            raise ConfigError(f"kinematics.rate_hz: must be > 0, got {rate_hz!r}")
+        if not 0 < rate_hz <= MAX_RATE_HZ:
+            raise ConfigError(f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz, got {rate_hz!r}")
+        if not 0 <= encoder_noise <= 1e-3:
+            raise ConfigError(f"kinematics.encoder_noise: must be within [0, 1e-3] (rad and m), got {encoder_noise!r}")
+        self.encoder_noise = float(encoder_noise)
+        self._noise_key = int(np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,))
+                              .generate_state(1, np.uint64)[0])
         self.rate_hz = float(rate_hz)
         self.world = world
         self._clock = SampleClock(self.rate_hz)
@@ -42,8 +60,21 @@ class SimKinematics:
         seq, t_ns = self._clock.take(until_ns)
         if len(seq) == 0:
             return []
-        R_BE, p_BoEo_B = self.world.pose((t_ns - self._clock.t0_ns) / 1e9)
+        t = (t_ns - self._clock.t0_ns) / 1e9
+        reading_ns = t_ns  # the stamp whose encoder reading (jitter) is reported
+        if self.world.faults:  # injected faults ([[world.faults]]): frozen, late or missing poses
+            t, t_reading, keep = kinematics_times(self.world.faults, t)
+            reading_ns = self._clock.t0_ns + np.round(t_reading[keep] * 1e9).astype(np.int64)
+            t_ns, t = t_ns[keep], t[keep]
+            if len(t_ns) == 0:
+                return []
+        R_BE, p_BoEo_B = self.world.pose(t)
         quat_BE = quat_wxyz_from_matrix(R_BE)
+        if self.encoder_noise > 0:  # small rotation δ (rad) and offset (m) per pose, a function of its stamp
+            jitter = gaussian_noise(self._noise_key, reading_ns, 6) * self.encoder_noise
+            quat_BE = quat_BE + 0.5 * quat_multiply(quat_BE, np.column_stack([np.zeros(len(t_ns)), jitter[:, :3]]))
+            quat_BE /= np.linalg.norm(quat_BE, axis=1)[:, None]
+            p_BoEo_B = p_BoEo_B + jitter[:, 3:]
         quat_BE.setflags(write=False)  # rows are handed out as views
         p_BoEo_B.setflags(write=False)
         return [PoseSample(t_ns=t, quat_BE=quat, p_BoEo_B=p)

@@ -12,7 +12,11 @@ from __future__ import annotations
 from ...core import hookimpl
 from ...core.plugins import ConfigError
 from ...core.types import WrenchSample
+from ..simworld.faults import apply_sensor_faults
 from ..simworld.physics import SampleClock, SimWorld
+
+MAX_RATE_HZ = 100_000.0
+"""Fastest sample rate accepted (a Net F/T streams at up to 7 kHz; an absurd rate would flood the loop)."""
 
 
 class SimSensor:
@@ -29,10 +33,14 @@ class SimSensor:
         if world is None:
             raise ConfigError("sensor sim: needs the session's simulated world; "
                               "add a [world] table to the session (or pass world=SimWorld(...))")
-        if not rate_hz > 0:
-            raise ConfigError(f"sensor.rate_hz: must be > 0, got {rate_hz!r}")
+        if not 0 < rate_hz <= MAX_RATE_HZ:
+            raise ConfigError(f"sensor.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz, got {rate_hz!r}")
         self.rate_hz = float(rate_hz)
         self.world = world
+        self.range_force_S = world.sensor.saturation_force_S.copy()
+        """(3,) measurement range per force axis, N (HasRange): the sensor saturates beyond it."""
+        self.range_torque_S = world.sensor.saturation_torque_S.copy()
+        """(3,) measurement range per torque axis, N·m."""
         self._clock = SampleClock(self.rate_hz)
 
     def open(self, t0_ns: int) -> None:
@@ -44,7 +52,13 @@ class SimSensor:
         seq, t_ns = self._clock.take(until_ns)
         if len(seq) == 0:
             return []
-        reading = self.world.wrench((t_ns - self._clock.t0_ns) / 1e9)
+        t = (t_ns - self._clock.t0_ns) / 1e9
+        reading = self.world.wrench(t)
+        if self.world.faults:  # injected faults ([[world.faults]]): what the sensor delivers, not the physics
+            keep = apply_sensor_faults(self.world.faults, t, reading)
+            if not keep.all():
+                seq, t_ns = seq[keep], t_ns[keep]
+                reading = {k: reading[k][keep] for k in ("force_S", "torque_S", "status")}
         force_S, torque_S = reading["force_S"], reading["torque_S"]
         force_S.setflags(write=False)  # rows are handed out as views
         torque_S.setflags(write=False)

@@ -53,6 +53,9 @@ import numpy as np
 from ...core.frames import GRAVITY_M_S2, matrix_from_rotvec
 from ...core.plugins import ConfigError
 
+from .faults import DEFAULT_DURATION_S as DEFAULT_FAULT_DURATION_S
+from .faults import KINDS as FAULT_KINDS
+from .faults import Fault
 from .motion import MOTION_SCRIPTS, DEFAULT_P_BoEo_B, MotionScript
 
 __all__ = [
@@ -311,6 +314,7 @@ class WorldSpec:
     robot: RobotParams = field(default_factory=RobotParams)
     motion: MotionScript | None = None
     contacts: tuple[Contact, ...] = ()
+    faults: tuple[Fault, ...] = ()
 
 
 # --------------------------------------------------------------------------- value parsers
@@ -505,6 +509,12 @@ WORLD_OPTIONS: dict[str, Parser] = {
     "robot": lambda key, value: value,
     "motion": lambda key, value: value,
     "contacts": lambda key, value: value,
+    "faults": lambda key, value: value,
+}
+
+FAULT_OPTIONS: dict[str, Parser] = {
+    "kind": string, "start": number(), "duration": number(0.0, above=True), "force": vec3, "torque": vec3,
+    "delay": number(0.0),
 }
 
 
@@ -589,6 +599,25 @@ def parse_contacts(value: Any, where: str = "world.contacts") -> tuple[Contact, 
     return tuple(contacts)
 
 
+def parse_faults(value: Any, where: str = "world.faults") -> tuple[Fault, ...]:
+    """Injected faults from ``[[world.faults]]`` (see ``faults.py``)."""
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{where}: expected a list of tables ([[world.faults]]), got {value!r}")
+    faults = []
+    for i, table in enumerate(value):
+        here = f"{where}[{i}]"
+        opts = read_table(here, table, FAULT_OPTIONS)
+        for key in ("kind", "start"):
+            if key not in opts:
+                raise ConfigError(f"{here}.{key}: missing; known kinds: {', '.join(FAULT_KINDS)}")
+        if opts["kind"] not in FAULT_KINDS:
+            raise ConfigError(f"{here}.kind: unknown fault {opts['kind']!r}; known kinds: {', '.join(FAULT_KINDS)}")
+        opts.setdefault("duration", DEFAULT_FAULT_DURATION_S.get(opts["kind"], 1.0))
+        opts = {k: (tuple(v.tolist()) if isinstance(v, np.ndarray) else v) for k, v in opts.items()}
+        faults.append(_build(here, Fault, **opts))
+    return tuple(faults)
+
+
 def parse_world_table(table: Mapping[str, Any] | None, where: str = "world") -> WorldSpec:
     """Parse and check a whole ``[world]`` table.
 
@@ -609,4 +638,5 @@ def parse_world_table(table: Mapping[str, Any] | None, where: str = "world") -> 
         robot=robot,
         motion=parse_motion(opts.get("motion", {}), seed, robot, f"{where}.motion"),
         contacts=parse_contacts(opts.get("contacts", []), f"{where}.contacts"),
+        faults=parse_faults(opts.get("faults", []), f"{where}.faults"),
     )

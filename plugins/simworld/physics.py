@@ -72,6 +72,7 @@ from .config import (
     WorldSpec,
     parse_world_table,
 )
+from .faults import Fault
 from .motion import MotionScript, MotionState, RandomTour
 
 __all__ = ["DRIFT_STREAM", "NOISE_STREAM", "RandomWalk", "SampleClock", "SimWorld", "gaussian_noise"]
@@ -249,13 +250,16 @@ class SimWorld:
 
     def __init__(self, tool: ToolParams | None = None, sensor: SensorParams | None = None,
                  robot: RobotParams | None = None, motion: MotionScript | None = None,
-                 contacts: Iterable[Contact] = (), seed: int = 1, inertia: bool = True):
+                 contacts: Iterable[Contact] = (), seed: int = 1, inertia: bool = True,
+                 faults: Iterable[Fault] = ()):
         self.tool = tool if tool is not None else ToolParams()
         self.sensor = sensor if sensor is not None else SensorParams()
         self.robot = robot if robot is not None else RobotParams()
         self.seed = int(seed)
         self.motion = motion if motion is not None else RandomTour(seed=self.seed, p_BoEo_B=self.robot.p_BoEo_B)
         self.contacts = tuple(contacts)
+        self.faults = tuple(faults)
+        """Injected faults (``faults.py``): the sim sensor and kinematics apply them to what they deliver."""
         self.inertia = bool(inertia)
         self.R_SE = self.sensor.R_SE
         self.R_BG = self.robot.R_BG
@@ -324,7 +328,7 @@ class SimWorld:
     def from_spec(cls, spec: WorldSpec) -> SimWorld:
         """Build from a parsed WorldSpec."""
         return cls(tool=spec.tool, sensor=spec.sensor, robot=spec.robot, motion=spec.motion,
-                   contacts=spec.contacts, seed=spec.seed, inertia=spec.inertia)
+                   contacts=spec.contacts, seed=spec.seed, inertia=spec.inertia, faults=spec.faults)
 
     # ---------------------------------------------------------------- kinematics
 

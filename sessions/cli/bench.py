@@ -118,6 +118,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         with err.status("running the estimator family's scenarios") as status:
             out = bench_estimators(progress=lambda m: status.update(f"bench estimators: {m}"))
         print_estimators_table(out)
+    elif args.which == "faults":
+        from ..bench.faults import bench_faults
+
+        with err.status("injecting faults into the run loop") as status:
+            out = bench_faults(progress=lambda m: status.update(f"bench faults: {m}"))
+        print_faults_table(out)
     else:
         from ..bench.real import bench_real, default_real_dir
 
@@ -129,6 +135,23 @@ def cmd_bench(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(finite_json(out), indent=2) + "\n", encoding="utf-8")
         err.print(f"wrote {args.json}")
     return 0
+
+
+def print_faults_table(out: dict) -> None:
+    """One row per estimator and fault: what reached the hand, how soon it was caught, the event."""
+    from ..bench.faults import FAULT_START_S
+
+    t = Table(title=f"Injected faults (demo session, fault at {FAULT_START_S:g} s): force on the device that the "
+                    f"contact does not explain, and how soon it went to zero")
+    for col in ("estimator", "fault", "made-up force (N)", "detected after (ms)", "zero after detection (ms)",
+                "event"):
+        t.add_column(col, justify="right" if col != "event" else "left")
+    for estimator, faults in out.items():
+        for k, (label, r) in enumerate(faults.items()):
+            ms = lambda v: "never" if v is None else f"{1e3 * v:.0f}"  # noqa: E731
+            t.add_row(estimator if k == 0 else "", label, fmt(r["made_up_force_N"], 2), ms(r["detected_after_s"]),
+                      ms(r["zero_after_detection_s"]), r["event"] or "none", end_section=k == len(faults) - 1)
+    wide_console(140).print(t)
 
 
 def print_estimators_table(out: dict) -> None:
@@ -198,9 +221,10 @@ def print_real_table(out: dict) -> None:
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``hapticlab`` parser."""
     p = sub.add_parser("bench", help="reproduce the paper's experiments (paper), measure the estimator family "
-                       "(estimators) or evaluate real recordings (real)")
-    p.add_argument("which", choices=("paper", "estimators", "real"),
-                   help="paper: simulated experiments; estimators: issue 4's scenarios; real: CSV folder")
+                       "(estimators), evaluate real recordings (real) or inject faults into sessions (faults)")
+    p.add_argument("which", choices=("paper", "estimators", "real", "faults"),
+                   help="paper: simulated experiments; estimators: issue 4's scenarios; real: CSV folder; "
+                        "faults: every injected fault through the run loop")
     p.add_argument("folder", nargs="?", default=None, help="with real: folder of CSV files "
                    "(default ../shared/data/real)")
     p.add_argument("--json", default=None, help="write every number as JSON")

@@ -47,13 +47,13 @@ def _status_table(status) -> Table:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from ..config import apply_overrides, load_config
+    from ..config import apply_overrides, check_duration, load_config
     from ..live import SessionError, build_session, run_session
 
     config, origin = load_config(args.session)
     config = apply_overrides(config, args.set or [])
     session = build_session(config)
-    duration = args.duration if args.duration is not None else session.settings.duration
+    duration = session.settings.duration if args.duration is None else check_duration("--duration", args.duration)
     err.print(f"[bold]hapticlab run[/] {origin}: {duration:g} s, sensor {session.plugins['sensor']['name']}, "
               f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "
               f"haptic {session.plugins['haptic']['name']}  (Ctrl-C stops and keeps the recording)")

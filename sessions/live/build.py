@@ -24,6 +24,7 @@ from ...core.interfaces import (
     HasCalibration,
     KinematicsSource,
     KnowsMount,
+    Reidentifies,
     ReportsParameterStd,
     SavesState,
     SensorSource,
@@ -59,6 +60,7 @@ class EstimatorSlot:
         mount: the same object when it knows the sensor's mount, else None.
         counts: the same object when it counts its first convergence, else None.
         saves: the same object when its state starts the next session, else None.
+        reidentifies: the same object when it can re-identify its bias on request, else None.
     """
 
     label: str
@@ -68,6 +70,7 @@ class EstimatorSlot:
     mount: KnowsMount | None = None
     counts: CountsConvergence | None = None
     saves: SavesState | None = None
+    reidentifies: Reidentifies | None = None
 
     @classmethod
     def of(cls, label: str, estimator: Any) -> "EstimatorSlot":
@@ -75,7 +78,7 @@ class EstimatorSlot:
         def has(capability):
             return estimator if isinstance(estimator, capability) else None
         return cls(label, estimator, has(EmitsEvents), has(ReportsParameterStd), has(KnowsMount),
-                   has(CountsConvergence), has(SavesState))
+                   has(CountsConvergence), has(SavesState), has(Reidentifies))
 
     @property
     def topic(self) -> str:

@@ -3,37 +3,66 @@
 The force is held at zero (the reason is recorded with each command) while:
 
 * the newest sensor sample is older than the stale timeout ("no sensor data");
-* the newest block had stale kinematics, a sensor status bit or a non-finite reading;
-* the estimator's force stage has not converged yet;
+* the newest block had stale kinematics, a sensor status bit, a non-finite
+  reading, or a reading beyond the sensor's range with a good status
+  (implausible: the sensor would have saturated);
+* the robot has reported bit-identical poses for longer than
+  ``frozen_pose_timeout`` (frozen kinematics: fresh timestamps, no motion);
+* the poses are out of step with the wrench by more than ``LAG_LIMIT_S``,
+  estimated from the residual's correlation with the motion
+  (``watch.LagWatch``: late poses stamped as current);
+* the estimator's force stage has not converged yet, or its current state
+  says it no longer is: for an estimator that reports its parameters' std, that
+  std (checked at every block) is above ``ready_force_std`` again; for one
+  that does not, its current flag has been down for ``CONVERGENCE_LOSS_NS``
+  (Algorithm 1 recomputes ‖Δx‖ < ε at every update, so its flag flickers after
+  convergence while the estimate still settles: the std says whether the
+  parameters are known, the flag only whether the last update moved them);
 * its force-stage parameters are not yet known to ``ready_force_std`` (for an
   estimator that reports their std), or are no longer (the std grew back);
-* an estimator event said the tool's weight changed (held ``PAYLOAD_HOLD_NS``).
+* an estimator event said the tool's weight changed (held ``PAYLOAD_HOLD_NS``);
+* a refused run behaved like a sensor-frame bias step (``watch.BiasWatch``):
+  held until the estimator has re-identified its bias and converged again,
+  or, for an estimator that cannot, for the rest of the session.
 
-Algorithm 1 recomputes its flag at every update, so after the first
-convergence it flickers with noise; the gate waits for the first convergence
-("ready") and counts the flips instead of making each one an event.
+Every fault (a reason that is not the estimator's ordinary warming up) is also
+an event naming it, recorded when it starts.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ...core.interfaces import ReportsParameterStd
+from ...core.interfaces import HasRange, ReportsParameterStd, Reidentifies
 from ...core.types import STATUS_OK, AlignedSamples, Estimates, Event
+from .watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch
 
-STD_CHECK_NS = 10_000_000
-"""After the force parameters were first known to ready_force_std, their std is checked again this
-often (10 ms): above the bound again (a drifting estimator through a long contact) zeroes the force."""
 PAYLOAD_HOLD_NS = 1_000_000_000
 """After an estimator's payload change the haptic force is held at zero this long (1 s): the change
 may be a load held by the tool (a grasped object) rather than a new tool, and its release would then
 show as a phantom force until the estimator sees the second change."""
+CONVERGENCE_LOSS_NS = 20_000_000
+"""A converged force stage whose flag has been down this long (20 ms of samples) is no longer converged."""
+WARMING_UP = ("estimator not converged", "parameters not yet identified")
+"""Reasons that are the estimator's ordinary start, not faults (no event of their own)."""
 
 
-def data_reason(block: AlignedSamples, usable: np.ndarray) -> str:
+def implausible(block: AlignedSamples, sensor: HasRange | None) -> np.ndarray:
+    """(N,) True where a reading with a good status lies beyond the sensor's range (impossible: it saturates)."""
+    if sensor is None:
+        return np.zeros(len(block), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        beyond = (np.abs(block.force_S) > sensor.range_force_S).any(1) | \
+                 (np.abs(block.torque_S) > sensor.range_torque_S).any(1)
+    return beyond & (block.status == STATUS_OK)
+
+
+def data_reason(block: AlignedSamples, usable: np.ndarray, beyond: np.ndarray) -> str:
     """What was wrong with a block of aligned samples ("" when every sample is usable)."""
     if usable.all():
         return ""
+    if beyond.any():
+        return "implausible sensor reading (beyond its range)"
     if block.stale.any():
         return "stale kinematics"
     if (block.status != STATUS_OK).any():
@@ -42,42 +71,57 @@ def data_reason(block: AlignedSamples, usable: np.ndarray) -> str:
 
 
 class HapticGate:
-    """Tracks the primary estimator's readiness and tells the loop why the force must be zero.
+    """Tracks the data and the primary estimator, and tells the loop why the force must be zero.
 
     Args:
         label: the estimator's label, for event messages.
         ready_force_std: the force-stage parameters' std below which the force may go on, N.
         parameter_std: the estimator when it reports that std (else None: convergence alone decides).
+        reidentifies: the estimator when it can re-identify its bias (else None: a bias step latches).
         stale_timeout_ns: oldest newest-sample age before "no sensor data", ns.
+        frozen_pose_timeout_ns: longest run of identical poses before "kinematics frozen", ns.
     """
 
     def __init__(self, label: str, ready_force_std: float, parameter_std: ReportsParameterStd | None,
-                 stale_timeout_ns: int):
+                 reidentifies: Reidentifies | None, stale_timeout_ns: int, frozen_pose_timeout_ns: int):
         self.label = label
         self.ready_force_std = ready_force_std
         self.parameter_std = parameter_std
+        self.reidentifies = reidentifies
         self.stale_timeout_ns = stale_timeout_ns
+        self.poses = PoseWatch(frozen_pose_timeout_ns)
+        self.bias = BiasWatch()
+        self.lag = LagWatch()
         self.ready = [False, False]  # each stage has converged at least once
         self.converged = [False, False]  # each stage's flag after the last sample
+        self.down_since_ns: int | None = None  # the force stage's flag has been down since (None: it is up)
         self.flips = [0, 0]
         self.parameters_known = False
         self.parameters_lost = False
-        self.next_std_check_ns = 0
         self.hold_until_ns = 0
+        self.bias_hold = ""  # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "latched"
         self.last_sample_ns: int | None = None
         self.data_reason = ""
+        self.fault = ""  # the fault the last event named
 
-    def on_samples(self, block: AlignedSamples, usable: np.ndarray) -> None:
+    def frozen(self) -> bool:
+        """The robot's poses are frozen now (their samples must not reach the estimators)."""
+        return self.poses.frozen_for_ns > 0
+
+    def on_samples(self, block: AlignedSamples, usable: np.ndarray, beyond: np.ndarray) -> None:
         """A new sensor block arrived (every sample, usable or not)."""
         self.last_sample_ns = int(block.t_ns[-1])
-        self.data_reason = data_reason(block, usable)
+        self.data_reason = data_reason(block, usable, beyond)
 
-    def on_estimates(self, est: Estimates, now_ns: int) -> list[Event]:
-        """The primary estimator's output for the usable samples: the events it makes (first convergence...)."""
+    def on_estimates(self, block: AlignedSamples, est: Estimates, now_ns: int,
+                     params: dict[str, list[float]] | None = None, R_SE: np.ndarray | None = None) -> list[Event]:
+        """The primary estimator's output for the usable samples: the events it makes (convergence, bias step)."""
         events = []
         for stage, flags, name in ((0, est.converged_force, "force"), (1, est.converged_torque, "torque")):
             self.flips[stage] += int(np.count_nonzero(np.diff(flags, prepend=self.converged[stage])))
             self.converged[stage] = bool(flags[-1])
+            if stage == 0:
+                self._track_flag(est.t_ns, flags)
             if not self.ready[stage] and flags.any():
                 self.ready[stage] = True
                 k = int(np.argmax(flags))
@@ -87,10 +131,31 @@ class HapticGate:
             self.parameters_known = std is None or std <= self.ready_force_std
             if self.parameters_known and std is not None:
                 events.append(Event(now_ns, "parameters_known", f"force parameters known to ±{std:.3g} N (1σ)"))
-        elif self.parameters_known and self.parameter_std is not None and now_ns >= self.next_std_check_ns:
-            self.next_std_check_ns = now_ns + STD_CHECK_NS  # a drifting estimator's std grows in a long contact
-            self.parameters_lost = self._std() > self.ready_force_std
+        elif self.parameters_known and self.parameter_std is not None:
+            self.parameters_lost = self._std() > self.ready_force_std  # e.g. a drifting estimator in a long contact
+        if self.bias_hold == "drop" and not self.converged[0]:
+            self.bias_hold = "rise"
+        elif self.bias_hold == "rise" and self.converged[0]:
+            self.bias_hold = ""
+            events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
+        if self.parameters_known and params is not None:
+            self.lag.add(block, est, np.asarray(params["gravity_force_B"]), R_SE)
+        step = self.bias.add(block, est) if self.ready[0] and not self.bias_hold else None
+        if step is not None:
+            events.append(self._bias_step(step, now_ns))
         return events
+
+    def _bias_step(self, step: np.ndarray, now_ns: int) -> Event:
+        message = (f"sensor bias step of {np.linalg.norm(step):.2f} N: the refused force stayed fixed in the "
+                   f"sensor frame while the tool turned")
+        if self.reidentifies is not None:
+            self.reidentifies.reidentify_bias("bias step")
+            self.bias_hold = "drop"
+            message += f"; {self.label} re-identifies its bias"
+        else:
+            self.bias_hold = "latched"
+            message += f"; {self.label} cannot re-identify it: force off until the session is re-armed"
+        return Event(now_ns, "bias_step", message, {"bias_step_force_S": step.tolist()})
 
     def on_event(self, event: Event, now_ns: int) -> None:
         """An event of the primary estimator: a payload change holds the force at zero for a while."""
@@ -103,8 +168,20 @@ class HapticGate:
             return "no sensor data"
         if self.data_reason:
             return self.data_reason
+        if self.frozen():
+            return f"kinematics frozen (the same pose for {self.poses.frozen_for_ns * 1e-6:.0f} ms)"
+        if self.lag.lag_s is not None and abs(self.lag.lag_s) > LAG_LIMIT_S:
+            return (f"kinematics out of step with the sensor (poses {abs(self.lag.lag_s) * 1e3:.0f} ms "
+                    f"{'late' if self.lag.lag_s > 0 else 'early'})")
+        if self.bias_hold == "latched":
+            return "sensor bias step: re-arm needed"
+        if self.bias_hold:
+            return "sensor bias step: re-identifying"
         if not self.ready[0]:
             return "estimator not converged"
+        if self.parameter_std is None and self.down_since_ns is not None and \
+                self.last_sample_ns - self.down_since_ns >= CONVERGENCE_LOSS_NS:
+            return "estimator no longer converged"
         if not self.parameters_known:
             return "parameters not yet identified"
         if self.parameters_lost:
@@ -112,6 +189,23 @@ class HapticGate:
         if now_ns < self.hold_until_ns:
             return "payload change: tool weight re-identified, holding"
         return ""
+
+    def fault_event(self, reason: str, now_ns: int) -> Event | None:
+        """An event when a new fault starts (a reason that is not the estimator warming up)."""
+        fault = "" if reason in WARMING_UP else reason.split(" (")[0]
+        if fault == self.fault:
+            return None
+        self.fault = fault
+        return Event(now_ns, "fault", reason) if fault else None
+
+    def _track_flag(self, t_ns: np.ndarray, flags: np.ndarray) -> None:
+        """Keep when the force stage's flag went down, for the trailing run of samples it has been down."""
+        if flags[-1]:
+            self.down_since_ns = None
+            return
+        up = np.flatnonzero(flags)
+        if len(up) or self.down_since_ns is None:
+            self.down_since_ns = int(t_ns[up[-1] + 1 if len(up) else 0])
 
     def _std(self) -> float | None:
         if self.parameter_std is None:

@@ -16,20 +16,24 @@ far behind it was (at most one such event a second). With ``realtime = false``
 (simulated devices as fast as the machine allows) "now" is the tick's own time.
 
 The session always ends the same way, whatever ended it (its duration,
-Ctrl-C, a sensor, robot or estimator that raised): the final zero command is
+Ctrl-C, SIGTERM or SIGHUP, a sensor, robot or estimator that raised): the final zero command is
 sent *and recorded*, the devices are closed, the estimator's state is saved,
 an ``error`` event names what failed, the summary says ``interrupted`` and
 ``error``, and the MCAP file is finished. A failure then raises
 :class:`SessionError` (its ``result.path`` is the complete recording). A
 haptic device that raises is a lost device: the force is zeroed and the
 session goes on recording; a shadow estimator that raises is dropped with an
-event.
+event. While the session ends, further Ctrl-C, SIGTERM and SIGHUP are noted
+and ignored, so the file is always finished.
 """
 
 from __future__ import annotations
 
 import json
+import signal
+import threading
 import time
+from contextlib import contextmanager
 from collections.abc import Callable
 from pathlib import Path
 
@@ -37,10 +41,12 @@ import numpy as np
 
 from ...core.aligner import Aligner
 from ...core.errors import OutputExistsError
+from ...core.interfaces import HasRange
 from ...core.types import Event
+from ..config import check_duration
 from ..recording import Recorder
 from .build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
-from .gate import HapticGate
+from .gate import HapticGate, implausible
 from .status import SessionError, SessionResult, SessionStatus
 from .taps import Taps
 
@@ -65,6 +71,43 @@ def run_session(session: Session, out: str | Path | None = None, duration: float
     return LiveLoop(session, out, duration, on_status, status_interval_s).run()
 
 
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+@contextmanager
+def _signals_end_the_session(loop: "LiveLoop"):
+    """SIGTERM and SIGHUP end the session as Ctrl-C does (only the main thread can install handlers)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        loop.stopped_by = signal.Signals(signum).name
+        raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, stop) for s in STOP_SIGNALS if s != signal.SIGINT}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+@contextmanager
+def _signals_ignored(loop: "LiveLoop"):
+    """While the session ends, a second Ctrl-C (or SIGTERM, SIGHUP) is noted, not obeyed: the file is finished."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, lambda signum, frame: loop.signals_while_ending.append(
+        signal.Signals(signum).name)) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
 class LiveLoop:
     """One session's loop and its bookkeeping (built by :func:`run_session`)."""
 
@@ -72,7 +115,7 @@ class LiveLoop:
                  on_status: Callable[[SessionStatus], None] | None, status_interval_s: float):
         self.s = session
         settings = session.settings
-        self.duration = settings.duration if duration is None else duration
+        self.duration = settings.duration if duration is None else check_duration("duration", duration)
         self.path = Path(out) if out else default_out_path(settings)
         if self.path.exists():
             raise OutputExistsError(f"{self.path} already exists; choose another --out "
@@ -82,7 +125,9 @@ class LiveLoop:
         stale_ns = int(round(settings.stale_timeout * 1e9)) if settings.stale_timeout > 0 else \
             int(round(1.5e9 / float(session.sensor.rate_hz))) + self.period_ns  # the first late sample
         self.gate = HapticGate(session.estimator_name, session.haptic_settings.ready_force_std,
-                               session.primary.parameter_std, stale_ns)
+                               session.primary.parameter_std, session.primary.reidentifies, stale_ns,
+                               int(round(settings.frozen_pose_timeout * 1e9)))
+        self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
         self.governor = session.governor()
         self.aligner = Aligner(float(session.kinematics.rate_hz))
         self.on_status, self.status_interval_s = on_status, status_interval_s
@@ -98,6 +143,8 @@ class LiveLoop:
         self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None  # (contact_force_S, R_BS)
         self.haptic_reason = "starting"
         self.recorder: Recorder | None = None
+        self.stopped_by = "Ctrl-C"  # or the signal that ended the session
+        self.signals_while_ending: list[str] = []
 
     # ------------------------------------------------------------------ the loop
 
@@ -107,20 +154,22 @@ class LiveLoop:
         self.taps = Taps(self.recorder)
         self.t0_ns = now_ns = time.monotonic_ns()
         interrupted, failure = False, None
-        try:
-            self._open()
-            tick = 0
-            while True:
-                tick, now_ns = self._next_tick(tick)
-                if now_ns - self.t0_ns > self.duration_ns:
-                    now_ns = min(now_ns, self.t0_ns + self.duration_ns)
-                    break
-                self._tick(now_ns)
-        except KeyboardInterrupt:
-            interrupted = True
-        except _PartFailed as exc:
-            failure = exc
-        result = self._finish(now_ns, interrupted, failure)
+        with _signals_end_the_session(self):
+            try:
+                self._open()
+                tick = 0
+                while True:
+                    tick, now_ns = self._next_tick(tick)
+                    if now_ns - self.t0_ns > self.duration_ns:
+                        now_ns = min(now_ns, self.t0_ns + self.duration_ns)
+                        break
+                    self._tick(now_ns)
+            except KeyboardInterrupt:
+                interrupted = True
+            except _PartFailed as exc:
+                failure = exc
+            with _signals_ignored(self):
+                result = self._finish(now_ns, interrupted, failure)
         if failure is not None:
             raise SessionError(f"{failure}; the recording is complete: {self.path}", failure.part, result) \
                 from failure.__cause__
@@ -149,6 +198,7 @@ class LiveLoop:
         poses = self._call("kinematics", self.s.kinematics.read, now_ns)
         if poses:
             self.aligner.add_poses(poses)
+            self.gate.poses.add(poses)
             self.taps.poses(poses)
             self.poses += len(poses)
         wrenches = self._call("sensor", self.s.sensor.read, now_ns)
@@ -157,8 +207,11 @@ class LiveLoop:
             self.samples += len(wrenches)
             block = self.aligner.align(wrenches)
             self.taps.aligned(block)
-            usable = block.usable
-            self.gate.on_samples(block, usable)
+            beyond = implausible(block, self.sensor_range)
+            usable = block.usable & ~beyond
+            self.gate.on_samples(block, usable, beyond)
+            if self.gate.frozen():  # their orientation is not the robot's: keep them from the estimators
+                usable[:] = False
             if usable.any():
                 self._estimate(block.subset(usable), now_ns)
         for label, device in self.s.device_events:
@@ -177,10 +230,12 @@ class LiveLoop:
         self._record_estimates(primary, est, with_params)
         for event in self._drain(primary):
             self.gate.on_event(event, now_ns)
-        for event in self.gate.on_estimates(est, now_ns):
+        R_SE = None if primary.mount is None else primary.mount.R_SE
+        params = primary.estimator.params() if self.gate.parameters_known else None
+        for event in self.gate.on_estimates(block, est, now_ns, params, R_SE):
             self._event(event)
         R_BE = block.R_EB[-1].T
-        R_BS = R_BE if primary.mount is None else R_BE @ primary.mount.R_SE.T
+        R_BS = R_BE if R_SE is None else R_BE @ R_SE.T
         self.last_estimate = (est.contact_force_S[-1], R_BS)
         self.status.contact = bool(est.contact[-1])
         self.contact_samples += int(np.count_nonzero(est.contact))
@@ -206,6 +261,9 @@ class LiveLoop:
 
     def _command(self, now_ns: int) -> None:
         reason = self.gate.reason(now_ns)
+        fault = self.gate.fault_event(reason, now_ns)
+        if fault is not None:
+            self._event(fault)
         command = self.governor.command(now_ns, *(self.last_estimate or (None, None)), reason=reason)
         try:
             self.s.haptic.send(command)
@@ -314,6 +372,7 @@ class LiveLoop:
             "contact_samples": self.contact_samples,
             "haptic_on_s": self.haptic_on_ticks * self.period_ns * 1e-9,
             "overruns": self.overruns,
+            "signals_while_ending": self.signals_while_ending,
         }
         if primary.saves is not None and failure is None:
             try:  # never let a failing save cost the recording
@@ -324,7 +383,8 @@ class LiveLoop:
                 summary["estimator_state_path"] = str(state_path)
             except Exception as exc:
                 self._event(Event(end_ns, "estimator_state_not_saved", f"estimator state not saved: {exc}"))
-        ending = "interrupted (Ctrl-C)" if interrupted else "ended by an error" if failure else "session finished"
+        ending = (f"interrupted ({self.stopped_by})" if interrupted else "ended by an error" if failure
+                  else "session finished")
         self._event(Event(end_ns, "session_end", ending))
         self.recorder.close(summary=summary)
         return SessionResult(

@@ -1,11 +1,15 @@
 """The safety-critical end: turns a contact estimate into a device force command.
 
-On any doubt (stale or missing sensor or kinematics data, an unconverged
-estimator, parameters not or no longer identified, a payload change just
-recognised, a saturated sensor, a non-finite value, a device error; the run
-loop in ``run.py`` decides which) the command is zero at once, with the reason; otherwise the force is mapped into the
-device frame, clamped to ``max_force`` and rate-limited to ``max_force_rate``.
-Going to zero is never rate-limited.
+On any doubt (the gate in ``gate.py`` says which) the command is zero at once,
+with the reason; otherwise the force is mapped into the device frame, clamped
+to ``max_force`` and rate-limited to ``max_force_rate``. Going to zero is never
+rate-limited; coming back from zero is (the ramp starts at zero).
+
+The governor checks its *output*, not only its input: a command that is not
+finite or not within the limits after the mapping (a finite but huge reading
+overflows in the rotation) is replaced by zero with the reason, so nothing but
+a finite force within ``max_force`` and one rate-limited step of the last
+command ever reaches the device.
 """
 
 from __future__ import annotations
@@ -47,16 +51,23 @@ class ForceGovernor:
             reason = "no estimate yet"
         if not reason and not np.all(np.isfinite(contact_force_S)):
             reason = "non-finite contact force"
+        if not reason:
+            with np.errstate(over="ignore", invalid="ignore"):
+                target = self.settings.scale * (self.R_DB @ (R_BS @ contact_force_S))
+                norm = float(np.linalg.norm(target))
+            if not np.isfinite(norm):
+                reason = "non-finite force after the mapping"
         if reason:
             self.last_force_D = ZERO3
             return HapticCommand(t_ns, ZERO3, False, reason)
-        target = self.settings.scale * (self.R_DB @ (R_BS @ contact_force_S))
-        norm = float(np.linalg.norm(target))
         if norm > self.settings.max_force:
             target = target * (self.settings.max_force / norm)
         step = target - self.last_force_D
         step_norm = float(np.linalg.norm(step))
         if step_norm > self.max_step:
             target = self.last_force_D + step * (self.max_step / step_norm)
+        if not (np.all(np.isfinite(target)) and np.linalg.norm(target) <= self.settings.max_force * (1 + 1e-9)):
+            self.last_force_D = ZERO3  # unreachable by the arithmetic above; checked all the same
+            return HapticCommand(t_ns, ZERO3, False, "governor output out of bounds")
         self.last_force_D = target
         return HapticCommand(t_ns, target, True, "")

@@ -42,7 +42,7 @@ def test_without_a_world_the_error_says_so():
 
 def test_poses_follow_the_world_at_the_kinematics_rate():
     world = SimWorld(motion=RandomTour(seed=2, max_translation=0.03), seed=2)
-    kinematics = SimKinematics(rate_hz=500.0, world=world)
+    kinematics = SimKinematics(rate_hz=500.0, encoder_noise=0.0, world=world)
     kinematics.open(T0)
     poses = kinematics.read(T0 + 3_000_000_000) + kinematics.read(T0 + 4_000_000_000)
     assert len(poses) == 2001
@@ -61,7 +61,7 @@ def test_poses_follow_the_world_at_the_kinematics_rate():
 def test_sensor_and_kinematics_share_one_world():
     """At a common time the sensor's gravity reading matches the kinematics' orientation."""
     world = SimWorld(seed=4, inertia=False)
-    sensor, kinematics = SimSensor(rate_hz=1000.0, world=world), SimKinematics(rate_hz=125.0, world=world)
+    sensor, kinematics = SimSensor(rate_hz=1000.0, world=world), SimKinematics(rate_hz=125.0, encoder_noise=0.0, world=world)
     sensor.open(T0)
     kinematics.open(T0)
     wrench = {s.t_ns: s for s in sensor.read(T0 + 2_000_000_000)}
@@ -88,7 +88,7 @@ def test_quaternions_match_scipy_including_half_turns():
 def test_one_pose_per_read_gives_exactly_one_big_read():
     def kinematics():
         world = SimWorld(motion=RandomTour(seed=9, segment_s=0.3, max_translation=0.03), seed=9)
-        source = SimKinematics(rate_hz=1000.0, world=world)
+        source = SimKinematics(rate_hz=1000.0, encoder_noise=0.0, world=world)
         source.open(T0)
         return source
 

@@ -52,7 +52,7 @@ def test_kinematics_lag_shifts_the_reported_pose_not_the_wrench(lag):
     np.testing.assert_allclose(lagged.pose(t)[1], plain.pose(t - lag)[1], atol=1e-14)
     np.testing.assert_array_equal(lagged.wrench(t)["force_S"], plain.wrench(t)["force_S"])
     # the sim kinematics plugin stamps them the same way
-    kin = SimKinematics(rate_hz=100.0, world=lagged)
+    kin = SimKinematics(rate_hz=100.0, encoder_noise=0.0, world=lagged)
     kin.open(0)
     poses = kin.read(2_000_000_000)
     stamps = np.array([p.t_ns for p in poses]) / 1e9

@@ -1,0 +1,115 @@
+"""Injected faults: what a real sensor or robot does wrong, rehearsed in the simulated world.
+
+``[[world.faults]]`` tables (``kind``, ``start`` s, ``duration`` s, and per kind
+``force`` N / ``torque`` N·m / ``delay`` s). The ``sim`` sensor and ``sim``
+kinematics apply them to what they deliver (the world's physics is
+untouched), so a lab can rehearse failures and an instructor can show them,
+and the device emulators fed by the world inherit them.
+
+Sensor faults:
+
+* ``sensor_spike``: ``force``/``torque`` added to the readings while active,
+  status still OK (an electrical glitch; default duration 20 ms);
+* ``sensor_nan``: the readings are NaN, status OK (a broken conversion);
+* ``sensor_saturated``: the saturation status bit is set;
+* ``sensor_dropout``: no samples at all (a pulled cable, a lost UDP stream);
+* ``sensor_bias_step``: ``force``/``torque`` added from ``start`` on (a knock,
+  a temperature jump of the gauges; default duration: for good).
+
+Kinematics faults:
+
+* ``kinematics_freeze``: poses keep coming with fresh timestamps but hold the
+  pose of the fault's start (a stuck controller thread);
+* ``kinematics_delay``: each pose is the one from ``delay`` s earlier, stamped
+  as current (a queue in the robot's network stack);
+* ``kinematics_dropout``: no poses at all.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...core.types import STATUS_SATURATED
+
+SENSOR_KINDS = ("sensor_spike", "sensor_nan", "sensor_saturated", "sensor_dropout", "sensor_bias_step")
+KINEMATICS_KINDS = ("kinematics_freeze", "kinematics_delay", "kinematics_dropout")
+KINDS = SENSOR_KINDS + KINEMATICS_KINDS
+DEFAULT_DURATION_S = {"sensor_spike": 0.02, "sensor_bias_step": math.inf}
+"""Duration of a fault that gives none, s (the others: 1 s)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    """One injected fault.
+
+    Attributes:
+        kind: one of :data:`KINDS`.
+        start: when it starts, s of world time.
+        duration: how long it lasts, s (``inf``: for good).
+        force: (3,) force added by a spike or a bias step, N (in S).
+        torque: (3,) torque added by a spike or a bias step, N·m (in S).
+        delay: how late a delayed pose is, s.
+    """
+
+    kind: str
+    start: float
+    duration: float = 1.0
+    force: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    torque: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    delay: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind: unknown fault {self.kind!r}; known: {', '.join(KINDS)}")
+        if not (math.isfinite(self.start) and self.duration > 0 and self.delay >= 0 and math.isfinite(self.delay)):
+            raise ValueError("start must be finite, duration > 0 and delay >= 0")
+        if self.kind == "kinematics_delay" and not self.delay > 0:
+            raise ValueError("delay: a kinematics_delay needs delay > 0 (s)")
+
+    def active(self, t: np.ndarray) -> np.ndarray:
+        """(N,) bool: the fault acts at world times ``t`` (s)."""
+        return (t >= self.start) & (t < self.start + self.duration)
+
+
+def apply_sensor_faults(faults: tuple[Fault, ...], t: np.ndarray, reading: dict[str, np.ndarray]) -> np.ndarray:
+    """Apply the sensor faults to a reading at world times ``t`` in place; the (N,) mask of samples delivered."""
+    keep = np.ones(len(t), dtype=bool)
+    for fault in faults:
+        if fault.kind not in SENSOR_KINDS:
+            continue
+        on = fault.active(t)
+        if not on.any():
+            continue
+        if fault.kind in ("sensor_spike", "sensor_bias_step"):
+            reading["force_S"][on] += fault.force
+            reading["torque_S"][on] += fault.torque
+        elif fault.kind == "sensor_nan":
+            reading["force_S"][on] = np.nan
+            reading["torque_S"][on] = np.nan
+        elif fault.kind == "sensor_saturated":
+            reading["status"][on] |= STATUS_SATURATED
+        else:  # sensor_dropout
+            keep &= ~on
+    return keep
+
+
+def kinematics_times(faults: tuple[Fault, ...], t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For poses stamped ``t`` (s): the world times whose pose the robot reports, the times whose encoder
+    reading it reports (a frozen controller repeats one message, jitter and all), and the mask delivered."""
+    t_pose = np.array(t, dtype=float)
+    t_reading = np.array(t, dtype=float)
+    keep = np.ones(len(t), dtype=bool)
+    for fault in faults:
+        if fault.kind not in KINEMATICS_KINDS:
+            continue
+        on = fault.active(t)
+        if fault.kind == "kinematics_freeze":
+            t_pose[on] = t_reading[on] = fault.start
+        elif fault.kind == "kinematics_delay":
+            t_pose[on] = t_pose[on] - fault.delay
+        else:  # kinematics_dropout
+            keep &= ~on
+    return t_pose, t_reading, keep

@@ -1,0 +1,110 @@
+"""``hapticlab bench faults``: every injected fault through the real run loop, and what reached the hand.
+
+Each fault of ``plugins/simworld/faults.py`` is injected into the demo session
+(simulated sensor and robot, the force on from about 2.2 s, a random tour that
+keeps turning the tool) at ``FAULT_START_S``, and the same session is run
+once without it. Both runs share every seed, so the difference between their
+haptic commands is the force the fault alone put on the trainee's hand:
+
+* **made-up force**: from the fault's start until the force is back (zero, or
+  the clean run's force), the largest part of the fault run's force that the
+  clean run's force, scaled by anything in [0, 1], cannot explain, N: a force
+  the contact does not give. (A force zeroed, or ramping back up to the true
+  one, makes up nothing: missing force is safe.)
+* **detected after**: from the fault's start to the first zero command whose
+  reason names a fault, s (None: never);
+* **zero after detection**: from that detection to the first zero command, s
+  (zero is immediate by construction; measured all the same);
+* **event**: the first fault event recorded after the start.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..config import apply_settings, load_config
+from ..live import build_session, run_session
+from ..live.gate import WARMING_UP
+from ..recording import read_recording
+
+FAULT_START_S = 4.0
+DURATION_S = 7.0
+FAULTS: dict[str, dict[str, Any]] = {
+    "sensor spike +1000 N, 20 ms": {"kind": "sensor_spike", "force": [1000.0, 0.0, 0.0], "duration": 0.02},
+    "sensor NaN, 200 ms": {"kind": "sensor_nan", "duration": 0.2},
+    "sensor saturated, 200 ms": {"kind": "sensor_saturated", "duration": 0.2},
+    "sensor dropout, 500 ms": {"kind": "sensor_dropout", "duration": 0.5},
+    "sensor bias step +2 N": {"kind": "sensor_bias_step", "force": [2.0, 0.0, 0.0]},
+    "kinematics frozen, 2 s": {"kind": "kinematics_freeze", "duration": 2.0},
+    "kinematics 200 ms late, 2 s": {"kind": "kinematics_delay", "delay": 0.2, "duration": 2.0},
+    "kinematics dropout, 500 ms": {"kind": "kinematics_dropout", "duration": 0.5},
+}
+
+
+def session(estimator: str, fault: dict[str, Any] | None) -> tuple[np.ndarray, np.ndarray, list[dict], list, int]:
+    """One demo session with ``fault`` injected: command times (s), forces, messages, events, and t0 (ns)."""
+    config, _ = load_config("demo")
+    config = apply_settings(config, {"session.realtime": False, "session.duration": DURATION_S,
+                                     "estimator.name": estimator})
+    if fault is not None:
+        config["world"]["faults"] = [{"start": FAULT_START_S, **fault}]
+    with tempfile.TemporaryDirectory() as folder:
+        result = run_session(build_session(config), out=Path(folder) / "faults.mcap")
+        rec = read_recording(result.path)
+    t0 = result.events[0].t_ns
+    commands = rec.topics["/haptic/command"][:-1]  # the session's final zero aside
+    t = (np.array([t for t, _ in commands]) - t0) * 1e-9
+    return t, np.array([m["force_D"] for _, m in commands]), [m for _, m in commands], result.events, t0
+
+
+def made_up_force(force: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(N,) ‖force − s·truth‖ minimised over s in [0, 1], per row, N: what no scaled-down true force explains."""
+    tt = np.einsum("ij,ij->i", truth, truth)
+    s = np.clip(np.einsum("ij,ij->i", force, truth) / np.where(tt > 0, tt, 1.0), 0.0, 1.0)
+    return np.linalg.norm(force - s[:, None] * truth, axis=1)
+
+
+def measure(estimator: str, clean, fault: dict[str, Any]) -> dict[str, Any]:
+    """The made-up force, detection and zero times and the event of one fault against the clean run."""
+    t_ref, force_ref, _, _, _ = clean
+    t, force, messages, events, t0 = session(estimator, fault)
+    n = min(len(t), len(t_ref))
+    made_up = made_up_force(force[:n], force_ref[:n])
+    after = t[:n] >= FAULT_START_S
+    faulty = np.array([not m["enabled"] and m["reason"] not in WARMING_UP and m["reason"] != "" for m in messages[:n]])
+    detected = np.flatnonzero(after & faulty)
+    t_detect = float(t[detected[0]]) if len(detected) else None
+    end = FAULT_START_S + min(fault.get("duration", np.inf), DURATION_S)
+    # the fault's span, and until the force is back to zero or to the clean run's force
+    back = np.flatnonzero((t[:n] >= end) & ((made_up < 0.05) | faulty))
+    window = after & (t[:n] <= (t[back[0]] if len(back) else t[n - 1]))
+    zeros = np.flatnonzero(after & (np.linalg.norm(force[:n], axis=1) == 0.0))
+    event = next((e for e in events if (e.t_ns - t0) * 1e-9 >= FAULT_START_S and e.kind in ("fault", "bias_step")),
+                 None)
+    return {
+        "made_up_force_N": float(made_up[window].max()) if window.any() else 0.0,
+        "detected_after_s": None if t_detect is None else t_detect - FAULT_START_S,
+        "zero_after_detection_s": None if t_detect is None or not len(zeros) else
+        float(t[zeros[zeros >= detected[0]][0]]) - t_detect,
+        "event": None if event is None else f"{event.kind}: {event.message}",
+    }
+
+
+def bench_faults(estimators: tuple[str, ...] = ("rls", "kalman"),
+                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Per estimator and fault: the numbers of the module docstring (JSON-ready)."""
+    out: dict[str, Any] = {}
+    for estimator in estimators:
+        if progress:
+            progress(f"{estimator}: clean run")
+        clean = session(estimator, None)
+        out[estimator] = {}
+        for label, fault in FAULTS.items():
+            if progress:
+                progress(f"{estimator}: {label}")
+            out[estimator][label] = measure(estimator, clean, fault)
+    return out

@@ -1,0 +1,182 @@
+"""Watches on the live streams that timestamps alone cannot give: frozen poses, a bias step in the sensor.
+
+:class:`PoseWatch`: a real arm's reported pose is never bit-identical from one
+sample to the next (its encoders jitter); a controller whose thread is stuck
+keeps sending the last pose with fresh timestamps. Poses that have not changed
+for longer than ``frozen_pose_timeout`` are frozen kinematics.
+
+:class:`BiasWatch`: after a knock or a temperature jump the sensor's zero moves;
+a converged estimator then sees a sustained "contact". A real contact acts on
+the tool from outside, so when the tool turns the contact force turns in the
+sensor frame; a bias step is fixed in the sensor frame. A refused run whose
+force stays the same in S (within ``BIAS_TOLERANCE``) all along while the tool
+turns so that a force fixed in the world would have moved in S by three times
+that is a bias step, not a contact. (A turn about the
+force's own axis tells nothing: a push along the instrument while it rolls
+stays the same in S too, so only the turn that moves the force's direction
+counts.)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...core.types import AlignedSamples, Estimates, PoseSample
+
+BIAS_TOLERANCE = 0.15
+"""A run's offset in S may depart from its start by this fraction of its size (or BIAS_FLOOR_N) and
+still be a bias step."""
+BIAS_FLOOR_N = 0.15
+"""About five standard deviations of a 20 ms mean of 0.12 N sensor noise, N."""
+BIAS_MIN_OFFSET_N = 0.5
+"""Offsets smaller than this are left to the estimator (they are within its contact threshold's noise)."""
+BIAS_WINDOW_NS = 20_000_000
+"""The offset is averaged over this long at the run's start and at its end (noise), ns."""
+
+
+class PoseWatch:
+    """Tells frozen kinematics from a robot that merely stands still.
+
+    Args:
+        timeout_ns: how long identical poses are accepted, ns.
+    """
+
+    def __init__(self, timeout_ns: int):
+        self.timeout_ns = timeout_ns
+        self.last: tuple[bytes, bytes] | None = None
+        self.changed_ns: int | None = None  # stamp of the last pose that differed from its predecessor
+        self.newest_ns: int | None = None
+
+    def add(self, poses: list[PoseSample]) -> None:
+        for pose in poses:
+            key = (pose.quat_BE.tobytes(), b"" if pose.p_BoEo_B is None else pose.p_BoEo_B.tobytes())
+            if key != self.last:
+                self.last, self.changed_ns = key, pose.t_ns
+            self.newest_ns = pose.t_ns
+
+    @property
+    def frozen_for_ns(self) -> int:
+        """How long the robot has reported the same pose beyond the timeout (0 when it has not), ns."""
+        if self.changed_ns is None:
+            return 0
+        held = self.newest_ns - self.changed_ns
+        return held if held > self.timeout_ns else 0
+
+
+class BiasWatch:
+    """Finds a sensor-frame bias step among the samples an estimator refused as contact.
+
+    Over a run of refused samples it keeps the mean contact force (in S) of the
+    run's first ``BIAS_WINDOW_NS`` and the largest departure of the running
+    mean from it. The run is a bias step when that departure stayed within the
+    tolerance for the whole run (a bias step is constant; a contact rises and
+    falls) while the tool turned enough that a force fixed in the world would
+    have moved in S by three tolerances or more.
+    """
+
+    def __init__(self):
+        self.start_ns: int | None = None  # the refused run's first sample
+        self.R_EB_start: np.ndarray | None = None
+        self.first: list[np.ndarray] = []  # contact force (in S) over the run's first window
+        self.before: np.ndarray | None = None  # their mean, once the window is full
+        self.recent: list[tuple[int, np.ndarray]] = []
+        self.max_departure = 0.0
+
+    def add(self, block: AlignedSamples, est: Estimates) -> np.ndarray | None:
+        """A block's estimates; the step (3,) N in S when the refused run it ends is a bias step, else None."""
+        contact = est.contact
+        if not contact[-1]:
+            self.start_ns = None
+            return None
+        free = np.flatnonzero(~contact)
+        k = int(free[-1]) + 1 if len(free) else 0  # the first row of the run this block ends with
+        if self.start_ns is None or len(free):
+            self.start_ns, self.R_EB_start = int(block.t_ns[k]), block.R_EB[k]
+            self.first, self.before, self.recent, self.max_departure = [], None, [], 0.0
+        for t, f in zip(block.t_ns[k:].tolist(), est.contact_force_S[k:]):
+            if self.before is None and t - self.start_ns <= BIAS_WINDOW_NS:
+                self.first.append(f)
+            self.recent.append((t, f))
+        newest = int(block.t_ns[-1])
+        self.recent = [(t, f) for t, f in self.recent if newest - t <= BIAS_WINDOW_NS]
+        if newest - self.start_ns < 2 * BIAS_WINDOW_NS:
+            return None
+        if self.before is None:
+            self.before = np.mean(self.first, axis=0)
+        now = np.mean([f for _, f in self.recent], axis=0)
+        size = float(np.linalg.norm(self.before))
+        tolerance = max(BIAS_TOLERANCE * size, BIAS_FLOOR_N)
+        self.max_departure = max(self.max_departure, float(np.linalg.norm(now - self.before)))
+        if size < BIAS_MIN_OFFSET_N or self.max_departure > tolerance:
+            return None
+        # a force fixed in the world, seen in S along `before` at the run's start, would now be along R_turn @ before
+        R_turn = block.R_EB[-1] @ self.R_EB_start.T  # S (= E up to the mount) now, from S at the start
+        if np.linalg.norm(R_turn @ self.before - self.before) < 3 * tolerance:
+            return None
+        self.start_ns = None
+        return now
+
+
+LAG_LIMIT_S = 0.05
+"""Kinematics this far out of step with the sensor (either way) zero the force, s."""
+LAG_MEMORY_S = 0.25
+"""The lag estimate forgets with this time constant, s."""
+LAG_MAX_TURN_RAD_S = 10.0
+"""Faster apparent turns (a pose stream that jumps) are left out of the estimate, rad/s."""
+LAG_MIN_EXPLAINED = 0.5
+"""The lag must explain this share of the residual's sum of squares before it is believed."""
+LAG_MIN_RESOLUTION_S = 0.01
+"""The estimate is trusted once its standard error (noise / √Σ‖ġ‖²) is below this, s."""
+
+
+class LagWatch:
+    """Estimates how far the poses are out of step with the wrench, from the residual's correlation with motion.
+
+    If the poses the robot reports are τ late, the sensor sees the weight where
+    the model puts it τ later: the residual is r ≈ τ·ġ_S, with g_S = R_SB·g_B
+    the predicted weight in S and ġ_S its rate of change. Over the samples the
+    estimator accepted (no contact), τ̂ = Σ r·ġ / Σ ġ·ġ with exponential
+    forgetting; its standard error is the noise over √Σ‖ġ‖², so it speaks only
+    while the tool turns, and only when the lag explains most of the residual
+    (τ̂·Σ r·ġ ≥ ``LAG_MIN_EXPLAINED`` of Σ‖r‖²): the tail of a contact that
+    happens to follow the motion for a moment explains little of its residual. A timestamp cannot show this (the poses are stamped
+    as current), a still tool cannot either (then nothing is wrong).
+
+    Args:
+        noise_N: the sensor's force noise per axis, N (for the standard error).
+    """
+
+    def __init__(self, noise_N: float = 0.12):
+        self.noise = noise_N
+        self.S_rg = self.S_gg = self.S_rr = 0.0
+        self.last: tuple[int, np.ndarray] | None = None  # (t_ns, g_S) of the last sample seen
+        self.lag_s: float | None = None
+
+    def add(self, block: AlignedSamples, est: Estimates, gravity_force_B: np.ndarray, R_SE: np.ndarray | None
+            ) -> float | None:
+        """The lag estimate after this block (s; positive: poses late), once it is resolved, else None."""
+        R_SB = block.R_EB if R_SE is None else R_SE @ block.R_EB
+        g_S = R_SB @ gravity_force_B
+        t = block.t_ns
+        if self.last is not None:
+            t = np.concatenate([[self.last[0]], t])
+            g_S = np.concatenate([self.last[1][None], g_S])
+        self.last = (int(t[-1]), g_S[-1])
+        if len(t) < 2:
+            return self.lag_s
+        dt = np.diff(t) * 1e-9
+        ok = (dt > 0) & ~est.contact[-len(dt):] & np.isfinite(est.contact_force_S[-len(dt):]).all(1)
+        g_dot = np.diff(g_S, axis=0) / np.where(dt > 0, dt, 1.0)[:, None]
+        # a pose that jumps (a stream that falls behind or catches up at once) is no motion to learn from
+        ok &= np.linalg.norm(g_dot, axis=1) <= LAG_MAX_TURN_RAD_S * np.linalg.norm(gravity_force_B)
+        r = est.contact_force_S[-len(dt):]
+        decay = np.exp(-float(dt.sum()) / LAG_MEMORY_S)
+        self.S_rg = self.S_rg * decay + float(np.einsum("ij,ij->", r[ok], g_dot[ok]))
+        self.S_gg = self.S_gg * decay + float(np.einsum("ij,ij->", g_dot[ok], g_dot[ok]))
+        self.S_rr = self.S_rr * decay + float(np.einsum("ij,ij->", r[ok], r[ok]))
+        self.lag_s = None
+        if self.S_gg > 0 and self.noise / np.sqrt(self.S_gg) < LAG_MIN_RESOLUTION_S:
+            lag = self.S_rg / self.S_gg
+            if lag * self.S_rg >= LAG_MIN_EXPLAINED * self.S_rr:
+                self.lag_s = lag
+        return self.lag_s

@@ -123,6 +123,9 @@ LAG_MEMORY_S = 0.25
 """The lag estimate forgets with this time constant, s."""
 LAG_MAX_TURN_RAD_S = 10.0
 """Faster apparent turns (a pose stream that jumps) are left out of the estimate, rad/s."""
+LAG_CONTACT_GUARD_NS = 500_000_000
+"""Samples this soon after a contact are left out of the estimate (a contact ramps down below the
+estimator's threshold before it ends), ns."""
 LAG_MIN_EXPLAINED = 0.5
 """The lag must explain this share of the residual's sum of squares before it is believed."""
 LAG_MIN_RESOLUTION_S = 0.01
@@ -150,6 +153,7 @@ class LagWatch:
         self.noise = noise_N
         self.S_rg = self.S_gg = self.S_rr = 0.0
         self.last: tuple[int, np.ndarray] | None = None  # (t_ns, g_S) of the last sample seen
+        self.contact_ns: int | None = None  # the last sample the estimator called contact
         self.lag_s: float | None = None
 
     def add(self, block: AlignedSamples, est: Estimates, gravity_force_B: np.ndarray, R_SE: np.ndarray | None
@@ -165,7 +169,12 @@ class LagWatch:
         if len(t) < 2:
             return self.lag_s
         dt = np.diff(t) * 1e-9
-        ok = (dt > 0) & ~est.contact[-len(dt):] & np.isfinite(est.contact_force_S[-len(dt):]).all(1)
+        contact = est.contact[-len(dt):]
+        if contact.any():
+            self.contact_ns = int(t[1:][contact][-1])
+        ok = (dt > 0) & ~contact & np.isfinite(est.contact_force_S[-len(dt):]).all(1)
+        if self.contact_ns is not None:  # a contact's fading tail is residual too, but no lag's
+            ok &= t[1:] - self.contact_ns > LAG_CONTACT_GUARD_NS
         g_dot = np.diff(g_S, axis=0) / np.where(dt > 0, dt, 1.0)[:, None]
         # a pose that jumps (a stream that falls behind or catches up at once) is no motion to learn from
         ok &= np.linalg.norm(g_dot, axis=1) <= LAG_MAX_TURN_RAD_S * np.linalg.norm(gravity_force_B)

@@ -14,7 +14,7 @@ from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, 
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from ...core.errors import UserError
+from ..output import atomic_output, check_output
 from .reader import RecordingError
 from .schemas import MCAP_MAGIC, RECOVERED_METADATA
 from .writer import _hapticlab_version, _metadata_strings, _utc_now_iso
@@ -23,7 +23,8 @@ from .writer import _hapticlab_version, _metadata_strings, _utc_now_iso
 _KNOWN_OPCODES = {int(op) for op in Opcode}
 
 
-def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[str]) -> dict[str, Any]:
+def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[str],
+            force: bool = False) -> dict[str, Any]:
     """Salvage a recording whose writer died (no footer/summary) into a valid MCAP file.
 
     Reads the file front to back without seeking to the end; keeps every
@@ -39,15 +40,13 @@ def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[s
     "chunks": salvaged chunks, "corrupt_chunks": skipped, "orphan_messages":
     messages whose channel was lost, "metadata": [record names], "complete":
     the input had a proper end, "last_t_ns": latest log time or None}``.
-    Raises :class:`RecordingError` when the input is not an MCAP file.
+    Raises :class:`RecordingError` when the input is not an MCAP file. The
+    output is checked first (its folder must exist; an existing file is refused
+    unless ``force``) and written whole or not at all (``sessions.output``).
     """
     src = Path(broken_path)
-    dst = Path(fixed_path)
-    if src.resolve() == dst.resolve():
-        raise UserError("recover: the output must be a different file than the broken input")
+    dst = check_output(fixed_path, force, label="-o", inputs=[src], role="broken input")
     size = src.stat().st_size
-    tmp = dst.with_name(dst.name + ".partial")
-    dst.parent.mkdir(parents=True, exist_ok=True)
 
     stats: dict[str, Any] = {
         "messages": 0,
@@ -73,7 +72,7 @@ def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[s
             raise RecordingError(
                 f"{src} is not an MCAP file (bad magic bytes at the start): nothing to recover"
             )
-        with open(tmp, "wb") as out_file:
+        with atomic_output(dst, force, label="-o") as tmp, open(tmp, "wb") as out_file:
             writer = Writer(out_file, compression=CompressionType.ZSTD)
             started = False
 
@@ -188,5 +187,4 @@ def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[s
                 ),
             )
             writer.finish()
-    os.replace(tmp, dst)
     return stats

@@ -390,7 +390,7 @@ def test_flush_is_time_based(tmp_path, monkeypatch):
     def on_disk() -> int:
         copy = tmp_path / "copy.mcap"
         shutil.copyfile(path, copy)
-        return recover(copy, tmp_path / "copy_fixed.mcap")["messages"]
+        return recover(copy, tmp_path / "copy_fixed.mcap", force=True)["messages"]
 
     for i in range(10):
         rec.write("/haptic/command", i, {"force_D": [0.0, 0.0, float(i)], "enabled": True})
@@ -522,7 +522,7 @@ def test_truncated_at_arbitrary_offsets_recovers_complete_chunks(tmp_path, many_
         broken.write_bytes(data[:cut])
         with pytest.raises(RecordingError, match="hapticlab recover"):
             read_recording(broken)
-        stats = recover(broken, fixed)
+        stats = recover(broken, fixed, force=True)
         complete = [c for c in chunks if c[1] <= cut]
         expected = [m for c in complete for m in c[2]]
         assert stats["messages"] == len(expected), cut
@@ -542,7 +542,7 @@ def test_truncated_at_arbitrary_offsets_recovers_complete_chunks(tmp_path, many_
     # cut inside the magic: nothing to salvage
     broken.write_bytes(data[:5])
     with pytest.raises(RecordingError, match="nothing to recover"):
-        recover(broken, fixed)
+        recover(broken, fixed, force=True)
 
 
 def test_recover_of_a_complete_file_keeps_everything(tmp_path, every_topic):

@@ -5,13 +5,22 @@
 
 Every estimator of this model reports its state through these two functions,
 so the contact wrench means the same thing whichever one produced it.
+
+And which samples the model may see at all: ``SampleGuard`` refuses, per
+sample, a NaN or inf, an R_EB that is not a rotation and a wrench beyond a
+physical bound before an estimator's state can be touched by it, counts the
+refusals and reports them as ``sample_refused`` events (docs/estimators.md,
+"Refused samples").
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .frames import cross
+from .types import AlignedSamples, Estimates, Event
 
 
 def contact_wrench(
@@ -42,3 +51,200 @@ def named_params(x_force: np.ndarray, x_torque: np.ndarray) -> dict[str, list[fl
         "cog_S": x_torque[:3].tolist(),
         "bias_torque_S": x_torque[3:].tolist(),
     }
+
+
+# ------------------------------------------------------------------ which samples the model may see
+
+MAX_FORCE = 1e4
+"""Default ``max_force``, N: a force component beyond it is not a reading (a six-axis sensor's range is
+~1e2–1e3 N; the live loop also checks the sensor's own range)."""
+MAX_TORQUE = 1e3
+"""Default ``max_torque``, N·m."""
+LARGEST_BOUND = (1e6, 1e5)
+"""The largest ``max_force`` (N) and ``max_torque`` (N·m) accepted: beyond, squares summed over a
+long session come near the float range, and no sensor reads that much."""
+ROTATION_TOLERANCE = 1e-6
+"""An R_EB with ‖R_EB R_EBᵀ − I‖_F above this, or det ≤ 0, is not a rotation."""
+REFUSAL_REPORT_NS = 1_000_000_000
+"""After the first ``sample_refused`` event, at most one per this long (sample time), ns."""
+
+NON_FINITE, NOT_A_ROTATION, BEYOND_THE_BOUND = "non-finite", "not a rotation", "beyond the bound"
+REASONS = (NON_FINITE, NOT_A_ROTATION, BEYOND_THE_BOUND)
+"""Why a sample is refused, in the order they are tested (code i + 1 in ``refusal_codes``)."""
+
+_I3 = np.eye(3)
+
+
+def wrench_bound(key: str, value, largest: float) -> float:
+    """A ``max_force`` / ``max_torque`` option: a finite number in (0, largest]; ValueError naming the key."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= largest:
+        raise ValueError(f"{key}: must be a number > 0 and <= {largest:g} (a bound far above the sensor's "
+                         f"range), got {value!r}")
+    return float(value)
+
+
+def refusal_codes(force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, max_force: float,
+                  max_torque: float, extras: tuple = ()) -> np.ndarray:
+    """(m,) int: 0 for a sample the model may see, else 1 + the index of its reason in ``REASONS``.
+
+    Non-finite: a NaN or inf in force_S (m, 3), torque_S (m, 3), R_EB (m, 3, 3) or one of ``extras``
+    (arrays of m rows the estimator also uses, e.g. positions). Not a rotation: ‖R Rᵀ − I‖_F >
+    ROTATION_TOLERANCE or det R ≤ 0. Beyond the bound: a force component's magnitude above
+    ``max_force`` (N) or a torque component's above ``max_torque`` (N·m).
+    """
+    m = len(force_S)
+    finite = np.isfinite(force_S).all(1) & np.isfinite(torque_S).all(1) & np.isfinite(R_EB).all(axis=(1, 2))
+    for extra in extras:
+        finite &= np.isfinite(extra).reshape(m, -1).all(1)
+    R = np.where(finite[:, None, None], R_EB, _I3)  # what is left to test is finite
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e300 entries overflow to inf: not a rotation
+        G = R @ R.transpose(0, 2, 1)
+        G -= _I3
+        rotation = (np.einsum("kij,kij->k", G, G) <= ROTATION_TOLERANCE ** 2) & (np.linalg.det(R) > 0)
+    inside = (np.abs(force_S).max(1) <= max_force) & (np.abs(torque_S).max(1) <= max_torque)
+    return np.where(~finite, 1, np.where(~rotation, 2, np.where(~inside, 3, 0)))
+
+
+def all_plausible(force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, max_force: float,
+                  max_torque: float) -> bool:
+    """True when ``refusal_codes`` would refuse none of the samples (a screen: False means "look closer").
+
+    One vectorised pass over the block: magnitudes first (a NaN fails every comparison, and
+    entries of R_EB within 1 + 1e-6 keep R Rᵀ finite), then ‖R Rᵀ − I‖_F summed over the
+    block (stricter than per sample: a block that fails only on the sum is looked at closer)
+    and det R. One sample (the live loop's usual block at 1 kHz) is checked in Python floats
+    instead: measured 2.8 µs against ~30 µs for the vectorised pass's dozen numpy calls (2-core
+    machine under load).
+    """
+    m = len(force_S)
+    if m == 1:
+        (f0, f1, f2), = force_S.tolist()
+        (t0, t1, t2), = torque_S.tolist()
+        ((a, b, c), (d, e, g), (h, i, j)), = R_EB.tolist()
+        if not (-max_force <= f0 <= max_force and -max_force <= f1 <= max_force and -max_force <= f2 <= max_force
+                and -max_torque <= t0 <= max_torque and -max_torque <= t1 <= max_torque
+                and -max_torque <= t2 <= max_torque):
+            return False  # NaN fails every comparison
+        n0, n1, n2 = a * a + b * b + c * c - 1.0, d * d + e * e + g * g - 1.0, h * h + i * i + j * j - 1.0
+        o01, o02, o12 = a * d + b * e + c * g, a * h + b * i + c * j, d * h + e * i + g * j
+        frobenius2 = n0 * n0 + n1 * n1 + n2 * n2 + 2.0 * (o01 * o01 + o02 * o02 + o12 * o12)
+        return frobenius2 <= ROTATION_TOLERANCE ** 2 and a * (e * j - g * i) - b * (d * j - g * h) + c * (d * i - e * h) > 0
+    if m == 0:
+        return True
+    largest = np.maximum.reduce  # (the ndarray.max method costs ~1 µs more per call)
+    if not (largest(np.abs(force_S), axis=None) <= max_force and largest(np.abs(torque_S), axis=None) <= max_torque
+            and largest(np.abs(R_EB), axis=None) <= 1.0 + ROTATION_TOLERANCE):
+        return False
+    G = R_EB @ R_EB.transpose(0, 2, 1)
+    G -= _I3
+    G = G.reshape(-1)
+    return bool(G @ G <= ROTATION_TOLERANCE ** 2 and np.minimum.reduce(np.linalg.det(R_EB)) > 0)
+
+
+class SampleGuard:
+    """Refuses, per sample, what an estimator's model must not see; counts and reports the refusals.
+
+    ``run(block, update, flags)`` gives ``update`` the block without its refused samples (the
+    block itself when none is refused: the accepted samples' arithmetic is untouched), so the
+    estimator's state is exactly what it would be had those samples never arrived. Refused rows
+    of the result have NaN contact wrench, no contact, and the convergence flags of the row
+    before them. Events: one ``sample_refused`` at the first refusal, then at most one per
+    REFUSAL_REPORT_NS of sample time with the count since the last one.
+
+    Args:
+        source: the estimator's name, first word of the events' messages.
+        max_force: bound on each force component's magnitude, N (``wrench_bound``).
+        max_torque: bound on each torque component's magnitude, N·m.
+
+    Attributes:
+        refused: samples refused so far. by_reason: the same per reason (``REASONS``).
+        events: the events not yet drained.
+    """
+
+    def __init__(self, source: str, max_force: float = MAX_FORCE, max_torque: float = MAX_TORQUE):
+        self.source = source
+        self.max_force = wrench_bound("max_force", max_force, LARGEST_BOUND[0])
+        self.max_torque = wrench_bound("max_torque", max_torque, LARGEST_BOUND[1])
+        self.refused = 0
+        self.by_reason = dict.fromkeys(REASONS, 0)
+        self.events: list[Event] = []
+        self._unreported = dict.fromkeys(REASONS, 0)  # refusals since the last event, by reason
+        self._pending = 0  # ... and in all
+        self._reported_ns: int | None = None
+
+    def run(self, block: AlignedSamples, update: Callable[[AlignedSamples], Estimates],
+            flags: tuple[bool, bool], extras: tuple = ()) -> Estimates:
+        """``update`` over the accepted samples of ``block``; one row per sample of ``block``.
+
+        Args:
+            update: the estimator's own update over a block. flags: (converged_force,
+                converged_torque) before the block. extras: more arrays of the block's rows the
+                estimator uses (quat_BE, p_BoEo_B), checked for finiteness.
+        """
+        ok = self.accepted(block, extras)
+        if ok is None:
+            return update(block)
+        out = update(block.subset(ok)) if ok.any() else None
+        return refused_rows(block.t_ns, ok, out, flags)
+
+    def accepted(self, block: AlignedSamples, extras: tuple = ()) -> np.ndarray | None:
+        """None when every sample may be used (the usual case), else the (m,) mask of those that may."""
+        if all_plausible(block.force_S, block.torque_S, block.R_EB, self.max_force, self.max_torque) and (
+                not extras or all(np.isfinite(extra).all() for extra in extras)):
+            if self._pending:  # refusals held back by the interval: report them once it has passed
+                self._report(int(block.t_ns[-1]))
+            return None
+        codes = refusal_codes(block.force_S, block.torque_S, block.R_EB, self.max_force, self.max_torque, extras)
+        ok = codes == 0
+        if ok.all():
+            return None
+        for reason, count in zip(REASONS, np.bincount(codes, minlength=4)[1:].tolist()):
+            self.by_reason[reason] += count
+            self._unreported[reason] += count
+            self._pending += count
+        self.refused += int(np.count_nonzero(~ok))
+        self._report(int(block.t_ns[np.flatnonzero(~ok)[-1]]))
+        return ok
+
+    def _report(self, t_ns: int) -> None:
+        """The refusals not yet reported as one event, unless the last event is less than the interval ago."""
+        if self._reported_ns is not None and t_ns - self._reported_ns < REFUSAL_REPORT_NS:
+            return
+        counts = {reason: n for reason, n in self._unreported.items() if n}
+        new = self._pending
+        why = {NON_FINITE: "NaN or inf in the force, torque or pose",
+               NOT_A_ROTATION: f"R_EB not a rotation (‖R Rᵀ − I‖ > {ROTATION_TOLERANCE:g} or det ≤ 0)",
+               BEYOND_THE_BOUND: f"beyond the bound (a force component above max_force = {self.max_force:g} N "
+                                 f"or a torque component above max_torque = {self.max_torque:g} N·m)"}
+        since = "" if self._reported_ns is None else " since the last report"
+        message = (f"{self.source}: {new} sample{'s' if new > 1 else ''} refused{since}: "
+                   + "; ".join(f"{n} {why[reason]}" for reason, n in counts.items())
+                   + f"; {self.refused} in all, the estimate left as it was")
+        self.events.append(Event(t_ns, "sample_refused", message,
+                                 {"count": self.refused, "new": new, "reasons": counts}))
+        self._unreported = dict.fromkeys(REASONS, 0)
+        self._pending = 0
+        self._reported_ns = t_ns
+
+    def drain_events(self) -> list[Event]:
+        """The events since the last call."""
+        out, self.events = self.events, []
+        return out
+
+
+def refused_rows(t_ns: np.ndarray, ok: np.ndarray, out: Estimates | None, flags: tuple[bool, bool]) -> Estimates:
+    """Estimates for every row of a block from ``out``, the estimates of its accepted rows (``ok``).
+
+    A refused row gets NaN contact wrench, no contact, and the convergence flags after the
+    accepted row before it (``flags`` before the block when there is none).
+    """
+    m = len(ok)
+    force, torque = np.full((m, 3), np.nan), np.full((m, 3), np.nan)
+    contact = np.zeros(m, dtype=bool)
+    conv_f, conv_t = np.full(m, flags[0], dtype=bool), np.full(m, flags[1], dtype=bool)
+    if out is not None:
+        force[ok], torque[ok], contact[ok] = out.contact_force_S, out.contact_torque_S, out.contact
+        follows = np.cumsum(ok) - 1  # index in ``out`` of the accepted row at or before each row (-1: none)
+        seen = follows >= 0
+        conv_f[seen], conv_t[seen] = out.converged_force[follows[seen]], out.converged_torque[follows[seen]]
+    return Estimates(t_ns, force, torque, contact, conv_f, conv_t)

@@ -34,6 +34,8 @@ block at a fraction of the per-sample cost.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.linalg.lapack import dposv
 
@@ -49,6 +51,7 @@ class RecursiveLeastSquares:
         eta: (6,) information vector η_k = Λ_k x_k.
         r: measurement-noise variance, R = r·I3 (units of y squared).
         updates: number of samples used so far.
+        failed: samples left out because their solve failed (``run_gated``).
     """
 
     def __init__(self, x0: np.ndarray, P0: float, R: float):
@@ -57,11 +60,15 @@ class RecursiveLeastSquares:
         self.eta = self.Lambda @ self.x
         self.r = float(R)
         self.updates = 0
+        self.failed = 0
 
     @property
     def P(self) -> np.ndarray:
-        """(6, 6) estimation-error covariance P_k = Λ_k⁻¹."""
-        return np.linalg.inv(self.Lambda)
+        """(6, 6) estimation-error covariance P_k = Λ_k⁻¹ (inf if Λ cannot be inverted: nothing is known)."""
+        try:
+            return np.linalg.inv(self.Lambda)
+        except np.linalg.LinAlgError:
+            return np.full((6, 6), np.inf)
 
     def predict(self, A: np.ndarray, x: np.ndarray | None = None) -> np.ndarray:
         """(m, 3) measurements C_k x predicted for (m, 3, 3) A by x (default: the current estimate)."""
@@ -142,10 +149,16 @@ def run_gated(
     cut at the first sample the gate would refuse, so the result equals
     sample-by-sample processing.
 
+    A numerical corner never raises: where a run's solve fails (``LinAlgError``)
+    or gives a non-finite x, its first sample is taken alone; a sample whose own
+    solve fails leaves the stage as it was (counted in ``stage.failed``), is not
+    gated, and is marked not converged (the stage's flag is kept).
+
     Args:
         stage: the RLS stage, updated in place: a ``RecursiveLeastSquares``,
             or anything with its ``x``, ``predict``, ``propose``, ``propose_one``
-            and ``commit`` (``core.rls_printed``, whose proposals are (x, P, K)).
+            and ``commit`` (``core.rls_printed``, whose proposals are (x, P, K)),
+            and a ``failed`` count.
         y: (m, 3) measurements. A: (m, 3, 3) the A_k of each sample.
         active: (m,) bool, samples this stage sees.
         threshold: contact threshold on the residual norm (units of y).
@@ -182,11 +195,21 @@ def run_gated(
                 gated[i : i + n] = True
                 i += n
                 continue
-        Xp, S1, S2 = stage.propose(y[i:end], A[i:end])  # x and the stage's (Λ, η) or (P, K) after each sample
-        dx = Xp.copy()
-        dx[0] -= stage.x
-        dx[1:] -= Xp[:-1]
-        conv_p = np.einsum("ij,ij->i", dx, dx) < epsilon2
+        try:
+            Xp, S1, S2 = stage.propose(y[i:end], A[i:end])  # x and the stage's (Λ, η) or (P, K) after each sample
+        except np.linalg.LinAlgError:
+            Xp = None
+        if Xp is not None:
+            dx = Xp.copy()
+            dx[0] -= stage.x
+            dx[1:] -= Xp[:-1]
+            step2 = np.einsum("ij,ij->i", dx, dx)
+        if Xp is None or not np.maximum.reduce(step2) < math.inf:  # a numerical corner: this sample alone
+            X[i : i + 1], conv[i : i + 1], gated[i : i + 1], converged = _run_gated_one(
+                stage, y[i : i + 1], A[i : i + 1], True, threshold, epsilon, converged)
+            i += 1
+            continue
+        conv_p = step2 < epsilon2
         # Would the gate refuse the sample after each one? (needs x and the flag after it)
         residual_next = (A[i + 1 : end] @ Xp[:-1, :3, None])[:, :, 0] + Xp[:-1, 3:] - y[i + 1 : end]
         stop = conv_p[:-1] & ~(np.einsum("ij,ij->i", residual_next, residual_next) < threshold2)
@@ -205,9 +228,17 @@ def _run_gated_one(stage, y, A, active, threshold, epsilon, converged):
         residual = A[0] @ stage.x[:3] + stage.x[3:] - y[0]
         if converged and not residual @ residual < threshold * threshold:
             return stage.x[None, :], np.ones(1, dtype=bool), np.ones(1, dtype=bool), converged
-        x, S1, S2 = stage.propose_one(y[0], A[0])
-        dx = x - stage.x
-        converged = bool(dx @ dx < epsilon * epsilon)
+        try:
+            x, S1, S2 = stage.propose_one(y[0], A[0])
+        except np.linalg.LinAlgError:
+            x = None
+        if x is not None:
+            dx = x - stage.x
+            step2 = dx @ dx
+        if x is None or not step2 < math.inf:  # the solve failed: the stage stays as it was
+            stage.failed += 1
+            return stage.x[None, :], np.zeros(1, dtype=bool), np.zeros(1, dtype=bool), converged
+        converged = bool(step2 < epsilon * epsilon)
         stage.commit(x, S1, S2, 1)
         return x[None, :], np.array([converged]), np.zeros(1, dtype=bool), converged
     return stage.x[None, :], np.array([converged]), np.zeros(1, dtype=bool), converged

@@ -63,6 +63,7 @@ class PrintedRecursiveLeastSquares:
         K: (6, 3) gain K_k of the last update used (zeros before the first).
         R: (3, 3) measurement-noise covariance r·I3 (units of y squared).
         updates: number of samples used so far.
+        failed: samples left out because their update failed (``core.rls.run_gated``).
     """
 
     predict = RecursiveLeastSquares.predict  # C_k x from x alone: the same in both forms
@@ -73,6 +74,7 @@ class PrintedRecursiveLeastSquares:
         self.K = np.zeros((6, 3))
         self.R = R * np.eye(3)
         self.updates = 0
+        self.failed = 0
 
     def propose(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Estimates after each of m samples if every one of them is used, one sample at a time.

@@ -16,6 +16,15 @@ the same gating and convergence test, so the difference can be measured
 (docs/estimators.md, ``rls``: up to ~2 N of contact force in the first samples
 when the orientation changes at every sample, 4e-7 N on ``bench paper``'s tour).
 
+Bad input (docs/estimators.md, "Refused samples"): a sample with a NaN or inf,
+an R_EB that is not a rotation, or a force or torque component beyond
+``max_force`` / ``max_torque`` is refused before either stage sees it, so the
+stages hold exactly what they would hold had it never arrived (Algorithm 1
+itself would take a NaN before convergence into x for good). Its row is NaN,
+no contact, with the flags of the row before; ``refused_samples`` counts them
+and ``drain_events()`` reports them (``sample_refused``). A solve that fails on
+finite input leaves the stage as it was and marks that sample not converged.
+
 Nothing here improves on the paper: improvements are other estimators or
 named options elsewhere, so the paper's method stays measurable.
 """
@@ -26,10 +35,10 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.frames import skew_stack
-from ...core.model import contact_wrench, named_params
+from ...core.model import MAX_FORCE, MAX_TORQUE, SampleGuard, contact_wrench, named_params
 from ...core.rls import RecursiveLeastSquares, run_gated
 from ...core.rls_printed import PrintedRecursiveLeastSquares
-from ...core.types import AlignedSamples, Estimates
+from ...core.types import AlignedSamples, Estimates, Event
 
 
 class RLSEstimator:
@@ -47,6 +56,8 @@ class RLSEstimator:
             the paper's estimate without the rounding of its printed P update;
             ``"printed"``: P_k = (I − K_k C_k) P_{k−1} exactly as printed
             (paper eq. 28), to measure what that rounding does.
+        max_force: a sample with a force component beyond this (N) is refused.
+        max_torque: the same for a torque component (N·m).
 
     Attributes:
         force, torque: the two stages (``RecursiveLeastSquares``, or
@@ -55,7 +66,10 @@ class RLSEstimator:
             keeps them (recomputed at every sample a stage uses).
         first_converged_force, first_converged_torque: index of the sample at
             which each flag first became true (None until then).
-        samples: samples seen.
+        samples: samples seen, refused ones included (the first_converged
+            indices count them too: they are rows of the estimates).
+        refused_samples: samples refused as bad input (never given to a stage).
+        failed_solves: samples a stage could not solve for (left out, not converged).
     """
 
     def __init__(
@@ -67,6 +81,8 @@ class RLSEstimator:
         epsilon: float = 1e-3,
         seed: int = 0,
         covariance_update: str = "information",
+        max_force: float = MAX_FORCE,
+        max_torque: float = MAX_TORQUE,
     ):
         for key, value in (("force_threshold", force_threshold), ("torque_threshold", torque_threshold),
                            ("P0", P0), ("R", R), ("epsilon", epsilon)):
@@ -75,6 +91,7 @@ class RLSEstimator:
         if covariance_update not in ("information", "printed"):
             raise ValueError(f"covariance_update: must be 'information' or 'printed' (the paper's eq. 28 as "
                              f"printed), got {covariance_update!r}")
+        self.guard = SampleGuard("rls", max_force, max_torque)
         stage = PrintedRecursiveLeastSquares if covariance_update == "printed" else RecursiveLeastSquares
         rng = np.random.default_rng(seed)
         self.force_threshold = force_threshold
@@ -90,11 +107,17 @@ class RLSEstimator:
         self.samples = 0
 
     def update_block(self, block: AlignedSamples) -> Estimates:
-        """Run Algorithm 1 over a block of aligned samples, in order."""
-        m = len(block)
+        """Run Algorithm 1 over a block of aligned samples, in order (bad samples refused first)."""
+        out = self.guard.run(block, self._update, (self.converged_force, self.converged_torque))
+        self._note_first(out.converged_force, out.converged_torque)
+        self.samples += len(block)
+        return out
+
+    def _update(self, block: AlignedSamples) -> Estimates:
+        """Algorithm 1 over samples that passed the guard."""
         force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
         X_f, conv_f, gated_f, self.converged_force = run_gated(
-            self.force, force_S, R_EB, np.ones(m, dtype=bool),
+            self.force, force_S, R_EB, np.ones(len(block), dtype=bool),
             self.force_threshold, self.epsilon, self.converged_force,
         )
         A_t = -skew_stack(force_S - X_f[:, 3:])  # C_k = [-skew(Δf), I3]
@@ -103,9 +126,6 @@ class RLSEstimator:
             self.torque_threshold, self.epsilon, self.converged_torque,
         )
         contact_force_S, contact_torque_S = contact_wrench(force_S, torque_S, R_EB, X_f, X_t)
-
-        self._note_first(conv_f, conv_t)
-        self.samples += m
         return Estimates(
             t_ns=block.t_ns,
             contact_force_S=contact_force_S,
@@ -120,6 +140,20 @@ class RLSEstimator:
             self.first_converged_force = self.samples + int(np.argmax(conv_f))
         if self.first_converged_torque is None and conv_t.any():
             self.first_converged_torque = self.samples + int(np.argmax(conv_t))
+
+    @property
+    def refused_samples(self) -> int:
+        """Samples refused as bad input so far."""
+        return self.guard.refused
+
+    @property
+    def failed_solves(self) -> int:
+        """Samples a stage's solve failed on (left out and marked not converged)."""
+        return self.force.failed + self.torque.failed
+
+    def drain_events(self) -> list[Event]:
+        """The events since the last call (EmitsEvents): ``sample_refused``."""
+        return self.guard.drain_events()
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units)."""

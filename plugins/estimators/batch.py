@@ -6,6 +6,14 @@ parameters. At each sample k it uses the least-squares solution over samples
 0..k (minimum-norm while the poses seen so far do not yet determine it), or,
 with ``calibration_samples = n``, fits the first n samples and then holds the
 parameters, which is how a calibrate-then-use workflow runs.
+
+Bad input (docs/estimators.md, "Refused samples"): a sample with a NaN or inf,
+an R_EB that is not a rotation, or a force or torque component beyond
+``max_force`` / ``max_torque`` is refused before the fit sees it (it does not
+count towards ``calibration_samples`` either); its row is NaN, no contact, with
+the flags of the row before; ``refused_samples`` counts them and
+``drain_events()`` reports them (``sample_refused``). A block whose solve fails
+(``LinAlgError``) leaves the fit as it was and its samples not converged.
 """
 
 from __future__ import annotations
@@ -15,31 +23,54 @@ import numpy as np
 from ...core import hookimpl
 from ...core.batch import normal_terms
 from ...core.frames import cross, skew_stack
-from ...core.model import contact_wrench, named_params
-from ...core.types import AlignedSamples, Estimates
+from ...core.model import MAX_FORCE, MAX_TORQUE, SampleGuard, contact_wrench, named_params
+from ...core.types import AlignedSamples, Estimates, Event
+
 
 class _RunningFit:
-    """Least squares over a growing sample set, solved after every sample."""
+    """Least squares over a growing sample set, solved after every sample.
+
+    Attributes: CtC (6, 6), Cty (6,) the sums so far; x (6,) the solution; rcond its
+    conditioning (``add``); failed: samples left out because their solve failed.
+    """
 
     def __init__(self):
         self.CtC = np.zeros((6, 6))
         self.Cty = np.zeros(6)
         self.x = np.zeros(6)
         self.rcond = 0.0
+        self.failed = 0
 
     def add(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Add m samples; return x (m, 6) and rcond (m,) after each one."""
+        """Add m samples; return x (m, 6) and rcond (m,) after each one.
+
+        If the solve fails (``LinAlgError``, e.g. "SVD did not converge"), nothing is added:
+        x stays as it was and rcond is 0 for the m samples (not converged).
+        """
         CtC, Cty = normal_terms(y, A)
         CtC = np.cumsum(CtC, axis=0) + self.CtC
         Cty = np.cumsum(Cty, axis=0) + self.Cty
-        # conditioning after scaling each parameter to unit diagonal (the units differ)
+        # conditioning after scaling each parameter to unit diagonal (the units differ); a
+        # parameter no sample has touched yet (a zero diagonal: its row is zero) scales by 1
         d = np.sqrt(np.einsum("kii->ki", CtC))
+        d = np.where(d > 0, d, 1.0)
         scaled = CtC / (d[:, :, None] * d[:, None, :])
-        s = np.linalg.svd(scaled, compute_uv=False)
+        try:
+            s = np.linalg.svd(scaled, compute_uv=False)
+            X = (np.linalg.pinv(CtC, rcond=1e-12) @ Cty[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            self.failed += len(y)
+            return np.broadcast_to(self.x, (len(y), 6)).copy(), np.zeros(len(y))
         rcond = s[:, -1] / s[:, 0]
-        X = (np.linalg.pinv(CtC, rcond=1e-12) @ Cty[:, :, None])[:, :, 0]
         self.CtC, self.Cty, self.x, self.rcond = CtC[-1], Cty[-1], X[-1], float(rcond[-1])
         return X, rcond
+
+    def cov_diag(self) -> np.ndarray:
+        """(6,) diagonal of (CᵀC)⁺ (inf if its SVD fails)."""
+        try:
+            return np.diag(np.linalg.pinv(self.CtC))
+        except np.linalg.LinAlgError:
+            return np.full(6, np.inf)
 
 
 class BatchEstimator:
@@ -53,7 +84,16 @@ class BatchEstimator:
         torque_threshold: the same for torque (N·m).
         min_rcond: the fit counts as converged once the normal matrix, scaled to
             unit diagonal, has a reciprocal condition number of at least this
-            (the poses seen so far determine every parameter).
+            (the poses seen so far determine every parameter); in [1e-12, 1]:
+            below, a numerically singular fit would count as converged.
+        max_force: a sample with a force component beyond this (N) is refused.
+        max_torque: the same for a torque component (N·m).
+
+    Attributes:
+        force, torque: the two running fits (the torque one of [cog_S, bias_torque_S − cog_S × bias_force_S]).
+        samples: samples seen, refused ones included. fitted: samples given to the fits.
+        refused_samples: samples refused as bad input.
+        failed_solves: samples left out because a fit's solve failed.
     """
 
     def __init__(
@@ -62,9 +102,16 @@ class BatchEstimator:
         force_threshold: float = 1.0,
         torque_threshold: float = 0.1,
         min_rcond: float = 1e-4,
+        max_force: float = MAX_FORCE,
+        max_torque: float = MAX_TORQUE,
     ):
         if calibration_samples < 0:
             raise ValueError(f"calibration_samples: must be >= 0, got {calibration_samples}")
+        if isinstance(min_rcond, bool) or not isinstance(min_rcond, (int, float)) or not 1e-12 <= min_rcond <= 1:
+            raise ValueError(f"min_rcond: must be a number from 1e-12 to 1 (a reciprocal condition number: "
+                             f"below 1e-12 a singular fit counts as converged, above 1 none ever does), "
+                             f"got {min_rcond!r}")
+        self.guard = SampleGuard("batch", max_force, max_torque)
         self.calibration_samples = calibration_samples
         self.force_threshold = force_threshold
         self.torque_threshold = torque_threshold
@@ -72,12 +119,20 @@ class BatchEstimator:
         self.force = _RunningFit()
         self.torque = _RunningFit()
         self.samples = 0
+        self.fitted = 0
 
     def update_block(self, block: AlignedSamples) -> Estimates:
-        """Contact wrench of each sample with the fit over the samples up to it."""
+        """Contact wrench of each sample with the fit over the samples up to it (bad samples refused first)."""
+        flags = (self.force.rcond >= self.min_rcond, self.torque.rcond >= self.min_rcond)
+        out = self.guard.run(block, self._update, flags)
+        self.samples += len(block)
+        return out
+
+    def _update(self, block: AlignedSamples) -> Estimates:
+        """The fit over samples that passed the guard."""
         m = len(block)
         force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
-        n_fit = m if not self.calibration_samples else max(0, min(m, self.calibration_samples - self.samples))
+        n_fit = m if not self.calibration_samples else max(0, min(m, self.calibration_samples - self.fitted))
         X_f = np.broadcast_to(self.force.x, (m, 6)).copy()
         X_t = np.broadcast_to(self.torque.x, (m, 6)).copy()
         rc_f = np.full(m, self.force.rcond)
@@ -90,7 +145,7 @@ class BatchEstimator:
         # The torque fit is linear in [p, tau0 − p × f0]; recover tau0.
         X_t[:, 3:] += cross(X_t[:, :3], X_f[:, 3:])
         contact_force_S, contact_torque_S = contact_wrench(force_S, torque_S, R_EB, X_f, X_t)
-        self.samples += m
+        self.fitted += n_fit
         return Estimates(
             t_ns=block.t_ns,
             contact_force_S=contact_force_S,
@@ -101,6 +156,20 @@ class BatchEstimator:
             converged_torque=rc_t >= self.min_rcond,
         )
 
+    @property
+    def refused_samples(self) -> int:
+        """Samples refused as bad input so far."""
+        return self.guard.refused
+
+    @property
+    def failed_solves(self) -> int:
+        """Samples a fit's solve failed on (left out and marked not converged)."""
+        return self.force.failed + self.torque.failed
+
+    def drain_events(self) -> list[Event]:
+        """The events since the last call (EmitsEvents): ``sample_refused``."""
+        return self.guard.drain_events()
+
     def params(self) -> dict[str, list[float]]:
         """Fitted parameters with physical names (SI units)."""
         x_f, x_t = self.force.x, self.torque.x.copy()
@@ -109,9 +178,7 @@ class BatchEstimator:
 
     def cov_diag(self) -> list[float]:
         """Diagonal of (CᵀC)⁺ for force then torque: the unscaled parameter covariance."""
-        return np.concatenate(
-            [np.diag(np.linalg.pinv(self.force.CtC)), np.diag(np.linalg.pinv(self.torque.CtC))]
-        ).tolist()
+        return np.concatenate([self.force.cov_diag(), self.torque.cov_diag()]).tolist()
 
 
 @hookimpl

@@ -66,12 +66,16 @@ class StageRun:
         D: (m, n) diagonal of P after each sample.
         gated: (m,) True where the gate refused the sample.
         d2: (m,) squared Mahalanobis distance of the innovation (NaN where inactive).
+        failed: (m,) True where the update could not be computed (S singular or
+            not numerically positive definite): predicted only, not gated; None
+            when every update could be.
     """
 
     X: np.ndarray
     D: np.ndarray
     gated: np.ndarray
     d2: np.ndarray
+    failed: np.ndarray | None = None
 
 
 class KalmanStage:
@@ -88,6 +92,7 @@ class KalmanStage:
 
     Attributes:
         x: (n,) state. P: (n, n) covariance. n: 6, or 9 with bias-rate states.
+        failed: samples whose update could not be computed (``StageRun.failed``).
     """
 
     def __init__(self, prior_std, bias_rw, noise, cross_noise=(0.0, 0.0, 0.0), bias_rate_rw=None):
@@ -100,6 +105,7 @@ class KalmanStage:
         self.q_rate = None if bias_rate_rw is None else np.asarray(bias_rate_rw, dtype=float).reshape(3) ** 2
         self.r = np.asarray(noise, dtype=float).reshape(3) ** 2
         self.rc = np.asarray(cross_noise, dtype=float).reshape(3) ** 2
+        self.failed = 0
 
     # The state lives either in numpy arrays (x, P) or, after the fast path ran,
     # in its Python lists; reading x or P turns the lists back into arrays (and
@@ -196,6 +202,7 @@ class KalmanStage:
         kf.P = self.P.copy()
         X, D = np.empty((m, n)), np.empty((m, n))
         gated, d2 = np.zeros(m, dtype=bool), np.full(m, np.nan)
+        failed = []
         for k in range(m):
             F, Q = self.transition(float(dt[k]))
             kf.predict(F=F, Q=Q)
@@ -204,20 +211,25 @@ class KalmanStage:
                 R = self.measurement_cov(kf.x[:3, 0])
                 e = y[k].reshape(3, 1) - H @ kf.x
                 S = H @ kf.P @ H.T + R
-                d2[k] = (e.T @ np.linalg.solve(S, e)).item()
+                try:
+                    d2[k] = (e.T @ np.linalg.solve(S, e)).item()
+                except np.linalg.LinAlgError:  # S singular: predicted only
+                    failed.append(k)
+                    X[k], D[k] = kf.x[:, 0], np.diag(kf.P)
+                    continue
                 if not d2[k] <= gate2:  # refused (a NaN is refused too)
                     gated[k] = True
                 else:
                     kf.update(y[k].reshape(3, 1), R=R, H=H)
             X[k], D[k] = kf.x[:, 0], np.diag(kf.P)
         self.x, self.P = kf.x[:, 0].copy(), kf.P.copy()
-        return StageRun(X, D, gated, d2)
+        return StageRun(X, D, gated, d2, self._failed(m, failed))
 
     def _run_fast(self, y, A, dt, active, gate2) -> StageRun:
         lists = self._lists
         if lists is None:
             lists = (self._x.tolist(), self._P[_UPPER6].tolist())
-        X, D, gated, d2, x, P = _filter6(
+        X, D, gated, d2, x, P, failed = _filter6(
             *lists, y.tolist(), A.reshape(-1, 9).tolist(), dt.tolist(), active.tolist(),
             self.q_bias.tolist(), self.r.tolist(), self.rc.tolist(), float(gate2),
         )
@@ -225,7 +237,16 @@ class KalmanStage:
         self._x = self._P = None  # built from the lists when read
         m = len(y)
         return StageRun(np.array(X).reshape(m, 6), np.array(D).reshape(m, 6), np.array(gated, dtype=bool),
-                        np.array(d2, dtype=float))
+                        np.array(d2, dtype=float), self._failed(m, failed))
+
+    def _failed(self, m: int, failed: list[int]) -> np.ndarray | None:
+        """StageRun.failed from the indices of the samples whose update failed (counted in ``self.failed``)."""
+        if not failed:
+            return None
+        self.failed += len(failed)
+        mask = np.zeros(m, dtype=bool)
+        mask[failed] = True
+        return mask
 
 
 _UPPER6 = np.triu_indices(6)
@@ -250,7 +271,7 @@ def _filter6(x, P, Y, A, DT, ACTIVE, q, r, rc, gate2):
     rc0, rc1, rc2 = rc
     cross = rc0 != 0.0 or rc1 != 0.0 or rc2 != 0.0
     nan = float("nan")
-    X, D, G, E = [], [], [], []
+    X, D, G, E, FAILED = [], [], [], [], []
     for k in range(len(Y)):
         dt = DT[k]
         if dt != 0.0:
@@ -298,23 +319,30 @@ def _filter6(x, P, Y, A, DT, ACTIVE, q, r, rc, gate2):
             e2 = y2 - (a20 * x0 + a21 * x1 + a22 * x2 + x5)
             # S = L·diag(d)·Lᵀ (LDLᵀ, L unit lower triangular): d² and the update
             # without forming S⁻¹, as three decorrelated scalar updates
-            d0 = s00
-            l10 = s01 / d0
-            l20 = s02 / d0
-            d1 = s11 - l10 * s01
-            t = s12 - l20 * s01
-            l21 = t / d1
-            d2_ = s22 - l20 * s02 - l21 * t
-            z1 = e1 - l10 * e0  # z = L⁻¹ e
-            z2 = e2 - l20 * e0 - l21 * z1
-            z0 = e0 / d0  # then D⁻¹ z
-            z1 /= d1
-            z2 /= d2_
-            d2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_  # eᵀ S⁻¹ e
-            E.append(d2)
-            if not d2 <= gate2:  # refused (a NaN is refused too)
+            try:
+                d0 = s00
+                l10 = s01 / d0
+                l20 = s02 / d0
+                d1 = s11 - l10 * s01
+                t = s12 - l20 * s01
+                l21 = t / d1
+                d2_ = s22 - l20 * s02 - l21 * t
+                z1 = e1 - l10 * e0  # z = L⁻¹ e
+                z2 = e2 - l20 * e0 - l21 * z1
+                z0 = e0 / d0  # then D⁻¹ z
+                z1 /= d1
+                z2 /= d2_
+            except ZeroDivisionError:
+                d0 = 0.0
+            if not (d0 > 0.0 and d1 > 0.0 and d2_ > 0.0):  # S not numerically positive definite: no update
+                FAILED.append(k)
+                G.append(False)
+                E.append(nan)
+            elif not (d2 := z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_) <= gate2:  # eᵀ S⁻¹ e; refused (NaN too)
+                E.append(d2)
                 G.append(True)
             else:
+                E.append(d2)
                 G.append(False)
                 # U = PCᵀ L⁻ᵀ (columns u0, u1, u2); x += U D⁻¹ L⁻¹ e; P -= U D⁻¹ Uᵀ
                 u10 = c01 - l10 * c00
@@ -377,7 +405,7 @@ def _filter6(x, P, Y, A, DT, ACTIVE, q, r, rc, gate2):
         X += (x0, x1, x2, x3, x4, x5)
         D += (p00, p11, p22, p33, p44, p55)
     P = [p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25, p33, p34, p35, p44, p45, p55]
-    return X, D, G, E, [x0, x1, x2, x3, x4, x5], P
+    return X, D, G, E, [x0, x1, x2, x3, x4, x5], P, FAILED
 
 
 class MountStage(KalmanStage):
@@ -428,6 +456,7 @@ class MountStage(KalmanStage):
         R = np.diag(self.r)
         X, D = np.empty((m, n)), np.empty((m, n))
         gated, d2 = np.zeros(m, dtype=bool), np.full(m, np.nan)
+        failed = []
         cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         C = np.zeros((3, n))
         C[:, 3:6] = I3
@@ -451,7 +480,12 @@ class MountStage(KalmanStage):
                 e = y[k] - C[:, :3] @ x[:3] - x[3:6]
                 PCt = P @ C.T
                 S = C @ PCt + R
-                d2[k] = float(e @ np.linalg.solve(S, e))
+                try:
+                    d2[k] = float(e @ np.linalg.solve(S, e))
+                except np.linalg.LinAlgError:  # S singular: predicted only
+                    failed.append(k)
+                    X[k], D[k] = x, np.diag(P)
+                    continue
                 if not d2[k] <= gate2:
                     gated[k] = True
                 else:
@@ -464,7 +498,7 @@ class MountStage(KalmanStage):
                     x[n - 3:] = 0.0
             X[k], D[k] = x, np.diag(P)
         self.x, self.P, self.R_SE = x, P, R_SE
-        return StageRun(X, D, gated, d2)
+        return StageRun(X, D, gated, d2, self._failed(m, failed))
 
 
 def _exp_so3(theta: np.ndarray) -> np.ndarray:

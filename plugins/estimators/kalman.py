@@ -55,6 +55,17 @@ states (off by default): the drift rate itself wanders by about its own size
 over ~10 min, 0.0083 N/s / √600 s ≈ **3e-4 N/s/√s**, and 2.5e-5 N·m/s/√s
 for torque.
 
+Bad input (docs/estimators.md, "Refused samples"): a sample with a NaN or inf
+(in the wrench, R_EB, and the quaternion and position where the derivatives or
+a sensor lag use them), an R_EB that is not a rotation, or a force or torque
+component beyond ``max_force`` / ``max_torque`` is refused before anything sees
+it: x, P, the flags, the noise estimate, the payload watcher, the derivative
+and lag windows and the clock stay exactly as they were (the next sample's time
+step runs from the last accepted one). Its row is NaN, no contact, with the
+flags of the row before; ``refused_samples`` counts them and ``drain_events()``
+reports them (``sample_refused``). Samples the filter may not use but that are
+sound (stale orientation, a sensor status bit) still only predict, as before.
+
 Priors (zero mean): ``prior_force_std`` 20 N (gravity and force bias: a
 surgical tool's weight plus a sensor bias), ``prior_cog_std`` 0.5 m,
 ``prior_torque_std`` 5 N·m. They only hold the parameters no pose has
@@ -84,7 +95,7 @@ from ...core.frames import (
     rotvec_from_matrix,
 )
 from ...core.kalman import I3, KalmanStage, MountStage
-from ...core.model import contact_wrench, named_params
+from ...core.model import MAX_FORCE, MAX_TORQUE, SampleGuard, contact_wrench, named_params
 from ...core.types import AlignedSamples, Estimates, Event
 from scipy.stats import chi2
 
@@ -245,13 +256,19 @@ class KalmanEstimator:
             centre of gravity (0 disables the test).
         warm_start: path to a JSON file written from ``state()`` (e.g. a
             session's ``<recording>.calibration.json``): start from its x and P.
+        max_force: a sample with a force component beyond this (N) is refused.
+        max_torque: the same for a torque component (N·m).
 
     Attributes:
         force, torque: the two KalmanStage stages.
         converged_force, converged_torque: the stages' flags after the last sample.
         first_converged_force, first_converged_torque: index of the sample at
             which each flag first became true (None until then).
-        samples: samples seen.
+        samples: samples seen, refused ones included (the first_converged
+            indices count them too: they are rows of the estimates).
+        refused_samples: samples refused as bad input (never given to a stage).
+        failed_solves: samples whose update could not be computed (S singular or
+            not positive definite): predicted only, marked not converged.
         gate2: the gate on the squared Mahalanobis distance.
     """
 
@@ -285,6 +302,8 @@ class KalmanEstimator:
         gain_force_S: list[list[float]] | None = None,
         gain_torque_S: list[list[float]] | None = None,
         effects: list[str] | None = None,
+        max_force: float = MAX_FORCE,
+        max_torque: float = MAX_TORQUE,
     ):
         # the effects list names the options it stands for (the discrepancy workflow's vocabulary)
         for effect in effects or []:
@@ -346,6 +365,7 @@ class KalmanEstimator:
         if not isinstance(warm_start, str):
             raise ValueError(f"warm_start: must be a path (string), got {warm_start!r}")  # noqa: TRY004
         R_SE = mount_matrix(mount_rotation_SE, mount_R_SE)
+        self.guard = SampleGuard("kalman", max_force, max_torque)
         self.gain_inverse_force = _gain_inverse("gain_force_S", gain_force_S)
         self.gain_inverse_torque = _gain_inverse("gain_torque_S", gain_torque_S)
 
@@ -408,10 +428,26 @@ class KalmanEstimator:
             self.load_state(warm_start)
 
     def update_block(self, block: AlignedSamples) -> Estimates:
-        """Filter a block of aligned samples, in order."""
+        """Filter a block of aligned samples, in order (bad samples refused first)."""
+        start, first = self.samples, (self.first_converged_force, self.first_converged_torque)
+        extras = ()
+        if self.derivatives is not None or self.time_lag_s < 0:  # the pose's quaternion and position are used
+            extras = tuple(a for a in (block.quat_BE, block.p_BoEo_B) if a is not None)
+        out = self.guard.run(block, self._filter_block, (self.converged_force, self.converged_torque), extras)
+        if self.samples != start + len(block):
+            # samples refused: the filter counted the accepted ones; the indices are rows of the block
+            if first[0] is None and self.first_converged_force is not None:
+                self.first_converged_force = start + int(np.argmax(out.converged_force))
+            if first[1] is None and self.first_converged_torque is not None:
+                self.first_converged_torque = start + int(np.argmax(out.converged_torque))
+            self.samples = start + len(block)
+        return out
+
+    def _filter_block(self, block: AlignedSamples) -> Estimates:
+        """Filter a block of samples that passed the guard, in order."""
         m = len(block)
         if self.noise_auto and m > CHUNK:  # let the noise estimate follow within a long block
-            parts = [self.update_block(block.subset(slice(i, i + CHUNK))) for i in range(0, m, CHUNK)]
+            parts = [self._filter_block(block.subset(slice(i, i + CHUNK))) for i in range(0, m, CHUNK)]
             return Estimates.concatenate(parts)
         if m == 0:
             empty = np.zeros((0, 3))
@@ -437,12 +473,21 @@ class KalmanEstimator:
             run_f = self.force.run(y_f, A_f, dt, usable, self.gate2, self.method)
         X_f = run_f.X
         A_t = -skew_stack(force_S - X_f[:, 3:6])  # C_k = [-skew(Δf), I3]; Δf includes the inertial force
+        if run_f.failed is not None:  # updates that could not be computed: not used, not converged
+            usable = usable & ~run_f.failed
         accepted_f = usable & ~run_f.gated
         conv_f = self._force_converged(run_f, x_before, accepted_f)
+        if run_f.failed is not None:
+            conv_f &= ~run_f.failed
         x_t_before = self.torque.x[:6].copy()
-        run_t = self.torque.run(torque_S, A_t, dt, accepted_f & conv_f, self.gate2, self.method)
-        accepted_t = accepted_f & conv_f & ~run_t.gated
+        seen_t = accepted_f & conv_f
+        run_t = self.torque.run(torque_S, A_t, dt, seen_t, self.gate2, self.method)
+        if run_t.failed is not None:
+            seen_t = seen_t & ~run_t.failed
+        accepted_t = seen_t & ~run_t.gated
         conv_t = self._torque_converged(run_t, X_f, x_t_before, accepted_t)
+        if run_t.failed is not None:
+            conv_t &= ~run_t.failed
         torque_for_contact = torque_S
         if inertial_S is not None:  # the inertial force acts at the centre of mass like the weight
             torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
@@ -451,7 +496,7 @@ class KalmanEstimator:
             if self._noise_window is None and dt.max() > 0:  # the sensor's rate, from the first time step
                 self._noise_window = int(NOISE_WINDOW_S / float(np.median(dt[dt > 0])))
             self._adapt_noise(self.force, y_f, A_f, x_before, run_f, usable, "_accepted_f")
-            self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, accepted_f & conv_f, "_accepted_t")
+            self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, seen_t, "_accepted_t")
             self.torque.rc = self.force.r.copy()
 
         self.converged_force, self.converged_torque = bool(conv_f[-1]), bool(conv_t[-1])
@@ -752,9 +797,19 @@ class KalmanEstimator:
         A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
 
+    @property
+    def refused_samples(self) -> int:
+        """Samples refused as bad input so far."""
+        return self.guard.refused
+
+    @property
+    def failed_solves(self) -> int:
+        """Samples a stage's update could not be computed for (predicted only, marked not converged)."""
+        return self.force.failed + self.torque.failed
+
     def drain_events(self) -> list[Event]:
-        """The events since the last call (EmitsEvents); the session loop records them."""
-        out, self.events = self.events, []
+        """The events since the last call (EmitsEvents): ``payload_change``, ``sample_refused``."""
+        out, self.events = self.events + self.guard.drain_events(), []
         return out
 
     # ------------------------------------------------------------------ warm start (issue 4, item 7)

@@ -10,6 +10,13 @@ from rich.table import Table
 from .render import err, fmt, wide_console
 
 
+def add_force(parser: argparse.ArgumentParser) -> None:
+    """``--force``, for every command that writes files: without it an existing output is refused."""
+    parser.add_argument("--force", action="store_true",
+                        help="overwrite existing output files (every output is written to a temporary file "
+                             "and renamed into place, so a failure never leaves half a file)")
+
+
 def cmd_compensate(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
@@ -19,7 +26,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
         task = progress.add_task(f"compensating {Path(args.input).name}", total=None)
         result = compensate(
             args.input, args.output, estimator_name=args.estimator, overrides=args.set or [],
-            params_out=args.params_out,
+            params_out=args.params_out, force=args.force, keep_estimates=False,
             progress=lambda done, total: progress.update(task, completed=done, total=total),
         )
     for note in result.notes:
@@ -41,7 +48,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from ..offline.replay import replay
 
     with err.status(f"replaying {Path(args.recording).name} through {args.estimator}"):
-        result = replay(args.recording, args.estimator, args.output, overrides=args.set or [])
+        result = replay(args.recording, args.estimator, args.output, overrides=args.set or [], force=args.force)
     t = Table(title=f"{Path(args.recording).name}: {result['rows']} samples; no-contact samples after convergence")
     for col in ("estimator topic", "force conv.", "RMS fx, fy, fz (N)", "Max AE fx, fy, fz (N)",
                 "contact agreement"):
@@ -61,7 +68,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_recover(args: argparse.Namespace) -> int:
     from ..recording import recover
 
-    counts = recover(args.broken, args.output)
+    counts = recover(args.broken, args.output, force=args.force)
     err.print(f"recovered {counts.get('messages', 0)} messages into {args.output}")
     for topic, n in sorted(counts.get("topics", {}).items()):
         err.print(f"  {topic}: {n}")
@@ -77,6 +84,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="estimator option, e.g. --set estimator.force_threshold=2")
     p.add_argument("--params-out", default=None, help="write the final parameters as JSON")
+    add_force(p)
     p.set_defaults(func=cmd_compensate)
 
     p = sub.add_parser("replay", help="re-run a recording through another estimator and compare")
@@ -85,9 +93,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", default=None, help="write a new .mcap with the replayed estimator added")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="estimator option, e.g. --set estimator.force_threshold=0.5")
+    add_force(p)
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("recover", help="salvage a recording whose writer died")
     p.add_argument("broken", help="the damaged .mcap")
     p.add_argument("-o", "--output", required=True, help="where to write the recovered .mcap")
+    add_force(p)
     p.set_defaults(func=cmd_recover)

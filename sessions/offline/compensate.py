@@ -2,28 +2,34 @@
 
 The estimator sees the rows in order, in blocks, exactly as it would live; the
 output has one row per input row (the estimated contact wrench in S and the
-contact and convergence flags).
+contact and convergence flags). A file is streamed: read, estimated and written
+chunk by chunk (``stream.CHUNK_ROWS`` rows), so memory does not grow with it.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from collections import deque
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ...core.plugins import ConfigError, Registry
-from ...core.types import Estimates, first_true
+from ...core.errors import UserError
+from ...core.types import Estimates
 
 from ..config import parse_value
-from ..recording.csvimport import CsvError, write_compensated_csv
-from ..recording.stream import Stream, load_stream
-from .metrics import rms_after_convergence
+from ..output import atomic_output, check_output, write_text
+from ..recording.csvimport import COMPENSATED_HEADER, write_compensated_rows
+from ..recording.stream import Stream, concat_samples, iter_stream, unused_note
+from .metrics import RmsAfterConvergence
+from .numerics import numerical_failures
 
 BLOCK = 1024
-"""Samples per estimator call offline (the result does not depend on it)."""
+"""Usable samples per estimator call offline, counted across chunks (the result does not depend on the chunking)."""
 
 
 def estimator_options(overrides: list[str]) -> dict[str, Any]:
@@ -45,33 +51,109 @@ def estimator_options(overrides: list[str]) -> dict[str, Any]:
     return options
 
 
+class _Pending:
+    """One chunk on its way through :func:`estimate_chunks`: its estimate arrays, filled block by block."""
+
+    def __init__(self, stream: Stream, offset: int):
+        self.stream, self.offset = stream, offset
+        n = len(stream)
+        self.ok = stream.samples.usable
+        self.usable = np.flatnonzero(self.ok)
+        self.left = len(self.usable)  # usable rows not yet estimated
+        self.force, self.torque = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+        self.contact, self.conv_f, self.conv_t = (np.zeros(n, dtype=bool) for _ in range(3))
+
+    def fill(self, rows: np.ndarray, est: Estimates, a: int, b: int) -> None:
+        self.force[rows], self.torque[rows], self.contact[rows] = \
+            est.contact_force_S[a:b], est.contact_torque_S[a:b], est.contact[a:b]
+        self.conv_f[rows], self.conv_t[rows] = est.converged_force[a:b], est.converged_torque[a:b]
+        self.left -= len(rows)
+
+    def finish(self, carry: tuple[bool, bool]) -> Estimates:
+        """The chunk's estimates; rows the estimator did not see keep the flags of the usable row before
+        them (``carry``: the flags of the previous chunks' last usable row)."""
+        n = len(self.ok)
+        if len(self.usable) < n:
+            last = np.maximum.accumulate(np.where(self.ok, np.arange(n), -1))
+            seen = last >= 0
+            self.conv_f[seen], self.conv_t[seen] = self.conv_f[last[seen]], self.conv_t[last[seen]]
+            self.conv_f[~seen], self.conv_t[~seen] = carry
+        return Estimates(self.stream.samples.t_ns, self.force, self.torque, self.contact, self.conv_f, self.conv_t)
+
+
+def estimate_chunks(chunks: Iterable[Stream], estimator: Any, progress=None,
+                    total: int | None = None) -> Iterator[tuple[Stream, Estimates]]:
+    """Feed the usable rows of consecutive chunks through the estimator; yield each chunk with its estimates.
+
+    The estimator gets blocks of :data:`BLOCK` usable rows counted across chunk
+    boundaries (a block may span two chunks), so the estimates do not depend on
+    how the input was cut. A chunk is yielded as soon as its last usable row is
+    estimated, one estimate row per row: rows the estimator may not see get NaN
+    wrench values, no contact, and the convergence flags of the usable row
+    before them. A ``LinAlgError`` inside the estimator is a
+    :class:`~.numerics.NumericalError` naming the file and the rows.
+    """
+    waiting: deque[_Pending] = deque()  # chunks not yet yielded, in order
+    queue: deque[tuple[_Pending, np.ndarray]] = deque()  # usable rows not yet fed, by chunk
+    queued = 0
+    offset = 0
+    carry = (False, False)
+
+    def feed(count: int) -> None:
+        parts: list[tuple[_Pending, np.ndarray]] = []
+        while count:
+            chunk, rows = queue[0]
+            part = rows[:count]
+            if len(part) == len(rows):
+                queue.popleft()
+            else:
+                queue[0] = (chunk, rows[count:])
+            parts.append((chunk, part))
+            count -= len(part)
+        block = concat_samples([chunk.stream.samples.subset(part) for chunk, part in parts])
+        first, last = parts[0][0].offset + parts[0][1][0] + 1, parts[-1][0].offset + parts[-1][1][-1] + 1
+        with numerical_failures(f"{parts[0][0].stream.name} rows {first}-{last}", "the estimator"):
+            est = estimator.update_block(block)
+        a = 0
+        for chunk, part in parts:
+            chunk.fill(part, est, a, a + len(part))
+            a += len(part)
+        if progress is not None:
+            progress(int(last), total)
+
+    def ready() -> Iterator[tuple[Stream, Estimates]]:
+        nonlocal carry
+        while waiting and waiting[0].left == 0:
+            chunk = waiting.popleft()
+            est = chunk.finish(carry)
+            if len(est):
+                carry = (bool(est.converged_force[-1]), bool(est.converged_torque[-1]))
+            yield chunk.stream, est
+
+    for stream in chunks:
+        chunk = _Pending(stream, offset)
+        offset += len(stream)
+        waiting.append(chunk)
+        if chunk.left:
+            queue.append((chunk, chunk.usable))
+            queued += chunk.left
+        while queued >= BLOCK:
+            feed(BLOCK)
+            queued -= BLOCK
+        yield from ready()
+    if queued:
+        feed(queued)
+    yield from ready()
+
+
 def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
     """Feed the usable rows through the estimator in blocks; one estimate row per input row.
 
     Rows the estimator may not see get NaN wrench values, no contact, and the
     convergence flags of the row before them.
     """
-    n = len(stream)
-    ok = stream.samples.usable
-    usable = np.flatnonzero(ok)
-    force = np.full((n, 3), np.nan)
-    torque = np.full((n, 3), np.nan)
-    contact = np.zeros(n, dtype=bool)
-    conv_f = np.zeros(n, dtype=bool)
-    conv_t = np.zeros(n, dtype=bool)
-    for i in range(0, len(usable), BLOCK):
-        rows = usable[i : i + BLOCK]
-        est = estimator.update_block(stream.samples.subset(rows))
-        force[rows], torque[rows], contact[rows] = est.contact_force_S, est.contact_torque_S, est.contact
-        conv_f[rows], conv_t[rows] = est.converged_force, est.converged_torque
-        if progress is not None:
-            progress(int(rows[-1]) + 1, n)
-    if len(usable) < n:  # carry the flags over the rows the estimator did not see
-        last = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
-        seen = last >= 0
-        conv_f[seen], conv_t[seen] = conv_f[last[seen]], conv_t[last[seen]]
-    return Estimates(stream.samples.t_ns, force, torque, contact, conv_f, conv_t,
-                     params=estimator.params(), cov_diag=estimator.cov_diag())
+    ((_, est),) = estimate_chunks([stream], estimator, progress, total=len(stream))
+    return replace(est, params=estimator.params(), cov_diag=estimator.cov_diag())
 
 
 @dataclass
@@ -79,7 +161,8 @@ class CompensateResult:
     """What ``compensate`` did, for the summary it prints."""
 
     rows: int
-    estimates: Estimates
+    estimates: Estimates | None
+    """every row's estimates (None when ``compensate`` was asked not to keep them)"""
     params: dict[str, Any]
     rms_force_S: list[float]
     """per-axis RMS of the contact force over no-contact rows after the first convergence, N"""
@@ -97,35 +180,54 @@ def compensate(
     params_out: str | Path | None = None,
     registry: Registry | None = None,
     progress=None,
+    force: bool = False,
+    keep_estimates: bool = True,
 ) -> CompensateResult:
-    """Run ``estimator_name`` over a recording (a stream, or a CSV or MCAP file) and write the contact wrench per row."""
+    """Run ``estimator_name`` over a recording (a stream, or a CSV or MCAP file) and write the contact wrench per row.
+
+    A file is streamed chunk by chunk; with ``keep_estimates`` false nothing
+    grows with its length (the result's ``estimates`` is None). The outputs are
+    checked before the work (an existing file is refused unless ``force``) and
+    written whole or not at all (``sessions.output``).
+    """
     registry = registry if registry is not None else Registry()
     options = estimator_options(overrides or [])
     estimator_name = options.pop("name", estimator_name)
-    out_csv = Path(out_csv)
     source = recording.source if isinstance(recording, Stream) else str(recording)
-    if source and out_csv.resolve() == Path(source).resolve():
-        raise CsvError(f"{out_csv}: the output would overwrite the input; choose another -o")
-    for target in (out_csv, Path(params_out) if params_out else None):
-        if target is not None and not target.parent.is_dir():
-            raise CsvError(f"{target}: folder {target.parent} does not exist")
+    out_csv = check_output(out_csv, force, label="-o", inputs=[source])
+    if params_out:
+        params_out = check_output(params_out, force, label="--params-out", inputs=[source])
+        if Path(params_out).resolve() == out_csv.resolve():
+            raise UserError(f"--params-out {params_out}: the same file as -o; give another")
     estimator = registry.create("estimator", estimator_name, options, where="estimator")
-    stream = recording if isinstance(recording, Stream) else load_stream(recording)
-    est = run_estimator(stream, estimator, progress)
-    write_compensated_csv(out_csv, stream.t_s, est.contact_force_S, est.contact_torque_S,
-                          est.contact, est.converged_force, est.converged_torque)
-    first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
-    rms_f = rms_after_convergence(est.contact_force_S, est.contact, first_f)
-    rms_t = rms_after_convergence(est.contact_torque_S, est.contact, first_t)
+    chunks = [recording] if isinstance(recording, Stream) else iter_stream(recording)
+    scored_f, scored_t = RmsAfterConvergence(), RmsAfterConvergence()
+    notes: list[str] = []
+    parts: list[Estimates] = []
+    unused = 0
+    with atomic_output(out_csv, force, label="-o") as tmp, tmp.open("w", newline="", encoding="utf-8") as fh:
+        fh.write(COMPENSATED_HEADER)
+        for chunk, est in estimate_chunks(chunks, estimator, progress):
+            write_compensated_rows(fh, chunk.t_s, est)
+            scored_f.add(est.contact_force_S, est.contact, est.converged_force)
+            scored_t.add(est.contact_torque_S, est.contact, est.converged_torque)
+            notes += chunk.notes
+            unused += int(np.count_nonzero(~chunk.samples.usable))
+            if keep_estimates:
+                parts.append(est)
+    if not isinstance(recording, Stream):
+        notes += unused_note(Path(source).name, unused)
+    rows = scored_f.rows
     params: dict[str, Any] = dict(estimator.params())
     params.update({
         "estimator": estimator_name,
-        "samples": len(stream),
-        "first_converged_force": first_f,
-        "first_converged_torque": first_t,
-        "cov_diag": est.cov_diag,
+        "samples": rows,
+        "first_converged_force": scored_f.first,
+        "first_converged_torque": scored_t.first,
+        "cov_diag": estimator.cov_diag(),
     })
     if params_out:
-        Path(params_out).write_text(json.dumps(params, indent=2) + "\n", encoding="utf-8")
-    return CompensateResult(len(stream), est, params, rms_f.tolist(), rms_t.tolist(), first_f,
-                            first_t, stream.notes)
+        write_text(params_out, json.dumps(params, indent=2) + "\n", force, label="--params-out")
+    estimates = Estimates.concatenate(parts, estimator.params(), estimator.cov_diag()) if keep_estimates else None
+    return CompensateResult(rows, estimates, params, scored_f.value.tolist(), scored_t.value.tolist(),
+                            scored_f.first, scored_t.first, notes)

@@ -86,3 +86,32 @@ def rms_after_convergence(values: np.ndarray, contact: np.ndarray | None, first:
 def norm_ratio(rms_values: np.ndarray, rms_reference: np.ndarray) -> float:
     """‖a‖ / ‖b‖ of two per-axis RMS vectors over the same rows (e.g. the online estimate against the batch fit)."""
     return float(np.linalg.norm(rms_values) / np.linalg.norm(rms_reference))
+
+
+class RmsAfterConvergence:
+    """:func:`rms_after_convergence` over a stream read in chunks: add each chunk's rows in order.
+
+    ``first`` is the first converged row (None until one is seen) and ``value``
+    the per-axis RMS over the no-contact, finite rows from it on (NaN when there
+    are none); the same numbers as the whole-array function, up to the order of
+    the summation.
+    """
+
+    def __init__(self, axes: int = 3):
+        self.first: int | None = None
+        self.rows = 0
+        self._sum = np.zeros(axes)
+        self._count = 0
+
+    def add(self, values: np.ndarray, contact: np.ndarray, converged: np.ndarray) -> None:
+        if self.first is None and converged.any():
+            self.first = self.rows + int(np.argmax(converged))
+        if self.first is not None:
+            rows = scored_rows(max(self.first - self.rows, 0), values, contact)
+            self._sum += np.sum(values[rows] ** 2, axis=0)
+            self._count += int(rows.sum())
+        self.rows += len(values)
+
+    @property
+    def value(self) -> np.ndarray:
+        return np.sqrt(self._sum / self._count) if self._count else np.full(len(self._sum), np.nan)

@@ -14,26 +14,40 @@ from typing import Any
 
 import numpy as np
 
-from ...core.errors import UserError
 from ...core.plugins import Registry
 from ...core.types import first_true
 
-from ..recording import Recorder, read_recording
-from ..recording.stream import load_stream
+from ..output import atomic_output, check_output
+from ..recording import Recorder, RecordingError, read_recording, schema_for_topic
+from ..recording.stream import load_stream, message_field
 from .compensate import estimator_options, run_estimator
 from .metrics import max_ae, rms, scored_rows
 
 
 def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path | None = None,
-           overrides: list[str] | None = None, registry: Registry | None = None) -> dict[str, Any]:
-    """Replay a recording through ``estimator_name``; returns the comparison (and writes ``out_path``)."""
+           overrides: list[str] | None = None, registry: Registry | None = None,
+           force: bool = False) -> dict[str, Any]:
+    """Replay a recording through ``estimator_name``; returns the comparison (and writes ``out_path``).
+
+    ``out_path`` is checked before the work (an existing file is refused unless
+    ``force``) and written whole or not at all (``sessions.output``).
+    """
     registry = registry if registry is not None else Registry()
     recording_path = Path(recording_path)
     options = estimator_options(overrides or [])
     estimator_name = options.pop("name", estimator_name)
+    if out_path is not None:
+        out_path = check_output(out_path, force, label="-o", inputs=[recording_path], role="recording")
     estimator = registry.create("estimator", estimator_name, options, where="estimator")
-    original = read_recording(recording_path)
     stream = load_stream(recording_path)
+    original = _read_all(recording_path)
+    if out_path is not None:
+        for name in original.topics:
+            try:
+                schema_for_topic(name)
+            except ValueError:
+                raise RecordingError(f"{recording_path.name}: topic {name!r} is not a hapticlab topic; replay -o "
+                                     f"copies every topic and cannot record that one") from None
     est = run_estimator(stream, estimator)
 
     label = estimator_name
@@ -45,14 +59,12 @@ def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path
         "contact": est.contact.tolist(), "converged_force": est.converged_force.tolist(),
         "converged_torque": est.converged_torque.tolist(),
     }
+    comparison = compare(original, stream.samples.t_ns, {topic: est})
     if out_path is not None:
-        out_path = Path(out_path)
-        if out_path.resolve() == recording_path.resolve():
-            raise UserError(f"{out_path}: the replay would overwrite the recording; choose another -o")
         metadata = {name: dict(values) for name, values in original.metadata.items()}
         metadata["hapticlab.replay"] = {"source": str(recording_path), "estimator": estimator_name,
                                         "topic": topic, "options": json.dumps(options)}
-        with Recorder(out_path, metadata=metadata) as rec:
+        with atomic_output(out_path, force, label="-o") as tmp, Recorder(tmp, metadata=metadata) as rec:
             # every original message in time order, then the new estimator's
             for name, messages in original.topics.items():
                 for t_ns, message in messages:
@@ -63,9 +75,16 @@ def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path
                     "params": estimator.params() if i == n - 1 else None,
                     "cov_diag": estimator.cov_diag() if i == n - 1 else None,
                 })
-    return {"topic": topic, "estimator": estimator_name, "rows": len(est),
-            "comparison": compare(original, stream.samples.t_ns, {topic: est}),
+    return {"topic": topic, "estimator": estimator_name, "rows": len(est), "comparison": comparison,
             "params": estimator.params()}
+
+
+def _read_all(path: Path):
+    """The whole recording; a message that is not JSON is a RecordingError naming the file."""
+    try:
+        return read_recording(path)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{path.name}: a message is not valid JSON ({exc})") from None
 
 
 def _recorded(original, topic: str, t_ns: np.ndarray) -> dict[str, np.ndarray] | None:
@@ -73,16 +92,20 @@ def _recorded(original, topic: str, t_ns: np.ndarray) -> dict[str, np.ndarray] |
     messages = original.topics.get(topic, [])
     if not messages:
         return None
+    source = original.path.name
+    force = message_field(source, topic, messages, "contact_force_S", 3)  # null (a recorded NaN) becomes NaN
+    contact = message_field(source, topic, messages, "contact", None)
+    converged = message_field(source, topic, messages, "converged_force", None)
     index = {t: k for k, (t, _) in enumerate(messages)}
-    rows = [index.get(int(t)) for t in t_ns]
-    nan3 = [float("nan")] * 3
-    pick = lambda key, empty: np.array(  # noqa: E731
-        [messages[k][1][key] if k is not None else empty for k in rows], dtype=float)
+    rows = np.array([index.get(int(t), -1) for t in t_ns], dtype=np.int64)
+    seen = rows >= 0
+    pick = lambda values, empty: np.where(seen.reshape(-1, *([1] * (values.ndim - 1))),  # noqa: E731
+                                          values[np.maximum(rows, 0)], empty)
     return {
-        "contact_force_S": pick("contact_force_S", nan3),  # null (a recorded NaN) becomes NaN
-        "contact": pick("contact", 0.0).astype(bool),
-        "converged_force": pick("converged_force", 0.0).astype(bool),
-        "seen": np.array([k is not None for k in rows]),
+        "contact_force_S": pick(force, np.nan),
+        "contact": pick(contact, 0.0).astype(bool),
+        "converged_force": pick(converged, 0.0).astype(bool),
+        "seen": seen,
     }
 
 

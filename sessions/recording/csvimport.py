@@ -11,15 +11,18 @@ or a non-increasing ``t`` is a ``CsvError`` naming the file, line and column.
 from __future__ import annotations
 
 import csv
+from collections.abc import Iterator
+from itertools import islice
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
 from ...core.errors import UserError
 from ...core.frames import matrix_from_quat_wxyz
-from ...core.types import AlignedSamples
+from ...core.types import AlignedSamples, Estimates
 
-from .stream import Stream
+from .stream import CHUNK_ROWS, Stream
 
 REQUIRED = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "qw", "qx", "qy", "qz")
 POSITION = ("px", "py", "pz")
@@ -39,43 +42,81 @@ def read_csv(path: str | Path) -> Stream:
     is the row number, status good and nothing stale; R_EB is the transpose of
     the quaternion's R_BE. Joint columns, when present, ride along as ``joints``.
     """
+    return Stream.concatenate(list(iter_csv(path)))
+
+
+def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
+    """The file as consecutive streams of at most ``rows`` rows each, read as they are asked for.
+
+    Memory stays a small multiple of one chunk whatever the file's size. Each
+    chunk is checked as :func:`read_csv` checks the file (the line numbers are
+    the file's; ``t`` must increase across chunks too); ``t_ns`` counts from
+    the file's first ``t`` and ``seq`` is the row number in the file. The
+    first chunk carries the notes.
+    """
     path = Path(path)
     name = path.name
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            rows = list(csv.reader(fh))
+        fh = path.open(newline="", encoding="utf-8-sig")
     except OSError as exc:
         raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    with fh:
+        records = _records(csv.reader(fh), path)
+        first = next(records, None)
+        if first is None:
+            raise CsvError(f"{name}: empty file; expected a header row with {','.join(REQUIRED)}")
+        header = [h.strip() for h in first[1]]
+        index = {h: i for i, h in enumerate(header)}
+        missing = [c for c in REQUIRED if c not in index]
+        if missing:
+            raise CsvError(f"{name} line {first[0]}: missing required column(s) {', '.join(missing)} "
+                           f"(required: {','.join(REQUIRED)})")
+        has_position = all(c in index for c in POSITION)
+        joint_cols = [c for c in JOINTS if c in index]
+        known = set(REQUIRED) | (set(POSITION) if has_position else set()) | set(joint_cols)
+        ignored = [h for h in header if h not in known]
+        notes = [f"{name}: ignoring column(s) {', '.join(ignored)}"] if ignored else []
+        chunk = _Chunk(path, header, index, has_position, joint_cols)
+        done = 0
+        while batch := list(islice(records, rows)):
+            stream = chunk.parse(batch, done)
+            stream.notes = notes if done == 0 else []
+            done += len(batch)
+            del batch  # one chunk's rows (Python strings: ~1 kB a row) in memory at a time
+            yield stream
+            del stream
+        if done == 0:
+            raise CsvError(f"{name}: no data rows after the header")
+
+
+def _records(reader, path: Path) -> Iterator[tuple[int, list[str]]]:
+    """(line number, cells) of every row that is not blank (a trailing newline or two are no rows)."""
+    n = 0
+    try:
+        for n, row in enumerate(reader, start=1):
+            if any(cell.strip() for cell in row):
+                yield n, row
     except UnicodeDecodeError:
-        raise CsvError(f"{name}: not a text CSV file") from None
-    if not rows:
-        raise CsvError(f"{name}: empty file; expected a header row with {','.join(REQUIRED)}")
-    # blank lines (a trailing newline or two) are no rows; keep file line numbers for errors
-    numbered = [(n, row) for n, row in enumerate(rows, start=1) if any(cell.strip() for cell in row)]
-    if not numbered:
-        raise CsvError(f"{name}: empty file; expected a header row with {','.join(REQUIRED)}")
-    header = [h.strip() for h in numbered[0][1]]
-    index = {h: i for i, h in enumerate(header)}
-    missing = [c for c in REQUIRED if c not in index]
-    if missing:
-        raise CsvError(f"{name} line 1: missing required column(s) {', '.join(missing)} "
-                       f"(required: {','.join(REQUIRED)})")
-    lines = [n for n, _ in numbered[1:]]
-    data = [row for _, row in numbered[1:]]
-    if not data:
-        raise CsvError(f"{name}: no data rows after the header")
-    for n, row in zip(lines, data):
-        if len(row) != len(header):
-            raise CsvError(f"{name} line {n}: {len(row)} fields, the header has {len(header)}")
+        raise CsvError(f"{path.name}: not a text CSV file") from None
+    except csv.Error as exc:
+        raise CsvError(f"{path.name} line {n + 1}: {exc}") from None
+    except OSError as exc:
+        raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
-    has_position = all(c in index for c in POSITION)
-    joint_cols = [c for c in JOINTS if c in index]
-    known = set(REQUIRED) | (set(POSITION) if has_position else set()) | set(joint_cols)
-    ignored = [h for h in header if h not in known]
-    notes = [f"{name}: ignoring column(s) {', '.join(ignored)}"] if ignored else []
 
-    def column(col: str) -> np.ndarray:
-        values = [row[index[col]].strip() for row in data]
+class _Chunk:
+    """Parses consecutive batches of rows of one file into streams, carrying what spans them."""
+
+    def __init__(self, path: Path, header: list[str], index: dict[str, int], has_position: bool,
+                 joint_cols: list[str]):
+        self.name, self.source = path.name, str(path)
+        self.header, self.index = header, index
+        self.has_position, self.joint_cols = has_position, joint_cols
+        self.t0: float | None = None  # the file's first t: t_ns counts from it
+        self.last: tuple[int, float] | None = None  # (line, t) of the previous chunk's last row
+
+    def column(self, col: str, lines: list[int], data: list[list[str]]) -> np.ndarray:
+        values = [row[self.index[col]].strip() for row in data]
         try:
             out = np.array(values, dtype=float)
         except ValueError:
@@ -88,50 +129,63 @@ def read_csv(path: str | Path) -> Stream:
             except ValueError:
                 ok = False
             if not ok:
-                raise CsvError(f"{name} line {n}, column {col!r}: {text!r} is not a finite number")
+                raise CsvError(f"{self.name} line {n}, column {col!r}: {text!r} is not a finite number")
         raise AssertionError("unreachable")
 
-    t = column("t")
-    bad = np.flatnonzero(np.diff(t) <= 0)
-    if len(bad):
-        n = lines[int(bad[0]) + 1]
-        raise CsvError(f"{name} line {n}, column 't': {float(t[bad[0] + 1])!r} does not increase "
-                       f"(previous {float(t[bad[0]])!r})")
-    force_S = np.column_stack([column(c) for c in ("fx", "fy", "fz")])
-    torque_S = np.column_stack([column(c) for c in ("tx", "ty", "tz")])
-    quat = np.column_stack([column(c) for c in ("qw", "qx", "qy", "qz")])
-    norm = np.linalg.norm(quat, axis=1)
-    off = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOLERANCE)
-    if len(off):
-        k = int(off[0])
-        raise CsvError(f"{name} line {lines[k]}, columns qw,qx,qy,qz: not a unit quaternion "
-                       f"(norm {norm[k]:.6g})")
-    quat = quat / norm[:, None]
-    p = np.column_stack([column(c) for c in POSITION]) if has_position else None
-    joints = np.column_stack([column(c) for c in joint_cols]) if joint_cols else None
-    n = len(t)
-    t_ns = np.round((t - t[0]) * 1e9).astype(np.int64)
-    R_EB = matrix_from_quat_wxyz(quat).transpose(0, 2, 1)
-    samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, np.arange(n), np.zeros(n, dtype=np.int64),
-                             np.zeros(n, dtype=bool), quat, p)
-    return Stream(t, samples, notes, str(path), joints)
+    def parse(self, batch: list[tuple[int, list[str]]], offset: int) -> Stream:
+        name = self.name
+        lines = [n for n, _ in batch]
+        data = [row for _, row in batch]
+        for n, row in zip(lines, data):
+            if len(row) != len(self.header):
+                raise CsvError(f"{name} line {n}: {len(row)} fields, the header has {len(self.header)}")
+
+        def columns(cols) -> np.ndarray:
+            return np.column_stack([self.column(c, lines, data) for c in cols])
+
+        t = self.column("t", lines, data)
+        t_all, lines_all = (t, lines) if self.last is None else (np.r_[self.last[1], t], [self.last[0], *lines])
+        bad = np.flatnonzero(np.diff(t_all) <= 0)
+        if len(bad):
+            k = int(bad[0])
+            raise CsvError(f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} does not increase "
+                           f"(previous {float(t_all[k])!r})")
+        force_S = columns(("fx", "fy", "fz"))
+        torque_S = columns(("tx", "ty", "tz"))
+        quat = columns(("qw", "qx", "qy", "qz"))
+        norm = np.linalg.norm(quat, axis=1)
+        off = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOLERANCE)
+        if len(off):
+            k = int(off[0])
+            raise CsvError(f"{name} line {lines[k]}, columns qw,qx,qy,qz: not a unit quaternion "
+                           f"(norm {norm[k]:.6g})")
+        quat = quat / norm[:, None]
+        p = columns(POSITION) if self.has_position else None
+        joints = columns(self.joint_cols) if self.joint_cols else None
+        if self.t0 is None:
+            self.t0 = float(t[0])
+        self.last = (lines[-1], float(t[-1]))
+        n = len(t)
+        t_ns = np.round((t - self.t0) * 1e9).astype(np.int64)
+        R_EB = matrix_from_quat_wxyz(quat).transpose(0, 2, 1)
+        samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, np.arange(offset, offset + n),
+                                 np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), quat, p)
+        return Stream(t, samples, [], self.source, joints)
 
 
 OUTPUT_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "contact", "converged_force", "converged_torque")
+COMPENSATED_HEADER = ",".join(OUTPUT_COLUMNS) + "\n"
 
 
-def write_compensated_csv(path: str | Path, t_s: np.ndarray, contact_force_S: np.ndarray,
-                          contact_torque_S: np.ndarray, contact: np.ndarray,
-                          converged_force: np.ndarray, converged_torque: np.ndarray) -> None:
-    """Write the ``compensate`` output: the estimated contact wrench in S, one row per input row.
+def write_compensated_rows(fh: TextIO, t_s: np.ndarray, est: Estimates) -> None:
+    """Write rows of the ``compensate`` output (after :data:`COMPENSATED_HEADER`): the estimated
+    contact wrench in S and the flags, one row per input row, in the order given.
 
     Rows the estimator could not use (non-finite, stale or flagged by the
     sensor) carry NaN wrench values.
     """
-    wrench = np.column_stack([contact_force_S, contact_torque_S])
-    flags = np.column_stack([contact, converged_force, converged_torque]).astype(int)
-    with Path(path).open("w", newline="", encoding="utf-8") as fh:
-        fh.write(",".join(OUTPUT_COLUMNS) + "\n")
-        for t, values, f in zip(t_s.tolist(), wrench.tolist(), flags.tolist()):
-            # t keeps full precision (epoch seconds need 16 digits); the wrench 9
-            fh.write(f"{t!r}," + ",".join(f"{v:.9g}" for v in values) + f",{f[0]},{f[1]},{f[2]}\n")
+    wrench = np.column_stack([est.contact_force_S, est.contact_torque_S])
+    flags = np.column_stack([est.contact, est.converged_force, est.converged_torque]).astype(int)
+    for t, values, f in zip(t_s.tolist(), wrench.tolist(), flags.tolist()):
+        # t keeps full precision (epoch seconds need 16 digits); the wrench 9
+        fh.write(f"{t!r}," + ",".join(f"{v:.9g}" for v in values) + f",{f[0]},{f[1]},{f[2]}\n")

@@ -184,3 +184,99 @@ def test_epoch_times_keep_their_precision_and_blank_lines_are_ignored(tmp_path):
     t = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1, usecols=0)
     assert len(t) == 200 and np.all(np.diff(t) > 0)
     assert np.allclose(t, 1732233600.0 + np.arange(200) * 1e-3, rtol=0, atol=1e-6)
+
+
+def reference_output(path, estimator_name="rls") -> bytes:
+    """The output of compensate as it was before it streamed (the whole file in memory, one pass of blocks
+    of 1024 usable rows), written the same way: the oracle the streamed output must equal byte for byte."""
+    from hapticlab.core.plugins import Registry
+
+    stream = load_stream(path)
+    estimator = Registry().create("estimator", estimator_name, {}, where="estimator")
+    n, ok = len(stream), stream.samples.usable
+    usable = np.flatnonzero(ok)
+    force, torque = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    flags = np.zeros((n, 3), dtype=bool)
+    for i in range(0, len(usable), 1024):
+        rows = usable[i:i + 1024]
+        est = estimator.update_block(stream.samples.subset(rows))
+        force[rows], torque[rows] = est.contact_force_S, est.contact_torque_S
+        flags[rows] = np.column_stack([est.contact, est.converged_force, est.converged_torque])
+    last = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
+    seen = last >= 0
+    flags[seen, 1:] = flags[last[seen], 1:]
+    lines = [",".join(OUTPUT_COLUMNS)]
+    for t, values, f in zip(stream.t_s.tolist(), np.column_stack([force, torque]).tolist(), flags.astype(int).tolist()):
+        lines.append(f"{t!r}," + ",".join(f"{v:.9g}" for v in values) + f",{f[0]},{f[1]},{f[2]}")
+    return ("\n".join(lines) + "\n").encode()
+
+
+def write_mcap_with_gaps(path, n=1500, seed=12):
+    """A recording whose stream has a NaN, a flagged sample and rows past the pose stream."""
+    from hapticlab.sessions.recording import Recorder
+
+    block, _ = static_model_stream(n, seed=seed, noise_force=0.1, noise_torque=0.008)
+    quat_BE = quat_wxyz_from_matrix(block.R_EB.transpose(0, 2, 1))
+    with Recorder(path) as rec:
+        for k in range(n):
+            t = k * 1_000_000
+            force = block.force_S[k].tolist()
+            if k in (200, 1200):
+                force[1] = float("nan")
+            rec.write("/sensor/wrench", t, {"force_S": force, "torque_S": block.torque_S[k].tolist(),
+                                            "seq": k, "status": 1 if k in (700, 1300) else 0})
+            if k < n - 10:
+                rec.write("/kinematics/pose", t, {"quat_BE": quat_BE[k].tolist(), "p_BoEo_B": None, "joints": None})
+    return path
+
+
+@pytest.mark.parametrize("rows", [700, 1024, 5000])
+def test_the_streamed_output_is_the_whole_file_output(tmp_path, monkeypatch, rows):
+    """compensate reads, estimates and writes chunk by chunk; whatever the chunk size (shorter than a block,
+    a block, several blocks and a tail) the output is the one the whole file in memory gave, byte for byte."""
+    import hapticlab.sessions.offline.compensate as module
+    from hapticlab.sessions.recording import stream as stream_module
+
+    monkeypatch.setattr(module, "iter_stream", lambda path: stream_module.iter_stream(path, rows))
+    write_csv(tmp_path / "in.csv", n=4100)
+    write_mcap_with_gaps(tmp_path / "gaps.mcap")
+    for source, name in ((tmp_path / "in.csv", "rls"), (tmp_path / "in.csv", "kalman"), (tmp_path / "gaps.mcap", "rls")):
+        out = tmp_path / f"{source.stem}_{name}.csv"
+        result = compensate(source, out, estimator_name=name, params_out=tmp_path / f"{out.stem}.json")
+        assert out.read_bytes() == reference_output(source, name), (source.name, name)
+        whole = compensate(load_stream(source), tmp_path / f"whole_{out.name}", estimator_name=name)
+        assert result.first_converged_force == whole.first_converged_force
+        np.testing.assert_allclose(result.rms_force_S, whole.rms_force_S, rtol=1e-12)
+        for key in ("contact_force_S", "converged_force", "converged_torque"):
+            np.testing.assert_array_equal(getattr(result.estimates, key), getattr(whole.estimates, key))
+        assert json.loads((tmp_path / f"{out.stem}.json").read_text())["samples"] == len(load_stream(source))
+    assert result.notes == ["gaps.mcap: 13 sample(s) not used (stale orientation, sensor status or non-finite)"]
+
+
+def test_a_chunk_without_usable_rows_carries_the_flags_over(tmp_path):
+    """estimate_chunks on chunks cut anywhere, one of them with no usable row: the flags of the usable row
+    before an unusable one, across chunk boundaries."""
+    from hapticlab.core.plugins import Registry
+    from hapticlab.sessions.offline.compensate import estimate_chunks, run_estimator
+    from hapticlab.sessions.recording.stream import iter_stream
+
+    path = write_mcap_with_gaps(tmp_path / "gaps.mcap", n=2600)
+    whole = run_estimator(load_stream(path), Registry().create("estimator", "rls", {}, where="estimator"))
+    chunks = list(iter_stream(path, rows=100))
+    bad = chunks[7]
+    chunks[7] = type(bad)(bad.t_s, type(bad.samples)(**{**{f: getattr(bad.samples, f) for f in bad.samples.__slots__},
+                                                      "status": np.ones(len(bad), dtype=np.int64)}), [], bad.source)
+    parts = list(estimate_chunks(chunks, Registry().create("estimator", "rls", {}, where="estimator")))
+    assert [len(s) for s, _ in parts] == [len(c) for c in chunks]
+    conv = np.concatenate([e.converged_force for _, e in parts])
+    assert np.isnan(parts[7][1].contact_force_S).all()
+    assert (parts[7][1].converged_force == parts[6][1].converged_force[-1]).all()
+    before, after = slice(0, 700), slice(800, None)
+    np.testing.assert_array_equal(conv[before], whole.converged_force[before])
+    assert conv[after].any()
+
+
+def test_compensate_keeps_nothing_per_row_when_asked(tmp_path):
+    write_csv(tmp_path / "in.csv", n=300)
+    result = compensate(tmp_path / "in.csv", tmp_path / "o.csv", keep_estimates=False)
+    assert result.estimates is None and result.rows == 300

@@ -127,8 +127,9 @@ def all_plausible(force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, m
             return False  # NaN fails every comparison
         n0, n1, n2 = a * a + b * b + c * c - 1.0, d * d + e * e + g * g - 1.0, h * h + i * i + j * j - 1.0
         o01, o02, o12 = a * d + b * e + c * g, a * h + b * i + c * j, d * h + e * i + g * j
-        frobenius2 = n0 * n0 + n1 * n1 + n2 * n2 + 2.0 * (o01 * o01 + o02 * o02 + o12 * o12)
-        return frobenius2 <= ROTATION_TOLERANCE ** 2 and a * (e * j - g * i) - b * (d * j - g * h) + c * (d * i - e * h) > 0
+        frobenius2 = n0 * n0 + n1 * n1 + n2 * n2 + 2.0 * (o01 * o01 + o02 * o02 + o12 * o12)  # ‖R Rᵀ − I‖²
+        det = a * (e * j - g * i) - b * (d * j - g * h) + c * (d * i - e * h)
+        return frobenius2 <= ROTATION_TOLERANCE ** 2 and det > 0
     if m == 0:
         return True
     largest = np.maximum.reduce  # (the ndarray.max method costs ~1 µs more per call)
@@ -230,6 +231,27 @@ class SampleGuard:
         """The events since the last call."""
         out, self.events = self.events, []
         return out
+
+
+class RefusesBadSamples:
+    """What every estimator guarded by a ``SampleGuard`` (``self.guard``) reports, with stages
+    ``self.force`` and ``self.torque`` that count their failed solves (``failed``)."""
+
+    guard: SampleGuard
+
+    @property
+    def refused_samples(self) -> int:
+        """Samples refused as bad input so far."""
+        return self.guard.refused
+
+    @property
+    def failed_solves(self) -> int:
+        """Samples whose solve failed (left out and marked not converged)."""
+        return self.force.failed + self.torque.failed
+
+    def drain_events(self) -> list[Event]:
+        """The events since the last call (EmitsEvents): ``sample_refused``."""
+        return self.guard.drain_events()
 
 
 def refused_rows(t_ns: np.ndarray, ok: np.ndarray, out: Estimates | None, flags: tuple[bool, bool]) -> Estimates:

@@ -23,8 +23,8 @@ import numpy as np
 from ...core import hookimpl
 from ...core.batch import normal_terms
 from ...core.frames import cross, skew_stack
-from ...core.model import MAX_FORCE, MAX_TORQUE, SampleGuard, contact_wrench, named_params
-from ...core.types import AlignedSamples, Estimates, Event
+from ...core.model import MAX_FORCE, MAX_TORQUE, RefusesBadSamples, SampleGuard, contact_wrench, named_params
+from ...core.types import AlignedSamples, Estimates
 
 
 class _RunningFit:
@@ -73,7 +73,7 @@ class _RunningFit:
             return np.full(6, np.inf)
 
 
-class BatchEstimator:
+class BatchEstimator(RefusesBadSamples):
     """Least squares of the paper's model over the samples seen so far.
 
     Args:
@@ -155,20 +155,6 @@ class BatchEstimator:
             converged_force=rc_f >= self.min_rcond,
             converged_torque=rc_t >= self.min_rcond,
         )
-
-    @property
-    def refused_samples(self) -> int:
-        """Samples refused as bad input so far."""
-        return self.guard.refused
-
-    @property
-    def failed_solves(self) -> int:
-        """Samples a fit's solve failed on (left out and marked not converged)."""
-        return self.force.failed + self.torque.failed
-
-    def drain_events(self) -> list[Event]:
-        """The events since the last call (EmitsEvents): ``sample_refused``."""
-        return self.guard.drain_events()
 
     def params(self) -> dict[str, list[float]]:
         """Fitted parameters with physical names (SI units)."""

@@ -95,7 +95,7 @@ from ...core.frames import (
     rotvec_from_matrix,
 )
 from ...core.kalman import I3, KalmanStage, MountStage
-from ...core.model import MAX_FORCE, MAX_TORQUE, SampleGuard, contact_wrench, named_params
+from ...core.model import MAX_FORCE, MAX_TORQUE, RefusesBadSamples, SampleGuard, contact_wrench, named_params
 from ...core.types import AlignedSamples, Estimates, Event
 from scipy.stats import chi2
 
@@ -228,7 +228,7 @@ def _axes(key: str, value) -> np.ndarray:
     return array
 
 
-class KalmanEstimator:
+class KalmanEstimator(RefusesBadSamples):
     """Cascaded Kalman filters of the non-contact wrench, with drifting biases.
 
     Args:
@@ -796,16 +796,6 @@ class KalmanEstimator:
         accepted = ~run_f.gated
         A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
-
-    @property
-    def refused_samples(self) -> int:
-        """Samples refused as bad input so far."""
-        return self.guard.refused
-
-    @property
-    def failed_solves(self) -> int:
-        """Samples a stage's update could not be computed for (predicted only, marked not converged)."""
-        return self.force.failed + self.torque.failed
 
     def drain_events(self) -> list[Event]:
         """The events since the last call (EmitsEvents): ``payload_change``, ``sample_refused``."""

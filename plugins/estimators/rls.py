@@ -35,13 +35,13 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.frames import skew_stack
-from ...core.model import MAX_FORCE, MAX_TORQUE, SampleGuard, contact_wrench, named_params
+from ...core.model import MAX_FORCE, MAX_TORQUE, RefusesBadSamples, SampleGuard, contact_wrench, named_params
 from ...core.rls import RecursiveLeastSquares, run_gated
 from ...core.rls_printed import PrintedRecursiveLeastSquares
-from ...core.types import AlignedSamples, Estimates, Event
+from ...core.types import AlignedSamples, Estimates
 
 
-class RLSEstimator:
+class RLSEstimator(RefusesBadSamples):
     """Cascaded RLS of the non-contact wrench (paper, Algorithm 1).
 
     Args:
@@ -140,20 +140,6 @@ class RLSEstimator:
             self.first_converged_force = self.samples + int(np.argmax(conv_f))
         if self.first_converged_torque is None and conv_t.any():
             self.first_converged_torque = self.samples + int(np.argmax(conv_t))
-
-    @property
-    def refused_samples(self) -> int:
-        """Samples refused as bad input so far."""
-        return self.guard.refused
-
-    @property
-    def failed_solves(self) -> int:
-        """Samples a stage's solve failed on (left out and marked not converged)."""
-        return self.force.failed + self.torque.failed
-
-    def drain_events(self) -> list[Event]:
-        """The events since the last call (EmitsEvents): ``sample_refused``."""
-        return self.guard.drain_events()
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units)."""

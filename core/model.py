@@ -192,7 +192,7 @@ class SampleGuard:
         """None when every sample may be used (the usual case), else the (m,) mask of those that may."""
         if all_plausible(block.force_S, block.torque_S, block.R_EB, self.max_force, self.max_torque) and (
                 not extras or all(np.isfinite(extra).all() for extra in extras)):
-            if self._pending:  # refusals held back by the interval: report them once it has passed
+            if self._pending and len(block):  # refusals held back by the interval: report them once it has passed
                 self._report(int(block.t_ns[-1]))
             return None
         codes = refusal_codes(block.force_S, block.torque_S, block.R_EB, self.max_force, self.max_torque, extras)

@@ -219,6 +219,23 @@ def test_a_non_finite_pose_is_refused_where_it_is_used(tour, name):
     assert rls.refused_samples == 0
 
 
+@pytest.mark.parametrize("name", ESTIMATORS)
+def test_blocks_all_refused_or_empty_change_nothing(tour, name):
+    # a block with nothing left after the refusals, and an empty block while a report is held back
+    bad = copy(tour.subset(slice(0, 1200)))
+    bad.force_S[1000:1003] = np.nan
+    est, ref = ESTIMATORS[name](), ESTIMATORS[name]()
+    est.update_block(bad.subset(slice(0, 1000)))
+    ref.update_block(tour.subset(slice(0, 1000)))
+    out = est.update_block(bad.subset(slice(1000, 1002)))
+    assert len(out) == 2 and np.isnan(out.contact_force_S).all() and not out.contact.any()
+    assert est.update_block(bad.subset(slice(1002, 1003))).converged_force[0] == out.converged_force[-1]
+    assert len(est.update_block(bad.subset(slice(1003, 1003)))) == 0
+    est.update_block(bad.subset(slice(1003, 1200)))
+    ref.update_block(tour.subset(slice(1003, 1200)))
+    assert state_equal(est, ref) and est.refused_samples == 3
+
+
 def test_the_one_sample_check_agrees_with_the_vectorised_one(tour):
     # the live loop's one-sample blocks are screened in Python floats; the screen and the
     # vectorised check agree on good and bad samples of every kind

@@ -445,12 +445,20 @@ def bench_paper(quick: bool = False, all_estimators: bool = False, registry: Reg
     return out, main["plots"]
 
 
-def write_plots(plots: dict[str, Any], folder: Path) -> list[Path]:
-    """The paper's figures as PNG files; returns their paths."""
+FIGURES = ("fig3_force_parameters.png", "fig4_torque_parameters.png", "fig5_force_compensation.png",
+           "fig6_torque_compensation.png", "fig7_indentation.png", "fig8_rotation_104g.png",
+           "fig9_rotation_metrics.png", "drift_contact.png")
+"""The files :func:`write_plots` writes (an existing one is refused unless ``force``)."""
+
+
+def write_plots(plots: dict[str, Any], folder: Path, force: bool = False) -> list[Path]:
+    """The paper's figures as PNG files, each written atomically; returns their paths."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from ..output import atomic_output
 
     folder.mkdir(parents=True, exist_ok=True)
     written = []
@@ -458,7 +466,8 @@ def write_plots(plots: dict[str, Any], folder: Path) -> list[Path]:
     def save(fig, name):
         path = folder / name
         fig.tight_layout()
-        fig.savefig(path, dpi=110)
+        with atomic_output(path, force, label="--plots") as tmp:
+            fig.savefig(tmp, dpi=110)
         plt.close(fig)
         written.append(path)
 

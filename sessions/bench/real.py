@@ -29,7 +29,7 @@ from ...core.types import first_true
 
 from ..offline.compensate import run_estimator
 from ..offline.metrics import norm_ratio, rms, scored_rows
-from ..recording.csvimport import CsvError
+from ..offline.numerics import numerical_failures
 from ..recording.stream import Stream, load_stream
 
 def default_real_dir() -> Path:
@@ -54,7 +54,7 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
 
         try:
             named = discrepancy(stream, registry=registry)["estimator_options"]
-        except (ValueError, OSError) as exc:
+        except UserError as exc:  # too short a file, its numbers defeat a solver: said in the row
             named = f"discrepancy: {exc}"
         out.append(("kalman noise=auto + named effects", "kalman",
                     dict(AUTO_NOISE, **named) if isinstance(named, dict) else named))
@@ -79,43 +79,53 @@ def bench_real(folder: Path, registry: Registry | None = None,
         raise UserError(f"{folder}: no CSV files to evaluate")
     out: dict[str, Any] = {}
     for path in files:
-        try:
-            stream = load_stream(path)
-        except CsvError as exc:  # one bad file does not stop the others
+        try:  # one bad file does not stop the others: its error goes in its row
+            with numerical_failures(path.name):
+                out[path.stem] = bench_file(path, registry, progress)
+        except UserError as exc:
             out[path.stem] = {"error": str(exc)}
-            continue
-        s = stream.samples
-        fit = batch_fit(s.force_S, s.torque_S, s.R_EB)
-        residual = fit["residual_force_S"]
-        entry: dict[str, Any] = {
-            "rows": len(stream),
-            "batch_rms_force_S": rms(residual).tolist(),
-            "estimators": {},
-        }
-        for label, name, options in variants(registry, stream):
-            if progress:
-                progress(f"{path.name}: {label}")
-            if isinstance(options, str):  # the options could not be had: say why in the row
-                entry["estimators"][label] = {"error": options}
-                continue
-            if label.endswith("named effects"):
-                entry["named_effects"] = options.get("effects", [])
-            est = run_estimator(stream, registry.create("estimator", name, options, where="estimator"))
-            first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
-            result: dict[str, Any] = {"converged_force_at": first_f, "converged_torque_at": first_t,
-                                      "refused_rows": int(est.contact.sum()),
-                                      "refused_pct": 100.0 * float(np.mean(est.contact))}
-            result["ratio_norm_second_half"] = second_half_ratio(est.contact_force_S, residual)
-            if first_f is not None:  # refused rows are scored too: every one is a false contact
-                rows = scored_rows(first_f, est.contact_force_S)
-                online, batch = rms(est.contact_force_S[rows]), rms(residual[rows])
-                result.update({
-                    "rows_scored": int(rows.sum()),
-                    "rms_force_S": online.tolist(),
-                    "batch_rms_same_rows": batch.tolist(),
-                    "ratio": (online / batch).tolist(),
-                    "ratio_norm": norm_ratio(online, batch),
-                })
-            entry["estimators"][label] = result
-        out[path.stem] = entry
     return out
+
+
+def bench_file(path: Path, registry: Registry, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """One file's entry: the batch fit, then every estimator variant (an estimator that fails on the file,
+    or whose options cannot be had, gets its error in its row)."""
+    stream = load_stream(path)
+    s = stream.samples
+    fit = batch_fit(s.force_S, s.torque_S, s.R_EB)
+    residual = fit["residual_force_S"]
+    entry: dict[str, Any] = {
+        "rows": len(stream),
+        "batch_rms_force_S": rms(residual).tolist(),
+        "estimators": {},
+    }
+    for label, name, options in variants(registry, stream):
+        if progress:
+            progress(f"{path.name}: {label}")
+        if isinstance(options, str):  # the options could not be had: say why in the row
+            entry["estimators"][label] = {"error": options}
+            continue
+        if label.endswith("named effects"):
+            entry["named_effects"] = options.get("effects", [])
+        try:
+            est = run_estimator(stream, registry.create("estimator", name, options, where="estimator"))
+        except UserError as exc:
+            entry["estimators"][label] = {"error": str(exc)}
+            continue
+        first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
+        result: dict[str, Any] = {"converged_force_at": first_f, "converged_torque_at": first_t,
+                                  "refused_rows": int(est.contact.sum()),
+                                  "refused_pct": 100.0 * float(np.mean(est.contact))}
+        result["ratio_norm_second_half"] = second_half_ratio(est.contact_force_S, residual)
+        if first_f is not None:  # refused rows are scored too: every one is a false contact
+            rows = scored_rows(first_f, est.contact_force_S)
+            online, batch = rms(est.contact_force_S[rows]), rms(residual[rows])
+            result.update({
+                "rows_scored": int(rows.sum()),
+                "rms_force_S": online.tolist(),
+                "batch_rms_same_rows": batch.tolist(),
+                "ratio": (online / batch).tolist(),
+                "ratio_norm": norm_ratio(online, batch),
+            })
+        entry["estimators"][label] = result
+    return entry

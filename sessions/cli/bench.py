@@ -9,6 +9,8 @@ from rich.console import Console
 from rich.table import Table
 
 from ...core.errors import UserError
+from ..output import check_output, check_plots_folder, write_text
+from .offline import add_force
 from .render import err, finite_json, fmt, wide_console
 
 
@@ -102,6 +104,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise UserError("--plots, --quick and --all-estimators go with 'bench paper'")
     if args.which != "real" and args.folder:
         raise UserError(f"'bench {args.which}' takes no folder (got {args.folder!r}); did you mean 'bench real'?")
+    # where the results go is checked before the benchmarks run, so a finished run is not lost to a bad path
+    if args.json:
+        check_output(args.json, args.force, label="--json")
+    if args.plots:
+        from ..bench.paper import FIGURES
+
+        check_plots_folder(args.plots, args.force, patterns=FIGURES)
     if args.which == "paper":
         from ..bench.paper import bench_paper, write_plots
 
@@ -110,7 +119,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                                      progress=lambda m: status.update(f"bench paper: {m}"))
         print_paper_tables(out)
         if args.plots:
-            for path in write_plots(plots, Path(args.plots)):
+            for path in write_plots(plots, Path(args.plots), force=args.force):
                 err.print(f"wrote {path}")
     elif args.which == "estimators":
         from ..bench.family import bench_estimators
@@ -131,8 +140,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         with err.status("evaluating real recordings") as status:
             out = bench_real(folder, progress=lambda m: status.update(f"bench real: {m}"))
         print_real_table(out)
+        if all("error" in entry for entry in out.values()):
+            raise UserError(f"{folder}: none of its {len(out)} CSV file(s) could be evaluated (see the table)")
     if args.json:
-        Path(args.json).write_text(json.dumps(finite_json(out), indent=2) + "\n", encoding="utf-8")
+        write_text(args.json, json.dumps(finite_json(out), indent=2) + "\n", args.force, label="--json")
         err.print(f"wrote {args.json}")
     return 0
 
@@ -231,4 +242,5 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plots", default=None, help="with paper: write the figures as PNG into this folder")
     p.add_argument("--quick", action="store_true", help="with paper: a shorter run (smoke test)")
     p.add_argument("--all-estimators", action="store_true", help="with paper: repeat for every registered estimator")
+    add_force(p)
     p.set_defaults(func=cmd_bench)

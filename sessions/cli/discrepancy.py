@@ -11,6 +11,8 @@ from rich.table import Table
 
 from ...core.errors import UserError
 from ...core.plugins import Registry
+from ..output import check_output, check_plots_folder, write_text
+from .offline import add_force
 from .render import err, fmt, vec, wide_console
 
 
@@ -67,6 +69,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     import json
 
     from ..config import parse_value
+    from ..discrepancy.plots import FIGURE_PATTERNS, write_plots
     from ..discrepancy.workflow import Settings, discrepancy, json_ready, toml_snippet
 
     registry = Registry()
@@ -91,35 +94,21 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
         raise UserError(f"--folds: at least 3, got {args.folds}")
     # check where the results go before the run, so a finished run is not lost to a bad path
     if args.json:
-        target = Path(args.json)
-        if target.is_dir():
-            raise UserError(f"--json {args.json}: is a folder; give a file name")
-        if not target.parent.is_dir():
-            raise UserError(f"--json {args.json}: folder {target.parent} does not exist")
+        check_output(args.json, args.force, label="--json", inputs=[args.input])
     if args.plots:
-        target = Path(args.plots)
-        if target.exists() and not target.is_dir():
-            raise UserError(f"--plots {args.plots}: exists and is not a folder")
-        parent = next((p for p in target.parents if p.exists()), None)
-        if parent is not None and not parent.is_dir():
-            raise UserError(f"--plots {args.plots}: {parent} is not a folder")
+        check_plots_folder(args.plots, args.force, patterns=FIGURE_PATTERNS)
     with err.status(f"discrepancy: reading {Path(args.input).name}") as status:
         result = discrepancy(args.input, settings, registry,
                              progress=lambda m: status.update(f"discrepancy: {m}"))
         print_discrepancy(result)
         # the JSON first: it is the result; the figures only show it
         if args.json:
-            try:
-                Path(args.json).write_text(json.dumps(json_ready(result), indent=2) + "\n", encoding="utf-8")
-            except OSError as exc:
-                raise UserError(f"--json {args.json}: cannot write it ({exc.strerror or exc})") from exc
+            write_text(args.json, json.dumps(json_ready(result), indent=2) + "\n", args.force, label="--json")
             err.print(f"wrote {args.json}")
         if args.plots:
-            from ..discrepancy.plots import write_plots
-
             status.update("discrepancy: plotting")
             try:
-                for path in write_plots(result, args.plots):
+                for path in write_plots(result, args.plots, force=args.force):
                     err.print(f"wrote {path}")
             except OSError as exc:
                 raise UserError(f"--plots {args.plots}: cannot write the figures ({exc.strerror or exc})"
@@ -145,4 +134,5 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="held-out mean-square reduction that names an effect (default 1 %%)")
     p.add_argument("--time-base", default="auto", choices=("auto", "seconds", "index"),
                    help="what t is: auto (rows when t is 0, 1, 2, ...), seconds, or index (rows)")
+    add_force(p)
     p.set_defaults(func=cmd_discrepancy)

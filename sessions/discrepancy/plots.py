@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..offline.metrics import rms
+from ..output import atomic_output
 
 MAX_POINTS = 4000
 COLORS = ("tab:red", "tab:green", "tab:blue")
@@ -50,8 +51,12 @@ def _slug(label: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", label.lower()).strip("_")
 
 
-def write_plots(result: dict[str, Any], folder: str | Path) -> list[Path]:
-    """Write the figures of a ``discrepancy`` result into ``folder`` (created); the paths written."""
+FIGURE_PATTERNS = ("[0-9][0-9]_*.png", "steps.png")
+"""The files :func:`write_plots` writes (an existing one is refused unless ``force``)."""
+
+
+def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False) -> list[Path]:
+    """Write the figures of a ``discrepancy`` result into ``folder`` (created), each atomically; the paths written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -59,6 +64,13 @@ def write_plots(result: dict[str, Any], folder: str | Path) -> list[Path]:
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+
+    def save(fig, path: Path) -> None:
+        with atomic_output(path, force, label="--plots") as tmp:
+            fig.savefig(tmp, dpi=90)
+        plt.close(fig)
+        written.append(path)
+
     force_S = result["_stream"].samples.force_S
     kept = result["_kept"]
     states = result["_states"]
@@ -118,10 +130,7 @@ def write_plots(result: dict[str, Any], folder: str | Path) -> list[Path]:
         ax.set(title="torque residual against time", xlabel=f"t ({unit})", ylabel="N·m")
         ax.legend(markerscale=6, loc="upper right")
         fig.tight_layout()
-        path = folder / f"{i:02d}_{_slug(state.label)}.png"
-        fig.savefig(path, dpi=90)
-        plt.close(fig)
-        written.append(path)
+        save(fig, folder / f"{i:02d}_{_slug(state.label)}.png")
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.5))
     labels = [s.label for s in states]
@@ -137,8 +146,5 @@ def write_plots(result: dict[str, Any], folder: str | Path) -> list[Path]:
         ax.legend()
     fig.suptitle(result["input"])
     fig.tight_layout()
-    path = folder / "steps.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    written.append(path)
+    save(fig, folder / "steps.png")
     return written

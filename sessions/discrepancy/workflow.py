@@ -59,6 +59,7 @@ from ...core.frames import quat_wxyz_from_matrix
 from ...core.plugins import ConfigError, Registry
 
 from ..offline.metrics import rms
+from ..offline.numerics import numerical_failures
 from ..recording.csvimport import CsvError
 from ..recording.stream import Stream, load_stream
 
@@ -630,8 +631,9 @@ def discrepancy(source: str | Path | Stream, settings: Settings | None = None, r
     """
     settings = settings if settings is not None else Settings()
     stream = source if isinstance(source, Stream) else load_stream(source)
-    workflow = Discrepancy(stream, registry, settings, progress)
-    return workflow.run() | {"_stream": stream, "_motion": workflow.motion}
+    with numerical_failures(stream.name, "the discrepancy workflow"):  # a LinAlgError is the file's: one line
+        workflow = Discrepancy(stream, registry, settings, progress)
+        return workflow.run() | {"_stream": stream, "_motion": workflow.motion}
 
 
 def json_ready(result: dict[str, Any]) -> dict[str, Any]:

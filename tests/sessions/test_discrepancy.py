@@ -251,7 +251,7 @@ def test_bad_input_is_one_line(tmp_path, capsys, argv, message):
 def test_the_json_is_written_before_the_plots_and_a_plot_error_is_one_line(tmp_path, capsys, monkeypatch):
     import hapticlab.sessions.discrepancy.plots as plots
 
-    def broken(result, folder):
+    def broken(result, folder, force=False):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(plots, "write_plots", broken)

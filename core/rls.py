@@ -62,6 +62,11 @@ class RecursiveLeastSquares:
         self.updates = 0
         self.failed = 0
 
+    def restart(self, P0: float) -> None:
+        """Start again from the current estimate x with P = P0·I (Λ = I/P0, η = Λ x): what was learnt is forgotten."""
+        self.Lambda = np.eye(6) / P0
+        self.eta = self.Lambda @ self.x
+
     @property
     def P(self) -> np.ndarray:
         """(6, 6) estimation-error covariance P_k = Λ_k⁻¹ (inf if Λ cannot be inverted: nothing is known)."""

@@ -797,6 +797,21 @@ class KalmanEstimator(RefusesBadSamples):
         A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
 
+    def reidentify_bias(self, reason: str) -> None:
+        """Reidentifies: the sensor's bias (force and torque) as unknown again, its covariance back to the prior.
+
+        The host asks for it after a sensor bias step; the rest (the tool's weight, its centre of gravity,
+        the mount) stays known, so the new bias is found from the next samples and the covariance-based
+        convergence flags drop until it is.
+        """
+        for stage, prior in ((self.force, self.prior_f), (self.torque, self.prior_t)):
+            P = stage.P.copy()
+            P[3:6, :] = 0.0
+            P[:, 3:6] = 0.0
+            P[3:6, 3:6] = np.diag(prior[3:6] ** 2)
+            stage.P = P
+        self.events.append(Event(self._last_t_ns or 0, "bias_reopened", f"bias re-opened: {reason}"))
+
     def drain_events(self) -> list[Event]:
         """The events since the last call (EmitsEvents): ``payload_change``, ``sample_refused``."""
         out, self.events = self.events + self.guard.drain_events(), []

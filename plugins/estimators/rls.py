@@ -98,8 +98,10 @@ class RLSEstimator(RefusesBadSamples):
         self.torque_threshold = torque_threshold
         self.epsilon = epsilon
         self.covariance_update = covariance_update
+        self.P0 = P0
         self.force = stage(rng.standard_normal(6), P0, R)
         self.torque = stage(rng.standard_normal(6), P0, R)
+        self.restarts = 0
         self.converged_force = False
         self.converged_torque = False
         self.first_converged_force: int | None = None
@@ -140,6 +142,14 @@ class RLSEstimator(RefusesBadSamples):
             self.first_converged_force = self.samples + int(np.argmax(conv_f))
         if self.first_converged_torque is None and conv_t.any():
             self.first_converged_torque = self.samples + int(np.argmax(conv_t))
+
+    def reidentify_bias(self, reason: str) -> None:
+        """Reidentifies: run Algorithm 1 again from the current estimate (both stages' P back to P0·I, flags
+        down), as the paper's method would be restarted; the host asks for it after a sensor bias step."""
+        for stage in (self.force, self.torque):
+            stage.restart(self.P0)
+        self.converged_force = self.converged_torque = False
+        self.restarts += 1
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units)."""

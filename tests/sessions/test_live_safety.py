@@ -54,6 +54,21 @@ def test_a_bias_step_is_told_from_a_contact_when_the_tool_turns(clean):
     assert r["event"].startswith("bias_step: sensor bias step of 2.0")
 
 
+@pytest.mark.parametrize("estimator", ["rls", "kalman"])
+def test_after_a_bias_step_the_estimator_re_identifies_and_the_force_comes_back_right(estimator):
+    t, force, messages, events, t0 = session(estimator, FAULTS["sensor bias step +2 N"])
+    kinds = [e.kind for e in events]
+    assert "bias_step" in kinds and "bias_reidentified" in kinds
+    back = next(e for e in events if e.kind == "bias_reidentified")
+    t_back = (back.t_ns - t0) * 1e-9
+    assert t_back - FAULT_START_S < 2.5
+    # once back on, the device force is the contact's again: the clean run's, not the 2 N step
+    t_ref, force_ref, *_ = session(estimator, None)
+    n = min(len(t), len(t_ref))
+    later = (t[:n] > t_back + 0.5) & (t[:n] < 5.9)  # before the first indentation
+    assert later.any() and made_up_force(force[:n][later], force_ref[:n][later]).max() < 0.5
+
+
 def test_no_fault_is_seen_in_clean_sessions():
     """Demo sessions with indentations while the tool turns, three seeds and estimators: nothing is called a fault."""
     for estimator, seed in (("rls", 2), ("kalman", 3), ("batch", 4)):

@@ -123,6 +123,8 @@ LAG_MEMORY_S = 0.25
 """The lag estimate forgets with this time constant, s."""
 LAG_MAX_TURN_RAD_S = 10.0
 """Faster apparent turns (a pose stream that jumps) are left out of the estimate, rad/s."""
+LAG_MAX_S = 0.5
+"""The largest lag the watch explains; a bigger residual is a contact, s."""
 LAG_CONTACT_GUARD_NS = 500_000_000
 """Samples this soon after a contact are left out of the estimate (a contact ramps down below the
 estimator's threshold before it ends), ns."""
@@ -137,8 +139,9 @@ class LagWatch:
 
     If the poses the robot reports are τ late, the sensor sees the weight where
     the model puts it τ later: the residual is r ≈ τ·ġ_S, with g_S = R_SB·g_B
-    the predicted weight in S and ġ_S its rate of change. Over the samples the
-    estimator accepted (no contact), τ̂ = Σ r·ġ / Σ ġ·ġ with exponential
+    the predicted weight in S and ġ_S its rate of change. Over the samples no
+    lag up to ``LAG_MAX_S`` leaves unexplained (a larger residual is a contact,
+    and so is the next ``LAG_CONTACT_GUARD_NS``), τ̂ = Σ r·ġ / Σ ġ·ġ with exponential
     forgetting; its standard error is the noise over √Σ‖ġ‖², so it speaks only
     while the tool turns, and only when the lag explains most of the residual
     (τ̂·Σ r·ġ ≥ ``LAG_MIN_EXPLAINED`` of Σ‖r‖²): the tail of a contact that
@@ -169,16 +172,19 @@ class LagWatch:
         if len(t) < 2:
             return self.lag_s
         dt = np.diff(t) * 1e-9
-        contact = est.contact[-len(dt):]
+        g_dot = np.diff(g_S, axis=0) / np.where(dt > 0, dt, 1.0)[:, None]
+        r = est.contact_force_S[-len(dt):]
+        # a contact: a residual no lag up to LAG_MAX_S explains (an estimator's gate may refuse a lag's residual
+        # too, so its contact flag is not used), and the fading tail after it
+        with np.errstate(invalid="ignore"):
+            contact = np.linalg.norm(r, axis=1) > LAG_MAX_S * np.linalg.norm(g_dot, axis=1) + 3 * self.noise
         if contact.any():
             self.contact_ns = int(t[1:][contact][-1])
-        ok = (dt > 0) & ~contact & np.isfinite(est.contact_force_S[-len(dt):]).all(1)
-        if self.contact_ns is not None:  # a contact's fading tail is residual too, but no lag's
+        ok = (dt > 0) & ~contact & np.isfinite(r).all(1)
+        if self.contact_ns is not None:
             ok &= t[1:] - self.contact_ns > LAG_CONTACT_GUARD_NS
-        g_dot = np.diff(g_S, axis=0) / np.where(dt > 0, dt, 1.0)[:, None]
         # a pose that jumps (a stream that falls behind or catches up at once) is no motion to learn from
         ok &= np.linalg.norm(g_dot, axis=1) <= LAG_MAX_TURN_RAD_S * np.linalg.norm(gravity_force_B)
-        r = est.contact_force_S[-len(dt):]
         decay = np.exp(-float(dt.sum()) / LAG_MEMORY_S)
         self.S_rg = self.S_rg * decay + float(np.einsum("ij,ij->", r[ok], g_dot[ok]))
         self.S_gg = self.S_gg * decay + float(np.einsum("ij,ij->", g_dot[ok], g_dot[ok]))

@@ -577,15 +577,20 @@ def parse_motion(table: Any, seed: int, robot: RobotParams, where: str = "world.
     return _build(where, MOTION_SCRIPTS[script], p_BoEo_B=robot.p_BoEo_B, **opts)
 
 
+def _table_list(value: Any, where: str) -> list[tuple[str, Mapping[str, Any]]]:
+    """The tables of a ``[[where]]`` list, each with its key for messages (``world.faults[2]``)."""
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{where}: expected a list of tables ([[{where}]]), got {value!r}")
+    for i, table in enumerate(value):
+        if not isinstance(table, Mapping):
+            raise ConfigError(f"{where}[{i}]: expected a table, got {table!r}")
+    return [(f"{where}[{i}]", table) for i, table in enumerate(value)]
+
+
 def parse_contacts(value: Any, where: str = "world.contacts") -> tuple[Contact, ...]:
     """Contact events from ``[[world.contacts]]``."""
-    if not isinstance(value, (list, tuple)):
-        raise ConfigError(f"{where}: expected a list of tables ([[world.contacts]]), got {value!r}")
     contacts = []
-    for i, table in enumerate(value):
-        here = f"{where}[{i}]"
-        if not isinstance(table, Mapping):
-            raise ConfigError(f"{here}: expected a table, got {table!r}")
+    for here, table in _table_list(value, where):
         options = dict(table)
         if "kind" not in options:
             raise ConfigError(f"{here}.kind: missing; known kinds: {', '.join(CONTACT_KINDS)}")
@@ -601,11 +606,8 @@ def parse_contacts(value: Any, where: str = "world.contacts") -> tuple[Contact, 
 
 def parse_faults(value: Any, where: str = "world.faults") -> tuple[Fault, ...]:
     """Injected faults from ``[[world.faults]]`` (see ``faults.py``)."""
-    if not isinstance(value, (list, tuple)):
-        raise ConfigError(f"{where}: expected a list of tables ([[world.faults]]), got {value!r}")
     faults = []
-    for i, table in enumerate(value):
-        here = f"{where}[{i}]"
+    for here, table in _table_list(value, where):
         opts = read_table(here, table, FAULT_OPTIONS)
         for key in ("kind", "start"):
             if key not in opts:

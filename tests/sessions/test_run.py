@@ -242,8 +242,12 @@ def test_sensor_slower_than_the_loop_never_enables_early(tmp_path):
     enabled = np.array([m["enabled"] for m in commands])
     known = next(t for t, m in rec.topics["/events"] if m["kind"] == "parameters_known")
     assert not enabled[t_cmd < known].any() and enabled[t_cmd > known].all()
-    toggles = [m for _, m in rec.topics["/events"] if m["kind"].startswith("haptic_")]
-    assert len(toggles) == 3  # off (not converged), off (not identified), on
+    toggles = [m["message"] for _, m in rec.topics["/events"] if m["kind"].startswith("haptic_")]
+    # off until converged (and, when the first convergence comes before the parameters are known, off until
+    # identified: which comes first depends on the data), then on, once and for good
+    assert toggles[0] == "haptic force zeroed: estimator not converged" and toggles[-1] == "haptic force on"
+    assert toggles.count("haptic force on") == 1
+    assert set(toggles[1:-1]) <= {"haptic force zeroed: parameters not yet identified"}
 
 
 class SaturatingSensor(InterruptingSensor):

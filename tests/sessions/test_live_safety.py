@@ -65,7 +65,7 @@ def test_after_a_bias_step_the_estimator_re_identifies_and_the_force_comes_back_
     # once back on, the device force is the contact's again: the clean run's, not the 2 N step
     t_ref, force_ref, *_ = session(estimator, None)
     n = min(len(t), len(t_ref))
-    later = (t[:n] > t_back + 0.5) & (t[:n] < 5.9)  # before the first indentation
+    later = (t[:n] > t_back + 0.2) & (t[:n] < 5.95)  # before the first indentation (6.0 s)
     assert later.any() and made_up_force(force[:n][later], force_ref[:n][later]).max() < 0.5
 
 

@@ -61,10 +61,10 @@ class SimKinematics:
         if len(seq) == 0:
             return []
         t = (t_ns - self._clock.t0_ns) / 1e9
-        reading_ns = t_ns  # the stamp whose encoder reading (jitter) is reported
+        reading_ns = t_ns - self._clock.t0_ns  # the world time (ns) whose encoder reading (jitter) is reported
         if self.world.faults:  # injected faults ([[world.faults]]): frozen, late or missing poses
             t, t_reading, keep = kinematics_times(self.world.faults, t)
-            reading_ns = self._clock.t0_ns + np.round(t_reading[keep] * 1e9).astype(np.int64)
+            reading_ns = np.round(t_reading[keep] * 1e9).astype(np.int64)
             t_ns, t = t_ns[keep], t[keep]
             if len(t_ns) == 0:
                 return []

@@ -188,9 +188,10 @@ def test_a_realtime_session_runs_on_the_wall_clock(tmp_path):
     t_cmd = rec.t_ns("/haptic/command")
     # commands carry the wall clock: their span is the session's
     assert 0.45 < (t_cmd[-1] - t_cmd[0]) * 1e-9 <= wall and np.all(np.diff(t_cmd) > 0)
-    # one command per 1 ms tick, except the ticks an overrun skipped (counted in its events); plus the final zero
+    # one command per 1 ms tick, except the ticks an overrun skipped (counted in its events), plus the final
+    # zero; a loaded machine may leave the last few ticks due when the wall clock reaches the end (not skipped)
     skipped = sum(e.data["ticks_skipped"] for e in result.events if e.kind == "overrun")
-    assert abs(len(t_cmd) - 1 + skipped - 500) <= 1
+    assert 495 <= len(t_cmd) - 1 + skipped <= 501
 
 
 def test_a_loop_that_falls_behind_records_an_overrun(tmp_path, registry):

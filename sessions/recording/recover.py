@@ -171,6 +171,8 @@ def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[s
                     break  # a record whose length fits but whose content does not parse
                 pos += 9 + length
             stats["lost_tail_bytes"] = 0 if stats["complete"] else size - pos
+            if not started:  # not one complete record: an empty "recovered" file would only replace the output
+                raise RecordingError(f"{src} has no complete MCAP record after the magic bytes: nothing to recover")
             start()
             writer.add_metadata(
                 RECOVERED_METADATA,

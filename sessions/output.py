@@ -132,3 +132,13 @@ def write_text(path: str | os.PathLike[str], text: str, force: bool = False, *, 
     with atomic_output(path, force, label=label) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+def save_figure(fig, path: Path, force: bool = False, dpi: int = 100) -> Path:
+    """Write a matplotlib figure (PNG, by the suffix) through :func:`atomic_output` and close it; the path."""
+    import matplotlib.pyplot as plt
+
+    with atomic_output(path, force, label="--plots") as tmp:
+        fig.savefig(tmp, dpi=dpi)
+    plt.close(fig)
+    return path

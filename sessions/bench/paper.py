@@ -458,18 +458,14 @@ def write_plots(plots: dict[str, Any], folder: Path, force: bool = False) -> lis
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..output import atomic_output
+    from ..output import save_figure
 
     folder.mkdir(parents=True, exist_ok=True)
     written = []
 
     def save(fig, name):
-        path = folder / name
         fig.tight_layout()
-        with atomic_output(path, force, label="--plots") as tmp:
-            fig.savefig(tmp, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        written.append(save_figure(fig, folder / name, force, dpi=110))
 
     index, trace, truth = plots["identification"]
     for name, keys, units in (("fig3_force_parameters.png", ("gravity_force_B", "bias_force_S"), ("N", "N")),

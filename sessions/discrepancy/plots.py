@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..offline.metrics import rms
-from ..output import atomic_output
+from ..output import save_figure
 
 MAX_POINTS = 4000
 COLORS = ("tab:red", "tab:green", "tab:blue")
@@ -64,12 +64,6 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-
-    def save(fig, path: Path) -> None:
-        with atomic_output(path, force, label="--plots") as tmp:
-            fig.savefig(tmp, dpi=90)
-        plt.close(fig)
-        written.append(path)
 
     force_S = result["_stream"].samples.force_S
     kept = result["_kept"]
@@ -130,7 +124,7 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
         ax.set(title="torque residual against time", xlabel=f"t ({unit})", ylabel="N·m")
         ax.legend(markerscale=6, loc="upper right")
         fig.tight_layout()
-        save(fig, folder / f"{i:02d}_{_slug(state.label)}.png")
+        written.append(save_figure(fig, folder / f"{i:02d}_{_slug(state.label)}.png", force, dpi=90))
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.5))
     labels = [s.label for s in states]
@@ -146,5 +140,5 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
         ax.legend()
     fig.suptitle(result["input"])
     fig.tight_layout()
-    save(fig, folder / "steps.png")
+    written.append(save_figure(fig, folder / "steps.png", force, dpi=90))
     return written

@@ -31,6 +31,12 @@ QUAT_TOLERANCE = 1e-3
 """Largest | ‖q‖ − 1 | accepted (then renormalised); printed quaternions carry ~1e-9."""
 
 
+def off_unit(norm: np.ndarray) -> int | None:
+    """The first row whose quaternion norm is off 1 by more than :data:`QUAT_TOLERANCE` (NaN passes), or None."""
+    off = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOLERANCE)
+    return int(off[0]) if len(off) else None
+
+
 class CsvError(UserError, ValueError):
     """A CSV file breaks the import contract; the message names file, line and column."""
 
@@ -154,9 +160,7 @@ class _Chunk:
         torque_S = columns(("tx", "ty", "tz"))
         quat = columns(("qw", "qx", "qy", "qz"))
         norm = np.linalg.norm(quat, axis=1)
-        off = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOLERANCE)
-        if len(off):
-            k = int(off[0])
+        if (k := off_unit(norm)) is not None:
             raise CsvError(f"{name} line {lines[k]}, columns qw,qx,qy,qz: not a unit quaternion "
                            f"(norm {norm[k]:.6g})")
         quat = quat / norm[:, None]

@@ -23,6 +23,8 @@ from ...core.aligner import orientation_at, position_at
 from ...core.frames import matrix_from_quat_wxyz
 from ...core.types import AlignedSamples
 
+from .reader import RecordingError, iter_messages, open_recording
+
 CHUNK_ROWS = 16384
 """Rows per chunk when a file is streamed (``compensate``): memory is a small multiple of this, not of the file."""
 
@@ -121,11 +123,13 @@ def message_field(source: str, topic: str, messages: list[tuple[int, Any]], name
     a :class:`RecordingError` naming ``source``, the topic, the message (1 =
     the topic's first; ``first`` is the index of ``messages[0]``) and the field.
     """
-    from .reader import RecordingError
-
     shape = (len(messages),) if width is None else (len(messages), width)
-    pick = (lambda k, m: m[name]) if default is _REQUIRED else (
-        (lambda k, m: m.get(name, default(first + k))) if callable(default) else (lambda k, m: m.get(name, default)))
+
+    def pick(k: int, m: Any) -> Any:
+        if default is _REQUIRED:
+            return m[name]
+        return m.get(name, default(first + k) if callable(default) else default)
+
     try:
         out = np.array([pick(k, m) for k, (_, m) in enumerate(messages)], dtype=dtype)
         if out.shape == shape:
@@ -156,8 +160,6 @@ def _short(value: Any) -> str:
 
 def _messages(path: Path, topic: str) -> Iterator[tuple[int, Any]]:
     """``(t_ns, message)`` of one topic in time order; a message that is not JSON is a RecordingError."""
-    from .reader import RecordingError, iter_messages
-
     k = 0
     try:
         for k, (_, t_ns, message) in enumerate(iter_messages(path, topic), start=1):
@@ -171,9 +173,7 @@ def _batches(messages: Iterator[tuple[int, Any]], rows: int) -> Iterator[list[tu
         yield batch
 
 
-def _missing_topic(path: Path, topic: str):
-    from .reader import RecordingError, open_recording
-
+def _missing_topic(path: Path, topic: str) -> RecordingError:
     present = ", ".join(sorted(open_recording(path).topics)) or "none"
     return RecordingError(f"{path.name}: no {topic} messages (topics: {present}); offline tools need "
                           f"{WRENCH_TOPIC} and {POSE_TOPIC}")
@@ -181,8 +181,7 @@ def _missing_topic(path: Path, topic: str):
 
 def _poses(path: Path, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The whole pose stream as arrays: (M,) t_ns, (M, 4) quat_BE, (M, 3) p_BoEo_B or None (not in every pose)."""
-    from .csvimport import QUAT_TOLERANCE
-    from .reader import RecordingError
+    from .csvimport import off_unit
 
     name = path.name
     t_parts, quat_parts, p_parts = [], [], []
@@ -192,9 +191,7 @@ def _poses(path: Path, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | 
         t_parts.append(np.array([t for t, _ in batch], dtype=np.int64))
         quat = message_field(name, POSE_TOPIC, batch, "quat_BE", 4, first=done)
         norm = np.linalg.norm(quat, axis=1)
-        off = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOLERANCE)  # NaN rows pass: they make samples unusable
-        if len(off):
-            k = int(off[0])
+        if (k := off_unit(norm)) is not None:  # NaN rows pass: they make samples unusable
             raise RecordingError(f"{name}: {POSE_TOPIC} message {done + k + 1}, field 'quat_BE': not a unit "
                                  f"quaternion (norm {norm[k]:.6g})")
         quat_parts.append(quat)

@@ -53,6 +53,12 @@ class SessionSettings:
             before its kinematics count as frozen (a real arm's encoders always
             jitter), s; the force is zeroed and the samples are kept from the
             estimators until the poses move again.
+        max_turn_rate: fastest turn of the tool the robot can make, rad/s; two
+            consecutive poses further apart are a jump (a stream that fell
+            behind or caught up), the force is held off 0.5 s. The default,
+            10 rad/s, is above a UR3e wrist joint's 6.28 rad/s (360°/s).
+        max_speed: fastest motion of the tool the robot can make, m/s (the same
+            rule; the default, 5 m/s, is a UR's highest TCP speed limit).
     """
 
     name: str = "session"
@@ -62,12 +68,16 @@ class SessionSettings:
     out: str = ""
     stale_timeout: float = 0.0
     frozen_pose_timeout: float = 0.05
+    max_turn_rate: float = 10.0
+    max_speed: float = 5.0
 
     def __post_init__(self) -> None:
         check_duration("session.duration", self.duration)
         _require("session.loop_rate_hz", self.loop_rate_hz, above=0.0, maximum=MAX_LOOP_RATE_HZ)
         _require("session.stale_timeout", self.stale_timeout, minimum=0.0, maximum=1.0)
         _require("session.frozen_pose_timeout", self.frozen_pose_timeout, above=0.0, maximum=1.0)
+        _require("session.max_turn_rate", self.max_turn_rate, above=0.0, maximum=1000.0)
+        _require("session.max_speed", self.max_speed, above=0.0, maximum=100.0)
 
 
 @dataclass(frozen=True)

@@ -514,7 +514,7 @@ WORLD_OPTIONS: dict[str, Parser] = {
 
 FAULT_OPTIONS: dict[str, Parser] = {
     "kind": string, "start": number(), "duration": number(0.0, above=True), "force": vec3, "torque": vec3,
-    "delay": number(0.0),
+    "delay": number(0.0), "ramp": number(0.0),
 }
 
 

@@ -1,7 +1,7 @@
 """Injected faults: what a real sensor or robot does wrong, rehearsed in the simulated world.
 
 ``[[world.faults]]`` tables (``kind``, ``start`` s, ``duration`` s, and per kind
-``force`` N / ``torque`` N·m / ``delay`` s). The ``sim`` sensor and ``sim``
+``force`` N / ``torque`` N·m / ``delay`` s and ``ramp`` s). The ``sim`` sensor and ``sim``
 kinematics apply them to what they deliver (the world's physics is
 untouched), so a lab can rehearse failures and an instructor can show them,
 and the device emulators fed by the world inherit them.
@@ -21,7 +21,9 @@ Kinematics faults:
 * ``kinematics_freeze``: poses keep coming with fresh timestamps but hold the
   pose of the fault's start (a stuck controller thread);
 * ``kinematics_delay``: each pose is the one from ``delay`` s earlier, stamped
-  as current (a queue in the robot's network stack);
+  as current (a queue in the robot's network stack); with ``ramp`` the delay
+  grows from 0 to ``delay`` over ``ramp`` s (a queue filling: no jump in the
+  poses to give it away), then the queue empties at once at the end;
 * ``kinematics_dropout``: no poses at all.
 """
 
@@ -52,6 +54,7 @@ class Fault:
         force: (3,) force added by a spike or a bias step, N (in S).
         torque: (3,) torque added by a spike or a bias step, N·m (in S).
         delay: how late a delayed pose is, s.
+        ramp: how long a delay takes to build up from 0, s (0: at once).
     """
 
     kind: str
@@ -60,12 +63,15 @@ class Fault:
     force: tuple[float, float, float] = (0.0, 0.0, 0.0)
     torque: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delay: float = 0.0
+    ramp: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"kind: unknown fault {self.kind!r}; known: {', '.join(KINDS)}")
         if not (math.isfinite(self.start) and self.duration > 0 and self.delay >= 0 and math.isfinite(self.delay)):
             raise ValueError("start must be finite, duration > 0 and delay >= 0")
+        if not (math.isfinite(self.ramp) and self.ramp >= 0):
+            raise ValueError("ramp must be finite and >= 0 (s)")
         if self.kind == "kinematics_delay" and not self.delay > 0:
             raise ValueError("delay: a kinematics_delay needs delay > 0 (s)")
 
@@ -109,7 +115,8 @@ def kinematics_times(faults: tuple[Fault, ...], t: np.ndarray) -> tuple[np.ndarr
         if fault.kind == "kinematics_freeze":
             t_pose[on] = t_reading[on] = fault.start
         elif fault.kind == "kinematics_delay":
-            t_pose[on] = t_pose[on] - fault.delay
+            built = np.clip((t[on] - fault.start) / fault.ramp, 0.0, 1.0) if fault.ramp > 0 else 1.0
+            t_pose[on] = t_pose[on] - fault.delay * built
         else:  # kinematics_dropout
             keep &= ~on
     return t_pose, t_reading, keep

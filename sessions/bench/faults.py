@@ -41,6 +41,8 @@ FAULTS: dict[str, dict[str, Any]] = {
     "sensor bias step +2 N": {"kind": "sensor_bias_step", "force": [2.0, 0.0, 0.0]},
     "kinematics frozen, 2 s": {"kind": "kinematics_freeze", "duration": 2.0},
     "kinematics 200 ms late, 2 s": {"kind": "kinematics_delay", "delay": 0.2, "duration": 2.0},
+    "kinematics late by 0→200 ms over 0.5 s, 2 s": {"kind": "kinematics_delay", "delay": 0.2, "ramp": 0.5,
+                                                    "duration": 2.0},
     "kinematics dropout, 500 ms": {"kind": "kinematics_dropout", "duration": 0.5},
 }
 

@@ -8,6 +8,9 @@ The force is held at zero (the reason is recorded with each command) while:
   (implausible: the sensor would have saturated);
 * the robot has reported bit-identical poses for longer than
   ``frozen_pose_timeout`` (frozen kinematics: fresh timestamps, no motion);
+* two consecutive poses moved further than the arm can between their stamps
+  (``max_turn_rate``, ``max_speed``): a stream that fell behind, caught up or
+  glitched; held ``JUMP_HOLD_NS`` while the lag watch starts afresh;
 * the poses are out of step with the wrench by more than ``LAG_LIMIT_S``,
   estimated from the residual's correlation with the motion
   (``watch.LagWatch``: late poses stamped as current);
@@ -34,13 +37,16 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.interfaces import HasRange, ReportsParameterStd, Reidentifies
-from ...core.types import STATUS_OK, AlignedSamples, Estimates, Event
+from ...core.types import STATUS_OK, AlignedSamples, Estimates, Event, PoseSample
 from .watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
 """After an estimator's payload change the haptic force is held at zero this long (1 s): the change
 may be a load held by the tool (a grasped object) rather than a new tool, and its release would then
 show as a phantom force until the estimator sees the second change."""
+JUMP_HOLD_NS = 500_000_000
+"""After the poses jump the force is held at zero this long (0.5 s): long enough for the lag watch, started
+afresh, to resolve a lag while the tool turns fast enough for the lag to matter."""
 CONVERGENCE_LOSS_NS = 20_000_000
 """A converged force stage whose flag has been down this long (20 ms of samples) is no longer converged."""
 WARMING_UP = ("estimator not converged", "parameters not yet identified")
@@ -80,16 +86,19 @@ class HapticGate:
         reidentifies: the estimator when it can re-identify its bias (else None: a bias step latches).
         stale_timeout_ns: oldest newest-sample age before "no sensor data", ns.
         frozen_pose_timeout_ns: longest run of identical poses before "kinematics frozen", ns.
+        max_turn_rate: fastest turn between two poses before "kinematics jumped", rad/s.
+        max_speed: fastest motion between two poses before "kinematics jumped", m/s.
     """
 
     def __init__(self, label: str, ready_force_std: float, parameter_std: ReportsParameterStd | None,
-                 reidentifies: Reidentifies | None, stale_timeout_ns: int, frozen_pose_timeout_ns: int):
+                 reidentifies: Reidentifies | None, stale_timeout_ns: int, frozen_pose_timeout_ns: int,
+                 max_turn_rate: float = 10.0, max_speed: float = 5.0):
         self.label = label
         self.ready_force_std = ready_force_std
         self.parameter_std = parameter_std
         self.reidentifies = reidentifies
         self.stale_timeout_ns = stale_timeout_ns
-        self.poses = PoseWatch(frozen_pose_timeout_ns)
+        self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
         self.bias = BiasWatch()
         self.lag = LagWatch()
         self.ready = [False, False]  # each stage has converged at least once
@@ -107,6 +116,31 @@ class HapticGate:
     def frozen(self) -> bool:
         """The robot's poses are frozen now (their samples must not reach the estimators)."""
         return self.poses.frozen_for_ns > 0
+
+    def trusts_poses(self, now_ns: int) -> bool:
+        """The poses may be paired with the wrench: not frozen, not just jumped, not out of step.
+
+        When they may not, the samples are kept from the estimators (which would learn the fault into
+        their parameters); :meth:`on_withheld` still feeds the lag watch with them.
+        """
+        return not (self.frozen() or self._jumped(now_ns) or self._out_of_step())
+
+    def on_withheld(self, block: AlignedSamples, params: dict[str, list[float]] | None,
+                    R_SE: np.ndarray | None) -> None:
+        """Samples kept from the estimators because the poses are not trusted: the lag watch still sees them."""
+        if self.parameters_known and params is not None and not self.frozen():
+            self.lag.add(block, params, R_SE)
+
+    def _jumped(self, now_ns: int) -> bool:
+        return self.poses.jump is not None and now_ns - self.poses.jump[0] < JUMP_HOLD_NS
+
+    def _out_of_step(self) -> bool:
+        return self.lag.lag_s is not None and abs(self.lag.lag_s) > LAG_LIMIT_S
+
+    def on_poses(self, poses: list[PoseSample]) -> None:
+        """New poses arrived: a jump starts the lag watch afresh."""
+        if self.poses.add(poses):
+            self.lag.reset()
 
     def on_samples(self, block: AlignedSamples, usable: np.ndarray, beyond: np.ndarray) -> None:
         """A new sensor block arrived (every sample, usable or not)."""
@@ -139,7 +173,7 @@ class HapticGate:
             self.bias_hold = ""
             events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
         if self.parameters_known and params is not None:
-            self.lag.add(block, est, np.asarray(params["gravity_force_B"]), R_SE)
+            self.lag.add(block, params, R_SE)
         step = self.bias.add(block, est) if self.ready[0] and not self.bias_hold else None
         if step is not None:
             events.append(self._bias_step(step, now_ns))
@@ -170,7 +204,9 @@ class HapticGate:
             return self.data_reason
         if self.frozen():
             return f"kinematics frozen (the same pose for {self.poses.frozen_for_ns * 1e-6:.0f} ms)"
-        if self.lag.lag_s is not None and abs(self.lag.lag_s) > LAG_LIMIT_S:
+        if self._jumped(now_ns):
+            return f"kinematics jumped ({self.poses.jump[1]})"
+        if self._out_of_step():
             return (f"kinematics out of step with the sensor (poses {abs(self.lag.lag_s) * 1e3:.0f} ms "
                     f"{'late' if self.lag.lag_s > 0 else 'early'})")
         if self.bias_hold == "latched":

@@ -126,7 +126,8 @@ class LiveLoop:
             int(round(1.5e9 / float(session.sensor.rate_hz))) + self.period_ns  # the first late sample
         self.gate = HapticGate(session.estimator_name, session.haptic_settings.ready_force_std,
                                session.primary.parameter_std, session.primary.reidentifies, stale_ns,
-                               int(round(settings.frozen_pose_timeout * 1e9)))
+                               int(round(settings.frozen_pose_timeout * 1e9)), settings.max_turn_rate,
+                               settings.max_speed)
         self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
         self.governor = session.governor()
         self.aligner = Aligner(float(session.kinematics.rate_hz))
@@ -198,7 +199,7 @@ class LiveLoop:
         poses = self._call("kinematics", self.s.kinematics.read, now_ns)
         if poses:
             self.aligner.add_poses(poses)
-            self.gate.poses.add(poses)
+            self.gate.on_poses(poses)
             self.taps.poses(poses)
             self.poses += len(poses)
         wrenches = self._call("sensor", self.s.sensor.read, now_ns)
@@ -210,7 +211,9 @@ class LiveLoop:
             beyond = implausible(block, self.sensor_range)
             usable = block.usable & ~beyond
             self.gate.on_samples(block, usable, beyond)
-            if self.gate.frozen():  # their orientation is not the robot's: keep them from the estimators
+            if not self.gate.trusts_poses(now_ns):  # their orientation is not the robot's: keep them from the estimators
+                if usable.any():
+                    self.gate.on_withheld(block.subset(usable), *self._primary_model())
                 usable[:] = False
             if usable.any():
                 self._estimate(block.subset(usable), now_ns)
@@ -230,8 +233,7 @@ class LiveLoop:
         self._record_estimates(primary, est, with_params)
         for event in self._drain(primary):
             self.gate.on_event(event, now_ns)
-        R_SE = None if primary.mount is None else primary.mount.R_SE
-        params = primary.estimator.params() if self.gate.parameters_known else None
+        params, R_SE = self._primary_model()
         for event in self.gate.on_estimates(block, est, now_ns, params, R_SE):
             self._event(event)
         R_BE = block.R_EB[-1].T
@@ -249,6 +251,12 @@ class LiveLoop:
                 continue
             self._record_estimates(shadow, shadow_est, with_params)
             self._drain(shadow)
+
+    def _primary_model(self) -> tuple[dict[str, list[float]] | None, np.ndarray | None]:
+        """The primary estimator's parameters (once the gate knows them to be identified) and its mount R_SE."""
+        primary = self.s.primary
+        params = primary.estimator.params() if self.gate.parameters_known else None
+        return params, None if primary.mount is None else primary.mount.R_SE
 
     def _record_estimates(self, slot: EstimatorSlot, est, with_params: bool) -> None:
         if with_params:
@@ -275,7 +283,7 @@ class LiveLoop:
         if state is not None:
             self.taps.device_state(state)
         self.haptic_on_ticks += command.enabled
-        if command.reason != self.haptic_reason:
+        if command.reason.split(" (")[0] != self.haptic_reason.split(" (")[0]:  # not each new figure in it
             self._event(Event(now_ns, "haptic_enabled", "haptic force on") if command.enabled else
                         Event(now_ns, "haptic_disabled", f"haptic force zeroed: {command.reason}"))
             self.haptic_reason = command.reason

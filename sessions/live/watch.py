@@ -3,7 +3,10 @@
 :class:`PoseWatch`: a real arm's reported pose is never bit-identical from one
 sample to the next (its encoders jitter); a controller whose thread is stuck
 keeps sending the last pose with fresh timestamps. Poses that have not changed
-for longer than ``frozen_pose_timeout`` are frozen kinematics.
+for longer than ``frozen_pose_timeout`` are frozen kinematics. Two
+consecutive poses further apart than the arm can move between their stamps
+(``max_turn_rate``, ``max_speed``) are a jump: a stream that fell behind or
+caught up at once, or a glitch.
 
 :class:`BiasWatch`: after a knock or a temperature jump the sensor's zero moves;
 a converged estimator then sees a sustained "contact". A real contact acts on
@@ -35,24 +38,51 @@ BIAS_WINDOW_NS = 20_000_000
 
 
 class PoseWatch:
-    """Tells frozen kinematics from a robot that merely stands still.
+    """Tells frozen kinematics from a robot that merely stands still, and a pose stream that jumps.
 
     Args:
         timeout_ns: how long identical poses are accepted, ns.
+        max_turn_rate: fastest turn of the tool between two poses, rad/s.
+        max_speed: fastest motion of the tool between two poses, m/s.
     """
 
-    def __init__(self, timeout_ns: int):
+    def __init__(self, timeout_ns: int, max_turn_rate: float = 10.0, max_speed: float = 5.0):
         self.timeout_ns = timeout_ns
+        self.max_turn_rate, self.max_speed = max_turn_rate, max_speed
         self.last: tuple[bytes, bytes] | None = None
         self.changed_ns: int | None = None  # stamp of the last pose that differed from its predecessor
         self.newest_ns: int | None = None
+        self.previous: PoseSample | None = None
+        self.jump: tuple[int, str] | None = None  # (stamp, what) of the last jump seen
 
-    def add(self, poses: list[PoseSample]) -> None:
+    def add(self, poses: list[PoseSample]) -> bool:
+        """Take the newest poses; True when they jumped (``jump`` then says when and how far)."""
+        jumped = False
         for pose in poses:
             key = (pose.quat_BE.tobytes(), b"" if pose.p_BoEo_B is None else pose.p_BoEo_B.tobytes())
             if key != self.last:
                 self.last, self.changed_ns = key, pose.t_ns
             self.newest_ns = pose.t_ns
+            what = self._jump(self.previous, pose) if self.previous is not None else ""
+            if what:
+                self.jump, jumped = (pose.t_ns, what), True
+            self.previous = pose
+        return jumped
+
+    def _jump(self, a: PoseSample, b: PoseSample) -> str:
+        """How two consecutive poses moved faster than the arm can ("" when they did not)."""
+        dt = (b.t_ns - a.t_ns) * 1e-9
+        if dt <= 0:
+            return ""
+        # the angle between two unit quaternions: 2·acos|⟨a, b⟩|
+        angle = 2.0 * float(np.arccos(min(1.0, abs(float(np.dot(a.quat_BE, b.quat_BE))))))
+        if angle > self.max_turn_rate * dt:
+            return f"turned {angle:.3g} rad in {dt * 1e3:.3g} ms"
+        if a.p_BoEo_B is not None and b.p_BoEo_B is not None:
+            distance = float(np.linalg.norm(b.p_BoEo_B - a.p_BoEo_B))
+            if distance > self.max_speed * dt:
+                return f"moved {distance * 1e3:.3g} mm in {dt * 1e3:.3g} ms"
+        return ""
 
     @property
     def frozen_for_ns(self) -> int:
@@ -154,16 +184,26 @@ class LagWatch:
 
     def __init__(self, noise_N: float = 0.12):
         self.noise = noise_N
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget what was learnt (the poses jumped: what came before says nothing of what follows)."""
         self.S_rg = self.S_gg = self.S_rr = 0.0
         self.last: tuple[int, np.ndarray] | None = None  # (t_ns, g_S) of the last sample seen
         self.contact_ns: int | None = None  # the last sample the estimator called contact
         self.lag_s: float | None = None
 
-    def add(self, block: AlignedSamples, est: Estimates, gravity_force_B: np.ndarray, R_SE: np.ndarray | None
-            ) -> float | None:
-        """The lag estimate after this block (s; positive: poses late), once it is resolved, else None."""
+    def add(self, block: AlignedSamples, params: dict[str, list[float]], R_SE: np.ndarray | None) -> float | None:
+        """The lag estimate after this block (s; positive: poses late), once it is resolved, else None.
+
+        The residual is the block's force less the weight and bias of the estimator's ``params``
+        (``gravity_force_B``, ``bias_force_S``), so it can be computed while the samples are kept from
+        the estimator (which would otherwise learn the lag into its parameters and hide it).
+        """
+        gravity_force_B = np.asarray(params["gravity_force_B"], dtype=float)
         R_SB = block.R_EB if R_SE is None else R_SE @ block.R_EB
         g_S = R_SB @ gravity_force_B
+        residual = block.force_S - g_S - np.asarray(params["bias_force_S"], dtype=float)
         t = block.t_ns
         if self.last is not None:
             t = np.concatenate([[self.last[0]], t])
@@ -173,7 +213,7 @@ class LagWatch:
             return self.lag_s
         dt = np.diff(t) * 1e-9
         g_dot = np.diff(g_S, axis=0) / np.where(dt > 0, dt, 1.0)[:, None]
-        r = est.contact_force_S[-len(dt):]
+        r = residual[-len(dt):]
         # a contact: a residual no lag up to LAG_MAX_S explains (an estimator's gate may refuse a lag's residual
         # too, so its contact flag is not used), and the fading tail after it
         with np.errstate(invalid="ignore"):
@@ -189,9 +229,10 @@ class LagWatch:
         self.S_rg = self.S_rg * decay + float(np.einsum("ij,ij->", r[ok], g_dot[ok]))
         self.S_gg = self.S_gg * decay + float(np.einsum("ij,ij->", g_dot[ok], g_dot[ok]))
         self.S_rr = self.S_rr * decay + float(np.einsum("ij,ij->", r[ok], r[ok]))
-        self.lag_s = None
         if self.S_gg > 0 and self.noise / np.sqrt(self.S_gg) < LAG_MIN_RESOLUTION_S:
             lag = self.S_rg / self.S_gg
-            if lag * self.S_rg >= LAG_MIN_EXPLAINED * self.S_rr:
+            if abs(lag) <= LAG_LIMIT_S or lag * self.S_rg >= LAG_MIN_EXPLAINED * self.S_rr:
                 self.lag_s = lag
+            # else: a residual the lag does not explain (a contact): the verdict stands
+        # unresolved (the tool barely turns: a lag would do no harm yet): the verdict stands
         return self.lag_s

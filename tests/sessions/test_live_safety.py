@@ -38,12 +38,24 @@ def test_a_fault_is_caught_within_100_ms_and_makes_up_less_than_half_a_newton(cl
     assert r["event"] is not None and r["event"].startswith("fault: ")
 
 
-def test_late_poses_stamped_as_current_are_caught_from_the_motion(clean):
+def test_poses_late_at_once_jump_and_are_caught_at_the_first_late_pose(clean):
     r = measure("rls", clean, FAULTS["kinematics 200 ms late, 2 s"])
     print(f"\nkinematics 200 ms late: {r}")
-    # the lag is estimated from the motion: it needs about 0.2 s of turning to be resolved (the issue asks
-    # for 0.1 s; measured here 0.22 s, quoted in the README)
-    assert r["detected_after_s"] is not None and r["detected_after_s"] <= 0.3
+    assert r["detected_after_s"] is not None and r["detected_after_s"] <= 0.01
+    assert r["made_up_force_N"] <= 0.5
+    assert r["event"].startswith("fault: kinematics jumped (turned")
+
+
+def test_a_lag_that_builds_up_is_caught_from_the_motion_and_held_until_it_is_gone(clean):
+    """No jump gives it away: the lag watch must find it from the residual's correlation with the motion,
+    and keep the force off (the estimator would otherwise learn the lag and hide it) until the fault ends."""
+    label = "kinematics late by 0→200 ms over 0.5 s, 2 s"
+    r = measure("rls", clean, FAULTS[label])
+    print(f"\n{label}: {r}")
+    # the lag passes the 50 ms limit 0.125 s into the ramp; resolving it from the motion takes turning:
+    # measured here 0.38 s after the ramp's start (0.25 s after the limit)
+    assert r["detected_after_s"] is not None and r["detected_after_s"] <= 0.45
+    assert r["made_up_force_N"] <= 0.5
     assert r["event"].startswith("fault: kinematics out of step with the sensor")
 
 

@@ -21,7 +21,11 @@ from .frames import (
     quat_slerp,
     rotvec_from_quat,
 )
+from .kernels import align as align_kernel
 from .types import AlignedSamples, PoseSample, WrenchSample
+
+_NO_POSITIONS = np.zeros((0, 3))
+"""What the compiled aligner is given for poses without positions (and writes none into)."""
 
 
 def orientation_at(
@@ -103,11 +107,18 @@ class Aligner:
         kinematics_rate_hz: the pose stream's nominal rate (sets the longest
             extrapolation, one period).
         keep: how many recent poses to keep for interpolation.
+        kernel: "numba" (``core.kernels.align``, compiled: a few µs per block) or
+            "numpy" (``orientation_at`` and ``position_at``: the reference).
     """
 
-    def __init__(self, kinematics_rate_hz: float, keep: int = 64):
+    def __init__(self, kinematics_rate_hz: float, keep: int = 64, kernel: str = "numba"):
+        if kernel not in ("numba", "numpy"):
+            raise ValueError(f"kernel: must be 'numba' or 'numpy', got {kernel!r}")
         self.period_ns = int(round(1e9 / kinematics_rate_hz))
         self.keep = keep
+        self.kernel = kernel
+        if kernel == "numba":
+            align_kernel.warm_up()
         self._t = np.zeros(0, dtype=np.int64)
         self._q = np.zeros((0, 4))
         self._p: np.ndarray | None = np.zeros((0, 3))  # None once a pose without a position came
@@ -142,10 +153,18 @@ class Aligner:
         if len(self._t) == 0:
             quat_BE = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
             stale = np.ones(n, dtype=bool)
+            R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
+            p_BoEo_B = None
+        elif self.kernel == "numba":
+            quat_BE, R_EB, stale = np.empty((n, 4)), np.empty((n, 3, 3)), np.empty(n, dtype=bool)
+            with_p = self._p is not None
+            p_BoEo_B = np.empty((n, 3)) if with_p else None
+            align_kernel.align_block(t, self._t, self._q, self._p if with_p else _NO_POSITIONS, self.period_ns,
+                                     quat_BE, R_EB, p_BoEo_B if with_p else _NO_POSITIONS, stale)
         else:
             quat_BE, stale = orientation_at(t, self._t, self._q, self.period_ns)
-        R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
-        p_BoEo_B = None
-        if self._p is not None and len(self._p):
-            p_BoEo_B = position_at(t, self._t, self._p, self.period_ns)
+            R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
+            p_BoEo_B = None
+            if self._p is not None and len(self._p):
+                p_BoEo_B = position_at(t, self._t, self._p, self.period_ns)
         return AlignedSamples(t, force_S, torque_S, R_EB, seq, status, stale, quat_BE, p_BoEo_B)

@@ -15,6 +15,7 @@ from ...core.plugins import ConfigError
 from ...core.types import PoseSample
 from ..simworld.faults import kinematics_times
 from ..simworld.physics import SampleClock, SimWorld, gaussian_noise
+from ..simworld.prefetch import Prefetch
 
 ENCODER_STREAM = 2
 """The world's random stream of the robot's encoder jitter (0: sensor noise, 1: bias drift)."""
@@ -50,33 +51,47 @@ class SimKinematics:
         self.rate_hz = float(rate_hz)
         self.world = world
         self._clock = SampleClock(self.rate_hz)
+        self._ahead = Prefetch(self._exact_poses, self.rate_hz)
 
     def open(self, t0_ns: int) -> None:
         """Start streaming: sample 0 is at ``t0_ns`` (world time 0)."""
         self._clock.start(t0_ns)
+        self._ahead.reset()
+
+    def _exact_poses(self, seq: np.ndarray) -> dict[str, np.ndarray]:
+        """The poses of samples ``seq`` when no fault is injected (each reports its own time's pose)."""
+        reading_ns = self._clock.times(seq) - self._clock.t0_ns
+        quat_BE, p_BoEo_B = self._poses(reading_ns / 1e9, reading_ns)
+        return {"quat_BE": quat_BE, "p_BoEo_B": p_BoEo_B}
+
+    def _poses(self, t: np.ndarray, reading_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``quat_BE`` (N, 4) and ``p_BoEo_B`` (N, 3) m reported: the pose at world times ``t`` (s) with the
+        encoder jitter of the readings taken at world times ``reading_ns`` (ns)."""
+        R_BE, p_BoEo_B = self.world.pose(t)
+        quat_BE = quat_wxyz_from_matrix(R_BE)
+        if self.encoder_noise > 0:  # small rotation δ (rad) and offset (m) per pose, a function of its stamp
+            jitter = gaussian_noise(self._noise_key, reading_ns, 6) * self.encoder_noise
+            quat_BE = quat_BE + 0.5 * quat_multiply(quat_BE, np.column_stack([np.zeros(len(t)), jitter[:, :3]]))
+            quat_BE /= np.linalg.norm(quat_BE, axis=1)[:, None]
+            p_BoEo_B = p_BoEo_B + jitter[:, 3:]
+        return quat_BE, p_BoEo_B
 
     def read(self, until_ns: int) -> list[PoseSample]:
         """Every pose not yet returned with time <= ``until_ns``, in time order."""
         seq, t_ns = self._clock.take(until_ns)
         if len(seq) == 0:
             return []
-        t = (t_ns - self._clock.t0_ns) / 1e9
-        reading_ns = t_ns - self._clock.t0_ns  # the world time (ns) whose encoder reading (jitter) is reported
         if self.world.faults:  # injected faults ([[world.faults]]): frozen, late or missing poses
-            t, t_reading, keep = kinematics_times(self.world.faults, t)
-            reading_ns = np.round(t_reading[keep] * 1e9).astype(np.int64)
+            t, t_reading, keep = kinematics_times(self.world.faults, (t_ns - self._clock.t0_ns) / 1e9)
             t_ns, t = t_ns[keep], t[keep]
             if len(t_ns) == 0:
                 return []
-        R_BE, p_BoEo_B = self.world.pose(t)
-        quat_BE = quat_wxyz_from_matrix(R_BE)
-        if self.encoder_noise > 0:  # small rotation δ (rad) and offset (m) per pose, a function of its stamp
-            jitter = gaussian_noise(self._noise_key, reading_ns, 6) * self.encoder_noise
-            quat_BE = quat_BE + 0.5 * quat_multiply(quat_BE, np.column_stack([np.zeros(len(t_ns)), jitter[:, :3]]))
-            quat_BE /= np.linalg.norm(quat_BE, axis=1)[:, None]
-            p_BoEo_B = p_BoEo_B + jitter[:, 3:]
-        quat_BE.setflags(write=False)  # rows are handed out as views
-        p_BoEo_B.setflags(write=False)
+            quat_BE, p_BoEo_B = self._poses(t, np.round(t_reading[keep] * 1e9).astype(np.int64))
+            quat_BE.setflags(write=False)  # rows are handed out as views
+            p_BoEo_B.setflags(write=False)
+        else:
+            poses = self._ahead.take(seq)  # read-only views
+            quat_BE, p_BoEo_B = poses["quat_BE"], poses["p_BoEo_B"]
         return [PoseSample(t_ns=t, quat_BE=quat, p_BoEo_B=p)
                 for t, quat, p in zip(t_ns.tolist(), quat_BE, p_BoEo_B)]
 

@@ -14,6 +14,7 @@ from ...core.plugins import ConfigError
 from ...core.types import WrenchSample
 from ..simworld.faults import apply_sensor_faults
 from ..simworld.physics import SampleClock, SimWorld
+from ..simworld.prefetch import Prefetch
 
 MAX_RATE_HZ = 100_000.0
 """Fastest sample rate accepted (a Net F/T streams at up to 7 kHz; an absurd rate would flood the loop)."""
@@ -42,26 +43,34 @@ class SimSensor:
         self.range_torque_S = world.sensor.saturation_torque_S.copy()
         """(3,) measurement range per torque axis, N·m."""
         self._clock = SampleClock(self.rate_hz)
+        self._ahead = Prefetch(self._reading, self.rate_hz)
 
     def open(self, t0_ns: int) -> None:
         """Start streaming: sample 0 is at ``t0_ns`` (world time 0)."""
         self._clock.start(t0_ns)
+        self._ahead.reset()
+
+    def _reading(self, seq):
+        """What the sensor reads for the samples ``seq`` (the world's physics, before any injected fault)."""
+        reading = self.world.wrench((self._clock.times(seq) - self._clock.t0_ns) / 1e9)
+        return {k: reading[k] for k in ("force_S", "torque_S", "status")}
 
     def read(self, until_ns: int) -> list[WrenchSample]:
         """Every sample not yet returned with time <= ``until_ns``, in time order."""
         seq, t_ns = self._clock.take(until_ns)
         if len(seq) == 0:
             return []
-        t = (t_ns - self._clock.t0_ns) / 1e9
-        reading = self.world.wrench(t)
+        reading = self._ahead.take(seq)  # read-only views: rows are handed out as they are
         if self.world.faults:  # injected faults ([[world.faults]]): what the sensor delivers, not the physics
+            t = (t_ns - self._clock.t0_ns) / 1e9
+            reading = {k: v.copy() for k, v in reading.items()}
             keep = apply_sensor_faults(self.world.faults, t, reading)
             if not keep.all():
                 seq, t_ns = seq[keep], t_ns[keep]
-                reading = {k: reading[k][keep] for k in ("force_S", "torque_S", "status")}
+                reading = {k: v[keep] for k, v in reading.items()}
+            for array in reading.values():
+                array.setflags(write=False)
         force_S, torque_S = reading["force_S"], reading["torque_S"]
-        force_S.setflags(write=False)  # rows are handed out as views
-        torque_S.setflags(write=False)
         return [
             WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)
             for t, force, torque, i, status in zip(t_ns.tolist(), force_S, torque_S, seq.tolist(),

@@ -211,6 +211,10 @@ class SampleClock:
         self.t0_ns = int(t0_ns)
         self.next_index = 0
 
+    def times(self, seq: np.ndarray) -> np.ndarray:
+        """(N,) int64 times of the samples ``seq``, ns."""
+        return self.t0_ns + np.rint(seq * (1e9 / self.rate_hz)).astype(np.int64)
+
     def take(self, until_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """Indices and times of every sample not yet taken with time <= ``until_ns``.
 
@@ -223,7 +227,7 @@ class SampleClock:
             raise RuntimeError("read() before open()")
         last = math.floor((int(until_ns) - self.t0_ns) * self.rate_hz / 1e9) + 1  # may overshoot by one
         seq = np.arange(self.next_index, max(last + 1, self.next_index), dtype=np.int64)
-        t_ns = self.t0_ns + np.rint(seq * (1e9 / self.rate_hz)).astype(np.int64)
+        t_ns = self.times(seq)
         keep = t_ns <= until_ns
         seq, t_ns = seq[keep], t_ns[keep]
         if len(seq):

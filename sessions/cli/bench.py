@@ -127,6 +127,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
         with err.status("running the estimator family's scenarios") as status:
             out = bench_estimators(progress=lambda m: status.update(f"bench estimators: {m}"))
         print_estimators_table(out)
+    elif args.which == "loop":
+        from ..bench.loop import bench_loop
+
+        with err.status("timing the run loop") as status:
+            out = bench_loop(progress=lambda m: status.update(f"bench loop: {m}"))
+        print_loop_tables(out)
     elif args.which == "faults":
         from ..bench.faults import bench_faults
 
@@ -163,6 +169,34 @@ def print_faults_table(out: dict) -> None:
             t.add_row(estimator if k == 0 else "", label, fmt(r["made_up_force_N"], 2), ms(r["detected_after_s"]),
                       ms(r["zero_after_detection_s"]), r["event"] or "none", end_section=k == len(faults) - 1)
     wide_console(140).print(t)
+
+
+def print_loop_tables(out: dict) -> None:
+    """Per stage: µs per tick and share, per sensor rate; per estimator: µs per sample by block size."""
+    from ..bench.loop import STAGES
+
+    stages = out["stages"]
+    t = Table(title="Where a tick goes (demo session, not paced, recording on; loop at "
+                    f"{stages[0]['loop_rate_hz']:g} Hz, estimator {stages[0]['estimator']})")
+    t.add_column("stage")
+    for run in stages:
+        t.add_column(f"{run['sensor_rate_hz']:g} Hz sensor: µs/tick", justify="right")
+        t.add_column("share", justify="right")
+    for stage in STAGES:
+        t.add_row(stage, *[v for run in stages for v in (f"{run['us_per_tick'][stage]:.1f}",
+                                                          f"{100 * run['share'][stage]:.0f} %")])
+    t.add_row("whole tick", *[v for run in stages for v in (f"{sum(run['us_per_tick'].values()):.1f}", "")],
+              end_section=True)
+    t.add_row("× real time", *[v for run in stages for v in (f"{run['x_real_time']:.2f}", "")])
+    wide_console(120).print(t)
+    t = Table(title="Estimators: µs per sample (median / p99) by block size, simulated tour at 1 kHz")
+    t.add_column("estimator")
+    sizes = list(next(iter(out["estimators"].values())))
+    for size in sizes:
+        t.add_column(f"block {size}", justify="right")
+    for label, row in out["estimators"].items():
+        t.add_row(label, *[f"{row[s]['median_us']:.1f} / {row[s]['p99_us']:.1f}" for s in sizes])
+    wide_console(120).print(t)
 
 
 def print_estimators_table(out: dict) -> None:
@@ -233,9 +267,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``hapticlab`` parser."""
     p = sub.add_parser("bench", help="reproduce the paper's experiments (paper), measure the estimator family "
                        "(estimators), evaluate real recordings (real) or inject faults into sessions (faults)")
-    p.add_argument("which", choices=("paper", "estimators", "real", "faults"),
+    p.add_argument("which", choices=("paper", "estimators", "real", "faults", "loop"),
                    help="paper: simulated experiments; estimators: issue 4's scenarios; real: CSV folder; "
-                        "faults: every injected fault through the run loop")
+                        "faults: every injected fault through the run loop; loop: where a tick goes, "
+                        "per stage, and each estimator's µs per sample")
     p.add_argument("folder", nargs="?", default=None, help="with real: folder of CSV files "
                    "(default ../shared/data/real)")
     p.add_argument("--json", default=None, help="write every number as JSON")

@@ -1,0 +1,162 @@
+"""``hapticlab bench loop``: where a tick of the run loop goes, and what each estimator costs per sample.
+
+Two tables, so the next change to the hot path is measured the same way:
+
+* **per stage**: the demo session run as fast as the machine allows (``realtime
+  = false``, recording on) at a 1 kHz loop with the sensor at 1 kHz and at
+  7 kHz. Each stage's calls are timed in place (the loop's own objects wrapped
+  with a ``perf_counter_ns`` stopwatch, nothing else changed): sensor read,
+  kinematics read, aligner, estimator (the primary's ``update_block``), gate
+  and watches, governor, device, recording (the taps: encoding and MCAP
+  writes); "loop body" is the rest of the tick. µs per tick and share of the
+  tick, and the session's speed (simulated seconds per wall second; above 1 it
+  keeps up in real time);
+* **per estimator**: µs per sample at block sizes 1 (a 1 kHz sensor read at
+  1 kHz), 7 (a 7 kHz Net F/T) and 1024 (offline), median and p99 over the
+  converged second half of a simulated tour, for each estimator named.
+
+Numbers depend on the machine and its load: quote them, never assert them.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...core.types import AlignedSamples
+from ...plugins.simworld import SimWorld
+from ..config import apply_overrides, load_config
+from ..live import build_session
+from ..live.loop import LiveLoop
+from .paper import simulate
+
+STAGES = ("sensor read", "kinematics read", "aligner", "estimator", "gate and watches", "governor", "device",
+          "recording", "loop body")
+"""The table's rows, in the order of a tick (the loop body last: what the stopwatches leave)."""
+BLOCK_SIZES = (1, 7, 1024)
+
+
+class _Stopwatch:
+    """Accumulated ns per stage; ``wrap`` puts one around a bound method."""
+
+    def __init__(self):
+        self.ns = dict.fromkeys(STAGES, 0)
+
+    def wrap(self, obj: Any, method: str, stage: str) -> None:
+        inner = getattr(obj, method)
+        ns = self.ns
+        clock = time.perf_counter_ns
+
+        def timed(*args, **kwargs):
+            t0 = clock()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                ns[stage] += clock() - t0
+
+        setattr(obj, method, timed)
+
+
+def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str = "rls") -> dict[str, Any]:
+    """One non-realtime demo session with every stage timed: µs per tick and share per stage, speed."""
+    config, _ = load_config("demo")
+    config = apply_overrides(config, ["session.realtime=false", f"sensor.rate_hz={float(sensor_rate_hz)}",
+                                      f"estimator.name={estimator}"])
+    session = build_session(config)
+    with tempfile.TemporaryDirectory() as folder:
+        loop = LiveLoop(session, Path(folder) / "bench.mcap", duration_s, None, 0.25)
+        watch = _Stopwatch()
+        run = loop.run
+
+        def run_timed():
+            # the taps exist once the recording is open: wrap them (and the rest) when the loop starts
+            original_open = loop._open
+
+            def open_and_wrap():
+                original_open()
+                _wrap_loop(loop, watch)
+
+            loop._open = open_and_wrap
+            return run()
+
+        t0 = time.perf_counter_ns()
+        result = run_timed()
+        wall_ns = time.perf_counter_ns() - t0
+    ticks = max(int(round(duration_s * session.settings.loop_rate_hz)), 1)
+    timed = sum(watch.ns[s] for s in STAGES if s != "loop body")
+    watch.ns["loop body"] = max(wall_ns - timed, 0)
+    return {
+        "sensor_rate_hz": sensor_rate_hz, "loop_rate_hz": session.settings.loop_rate_hz, "estimator": estimator,
+        "duration_s": duration_s, "samples": result.samples, "ticks": ticks,
+        "x_real_time": duration_s / (wall_ns * 1e-9),
+        "us_per_tick": {s: watch.ns[s] / ticks / 1e3 for s in STAGES},
+        "share": {s: watch.ns[s] / wall_ns for s in STAGES},
+    }
+
+
+def _wrap_loop(loop: LiveLoop, watch: _Stopwatch) -> None:
+    s = loop.s
+    watch.wrap(s.sensor, "read", "sensor read")
+    watch.wrap(s.kinematics, "read", "kinematics read")
+    for method in ("align", "add_poses"):
+        watch.wrap(loop.aligner, method, "aligner")
+    watch.wrap(s.primary.estimator, "update_block", "estimator")
+    for method in ("on_poses", "on_samples", "on_estimates", "on_withheld", "reason", "fault_event"):
+        watch.wrap(loop.gate, method, "gate and watches")
+    watch.wrap(loop.governor, "command", "governor")
+    for method in ("send", "state"):
+        watch.wrap(s.haptic, method, "device")
+    for method in ("poses", "wrenches", "aligned", "estimates", "command", "device_state", "event"):
+        watch.wrap(loop.taps, method, "recording")
+
+
+def per_sample_us(factory: Callable[[], Any], block: AlignedSamples, size: int) -> tuple[float, float]:
+    """(median, p99) µs per sample of ``update_block`` in blocks of ``size``, over the stream's second half
+    (converged: the estimator's ordinary work, not its start)."""
+    est = factory()
+    times = []
+    for i in range(0, len(block) - size + 1, size):
+        part = block.subset(slice(i, i + size))
+        t0 = time.perf_counter_ns()
+        est.update_block(part)
+        times.append((time.perf_counter_ns() - t0) / size / 1e3)
+    times = np.array(times[len(times) // 2:])
+    return float(np.median(times)), float(np.percentile(times, 99))
+
+
+def estimator_table(factories: dict[str, Callable[[], Any]], samples: int = 20480,
+                    sizes: tuple[int, ...] = BLOCK_SIZES) -> dict[str, dict[int, tuple[float, float]]]:
+    """µs per sample (median, p99) per estimator and block size, on a seeded simulated tour (1 kHz)."""
+    block, _ = simulate(SimWorld(seed=1, inertia=False), samples / 1000.0, 1000.0)
+    return {label: {size: per_sample_us(factory, block, size) for size in sizes}
+            for label, factory in factories.items()}
+
+
+def default_estimators() -> dict[str, Callable[[], Any]]:
+    """The estimators the table shows: each registered live estimator with its defaults, and kalman's
+    inertia model (the costliest option)."""
+    from ... import make_estimator
+
+    return {"rls": lambda: make_estimator("rls"), "kalman": lambda: make_estimator("kalman"),
+            "kalman, inertia": lambda: make_estimator("kalman", inertia=True)}
+
+
+def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 5.0, samples: int = 20480,
+               progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Both tables (JSON-ready)."""
+    stages = []
+    for rate in rates:
+        if progress:
+            progress(f"session, sensor at {rate:g} Hz")
+        stages.append(stage_table(rate, duration_s))
+    if progress:
+        progress("estimators, µs per sample")
+    table = estimator_table(default_estimators(), samples)
+    return {"stages": stages,
+            "estimators": {label: {str(size): {"median_us": m, "p99_us": p} for size, (m, p) in row.items()}
+                           for label, row in table.items()}}

@@ -322,12 +322,13 @@ def raising(*args, **kwargs):
 
 
 @pytest.mark.parametrize("name, patch", [
-    ("rls", "solve"), ("rls printed", "inv"), ("batch", "svd"),
+    ("rls numpy", "solve"), ("rls", "nan"), ("rls printed", "inv"), ("batch", "svd"),
     ("kalman filterpy", "solve"), ("kalman mount", "solve"), ("kalman", "indefinite"),
 ])
 def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour, monkeypatch, name, patch):
     makers = {**ESTIMATORS, "kalman filterpy": lambda: KalmanEstimator(implementation="filterpy"),
-              "kalman mount": lambda: KalmanEstimator(mount_rotation=True)}
+              "kalman mount": lambda: KalmanEstimator(mount_rotation=True),
+              "rls numpy": lambda: RLSEstimator(kernel="numpy")}
     est = makers[name]()
     est.update_block(tour.subset(slice(0, 6000)))
     assert est.update_block(tour.subset(slice(6000, 6001))).converged_force.all()
@@ -335,6 +336,9 @@ def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour
     if patch == "indefinite":  # S = C P Cᵀ + R not positive definite: the fast filter's LDLᵀ cannot update
         est.force.P = -1e3 * np.eye(6)
         before = est.params()
+    elif patch == "nan":  # the compiled kernel cannot be patched: a Λ that no solve gets a finite x from
+        saved = est.force.Lambda.copy()
+        est.force.Lambda[:] = np.nan
     elif patch == "solve":
         monkeypatch.setattr(np.linalg, "solve", raising)
         monkeypatch.setattr("hapticlab.core.rls.dposv", lambda a, b: (None, None, 1))
@@ -353,5 +357,7 @@ def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour
     if name.startswith(("rls", "batch")):
         assert est.params() == before  # the whole state (biases too) as it was
     monkeypatch.undo()
+    if patch == "nan":
+        np.copyto(est.force.Lambda, saved)
     if patch != "indefinite":  # solves work again: the estimator goes on
         assert est.update_block(tour.subset(slice(6009, 6100))).converged_force[-1]

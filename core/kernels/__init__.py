@@ -1,0 +1,22 @@
+"""Compiled (numba) per-sample kernels of the estimators (issue 12).
+
+One kernel per module, each the compiled twin of a numpy reference that stays
+callable (the estimators' ``kernel = "numpy"``) and that the tests compare it to:
+
+* ``rls``: the paper's Algorithm 1 cascade in information form (``core.rls``);
+* ``kalman``: the drift Kalman stage, x = [a, b] (``core.kalman._filter6``), and
+  the whole force→torque cascade of the ``kalman`` estimator's default model.
+
+Compiled with ``cache=True`` (the machine code is kept in ``__pycache__``);
+each module's ``warm_up()`` compiles or loads it before the first live tick.
+"""
+
+KERNELS = ("numba", "numpy")
+"""The values of the estimators' ``kernel`` option."""
+
+
+def kernel_option(value) -> str:
+    """A ``kernel`` option: "numba" (compiled, the default) or "numpy" (the reference); ValueError naming the key."""
+    if value not in KERNELS:
+        raise ValueError(f"kernel: must be 'numba' (compiled) or 'numpy' (the reference), got {value!r}")
+    return value

@@ -1,0 +1,220 @@
+"""Algorithm 1 (the paper's gated RLS cascade) per sample, compiled: the ``rls`` estimator's hot path.
+
+The same rules and the same information form as ``core.rls`` (``run_gated`` /
+``_run_gated_one``), over both stages, sample by sample, in place:
+
+    Λ_k = Λ_{k−1} + C_kᵀ C_k / r,   η_k = η_{k−1} + C_kᵀ y_k / r,   x_k = Λ_k⁻¹ η_k
+
+with C_k = [A_k, I3]; force stage A_k = R_EB, y_k = force_S (x = [gravity_force_B,
+bias_force_S]); torque stage A_k = −[force_S − bias_force_S]ₓ, y_k = torque_S
+(x = [cog_S, bias_torque_S]), active where the force stage's flag is up after the
+sample. Λ x = η is solved by Cholesky (LAPACK ``dposv`` in numpy), by LU with
+partial pivoting where Λ is not numerically positive definite (``np.linalg.solve``);
+a zero pivot or a non-finite x leaves the stage as it was (``failed``).
+
+Not bit-for-bit the numpy path: LAPACK's Cholesky and BLAS's 3×3 products round in
+their own order, and a numpy block of m > 1 samples sums C_jᵀC_j before adding Λ.
+Both are exact to rounding of Λ (condition ~1e9 in the first, rank-deficient
+samples, ~1e3 once the poses vary); tests/core/test_kernels.py states the bounds.
+
+Nothing is allocated: the stages' arrays are updated in place, ``work`` holds the
+per-sample temporaries, the outputs are written into arrays the caller owns.
+
+Compile cost: ~2–4 s the first time on this machine (2 cores), then ~0.05 s
+to load from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+STATUS = ("converged_force", "converged_torque", "updates_force", "failed_force", "updates_torque", "failed_torque")
+"""The entries of ``status`` (int64), read and written by ``rls_cascade``."""
+SETTINGS = ("inv_r_force", "inv_r_torque", "threshold_force", "threshold_torque", "epsilon")
+"""The entries of ``settings`` (float64): 1/r (1/N², 1/(N·m)²), thresholds (N, N·m), ε on ‖Δx‖₂."""
+
+
+def work_arrays() -> np.ndarray:
+    """(5, 6, 6) float64 scratch for ``rls_cascade`` (Λ_k, its factor, η_k, x_k, A_k)."""
+    return np.zeros((5, 6, 6))
+
+
+@njit(cache=True)
+def _solve(Lam, eta, L, x) -> bool:
+    """x = Λ⁻¹ η for a (6, 6) Λ: Cholesky Λ = L Lᵀ, else LU with partial pivoting; False on a zero pivot."""
+    n = 6
+    chol = True
+    for j in range(n):
+        s = Lam[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:  # not numerically positive definite (a NaN too)
+            chol = False
+            break
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = Lam[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
+    if chol:
+        for i in range(n):  # L z = η
+            s = eta[i]
+            for k in range(i):
+                s -= L[i, k] * x[k]
+            x[i] = s / L[i, i]
+        for i in range(n - 1, -1, -1):  # Lᵀ x = z
+            s = x[i]
+            for k in range(i + 1, n):
+                s -= L[k, i] * x[k]
+            x[i] = s / L[i, i]
+        return True
+    # LU with partial pivoting on a copy of Λ (in L), right-hand side in x
+    for i in range(n):
+        x[i] = eta[i]
+        for j in range(n):
+            L[i, j] = Lam[i, j]
+    for j in range(n):
+        p = j
+        big = abs(L[j, j])
+        for i in range(j + 1, n):
+            if abs(L[i, j]) > big:
+                big, p = abs(L[i, j]), i
+        if L[p, j] == 0.0:
+            return False  # singular (LAPACK's info > 0, numpy's LinAlgError)
+        if p != j:
+            for k in range(n):
+                L[j, k], L[p, k] = L[p, k], L[j, k]
+            x[j], x[p] = x[p], x[j]
+        for i in range(j + 1, n):
+            f = L[i, j] / L[j, j]
+            for k in range(j + 1, n):
+                L[i, k] -= f * L[j, k]
+            x[i] -= f * x[j]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+    return True
+
+
+@njit(cache=True)
+def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, work):
+    """One active sample of one stage (``_run_gated_one``), in place.
+
+    Args:
+        y0, y1, y2: the measurement y_k (units of y). A: (3, 3) A_k.
+        x: (6,) x. Lam: (6, 6) Λ. eta: (6,) η. inv_r: 1/r. threshold: contact threshold
+        on ‖C_k x_{k−1} − y_k‖. epsilon: convergence threshold on ‖Δx‖₂.
+        converged: the stage's flag before the sample. work: ``work_arrays()``.
+
+    Returns:
+        (flag out, gated, converged after, failed): the row's flag (True when gated,
+        False when the solve failed), and the stage's flag after the sample.
+    """
+    e0 = A[0, 0] * x[0] + A[0, 1] * x[1] + A[0, 2] * x[2] + x[3] - y0
+    e1 = A[1, 0] * x[0] + A[1, 1] * x[1] + A[1, 2] * x[2] + x[4] - y1
+    e2 = A[2, 0] * x[0] + A[2, 1] * x[1] + A[2, 2] * x[2] + x[5] - y2
+    if converged and not e0 * e0 + e1 * e1 + e2 * e2 < threshold * threshold:
+        return True, True, converged, False
+    Lk, L, etak, xk = work[0], work[1], work[2, 0], work[2, 1]
+    for i in range(3):  # Λ_k = Λ + CᵀC / r, CᵀC = [AᵀA, Aᵀ; A, I3]
+        for j in range(3):
+            Lk[i, j] = Lam[i, j] + (A[0, i] * A[0, j] + A[1, i] * A[1, j] + A[2, i] * A[2, j]) * inv_r
+            Lk[i, 3 + j] = Lam[i, 3 + j] + A[j, i] * inv_r
+            Lk[3 + i, j] = Lam[3 + i, j] + A[i, j] * inv_r
+            Lk[3 + i, 3 + j] = Lam[3 + i, 3 + j] + (1.0 if i == j else 0.0) * inv_r
+    for i in range(3):  # η_k = η + Cᵀy / r
+        etak[i] = eta[i] + (A[0, i] * y0 + A[1, i] * y1 + A[2, i] * y2) * inv_r
+    etak[3] = eta[3] + y0 * inv_r
+    etak[4] = eta[4] + y1 * inv_r
+    etak[5] = eta[5] + y2 * inv_r
+    if not _solve(Lk, etak, L, xk):
+        return False, False, converged, True
+    step2 = 0.0
+    for i in range(6):
+        d = xk[i] - x[i]
+        step2 += d * d
+    if not step2 < math.inf:  # a non-finite x: the stage stays as it was
+        return False, False, converged, True
+    for i in range(6):
+        x[i] = xk[i]
+        eta[i] = etak[i]
+        for j in range(6):
+            Lam[i, j] = Lk[i, j]
+    converged = step2 < epsilon * epsilon
+    return converged, False, converged, False
+
+
+@njit(cache=True)
+def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, eta_t, settings, status, work,
+                contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
+    """Algorithm 1 over m samples, in order: both stages updated in place, one output row per sample.
+
+    Args:
+        force_S: (m, 3) raw force, N. torque_S: (m, 3) raw torque, N·m. R_EB: (m, 3, 3).
+        x_f, eta_f: (6,) and Lambda_f: (6, 6) the force stage (x = [gravity_force_B, bias_force_S], N).
+        x_t, eta_t, Lambda_t: the torque stage (x = [cog_S (m), bias_torque_S (N·m)]).
+        settings: (5,) float64, ``SETTINGS``. status: (6,) int64, ``STATUS`` (flags in and out,
+            counts incremented). work: ``work_arrays()``.
+        contact_force_S, contact_torque_S: (m, 3) out, N and N·m (paper eqs. 20–21).
+        contact, converged_force, converged_torque: (m,) bool out.
+    """
+    inv_r_f, inv_r_t, th_f, th_t, eps = settings[0], settings[1], settings[2], settings[3], settings[4]
+    conv_f = status[0] != 0
+    conv_t = status[1] != 0
+    A_t = work[3, :3, :3]
+    for k in range(force_S.shape[0]):
+        f0, f1, f2 = force_S[k, 0], force_S[k, 1], force_S[k, 2]
+        R = R_EB[k]
+        out_f, gated_f, conv_f, failed = _stage(f0, f1, f2, R, x_f, Lambda_f, eta_f, inv_r_f, th_f, eps, conv_f,
+                                                work)
+        if failed:
+            status[3] += 1
+        elif not gated_f:
+            status[2] += 1
+        gated_t = False
+        if out_f:  # the torque stage sees the samples after which the force stage's flag is up
+            d0, d1, d2 = f0 - x_f[3], f1 - x_f[4], f2 - x_f[5]  # C_k = [−[Δf]ₓ, I3]
+            A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
+            A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
+            A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
+            out_t, gated_t, conv_t, failed = _stage(torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, x_t,
+                                                    Lambda_t, eta_t, inv_r_t, th_t, eps, conv_t, work)
+            if failed:
+                status[5] += 1
+            elif not gated_t:
+                status[4] += 1
+        else:
+            out_t = conv_t
+        # contact wrench at the states after the sample (core.model.contact_wrench)
+        g0 = R[0, 0] * x_f[0] + R[0, 1] * x_f[1] + R[0, 2] * x_f[2]
+        g1 = R[1, 0] * x_f[0] + R[1, 1] * x_f[1] + R[1, 2] * x_f[2]
+        g2 = R[2, 0] * x_f[0] + R[2, 1] * x_f[1] + R[2, 2] * x_f[2]
+        contact_force_S[k, 0] = f0 - g0 - x_f[3]
+        contact_force_S[k, 1] = f1 - g1 - x_f[4]
+        contact_force_S[k, 2] = f2 - g2 - x_f[5]
+        contact_torque_S[k, 0] = torque_S[k, 0] - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
+        contact_torque_S[k, 1] = torque_S[k, 1] - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
+        contact_torque_S[k, 2] = torque_S[k, 2] - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
+        contact[k] = gated_f or gated_t
+        converged_force[k] = out_f
+        converged_torque[k] = out_t
+    status[0] = 1 if conv_f else 0
+    status[1] = 1 if conv_t else 0
+
+
+def warm_up() -> None:
+    """Compile ``rls_cascade`` (or load it from the cache) by running it once on two samples."""
+    m = 2
+    R = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
+    x, Lam, eta = np.zeros(6), np.eye(6), np.zeros(6)
+    rls_cascade(np.ones((m, 3)), np.ones((m, 3)), R, x, Lam, eta, x.copy(), Lam.copy(), eta.copy(),
+                np.array([400.0, 400.0, 1.0, 0.1, 1e-3]), np.zeros(6, dtype=np.int64), work_arrays(),
+                np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
+                np.empty(m, dtype=np.bool_))

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...core.kernels.lag import lag_sums
+from ...core.kernels.lag import warm_up as warm_up_lag
 from ...core.types import AlignedSamples, Estimates, PoseSample
 
 BIAS_TOLERANCE = 0.15
@@ -147,6 +149,8 @@ class BiasWatch:
         return now
 
 
+_EYE = np.eye(3)
+
 LAG_LIMIT_S = 0.05
 """Kinematics this far out of step with the sensor (either way) zero the force, s."""
 LAG_MEMORY_S = 0.25
@@ -184,51 +188,38 @@ class LagWatch:
 
     def __init__(self, noise_N: float = 0.12):
         self.noise = noise_N
+        warm_up_lag()
         self.reset()
 
     def reset(self) -> None:
         """Forget what was learnt (the poses jumped: what came before says nothing of what follows)."""
-        self.S_rg = self.S_gg = self.S_rr = 0.0
-        self.last: tuple[int, np.ndarray] | None = None  # (t_ns, g_S) of the last sample seen
-        self.contact_ns: int | None = None  # the last sample the estimator called contact
+        self.sums = np.zeros(6)  # S_rg, S_gg, S_rr, and the last sample's predicted weight in S (core.kernels.lag)
+        self.clock = np.zeros(3, dtype=np.int64)  # the last sample's and the last contact's t_ns, flags
         self.lag_s: float | None = None
+
+    @property
+    def S_rg(self) -> float:
+        return float(self.sums[0])
+
+    @property
+    def S_gg(self) -> float:
+        return float(self.sums[1])
+
+    @property
+    def S_rr(self) -> float:
+        return float(self.sums[2])
 
     def add(self, block: AlignedSamples, params: dict[str, list[float]], R_SE: np.ndarray | None) -> float | None:
         """The lag estimate after this block (s; positive: poses late), once it is resolved, else None.
 
         The residual is the block's force less the weight and bias of the estimator's ``params``
         (``gravity_force_B``, ``bias_force_S``), so it can be computed while the samples are kept from
-        the estimator (which would otherwise learn the lag into its parameters and hide it).
+        the estimator (which would otherwise learn the lag into its parameters and hide it). The sums
+        are ``core.kernels.lag.lag_sums`` (compiled); the verdict is here.
         """
-        gravity_force_B = np.asarray(params["gravity_force_B"], dtype=float)
-        R_SB = block.R_EB if R_SE is None else R_SE @ block.R_EB
-        g_S = R_SB @ gravity_force_B
-        residual = block.force_S - g_S - np.asarray(params["bias_force_S"], dtype=float)
-        t = block.t_ns
-        if self.last is not None:
-            t = np.concatenate([[self.last[0]], t])
-            g_S = np.concatenate([self.last[1][None], g_S])
-        self.last = (int(t[-1]), g_S[-1])
-        if len(t) < 2:
-            return self.lag_s
-        dt = np.diff(t) * 1e-9
-        g_dot = np.diff(g_S, axis=0) / np.where(dt > 0, dt, 1.0)[:, None]
-        r = residual[-len(dt):]
-        # a contact: a residual no lag up to LAG_MAX_S explains (an estimator's gate may refuse a lag's residual
-        # too, so its contact flag is not used), and the fading tail after it
-        with np.errstate(invalid="ignore"):
-            contact = np.linalg.norm(r, axis=1) > LAG_MAX_S * np.linalg.norm(g_dot, axis=1) + 3 * self.noise
-        if contact.any():
-            self.contact_ns = int(t[1:][contact][-1])
-        ok = (dt > 0) & ~contact & np.isfinite(r).all(1)
-        if self.contact_ns is not None:
-            ok &= t[1:] - self.contact_ns > LAG_CONTACT_GUARD_NS
-        # a pose that jumps (a stream that falls behind or catches up at once) is no motion to learn from
-        ok &= np.linalg.norm(g_dot, axis=1) <= LAG_MAX_TURN_RAD_S * np.linalg.norm(gravity_force_B)
-        decay = np.exp(-float(dt.sum()) / LAG_MEMORY_S)
-        self.S_rg = self.S_rg * decay + float(np.einsum("ij,ij->", r[ok], g_dot[ok]))
-        self.S_gg = self.S_gg * decay + float(np.einsum("ij,ij->", g_dot[ok], g_dot[ok]))
-        self.S_rr = self.S_rr * decay + float(np.einsum("ij,ij->", r[ok], r[ok]))
+        lag_sums(block.t_ns, block.R_EB, block.force_S, _EYE if R_SE is None else R_SE,
+                 np.asarray(params["gravity_force_B"], dtype=float), np.asarray(params["bias_force_S"], dtype=float),
+                 self.noise, LAG_MAX_S, LAG_CONTACT_GUARD_NS, LAG_MAX_TURN_RAD_S, LAG_MEMORY_S, self.sums, self.clock)
         if self.S_gg > 0 and self.noise / np.sqrt(self.S_gg) < LAG_MIN_RESOLUTION_S:
             lag = self.S_rg / self.S_gg
             if abs(lag) <= LAG_LIMIT_S or lag * self.S_rg >= LAG_MIN_EXPLAINED * self.S_rr:

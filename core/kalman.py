@@ -37,6 +37,8 @@ estimator's ``implementation`` option):
   predict/update bookkeeping per sample (Joseph-form covariance update). The
   reference, ~35 µs per sample per stage (~45 with bias-rate states); it is
   also what runs with ``bias_rate``.
+* ``method="numba"`` (x = [a, b]): ``_filter6`` compiled (``core.kernels.kalman``),
+  the same bits; the ``kalman`` estimator's default (``kernel = "numba"``).
 * ``method="fast"`` (x = [a, b], the default model): the same filter
   specialised to C = [A, I3] and a symmetric 6×6 P (21 numbers), unrolled in
   plain Python floats, so no numpy call happens per sample; S is factored as
@@ -52,6 +54,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from .kernels import kalman as kernel
 
 I3 = np.eye(3)
 
@@ -179,18 +183,20 @@ class KalmanStage:
             dt: (m,) time since the previous sample, s (>= 0).
             active: (m,) bool, samples that may update (others only predict).
             gate2: a sample with d² > gate2 is refused.
-            method: "fast" (x = [a, b] only) or "filterpy"; None picks "fast"
-                when it applies, else "filterpy".
+            method: "numba" or "fast" (x = [a, b] only) or "filterpy"; None picks
+                "fast" when it applies, else "filterpy".
         """
         if method is None:
             method = "fast" if self.n == 6 else "filterpy"
-        if method == "fast":
+        if method in ("fast", "numba"):
             if self.n != 6:
-                raise ValueError("method: 'fast' needs x = [a, b] (no bias-rate states)")
+                raise ValueError(f"method: {method!r} needs x = [a, b] (no bias-rate states)")
+            if method == "numba":
+                return self._run_numba(y, A, dt, active, gate2)
             return self._run_fast(y, A, dt, active, gate2)
         if method == "filterpy":
             return self._run_filterpy(y, A, dt, active, gate2)
-        raise ValueError(f"method: unknown {method!r}; known: fast, filterpy")
+        raise ValueError(f"method: unknown {method!r}; known: numba, fast, filterpy")
 
     def _run_filterpy(self, y, A, dt, active, gate2) -> StageRun:
         """The reference: filterpy's KalmanFilter does the predict/update bookkeeping."""
@@ -238,6 +244,18 @@ class KalmanStage:
         m = len(y)
         return StageRun(np.array(X).reshape(m, 6), np.array(D).reshape(m, 6), np.array(gated, dtype=bool),
                         np.array(d2, dtype=float), self._failed(m, failed))
+
+    def _run_numba(self, y, A, dt, active, gate2) -> StageRun:
+        """``_run_fast`` compiled (``core.kernels.kalman.filter6``): x and P updated in place, the same bits."""
+        self._materialise()
+        m = len(y)
+        X, D, d2 = np.empty((m, 6)), np.empty((m, 6)), np.empty(m)
+        gated, failed = np.empty(m, dtype=bool), np.empty(m, dtype=bool)
+        contiguous = np.ascontiguousarray
+        n_failed = kernel.filter6(self._x, self._P, contiguous(y, float), contiguous(A, float), contiguous(dt, float),
+                                  contiguous(active, bool), self.q_bias, self.r, self.rc, float(gate2),
+                                  X, D, gated, d2, failed)
+        return StageRun(X, D, gated, d2, self._failed(m, np.flatnonzero(failed)) if n_failed else None)
 
     def _failed(self, m: int, failed: list[int]) -> np.ndarray | None:
         """StageRun.failed from the indices of the samples whose update failed (counted in ``self.failed``)."""

@@ -94,9 +94,11 @@ from ...core.frames import (
     quat_wxyz_from_matrix,
     rotvec_from_matrix,
 )
-from ...core.kalman import I3, KalmanStage, MountStage
+from ...core.kalman import I3, KalmanStage, MountStage, StageRun
+from ...core.kernels import kalman as kalman_kernel
+from ...core.kernels import kernel_option
 from ...core.model import MAX_FORCE, MAX_TORQUE, RefusesBadSamples, SampleGuard, contact_wrench, named_params
-from ...core.types import AlignedSamples, Estimates, Event
+from ...core.types import STATUS_OK, AlignedSamples, Estimates, Event
 from scipy.stats import chi2
 
 STEP_EPSILON = 1e-3
@@ -258,6 +260,12 @@ class KalmanEstimator(RefusesBadSamples):
             session's ``<recording>.calibration.json``): start from its x and P.
         max_force: a sample with a force component beyond this (N) is refused.
         max_torque: the same for a torque component (N·m).
+        kernel: ``"numba"`` (default): the stages' filter compiled (``core.kernels.kalman``, the
+            same bits as the "fast" Python one), and for the default model (no mount, inertia,
+            time lag, bias rate or auto noise; convergence from the covariance) the whole
+            cascade of a block in one compiled call; compiled or loaded from its cache when
+            the estimator is built. ``"numpy"``: the Python/numpy reference. ``implementation
+            = "filterpy"`` and ``bias_rate`` run the reference either way.
 
     Attributes:
         force, torque: the two KalmanStage stages.
@@ -304,6 +312,7 @@ class KalmanEstimator(RefusesBadSamples):
         effects: list[str] | None = None,
         max_force: float = MAX_FORCE,
         max_torque: float = MAX_TORQUE,
+        kernel: str = "numba",
     ):
         # the effects list names the options it stands for (the discrepancy workflow's vocabulary)
         for effect in effects or []:
@@ -364,6 +373,7 @@ class KalmanEstimator(RefusesBadSamples):
                              f"to {MAX_KINEMATICS_LAG_S:g} (kinematics late), got {time_lag_s!r}")
         if not isinstance(warm_start, str):
             raise ValueError(f"warm_start: must be a path (string), got {warm_start!r}")  # noqa: TRY004
+        self.kernel = kernel_option(kernel)
         R_SE = mount_matrix(mount_rotation_SE, mount_R_SE)
         self.guard = SampleGuard("kalman", max_force, max_torque)
         self.gain_inverse_force = _gain_inverse("gain_force_S", gain_force_S)
@@ -388,6 +398,8 @@ class KalmanEstimator(RefusesBadSamples):
         self.method = None if implementation == "auto" else implementation
         if mount_rotation:
             self.method = None  # the mount stage has its own (numpy) filter
+        if kernel == "numba" and implementation in ("auto", "fast") and not bias_rate:
+            self.method = "numba"  # (the torque stage's with mount_rotation)
         self.gate2 = math.inf if (gate_probability == 1 or gating == "none") else float(chi2.ppf(gate_probability, 3))
         self.convergence = convergence
         self.converged_force_std_option = converged_force_std
@@ -426,6 +438,14 @@ class KalmanEstimator(RefusesBadSamples):
         self._run_tested_full = False  # the run's whole window was tested (negative)
         if warm_start:
             self.load_state(warm_start)
+        # the whole cascade in one compiled call: the default model (what it leaves out runs per stage)
+        self._cascade = (self.method == "numba" and not mount_rotation and convergence == "covariance"
+                         and not self.noise_auto and self.derivatives is None and self.time_lag_s == 0)
+        if self.method == "numba":
+            kalman_kernel.warm_up()
+            self._buffers = kalman_kernel.Buffers()
+            self._clock = np.zeros(2, dtype=np.int64)  # [a sample came before, its t_ns]
+            self._limits = np.zeros(3)  # [gate2, bound_f², bound_t²]
 
     def update_block(self, block: AlignedSamples) -> Estimates:
         """Filter a block of aligned samples, in order (bad samples refused first)."""
@@ -446,6 +466,8 @@ class KalmanEstimator(RefusesBadSamples):
     def _filter_block(self, block: AlignedSamples) -> Estimates:
         """Filter a block of samples that passed the guard, in order."""
         m = len(block)
+        if self._cascade and m:
+            return self._filter_compiled(block)
         if self.noise_auto and m > CHUNK:  # let the noise estimate follow within a long block
             parts = [self._filter_block(block.subset(slice(i, i + CHUNK))) for i in range(0, m, CHUNK)]
             return Estimates.concatenate(parts)
@@ -517,6 +539,58 @@ class KalmanEstimator(RefusesBadSamples):
             converged_force=conv_f,
             converged_torque=conv_t,
         )
+
+    def _filter_compiled(self, block: AlignedSamples) -> Estimates:
+        """``_filter_block`` for the default model in one compiled call (``kalman_kernel.kalman_cascade``)."""
+        m = len(block)
+        contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
+        t_ns = contiguous(block.t_ns, np.int64)
+        force_S, torque_S, R_EB = (contiguous(a, float) for a in (block.force_S, block.torque_S, block.R_EB))
+        if self.gain_inverse_force is not None:
+            force_S = force_S @ self.gain_inverse_force.T
+        if self.gain_inverse_torque is not None:
+            torque_S = torque_S @ self.gain_inverse_torque.T
+        A_f = contiguous(self._to_S(R_EB))
+        # block.usable; the guard has already refused a non-finite wrench or R_EB
+        if m == 1:
+            p = block.p_BoEo_B
+            usable = np.array([not block.stale[0] and block.status[0] == STATUS_OK
+                               and (p is None or bool(np.isfinite(p).all()))])
+        else:
+            usable = ~block.stale & (block.status == STATUS_OK)
+            if block.p_BoEo_B is not None:
+                usable &= np.isfinite(block.p_BoEo_B).all(1)
+        b, clock, limits = self._buffers, self._clock, self._limits
+        b.ensure(m)
+        if self._last_t_ns is not None:
+            clock[0], clock[1] = 1, self._last_t_ns
+        bound_f, bound_t = self._bounds()
+        limits[0], limits[1], limits[2] = self.gate2, bound_f ** 2, bound_t ** 2
+        force, torque = self.force, self.torque
+        out = Estimates(block.t_ns, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=bool),
+                        np.empty(m, dtype=bool), np.empty(m, dtype=bool))
+        x_before = force.x.copy() if self.payload_change_ns > 0 else None
+        kalman_kernel.kalman_cascade(t_ns, clock, force_S, force_S, torque_S, A_f, usable, force.x, force.P,
+                                     torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
+                                     torque.rc, limits, b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t,
+                                     b.gated_t, b.failed_t, out.contact_force_S, out.contact_torque_S, out.contact,
+                                     out.converged_force, out.converged_torque)
+        self._last_t_ns = int(t_ns[-1])
+        gated_f, failed_f, failed_t = b.gated_f[:m], b.failed_f[:m], b.failed_t[:m]
+        if failed_f.any() or failed_t.any():
+            force.failed += int(np.count_nonzero(failed_f))
+            torque.failed += int(np.count_nonzero(failed_t))
+        conv_f, conv_t = out.converged_force, out.converged_torque
+        self.converged_force, self.converged_torque = bool(conv_f[-1]), bool(conv_t[-1])
+        if self.payload_change_ns > 0 and (self._refused_since is not None or gated_f.any()):
+            run_f = StageRun(b.X_f[:m], b.D_f[:m], gated_f, b.d2[:m], failed_f)
+            self._watch_payload(t_ns, force_S, force_S, torque_S, R_EB, A_f, usable, run_f, x_before)
+        if self.first_converged_force is None and conv_f.any():
+            self.first_converged_force = self.samples + int(np.argmax(conv_f))
+        if self.first_converged_torque is None and conv_t.any():
+            self.first_converged_torque = self.samples + int(np.argmax(conv_t))
+        self.samples += m
+        return out
 
     # ------------------------------------------------------------------ the model's inputs
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.plugins.simworld import SimWorld
 from hapticlab.sessions.bench.paper import simulate
@@ -32,6 +33,13 @@ KEYS = ("contact_force_S", "contact_torque_S", "contact", "converged_force", "co
 @pytest.fixture(scope="module")
 def sim():
     block, _ = simulate(SimWorld(seed=1, inertia=False), 3.0, 1000.0)
+    return block
+
+
+@pytest.fixture(scope="module")
+def sim6():
+    """6 s: the kalman torque stage converges after ~4 s of this tour."""
+    block, _ = simulate(SimWorld(seed=1, inertia=False), 6.0, 1000.0)
     return block
 
 
@@ -111,3 +119,71 @@ def test_rls_kernel_option_is_validated():
         RLSEstimator(kernel="cuda")
     assert RLSEstimator(kernel="numpy").kernel == "numpy"
     assert RLSEstimator().kernel == "numba"
+
+
+def _run(est, block, size):
+    parts = [est.update_block(block.subset(slice(i, i + size))) for i in range(0, len(block), size)]
+    return {key: np.concatenate([getattr(p, key) for p in parts]) for key in KEYS}
+
+
+@pytest.mark.parametrize("options", [{}, {"noise_force": "auto", "noise_torque": "auto"}, {"mount_rotation": True},
+                                     {"convergence": "step"}, {"inertia": True}],
+                         ids=["cascade", "auto-noise", "mount", "step", "inertia"])
+@pytest.mark.parametrize("size", [1, 7, 1024])
+def test_kalman_kernel_gives_the_numpy_bits(sim6, size, options):
+    """The default model runs the compiled cascade; the others the compiled stage filter (``filter6``)."""
+    ref, fast = KalmanEstimator(kernel="numpy", **options), KalmanEstimator(kernel="numba", **options)
+    assert fast._cascade == (not options)
+    a, b = _run(ref, sim6, size), _run(fast, sim6, size)
+    for key in KEYS:
+        assert np.array_equal(a[key], b[key]), key
+    assert a["converged_force"].any() and a["converged_torque"].any()
+    assert ref.params() == fast.params() and ref.cov_diag() == fast.cov_diag()
+    assert ref.state() == fast.state()
+    assert (ref.first_converged_force, ref.first_converged_torque) == (fast.first_converged_force,
+                                                                       fast.first_converged_torque)
+
+
+@pytest.mark.parametrize("size", [1, 7])
+def test_kernels_refuse_the_same_samples_and_keep_the_state(sim, size):
+    block = sim.subset(slice(0, 1400))
+    block.force_S[700, 1] = np.nan
+    block.torque_S[703] = np.inf
+    block.R_EB[1100] *= 2.0  # not a rotation
+    bad = np.array([700, 703, 1100])
+    clean = block.subset(np.setdiff1d(np.arange(len(block)), bad))
+    for make in (RLSEstimator, KalmanEstimator):
+        fast, without = make(kernel="numba"), make(kernel="numba")
+        b = _run(fast, block, size)
+        assert fast.refused_samples == 3
+        assert np.isnan(b["contact_force_S"][bad]).all() and not b["contact"][bad].any()
+        c = _run(without, clean, size)  # as if the bad samples had never arrived
+        for key in KEYS:
+            assert np.array_equal(np.delete(b[key], bad, axis=0), c[key]), (make, key)
+        assert fast.params() == without.params() and fast.cov_diag() == without.cov_diag()
+        if make is KalmanEstimator:  # and the numpy reference does the same, to the bit
+            ref = make(kernel="numpy")
+            a = _run(ref, block, size)
+            assert ref.refused_samples == 3
+            for key in KEYS:
+                assert np.array_equal(a[key], b[key], equal_nan=key.startswith("contact_")), key
+
+
+def test_kalman_restart_and_payload_paths_use_the_kernel_and_agree(sim):
+    ref, fast = KalmanEstimator(kernel="numpy"), KalmanEstimator(kernel="numba")
+    for est in (ref, fast):
+        est.update_block(sim.subset(slice(0, 1500)))
+        est.reidentify_bias("test")
+    a, b = _run(ref, sim.subset(slice(1500, 3000)), 1), _run(fast, sim.subset(slice(1500, 3000)), 1)
+    for key in KEYS:
+        assert np.array_equal(a[key], b[key]), key
+    assert ref.state() == fast.state()
+
+
+def test_kalman_kernel_option_is_validated():
+    with pytest.raises(ValueError, match="^kernel: "):
+        KalmanEstimator(kernel="fortran")
+    assert KalmanEstimator(kernel="numpy").method is None
+    assert KalmanEstimator().method == "numba"
+    assert KalmanEstimator(implementation="filterpy").method == "filterpy"
+    assert KalmanEstimator(bias_rate=True).method is None

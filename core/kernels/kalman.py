@@ -1,0 +1,315 @@
+"""The drift Kalman stage per sample, compiled: the ``kalman`` estimator's hot path.
+
+The filter of ``core.kalman`` for x = [a, b] (6 states), C_k = [A_k, I3], its arithmetic
+transcribed expression for expression from ``core.kalman._filter6`` (the reference in
+Python floats), so the results are the same bits: numba compiles without fast-math, so
+no product is fused into an FMA and no sum is reordered. Per sample k:
+
+    P⁻ = P + Q(dt_k),  Q = diag(0, 0, 0, q·dt_k)           q: (3,) bias random-walk variance rate, units²/s
+    S  = C P⁻ Cᵀ + R_k, R_k = diag(r) + [a]ₓ diag(rc) [a]ₓᵀ  r: (3,) noise variance, units²; rc: (3,) of
+                                                             the vector A_k is built from (torque stage)
+    e  = y_k − C x⁻,    d² = eᵀ S⁻¹ e   (S = L·diag(d)·Lᵀ)
+    d² > gate2: refused (gated); else x = x⁻ + P⁻Cᵀ S⁻¹ e, P = P⁻ − P⁻Cᵀ S⁻¹ C P⁻
+
+Arrays: x (6,) in place; P (6, 6) symmetric in place (the upper triangle is read, both
+are written). Three entry points: ``stage_step`` (one sample), ``filter6`` (one stage
+over m samples: ``KalmanStage.run(method="numba")``) and ``kalman_cascade`` (both
+stages of the estimator's default model, their convergence flags and the contact
+wrench, in one call). Nothing is allocated; outputs go to arrays the caller owns.
+
+Compile cost: ~6–10 s the first time on this machine (2 cores), then well under a second
+to load from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+PREDICTED, UPDATED, GATED, FAILED = 0, 1, 2, 3
+"""What ``stage_step`` did with a sample: predicted only (inactive), updated, refused by the
+gate, or the update could not be computed (S not numerically positive definite)."""
+
+
+@njit(cache=True, error_model="numpy")
+def stage_step(x, P, y0, y1, y2, A, dt, active, q, r, rc, gate2):
+    """One sample of one stage, in place.
+
+    Args:
+        x: (6,) [a, b]. P: (6, 6) covariance. y0, y1, y2: the measurement y_k.
+        A: (3, 3) A_k. dt: time since the previous sample, s (>= 0). active: may update.
+        q: (3,) bias random-walk variance per second. r: (3,) noise variance. rc: (3,) the
+        cross noise's variance (zeros: none). gate2: the gate on d².
+
+    Returns:
+        (what, d2): ``PREDICTED``, ``UPDATED``, ``GATED`` or ``FAILED``, and d² (NaN
+        when inactive or failed).
+    """
+    if dt != 0.0:
+        P[3, 3] += q[0] * dt
+        P[4, 4] += q[1] * dt
+        P[5, 5] += q[2] * dt
+    if not active:
+        return PREDICTED, math.nan
+    x0, x1, x2, x3, x4, x5 = x[0], x[1], x[2], x[3], x[4], x[5]
+    p00, p01, p02, p03, p04, p05 = P[0, 0], P[0, 1], P[0, 2], P[0, 3], P[0, 4], P[0, 5]
+    p11, p12, p13, p14, p15 = P[1, 1], P[1, 2], P[1, 3], P[1, 4], P[1, 5]
+    p22, p23, p24, p25 = P[2, 2], P[2, 3], P[2, 4], P[2, 5]
+    p33, p34, p35 = P[3, 3], P[3, 4], P[3, 5]
+    p44, p45 = P[4, 4], P[4, 5]
+    p55 = P[5, 5]
+    r0, r1, r2 = r[0], r[1], r[2]
+    rc0, rc1, rc2 = rc[0], rc[1], rc[2]
+    cross = rc0 != 0.0 or rc1 != 0.0 or rc2 != 0.0
+    a00, a01, a02 = A[0, 0], A[0, 1], A[0, 2]
+    a10, a11, a12 = A[1, 0], A[1, 1], A[1, 2]
+    a20, a21, a22 = A[2, 0], A[2, 1], A[2, 2]
+    # PCᵀ: column l is P[:, :3] · A[l] + P[:, 3 + l]
+    c00 = p00 * a00 + p01 * a01 + p02 * a02 + p03
+    c10 = p01 * a00 + p11 * a01 + p12 * a02 + p13
+    c20 = p02 * a00 + p12 * a01 + p22 * a02 + p23
+    c30 = p03 * a00 + p13 * a01 + p23 * a02 + p33
+    c40 = p04 * a00 + p14 * a01 + p24 * a02 + p34
+    c50 = p05 * a00 + p15 * a01 + p25 * a02 + p35
+    c01 = p00 * a10 + p01 * a11 + p02 * a12 + p04
+    c11 = p01 * a10 + p11 * a11 + p12 * a12 + p14
+    c21 = p02 * a10 + p12 * a11 + p22 * a12 + p24
+    c31 = p03 * a10 + p13 * a11 + p23 * a12 + p34
+    c41 = p04 * a10 + p14 * a11 + p24 * a12 + p44
+    c51 = p05 * a10 + p15 * a11 + p25 * a12 + p45
+    c02 = p00 * a20 + p01 * a21 + p02 * a22 + p05
+    c12 = p01 * a20 + p11 * a21 + p12 * a22 + p15
+    c22 = p02 * a20 + p12 * a21 + p22 * a22 + p25
+    c32 = p03 * a20 + p13 * a21 + p23 * a22 + p35
+    c42 = p04 * a20 + p14 * a21 + p24 * a22 + p45
+    c52 = p05 * a20 + p15 * a21 + p25 * a22 + p55
+    # S = C PCᵀ + R
+    s00 = a00 * c00 + a01 * c10 + a02 * c20 + c30 + r0
+    s01 = a00 * c01 + a01 * c11 + a02 * c21 + c31
+    s02 = a00 * c02 + a01 * c12 + a02 * c22 + c32
+    s11 = a10 * c01 + a11 * c11 + a12 * c21 + c41 + r1
+    s12 = a10 * c02 + a11 * c12 + a12 * c22 + c42
+    s22 = a20 * c02 + a21 * c12 + a22 * c22 + c52 + r2
+    if cross:  # [a]ₓ diag(rc) [a]ₓᵀ at the prior estimate of a
+        s00 += rc1 * x2 * x2 + rc2 * x1 * x1
+        s11 += rc0 * x2 * x2 + rc2 * x0 * x0
+        s22 += rc0 * x1 * x1 + rc1 * x0 * x0
+        s01 -= rc2 * x0 * x1
+        s02 -= rc1 * x0 * x2
+        s12 -= rc0 * x1 * x2
+    e0 = y0 - (a00 * x0 + a01 * x1 + a02 * x2 + x3)
+    e1 = y1 - (a10 * x0 + a11 * x1 + a12 * x2 + x4)
+    e2 = y2 - (a20 * x0 + a21 * x1 + a22 * x2 + x5)
+    # S = L·diag(d)·Lᵀ (LDLᵀ, L unit lower triangular): d² and the update
+    # without forming S⁻¹, as three decorrelated scalar updates
+    # (the Python reference catches ZeroDivisionError; here x/0 is inf or NaN and the test below fails)
+    d0 = s00
+    l10 = s01 / d0
+    l20 = s02 / d0
+    d1 = s11 - l10 * s01
+    t = s12 - l20 * s01
+    l21 = t / d1
+    d2_ = s22 - l20 * s02 - l21 * t
+    z1 = e1 - l10 * e0  # z = L⁻¹ e
+    z2 = e2 - l20 * e0 - l21 * z1
+    z0 = e0 / d0  # then D⁻¹ z
+    z1 /= d1
+    z2 /= d2_
+    if not (d0 > 0.0 and d1 > 0.0 and d2_ > 0.0):  # S not numerically positive definite: no update
+        return FAILED, math.nan
+    d2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_  # eᵀ S⁻¹ e
+    if not d2 <= gate2:  # refused (NaN too)
+        return GATED, d2
+    # U = PCᵀ L⁻ᵀ (columns u0, u1, u2); x += U D⁻¹ L⁻¹ e; P -= U D⁻¹ Uᵀ
+    u10 = c01 - l10 * c00
+    u11 = c11 - l10 * c10
+    u12 = c21 - l10 * c20
+    u13 = c31 - l10 * c30
+    u14 = c41 - l10 * c40
+    u15 = c51 - l10 * c50
+    u20 = c02 - l20 * c00 - l21 * u10
+    u21 = c12 - l20 * c10 - l21 * u11
+    u22 = c22 - l20 * c20 - l21 * u12
+    u23 = c32 - l20 * c30 - l21 * u13
+    u24 = c42 - l20 * c40 - l21 * u14
+    u25 = c52 - l20 * c50 - l21 * u15
+    x0 += c00 * z0 + u10 * z1 + u20 * z2
+    x1 += c10 * z0 + u11 * z1 + u21 * z2
+    x2 += c20 * z0 + u12 * z1 + u22 * z2
+    x3 += c30 * z0 + u13 * z1 + u23 * z2
+    x4 += c40 * z0 + u14 * z1 + u24 * z2
+    x5 += c50 * z0 + u15 * z1 + u25 * z2
+    g0 = c00 / d0
+    g1 = u10 / d1
+    g2 = u20 / d2_
+    p00 -= g0 * c00 + g1 * u10 + g2 * u20
+    p01 -= g0 * c10 + g1 * u11 + g2 * u21
+    p02 -= g0 * c20 + g1 * u12 + g2 * u22
+    p03 -= g0 * c30 + g1 * u13 + g2 * u23
+    p04 -= g0 * c40 + g1 * u14 + g2 * u24
+    p05 -= g0 * c50 + g1 * u15 + g2 * u25
+    g0 = c10 / d0
+    g1 = u11 / d1
+    g2 = u21 / d2_
+    p11 -= g0 * c10 + g1 * u11 + g2 * u21
+    p12 -= g0 * c20 + g1 * u12 + g2 * u22
+    p13 -= g0 * c30 + g1 * u13 + g2 * u23
+    p14 -= g0 * c40 + g1 * u14 + g2 * u24
+    p15 -= g0 * c50 + g1 * u15 + g2 * u25
+    g0 = c20 / d0
+    g1 = u12 / d1
+    g2 = u22 / d2_
+    p22 -= g0 * c20 + g1 * u12 + g2 * u22
+    p23 -= g0 * c30 + g1 * u13 + g2 * u23
+    p24 -= g0 * c40 + g1 * u14 + g2 * u24
+    p25 -= g0 * c50 + g1 * u15 + g2 * u25
+    g0 = c30 / d0
+    g1 = u13 / d1
+    g2 = u23 / d2_
+    p33 -= g0 * c30 + g1 * u13 + g2 * u23
+    p34 -= g0 * c40 + g1 * u14 + g2 * u24
+    p35 -= g0 * c50 + g1 * u15 + g2 * u25
+    g0 = c40 / d0
+    g1 = u14 / d1
+    g2 = u24 / d2_
+    p44 -= g0 * c40 + g1 * u14 + g2 * u24
+    p45 -= g0 * c50 + g1 * u15 + g2 * u25
+    p55 -= c50 * c50 / d0 + u15 * u15 / d1 + u25 * u25 / d2_
+
+    x[0], x[1], x[2], x[3], x[4], x[5] = x0, x1, x2, x3, x4, x5
+    P[0, 0], P[0, 1], P[0, 2], P[0, 3], P[0, 4], P[0, 5] = p00, p01, p02, p03, p04, p05
+    P[1, 1], P[1, 2], P[1, 3], P[1, 4], P[1, 5] = p11, p12, p13, p14, p15
+    P[2, 2], P[2, 3], P[2, 4], P[2, 5] = p22, p23, p24, p25
+    P[3, 3], P[3, 4], P[3, 5] = p33, p34, p35
+    P[4, 4], P[4, 5] = p44, p45
+    P[5, 5] = p55
+    for i in range(6):
+        for j in range(i):
+            P[i, j] = P[j, i]
+    return UPDATED, d2
+
+
+@njit(cache=True, error_model="numpy")
+def filter6(x, P, y, A, dt, active, q, r, rc, gate2, X, D, gated, d2, failed):
+    """One stage over m samples, in order (``core.kalman._filter6``); x and P in place.
+
+    Args:
+        y: (m, 3) measurements. A: (m, 3, 3). dt: (m,) s. active: (m,) bool. The rest as
+        ``stage_step``. Out: X, D (m, 6) the state and diag P after each sample; gated,
+        failed (m,) bool; d2 (m,) float.
+
+    Returns:
+        The number of failed samples.
+    """
+    n_failed = 0
+    for k in range(y.shape[0]):
+        what, d2[k] = stage_step(x, P, y[k, 0], y[k, 1], y[k, 2], A[k], dt[k], active[k], q, r, rc, gate2)
+        gated[k] = what == GATED
+        failed[k] = what == FAILED
+        n_failed += what == FAILED
+        for i in range(6):
+            X[k, i] = x[i]
+            D[k, i] = P[i, i]
+    return n_failed
+
+
+@njit(cache=True, error_model="numpy")
+def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, usable, x_f, P_f, x_t, P_t, q_f, r_f, rc_f,
+                   q_t, r_t, rc_t, limits, X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
+                   contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
+    """The ``kalman`` estimator's default model over m samples (its ``_filter_block``), in order.
+
+    Force stage y = y_f, C = [A_f, I3]; its flag: max diag P[:6] < bound_f²; the torque stage
+    sees the samples the force stage accepted with its flag up, C = [−[force_S − b_f]ₓ, I3]
+    (b_f after the sample); its flag: max diag P_cog · |gravity_force_B|² < bound_t² and
+    max diag P_bias < bound_t². A failed update (S not positive definite) is predicted only
+    and lowers the flag. The contact wrench at the states after each sample (paper eqs. 20–21).
+
+    Args:
+        t_ns: (m,) int64 sample times, ns. last_t_ns: (2,) int64 [1 if a sample came before, its t_ns].
+        y_f: (m, 3) what gravity and bias explain, N. force_S: (m, 3) N. torque_S: (m, 3) N·m.
+        A_f: (m, 3, 3) R_SB per sample. usable: (m,) bool in; out: False where the force update failed.
+        x_f, P_f, x_t, P_t: the stages' (6,) and (6, 6), in place. q_*, r_*, rc_*: (3,) as ``stage_step``.
+        limits: (3,) [gate2, bound_f², bound_t²]. Out, (m, 6): X_f, D_f, X_t, D_t (state, diag P);
+        (m,): gated_f, failed_f, gated_t, failed_t; contact_force_S, contact_torque_S (m, 3);
+        contact, converged_force, converged_torque (m,).
+    """
+    gate2, bound_f2, bound_t2 = limits[0], limits[1], limits[2]
+    A_t = np.empty((3, 3))  # (hoisted by LLVM out of the loop: one allocation per call)
+    previous = last_t_ns[1]
+    for k in range(t_ns.shape[0]):
+        if k == 0 and last_t_ns[0] == 0:
+            step_ns = 0
+        else:
+            step_ns = t_ns[k] - previous
+        previous = t_ns[k]
+        dt = max(step_ns, 0) * 1e-9
+        what, _ = stage_step(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, r_f, rc_f, gate2)
+        failed = what == FAILED
+        gated_f[k], failed_f[k] = what == GATED, failed
+        if failed:
+            usable[k] = False
+        conv = max(P_f[0, 0], P_f[1, 1], P_f[2, 2], P_f[3, 3], P_f[4, 4], P_f[5, 5]) < bound_f2 and not failed
+        converged_force[k] = conv
+        d0, d1, d2 = force_S[k, 0] - x_f[3], force_S[k, 1] - x_f[4], force_S[k, 2] - x_f[5]
+        A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
+        A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
+        A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
+        seen = usable[k] and what != GATED and conv
+        what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
+                               rc_t, gate2)
+        gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
+        weight2 = x_f[0] ** 2 + x_f[1] ** 2 + x_f[2] ** 2  # |gravity_force_B|², N²
+        converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
+                               and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)
+        for i in range(6):
+            X_f[k, i], D_f[k, i], X_t[k, i], D_t[k, i] = x_f[i], P_f[i, i], x_t[i], P_t[i, i]
+        A = A_f[k]
+        g0 = A[0, 0] * x_f[0] + A[0, 1] * x_f[1] + A[0, 2] * x_f[2]
+        g1 = A[1, 0] * x_f[0] + A[1, 1] * x_f[1] + A[1, 2] * x_f[2]
+        g2 = A[2, 0] * x_f[0] + A[2, 1] * x_f[1] + A[2, 2] * x_f[2]
+        contact_force_S[k, 0] = y_f[k, 0] - g0 - x_f[3]
+        contact_force_S[k, 1] = y_f[k, 1] - g1 - x_f[4]
+        contact_force_S[k, 2] = y_f[k, 2] - g2 - x_f[5]
+        contact_torque_S[k, 0] = torque_S[k, 0] - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
+        contact_torque_S[k, 1] = torque_S[k, 1] - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
+        contact_torque_S[k, 2] = torque_S[k, 2] - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
+        contact[k] = gated_f[k] or gated_t[k]
+
+
+class Buffers:
+    """The per-sample outputs of ``filter6`` / ``kalman_cascade`` for blocks of up to ``capacity`` samples,
+    allocated once (grown, never shrunk, when a longer block comes); ``view(m)`` gives the first m rows."""
+
+    def __init__(self, capacity: int = 64):
+        self.capacity = 0
+        self.grow(capacity)
+
+    def grow(self, capacity: int) -> None:
+        self.capacity = capacity
+        self.X_f, self.D_f, self.X_t, self.D_t = (np.empty((capacity, 6)) for _ in range(4))
+        self.gated_f, self.failed_f, self.gated_t, self.failed_t = (np.empty(capacity, dtype=np.bool_)
+                                                                    for _ in range(4))
+        self.d2 = np.empty(capacity)
+
+    def ensure(self, m: int) -> None:
+        if m > self.capacity:
+            self.grow(max(m, 2 * self.capacity))
+
+
+def warm_up() -> None:
+    """Compile ``filter6`` and ``kalman_cascade`` (or load them from the cache) by running each once."""
+    m = 2
+    A = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
+    y = np.ones((m, 3))
+    b = Buffers(m)
+    v3 = np.full(3, 1e-4)
+    filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, np.zeros(3), 20.0,
+            b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
+    kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A, np.ones(m, dtype=np.bool_),
+                   np.zeros(6), np.eye(6), np.zeros(6), np.eye(6), v3, v3, np.zeros(3), v3, v3, v3,
+                   np.array([20.0, 1e-4, 1e-6]), b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t,
+                   b.failed_t, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_),
+                   np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_))

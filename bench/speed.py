@@ -3,11 +3,13 @@
     .venv/bin/python bench/speed.py [--quick]
 
 Prints, on this machine:
-* the ``rls`` cascade (Algorithm 1) in µs per sample, median and p99 over
-  blocks of 1, 7, 64 and 1024 samples (a 1 kHz sensor read by a 1 kHz loop
-  gives blocks of 1; a 7 kHz NetFT read by a 1 kHz loop, 7; offline, 1024),
-  and the same for ``kalman`` and ``batch``, and for ``kalman`` with each of
-  its model options (mount rotation, inertia, auto noise, bias rate);
+* the ``rls`` cascade (Algorithm 1) and ``kalman`` in µs per sample, median
+  and p99 over blocks of 1, 7 and 1024 samples (a 1 kHz sensor read by a 1 kHz
+  loop gives blocks of 1; a 7 kHz NetFT read by a 1 kHz loop, 7; offline,
+  1024), each with both kernels side by side (``kernel = "numba"``, compiled,
+  and ``"numpy"``, the reference); ``batch`` over 1, 7, 64 and 1024; and
+  ``kalman`` with each of its model options (mount rotation, inertia, auto
+  noise, bias rate), both kernels;
 * ``compensate`` throughput in samples/s over a simulated CSV;
 * a full simulated session (sensor → aligner → estimator → haptic command →
   MCAP) run as fast as possible: simulated seconds per wall second at 1 kHz
@@ -56,23 +58,28 @@ def main() -> None:
     # the simulated world: a 0.35 kg tool on a Gamma-class sensor (0.12 N, 0.01 N·m noise) on a random tour
     block, _ = simulate(SimWorld(seed=1, inertia=False), n / 1000.0, 1000.0)
 
-    print(f"estimator µs per sample ({n} samples, second half timed)")
-    print(f"{'estimator':<10}{'block':>7}{'median':>10}{'p99':>10}")
-    for name, factory in (("rls", RLSEstimator), ("kalman", KalmanEstimator), ("batch", BatchEstimator)):
-        for size in (1, 7, 64, 1024):
-            if name == "batch" and size == 1 and not args.quick:
-                continue  # minutes of pinv per sample; the baseline is not a live estimator
-            med, p99 = per_sample_us(factory, block, size)
-            print(f"{name:<10}{size:>7}{med:>10.2f}{p99:>10.2f}")
+    print(f"estimator µs per sample ({n} samples, second half timed; numba: compiled, numpy: the reference)")
+    print(f"{'estimator':<10}{'block':>7}{'numba median':>14}{'p99':>9}{'numpy median':>14}{'p99':>9}")
+    for name, factory in (("rls", RLSEstimator), ("kalman", KalmanEstimator)):
+        for size in (1, 7, 1024):
+            row = [per_sample_us(lambda kernel=kernel: factory(kernel=kernel), block, size)
+                   for kernel in ("numba", "numpy")]
+            print(f"{name:<10}{size:>7}{row[0][0]:>14.2f}{row[0][1]:>9.2f}{row[1][0]:>14.2f}{row[1][1]:>9.2f}")
+    for size in (1, 7, 64, 1024):
+        if size == 1 and not args.quick:
+            continue  # minutes of pinv per sample; the baseline is not a live estimator
+        med, p99 = per_sample_us(BatchEstimator, block, size)
+        print(f"{'batch':<10}{size:>7}{'':>14}{'':>9}{med:>14.2f}{p99:>9.2f}")
     print(f"\nkalman options, µs per sample ({n} samples, second half timed)")
-    print(f"{'option':<24}{'block':>7}{'median':>10}{'p99':>10}")
+    print(f"{'option':<24}{'block':>7}{'numba median':>14}{'p99':>9}{'numpy median':>14}{'p99':>9}")
     options = {"mount_rotation = true": {"mount_rotation": True}, "inertia = true": {"inertia": True},
                "noise = auto": {"noise_force": "auto", "noise_torque": "auto"},
                "bias_rate = true": {"bias_rate": True}}
     for label, opts in options.items():
         for size in (1, 7, 64):
-            med, p99 = per_sample_us(lambda opts=opts: KalmanEstimator(**opts), block, size)
-            print(f"{label:<24}{size:>7}{med:>10.2f}{p99:>10.2f}")
+            row = [per_sample_us(lambda opts=opts, kernel=kernel: KalmanEstimator(kernel=kernel, **opts), block, size)
+                   for kernel in ("numba", "numpy")]
+            print(f"{label:<24}{size:>7}{row[0][0]:>14.2f}{row[0][1]:>9.2f}{row[1][0]:>14.2f}{row[1][1]:>9.2f}")
 
     with tempfile.TemporaryDirectory() as tmp:
         csv_path = Path(tmp) / "sim.csv"

@@ -216,7 +216,7 @@ def filter6(x, P, y, A, dt, active, q, r, rc, gate2, X, D, gated, d2, failed):
 
 
 @njit(cache=True, error_model="numpy")
-def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, usable, x_f, P_f, x_t, P_t, q_f, r_f, rc_f,
+def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, usable, x_f, P_f, x_t, P_t, q_f, r_f, rc_f,
                    q_t, r_t, rc_t, limits, X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
     """The ``kalman`` estimator's default model over m samples (its ``_filter_block``), in order.
@@ -230,16 +230,29 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, usable, x_f, P_
     Args:
         t_ns: (m,) int64 sample times, ns. last_t_ns: (2,) int64 [1 if a sample came before, its t_ns].
         y_f: (m, 3) what gravity and bias explain, N. force_S: (m, 3) N. torque_S: (m, 3) N·m.
-        A_f: (m, 3, 3) R_SB per sample. usable: (m,) bool in; out: False where the force update failed.
+        A_f: (m, 3, 3) R_SB per sample. stale: (m,) bool. status: (m,) int64 sensor status (0: good).
+        p_BoEo_B: (m, 3) positions, m, or (0, 3) when the stream has none. usable: (m,) bool out: the
+        samples the filter may use (``AlignedSamples.usable``: the guard has already refused a
+        non-finite wrench or R_EB), less those whose force update failed.
         x_f, P_f, x_t, P_t: the stages' (6,) and (6, 6), in place. q_*, r_*, rc_*: (3,) as ``stage_step``.
         limits: (3,) [gate2, bound_f², bound_t²]. Out, (m, 6): X_f, D_f, X_t, D_t (state, diag P);
         (m,): gated_f, failed_f, gated_t, failed_t; contact_force_S, contact_torque_S (m, 3);
         contact, converged_force, converged_torque (m,).
+
+    Returns:
+        (failed force updates, failed torque updates, gated force samples, first row with the
+        force flag up or −1, the same for torque): what the caller would otherwise count.
     """
     gate2, bound_f2, bound_t2 = limits[0], limits[1], limits[2]
     A_t = np.empty((3, 3))  # (hoisted by LLVM out of the loop: one allocation per call)
     previous = last_t_ns[1]
+    n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
+    positions = p_BoEo_B.shape[0] != 0
     for k in range(t_ns.shape[0]):
+        usable[k] = not stale[k] and status[k] == 0
+        if positions:
+            usable[k] = usable[k] and math.isfinite(p_BoEo_B[k, 0]) and math.isfinite(p_BoEo_B[k, 1]) \
+                and math.isfinite(p_BoEo_B[k, 2])
         if k == 0 and last_t_ns[0] == 0:
             step_ns = 0
         else:
@@ -251,8 +264,12 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, usable, x_f, P_
         gated_f[k], failed_f[k] = what == GATED, failed
         if failed:
             usable[k] = False
+            n_failed_f += 1
+        n_gated_f += what == GATED
         conv = max(P_f[0, 0], P_f[1, 1], P_f[2, 2], P_f[3, 3], P_f[4, 4], P_f[5, 5]) < bound_f2 and not failed
         converged_force[k] = conv
+        if conv and first_f < 0:
+            first_f = k
         d0, d1, d2 = force_S[k, 0] - x_f[3], force_S[k, 1] - x_f[4], force_S[k, 2] - x_f[5]
         A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
         A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
@@ -261,9 +278,12 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, usable, x_f, P_
         what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
                                rc_t, gate2)
         gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
+        n_failed_t += what_t == FAILED
         weight2 = x_f[0] ** 2 + x_f[1] ** 2 + x_f[2] ** 2  # |gravity_force_B|², N²
         converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
                                and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)
+        if converged_torque[k] and first_t < 0:
+            first_t = k
         for i in range(6):
             X_f[k, i], D_f[k, i], X_t[k, i], D_t[k, i] = x_f[i], P_f[i, i], x_t[i], P_t[i, i]
         A = A_f[k]
@@ -277,6 +297,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, usable, x_f, P_
         contact_torque_S[k, 1] = torque_S[k, 1] - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
         contact_torque_S[k, 2] = torque_S[k, 2] - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
         contact[k] = gated_f[k] or gated_t[k]
+    return n_failed_f, n_failed_t, n_gated_f, first_f, first_t
 
 
 class Buffers:
@@ -293,6 +314,7 @@ class Buffers:
         self.gated_f, self.failed_f, self.gated_t, self.failed_t = (np.empty(capacity, dtype=np.bool_)
                                                                     for _ in range(4))
         self.d2 = np.empty(capacity)
+        self.usable = np.empty(capacity, dtype=np.bool_)
 
     def ensure(self, m: int) -> None:
         if m > self.capacity:
@@ -308,8 +330,10 @@ def warm_up() -> None:
     v3 = np.full(3, 1e-4)
     filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, np.zeros(3), 20.0,
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
-    kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A, np.ones(m, dtype=np.bool_),
-                   np.zeros(6), np.eye(6), np.zeros(6), np.eye(6), v3, v3, np.zeros(3), v3, v3, v3,
-                   np.array([20.0, 1e-4, 1e-6]), b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t,
-                   b.failed_t, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_),
-                   np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_))
+    for p in (np.zeros((0, 3)), y):  # streams without and with positions
+        kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
+                   np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, np.ones(m, dtype=np.bool_),
+                       np.zeros(6), np.eye(6), np.zeros(6), np.eye(6), v3, v3, np.zeros(3), v3, v3, v3,
+                       np.array([20.0, 1e-4, 1e-6]), b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t,
+                       b.failed_t, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_),
+                       np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_))

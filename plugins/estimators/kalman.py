@@ -157,6 +157,8 @@ EFFECT_OPTIONS = {
     "gain_crosstalk": "gain_force_S / gain_torque_S = <3x3>",
 }
 """The discrepancy workflow's effect names this estimator models, and the options they stand for."""
+_NO_POSITIONS = np.zeros((0, 3))
+"""What the compiled cascade is given for a stream without positions."""
 
 
 def mount_matrix(rotvec, matrix) -> np.ndarray:
@@ -545,50 +547,41 @@ class KalmanEstimator(RefusesBadSamples):
         m = len(block)
         contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
         t_ns = contiguous(block.t_ns, np.int64)
-        force_S, torque_S, R_EB = (contiguous(a, float) for a in (block.force_S, block.torque_S, block.R_EB))
+        force_S, torque_S = contiguous(block.force_S, float), contiguous(block.torque_S, float)
+        R_EB = contiguous(block.R_EB, float)
         if self.gain_inverse_force is not None:
             force_S = force_S @ self.gain_inverse_force.T
         if self.gain_inverse_torque is not None:
             torque_S = torque_S @ self.gain_inverse_torque.T
-        A_f = contiguous(self._to_S(R_EB))
-        # block.usable; the guard has already refused a non-finite wrench or R_EB
-        if m == 1:
-            p = block.p_BoEo_B
-            usable = np.array([not block.stale[0] and block.status[0] == STATUS_OK
-                               and (p is None or bool(np.isfinite(p).all()))])
-        else:
-            usable = ~block.stale & (block.status == STATUS_OK)
-            if block.p_BoEo_B is not None:
-                usable &= np.isfinite(block.p_BoEo_B).all(1)
+        A_f = contiguous(self._to_S(R_EB)) if self.mount_configured else R_EB
+        p_BoEo_B = _NO_POSITIONS if block.p_BoEo_B is None else contiguous(block.p_BoEo_B, float)
         b, clock, limits = self._buffers, self._clock, self._limits
         b.ensure(m)
         if self._last_t_ns is not None:
             clock[0], clock[1] = 1, self._last_t_ns
         bound_f, bound_t = self._bounds()
-        limits[0], limits[1], limits[2] = self.gate2, bound_f ** 2, bound_t ** 2
+        limits[0], limits[1], limits[2] = self.gate2, bound_f * bound_f, bound_t * bound_t
         force, torque = self.force, self.torque
         out = Estimates(block.t_ns, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=bool),
                         np.empty(m, dtype=bool), np.empty(m, dtype=bool))
         x_before = force.x.copy() if self.payload_change_ns > 0 else None
-        kalman_kernel.kalman_cascade(t_ns, clock, force_S, force_S, torque_S, A_f, usable, force.x, force.P,
-                                     torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
-                                     torque.rc, limits, b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t,
-                                     b.gated_t, b.failed_t, out.contact_force_S, out.contact_torque_S, out.contact,
-                                     out.converged_force, out.converged_torque)
+        failed_f, failed_t, gated_f, first_f, first_t = kalman_kernel.kalman_cascade(
+            t_ns, clock, force_S, force_S, torque_S, A_f, contiguous(block.stale, bool),
+            contiguous(block.status, np.int64), p_BoEo_B, b.usable, force.x, force.P, torque.x, torque.P,
+            force.q_bias, force.r, force.rc, torque.q_bias, torque.r, torque.rc, limits, b.X_f, b.D_f, b.gated_f,
+            b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, out.contact_force_S, out.contact_torque_S, out.contact,
+            out.converged_force, out.converged_torque)
         self._last_t_ns = int(t_ns[-1])
-        gated_f, failed_f, failed_t = b.gated_f[:m], b.failed_f[:m], b.failed_t[:m]
-        if failed_f.any() or failed_t.any():
-            force.failed += int(np.count_nonzero(failed_f))
-            torque.failed += int(np.count_nonzero(failed_t))
-        conv_f, conv_t = out.converged_force, out.converged_torque
-        self.converged_force, self.converged_torque = bool(conv_f[-1]), bool(conv_t[-1])
-        if self.payload_change_ns > 0 and (self._refused_since is not None or gated_f.any()):
-            run_f = StageRun(b.X_f[:m], b.D_f[:m], gated_f, b.d2[:m], failed_f)
-            self._watch_payload(t_ns, force_S, force_S, torque_S, R_EB, A_f, usable, run_f, x_before)
-        if self.first_converged_force is None and conv_f.any():
-            self.first_converged_force = self.samples + int(np.argmax(conv_f))
-        if self.first_converged_torque is None and conv_t.any():
-            self.first_converged_torque = self.samples + int(np.argmax(conv_t))
+        force.failed += failed_f
+        torque.failed += failed_t
+        self.converged_force, self.converged_torque = bool(out.converged_force[-1]), bool(out.converged_torque[-1])
+        if self.payload_change_ns > 0 and (gated_f or self._refused_since is not None):
+            run_f = StageRun(b.X_f[:m], b.D_f[:m], b.gated_f[:m], b.d2[:m], b.failed_f[:m])
+            self._watch_payload(t_ns, force_S, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, x_before)
+        if self.first_converged_force is None and first_f >= 0:
+            self.first_converged_force = self.samples + first_f
+        if self.first_converged_torque is None and first_t >= 0:
+            self.first_converged_torque = self.samples + first_t
         self.samples += m
         return out
 

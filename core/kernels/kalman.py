@@ -17,8 +17,8 @@ over m samples: ``KalmanStage.run(method="numba")``) and ``kalman_cascade`` (bot
 stages of the estimator's default model, their convergence flags and the contact
 wrench, in one call). Nothing is allocated; outputs go to arrays the caller owns.
 
-Compile cost: ~6–10 s the first time on this machine (2 cores), then well under a second
-to load from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
+Compile cost: ~4–6 s the first time on this machine (2 cores, shared), then ~0.4 s to load
+from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
 """
 
 from __future__ import annotations
@@ -216,8 +216,9 @@ def filter6(x, P, y, A, dt, active, q, r, rc, gate2, X, D, gated, d2, failed):
 
 
 @njit(cache=True, error_model="numpy")
-def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, usable, x_f, P_f, x_t, P_t, q_f, r_f, rc_f,
-                   q_t, r_t, rc_t, limits, X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
+def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, usable,
+                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, limits, A_t,
+                   X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
     """The ``kalman`` estimator's default model over m samples (its ``_filter_block``), in order.
 
@@ -235,7 +236,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         samples the filter may use (``AlignedSamples.usable``: the guard has already refused a
         non-finite wrench or R_EB), less those whose force update failed.
         x_f, P_f, x_t, P_t: the stages' (6,) and (6, 6), in place. q_*, r_*, rc_*: (3,) as ``stage_step``.
-        limits: (3,) [gate2, bound_f², bound_t²]. Out, (m, 6): X_f, D_f, X_t, D_t (state, diag P);
+        limits: (3,) [gate2, bound_f², bound_t²]. A_t: (3, 3) scratch for the torque stage's A_k.
+        Out, (m, 6): X_f, D_f, X_t, D_t (state, diag P);
         (m,): gated_f, failed_f, gated_t, failed_t; contact_force_S, contact_torque_S (m, 3);
         contact, converged_force, converged_torque (m,).
 
@@ -244,7 +246,6 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         force flag up or −1, the same for torque): what the caller would otherwise count.
     """
     gate2, bound_f2, bound_t2 = limits[0], limits[1], limits[2]
-    A_t = np.empty((3, 3))  # (hoisted by LLVM out of the loop: one allocation per call)
     previous = last_t_ns[1]
     n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
     positions = p_BoEo_B.shape[0] != 0
@@ -315,6 +316,7 @@ class Buffers:
                                                                     for _ in range(4))
         self.d2 = np.empty(capacity)
         self.usable = np.empty(capacity, dtype=np.bool_)
+        self.A_t = np.empty((3, 3))
 
     def ensure(self, m: int) -> None:
         if m > self.capacity:
@@ -334,6 +336,6 @@ def warm_up() -> None:
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
                    np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, np.ones(m, dtype=np.bool_),
                        np.zeros(6), np.eye(6), np.zeros(6), np.eye(6), v3, v3, np.zeros(3), v3, v3, v3,
-                       np.array([20.0, 1e-4, 1e-6]), b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t,
-                       b.failed_t, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_),
+                       np.array([20.0, 1e-4, 1e-6]), b.A_t, b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t,
+                       b.gated_t, b.failed_t, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_),
                        np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_))

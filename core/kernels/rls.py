@@ -20,7 +20,7 @@ samples, ~1e3 once the poses vary); tests/core/test_kernels.py states the bounds
 Nothing is allocated: the stages' arrays are updated in place, ``work`` holds the
 per-sample temporaries, the outputs are written into arrays the caller owns.
 
-Compile cost: ~2–4 s the first time on this machine (2 cores), then ~0.05 s
+Compile cost: ~4 s the first time on this machine (2 cores, shared), then ~0.05 s
 to load from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
 """
 

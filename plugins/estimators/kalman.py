@@ -568,7 +568,7 @@ class KalmanEstimator(RefusesBadSamples):
         failed_f, failed_t, gated_f, first_f, first_t = kalman_kernel.kalman_cascade(
             t_ns, clock, force_S, force_S, torque_S, A_f, contiguous(block.stale, bool),
             contiguous(block.status, np.int64), p_BoEo_B, b.usable, force.x, force.P, torque.x, torque.P,
-            force.q_bias, force.r, force.rc, torque.q_bias, torque.r, torque.rc, limits, b.X_f, b.D_f, b.gated_f,
+            force.q_bias, force.r, force.rc, torque.q_bias, torque.r, torque.rc, limits, b.A_t, b.X_f, b.D_f, b.gated_f,
             b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, out.contact_force_S, out.contact_torque_S, out.contact,
             out.converged_force, out.converged_torque)
         self._last_t_ns = int(t_ns[-1])

@@ -160,3 +160,54 @@ def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 
     return {"stages": stages,
             "estimators": {label: {str(size): {"median_us": m, "p99_us": p} for size, (m, p) in row.items()}
                            for label, row in table.items()}}
+
+
+def realtime_run(duration_s: float, sensor_rate_hz: float = 7000.0, estimator: str = "rls",
+                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """One paced (``realtime = true``) demo session: samples expected and received, overruns, the latency
+    from the newest sample's stamp to the haptic command's send (µs: median, p99, max; the stamp is when a
+    real sensor's sample would have arrived), and the process's resident memory once a second (MB)."""
+    config, _ = load_config("demo")
+    config = apply_overrides(config, ["session.realtime=true", f"sensor.rate_hz={float(sensor_rate_hz)}",
+                                      f"estimator.name={estimator}"])
+    session = build_session(config)
+    latencies: list[int] = []
+    rss_mb: list[float] = []
+    with tempfile.TemporaryDirectory() as folder:
+        loop = LiveLoop(session, Path(folder) / "realtime.mcap", duration_s, None, 0.25)
+        send = session.haptic.send
+        clock = time.monotonic_ns
+        next_rss = [0]
+
+        def timed_send(command):
+            send(command)
+            now = clock()
+            newest = loop.gate.last_sample_ns
+            if newest is not None:
+                latencies.append(now - newest)
+            if now >= next_rss[0]:
+                next_rss[0] = now + 1_000_000_000
+                rss_mb.append(_rss_mb())
+                if progress:
+                    progress(f"realtime, {(now - loop.t0_ns) * 1e-9:.0f} of {duration_s:g} s")
+
+        session.haptic.send = timed_send
+        result = loop.run()
+        size_mb = result.path.stat().st_size / 1e6
+    lat = np.array(latencies) / 1e3
+    return {
+        "duration_s": duration_s, "sensor_rate_hz": sensor_rate_hz, "estimator": estimator,
+        "samples_expected": int(duration_s * sensor_rate_hz), "samples": result.samples,
+        "overruns": result.overruns, "ticks": len(latencies),
+        "latency_us": {"median": float(np.median(lat)), "p99": float(np.percentile(lat, 99)), "max": float(lat.max())},
+        "rss_mb": {"first": rss_mb[0], "last": rss_mb[-1], "peak": max(rss_mb)}, "recording_mb": size_mb,
+    }
+
+
+def _rss_mb() -> float:
+    """The process's resident memory now, MB (``VmRSS`` of /proc/self/status)."""
+    with open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")

@@ -152,7 +152,7 @@ class HapticGate:
         """The primary estimator's output for the usable samples: the events it makes (convergence, bias step)."""
         events = []
         for stage, flags, name in ((0, est.converged_force, "force"), (1, est.converged_torque, "torque")):
-            self.flips[stage] += int(np.count_nonzero(np.diff(flags, prepend=self.converged[stage])))
+            self.flips[stage] += int(flags[0] != self.converged[stage]) + int(np.count_nonzero(flags[1:] != flags[:-1]))
             self.converged[stage] = bool(flags[-1])
             if stage == 0:
                 self._track_flag(est.t_ns, flags)

@@ -216,7 +216,7 @@ def filter6(x, P, y, A, dt, active, q, r, rc, gate2, X, D, gated, d2, failed):
 
 
 @njit(cache=True, error_model="numpy")
-def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, usable,
+def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, inertial_S, usable,
                    x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, limits, A_t,
                    X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
@@ -232,7 +232,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         t_ns: (m,) int64 sample times, ns. last_t_ns: (2,) int64 [1 if a sample came before, its t_ns].
         y_f: (m, 3) what gravity and bias explain, N. force_S: (m, 3) N. torque_S: (m, 3) N·m.
         A_f: (m, 3, 3) R_SB per sample. stale: (m,) bool. status: (m,) int64 sensor status (0: good).
-        p_BoEo_B: (m, 3) positions, m, or (0, 3) when the stream has none. usable: (m,) bool out: the
+        p_BoEo_B: (m, 3) positions, m, or (0, 3) when the stream has none. inertial_S: (m, 3) the
+        tool's inertial force, N (y_f = force_S − inertial_S; it acts at the centre of mass), or (0, 3).
+        usable: (m,) bool out: the
         samples the filter may use (``AlignedSamples.usable``: the guard has already refused a
         non-finite wrench or R_EB), less those whose force update failed.
         x_f, P_f, x_t, P_t: the stages' (6,) and (6, 6), in place. q_*, r_*, rc_*: (3,) as ``stage_step``.
@@ -249,6 +251,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     previous = last_t_ns[1]
     n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
     positions = p_BoEo_B.shape[0] != 0
+    inertia = inertial_S.shape[0] != 0
     for k in range(t_ns.shape[0]):
         usable[k] = not stale[k] and status[k] == 0
         if positions:
@@ -294,9 +297,14 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         contact_force_S[k, 0] = y_f[k, 0] - g0 - x_f[3]
         contact_force_S[k, 1] = y_f[k, 1] - g1 - x_f[4]
         contact_force_S[k, 2] = y_f[k, 2] - g2 - x_f[5]
-        contact_torque_S[k, 0] = torque_S[k, 0] - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
-        contact_torque_S[k, 1] = torque_S[k, 1] - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
-        contact_torque_S[k, 2] = torque_S[k, 2] - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
+        t0, t1, t2 = torque_S[k, 0], torque_S[k, 1], torque_S[k, 2]
+        if inertia:  # the inertial force's torque about S, c × f_inertial
+            i0, i1, i2 = inertial_S[k, 0], inertial_S[k, 1], inertial_S[k, 2]
+            t0, t1, t2 = t0 - (x_t[1] * i2 - x_t[2] * i1), t1 - (x_t[2] * i0 - x_t[0] * i2), \
+                t2 - (x_t[0] * i1 - x_t[1] * i0)
+        contact_torque_S[k, 0] = t0 - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
+        contact_torque_S[k, 1] = t1 - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
+        contact_torque_S[k, 2] = t2 - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
         contact[k] = gated_f[k] or gated_t[k]
     return n_failed_f, n_failed_t, n_gated_f, first_f, first_t
 
@@ -334,7 +342,7 @@ def warm_up() -> None:
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
     for p in (np.zeros((0, 3)), y):  # streams without and with positions
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
-                   np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, np.ones(m, dtype=np.bool_),
+                       np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),
                        np.zeros(6), np.eye(6), np.zeros(6), np.eye(6), v3, v3, np.zeros(3), v3, v3, v3,
                        np.array([20.0, 1e-4, 1e-6]), b.A_t, b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t,
                        b.gated_t, b.failed_t, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_),

@@ -95,6 +95,7 @@ from ...core.frames import (
     rotvec_from_matrix,
 )
 from ...core.kalman import I3, KalmanStage, MountStage, StageRun
+from ...core.kernels import inertia as inertia_kernel
 from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels import kernel_option
 from ...core.model import MAX_FORCE, MAX_TORQUE, RefusesBadSamples, SampleGuard, contact_wrench, named_params
@@ -393,7 +394,8 @@ class KalmanEstimator(RefusesBadSamples):
                               | ({"time_lag"} if time_lag_s else set())
                               | ({"gain_crosstalk"} if gain_force_S is not None or gain_torque_S is not None
                                  else set()))
-        self.derivatives = MotionDerivatives(derivative_window_s) if (inertia or time_lag_s > 0) else None
+        derivatives = inertia_kernel.CompiledMotionDerivatives if kernel == "numba" else MotionDerivatives
+        self.derivatives = derivatives(derivative_window_s) if (inertia or time_lag_s > 0) else None
         self._lag_t = np.zeros(0, dtype=np.int64)  # the poses a late sensor stream still needs (time_lag_s < 0)
         self._lag_q = np.zeros((0, 4))
         self._lag_p: np.ndarray | None = np.zeros((0, 3))
@@ -442,7 +444,9 @@ class KalmanEstimator(RefusesBadSamples):
             self.load_state(warm_start)
         # the whole cascade in one compiled call: the default model (what it leaves out runs per stage)
         self._cascade = (self.method == "numba" and not mount_rotation and convergence == "covariance"
-                         and not self.noise_auto and self.derivatives is None and self.time_lag_s == 0)
+                         and not self.noise_auto and self.time_lag_s >= 0)
+        if kernel == "numba":
+            inertia_kernel.warm_up()
         if self.method == "numba":
             kalman_kernel.warm_up()
             self._buffers = kalman_kernel.Buffers()
@@ -547,12 +551,18 @@ class KalmanEstimator(RefusesBadSamples):
         m = len(block)
         contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
         t_ns = contiguous(block.t_ns, np.int64)
-        force_S, torque_S = contiguous(block.force_S, float), contiguous(block.torque_S, float)
-        R_EB = contiguous(block.R_EB, float)
-        if self.gain_inverse_force is not None:
-            force_S = force_S @ self.gain_inverse_force.T
-        if self.gain_inverse_torque is not None:
-            torque_S = torque_S @ self.gain_inverse_torque.T
+        inertial_S = None
+        if self.derivatives is not None:  # inertia, a kinematics lag
+            force_S, torque_S, R_EB, inertial_S, _ = self._prepare(block, usable=False)
+            force_S, torque_S, R_EB = contiguous(force_S, float), contiguous(torque_S, float), contiguous(R_EB, float)
+        else:
+            force_S, torque_S = contiguous(block.force_S, float), contiguous(block.torque_S, float)
+            R_EB = contiguous(block.R_EB, float)
+            if self.gain_inverse_force is not None:
+                force_S = force_S @ self.gain_inverse_force.T
+            if self.gain_inverse_torque is not None:
+                torque_S = torque_S @ self.gain_inverse_torque.T
+        y_f = force_S if inertial_S is None else force_S - inertial_S
         A_f = contiguous(self._to_S(R_EB)) if self.mount_configured else R_EB
         p_BoEo_B = _NO_POSITIONS if block.p_BoEo_B is None else contiguous(block.p_BoEo_B, float)
         b, clock, limits = self._buffers, self._clock, self._limits
@@ -566,8 +576,8 @@ class KalmanEstimator(RefusesBadSamples):
                         np.empty(m, dtype=bool), np.empty(m, dtype=bool))
         x_before = force.x.copy() if self.payload_change_ns > 0 else None
         failed_f, failed_t, gated_f, first_f, first_t = kalman_kernel.kalman_cascade(
-            t_ns, clock, force_S, force_S, torque_S, A_f, contiguous(block.stale, bool),
-            contiguous(block.status, np.int64), p_BoEo_B, b.usable, force.x, force.P, torque.x, torque.P,
+            t_ns, clock, y_f, force_S, torque_S, A_f, contiguous(block.stale, bool),
+            contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S, b.usable, force.x, force.P, torque.x, torque.P,
             force.q_bias, force.r, force.rc, torque.q_bias, torque.r, torque.rc, limits, b.A_t, b.X_f, b.D_f, b.gated_f,
             b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, out.contact_force_S, out.contact_torque_S, out.contact,
             out.converged_force, out.converged_torque)
@@ -577,7 +587,7 @@ class KalmanEstimator(RefusesBadSamples):
         self.converged_force, self.converged_torque = bool(out.converged_force[-1]), bool(out.converged_torque[-1])
         if self.payload_change_ns > 0 and (gated_f or self._refused_since is not None):
             run_f = StageRun(b.X_f[:m], b.D_f[:m], b.gated_f[:m], b.d2[:m], b.failed_f[:m])
-            self._watch_payload(t_ns, force_S, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, x_before)
+            self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, x_before)
         if self.first_converged_force is None and first_f >= 0:
             self.first_converged_force = self.samples + first_f
         if self.first_converged_torque is None and first_t >= 0:
@@ -593,16 +603,18 @@ class KalmanEstimator(RefusesBadSamples):
             return R_EB
         return self.R_SE @ R_EB
 
-    def _prepare(self, block: AlignedSamples):
+    def _prepare(self, block: AlignedSamples, usable: bool = True):
         """The block's readings with the configured effects applied.
 
         Returns (force_S, torque_S, R_EB, inertial_force_S or None, usable): the readings
         through the inverse calibration error (gain_crosstalk), the orientation at the
         sensor's time (time_lag), the tool's inertial force (inertia) in S, N, and the
         samples that may update the filter (block.usable, less the first |τ| seconds of a
-        late sensor stream, whose poses are not known).
+        late sensor stream, whose poses are not known; None when ``usable`` is False: the
+        compiled cascade finds them itself).
         """
-        force_S, torque_S, R_EB, usable = block.force_S, block.torque_S, block.R_EB, block.usable
+        force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
+        usable = block.usable if usable else None
         quat_BE, p_BoEo_B = block.quat_BE, block.p_BoEo_B
         if self.gain_inverse_force is not None:
             force_S = force_S @ self.gain_inverse_force.T
@@ -662,6 +674,13 @@ class KalmanEstimator(RefusesBadSamples):
         mass = float(np.linalg.norm(self.force.x[:3])) / GRAVITY_M_S2
         cog_S = self.torque.x[:3] if (self.first_converged_torque is not None or self._cog_known) else np.zeros(3)
         R_SE = self.R_SE
+        if self.kernel == "numba":
+            out = np.empty((len(R_EB), 3))
+            inertia_kernel.inertial_force(R_SE, np.ascontiguousarray(self._to_S(R_EB), float),
+                                          np.ascontiguousarray(w_E, float), np.ascontiguousarray(alpha_E, float),
+                                          np.ascontiguousarray(a_B, float), mass, np.ascontiguousarray(cog_S, float),
+                                          out)
+            return out
         w_S, alpha_S = w_E @ R_SE.T, alpha_E @ R_SE.T
         a_S = np.einsum("kij,kj->ki", self._to_S(R_EB), a_B)
         a_cm_S = a_S + np.cross(alpha_S, cog_S) + np.cross(w_S, np.cross(w_S, cog_S))

@@ -1,21 +1,36 @@
 """Session recording: every session goes to one MCAP file; every offline tool reads one stream type.
 
-``schemas`` (topics, JSON schemas, metadata record names), ``writer``
-(:class:`Recorder`: zstd chunks flushed about once a second), ``reader``
-(:func:`read_recording`, :func:`iter_messages`), ``recover`` (salvage a file
+``schemas`` (topics, JSON schemas, metadata record names, the two layouts:
+format 2 writes the sensor-rate topics in blocks), ``writer`` (:class:`Recorder`:
+zstd chunks flushed about once a second), ``reader`` (:func:`read_recording`,
+:func:`iter_messages`: both layouts, one message per sample), ``recover`` (salvage a file
 whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
 (:class:`Stream`, the one offline stream type, from a CSV or an MCAP file).
 """
 
 from .reader import Recording, RecordingError, iter_messages, open_recording, read_recording
 from .recover import recover
-from .schemas import ESTIMATOR_SCHEMA, ESTIMATOR_TOPIC_PREFIX, MCAP_MAGIC, SCHEMAS, TOPICS, schema_for_topic
+from .schemas import (
+    BLOCK_TOPICS,
+    ESTIMATOR_BLOCK_SCHEMA,
+    ESTIMATOR_SCHEMA,
+    ESTIMATOR_TOPIC_PREFIX,
+    FORMAT_VERSION,
+    MCAP_MAGIC,
+    SCHEMAS,
+    TOPICS,
+    block_schema_for_topic,
+    schema_for_topic,
+)
 from .stream import Stream, load_stream
 from .writer import Recorder
 
 __all__ = [
+    "BLOCK_TOPICS",
+    "ESTIMATOR_BLOCK_SCHEMA",
     "ESTIMATOR_SCHEMA",
     "ESTIMATOR_TOPIC_PREFIX",
+    "FORMAT_VERSION",
     "MCAP_MAGIC",
     "SCHEMAS",
     "TOPICS",
@@ -23,6 +38,7 @@ __all__ = [
     "Recording",
     "RecordingError",
     "Stream",
+    "block_schema_for_topic",
     "iter_messages",
     "load_stream",
     "open_recording",

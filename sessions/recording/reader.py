@@ -6,6 +6,14 @@ topic only when it is asked for (``messages(topic)`` streams it);
 :func:`iter_messages` streams ``(topic, t_ns, message)`` over several topics.
 Messages are decoded by their channel's encoding (:data:`DECODERS`).
 
+Both layouts (``schemas.FORMAT_VERSION``) read the same: a block message of
+format 2 (a channel whose schema is a block schema) comes out as one
+``(t_ns, message)`` per sample, exactly the messages format 1 recorded one
+by one (``params``/``cov_diag`` on the block's last sample, None on the
+others); :meth:`Recording.field`, :meth:`Recording.t_ns` and
+:meth:`Recording.estimates` concatenate a block topic's arrays without
+building the per-sample messages.
+
 A file that is not MCAP, or is truncated or damaged, is a :class:`RecordingError`
 with one line that says what is wrong (and to run ``hapticlab recover``).
 """
@@ -29,7 +37,13 @@ from mcap.records import Channel, Message
 
 from ...core.errors import UserError
 from ...core.types import Estimates, Event
-from .schemas import MCAP_MAGIC
+from .schemas import (
+    BLOCK_LAST_SAMPLE_FIELDS,
+    BLOCK_SCHEMA_TITLES,
+    ESTIMATOR_TOPIC_PREFIX,
+    MCAP_MAGIC,
+    SESSION_METADATA,
+)
 
 
 class RecordingError(UserError, ValueError):
@@ -84,12 +98,21 @@ class Recording:
         topics: topic -> [(log_time_ns, decoded message)], in log-time order
             (with :func:`open_recording`, each topic is read on first access).
         schemas: topic -> its JSON schema (decoded).
+        blocks: block topic (format 2) -> its block messages in file order, as
+            recorded (with :func:`open_recording`, read on first use).
     """
 
     path: Path
     metadata: dict[str, dict[str, str]]
     topics: Mapping[str, list[tuple[int, dict[str, Any]]]]
     schemas: dict[str, dict[str, Any]] = _dc_field(default_factory=dict)
+    blocks: Mapping[str, list[dict[str, Any]]] = _dc_field(default_factory=dict)
+
+    @property
+    def format_version(self) -> int:
+        """The layout the session was recorded in (``format_version`` of ``hapticlab.session``; 1 when absent)."""
+        version = self.meta(SESSION_METADATA, "format_version", 1)
+        return version if isinstance(version, int) else 1
 
     @property
     def topic_names(self) -> list[str]:
@@ -137,7 +160,11 @@ class Recording:
     def estimates(self, name: str) -> Estimates:
         """An estimator's recorded output (``/estimator/<name>``) as arrays; ``params`` from its last report."""
         topic = f"/estimator/{name}"
-        reports = [m["params"] for _, m in self._msgs(topic) if m.get("params")]
+        blocks = self._blocks(topic)
+        if blocks is not None:
+            reports = [b["params"] for b in blocks if b.get("params")]
+        else:
+            reports = [m["params"] for _, m in self._msgs(topic) if m.get("params")]
         return Estimates(self.t_ns(topic), self.field(topic, "contact_force_S"),
                          self.field(topic, "contact_torque_S"), self.field(topic, "contact").astype(bool),
                          self.field(topic, "converged_force").astype(bool),
@@ -151,6 +178,9 @@ class Recording:
 
     def t_ns(self, topic: str) -> np.ndarray:
         """(N,) int64 log times of ``topic``, ns."""
+        blocks = self._blocks(topic)
+        if blocks is not None:
+            return _block_times(blocks)
         return np.fromiter((t for t, _ in self._msgs(topic)), dtype=np.int64, count=len(self._msgs(topic)))
 
     def t(self, topic: str) -> np.ndarray:
@@ -165,6 +195,9 @@ class Recording:
         non-finite or unknown, becomes NaN), flags as bool, integers as int64;
         ragged or non-numeric values as an object array.
         """
+        blocks = self._blocks(topic)
+        if blocks is not None and "." not in name and name not in BLOCK_LAST_SAMPLE_FIELDS:
+            return self._block_field(topic, blocks, name)
         msgs = self._msgs(topic)
         keys = name.split(".")
         missing = object()
@@ -182,6 +215,26 @@ class Recording:
                 values.append(v)
                 found = True
         if msgs and not found:
+            raise KeyError(f"{topic} has no field {name!r}")
+        return _stack(values)
+
+    def _blocks(self, topic: str) -> list[dict[str, Any]] | None:
+        """The block messages of ``topic`` when all of it is blocks whose samples are in time order, else None."""
+        if topic not in self.topics:
+            self._msgs(topic)  # the KeyError naming the topics present
+        return self.blocks.get(topic)
+
+    def _block_field(self, topic: str, blocks: list[dict[str, Any]], name: str) -> np.ndarray:
+        values: list[Any] = []
+        found = False
+        for b in blocks:
+            column = b.get(name)
+            if column is None:
+                values.extend([None] * len(b["t_ns"]))  # an optional field absent from this block
+            else:
+                values.extend(column)
+                found = True
+        if blocks and not found:
             raise KeyError(f"{topic} has no field {name!r}")
         return _stack(values)
 
@@ -214,6 +267,38 @@ class Recording:
 
     def __len__(self) -> int:
         return sum(len(m) for m in self.topics.values())
+
+
+def _block_times(blocks: list[dict[str, Any]]) -> np.ndarray:
+    times = [t for b in blocks for t in b["t_ns"]]
+    return np.fromiter(times, dtype=np.int64, count=len(times))
+
+
+def _check_block(path: Path, topic: str, log_time: int, block: Any) -> None:
+    """RecordingError unless ``block`` is a block message: ``t_ns`` integers and every other array as long."""
+    where = f"{path.name}: {topic} block message at {log_time} ns"
+    if not isinstance(block, dict):
+        raise RecordingError(f"{where} is not a JSON object")
+    t_ns = block.get("t_ns")
+    if not isinstance(t_ns, list) or not t_ns or not all(type(t) is int for t in t_ns):
+        raise RecordingError(f"{where}: t_ns is not a non-empty list of integer times")
+    n = len(t_ns)
+    for key, column in block.items():
+        if key not in BLOCK_LAST_SAMPLE_FIELDS and (not isinstance(column, list) or len(column) != n):
+            raise RecordingError(f"{where}: field {key!r} does not hold one value for each of its {n} samples")
+
+
+def _expand(topic: str, block: dict[str, Any]) -> list[tuple[int, dict[str, Any]]]:
+    """A (checked) block message as its samples' ``(t_ns, message)``, the messages format 1 recorded:
+    on an estimator topic every sample has ``params``/``cov_diag``, the block's on the last, None before."""
+    t_ns = block["t_ns"]
+    columns = [(k, v) for k, v in block.items() if k != "t_ns" and k not in BLOCK_LAST_SAMPLE_FIELDS]
+    out = [(t, {k: v[i] for k, v in columns}) for i, t in enumerate(t_ns)]
+    if topic.startswith(ESTIMATOR_TOPIC_PREFIX):
+        for _, m in out:
+            m.update(dict.fromkeys(BLOCK_LAST_SAMPLE_FIELDS))
+        out[-1][1].update((k, block.get(k)) for k in BLOCK_LAST_SAMPLE_FIELDS)
+    return out
 
 
 def _stack(values: list[Any]) -> np.ndarray:
@@ -257,13 +342,14 @@ def _open_reader(path: Path):  # noqa: ANN202 - returns (file, reader)
 
 def _iter_raw(
     path: Path, topics: Iterable[str] | str | None, log_time_order: bool = True
-) -> Iterator[tuple[Channel, Message]]:
+) -> Iterator[tuple[bool, Channel, Message]]:
+    """``(is a block channel, channel, message)`` of ``topics`` (all when None)."""
     f, reader, _ = _open_reader(path)
     with f:
         topic_list = [topics] if isinstance(topics, str) else (list(topics) if topics is not None else None)
         try:
-            for _schema, channel, message in reader.iter_messages(topics=topic_list, log_time_order=log_time_order):
-                yield channel, message
+            for schema, channel, message in reader.iter_messages(topics=topic_list, log_time_order=log_time_order):
+                yield schema is not None and schema.name in BLOCK_SCHEMA_TITLES, channel, message
         except (McapError, struct.error, EOFError, ValueError, KeyError) as exc:
             raise _damaged(path, exc) from None
         except Exception as exc:  # zstd errors and the like
@@ -277,12 +363,14 @@ def iter_messages(
 ) -> Iterator[tuple[str, int, dict[str, Any]]]:
     """Stream ``(topic, t_ns, message)`` in log-time order without loading the file.
 
-    ``topics`` limits the topics read (chunks without them are skipped).
+    ``topics`` limits the topics read (chunks without them are skipped). A
+    block message (format 2) comes out as one message per sample, each at its
+    own time (blocks are in log-time order, the last sample's time).
     Raises :class:`RecordingError` for a file that is not MCAP or is truncated.
     """
     path = Path(path)
     _check_mcap(path)  # fail here, not at the first next()
-    return _decode(_iter_raw(path, topics), path)
+    return _expanded(_decode(_iter_raw(path, topics), path), path)
 
 
 def _decoder(path: Path, channel: Channel):
@@ -293,24 +381,74 @@ def _decoder(path: Path, channel: Channel):
                              f"{channel.message_encoding!r}; hapticlab reads {', '.join(DECODERS)}") from None
 
 
-def _decode(raw: Iterator[tuple[Channel, Message]], path: Path) -> Iterator[tuple[str, int, dict[str, Any]]]:
+def _decode(
+    raw: Iterator[tuple[bool, Channel, Message]], path: Path
+) -> Iterator[tuple[bool, str, int, dict[str, Any]]]:
+    """``(is a block, topic, log time, decoded message)``; a block message is checked."""
     decoders: dict[int, Any] = {}
-    for channel, message in raw:
+    for block, channel, message in raw:
         decode = decoders.get(channel.id) or decoders.setdefault(channel.id, _decoder(path, channel))
-        yield channel.topic, message.log_time, decode(message.data)
+        decoded = decode(message.data)
+        if block:
+            _check_block(path, channel.topic, message.log_time, decoded)
+        yield block, channel.topic, message.log_time, decoded
+
+
+def _expanded(
+    decoded: Iterator[tuple[bool, str, int, dict[str, Any]]], path: Path
+) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    for block, topic, t_ns, message in decoded:
+        if block:
+            for t, m in _expand(topic, message):
+                yield topic, t, m
+        else:
+            yield topic, t_ns, message
+
+
+class _LazyBlocks(Mapping):
+    """block topic -> its block messages, read from the file the first time (via :class:`_LazyTopics`)."""
+
+    def __init__(self, topics: _LazyTopics):
+        self.topics = topics
+
+    def __getitem__(self, topic: str) -> list[dict[str, Any]]:
+        blocks = self.topics.block_messages(topic)
+        if blocks is None:
+            raise KeyError(topic)
+        return blocks
+
+    def __iter__(self):
+        return (t for t in sorted(self.topics.block_topics) if self.topics.block_messages(t) is not None)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
 
 
 class _LazyTopics(Mapping):
     """topic -> [(t_ns, message)], each topic read from the file the first time it is asked for."""
 
-    def __init__(self, path: Path, counts: dict[str, int]):
-        self.path, self.counts, self.loaded = path, counts, {}
+    def __init__(self, path: Path, counts: dict[str, int], block_topics: set[str]):
+        self.path, self.counts, self.block_topics = path, counts, block_topics
+        self.loaded: dict[str, list[tuple[int, dict[str, Any]]]] = {}
+        self.blocks: dict[str, list[dict[str, Any]] | None] = {}
+
+    def block_messages(self, topic: str) -> list[dict[str, Any]] | None:
+        """The topic's block messages (read once) when it is all blocks in time order, else None."""
+        if topic not in self.block_topics:
+            return None
+        if topic not in self.blocks:
+            self.blocks[topic] = _read_topics(self.path, [topic], expand=False)[1].get(topic)
+        return self.blocks[topic]
 
     def __getitem__(self, topic: str) -> list[tuple[int, dict[str, Any]]]:
         if topic not in self.counts:
             raise KeyError(topic)
         if topic not in self.loaded:
-            self.loaded[topic] = _read_topics(self.path, [topic]).get(topic, [])
+            blocks = self.block_messages(topic)
+            if blocks is not None:
+                self.loaded[topic] = [item for b in blocks for item in _expand(topic, b)]
+            else:
+                self.loaded[topic] = _read_topics(self.path, [topic])[0].get(topic, [])
         return self.loaded[topic]
 
     def __iter__(self):
@@ -327,8 +465,9 @@ def open_recording(path: str | os.PathLike[str]) -> Recording:
     is truncated or damaged (the message says to run ``hapticlab recover``).
     """
     path = Path(path)
-    metadata, schemas, counts = _read_head(path)
-    return Recording(path=path, metadata=metadata, topics=_LazyTopics(path, counts), schemas=schemas)
+    metadata, schemas, counts, block_topics = _read_head(path)
+    topics = _LazyTopics(path, counts, block_topics)
+    return Recording(path=path, metadata=metadata, topics=topics, schemas=schemas, blocks=_LazyBlocks(topics))
 
 
 def read_recording(path: str | os.PathLike[str], topics: Iterable[str] | str | None = None) -> Recording:
@@ -339,12 +478,15 @@ def read_recording(path: str | os.PathLike[str], topics: Iterable[str] | str | N
     run ``hapticlab recover``).
     """
     path = Path(path)
-    metadata, schemas, _ = _read_head(path)
-    return Recording(path=path, metadata=metadata, topics=_read_topics(path, topics), schemas=schemas)
+    metadata, schemas, _, _ = _read_head(path)
+    samples, blocks = _read_topics(path, topics)
+    return Recording(path=path, metadata=metadata, topics=samples, schemas=schemas, blocks=blocks)
 
 
-def _read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]], dict[str, int]]:
-    """Metadata records, schemas by topic, and message counts by topic (from the summary)."""
+def _read_head(
+    path: Path,
+) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]], dict[str, int], set[str]]:
+    """Metadata records, schemas by topic, message counts by topic and the block topics (from the summary)."""
     f, reader, summary = _open_reader(path)
     with f:
         metadata: dict[str, dict[str, str]] = {}
@@ -363,29 +505,47 @@ def _read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[st
                     except ValueError:
                         pass
     counts: dict[str, int] = {}
+    block_topics: set[str] = set()
     if summary is not None:
         stats = summary.statistics.channel_message_counts if summary.statistics else {}
         for channel_id, channel in summary.channels.items():
             counts[channel.topic] = counts.get(channel.topic, 0) + int(stats.get(channel_id, 0))
-    return metadata, schemas, counts
+            schema = summary.schemas.get(channel.schema_id)
+            if schema is not None and schema.name in BLOCK_SCHEMA_TITLES:
+                block_topics.add(channel.topic)
+    return metadata, schemas, counts, block_topics
 
 
-def _read_topics(path: Path, topics: Iterable[str] | str | None) -> dict[str, list[tuple[int, dict[str, Any]]]]:
+def _read_topics(
+    path: Path, topics: Iterable[str] | str | None, expand: bool = True
+) -> tuple[dict[str, list[tuple[int, dict[str, Any]]]], dict[str, list[dict[str, Any]]]]:
+    """Every sample of ``topics`` as ``(t_ns, message)`` in time order (block messages left out unless
+    ``expand``), and the block messages of the topics that are all blocks with their samples in time
+    order (the fast path of ``field``)."""
     out: dict[str, list[tuple[int, dict[str, Any]]]] = {}
+    blocks: dict[str, list[dict[str, Any]]] = {}
+    per_sample: set[str] = set()  # topics with messages of the per-sample layout
     # File order (no global time-ordered merge, which costs more than the decoding), with the
     # cyclic GC paused while building many small containers; each topic is sorted afterwards.
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
-        for topic, t_ns, message in _decode(_iter_raw(path, topics, log_time_order=False), path):
-            lst = out.get(topic)
-            if lst is None:
-                lst = out[topic] = []
-            lst.append((t_ns, message))
+        for block, topic, t_ns, message in _decode(_iter_raw(path, topics, log_time_order=False), path):
+            if block:
+                blocks.setdefault(topic, []).append(message)
+                if expand:
+                    out.setdefault(topic, []).extend(_expand(topic, message))
+            else:
+                per_sample.add(topic)
+                out.setdefault(topic, []).append((t_ns, message))
     finally:
         if gc_was_enabled:
             gc.enable()
     for lst in out.values():
         if any(lst[i][0] > lst[i + 1][0] for i in range(len(lst) - 1)):
             lst.sort(key=lambda item: item[0])  # stable: equal times keep file order
-    return out
+    for topic in list(blocks):
+        t = [t for b in blocks[topic] for t in b["t_ns"]]
+        if topic in per_sample or any(t[i] > t[i + 1] for i in range(len(t) - 1)):
+            del blocks[topic]  # not all blocks, or the blocks' order is not the samples'
+    return out, blocks

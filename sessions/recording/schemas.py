@@ -5,6 +5,16 @@ names): ``/sensor/wrench``, ``/kinematics/pose``, ``/aligned/sample``,
 ``/estimator/<name>`` (one channel per estimator, one shared schema),
 ``/haptic/command``, ``/haptic/state``, ``/events``. Any other topic is
 refused with a ``ValueError``. :data:`SCHEMAS` holds the JSON schemas.
+
+Two layouts (:data:`FORMAT_VERSION`): format 1 wrote one message per sample on
+every topic; format 2 (since issue 12) writes the sensor-rate topics
+(:data:`BLOCK_TOPICS`: ``/sensor/wrench``, ``/aligned/sample``,
+``/estimator/<name>``) as one message per block of samples, columnar
+(``{"t_ns": [...], "force_S": [[fx, fy, fz], ...], ...}``: element ``i`` of
+every array is sample ``i``), on channels whose schema is the block schema
+(:func:`block_schema_for_topic`, titles ending in ``Block``, listed in
+:data:`BLOCK_SCHEMA_TITLES`). The reader tells the layouts apart by the
+channel's schema title and reads both.
 """
 
 from __future__ import annotations
@@ -16,6 +26,11 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 ESTIMATOR_TOPIC_PREFIX = "/estimator/"
 _ESTIMATOR_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*\Z")
 _JSON_SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+#: The recording's layout, ``format_version`` in the ``hapticlab.session`` metadata (absent = 1):
+#: 1 one message per sample on every topic; 2 the sensor-rate topics may be in blocks
+#: (:data:`BLOCK_TOPICS`; a live session writes them so). The reader goes by each channel's schema.
+FORMAT_VERSION = 2
 
 SESSION_METADATA = "hapticlab.session"
 CALIBRATION_METADATA = "hapticlab.calibration"
@@ -210,4 +225,67 @@ def schema_for_topic(topic: str) -> dict[str, Any]:
         )
     raise ValueError(
         f"unknown recording topic {topic!r}; known topics: {', '.join(TOPICS)}, /estimator/<name>"
+    )
+
+
+# --------------------------------------------------------------------------
+# Block schemas (format 2): one message per block of samples on the sensor-rate topics.
+# --------------------------------------------------------------------------
+
+#: Fields of an estimator block that describe its last sample only (not arrays over the samples).
+BLOCK_LAST_SAMPLE_FIELDS = ("params", "cov_diag")
+
+
+def _column(item: dict[str, Any], description: str) -> dict[str, Any]:
+    return {"type": "array", "items": item, "description": description + " One element per sample."}
+
+
+def _block_schema(sample: dict[str, Any], what: str, last_sample: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The block schema of a per-sample schema: every field an array over the samples, plus ``t_ns``."""
+    props: dict[str, Any] = {
+        "t_ns": _column(
+            {"type": "integer", "minimum": 0},
+            "Time of each sample, integer ns on the session's monotonic clock (the message's log time is "
+            "the last sample's).",
+        )
+    }
+    for name, prop in sample["properties"].items():
+        if name in last_sample:
+            props[name] = {**prop, "description": prop["description"] + " As of the block's last sample; "
+                           "absent when not reported with this block."}
+        else:
+            props[name] = _column({k: v for k, v in prop.items() if k != "description"}, prop["description"])
+    return _schema(
+        sample["title"] + "Block",
+        f"A block of {what}, columnar: element i of every array is sample i.",
+        props,
+        ["t_ns", *sample["required"]],
+    )
+
+
+#: Topics written in blocks (format 2) -> block schema. Estimator topics use :data:`ESTIMATOR_BLOCK_SCHEMA`.
+BLOCK_TOPICS: dict[str, dict[str, Any]] = {
+    "/sensor/wrench": _block_schema(_WRENCH_SCHEMA, "raw force/torque sensor readings"),
+    "/aligned/sample": _block_schema(_ALIGNED_SCHEMA, "wrench samples with the robot orientation at their times"),
+}
+ESTIMATOR_BLOCK_SCHEMA = _block_schema(
+    _ESTIMATOR_SCHEMA, "one estimator's outputs (channel /estimator/<name>)", BLOCK_LAST_SAMPLE_FIELDS
+)
+#: Titles of the block schemas: a channel with one of these holds block messages.
+BLOCK_SCHEMA_TITLES = frozenset(s["title"] for s in (*BLOCK_TOPICS.values(), ESTIMATOR_BLOCK_SCHEMA))
+SCHEMAS.update({s["title"]: s for s in (*BLOCK_TOPICS.values(), ESTIMATOR_BLOCK_SCHEMA)})
+
+
+def block_schema_for_topic(topic: str) -> dict[str, Any]:
+    """The block schema of a sensor-rate ``topic``; ``ValueError`` for a topic that is not written in blocks."""
+    schema = BLOCK_TOPICS.get(topic)
+    if schema is not None:
+        return schema
+    if topic.startswith(ESTIMATOR_TOPIC_PREFIX):
+        schema_for_topic(topic)  # the ValueError for a bad estimator name
+        return ESTIMATOR_BLOCK_SCHEMA
+    schema_for_topic(topic)  # the ValueError for an unknown topic
+    raise ValueError(
+        f"{topic} is written one message per sample, not in blocks; block topics: "
+        f"{', '.join(BLOCK_TOPICS)}, /estimator/<name>"
     )

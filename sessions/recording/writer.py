@@ -8,12 +8,19 @@ write) and on close, so a crash of the process loses at most the last second;
 time and publish time of a message are its ``t_ns`` (integer ns on the
 session's monotonic clock).
 
+Two ways in: :meth:`Recorder.write_block` writes a block of samples as one
+columnar message on a sensor-rate topic (format 2, what a live session does:
+``mcap``'s pure-Python writer costs ~10-30 µs per message, which at 7 kHz and
+three sensor-rate topics was a third of the loop), :meth:`Recorder.write` one
+message (per tick, per event, or one sample on a channel of the per-sample
+layout, format 1). A topic's first message decides its channel's layout.
+
 Non-finite floats (NaN, ±inf) are not valid JSON; they are recorded as
 ``null`` (and read back as NaN).
 
 Metadata (MCAP Metadata records, string values; non-string values given by the
 caller are JSON-encoded): ``hapticlab.session`` (resolved config, plugins,
-hapticlab version, git revision where known, start time), ``hapticlab.calibration``
+hapticlab version, git revision where known, start time, ``format_version``), ``hapticlab.calibration``
 (whatever the caller gives), ``hapticlab.summary`` at close when given, and
 ``hapticlab.recovered`` in files written by :func:`~.recover.recover`.
 """
@@ -38,7 +45,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from ...core.errors import OutputExistsError
-from .schemas import SESSION_METADATA, SUMMARY_METADATA, schema_for_topic
+from .schemas import FORMAT_VERSION, SESSION_METADATA, SUMMARY_METADATA, block_schema_for_topic, schema_for_topic
 
 # --------------------------------------------------------------------------
 # JSON encoding
@@ -131,8 +138,9 @@ class Recorder:
         path: output ``.mcap`` file. Parent folders are created.
         metadata: metadata records to write at the start, ``{record name: {key: value}}``;
             values that are not strings are JSON-encoded. The ``hapticlab.session``
-            record is always written; ``hapticlab_version``, ``git_revision`` (where
-            known), ``start_time`` (UTC, ISO 8601), ``start_monotonic_ns`` (the session
+            record is always written; ``format_version`` (:data:`~.schemas.FORMAT_VERSION`,
+            the layout :meth:`write_block` writes), ``hapticlab_version``, ``git_revision``
+            (where known), ``start_time`` (UTC, ISO 8601), ``start_monotonic_ns`` (the session
             clock at that instant), ``python`` and ``mcap`` are filled in unless given.
             Put the resolved config under ``config`` and plugin names/versions under
             ``plugins``; put counts per unit etc. in ``hapticlab.calibration``.
@@ -146,8 +154,9 @@ class Recorder:
         overwrite: replace an existing file; by default an existing file is an
             error (a previous recording is never silently destroyed).
 
-    ``write`` is the per-sample path (1-7 kHz, several topics per sample): one
-    JSON encode, one dict lookup, one ``mcap`` add. It is thread-safe.
+    ``write_block`` (a block of samples, per loop tick) and ``write`` (one
+    message) are the hot path: one JSON encode, one dict lookup, one ``mcap``
+    add each. Both are thread-safe.
     """
 
     def __init__(
@@ -173,7 +182,8 @@ class Recorder:
         self._lock = threading.Lock()
         self._closed = False
         self._messages_written = 0
-        self._channel_ids: dict[str, int] = {}
+        self._channel_ids: dict[str, int] = {}  # topics written one message per sample (or per tick)
+        self._block_ids: dict[str, int] = {}  # topics written in blocks
         self._schema_ids: dict[str, int] = {}
         self.start_monotonic_ns = time.monotonic_ns()
         try:
@@ -185,6 +195,7 @@ class Recorder:
             self._writer.start(profile="", library=f"hapticlab/{_hapticlab_version()}")
             given = {name: dict(values) for name, values in (metadata or {}).items()}
             session = given.pop(SESSION_METADATA, {})
+            session.setdefault("format_version", FORMAT_VERSION)
             session.setdefault("hapticlab_version", _hapticlab_version())
             rev = git_revision()
             if rev is not None:
@@ -214,11 +225,42 @@ class Recorder:
         """
         channel_id = self._channel_ids.get(topic)
         if channel_id is None:
-            channel_id = self._register(topic)
+            channel_id = self._register(topic, block=False)
         if type(t_ns) is not int:
             t_ns = operator.index(t_ns)  # numpy integers; floats raise TypeError
         if not 0 <= t_ns < _U64:
             raise ValueError(f"{topic}: t_ns must be a non-negative 64-bit integer (ns), got {t_ns}")
+        self._add(topic, channel_id, t_ns, message)
+
+    def write_block(self, topic: str, message: Mapping[str, Any]) -> None:
+        """Record a block of samples on a sensor-rate topic as one columnar message (format 2).
+
+        ``message["t_ns"]`` holds each sample's time (integer ns on the session's
+        monotonic clock, at least one); every other field is an array with one
+        element per sample (lists or numpy arrays), but for the estimator's
+        ``params``/``cov_diag``, which describe the block's last sample (see
+        :data:`~.schemas.BLOCK_LAST_SAMPLE_FIELDS`). The message's log time is
+        the last sample's. Raises ``ValueError`` for a topic that is not written
+        in blocks (or was written per sample in this file) or bad times,
+        ``TypeError`` for a value JSON cannot hold, ``RuntimeError`` after :meth:`close`.
+        """
+        channel_id = self._block_ids.get(topic)
+        if channel_id is None:
+            channel_id = self._register(topic, block=True)
+        try:
+            given = t_ns = message["t_ns"]
+            if type(t_ns) is not list or not all(type(t) is int for t in t_ns):
+                t_ns = [operator.index(t) for t in t_ns]  # numpy arrays and integers; floats raise TypeError
+            first, last = min(t_ns), max(t_ns)
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{topic}: a block needs t_ns, a non-empty list of integer times (ns)") from None
+        if not (0 <= first and last < _U64):
+            raise ValueError(f"{topic}: t_ns must be non-negative 64-bit integers (ns), got {first}..{last}")
+        if t_ns is not given:
+            message = {**message, "t_ns": t_ns}
+        self._add(topic, channel_id, t_ns[-1], message)
+
+    def _add(self, topic: str, channel_id: int, t_ns: int, message: Mapping[str, Any]) -> None:
         try:
             data = _encode(message)
         except ValueError:  # NaN or inf somewhere: record them as null
@@ -243,14 +285,19 @@ class Recorder:
             record["data"] = data
         self.write("/events", t_ns, record)
 
-    def _register(self, topic: str) -> int:
-        schema = schema_for_topic(topic)  # ValueError for unknown topics
+    def _register(self, topic: str, block: bool) -> int:
+        # ValueError for unknown topics (and, in blocks, for topics written one message per sample)
+        schema = block_schema_for_topic(topic) if block else schema_for_topic(topic)
+        ids, other = (self._block_ids, self._channel_ids) if block else (self._channel_ids, self._block_ids)
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"recording {self.path} is closed")
-            channel_id = self._channel_ids.get(topic)
+            channel_id = ids.get(topic)
             if channel_id is not None:
                 return channel_id
+            if topic in other:
+                layout = "one message per sample" if block else "in blocks"
+                raise ValueError(f"{topic} is already written {layout} in {self.path}; one layout per topic")
             title = schema["title"]
             schema_id = self._schema_ids.get(title)
             if schema_id is None:
@@ -263,7 +310,7 @@ class Recorder:
             channel_id = self._writer.register_channel(
                 topic=topic, message_encoding="json", schema_id=schema_id
             )
-            self._channel_ids[topic] = channel_id
+            ids[topic] = channel_id
             return channel_id
 
     # -- the rest -------------------------------------------------------------
@@ -312,7 +359,7 @@ class Recorder:
     @property
     def topics(self) -> list[str]:
         """Topics that have a channel in this recording so far."""
-        return list(self._channel_ids)
+        return [*self._channel_ids, *self._block_ids]
 
     def __enter__(self) -> Recorder:
         return self

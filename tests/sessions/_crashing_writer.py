@@ -1,6 +1,6 @@
 """Helper for test_recording: records at ~1 kHz until it is killed.
 
-Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE
+Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE [blocks]
 
 With a CHUNK_SIZE far larger than 3 s of data, only the time-based flush puts
 messages on disk.
@@ -11,6 +11,10 @@ check every salvaged message), one /aligned/sample every 2nd tick, an event
 every 250th tick, and from 1 s on an /estimator/late channel (registered
 mid-file). Timestamps are time.monotonic_ns() (CLOCK_MONOTONIC, shared with
 the parent process).
+
+With ``blocks`` (format 2, as a live session at 7 kHz), each tick writes
+/sensor/wrench and /aligned/sample as one block of 7 samples (seq 7·tick to
+7·tick + 6) and, from 1 s on, /estimator/late as a block with params.
 """
 
 from __future__ import annotations
@@ -30,8 +34,28 @@ def wrench(i: int) -> dict:
     }
 
 
+def write_blocks(rec: Recorder, t: int, tick: int, late: bool) -> None:
+    seqs = range(7 * tick, 7 * tick + 7)
+    times = [t - 1000 * (6 - k) for k in range(7)]  # 1 µs apart, the last at t
+    samples = [wrench(s) for s in seqs]
+    rec.write_block("/sensor/wrench", {"t_ns": times, **{k: [w[k] for w in samples] for k in samples[0]}})
+    rec.write_block("/aligned/sample", {
+        "t_ns": times, "force_S": [w["force_S"] for w in samples], "torque_S": [w["torque_S"] for w in samples],
+        "quat_BE": [[1.0, 0.0, 0.0, 0.0]] * 7, "seq": list(seqs), "status": [0] * 7, "stale": [False] * 7,
+    })
+    if tick % 250 == 0:
+        rec.event(t, "tick", f"tick {tick}", seq=tick)
+    if late:
+        rec.write_block("/estimator/late", {
+            "t_ns": times, "contact_force_S": [[0.0] * 3] * 7, "contact_torque_S": [[0.0] * 3] * 7,
+            "contact": [False] * 7, "converged_force": [True] * 7, "converged_torque": [False] * 7,
+            "params": {"seq": [float(seqs[-1])]}, "cov_diag": [1.0],
+        })
+
+
 def main() -> None:
     path, flush_interval, chunk_size = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
+    blocks = sys.argv[4:] == ["blocks"]
     rec = Recorder(
         path,
         {"hapticlab.session": {"config": {"preset": "crash-test"}}, "hapticlab.calibration": {"counts_per_force": 1e6}},
@@ -44,6 +68,13 @@ def main() -> None:
     i = 0
     while True:
         t = time.monotonic_ns()
+        if blocks:
+            write_blocks(rec, t, i, t - t0 > 1_000_000_000)
+            i += 1
+            delay = (t0 + i * 1_000_000 - time.monotonic_ns()) * 1e-9
+            if delay > 0:
+                time.sleep(delay)
+            continue
         rec.write("/sensor/wrench", t, wrench(i))
         if i % 2 == 0:
             rec.write(

@@ -412,7 +412,8 @@ def test_flush_is_time_based(tmp_path, monkeypatch):
 # --------------------------------------------------------------------------
 
 
-def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path):
+@pytest.mark.parametrize("layout", ["samples", "blocks"])
+def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     sys.path.insert(0, str(HERE))
     try:
         from _crashing_writer import wrench
@@ -424,7 +425,8 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path):
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_parent, env.get("PYTHONPATH")) if p)
     proc = subprocess.Popen(
         # 64 MiB chunks: only the time-based flush (1 s) gets data to disk before the kill
-        [sys.executable, str(HERE / "_crashing_writer.py"), str(path), "1.0", str(64 << 20)],
+        [sys.executable, str(HERE / "_crashing_writer.py"), str(path), "1.0", str(64 << 20),
+         *(["blocks"] if layout == "blocks" else [])],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         env=env,
@@ -454,9 +456,12 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path):
     fixed = tmp_path / "fixed.mcap"
     stats = recover(path, fixed)
     rec = read_recording(fixed)
-    assert stats["messages"] == len(rec) - 0 and stats["complete"] is False
+    per_message = {t: len(rec.blocks[t]) if t in rec.blocks else len(m) for t, m in rec.topics.items()}
+    assert stats["messages"] == sum(per_message.values()) and stats["complete"] is False
     assert stats["corrupt_chunks"] == 0 and stats["orphan_messages"] == 0
-    assert stats["topics"] == {t: len(m) for t, m in rec.topics.items()}
+    assert stats["topics"] == per_message
+    block_topics = {"/sensor/wrench", "/aligned/sample", "/estimator/late"}
+    assert set(rec.blocks) == (block_topics if layout == "blocks" else set())
     assert stats["lost_tail_bytes"] >= 0
 
     # nothing older than 1.5 s before the kill is lost (flush interval 1 s)
@@ -469,7 +474,13 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path):
     assert all(m == wrench(m["seq"]) for _, m in wrenches)
     assert np.all(np.diff(rec.t_ns("/sensor/wrench")) > 0)
     aligned_seq = rec.field("/aligned/sample", "seq")
-    assert aligned_seq.tolist() == list(range(0, 2 * len(aligned_seq), 2))
+    if layout == "blocks":  # whole blocks of 7, every sample
+        assert len(wrenches) % 7 == 0 and aligned_seq.tolist() == list(range(len(aligned_seq)))
+        seq_at = {t: m["seq"] for t, m in wrenches}
+        t_last = int(rec.t_ns("/estimator/late")[-1])  # params ride on the last sample of each block
+        assert rec.estimates("late").params == {"seq": [float(seq_at[t_last])]}
+    else:
+        assert aligned_seq.tolist() == list(range(0, 2 * len(aligned_seq), 2))
     assert rec.field("/estimator/late", "params.seq").size > 0  # a channel registered mid-file survives
     assert next(rec.messages("/events"))[1]["kind"] == "tick"
     # metadata survives, and the recovery is documented in the file

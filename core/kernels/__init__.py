@@ -5,7 +5,10 @@ callable (the estimators' ``kernel = "numpy"``) and that the tests compare it to
 
 * ``rls``: the paper's Algorithm 1 cascade in information form (``core.rls``);
 * ``kalman``: the drift Kalman stage, x = [a, b] (``core.kalman._filter6``), and
-  the whole force→torque cascade of the ``kalman`` estimator's default model.
+  the whole force→torque cascade of the ``kalman`` estimator's default model;
+* ``inertia``: the motion derivatives (``core.derivatives``) and the inertial
+  force of the ``kalman`` estimator's ``inertia`` option;
+* ``align``: the live aligner's per-block work (``core.aligner``).
 
 Compiled with ``cache=True`` (the machine code is kept in ``__pycache__``);
 each module's ``warm_up()`` compiles or loads it before the first live tick.

@@ -3,7 +3,7 @@
 ``windows`` is the sliding-window fit of ``core.derivatives.MotionDerivatives`` (the numpy
 reference, which stays callable: ``kernel = "numpy"``) at each sample k of a block:
 
-    φ_i = Log(q_kᵀ ⊗ q_i) ≈ ω_E s_i + ½ α_E s_i²,   p_i − p_k ≈ v_B s_i + ½ a_B s_i²,   s_i = t_i − t_k ≤ 0
+    φ_i = Log(q_kᵀ ⊗ q_i) ≈ ω_E s_i + ½ α_E s_i²,   p_i − p_k ≈ v_B s_i + ½ a_B s_i²   (s_i = t_i − t_k ≤ 0)
 
 over the past samples of the window (at least the two previous ones), least squares of
 the 2×2 normal equations. ``inertial_force`` is ``KalmanEstimator._inertial_force``:
@@ -180,7 +180,7 @@ class CompiledMotionDerivatives(MotionDerivatives):
             quat_BE_from_R_EB(np.ascontiguousarray(R_EB, float), quat_BE)
         t = np.concatenate([self._t, t_ns])
         q = np.concatenate([self._q, np.asarray(quat_BE, dtype=float).reshape(m, 4)])
-        block_p = np.full((m, 3), np.nan) if p_BoEo_B is None else np.asarray(p_BoEo_B, dtype=float).reshape(m, 3)
+        block_p = np.full((m, 3), np.nan) if p_BoEo_B is None else np.asarray(p_BoEo_B, float).reshape(m, 3)
         p = np.concatenate([self._p, block_p])
         if self._count is None and len(t) >= 2:
             dt = np.median(np.diff(t))

@@ -220,7 +220,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                    x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, limits, A_t,
                    X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
-    """The ``kalman`` estimator's default model over m samples (its ``_filter_block``), in order.
+    """The ``kalman`` estimator's cascade over m samples (its ``_filter_block``), in order.
 
     Force stage y = y_f, C = [A_f, I3]; its flag: max diag P[:6] < bound_f²; the torque stage
     sees the samples the force stage accepted with its flag up, C = [−[force_S − b_f]ₓ, I3]

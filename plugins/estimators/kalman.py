@@ -547,7 +547,8 @@ class KalmanEstimator(RefusesBadSamples):
         )
 
     def _filter_compiled(self, block: AlignedSamples) -> Estimates:
-        """``_filter_block`` for the default model in one compiled call (``kalman_kernel.kalman_cascade``)."""
+        """``_filter_block`` in one compiled call (``kalman_kernel.kalman_cascade``): the default model, with
+        inertia and a kinematics lag if set (their inputs from ``_prepare``, compiled too)."""
         m = len(block)
         contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
         t_ns = contiguous(block.t_ns, np.int64)
@@ -577,16 +578,17 @@ class KalmanEstimator(RefusesBadSamples):
         x_before = force.x.copy() if self.payload_change_ns > 0 else None
         failed_f, failed_t, gated_f, first_f, first_t = kalman_kernel.kalman_cascade(
             t_ns, clock, y_f, force_S, torque_S, A_f, contiguous(block.stale, bool),
-            contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S, b.usable, force.x, force.P, torque.x, torque.P,
-            force.q_bias, force.r, force.rc, torque.q_bias, torque.r, torque.rc, limits, b.A_t, b.X_f, b.D_f, b.gated_f,
-            b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, out.contact_force_S, out.contact_torque_S, out.contact,
-            out.converged_force, out.converged_torque)
+            contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S,
+            b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
+            torque.rc, limits, b.A_t, b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,
+            out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force, out.converged_torque)
         self._last_t_ns = int(t_ns[-1])
         force.failed += failed_f
         torque.failed += failed_t
         self.converged_force, self.converged_torque = bool(out.converged_force[-1]), bool(out.converged_torque[-1])
         if self.payload_change_ns > 0 and (gated_f or self._refused_since is not None):
-            run_f = StageRun(b.X_f[:m], b.D_f[:m], b.gated_f[:m], b.d2[:m], b.failed_f[:m])
+            d2 = np.full(m, np.nan)  # (not kept by the cascade; the watcher does not use it)
+            run_f = StageRun(b.X_f[:m], b.D_f[:m], b.gated_f[:m], d2, b.failed_f[:m])
             self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, x_before)
         if self.first_converged_force is None and first_f >= 0:
             self.first_converged_force = self.samples + first_f

@@ -216,7 +216,7 @@ class LiveLoop:
                     self.gate.on_withheld(block.subset(usable), *self._primary_model())
                 usable[:] = False
             if usable.any():
-                self._estimate(block.subset(usable), now_ns)
+                self._estimate(block if usable.all() else block.subset(usable), now_ns)
         for label, device in self.s.device_events:
             self._events(device.drain_events(), label)
         self._command(now_ns)

@@ -8,14 +8,17 @@ The same rules and the same information form as ``core.rls`` (``run_gated`` /
 with C_k = [A_k, I3]; force stage A_k = R_EB, y_k = force_S (x = [gravity_force_B,
 bias_force_S]); torque stage A_k = −[force_S − bias_force_S]ₓ, y_k = torque_S
 (x = [cog_S, bias_torque_S]), active where the force stage's flag is up after the
-sample. Λ x = η is solved by Cholesky (LAPACK ``dposv`` in numpy), by LU with
-partial pivoting where Λ is not numerically positive definite (``np.linalg.solve``);
-a zero pivot or a non-finite x leaves the stage as it was (``failed``).
+sample. Λ x = η is solved by the very LAPACK routine ``core.rls`` calls (scipy's
+``dposv``, by its address), by LU with partial pivoting where Λ is not numerically
+positive definite (``np.linalg.solve`` there); a zero pivot or a non-finite x leaves
+the stage as it was (``failed``). AᵀA is rounded as BLAS rounds it (fused multiply-adds),
+so Λ has the numpy path's bits.
 
-Not bit-for-bit the numpy path: LAPACK's Cholesky and BLAS's 3×3 products round in
-their own order, and a numpy block of m > 1 samples sums C_jᵀC_j before adding Λ.
-Both are exact to rounding of Λ (condition ~1e9 in the first, rank-deficient
-samples, ~1e3 once the poses vary); tests/core/test_kernels.py states the bounds.
+Not bit-for-bit the numpy path everywhere: numpy's Aᵀy takes BLAS's order when the
+block's R_EB is not C-contiguous, and its R_EB x (the contact wrench) always does; one
+ulp there moves x by up to cond(Λ)·1e-16 (cond(Λ) reaches ~1e12 early in a tour), and
+a numpy block of m > 1 samples sums C_jᵀC_j before adding Λ and solves by LU, which the
+kernel, running sample by sample, does not. tests/core/test_kernels.py states the bounds.
 
 Nothing is allocated: the stages' arrays are updated in place, ``work`` holds the
 per-sample temporaries, the outputs are written into arrays the caller owns.
@@ -28,8 +31,10 @@ from __future__ import annotations
 
 import math
 
+import llvmlite.ir as ir
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import get_cython_function_address, intrinsic
 
 STATUS = ("converged_force", "converged_torque", "updates_force", "failed_force", "updates_torque", "failed_torque")
 """The entries of ``status`` (int64), read and written by ``rls_cascade``."""
@@ -42,38 +47,55 @@ def work_arrays() -> np.ndarray:
     return np.zeros((5, 6, 6))
 
 
+DPOSV = get_cython_function_address("scipy.linalg.cython_lapack", "dposv")
+"""Address of LAPACK's dposv in scipy's library: the solver ``core.rls`` calls (``scipy.linalg.lapack.dposv``)."""
+
+
+def lapack_arrays() -> np.ndarray:
+    """(4,) int32 scratch for the dposv call: [n = 6, nrhs = 1, info, uplo = 'U']."""
+    return np.array([6, 1, 0, ord("U")], dtype=np.int32)
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """a·b + c rounded once (what BLAS computes a 3×3 AᵀA with)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+    return sig, codegen
+
+
+@intrinsic
+def _dposv(typingctx, address, uplo, n, nrhs, a, lda, b, ldb, info):
+    """Call the Fortran dposv at ``address`` (uintp) with pointer arguments (uintp each), by reference."""
+    sig = types.void(address, uplo, n, nrhs, a, lda, b, ldb, info)
+
+    def codegen(context, builder, signature, args):
+        pointer = ir.IntType(8).as_pointer()
+        fnty = ir.FunctionType(ir.VoidType(), [pointer] * 8)
+        fn = builder.inttoptr(args[0], fnty.as_pointer())
+        builder.call(fn, [builder.inttoptr(arg, pointer) for arg in args[1:]])
+        return context.get_dummy_value()
+    return sig, codegen
+
+
 @njit(cache=True)
-def _solve(Lam, eta, L, x) -> bool:
-    """x = Λ⁻¹ η for a (6, 6) Λ: Cholesky Λ = L Lᵀ, else LU with partial pivoting; False on a zero pivot."""
+def _solve(Lam, eta, L, x, lapack, dposv) -> bool:
+    """x = Λ⁻¹ η for a (6, 6) Λ: LAPACK's Cholesky solve (dposv), else LU with partial pivoting; False on
+    a zero pivot. ``lapack``: ``lapack_arrays()``; ``dposv``: ``DPOSV``."""
     n = 6
-    chol = True
-    for j in range(n):
-        s = Lam[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:  # not numerically positive definite (a NaN too)
-            chol = False
-            break
-        d = math.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            s = Lam[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / d
-    if chol:
-        for i in range(n):  # L z = η
-            s = eta[i]
-            for k in range(i):
-                s -= L[i, k] * x[k]
-            x[i] = s / L[i, i]
-        for i in range(n - 1, -1, -1):  # Lᵀ x = z
-            s = x[i]
-            for k in range(i + 1, n):
-                s -= L[k, i] * x[k]
-            x[i] = s / L[i, i]
+    for i in range(n):  # Λ is symmetric: its C order is the Fortran order
+        x[i] = eta[i]
+        for j in range(n):
+            L[i, j] = Lam[i, j]
+    lapack[0], lapack[1], lapack[2], lapack[3] = 6, 1, 0, 85  # n, nrhs, info, 'U'
+    address = lapack.ctypes.data
+    _dposv(dposv, address + 12, address, address + 4, L.ctypes.data, address, x.ctypes.data, address,
+           address + 8)
+    if lapack[2] == 0:
         return True
-    # LU with partial pivoting on a copy of Λ (in L), right-hand side in x
+    # not numerically positive definite: LU with partial pivoting (np.linalg.solve) on a copy of Λ (in L)
     for i in range(n):
         x[i] = eta[i]
         for j in range(n):
@@ -104,14 +126,14 @@ def _solve(Lam, eta, L, x) -> bool:
 
 
 @njit(cache=True)
-def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, work):
+def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, work, lapack, dposv):
     """One active sample of one stage (``_run_gated_one``), in place.
 
     Args:
         y0, y1, y2: the measurement y_k (units of y). A: (3, 3) A_k.
         x: (6,) x. Lam: (6, 6) Λ. eta: (6,) η. inv_r: 1/r. threshold: contact threshold
         on ‖C_k x_{k−1} − y_k‖. epsilon: convergence threshold on ‖Δx‖₂.
-        converged: the stage's flag before the sample. work: ``work_arrays()``.
+        converged: the stage's flag before the sample. work: ``work_arrays()``. lapack, dposv: see ``_solve``.
 
     Returns:
         (flag out, gated, converged after, failed): the row's flag (True when gated,
@@ -125,7 +147,8 @@ def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, wor
     Lk, L, etak, xk = work[0], work[1], work[2, 0], work[2, 1]
     for i in range(3):  # Λ_k = Λ + CᵀC / r, CᵀC = [AᵀA, Aᵀ; A, I3]
         for j in range(3):
-            Lk[i, j] = Lam[i, j] + (A[0, i] * A[0, j] + A[1, i] * A[1, j] + A[2, i] * A[2, j]) * inv_r
+            AtA = _fma(A[2, i], A[2, j], _fma(A[1, i], A[1, j], A[0, i] * A[0, j]))  # as BLAS rounds it
+            Lk[i, j] = Lam[i, j] + AtA * inv_r
             Lk[i, 3 + j] = Lam[i, 3 + j] + A[j, i] * inv_r
             Lk[3 + i, j] = Lam[3 + i, j] + A[i, j] * inv_r
             Lk[3 + i, 3 + j] = Lam[3 + i, 3 + j] + (1.0 if i == j else 0.0) * inv_r
@@ -134,7 +157,7 @@ def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, wor
     etak[3] = eta[3] + y0 * inv_r
     etak[4] = eta[4] + y1 * inv_r
     etak[5] = eta[5] + y2 * inv_r
-    if not _solve(Lk, etak, L, xk):
+    if not _solve(Lk, etak, L, xk, lapack, dposv):
         return False, False, converged, True
     step2 = 0.0
     for i in range(6):
@@ -153,7 +176,7 @@ def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, wor
 
 @njit(cache=True)
 def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, eta_t, settings, status, work,
-                contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
+                lapack, dposv, contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
     """Algorithm 1 over m samples, in order: both stages updated in place, one output row per sample.
 
     Args:
@@ -161,7 +184,7 @@ def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, et
         x_f, eta_f: (6,) and Lambda_f: (6, 6) the force stage (x = [gravity_force_B, bias_force_S], N).
         x_t, eta_t, Lambda_t: the torque stage (x = [cog_S (m), bias_torque_S (N·m)]).
         settings: (5,) float64, ``SETTINGS``. status: (6,) int64, ``STATUS`` (flags in and out,
-            counts incremented). work: ``work_arrays()``.
+            counts incremented). work: ``work_arrays()``. lapack: ``lapack_arrays()``. dposv: ``DPOSV``.
         contact_force_S, contact_torque_S: (m, 3) out, N and N·m (paper eqs. 20–21).
         contact, converged_force, converged_torque: (m,) bool out.
     """
@@ -173,7 +196,7 @@ def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, et
         f0, f1, f2 = force_S[k, 0], force_S[k, 1], force_S[k, 2]
         R = R_EB[k]
         out_f, gated_f, conv_f, failed = _stage(f0, f1, f2, R, x_f, Lambda_f, eta_f, inv_r_f, th_f, eps, conv_f,
-                                                work)
+                                                work, lapack, dposv)
         if failed:
             status[3] += 1
         elif not gated_f:
@@ -185,7 +208,7 @@ def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, et
             A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
             A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
             out_t, gated_t, conv_t, failed = _stage(torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, x_t,
-                                                    Lambda_t, eta_t, inv_r_t, th_t, eps, conv_t, work)
+                                                    Lambda_t, eta_t, inv_r_t, th_t, eps, conv_t, work, lapack, dposv)
             if failed:
                 status[5] += 1
             elif not gated_t:
@@ -216,5 +239,5 @@ def warm_up() -> None:
     x, Lam, eta = np.zeros(6), np.eye(6), np.zeros(6)
     rls_cascade(np.ones((m, 3)), np.ones((m, 3)), R, x, Lam, eta, x.copy(), Lam.copy(), eta.copy(),
                 np.array([400.0, 400.0, 1.0, 0.1, 1e-3]), np.zeros(6, dtype=np.int64), work_arrays(),
-                np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
+                lapack_arrays(), DPOSV, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
                 np.empty(m, dtype=np.bool_))

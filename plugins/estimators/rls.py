@@ -126,6 +126,7 @@ class RLSEstimator(RefusesBadSamples):
                                        epsilon])
             self._status = np.zeros(len(rls_kernel.STATUS), dtype=np.int64)
             self._work = rls_kernel.work_arrays()
+            self._lapack = rls_kernel.lapack_arrays()
 
     def update_block(self, block: AlignedSamples) -> Estimates:
         """Run Algorithm 1 over a block of aligned samples, in order (bad samples refused first)."""
@@ -168,7 +169,7 @@ class RLSEstimator(RefusesBadSamples):
         contiguous = np.ascontiguousarray  # (a no-op on the aligner's arrays; one compiled layout)
         rls_kernel.rls_cascade(contiguous(block.force_S, float), contiguous(block.torque_S, float),
                                contiguous(block.R_EB, float), force.x, force.Lambda, force.eta,
-                               torque.x, torque.Lambda, torque.eta, self._settings, status, self._work,
+                               torque.x, torque.Lambda, torque.eta, self._settings, status, self._work, self._lapack, rls_kernel.DPOSV,
                                out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force,
                                out.converged_torque)
         u_f, f_f, u_t, f_t = status[2:].tolist()

@@ -2,8 +2,9 @@
 
 Data: the simulated physics of ``bench paper`` (SimWorld, seeded), blocks of 1, 7 and 1024.
 
-``rls``: not bit-for-bit. LAPACK's Cholesky (``dposv``) and BLAS's 3×3 products round in
-their own order. Both solves are backward stable, so x differs by up to ~cond(Λ)·1e-16·‖x‖,
+``rls``: not bit-for-bit. The kernel calls the same LAPACK ``dposv`` on the same Λ, but a BLAS
+product (Aᵀy for a non-contiguous R_EB) may round differently by an ulp, so x differs by up to
+~cond(Λ)·1e-16·‖x‖,
 and on this tour cond(Λ) of the force stage reaches ~1e12 (one direction of B is barely
 excited for a while): x then differs by ~1e-4 after a single update, and the convergence
 test ‖Δx‖ < 1e-3 decides differently where a step lies that close to 1e-3 (4 samples of
@@ -97,6 +98,20 @@ def test_rls_kernel_gives_the_same_bits_in_any_block_size(sim, size):
                               np.concatenate([getattr(p, key) for p in b])), key
     assert one.params() == blocks.params() and one.cov_diag() == blocks.cov_diag()
     assert (one.force.updates, one.torque.updates) == (blocks.force.updates, blocks.torque.updates)
+
+
+def test_rls_kernel_free_run_sample_by_sample_takes_the_same_decisions(sim):
+    """Sample by sample (the live loop's blocks of 1) the two paths solve the same Λ with the same
+    LAPACK routine: on this tour every flag agrees and the parameters end within 1e-12."""
+    ref, fast = RLSEstimator(kernel="numpy"), RLSEstimator(kernel="numba")
+    a, b = _run(ref, sim, 1), _run(fast, sim, 1)
+    for key in KEYS[2:]:
+        assert np.array_equal(a[key], b[key]), key
+    p, q = ref.params(), fast.params()
+    for key in p:
+        assert np.allclose(p[key], q[key], rtol=1e-12, atol=1e-12), key
+    assert np.allclose(ref.cov_diag(), fast.cov_diag(), rtol=1e-9)
+    assert (ref.force.updates, ref.torque.updates) == (fast.force.updates, fast.torque.updates)
 
 
 def test_rls_kernel_free_run_ends_at_the_same_parameters(sim):
@@ -241,3 +256,16 @@ def test_kalman_kernel_option_is_validated():
     assert KalmanEstimator().method == "numba"
     assert KalmanEstimator(implementation="filterpy").method == "filterpy"
     assert KalmanEstimator(bias_rate=True).method is None
+
+
+def test_quaternion_kernel_gives_the_numpy_bits():
+    from scipy.spatial.transform import Rotation
+
+    from hapticlab.core.frames import quat_wxyz_from_matrix
+    from hapticlab.core.kernels.inertia import quat_BE_from_R_EB
+
+    R_EB = Rotation.random(5000, random_state=3).as_matrix()
+    R_EB[:4] = [np.eye(3), np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])]  # each branch
+    out = np.empty((len(R_EB), 4))
+    quat_BE_from_R_EB(R_EB, out)
+    assert np.array_equal(out, quat_wxyz_from_matrix(R_EB.transpose(0, 2, 1)))

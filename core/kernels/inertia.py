@@ -31,28 +31,30 @@ from ..derivatives import MotionDerivatives
 def quat_BE_from_R_EB(R_EB, out):
     """out (m, 4): [w, x, y, z] of R_BE = R_EBᵀ, w >= 0 (``core.frames.quat_wxyz_from_matrix``, Shepperd's
     method, transcribed: the same bits)."""
-    K = np.empty(4)  # (one small allocation per call: the diagonal's argmax needs an index)
     for k in range(R_EB.shape[0]):
         R = R_EB[k].T
         trace = R[0, 0] + R[1, 1] + R[2, 2]
-        K[0] = 1.0 + trace
-        K[1] = (1.0 - trace) + 2.0 * R[0, 0]
-        K[2] = (1.0 - trace) + 2.0 * R[1, 1]
-        K[3] = (1.0 - trace) + 2.0 * R[2, 2]
-        best = 0
-        for i in range(1, 4):
-            if K[i] > K[best]:
-                best = i
+        K0 = 1.0 + trace
+        K1 = (1.0 - trace) + 2.0 * R[0, 0]
+        K2 = (1.0 - trace) + 2.0 * R[1, 1]
+        K3 = (1.0 - trace) + 2.0 * R[2, 2]
+        best, largest = 0, K0  # the first largest diagonal entry (numpy's argmax)
+        if K1 > largest:
+            best, largest = 1, K1
+        if K2 > largest:
+            best, largest = 2, K2
+        if K3 > largest:
+            best = 3
         v0, v1, v2 = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
         s01, s02, s12 = R[0, 1] + R[1, 0], R[0, 2] + R[2, 0], R[1, 2] + R[2, 1]
         if best == 0:
-            q0, q1, q2, q3 = K[0], v0, v1, v2
+            q0, q1, q2, q3 = K0, v0, v1, v2
         elif best == 1:
-            q0, q1, q2, q3 = v0, K[1], s01, s02
+            q0, q1, q2, q3 = v0, K1, s01, s02
         elif best == 2:
-            q0, q1, q2, q3 = v1, s01, K[2], s12
+            q0, q1, q2, q3 = v1, s01, K2, s12
         else:
-            q0, q1, q2, q3 = v2, s02, s12, K[3]
+            q0, q1, q2, q3 = v2, s02, s12, K3
         scale = (-1.0 if q0 < 0 else 1.0) / math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = q0 * scale, q1 * scale, q2 * scale, q3 * scale
 

@@ -52,7 +52,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     config, origin = load_config(args.session)
     config = apply_overrides(config, args.set or [])
-    session = build_session(config)
+    # the estimators' and the aligner's kernels are compiled on the first run (numba, ~10 s here), then loaded
+    with err.status("building the session (the first run compiles the numba kernels, ~10 s)"):
+        session = build_session(config)
     duration = session.settings.duration if args.duration is None else check_duration("--duration", args.duration)
     err.print(f"[bold]hapticlab run[/] {origin}: {duration:g} s, sensor {session.plugins['sensor']['name']}, "
               f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "

@@ -36,8 +36,10 @@ import numpy as np
 from numba import njit, types
 from numba.extending import get_cython_function_address, intrinsic
 
-STATUS = ("converged_force", "converged_torque", "updates_force", "failed_force", "updates_torque", "failed_torque")
-"""The entries of ``status`` (int64), read and written by ``rls_cascade``."""
+STATUS = ("converged_force", "converged_torque", "updates_force", "failed_force", "updates_torque", "failed_torque",
+          "lapack_n", "lapack_nrhs", "lapack_info", "lapack_uplo")
+"""The entries of ``status`` (int32), read and written by ``rls_cascade``: the flags, the block's counts, and
+the last four are dposv's integer arguments (passed by reference)."""
 SETTINGS = ("inv_r_force", "inv_r_torque", "threshold_force", "threshold_torque", "epsilon")
 """The entries of ``settings`` (float64): 1/r (1/N², 1/(N·m)²), thresholds (N, N·m), ε on ‖Δx‖₂."""
 
@@ -51,9 +53,9 @@ DPOSV = get_cython_function_address("scipy.linalg.cython_lapack", "dposv")
 """Address of LAPACK's dposv in scipy's library: the solver ``core.rls`` calls (``scipy.linalg.lapack.dposv``)."""
 
 
-def lapack_arrays() -> np.ndarray:
-    """(4,) int32 scratch for the dposv call: [n = 6, nrhs = 1, info, uplo = 'U']."""
-    return np.array([6, 1, 0, ord("U")], dtype=np.int32)
+def status_array() -> np.ndarray:
+    """(10,) int32 ``status`` for ``rls_cascade`` (``STATUS``)."""
+    return np.zeros(len(STATUS), dtype=np.int32)
 
 
 @intrinsic
@@ -83,7 +85,7 @@ def _dposv(typingctx, address, uplo, n, nrhs, a, lda, b, ldb, info):
 @njit(cache=True)
 def _solve(Lam, eta, L, x, lapack, dposv) -> bool:
     """x = Λ⁻¹ η for a (6, 6) Λ: LAPACK's Cholesky solve (dposv), else LU with partial pivoting; False on
-    a zero pivot. ``lapack``: ``lapack_arrays()``; ``dposv``: ``DPOSV``."""
+    a zero pivot. ``lapack``: (4,) int32 scratch (the end of ``status``); ``dposv``: ``DPOSV``."""
     n = 6
     for i in range(n):  # Λ is symmetric: its C order is the Fortran order
         x[i] = eta[i]
@@ -176,19 +178,23 @@ def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, wor
 
 @njit(cache=True)
 def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, eta_t, settings, status, work,
-                lapack, dposv, contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
+                dposv, wrench, flags):
     """Algorithm 1 over m samples, in order: both stages updated in place, one output row per sample.
 
     Args:
         force_S: (m, 3) raw force, N. torque_S: (m, 3) raw torque, N·m. R_EB: (m, 3, 3).
         x_f, eta_f: (6,) and Lambda_f: (6, 6) the force stage (x = [gravity_force_B, bias_force_S], N).
         x_t, eta_t, Lambda_t: the torque stage (x = [cog_S (m), bias_torque_S (N·m)]).
-        settings: (5,) float64, ``SETTINGS``. status: (6,) int64, ``STATUS`` (flags in and out,
-            counts incremented). work: ``work_arrays()``. lapack: ``lapack_arrays()``. dposv: ``DPOSV``.
-        contact_force_S, contact_torque_S: (m, 3) out, N and N·m (paper eqs. 20–21).
-        contact, converged_force, converged_torque: (m,) bool out.
+        settings: (5,) float64, ``SETTINGS``. status: ``status_array()``, ``STATUS`` (flags in and out,
+            counts incremented). work: ``work_arrays()``. dposv: ``DPOSV``.
+        wrench: (2, m, 3) out: contact_force_S (N) and contact_torque_S (N·m) (paper eqs. 20–21).
+        flags: (3, m) bool out: contact, converged_force, converged_torque.
+        (Two output arrays rather than five: each argument costs the call ~0.25 µs.)
     """
     inv_r_f, inv_r_t, th_f, th_t, eps = settings[0], settings[1], settings[2], settings[3], settings[4]
+    contact_force_S, contact_torque_S = wrench[0], wrench[1]
+    contact, converged_force, converged_torque = flags[0], flags[1], flags[2]
+    lapack = status[6:]
     conv_f = status[0] != 0
     conv_t = status[1] != 0
     A_t = work[3, :3, :3]
@@ -238,6 +244,5 @@ def warm_up() -> None:
     R = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
     x, Lam, eta = np.zeros(6), np.eye(6), np.zeros(6)
     rls_cascade(np.ones((m, 3)), np.ones((m, 3)), R, x, Lam, eta, x.copy(), Lam.copy(), eta.copy(),
-                np.array([400.0, 400.0, 1.0, 0.1, 1e-3]), np.zeros(6, dtype=np.int64), work_arrays(),
-                lapack_arrays(), DPOSV, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
-                np.empty(m, dtype=np.bool_))
+                np.array([400.0, 400.0, 1.0, 0.1, 1e-3]), status_array(), work_arrays(), DPOSV,
+                np.empty((2, m, 3)), np.empty((3, m), dtype=np.bool_))

@@ -124,9 +124,8 @@ class RLSEstimator(RefusesBadSamples):
             rls_kernel.warm_up()
             self._settings = np.array([1.0 / self.force.r, 1.0 / self.torque.r, force_threshold, torque_threshold,
                                        epsilon])
-            self._status = np.zeros(len(rls_kernel.STATUS), dtype=np.int64)
+            self._status = rls_kernel.status_array()
             self._work = rls_kernel.work_arrays()
-            self._lapack = rls_kernel.lapack_arrays()
 
     def update_block(self, block: AlignedSamples) -> Estimates:
         """Run Algorithm 1 over a block of aligned samples, in order (bad samples refused first)."""
@@ -164,15 +163,14 @@ class RLSEstimator(RefusesBadSamples):
         m = len(block)
         force, torque, status = self.force, self.torque, self._status
         status[0], status[1], status[2:] = self.converged_force, self.converged_torque, 0
-        out = Estimates(block.t_ns, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=bool),
-                        np.empty(m, dtype=bool), np.empty(m, dtype=bool))
+        wrench, flags = np.empty((2, m, 3)), np.empty((3, m), dtype=bool)  # (rows of each are contiguous)
         contiguous = np.ascontiguousarray  # (a no-op on the aligner's arrays; one compiled layout)
         rls_kernel.rls_cascade(contiguous(block.force_S, float), contiguous(block.torque_S, float),
-                               contiguous(block.R_EB, float), force.x, force.Lambda, force.eta,
-                               torque.x, torque.Lambda, torque.eta, self._settings, status, self._work, self._lapack, rls_kernel.DPOSV,
-                               out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force,
-                               out.converged_torque)
-        u_f, f_f, u_t, f_t = status[2:].tolist()
+                               contiguous(block.R_EB, float), force.x, force.Lambda, force.eta, torque.x,
+                               torque.Lambda, torque.eta, self._settings, status, self._work, rls_kernel.DPOSV,
+                               wrench, flags)
+        out = Estimates(block.t_ns, wrench[0], wrench[1], flags[0], flags[1], flags[2])
+        u_f, f_f, u_t, f_t = status[2:6].tolist()
         self.converged_force, self.converged_torque = bool(status[0]), bool(status[1])
         force.updates += u_f
         force.failed += f_f

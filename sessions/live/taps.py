@@ -2,14 +2,16 @@
 
 The sensor-rate topics (``/sensor/wrench``, ``/aligned/sample``,
 ``/estimator/<name>``) are written one columnar message per block (what the
-loop hands over in one tick: ~7 samples at 7 kHz), arrays converted to lists
-once: ``mcap``'s pure-Python writer and ``json`` cost ~10-30 µs per message,
-so one message per sample took ~700 µs of every 1 ms tick at 7 kHz (issue 12).
-Poses (at the kinematics rate), commands and device states (one per tick) and
-events stay one message each.
+loop hands over in one tick: ~7 samples at 7 kHz), the arrays handed over as
+they are: the recorder encodes them as CDR, one ``tobytes`` per field (format
+3; ``mcap``'s pure-Python writer costs ~10 µs per message, and JSON cost
+~0.66 µs per float, issue 12). Poses (at the kinematics rate), commands and
+device states (one per tick) and events stay one JSON message each.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from ...core.types import AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, WrenchSample
 from ..recording import Recorder
@@ -34,20 +36,19 @@ class Taps:
         if not wrenches:
             return
         self.rec.write_block("/sensor/wrench", {
-            "t_ns": [int(w.t_ns) for w in wrenches],
-            "force_S": [w.force_S.tolist() for w in wrenches],
-            "torque_S": [w.torque_S.tolist() for w in wrenches],
-            "seq": [int(w.seq) for w in wrenches],
-            "status": [int(w.status) for w in wrenches],
+            "t_ns": [w.t_ns for w in wrenches],
+            "force_S": np.array([w.force_S for w in wrenches]),
+            "torque_S": np.array([w.torque_S for w in wrenches]),
+            "seq": [w.seq for w in wrenches],
+            "status": [w.status for w in wrenches],
         })
 
     def aligned(self, block: AlignedSamples) -> None:
         if not len(block.t_ns):
             return
         self.rec.write_block("/aligned/sample", {
-            "t_ns": block.t_ns.tolist(), "force_S": block.force_S.tolist(), "torque_S": block.torque_S.tolist(),
-            "quat_BE": block.quat_BE.tolist(), "seq": block.seq.tolist(), "status": block.status.tolist(),
-            "stale": block.stale.tolist(),
+            "t_ns": block.t_ns, "force_S": block.force_S, "torque_S": block.torque_S,
+            "quat_BE": block.quat_BE, "seq": block.seq, "status": block.status, "stale": block.stale,
         })
 
     def estimates(self, topic: str, est: Estimates, params=None, cov_diag=None) -> None:
@@ -55,9 +56,8 @@ class Taps:
         if not len(est):
             return
         message = {
-            "t_ns": est.t_ns.tolist(), "contact_force_S": est.contact_force_S.tolist(),
-            "contact_torque_S": est.contact_torque_S.tolist(), "contact": est.contact.tolist(),
-            "converged_force": est.converged_force.tolist(), "converged_torque": est.converged_torque.tolist(),
+            "t_ns": est.t_ns, "contact_force_S": est.contact_force_S, "contact_torque_S": est.contact_torque_S,
+            "contact": est.contact, "converged_force": est.converged_force, "converged_torque": est.converged_torque,
         }
         if params is not None:
             message["params"] = params

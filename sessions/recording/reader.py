@@ -6,13 +6,15 @@ topic only when it is asked for (``messages(topic)`` streams it);
 :func:`iter_messages` streams ``(topic, t_ns, message)`` over several topics.
 Messages are decoded by their channel's encoding (:data:`DECODERS`).
 
-Both layouts (``schemas.FORMAT_VERSION``) read the same: a block message of
-format 2 (a channel whose schema is a block schema) comes out as one
-``(t_ns, message)`` per sample, exactly the messages format 1 recorded one
-by one (``params``/``cov_diag`` on the block's last sample, None on the
-others); :meth:`Recording.field`, :meth:`Recording.t_ns` and
-:meth:`Recording.estimates` concatenate a block topic's arrays without
-building the per-sample messages.
+The three layouts (``schemas.FORMAT_VERSION``) read the same: a block message
+of format 2 (a JSON channel whose schema is a block schema) or 3 (a ``cdr``
+channel with a CDR block schema, :mod:`.cdr`) comes out as one ``(t_ns,
+message)`` per sample, exactly the messages format 1 recorded one by one
+(lists; ``params``/``cov_diag`` on the block's last sample, None on the
+others; a non-finite float as None, as JSON's null); :meth:`Recording.field`,
+:meth:`Recording.t_ns` and :meth:`Recording.estimates` concatenate a block
+topic's arrays without building the per-sample messages (NaN for every
+non-finite float, ±inf too, as formats 1 and 2 read their null).
 
 A file that is not MCAP, or is truncated or damaged, is a :class:`RecordingError`
 with one line that says what is wrong (and to run ``hapticlab recover``).
@@ -37,9 +39,11 @@ from mcap.records import Channel, Message
 
 from ...core.errors import UserError
 from ...core.types import Estimates, Event
+from .cdr import CdrBlockError, decode_block, listed
 from .schemas import (
     BLOCK_LAST_SAMPLE_FIELDS,
     BLOCK_SCHEMA_TITLES,
+    CDR_BLOCK_SCHEMAS,
     ESTIMATOR_TOPIC_PREFIX,
     MCAP_MAGIC,
     SESSION_METADATA,
@@ -98,8 +102,9 @@ class Recording:
         topics: topic -> [(log_time_ns, decoded message)], in log-time order
             (with :func:`open_recording`, each topic is read on first access).
         schemas: topic -> its JSON schema (decoded).
-        blocks: block topic (format 2) -> its block messages in file order, as
-            recorded (with :func:`open_recording`, read on first use).
+        blocks: block topic (formats 2 and 3) -> its block messages in file order,
+            as recorded (format 3: ``{field: numpy array}``, (n,) or (n, width);
+            with :func:`open_recording`, read on first use).
     """
 
     path: Path
@@ -225,6 +230,8 @@ class Recording:
         return self.blocks.get(topic)
 
     def _block_field(self, topic: str, blocks: list[dict[str, Any]], name: str) -> np.ndarray:
+        if blocks and isinstance(blocks[0]["t_ns"], np.ndarray):
+            return _cdr_block_field(topic, blocks, name)
         values: list[Any] = []
         found = False
         for b in blocks:
@@ -270,8 +277,31 @@ class Recording:
 
 
 def _block_times(blocks: list[dict[str, Any]]) -> np.ndarray:
+    if blocks and isinstance(blocks[0]["t_ns"], np.ndarray):
+        return np.concatenate([b["t_ns"] for b in blocks]).astype(np.int64, copy=False)
     times = [t for b in blocks for t in b["t_ns"]]
     return np.fromiter(times, dtype=np.int64, count=len(times))
+
+
+def _cdr_block_field(topic: str, blocks: list[dict[str, Any]], name: str) -> np.ndarray:
+    """A field of CDR blocks concatenated: the recorded dtype (int64, bool, float with NaN for every
+    non-finite value); float with NaN where a block lacks the field (as ``_stack`` does for JSON)."""
+    parts = [b.get(name) for b in blocks]
+    present = [p for p in parts if p is not None]
+    if not present:
+        raise KeyError(f"{topic} has no field {name!r}")
+    if len(present) < len(parts):
+        shape = present[0].shape[1:]
+        parts = [np.full((len(b["t_ns"]), *shape), np.nan) if p is None else p.astype(float)
+                 for b, p in zip(blocks, parts)]
+    out = np.concatenate(parts)
+    if out.dtype.kind == "f":
+        bad = ~np.isfinite(out)
+        if bad.any():
+            out[bad] = np.nan  # ±inf too: formats 1 and 2 recorded every non-finite float as null
+    elif out.dtype.kind == "i":
+        out = out.astype(np.int64, copy=False)
+    return out
 
 
 def _check_block(path: Path, topic: str, log_time: int, block: Any) -> None:
@@ -290,9 +320,13 @@ def _check_block(path: Path, topic: str, log_time: int, block: Any) -> None:
 
 def _expand(topic: str, block: dict[str, Any]) -> list[tuple[int, dict[str, Any]]]:
     """A (checked) block message as its samples' ``(t_ns, message)``, the messages format 1 recorded:
-    on an estimator topic every sample has ``params``/``cov_diag``, the block's on the last, None before."""
+    on an estimator topic every sample has ``params``/``cov_diag``, the block's on the last, None before.
+    Arrays of a CDR block become lists (a non-finite float None, as JSON's null)."""
     t_ns = block["t_ns"]
     columns = [(k, v) for k, v in block.items() if k != "t_ns" and k not in BLOCK_LAST_SAMPLE_FIELDS]
+    if isinstance(t_ns, np.ndarray):
+        t_ns = t_ns.tolist()
+        columns = [(k, listed(v)) for k, v in columns]
     out = [(t, {k: v[i] for k, v in columns}) for i, t in enumerate(t_ns)]
     if topic.startswith(ESTIMATOR_TOPIC_PREFIX):
         for _, m in out:
@@ -340,16 +374,26 @@ def _open_reader(path: Path):  # noqa: ANN202 - returns (file, reader)
     return f, reader, summary
 
 
+def _block_kind(schema: Any, channel: Channel) -> Any:
+    """None for a channel of single messages, ``"json"`` for JSON blocks (format 2), the
+    :class:`~.schemas.CdrBlock` layout for CDR blocks (format 3)."""
+    if schema is None:
+        return None
+    if channel.message_encoding == "cdr" and schema.encoding == "ros2msg":
+        return CDR_BLOCK_SCHEMAS.get(schema.name)
+    return "json" if schema.name in BLOCK_SCHEMA_TITLES else None
+
+
 def _iter_raw(
     path: Path, topics: Iterable[str] | str | None, log_time_order: bool = True
-) -> Iterator[tuple[bool, Channel, Message]]:
-    """``(is a block channel, channel, message)`` of ``topics`` (all when None)."""
+) -> Iterator[tuple[Any, Channel, Message]]:
+    """``(block kind (see _block_kind), channel, message)`` of ``topics`` (all when None)."""
     f, reader, _ = _open_reader(path)
     with f:
         topic_list = [topics] if isinstance(topics, str) else (list(topics) if topics is not None else None)
         try:
             for schema, channel, message in reader.iter_messages(topics=topic_list, log_time_order=log_time_order):
-                yield schema is not None and schema.name in BLOCK_SCHEMA_TITLES, channel, message
+                yield _block_kind(schema, channel), channel, message
         except (McapError, struct.error, EOFError, ValueError, KeyError) as exc:
             raise _damaged(path, exc) from None
         except Exception as exc:  # zstd errors and the like
@@ -382,16 +426,23 @@ def _decoder(path: Path, channel: Channel):
 
 
 def _decode(
-    raw: Iterator[tuple[bool, Channel, Message]], path: Path
+    raw: Iterator[tuple[Any, Channel, Message]], path: Path
 ) -> Iterator[tuple[bool, str, int, dict[str, Any]]]:
     """``(is a block, topic, log time, decoded message)``; a block message is checked."""
     decoders: dict[int, Any] = {}
     for block, channel, message in raw:
-        decode = decoders.get(channel.id) or decoders.setdefault(channel.id, _decoder(path, channel))
-        decoded = decode(message.data)
-        if block:
-            _check_block(path, channel.topic, message.log_time, decoded)
-        yield block, channel.topic, message.log_time, decoded
+        if block is None or block == "json":
+            decode = decoders.get(channel.id) or decoders.setdefault(channel.id, _decoder(path, channel))
+            decoded = decode(message.data)
+            if block:
+                _check_block(path, channel.topic, message.log_time, decoded)
+        else:
+            try:
+                decoded = decode_block(block, message.data, json.loads)
+            except (CdrBlockError, UnicodeDecodeError, ValueError) as exc:
+                raise RecordingError(f"{path.name}: {channel.topic} block message at {message.log_time} ns: "
+                                     f"{exc}") from None
+        yield block is not None, channel.topic, message.log_time, decoded
 
 
 def _expanded(
@@ -511,7 +562,7 @@ def _read_head(
         for channel_id, channel in summary.channels.items():
             counts[channel.topic] = counts.get(channel.topic, 0) + int(stats.get(channel_id, 0))
             schema = summary.schemas.get(channel.schema_id)
-            if schema is not None and schema.name in BLOCK_SCHEMA_TITLES:
+            if _block_kind(schema, channel) is not None:
                 block_topics.add(channel.topic)
     return metadata, schemas, counts, block_topics
 
@@ -545,7 +596,7 @@ def _read_topics(
         if any(lst[i][0] > lst[i + 1][0] for i in range(len(lst) - 1)):
             lst.sort(key=lambda item: item[0])  # stable: equal times keep file order
     for topic in list(blocks):
-        t = [t for b in blocks[topic] for t in b["t_ns"]]
-        if topic in per_sample or any(t[i] > t[i + 1] for i in range(len(t) - 1)):
+        t = _block_times(blocks[topic])
+        if topic in per_sample or bool((np.diff(t) < 0).any()):
             del blocks[topic]  # not all blocks, or the blocks' order is not the samples'
     return out, blocks

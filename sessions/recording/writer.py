@@ -9,14 +9,21 @@ time and publish time of a message are its ``t_ns`` (integer ns on the
 session's monotonic clock).
 
 Two ways in: :meth:`Recorder.write_block` writes a block of samples as one
-columnar message on a sensor-rate topic (format 2, what a live session does:
-``mcap``'s pure-Python writer costs ~10-30 µs per message, which at 7 kHz and
-three sensor-rate topics was a third of the loop), :meth:`Recorder.write` one
+columnar message on a sensor-rate topic (what a live session does: ``mcap``'s
+pure-Python writer costs ~10-30 µs per message, which at 7 kHz and three
+sensor-rate topics was a third of the loop), :meth:`Recorder.write` one JSON
 message (per tick, per event, or one sample on a channel of the per-sample
 layout, format 1). A topic's first message decides its channel's layout.
 
-Non-finite floats (NaN, ±inf) are not valid JSON; they are recorded as
-``null`` (and read back as NaN).
+Blocks are CDR (format 3, the default: ROS 2 message definitions, schema
+encoding ``ros2msg``, message encoding ``cdr``, see :mod:`.cdr`; encoding a
+float costs nothing per value, against ~0.66 µs of JSON float formatting) or,
+with ``block_encoding="json"``, format 2's JSON blocks (kept to write files of
+that layout, e.g. to compare with).
+
+Non-finite floats (NaN, ±inf) are not valid JSON; in JSON messages they are
+recorded as ``null`` (and read back as NaN). CDR blocks hold them as they are;
+the reader gives NaN for them all the same (as for every layout).
 
 Metadata (MCAP Metadata records, string values; non-string values given by the
 caller are JSON-encoded): ``hapticlab.session`` (resolved config, plugins,
@@ -45,7 +52,15 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from ...core.errors import OutputExistsError
-from .schemas import FORMAT_VERSION, SESSION_METADATA, SUMMARY_METADATA, block_schema_for_topic, schema_for_topic
+from .cdr import encode_block
+from .schemas import (
+    FORMAT_VERSION,
+    SESSION_METADATA,
+    SUMMARY_METADATA,
+    block_schema_for_topic,
+    cdr_block_for_topic,
+    schema_for_topic,
+)
 
 # --------------------------------------------------------------------------
 # JSON encoding
@@ -138,8 +153,8 @@ class Recorder:
         path: output ``.mcap`` file. Parent folders are created.
         metadata: metadata records to write at the start, ``{record name: {key: value}}``;
             values that are not strings are JSON-encoded. The ``hapticlab.session``
-            record is always written; ``format_version`` (:data:`~.schemas.FORMAT_VERSION`,
-            the layout :meth:`write_block` writes), ``hapticlab_version``, ``git_revision``
+            record is always written; ``format_version`` (the layout :meth:`write_block`
+            writes: :data:`~.schemas.FORMAT_VERSION`, 2 with ``block_encoding="json"``), ``hapticlab_version``, ``git_revision``
             (where known), ``start_time`` (UTC, ISO 8601), ``start_monotonic_ns`` (the session
             clock at that instant), ``python`` and ``mcap`` are filled in unless given.
             Put the resolved config under ``config`` and plugin names/versions under
@@ -153,10 +168,12 @@ class Recorder:
             chunks mean smaller latency spikes (at ~7 % worse compression).
         overwrite: replace an existing file; by default an existing file is an
             error (a previous recording is never silently destroyed).
+        block_encoding: ``"cdr"`` (format 3) or ``"json"`` (format 2): how
+            :meth:`write_block` encodes its blocks.
 
     ``write_block`` (a block of samples, per loop tick) and ``write`` (one
-    message) are the hot path: one JSON encode, one dict lookup, one ``mcap``
-    add each. Both are thread-safe.
+    message) are the hot path: one encode (CDR: one ``tobytes`` per field;
+    JSON), one dict lookup, one ``mcap`` add each. Both are thread-safe.
     """
 
     def __init__(
@@ -167,9 +184,14 @@ class Recorder:
         *,
         chunk_size: int = 128 * 1024,
         overwrite: bool = False,
+        block_encoding: str = "cdr",
     ) -> None:
         if not flush_interval_s > 0:
             raise ValueError(f"flush_interval_s must be > 0 s, got {flush_interval_s!r}")
+        if block_encoding not in ("cdr", "json"):
+            raise ValueError(f"block_encoding must be 'cdr' or 'json', got {block_encoding!r}")
+        self.block_encoding = block_encoding
+        self._cdr_blocks: dict[str, Any] = {}  # block topic -> its CdrBlock layout
         self.path = Path(path)
         self.flush_interval_s = float(flush_interval_s)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -195,7 +217,7 @@ class Recorder:
             self._writer.start(profile="", library=f"hapticlab/{_hapticlab_version()}")
             given = {name: dict(values) for name, values in (metadata or {}).items()}
             session = given.pop(SESSION_METADATA, {})
-            session.setdefault("format_version", FORMAT_VERSION)
+            session.setdefault("format_version", FORMAT_VERSION if block_encoding == "cdr" else 2)
             session.setdefault("hapticlab_version", _hapticlab_version())
             rev = git_revision()
             if rev is not None:
@@ -233,20 +255,26 @@ class Recorder:
         self._add(topic, channel_id, t_ns, message)
 
     def write_block(self, topic: str, message: Mapping[str, Any]) -> None:
-        """Record a block of samples on a sensor-rate topic as one columnar message (format 2).
+        """Record a block of samples on a sensor-rate topic as one columnar message (format 3, or 2 in JSON).
 
         ``message["t_ns"]`` holds each sample's time (integer ns on the session's
         monotonic clock, at least one); every other field is an array with one
-        element per sample (lists or numpy arrays), but for the estimator's
-        ``params``/``cov_diag``, which describe the block's last sample (see
-        :data:`~.schemas.BLOCK_LAST_SAMPLE_FIELDS`). The message's log time is
-        the last sample's. Raises ``ValueError`` for a topic that is not written
-        in blocks (or was written per sample in this file) or bad times,
-        ``TypeError`` for a value JSON cannot hold, ``RuntimeError`` after :meth:`close`.
+        element per sample (numpy arrays, the fast path, or lists; (n, 3) for a
+        3-vector), but for the estimator's ``params``/``cov_diag``, which
+        describe the block's last sample (see :data:`~.schemas.BLOCK_LAST_SAMPLE_FIELDS`).
+        A field left out is recorded as absent. The message's log time is the
+        last sample's. Raises ``ValueError`` for a topic that is not written in
+        blocks (or was written per sample in this file), bad times, a field of
+        the wrong length or one the block does not have, ``TypeError`` for a
+        value of the wrong type, ``RuntimeError`` after :meth:`close`.
         """
         channel_id = self._block_ids.get(topic)
         if channel_id is None:
             channel_id = self._register(topic, block=True)
+        if self.block_encoding == "cdr":
+            data, t_last = encode_block(self._cdr_blocks[topic], topic, message, self._json)
+            self._add_bytes(channel_id, t_last, data)
+            return
         try:
             given = t_ns = message["t_ns"]
             if type(t_ns) is not list or not all(type(t) is int for t in t_ns):
@@ -260,6 +288,13 @@ class Recorder:
             message = {**message, "t_ns": t_ns}
         self._add(topic, channel_id, t_ns[-1], message)
 
+    @staticmethod
+    def _json(value: Any) -> str:
+        try:
+            return _encode(value)
+        except ValueError:  # NaN or inf somewhere: record them as null
+            return _encode(_finite(value))
+
     def _add(self, topic: str, channel_id: int, t_ns: int, message: Mapping[str, Any]) -> None:
         try:
             data = _encode(message)
@@ -267,11 +302,14 @@ class Recorder:
             data = _encode(_finite(message))
         except TypeError as exc:
             raise TypeError(f"cannot record message on {topic}: {exc}") from None
+        self._add_bytes(channel_id, t_ns, data.encode())
+
+    def _add_bytes(self, channel_id: int, t_ns: int, data: bytes) -> None:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"recording {self.path} is closed")
             seq = self._messages_written & 0xFFFFFFFF
-            self._writer.add_message(channel_id, t_ns, data.encode(), t_ns, seq)
+            self._writer.add_message(channel_id, t_ns, data, t_ns, seq)
             self._messages_written += 1
             now = _monotonic()
             if now >= self._next_flush:
@@ -298,17 +336,20 @@ class Recorder:
             if topic in other:
                 layout = "one message per sample" if block else "in blocks"
                 raise ValueError(f"{topic} is already written {layout} in {self.path}; one layout per topic")
-            title = schema["title"]
+            if block and self.block_encoding == "cdr":
+                cdr = cdr_block_for_topic(topic)
+                title, encoding, message_encoding = cdr.name, "ros2msg", "cdr"
+                data = cdr.definition.encode("utf-8")
+                self._cdr_blocks[topic] = cdr
+            else:
+                title, encoding, message_encoding = schema["title"], "jsonschema", "json"
+                data = json.dumps(schema, ensure_ascii=False).encode("utf-8")
             schema_id = self._schema_ids.get(title)
             if schema_id is None:
-                schema_id = self._writer.register_schema(
-                    name=title,
-                    encoding="jsonschema",
-                    data=json.dumps(schema, ensure_ascii=False).encode("utf-8"),
-                )
+                schema_id = self._writer.register_schema(name=title, encoding=encoding, data=data)
                 self._schema_ids[title] = schema_id
             channel_id = self._writer.register_channel(
-                topic=topic, message_encoding="json", schema_id=schema_id
+                topic=topic, message_encoding=message_encoding, schema_id=schema_id
             )
             ids[topic] = channel_id
             return channel_id

@@ -1,6 +1,6 @@
 """Helper for test_recording: records at ~1 kHz until it is killed.
 
-Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE [blocks]
+Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE [blocks | json-blocks]
 
 With a CHUNK_SIZE far larger than 3 s of data, only the time-based flush puts
 messages on disk.
@@ -12,9 +12,10 @@ every 250th tick, and from 1 s on an /estimator/late channel (registered
 mid-file). Timestamps are time.monotonic_ns() (CLOCK_MONOTONIC, shared with
 the parent process).
 
-With ``blocks`` (format 2, as a live session at 7 kHz), each tick writes
-/sensor/wrench and /aligned/sample as one block of 7 samples (seq 7·tick to
-7·tick + 6) and, from 1 s on, /estimator/late as a block with params.
+With ``blocks`` (format 3, CDR, as a live session at 7 kHz) or ``json-blocks``
+(format 2), each tick writes /sensor/wrench and /aligned/sample as one block of
+7 samples (seq 7·tick to 7·tick + 6) and, from 1 s on, /estimator/late as a
+block with params.
 """
 
 from __future__ import annotations
@@ -55,13 +56,14 @@ def write_blocks(rec: Recorder, t: int, tick: int, late: bool) -> None:
 
 def main() -> None:
     path, flush_interval, chunk_size = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
-    blocks = sys.argv[4:] == ["blocks"]
+    blocks = sys.argv[4:] in (["blocks"], ["json-blocks"])
     rec = Recorder(
         path,
         {"hapticlab.session": {"config": {"preset": "crash-test"}}, "hapticlab.calibration": {"counts_per_force": 1e6}},
         flush_interval_s=flush_interval,
         chunk_size=chunk_size,
         overwrite=True,
+        block_encoding="json" if sys.argv[4:] == ["json-blocks"] else "cdr",
     )
     print("ready", flush=True)
     t0 = time.monotonic_ns()

@@ -412,7 +412,7 @@ def test_flush_is_time_based(tmp_path, monkeypatch):
 # --------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("layout", ["samples", "blocks"])
+@pytest.mark.parametrize("layout", ["samples", "json-blocks", "blocks"])
 def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     sys.path.insert(0, str(HERE))
     try:
@@ -426,7 +426,7 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     proc = subprocess.Popen(
         # 64 MiB chunks: only the time-based flush (1 s) gets data to disk before the kill
         [sys.executable, str(HERE / "_crashing_writer.py"), str(path), "1.0", str(64 << 20),
-         *(["blocks"] if layout == "blocks" else [])],
+         *([layout] if layout != "samples" else [])],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         env=env,
@@ -461,7 +461,8 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     assert stats["corrupt_chunks"] == 0 and stats["orphan_messages"] == 0
     assert stats["topics"] == per_message
     block_topics = {"/sensor/wrench", "/aligned/sample", "/estimator/late"}
-    assert set(rec.blocks) == (block_topics if layout == "blocks" else set())
+    assert set(rec.blocks) == (block_topics if layout != "samples" else set())
+    assert rec.format_version == {"samples": 3, "json-blocks": 2, "blocks": 3}[layout]  # the writer's default
     assert stats["lost_tail_bytes"] >= 0
 
     # nothing older than 1.5 s before the kill is lost (flush interval 1 s)
@@ -474,7 +475,7 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     assert all(m == wrench(m["seq"]) for _, m in wrenches)
     assert np.all(np.diff(rec.t_ns("/sensor/wrench")) > 0)
     aligned_seq = rec.field("/aligned/sample", "seq")
-    if layout == "blocks":  # whole blocks of 7, every sample
+    if layout != "samples":  # whole blocks of 7, every sample
         assert len(wrenches) % 7 == 0 and aligned_seq.tolist() == list(range(len(aligned_seq)))
         seq_at = {t: m["seq"] for t, m in wrenches}
         t_last = int(rec.t_ns("/estimator/late")[-1])  # params ride on the last sample of each block

@@ -138,12 +138,17 @@ def estimator_table(factories: dict[str, Callable[[], Any]], samples: int = 2048
 
 
 def default_estimators() -> dict[str, Callable[[], Any]]:
-    """The estimators the table shows: each registered live estimator with its defaults, and kalman's
-    inertia model (the costliest option)."""
+    """The estimators the table shows: ``rls``, ``kalman`` and ``kalman`` with its inertia model (the
+    costliest option), each compiled (the default) and as its numpy reference (``kernel = "numpy"``)."""
     from ... import make_estimator
 
-    return {"rls": lambda: make_estimator("rls"), "kalman": lambda: make_estimator("kalman"),
-            "kalman, inertia": lambda: make_estimator("kalman", inertia=True)}
+    out: dict[str, Callable[[], Any]] = {}
+    for label, name, options in (("rls", "rls", {}), ("kalman", "kalman", {}),
+                                 ("kalman, inertia", "kalman", {"inertia": True})):
+        for kernel in ("numba", "numpy"):
+            out[f"{label} ({kernel})"] = lambda name=name, options=options, kernel=kernel: make_estimator(
+                name, kernel=kernel, **options)
+    return out
 
 
 def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 5.0, samples: int = 20480,

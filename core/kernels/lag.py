@@ -95,7 +95,7 @@ def lag_sums(t_ns, R_EB, force_S, R_SE, gravity_force_B, bias_force_S, noise, ma
         for i in range(3):
             finite = finite and math.isfinite(r[k, i])
             gd2 += g_dot[k, i] ** 2
-        if not finite or math.sqrt(gd2) > max_turn_rad_s * g_norm:
+        if not finite or not math.sqrt(gd2) <= max_turn_rad_s * g_norm:  # a NaN ġ (a NaN weight) too
             continue
         for i in range(3):
             S_rg += r[k, i] * g_dot[k, i]

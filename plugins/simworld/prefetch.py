@@ -41,6 +41,8 @@ class Prefetch:
     def take(self, seq: np.ndarray) -> dict[str, np.ndarray]:
         """The arrays for ``seq`` (consecutive increasing indices), as read-only views."""
         lo, hi = int(seq[0]), int(seq[-1]) + 1
+        if hi - lo != len(seq):
+            raise ValueError(f"Prefetch.take needs consecutive indices, got {len(seq)} spanning {lo}..{hi - 1}")
         if not (self.first <= lo and hi <= self.first + self.size):
             n = max(self.chunk, hi - lo)
             self.cache = self.compute(np.arange(lo, lo + n, dtype=np.int64))

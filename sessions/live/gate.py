@@ -92,7 +92,7 @@ class HapticGate:
 
     def __init__(self, label: str, ready_force_std: float, parameter_std: ReportsParameterStd | None,
                  reidentifies: Reidentifies | None, stale_timeout_ns: int, frozen_pose_timeout_ns: int,
-                 max_turn_rate: float = 10.0, max_speed: float = 5.0):
+                 max_turn_rate: float, max_speed: float):
         self.label = label
         self.ready_force_std = ready_force_std
         self.parameter_std = parameter_std
@@ -137,9 +137,9 @@ class HapticGate:
     def _out_of_step(self) -> bool:
         return self.lag.lag_s is not None and abs(self.lag.lag_s) > LAG_LIMIT_S
 
-    def on_poses(self, poses: list[PoseSample]) -> None:
-        """New poses arrived: a jump starts the lag watch afresh."""
-        if self.poses.add(poses):
+    def on_poses(self, poses: list[PoseSample], now_ns: int) -> None:
+        """New poses arrived at ``now_ns``: a jump starts the lag watch afresh."""
+        if self.poses.add(poses, now_ns):
             self.lag.reset()
 
     def on_samples(self, block: AlignedSamples, usable: np.ndarray, beyond: np.ndarray) -> None:

@@ -199,7 +199,7 @@ class LiveLoop:
         poses = self._call("kinematics", self.s.kinematics.read, now_ns)
         if poses:
             self.aligner.add_poses(poses)
-            self.gate.on_poses(poses)
+            self.gate.on_poses(poses, now_ns)
             self.taps.poses(poses)
             self.poses += len(poses)
         wrenches = self._call("sensor", self.s.sensor.read, now_ns)

@@ -48,7 +48,7 @@ class PoseWatch:
         max_speed: fastest motion of the tool between two poses, m/s.
     """
 
-    def __init__(self, timeout_ns: int, max_turn_rate: float = 10.0, max_speed: float = 5.0):
+    def __init__(self, timeout_ns: int, max_turn_rate: float, max_speed: float):
         self.timeout_ns = timeout_ns
         self.max_turn_rate, self.max_speed = max_turn_rate, max_speed
         self.last: tuple[bytes, bytes] | None = None
@@ -57,17 +57,22 @@ class PoseWatch:
         self.previous: PoseSample | None = None
         self.jump: tuple[int, str] | None = None  # (stamp, what) of the last jump seen
 
-    def add(self, poses: list[PoseSample]) -> bool:
-        """Take the newest poses; True when they jumped (``jump`` then says when and how far)."""
+    def add(self, poses: list[PoseSample], now_ns: int) -> bool:
+        """Take the newest poses, read at ``now_ns`` (the session clock); True when they jumped (``jump``
+        then says when, on the session clock, and how far). A non-finite pose is a jump too, and never the
+        pose the next one is compared with."""
         jumped = False
         for pose in poses:
             key = (pose.quat_BE.tobytes(), b"" if pose.p_BoEo_B is None else pose.p_BoEo_B.tobytes())
             if key != self.last:
                 self.last, self.changed_ns = key, pose.t_ns
             self.newest_ns = pose.t_ns
+            if not (np.isfinite(pose.quat_BE).all() and (pose.p_BoEo_B is None or np.isfinite(pose.p_BoEo_B).all())):
+                self.jump, jumped = (now_ns, "a non-finite pose"), True
+                continue
             what = self._jump(self.previous, pose) if self.previous is not None else ""
             if what:
-                self.jump, jumped = (pose.t_ns, what), True
+                self.jump, jumped = (now_ns, what), True
             self.previous = pose
         return jumped
 
@@ -194,7 +199,8 @@ class LagWatch:
     def reset(self) -> None:
         """Forget what was learnt (the poses jumped: what came before says nothing of what follows)."""
         self.sums = np.zeros(6)  # S_rg, S_gg, S_rr, and the last sample's predicted weight in S (core.kernels.lag)
-        self.clock = np.zeros(3, dtype=np.int64)  # the last sample's and the last contact's t_ns, flags
+        # the last sample's and the last contact's t_ns, then the bits HAS_LAST | HAS_CONTACT of core.kernels.lag
+        self.clock = np.zeros(3, dtype=np.int64)
         self.lag_s: float | None = None
 
     @property
@@ -217,9 +223,18 @@ class LagWatch:
         the estimator (which would otherwise learn the lag into its parameters and hide it). The sums
         are ``core.kernels.lag.lag_sums`` (compiled); the verdict is here.
         """
-        lag_sums(block.t_ns, block.R_EB, block.force_S, _EYE if R_SE is None else R_SE,
-                 np.asarray(params["gravity_force_B"], dtype=float), np.asarray(params["bias_force_S"], dtype=float),
-                 self.noise, LAG_MAX_S, LAG_CONTACT_GUARD_NS, LAG_MAX_TURN_RAD_S, LAG_MEMORY_S, self.sums, self.clock)
+        gravity_force_B = np.asarray(params["gravity_force_B"], dtype=float)
+        bias_force_S = np.asarray(params["bias_force_S"], dtype=float)
+        if not (np.isfinite(gravity_force_B).all() and np.isfinite(bias_force_S).all()):
+            return self.lag_s  # no weight to predict with: nothing to learn from this block
+        lag_sums(block.t_ns, block.R_EB, block.force_S, _EYE if R_SE is None else R_SE, gravity_force_B,
+                 bias_force_S, self.noise, LAG_MAX_S, LAG_CONTACT_GUARD_NS, LAG_MAX_TURN_RAD_S, LAG_MEMORY_S,
+                 self.sums, self.clock)
+        if not np.isfinite(self.sums).all():  # never expected (the kernel skips non-finite terms): start afresh
+            lag_s = self.lag_s
+            self.reset()
+            self.lag_s = lag_s
+            return self.lag_s
         if self.S_gg > 0 and self.noise / np.sqrt(self.S_gg) < LAG_MIN_RESOLUTION_S:
             lag = self.S_rg / self.S_gg
             if abs(lag) <= LAG_LIMIT_S or lag * self.S_rg >= LAG_MIN_EXPLAINED * self.S_rr:

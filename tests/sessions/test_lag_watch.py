@@ -82,3 +82,32 @@ def test_one_sample_blocks_and_seven_sample_blocks_agree():
         sevens.add(b, PARAMS, None)
     np.testing.assert_allclose(ones.sums, sevens.sums, rtol=1e-9)
     assert ones.lag_s == pytest.approx(sevens.lag_s, rel=1e-9)
+
+
+def test_non_finite_parameters_for_a_while_do_not_blind_the_watch():
+    """An estimator whose parameters are NaN for a block (a numerical corner) must not leave NaN in the sums:
+    the lag of the poses that follow is still measured."""
+    watch = LagWatch()
+    stream = list(blocks(0.1, 1.0))
+    nan_params = {"gravity_force_B": [np.nan, 0.0, -3.4], "bias_force_S": BIAS_FORCE_S.tolist()}
+    for k, b in enumerate(stream):
+        watch.add(b, nan_params if k == 20 else PARAMS, None)
+    assert np.isfinite(watch.sums).all()
+    assert watch.lag_s is not None and abs(watch.lag_s - 0.1) < 0.015
+
+
+def test_a_non_finite_pose_is_a_jump_and_a_jump_across_it_is_still_seen():
+    from hapticlab.core.types import PoseSample
+    from hapticlab.sessions.live.watch import PoseWatch
+
+    def pose(t_ms, angle, finite=True):
+        q = np.array([np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0])
+        return PoseSample(t_ns=int(t_ms * 1e6), quat_BE=q if finite else q * np.nan, p_BoEo_B=np.zeros(3))
+
+    watch = PoseWatch(50_000_000, max_turn_rate=10.0, max_speed=5.0)
+    assert not watch.add([pose(0, 0.0), pose(2, 0.002)], now_ns=2_000_000)  # 1 rad/s: no jump
+    assert watch.add([pose(4, 0.0, finite=False)], now_ns=4_000_000)
+    assert watch.jump == (4_000_000, "a non-finite pose")
+    # the next good pose is compared with the last good one (2 ms, 0.002 rad): 0.5 rad in 4 ms is a jump
+    assert watch.add([pose(6, 0.5)], now_ns=6_000_000)
+    assert watch.jump[0] == 6_000_000 and watch.jump[1].startswith("turned 0.498 rad in 4 ms")

@@ -35,19 +35,7 @@ from hapticlab.plugins.estimators.rls import RLSEstimator  # noqa: E402
 from hapticlab.sessions.offline.compensate import compensate  # noqa: E402
 from hapticlab.sessions.config import apply_overrides, load_config  # noqa: E402
 from hapticlab.sessions.live import build_session, run_session  # noqa: E402
-
-
-def per_sample_us(factory, block, size: int) -> tuple[float, float]:
-    """(median, p99) µs per sample, over the converged second half of the stream."""
-    est = factory()
-    times = []
-    for i in range(0, len(block), size):
-        part = block.subset(slice(i, i + size))
-        t0 = time.perf_counter_ns()
-        est.update_block(part)
-        times.append((time.perf_counter_ns() - t0) / len(part) / 1e3)
-    times = np.array(times[len(times) // 2:])
-    return float(np.median(times)), float(np.percentile(times, 99))
+from hapticlab.sessions.bench.loop import per_sample_us  # noqa: E402
 
 
 def main() -> None:

@@ -100,7 +100,7 @@ class HapticGate:
         self.stale_timeout_ns = stale_timeout_ns
         self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
         self.bias = BiasWatch()
-        self.lag = LagWatch()
+        self.lag = LagWatch(max_turn_rate)
         self.ready = [False, False]  # each stage has converged at least once
         self.converged = [False, False]  # each stage's flag after the last sample
         self.down_since_ns: int | None = None  # the force stage's flag has been down since (None: it is up)

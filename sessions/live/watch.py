@@ -160,8 +160,6 @@ LAG_LIMIT_S = 0.05
 """Kinematics this far out of step with the sensor (either way) zero the force, s."""
 LAG_MEMORY_S = 0.25
 """The lag estimate forgets with this time constant, s."""
-LAG_MAX_TURN_RAD_S = 10.0
-"""Faster apparent turns (a pose stream that jumps) are left out of the estimate, rad/s."""
 LAG_MAX_S = 0.5
 """The largest lag the watch explains; a bigger residual is a contact, s."""
 LAG_CONTACT_GUARD_NS = 500_000_000
@@ -188,10 +186,13 @@ class LagWatch:
     as current), a still tool cannot either (then nothing is wrong).
 
     Args:
+        max_turn_rate: faster apparent turns (a pose stream that jumps) are left out of the estimate, rad/s
+            (the session's ``max_turn_rate``, the jump rule's limit).
         noise_N: the sensor's force noise per axis, N (for the standard error).
     """
 
-    def __init__(self, noise_N: float = 0.12):
+    def __init__(self, max_turn_rate: float, noise_N: float = 0.12):
+        self.max_turn_rate = max_turn_rate
         self.noise = noise_N
         warm_up_lag()
         self.reset()
@@ -228,7 +229,7 @@ class LagWatch:
         if not (np.isfinite(gravity_force_B).all() and np.isfinite(bias_force_S).all()):
             return self.lag_s  # no weight to predict with: nothing to learn from this block
         lag_sums(block.t_ns, block.R_EB, block.force_S, _EYE if R_SE is None else R_SE, gravity_force_B,
-                 bias_force_S, self.noise, LAG_MAX_S, LAG_CONTACT_GUARD_NS, LAG_MAX_TURN_RAD_S, LAG_MEMORY_S,
+                 bias_force_S, self.noise, LAG_MAX_S, LAG_CONTACT_GUARD_NS, self.max_turn_rate, LAG_MEMORY_S,
                  self.sums, self.clock)
         if not np.isfinite(self.sums).all():  # never expected (the kernel skips non-finite terms): start afresh
             lag_s = self.lag_s

@@ -45,7 +45,7 @@ def blocks(lag_s: float, seconds: float, turning: bool = True, contact: tuple[fl
 
 @pytest.mark.parametrize("lag_s", [0.0, 0.02, 0.1, 0.2])
 def test_the_lag_is_measured_from_the_turning_tool(lag_s):
-    watch = LagWatch()
+    watch = LagWatch(max_turn_rate=10.0)
     for b in blocks(lag_s, 1.0):
         watch.add(b, PARAMS, None)
     assert watch.lag_s is not None
@@ -54,14 +54,14 @@ def test_the_lag_is_measured_from_the_turning_tool(lag_s):
 
 
 def test_a_contact_is_not_read_as_a_lag():
-    watch = LagWatch()
+    watch = LagWatch(max_turn_rate=10.0)
     for b in blocks(0.0, 2.0, contact=(0.5, 1.2)):
         watch.add(b, PARAMS, None)
         assert watch.lag_s is None or abs(watch.lag_s) < 0.01
 
 
 def test_a_verdict_stands_while_the_tool_stands_still_and_a_reset_forgets_it():
-    watch = LagWatch()
+    watch = LagWatch(max_turn_rate=10.0)
     for b in blocks(0.1, 1.0):
         watch.add(b, PARAMS, None)
     found = watch.lag_s
@@ -75,7 +75,7 @@ def test_a_verdict_stands_while_the_tool_stands_still_and_a_reset_forgets_it():
 
 def test_one_sample_blocks_and_seven_sample_blocks_agree():
     """The sums do not depend on how the stream is cut into blocks (the loop reads 1 or 7 samples a tick)."""
-    ones, sevens = LagWatch(), LagWatch()
+    ones, sevens = LagWatch(max_turn_rate=10.0), LagWatch(max_turn_rate=10.0)
     for b in blocks(0.05, 0.8, block=1):
         ones.add(b, PARAMS, None)
     for b in blocks(0.05, 0.8, block=7):
@@ -87,7 +87,7 @@ def test_one_sample_blocks_and_seven_sample_blocks_agree():
 def test_non_finite_parameters_for_a_while_do_not_blind_the_watch():
     """An estimator whose parameters are NaN for a block (a numerical corner) must not leave NaN in the sums:
     the lag of the poses that follow is still measured."""
-    watch = LagWatch()
+    watch = LagWatch(max_turn_rate=10.0)
     stream = list(blocks(0.1, 1.0))
     nan_params = {"gravity_force_B": [np.nan, 0.0, -3.4], "bias_force_S": BIAS_FORCE_S.tolist()}
     for k, b in enumerate(stream):

@@ -46,13 +46,15 @@ class PoseSample:
         t_ns: time of the reading, ns, monotonic session clock.
         quat_BE: (4,) unit quaternion [w, x, y, z] of R_BE, the orientation of E in B.
         p_BoEo_B: (3,) position of E's origin from B's origin, in B, m; None if unknown.
-        joints: (n,) joint positions, rad; None if unknown.
+        joints: (n,) joint positions, rad (CRTK ``measured_js`` position); None if unknown.
+        joint_velocities: (n,) joint velocities, rad/s (``measured_js`` velocity); None if unknown.
     """
 
     t_ns: int
     quat_BE: np.ndarray
     p_BoEo_B: np.ndarray | None = None
     joints: np.ndarray | None = None
+    joint_velocities: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -59,6 +59,10 @@ class SessionSettings:
             10 rad/s, is above a UR3e wrist joint's 6.28 rad/s (360°/s).
         max_speed: fastest motion of the tool the robot can make, m/s (the same
             rule; the default, 5 m/s, is a UR's highest TCP speed limit).
+        recording_writer: where the MCAP writer runs: ``"process"`` (a child
+            process fed one batch per tick: the writing and compression on the
+            other core, and the child finishes the file if the session is
+            killed) or ``"inline"`` (on the loop's thread, e.g. a one-core machine).
     """
 
     name: str = "session"
@@ -70,9 +74,13 @@ class SessionSettings:
     frozen_pose_timeout: float = 0.05
     max_turn_rate: float = 10.0
     max_speed: float = 5.0
+    recording_writer: str = "process"
 
     def __post_init__(self) -> None:
         check_duration("session.duration", self.duration)
+        if self.recording_writer not in ("process", "inline"):
+            raise ConfigError(f"session.recording_writer: must be \"process\" or \"inline\", "
+                              f"got {self.recording_writer!r}")
         _require("session.loop_rate_hz", self.loop_rate_hz, above=0.0, maximum=MAX_LOOP_RATE_HZ)
         _require("session.stale_timeout", self.stale_timeout, minimum=0.0, maximum=1.0)
         _require("session.frozen_pose_timeout", self.frozen_pose_timeout, above=0.0, maximum=1.0)

@@ -7,8 +7,11 @@ Two tables, so the next change to the hot path is measured the same way:
   7 kHz. Each stage's calls are timed in place (the loop's own objects wrapped
   with a ``perf_counter_ns`` stopwatch, nothing else changed): sensor read,
   kinematics read, aligner, estimator (the primary's ``update_block``), gate
-  and watches, governor, device, recording (the taps: encoding and MCAP
-  writes); "loop body" is the rest of the tick. µs per tick and share of the
+  and watches, governor, device, recording (the taps: encoding, and the MCAP
+  writes with the writer inline, or the hand-over of the tick's batch to the
+  writer process); "loop body" is the rest of the tick. Each rate runs with
+  the MCAP writer on the loop's thread (``inline``) and in its own process
+  (``process``, the default), side by side. µs per tick and share of the
   tick, and the session's speed (simulated seconds per wall second; above 1 it
   keeps up in real time);
 * **per estimator**: µs per sample at block sizes 1 (a 1 kHz sensor read at
@@ -62,11 +65,12 @@ class _Stopwatch:
         setattr(obj, method, timed)
 
 
-def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str = "rls") -> dict[str, Any]:
+def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str = "rls",
+                writer: str = "process") -> dict[str, Any]:
     """One non-realtime demo session with every stage timed: µs per tick and share per stage, speed."""
     config, _ = load_config("demo")
     config = apply_overrides(config, ["session.realtime=false", f"sensor.rate_hz={float(sensor_rate_hz)}",
-                                      f"estimator.name={estimator}"])
+                                      f"estimator.name={estimator}", f"session.recording_writer={writer}"])
     session = build_session(config)
     with tempfile.TemporaryDirectory() as folder:
         loop = LiveLoop(session, Path(folder) / "bench.mcap", duration_s, None, 0.25)
@@ -92,7 +96,7 @@ def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str =
     watch.ns["loop body"] = max(wall_ns - timed, 0)
     return {
         "sensor_rate_hz": sensor_rate_hz, "loop_rate_hz": session.settings.loop_rate_hz, "estimator": estimator,
-        "duration_s": duration_s, "samples": result.samples, "ticks": ticks,
+        "writer": writer, "duration_s": duration_s, "samples": result.samples, "ticks": ticks,
         "x_real_time": duration_s / (wall_ns * 1e-9),
         "us_per_tick": {s: watch.ns[s] / ticks / 1e3 for s in STAGES},
         "share": {s: watch.ns[s] / wall_ns for s in STAGES},
@@ -113,6 +117,7 @@ def _wrap_loop(loop: LiveLoop, watch: _Stopwatch) -> None:
         watch.wrap(s.haptic, method, "device")
     for method in ("poses", "wrenches", "aligned", "estimates", "command", "device_state", "event"):
         watch.wrap(loop.taps, method, "recording")
+    watch.wrap(loop.recorder, "send", "recording")
 
 
 def per_sample_us(factory: Callable[[], Any], block: AlignedSamples, size: int) -> tuple[float, float]:
@@ -156,9 +161,10 @@ def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 
     """Both tables (JSON-ready)."""
     stages = []
     for rate in rates:
-        if progress:
-            progress(f"session, sensor at {rate:g} Hz")
-        stages.append(stage_table(rate, duration_s))
+        for writer in ("inline", "process"):
+            if progress:
+                progress(f"session, sensor at {rate:g} Hz, {writer} writer")
+            stages.append(stage_table(rate, duration_s, writer=writer))
     if progress:
         progress("estimators, µs per sample")
     table = estimator_table(default_estimators(), samples)
@@ -168,16 +174,18 @@ def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 
 
 
 def realtime_run(duration_s: float, sensor_rate_hz: float = 7000.0, estimator: str = "rls",
-                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                 progress: Callable[[str], None] | None = None, writer: str = "process") -> dict[str, Any]:
     """One paced (``realtime = true``) demo session: samples expected and received, overruns, the latency
     from the newest sample's stamp to the haptic command's send (µs: median, p99, max; the stamp is when a
-    real sensor's sample would have arrived), and the process's resident memory once a second (MB)."""
+    real sensor's sample would have arrived), and the resident memory once a second (MB) of the process
+    and, with ``writer="process"``, of the writer process."""
     config, _ = load_config("demo")
     config = apply_overrides(config, ["session.realtime=true", f"sensor.rate_hz={float(sensor_rate_hz)}",
-                                      f"estimator.name={estimator}"])
+                                      f"estimator.name={estimator}", f"session.recording_writer={writer}"])
     session = build_session(config)
     latencies: list[int] = []
     rss_mb: list[float] = []
+    writer_rss_mb: list[float] = []
     with tempfile.TemporaryDirectory() as folder:
         loop = LiveLoop(session, Path(folder) / "realtime.mcap", duration_s, None, 0.25)
         send = session.haptic.send
@@ -193,6 +201,8 @@ def realtime_run(duration_s: float, sensor_rate_hz: float = 7000.0, estimator: s
             if now >= next_rss[0]:
                 next_rss[0] = now + 1_000_000_000
                 rss_mb.append(_rss_mb())
+                if loop.recorder.writer_pid is not None:
+                    writer_rss_mb.append(_rss_mb(loop.recorder.writer_pid))
                 if progress:
                     progress(f"realtime, {(now - loop.t0_ns) * 1e-9:.0f} of {duration_s:g} s")
 
@@ -206,12 +216,15 @@ def realtime_run(duration_s: float, sensor_rate_hz: float = 7000.0, estimator: s
         "overruns": result.overruns, "ticks": len(latencies),
         "latency_us": {"median": float(np.median(lat)), "p99": float(np.percentile(lat, 99)), "max": float(lat.max())},
         "rss_mb": {"first": rss_mb[0], "last": rss_mb[-1], "peak": max(rss_mb)}, "recording_mb": size_mb,
+        "writer": writer,
+        "writer_rss_mb": ({"first": writer_rss_mb[0], "last": writer_rss_mb[-1], "peak": max(writer_rss_mb)}
+                          if writer_rss_mb else None),
     }
 
 
-def _rss_mb() -> float:
-    """The process's resident memory now, MB (``VmRSS`` of /proc/self/status)."""
-    with open("/proc/self/status") as status:
+def _rss_mb(pid: int | str = "self") -> float:
+    """A process's resident memory now, MB (``VmRSS`` of /proc/PID/status; this process by default)."""
+    with open(f"/proc/{pid}/status") as status:
         for line in status:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024

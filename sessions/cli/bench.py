@@ -180,7 +180,7 @@ def print_loop_tables(out: dict) -> None:
                     f"{stages[0]['loop_rate_hz']:g} Hz, estimator {stages[0]['estimator']})")
     t.add_column("stage")
     for run in stages:
-        t.add_column(f"{run['sensor_rate_hz']:g} Hz sensor: µs/tick", justify="right")
+        t.add_column(f"{run['sensor_rate_hz']:g} Hz sensor, {run['writer']} writer: µs/tick", justify="right")
         t.add_column("share", justify="right")
     for stage in STAGES:
         t.add_row(stage, *[v for run in stages for v in (f"{run['us_per_tick'][stage]:.1f}",
@@ -188,7 +188,7 @@ def print_loop_tables(out: dict) -> None:
     t.add_row("whole tick", *[v for run in stages for v in (f"{sum(run['us_per_tick'].values()):.1f}", "")],
               end_section=True)
     t.add_row("× real time", *[v for run in stages for v in (f"{run['x_real_time']:.2f}", "")])
-    wide_console(120).print(t)
+    wide_console(160).print(t)
     t = Table(title="Estimators: µs per sample (median / p99) by block size, simulated tour at 1 kHz")
     t.add_column("estimator")
     sizes = list(next(iter(out["estimators"].values())))

@@ -45,6 +45,7 @@ from ...core.interfaces import HasRange
 from ...core.types import Event
 from ..config import check_duration
 from ..recording import Recorder
+from ..recording.sinks import WriterProcessError
 from .build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
 from .gate import HapticGate, implausible
 from .status import SessionError, SessionResult, SessionStatus
@@ -151,7 +152,8 @@ class LiveLoop:
 
     def run(self) -> SessionResult:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.recorder = Recorder(self.path, metadata=session_metadata(self.s, self.duration, self.path))
+        self.recorder = Recorder(self.path, metadata=session_metadata(self.s, self.duration, self.path),
+                                 writer=self.s.settings.recording_writer)
         self.taps = Taps(self.recorder)
         self.t0_ns = now_ns = time.monotonic_ns()
         interrupted, failure = False, None
@@ -172,8 +174,9 @@ class LiveLoop:
             with _signals_ignored(self):
                 result = self._finish(now_ns, interrupted, failure)
         if failure is not None:
-            raise SessionError(f"{failure}; the recording is complete: {self.path}", failure.part, result) \
-                from failure.__cause__
+            kept = (f"salvage what it wrote with: hapticlab recover {self.path}" if failure.part == "recording"
+                    else f"the recording is complete: {self.path}")
+            raise SessionError(f"{failure}; {kept}", failure.part, result) from failure.__cause__
         return result
 
     def _next_tick(self, tick: int) -> tuple[int, int]:
@@ -221,6 +224,7 @@ class LiveLoop:
             self._events(device.drain_events(), label)
         self._command(now_ns)
         self._report(now_ns)
+        self._call("recording", self.recorder.send)  # the tick's messages to the writer process, one pipe write
 
     # ------------------------------------------------------------------ the stages
 
@@ -298,7 +302,8 @@ class LiveLoop:
         except (KeyboardInterrupt, _PartFailed):
             raise
         except Exception as exc:
-            raise _PartFailed(f"{part} {self.s.plugins[part]['name']}", exc) from exc
+            plugin = self.s.plugins.get(part)  # "recording" is no plugin
+            raise _PartFailed(f"{part} {plugin['name']}" if plugin else part, exc) from exc
 
     def _event(self, event: Event) -> None:
         self.taps.event(event)
@@ -394,7 +399,11 @@ class LiveLoop:
         ending = (f"interrupted ({self.stopped_by})" if interrupted else "ended by an error" if failure
                   else "session finished")
         self._event(Event(end_ns, "session_end", ending))
-        self.recorder.close(summary=summary)
+        try:
+            self.recorder.close(summary=summary)
+        except WriterProcessError:
+            if failure is None or failure.part != "recording":
+                raise
         return SessionResult(
             path=self.path, samples=self.samples, poses=self.poses, duration_s=(end_ns - self.t0_ns) * 1e-9,
             interrupted=interrupted, params=params, events=self.events,

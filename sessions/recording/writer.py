@@ -2,11 +2,17 @@
 
 One ``mcap`` writer per session, zstd-compressed chunks, JSON messages on
 JSON-schema channels (viewable in Foxglove). The chunk in progress is finished
-and flushed to the OS about once a second (``time.monotonic``, checked on every
-write) and on close, so a crash of the process loses at most the last second;
+and flushed to the OS about once a second (``time.monotonic``) and on close,
+so a crash of the process loses at most the last second;
 :func:`~.recover.recover` salvages the rest of a file whose writer died. Log
 time and publish time of a message are its ``t_ns`` (integer ns on the
 session's monotonic clock).
+
+The Recorder encodes (and checks) every message where it is written; the
+``mcap`` writer runs in this process (``writer="inline"``) or in a child
+process fed one batch per :meth:`Recorder.send` (``writer="process"``, what a
+live session uses: the writing and the chunks' compression move to the other
+core, and a killed session's file is finished by the child; see :mod:`.sinks`).
 
 Two ways in: :meth:`Recorder.write_block` writes a block of samples as one
 columnar message on a sensor-rate topic (what a live session does: ``mcap``'s
@@ -49,8 +55,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
-
 from ...core.errors import OutputExistsError
 from .cdr import encode_block
 from .schemas import (
@@ -61,6 +65,7 @@ from .schemas import (
     cdr_block_for_topic,
     schema_for_topic,
 )
+from .sinks import McapSink, ProcessSink, Sink
 
 # --------------------------------------------------------------------------
 # JSON encoding
@@ -143,7 +148,6 @@ def _utc_now_iso() -> str:
 # --------------------------------------------------------------------------
 
 _U64 = 1 << 64
-_monotonic = time.monotonic
 
 
 class Recorder:
@@ -170,6 +174,9 @@ class Recorder:
             error (a previous recording is never silently destroyed).
         block_encoding: ``"cdr"`` (format 3) or ``"json"`` (format 2): how
             :meth:`write_block` encodes its blocks.
+        writer: ``"inline"`` (the ``mcap`` writer in this process) or ``"process"``
+            (in a child process: messages are handed over at each :meth:`send`, one
+            pipe write per loop tick; the child finishes the file if this process dies).
 
     ``write_block`` (a block of samples, per loop tick) and ``write`` (one
     message) are the hot path: one encode (CDR: one ``tobytes`` per field;
@@ -185,11 +192,14 @@ class Recorder:
         chunk_size: int = 128 * 1024,
         overwrite: bool = False,
         block_encoding: str = "cdr",
+        writer: str = "inline",
     ) -> None:
         if not flush_interval_s > 0:
             raise ValueError(f"flush_interval_s must be > 0 s, got {flush_interval_s!r}")
         if block_encoding not in ("cdr", "json"):
             raise ValueError(f"block_encoding must be 'cdr' or 'json', got {block_encoding!r}")
+        if writer not in ("inline", "process"):
+            raise ValueError(f"writer must be 'inline' or 'process', got {writer!r}")
         self.block_encoding = block_encoding
         self._cdr_blocks: dict[str, Any] = {}  # block topic -> its CdrBlock layout
         self.path = Path(path)
@@ -208,13 +218,19 @@ class Recorder:
         self._block_ids: dict[str, int] = {}  # topics written in blocks
         self._schema_ids: dict[str, int] = {}
         self.start_monotonic_ns = time.monotonic_ns()
+        library = f"hapticlab/{_hapticlab_version()}"
+        self.writer = writer
+        self._sink: Sink
         try:
-            self._writer = Writer(
-                self._file,
-                chunk_size=int(chunk_size),
-                compression=CompressionType.ZSTD,
-            )
-            self._writer.start(profile="", library=f"hapticlab/{_hapticlab_version()}")
+            if writer == "process":
+                self._file.close()  # created here (an existing file refused here); the child writes it
+                self._sink = ProcessSink(self.path, library, self.flush_interval_s, chunk_size)
+            else:
+                self._sink = McapSink(self._file, library, self.flush_interval_s, chunk_size)
+        except BaseException:
+            self._file.close()
+            raise
+        try:
             given = {name: dict(values) for name, values in (metadata or {}).items()}
             session = given.pop(SESSION_METADATA, {})
             session.setdefault("format_version", FORMAT_VERSION if block_encoding == "cdr" else 2)
@@ -226,14 +242,13 @@ class Recorder:
             session.setdefault("start_monotonic_ns", self.start_monotonic_ns)
             session.setdefault("python", platform.python_version())
             session.setdefault("mcap", _mcap_version())
-            self._writer.add_metadata(SESSION_METADATA, _metadata_strings(session))
+            self._sink.add_metadata(SESSION_METADATA, _metadata_strings(session))
             for name, values in given.items():
-                self._writer.add_metadata(str(name), _metadata_strings(values))
-            self._writer.flush()
+                self._sink.add_metadata(str(name), _metadata_strings(values))
+            self._sink.flush()
         except BaseException:
-            self._file.close()
+            self._sink.abort()
             raise
-        self._next_flush = _monotonic() + self.flush_interval_s
 
     # -- per-message path ---------------------------------------------------
 
@@ -308,13 +323,18 @@ class Recorder:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"recording {self.path} is closed")
-            seq = self._messages_written & 0xFFFFFFFF
-            self._writer.add_message(channel_id, t_ns, data, t_ns, seq)
+            self._sink.add_message(channel_id, t_ns, data, self._messages_written & 0xFFFFFFFF)
             self._messages_written += 1
-            now = _monotonic()
-            if now >= self._next_flush:
-                self._writer.flush()
-                self._next_flush = now + self.flush_interval_s
+
+    def send(self) -> None:
+        """Hand the messages written since the last send to the writer process (one per loop tick).
+
+        Nothing to do with ``writer="inline"``. Raises :class:`~.sinks.WriterProcessError`
+        when the writer process has exited.
+        """
+        with self._lock:
+            if not self._closed:
+                self._sink.send()
 
     def event(self, t_ns: int, kind: str, message: str, **data: Any) -> None:
         """Record an event on ``/events``: ``kind`` tag, one-line ``message``, optional details."""
@@ -346,11 +366,11 @@ class Recorder:
                 data = json.dumps(schema, ensure_ascii=False).encode("utf-8")
             schema_id = self._schema_ids.get(title)
             if schema_id is None:
-                schema_id = self._writer.register_schema(name=title, encoding=encoding, data=data)
+                schema_id = len(self._schema_ids) + 1  # MCAP schema ids start at 1 (0: no schema)
+                self._sink.register_schema(schema_id, title, encoding, data)
                 self._schema_ids[title] = schema_id
-            channel_id = self._writer.register_channel(
-                topic=topic, message_encoding=message_encoding, schema_id=schema_id
-            )
+            channel_id = len(self._channel_ids) + len(self._block_ids)
+            self._sink.register_channel(channel_id, topic, message_encoding, schema_id)
             ids[topic] = channel_id
             return channel_id
 
@@ -361,15 +381,14 @@ class Recorder:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"recording {self.path} is closed")
-            self._writer.add_metadata(str(name), _metadata_strings(values))
+            self._sink.add_metadata(str(name), _metadata_strings(values))
 
     def flush(self) -> None:
         """Finish the chunk in progress and hand everything written so far to the OS."""
         with self._lock:
             if self._closed:
                 return
-            self._writer.flush()
-            self._next_flush = _monotonic() + self.flush_interval_s
+            self._sink.flush()
 
     def close(self, summary: Mapping[str, Any] | None = None) -> None:
         """Write ``summary`` (if given) as ``hapticlab.summary``, finish the file. Idempotent."""
@@ -382,16 +401,19 @@ class Recorder:
                     values = dict(summary)
                     values.setdefault("end_time", _utc_now_iso())
                     values.setdefault("messages_written", self._messages_written)
-                    self._writer.add_metadata(SUMMARY_METADATA, _metadata_strings(values))
-                self._writer.finish()
-                self._file.flush()
+                    self._sink.add_metadata(SUMMARY_METADATA, _metadata_strings(values))
             finally:
-                self._file.close()
+                self._sink.finish()
 
     @property
     def messages_written(self) -> int:
         """Number of messages recorded so far."""
         return self._messages_written
+
+    @property
+    def writer_pid(self) -> int | None:
+        """The writer process's pid (``writer="process"``), None when the writer runs in this process."""
+        return self._sink.pid if isinstance(self._sink, ProcessSink) else None
 
     @property
     def closed(self) -> bool:

@@ -1,6 +1,6 @@
 """Helper for test_recording: records at ~1 kHz until it is killed.
 
-Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE [blocks | json-blocks]
+Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE [blocks | json-blocks] [process]
 
 With a CHUNK_SIZE far larger than 3 s of data, only the time-based flush puts
 messages on disk.
@@ -16,6 +16,10 @@ With ``blocks`` (format 3, CDR, as a live session at 7 kHz) or ``json-blocks``
 (format 2), each tick writes /sensor/wrench and /aligned/sample as one block of
 7 samples (seq 7·tick to 7·tick + 6) and, from 1 s on, /estimator/late as a
 block with params.
+
+With ``process`` the recorder's ``mcap`` writer runs in its child process
+(``writer="process"``, as a live session's does) and each tick is one ``send``;
+"ready" is followed by the child's pid on the same line.
 """
 
 from __future__ import annotations
@@ -56,22 +60,26 @@ def write_blocks(rec: Recorder, t: int, tick: int, late: bool) -> None:
 
 def main() -> None:
     path, flush_interval, chunk_size = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
-    blocks = sys.argv[4:] in (["blocks"], ["json-blocks"])
+    options = sys.argv[4:]
+    process = "process" in options
+    blocks = "blocks" in options or "json-blocks" in options
     rec = Recorder(
         path,
         {"hapticlab.session": {"config": {"preset": "crash-test"}}, "hapticlab.calibration": {"counts_per_force": 1e6}},
         flush_interval_s=flush_interval,
         chunk_size=chunk_size,
         overwrite=True,
-        block_encoding="json" if sys.argv[4:] == ["json-blocks"] else "cdr",
+        block_encoding="json" if "json-blocks" in options else "cdr",
+        writer="process" if process else "inline",
     )
-    print("ready", flush=True)
+    print("ready", rec.writer_pid or "", flush=True)
     t0 = time.monotonic_ns()
     i = 0
     while True:
         t = time.monotonic_ns()
         if blocks:
             write_blocks(rec, t, i, t - t0 > 1_000_000_000)
+            rec.send()
             i += 1
             delay = (t0 + i * 1_000_000 - time.monotonic_ns()) * 1e-9
             if delay > 0:
@@ -100,6 +108,7 @@ def main() -> None:
                     "cov_diag": [1.0],
                 },
             )
+        rec.send()
         i += 1
         delay = (t0 + i * 1_000_000 - time.monotonic_ns()) * 1e-9
         if delay > 0:

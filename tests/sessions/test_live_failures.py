@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 
 import numpy as np
@@ -212,3 +214,84 @@ def test_a_plugin_without_its_interface_is_refused_at_build_time(registry):
     with pytest.raises(ConfigError, match=r"^estimator.name: estimator 'broken' \(tests\) is not a Estimator: "
                                           r"it lacks cov_diag, update_block$"):
         build_session(demo("estimator.name=broken"), registry)
+
+
+def _writer_processes() -> list[int]:
+    """This process's children running the recording's writer (sessions/recording/sinks.py)."""
+    pids = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmdline = f.read()
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+        if ppid == os.getpid() and b"sinks.py" in cmdline:
+            pids.append(int(entry))
+    return pids
+
+
+class WriterKillingSensor(SimSensor):
+    """The simulated sensor; after ``kill_after`` reads it kills the session's writer process (a crash, the OOM killer)."""
+
+    def __init__(self, rate_hz: float = 1000.0, kill_after: int = 500, world=None):
+        super().__init__(rate_hz, world=world)
+        self.kill_after, self.reads = kill_after, 0
+
+    def read(self, until_ns):
+        self.reads += 1
+        if self.reads == self.kill_after:
+            (pid,) = _writer_processes()
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)  # dead and reaped before the loop hands it the next tick
+        return super().read(until_ns)
+
+
+class CommandLog:
+    """A haptic device that keeps every command it is sent."""
+
+    rate_hz = 1000.0
+
+    def __init__(self):
+        self.commands, self.closed = [], False
+
+    def open(self):
+        pass
+
+    def send(self, command):
+        self.commands.append(command)
+
+    def state(self):
+        return None
+
+    def close(self):
+        self.closed = True
+
+
+def test_a_writer_process_that_dies_ends_the_session_with_the_force_zeroed(tmp_path):
+    """The recording's writer process killed mid-session: zero force sent, devices closed, the error named."""
+    device = CommandLog()
+
+    class Killer:
+        @hookimpl
+        def register_sensors(self, register):
+            register("writer_killer", WriterKillingSensor)
+
+        @hookimpl
+        def register_haptic_outputs(self, register):
+            register("log", lambda: device)
+
+    pm = make_plugin_manager(load_entry_points=False)
+    pm.register(Killer(), name="tests")
+    path = tmp_path / "writer_died.mcap"
+    with pytest.raises(SessionError, match="^recording raised WriterProcessError.*hapticlab recover") as info:
+        run_session(build_session(demo("sensor.name=writer_killer", "haptic.name=log", duration=2.0),
+                                  Registry(pm)), out=path)
+    assert info.value.part == "recording"
+    assert device.closed and device.commands[-1].reason.startswith("session ended by an error: recording raised")
+    assert not device.commands[-1].enabled and not device.commands[-1].force_D.any()
+    assert len(device.commands) < 600  # it ended at the tick the writer was found dead, not at 2 s
+    assert _writer_processes() == []

@@ -8,6 +8,7 @@ import math
 import os
 import select
 import shutil
+import signal
 import struct
 import subprocess
 import sys
@@ -383,7 +384,7 @@ def test_not_an_mcap_file(tmp_path):
 def test_flush_is_time_based(tmp_path, monkeypatch):
     """Messages reach the file once flush_interval_s has passed on the monotonic clock, not before."""
     clock = [100.0]
-    monkeypatch.setattr(recording.writer, "_monotonic", lambda: clock[0])
+    monkeypatch.setattr(recording.sinks, "_monotonic", lambda: clock[0])
     path = tmp_path / "live.mcap"
     rec = Recorder(path, flush_interval_s=1.0)
 
@@ -412,42 +413,56 @@ def test_flush_is_time_based(tmp_path, monkeypatch):
 # --------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("layout", ["samples", "json-blocks", "blocks"])
-def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
-    sys.path.insert(0, str(HERE))
-    try:
-        from _crashing_writer import wrench
-    finally:
-        sys.path.remove(str(HERE))
-    path = tmp_path / "crash.mcap"
+def _start_crashing_writer(path: Path, *options: str) -> tuple[subprocess.Popen, int | None]:
+    """The helper recording at ~1 kHz (64 MiB chunks: only the 1 s time-based flush reaches the disk); its writer's pid."""
     env = dict(os.environ)
     package_parent = str(Path(hapticlab.__file__).parent.parent)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_parent, env.get("PYTHONPATH")) if p)
     proc = subprocess.Popen(
-        # 64 MiB chunks: only the time-based flush (1 s) gets data to disk before the kill
-        [sys.executable, str(HERE / "_crashing_writer.py"), str(path), "1.0", str(64 << 20),
-         *([layout] if layout != "samples" else [])],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        env=env,
+        [sys.executable, str(HERE / "_crashing_writer.py"), str(path), "1.0", str(64 << 20), *options],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, start_new_session=True,  # a group of its own
     )
+    ready, _, _ = select.select([proc.stdout], [], [], 30.0)
+    assert ready, "writer did not start"
+    line = proc.stdout.readline().split()
+    assert line[:1] == [b"ready"], (line, proc.stderr.read() if proc.poll() is not None else b"")
+    return proc, int(line[1]) if len(line) > 1 else None
+
+
+def _sigkill(proc: subprocess.Popen, group: bool) -> int:
+    """SIGKILL the recording process (``group``: with its writer process) after 3 s; the time of the kill."""
     try:
-        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
-        assert ready, "writer did not start"
-        line = proc.stdout.readline()
-        assert line.strip() == b"ready", (line, proc.stderr.read() if proc.poll() is not None else b"")
         time.sleep(3.0)
         assert proc.poll() is None, proc.stderr.read()
         t_kill = time.monotonic_ns()
-        proc.kill()  # SIGKILL: no atexit, no finally, no close
+        if group:
+            os.killpg(proc.pid, signal.SIGKILL)  # both at once: as a power cut would
+        else:
+            proc.kill()  # SIGKILL: no atexit, no finally, no close
         proc.wait(10)
         assert proc.returncode == -9
+        return t_kill
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
         proc.stdout.close()
         proc.stderr.close()
+
+
+@pytest.mark.parametrize("layout", ["samples", "json-blocks", "blocks", "blocks+process"])
+def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
+    """Killed with no chance to close (with writer="process": the session and its writer process both)."""
+    sys.path.insert(0, str(HERE))
+    try:
+        from _crashing_writer import wrench
+    finally:
+        sys.path.remove(str(HERE))
+    path = tmp_path / "crash.mcap"
+    options = [] if layout == "samples" else layout.split("+")
+    proc, writer_pid = _start_crashing_writer(path, *options)
+    assert (writer_pid is not None) == ("process" in options)
+    t_kill = _sigkill(proc, group=True)
 
     with pytest.raises(RecordingError, match="hapticlab recover") as info:
         read_recording(path)
@@ -462,7 +477,7 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     assert stats["topics"] == per_message
     block_topics = {"/sensor/wrench", "/aligned/sample", "/estimator/late"}
     assert set(rec.blocks) == (block_topics if layout != "samples" else set())
-    assert rec.format_version == {"samples": 3, "json-blocks": 2, "blocks": 3}[layout]  # the writer's default
+    assert rec.format_version == {"samples": 3, "json-blocks": 2, "blocks": 3, "blocks+process": 3}[layout]  # the writer's default
     assert stats["lost_tail_bytes"] >= 0
 
     # nothing older than 1.5 s before the kill is lost (flush interval 1 s)
@@ -490,6 +505,45 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     assert rec.meta("hapticlab.recovered", "messages") == stats["messages"]
     with open(fixed, "rb") as f:
         assert {c.compression for c in make_reader(f).get_summary().chunk_indexes} == {"zstd"}
+
+
+def test_writer_process_finishes_the_file_of_a_killed_session(tmp_path):
+    """SIGKILL of the recording process alone: its writer process sees the pipe close and finishes the file.
+
+    Everything handed over (every tick but the one in progress) is in a complete,
+    indexed file that reads without ``recover``; no summary (the session never closed it).
+    """
+    sys.path.insert(0, str(HERE))
+    try:
+        from _crashing_writer import wrench
+    finally:
+        sys.path.remove(str(HERE))
+    path = tmp_path / "killed.mcap"
+    proc, writer_pid = _start_crashing_writer(path, "blocks", "process")
+    t_kill = _sigkill(proc, group=False)
+    deadline = time.monotonic() + 30.0
+    while _alive(writer_pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(writer_pid), "the writer process outlived its session"
+
+    rec = read_recording(path)  # complete: no recover needed
+    assert rec.meta("hapticlab.session", "config") == {"preset": "crash-test"}
+    assert "hapticlab.summary" not in rec.metadata  # the session never closed it
+    seqs = rec.field("/sensor/wrench", "seq")
+    assert seqs.tolist() == list(range(len(seqs)))  # gap-free: whole blocks, in order
+    assert len(seqs) > 7 * 2500  # ~3 s of ticks at 1 kHz (the machine may lag a little)
+    last = int(rec.t_ns("/sensor/wrench")[-1])
+    assert t_kill - 100_000_000 <= last <= t_kill  # at most the tick in progress (and a slow one) lost
+    assert rec.field("/sensor/wrench", "force_S")[-1].tolist() == wrench(int(seqs[-1]))["force_S"]
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` still runs (a zombie awaiting its reaper counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
 
 
 @pytest.fixture

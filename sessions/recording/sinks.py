@@ -1,0 +1,298 @@
+"""Where a :class:`~.writer.Recorder`'s encoded messages go: an MCAP writer in this process, or in its own.
+
+:class:`McapSink` holds the ``mcap`` writer and the file: zstd chunks, the chunk
+in progress finished and flushed to the OS about once a second. ``mcap``'s
+writer is pure Python (~10 µs per message) and a finished chunk's compression
+costs 0.3–0.5 ms, which a 1 kHz loop cannot pay on its own thread (issue 12).
+
+:class:`ProcessSink` runs a :class:`McapSink` in a child process (this file run as a
+script: it imports ``mcap`` only) and hands it each loop tick's
+messages as one pickled batch of already encoded bytes over a pipe: ~2 µs per
+tick on the loop's side, and the other core does the writing. The loop keeps
+encoding (CDR, JSON) on its own side, so a bad message still raises where it
+was written. The child:
+
+- writes the same file a :class:`McapSink` would, and flushes about once a
+  second whether batches come or not (so a crash of both loses at most the
+  last second, and :func:`~.recover.recover` salvages the rest);
+- finishes the file (footer, summary, index) when the parent closes it, *and*
+  when the parent dies without closing (end of file on the pipe: SIGKILL,
+  a crash), so a killed session's recording is complete up to its last tick;
+- ignores SIGINT, SIGTERM and SIGHUP: Ctrl-C in a terminal reaches the whole
+  process group, and the parent ends the session (and the file) itself.
+
+A full pipe blocks the loop (back-pressure): nothing is ever dropped.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import select
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import IO, Protocol
+
+from mcap.writer import CompressionType, Writer
+
+_monotonic = time.monotonic
+_LENGTH = struct.Struct("<I")
+PIPE_BYTES = 1 << 20
+"""Pipe buffer asked for (Linux ``F_SETPIPE_SZ``): ~1 s of a 7 kHz session, so the loop rides out the child's pauses."""
+READY = b"ready\n"
+
+
+class Sink(Protocol):
+    """What a Recorder needs from where its bytes go (ids are chosen by the Recorder)."""
+
+    def add_metadata(self, name: str, values: dict[str, str]) -> None: ...
+    def register_schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None: ...
+    def register_channel(self, channel_id: int, topic: str, message_encoding: str, schema_id: int) -> None: ...
+    def add_message(self, channel_id: int, t_ns: int, data: bytes, seq: int) -> None: ...
+    def send(self) -> None: ...
+    def flush(self) -> None: ...
+    def finish(self) -> None: ...
+    def abort(self) -> None: ...
+
+
+class McapSink:
+    """An ``mcap`` writer on ``file``: zstd chunks, flushed to the OS every ``flush_interval_s`` (s)."""
+
+    def __init__(self, file: IO[bytes], library: str, flush_interval_s: float, chunk_size: int):
+        self._file = file
+        self._writer = Writer(file, chunk_size=int(chunk_size), compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library=library)
+        self._schemas: dict[int, int] = {}  # the Recorder's id -> the writer's
+        self._channels: dict[int, int] = {}
+        self.flush_interval_s = float(flush_interval_s)
+        self.next_flush = _monotonic() + self.flush_interval_s
+        self.messages = 0
+
+    def add_metadata(self, name: str, values: dict[str, str]) -> None:
+        self._writer.add_metadata(name, values)
+
+    def register_schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None:
+        self._schemas[schema_id] = self._writer.register_schema(name=name, encoding=encoding, data=data)
+
+    def register_channel(self, channel_id: int, topic: str, message_encoding: str, schema_id: int) -> None:
+        self._channels[channel_id] = self._writer.register_channel(
+            topic=topic, message_encoding=message_encoding, schema_id=self._schemas[schema_id])
+
+    def add_message(self, channel_id: int, t_ns: int, data: bytes, seq: int) -> None:
+        self._writer.add_message(self._channels[channel_id], t_ns, data, t_ns, seq)
+        self.messages += 1
+        now = _monotonic()
+        if now >= self.next_flush:
+            self.flush(now)
+
+    def send(self) -> None:
+        """Nothing to hand over: every message is in the writer already."""
+
+    def flush(self, now: float | None = None) -> None:
+        """Finish the chunk in progress and hand it to the OS."""
+        self._writer.flush()
+        self._file.flush()
+        self.next_flush = (_monotonic() if now is None else now) + self.flush_interval_s
+
+    def finish(self) -> None:
+        """Write the footer (summary, index) and close the file."""
+        try:
+            self._writer.finish()
+            self._file.flush()
+        finally:
+            self._file.close()
+
+    def abort(self) -> None:
+        """Close the file as it is (a failed start)."""
+        self._file.close()
+
+
+class WriterProcessError(RuntimeError):
+    """The recording's writer process failed or exited; the message says how."""
+
+
+class ProcessSink:
+    """A :class:`McapSink` in a child process, fed one pickled batch per :meth:`send`.
+
+    ``path`` must exist (the Recorder creates it, so an existing recording is
+    refused in the caller's process); the child truncates and writes it. The
+    constructor returns once the child is ready to write.
+    """
+
+    def __init__(self, path: Path, library: str, flush_interval_s: float, chunk_size: int):
+        self.path = path
+        self._ops: list[tuple] = []
+        self._proc = subprocess.Popen(
+            # this file run as a script: it needs mcap only, not hapticlab's packages (0.1 s to start, not 0.6)
+            [sys.executable, "-c", _RUN_THIS_FILE, __file__, os.fspath(path), library,
+             repr(float(flush_interval_s)), str(int(chunk_size))],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=_child_env(),
+            start_new_session=False,
+        )
+        self._pipe = self._proc.stdin.fileno()
+        try:
+            import fcntl
+
+            fcntl.fcntl(self._pipe, 1031, PIPE_BYTES)  # F_SETPIPE_SZ
+        except (ImportError, OSError):  # not Linux, or above /proc/sys/fs/pipe-max-size: the default 64 KiB
+            pass
+        line = self._proc.stdout.readline()
+        if line != READY:
+            self._proc.wait()
+            raise WriterProcessError(f"recording writer process for {path} did not start "
+                                     f"(exit status {self._proc.returncode}): {line.decode(errors='replace').strip()}")
+
+    @property
+    def pid(self) -> int:
+        """The writer process's pid."""
+        return self._proc.pid
+
+    def add_metadata(self, name: str, values: dict[str, str]) -> None:
+        self._ops.append(("metadata", name, values))
+
+    def register_schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None:
+        self._ops.append(("schema", schema_id, name, encoding, data))
+
+    def register_channel(self, channel_id: int, topic: str, message_encoding: str, schema_id: int) -> None:
+        self._ops.append(("channel", channel_id, topic, message_encoding, schema_id))
+
+    def add_message(self, channel_id: int, t_ns: int, data: bytes, seq: int) -> None:
+        self._ops.append((channel_id, t_ns, data, seq))
+
+    def send(self) -> None:
+        """Hand the messages written since the last send to the writer process (one pipe write)."""
+        if not self._ops:
+            return
+        batch = pickle.dumps(self._ops, protocol=pickle.HIGHEST_PROTOCOL)
+        self._ops = []
+        self._write(_LENGTH.pack(len(batch)) + batch)
+
+    def flush(self) -> None:
+        self._ops.append(("flush",))
+        self.send()
+
+    def finish(self) -> None:
+        """Send what is left, let the child finish the file, wait for it; raise if it failed."""
+        self._ops.append(("finish",))
+        try:
+            self.send()
+        finally:
+            self._proc.stdin.close()
+            reply = self._proc.stdout.read()
+            self._proc.stdout.close()
+            status = self._proc.wait()
+        if status != 0 or not reply.startswith(b"finished"):
+            raise WriterProcessError(f"recording writer process for {self.path} failed (exit status {status}): "
+                                     f"{reply.decode(errors='replace').strip() or 'no reply'}")
+
+    def abort(self) -> None:
+        """Stop the child without a footer (a failed start)."""
+        self._proc.kill()
+        self._proc.wait()
+        self._proc.stdin.close()
+        self._proc.stdout.close()
+
+    def _write(self, data: bytes) -> None:
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[os.write(self._pipe, view):]
+        except BrokenPipeError:
+            status = self._proc.wait()
+            raise WriterProcessError(f"recording writer process for {self.path} exited (status {status}); "
+                                     f"the file holds what it had written") from None
+
+
+_RUN_THIS_FILE = "import runpy, sys; runpy.run_path(sys.argv[1], run_name='__main__')"
+
+
+def _child_env() -> dict[str, str]:
+    """The environment with this interpreter's import path, so the child imports the same hapticlab."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+    return env
+
+
+# ----------------------------------------------------------------------------- the child
+
+
+def serve(path: str, library: str, flush_interval_s: float, chunk_size: int,
+          source: IO[bytes], reply: IO[bytes]) -> None:
+    """Write batches read from ``source`` to ``path`` until ``finish`` or end of file; report on ``reply``."""
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):  # the parent ends the session; end of file ends us
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    file = open(path, "r+b")  # noqa: SIM115 - the sink's finish() closes it
+    file.truncate(0)
+    sink = McapSink(file, library, flush_interval_s, chunk_size)
+    reply.write(READY)
+    reply.flush()
+    fd = source.fileno()
+    reader = _Batches(fd)
+    finished = False
+    while not finished:
+        wait = max(0.0, sink.next_flush - _monotonic())
+        if not select.select([fd], [], [], wait)[0]:
+            sink.flush()  # a quiet parent: still at most a second in memory
+            continue
+        batches = reader.read()
+        if batches is None:  # the parent died without closing: finish what we have
+            break
+        for batch in batches:
+            for op in pickle.loads(batch):
+                kind = op[0]
+                if type(kind) is int:
+                    sink.add_message(*op)
+                elif kind == "metadata":
+                    sink.add_metadata(op[1], op[2])
+                elif kind == "schema":
+                    sink.register_schema(*op[1:])
+                elif kind == "channel":
+                    sink.register_channel(*op[1:])
+                elif kind == "flush":
+                    sink.flush()
+                elif kind == "finish":
+                    finished = True
+                else:
+                    raise ValueError(f"unknown operation {kind!r} from the recorder")
+    sink.finish()
+    reply.write(b"finished %d messages\n" % sink.messages)
+    reply.flush()
+
+
+class _Batches:
+    """Length-prefixed batches from a pipe, read as they come."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self.buffer = bytearray()
+
+    def read(self) -> list[bytes] | None:
+        """The complete batches now available (perhaps none); None at end of file."""
+        chunk = os.read(self.fd, 1 << 20)
+        if not chunk:
+            return None
+        self.buffer += chunk
+        out = []
+        while len(self.buffer) >= 4:
+            (n,) = _LENGTH.unpack_from(self.buffer)
+            if len(self.buffer) < 4 + n:
+                break
+            out.append(bytes(self.buffer[4:4 + n]))
+            del self.buffer[:4 + n]
+        return out
+
+
+def _main(argv: list[str]) -> int:
+    _this_file, path, library, flush_interval_s, chunk_size = argv
+    serve(path, library, float(flush_interval_s), int(chunk_size), sys.stdin.buffer, sys.stdout.buffer)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))
+

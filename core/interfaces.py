@@ -189,6 +189,18 @@ class Reidentifies(Protocol):
     def reidentify_bias(self, reason: str) -> None: ...
 
 
+@runtime_checkable
+class ReportsHealth(Protocol):
+    """A device that counts what went wrong on its link (lost, duplicate, out-of-order, stalled records, ...).
+
+    ``health_counters()`` returns the counts since ``open`` by name; the device
+    records them itself as events (EmitsEvents) when they change. Not for the
+    per-sample path: a call may ask the driver for a snapshot.
+    """
+
+    def health_counters(self) -> dict[str, int]: ...
+
+
 CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration,
-                HasRange, Reidentifies)
+                HasRange, Reidentifies, ReportsHealth)
 """Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

@@ -27,6 +27,7 @@ from .errors import UserError
 
 DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.sensors.sim",
+    "hapticlab.plugins.sensors.netft",
     "hapticlab.plugins.kinematics.sim",
     "hapticlab.plugins.estimators.rls",
     "hapticlab.plugins.estimators.batch",

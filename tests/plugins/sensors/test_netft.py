@@ -1,0 +1,342 @@
+"""The ``netft`` sensor and its emulator: pynetft reads the emulator, the plugin reads the simulated world through it.
+
+Every emulator serves on its own 127.0.0.x address with ports the kernel picks,
+and is fed by the demo preset's world (seed 7): the counts on the wire are the
+simulated physics, so each check compares against the world's reading at the
+sample's own internal time. Loops wait for a number of samples, never a time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import threading
+import time
+
+import numpy as np
+import pynetft
+import pytest
+
+from hapticlab.core.interfaces import EmitsEvents, HasCalibration, HasRange, ReportsHealth, SensorSource
+from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
+from hapticlab.plugins.sensors.netft import DeviceClock, NetFTSensor, describe_status, stream_status
+from hapticlab.plugins.sensors.netft_emulator import RECORD, NetFTEmulator, RdtFault, add_arguments, run
+from hapticlab.plugins.simworld.physics import SimWorld
+from hapticlab.sessions.config import load_config
+from hapticlab.sessions.recording import read_recording
+
+COUNTS = 1_000_000.0  # the emulator's counts per N and per N·m
+DEADLINE_S = 20.0  # a guard against hangs only: the loops end on sample counts
+
+
+def demo_world(faults: list[dict] | None = None) -> SimWorld:
+    table = dict(load_config("demo")[0]["world"])
+    if faults:
+        table["faults"] = faults
+    return SimWorld.from_config(table)
+
+
+def world_counts(emu: NetFTEmulator, world: SimWorld, ft_sequence: np.ndarray) -> np.ndarray:
+    """(N, 6) the counts the emulated sensor reads at those internal samples (before any bias)."""
+    t = np.array([emu.world_time(int(k)) for k in ft_sequence])
+    reading = world.wrench(t)
+    return emu.counts_of(reading["force_S"], reading["torque_S"])
+
+
+def read_samples(sensor: NetFTSensor, count: int) -> list:
+    samples, guard = [], time.monotonic() + DEADLINE_S
+    while len(samples) < count and time.monotonic() < guard:
+        samples += sensor.read(time.monotonic_ns())
+        time.sleep(0.002)
+    assert len(samples) >= count, f"only {len(samples)} samples"
+    return samples
+
+
+def until(condition) -> None:
+    guard = time.monotonic() + DEADLINE_S
+    while not condition():
+        assert time.monotonic() < guard, "the emulator never got there"
+        time.sleep(0.002)
+
+
+# ----------------------------------------------------------------------------- pynetft itself, on the emulator
+
+
+def test_pynetft_reads_the_emulators_calibration_samples_and_bias():
+    world = demo_world()
+    with NetFTEmulator(world, "127.0.0.131", 0, 0, counts_per_torque=1000.0, torque_unit="Nmm") as emu:
+        config = pynetft.Config(sensor_host="127.0.0.131", rdt_port=emu.rdt_port, http_port=emu.http_port)
+        with pynetft.Client(config, queue_size=10_000) as client:
+            samples = [s for s, _ in zip(client.samples(timeout=5.0), range(500))]
+            calibration = client.health().sensor_configuration
+            client.bias()
+            until(lambda: emu.counts.biases == 1)
+            bias_ft = emu.bias_ft_sequence
+            after = []
+            for s in client.samples(timeout=5.0):
+                if s.ft_sequence > bias_ft:
+                    after.append(s)
+                if len(after) == 200:
+                    break
+    assert calibration.product_name == "Net F/T emulator (hapticlab)"
+    assert calibration.calibration == pynetft.Calibration(COUNTS, 1000.0, pynetft.ForceUnit.NEWTON,
+                                                          pynetft.TorqueUnit.NEWTON_MILLIMETER)
+    raw = np.array([s.raw_wrench for s in samples])
+    ft = np.array([s.ft_sequence for s in samples])
+    assert (np.diff(ft) == 1).all()  # 7000 Hz: every internal sample
+    np.testing.assert_array_equal(raw, world_counts(emu, world, ft))
+    force_N = np.array([s.force for s in samples])  # pynetft's scaling, in the sensor's unit (N)
+    np.testing.assert_allclose(force_N, raw[:, :3] / COUNTS, rtol=1e-12)
+    assert abs(raw).max() > 1000  # a reading, not zeros
+    # the bias request: the reading at that moment is subtracted from every later record
+    np.testing.assert_array_equal(emu.bias_counts, world_counts(emu, world, np.array([bias_ft]))[0])
+    ft_after = np.array([s.ft_sequence for s in after])
+    np.testing.assert_array_equal(np.array([s.raw_wrench for s in after]),
+                                  world_counts(emu, world, ft_after) - emu.bias_counts)
+
+
+# ----------------------------------------------------------------------------- the plugin
+
+
+def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times():
+    world = demo_world()
+    start = 2**32 - 2000  # the counter wraps ~0.3 s into the stream
+    with NetFTEmulator(world, "127.0.0.132", 0, 0, ft_sequence_start=start) as emu:
+        sensor = NetFTSensor("127.0.0.132", emu.rdt_port, emu.http_port)
+        assert isinstance(sensor, SensorSource) and isinstance(sensor, HasCalibration)
+        assert isinstance(sensor, HasRange) and isinstance(sensor, EmitsEvents) and isinstance(sensor, ReportsHealth)
+        sensor.open(time.monotonic_ns())
+        samples = read_samples(sensor, 4000)
+        sensor.close()
+    seq = np.array([s.seq for s in samples])
+    assert seq[0] < 2**32 < seq[-1]  # unwrapped past the wrap
+    assert (np.diff(seq) >= 1).all()  # 7000 Hz: every internal sample, but for what the loopback lost ...
+    assert seq[-1] - seq[0] + 1 - len(seq) <= sensor.health_counters()["lost"]  # ... each one counted
+    force_S = np.array([s.force_S for s in samples])
+    torque_S = np.array([s.torque_S for s in samples])
+    t_world = np.array([emu.world_time(int(k) % 2**32) for k in seq])
+    truth = world.wrench(t_world)
+    assert np.abs(force_S - truth["force_S"]).max() <= 0.5 / COUNTS + 1e-12  # within one count's rounding
+    assert np.abs(torque_S - truth["torque_S"]).max() <= 0.5 / COUNTS + 1e-12
+    assert np.abs(force_S - truth["force_S"]).max() > 0  # counts, not the floats themselves
+    # times: the device's sample times on the session clock; never before the emulator sampled them
+    t_ns = np.array([s.t_ns for s in samples])
+    true_ns = emu.t0_ns + np.rint(t_world * 1e9).astype(np.int64)
+    assert (np.diff(t_ns) > 0).all()
+    assert (t_ns >= true_ns).all()
+    assert np.median(t_ns - true_ns) < 0.1e9  # the mapping's scale is right (seconds off would be a bug)
+    assert all(s.status == STATUS_OK for s in samples)
+    calibration = sensor.calibration
+    assert calibration["counts_per_force"] == "1e+06" and calibration["torque_unit"] == "N-m"
+    kinds = [e.kind for e in sensor.drain_events()]
+    assert kinds[0] == "sensor_calibration" and kinds[-1] == "sensor_health"
+    assert "sensor_timeout" not in kinds
+
+
+def test_wire_faults_show_in_the_health_counters_and_events():
+    """At 1 kHz (ft_sequence steps by 7), so the loopback's own buffer never overflows: every loss is injected."""
+    faults = [RdtFault("drop", 0.3, 0.1, every=3), RdtFault("duplicate", 0.45, 0.1, every=4),
+              RdtFault("reorder", 0.6, 0.1, every=5), RdtFault("stall", 0.75, 0.1, every=6)]  # apart
+    with NetFTEmulator(demo_world(), "127.0.0.133", 0, 0, rdt_rate_hz=1000.0, faults=faults) as emu:
+        sensor = NetFTSensor("127.0.0.133", emu.rdt_port, emu.http_port, rate_hz=1000.0, health_interval=0.05)
+        sensor.open(time.monotonic_ns())
+        samples = read_samples(sensor, 10)
+        until(lambda: emu.world_time(emu.last_ft_sequence) > 0.9)  # every fault window has passed
+        samples += read_samples(sensor, 50)
+        sensor.close()
+    c = emu.counts
+    assert c.dropped > 10 and c.duplicated > 10 and c.reordered > 10 and c.stalled > 10
+    health = sensor.health_counters()
+    assert health["duplicate"] == c.duplicated, (health, c)
+    assert health["out_of_order"] == c.reordered, (health, c)  # the late record is refused ...
+    assert health["lost"] == c.dropped + c.reordered, (health, c)  # ... and was counted lost at its gap
+    assert health["ft_backward"] == c.reordered, (health, c)
+    assert health["stall"] == c.stalled + c.duplicated, (health, c)  # a duplicate repeats its ft_sequence too
+    assert health["reconnect"] == health["timeout"] == 0
+    seq = np.array([s.seq for s in samples])
+    assert (np.diff(seq) > 0).all()  # no duplicate, late or stalled record reaches the stream
+    assert (np.diff(seq) % 7 == 0).all()
+    missing = int((seq[-1] - seq[0]) // 7 + 1 - len(seq))
+    assert missing == c.dropped + c.reordered + c.stalled
+    health_events = [e for e in sensor.drain_events() if e.kind == "sensor_health"]
+    assert health_events[-1].data["lost"] == c.dropped + c.reordered
+    assert any("stall +" in e.message for e in health_events)
+
+
+def test_saturation_and_device_errors_reach_the_stream_as_status_bits_and_events():
+    faults = [RdtFault("saturate", 0.4, 0.02), RdtFault("status", 0.6, 0.02, status=0x8000_0008)]
+    world = demo_world()
+    with NetFTEmulator(world, "127.0.0.134", 0, 0, faults=faults) as emu:
+        sensor = NetFTSensor("127.0.0.134", emu.rdt_port, emu.http_port)
+        sensor.open(time.monotonic_ns())
+        read_samples(sensor, 10)
+        until(lambda: emu.world_time(emu.last_ft_sequence) > 0.8)
+        samples = read_samples(sensor, 1)
+        samples += read_samples(sensor, 300)
+        sensor.close()
+    status = np.array([s.status for s in samples])
+    saturated = [s for s in samples if s.status & STATUS_SATURATED]
+    assert saturated and (status & STATUS_DEVICE_ERROR).any()
+    for s in saturated:  # every axis at its limit, with the reading's sign
+        np.testing.assert_allclose(np.abs(s.force_S), world.sensor.saturation_force_S)
+        np.testing.assert_allclose(np.abs(s.torque_S), world.sensor.saturation_torque_S)
+    assert status[-1] == STATUS_OK  # and the stream goes on afterwards
+    events = sensor.drain_events()
+    kinds = [e.kind for e in events]
+    assert "sensor_saturated" in kinds and "sensor_error" in kinds and "sensor_status_ok" in kinds
+    error = next(e for e in events if e.kind == "sensor_error")
+    assert error.data["status_word"] == 0x8000_0008 and "power monitor" in error.message
+
+
+def test_datagrams_from_another_address_are_ignored():
+    world = demo_world()
+    with NetFTEmulator(world, "127.0.0.135", 0, 0) as emu:
+        sensor = NetFTSensor("127.0.0.135", emu.rdt_port, emu.http_port)
+        sensor.open(time.monotonic_ns())
+        read_samples(sensor, 10)
+        forger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        forger.bind(("127.0.0.136", 0))
+        try:
+            for i in range(200):  # plausible records, the next sequence numbers, absurd counts
+                forger.sendto(RECORD.pack(emu.rdt_sequence + 1 + i, emu.last_ft_sequence + 1 + i, 0, *[123_456_789] * 6),
+                              emu.client)
+        finally:
+            forger.close()
+        samples = read_samples(sensor, 500)
+        sensor.close()
+    force_S = np.array([s.force_S for s in samples])
+    assert np.abs(force_S).max() < 100.0  # not one forged 123 N reading
+    health = sensor.health_counters()
+    assert health["lost"] == health["out_of_order"] == health["duplicate"] == health["malformed"] == 0
+
+
+def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path):
+    """A whole session on the emulator; 2000 records into the stream the cable is pulled for 0.3 s."""
+    from hapticlab.sessions.live.build import build_session
+    from hapticlab.sessions.live.loop import run_session
+
+    config = load_config("demo")[0]
+    with NetFTEmulator(SimWorld.from_config(config["world"]), "127.0.0.137", 0, 0) as emu:
+        config["sensor"] = {"name": "netft", "address": "127.0.0.137", "rdt_port": emu.rdt_port,
+                            "http_port": emu.http_port, "receive_timeout": 0.05, "range_force": 65.0}
+        config["session"] = dict(config["session"], duration=2.0, stale_timeout=0.02)  # ms hiccups are no dropouts
+        session = build_session(config)
+        assert session.device_events and session.device_events[0][0] == "sensor"
+
+        def pull_the_cable():
+            until(lambda: emu.counts.sent >= 2000)
+            emu.mute()
+            time.sleep(0.3)
+            emu.mute(False)
+
+        cable = threading.Thread(target=pull_the_cable)
+        cable.start()
+        result = run_session(session, out=tmp_path / "netft.mcap")
+        cable.join()
+    muted_ns, unmuted_ns = emu.muted_ns
+    assert unmuted_ns < result.events[-1].t_ns  # the stream came back within the session
+    events = {e.kind: e for e in reversed(result.events)}  # the first of each kind
+    timeout = events["sensor_timeout"]
+    assert timeout.data["source"] == "sensor"
+    assert muted_ns < timeout.t_ns < unmuted_ns
+    # every haptic command from 20 ms (the stale timeout) + 5 ms after the cable was pulled until it is back:
+    # zero, "no sensor data"
+    commands = read_recording(tmp_path / "netft.mcap").topics["/haptic/command"]
+    during = [m for t, m in commands if muted_ns + 0.025e9 <= t <= unmuted_ns]
+    assert len(during) > 100
+    assert all(not m["enabled"] and m["reason"] == "no sensor data" and m["force_D"] == [0.0, 0.0, 0.0]
+               for m in during)
+    assert events["sensor_resumed"].t_ns > unmuted_ns
+    assert result.samples > 2000
+
+
+# ----------------------------------------------------------------------------- config, status, clock, CLI
+
+
+@pytest.mark.parametrize("options, key", [
+    ({"rdt_port": 70000}, "rdt_port"),
+    ({"address": " "}, "address"),
+    ({"receive_timeout": 0.0}, "receive_timeout"),
+    ({"rate_hz": 8000.0}, "rate_hz"),
+    ({"counts_per_force": 1e6}, "counts_per_torque"),
+    ({"counts_per_force": 1e6, "counts_per_torque": -1.0, "force_unit": "N", "torque_unit": "N-m"},
+     "counts_per_torque"),
+    ({"counts_per_force": 1e6, "counts_per_torque": 1e6, "force_unit": "stone", "torque_unit": "N-m"}, "force_unit"),
+    ({"recovery": "pray"}, "recovery"),
+    ({"range_force": [1.0, 2.0]}, "range_force"),
+    ({"rdt_port": "49152"}, "rdt_port"),
+    ({"bogus": 1}, "bogus"),
+])
+def test_a_bad_config_is_one_line_naming_the_key(options, key):
+    with pytest.raises(ConfigError) as err:
+        Registry().create("sensor", "netft", options, where="sensor")
+    message = str(err.value)
+    assert message.startswith(f"sensor.{key}:") and "\n" not in message
+
+
+def test_no_sensor_is_a_clear_error_at_open():
+    sensor = NetFTSensor("127.0.0.138", 9, 9, connect_timeout=0.3)  # nothing listens there
+    with pytest.raises(ConnectionError, match="no Net F/T record from 127.0.0.138:9"):
+        sensor.open(time.monotonic_ns())
+
+
+def test_the_calibration_override_replaces_the_sensors():
+    world = demo_world()
+    with NetFTEmulator(world, "127.0.0.139", 0, 0, counts_per_force=1000.0, counts_per_torque=1000.0,
+                       force_unit="N", torque_unit="Nm") as emu:
+        sensor = NetFTSensor("127.0.0.139", emu.rdt_port, emu.http_port, counts_per_force=2000.0,
+                             counts_per_torque=1.0, force_unit="N", torque_unit="N-mm")
+        sensor.open(time.monotonic_ns())
+        samples = read_samples(sensor, 200)
+        sensor.close()
+    seq = np.array([s.seq for s in samples])
+    truth = world.wrench(np.array([emu.world_time(int(k)) for k in seq]))
+    np.testing.assert_allclose([s.force_S for s in samples], truth["force_S"] / 2, atol=0.5 / 2000 + 1e-12)
+    np.testing.assert_allclose([s.torque_S for s in samples], truth["torque_S"], atol=0.5 / 1000 + 1e-12)
+    assert sensor.calibration["source"] == "override" and sensor.calibration["torque_unit"] == "N-mm"
+
+
+def test_the_status_word_maps_onto_the_streams_bits():
+    assert stream_status(0) == STATUS_OK
+    assert stream_status(0x8002_0000) == STATUS_SATURATED
+    assert stream_status(0x8001_0000) == STATUS_OK  # a latched threshold monitor: the reading is good
+    assert stream_status(0x8000_0000) == STATUS_DEVICE_ERROR
+    assert stream_status(0x8000_0004) == STATUS_DEVICE_ERROR
+    assert stream_status(0x8002_0004) == STATUS_SATURATED | STATUS_DEVICE_ERROR
+    assert describe_status(0x8002_0004) == "transducer saturation or A/D error, internal temperature error"
+    assert describe_status(0) == "healthy"
+
+
+def test_the_device_clock_follows_the_fastest_packets_and_a_drifting_crystal():
+    rng = np.random.default_rng(3)
+    k = np.arange(70_000)  # 10 s at 7 kHz
+    drift = 60e-6  # the device's crystal 60 ppm fast against the host's
+    true_ns = 5e9 + k * (1e9 / 7000) / (1 + drift)
+    latency_ns = 30_000 + rng.exponential(200_000, len(k))  # ≥ 30 µs, often much more
+    received = np.rint(true_ns + latency_ns).astype(np.int64)
+    clock = DeviceClock(7000.0, slew_ppm=200.0)
+    t = np.array([clock.stamp(int(i), int(r)) for i, r in zip(k, received)])
+    assert (np.diff(t) > 0).all() and (t <= received).all()
+    error_ns = t - true_ns
+    assert error_ns[7000:].min() >= 30_000 - 1  # never before the fastest packet allows
+    assert error_ns[7000:].max() < 60_000  # within 30 µs of the latency floor after the first second
+    assert np.percentile(latency_ns, 50) > 150_000  # stamping by receipt would be off by this much
+
+
+def test_a_wire_fault_parses_from_the_command_line():
+    assert RdtFault.parse("status,start=1,duration=0.5,status=0x80020000") == \
+        RdtFault("status", 1.0, 0.5, status=0x8002_0000)
+    assert RdtFault.parse("drop,every=3") == RdtFault("drop", every=3)
+    with pytest.raises(ValueError, match="unknown fault"):
+        RdtFault.parse("explode")
+
+
+def test_the_emulator_command_prints_its_address_and_ports_first(capsys):
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["--address", "127.0.0.140", "--rdt-port", "0", "--http-port", "0",
+                              "--duration", "0.2", "--fault", "drop,every=2"])
+    assert run(args) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.startswith("netft emulator on 127.0.0.140: RDT udp/") and "http/" in first

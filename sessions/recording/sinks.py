@@ -137,8 +137,8 @@ class ProcessSink:
         try:
             import fcntl
 
-            fcntl.fcntl(self._pipe, 1031, PIPE_BYTES)  # F_SETPIPE_SZ
-        except (ImportError, OSError):  # not Linux, or above /proc/sys/fs/pipe-max-size: the default 64 KiB
+            fcntl.fcntl(self._pipe, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+        except (ImportError, AttributeError, OSError):  # not Linux, or above pipe-max-size: the default 64 KiB
             pass
         line = self._proc.stdout.readline()
         if line != READY:

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import pynetft
@@ -150,14 +149,6 @@ class DeviceClock:
         return t_ns
 
 
-@dataclass(frozen=True, slots=True)
-class _Units:
-    """SI per sensor unit: N per force unit, N·m per torque unit."""
-
-    force: float
-    torque: float
-
-
 class NetFTSensor:
     """An ATI Net F/T sensor over RDT/UDP (SensorSource, EmitsEvents, HasCalibration, HasRange, ReportsHealth).
 
@@ -229,7 +220,7 @@ class NetFTSensor:
             self.calibration.update(_calibration_fields(self.override))
         self.clock = DeviceClock(ft_rate_hz, clock_slew_ppm)
         self._client: pynetft.Client | None = None
-        self._units: _Units | None = None
+        self._si_per_unit = np.ones(6)  # N per force unit (×3), N·m per torque unit (×3): set by open
         self._pending: list[WrenchSample] = []
         self._events: list[Event] = []
         self._raw_ft: int | None = None  # the last ft_sequence as sent (uint32)
@@ -268,7 +259,8 @@ class NetFTSensor:
                                   f"{self.connect_timeout:g} s ({health.last_error or health.state.value})")
         configuration = self._client.health().sensor_configuration
         calibration = configuration.calibration
-        self._units = _Units(FORCE_UNITS[calibration.force_unit.value], TORQUE_UNITS[calibration.torque_unit.value])
+        self._si_per_unit = np.repeat([FORCE_UNITS[calibration.force_unit.value],
+                                       TORQUE_UNITS[calibration.torque_unit.value]], 3)
         self.calibration.update({"product": configuration.product_name, **_calibration_fields(calibration)})
         self._events.append(Event(t0_ns, "sensor_calibration",
                                   f"Net F/T {self.address}: {calibration.counts_per_force_unit:g} counts/"
@@ -293,14 +285,17 @@ class NetFTSensor:
         """Every sample received and not yet returned whose time is <= ``until_ns``, in time order."""
         if self._client is None:
             raise RuntimeError("read() before open()")
+        batch: list[pynetft.Sample] = []
         try:
             for sample in self._client.samples(timeout=0.0):
-                self._pending.append(self._sample(sample))
+                batch.append(sample)
         except TimeoutError:  # nothing more queued
             pass
         except pynetft.SensorFaultError as exc:  # fail_stop: the stream is over
             raise ConnectionError(f"Net F/T {self.address} stopped: {exc.fault_code.value} "
                                   f"({exc.health.last_error})") from None
+        if batch:
+            self._convert(batch)
         self._watch(until_ns)
         if not self._pending or self._pending[0].t_ns > until_ns:
             return []
@@ -311,32 +306,30 @@ class NetFTSensor:
         out, self._pending = self._pending[:cut], self._pending[cut:]
         return out
 
-    def _sample(self, sample: pynetft.Sample) -> WrenchSample:
-        """One pynetft sample as a WrenchSample: SI units, device time, stream status."""
-        ft = sample.ft_sequence
-        if self._raw_ft is not None:
-            step = (ft - self._raw_ft) % 2**32
-            if step >= 2**31:  # pynetft delivers a backward ft_sequence only as a device restart
-                self.clock.reset()
-                self._events.append(Event(sample.received_at_ns, "sensor_restart",
-                                          f"Net F/T {self.address} restarted its sample counter "
-                                          f"({self._raw_ft} -> {ft}): time re-anchored"))
-                step = 1
-            self._k += step
-        else:
-            self._k = ft
-        self._raw_ft = ft
-        self._last_received_ns = sample.received_at_ns
-        if sample.status != self._word:
-            self._status_event(sample.received_at_ns, sample.status)
-        units = self._units
-        return WrenchSample(
-            t_ns=self.clock.stamp(self._k, sample.received_at_ns),
-            force_S=np.array(sample.force) * units.force,
-            torque_S=np.array(sample.torque) * units.torque,
-            seq=self._k,
-            status=stream_status(sample.status),
-        )
+    def _convert(self, batch: list[pynetft.Sample]) -> None:
+        """pynetft samples as WrenchSamples (SI units, device time, stream status), onto the pending list."""
+        wrench_S = np.array([sample.wrench for sample in batch]) * self._si_per_unit  # (n, 6) N and N·m
+        wrench_S.setflags(write=False)
+        for sample, row in zip(batch, wrench_S):
+            ft = sample.ft_sequence
+            if self._raw_ft is None:
+                self._k = ft
+            else:
+                step = (ft - self._raw_ft) % 2**32
+                if step >= 2**31:  # pynetft delivers a backward ft_sequence only as a device restart
+                    self.clock.reset()
+                    self._events.append(Event(sample.received_at_ns, "sensor_restart",
+                                              f"Net F/T {self.address} restarted its sample counter "
+                                              f"({self._raw_ft} -> {ft}): time re-anchored"))
+                    step = 1
+                self._k += step
+            self._raw_ft = ft
+            if sample.status != self._word:
+                self._status_event(sample.received_at_ns, sample.status)
+            self._pending.append(WrenchSample(t_ns=self.clock.stamp(self._k, sample.received_at_ns),
+                                              force_S=row[:3], torque_S=row[3:], seq=self._k,
+                                              status=stream_status(sample.status)))
+        self._last_received_ns = batch[-1].received_at_ns
 
     def _status_event(self, t_ns: int, word: int) -> None:
         previous, self._word = self._word, word

@@ -21,7 +21,7 @@ from hapticlab.core.interfaces import EmitsEvents, HasCalibration, HasRange, Rep
 from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
 from hapticlab.plugins.sensors.netft import DeviceClock, NetFTSensor, describe_status, stream_status
-from hapticlab.plugins.sensors.netft_emulator import RECORD, NetFTEmulator, RdtFault, add_arguments, run
+from hapticlab.plugins.sensors.netft_emulator import RECORD, REQUEST, NetFTEmulator, RdtFault, add_arguments, run
 from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.sessions.config import load_config
 from hapticlab.sessions.recording import read_recording
@@ -94,6 +94,28 @@ def test_pynetft_reads_the_emulators_calibration_samples_and_bias():
     ft_after = np.array([s.ft_sequence for s in after])
     np.testing.assert_array_equal(np.array([s.raw_wrench for s in after]),
                                   world_counts(emu, world, ft_after) - emu.bias_counts)
+
+
+def test_the_emulator_answers_a_counted_start_request_from_its_own_socket():
+    """RDT by hand: a start request for 5 records gets exactly 5, numbered 1..5, from the address asked."""
+    with NetFTEmulator(demo_world(), "127.0.0.130", 0, 0, rdt_rate_hz=1000.0) as emu:
+        client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        client.settimeout(5.0)
+        try:
+            client.sendto(REQUEST.pack(0x1234, 0x0002, 5), ("127.0.0.130", emu.rdt_port))
+            records = [client.recvfrom(64) for _ in range(5)]
+            client.settimeout(0.05)
+            with pytest.raises(socket.timeout):  # and no sixth
+                client.recvfrom(64)
+            client.sendto(b"\x12\x34\x00", ("127.0.0.130", emu.rdt_port))  # too short: ignored
+            until(lambda: emu.counts.ignored == 1)
+        finally:
+            client.close()
+    assert {sender for _, sender in records} == {("127.0.0.130", emu.rdt_port)}
+    fields = [RECORD.unpack(data) for data, _ in records]
+    assert [f[0] for f in fields] == [1, 2, 3, 4, 5]
+    assert all(b[1] - a[1] == 7 for a, b in zip(fields, fields[1:]))  # 1 kHz: every 7th internal sample
+    assert not emu.streaming
 
 
 # ----------------------------------------------------------------------------- the plugin

@@ -41,7 +41,7 @@ import numpy as np
 
 from ...core.aligner import Aligner
 from ...core.errors import OutputExistsError
-from ...core.interfaces import HasRange
+from ...core.interfaces import HasCalibration, HasRange
 from ...core.types import Event
 from ..config import check_duration
 from ..recording import Recorder
@@ -347,6 +347,8 @@ class LiveLoop:
 
     def _open(self) -> None:
         self._call("sensor", self.s.sensor.open, self.t0_ns)
+        if isinstance(self.s.sensor, HasCalibration):  # a real sensor knows its calibration once it is open
+            self.recorder.add_metadata("hapticlab.calibration", dict(self.s.sensor.calibration))
         self._call("kinematics", self.s.kinematics.open, self.t0_ns)
         self.s.haptic.open()
         self._event(Event(self.t0_ns, "session_start",
@@ -368,6 +370,11 @@ class LiveLoop:
                 device.close()
             except Exception as exc:
                 self._event(Event(end_ns, "error", f"{label} did not close: {type(exc).__name__}: {exc}"))
+        for label, device in self.s.device_events:  # what they said while closing (final health counters)
+            try:
+                self._events(device.drain_events(), label)
+            except Exception as exc:
+                self._event(Event(end_ns, "error", f"{label} events lost: {type(exc).__name__}: {exc}"))
         if failure is not None:
             self._event(Event(end_ns, "error", str(failure), {"part": failure.part}))
         primary = self.s.primary

@@ -295,3 +295,39 @@ def test_a_writer_process_that_dies_ends_the_session_with_the_force_zeroed(tmp_p
     assert not device.commands[-1].enabled and not device.commands[-1].force_D.any()
     assert len(device.commands) < 600  # it ended at the tick the writer was found dead, not at 2 s
     assert _writer_processes() == []
+
+
+class NetworkedSensor(SimSensor):
+    """A sensor that learns its calibration when opened and reports its final counters when closed."""
+
+    def __init__(self, rate_hz: float = 1000.0, world=None):
+        super().__init__(rate_hz, world=world)
+        self.calibration = {"source": "not read yet"}
+        self.pending = []
+
+    def open(self, t0_ns):
+        super().open(t0_ns)
+        self.calibration = {"source": "sensor", "counts_per_force": "1000000"}
+
+    def close(self):
+        self.pending.append(Event(0, "sensor_health", "final counters", {"lost": 3}))
+
+    def drain_events(self):
+        out, self.pending = self.pending, []
+        return out
+
+
+def test_the_calibration_read_at_open_and_the_events_of_closing_are_recorded(tmp_path):
+    class Networked:
+        @hookimpl
+        def register_sensors(self, register):
+            register("networked", NetworkedSensor)
+
+    pm = make_plugin_manager(load_entry_points=False)
+    pm.register(Networked(), name="tests")
+    result = run_session(build_session(demo("sensor.name=networked", duration=0.2), Registry(pm)),
+                         out=tmp_path / "net.mcap")
+    rec = read_recording(result.path)
+    assert rec.metadata["hapticlab.calibration"] == {"source": "sensor", "counts_per_force": "1000000"}
+    health = [m for _, m in rec.topics["/events"] if m["kind"] == "sensor_health"]
+    assert health == [{"kind": "sensor_health", "message": "final counters", "data": {"lost": 3, "source": "sensor"}}]

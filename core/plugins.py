@@ -29,6 +29,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.sensors.sim",
     "hapticlab.plugins.sensors.netft",
     "hapticlab.plugins.kinematics.sim",
+    "hapticlab.plugins.kinematics.ur_rtde",
     "hapticlab.plugins.estimators.rls",
     "hapticlab.plugins.estimators.batch",
     "hapticlab.plugins.estimators.kalman",

@@ -1,0 +1,265 @@
+"""The ``ur_rtde`` kinematics: a Universal Robots arm's flange pose over RTDE, through ur-rtde.
+
+The wire is ur-rtde's ``RTDEReceiveInterface`` (SDU Robotics' client: it
+negotiates RTDE protocol 2 on the controller's port 30004, sets up one output
+recipe and receives its data packages on its own thread). It asks for four
+outputs, in this order: ``actual_TCP_pose`` (position, m, and rotation vector,
+rad, of the TCP in the Base frame: with the TCP offset zero in the robot's
+installation it is the flange, E), ``actual_q`` and ``actual_qd`` (the joints,
+rad and rad/s: ``PoseSample.joints``/``joint_velocities``, CRTK
+``measured_js``) and ``timestamp`` (s since the controller started, in steps of
+its 2 ms (e-Series, 500 Hz) or 8 ms (CB3, 125 Hz) cycle).
+
+ur-rtde keeps only the latest package and its getters read one field each, so
+a thread here polls the timestamp a few times per period, and on a new one
+reads the pose, the joints and the timestamp again; the sample is kept only
+when both timestamps agree (a package that arrived in between is read on the
+next turn). A step of the controller's timestamp larger than one period counts
+the packages missed (``packages_missed``; an event at most once a second).
+
+**Clock**: a pose's time is its controller timestamp mapped onto the session's
+monotonic clock by the lower envelope of (receipt time − controller time)
+(``DeviceClock``, as for the Net F/T): spaced by the controller's own clock,
+never later than its receipt, following the controller's crystal within
+200 ppm. A timestamp that goes backwards (the controller restarted) re-anchors it.
+
+**Fail-safe**: when packages stop (the controller or the network gone) no new
+pose is returned, so the session's aligner marks the wrench samples' orientation
+stale after one kinematics period and the haptic force goes to zero; a
+``kinematics_timeout`` event says so after ``receive_timeout`` (and
+``kinematics_resumed`` if the packages come back on the same connection). A
+lost connection is not re-opened within the session: ur-rtde 1.6.5's
+``reconnect()`` after a failed attempt can leave the interface "connected" to
+a dead socket, and disconnecting or destroying it then aborts the process
+(``std::terminate`` on "write: Broken pipe"), which would lose the
+recording's end. Start a new session once the controller is back.
+
+Options (``[kinematics]`` table, ``name = "ur_rtde"``): ``host`` (the
+controller's IP address or name, required), ``rate_hz`` (the RTDE output
+frequency: at most 500 Hz on an e-Series, 125 Hz on a CB3), ``receive_timeout``
+(s).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from ...core import hookimpl
+from ...core.frames import quat_from_rotvec
+from ...core.plugins import ConfigError
+from ...core.types import Event, PoseSample
+from ..sensors.netft import DeviceClock
+
+VARIABLES = ["actual_TCP_pose", "actual_q", "actual_qd", "timestamp"]
+"""The outputs asked for; ``timestamp`` last, so a package's timestamp changes after its other fields."""
+MAX_RATE_HZ = 500.0
+"""The fastest RTDE output (e-Series); a CB3 controller streams at most 125 Hz."""
+CLOCK_TICKS_HZ = 1e6
+"""Controller timestamps are mapped to µs ticks for the clock mapping (every UR cycle is a whole number of them)."""
+FIRST_PACKAGE_TIMEOUT_S = 1.0
+"""``open`` waits this long for the first data package, s."""
+MISSED_EVENT_INTERVAL_NS = 1_000_000_000
+"""Missed packages are reported at most this often, ns."""
+_HOSTNAME = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$")
+
+
+class URRTDEKinematics:
+    """A UR arm's flange pose and joints over RTDE (KinematicsSource, EmitsEvents).
+
+    Parameters
+    ----------
+    host : the controller's IP address or host name (RTDE port 30004).
+    rate_hz : RTDE output frequency, Hz, within (0, 500]; a CB3 controller refuses more than 125.
+    receive_timeout : no package for this long is a ``kinematics_timeout`` event, s.
+    """
+
+    def __init__(self, host: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1):
+        if not host:
+            raise ConfigError("kinematics.host: missing; the UR controller's IP address or host name "
+                              "(e.g. host = \"192.168.1.10\")")
+        if not _valid_host(host):
+            raise ConfigError(f"kinematics.host: {host!r} is neither an IP address nor a host name")
+        if not 0 < rate_hz <= MAX_RATE_HZ:
+            raise ConfigError(f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz "
+                              f"(e-Series 500, CB3 125), got {rate_hz!r}")
+        if not 0 < receive_timeout <= 1.0:
+            raise ConfigError(f"kinematics.receive_timeout: must be > 0 and at most 1 s, got {receive_timeout!r}")
+        self.host = host
+        self.rate_hz = float(rate_hz)
+        self.receive_timeout_ns = int(receive_timeout * 1e9)
+        self.clock = DeviceClock(CLOCK_TICKS_HZ)
+        self.packages = 0
+        """Packages received (each one pose)."""
+        self.packages_missed = 0
+        """Packages the controller sent that were never read (gaps in its timestamps)."""
+        self._rtde = None
+        self._thread: threading.Thread | None = None
+        self._closing = threading.Event()
+        self._lock = threading.Lock()
+        self._pending: deque[PoseSample] = deque()
+        self._events: list[Event] = []
+        self._last_ticks: int | None = None
+        self._last_received_ns = 0
+        self._timed_out = False
+        self._missed_reported = 0
+        self._next_missed_event_ns = 0
+
+    # ------------------------------------------------------------------ KinematicsSource
+
+    def open(self, t0_ns: int) -> None:
+        """Connect (RTDE protocol 2, one output recipe at ``rate_hz``), start receiving, wait for the first package.
+
+        ur-rtde does not report a refused output recipe (a CB3 asked for more than
+        125 Hz answers recipe id 0 and sends nothing): no package within
+        ``FIRST_PACKAGE_TIMEOUT_S`` is a ConnectionError saying so.
+        """
+        self._rtde = self._connect()
+        self._last_received_ns = time.monotonic_ns()
+        self._closing.clear()
+        self._thread = threading.Thread(target=self._receive, name=f"ur_rtde {self.host}", daemon=True)
+        self._thread.start()
+        deadline = time.monotonic() + FIRST_PACKAGE_TIMEOUT_S
+        while self.packages == 0 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        if self.packages == 0:
+            self.close()
+            raise ConnectionError(f"UR controller {self.host}:30004 (RTDE at {self.rate_hz:g} Hz): connected, but no "
+                                  f"data package within {FIRST_PACKAGE_TIMEOUT_S:g} s; the controller refused the "
+                                  f"output recipe (a CB3 streams at most 125 Hz: set kinematics.rate_hz = 125) "
+                                  f"or is not running")
+
+    def read(self, until_ns: int) -> list[PoseSample]:
+        """Every pose received and not yet returned with time <= ``until_ns``, in time order."""
+        out: list[PoseSample] = []
+        with self._lock:
+            while self._pending and self._pending[0].t_ns <= until_ns:
+                out.append(self._pending.popleft())
+        return out
+
+    def close(self) -> None:
+        """Stop receiving and disconnect."""
+        self._closing.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        if self._rtde is not None:
+            try:
+                self._rtde.disconnect()
+            except RuntimeError:  # the controller has gone: nothing left to close
+                pass
+            self._rtde = None
+
+    def drain_events(self) -> list[Event]:
+        """The events since the last call: timeouts, returns, missed packages, controller restarts."""
+        with self._lock:
+            events, self._events = self._events, []
+        return events
+
+    # ------------------------------------------------------------------ the receive thread
+
+    def _connect(self):
+        import rtde_receive  # ur-rtde; imported here so listing the plugins does not load it
+
+        try:
+            return rtde_receive.RTDEReceiveInterface(self.host, self.rate_hz, VARIABLES)
+        except RuntimeError as exc:
+            raise ConnectionError(f"UR controller {self.host}:30004 (RTDE at {self.rate_hz:g} Hz): {exc}") from None
+
+    def _receive(self) -> None:
+        """Poll ur-rtde's latest package a few times per period; keep each new one once."""
+        poll_s = 0.25 / self.rate_hz
+        rtde = self._rtde
+        while not self._closing.is_set():
+            if not rtde.isConnected():  # the controller closed the connection: nothing more will come
+                self._watch()
+                self._closing.wait(0.01)
+                continue
+            try:
+                ticks = _ticks(rtde.getTimestamp())
+                if ticks == self._last_ticks:
+                    self._watch()
+                    time.sleep(poll_s)
+                    continue
+                pose = rtde.getActualTCPPose()
+                q = rtde.getActualQ()
+                qd = rtde.getActualQd()
+                if _ticks(rtde.getTimestamp()) != ticks:  # a newer package came in while reading: read that one
+                    continue
+            except RuntimeError:  # ur-rtde lost the connection under a getter
+                self._watch()
+                self._closing.wait(0.01)
+                continue
+            self._keep(ticks, time.monotonic_ns(), pose, q, qd)
+
+    def _keep(self, ticks: int, received_ns: int, pose: list[float], q: list[float], qd: list[float]) -> None:
+        events = []
+        if self._last_ticks is not None:
+            step = ticks - self._last_ticks
+            if step < 0:
+                self.clock.reset()
+                events.append(Event(received_ns, "kinematics_restart",
+                                    f"UR controller {self.host} timestamp went back "
+                                    f"({self._last_ticks / CLOCK_TICKS_HZ:.3f} -> {ticks / CLOCK_TICKS_HZ:.3f} s): "
+                                    f"controller restarted, time re-anchored"))
+            else:
+                self.packages_missed += max(0, round(step * self.rate_hz / CLOCK_TICKS_HZ) - 1)
+        self._last_ticks = ticks
+        self.packages += 1
+        pose_arr = np.asarray(pose, dtype=float)
+        sample = PoseSample(t_ns=self.clock.stamp(ticks, received_ns), quat_BE=quat_from_rotvec(pose_arr[3:]),
+                            p_BoEo_B=pose_arr[:3], joints=np.asarray(q, dtype=float),
+                            joint_velocities=np.asarray(qd, dtype=float))
+        if self._timed_out:
+            self._timed_out = False
+            events.append(Event(received_ns, "kinematics_resumed", f"UR controller {self.host} streams again"))
+        if self.packages_missed > self._missed_reported and received_ns >= self._next_missed_event_ns:
+            new = self.packages_missed - self._missed_reported
+            self._missed_reported = self.packages_missed
+            self._next_missed_event_ns = received_ns + MISSED_EVENT_INTERVAL_NS
+            events.append(Event(received_ns, "kinematics_missed",
+                                f"{new} RTDE package(s) from {self.host} missed "
+                                f"({self.packages_missed} of {self.packages + self.packages_missed} so far)",
+                                {"missed": new, "missed_total": self.packages_missed, "received": self.packages}))
+        self._last_received_ns = received_ns
+        with self._lock:
+            self._pending.append(sample)
+            self._events.extend(events)
+
+    def _watch(self) -> None:
+        """A ``kinematics_timeout`` event once the packages have stopped for ``receive_timeout``."""
+        now_ns = time.monotonic_ns()
+        silent_ns = now_ns - self._last_received_ns
+        if not self._timed_out and silent_ns > self.receive_timeout_ns:
+            self._timed_out = True
+            connected = self._rtde.isConnected()
+            with self._lock:
+                self._events.append(Event(now_ns, "kinematics_timeout",
+                                          f"no RTDE package from UR controller {self.host} for "
+                                          f"{silent_ns * 1e-6:.0f} ms ({'connected' if connected else 'connection lost'}): "
+                                          f"no fresh poses, haptic force held at zero",
+                                          {"silent_s": silent_ns * 1e-9, "connected": connected}))
+
+
+def _ticks(timestamp: float) -> int:
+    """A controller timestamp (s) as whole µs ticks."""
+    return int(round(timestamp * CLOCK_TICKS_HZ))
+
+
+def _valid_host(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+        return True
+    except ValueError:
+        return bool(_HOSTNAME.match(host)) and not host.replace(".", "").isdigit()
+
+
+@hookimpl
+def register_kinematics(register):
+    """Register the Universal Robots RTDE kinematics as ``ur_rtde``."""
+    register("ur_rtde", URRTDEKinematics)

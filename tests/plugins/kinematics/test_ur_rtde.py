@@ -1,0 +1,340 @@
+"""The ``ur_rtde`` kinematics and the RTDE emulator: ur-rtde's own client against the emulated controller.
+
+ur-rtde's constructors hold the GIL while they wait for the controller, so a
+ur-rtde client and the emulator cannot share a process: the emulator runs as
+``ur_emulator.run`` in a child process where this process uses ur-rtde (the
+receive interface, our plugin), and ur-rtde runs in a child process where the
+test reads the emulator's Python API (the input registers). ur-rtde always
+uses port 30004, so each test has its own 127.0.0.x.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+from hapticlab.core.aligner import Aligner
+from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix
+from hapticlab.core.interfaces import EmitsEvents, KinematicsSource
+from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.types import WrenchSample
+from hapticlab.plugins.kinematics.ur_arm import URArm
+from hapticlab.plugins.kinematics.ur_emulator import UREmulator
+from hapticlab.plugins.kinematics.ur_rtde import URRTDEKinematics
+from hapticlab.plugins.simworld import SimWorld
+
+SEED = 7
+EMULATOR = ("import argparse, sys\n"
+            "from hapticlab.plugins.kinematics import ur_emulator\n"
+            "parser = argparse.ArgumentParser()\n"
+            "ur_emulator.add_arguments(parser)\n"
+            "sys.exit(ur_emulator.run(parser.parse_args(sys.argv[1:])))\n")
+
+
+@contextmanager
+def emulator_process(address: str, *args: str):
+    """``hapticlab emulate ur`` in a child process: yields it once it has printed its address."""
+    process = subprocess.Popen([sys.executable, "-c", EMULATOR, "--address", address, "--seed", str(SEED), *args],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = process.stdout.readline()
+        assert f"on {address}:30004" in first, (first, process.stderr.read() if process.poll() is not None else "")
+        yield process
+    finally:
+        if process.poll() is None:
+            process.terminate()
+        process.wait(timeout=10)
+
+
+def wait_for(condition, timeout: float = 10.0, interval: float = 0.01):
+    """Poll until ``condition()`` is truthy (a deadline against hanging, not a timing assertion)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(interval)
+    raise AssertionError(f"condition not met within {timeout} s")
+
+
+def same_rotation(quat_a: np.ndarray, quat_b: np.ndarray) -> float:
+    """Largest element difference of the two rotation matrices."""
+    return float(np.abs(matrix_from_quat_wxyz(np.atleast_2d(quat_a)) - matrix_from_quat_wxyz(np.atleast_2d(quat_b))).max())
+
+
+def world_quat(world: SimWorld, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    R_BE, p_BoEo_B = world.pose(np.asarray(t, dtype=float))
+    return quat_wxyz_from_matrix(R_BE), p_BoEo_B
+
+
+def match_cycles(world: SimWorld, quat_BE: np.ndarray, cycle_s: float) -> np.ndarray:
+    """The controller cycle of each pose: the one where the world has exactly that orientation.
+
+    The first pose is searched over the first 20 s; each next one at the next
+    cycles (missed packages leave gaps).
+    """
+    grid = np.arange(int(20.0 / cycle_s))
+    R_BE, _ = world.pose(grid * cycle_s)
+    first = int(np.argmin(np.abs(R_BE - matrix_from_quat_wxyz(quat_BE[:1])).max(axis=(1, 2))))
+    cycles = [first]
+    for q in quat_BE[1:]:
+        ahead = cycles[-1] + np.arange(1, 50)
+        candidates, _ = world_quat(world, ahead * cycle_s)
+        errors = [same_rotation(c, q) for c in candidates]
+        cycles.append(int(ahead[int(np.argmin(errors))]))
+    return np.array(cycles)
+
+
+# ---------------------------------------------------------------------- ur-rtde's own client
+
+
+def test_ur_rtde_receive_interface_reads_the_simulated_arm():
+    """ur-rtde's unmodified RTDEReceiveInterface (default recipe and a chosen one) reads the world's pose."""
+    import rtde_receive
+
+    world, arm = SimWorld.from_config({"seed": SEED}), URArm("ur5e")
+    with emulator_process("127.0.0.71"):
+        chosen = rtde_receive.RTDEReceiveInterface("127.0.0.71", 500.0, ["timestamp", "actual_TCP_pose", "actual_q"])
+        every = rtde_receive.RTDEReceiveInterface("127.0.0.71")  # the default recipe: every output ur-rtde knows
+        try:
+            wait_for(lambda: chosen.getTimestamp() > 0.1 and every.getTimestamp() > 0.1)
+            assert every.getRobotMode() == 7 and every.getSafetyMode() == 1  # running, normal
+            for _ in range(5):
+                while True:  # one package's fields: the timestamp the same before and after
+                    t = chosen.getTimestamp()
+                    pose, q = chosen.getActualTCPPose(), chosen.getActualQ()
+                    if chosen.getTimestamp() == t:
+                        break
+                assert round(t * 500) == pytest.approx(t * 500, abs=1e-6)  # whole 2 ms cycles
+                quat, p_BoEo_B = world_quat(world, [t])
+                assert same_rotation(quat_from_rotvec(np.array(pose[3:])), quat) < 1e-12
+                np.testing.assert_allclose(pose[:3], p_BoEo_B[0], atol=1e-12)
+                R_BE, p = arm.forward(np.array(q))
+                assert np.abs(R_BE - matrix_from_quat_wxyz(quat)[0]).max() < 1e-9
+                np.testing.assert_allclose(p, p_BoEo_B[0], atol=1e-9)
+                time.sleep(0.05)
+        finally:
+            chosen.disconnect()
+            every.disconnect()
+
+
+# ---------------------------------------------------------------------- the plugin
+
+
+def collect(kinematics: URRTDEKinematics, count: int) -> list:
+    samples = []
+    wait_for(lambda: samples.extend(kinematics.read(time.monotonic_ns())) or len(samples) >= count)
+    return samples
+
+
+@pytest.mark.parametrize("address, model, rate_hz, cycle_s", [("127.0.0.72", "ur5e", 500.0, 0.002),
+                                                             ("127.0.0.73", "ur5", 125.0, 0.008)])
+def test_plugin_reads_the_simulated_poses_every_cycle_or_counts_the_missed(address, model, rate_hz, cycle_s):
+    """Poses equal the world's at consecutive controller cycles (gaps = packages_missed), joints FK to the pose."""
+    world, arm = SimWorld.from_config({"seed": SEED}), URArm(model)
+    with emulator_process(address, "--model", model):
+        kinematics = URRTDEKinematics(host=address, rate_hz=rate_hz)
+        assert isinstance(kinematics, KinematicsSource) and isinstance(kinematics, EmitsEvents)
+        kinematics.open(time.monotonic_ns())
+        try:
+            samples = collect(kinematics, 150)
+        finally:
+            kinematics.close()
+    quat_BE = np.array([s.quat_BE for s in samples])
+    cycles = match_cycles(world, quat_BE, cycle_s)
+    quats, p_BoEo_B = world_quat(world, cycles * cycle_s)
+    assert max(same_rotation(a, b) for a, b in zip(quat_BE, quats)) < 1e-9
+    np.testing.assert_allclose([s.p_BoEo_B for s in samples], p_BoEo_B, atol=1e-12)
+    gaps = np.diff(cycles) - 1
+    assert gaps.min() >= 0
+    assert gaps.sum() == kinematics.packages_missed  # every missed package counted, none invented
+    assert kinematics.packages_missed < len(samples) // 2
+    t_ns = np.array([s.t_ns for s in samples])
+    assert np.all(np.diff(t_ns) > 0)
+    steps = np.diff(t_ns)[gaps == 0]
+    assert np.median(steps) == pytest.approx(cycle_s * 1e9, rel=1e-3)  # the controller's clock, not arrival jitter
+    for s in samples[::10]:
+        R_BE, p = arm.forward(s.joints)
+        assert np.abs(R_BE - matrix_from_quat_wxyz(s.quat_BE[None])[0]).max() < 1e-9
+        np.testing.assert_allclose(p, s.p_BoEo_B, atol=1e-9)
+    # joint velocities: the emulator's difference of consecutive q over their time
+    a, b = samples[-2], samples[-1]
+    if cycles[-1] - cycles[-2] == 1:
+        np.testing.assert_allclose(b.joint_velocities, (b.joints - a.joints) / cycle_s, rtol=1e-6, atol=1e-9)
+
+
+def test_a_cb3_refuses_500_hz_and_the_plugin_says_so():
+    with emulator_process("127.0.0.74", "--model", "ur5"):
+        kinematics = URRTDEKinematics(host="127.0.0.74", rate_hz=500.0)
+        with pytest.raises(ConnectionError, match=r"UR controller 127\.0\.0\.74:30004 \(RTDE at 500 Hz\)"):
+            kinematics.open(time.monotonic_ns())
+
+
+def test_emulator_stopped_no_fresh_poses_the_orientation_goes_stale_and_an_event_says_so():
+    """The fail-safe: no pose after the controller is gone, so the aligner marks newer wrenches stale."""
+    with emulator_process("127.0.0.75") as emulator:
+        kinematics = URRTDEKinematics(host="127.0.0.75", rate_hz=500.0, receive_timeout=0.05)
+        kinematics.open(time.monotonic_ns())
+        samples = collect(kinematics, 20)
+        emulator.terminate()
+        emulator.wait(timeout=10)
+    try:
+        events = []
+        wait_for(lambda: events.extend(kinematics.drain_events()) or
+                 any(e.kind == "kinematics_timeout" for e in events))
+        samples += kinematics.read(time.monotonic_ns())
+        after_ns = time.monotonic_ns()
+        assert kinematics.read(after_ns + 10**9) == []  # nothing new, whatever the time
+    finally:
+        kinematics.close()
+    timeout = next(e for e in events if e.kind == "kinematics_timeout")
+    assert "no RTDE package from UR controller 127.0.0.75" in timeout.message
+    assert "haptic force held at zero" in timeout.message
+    aligner = Aligner(kinematics.rate_hz)
+    aligner.add_poses(samples)
+    last_ns = samples[-1].t_ns
+    wrenches = [WrenchSample(t, np.zeros(3), np.zeros(3)) for t in (last_ns, last_ns + 5_000_000, after_ns)]
+    block = aligner.align(wrenches)
+    assert block.stale.tolist() == [False, True, True]
+
+
+def test_connection_refused_names_the_controller():
+    kinematics = URRTDEKinematics(host="127.0.0.76")  # nothing listens there
+    with pytest.raises(ConnectionError, match=r"127\.0\.0\.76:30004"):
+        kinematics.open(time.monotonic_ns())
+
+
+@pytest.mark.parametrize("options, message", [
+    ({}, "kinematics.host: missing; the UR controller's IP address or host name"),
+    ({"host": "robot..lab"}, "kinematics.host: 'robot..lab' is neither an IP address nor a host name"),
+    ({"host": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be > 0 and at most 500 Hz"),
+    ({"host": "10.0.0.2", "receive_timeout": 0}, "kinematics.receive_timeout: must be > 0 and at most 1 s"),
+    ({"host": "10.0.0.2", "frequency": 500}, "kinematics.frequency: unknown option; known options: host, rate_hz"),
+    ({"host": 10}, "kinematics.host: expected a string, got 10"),
+])
+def test_bad_config_is_one_line_naming_the_key(options, message):
+    with pytest.raises(ConfigError) as info:
+        Registry().create("kinematics", "ur_rtde", options, where="kinematics")
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+# ---------------------------------------------------------------------- the emulator's protocol
+
+
+class RawClient:
+    """A bare RTDE protocol-2 client (to see what ur-rtde hides: recipe ids, types, NOT_FOUND)."""
+
+    def __init__(self, address: str, port: int):
+        self.sock = socket.create_connection((address, port), timeout=5.0)
+        self.buffer = b""
+
+    def send(self, kind: str, payload: bytes = b"") -> None:
+        self.sock.sendall(struct.pack(">HB", 3 + len(payload), ord(kind)) + payload)
+
+    def receive(self, kind: str) -> bytes:
+        """The payload of the next package of ``kind`` (skipping others, e.g. data and text messages)."""
+        while True:
+            while len(self.buffer) < 3 or len(self.buffer) < struct.unpack_from(">H", self.buffer)[0]:
+                chunk = self.sock.recv(65536)
+                assert chunk, "the emulator closed the connection"
+                self.buffer += chunk
+            size, got = struct.unpack_from(">HB", self.buffer)
+            payload, self.buffer = self.buffer[3:size], self.buffer[size:]
+            if got == ord(kind):
+                return payload
+
+    def request(self, kind: str, payload: bytes = b"") -> bytes:
+        self.send(kind, payload)
+        return self.receive(kind)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def emulator():
+    with UREmulator(SimWorld.from_config({"seed": SEED}), address="127.0.0.1", port=0) as emu:
+        yield emu
+
+
+def test_output_setup_types_not_found_and_trailing_comma(emulator):
+    client = RawClient(emulator.address, emulator.port)
+    try:
+        assert client.request("V", struct.pack(">H", 2)) == b"\x01"
+        assert struct.unpack(">IIII", client.request("v"))[0] == 5  # e-Series
+        reply = client.request("O", struct.pack(">d", 250.0) + b"timestamp,no_such_output,actual_q")
+        assert reply[0] == 0 and reply[1:] == b"DOUBLE,NOT_FOUND,VECTOR6D"  # setup failed, the culprit named
+        reply = client.request("O", struct.pack(">d", 250.0) + b"timestamp,actual_TCP_pose,")  # ur-rtde's trailing comma
+        assert reply[0] == 1 and reply[1:] == b"DOUBLE,VECTOR6D"
+        assert client.request("O", struct.pack(">d", 501.0) + b"timestamp")[0] == 0  # faster than the controller
+        assert client.request("S") == b"\x01"
+        stamps = []
+        for _ in range(3):
+            payload = client.receive("U")
+            assert payload[0] == 1
+            stamps.append(struct.unpack(">d6d", payload[1:])[0])
+        assert np.allclose(np.diff(stamps), 0.004)  # 250 Hz: every second 2 ms cycle
+        assert client.request("P") == b"\x01"
+    finally:
+        client.close()
+
+
+def test_input_registers_from_a_raw_client_are_kept_and_read_back(emulator):
+    client, other = RawClient(emulator.address, emulator.port), RawClient(emulator.address, emulator.port)
+    try:
+        client.request("V", struct.pack(">H", 2))
+        reply = client.request("I", b"input_double_register_5,input_int_register_30,input_bit_registers0_to_31")
+        assert reply == b"\x01DOUBLE,INT32,UINT32"
+        assert client.request("I", b"input_double_register_5,no_such_input")[1:] == b"DOUBLE,NOT_FOUND"
+        other.request("V", struct.pack(">H", 2))
+        assert other.request("I", b"input_double_register_5") == b"\x00IN_USE"  # another client writes it
+        client.send("U", bytes([1]) + struct.pack(">diI", -2.5, 42, 0b1011))
+        inputs = wait_for(lambda: emulator.inputs() or None)
+        assert inputs == {"input_double_register_5": -2.5, "input_int_register_30": 42,
+                          "input_bit_registers0_to_31": 0b1011}
+        reply = client.request("O", struct.pack(">d", 125.0) + b"input_double_register_5,input_int_register_30")
+        assert reply == b"\x01DOUBLE,INT32"
+        client.request("S")
+        payload = client.receive("U")
+        assert struct.unpack(">di", payload[1:]) == (-2.5, 42)
+    finally:
+        client.close()
+        other.close()
+
+
+IO_CLIENT = ("import sys, rtde_io\n"
+             "io = rtde_io.RTDEIOInterface(sys.argv[1])\n"
+             "ok = io.setInputDoubleRegister(18, 1.25) and io.setInputIntRegister(20, -7)\n"
+             "io.disconnect()\n"
+             "sys.exit(0 if ok else 1)\n")
+
+
+def test_input_registers_written_by_ur_rtde_io_interface_reach_the_emulator():
+    """ur-rtde's RTDEIOInterface needs only RTDE (no URScript port): its register setters land in the emulator."""
+    with UREmulator(SimWorld.from_config({"seed": SEED}), address="127.0.0.77") as emu:
+        result = subprocess.run([sys.executable, "-c", IO_CLIENT, "127.0.0.77"], capture_output=True, text=True,
+                                timeout=30)
+        assert result.returncode == 0, result.stderr
+        inputs = wait_for(lambda: (lambda i: i if "input_int_register_20" in i else None)(emu.inputs()))
+    assert inputs["input_double_register_18"] == 1.25
+    assert inputs["input_int_register_20"] == -7
+
+
+def test_emulator_refuses_a_model_that_cannot_reach_the_world():
+    world = SimWorld.from_config({"seed": SEED, "robot": {"position": [0.7, 0.0, 0.35]}})
+    UREmulator(world, model="ur5e")  # 0.85 m of reach
+    with pytest.raises(ValueError, match=r"model: a ur3e cannot reach the world's flange position \[0\.7, 0\.0, 0\.35\]"):
+        UREmulator(world, model="ur3e")  # 0.5 m
+
+
+def test_emulate_ur_runs_for_its_duration_and_exits_cleanly():
+    result = subprocess.run([sys.executable, "-c", EMULATOR, "--address", "127.0.0.78", "--model", "ur10e",
+                             "--duration", "0.2"], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines()[0] == "UR ur10e RTDE emulator on 127.0.0.78:30004 (controller 5.15.0.0, 500 Hz)"

@@ -48,6 +48,15 @@ class PoseSample:
         p_BoEo_B: (3,) position of E's origin from B's origin, in B, m; None if unknown.
         joints: (n,) joint positions, rad (CRTK ``measured_js`` position); None if unknown.
         joint_velocities: (n,) joint velocities, rad/s (``measured_js`` velocity); None if unknown.
+        w_BE_E: (3,) angular velocity of E in B, expressed in E, rad/s; None if the source does not
+            compute it (``urdf`` does, from the joint velocities).
+        alpha_BE_E: (3,) angular acceleration of E in B, expressed in E, rad/s²; None if unknown.
+        a_BEo_B: (3,) translational acceleration of E's origin in B, expressed in B, m/s² (gravity
+            not included); None if unknown.
+
+    The last three are what ``core.derivatives.MotionDerivatives`` estimates from the poses
+    (its ``w_E``, ``alpha_E``, ``a_B``), for a tool's inertial wrench; a source that knows them
+    from the joints fills them in. No estimator reads them yet: the aligner carries poses only.
     """
 
     t_ns: int
@@ -55,6 +64,9 @@ class PoseSample:
     p_BoEo_B: np.ndarray | None = None
     joints: np.ndarray | None = None
     joint_velocities: np.ndarray | None = None
+    w_BE_E: np.ndarray | None = None
+    alpha_BE_E: np.ndarray | None = None
+    a_BEo_B: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,14 +197,17 @@ class DeviceState:
     Attributes:
         t_ns: time of the report, ns.
         quat_DH: (4,) orientation [w, x, y, z] of the handle H in the device base D.
-        p_DoHo_D: (3,) handle position in D, m.
+        p_DoHo_D: (3,) handle position in D, m (CRTK ``measured_cp``).
         buttons: bit mask of pressed buttons.
+        v_DHo_D: (3,) translational velocity of the handle origin in D, expressed in D, m/s
+            (CRTK ``measured_cv``); None when the device does not report it.
     """
 
     t_ns: int
     quat_DH: np.ndarray
     p_DoHo_D: np.ndarray
     buttons: int = 0
+    v_DHo_D: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -261,6 +261,7 @@ class UREmulator:
         server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         server.bind((self.address, self.port))
         server.listen(8)
+        server.settimeout(0.1)  # the accept loop looks at the stop flag this often
         self.port = server.getsockname()[1]
         self._server = server
         self._stop.clear()
@@ -366,8 +367,11 @@ class UREmulator:
         while not self._stop.is_set():
             try:
                 sock, peer = self._server.accept()
+            except TimeoutError:
+                continue
             except OSError:
                 return
+            sock.setblocking(True)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             client = _Client(sock, f"{peer[0]}:{peer[1]}")
             with self._lock:

@@ -85,8 +85,8 @@ def match_cycles(world: SimWorld, quat_BE: np.ndarray, cycle_s: float) -> np.nda
     cycles = [first]
     for q in quat_BE[1:]:
         ahead = cycles[-1] + np.arange(1, 50)
-        candidates, _ = world_quat(world, ahead * cycle_s)
-        errors = [same_rotation(c, q) for c in candidates]
+        candidates, _ = world.pose(ahead * cycle_s)
+        errors = np.abs(candidates - matrix_from_quat_wxyz(q[None])).max(axis=(1, 2))
         cycles.append(int(ahead[int(np.argmin(errors))]))
     return np.array(cycles)
 

@@ -68,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.frames import rotvec_from_matrix
+from ...core.frames import quat_wxyz_from_matrix, rotvec_from_quat
 from ..simworld.physics import SimWorld
 from .ur_arm import UR_DH, URArm
 
@@ -321,7 +321,7 @@ class UREmulator:
         if t > self._q_t:
             self._qd = (q - self._q) / (t - self._q_t)
         self._q, self._q_t = q, t
-        pose = tuple(np.concatenate([p_BoEo_B, rotvec_from_matrix(R_BE)]).tolist())
+        pose = tuple(np.concatenate([p_BoEo_B, rotvec_from_quat(quat_wxyz_from_matrix(R_BE))]).tolist())
         q_t, qd_t = tuple(q.tolist()), tuple(self._qd.tolist())
         return {"timestamp": t, "actual_q": q_t, "actual_qd": qd_t, "target_q": q_t, "target_qd": qd_t,
                 "actual_TCP_pose": pose, "target_TCP_pose": pose, "robot_mode": ROBOT_MODE_RUNNING,

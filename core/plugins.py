@@ -35,6 +35,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.estimators.batch",
     "hapticlab.plugins.estimators.kalman",
     "hapticlab.plugins.haptics.null",
+    "hapticlab.plugins.haptics.serial",
     "hapticlab.plugins.simworld.context",
     "hapticlab.plugins.effects.mount_rotation",
     "hapticlab.plugins.effects.bias_drift",

@@ -197,14 +197,17 @@ class DeviceState:
     Attributes:
         t_ns: time of the report, ns.
         quat_DH: (4,) orientation [w, x, y, z] of the handle H in the device base D.
-        p_DoHo_D: (3,) handle position in D, m.
+        p_DoHo_D: (3,) handle position in D, m (CRTK ``measured_cp``).
         buttons: bit mask of pressed buttons.
+        v_DHo_D: (3,) translational velocity of the handle origin in D, expressed in D, m/s
+            (CRTK ``measured_cv``); None when the device does not report it.
     """
 
     t_ns: int
     quat_DH: np.ndarray
     p_DoHo_D: np.ndarray
     buttons: int = 0
+    v_DHo_D: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)

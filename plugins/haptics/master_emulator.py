@@ -1,0 +1,446 @@
+"""``hapticlab emulate master``: a serial haptic master on a pseudo-terminal, in either wire protocol.
+
+The emulator opens a pty pair (raw mode) and plays the device on its master
+side; the slave side (``/dev/pts/N``, printed first) is the port a session or
+a vendor client opens as if it were the device's USB serial port. The handle
+moves along a scripted path in the device frame D (a slow circle or
+figure-eight, or a hold) or a recorded one (a CSV of ``t, x, y, z``: s, m,
+played in a loop), and every force command is answered as the device would:
+
+* ``--protocol hapticlab``: our framed protocol (``framing.py``,
+  ``docs/serial-protocol.md``): HELLO → HELLO_ACK, FORCE/HEARTBEAT → STATE,
+  NAK for a bad CRC or a message out of place; the device clamps to its own
+  maximum and zeroes its force when no valid frame arrives within the
+  watchdog time the host asked for, as the reference firmware does.
+* ``--protocol inverse3``: Haply's Inverse3 (``inverse3.py``): wake-up 0x0A →
+  0x0B device info; force 0x2A → 0x2B end-effector state. Haply's own client,
+  ``HaplyHardwareAPI``, talks to it.
+
+Faults for tests and drills: corrupt the CRC of the next replies
+(``corrupt_replies``), garbage before the next reply (``garbage_before_reply``),
+stop answering and resume (``stop_answering``), unplug (``unplug``: the pty's
+master side closes; the slave path disappears and its reads fail with EIO).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import csv
+import math
+import os
+import select
+import signal
+import threading
+import time
+import tty
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from . import framing, inverse3
+
+PATHS = ("circle", "figure8", "hold")
+
+
+@dataclass
+class EmulatorCounts:
+    """What the emulated device has seen and done since it started."""
+
+    frames: int = 0
+    forces: int = 0
+    heartbeats: int = 0
+    hellos: int = 0
+    naks_sent: int = 0
+    crc_errors: int = 0
+    garbage_bytes: int = 0
+    watchdog_trips: int = 0
+    clamped: int = 0
+    replies_corrupted: int = 0
+    requests_ignored: int = 0
+    unknown_bytes: int = 0
+
+
+# --------------------------------------------------------------------------- the handle's motion
+
+
+HandleMotion = Callable[[float], tuple[np.ndarray, np.ndarray]]
+"""t (s since start) → (p_DoHo_D m, v_DHo_D m/s)."""
+
+
+def scripted_motion(kind: str = "circle", radius: float = 0.03, period: float = 8.0,
+                    center: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> HandleMotion:
+    """A handle moving in D's x-y plane about ``center`` (m): ``circle``, ``figure8`` (a lemniscate of
+    Gerono, ``radius`` wide each way) or ``hold`` (still at ``center``), one lap per ``period`` s."""
+    if kind not in PATHS:
+        raise ValueError(f"path: must be one of {', '.join(PATHS)} or a CSV file, got {kind!r}")
+    if not (radius >= 0 and period > 0):
+        raise ValueError(f"path: radius must be >= 0 m and period > 0 s, got {radius!r}, {period!r}")
+    c = np.asarray(center, dtype=float)
+    w = 2 * math.pi / period
+
+    def motion(t: float) -> tuple[np.ndarray, np.ndarray]:
+        a = w * t
+        if kind == "circle":
+            p = [radius * math.cos(a), radius * math.sin(a), 0.0]
+            v = [-radius * w * math.sin(a), radius * w * math.cos(a), 0.0]
+        elif kind == "figure8":
+            p = [radius * math.sin(a), radius * math.sin(a) * math.cos(a), 0.0]
+            v = [radius * w * math.cos(a), radius * w * math.cos(2 * a), 0.0]
+        else:
+            p, v = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        return c + np.array(p), np.array(v)
+
+    return motion
+
+
+def recorded_motion(path: str | Path) -> HandleMotion:
+    """A handle replaying a CSV with columns ``t, x, y, z`` (s, m; header row), interpolated, in a loop."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if not rows or not {"t", "x", "y", "z"} <= set(rows[0]):
+        raise ValueError(f"{path}: needs a header row with columns t, x, y, z and at least two rows")
+    try:
+        data = np.array([[float(r[k]) for k in ("t", "x", "y", "z")] for r in rows])
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    t = data[:, 0] - data[0, 0]
+    if len(t) < 2 or not np.all(np.diff(t) > 0) or not np.isfinite(data).all():
+        raise ValueError(f"{path}: needs at least two rows, finite values and increasing t")
+    span = t[-1]
+    velocity = np.diff(data[:, 1:], axis=0) / np.diff(t)[:, None]
+
+    def motion(now: float) -> tuple[np.ndarray, np.ndarray]:
+        s = now % span
+        p = np.array([np.interp(s, t, data[:, k]) for k in (1, 2, 3)])
+        return p, velocity[min(int(np.searchsorted(t, s, side="right")) - 1, len(velocity) - 1)].copy()
+
+    return motion
+
+
+# --------------------------------------------------------------------------- the device
+
+
+class MasterEmulator:
+    """A serial haptic master on a pty, in a thread of its own; a context manager (start/stop).
+
+    Args:
+        protocol: ``"hapticlab"`` or ``"inverse3"``.
+        motion: the handle's motion (``scripted_motion`` or ``recorded_motion``); default a slow circle.
+        max_force: the device's own force limit, N (reported in the hapticlab HELLO_ACK).
+        device_id: the device's id in its handshake answer.
+        max_rate_hz: the command rate the device reports it keeps up with, Hz.
+        buttons: t (s) → the bit mask of pressed buttons (default none).
+        keep: how many of the last forces received ``forces`` keeps.
+
+    Attributes:
+        port: the slave side's path (``/dev/pts/N``), the port to open.
+        forces: the last ``keep`` forces received, each the (3,) float32 on the wire, N.
+        applied_force_D: (3,) the force the device renders now (after its clamp and watchdog), N.
+        last_reply: (p_DoHo_D, v_DHo_D) as float32 in the last state sent.
+        counts: EmulatorCounts.
+    """
+
+    def __init__(self, protocol: str = "hapticlab", motion: HandleMotion | None = None, max_force: float = 8.0,
+                 device_id: int = 0x4C41, max_rate_hz: float = 4000.0,
+                 buttons: Callable[[float], int] | None = None, keep: int = 100_000):
+        if protocol not in ("hapticlab", "inverse3"):
+            raise ValueError(f"protocol: must be 'hapticlab' or 'inverse3', got {protocol!r}")
+        self.protocol = protocol
+        self.motion = motion or scripted_motion()
+        self.max_force, self.device_id, self.max_rate_hz = max_force, device_id, max_rate_hz
+        self.buttons = buttons or (lambda t: 0)
+        self.uuid = uuid.UUID(int=0x4861_7074_6963_6C61_6200_0000_0000_0000 | device_id)
+        self.counts = EmulatorCounts()
+        self.forces: collections.deque[np.ndarray] = collections.deque(maxlen=keep)
+        self.applied_force_D = np.zeros(3, np.float32)
+        self.last_reply: tuple[np.ndarray, np.ndarray] | None = None
+        self.port = ""
+        self._master_fd = self._slave_fd = -1
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._corrupt = 0
+        self._garbage = b""
+        self._silent = False
+        self._unplug = threading.Event()
+        self._unplugged = threading.Event()
+        self._decoder = framing.FrameDecoder()
+        self._seq = 0
+        self._hello = False
+        self._watchdog_s = 0.0
+        self._last_valid = time.monotonic()
+        self._status = 0
+        self._inverse3_buffer = bytearray()
+        self._t0 = time.monotonic()
+
+    # ------------------------------------------------------------------ life cycle
+
+    def start(self) -> "MasterEmulator":
+        """Open the pty pair (raw) and serve in a daemon thread; ``port`` then names the slave side."""
+        self._master_fd, self._slave_fd = os.openpty()
+        tty.setraw(self._slave_fd)  # no echo, no line editing, no CR/LF translation: bytes as sent
+        self.port = os.ttyname(self._slave_fd)
+        self._t0 = time.monotonic()
+        self._thread = threading.Thread(target=self._serve, name=f"master-emulator {self.port}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and close the pty."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+            self._thread = None
+        self._close_fds()
+
+    def __enter__(self) -> "MasterEmulator":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def _close_fds(self) -> None:
+        for fd in (self._master_fd, self._slave_fd):
+            if fd >= 0:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master_fd = self._slave_fd = -1
+
+    # ------------------------------------------------------------------ faults
+
+    def corrupt_replies(self, n: int) -> None:
+        """Flip a bit in the CRC of the next ``n`` replies (hapticlab) or their first byte (inverse3)."""
+        with self._lock:
+            self._corrupt += n
+
+    def garbage_before_reply(self, data: bytes) -> None:
+        """Write ``data`` just before the next reply (line noise, a boot banner)."""
+        with self._lock:
+            self._garbage += data
+
+    def stop_answering(self, silent: bool = True) -> None:
+        """Read and count requests without answering them (a hung firmware), or answer again."""
+        with self._lock:
+            self._silent = silent
+
+    def unplug(self) -> None:
+        """Close the pty's master side, as a pulled USB cable: the port's reads and writes then fail."""
+        self._unplug.set()
+        if self._thread is not None and self._thread.is_alive():
+            self._unplugged.wait(2.0)
+        else:
+            self._close_fds()
+
+    # ------------------------------------------------------------------ serving
+
+    def now(self) -> float:
+        """Seconds since the emulator started (the handle's path time)."""
+        return time.monotonic() - self._t0
+
+    def _serve(self) -> None:
+        fd = self._master_fd
+        while not self._stop.is_set():
+            if self._unplug.is_set():
+                self._close_fds()
+                self._unplugged.set()
+                return
+            ready, _, _ = select.select([fd], [], [], 0.01)
+            self._check_watchdog()
+            if not ready:
+                continue
+            try:
+                data = os.read(fd, 4096)
+            except OSError:  # EIO: no process has the slave open at the moment
+                time.sleep(0.005)
+                continue
+            if self.protocol == "hapticlab":
+                self._on_hapticlab(data)
+            else:
+                self._on_inverse3(data)
+
+    def _write(self, reply: bytes) -> None:
+        with self._lock:
+            garbage, self._garbage = self._garbage, b""
+            corrupt = self._corrupt > 0
+            if corrupt:
+                self._corrupt -= 1
+                self.counts.replies_corrupted += 1
+        if corrupt:
+            reply = reply[:-1] + bytes((reply[-1] ^ 0x01,)) if self.protocol == "hapticlab" \
+                else bytes((reply[0] ^ 0x80,)) + reply[1:]
+        try:
+            os.write(self._master_fd, garbage + reply)
+        except OSError:
+            pass
+
+    def _render(self, force: np.ndarray) -> np.ndarray:
+        """The force the device's motors produce: clamped to its maximum along its direction, N."""
+        norm = float(np.linalg.norm(force.astype(np.float64)))
+        if not math.isfinite(norm):
+            return np.zeros(3, np.float32)
+        if norm > self.max_force:
+            self.counts.clamped += 1
+            self._status |= framing.STATUS_CLAMPED
+            return (force * (self.max_force / norm)).astype(np.float32)
+        return force
+
+    def _state_now(self) -> tuple[np.ndarray, np.ndarray]:
+        p, v = self.motion(self.now())
+        p32, v32 = np.asarray(p, np.float32), np.asarray(v, np.float32)
+        self.last_reply = (p32, v32)
+        return p32, v32
+
+    # hapticlab ------------------------------------------------------------
+
+    def _check_watchdog(self) -> None:
+        if (self.protocol == "hapticlab" and self._hello and self._watchdog_s > 0
+                and time.monotonic() - self._last_valid > self._watchdog_s and self.applied_force_D.any()):
+            self.applied_force_D = np.zeros(3, np.float32)
+            self._status |= framing.STATUS_WATCHDOG
+            self.counts.watchdog_trips += 1
+
+    def _nak(self, seq: int, code: int) -> None:
+        self.counts.naks_sent += 1
+        self._write(self._frame(framing.NAK, framing.NAK_FORMAT.pack(seq, code)))
+
+    def _frame(self, kind: int, payload: bytes) -> bytes:
+        self._seq = (self._seq + 1) & 0xFF
+        return framing.encode_frame(kind, self._seq, payload)
+
+    def _on_hapticlab(self, data: bytes) -> None:
+        errors = self._decoder.crc_errors
+        frames = self._decoder.feed(data)
+        self.counts.garbage_bytes = self._decoder.garbage_bytes
+        for _ in range(self._decoder.crc_errors - errors):
+            self.counts.crc_errors += 1
+            self._nak(0, framing.NAK_CRC)
+        for frame in frames:
+            self.counts.frames += 1
+            if self._silent:
+                self.counts.requests_ignored += 1
+                continue
+            expected = framing.PAYLOAD_SIZES.get(frame.kind)
+            if expected is None or frame.kind >= 0x80:
+                self._nak(frame.seq, framing.NAK_UNKNOWN_TYPE)
+                continue
+            if len(frame.payload) != expected:
+                self._nak(frame.seq, framing.NAK_BAD_LENGTH)
+                continue
+            if frame.kind == framing.HELLO:
+                version, watchdog_ms = framing.HELLO_FORMAT.unpack(frame.payload)
+                if version != framing.PROTOCOL_VERSION:
+                    self._nak(frame.seq, framing.NAK_VERSION)
+                    continue
+                self.counts.hellos += 1
+                self._hello, self._watchdog_s = True, watchdog_ms / 1000.0
+                self._last_valid = time.monotonic()
+                self.applied_force_D = np.zeros(3, np.float32)
+                ack = framing.HelloAck(framing.PROTOCOL_VERSION, self.device_id, 1, self.max_force, self.max_rate_hz)
+                self._write(self._frame(framing.HELLO_ACK, ack.pack()))
+                continue
+            if not self._hello:
+                self._nak(frame.seq, framing.NAK_NOT_READY)
+                continue
+            self._last_valid = time.monotonic()
+            if frame.kind == framing.FORCE:
+                force = framing.unpack_force(frame.payload)
+                self.forces.append(force)
+                self.counts.forces += 1
+                self.applied_force_D = self._render(force)
+            else:
+                self.counts.heartbeats += 1
+            p, v = self._state_now()
+            status, self._status = self._status, 0  # each status bit is reported once, in the next state
+            state = framing.State(frame.seq, p, v, self.buttons(self.now()), status)
+            self._write(self._frame(framing.STATE, state.pack()))
+
+    # inverse3 -------------------------------------------------------------
+
+    def _on_inverse3(self, data: bytes) -> None:
+        buf = self._inverse3_buffer
+        buf += data
+        while buf:
+            code = buf[0]
+            if code == inverse3.WAKEUP:
+                del buf[:1]
+                if self._silent:
+                    self.counts.requests_ignored += 1
+                    continue
+                self.counts.hellos += 1
+                info = inverse3.DeviceInfo(self.device_id, 3, 1, 1, self.uuid)
+                self._write(info.pack())
+            elif code == inverse3.END_EFFECTOR_FORCE:
+                if len(buf) < inverse3.FORCE_REQUEST_SIZE:
+                    return
+                request = bytes(buf[:inverse3.FORCE_REQUEST_SIZE])
+                del buf[:inverse3.FORCE_REQUEST_SIZE]
+                self.counts.frames += 1
+                if self._silent:
+                    self.counts.requests_ignored += 1
+                    continue
+                force = inverse3.unpack_force_request(request)
+                self.forces.append(force)
+                self.counts.forces += 1
+                self.applied_force_D = self._render(force)
+                p, v = self._state_now()
+                self._write(inverse3.pack_state(p, v))
+            else:  # a command this emulator does not implement: skipped, counted
+                self.counts.unknown_bytes += 1
+                del buf[:1]
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``hapticlab emulate master``."""
+    parser.add_argument("--protocol", choices=("hapticlab", "inverse3"), default="hapticlab",
+                        help="wire protocol: ours (framed, CRC-16) or Haply's Inverse3 (default hapticlab)")
+    parser.add_argument("--path", default="circle", metavar="circle|figure8|hold|FILE.csv",
+                        help="the handle's motion in D: scripted, or a CSV of t,x,y,z (s, m) played in a loop")
+    parser.add_argument("--radius", type=float, default=0.03, help="scripted path size, m (default 0.03)")
+    parser.add_argument("--period", type=float, default=8.0, help="scripted path lap time, s (default 8)")
+    parser.add_argument("--center", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+                        help="scripted path centre in D, m")
+    parser.add_argument("--max-force", type=float, default=8.0, help="the device's force limit, N (default 8)")
+    parser.add_argument("--device-id", type=int, default=0x4C41, help="device id in the handshake answer")
+    parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Serve until Ctrl-C, SIGTERM or ``--duration``; the first line printed is the port to open."""
+    from ...core.plugins import ConfigError
+
+    try:
+        motion = (recorded_motion(args.path) if args.path not in PATHS
+                  else scripted_motion(args.path, args.radius, args.period, tuple(args.center)))
+        emulator = MasterEmulator(args.protocol, motion, args.max_force, args.device_id)
+    except ValueError as exc:
+        raise ConfigError(f"emulate master: {exc}") from None
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
+        if threading.current_thread() is threading.main_thread() else None
+    with emulator:
+        print(emulator.port, flush=True)
+        print(f"{args.protocol} master emulator on {emulator.port}: handle on {args.path}, max "
+              f"{args.max_force:g} N; e.g. hapticlab run --set haptic.name=serial --set haptic.port={emulator.port}"
+              f" --set haptic.protocol={args.protocol}", flush=True)
+        try:
+            stop.wait(args.duration)
+        except KeyboardInterrupt:
+            pass
+    if previous is not None:
+        signal.signal(signal.SIGTERM, previous)
+    c = emulator.counts
+    print(f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "
+          f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s)")
+    return 0

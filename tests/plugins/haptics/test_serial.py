@@ -1,0 +1,462 @@
+"""The ``serial`` haptic output over real pseudo-terminals, against the master emulator (hapticlab protocol).
+
+Every test opens a pty pair through ``MasterEmulator``; the plugin opens the
+slave side with pyserial as it would a USB serial port. Checks compare bytes
+(float32 as on the wire), counts and exceptions, never durations: loops that
+wait for the emulator end on a condition, with a deadline only as a guard.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import tty
+
+import numpy as np
+import pytest
+
+from hapticlab.core.interfaces import EmitsEvents, HapticOutput, ReportsHealth
+from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.types import HapticCommand
+from hapticlab.plugins.haptics import framing
+from hapticlab.plugins.haptics.master_emulator import MasterEmulator, recorded_motion, scripted_motion
+from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, SerialHaptic, clamp_force
+
+GUARD_S = 10.0  # a guard against hangs only
+
+
+def command(force, enabled=True, t_ns=0):
+    return HapticCommand(t_ns, np.asarray(force, dtype=float), enabled, "" if enabled else "test")
+
+
+@pytest.fixture
+def emulator():
+    with MasterEmulator("hapticlab", max_force=8.0) as em:
+        yield em
+
+
+@pytest.fixture
+def device(emulator):
+    dev = SerialHaptic(emulator.port, "hapticlab", device_max_force=5.0, read_timeout=0.2, reconnect_interval=0.05)
+    dev.open()
+    yield dev
+    dev.close()
+
+
+# --------------------------------------------------------------------------- the bytes
+
+
+def test_crc_is_ccitt_false_with_its_check_value():
+    assert framing.crc16_ccitt_false(b"123456789") == 0x29B1  # the catalogue's check value for CRC-16/CCITT-FALSE
+    assert framing.crc16_ccitt_false(b"") == 0xFFFF
+    frame = framing.encode_frame(framing.HEARTBEAT, 7)
+    assert frame == bytes([0xA5, 0x5A, 0x03, 0x07, 0x00]) + framing.crc16_ccitt_false(b"\x03\x07\x00").to_bytes(2, "little")
+
+
+def test_every_single_bit_flip_is_rejected_and_the_next_frame_still_found():
+    good = framing.encode_frame(framing.FORCE, 9, framing.pack_force(np.array([0.5, -1.0, 2.0])))
+    after = framing.encode_frame(framing.HEARTBEAT, 10)
+    for bit in range(16, 8 * len(good)):  # every bit after the sync pair
+        broken = bytearray(good)
+        broken[bit // 8] ^= 1 << (bit % 8)
+        decoder = framing.FrameDecoder()
+        frames = decoder.feed(bytes(broken) + after + b"\x00" * 80)  # padding completes a lengthened candidate
+        assert [(f.kind, f.seq) for f in frames] == [(framing.HEARTBEAT, 10)], bit
+        assert decoder.crc_errors + decoder.garbage_bytes > 0
+
+
+def test_the_decoder_resynchronises_after_garbage_in_any_chunking():
+    rng = np.random.default_rng(3)
+    frames = [framing.encode_frame(framing.STATE, k, framing.State(k, rng.normal(size=3), rng.normal(size=3), k, 0)
+                                   .pack()) for k in range(20)]
+    stream = bytearray()
+    for frame in frames:  # garbage between frames, sync bytes and fake headers included
+        stream += bytes(rng.integers(0, 256, rng.integers(0, 12)).astype(np.uint8)) + b"\xa5\x5a\x82\x05\x40"[
+            :rng.integers(0, 6)] + frame
+    decoder, decoded = framing.FrameDecoder(), []
+    cuts = sorted(rng.choice(len(stream), 60, replace=False))
+    for a, b in zip([0, *cuts], [*cuts, len(stream)]):
+        decoded += decoder.feed(bytes(stream[a:b]))
+    assert [f.seq for f in decoded] == list(range(20))
+    assert decoder.garbage_bytes > 0
+
+
+# --------------------------------------------------------------------------- round trip over a pty
+
+
+def test_the_plugin_is_a_haptic_output_with_events_and_health(device):
+    assert isinstance(device, HapticOutput) and isinstance(device, EmitsEvents) and isinstance(device, ReportsHealth)
+    assert "serial" in Registry(make_plugin_manager(load_entry_points=False)).names("haptic_output")
+
+
+def test_round_trip_forces_and_poses_are_bit_exact(emulator, device):
+    assert device.info.startswith("hapticlab protocol v1 device 19521") and device.max_force == 5.0
+    rng = np.random.default_rng(1)
+    for k in range(300):
+        force = rng.uniform(-2.5, 2.5, 3)
+        device.send(command(force, t_ns=k))
+        np.testing.assert_array_equal(emulator.forces[-1], force.astype(np.float32))  # the wire's float32
+        state = device.state()
+        p32, v32 = emulator.last_reply
+        assert state.t_ns == k
+        np.testing.assert_array_equal(state.p_DoHo_D, p32.astype(np.float64))
+        np.testing.assert_array_equal(state.v_DHo_D, v32.astype(np.float64))
+        np.testing.assert_array_equal(state.quat_DH, [1.0, 0.0, 0.0, 0.0])
+    assert len(emulator.forces) == 300 and emulator.counts.crc_errors == 0
+    assert device.health_counters()["crc_errors"] == 0 and device.health_counters()["written"] == 300
+    # the handle moved along the emulator's circle (radius 0.03 m about the origin, in the x-y plane)
+    assert abs(np.linalg.norm(device.state().p_DoHo_D[:2]) - 0.03) < 1e-6
+
+
+def test_crc_errors_are_rejected_counted_and_tolerated_up_to_the_limit(emulator, device):
+    device.send(command([0.1, 0.2, 0.3]))
+    before = device.state()
+    emulator.corrupt_replies(3)
+    for _ in range(3):
+        device.send(command([0.1, 0.2, 0.3]))  # a broken reply: no raise (3 <= 5 in a row)
+        assert device.state() is before  # nothing from a broken reply is believed
+    assert device.health_counters()["crc_errors"] == 3 and emulator.counts.replies_corrupted == 3
+    device.send(command([0.1, 0.2, 0.3]))
+    assert device.state() is not before and device.errors_in_row == 0
+    events = device.drain_events()
+    assert any(e.kind == "haptic_link" and e.data.get("crc_errors") == 3 for e in events)
+
+    emulator.corrupt_replies(100)
+    for _ in range(5):
+        device.send(command([0.1, 0.2, 0.3]))
+    with pytest.raises(MasterLostError, match="6 bad replies in a row") as info:
+        device.send(command([0.1, 0.2, 0.3]))
+    assert info.value.cause == "errors"
+    assert [e.kind for e in device.drain_events()].count("haptic_device_lost") == 1
+
+
+def test_garbage_before_a_reply_is_skipped(emulator, device):
+    emulator.garbage_before_reply(b"boot v1.0\r\n\xa5\x5a\x82\x1c" + bytes(range(40)))
+    device.send(command([0.0, 0.0, 1.0]))
+    np.testing.assert_array_equal(device.state().p_DoHo_D, emulator.last_reply[0].astype(np.float64))
+    assert device.health_counters()["garbage_bytes"] > 0 and device.errors_in_row == 0
+
+
+def test_the_device_naks_a_host_frame_with_a_bad_crc(emulator):
+    import serial
+
+    with serial.Serial(emulator.port, timeout=1.0) as port:
+        hello = bytearray(framing.encode_frame(framing.HELLO, 1, framing.pack_hello(0.1)))
+        hello[-1] ^= 0x40
+        port.write(bytes(hello))
+        frames = framing.FrameDecoder().feed(port.read(framing.HEADER_SIZE + framing.NAK_FORMAT.size + 2))
+        assert [(f.kind, f.payload[1]) for f in frames] == [(framing.NAK, framing.NAK_CRC)]
+        port.write(framing.encode_frame(framing.FORCE, 2, framing.pack_force(np.zeros(3))))  # before any HELLO
+        frames = framing.FrameDecoder().feed(port.read(framing.HEADER_SIZE + framing.NAK_FORMAT.size + 2))
+        assert [(f.kind, f.payload[0], f.payload[1]) for f in frames] == [(framing.NAK, 2, framing.NAK_NOT_READY)]
+    assert emulator.counts.crc_errors == 1 and not emulator.forces
+
+
+def test_the_device_watchdog_zeroes_the_force_when_the_host_goes_quiet(emulator):
+    dev = SerialHaptic(emulator.port, watchdog=0.05)
+    dev.open()
+    dev.send(command([1.0, 0.0, 0.0]))
+    assert emulator.applied_force_D.tolist() == [1.0, 0.0, 0.0]
+    deadline = time.monotonic() + GUARD_S
+    while emulator.applied_force_D.any() and time.monotonic() < deadline:
+        time.sleep(0.01)  # the host sends nothing: the device's watchdog has to act alone
+    assert not emulator.applied_force_D.any() and emulator.counts.watchdog_trips == 1
+    dev.send(command([0.0, 0.0, 0.0]))  # the next state says so, once
+    assert dev.status == framing.STATUS_WATCHDOG
+    assert [e.kind for e in dev.drain_events()] == ["haptic_device_status"]
+    dev.send(command([0.0, 0.0, 0.0]))
+    assert dev.status == 0
+    dev.close()
+
+
+# --------------------------------------------------------------------------- the force limit
+
+
+def test_no_force_on_the_wire_is_ever_above_the_limit_or_not_finite(emulator, device):
+    rng = np.random.default_rng(11)
+    magnitudes = 10.0 ** rng.uniform(-3, 300, 400)
+    forces = [rng.normal(size=3) * m for m in magnitudes]
+    forces += [np.array(v) for v in ([np.nan, 0, 0], [np.inf, 1, 1], [-np.inf, 0, 0], [1e308, -1e308, 1e308],
+                                     [np.nan] * 3, [5.0, 0, 0], [0, -5.0000001, 0], [3.4e38, 0, 0], [1e-45, 0, 0])]
+    for force in forces:
+        device.send(command(force))
+    device.send(command([4.0, 4.0, 4.0], enabled=False))
+    received = np.array(emulator.forces, dtype=np.float64)
+    assert len(received) == len(forces) + 1 and np.isfinite(received).all()
+    norms = np.linalg.norm(received, axis=1)
+    assert norms.max() <= 5.0
+    for force, got in zip(forces, received):
+        if not np.isfinite(force).all():
+            assert not got.any()  # NaN or inf: zero, never a guess
+            continue
+        scaled = force / np.abs(force).max()  # a direction without overflowing at 1e300 N
+        if np.abs(force).max() * np.linalg.norm(scaled) > 5.0:
+            assert np.linalg.norm(got) > 5.0 * (1 - 1e-5)  # clamped, not dropped
+            np.testing.assert_allclose(got / np.linalg.norm(got), scaled / np.linalg.norm(scaled), atol=1e-6)
+    assert not received[-1].any()  # a disabled command writes zero whatever its force says
+    assert emulator.counts.clamped == 0  # the device never had to clamp: the host did
+
+
+def test_the_devices_own_maximum_wins_when_lower():
+    with MasterEmulator(max_force=1.5) as em:
+        dev = SerialHaptic(em.port, device_max_force=3.0)
+        dev.open()
+        assert dev.max_force == 1.5
+        dev.send(command([0.0, 10.0, 0.0]))
+        assert 1.5 * (1 - 1e-5) < np.linalg.norm(em.forces[-1]) <= 1.5 and em.counts.clamped == 0
+        dev.close()
+
+
+def test_clamp_force_keeps_direction_without_overflow():
+    out = clamp_force(np.array([1e308, 1e308, 0.0]), 2.0)
+    assert out.dtype == np.float32 and np.linalg.norm(out.astype(float)) <= 2.0
+    np.testing.assert_allclose(out, [np.sqrt(2), np.sqrt(2), 0.0], rtol=1e-5)
+    assert not clamp_force(np.array([1.0, np.nan, 0.0]), 2.0).any()
+
+
+# --------------------------------------------------------------------------- losing the device
+
+
+def test_an_unplugged_device_raises_and_stays_lost(emulator, device):
+    device.send(command([0.5, 0.0, 0.0]))
+    emulator.unplug()
+    with pytest.raises(MasterLostError) as info:
+        device.send(command([0.5, 0.0, 0.0]))
+    assert info.value.cause == "gone" and emulator.port in str(info.value)
+    for _ in range(3):  # still lost: raised at once, or after a retry that finds the port gone
+        with pytest.raises(MasterLostError, match="lost"):
+            device.send(command([0.5, 0.0, 0.0]))
+        time.sleep(0.03)
+    events = device.drain_events()
+    assert [e.kind for e in events].count("haptic_device_lost") == 1
+    assert device.health_counters()["losses"] == 1
+
+
+def test_a_silent_device_is_lost_then_found_again(emulator, device):
+    device.send(command([0.5, 0.0, 0.0]))
+    emulator.stop_answering()
+    with pytest.raises(MasterLostError, match="no reply within 200 ms") as info:
+        device.send(command([0.5, 0.0, 0.0]))
+    assert info.value.cause == "silent"
+    emulator.stop_answering(False)
+    deadline, back = time.monotonic() + GUARD_S, False
+    while not back and time.monotonic() < deadline:
+        try:
+            device.send(command([0.5, 0.0, 0.0]))
+            back = True
+        except MasterLostError:
+            time.sleep(0.01)
+    assert back
+    assert not emulator.forces[-1].any()  # the first force after a loss is zero
+    kinds = [e.kind for e in device.drain_events()]
+    assert kinds.count("haptic_device_lost") == 1 and kinds.count("haptic_device_back") == 1
+    device.send(command([0.5, 0.0, 0.0]))
+    assert emulator.forces[-1].tolist() == [0.5, 0.0, 0.0]
+
+
+# --------------------------------------------------------------------------- open and config errors
+
+
+def test_open_errors_name_the_port_and_the_problem(tmp_path):
+    missing = str(tmp_path / "ttyACM9")
+    with pytest.raises(MasterOpenError, match=f"^haptic.port {missing}: cannot open: "):
+        SerialHaptic(missing).open()
+    with MasterEmulator("inverse3") as em:  # the wrong protocol: an Inverse3 ignores our HELLO
+        with pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: no reply to the hapticlab HELLO"):
+            SerialHaptic(em.port, open_timeout=0.3).open()
+    with MasterEmulator("hapticlab") as em:
+        with pytest.raises(MasterOpenError, match=r"no reply to the Inverse3 wake-up \(0x0A\)"):
+            SerialHaptic(em.port, "inverse3", open_timeout=0.3).open()
+    with pytest.raises(ConfigError, match="^haptic.port: the serial device is required"):
+        SerialHaptic()
+    with pytest.raises(ConfigError, match="^haptic.protocol: must be one of 'hapticlab', 'inverse3'"):
+        SerialHaptic("/dev/ttyACM0", "ours")
+
+
+def test_a_device_speaking_another_version_is_refused_by_name():
+    """A hand-made device on a bare pty answers HELLO with version 2."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+
+    def answer():
+        os.read(master, 64)  # the host's HELLO
+        os.write(master, framing.encode_frame(framing.HELLO_ACK, 1, framing.HelloAck(2, 1, 1, 8.0, 1e3).pack()))
+
+    try:
+        threading.Thread(target=answer, daemon=True).start()
+        with pytest.raises(MasterOpenError, match="speaks hapticlab protocol version 2, this host speaks 1$"):
+            SerialHaptic(os.ttyname(slave), open_timeout=2.0).open()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+# --------------------------------------------------------------------------- the emulator itself
+
+
+def test_scripted_and_recorded_paths(tmp_path):
+    p, v = scripted_motion("figure8", 0.02, 4.0, (0.0, 0.1, 0.2))(1.0)  # a quarter lap: the lobe's tip
+    np.testing.assert_allclose(p, [0.02, 0.1, 0.2], atol=1e-12)
+    np.testing.assert_allclose(v, [0.0, -0.02 * 2 * np.pi / 4.0, 0.0], atol=1e-12)
+    path = tmp_path / "hand.csv"
+    path.write_text("t,x,y,z\n0,0,0,0\n1,0.01,0,0\n2,0.01,0.02,0\n")
+    motion = recorded_motion(path)
+    p, v = motion(1.5)
+    np.testing.assert_allclose(p, [0.01, 0.01, 0.0])
+    np.testing.assert_allclose(v, [0.0, 0.02, 0.0])
+    np.testing.assert_allclose(motion(2.25)[0], [0.0025, 0.0, 0.0])  # in a loop
+    with MasterEmulator(motion=motion) as em:
+        dev = SerialHaptic(em.port)
+        dev.open()
+        dev.send(command([0.0, 0.0, 0.0]))
+        assert 0.0 <= dev.state().p_DoHo_D[0] <= 0.01 and 0.0 <= dev.state().p_DoHo_D[1] <= 0.02
+        dev.close()
+    (tmp_path / "bad.csv").write_text("t,x,y\n0,0,0\n")
+    with pytest.raises(ValueError, match="bad.csv: needs a header row with columns t, x, y, z"):
+        recorded_motion(tmp_path / "bad.csv")
+
+
+def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
+    code = ("import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+            "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))")
+    proc = subprocess.Popen([sys.executable, "-c", code, "--path", "figure8", "--max-force", "2.5"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        port = proc.stdout.readline().strip()
+        assert port.startswith("/dev/pts/")
+        assert proc.stdout.readline().startswith(f"hapticlab master emulator on {port}: handle on figure8")
+        dev = SerialHaptic(port, device_max_force=9.0)
+        dev.open()
+        assert dev.max_force == 2.5
+        dev.send(command([0.0, 1.0, 0.0]))
+        dev.close()
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=GUARD_S)
+        assert proc.returncode == 0
+        assert out.startswith("2 force command(s)")  # ours and the zero that close() writes
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+# --------------------------------------------------------------------------- a session with a serial master
+
+
+def test_a_session_whose_master_is_unplugged_records_a_zero_force_and_an_event(tmp_path):
+    """The demo, its haptics on the emulated master; the cable is pulled 2.6 s in (after the force came on)."""
+    from hapticlab.core import hookimpl
+    from hapticlab.plugins.sensors.sim import SimSensor
+    from hapticlab.sessions.config import apply_overrides, load_config
+    from hapticlab.sessions.live import build_session, run_session
+    from hapticlab.sessions.recording import read_recording
+
+    with MasterEmulator("hapticlab", max_force=8.0) as em:
+
+        class CablePuller(SimSensor):
+            def __init__(self, rate_hz: float = 1000.0, world=None):
+                super().__init__(rate_hz, world=world)
+                self.reads = 0
+
+            def read(self, until_ns):
+                self.reads += 1
+                if self.reads == 2600:
+                    em.unplug()
+                return super().read(until_ns)
+
+        class Plugins:
+            @hookimpl
+            def register_sensors(self, register):
+                register("cable_puller", CablePuller)
+
+        pm = make_plugin_manager(load_entry_points=False)
+        pm.register(Plugins(), name="tests")
+        config, _ = load_config("demo")
+        config = apply_overrides(config, ["session.realtime=false", "session.duration=3.0", "sensor.name=cable_puller",
+                                          "haptic.name=serial", f"haptic.port={em.port}", "haptic.device_max_force=6.0"])
+        result = run_session(build_session(config, Registry(pm)), out=tmp_path / "unplugged.mcap")
+        sent = list(em.forces)
+    assert result.error == ""  # a lost master does not end the session
+    rec = read_recording(result.path)
+    commands = rec.topics["/haptic/command"]
+    t_lost = next(e.t_ns for e in result.events if e.kind == "haptic_device_lost")
+    before = [m for t, m in commands if t < t_lost]
+    after = [m for t, m in commands if t >= t_lost]
+    on = [m for m in before if m["enabled"] and any(m["force_D"])]
+    assert on, "the force never came on before the cable was pulled"
+    # one force on the wire per tick until the loss, each the session's command to the float32
+    np.testing.assert_array_equal(np.array(sent), np.array([m["force_D"] for m in before], dtype=np.float32))
+    assert after and all(m["force_D"] == [0.0, 0.0, 0.0] and not m["enabled"] for m in after)
+    assert after[0]["reason"].startswith("device error: ") and em.port in after[0]["reason"]
+    lost = [m for _, m in rec.topics["/events"] if m["kind"] == "haptic_device_lost"]
+    assert len(lost) == 1 and lost[0]["data"]["source"] == "haptic"
+    assert any(m["kind"] == "haptic_disabled" and "device error" in m["message"] for _, m in rec.topics["/events"])
+    states = rec.topics["/haptic/state"]
+    assert states and max(t for t, _ in states) < t_lost  # no state is made up after the loss
+
+
+def test_the_specifications_examples_are_the_encoders_bytes():
+    from pathlib import Path
+
+    spec = (Path(__file__).resolve().parents[3] / "docs" / "serial-protocol.md").read_text()
+    heartbeat = framing.encode_frame(framing.HEARTBEAT, 7)
+    force = framing.encode_frame(framing.FORCE, 9, framing.pack_force(np.array([0.5, -1.0, 2.0])))
+    for frame in (heartbeat, force):
+        assert "    " + frame.hex(" ").upper() + "\n" in spec
+
+
+# --------------------------------------------------------------------------- pipelined: never waiting for the wire
+
+
+def wait_until(condition, what: str):
+    deadline = time.monotonic() + GUARD_S
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.002)
+
+
+def test_pipelined_sends_write_every_force_and_take_replies_as_they_come(emulator):
+    dev = SerialHaptic(emulator.port, wait_for_reply=False, read_timeout=1.0)
+    dev.open()
+    rng = np.random.default_rng(4)
+    sent = [rng.uniform(-1.5, 1.5, 3) for _ in range(200)]  # within the 3 N default limit
+    for k, force in enumerate(sent):
+        dev.send(command(force, t_ns=k))
+    wait_until(lambda: emulator.counts.forces == 200, "the emulator did not get 200 forces")
+    np.testing.assert_array_equal(np.array(emulator.forces), np.array(sent, dtype=np.float32))
+    wait_until(lambda: dev.port.waiting() >= 35, "no reply pending")
+    dev.send(command([0.0, 0.0, 0.0], t_ns=200))
+    state = dev.state()
+    assert state is not None and abs(np.linalg.norm(state.p_DoHo_D[:2]) - 0.03) < 1e-6  # on the emulator's circle
+    counters = dev.health_counters()
+    assert counters["crc_errors"] == counters["stale_replies"] == counters["bad_replies"] == 0
+    assert len(dev.pipeline.outstanding) <= 2  # every reply but the newest one or two has been matched
+    dev.close()
+
+
+def test_pipelined_crc_errors_are_counted_and_a_silent_device_is_lost_without_blocking(emulator):
+    dev = SerialHaptic(emulator.port, wait_for_reply=False, read_timeout=0.1)
+    dev.open()
+    emulator.corrupt_replies(2)
+    wait_until(lambda: dev.send(command([0.1, 0.0, 0.0])) or dev.health_counters()["crc_errors"] == 2,
+               "the broken replies were not counted")
+    assert dev.lost is None
+    emulator.stop_answering()
+    returned = 0
+    with pytest.raises(MasterLostError, match="no reply within 100 ms") as info:
+        deadline = time.monotonic() + GUARD_S
+        while time.monotonic() < deadline:
+            dev.send(command([0.1, 0.0, 0.0]))  # returns at once while the device is quiet ...
+            returned += 1
+            time.sleep(0.005)
+    assert info.value.cause == "silent" and returned >= 2  # ... until its oldest command has waited too long
+    dev.close()
+
+
+def test_pipelining_needs_our_protocol():
+    with pytest.raises(ConfigError, match="^haptic.wait_for_reply: false needs protocol = \"hapticlab\""):
+        SerialHaptic("/dev/ttyACM0", "inverse3", wait_for_reply=False)

@@ -18,7 +18,8 @@ played in a loop), and every force command is answered as the device would:
 
 Faults for tests and drills: corrupt the CRC of the next replies
 (``corrupt_replies``), garbage before the next reply (``garbage_before_reply``),
-stop answering and resume (``stop_answering``), unplug (``unplug``: the pty's
+stop answering and resume (``stop_answering``), restart (``restart``: the
+device forgets the handshake), unplug (``unplug``: the pty's
 master side closes; the slave path disappears and its reads fail with EIO).
 """
 
@@ -231,6 +232,12 @@ class MasterEmulator:
         """Read and count requests without answering them (a hung firmware), or answer again."""
         with self._lock:
             self._silent = silent
+
+    def restart(self) -> None:
+        """Forget the handshake and zero the force, as a board reset by a brown-out (hapticlab protocol)."""
+        with self._lock:
+            self._hello = False
+            self.applied_force_D = np.zeros(3, np.float32)
 
     def unplug(self) -> None:
         """Close the pty's master side, as a pulled USB cable: the port's reads and writes then fail."""

@@ -7,6 +7,9 @@ Inverse3's own serial protocol (``inverse3.py``).
 
 Each ``send`` is one request/reply exchange on the wire: the force goes out,
 the device answers with the handle's state, which ``state()`` then returns.
+With ``wait_for_reply = false`` (our protocol only) ``send`` writes the force
+and takes the replies that have already come (matched by sequence number),
+so the loop never waits on the wire; the state is then a tick or two old.
 What reaches the wire is never above the device's maximum force
 (``device_max_force``, and for our protocol also the maximum the device reports
 in its handshake) and never a NaN: a non-finite command is written as zero, a
@@ -19,8 +22,14 @@ row (CRC errors, NAKs, malformed or non-finite replies), or a device that
 reports a fault. While lost, ``send`` raises at once without touching the
 port, except once every ``reconnect_interval`` when it tries again (reopening
 the port if it has gone, redoing the handshake if the device restarted),
-writing zero force; so a dead device costs the loop one ``read_timeout`` per
-``reconnect_interval``, not one per tick.
+writing zero force and waiting for the answer; so a dead device costs the
+loop one ``read_timeout`` per ``reconnect_interval``, not one per tick. Losses
+and recoveries are events (``haptic_device_lost``, ``haptic_device_back``), so
+are changes of the link's counters (``haptic_link``) and of the device's status
+bits (``haptic_device_status``).
+
+CRTK names: ``servo_cf`` is ``send`` (servo in Cartesian force), ``measured_cp``
+is ``state`` (the handle's measured Cartesian pose, with its velocity).
 """
 
 from __future__ import annotations
@@ -221,6 +230,7 @@ class HapticlabLink:
 
     def exchange(self, force_D: np.ndarray) -> Reading | None:
         seq = self._next_seq()
+        self.outstanding.clear()  # a waited-for exchange supersedes what a pipeline had in flight
         self.port.write(framing.encode_frame(framing.FORCE, seq, framing.pack_force(force_D)))
         return self._await_state(seq)
 
@@ -466,7 +476,6 @@ class SerialHaptic:
         self.written = 0
         self.errors_in_row = 0
         self.lost: MasterLostError | None = None  # why the device is lost (None while it answers)
-        self.recovering = False
         self.status = 0  # the device's status bits in its last good reply
         self.next_try = 0.0
         self.losses = 0
@@ -499,13 +508,14 @@ class SerialHaptic:
         force_D = clamp_force(command.force_D, self.max_force) if command.enabled else ZERO3_F32
         if self.link is None:
             raise MasterLostError(f"{self.port_name}: not open", "gone")
-        if self.lost is not None:
+        retrying = self.lost is not None
+        if retrying:
             if time.monotonic() < self.next_try:
                 raise MasterLostError(f"{self.port_name}: lost ({self.lost.args[0]})", "lost")
-            self._retry(command.t_ns)
+            self._retry()
             force_D = ZERO3_F32  # the first force after a loss is zero; the governor ramps up from there
         try:
-            if self.pipeline is None:
+            if self.pipeline is None or retrying:  # a retry waits for its answer: is the device back?
                 outcomes = [self.link.exchange(force_D)]
             else:
                 self.pipeline.post(force_D)
@@ -517,6 +527,8 @@ class SerialHaptic:
         for reading in outcomes:
             self._take(reading, command.t_ns)
         self._report_counters(command.t_ns)
+        if self.lost is not None:  # a retry that got a bad reply: still lost
+            raise MasterLostError(f"{self.port_name}: lost ({self.lost.args[0]})", "lost")
 
     def _take(self, reading: Reading | None, t_ns: int) -> None:
         """One reply: a bad one counts towards the limit, a good one is the handle's new state."""
@@ -539,8 +551,8 @@ class SerialHaptic:
             said = [text for bit, text in STATUS_TEXT.items() if reading.status & bit]
             self._events.append(Event(t_ns, "haptic_device_status", "haptic device: " + "; ".join(said),
                                       {"status": reading.status}))
-        if self.recovering:
-            self.recovering = False
+        if self.lost is not None:
+            self.lost = None
             self._events.append(Event(t_ns, "haptic_device_back",
                                       f"haptic device answering again: {self.info}", {"port": self.port_name}))
 
@@ -588,12 +600,14 @@ class SerialHaptic:
             self._events.append(Event(t_ns, "haptic_device_lost", f"haptic device lost: {error}",
                                       {"port": self.port_name, "cause": error.cause}))
         self.lost = error
-        self.recovering = False
         self.errors_in_row = 0
         self.next_try = time.monotonic() + self.reconnect_interval
 
-    def _retry(self, t_ns: int) -> None:
-        """Try a lost device again: reopen the port if it went away, redo the handshake if the device restarted."""
+    def _retry(self) -> None:
+        """Ready a lost device for a try: reopen the port if it went away, redo the handshake if it restarted.
+
+        The device stays lost until a good reply to the try comes back.
+        """
         self.next_try = time.monotonic() + self.reconnect_interval
         try:
             if self.lost.cause == "gone":
@@ -605,8 +619,6 @@ class SerialHaptic:
         except (MasterOpenError, MasterLostError) as exc:
             raise MasterLostError(f"{self.port_name}: lost ({self.lost}); trying again failed: {exc}",
                                   "lost") from None
-        self.lost = None
-        self.recovering = True  # "back" once a good reply has come
 
     def _make_link(self, port: SerialPort) -> MasterLink:
         if self.protocol == "hapticlab":

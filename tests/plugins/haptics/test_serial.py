@@ -54,7 +54,8 @@ def test_crc_is_ccitt_false_with_its_check_value():
     assert framing.crc16_ccitt_false(b"123456789") == 0x29B1  # the catalogue's check value for CRC-16/CCITT-FALSE
     assert framing.crc16_ccitt_false(b"") == 0xFFFF
     frame = framing.encode_frame(framing.HEARTBEAT, 7)
-    assert frame == bytes([0xA5, 0x5A, 0x03, 0x07, 0x00]) + framing.crc16_ccitt_false(b"\x03\x07\x00").to_bytes(2, "little")
+    crc = framing.crc16_ccitt_false(b"\x03\x07\x00")
+    assert frame == bytes([0xA5, 0x5A, 0x03, 0x07, 0x00, crc & 0xFF, crc >> 8])
 
 
 def test_every_single_bit_flip_is_rejected_and_the_next_frame_still_found():
@@ -242,6 +243,12 @@ def test_a_silent_device_is_lost_then_found_again(emulator, device):
     with pytest.raises(MasterLostError, match="no reply within 200 ms") as info:
         device.send(command([0.5, 0.0, 0.0]))
     assert info.value.cause == "silent"
+    retries, deadline = 0, time.monotonic() + GUARD_S
+    while retries < 2 and time.monotonic() < deadline:  # tried again (and waited) twice while still silent
+        with pytest.raises(MasterLostError) as info:
+            device.send(command([0.5, 0.0, 0.0]))
+        retries += info.value.cause == "silent"  # the others raise at once: "lost", not tried
+    assert retries == 2
     emulator.stop_answering(False)
     deadline, back = time.monotonic() + GUARD_S, False
     while not back and time.monotonic() < deadline:
@@ -256,6 +263,26 @@ def test_a_silent_device_is_lost_then_found_again(emulator, device):
     assert kinds.count("haptic_device_lost") == 1 and kinds.count("haptic_device_back") == 1
     device.send(command([0.5, 0.0, 0.0]))
     assert emulator.forces[-1].tolist() == [0.5, 0.0, 0.0]
+
+
+def test_a_restarted_device_gets_a_new_handshake(emulator, device):
+    device.send(command([0.5, 0.0, 0.0]))
+    emulator.restart()
+    with pytest.raises(MasterLostError, match="forgot the handshake") as info:
+        device.send(command([0.5, 0.0, 0.0]))
+    assert info.value.cause == "restarted" and emulator.counts.naks_sent == 1
+    wait_until(lambda: not _raises(device, command([0.5, 0.0, 0.0])), "the device did not come back")
+    assert emulator.counts.hellos == 2 and not emulator.forces[-1].any()  # a new HELLO, then zero force first
+    kinds = [e.kind for e in device.drain_events()]
+    assert kinds.count("haptic_device_lost") == kinds.count("haptic_device_back") == 1
+
+
+def _raises(device, cmd) -> bool:
+    try:
+        device.send(cmd)
+        return False
+    except MasterLostError:
+        return True
 
 
 # --------------------------------------------------------------------------- open and config errors
@@ -376,8 +403,9 @@ def test_a_session_whose_master_is_unplugged_records_a_zero_force_and_an_event(t
         pm = make_plugin_manager(load_entry_points=False)
         pm.register(Plugins(), name="tests")
         config, _ = load_config("demo")
-        config = apply_overrides(config, ["session.realtime=false", "session.duration=3.0", "sensor.name=cable_puller",
-                                          "haptic.name=serial", f"haptic.port={em.port}", "haptic.device_max_force=6.0"])
+        config = apply_overrides(config, [
+            "session.realtime=false", "session.duration=3.0", "sensor.name=cable_puller",
+            "haptic.name=serial", f"haptic.port={em.port}", "haptic.device_max_force=6.0"])
         result = run_session(build_session(config, Registry(pm)), out=tmp_path / "unplugged.mcap")
         sent = list(em.forces)
     assert result.error == ""  # a lost master does not end the session

@@ -28,9 +28,15 @@ a pseudo-terminal: ``Inverse3.device_wakeup_dict()`` writes exactly ``0a``
 and waits for 22 bytes (a 6-byte answer without the UUID times out), and
 ``end_effector_force([1.5, -2.25, 3.0])`` writes
 ``2a 0000c03f 000010c0 00004040`` and reads 25 bytes.
-``tests/plugins/haptics/test_inverse3.py`` keeps that check. Units are the
-HardwareAPI's: position in m, velocity in m/s, force in N, in the device's own
-base frame (our D).
+``tests/plugins/haptics/test_inverse3.py`` keeps that check. Units, from
+Haply's "Developing with Inverse3" (docs.haply.co/docs/developing-with-inverse3,
+Cartesian control): force in N, position in m, velocity in m/s, in the
+device's right-handed frame with its origin on the mounting plate (our D).
+
+Haply's newer software talks to the device through its "Inverse Service"
+(WebSocket), which then owns the serial port: stop that service before
+opening the port here. (The plugin locks the port with ``flock``, so a
+second hapticlab is refused by name; a program that does not lock it is not.)
 """
 
 from __future__ import annotations

@@ -298,6 +298,12 @@ def test_open_errors_name_the_port_and_the_problem(tmp_path):
     with MasterEmulator("hapticlab") as em:
         with pytest.raises(MasterOpenError, match=r"no reply to the Inverse3 wake-up \(0x0A\)"):
             SerialHaptic(em.port, "inverse3", open_timeout=0.3).open()
+    with MasterEmulator("hapticlab") as em:  # a port another hapticlab holds
+        first = SerialHaptic(em.port)
+        first.open()
+        with pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: cannot open: Could not exclusively lock"):
+            SerialHaptic(em.port).open()
+        first.close()
     with pytest.raises(ConfigError, match="^haptic.port: the serial device is required"):
         SerialHaptic()
     with pytest.raises(ConfigError, match="^haptic.protocol: must be one of 'hapticlab', 'inverse3'"):

@@ -61,9 +61,7 @@ import socket
 import struct
 import threading
 import time
-import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -256,7 +254,9 @@ class UREmulator:
     # ------------------------------------------------------------------ life cycle
 
     def start(self) -> "UREmulator":
-        """Listen, and start the controller clock (``timestamp`` 0 is now)."""
+        """Listen, and start the controller clock (``timestamp`` 0 is now); a second call does nothing."""
+        if self._server is not None:
+            return self
         server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         server.bind((self.address, self.port))
@@ -277,6 +277,7 @@ class UREmulator:
         self._stop.set()
         if self._server is not None:
             self._server.close()
+            self._server = None
         with self._lock:
             clients, self._clients = self._clients, []
         for client in clients:
@@ -513,35 +514,45 @@ def _close(sock: socket.socket) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``hapticlab emulate ur``."""
     parser.add_argument("--address", default="127.0.0.1",
-                        help="IPv4 address to serve RTDE on, port 30004 (default 127.0.0.1)")
-    parser.add_argument("--model", default="ur5e", choices=sorted(UR_DH),
-                        help="UR model: its DH geometry, and ur3/ur5/ur10 are CB3 (125 Hz) (default ur5e)")
-    parser.add_argument("--world", type=Path, default=None,
-                        help="a session TOML whose [world] table drives the arm (default: the default world)")
-    parser.add_argument("--seed", type=int, default=None, help="the world's seed (overrides the file's)")
+                        help="loopback address to serve RTDE on, port 30004 (127.0.0.x; default 127.0.0.1)")
+    parser.add_argument("--model", default="ur5e", choices=list(UR_DH),
+                        help="UR model: its DH geometry; ur3/ur5/ur10 are CB3 (3.x controller, 125 Hz), "
+                             "the others e-Series (5.x, 500 Hz) (default ur5e)")
+    parser.add_argument("--session", default=None,
+                        help="preset name or TOML file whose [world] moves the arm (default: demo)")
+    parser.add_argument("--seed", type=int, default=None, help="the world's seed (overrides the session's)")
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
 def run(args: argparse.Namespace) -> int:
-    """Serve RTDE until Ctrl-C, SIGTERM or ``--duration``; prints the address first. Exit status 0."""
-    table: dict[str, Any] = {}
-    if args.world is not None:
-        with open(args.world, "rb") as f:
-            table = dict(tomllib.load(f).get("world", {}))
+    """Serve RTDE until Ctrl-C, SIGTERM or ``--duration``; the first line printed names the address. Exit status 0."""
+    from ...core.plugins import ConfigError
+    from ...sessions.config import load_config
+
+    config, _ = load_config(args.session)
+    table = dict(config.get("world") or {})
     if args.seed is not None:
         table["seed"] = args.seed
-    emulator = UREmulator(SimWorld.from_config(table), address=args.address, model=args.model)
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        with emulator:
-            print(f"UR {args.model} RTDE emulator on {emulator.address}:{emulator.port} "
-                  f"(controller {'.'.join(map(str, emulator.controller_version))}, {emulator.cycle_hz:g} Hz)",
-                  flush=True)
-            try:
-                stop.wait(args.duration)
-            except KeyboardInterrupt:
-                pass
-    finally:
+        emulator = UREmulator(SimWorld.from_config(table), address=args.address, model=args.model)
+        emulator.start()
+    except ValueError as exc:
+        raise ConfigError(f"emulate ur: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"emulate ur: cannot serve on {args.address}:{RTDE_PORT}: {exc.strerror or exc}") from None
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
+        if threading.current_thread() is threading.main_thread() else None
+    with emulator:
+        print(f"UR {args.model} RTDE emulator on {emulator.address}:{emulator.port} "
+              f"(controller {'.'.join(map(str, emulator.controller_version))}, {emulator.cycle_hz:g} Hz)", flush=True)
+        try:
+            stop.wait(args.duration)
+        except KeyboardInterrupt:
+            pass
+    if previous is not None:
         signal.signal(signal.SIGTERM, previous)
+    inputs = emulator.inputs()
+    print(f"sent {emulator.packages_sent} data packages; {len(inputs)} input field(s) written"
+          + (f": {', '.join(sorted(inputs))}" if inputs else ""), flush=True)
     return 0

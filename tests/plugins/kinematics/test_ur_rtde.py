@@ -28,8 +28,15 @@ from hapticlab.plugins.kinematics.ur_arm import URArm
 from hapticlab.plugins.kinematics.ur_emulator import UREmulator
 from hapticlab.plugins.kinematics.ur_rtde import URRTDEKinematics
 from hapticlab.plugins.simworld import SimWorld
+from hapticlab.sessions.config import load_config
 
 SEED = 7
+
+
+def demo_world() -> SimWorld:
+    """The world ``hapticlab emulate ur --seed 7`` moves the arm with: the demo preset's, seed 7."""
+    return SimWorld.from_config({**load_config("demo")[0]["world"], "seed": SEED})
+
 EMULATOR = ("import argparse, sys\n"
             "from hapticlab.plugins.kinematics import ur_emulator\n"
             "parser = argparse.ArgumentParser()\n"
@@ -98,7 +105,7 @@ def test_ur_rtde_receive_interface_reads_the_simulated_arm():
     """ur-rtde's unmodified RTDEReceiveInterface (default recipe and a chosen one) reads the world's pose."""
     import rtde_receive
 
-    world, arm = SimWorld.from_config({"seed": SEED}), URArm("ur5e")
+    world, arm = demo_world(), URArm("ur5e")
     with emulator_process("127.0.0.71"):
         chosen = rtde_receive.RTDEReceiveInterface("127.0.0.71", 500.0, ["timestamp", "actual_TCP_pose", "actual_q"])
         every = rtde_receive.RTDEReceiveInterface("127.0.0.71")  # the default recipe: every output ur-rtde knows
@@ -137,7 +144,7 @@ def collect(kinematics: URRTDEKinematics, count: int) -> list:
                                                              ("127.0.0.73", "ur5", 125.0, 0.008)])
 def test_plugin_reads_the_simulated_poses_every_cycle_or_counts_the_missed(address, model, rate_hz, cycle_s):
     """Poses equal the world's at consecutive controller cycles (gaps = packages_missed), joints FK to the pose."""
-    world, arm = SimWorld.from_config({"seed": SEED}), URArm(model)
+    world, arm = demo_world(), URArm(model)
     with emulator_process(address, "--model", model):
         kinematics = URRTDEKinematics(host=address, rate_hz=rate_hz)
         assert isinstance(kinematics, KinematicsSource) and isinstance(kinematics, EmitsEvents)
@@ -337,4 +344,19 @@ def test_emulate_ur_runs_for_its_duration_and_exits_cleanly():
     result = subprocess.run([sys.executable, "-c", EMULATOR, "--address", "127.0.0.78", "--model", "ur10e",
                              "--duration", "0.2"], capture_output=True, text=True, timeout=30)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.splitlines()[0] == "UR ur10e RTDE emulator on 127.0.0.78:30004 (controller 5.15.0.0, 500 Hz)"
+    lines = result.stdout.splitlines()
+    assert lines[0] == "UR ur10e RTDE emulator on 127.0.0.78:30004 (controller 5.15.0.0, 500 Hz)"
+    assert lines[-1] == "sent 0 data packages; 0 input field(s) written"
+
+
+def test_emulate_ur_bad_input_is_a_config_error_naming_it():
+    import argparse
+
+    from hapticlab.plugins.kinematics import ur_emulator
+
+    parser = argparse.ArgumentParser()
+    ur_emulator.add_arguments(parser)
+    with pytest.raises(ConfigError, match="no_such.toml: no such session file"):
+        ur_emulator.run(parser.parse_args(["--session", "no_such.toml"]))
+    with pytest.raises(ConfigError, match=r"emulate ur: cannot serve on 192\.0\.2\.1:30004"):
+        ur_emulator.run(parser.parse_args(["--address", "192.0.2.1"]))  # not an address of this machine

@@ -47,8 +47,12 @@ Run it as ``hapticlab emulate ur --address 127.0.0.x`` (:func:`add_arguments`,
 :func:`run`) or from Python::
 
     with UREmulator(world, address="127.0.0.31", model="ur5e") as emu:
-        ...  # ur-rtde: rtde_receive.RTDEReceiveInterface("127.0.0.31")
+        ...  # a client in another process: ur-rtde's RTDEReceiveInterface("127.0.0.31")
         emu.inputs()["input_double_register_18"]
+
+ur-rtde's constructors hold the GIL while they wait for the controller's
+answers, so a ur-rtde client in the emulator's own process waits forever: run
+the two in different processes (the emulator's threads need the GIL to answer).
 """
 
 from __future__ import annotations

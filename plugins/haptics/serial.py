@@ -142,6 +142,11 @@ class SerialPort:
             pass
 
 
+def _finite(state: framing.State) -> bool:
+    """Every number in a STATE is finite (a device's NaN is a bad reply, never a position)."""
+    return all(map(math.isfinite, state.p_DoHo_D)) and all(map(math.isfinite, state.v_DHo_D))
+
+
 def _why(exc: BaseException) -> str:
     return getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
 
@@ -271,7 +276,7 @@ class HapticlabLink:
                     del self.outstanding[seq]
                     if seq == state.ack_seq:
                         break
-                if np.isfinite(state.p_DoHo_D).all() and np.isfinite(state.v_DHo_D).all():
+                if _finite(state):
                     outcomes.append(Reading(state.p_DoHo_D, state.v_DHo_D, state.buttons, state.status))
                 else:
                     self.counters["bad_replies"] += 1
@@ -313,7 +318,7 @@ class HapticlabLink:
                         self.counters["stale_replies"] += 1
                         continue
                     self._sync_counters()
-                    if not (np.isfinite(state.p_DoHo_D).all() and np.isfinite(state.v_DHo_D).all()):
+                    if not _finite(state):
                         self.counters["bad_replies"] += 1
                         return None
                     return Reading(state.p_DoHo_D, state.v_DHo_D, state.buttons, state.status)
@@ -392,19 +397,20 @@ def clamp_force(force_D: np.ndarray, max_force: float) -> np.ndarray:
 
     A force with any non-finite component is zero (nothing but zero can be
     trusted of it); a finite one of any size, up to 1.8e308 N, is scaled down
-    along its direction without overflowing.
+    along its direction without overflowing (``math.hypot`` scales as it goes).
+    Plain floats, not numpy: this runs once a tick on three numbers.
     """
-    force = np.asarray(force_D, dtype=np.float64)
-    if force.shape != (3,) or not np.isfinite(force).all():
+    try:
+        x, y, z = (float(v) for v in force_D)
+    except (TypeError, ValueError):
         return ZERO3_F32.copy()
-    biggest = float(np.abs(force).max())
-    if biggest == 0.0:
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
         return ZERO3_F32.copy()
-    unit_scaled = force / biggest  # components in [-1, 1]: the norm cannot overflow
-    norm = biggest * float(np.linalg.norm(unit_scaled))
+    norm = math.hypot(x, y, z)
     if norm > max_force:
-        force = unit_scaled * (max_force * CLAMP_MARGIN / float(np.linalg.norm(unit_scaled)))
-    return force.astype(np.float32)
+        k = max_force * CLAMP_MARGIN / norm
+        x, y, z = x * k, y * k, z * k
+    return np.array((x, y, z), dtype=np.float32)
 
 
 class SerialHaptic:

@@ -158,7 +158,7 @@ def test_the_device_naks_a_host_frame_with_a_bad_crc(emulator):
 
 
 def test_the_device_watchdog_zeroes_the_force_when_the_host_goes_quiet(emulator):
-    dev = SerialHaptic(emulator.port, watchdog=0.05)
+    dev = SerialHaptic(emulator.port, watchdog=0.2)
     dev.open()
     dev.send(command([1.0, 0.0, 0.0]))
     assert emulator.applied_force_D.tolist() == [1.0, 0.0, 0.0]
@@ -460,15 +460,14 @@ def test_pipelined_sends_write_every_force_and_take_replies_as_they_come(emulato
     sent = [rng.uniform(-1.5, 1.5, 3) for _ in range(200)]  # within the 3 N default limit
     for k, force in enumerate(sent):
         dev.send(command(force, t_ns=k))
-    wait_until(lambda: emulator.counts.forces == 200, "the emulator did not get 200 forces")
-    np.testing.assert_array_equal(np.array(emulator.forces), np.array(sent, dtype=np.float32))
-    wait_until(lambda: dev.port.waiting() >= 35, "no reply pending")
-    dev.send(command([0.0, 0.0, 0.0], t_ns=200))
+    # zero forces until the replies have caught up: all but the newest command or two answered
+    wait_until(lambda: dev.send(command([0.0, 0.0, 0.0], t_ns=200)) or len(dev.pipeline.outstanding) <= 1,
+               "the replies never caught up")
+    np.testing.assert_array_equal(np.array(emulator.forces)[:200], np.array(sent, dtype=np.float32))
     state = dev.state()
     assert state is not None and abs(np.linalg.norm(state.p_DoHo_D[:2]) - 0.03) < 1e-6  # on the emulator's circle
     counters = dev.health_counters()
     assert counters["crc_errors"] == counters["stale_replies"] == counters["bad_replies"] == 0
-    assert len(dev.pipeline.outstanding) <= 2  # every reply but the newest one or two has been matched
     dev.close()
 
 

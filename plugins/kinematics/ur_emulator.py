@@ -33,10 +33,13 @@ recipes and ``U`` packages towards the controller.
 The robot: the controller's cycle is 2 ms (e-Series, 500 Hz) or 8 ms (CB3,
 125 Hz) and ``timestamp`` counts cycles in seconds since the emulator started.
 At a cycle where a package is due, the world's flange pose at that time gives
-``actual_TCP_pose`` (position and rotation vector, the TCP being the flange),
-``actual_q`` is its inverse kinematics on the continuous branch (the solution
-nearest the previous q, ``ur_arm.inverse_nearest``), ``actual_qd`` the
-difference of consecutive q over their time. ``target_q``/``target_qd``/
+the joints by inverse kinematics on the continuous branch (the solution
+nearest the previous q, ``ur_arm.inverse_nearest``); ``actual_q`` is that
+plus the encoders' jitter (``encoder_noise``, a function of the world's seed
+and the time), ``actual_TCP_pose`` (position and rotation vector, the TCP
+being the flange) the forward kinematics of ``actual_q`` (with no jitter: the
+world's pose itself), ``actual_qd`` the difference of consecutive
+``actual_q`` over their time. ``target_q``/``target_qd``/
 ``target_TCP_pose`` equal the actual values, ``robot_mode`` is 7 (running),
 ``safety_mode`` 1 (normal), ``runtime_state`` 1 (stopped: no program), input
 registers read back what clients wrote; every other known output is a
@@ -71,7 +74,8 @@ from typing import Any
 import numpy as np
 
 from ...core.frames import quat_wxyz_from_matrix, rotvec_from_quat
-from ..simworld.physics import SimWorld
+from ..simworld.physics import SimWorld, gaussian_noise
+from .sim import ENCODER_STREAM
 from .ur_arm import UR_DH, URArm
 
 RTDE_PORT = 30004
@@ -220,9 +224,14 @@ class UREmulator:
     model : a key of ``ur_arm.UR_DH``; ``ur3``/``ur5``/``ur10`` are CB3 (3.x controller, 125 Hz cycle),
         the others e-Series (5.x, 500 Hz).
     port : TCP port (30004 for ur-rtde; 0 picks a free one, for raw-protocol clients).
+    encoder_noise : standard deviation of each joint's reading around the true joint angle, rad. A real
+        arm's encoders jitter, so its reported pose is never bit-identical from one cycle to the next (the
+        session's frozen-pose watch relies on that); ``actual_TCP_pose`` is then the forward kinematics of
+        the jittered joints, as the controller computes it. 0: the world's exact pose.
     """
 
-    def __init__(self, world: SimWorld, address: str = "127.0.0.1", model: str = "ur5e", port: int = RTDE_PORT):
+    def __init__(self, world: SimWorld, address: str = "127.0.0.1", model: str = "ur5e", port: int = RTDE_PORT,
+                 encoder_noise: float = 1e-7):
         if model not in UR_DH:
             raise ValueError(f"model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
         self.world = world
@@ -238,7 +247,12 @@ class UREmulator:
             p = world.pose(0.0)[1][0]
             raise ValueError(f"model: a {model} cannot reach the world's flange position "
                              f"{np.round(p, 3).tolist()} m at t = 0; give the world's motion a p_BoEo_B within reach")
-        self._q, self._q_t = q0, 0.0
+        self._q, self._q_reported, self._q_t = q0, q0, 0.0
+        if not 0 <= encoder_noise <= 1e-3:
+            raise ValueError(f"encoder_noise: must be within [0, 1e-3] rad, got {encoder_noise!r}")
+        self.encoder_noise = float(encoder_noise)
+        self._noise_key = int(np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,))
+                              .generate_state(1, np.uint64)[0])
         self._qd = np.zeros(6)
         self._unreachable_reported = False
         self._inputs: dict[str, Any] = {}
@@ -323,9 +337,14 @@ class UREmulator:
                 self._unreachable_reported = True
                 self._broadcast(pack_text_message(f"flange pose {np.round(p_BoEo_B, 3).tolist()} m at t = {t:.3f} s "
                                                   f"is out of the {self.model}'s reach; joints held", level=WARNING))
+        self._q = q  # the continuous branch follows the true joints
+        if self.encoder_noise > 0:  # the encoders' reading, and the controller's FK of it
+            t_ns = np.array([round(t * 1e9)], dtype=np.int64)
+            q = q + self.encoder_noise * gaussian_noise(self._noise_key, t_ns, 6)[0]
+            R_BE, p_BoEo_B = self.arm.forward(q)
         if t > self._q_t:
-            self._qd = (q - self._q) / (t - self._q_t)
-        self._q, self._q_t = q, t
+            self._qd = (q - self._q_reported) / (t - self._q_t)
+        self._q_reported, self._q_t = q, t
         pose = tuple(np.concatenate([p_BoEo_B, rotvec_from_quat(quat_wxyz_from_matrix(R_BE))]).tolist())
         q_t, qd_t = tuple(q.tolist()), tuple(self._qd.tolist())
         return {"timestamp": t, "actual_q": q_t, "actual_qd": qd_t, "target_q": q_t, "target_qd": qd_t,
@@ -525,6 +544,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--session", default=None,
                         help="preset name or TOML file whose [world] moves the arm (default: demo)")
     parser.add_argument("--seed", type=int, default=None, help="the world's seed (overrides the session's)")
+    parser.add_argument("--encoder-noise", type=float, default=1e-7,
+                        help="std of each joint reading around the true angle, rad (0: the world's exact pose; "
+                             "default 1e-7)")
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
@@ -538,7 +560,8 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         table["seed"] = args.seed
     try:
-        emulator = UREmulator(SimWorld.from_config(table), address=args.address, model=args.model)
+        emulator = UREmulator(SimWorld.from_config(table), address=args.address, model=args.model,
+                              encoder_noise=args.encoder_noise)
         emulator.start()
     except ValueError as exc:
         raise ConfigError(f"emulate ur: {exc}") from None

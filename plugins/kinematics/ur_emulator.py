@@ -73,7 +73,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.frames import quat_wxyz_from_matrix, rotvec_from_quat
+from ...core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
 from ..simworld.physics import SimWorld, gaussian_noise
 from .sim import ENCODER_STREAM
 from .ur_arm import UR_DH, URArm
@@ -228,10 +228,13 @@ class UREmulator:
         arm's encoders jitter, so its reported pose is never bit-identical from one cycle to the next (the
         session's frozen-pose watch relies on that); ``actual_TCP_pose`` is then the forward kinematics of
         the jittered joints, as the controller computes it. 0: the world's exact pose.
+    tcp_offset : the TCP set in the robot's installation, as the controller takes it: (6,) position
+        p_EoTo_E (m) and rotation vector of R_ET (rad) of the TCP T in the flange E. ``actual_TCP_pose`` is
+        then T's pose, not the flange's (what a lab must avoid: hapticlab needs the flange).
     """
 
     def __init__(self, world: SimWorld, address: str = "127.0.0.1", model: str = "ur5e", port: int = RTDE_PORT,
-                 encoder_noise: float = 1e-7):
+                 encoder_noise: float = 1e-7, tcp_offset: tuple[float, ...] = (0.0,) * 6):
         if model not in UR_DH:
             raise ValueError(f"model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
         self.world = world
@@ -251,6 +254,10 @@ class UREmulator:
         if not 0 <= encoder_noise <= 1e-3:
             raise ValueError(f"encoder_noise: must be within [0, 1e-3] rad, got {encoder_noise!r}")
         self.encoder_noise = float(encoder_noise)
+        tcp = np.asarray(tcp_offset, dtype=float)
+        if tcp.shape != (6,) or not np.all(np.isfinite(tcp)):
+            raise ValueError(f"tcp_offset: six numbers (x, y, z in m, rotation vector in rad), got {tcp_offset!r}")
+        self.p_EoTo_E, self.R_ET = tcp[:3], matrix_from_quat_wxyz(quat_from_rotvec(tcp[3:])[None])[0]
         self._noise_key = int(np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,))
                               .generate_state(1, np.uint64)[0])
         self._qd = np.zeros(6)
@@ -345,6 +352,7 @@ class UREmulator:
         if t > self._q_t:
             self._qd = (q - self._q_reported) / (t - self._q_t)
         self._q_reported, self._q_t = q, t
+        p_BoEo_B, R_BE = p_BoEo_B + R_BE @ self.p_EoTo_E, R_BE @ self.R_ET  # the TCP's pose (E's when no offset)
         pose = tuple(np.concatenate([p_BoEo_B, rotvec_from_quat(quat_wxyz_from_matrix(R_BE))]).tolist())
         q_t, qd_t = tuple(q.tolist()), tuple(self._qd.tolist())
         return {"timestamp": t, "actual_q": q_t, "actual_qd": qd_t, "target_q": q_t, "target_qd": qd_t,
@@ -547,6 +555,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--encoder-noise", type=float, default=1e-7,
                         help="std of each joint reading around the true angle, rad (0: the world's exact pose; "
                              "default 1e-7)")
+    parser.add_argument("--tcp-offset", default="0,0,0,0,0,0", metavar="X,Y,Z,RX,RY,RZ",
+                        help="the installation's TCP in the flange (m, rotation vector in rad): actual_TCP_pose "
+                             "is then that point's pose (default: none, the flange)")
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
@@ -560,8 +571,9 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         table["seed"] = args.seed
     try:
+        tcp_offset = tuple(float(x) for x in args.tcp_offset.split(","))
         emulator = UREmulator(SimWorld.from_config(table), address=args.address, model=args.model,
-                              encoder_noise=args.encoder_noise)
+                              encoder_noise=args.encoder_noise, tcp_offset=tcp_offset)
         emulator.start()
     except ValueError as exc:
         raise ConfigError(f"emulate ur: {exc}") from None

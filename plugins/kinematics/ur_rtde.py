@@ -37,7 +37,8 @@ recording's end. Start a new session once the controller is back.
 Options (``[kinematics]`` table, ``name = "ur_rtde"``): ``host`` (the
 controller's IP address or name, required), ``rate_hz`` (the RTDE output
 frequency: at most 500 Hz on an e-Series, 125 Hz on a CB3), ``receive_timeout``
-(s).
+(s), ``model`` (e.g. "ur5e": check at the first package that the reported pose is
+the flange's, see ``TCP_CHECK_M``).
 """
 
 from __future__ import annotations
@@ -51,10 +52,11 @@ from collections import deque
 import numpy as np
 
 from ...core import hookimpl
-from ...core.frames import quat_from_rotvec
+from ...core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
 from ...core.plugins import ConfigError
 from ...core.types import Event, PoseSample
 from ..sensors.netft import DeviceClock
+from .ur_arm import UR_DH, URArm
 
 VARIABLES = ["actual_TCP_pose", "actual_q", "actual_qd", "timestamp"]
 """The outputs asked for; ``timestamp`` last, so a package's timestamp changes after its other fields."""
@@ -62,6 +64,10 @@ MAX_RATE_HZ = 500.0
 """The fastest RTDE output (e-Series); a CB3 controller streams at most 125 Hz."""
 CLOCK_TICKS_HZ = 1e6
 """Controller timestamps are mapped to µs ticks for the clock mapping (every UR cycle is a whole number of them)."""
+TCP_CHECK_M = 0.005
+TCP_CHECK_RAD = 0.01
+"""With ``model`` set, a first pose further than this from the flange's nominal FK (m, rad) is an event;
+a controller's calibrated kinematics differ from the nominal DH by about a millimetre."""
 FIRST_PACKAGE_TIMEOUT_S = 1.0
 """``open`` waits this long for the first data package, s."""
 MISSED_EVENT_INTERVAL_NS = 1_000_000_000
@@ -77,9 +83,13 @@ class URRTDEKinematics:
     host : the controller's IP address or host name (RTDE port 30004).
     rate_hz : RTDE output frequency, Hz, within (0, 500]; a CB3 controller refuses more than 125.
     receive_timeout : no package for this long is a ``kinematics_timeout`` event, s.
+    model : the arm's model (a key of ``ur_arm.UR_DH``, e.g. "ur5e"), or "" to skip the check: the first
+        package's ``actual_TCP_pose`` is compared with the forward kinematics of its ``actual_q``; more
+        than ``TCP_CHECK_M`` or ``TCP_CHECK_RAD`` apart is a ``kinematics_tcp_offset`` event (the
+        installation's TCP is not the flange, so the poses are not E's).
     """
 
-    def __init__(self, host: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1):
+    def __init__(self, host: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = ""):
         if not host:
             raise ConfigError("kinematics.host: missing; the UR controller's IP address or host name "
                               "(e.g. host = \"192.168.1.10\")")
@@ -90,6 +100,9 @@ class URRTDEKinematics:
                               f"(e-Series 500, CB3 125), got {rate_hz!r}")
         if not 0 < receive_timeout <= 1.0:
             raise ConfigError(f"kinematics.receive_timeout: must be > 0 and at most 1 s, got {receive_timeout!r}")
+        if model and model not in UR_DH:
+            raise ConfigError(f"kinematics.model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
+        self.arm = URArm(model) if model else None
         self.host = host
         self.rate_hz = float(rate_hz)
         self.receive_timeout_ns = int(receive_timeout * 1e9)
@@ -215,6 +228,8 @@ class URRTDEKinematics:
         sample = PoseSample(t_ns=self.clock.stamp(ticks, received_ns), quat_BE=quat_from_rotvec(pose_arr[3:]),
                             p_BoEo_B=pose_arr[:3], joints=np.asarray(q, dtype=float),
                             joint_velocities=np.asarray(qd, dtype=float))
+        if self.packages == 1 and self.arm is not None:
+            events.extend(self._check_tcp(received_ns, sample))
         if self._timed_out:
             self._timed_out = False
             events.append(Event(received_ns, "kinematics_resumed", f"UR controller {self.host} streams again"))
@@ -230,6 +245,20 @@ class URRTDEKinematics:
         with self._lock:
             self._pending.append(sample)
             self._events.extend(events)
+
+    def _check_tcp(self, received_ns: int, sample: PoseSample) -> list[Event]:
+        """A ``kinematics_tcp_offset`` event when the reported pose is not the flange's (FK of the joints)."""
+        R_BE, p_BoEo_B = self.arm.forward(sample.joints)
+        R_reported = matrix_from_quat_wxyz(sample.quat_BE[None])[0]
+        angle = float(np.linalg.norm(rotvec_from_quat(quat_wxyz_from_matrix(R_BE.T @ R_reported))))
+        distance = float(np.linalg.norm(sample.p_BoEo_B - p_BoEo_B))
+        if distance <= TCP_CHECK_M and angle <= TCP_CHECK_RAD:
+            return []
+        return [Event(received_ns, "kinematics_tcp_offset",
+                      f"UR controller {self.host}: actual_TCP_pose is {distance * 1e3:.1f} mm and {angle:.3f} rad "
+                      f"from the {self.arm.model} flange (forward kinematics of actual_q): the installation's TCP "
+                      f"is not the flange; set it to zero, hapticlab needs the flange pose",
+                      {"distance_m": distance, "angle_rad": angle})]
 
     def _watch(self) -> None:
         """A ``kinematics_timeout`` event once the packages have stopped for ``receive_timeout``."""

@@ -151,13 +151,14 @@ def test_plugin_reads_the_simulated_poses_every_cycle_or_counts_the_missed(addre
     """Poses equal the world's at consecutive controller cycles (gaps = packages_missed), joints FK to the pose."""
     world, arm = demo_world(), URArm(model)
     with emulator_process(address, "--model", model, "--encoder-noise", "0"):
-        kinematics = URRTDEKinematics(host=address, rate_hz=rate_hz)
+        kinematics = URRTDEKinematics(host=address, rate_hz=rate_hz, model=model)
         assert isinstance(kinematics, KinematicsSource) and isinstance(kinematics, EmitsEvents)
         kinematics.open(time.monotonic_ns())
         try:
             samples = collect(kinematics, 150)
         finally:
             kinematics.close()
+    assert not [e for e in kinematics.drain_events() if e.kind == "kinematics_tcp_offset"]  # the flange
     quat_BE = np.array([s.quat_BE for s in samples])
     cycles = match_cycles(world, quat_BE, cycle_s)
     quats, p_BoEo_B = world_quat(world, cycles * cycle_s)
@@ -216,6 +217,20 @@ def test_emulator_stopped_no_fresh_poses_the_orientation_goes_stale_and_an_event
     assert block.stale.tolist() == [False, True, True]
 
 
+def test_a_tcp_offset_in_the_installation_is_an_event():
+    """With ``model`` set, a reported pose that is not the flange's FK (a TCP 100 mm out, turned 0.5 rad) is named."""
+    with emulator_process("127.0.0.85", "--tcp-offset", "0,0,0.1,0,0,0.5"):
+        kinematics = URRTDEKinematics(host="127.0.0.85", model="ur5e")
+        kinematics.open(time.monotonic_ns())
+        try:
+            events = kinematics.drain_events()
+        finally:
+            kinematics.close()
+    (event,) = [e for e in events if e.kind == "kinematics_tcp_offset"]
+    assert "actual_TCP_pose is 100.0 mm and 0.500 rad from the ur5e flange" in event.message
+    assert event.data["distance_m"] == pytest.approx(0.1, abs=1e-5)
+
+
 def test_connection_refused_names_the_controller():
     kinematics = URRTDEKinematics(host="127.0.0.76")  # nothing listens there
     with pytest.raises(ConnectionError, match=r"127\.0\.0\.76:30004"):
@@ -227,8 +242,9 @@ def test_connection_refused_names_the_controller():
     ({"host": "robot..lab"}, "kinematics.host: 'robot..lab' is neither an IP address nor a host name"),
     ({"host": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be > 0 and at most 500 Hz"),
     ({"host": "10.0.0.2", "receive_timeout": 0}, "kinematics.receive_timeout: must be > 0 and at most 1 s"),
-    ({"host": "10.0.0.2", "frequency": 500}, "kinematics.frequency: unknown option; known options: host, rate_hz"),
+    ({"host": "10.0.0.2", "frequency": 500}, "kinematics.frequency: unknown option; known options: host, model, rate_hz, receive_timeout"),
     ({"host": 10}, "kinematics.host: expected a string, got 10"),
+    ({"host": "10.0.0.2", "model": "ur7e"}, "kinematics.model: unknown UR model 'ur7e'; known: ur3e, ur5e"),
 ])
 def test_bad_config_is_one_line_naming_the_key(options, message):
     with pytest.raises(ConfigError) as info:

@@ -16,7 +16,8 @@ played in a loop), and every force command is answered as the device would:
   0x0B device info; force 0x2A → 0x2B end-effector state. Haply's own client,
   ``HaplyHardwareAPI``, talks to it.
 
-Faults for tests and drills: corrupt the CRC of the next replies
+Faults for tests and drills (``--fault KIND@SECONDS[:ARG]`` on the command
+line, methods in Python): corrupt the CRC of the next replies
 (``corrupt_replies``), garbage before the next reply (``garbage_before_reply``),
 stop answering and resume (``stop_answering``), restart (``restart``: the
 device forgets the handshake), unplug (``unplug``: the pty's
@@ -407,6 +408,56 @@ class MasterEmulator:
 
 # --------------------------------------------------------------------------- command line
 
+FAULT_KINDS = ("crc", "garbage", "silent", "restart", "unplug")
+
+
+@dataclass(frozen=True)
+class ScheduledFault:
+    """A fault the command-line emulator injects ``at`` s after it starts.
+
+    ``crc@T:N`` breaks the next N replies (default 1), ``garbage@T:N`` writes N
+    noise bytes before the next reply (default 64), ``silent@T:D`` stops
+    answering for D s (default: for good), ``restart@T`` forgets the
+    handshake, ``unplug@T`` closes the pty's master side.
+    """
+
+    kind: str
+    at: float
+    arg: float | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> "ScheduledFault":
+        kind, _, rest = text.partition("@")
+        when, _, arg = rest.partition(":")
+        try:
+            fault = cls(kind.strip(), float(when), float(arg) if arg else None)
+        except ValueError:
+            raise ValueError(f"--fault {text!r}: expected KIND@SECONDS[:ARG], e.g. crc@5:3 or unplug@10") from None
+        if fault.kind not in FAULT_KINDS:
+            raise ValueError(f"--fault {text!r}: unknown kind {fault.kind!r}; known: {', '.join(FAULT_KINDS)}")
+        if not (fault.at >= 0 and (fault.arg is None or fault.arg >= 0)):
+            raise ValueError(f"--fault {text!r}: times and counts must be >= 0")
+        return fault
+
+    def inject(self, emulator: MasterEmulator, stop: threading.Event) -> None:
+        """Wait until the fault is due (or ``stop``), then inject it."""
+        if stop.wait(max(0.0, self.at - emulator.now())):
+            return
+        if self.kind == "crc":
+            emulator.corrupt_replies(int(self.arg or 1))
+        elif self.kind == "garbage":
+            emulator.garbage_before_reply(os.urandom(int(64 if self.arg is None else self.arg)))
+        elif self.kind == "silent":
+            emulator.stop_answering()
+            if self.arg is not None and not stop.wait(self.arg):
+                emulator.stop_answering(False)
+        elif self.kind == "restart":
+            emulator.restart()
+        else:
+            emulator.unplug()
+        print(f"{emulator.now():.3f} s: injected {self.kind}", flush=True)
+
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``hapticlab emulate master``."""
@@ -420,6 +471,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scripted path centre in D, m")
     parser.add_argument("--max-force", type=float, default=8.0, help="the device's force limit, N (default 8)")
     parser.add_argument("--device-id", type=int, default=0x4C41, help="device id in the handshake answer")
+    parser.add_argument("--fault", action="append", default=[], metavar="KIND@SECONDS[:ARG]",
+                        help=f"inject a fault ({', '.join(FAULT_KINDS)}), e.g. crc@5:3, silent@8:0.5, unplug@12; "
+                        "repeatable")
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
@@ -431,6 +485,7 @@ def run(args: argparse.Namespace) -> int:
         motion = (recorded_motion(args.path) if args.path not in PATHS
                   else scripted_motion(args.path, args.radius, args.period, tuple(args.center)))
         emulator = MasterEmulator(args.protocol, motion, args.max_force, args.device_id)
+        faults = [ScheduledFault.parse(text) for text in args.fault]
     except ValueError as exc:
         raise ConfigError(f"emulate master: {exc}") from None
     stop = threading.Event()
@@ -441,13 +496,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.protocol} master emulator on {emulator.port}: handle on {args.path}, max "
               f"{args.max_force:g} N; e.g. hapticlab run --set haptic.name=serial --set haptic.port={emulator.port}"
               f" --set haptic.protocol={args.protocol}", flush=True)
+        for fault in faults:
+            threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
         try:
             stop.wait(args.duration)
         except KeyboardInterrupt:
             pass
+        stop.set()
     if previous is not None:
         signal.signal(signal.SIGTERM, previous)
     c = emulator.counts
     print(f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "
-          f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s)")
+          f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s); "
+          f"{c.replies_corrupted} reply(ies) corrupted, {c.requests_ignored} request(s) ignored")
     return 0

@@ -517,7 +517,7 @@ class SerialHaptic:
         retrying = self.lost is not None
         if retrying:
             if time.monotonic() < self.next_try:
-                raise MasterLostError(f"{self.port_name}: lost ({self.lost.args[0]})", "lost")
+                raise self._still_lost("not tried again yet")
             self._retry()
             force_D = ZERO3_F32  # the first force after a loss is zero; the governor ramps up from there
         try:
@@ -534,7 +534,7 @@ class SerialHaptic:
             self._take(reading, command.t_ns)
         self._report_counters(command.t_ns)
         if self.lost is not None:  # a retry that got a bad reply: still lost
-            raise MasterLostError(f"{self.port_name}: lost ({self.lost.args[0]})", "lost")
+            raise self._still_lost("a try got a bad reply")
 
     def _take(self, reading: Reading | None, t_ns: int) -> None:
         """One reply: a bad one counts towards the limit, a good one is the handle's new state."""
@@ -623,8 +623,12 @@ class SerialHaptic:
             if self.lost.cause in ("gone", "restarted"):
                 self.info = self.link.handshake(min(self.open_timeout, self.reconnect_interval))
         except (MasterOpenError, MasterLostError) as exc:
-            raise MasterLostError(f"{self.port_name}: lost ({self.lost}); trying again failed: {exc}",
-                                  "lost") from None
+            raise self._still_lost(f"trying again failed: {exc}") from None
+
+    def _still_lost(self, why: str) -> MasterLostError:
+        """The error a lost device's ``send`` raises: the loss's own message first (the session records
+        one event per distinct message up to its first " ("), then why it is still lost."""
+        return MasterLostError(f"{self.lost.args[0]} (still lost: {why})", "lost")
 
     def _make_link(self, port: SerialPort) -> MasterLink:
         if self.protocol == "hapticlab":

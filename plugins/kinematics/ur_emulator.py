@@ -273,13 +273,19 @@ class UREmulator:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._server: socket.socket | None = None
-        self._t0 = 0.0
+        self.t0_ns: int | None = None
+        """The controller's start (``timestamp`` 0, the world's time 0) on the monotonic clock, ns."""
         self._cycle = 0
 
     # ------------------------------------------------------------------ life cycle
 
-    def start(self) -> "UREmulator":
-        """Listen, and start the controller clock (``timestamp`` 0 is now); a second call does nothing."""
+    def start(self, t0_ns: int | None = None) -> "UREmulator":
+        """Listen, and start the controller clock; a second call does nothing.
+
+        ``t0_ns`` is the controller's ``timestamp`` 0 (the world's time 0) on the
+        monotonic clock (``time.monotonic_ns``), e.g. another emulator's start so
+        both follow one world time; None: now.
+        """
         if self._server is not None:
             return self
         server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -290,7 +296,7 @@ class UREmulator:
         self.port = server.getsockname()[1]
         self._server = server
         self._stop.clear()
-        self._t0 = time.monotonic()
+        self.t0_ns = time.monotonic_ns() if t0_ns is None else int(t0_ns)
         for target in (self._accept_loop, self._controller_loop):
             thread = threading.Thread(target=target, name=f"ur-emulator {target.__name__}", daemon=True)
             thread.start()
@@ -364,7 +370,7 @@ class UREmulator:
     def _controller_loop(self) -> None:
         """Every cycle whose time has come: send the packages due (bursts about once a millisecond)."""
         while not self._stop.is_set():
-            due = math.floor((time.monotonic() - self._t0) * self.cycle_hz)
+            due = math.floor((time.monotonic_ns() - self.t0_ns) * self.cycle_hz / 1e9)
             while self._cycle <= due and not self._stop.is_set():
                 self._serve_cycle(self._cycle)
                 self._cycle += 1

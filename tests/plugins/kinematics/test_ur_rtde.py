@@ -308,6 +308,7 @@ def test_output_setup_types_not_found_and_trailing_comma(emulator):
             assert payload[0] == 1
             stamps.append(struct.unpack(">d6d", payload[1:])[0])
         assert np.allclose(np.diff(stamps), 0.004)  # 250 Hz: every second 2 ms cycle
+        assert stamps[0] * 1e9 <= time.monotonic_ns() - emulator.t0_ns  # timestamp 0 is t0_ns
         assert client.request("P") == b"\x01"
     finally:
         client.close()
@@ -359,6 +360,22 @@ def test_emulator_refuses_a_model_that_cannot_reach_the_world():
     UREmulator(world, model="ur5e")  # 0.85 m of reach
     with pytest.raises(ValueError, match=r"model: a ur3e cannot reach the world's flange position \[0\.7, 0\.0, 0\.35\]"):
         UREmulator(world, model="ur3e")  # 0.5 m
+
+
+def test_a_given_start_time_is_the_controllers_timestamp_zero():
+    """start(t0_ns) puts timestamp 0 where another emulator's world time 0 is (one world for a rig)."""
+    t0_ns = time.monotonic_ns() - 3 * 10**9  # a world that started 3 s ago
+    with UREmulator(SimWorld.from_config({"seed": SEED}), address="127.0.0.1", port=0).start(t0_ns) as emu:
+        assert emu.t0_ns == t0_ns
+        client = RawClient(emu.address, emu.port)
+        try:
+            client.request("V", struct.pack(">H", 2))
+            client.request("O", struct.pack(">d", 500.0) + b"timestamp")
+            client.request("S")
+            (stamp,) = struct.unpack(">d", client.receive("U")[1:])
+        finally:
+            client.close()
+    assert 3.0 <= stamp < 3.0 + 5.0  # the controller's clock counts from t0_ns
 
 
 def test_emulate_ur_runs_for_its_duration_and_exits_cleanly():

@@ -16,7 +16,9 @@ in its handshake) and never a NaN: a non-finite command is written as zero, a
 disabled one as zero, a larger one is scaled down along its direction.
 
 A lost device raises from ``send`` (the session's loop then zeroes the force and
-records an event, and goes on): no reply within ``read_timeout``, a port that
+records an event, and goes on; the plugin itself writes a zero force at once
+when the port still works, and our protocol's device watchdog zeroes it when
+nothing more arrives): no reply within ``read_timeout``, a port that
 is gone (unplugged: EIO), more than ``max_consecutive_errors`` bad replies in a
 row (CRC errors, NAKs, malformed or non-finite replies), or a device that
 reports a fault. While lost, ``send`` raises at once without touching the
@@ -159,7 +161,8 @@ class MasterLink(Protocol):
     maximum, N, when the protocol reports one (else None). ``exchange(force_D)``
     writes one (3,) float32 force in D, N, and returns the reply's Reading, or
     None for a bad reply (counted in ``counters``); it raises MasterLostError
-    when nothing arrives within the read timeout.
+    when nothing arrives within the read timeout. ``post(force_D)`` writes a
+    force without waiting for its reply (the next ``exchange`` skips it).
     """
 
     max_force: float | None
@@ -167,12 +170,12 @@ class MasterLink(Protocol):
 
     def handshake(self, timeout_s: float) -> str: ...
     def exchange(self, force_D: np.ndarray) -> Reading | None: ...
+    def post(self, force_D: np.ndarray) -> None: ...
 
 
 class PipelinedLink(MasterLink, Protocol):
-    """A link that can also write without waiting (``post``) and collect the replies later (``poll``)."""
+    """A link whose replies can be collected later (``poll``), matched to the forces ``post`` wrote."""
 
-    def post(self, force_D: np.ndarray) -> None: ...
     def poll(self) -> list[Reading | None]: ...
 
 
@@ -347,6 +350,12 @@ class Inverse3Link:
         self.port, self.read_timeout = port, read_timeout
         self.max_force: float | None = None  # the Inverse3 does not report one
         self.counters = {"bad_replies": 0, "truncated_replies": 0}
+        self.owed = 0  # replies to posted forces not yet read
+
+    def post(self, force_D: np.ndarray) -> None:
+        """Write a force request without reading its reply (the next exchange reads and drops it)."""
+        self.port.write(inverse3.pack_force_request(force_D))
+        self.owed += 1
 
     def _read_exactly(self, size: int, deadline: float) -> bytes:
         data = b""
@@ -377,6 +386,9 @@ class Inverse3Link:
 
     def exchange(self, force_D: np.ndarray) -> Reading | None:
         self.port.write(inverse3.pack_force_request(force_D))
+        owed, self.owed = self.owed, 0
+        if owed:  # the replies to posted forces come first: read past them
+            self._read_exactly(owed * inverse3.STATE_SIZE, time.monotonic() + self.read_timeout)
         reply = self._read_exactly(inverse3.STATE_SIZE, time.monotonic() + self.read_timeout)
         if not reply:
             raise MasterLostError(f"{self.port.name}: no reply within {self.read_timeout * 1e3:g} ms")
@@ -608,6 +620,11 @@ class SerialHaptic:
         self.lost = error
         self.errors_in_row = 0
         self.next_try = time.monotonic() + self.reconnect_interval
+        if error.cause in ("silent", "errors"):  # it may still hear us: zero, at once, best effort
+            try:
+                self.link.post(ZERO3_F32)
+            except MasterLostError:
+                pass
 
     def _retry(self) -> None:
         """Ready a lost device for a try: reopen the port if it went away, redo the handshake if it restarted.

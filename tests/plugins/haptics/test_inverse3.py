@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import select
 import threading
+import time
 import tty
 
 import numpy as np
@@ -146,3 +147,25 @@ def test_an_unplugged_or_silent_inverse3_raises(emulator, device):
     with pytest.raises(MasterLostError, match="lost"):
         device.send(command([0.1, 0.0, 0.0]))
     assert device.health_counters()["losses"] == 1
+
+
+def test_bad_replies_beyond_the_limit_zero_the_force_and_a_retry_finds_the_device(emulator, device):
+    device.send(command([1.0, 0.0, 0.0]))
+    emulator.corrupt_replies(6)
+    for _ in range(5):
+        device.send(command([1.0, 0.0, 0.0]))
+    with pytest.raises(MasterLostError, match="6 bad replies in a row"):
+        device.send(command([1.0, 0.0, 0.0]))
+    deadline = time.monotonic() + 10.0
+    while emulator.forces[-1].any() and time.monotonic() < deadline:
+        time.sleep(0.002)
+    assert not emulator.forces[-1].any()  # zero written at once: an Inverse3 holds its last force
+    while time.monotonic() < deadline:  # the retry reads past the zero's reply, then its own
+        try:
+            device.send(command([1.0, 0.0, 0.0]))
+            break
+        except MasterLostError:
+            time.sleep(0.005)
+    device.send(command([0.25, 0.0, 0.0]))
+    assert emulator.forces[-1].tolist() == [0.25, 0.0, 0.0]
+    np.testing.assert_array_equal(device.state().p_DoHo_D, emulator.last_reply[0].astype(float))

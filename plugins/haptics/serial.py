@@ -211,11 +211,10 @@ class HapticlabLink:
                 data = self.port.read(max(1, self.port.waiting()))
                 received += len(data)
                 for frame in self.decoder.feed(data):
-                    if frame.kind == framing.NAK and len(frame.payload) == framing.NAK_FORMAT.size:
-                        code = frame.payload[1]
-                        raise MasterOpenError(f"{where}: the device refused HELLO (protocol version "
-                                              f"{framing.PROTOCOL_VERSION}): "
-                                              f"{framing.NAK_NAMES.get(code, f'NAK code {code}')}")
+                    if (frame.kind == framing.NAK and len(frame.payload) == framing.NAK_FORMAT.size
+                            and frame.payload[1] == framing.NAK_VERSION):  # other NAKs: line noise, try again
+                        raise MasterOpenError(f"{where}: the device refused HELLO: it does not speak hapticlab "
+                                              f"protocol version {framing.PROTOCOL_VERSION}")
                     if frame.kind == framing.HELLO_ACK and len(frame.payload) == framing.HELLO_ACK_FORMAT.size:
                         ack = framing.HelloAck.unpack(frame.payload)
                         if ack.version != framing.PROTOCOL_VERSION:

@@ -313,6 +313,14 @@ def test_open_errors_name_the_port_and_the_problem(tmp_path):
         SerialHaptic("/dev/ttyACM0", "ours")
 
 
+def test_a_hello_broken_on_the_way_is_sent_again(emulator):
+    emulator.corrupt_replies(2)  # the first two HELLO_ACKs arrive broken
+    dev = SerialHaptic(emulator.port)
+    dev.open()
+    assert emulator.counts.hellos == 3 and dev.health_counters()["crc_errors"] == 2
+    dev.close()
+
+
 def test_a_device_speaking_another_version_is_refused_by_name():
     """A hand-made device on a bare pty answers HELLO with version 2."""
     master, slave = os.openpty()

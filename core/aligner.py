@@ -106,15 +106,19 @@ class Aligner:
     Args:
         kinematics_rate_hz: the pose stream's nominal rate (sets the longest
             extrapolation, one period).
+        latency_s: how much older than now the newest pose can be in ordinary
+            operation (a networked arm, ``HasLatency``), s: added to the longest
+            extrapolation.
         keep: how many recent poses to keep for interpolation.
         kernel: "numba" (``core.kernels.align``, compiled: a few µs per block) or
             "numpy" (``orientation_at`` and ``position_at``: the reference).
     """
 
-    def __init__(self, kinematics_rate_hz: float, keep: int = 64, kernel: str = "numba"):
+    def __init__(self, kinematics_rate_hz: float, keep: int = 64, kernel: str = "numba", latency_s: float = 0.0):
         if kernel not in ("numba", "numpy"):
             raise ValueError(f"kernel: must be 'numba' or 'numpy', got {kernel!r}")
-        self.period_ns = int(round(1e9 / kinematics_rate_hz))
+        self.period_ns = int(round(1e9 / kinematics_rate_hz + latency_s * 1e9))
+        """The longest extrapolation past the newest pose, ns (one period, plus the source's latency)."""
         self.keep = keep
         self.kernel = kernel
         if kernel == "numba":

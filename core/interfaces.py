@@ -201,6 +201,21 @@ class ReportsHealth(Protocol):
     def health_counters(self) -> dict[str, int]: ...
 
 
+@runtime_checkable
+class HasLatency(Protocol):
+    """A device whose newest sample is, in ordinary operation, up to ``latency_s`` older than now (s).
+
+    A device on a network or polled by a thread delivers each sample some time
+    after its stamp. The host adds this to its freshness rules, so the link's
+    ordinary delay is not taken for a fault: a sensor's samples count as stale
+    after 1.5 periods + one loop period + ``latency_s``; a pose may be
+    extrapolated one period + ``latency_s`` past its stamp. A device without
+    it is taken to deliver at once (the simulated ones).
+    """
+
+    latency_s: float
+
+
 CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration,
-                HasRange, Reidentifies, ReportsHealth)
+                HasRange, Reidentifies, ReportsHealth, HasLatency)
 """Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

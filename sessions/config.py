@@ -47,7 +47,8 @@ class SessionSettings:
         out: default output path of the recording ("" = ``recordings/<name>-<time>.mcap``).
         stale_timeout: longest age of the newest sensor sample before the
             haptic force is zeroed, s; 0 = automatic: 1.5 sensor periods plus one
-            loop period, so the first late sample switches the force off. At most
+            loop period (plus a networked sensor's latency, ``HasLatency``), so the
+            first late sample switches the force off. At most
             1 s: a dead sensor must not leave a force on the trainee's hand longer.
         frozen_pose_timeout: longest time the robot may report bit-identical poses
             before its kinematics count as frozen (a real arm's encoders always

@@ -34,7 +34,7 @@ a dead socket, and disconnecting or destroying it then aborts the process
 (``std::terminate`` on "write: Broken pipe"), which would lose the
 recording's end. Start a new session once the controller is back.
 
-Options (``[kinematics]`` table, ``name = "ur_rtde"``): ``host`` (the
+Options (``[kinematics]`` table, ``name = "ur_rtde"``): ``address`` (the
 controller's IP address or name, required), ``rate_hz`` (the RTDE output
 frequency: at most 500 Hz on an e-Series, 125 Hz on a CB3), ``receive_timeout``
 (s), ``model`` (e.g. "ur5e": check at the first package that the reported pose is
@@ -75,12 +75,17 @@ MISSED_EVENT_INTERVAL_NS = 1_000_000_000
 _HOSTNAME = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$")
 
 
+POLL_LATENCY_S = 0.002
+"""The polling thread's share of a pose's age at the loop, s (it polls 4× a period, but waits for the
+interpreter's lock while the loop runs a tick)."""
+
+
 class URRTDEKinematics:
     """A UR arm's flange pose and joints over RTDE (KinematicsSource, EmitsEvents).
 
     Parameters
     ----------
-    host : the controller's IP address or host name (RTDE port 30004).
+    address : the controller's IP address or host name (RTDE port 30004).
     rate_hz : RTDE output frequency, Hz, within (0, 500]; a CB3 controller refuses more than 125.
     receive_timeout : no package for this long is a ``kinematics_timeout`` event, s.
     model : the arm's model (a key of ``ur_arm.UR_DH``, e.g. "ur5e"), or "" to skip the check: the first
@@ -89,12 +94,12 @@ class URRTDEKinematics:
         installation's TCP is not the flange, so the poses are not E's).
     """
 
-    def __init__(self, host: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = ""):
-        if not host:
-            raise ConfigError("kinematics.host: missing; the UR controller's IP address or host name "
-                              "(e.g. host = \"192.168.1.10\")")
-        if not _valid_host(host):
-            raise ConfigError(f"kinematics.host: {host!r} is neither an IP address nor a host name")
+    def __init__(self, address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = ""):
+        if not address:
+            raise ConfigError("kinematics.address: missing; the UR controller's IP address or host name "
+                              "(e.g. address = \"192.168.1.10\")")
+        if not _valid_host(address):
+            raise ConfigError(f"kinematics.address: {address!r} is neither an IP address nor a host name")
         if not 0 < rate_hz <= MAX_RATE_HZ:
             raise ConfigError(f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz "
                               f"(e-Series 500, CB3 125), got {rate_hz!r}")
@@ -103,8 +108,11 @@ class URRTDEKinematics:
         if model and model not in UR_DH:
             raise ConfigError(f"kinematics.model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
         self.arm = URArm(model) if model else None
-        self.host = host
+        self.address = address
         self.rate_hz = float(rate_hz)
+        self.latency_s = 1.0 / self.rate_hz + POLL_LATENCY_S
+        """How much older than now the newest pose can be in ordinary operation (HasLatency), s: the
+        controller's package pipeline (one period) and the polling thread's wait for the GIL."""
         self.receive_timeout_ns = int(receive_timeout * 1e9)
         self.clock = DeviceClock(CLOCK_TICKS_HZ)
         self.packages = 0
@@ -135,14 +143,14 @@ class URRTDEKinematics:
         self._rtde = self._connect()
         self._last_received_ns = time.monotonic_ns()
         self._closing.clear()
-        self._thread = threading.Thread(target=self._receive, name=f"ur_rtde {self.host}", daemon=True)
+        self._thread = threading.Thread(target=self._receive, name=f"ur_rtde {self.address}", daemon=True)
         self._thread.start()
         deadline = time.monotonic() + FIRST_PACKAGE_TIMEOUT_S
         while self.packages == 0 and time.monotonic() < deadline:
             time.sleep(0.005)
         if self.packages == 0:
             self.close()
-            raise ConnectionError(f"UR controller {self.host}:30004 (RTDE at {self.rate_hz:g} Hz): connected, but no "
+            raise ConnectionError(f"UR controller {self.address}:30004 (RTDE at {self.rate_hz:g} Hz): connected, but no "
                                   f"data package within {FIRST_PACKAGE_TIMEOUT_S:g} s; the controller refused the "
                                   f"output recipe (a CB3 streams at most 125 Hz: set kinematics.rate_hz = 125) "
                                   f"or is not running")
@@ -180,9 +188,9 @@ class URRTDEKinematics:
         import rtde_receive  # ur-rtde; imported here so listing the plugins does not load it
 
         try:
-            return rtde_receive.RTDEReceiveInterface(self.host, self.rate_hz, VARIABLES)
+            return rtde_receive.RTDEReceiveInterface(self.address, self.rate_hz, VARIABLES)
         except RuntimeError as exc:
-            raise ConnectionError(f"UR controller {self.host}:30004 (RTDE at {self.rate_hz:g} Hz): {exc}") from None
+            raise ConnectionError(f"UR controller {self.address}:30004 (RTDE at {self.rate_hz:g} Hz): {exc}") from None
 
     def _receive(self) -> None:
         """Poll ur-rtde's latest package a few times per period; keep each new one once."""
@@ -217,7 +225,7 @@ class URRTDEKinematics:
             if step < 0:
                 self.clock.reset()
                 events.append(Event(received_ns, "kinematics_restart",
-                                    f"UR controller {self.host} timestamp went back "
+                                    f"UR controller {self.address} timestamp went back "
                                     f"({self._last_ticks / CLOCK_TICKS_HZ:.3f} -> {ticks / CLOCK_TICKS_HZ:.3f} s): "
                                     f"controller restarted, time re-anchored"))
             else:
@@ -232,13 +240,13 @@ class URRTDEKinematics:
             events.extend(self._check_tcp(received_ns, sample))
         if self._timed_out:
             self._timed_out = False
-            events.append(Event(received_ns, "kinematics_resumed", f"UR controller {self.host} streams again"))
+            events.append(Event(received_ns, "kinematics_resumed", f"UR controller {self.address} streams again"))
         if self.packages_missed > self._missed_reported and received_ns >= self._next_missed_event_ns:
             new = self.packages_missed - self._missed_reported
             self._missed_reported = self.packages_missed
             self._next_missed_event_ns = received_ns + MISSED_EVENT_INTERVAL_NS
             events.append(Event(received_ns, "kinematics_missed",
-                                f"{new} RTDE package(s) from {self.host} missed "
+                                f"{new} RTDE package(s) from {self.address} missed "
                                 f"({self.packages_missed} of {self.packages + self.packages_missed} so far)",
                                 {"missed": new, "missed_total": self.packages_missed, "received": self.packages}))
         self._last_received_ns = received_ns
@@ -255,7 +263,7 @@ class URRTDEKinematics:
         if distance <= TCP_CHECK_M and angle <= TCP_CHECK_RAD:
             return []
         return [Event(received_ns, "kinematics_tcp_offset",
-                      f"UR controller {self.host}: actual_TCP_pose is {distance * 1e3:.1f} mm and {angle:.3f} rad "
+                      f"UR controller {self.address}: actual_TCP_pose is {distance * 1e3:.1f} mm and {angle:.3f} rad "
                       f"from the {self.arm.model} flange (forward kinematics of actual_q): the installation's TCP "
                       f"is not the flange; set it to zero, hapticlab needs the flange pose",
                       {"distance_m": distance, "angle_rad": angle})]
@@ -269,7 +277,7 @@ class URRTDEKinematics:
             connected = self._rtde.isConnected()
             with self._lock:
                 self._events.append(Event(now_ns, "kinematics_timeout",
-                                          f"no RTDE package from UR controller {self.host} for "
+                                          f"no RTDE package from UR controller {self.address} for "
                                           f"{silent_ns * 1e-6:.0f} ms ({'connected' if connected else 'connection lost'}): "
                                           f"no fresh poses, haptic force held at zero",
                                           {"silent_s": silent_ns * 1e-9, "connected": connected}))

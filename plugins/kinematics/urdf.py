@@ -12,7 +12,7 @@ kinematics source named in its own table, e.g. a UR arm over RTDE::
     urdf = "ur5e"            # a shipped model (plugins/kinematics/urdf/<name>.urdf) or a path to a .urdf
     frame = "tool0"          # the frame reported as E
     base = "base"            # the frame reported as B (fixed to the URDF's root)
-    joints = { name = "ur_rtde", host = "192.168.1.10" }
+    joints = { name = "ur_rtde", address = "192.168.1.10" }
 
 The inner source's poses are replaced: ``quat_BE``/``p_BoEo_B`` become the FK
 of its ``joints``, and the sample gains ``w_BE_E``, ``alpha_BE_E`` and
@@ -279,7 +279,7 @@ def urdf_kinematics(urdf: str = "ur5e", frame: str = "tool0", base: str = "base"
     frame : the URDF frame reported as E (the flange "tool0", or a sensor frame the URDF adds).
     base : the URDF frame reported as B ("base": the UR controller's Base frame).
     joints : the inner kinematics source's table: ``name`` and its options, e.g.
-        ``{ name = "ur_rtde", host = "192.168.1.10" }``; it must report ``joints``.
+        ``{ name = "ur_rtde", address = "192.168.1.10" }``; it must report ``joints``.
     acceleration_window_s : the joint-acceleration fit's window, s.
 
     The inner source is looked up among the installed plugins (a Registry of its
@@ -287,7 +287,7 @@ def urdf_kinematics(urdf: str = "ur5e", frame: str = "tool0", base: str = "base"
     """
     if joints is None or not isinstance(joints.get("name"), str):
         raise ConfigError('kinematics.joints.name: missing; name the source of the joint angles, '
-                          'e.g. joints = { name = "ur_rtde", host = "192.168.1.10" }')
+                          'e.g. joints = { name = "ur_rtde", address = "192.168.1.10" }')
     options: dict[str, Any] = {k: v for k, v in joints.items() if k != "name"}
     model = UrdfModel(urdf, frame, base)  # Pinocchio, the file and its frames: checked before anything connects
     _check_window(acceleration_window_s)

@@ -41,7 +41,7 @@ import numpy as np
 
 from ...core.aligner import Aligner
 from ...core.errors import OutputExistsError
-from ...core.interfaces import HasCalibration, HasRange
+from ...core.interfaces import HasCalibration, HasLatency, HasRange
 from ...core.types import Event
 from ..config import check_duration
 from ..recording import Recorder
@@ -123,15 +123,17 @@ class LiveLoop:
                                     f"(recordings are never overwritten)")
         self.period_ns = int(round(1e9 / settings.loop_rate_hz))
         self.duration_ns = int(round(self.duration * 1e9))
+        sensor_latency_s = session.sensor.latency_s if isinstance(session.sensor, HasLatency) else 0.0
         stale_ns = int(round(settings.stale_timeout * 1e9)) if settings.stale_timeout > 0 else \
-            int(round(1.5e9 / float(session.sensor.rate_hz))) + self.period_ns  # the first late sample
+            int(round((1.5 / float(session.sensor.rate_hz) + sensor_latency_s) * 1e9)) + self.period_ns
         self.gate = HapticGate(session.estimator_name, session.haptic_settings.ready_force_std,
                                session.primary.parameter_std, session.primary.reidentifies, stale_ns,
                                int(round(settings.frozen_pose_timeout * 1e9)), settings.max_turn_rate,
                                settings.max_speed)
         self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
         self.governor = session.governor()
-        self.aligner = Aligner(float(session.kinematics.rate_hz))
+        self.aligner = Aligner(float(session.kinematics.rate_hz), latency_s=session.kinematics.latency_s
+                               if isinstance(session.kinematics, HasLatency) else 0.0)
         self.on_status, self.status_interval_s = on_status, status_interval_s
         self.status = SessionStatus()
         self.next_status = 0.0

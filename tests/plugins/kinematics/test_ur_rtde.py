@@ -151,7 +151,7 @@ def test_plugin_reads_the_simulated_poses_every_cycle_or_counts_the_missed(addre
     """Poses equal the world's at consecutive controller cycles (gaps = packages_missed), joints FK to the pose."""
     world, arm = demo_world(), URArm(model)
     with emulator_process(address, "--model", model, "--encoder-noise", "0"):
-        kinematics = URRTDEKinematics(host=address, rate_hz=rate_hz, model=model)
+        kinematics = URRTDEKinematics(address=address, rate_hz=rate_hz, model=model)
         assert isinstance(kinematics, KinematicsSource) and isinstance(kinematics, EmitsEvents)
         kinematics.open(time.monotonic_ns())
         try:
@@ -184,7 +184,7 @@ def test_plugin_reads_the_simulated_poses_every_cycle_or_counts_the_missed(addre
 
 def test_a_cb3_refuses_500_hz_and_the_plugin_says_so():
     with emulator_process("127.0.0.74", "--model", "ur5"):
-        kinematics = URRTDEKinematics(host="127.0.0.74", rate_hz=500.0)
+        kinematics = URRTDEKinematics(address="127.0.0.74", rate_hz=500.0)
         with pytest.raises(ConnectionError, match=r"UR controller 127\.0\.0\.74:30004 \(RTDE at 500 Hz\)"):
             kinematics.open(time.monotonic_ns())
 
@@ -192,7 +192,7 @@ def test_a_cb3_refuses_500_hz_and_the_plugin_says_so():
 def test_emulator_stopped_no_fresh_poses_the_orientation_goes_stale_and_an_event_says_so():
     """The fail-safe: no pose after the controller is gone, so the aligner marks newer wrenches stale."""
     with emulator_process("127.0.0.75") as emulator:
-        kinematics = URRTDEKinematics(host="127.0.0.75", rate_hz=500.0, receive_timeout=0.05)
+        kinematics = URRTDEKinematics(address="127.0.0.75", rate_hz=500.0, receive_timeout=0.05)
         kinematics.open(time.monotonic_ns())
         samples = collect(kinematics, 20)
         emulator.terminate()
@@ -220,7 +220,7 @@ def test_emulator_stopped_no_fresh_poses_the_orientation_goes_stale_and_an_event
 def test_a_tcp_offset_in_the_installation_is_an_event():
     """With ``model`` set, a reported pose that is not the flange's FK (a TCP 100 mm out, turned 0.5 rad) is named."""
     with emulator_process("127.0.0.85", "--tcp-offset", "0,0,0.1,0,0,0.5"):
-        kinematics = URRTDEKinematics(host="127.0.0.85", model="ur5e")
+        kinematics = URRTDEKinematics(address="127.0.0.85", model="ur5e")
         kinematics.open(time.monotonic_ns())
         try:
             events = kinematics.drain_events()
@@ -232,19 +232,19 @@ def test_a_tcp_offset_in_the_installation_is_an_event():
 
 
 def test_connection_refused_names_the_controller():
-    kinematics = URRTDEKinematics(host="127.0.0.76")  # nothing listens there
+    kinematics = URRTDEKinematics(address="127.0.0.76")  # nothing listens there
     with pytest.raises(ConnectionError, match=r"127\.0\.0\.76:30004"):
         kinematics.open(time.monotonic_ns())
 
 
 @pytest.mark.parametrize("options, message", [
-    ({}, "kinematics.host: missing; the UR controller's IP address or host name"),
-    ({"host": "robot..lab"}, "kinematics.host: 'robot..lab' is neither an IP address nor a host name"),
-    ({"host": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be > 0 and at most 500 Hz"),
-    ({"host": "10.0.0.2", "receive_timeout": 0}, "kinematics.receive_timeout: must be > 0 and at most 1 s"),
-    ({"host": "10.0.0.2", "frequency": 500}, "kinematics.frequency: unknown option; known options: host, model, rate_hz, receive_timeout"),
-    ({"host": 10}, "kinematics.host: expected a string, got 10"),
-    ({"host": "10.0.0.2", "model": "ur7e"}, "kinematics.model: unknown UR model 'ur7e'; known: ur3e, ur5e"),
+    ({}, "kinematics.address: missing; the UR controller's IP address or host name"),
+    ({"address": "robot..lab"}, "kinematics.address: 'robot..lab' is neither an IP address nor a host name"),
+    ({"address": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be > 0 and at most 500 Hz"),
+    ({"address": "10.0.0.2", "receive_timeout": 0}, "kinematics.receive_timeout: must be > 0 and at most 1 s"),
+    ({"address": "10.0.0.2", "frequency": 500}, "kinematics.frequency: unknown option; known options: address, model, rate_hz, receive_timeout"),
+    ({"address": 10}, "kinematics.address: expected a string, got 10"),
+    ({"address": "10.0.0.2", "model": "ur7e"}, "kinematics.model: unknown UR model 'ur7e'; known: ur3e, ur5e"),
 ])
 def test_bad_config_is_one_line_naming_the_key(options, message):
     with pytest.raises(ConfigError) as info:

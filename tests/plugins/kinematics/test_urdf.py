@@ -294,7 +294,7 @@ def test_over_rtde_the_fk_of_the_controllers_joints_is_its_tcp_pose():
     """ur-rtde against the emulator: the URDF pose of each package's actual_q is its actual_TCP_pose (1e-6)."""
     from hapticlab.plugins.kinematics.ur_rtde import URRTDEKinematics
 
-    tap = Tap(URRTDEKinematics(host="127.0.0.81", rate_hz=500.0))
+    tap = Tap(URRTDEKinematics(address="127.0.0.81", rate_hz=500.0))
     kinematics = UrdfKinematics(tap, UrdfModel("ur5e"))
     poses = []
     with ur_emulator_process("127.0.0.81"):
@@ -411,11 +411,11 @@ def test_the_ur_rtde_source_is_named_in_the_joints_table():
     from hapticlab.plugins.kinematics.ur_rtde import URRTDEKinematics
 
     kinematics = Registry().create("kinematics", "urdf", {
-        "urdf": "ur5e", "joints": {"name": "ur_rtde", "host": "127.0.0.82", "rate_hz": 125}}, where="kinematics")
-    assert isinstance(kinematics.inner, URRTDEKinematics) and kinematics.inner.host == "127.0.0.82"
+        "urdf": "ur5e", "joints": {"name": "ur_rtde", "address": "127.0.0.82", "rate_hz": 125}}, where="kinematics")
+    assert isinstance(kinematics.inner, URRTDEKinematics) and kinematics.inner.address == "127.0.0.82"
     assert kinematics.rate_hz == 125.0
     with pytest.raises(ConfigError, match=r"^kinematics\.joints\.rate_hz: must be > 0 and at most 500 Hz"):
-        Registry().create("kinematics", "urdf", {"joints": {"name": "ur_rtde", "host": "127.0.0.82",
+        Registry().create("kinematics", "urdf", {"joints": {"name": "ur_rtde", "address": "127.0.0.82",
                                                             "rate_hz": 1000}}, where="kinematics")
 
 

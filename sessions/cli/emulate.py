@@ -1,0 +1,93 @@
+"""``hapticlab emulate``: a real device's wire protocol on a loopback address, fed by the simulated world.
+
+Each emulator lives beside its plugin (``plugins/<kind>/<device>_emulator.py``)
+and gives ``add_arguments(parser)`` and ``run(args)``; this module lists
+them, and adds ``rig``: a Net F/T and a UR arm served together from one world
+on one clock, so the wrench the sensor reads is the one the arm's pose makes
+(what the ``emulated`` preset connects to). An emulator prints where it
+listens on its first line, then serves until Ctrl-C, SIGTERM or
+``--duration``; the vendor's own client (``pynetft``, ``ur-rtde``) connects to
+it as to the device.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import signal
+import threading
+
+EMULATORS = {
+    "netft": ("...plugins.sensors.netft_emulator",
+              "ATI Net F/T: RDT over UDP and netftapi2.xml over HTTP, up to 7000 samples/s"),
+    "ur": ("...plugins.kinematics.ur_emulator",
+           "Universal Robots controller: RTDE v2 on port 30004 (e-Series 500 Hz, CB3 125 Hz)"),
+}
+"""Device name → (the emulator's module, one line of help)."""
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("emulate", help="serve a real device's protocol on loopback, fed by the simulator",
+                            description=__doc__.split("\n\n")[0])
+    devices = parser.add_subparsers(dest="device", required=True, metavar="DEVICE")
+    for name, (module_name, help_line) in EMULATORS.items():
+        module = importlib.import_module(module_name, __package__)
+        device = devices.add_parser(name, help=help_line, description=help_line)
+        module.add_arguments(device)
+        device.set_defaults(func=module.run)
+    rig = devices.add_parser("rig", help="a Net F/T and a UR arm on one simulated world and one clock "
+                                         "(the emulated preset's devices)",
+                             description="A Net F/T (RDT/UDP and netftapi2.xml) and a UR controller (RTDE) "
+                                         "served together, fed by one simulated world on one clock.")
+    rig.add_argument("--session", default="emulated",
+                     help="preset name or TOML file whose [world] both devices live in (default: emulated)")
+    rig.add_argument("--netft", default="127.0.0.2", metavar="ADDRESS", help="the Net F/T's address (127.0.0.2)")
+    rig.add_argument("--rdt-port", type=int, default=49152, help="its RDT UDP port (49152)")
+    rig.add_argument("--http-port", type=int, default=8080,
+                     help="its netftapi2.xml HTTP port (8080: port 80 needs privileges)")
+    rig.add_argument("--rate", type=float, default=1000.0, help="its RDT rate, Hz (7000/n; default 1000)")
+    rig.add_argument("--ur", default="127.0.0.3", metavar="ADDRESS", help="the UR controller's address, "
+                                                                           "port 30004 (127.0.0.3)")
+    rig.add_argument("--model", default="ur5e", help="the UR model (default ur5e: e-Series, 500 Hz)")
+    rig.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
+    rig.set_defaults(func=run_rig)
+
+
+def run_rig(args: argparse.Namespace) -> int:
+    """Serve both devices until Ctrl-C, SIGTERM or ``--duration``.
+
+    The first line names both addresses and the world's time 0 on the monotonic
+    clock (``t0_ns``; CLOCK_MONOTONIC is shared by every process of the machine),
+    so a test can compare a session's stamps with the world's physics.
+    """
+    from ...core.plugins import ConfigError
+    from ...plugins.kinematics.ur_emulator import UREmulator
+    from ...plugins.sensors.netft_emulator import NetFTEmulator
+    from ...plugins.simworld import SimWorld
+    from ..config import load_config
+
+    config, _ = load_config(args.session)
+    try:
+        world = SimWorld.from_config(config.get("world"))
+        sensor = NetFTEmulator(world, args.netft, args.rdt_port, args.http_port, args.rate)
+        arm = UREmulator(world, address=args.ur, model=args.model)
+    except ValueError as exc:
+        raise ConfigError(f"emulate rig: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"emulate rig: cannot serve on {args.netft} or {args.ur}: {exc.strerror or exc}") from None
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
+        if threading.current_thread() is threading.main_thread() else None
+    with sensor, arm:  # started back to back: their world clocks agree to a few µs
+        t0_ns = sensor.t0_ns  # world time 0 on the monotonic clock
+        print(f"rig: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
+              f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}; "
+              f"t0_ns={t0_ns}", flush=True)
+        try:
+            stop.wait(args.duration)
+        except KeyboardInterrupt:
+            pass
+    if previous is not None:
+        signal.signal(signal.SIGTERM, previous)
+    print(f"sent {sensor.counts.sent} RDT records and {arm.packages_sent} RTDE data packages", flush=True)
+    return 0

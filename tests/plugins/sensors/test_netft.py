@@ -1,5 +1,8 @@
 """The ``netft`` sensor and its emulator: pynetft reads the emulator, the plugin reads the simulated world through it.
 
+Every test of the plugin runs with both receivers (the ``receiver`` fixture): ``hapticlab`` (our own,
+``plugins/sensors/rdt.py``) and ``pynetft`` (the community client).
+
 Every emulator serves on its own 127.0.0.x address with ports the kernel picks,
 and is fed by the demo preset's world (seed 7): the counts on the wire are the
 simulated physics, so each check compares against the world's reading at the
@@ -12,6 +15,7 @@ import argparse
 import socket
 import threading
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import pynetft
@@ -28,6 +32,12 @@ from hapticlab.sessions.recording import read_recording
 
 COUNTS = 1_000_000.0  # the emulator's counts per N and per N·m
 DEADLINE_S = 20.0  # a guard against hangs only: the loops end on sample counts
+
+
+@pytest.fixture(params=["hapticlab", "pynetft"])
+def receiver(request) -> str:
+    """The plugin's RDT receiver: every plugin test runs with both."""
+    return request.param
 
 
 def demo_world(faults: list[dict] | None = None) -> SimWorld:
@@ -121,11 +131,11 @@ def test_the_emulator_answers_a_counted_start_request_from_its_own_socket():
 # ----------------------------------------------------------------------------- the plugin
 
 
-def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times():
+def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times(receiver):
     world = demo_world()
     start = 2**32 - 2000  # the counter wraps ~0.3 s into the stream
     with NetFTEmulator(world, "127.0.0.132", 0, 0, ft_sequence_start=start) as emu:
-        sensor = NetFTSensor("127.0.0.132", emu.rdt_port, emu.http_port)
+        sensor = NetFTSensor("127.0.0.132", emu.rdt_port, emu.http_port, receiver=receiver)
         assert isinstance(sensor, SensorSource) and isinstance(sensor, HasCalibration)
         assert isinstance(sensor, HasRange) and isinstance(sensor, EmitsEvents) and isinstance(sensor, ReportsHealth)
         sensor.open(time.monotonic_ns())
@@ -156,12 +166,13 @@ def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times
     assert "sensor_timeout" not in kinds
 
 
-def test_wire_faults_show_in_the_health_counters_and_events():
+def test_wire_faults_show_in_the_health_counters_and_events(receiver):
     """At 1 kHz (ft_sequence steps by 7), so the loopback's own buffer never overflows: every loss is injected."""
     faults = [RdtFault("drop", 0.3, 0.1, every=3), RdtFault("duplicate", 0.45, 0.1, every=4),
               RdtFault("reorder", 0.6, 0.1, every=5), RdtFault("stall", 0.75, 0.1, every=6)]  # apart
     with NetFTEmulator(demo_world(), "127.0.0.133", 0, 0, rdt_rate_hz=1000.0, faults=faults) as emu:
-        sensor = NetFTSensor("127.0.0.133", emu.rdt_port, emu.http_port, rate_hz=1000.0, health_interval=0.05)
+        sensor = NetFTSensor("127.0.0.133", emu.rdt_port, emu.http_port, rate_hz=1000.0, health_interval=0.05,
+                             receiver=receiver)
         sensor.open(time.monotonic_ns())
         samples = read_samples(sensor, 10)
         until(lambda: emu.world_time(emu.last_ft_sequence) > 0.9)  # every fault window has passed
@@ -171,26 +182,32 @@ def test_wire_faults_show_in_the_health_counters_and_events():
     assert c.dropped > 10 and c.duplicated > 10 and c.reordered > 10 and c.stalled > 10
     health = sensor.health_counters()
     assert health["duplicate"] == c.duplicated, (health, c)
-    assert health["out_of_order"] == c.reordered, (health, c)  # the late record is refused ...
-    assert health["lost"] == c.dropped + c.reordered, (health, c)  # ... and was counted lost at its gap
-    assert health["ft_backward"] == c.reordered, (health, c)
-    assert health["stall"] == c.stalled + c.duplicated, (health, c)  # a duplicate repeats its ft_sequence too
+    assert health["out_of_order"] == c.reordered, (health, c)
+    if receiver == "pynetft":  # every late record is refused, and was counted lost at its gap
+        late = c.reordered
+        assert health["ft_backward"] == c.reordered, (health, c)
+        assert health["stall"] == c.stalled + c.duplicated, (health, c)  # a duplicate repeats its ft_sequence too
+    else:  # a late record is delivered in order when it comes in the same read as the later one, else it is late
+        late = health["late"]
+        assert late <= c.reordered and health["ft_backward"] == 0, (health, c)
+        assert health["stall"] == c.stalled, (health, c)
+    assert health["lost"] == c.dropped + late, (health, c)
     assert health["reconnect"] == health["timeout"] == 0
     seq = np.array([s.seq for s in samples])
     assert (np.diff(seq) > 0).all()  # no duplicate, late or stalled record reaches the stream
     assert (np.diff(seq) % 7 == 0).all()
     missing = int((seq[-1] - seq[0]) // 7 + 1 - len(seq))
-    assert missing == c.dropped + c.reordered + c.stalled
+    assert missing == c.dropped + late + c.stalled
     health_events = [e for e in sensor.drain_events() if e.kind == "sensor_health"]
-    assert health_events[-1].data["lost"] == c.dropped + c.reordered
+    assert health_events[-1].data["lost"] == c.dropped + late
     assert any("stall +" in e.message for e in health_events)
 
 
-def test_saturation_and_device_errors_reach_the_stream_as_status_bits_and_events():
+def test_saturation_and_device_errors_reach_the_stream_as_status_bits_and_events(receiver):
     faults = [RdtFault("saturate", 0.4, 0.02), RdtFault("status", 0.6, 0.02, status=0x8000_0008)]
     world = demo_world()
     with NetFTEmulator(world, "127.0.0.134", 0, 0, faults=faults) as emu:
-        sensor = NetFTSensor("127.0.0.134", emu.rdt_port, emu.http_port)
+        sensor = NetFTSensor("127.0.0.134", emu.rdt_port, emu.http_port, receiver=receiver)
         sensor.open(time.monotonic_ns())
         read_samples(sensor, 10)
         until(lambda: emu.world_time(emu.last_ft_sequence) > 0.8)
@@ -211,10 +228,116 @@ def test_saturation_and_device_errors_reach_the_stream_as_status_bits_and_events
     assert error.data["status_word"] == 0x8000_0008 and "power monitor" in error.message
 
 
-def test_datagrams_from_another_address_are_ignored():
+def test_a_saturated_record_does_not_interrupt_our_receivers_stream():
+    """hapticlab's receiver: the saturated records arrive, marked, and so does every record after them (1 kHz:
+    the loopback never loses one), with no reconnect; pynetft would restart its stream here."""
+    faults = [RdtFault("saturate", 0.4, 0.01)]
+    with NetFTEmulator(demo_world(), "127.0.0.142", 0, 0, rdt_rate_hz=1000.0, faults=faults) as emu:
+        sensor = NetFTSensor("127.0.0.142", emu.rdt_port, emu.http_port, rate_hz=1000.0)
+        sensor.open(time.monotonic_ns())
+        samples = read_samples(sensor, 10)
+        until(lambda: emu.world_time(emu.last_ft_sequence) > 0.5)
+        samples += read_samples(sensor, 50)
+        sensor.close()
+    seq = np.array([s.seq for s in samples])
+    status = np.array([s.status for s in samples])
+    saturated = np.flatnonzero(status & STATUS_SATURATED)
+    assert len(saturated) == emu.counts.status >= 10  # 10 ms at 1 kHz, every one delivered
+    assert (np.diff(seq) == 7).all()  # no gap anywhere: before, through and after the saturation
+    assert (status[saturated[-1] + 1:] == STATUS_OK).all() and len(status) > saturated[-1] + 40
+    health = sensor.health_counters()
+    assert health["reconnect"] == health["timeout"] == health["lost"] == 0
+    assert health["device_error"] == len(saturated) and emu.counts.starts == 1
+
+
+HAND_COUNTS = np.arange(6) * 1000 + 1000  # counts of a hand-made record i: HAND_COUNTS * i (1000 counts per unit)
+
+
+def hand_records(rdt: list[int], ft: list[int] | None = None) -> bytes:
+    """RDT records by hand, one datagram: rdt_sequence ``rdt``, ft_sequence ``ft`` (10 × rdt), status 0."""
+    ft = [10 * r for r in rdt] if ft is None else ft
+    return b"".join(RECORD.pack(r, f, 0, *(HAND_COUNTS * r).tolist()) for r, f in zip(rdt, ft))
+
+
+@contextmanager
+def hand_sensor(address: str):
+    """Our receiver against a sensor played by hand: yields (plugin, send(datagram)); record 1 answers the start."""
+    sensor_socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sensor_socket.bind((address, 0))
+    sensor_socket.settimeout(5.0)
+    client: list = []
+
+    def answer_the_start():
+        request, client[:] = sensor_socket.recvfrom(64)
+        assert REQUEST.unpack(request) == (0x1234, 0x0002, 0)
+        sensor_socket.sendto(hand_records([1]), tuple(client))
+
+    answer = threading.Thread(target=answer_the_start)
+    answer.start()
+    try:
+        sensor = NetFTSensor(address, sensor_socket.getsockname()[1], 9, connect_timeout=2.0,  # no HTTP: override
+                             counts_per_force=1000.0, counts_per_torque=1000.0, force_unit="N", torque_unit="N-m")
+        sensor.open(time.monotonic_ns())
+        answer.join()
+        yield sensor, lambda datagram: sensor_socket.sendto(datagram, tuple(client))
+        sensor.close()
+    finally:
+        sensor_socket.close()
+
+
+def test_a_burst_of_records_between_two_reads_is_parsed_at_once():
+    """After the first record, 70 more arrive before the next read (40 in one buffered-mode datagram, 30 one
+    by one, a malformed datagram among them): one read, one drain and parse, all 71 in order."""
+    with hand_sensor("127.0.0.141") as (sensor, send):
+        drains = []
+        drain = sensor._link.rdt.drain
+        sensor._link.rdt.drain = lambda: drains.append(drain()) or drains[-1]
+        send(hand_records(list(range(2, 42))))
+        send(b"\x12" * 35)  # not a whole record: malformed, skipped
+        for i in range(42, 72):
+            send(hand_records([i]))
+        samples = sensor.read(time.monotonic_ns() + 10**9)  # every sample parsed: their times end at the read's
+    assert [len(d) for d in drains] == [71]  # one drain, one np.frombuffer for the whole tick
+    assert [s.seq for s in samples] == [10 * i for i in range(1, 72)]
+    np.testing.assert_allclose([s.force_S for s in samples], [HAND_COUNTS[:3] * i / 1000 for i in range(1, 72)])
+    np.testing.assert_allclose([s.torque_S for s in samples], [HAND_COUNTS[3:] * i / 1000 for i in range(1, 72)])
+    assert (np.diff([s.t_ns for s in samples]) > 0).all()
+    health = sensor.health_counters()
+    assert health["received"] == 71 and health["malformed"] == 1
+    assert health["lost"] == health["duplicate"] == health["out_of_order"] == 0
+
+
+def test_our_receiver_sorts_out_reorders_duplicates_late_records_and_a_restarted_sensor():
+    """Each read by hand: what reaches the stream, and the counters (rdt.COUNTER_DOC)."""
+    def read(*datagrams):
+        for datagram in datagrams:
+            send(datagram)
+        return [s.seq for s in sensor.read(time.monotonic_ns() + 10**9)]
+
+    with hand_sensor("127.0.0.143") as (sensor, send):
+        assert read() == [10]
+        assert read(hand_records([3, 2, 2, 5])) == [20, 30, 50]  # reordered in one read: sorted; 4 missing
+        assert read(hand_records([4, 6, 3])) == [60]  # 4 late for its hole, 3 a duplicate
+        assert read(hand_records([7, 8], [70, 70])) == [70]  # 8 repeats ft_sequence 70: a stall
+        assert read(hand_records([9], [65])) == []  # ft_sequence back within a stream: refused
+        events = sensor.drain_events()
+        sensor._link.rdt.restart()  # as after a receive timeout: the start request again
+        # the sensor had restarted (its counter too): the new stream numbers rdt_sequence from 1
+        assert read(hand_records(list(range(1, 4)), [5, 6, 7])) == [71, 72, 73]
+        health = sensor.health_counters()
+    assert not any(e.kind == "sensor_restart" for e in events)
+    assert [e.kind for e in sensor.drain_events()].count("sensor_restart") == 1
+    assert health["received"] == 1 + 4 + 3 + 2 + 1 + 3
+    assert health["out_of_order"] == 2  # 2 after 3, 4 after 5 (the second 2 and 3 are duplicates only)
+    assert health["duplicate"] == 2 and health["late"] == 1 and health["lost"] == 1  # rdt 4: lost, then late
+    assert health["stall"] == 1 and health["ft_backward"] == 1 and health["ft_restart"] == 1
+    assert health["reconnect"] == 1
+
+
+def test_datagrams_from_another_address_are_ignored(receiver):
     world = demo_world()
     with NetFTEmulator(world, "127.0.0.135", 0, 0) as emu:
-        sensor = NetFTSensor("127.0.0.135", emu.rdt_port, emu.http_port)
+        sensor = NetFTSensor("127.0.0.135", emu.rdt_port, emu.http_port, receiver=receiver)
         sensor.open(time.monotonic_ns())
         read_samples(sensor, 10)
         forger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -233,7 +356,7 @@ def test_datagrams_from_another_address_are_ignored():
     assert health["lost"] == health["out_of_order"] == health["duplicate"] == health["malformed"] == 0
 
 
-def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path):
+def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, receiver):
     """A whole session on the emulator; 2000 records into the stream the cable is pulled for 0.3 s."""
     from hapticlab.sessions.live.build import build_session
     from hapticlab.sessions.live.loop import run_session
@@ -241,7 +364,8 @@ def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path):
     config = load_config("demo")[0]
     with NetFTEmulator(SimWorld.from_config(config["world"]), "127.0.0.137", 0, 0) as emu:
         config["sensor"] = {"name": "netft", "address": "127.0.0.137", "rdt_port": emu.rdt_port,
-                            "http_port": emu.http_port, "receive_timeout": 0.05, "range_force": 65.0}
+                            "http_port": emu.http_port, "receive_timeout": 0.05, "range_force": 65.0,
+                            "receiver": receiver}
         config["session"] = dict(config["session"], duration=2.0, stale_timeout=0.02)  # ms hiccups are no dropouts
         session = build_session(config)
         assert session.device_events and session.device_events[0][0] == "sensor"
@@ -289,26 +413,27 @@ def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path):
     ({"range_force": [1.0, 2.0]}, "range_force"),
     ({"rdt_port": "49152"}, "rdt_port"),
     ({"bogus": 1}, "bogus"),
+    ({"receiver": "libnetft"}, "receiver"),
 ])
-def test_a_bad_config_is_one_line_naming_the_key(options, key):
+def test_a_bad_config_is_one_line_naming_the_key(options, key, receiver):
     with pytest.raises(ConfigError) as err:
-        Registry().create("sensor", "netft", options, where="sensor")
+        Registry().create("sensor", "netft", {**options, "receiver": options.get("receiver", receiver)}, where="sensor")
     message = str(err.value)
     assert message.startswith(f"sensor.{key}:") and "\n" not in message
 
 
-def test_no_sensor_is_a_clear_error_at_open():
-    sensor = NetFTSensor("127.0.0.138", 9, 9, connect_timeout=0.3)  # nothing listens there
+def test_no_sensor_is_a_clear_error_at_open(receiver):
+    sensor = NetFTSensor("127.0.0.138", 9, 9, connect_timeout=0.3, receiver=receiver)  # nothing listens there
     with pytest.raises(ConnectionError, match="no Net F/T record from 127.0.0.138:9"):
         sensor.open(time.monotonic_ns())
 
 
-def test_the_calibration_override_replaces_the_sensors():
+def test_the_calibration_override_replaces_the_sensors(receiver):
     world = demo_world()
     with NetFTEmulator(world, "127.0.0.139", 0, 0, counts_per_force=1000.0, counts_per_torque=1000.0,
                        force_unit="N", torque_unit="Nm") as emu:
         sensor = NetFTSensor("127.0.0.139", emu.rdt_port, emu.http_port, counts_per_force=2000.0,
-                             counts_per_torque=1.0, force_unit="N", torque_unit="N-mm")
+                             counts_per_torque=1.0, force_unit="N", torque_unit="N-mm", receiver=receiver)
         sensor.open(time.monotonic_ns())
         samples = read_samples(sensor, 200)
         sensor.close()
@@ -344,6 +469,9 @@ def test_the_device_clock_follows_the_fastest_packets_and_a_drifting_crystal():
     assert error_ns[7000:].min() >= 30_000 - 1  # never before the fastest packet allows
     assert error_ns[7000:].max() < 60_000  # within 30 µs of the latency floor after the first second
     assert np.percentile(latency_ns, 50) > 150_000  # stamping by receipt would be off by this much
+    batch_clock = DeviceClock(7000.0, slew_ppm=200.0)  # the same stamps a batch at a time
+    batched = np.concatenate([batch_clock.stamp_many(k[i:i + 7], received[i:i + 7]) for i in range(0, len(k), 7)])
+    assert np.abs(batched - t).max() <= 1
 
 
 def test_a_wire_fault_parses_from_the_command_line():

@@ -1,0 +1,468 @@
+"""hapticlab's own receiver of the ATI Net F/T's RDT stream, for the ``netft`` sensor (``receiver = "hapticlab"``).
+
+Why not pynetft here: pynetft (the community client, still used for
+``receiver = "pynetft"``) builds Python objects for every record on its own
+thread, ~40–60 µs a sample on a loaded 2-core machine, and it stops and
+reconnects the stream whenever a record's status word reports an error
+(saturation included): a 3–250 ms blackout per saturated record.
+
+What this module does instead:
+
+* **A UDP socket connected to the sensor** (the kernel drops datagrams from
+  any other address), with a large ``SO_RCVBUF``, and the 8-byte big-endian
+  RDT requests (``uint16 0x1234, uint16 command, uint32 sample_count``):
+  start (0x0002, real-time: one record per datagram; 0x0003 is ATI's
+  "buffered" mode, ``comrdtbsiz`` records per datagram), stop (0x0000),
+  bias (0x0042).
+* **No thread**: :meth:`RdtReceiver.poll` (called once per loop tick) drains the
+  socket with ``recv_into`` into one preallocated buffer until it would
+  block, then reads every record of the tick with one ``np.frombuffer`` of a
+  big-endian structured dtype. A datagram of any whole number of 36-byte
+  records is accepted (real-time and buffered mode alike).
+* **Health counted on the batch, vectorised** (:data:`COUNTER_DOC`).
+* **A status word never stops the stream**: a saturated record reaches the
+  stream with its status bits, so the haptic force is zero for exactly the
+  bad samples.
+* ``netftapi2.xml`` is read with ``urllib`` and ``xml.etree``
+  (:func:`fetch_configuration`): pynetft fetches it only inside its stream.
+
+The ATI status word's decoding, the unit tables and :class:`DeviceClock`
+live here too, shared by both receivers (``netft`` re-exports them).
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+import urllib.request
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
+
+FT_RATE_HZ = 7000.0
+"""The Net F/T's internal sample rate: ``ft_sequence`` counts at this rate, Hz."""
+RDT_PORT = 49152
+"""The RDT protocol's UDP port."""
+RDT_HEADER = 0x1234
+CMD_STOP, CMD_START, CMD_START_BUFFERED, CMD_BIAS = 0x0000, 0x0002, 0x0003, 0x0042
+RECORD_DTYPE = np.dtype([("rdt_sequence", ">u4"), ("ft_sequence", ">u4"), ("status", ">u4"), ("counts", ">i4", (6,))])
+"""One RDT record as on the wire (36 bytes, big-endian): Fx Fy Fz Tx Ty Tz in counts."""
+RECORD_SIZE = RECORD_DTYPE.itemsize
+MAX_DATAGRAM = 64 * RECORD_SIZE
+"""Largest datagram read whole, bytes (ATI's buffered mode sends at most 40 records); a longer one is malformed."""
+REWIND = 1024
+"""A record this many rdt_sequence numbers behind, numbered at most this, starts a new stream (a start request)."""
+
+FORCE_UNITS: dict[str, float] = {"N": 1.0, "kN": 1000.0, "lbf": 4.4482216152605, "klbf": 4448.2216152605,
+                                 "kgf": 9.80665}
+"""N per force unit, by the spelling ``scfgfu`` uses."""
+TORQUE_UNITS: dict[str, float] = {"N-m": 1.0, "Nm": 1.0, "N-mm": 1e-3, "Nmm": 1e-3, "kN-m": 1000.0,
+                                  "lbf-in": 0.1129848290276167, "lbf-ft": 1.3558179483314004,
+                                  "kgf-cm": 0.0980665, "kg-cm": 0.0980665}
+"""N·m per torque unit, by the spellings ``scfgtu`` uses."""
+TORQUE_SPELLING = {"Nm": "N-m", "Nmm": "N-mm", "kg-cm": "kgf-cm"}
+"""Other spellings of a torque unit -> the one recorded (pynetft's)."""
+
+# The ATI status word (Net F/T manual, "System Status Code"). Bit 31 summarises every error bit.
+ATI_ERROR_SUMMARY = 0x8000_0000
+ATI_SATURATION = 0x0002_0000
+"""Transducer saturation or A/D error: the reading is clipped or no number at all."""
+ATI_MONITOR_LATCHED = 0x0001_0000
+"""A threshold monitor condition latched (the user's own thresholds; the reading itself is good)."""
+ATI_STATUS_BITS: dict[int, str] = {
+    30: "CPU or RAM error", 29: "digital board error", 28: "analog board error",
+    27: "serial link error", 26: "program memory check failed", 25: "halted on configuration errors",
+    24: "settings validation error", 23: "configuration does not fit the calibration",
+    22: "network communication failure", 21: "CAN error", 20: "RDT communication error",
+    19: "EtherNet/IP failure", 18: "DeviceNet failure", 17: "transducer saturation or A/D error",
+    16: "monitor condition latched", 14: "watchdog timeout", 13: "stack check error",
+    12: "serial EEPROM failure", 11: "serial flash failure", 10: "analog board watchdog timeout",
+    9: "strain gage excitation current too high", 8: "strain gage excitation current too low",
+    7: "artificial analog ground out of range", 6: "analog supply too high", 5: "analog supply too low",
+    4: "serial link data unavailable", 3: "reference voltage or power monitor error",
+    2: "internal temperature error", 1: "HTTP failure",
+}
+"""What each bit of the status word says (bit 31 is the error summary)."""
+_OTHER_ERRORS = 0xFFFF_FFFF & ~(ATI_ERROR_SUMMARY | ATI_SATURATION | ATI_MONITOR_LATCHED)
+
+COUNTER_DOC = {
+    "received": "records received (duplicates and late ones included)",
+    "lost": "rdt_sequence numbers the stream skipped: records dropped on the way, or arriving too late "
+            "to be delivered in order (those also count as late)",
+    "duplicate": "records whose rdt_sequence had already been received (not delivered)",
+    "out_of_order": "records (duplicates aside) that arrived after one with a higher rdt_sequence; "
+                    "delivered in order when they arrive in the same read, else late",
+    "late": "out-of-order records that arrived after the stream had passed them (not delivered)",
+    "stall": "records repeating the previous ft_sequence: the sensor's sampling stalled (not delivered)",
+    "ft_backward": "records whose ft_sequence went back within one stream (not delivered)",
+    "ft_restart": "the sensor restarted its counter: a new stream's ft_sequence behind the last one",
+    "malformed": "datagrams that are not a whole number of 36-byte records",
+    "timeout": "receive timeouts (no record for receive_timeout)",
+    "reconnect": "start requests sent again after a timeout",
+    "device_error": "delivered records with an error bit in their status word",
+    "warning": "delivered records with only a threshold monitor bit in their status word",
+    "queue_dropped": "always 0: no queue (a full socket buffer shows as lost)",
+    "calibration_change": "always 0: the calibration is read once, at open",
+}
+"""The receiver's health counters and what they count, since ``open``."""
+
+
+def stream_status(word: int) -> int:
+    """The stream's status bits (``core.types``) for an ATI status word.
+
+    Saturation (bit 17) is ``STATUS_SATURATED``; any other error bit, or the
+    summary bit alone, is ``STATUS_DEVICE_ERROR``. A latched threshold monitor
+    (bit 16) with the summary is a warning about the user's thresholds, not a
+    bad reading: ``STATUS_OK``.
+    """
+    bits = STATUS_SATURATED if word & ATI_SATURATION else STATUS_OK
+    if word & _OTHER_ERRORS or word == ATI_ERROR_SUMMARY:
+        bits |= STATUS_DEVICE_ERROR
+    return bits
+
+
+def stream_status_array(words: np.ndarray) -> np.ndarray:
+    """:func:`stream_status` of many status words at once: (n,) int64."""
+    words = np.asarray(words, dtype=np.int64)
+    bits = np.where(words & ATI_SATURATION, STATUS_SATURATED, STATUS_OK)
+    return bits | np.where((words & _OTHER_ERRORS != 0) | (words == ATI_ERROR_SUMMARY), STATUS_DEVICE_ERROR, 0)
+
+
+def describe_status(word: int) -> str:
+    """The status word in words ("healthy" when 0)."""
+    if word == 0:
+        return "healthy"
+    names = [name for bit, name in ATI_STATUS_BITS.items() if word & (1 << bit)]
+    if word & ATI_ERROR_SUMMARY and not names:
+        names = ["error summary"]
+    return ", ".join(names) or f"unknown bits 0x{word:08x}"
+
+
+@dataclass(frozen=True, slots=True)
+class Calibration:
+    """A Net F/T calibration: counts per force unit and per torque unit, and the units (``N``, ``N-m``, ...)."""
+
+    counts_per_force: float
+    counts_per_torque: float
+    force_unit: str
+    torque_unit: str
+
+    def si_per_count(self) -> np.ndarray:
+        """(6,) N per count (×3) and N·m per count (×3)."""
+        return np.repeat([FORCE_UNITS[self.force_unit] / self.counts_per_force,
+                          TORQUE_UNITS[self.torque_unit] / self.counts_per_torque], 3)
+
+    def fields(self) -> dict[str, str]:
+        """As the ``calibration`` strings (HasCalibration)."""
+        return {"counts_per_force": f"{self.counts_per_force:g}", "counts_per_torque": f"{self.counts_per_torque:g}",
+                "force_unit": self.force_unit, "torque_unit": self.torque_unit}
+
+
+def fetch_configuration(address: str, http_port: int, timeout: float) -> tuple[str, Calibration]:
+    """The product name and active calibration from the sensor's ``netftapi2.xml``.
+
+    Raises OSError (no answer within ``timeout`` s) or ValueError (a page without a usable
+    ``cfgcpf``, ``cfgcpt``, ``scfgfu``, ``scfgtu``). No proxy: the sensor is on the lab's network.
+    """
+    opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+    with opener.open(f"http://{address}:{http_port}/netftapi2.xml", timeout=timeout) as response:
+        root = ET.fromstring(response.read())
+    fields = {child.tag: (child.text or "").strip() for child in root}
+    try:
+        cpf, cpt = float(fields["cfgcpf"]), float(fields["cfgcpt"])
+        force_unit, torque_unit = fields["scfgfu"], TORQUE_SPELLING.get(fields["scfgtu"], fields["scfgtu"])
+    except (KeyError, ValueError) as exc:
+        raise ValueError(f"netftapi2.xml: no usable calibration ({exc})") from None
+    if force_unit not in FORCE_UNITS or torque_unit not in TORQUE_UNITS or not (cpf > 0 and cpt > 0):
+        raise ValueError(f"netftapi2.xml: unusable calibration {cpf:g} counts/{force_unit}, "
+                         f"{cpt:g} counts/{torque_unit}")
+    return fields.get("prodname", "ATI Net F/T"), Calibration(cpf, cpt, force_unit, torque_unit)
+
+
+class DeviceClock:
+    """Maps a device's sample counter onto the session's monotonic clock, ns.
+
+    The counter ``k`` runs at ``rate_hz`` on the device's crystal; a sample's
+    receive time is its device time plus a latency that is never negative and
+    often near its minimum. So the offset between the two clocks is the lower
+    envelope of ``received_ns − k·1e9/rate_hz``: it follows every new minimum at
+    once, and may rise at ``slew_ppm`` of the elapsed device time (the device's
+    crystal running fast against the host's, ≤ ~100 ppm for a crystal). A
+    sample's time is ``k·1e9/rate_hz + offset``: never later than its receipt,
+    spaced by the device's own clock, and non-decreasing (a lower envelope that
+    drops by more than one sample period is held to the previous time + 1 ns).
+
+    Parameters
+    ----------
+    rate_hz : the counter's rate, Hz.
+    slew_ppm : fastest rise of the offset, parts per million of device time.
+    """
+
+    def __init__(self, rate_hz: float = FT_RATE_HZ, slew_ppm: float = 200.0):
+        self.period_ns = 1e9 / rate_hz
+        self.slew = slew_ppm * 1e-6
+        self.offset_ns: float | None = None
+        self.last_k: int | None = None
+        self.last_t_ns: int | None = None
+
+    def reset(self) -> None:
+        """Forget the mapping (the device restarted its counter)."""
+        self.offset_ns = self.last_k = self.last_t_ns = None
+
+    def stamp(self, k: int, received_ns: int) -> int:
+        """The session time of device sample ``k`` (unwrapped counter) received at ``received_ns``, ns."""
+        device_ns = k * self.period_ns
+        seen = received_ns - device_ns
+        if self.offset_ns is None:
+            self.offset_ns = seen
+        else:
+            self.offset_ns = min(seen, self.offset_ns + self.slew * (k - self.last_k) * self.period_ns)
+        self.last_k = k
+        t_ns = int(round(device_ns + self.offset_ns))
+        if self.last_t_ns is not None and t_ns <= self.last_t_ns:
+            t_ns = self.last_t_ns + 1
+        self.last_t_ns = t_ns
+        return t_ns
+
+    def stamp_many(self, k: np.ndarray, received_ns: int | np.ndarray) -> np.ndarray:
+        """:meth:`stamp` of many samples at once (unwrapped counters ``k`` in order), ns.
+
+        The envelope's recursion ``o_i = min(seen_i, o_(i-1) + c·(k_i − k_(i-1)))`` is
+        ``c·k_i + cummin(seen_j − c·k_j)``, and "at least the previous time + 1 ns" is
+        ``i + cummax(t_j − j)``: two accumulates instead of a Python loop.
+        """
+        c = self.slew * self.period_ns
+        base = received_ns - k * (self.period_ns + c)  # seen − c·k
+        np.minimum.accumulate(base, out=base)
+        if self.offset_ns is not None:
+            np.minimum(base, self.offset_ns - c * self.last_k, out=base)
+        self.offset_ns, self.last_k = float(base[-1] + c * k[-1]), int(k[-1])
+        step = np.arange(len(k))
+        u = np.rint(base + k * (self.period_ns + c)).astype(np.int64) - step  # t − i
+        if self.last_t_ns is not None:
+            np.maximum(u, self.last_t_ns + 1, out=u)
+        t_ns = np.maximum.accumulate(u) + step
+        self.last_t_ns = int(t_ns[-1])
+        return t_ns
+
+
+@dataclass(slots=True)
+class RdtBatch:
+    """The records of one poll that reach the stream, in order.
+
+    Attributes:
+        k: (n,) int64 unwrapped ft_sequence (the device's sample number).
+        status: (n,) int64 ATI status words.
+        values: (n, 6) counts, Fx Fy Fz Tx Ty Tz.
+        received_ns: when they were read (the drain), monotonic ns.
+        restarts: (index, old ft_sequence, new ft_sequence) where the sensor restarted its counter.
+    """
+
+    k: np.ndarray
+    status: np.ndarray
+    values: np.ndarray
+    received_ns: int
+    restarts: list[tuple[int, int, int]]
+
+
+class RdtReceiver:
+    """An RDT client on one connected UDP socket, drained without a thread.
+
+    Parameters
+    ----------
+    address, port : the sensor's IP address (or host name) and RDT port.
+    rcvbuf_bytes : the socket receive buffer asked for, bytes (the kernel caps it at
+        ``net.core.rmem_max`` and doubles it; :attr:`rcvbuf_bytes` is what it granted).
+    capacity : records one poll reads at most (the rest wait in the socket for the next).
+    """
+
+    def __init__(self, address: str, port: int = RDT_PORT, rcvbuf_bytes: int = 4 << 20, capacity: int = 16384):
+        self.address, self.port = address, port
+        self.counters = dict.fromkeys(COUNTER_DOC, 0)
+        """The health counters since :meth:`open` (:data:`COUNTER_DOC`)."""
+        self._buffer = bytearray(capacity * RECORD_SIZE + MAX_DATAGRAM + 1)
+        self._view = memoryview(self._buffer)
+        self._rcvbuf_asked = rcvbuf_bytes
+        self.rcvbuf_bytes = 0
+        self._sock: socket.socket | None = None
+        self._rdt: int | None = None  # the highest rdt_sequence received in this stream, as sent
+        self._r = 0  # ... unwrapped
+        self._ft: int | None = None  # the ft_sequence of the newest delivered record, as sent
+        self._k = 0  # ... unwrapped
+        self._new_stream = True
+        self._asked_again = False
+        self._holes: list[tuple[int, int]] = []  # recent gaps [lo, hi] in unwrapped rdt_sequence
+        self._steps = np.arange(1, capacity + MAX_DATAGRAM // RECORD_SIZE + 1)
+
+    def open(self) -> None:
+        """Connect the socket and send the start request (real-time mode, until stopped)."""
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self._rcvbuf_asked)
+        self.rcvbuf_bytes = self._sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        self._sock.connect((self.address, self.port))
+        self._sock.setblocking(False)
+        self.request(CMD_START)
+
+    def request(self, command: int, count: int = 0) -> None:
+        """Send an RDT request (``CMD_START``, ``CMD_START_BUFFERED``, ``CMD_STOP``, ``CMD_BIAS``)."""
+        try:
+            self._sock.send(RDT_HEADER.to_bytes(2, "big") + command.to_bytes(2, "big") + count.to_bytes(4, "big"))
+        except OSError:  # ICMP unreachable from an earlier send, or no route: the timeout will tell
+            pass
+
+    def restart(self) -> None:
+        """Send the start request again (after a receive timeout); the sensor numbers rdt_sequence from 1 again."""
+        self.counters["reconnect"] += 1
+        self._asked_again = True  # whatever rdt_sequence rewinds to (at most REWIND) next is the new stream
+        self.request(CMD_START)
+
+    def wait(self, timeout: float) -> bool:
+        """Block until a datagram is waiting, at most ``timeout`` s (for ``open``; never in the loop)."""
+        self._sock.settimeout(timeout)
+        try:
+            self._sock.recv(1, socket.MSG_PEEK)
+            return True
+        except OSError:
+            return False
+        finally:
+            self._sock.setblocking(False)
+
+    def close(self) -> None:
+        """Send the stop request and close the socket."""
+        if self._sock is not None:
+            self.request(CMD_STOP)
+            self._sock.close()
+            self._sock = None
+
+    # ------------------------------------------------------------------ the stream
+
+    def drain(self) -> np.ndarray:
+        """Every record waiting in the socket (up to ``capacity``): a structured view of the buffer, valid until
+        the next drain."""
+        view, size, limit = self._view, 0, len(self._buffer) - MAX_DATAGRAM - 1
+        recv_into = self._sock.recv_into
+        while size <= limit:
+            try:
+                n = recv_into(view[size:], MAX_DATAGRAM + 1)  # one byte more: a truncated datagram shows
+            except (BlockingIOError, InterruptedError):
+                break
+            except ConnectionRefusedError:  # an ICMP "port unreachable" for an earlier request: nobody there
+                break
+            if n == 0 or n % RECORD_SIZE:
+                self.counters["malformed"] += 1
+                continue  # not kept: the next datagram overwrites it
+            size += n
+        return np.frombuffer(self._buffer, RECORD_DTYPE, size // RECORD_SIZE)
+
+    def poll(self) -> RdtBatch | None:
+        """Drain the socket; the records that reach the stream, with the health counters updated.
+
+        Their receive time is the clock read once the socket is empty: every record was there before it
+        (a time read before draining could precede a record that came during the drain).
+        """
+        records = self.drain()
+        now_ns = time.monotonic_ns()
+        n = len(records)
+        if n == 0:
+            return None
+        self.counters["received"] += n
+        rdt = records["rdt_sequence"].astype(np.int64)
+        ft = records["ft_sequence"].astype(np.int64)
+        status = records["status"].astype(np.int64)
+        values = records["counts"]
+        if self._rdt is not None and not self._new_stream:  # the usual tick: consecutive records, ft forward
+            d_ft = np.empty(n, dtype=np.int64)
+            d_ft[0] = ft[0] - self._ft
+            np.subtract(ft[1:], ft[:-1], out=d_ft[1:])
+            d_ft &= 0xFFFF_FFFF
+            consecutive = ((rdt - self._rdt) & 0xFFFF_FFFF == self._steps[:n]).all()
+            if consecutive and ((d_ft - 1) & 0xFFFF_FFFF < 2**31 - 1).all():  # every ft step in [1, 2³¹)
+                k = np.cumsum(d_ft)
+                k += self._k
+                self._rdt, self._r, self._ft, self._k = int(rdt[-1]), self._r + n, int(ft[-1]), int(k[-1])
+                self._count_status(status)
+                return RdtBatch(k, status, values.astype(np.float64), now_ns, [])
+        index, k, restarts = self._sort_out(rdt, ft)
+        status = status[index]
+        self._count_status(status)
+        return RdtBatch(k, status, values[index].astype(np.float64), now_ns, restarts)
+
+    def _count_status(self, status: np.ndarray) -> None:
+        if status.any():
+            bits = stream_status_array(status)
+            self.counters["device_error"] += int(np.count_nonzero(bits))
+            self.counters["warning"] += int(np.count_nonzero((status != 0) & (bits == 0)))
+
+    def _sort_out(self, rdt: np.ndarray, ft: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
+        """The slow path (a fault in the batch): which records reach the stream, in rdt_sequence order.
+
+        Returns the indices of the records delivered, their unwrapped ft_sequence, and the restarts.
+        """
+        # a record far behind (any way behind after our start request) numbered at most REWIND starts a new
+        # stream: the sensor numbers rdt_sequence from 1 after every start request
+        previous = np.concatenate([[self._rdt if self._rdt is not None else rdt[0]], rdt[:-1]])
+        behind = ((previous - rdt) & 0xFFFF_FFFF)
+        starts = np.flatnonzero((behind > (0 if self._asked_again else REWIND)) & (behind < 2**31) & (rdt <= REWIND))
+        if len(starts):
+            starts, self._asked_again = starts[:1] if self._asked_again else starts, False
+        bounds = ([0] if self._rdt is None else []) + starts.tolist()
+        segments = [(a, b) for a, b in zip([0] + bounds, bounds + [len(rdt)]) if b > a]
+        index, k, restarts = [], [], []
+        for a, b in segments:
+            if a in bounds:  # a new stream: anchor just before its first record
+                self._rdt, self._r, self._holes, self._new_stream = int(rdt[a] - 1) & 0xFFFF_FFFF, 0, [], True
+            i, kk = self._segment(rdt[a:b], ft[a:b], restarts, sum(len(x) for x in index))
+            index.append(i + a)
+            k.append(kk)
+        return np.concatenate(index), np.concatenate(k), restarts
+
+    def _segment(self, rdt, ft, restarts, offset) -> tuple[np.ndarray, np.ndarray]:
+        c = self.counters
+        r = self._r + (((rdt - self._rdt + 2**31) & 0xFFFF_FFFF) - 2**31)  # unwrapped around the anchor
+        inverted = r < np.maximum.accumulate(np.concatenate([[self._r], r[:-1]]))  # after a higher one
+        duplicate = np.zeros(len(r), dtype=bool)
+        old = np.flatnonzero(r <= self._r)
+        for i, ri in zip(old.tolist(), r[old].tolist()):  # passed already: a duplicate, or late for its hole
+            hole = next((j for j, (lo, hi) in enumerate(self._holes) if lo <= ri <= hi), None)
+            if hole is None:
+                duplicate[i] = True
+                continue
+            c["late"] += 1
+            lo, hi = self._holes.pop(hole)
+            self._holes[hole:hole] = [h for h in ((lo, ri - 1), (ri + 1, hi)) if h[0] <= h[1]]
+        fresh = np.flatnonzero(r > self._r)
+        fresh = fresh[np.argsort(r[fresh], kind="stable")]
+        repeated = np.concatenate([[False], r[fresh][1:] == r[fresh][:-1]])  # the later arrivals of a number
+        duplicate[fresh[repeated]] = True
+        c["duplicate"] += int(np.count_nonzero(duplicate))
+        c["out_of_order"] += int(np.count_nonzero(inverted & ~duplicate))  # a duplicate counts as that only
+        fresh = fresh[~repeated]
+        if len(fresh) == 0:
+            return fresh, np.zeros(0, np.int64)
+        rs = r[fresh]
+        gaps = np.diff(rs, prepend=self._r) - 1
+        c["lost"] += int(gaps.sum())
+        for hi, gap in zip((rs[gaps > 0] - 1).tolist(), gaps[gaps > 0].tolist()):
+            self._holes.append((hi - gap + 1, hi))
+        del self._holes[:-256]
+        self._rdt, self._r = int(rdt[fresh[-1]]), int(rs[-1])
+        f = ft[fresh]
+        if self._ft is None:  # the first record: k is its ft_sequence as sent
+            self._ft, self._k = int(f[0] - 1) & 0xFFFF_FFFF, int(f[0]) - 1
+        kk = self._k + (((f - self._ft + 2**31) & 0xFFFF_FFFF) - 2**31)
+        if self._new_stream and kk[0] < self._k:  # a new stream behind the old one: the sensor restarted
+            c["ft_restart"] += 1
+            restarts.append((offset, self._ft, int(f[0])))
+            kk += self._k + 1 - kk[0]
+        self._new_stream = False
+        before = np.maximum.accumulate(np.concatenate([[self._k], kk[:-1]]))
+        c["stall"] += int(np.count_nonzero(kk == before))
+        c["ft_backward"] += int(np.count_nonzero(kk < before))
+        keep = kk > before
+        if keep.any():
+            newest = int(np.argmax(kk))
+            self._ft, self._k = int(f[newest]), int(kk[newest])
+        return fresh[keep], kk[keep]

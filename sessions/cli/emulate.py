@@ -78,15 +78,24 @@ def run_rig(args: argparse.Namespace) -> int:
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
         if threading.current_thread() is threading.main_thread() else None
-    with sensor, arm:  # started back to back: their world clocks agree to a few µs
-        t0_ns = sensor.t0_ns  # world time 0 on the monotonic clock
-        print(f"rig: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
-              f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}; "
-              f"t0_ns={t0_ns}", flush=True)
+    sensor.start()
+    try:
         try:
-            stop.wait(args.duration)
-        except KeyboardInterrupt:
-            pass
+            arm.start(t0_ns=sensor.t0_ns)  # one world time: the arm's timestamp 0 is the sensor's first sample
+        except OSError as exc:
+            raise ConfigError(f"emulate rig: cannot serve RTDE on {args.ur}:30004: {exc.strerror or exc}") from None
+        try:
+            print(f"rig: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
+                  f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}; "
+                  f"t0_ns={sensor.t0_ns}", flush=True)
+            try:
+                stop.wait(args.duration)
+            except KeyboardInterrupt:
+                pass
+        finally:
+            arm.stop()
+    finally:
+        sensor.stop()
     if previous is not None:
         signal.signal(signal.SIGTERM, previous)
     print(f"sent {sensor.counts.sent} RDT records and {arm.packages_sent} RTDE data packages", flush=True)

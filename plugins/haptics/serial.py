@@ -37,6 +37,7 @@ is ``state`` (the handle's measured Cartesian pose, with its velocity).
 from __future__ import annotations
 
 import math
+import select
 import time
 import typing
 from dataclasses import dataclass
@@ -118,10 +119,17 @@ class SerialPort:
         except (self._serial_exception, OSError) as exc:
             raise MasterLostError(f"{self.name}: write failed: {_why(exc)}", "gone") from None
 
-    def read(self, size: int) -> bytes:
-        """Up to ``size`` bytes: fewer when the port's read timeout passes first."""
+    def read(self, size: int, deadline: float) -> bytes:
+        """Up to ``size`` bytes: those already received, else the first to arrive before ``deadline``
+        (monotonic s); b"" when none came. Never waits past the deadline, whatever the port's own timeout."""
         try:
-            return self.serial.read(size)
+            waiting = self.serial.in_waiting
+            if not waiting:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not select.select([self.serial.fileno()], [], [], remaining)[0]:
+                    return b""
+                waiting = self.serial.in_waiting or 1  # 0 when the other side hung up: read says so
+            return self.serial.read(min(size, waiting))
         except (self._serial_exception, OSError) as exc:
             raise MasterLostError(f"{self.name}: read failed: {_why(exc)}", "gone") from None
 
@@ -208,7 +216,7 @@ class HapticlabLink:
             self.port.write(framing.encode_frame(framing.HELLO, seq, framing.pack_hello(self.watchdog_s)))
             retry_at = min(deadline, time.monotonic() + 0.1)  # an Arduino may still be in its bootloader
             while time.monotonic() < retry_at:
-                data = self.port.read(max(1, self.port.waiting()))
+                data = self.port.read(4096, retry_at)
                 received += len(data)
                 for frame in self.decoder.feed(data):
                     if (frame.kind == framing.NAK and len(frame.payload) == framing.NAK_FORMAT.size
@@ -262,7 +270,7 @@ class HapticlabLink:
         if not waiting and not self.outstanding:
             return []
         errors_before = self.decoder.crc_errors
-        frames = self.decoder.feed(self.port.read(waiting)) if waiting else []
+        frames = self.decoder.feed(self.port.read(waiting, 0.0)) if waiting else []
         outcomes: list[Reading | None] = []
         for _ in range(self.decoder.crc_errors - errors_before):
             outcomes.append(None)
@@ -309,9 +317,8 @@ class HapticlabLink:
         deadline = time.monotonic() + self.read_timeout
         errors_before = self.decoder.crc_errors
         arrived = False
-        reply_size = framing.HEADER_SIZE + framing.STATE_FORMAT.size + framing.CRC_SIZE
         while True:
-            data = self.port.read(max(reply_size - self.decoder.pending(), self.port.waiting(), 1))
+            data = self.port.read(4096, deadline)
             arrived |= bool(data)
             for frame in self.decoder.feed(data):
                 if frame.kind == framing.STATE and len(frame.payload) == framing.STATE_FORMAT.size:
@@ -358,8 +365,11 @@ class Inverse3Link:
 
     def _read_exactly(self, size: int, deadline: float) -> bytes:
         data = b""
-        while len(data) < size and time.monotonic() < deadline:
-            data += self.port.read(size - len(data))
+        while len(data) < size:
+            chunk = self.port.read(size - len(data), deadline)
+            if not chunk:
+                break
+            data += chunk
         return data
 
     def handshake(self, timeout_s: float) -> str:

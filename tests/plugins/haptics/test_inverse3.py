@@ -84,7 +84,7 @@ def test_our_plugin_writes_the_bytes_haplys_client_writes():
         heard_ours: list[bytes] = []
         thread = threading.Thread(target=device, args=([info.pack(), state], heard_ours), daemon=True)
         thread.start()
-        plugin = SerialHaptic(port, "inverse3", device_max_force=5.0)
+        plugin = SerialHaptic(port, "inverse3", device_max_force=5.0, read_timeout=1.0)
         plugin.open()
         plugin.send(command(force))
         thread.join(5.0)
@@ -105,7 +105,7 @@ def emulator():
 
 @pytest.fixture
 def device(emulator):
-    dev = SerialHaptic(emulator.port, "inverse3", device_max_force=4.0, read_timeout=0.2, reconnect_interval=0.05)
+    dev = SerialHaptic(emulator.port, "inverse3", device_max_force=4.0, read_timeout=1.0, reconnect_interval=0.05)
     dev.open()
     yield dev
     dev.close()
@@ -140,6 +140,7 @@ def test_a_bad_reply_is_counted_and_the_next_exchange_is_clean(emulator, device)
 
 def test_an_unplugged_or_silent_inverse3_raises(emulator, device):
     device.send(command([0.1, 0.0, 0.0]))
+    device.link.read_timeout = 0.2  # from here on the timeout is what is tested: make it short
     emulator.stop_answering()
     with pytest.raises(MasterLostError, match="no reply within 200 ms"):
         device.send(command([0.1, 0.0, 0.0]))

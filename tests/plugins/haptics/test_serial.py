@@ -27,6 +27,7 @@ from hapticlab.plugins.haptics.master_emulator import MasterEmulator, recorded_m
 from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, SerialHaptic, clamp_force
 
 GUARD_S = 10.0  # a guard against hangs only
+SLOW = 1.0  # s: read timeout of tests that are not about timeouts (a loaded machine may stall a reply)
 
 
 def command(force, enabled=True, t_ns=0):
@@ -41,7 +42,7 @@ def emulator():
 
 @pytest.fixture
 def device(emulator):
-    dev = SerialHaptic(emulator.port, "hapticlab", device_max_force=5.0, read_timeout=0.2, reconnect_interval=0.05)
+    dev = SerialHaptic(emulator.port, "hapticlab", device_max_force=5.0, read_timeout=SLOW, reconnect_interval=0.05)
     dev.open()
     yield dev
     dev.close()
@@ -161,7 +162,7 @@ def test_the_device_naks_a_host_frame_with_a_bad_crc(emulator):
 
 
 def test_the_device_watchdog_zeroes_the_force_when_the_host_goes_quiet(emulator):
-    dev = SerialHaptic(emulator.port, watchdog=0.2)
+    dev = SerialHaptic(emulator.port, watchdog=0.2, read_timeout=SLOW)
     dev.open()
     dev.send(command([1.0, 0.0, 0.0]))
     assert emulator.applied_force_D.tolist() == [1.0, 0.0, 0.0]
@@ -207,7 +208,7 @@ def test_no_force_on_the_wire_is_ever_above_the_limit_or_not_finite(emulator, de
 
 def test_the_devices_own_maximum_wins_when_lower():
     with MasterEmulator(max_force=1.5) as em:
-        dev = SerialHaptic(em.port, device_max_force=3.0)
+        dev = SerialHaptic(em.port, device_max_force=3.0, read_timeout=SLOW)
         dev.open()
         assert dev.max_force == 1.5
         dev.send(command([0.0, 10.0, 0.0]))
@@ -242,6 +243,7 @@ def test_an_unplugged_device_raises_and_stays_lost(emulator, device):
 
 def test_a_silent_device_is_lost_then_found_again(emulator, device):
     device.send(command([0.5, 0.0, 0.0]))
+    device.link.read_timeout = 0.2  # from here on the timeout is what is tested: make it short
     emulator.stop_answering()
     with pytest.raises(MasterLostError, match="no reply within 200 ms") as info:
         device.send(command([0.5, 0.0, 0.0]))
@@ -315,7 +317,7 @@ def test_open_errors_name_the_port_and_the_problem(tmp_path):
 
 def test_a_hello_broken_on_the_way_is_sent_again(emulator):
     emulator.corrupt_replies(2)  # the first two HELLO_ACKs arrive broken
-    dev = SerialHaptic(emulator.port)
+    dev = SerialHaptic(emulator.port, read_timeout=SLOW)
     dev.open()
     assert emulator.counts.hellos == 3 and dev.health_counters()["crc_errors"] == 2
     dev.close()
@@ -354,7 +356,7 @@ def test_scripted_and_recorded_paths(tmp_path):
     np.testing.assert_allclose(v, [0.0, 0.02, 0.0])
     np.testing.assert_allclose(motion(2.25)[0], [0.0025, 0.0, 0.0])  # in a loop
     with MasterEmulator(motion=motion) as em:
-        dev = SerialHaptic(em.port)
+        dev = SerialHaptic(em.port, read_timeout=SLOW)
         dev.open()
         dev.send(command([0.0, 0.0, 0.0]))
         assert 0.0 <= dev.state().p_DoHo_D[0] <= 0.01 and 0.0 <= dev.state().p_DoHo_D[1] <= 0.02
@@ -390,7 +392,7 @@ def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
         port = proc.stdout.readline().strip()
         assert port.startswith("/dev/pts/")
         assert proc.stdout.readline().startswith(f"hapticlab master emulator on {port}: handle on figure8")
-        dev = SerialHaptic(port, device_max_force=9.0)
+        dev = SerialHaptic(port, device_max_force=9.0, read_timeout=SLOW)
         dev.open()
         assert dev.max_force == 2.5
         dev.send(command([0.0, 1.0, 0.0]))
@@ -439,13 +441,16 @@ def test_a_session_whose_master_is_unplugged_records_a_zero_force_and_an_event(t
         config, _ = load_config("demo")
         config = apply_overrides(config, [
             "session.realtime=false", "session.duration=3.0", "sensor.name=cable_puller",
-            "haptic.name=serial", f"haptic.port={em.port}", "haptic.device_max_force=6.0"])
+            "haptic.name=serial", f"haptic.port={em.port}", "haptic.device_max_force=6.0",
+            f"haptic.read_timeout={SLOW}"])  # the emulator shares this process's GIL: no loss for a slow reply
         result = run_session(build_session(config, Registry(pm)), out=tmp_path / "unplugged.mcap")
         sent = list(em.forces)
     assert result.error == ""  # a lost master does not end the session
     rec = read_recording(result.path)
     commands = rec.topics["/haptic/command"]
-    t_lost = next(e.t_ns for e in result.events if e.kind == "haptic_device_lost")
+    (lost_event,) = [e for e in result.events if e.kind == "haptic_device_lost"]
+    assert lost_event.data["cause"] == "gone"
+    t_lost = lost_event.t_ns
     before = [m for t, m in commands if t < t_lost]
     after = [m for t, m in commands if t >= t_lost]
     on = [m for m in before if m["enabled"] and any(m["force_D"])]
@@ -484,7 +489,7 @@ def wait_until(condition, what: str):
 
 
 def test_pipelined_sends_write_every_force_and_take_replies_as_they_come(emulator):
-    dev = SerialHaptic(emulator.port, wait_for_reply=False, read_timeout=1.0)
+    dev = SerialHaptic(emulator.port, wait_for_reply=False, read_timeout=SLOW)
     dev.open()
     rng = np.random.default_rng(4)
     sent = [rng.uniform(-1.5, 1.5, 3) for _ in range(200)]  # within the 3 N default limit
@@ -502,12 +507,13 @@ def test_pipelined_sends_write_every_force_and_take_replies_as_they_come(emulato
 
 
 def test_pipelined_crc_errors_are_counted_and_a_silent_device_is_lost_without_blocking(emulator):
-    dev = SerialHaptic(emulator.port, wait_for_reply=False, read_timeout=0.1)
+    dev = SerialHaptic(emulator.port, wait_for_reply=False, read_timeout=SLOW)
     dev.open()
     emulator.corrupt_replies(2)
     wait_until(lambda: dev.send(command([0.1, 0.0, 0.0])) or dev.health_counters()["crc_errors"] == 2,
                "the broken replies were not counted")
     assert dev.lost is None
+    dev.link.read_timeout = 0.1  # from here on the timeout is what is tested: make it short
     emulator.stop_answering()
     returned = 0
     with pytest.raises(MasterLostError, match="no reply within 100 ms") as info:

@@ -35,7 +35,8 @@ def measure(protocol: str, n: int, rate_hz: float | None, wait_for_reply: bool =
                             stdout=subprocess.PIPE, text=True)
     try:
         port = proc.stdout.readline().strip()
-        device = SerialHaptic(port, protocol, wait_for_reply=wait_for_reply)
+        # a long read timeout: this measures latency; a loaded machine that stalls the emulator is not a loss here
+        device = SerialHaptic(port, protocol, wait_for_reply=wait_for_reply, read_timeout=1.0)
         device.open()
         rng = np.random.default_rng(0)
         times = np.empty(n)

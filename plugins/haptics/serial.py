@@ -446,7 +446,9 @@ class SerialHaptic:
             the hapticlab protocol the smaller of this and the device's own maximum.
         open_timeout: how long the handshake may take, s (an Arduino Uno resets
             when the port opens and spends ~1.5 s in its bootloader).
-        read_timeout: how long a reply may take before the device is lost, s.
+        read_timeout: how long a reply may take before the device is lost, s
+            (default 50 ms: long enough for a loaded host's stalls, shorter than the
+            device watchdog's 100 ms).
         max_consecutive_errors: bad replies in a row tolerated; one more and the device is lost.
         watchdog: the device zeroes its force when no valid frame arrives for
             this long, s (hapticlab protocol; 0 turns it off).
@@ -468,7 +470,7 @@ class SerialHaptic:
 
     def __init__(self, port: str = "", protocol: str = "hapticlab", baudrate: int = 1_000_000,
                  rate_hz: float = 1000.0, device_max_force: float = 3.0, open_timeout: float = 3.0,
-                 read_timeout: float = 0.02, max_consecutive_errors: int = 5, watchdog: float = 0.1,
+                 read_timeout: float = 0.05, max_consecutive_errors: int = 5, watchdog: float = 0.1,
                  reconnect_interval: float = 0.5, wait_for_reply: bool = True):
         if not isinstance(port, str) or not port.strip():
             raise ConfigError("haptic.port: the serial device is required, e.g. --set haptic.port=/dev/ttyACM0 "

@@ -55,6 +55,9 @@ MAX_DATAGRAM = 64 * RECORD_SIZE
 """Largest datagram read whole, bytes (ATI's buffered mode sends at most 40 records); a longer one is malformed."""
 REWIND = 1024
 """A record this many rdt_sequence numbers behind, numbered at most this, starts a new stream (a start request)."""
+REWIND_ASKED = 16
+"""... or only this many behind, within 2·REWIND records after our own start request: a start request
+still in flight may renumber the stream once more after its records have come back."""
 
 FORCE_UNITS: dict[str, float] = {"N": 1.0, "kN": 1000.0, "lbf": 4.4482216152605, "klbf": 4448.2216152605,
                                  "kgf": 9.80665}
@@ -293,7 +296,7 @@ class RdtReceiver:
         self._ft: int | None = None  # the ft_sequence of the newest delivered record, as sent
         self._k = 0  # ... unwrapped
         self._new_stream = True
-        self._asked_again = False
+        self._asked_left = 0  # records for which a small rewind still means our last start request took effect
         self._holes: list[tuple[int, int]] = []  # recent gaps [lo, hi] in unwrapped rdt_sequence
         self._steps = np.arange(1, capacity + MAX_DATAGRAM // RECORD_SIZE + 1)
 
@@ -316,7 +319,7 @@ class RdtReceiver:
     def restart(self) -> None:
         """Send the start request again (after a receive timeout); the sensor numbers rdt_sequence from 1 again."""
         self.counters["reconnect"] += 1
-        self._asked_again = True  # whatever rdt_sequence rewinds to (at most REWIND) next is the new stream
+        self._asked_left = 2 * REWIND  # a rewind by more than REWIND_ASKED to at most REWIND is a new stream
         self.request(CMD_START)
 
     def wait(self, timeout: float) -> bool:
@@ -384,6 +387,8 @@ class RdtReceiver:
                 k += self._k
                 self._rdt, self._r, self._ft, self._k = int(rdt[-1]), self._r + n, int(ft[-1]), int(k[-1])
                 self._count_status(status)
+                if self._asked_left > 0:
+                    self._asked_left -= n
                 return RdtBatch(k, status, values.astype(np.float64), now_ns, [])
         index, k, restarts = self._sort_out(rdt, ft)
         status = status[index]
@@ -401,13 +406,13 @@ class RdtReceiver:
 
         Returns the indices of the records delivered, their unwrapped ft_sequence, and the restarts.
         """
-        # a record far behind (any way behind after our start request) numbered at most REWIND starts a new
-        # stream: the sensor numbers rdt_sequence from 1 after every start request
+        # a record far behind (REWIND, or REWIND_ASKED after our start request) numbered at most REWIND starts
+        # a new stream: the sensor numbers rdt_sequence from 1 after every start request
         previous = np.concatenate([[self._rdt if self._rdt is not None else rdt[0]], rdt[:-1]])
         behind = ((previous - rdt) & 0xFFFF_FFFF)
-        starts = np.flatnonzero((behind > (0 if self._asked_again else REWIND)) & (behind < 2**31) & (rdt <= REWIND))
-        if len(starts):
-            starts, self._asked_again = starts[:1] if self._asked_again else starts, False
+        far = REWIND_ASKED if self._asked_left > 0 else REWIND
+        self._asked_left -= len(rdt)
+        starts = np.flatnonzero((behind > far) & (behind < 2**31) & (rdt <= REWIND))
         bounds = ([0] if self._rdt is None else []) + starts.tolist()
         segments = [(a, b) for a, b in zip([0] + bounds, bounds + [len(rdt)]) if b > a]
         index, k, restarts = [], [], []

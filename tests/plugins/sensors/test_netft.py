@@ -320,16 +320,18 @@ def test_our_receiver_sorts_out_reorders_duplicates_late_records_and_a_restarted
         assert read(hand_records([4, 6, 3])) == [60]  # 4 late for its hole, 3 a duplicate
         assert read(hand_records([7, 8], [70, 70])) == [70]  # 8 repeats ft_sequence 70: a stall
         assert read(hand_records([9], [65])) == []  # ft_sequence back within a stream: refused
+        assert read(hand_records([30], [300])) == [300]  # 10..29 lost
         events = sensor.drain_events()
         sensor._link.rdt.restart()  # as after a receive timeout: the start request again
         # the sensor had restarted (its counter too): the new stream numbers rdt_sequence from 1
-        assert read(hand_records(list(range(1, 4)), [5, 6, 7])) == [71, 72, 73]
+        assert read(hand_records(list(range(1, 4)), [5, 6, 7])) == [301, 302, 303]
         health = sensor.health_counters()
     assert not any(e.kind == "sensor_restart" for e in events)
     assert [e.kind for e in sensor.drain_events()].count("sensor_restart") == 1
-    assert health["received"] == 1 + 4 + 3 + 2 + 1 + 3
+    assert health["received"] == 1 + 4 + 3 + 2 + 1 + 1 + 3
     assert health["out_of_order"] == 2  # 2 after 3, 4 after 5 (the second 2 and 3 are duplicates only)
-    assert health["duplicate"] == 2 and health["late"] == 1 and health["lost"] == 1  # rdt 4: lost, then late
+    assert health["duplicate"] == 2 and health["late"] == 1  # rdt 4: lost, then late
+    assert health["lost"] == 1 + 20
     assert health["stall"] == 1 and health["ft_backward"] == 1 and health["ft_restart"] == 1
     assert health["reconnect"] == 1
 

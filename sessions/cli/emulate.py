@@ -22,6 +22,8 @@ EMULATORS = {
               "ATI Net F/T: RDT over UDP and netftapi2.xml over HTTP, up to 7000 samples/s"),
     "ur": ("...plugins.kinematics.ur_emulator",
            "Universal Robots controller: RTDE v2 on port 30004 (e-Series 500 Hz, CB3 125 Hz)"),
+    "master": ("...plugins.haptics.master_emulator",
+               "serial haptic master on a pseudo-terminal: hapticlab's framed protocol or Haply Inverse3"),
 }
 """Device name → (the emulator's module, one line of help)."""
 

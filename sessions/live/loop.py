@@ -352,7 +352,7 @@ class LiveLoop:
         if isinstance(self.s.sensor, HasCalibration):  # a real sensor knows its calibration once it is open
             self.recorder.add_metadata("hapticlab.calibration", dict(self.s.sensor.calibration))
         self._call("kinematics", self.s.kinematics.open, self.t0_ns)
-        self.s.haptic.open()
+        self._call("haptic", self.s.haptic.open)
         self._event(Event(self.t0_ns, "session_start",
                           f"session {self.s.settings.name!r} started, estimator {self.s.estimator_name}"))
 

@@ -74,6 +74,7 @@ class Taps:
         self.rec.write("/haptic/state", state.t_ns, {
             "pose": {"quat_DH": state.quat_DH.tolist(), "p_DoHo_D": state.p_DoHo_D.tolist()},
             "buttons": int(state.buttons),
+            "v_DHo_D": None if state.v_DHo_D is None else state.v_DHo_D.tolist(),
         })
 
     def event(self, event: Event) -> None:

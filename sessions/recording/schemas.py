@@ -185,6 +185,8 @@ _STATE_SCHEMA = _schema(
             "required": ["quat_DH", "p_DoHo_D"],
         },
         "buttons": {"type": "integer", "description": "Bit mask of pressed buttons."},
+        "v_DHo_D": {"type": ["array", "null"], "items": {"type": ["number", "null"]}, "minItems": 3, "maxItems": 3,
+                    "description": "Velocity of H's origin in D, expressed in D, m/s (null: not reported)."},
     },
     ["pose", "buttons"],
 )

@@ -260,8 +260,11 @@ def serve(path: str, library: str, flush_interval_s: float, chunk_size: int,
                 else:
                     raise ValueError(f"unknown operation {kind!r} from the recorder")
     sink.finish()
-    reply.write(b"finished %d messages\n" % sink.messages)
-    reply.flush()
+    try:
+        reply.write(b"finished %d messages\n" % sink.messages)
+        reply.flush()
+    except BrokenPipeError:  # the session is gone (killed, or it raised): the file is finished all the same
+        pass
 
 
 class _Batches:

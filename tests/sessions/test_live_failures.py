@@ -331,3 +331,30 @@ def test_the_calibration_read_at_open_and_the_events_of_closing_are_recorded(tmp
     assert rec.metadata["hapticlab.calibration"] == {"source": "sensor", "counts_per_force": "1000000"}
     health = [m for _, m in rec.topics["/events"] if m["kind"] == "sensor_health"]
     assert health == [{"kind": "sensor_health", "message": "final counters", "data": {"lost": 3, "source": "sensor"}}]
+
+
+class UnpluggedMaster(CommandLog):
+    """A master device whose port is not there."""
+
+    def open(self):
+        raise FileNotFoundError("[Errno 2] No such file or directory: '/dev/ttyACM7'")
+
+
+def test_a_master_that_does_not_open_ends_the_session_with_a_complete_recording(tmp_path):
+    """The haptic device's open fails like the sensor's: named, the file finished, no writer left behind."""
+    device = UnpluggedMaster()
+
+    class Unplugged:
+        @hookimpl
+        def register_haptic_outputs(self, register):
+            register("unplugged", lambda: device)
+
+    pm = make_plugin_manager(load_entry_points=False)
+    pm.register(Unplugged(), name="tests")
+    path = tmp_path / "unplugged.mcap"
+    with pytest.raises(SessionError, match="^haptic unplugged raised FileNotFoundError.*ttyACM7") as info:
+        run_session(build_session(demo("haptic.name=unplugged"), Registry(pm)), out=path)
+    assert info.value.part == "haptic unplugged" and device.closed
+    rec = read_recording(path)  # complete
+    assert rec.metadata["hapticlab.summary"]["error"].startswith("haptic unplugged raised")
+    assert _writer_processes() == []

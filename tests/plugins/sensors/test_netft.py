@@ -336,6 +336,23 @@ def test_our_receiver_sorts_out_reorders_duplicates_late_records_and_a_restarted
     assert health["reconnect"] == 1
 
 
+def test_our_receiver_follows_a_stream_renumbered_by_a_start_request_still_in_flight():
+    """After a timeout the start request goes again; records of the old numbering may come back first, then the
+    request lands and the sensor numbers from 1 again: a new stream (same counter: no restart), not duplicates."""
+    def read(datagram):
+        send(datagram)
+        return [s.seq for s in sensor.read(time.monotonic_ns() + 10**9)]
+
+    with hand_sensor("127.0.0.144") as (sensor, send):
+        assert read(hand_records(list(range(2, 41)))) == [10 * i for i in range(1, 41)]
+        sensor._link.rdt.restart()
+        assert read(hand_records([41, 42])) == [410, 420]  # the old numbering, back before the request landed
+        assert read(hand_records([1, 2, 3], [430, 440, 450])) == [430, 440, 450]  # renumbered by it
+        health = sensor.health_counters()
+    assert health["duplicate"] == health["lost"] == health["ft_restart"] == 0
+    assert not any(e.kind == "sensor_restart" for e in sensor.drain_events())
+
+
 def test_datagrams_from_another_address_are_ignored(receiver):
     world = demo_world()
     with NetFTEmulator(world, "127.0.0.135", 0, 0) as emu:

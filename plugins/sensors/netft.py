@@ -46,6 +46,9 @@ from .rdt import (ATI_ERROR_SUMMARY, ATI_MONITOR_LATCHED, ATI_SATURATION, ATI_ST
 HEALTH_COUNTERS = tuple(COUNTER_DOC)
 """The stream's health counters (:meth:`NetFTSensor.health_counters`), counts since ``open``."""
 RECEIVERS = ("hapticlab", "pynetft")
+NETWORK_LATENCY_S = 0.003
+"""How much older than now the newest record can be in ordinary operation (HasLatency), s: the
+network, and the loop draining the socket once a tick (a record just missed waits a loop period)."""
 
 
 class NetFTSensor:
@@ -106,6 +109,7 @@ class NetFTSensor:
             raise ConfigError(f"sensor.receiver: must be \"hapticlab\" or \"pynetft\", got {receiver!r}")
         self.address, self.rdt_port, self.http_port = address.strip(), int(rdt_port), int(http_port)
         self.rate_hz = float(rate_hz)
+        self.latency_s = NETWORK_LATENCY_S
         self.receiver = receiver
         self.receive_timeout = float(receive_timeout)
         self.connect_timeout = float(connect_timeout)

@@ -2,7 +2,7 @@
 
 Each emulator lives beside its plugin (``plugins/<kind>/<device>_emulator.py``)
 and gives ``add_arguments(parser)`` and ``run(args)``; this module lists
-them, and adds ``rig``: a Net F/T and a UR arm served together from one world
+them, and adds ``lab``: a Net F/T and a UR arm served together from one world
 on one clock, so the wrench the sensor reads is the one the arm's pose makes
 (what the ``emulated`` preset connects to). An emulator prints where it
 listens on its first line, then serves until Ctrl-C, SIGTERM or
@@ -37,25 +37,25 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         device = devices.add_parser(name, help=help_line, description=help_line)
         module.add_arguments(device)
         device.set_defaults(func=module.run)
-    rig = devices.add_parser("rig", help="a Net F/T and a UR arm on one simulated world and one clock "
-                                         "(the emulated preset's devices)",
+    lab = devices.add_parser("lab", help="a Net F/T and a UR arm on one simulated world and one clock "
+                                         "(the lab-emulated preset's devices)",
                              description="A Net F/T (RDT/UDP and netftapi2.xml) and a UR controller (RTDE) "
                                          "served together, fed by one simulated world on one clock.")
-    rig.add_argument("--session", default="emulated",
-                     help="preset name or TOML file whose [world] both devices live in (default: emulated)")
-    rig.add_argument("--netft", default="127.0.0.2", metavar="ADDRESS", help="the Net F/T's address (127.0.0.2)")
-    rig.add_argument("--rdt-port", type=int, default=49152, help="its RDT UDP port (49152)")
-    rig.add_argument("--http-port", type=int, default=8080,
+    lab.add_argument("--session", default="lab-emulated",
+                     help="preset name or TOML file whose [world] both devices live in (default: lab-emulated)")
+    lab.add_argument("--netft", default="127.0.0.2", metavar="ADDRESS", help="the Net F/T's address (127.0.0.2)")
+    lab.add_argument("--rdt-port", type=int, default=49152, help="its RDT UDP port (49152)")
+    lab.add_argument("--http-port", type=int, default=8080,
                      help="its netftapi2.xml HTTP port (8080: port 80 needs privileges)")
-    rig.add_argument("--rate", type=float, default=1000.0, help="its RDT rate, Hz (7000/n; default 1000)")
-    rig.add_argument("--ur", default="127.0.0.3", metavar="ADDRESS", help="the UR controller's address, "
+    lab.add_argument("--rate", type=float, default=1000.0, help="its RDT rate, Hz (7000/n; default 1000)")
+    lab.add_argument("--ur", default="127.0.0.3", metavar="ADDRESS", help="the UR controller's address, "
                                                                            "port 30004 (127.0.0.3)")
-    rig.add_argument("--model", default="ur5e", help="the UR model (default ur5e: e-Series, 500 Hz)")
-    rig.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
-    rig.set_defaults(func=run_rig)
+    lab.add_argument("--model", default="ur5e", help="the UR model (default ur5e: e-Series, 500 Hz)")
+    lab.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
+    lab.set_defaults(func=run_lab)
 
 
-def run_rig(args: argparse.Namespace) -> int:
+def run_lab(args: argparse.Namespace) -> int:
     """Serve both devices until Ctrl-C, SIGTERM or ``--duration``.
 
     The first line names both addresses and the world's time 0 on the monotonic
@@ -74,9 +74,9 @@ def run_rig(args: argparse.Namespace) -> int:
         sensor = NetFTEmulator(world, args.netft, args.rdt_port, args.http_port, args.rate)
         arm = UREmulator(world, address=args.ur, model=args.model)
     except ValueError as exc:
-        raise ConfigError(f"emulate rig: {exc}") from None
+        raise ConfigError(f"emulate lab: {exc}") from None
     except OSError as exc:
-        raise ConfigError(f"emulate rig: cannot serve on {args.netft} or {args.ur}: {exc.strerror or exc}") from None
+        raise ConfigError(f"emulate lab: cannot serve on {args.netft} or {args.ur}: {exc.strerror or exc}") from None
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
         if threading.current_thread() is threading.main_thread() else None
@@ -85,9 +85,9 @@ def run_rig(args: argparse.Namespace) -> int:
         try:
             arm.start(t0_ns=sensor.t0_ns)  # one world time: the arm's timestamp 0 is the sensor's first sample
         except OSError as exc:
-            raise ConfigError(f"emulate rig: cannot serve RTDE on {args.ur}:30004: {exc.strerror or exc}") from None
+            raise ConfigError(f"emulate lab: cannot serve RTDE on {args.ur}:30004: {exc.strerror or exc}") from None
         try:
-            print(f"rig: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
+            print(f"lab: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
                   f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}; "
                   f"t0_ns={sensor.t0_ns}", flush=True)
             try:

@@ -1,4 +1,4 @@
-"""End to end over the real wire protocols: `hapticlab emulate rig` in one process, a session in another.
+"""End to end over the real wire protocols: `hapticlab emulate lab` in one process, a session in another.
 
 The rig serves a Net F/T (RDT over UDP, netftapi2.xml over HTTP) and a UR5e
 (RTDE) from one simulated world; the session reads them through `netft`
@@ -33,13 +33,13 @@ def rig():
     """The rig process, serving for at most 60 s; yields its world's t0 on the monotonic clock (ns)."""
     proc = subprocess.Popen(
         [sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
-         "emulate", "rig", "--netft", NETFT, "--ur", UR, "--duration", "60"],
+         "emulate", "lab", "--netft", NETFT, "--ur", UR, "--duration", "60"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         ready, _, _ = select.select([proc.stdout], [], [], 60.0)
-        assert ready, "the rig did not start"
+        assert ready, "the lab did not start"
         line = proc.stdout.readline()
-        assert line.startswith("rig: Net F/T on 127.0.0.92"), (line, proc.stderr.read() if proc.poll() else "")
+        assert line.startswith("lab: Net F/T on 127.0.0.92"), (line, proc.stderr.read() if proc.poll() else "")
         yield int(line.rsplit("t0_ns=", 1)[1])
     finally:
         proc.send_signal(signal.SIGTERM)
@@ -53,7 +53,7 @@ def rig():
 
 
 def test_a_session_on_the_emulated_rig_feels_the_contact_the_world_made(tmp_path, rig):
-    config, _ = load_config("emulated")
+    config, _ = load_config("lab-emulated")
     config = apply_overrides(config, [f"sensor.address={NETFT}", f"kinematics.address={UR}", "session.duration=9"])
     result = run_session(build_session(config), out=tmp_path / "rig.mcap")
     rec = read_recording(result.path)

@@ -51,5 +51,10 @@ def register_contexts(register: Register) -> None:
 
 
 @hookspec
+def register_emulators(register: Register) -> None:
+    """Register device emulators for ``hapticlab emulate NAME``: register(name, EmulatorCommand(...))."""
+
+
+@hookspec
 def register_commands(cli: argparse._SubParsersAction) -> None:
     """Add subcommands to the ``hapticlab`` command line: cli.add_parser(...), set_defaults(func=...)."""

@@ -36,6 +36,9 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.estimators.kalman",
     "hapticlab.plugins.haptics.null",
     "hapticlab.plugins.haptics.serial",
+    "hapticlab.plugins.sensors.netft_emulator",
+    "hapticlab.plugins.kinematics.ur_emulator",
+    "hapticlab.plugins.haptics.master_emulator",
     "hapticlab.plugins.simworld.context",
     "hapticlab.plugins.effects.mount_rotation",
     "hapticlab.plugins.effects.bias_drift",
@@ -52,6 +55,7 @@ KINDS: dict[str, str] = {
     "haptic_output": "register_haptic_outputs",
     "effect": "register_effects",
     "context": "register_contexts",
+    "emulator": "register_emulators",
 }
 
 

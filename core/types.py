@@ -9,7 +9,9 @@ vectors from B into E.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -224,3 +226,22 @@ class Event:
     kind: str
     message: str
     data: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class EmulatorCommand:
+    """A device emulator as ``hapticlab emulate NAME`` runs it (what ``register_emulators`` registers).
+
+    Attributes:
+        help: one line for ``hapticlab emulate --help``.
+        add_arguments: ``add_arguments(parser)`` adds its options to an ``argparse`` parser.
+        run: ``run(args) -> int`` serves until Ctrl-C, SIGTERM or ``--duration``, the first line
+            printed saying where it listens; returns the exit status.
+    """
+
+    help: str
+    add_arguments: Callable[[Any], None]
+    run: Callable[[Any], int]
+
+    def __call__(self, args: Any) -> int:
+        return self.run(args)

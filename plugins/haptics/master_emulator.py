@@ -43,6 +43,8 @@ from typing import Callable
 
 import numpy as np
 
+from ...core import hookimpl
+from ...core.types import EmulatorCommand
 from . import framing, inverse3
 
 PATHS = ("circle", "figure8", "hold")
@@ -510,3 +512,9 @@ def run(args: argparse.Namespace) -> int:
           f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s); "
           f"{c.replies_corrupted} reply(ies) corrupted, {c.requests_ignored} request(s) ignored")
     return 0
+
+
+@hookimpl
+def register_emulators(register):
+    register("master", EmulatorCommand(help="serial haptic master on a pseudo-terminal: hapticlab's framed protocol "
+                                            "or Haply Inverse3", add_arguments=add_arguments, run=run))

@@ -73,7 +73,9 @@ from typing import Any
 
 import numpy as np
 
+from ...core import hookimpl
 from ...core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
+from ...core.types import EmulatorCommand
 from ..simworld.physics import SimWorld, gaussian_noise
 from .sim import ENCODER_STREAM
 from .ur_arm import UR_DH, URArm
@@ -601,3 +603,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"sent {emulator.packages_sent} data packages; {len(inputs)} input field(s) written"
           + (f": {', '.join(sorted(inputs))}" if inputs else ""), flush=True)
     return 0
+
+
+@hookimpl
+def register_emulators(register):
+    register("ur", EmulatorCommand(help="Universal Robots controller: RTDE v2 on port 30004 (e-Series 500 Hz, "
+                                        "CB3 125 Hz)", add_arguments=add_arguments, run=run))

@@ -48,7 +48,8 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from ...core.types import STATUS_SATURATED
+from ...core import hookimpl
+from ...core.types import STATUS_SATURATED, EmulatorCommand
 from ..simworld.physics import SimWorld
 from .netft import (ATI_ERROR_SUMMARY, ATI_SATURATION, FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_UNITS)
 from .sim import SimSensor
@@ -472,3 +473,9 @@ def run(args: argparse.Namespace) -> int:
           f"{c.stalled} stalled, {c.status} with a status); {c.starts} start, {c.stops} stop, "
           f"{c.biases} bias request(s)")
     return 0
+
+
+@hookimpl
+def register_emulators(register):
+    register("netft", EmulatorCommand(help="ATI Net F/T: RDT over UDP and netftapi2.xml over HTTP, up to 7000 "
+                                           "samples/s", add_arguments=add_arguments, run=run))

@@ -17,7 +17,7 @@ from . import bench, discrepancy, emulate, offline, run
 from .errors import one_line, is_user_error
 from .render import err
 
-COMMAND_MODULES = (run, offline, bench, discrepancy, emulate)
+COMMAND_MODULES = (run, offline, bench, discrepancy)
 
 
 def build_parser(load_plugins: bool = True) -> argparse.ArgumentParser:
@@ -31,8 +31,10 @@ def build_parser(load_plugins: bool = True) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMAND_MODULES:
         module.add_commands(sub)
+    pm = make_plugin_manager(load_entry_points=load_plugins)
+    emulate.add_commands(sub, pm)  # one subcommand per registered emulator
     if load_plugins:
-        make_plugin_manager().hook.register_commands(cli=sub)
+        pm.hook.register_commands(cli=sub)
     return parser
 
 

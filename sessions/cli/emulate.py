@@ -1,10 +1,12 @@
 """``hapticlab emulate``: a real device's wire protocol on a loopback address, fed by the simulated world.
 
 Each emulator lives beside its plugin (``plugins/<kind>/<device>_emulator.py``)
-and gives ``add_arguments(parser)`` and ``run(args)``; this module lists
-them, and adds ``lab``: a Net F/T and a UR arm served together from one world
-on one clock, so the wrench the sensor reads is the one the arm's pose makes
-(what the ``emulated`` preset connects to). An emulator prints where it
+and registers an ``EmulatorCommand`` (``add_arguments(parser)``, ``run(args)``)
+through the ``register_emulators`` hook, so a third party adds one as it adds
+a sensor; this module makes a subcommand of each, and adds ``lab``: a Net
+F/T and a UR arm served together from one world on one clock, so the wrench
+the sensor reads is the one the arm's pose makes (what the ``lab-emulated``
+preset connects to). An emulator prints where it
 listens on its first line, then serves until Ctrl-C, SIGTERM or
 ``--duration``; the vendor's own client (``pynetft``, ``ur-rtde``) connects to
 it as to the device.
@@ -13,30 +15,25 @@ it as to the device.
 from __future__ import annotations
 
 import argparse
-import importlib
 import signal
 import threading
 
-EMULATORS = {
-    "netft": ("...plugins.sensors.netft_emulator",
-              "ATI Net F/T: RDT over UDP and netftapi2.xml over HTTP, up to 7000 samples/s"),
-    "ur": ("...plugins.kinematics.ur_emulator",
-           "Universal Robots controller: RTDE v2 on port 30004 (e-Series 500 Hz, CB3 125 Hz)"),
-    "master": ("...plugins.haptics.master_emulator",
-               "serial haptic master on a pseudo-terminal: hapticlab's framed protocol or Haply Inverse3"),
-}
-"""Device name → (the emulator's module, one line of help)."""
+import pluggy
+
+from ...core.plugins import Registry
 
 
-def add_commands(sub: argparse._SubParsersAction) -> None:
+def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> None:
+    """``emulate`` and one subcommand per registered emulator (``register_emulators``), and ``lab``."""
     parser = sub.add_parser("emulate", help="serve a real device's protocol on loopback, fed by the simulator",
                             description=__doc__.split("\n\n")[0])
     devices = parser.add_subparsers(dest="device", required=True, metavar="DEVICE")
-    for name, (module_name, help_line) in EMULATORS.items():
-        module = importlib.import_module(module_name, __package__)
-        device = devices.add_parser(name, help=help_line, description=help_line)
-        module.add_arguments(device)
-        device.set_defaults(func=module.run)
+    registry = Registry(pm)
+    for name in registry.names("emulator"):
+        emulator = registry.get("emulator", name).factory
+        device = devices.add_parser(name, help=emulator.help, description=emulator.help)
+        emulator.add_arguments(device)
+        device.set_defaults(func=emulator.run)
     lab = devices.add_parser("lab", help="a Net F/T and a UR arm on one simulated world and one clock "
                                          "(the lab-emulated preset's devices)",
                              description="A Net F/T (RDT/UDP and netftapi2.xml) and a UR controller (RTDE) "

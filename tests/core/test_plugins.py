@@ -122,11 +122,38 @@ def test_every_kind_in_one_plugin():
         register_haptic_outputs=lambda register: register("h", Dummy),
         register_effects=lambda register: register("f", Dummy),
         register_contexts=lambda register: register("c", Dummy),
+        register_emulators=lambda register: register("m", Dummy),
     )
     registry = Registry(manager_with(module))
     assert [(e.kind, e.name) for e in registry.entries()] == [
         ("sensor", "s"), ("kinematics", "k"), ("estimator", "e"), ("haptic_output", "h"), ("effect", "f"),
-        ("context", "c")]
+        ("context", "c"), ("emulator", "m")]
+
+
+def test_a_third_party_emulator_is_a_subcommand_of_emulate():
+    """``hapticlab emulate NAME`` for every registered emulator, its options and its run included."""
+    import argparse
+
+    from hapticlab.core.types import EmulatorCommand
+    from hapticlab.sessions.cli import emulate
+
+    served = []
+
+    def add_arguments(parser):
+        parser.add_argument("--address", default="127.0.0.1")
+
+    def run(args):
+        served.append(args.address)
+        return 0
+
+    toy = EmulatorCommand(help="a toy gripper on loopback", add_arguments=add_arguments, run=run)
+    module = plugin_module("gripper_emulator", register_emulators=lambda register: register("gripper", toy))
+    parser = argparse.ArgumentParser(prog="hapticlab")
+    emulate.add_commands(parser.add_subparsers(dest="command"), manager_with(module))
+    args = parser.parse_args(["emulate", "gripper", "--address", "127.0.0.9"])
+    assert args.func(args) == 0 and served == ["127.0.0.9"]
+    with pytest.raises(SystemExit):
+        parser.parse_args(["emulate", "netft"])  # only what this manager registered (and the lab)
 
 
 def test_builtins_are_registered():

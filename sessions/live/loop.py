@@ -9,6 +9,11 @@ Each iteration (one loop period):
 4. turn the primary estimate into one force command (``gate`` says whether,
    ``safety.ForceGovernor`` how much), send and record it.
 
+A latched stop (``gate``) holds the force off until an explicit re-arm: a
+press of the device's ``haptic.rearm_button`` (an edge: released, then pressed),
+the ``r`` key of ``hapticlab run``, or :meth:`LiveLoop.rearm` (also handed to
+status callbacks as ``SessionStatus.rearm``); each is honoured at the next tick.
+
 Time: with ``realtime = true`` "now" is the monotonic wall clock, ticks are
 due every period from the start, and a loop that falls more than one period
 behind skips the ticks it missed and records an ``overrun`` event saying how
@@ -31,6 +36,7 @@ from __future__ import annotations
 
 import json
 import signal
+from collections import deque
 import threading
 import time
 from contextlib import contextmanager
@@ -41,7 +47,7 @@ import numpy as np
 
 from ...core.aligner import Aligner
 from ...core.errors import OutputExistsError
-from ...core.interfaces import HasCalibration, HasLatency, HasRange
+from ...core.interfaces import HasCalibration, HasForceLimit, HasLatency, HasRange
 from ...core.types import Event
 from ..config import check_duration
 from ..recording import Recorder
@@ -132,10 +138,14 @@ class LiveLoop:
                                settings.max_speed)
         self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
         self.governor = session.governor()
+        self.force_limit = session.haptic if isinstance(session.haptic, HasForceLimit) else None
+        self.rearm_bit = session.haptic_settings.rearm_button  # -1: no button
+        self.button_down = True  # unknown counts as held: a button held at the start must be released first
+        self.rearm_requests: deque[str] = deque()
         self.aligner = Aligner(float(session.kinematics.rate_hz), latency_s=session.kinematics.latency_s
                                if isinstance(session.kinematics, HasLatency) else 0.0)
         self.on_status, self.status_interval_s = on_status, status_interval_s
-        self.status = SessionStatus()
+        self.status = SessionStatus(rearm=self.rearm)
         self.next_status = 0.0
         self.events: list[Event] = []
         self.shadows = list(session.shadows)
@@ -149,6 +159,10 @@ class LiveLoop:
         self.recorder: Recorder | None = None
         self.stopped_by = "Ctrl-C"  # or the signal that ended the session
         self.signals_while_ending: list[str] = []
+
+    def rearm(self, source: str = "api") -> None:
+        """Ask to re-arm a latched stop (any thread); honoured at the next tick, granted only once its cause is gone."""
+        self.rearm_requests.append(source)
 
     # ------------------------------------------------------------------ the loop
 
@@ -205,7 +219,7 @@ class LiveLoop:
         if poses:
             self.aligner.add_poses(poses)
             self.gate.on_poses(poses, now_ns)
-            self.taps.poses(poses)
+            self.taps.poses(poses, now_ns)
             self.poses += len(poses)
         wrenches = self._call("sensor", self.s.sensor.read, now_ns)
         if wrenches:
@@ -275,9 +289,16 @@ class LiveLoop:
 
     def _command(self, now_ns: int) -> None:
         reason = self.gate.reason(now_ns)
+        while self.rearm_requests:
+            event = self.gate.rearm(now_ns, self.rearm_requests.popleft())
+            if event is not None:
+                self._event(event)
+                reason = self.gate.reason(now_ns)
         fault = self.gate.fault_event(reason, now_ns)
         if fault is not None:
             self._event(fault)
+        if self.force_limit is not None:
+            self.governor.device_max_force = self.force_limit.max_force
         command = self.governor.command(now_ns, *(self.last_estimate or (None, None)), reason=reason)
         try:
             self.s.haptic.send(command)
@@ -288,12 +309,23 @@ class LiveLoop:
         self.taps.command(command)
         if state is not None:
             self.taps.device_state(state)
+        self._watch_button(state)
         self.haptic_on_ticks += command.enabled
         if command.reason.split(" (")[0] != self.haptic_reason.split(" (")[0]:  # not each new figure in it
             self._event(Event(now_ns, "haptic_enabled", "haptic force on") if command.enabled else
                         Event(now_ns, "haptic_disabled", f"haptic force zeroed: {command.reason}"))
             self.haptic_reason = command.reason
         self.status.haptic_enabled, self.status.reason = command.enabled, command.reason
+        self.status.latched = self.gate.latched
+
+    def _watch_button(self, state) -> None:
+        """A press of the re-arm button (up, then down: a held button counts once) asks for a re-arm."""
+        if self.rearm_bit < 0:
+            return
+        down = True if state is None else bool((int(state.buttons) >> self.rearm_bit) & 1)  # no state: unknown
+        if down and not self.button_down and state is not None:
+            self.rearm_requests.append(f"button {self.rearm_bit}")
+        self.button_down = down
 
     # ------------------------------------------------------------------ bookkeeping
 

@@ -23,13 +23,15 @@ class Taps:
     def __init__(self, recorder: Recorder):
         self.rec = recorder
 
-    def poses(self, poses: list[PoseSample]) -> None:
+    def poses(self, poses: list[PoseSample], now_ns: int) -> None:
+        """The poses read at the tick ``now_ns``, each with its age then (``age_ns``: the kinematics' delay)."""
         write = self.rec.write
         for p in poses:
             write("/kinematics/pose", p.t_ns, {
                 "quat_BE": p.quat_BE.tolist(),
                 "p_BoEo_B": None if p.p_BoEo_B is None else p.p_BoEo_B.tolist(),
                 "joints": None if p.joints is None else p.joints.tolist(),
+                "age_ns": now_ns - p.t_ns,
             })
 
     def wrenches(self, wrenches: list[WrenchSample]) -> None:

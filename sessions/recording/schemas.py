@@ -108,6 +108,8 @@ _POSE_SCHEMA = _schema(
             "items": _NUM,
             "description": "Joint positions, rad (m for prismatic joints); null when unknown.",
         },
+        "age_ns": {"type": "integer", "description": "How old the pose was when the loop read it: the "
+                   "session clock at that tick minus the pose's time, ns (a networked arm's delay)."},
     },
     ["quat_BE"],
 )

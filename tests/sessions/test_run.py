@@ -338,3 +338,10 @@ def test_a_known_mount_turns_the_haptic_force_into_the_base_frame(tmp_path):
         true_B.append(R_BS @ w["contact_force_S"][0])
     error = np.linalg.norm(force_D[press] - np.array(true_B), axis=1)
     assert np.median(error) < 0.3  # (ignoring the mount would tilt a 3 N force by 29°: 1.5 N)
+
+
+def test_each_pose_is_recorded_with_its_age_when_read(demo_recording):
+    """The kinematics' delay is in the recording: the simulated arm's poses are read the tick they are due."""
+    _, rec = demo_recording
+    ages = np.array([m["age_ns"] for _, m in rec.topics["/kinematics/pose"]])
+    assert len(ages) == 4001 and ages.min() >= 0 and ages.max() <= 1_000_000  # a 1 ms tick reads each pose due

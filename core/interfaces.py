@@ -216,6 +216,20 @@ class HasLatency(Protocol):
     latency_s: float
 
 
+@runtime_checkable
+class HasForceLimit(Protocol):
+    """A haptic output that knows the largest force it may render, ``max_force`` (N).
+
+    Read by the host at every command (it may change when the device opens and
+    reports its own maximum): the governor clamps to the smaller of this and
+    ``[haptic] max_force``, and zeroes the force when it is not a finite
+    number > 0. The ``serial`` plugin's is its ``device_max_force`` option,
+    lowered to the maximum the device reports in its handshake.
+    """
+
+    max_force: float
+
+
 CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration,
-                HasRange, Reidentifies, ReportsHealth, HasLatency)
+                HasRange, Reidentifies, ReportsHealth, HasLatency, HasForceLimit)
 """Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

@@ -93,12 +93,23 @@ class SessionSettings:
 class HapticSettings:
     """Safety limits and mapping of the ``[haptic]`` table (besides the plugin's own options).
 
+    The governor (``sessions/live/safety.py``) applies them in this order:
+    map → deadband → low-pass → clamp → slew-rate limit.
+
     Attributes:
-        max_force: largest force magnitude commanded to the device, N.
+        max_force: largest force magnitude commanded to the device, N (the device's own
+            limit, when it reports one, ``HasForceLimit``, lowers it further).
         max_force_rate: largest change of the commanded force, N/s.
         scale: force scaling from the contact force to the device force.
         rotation_DB: rotation vector (rad) of the robot base B in the device base D,
-            so that force_D = scale · R_DB · R_BE · R_ES · contact_force_S.
+            so that force_D = scale · R_DB · R_BS · contact_force_S, with
+            R_BS = R_BE · R_ES (the flange's orientation and the sensor's mount).
+        deadband: device forces smaller than this render as zero, N; larger ones
+            lose this much of their magnitude (no step at the edge). 0 = off.
+        cutoff_hz: cut-off frequency of the first-order low-pass on the device force,
+            Hz; 0 = off. Discretised exactly for the loop period.
+        rearm_button: bit of ``DeviceState.buttons`` whose press re-arms a latched stop
+            (-1 = none: only the ``r`` key or the Python API re-arm).
         ready_force_std: the force goes on only once the estimator's force-stage
             parameters are known to this standard deviation, N (for estimators
             that report one, e.g. ``rls``: sqrt of diag P). Algorithm 1's own
@@ -110,17 +121,31 @@ class HapticSettings:
     max_force_rate: float = 400.0
     scale: float = 1.0
     rotation_DB: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    deadband: float = 0.0
+    cutoff_hz: float = 0.0
+    rearm_button: int = -1
     ready_force_std: float = 0.05
 
     def __post_init__(self) -> None:
         _require("haptic.max_force", self.max_force, above=0.0)
         _require("haptic.max_force_rate", self.max_force_rate, above=0.0)
         _require("haptic.scale", self.scale, minimum=0.0)
+        _require("haptic.deadband", self.deadband, minimum=0.0)
+        _require("haptic.cutoff_hz", self.cutoff_hz, minimum=0.0, maximum=MAX_LOOP_RATE_HZ)
+        if isinstance(self.rearm_button, bool) or not isinstance(self.rearm_button, int) or \
+                not -1 <= self.rearm_button <= MAX_BUTTON_BIT:
+            raise ConfigError(f"haptic.rearm_button: must be a button bit index in 0..{MAX_BUTTON_BIT} "
+                              f"or -1 (none), got {self.rearm_button!r}")
         _require("haptic.ready_force_std", self.ready_force_std, above=0.0)
+        if len(self.rotation_DB) != 3:
+            raise ConfigError(f"haptic.rotation_DB: must be 3 numbers (a rotation vector, rad), "
+                              f"got {list(self.rotation_DB)!r}")
         for value in self.rotation_DB:
             _require("haptic.rotation_DB", value)
 
 
+MAX_BUTTON_BIT = 63
+"""Highest button bit a re-arm button may name (``DeviceState.buttons`` is a bit mask)."""
 MAX_LOOP_RATE_HZ = 10_000.0
 """Fastest loop accepted: a haptic device is commanded at 1 kHz, a Net F/T streams at 7 kHz at most."""
 MAX_DURATION_S = 86_400.0

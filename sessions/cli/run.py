@@ -1,8 +1,15 @@
-"""``hapticlab run`` and ``hapticlab plugins``: a live session with its status line, the plugin list."""
+"""``hapticlab run`` and ``hapticlab plugins``: a live session with its status line, the plugin list.
+
+While a session runs in a terminal, the ``r`` key re-arms a latched stop (the
+status line says so); stdin is then in cbreak mode (keys arrive one by one,
+unechoed, Ctrl-C still stops) and restored when the session ends.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
+import select
 import sys
 
 from rich.console import Console
@@ -30,9 +37,68 @@ def cmd_plugins(args: argparse.Namespace) -> int:
     return 0
 
 
-def _status_table(status) -> Table:
+REARM_KEY = b"r"
+
+
+class RearmKey:
+    """The ``r`` key on an interactive stdin, read without blocking (a context manager; inactive off a TTY).
+
+    Attributes:
+        active: stdin is a terminal in cbreak mode, read by :meth:`pressed`.
+    """
+
+    def __init__(self, stream=None):
+        self.stream = sys.stdin if stream is None else stream
+        self.active = False
+        self._saved = None
+
+    def __enter__(self) -> "RearmKey":
+        try:
+            import termios
+            import tty
+
+            fd = self.stream.fileno()
+            if os.isatty(fd):
+                self._saved = termios.tcgetattr(fd)
+                tty.setcbreak(fd)
+                self.active = True
+        except (ImportError, OSError, ValueError, AttributeError):  # no termios (Windows), no real stdin
+            self.active = False
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._saved is not None:
+            import termios
+
+            termios.tcsetattr(self.stream.fileno(), termios.TCSADRAIN, self._saved)
+            self._saved = None
+        self.active = False
+
+    def pressed(self) -> bool:
+        """The ``r`` key was pressed since the last call (never waits; other keys are dropped)."""
+        if not self.active:
+            return False
+        fd = self.stream.fileno()
+        data = b""
+        while select.select([fd], [], [], 0)[0]:
+            chunk = os.read(fd, 64)
+            if not chunk:
+                break
+            data += chunk
+        return REARM_KEY in data.lower()
+
+
+def rearm_hint(key: bool, button: int) -> str:
+    """How to re-arm a latched stop here: the ``r`` key when stdin is a terminal, the device's button if configured."""
+    ways = (["press r"] if key else []) + ([f"the device's re-arm button ({button})"] if button >= 0 else [])
+    return " or ".join(ways) if ways else "no key or button to re-arm (set haptic.rearm_button)"
+
+
+def _status_table(status, hint: str = "") -> Table:
     table = Table.grid(padding=(0, 2))
     haptic = "[green]on[/]" if status.haptic_enabled else f"[yellow]off[/] ({status.reason})"
+    if status.latched:
+        haptic = f"[red]latched[/]: {hint or rearm_hint(False, -1)}"
     table.add_row(
         f"t {status.elapsed_s:6.1f} s",
         f"{status.samples} samples @ {status.rate_hz:6.0f} Hz",
@@ -60,12 +126,22 @@ def cmd_run(args: argparse.Namespace) -> int:
               f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "
               f"haptic {session.plugins['haptic']['name']}  (Ctrl-C stops and keeps the recording)")
     try:
-        if err.is_terminal:
-            with Live(console=err, refresh_per_second=4, transient=False) as live:
+        with RearmKey() as key:
+            hint = rearm_hint(key.active, session.haptic_settings.rearm_button)
+
+            def on_status(status) -> None:
+                if key.pressed() and status.rearm is not None:
+                    status.rearm(f"key {REARM_KEY.decode()}")
+                if live is not None:
+                    live.update(_status_table(status, hint))
+
+            if err.is_terminal:
+                with Live(console=err, refresh_per_second=4, transient=False) as live:
+                    result = run_session(session, out=args.out, duration=duration, on_status=on_status)
+            else:
+                live = None
                 result = run_session(session, out=args.out, duration=duration,
-                                     on_status=lambda s: live.update(_status_table(s)))
-        else:
-            result = run_session(session, out=args.out, duration=duration)
+                                     on_status=on_status if key.active else None)
     except SessionError as exc:  # a device or estimator failed: one line, the recording is complete
         err.print(f"hapticlab run: session ended by an error: {exc}", markup=False, highlight=False)
         if exc.part.startswith("estimator"):  # an estimator's exception is a bug worth its traceback

@@ -26,10 +26,13 @@ The force is held at zero (the reason is recorded with each command) while:
 * an estimator event said the tool's weight changed (held ``PAYLOAD_HOLD_NS``);
 * a refused run behaved like a sensor-frame bias step (``watch.BiasWatch``):
   held until the estimator has re-identified its bias and converged again,
-  or, for an estimator that cannot, for the rest of the session.
+  or, for an estimator that cannot, until the session is re-armed (a latched
+  stop, see :meth:`HapticGate.rearm`).
 
 Every fault (a reason that is not the estimator's ordinary warming up) is also
-an event naming it, recorded when it starts.
+an event naming it, recorded when it starts. A latched stop is the event
+``haptic_latched``; a re-arm ``haptic_rearmed``, a refused one ``haptic_rearm_refused``
+naming why.
 """
 
 from __future__ import annotations
@@ -49,6 +52,8 @@ JUMP_HOLD_NS = 500_000_000
 afresh, to resolve a lag while the tool turns fast enough for the lag to matter."""
 CONVERGENCE_LOSS_NS = 20_000_000
 """A converged force stage whose flag has been down this long (20 ms of samples) is no longer converged."""
+LATCHED = "sensor bias step: re-arm needed"
+"""The reason of the latched stop (a bias step the estimator cannot re-identify)."""
 WARMING_UP = ("estimator not converged", "parameters not yet identified")
 """Reasons that are the estimator's ordinary start, not faults (no event of their own)."""
 
@@ -109,6 +114,7 @@ class HapticGate:
         self.parameters_lost = False
         self.hold_until_ns = 0
         self.bias_hold = ""  # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "latched"
+        self.contact_now = False  # the estimator's contact flag for the newest sample
         self.last_sample_ns: int | None = None
         self.data_reason = ""
         self.fault = ""  # the fault the last event named
@@ -151,6 +157,7 @@ class HapticGate:
                      params: dict[str, list[float]] | None = None, R_SE: np.ndarray | None = None) -> list[Event]:
         """The primary estimator's output for the usable samples: the events it makes (convergence, bias step)."""
         events = []
+        self.contact_now = bool(est.contact[-1])
         for stage, flags, name in ((0, est.converged_force, "force"), (1, est.converged_torque, "torque")):
             self.flips[stage] += int(flags[0] != self.converged[stage]) + int(np.count_nonzero(flags[1:] != flags[:-1]))
             self.converged[stage] = bool(flags[-1])
@@ -177,7 +184,39 @@ class HapticGate:
         step = self.bias.add(block, est) if self.ready[0] and not self.bias_hold else None
         if step is not None:
             events.append(self._bias_step(step, now_ns))
+            if self.bias_hold == "latched":
+                events.append(Event(now_ns, "haptic_latched", f"haptic force latched off: {LATCHED}; "
+                                    f"{self.label} cannot re-identify its bias", {"cause": "sensor bias step"}))
         return events
+
+    @property
+    def latched(self) -> bool:
+        """A latched stop holds the force off until an explicit re-arm."""
+        return self.bias_hold == "latched"
+
+    def rearm(self, now_ns: int, source: str) -> Event | None:
+        """An explicit re-arm from ``source`` (e.g. "key r", "button 0"): its event, None when nothing is latched.
+
+        Granted (``haptic_rearmed``) only while the cause is gone: no other
+        reason holds the force off, and the estimator no longer refuses the newest
+        sample as a contact (a bias step that persists is seen as one; so is a
+        real contact: free the tool, then re-arm). Refused otherwise
+        (``haptic_rearm_refused``, naming why), and the stop stays latched.
+        After a re-arm the bias watch starts afresh: a step that comes back latches again.
+        """
+        if not self.latched:
+            return None
+        self.bias_hold = ""
+        other = self.reason(now_ns)
+        if not other and self.contact_now:
+            other = "the estimator still sees a contact (the bias step, or a real one): free the tool"
+        if other:
+            self.bias_hold = "latched"
+            return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}",
+                         {"source": source})
+        self.bias = BiasWatch()
+        return Event(now_ns, "haptic_rearmed", f"haptic force re-armed by {source}; it ramps in from zero",
+                     {"source": source})
 
     def _bias_step(self, step: np.ndarray, now_ns: int) -> Event:
         message = (f"sensor bias step of {np.linalg.norm(step):.2f} N: the refused force stayed fixed in the "
@@ -210,7 +249,7 @@ class HapticGate:
             return (f"kinematics out of step with the sensor (poses {abs(self.lag.lag_s) * 1e3:.0f} ms "
                     f"{'late' if self.lag.lag_s > 0 else 'early'})")
         if self.bias_hold == "latched":
-            return "sensor bias step: re-arm needed"
+            return LATCHED
         if self.bias_hold:
             return "sensor bias step: re-identifying"
         if not self.ready[0]:

@@ -1,18 +1,33 @@
 """The safety-critical end: turns a contact estimate into a device force command.
 
 On any doubt (the gate in ``gate.py`` says which) the command is zero at once,
-with the reason; otherwise the force is mapped into the device frame, clamped
-to ``max_force`` and rate-limited to ``max_force_rate``. Going to zero is never
-rate-limited; coming back from zero is (the ramp starts at zero).
+with the reason. Otherwise, in this order:
+
+1. **map** the contact force from the sensor frame S into the device base D:
+   ``force_D = scale · R_DB · R_BS · contact_force_S`` with ``R_BS = R_BE · R_ES``
+   (the flange's orientation from the kinematics, the sensor's mount);
+2. **deadband**: a force smaller than ``deadband`` is zero, a larger one loses
+   ``deadband`` from its magnitude, direction kept (continuous: no step);
+3. **low-pass**: first order, cut-off ``cutoff_hz``, discretised exactly for
+   the device period T: ``y ← y + (1 − e^(−2π·fc·T))·(x − y)``, so a step
+   reaches 1 − e^(−n·T/τ) after n periods (τ = 1/(2π·fc));
+4. **clamp** the magnitude to ``max_force`` and the device's own limit
+   (``HasForceLimit``), direction kept;
+5. **slew-rate limit**: at most ``max_force_rate · T`` from the last command.
+
+Going to zero is never rate-limited; coming back from zero is (the ramp
+starts at zero), and a zero for a reason also empties the low-pass, so a force
+that comes back never replays what the filter held before.
 
 The governor checks its *output*, not only its input: a command that is not
-finite or not within the limits after the mapping (a finite but huge reading
-overflows in the rotation) is replaced by zero with the reason, so nothing but
-a finite force within ``max_force`` and one rate-limited step of the last
-command ever reaches the device.
+finite, above the limit, or more than one rate-limited step from the last one
+(a finite but huge reading overflows in the rotation) is replaced by zero with
+the reason, so nothing else ever reaches the device.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -22,52 +37,106 @@ from ...core.types import HapticCommand
 from ..config import HapticSettings
 
 ZERO3 = np.zeros(3)
+TOLERANCE = 1e-9
+"""Relative slack of the output checks (rounding of the arithmetic that enforces them)."""
+
+
+def deadband(force: np.ndarray, width: float) -> np.ndarray:
+    """(3,) ``force`` with ``width`` (N) taken off its magnitude, zero when it is smaller; direction kept."""
+    norm = float(np.linalg.norm(force))
+    if norm <= width:
+        return ZERO3
+    return force * ((norm - width) / norm)
+
+
+def lowpass_gain(cutoff_hz: float, period_s: float) -> float:
+    """The exact first-order gain 1 − e^(−2π·fc·T) for a cut-off ``cutoff_hz`` (Hz) and period ``period_s`` (s).
+
+    1 (no filtering) when the cut-off is 0 (off).
+    """
+    if cutoff_hz <= 0:
+        return 1.0
+    return -math.expm1(-2.0 * math.pi * cutoff_hz * period_s)
 
 
 class ForceGovernor:
-    """Maps, clamps and rate-limits contact forces for the haptic device.
+    """Maps, filters, clamps and rate-limits contact forces for the haptic device.
 
     Args:
-        settings: limits and the device mapping.
-        period_s: the device command period, s (for the rate limit).
+        settings: limits and the device mapping (the ``[haptic]`` table).
+        period_s: the device command period, s (for the filter and the rate limit).
+
+    Attributes:
+        R_DB: (3, 3) orientation of the robot base B in the device base D.
+        max_step: largest change of the command in one period, N.
+        gain: the low-pass's gain per period (1: off).
+        device_max_force: the device's own force limit, N (None: it reports none);
+            the loop sets it from a ``HasForceLimit`` output before each command.
+        filtered_D: (3,) the low-pass's state, N in D.
+        last_force_D: (3,) the last command's force, N in D.
     """
 
     def __init__(self, settings: HapticSettings, period_s: float):
         self.settings = settings
         self.R_DB = matrix_from_rotvec(settings.rotation_DB)
         self.max_step = settings.max_force_rate * period_s
+        self.gain = lowpass_gain(settings.cutoff_hz, period_s)
+        self.device_max_force: float | None = None
+        self.filtered_D = ZERO3
         self.last_force_D = ZERO3
+
+    def limit(self) -> float:
+        """The force limit in use, N: ``max_force``, or the device's own when smaller (NaN when it is unusable)."""
+        device = self.device_max_force
+        if device is None:
+            return self.settings.max_force
+        if not (math.isfinite(device) and device > 0):
+            return math.nan
+        return min(self.settings.max_force, float(device))
 
     def command(self, t_ns: int, contact_force_S: np.ndarray | None, R_BS: np.ndarray | None,
                 reason: str = "") -> HapticCommand:
         """The command for this device period; ``reason`` non-empty forces zero.
 
         Args:
+            t_ns: the command's time, ns.
             contact_force_S: (3,) the contact force in the sensor frame S, N.
             R_BS: (3, 3) orientation of S in the robot base B (R_BE·R_ES: the flange's
                 orientation and the sensor's mount, identity unless an estimator knows it).
+            reason: why the force must be zero ("" when it may be on).
         """
+        limit = self.limit()
+        if not reason and not math.isfinite(limit):
+            reason = f"haptic device reports no usable force limit ({self.device_max_force!r} N)"
         if not reason and (contact_force_S is None or R_BS is None):
             reason = "no estimate yet"
         if not reason and not np.all(np.isfinite(contact_force_S)):
             reason = "non-finite contact force"
         if not reason:
             with np.errstate(over="ignore", invalid="ignore"):
-                target = self.settings.scale * (self.R_DB @ (R_BS @ contact_force_S))
-                norm = float(np.linalg.norm(target))
-            if not np.isfinite(norm):
-                reason = "non-finite force after the mapping"
+                mapped_D = self.settings.scale * (self.R_DB @ (R_BS @ contact_force_S))
+                if not np.isfinite(np.linalg.norm(mapped_D)):
+                    reason = "non-finite force after the mapping"
         if reason:
-            self.last_force_D = ZERO3
-            return HapticCommand(t_ns, ZERO3, False, reason)
-        if norm > self.settings.max_force:
-            target = target * (self.settings.max_force / norm)
+            return self._zero(t_ns, reason)
+        # a convex combination of finite forces: the filter's state stays finite
+        self.filtered_D = self.filtered_D + self.gain * (deadband(mapped_D, self.settings.deadband) - self.filtered_D)
+        target = self.filtered_D
+        norm = float(np.linalg.norm(target))
+        if norm > limit:
+            target = target * (limit / norm)
         step = target - self.last_force_D
         step_norm = float(np.linalg.norm(step))
         if step_norm > self.max_step:
             target = self.last_force_D + step * (self.max_step / step_norm)
-        if not (np.all(np.isfinite(target)) and np.linalg.norm(target) <= self.settings.max_force * (1 + 1e-9)):
-            self.last_force_D = ZERO3  # unreachable by the arithmetic above; checked all the same
-            return HapticCommand(t_ns, ZERO3, False, "governor output out of bounds")
+        if not (np.all(np.isfinite(target)) and np.linalg.norm(target) <= limit * (1 + TOLERANCE)
+                and np.linalg.norm(target - self.last_force_D) <= self.max_step * (1 + TOLERANCE)):
+            return self._zero(t_ns, "governor output out of bounds")  # unreachable by the arithmetic above
         self.last_force_D = target
         return HapticCommand(t_ns, target, True, "")
+
+    def _zero(self, t_ns: int, reason: str) -> HapticCommand:
+        """A zero command for ``reason``; the filter and the ramp start again from zero."""
+        self.filtered_D = ZERO3
+        self.last_force_D = ZERO3
+        return HapticCommand(t_ns, ZERO3, False, reason)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -10,7 +11,12 @@ from ...core.types import Event
 
 @dataclass
 class SessionStatus:
-    """What the live terminal display shows; updated a few times a second."""
+    """What the live terminal display shows; updated a few times a second.
+
+    ``latched`` is True while a latched stop waits for a re-arm; ``rearm(source)``
+    asks for one (the session's :meth:`LiveLoop.rearm`: honoured at the next tick,
+    granted only once the cause is gone).
+    """
 
     elapsed_s: float = 0.0
     samples: int = 0
@@ -22,6 +28,8 @@ class SessionStatus:
     reason: str = ""
     events: int = 0
     behind_s: float = 0.0
+    latched: bool = False
+    rearm: Callable[[str], None] | None = field(default=None, repr=False)
 
 
 @dataclass

@@ -440,7 +440,8 @@ class RdtReceiver:
             self._holes[hole:hole] = [h for h in ((lo, ri - 1), (ri + 1, hi)) if h[0] <= h[1]]
         fresh = np.flatnonzero(r > self._r)
         fresh = fresh[np.argsort(r[fresh], kind="stable")]
-        repeated = np.concatenate([[False], r[fresh][1:] == r[fresh][:-1]])  # the later arrivals of a number
+        repeated = np.zeros(len(fresh), dtype=bool)  # the later arrivals of a number (none when fresh is empty)
+        repeated[1:] = r[fresh][1:] == r[fresh][:-1]
         duplicate[fresh[repeated]] = True
         c["duplicate"] += int(np.count_nonzero(duplicate))
         c["out_of_order"] += int(np.count_nonzero(inverted & ~duplicate))  # a duplicate counts as that only

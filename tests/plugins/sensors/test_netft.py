@@ -336,6 +336,24 @@ def test_our_receiver_sorts_out_reorders_duplicates_late_records_and_a_restarted
     assert health["reconnect"] == 1
 
 
+def test_a_read_holding_only_records_already_passed_delivers_nothing():
+    """A read whose every record was passed already (a lone duplicate, a lone late record): counted, nothing
+    delivered, the stream goes on (it raised an IndexError once: the faults test over the lab found it)."""
+    def read(*datagrams):
+        for datagram in datagrams:
+            send(datagram)
+        return [s.seq for s in sensor.read(time.monotonic_ns() + 10**9)]
+
+    with hand_sensor("127.0.0.145") as (sensor, send):
+        assert read() == [10]
+        assert read(hand_records([3])) == [30]  # 2 missing
+        assert read(hand_records([3])) == []  # a duplicate alone
+        assert read(hand_records([2])) == []  # late alone
+        assert read(hand_records([4])) == [40]
+        health = sensor.health_counters()
+    assert health["duplicate"] == 1 and health["late"] == 1 and health["lost"] == 1
+
+
 def test_our_receiver_follows_a_stream_renumbered_by_a_start_request_still_in_flight():
     """After a timeout the start request goes again; records of the old numbering may come back first, then the
     request lands and the sensor numbers from 1 again: a new stream (same counter: no restart), not duplicates."""

@@ -233,10 +233,15 @@ class UREmulator:
     tcp_offset : the TCP set in the robot's installation, as the controller takes it: (6,) position
         p_EoTo_E (m) and rotation vector of R_ET (rad) of the TCP T in the flange E. ``actual_TCP_pose`` is
         then T's pose, not the flange's (what a lab must avoid: hapticlab needs the flange).
+    stalls : windows ``(start, duration)`` of world time, s, in which the controller sends no data package
+        while every connection stays open (a stalled stream: a busy controller, a switch holding frames);
+        the packages due then are never sent (counted in :attr:`packages_stalled`), and the stream resumes
+        at the current cycle, so a client sees the timestamp jump.
     """
 
     def __init__(self, world: SimWorld, address: str = "127.0.0.1", model: str = "ur5e", port: int = RTDE_PORT,
-                 encoder_noise: float = 1e-7, tcp_offset: tuple[float, ...] = (0.0,) * 6):
+                 encoder_noise: float = 1e-7, tcp_offset: tuple[float, ...] = (0.0,) * 6,
+                 stalls: tuple[tuple[float, float], ...] | list[tuple[float, float]] = ()):
         if model not in UR_DH:
             raise ValueError(f"model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
         self.world = world
@@ -260,6 +265,12 @@ class UREmulator:
         if tcp.shape != (6,) or not np.all(np.isfinite(tcp)):
             raise ValueError(f"tcp_offset: six numbers (x, y, z in m, rotation vector in rad), got {tcp_offset!r}")
         self.p_EoTo_E, self.R_ET = tcp[:3], matrix_from_quat_wxyz(quat_from_rotvec(tcp[3:])[None])[0]
+        self.stalls = tuple((float(start), float(duration)) for start, duration in stalls)
+        for start, duration in self.stalls:
+            if not (start >= 0 and duration > 0 and math.isfinite(start)):
+                raise ValueError(f"stall: start must be >= 0 s and duration > 0 s, got {start!r}, {duration!r}")
+        self.packages_stalled = 0
+        """Data packages not sent because they fell in a stall."""
         self._noise_key = int(np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,))
                               .generate_state(1, np.uint64)[0])
         self._qd = np.zeros(6)
@@ -384,6 +395,12 @@ class UREmulator:
                    for recipe in client.outputs.values() if recipe.next_cycle <= cycle]
             inputs = dict(self._inputs)
         if not due:
+            return
+        t = cycle / self.cycle_hz
+        if any(start <= t < start + duration for start, duration in self.stalls):  # stalled: nothing goes out
+            for client, recipe in due:
+                recipe.next_cycle += recipe.every
+                self.packages_stalled += 1
             return
         values = self.state(cycle)
         for client, recipe in due:

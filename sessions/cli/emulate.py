@@ -48,6 +48,12 @@ def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> N
     lab.add_argument("--ur", default="127.0.0.3", metavar="ADDRESS", help="the UR controller's address, "
                                                                            "port 30004 (127.0.0.3)")
     lab.add_argument("--model", default="ur5e", help="the UR model (default ur5e: e-Series, 500 Hz)")
+    lab.add_argument("--netft-fault", action="append", default=[],
+                     metavar="KIND[,start=S][,duration=S][,every=N][,status=0x...]",
+                     help="a wire fault of the Net F/T, as emulate netft --fault; repeatable")
+    lab.add_argument("--ur-stall", action="append", default=[], metavar="START,DURATION",
+                     help="the UR stream stalls over this window of world time, s: no data package, the "
+                          "connection open; repeatable")
     lab.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
     lab.set_defaults(func=run_lab)
 
@@ -61,15 +67,24 @@ def run_lab(args: argparse.Namespace) -> int:
     """
     from ...core.plugins import ConfigError
     from ...plugins.kinematics.ur_emulator import UREmulator
-    from ...plugins.sensors.netft_emulator import NetFTEmulator
+    from ...plugins.sensors.netft_emulator import NetFTEmulator, RdtFault
     from ...plugins.simworld import SimWorld
     from ..config import load_config
 
+    def window(text: str) -> tuple[float, float]:  # --ur-stall START,DURATION
+        try:
+            start, duration = (float(x) for x in text.split(","))
+        except ValueError:
+            raise ValueError(f"--ur-stall {text!r}: expected START,DURATION in s") from None
+        return start, duration
+
     config, _ = load_config(args.session)
     try:
+        faults = [RdtFault.parse(text) for text in args.netft_fault]
+        stalls = [window(text) for text in args.ur_stall]
         world = SimWorld.from_config(config.get("world"))
-        sensor = NetFTEmulator(world, args.netft, args.rdt_port, args.http_port, args.rate)
-        arm = UREmulator(world, address=args.ur, model=args.model)
+        sensor = NetFTEmulator(world, args.netft, args.rdt_port, args.http_port, args.rate, faults=faults)
+        arm = UREmulator(world, address=args.ur, model=args.model, stalls=stalls)
     except ValueError as exc:
         raise ConfigError(f"emulate lab: {exc}") from None
     except OSError as exc:
@@ -97,5 +112,8 @@ def run_lab(args: argparse.Namespace) -> int:
         sensor.stop()
     if previous is not None:
         signal.signal(signal.SIGTERM, previous)
-    print(f"sent {sensor.counts.sent} RDT records and {arm.packages_sent} RTDE data packages", flush=True)
+    c = sensor.counts
+    print(f"sent {c.sent} RDT records ({c.dropped} dropped, {c.duplicated} duplicated, {c.reordered} reordered, "
+          f"{c.stalled} stalled, {c.status} with a status) and {arm.packages_sent} RTDE data packages "
+          f"({arm.packages_stalled} stalled)", flush=True)
     return 0

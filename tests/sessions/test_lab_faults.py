@@ -331,20 +331,21 @@ def test_an_emulator_killed_mid_session(tmp_path, victim):
         reasons = _assert_zero(rec, kill_ns + stale_ns + MARGIN_NS, rec.t_ns("/haptic/command")[-1],
                                "Net F/T killed")
         assert set(reasons) == {"no sensor data"}
-        timeout = [e for e in events if e.kind == "sensor_timeout"]
-        assert len(timeout) == 1 and timeout[0].t_ns > kill_ns
-        assert not any(e.kind == "sensor_resumed" for e in events)
+        # (a loaded machine may also have had a silence > receive_timeout before the kill, resumed since)
+        timeout = [e for e in events if e.kind == "sensor_timeout" and e.t_ns > kill_ns]
+        assert len(timeout) == 1
+        assert not any(e.kind == "sensor_resumed" and e.t_ns > kill_ns for e in events)
         health = _final_health(rec)
-        assert health["timeout"] == 1 and health["reconnect"] >= 1  # it asked the dead sensor to start again
+        assert health["timeout"] >= 1 and health["reconnect"] >= 1  # it asked the dead sensor to start again
     else:
         assert not (rec.t_ns("/kinematics/pose") > kill_ns + MARGIN_NS).any()
         assert (rec.t_ns("/sensor/wrench") > kill_ns + NS // 2).any()  # the sensor goes on
         reasons = _assert_zero(rec, kill_ns + 6_000_000 + stale_ns + MARGIN_NS, rec.t_ns("/haptic/command")[-1],
                                "UR controller killed")
         assert set(reasons) <= SAFE_REASONS and "stale kinematics" in set(reasons)
-        timeout = [e for e in events if e.kind == "kinematics_timeout"]
-        assert len(timeout) == 1 and timeout[0].t_ns > kill_ns and timeout[0].data["connected"] is False
-        assert not any(e.kind == "kinematics_resumed" for e in events)
+        timeout = [e for e in events if e.kind == "kinematics_timeout" and e.t_ns > kill_ns]
+        assert len(timeout) == 1 and timeout[0].data["connected"] is False
+        assert not any(e.kind == "kinematics_resumed" and e.t_ns > kill_ns for e in events)
     # the gate records a fault event when the fault changes: the one in effect once the force had to be zero
     window_ns = kill_ns + (0 if victim == "netft" else 6_000_000) + stale_ns + MARGIN_NS
     faults = [e for e in events if e.kind == "fault" and e.t_ns <= window_ns]

@@ -36,6 +36,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.estimators.kalman",
     "hapticlab.plugins.haptics.null",
     "hapticlab.plugins.haptics.serial",
+    "hapticlab.plugins.haptics.hid",
     "hapticlab.plugins.sensors.netft_emulator",
     "hapticlab.plugins.kinematics.ur_emulator",
     "hapticlab.plugins.haptics.master_emulator",

@@ -1,0 +1,629 @@
+"""``hid``: a haptic master that speaks vendor-defined RawHID reports (hidapi), in a layout the lab describes.
+
+Many DIY and small-lab masters (Teensy, Arduino Leonardo/Micro, STM32 and
+RP2040 boards) enumerate as a vendor-defined HID device that exchanges fixed
+64-byte reports: no driver to install, 1 ms interrupt transfers at full speed.
+Every firmware lays its reports out differently, so the layout is config: the
+report id, and for the OUT report (host → device) and the IN report (device →
+host) each field's byte offset, type and scale (SI units per count).
+
+Each ``send`` writes one OUT report (force, sequence number, flags) and waits
+up to ``read_timeout`` for the IN report that echoes its sequence number
+(position, velocity, buttons, status), which ``state()`` then returns. IN
+reports with an older echo are stale (counted, skipped); reports with another
+report id or of the wrong length are counted and skipped. A layout without an
+``echo`` field takes the newest IN report that has arrived (staleness then
+cannot be told).
+
+What reaches the wire is never above ``device_max_force`` and never NaN: a
+non-finite command is written as zero, a disabled one as zero with the enable
+flag cleared, a larger one is scaled down along its direction
+(``serial.clamp_force``); each component is then quantised to its field's
+type, saturating at the type's range (never wrapping around), and rounded
+toward zero when rounding to the nearest count would take the norm above the
+limit. A device maximum that a force field cannot represent is a ConfigError.
+
+A lost device raises MasterLostError from ``send``, so the session zeroes the
+force and records an event: a read or write that fails (unplugged), or no IN
+report answering the OUT report within ``read_timeout``. While lost, ``send``
+raises at once, except every ``reconnect_interval`` when it reopens the device
+if it went away and tries a zero force. Losses and recoveries are events
+(``haptic_device_lost``, ``haptic_device_back``), as are changes of the link
+counters (``haptic_link``) and of the device's status bits
+(``haptic_device_status``).
+
+Types: ``u8 i8 u16le i16le u32le i32le f32le f64le`` and the big-endian
+``u16be i16be u32be i32be f32be f64be``. Fields (offsets are into the report's
+data, after the report id when reports are numbered)::
+
+    OUT  force_x force_y force_z   required, N per count
+         seq                       optional, unsigned, wraps at the type's width
+         flags                     optional, unsigned; bit 0 = force enabled
+    IN   position_x/_y/_z          required, m per count
+         velocity_x/_y/_z          optional (all three or none), m/s per count
+         buttons                   optional, unsigned bit mask
+         echo                      optional, unsigned: the seq of the OUT report answered (needs OUT seq)
+         status                    optional, unsigned: bit 0 watchdog, 1 clamped, 2 fault (as ``framing``)
+
+The preset ``layout = "teensy-rawhid"``: a Teensy (Teensyduino "Raw HID" USB
+type: vendor 0x16C0, product 0x0486, usage page 0xFFAB, usage 0x0200; it also
+shows a serial-emulation interface under the same ids, hence the usage page)
+or any board running the same sketch layout. Unnumbered 64-byte reports::
+
+    OUT  bytes 0-3 force_x f32le N, 4-7 force_y, 8-11 force_z,
+         12-13 seq u16le, 14 flags u8 (bit 0: enable), 15-63 zero
+    IN   bytes 0-3 position_x i32le µm (1e-6 m per count), 4-7 position_y, 8-11 position_z,
+         12-13 velocity_x i16le mm/s (1e-3 m/s per count, ±32.767 m/s), 14-15 velocity_y, 16-17 velocity_z,
+         18 buttons u8, 19 status u8, 20-21 echo u16le, 22-63 zero
+
+CRTK names: ``servo_cf`` is ``send``, ``measured_cp`` is ``state``.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...core import hookimpl
+from ...core.plugins import ConfigError
+from ...core.types import DeviceState, Event, HapticCommand
+from . import framing
+from .hid_transport import DeviceSelector, FakeFault, FakeHidapi, FakeRawHidMaster, HidapiTransport, RawHidTransport
+from .serial import MasterLostError, MasterOpenError, clamp_force
+
+MAX_REPORT_SIZE = 64
+"""Bytes of data in one report: the full-speed interrupt packet."""
+
+FLAG_ENABLE = 1 << 0
+"""OUT ``flags`` bit: the device may render the force (clear: zero, whatever the force fields say)."""
+
+IDENTITY_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
+ZERO3 = np.zeros(3)
+STATUS_TEXT = {framing.STATUS_WATCHDOG: "its watchdog zeroed the force",
+               framing.STATUS_CLAMPED: "it clamped a force to its own maximum",
+               framing.STATUS_FAULT: "it reports a fault"}
+
+
+@dataclass(frozen=True, slots=True)
+class FieldType:
+    """A field's encoding: struct format, size in bytes, and the range of its counts."""
+
+    name: str
+    fmt: struct.Struct
+    is_float: bool
+    lo: float
+    hi: float
+
+    @property
+    def size(self) -> int:
+        return self.fmt.size
+
+
+def _int_type(name: str, code: str, bits: int, signed: bool) -> FieldType:
+    lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+    return FieldType(name, struct.Struct(code), False, lo, hi)
+
+
+F32_MAX = float(np.finfo(np.float32).max)
+F64_MAX = float(np.finfo(np.float64).max)
+TYPES: dict[str, FieldType] = {t.name: t for t in (
+    _int_type("u8", "<B", 8, False), _int_type("i8", "<b", 8, True),
+    _int_type("u16le", "<H", 16, False), _int_type("i16le", "<h", 16, True),
+    _int_type("u32le", "<I", 32, False), _int_type("i32le", "<i", 32, True),
+    _int_type("u16be", ">H", 16, False), _int_type("i16be", ">h", 16, True),
+    _int_type("u32be", ">I", 32, False), _int_type("i32be", ">i", 32, True),
+    FieldType("f32le", struct.Struct("<f"), True, -F32_MAX, F32_MAX),
+    FieldType("f32be", struct.Struct(">f"), True, -F32_MAX, F32_MAX),
+    FieldType("f64le", struct.Struct("<d"), True, -F64_MAX, F64_MAX),
+    FieldType("f64be", struct.Struct(">d"), True, -F64_MAX, F64_MAX),
+)}
+
+FORCE_FIELDS = ("force_x", "force_y", "force_z")
+POSITION_FIELDS = ("position_x", "position_y", "position_z")
+VELOCITY_FIELDS = ("velocity_x", "velocity_y", "velocity_z")
+COUNTER_FIELDS = ("seq", "flags", "buttons", "echo", "status")
+OUT_FIELDS = (*FORCE_FIELDS, "seq", "flags")
+IN_FIELDS = (*POSITION_FIELDS, *VELOCITY_FIELDS, "buttons", "echo", "status")
+
+
+@dataclass(frozen=True, slots=True)
+class Field:
+    """One field of a report.
+
+    Attributes:
+        name: what it carries (``force_x``, ``position_y``, ``seq``, ...).
+        offset: its first byte in the report's data (after a report id), bytes.
+        type: its encoding.
+        scale: SI units per count (N, m or m/s per count; 1 for counters).
+    """
+
+    name: str
+    offset: int
+    type: FieldType
+    scale: float = 1.0
+
+    @property
+    def end(self) -> int:
+        """One past its last byte."""
+        return self.offset + self.type.size
+
+    def counts(self, value: float, toward_zero: bool = False) -> int | float:
+        """``value`` (SI) as this field's counts: non-finite → 0; saturated at the type's range, never wrapped.
+
+        Integers round to the nearest count (``toward_zero``: truncate, so the
+        magnitude never grows); floats round to the type's precision when packed.
+        """
+        x = value / self.scale if math.isfinite(value) else 0.0
+        if self.type.is_float:
+            if not math.isfinite(x):  # value/scale overflowed
+                x = math.copysign(self.type.hi, x)
+            return min(max(x, self.type.lo), self.type.hi)
+        if not math.isfinite(x):
+            x = math.copysign(self.type.hi, x)
+        n = math.trunc(x) if toward_zero else round(x)
+        return min(max(n, int(self.type.lo)), int(self.type.hi))
+
+    def pack_into(self, buffer: bytearray, value: float, toward_zero: bool = False) -> None:
+        self.type.fmt.pack_into(buffer, self.offset, self.counts(value, toward_zero))
+
+    def unpack(self, data: bytes) -> float:
+        """The field's value in SI units (an int for counters)."""
+        (n,) = self.type.fmt.unpack_from(data, self.offset)
+        return n if self.name in COUNTER_FIELDS else n * self.scale
+
+
+@dataclass(frozen=True, slots=True)
+class ReportLayout:
+    """One direction's report: its id (0: unnumbered), its data size (bytes), its fields by name."""
+
+    report_id: int
+    size: int
+    fields: dict[str, Field]
+
+    def encode(self, values: dict[str, float]) -> bytes:
+        """The report's data (without the report id): every field of the layout found in ``values``, the rest zero."""
+        buffer = bytearray(self.size)
+        for name, f in self.fields.items():
+            if name in values:
+                f.pack_into(buffer, values[name])
+        return bytes(buffer)
+
+    def decode(self, data: bytes) -> dict[str, float]:
+        """Every field's value from the report's data (without the report id), SI units."""
+        return {name: f.unpack(data) for name, f in self.fields.items()}
+
+
+@dataclass(frozen=True, slots=True)
+class RawHidLayout:
+    """Both reports of a device: ``out`` (host → device) and ``inp`` (device → host)."""
+
+    out: ReportLayout
+    inp: ReportLayout
+
+    @classmethod
+    def from_config(cls, spec: str | dict, where: str = "haptic.layout") -> "RawHidLayout":
+        """From a preset name or a table ``{report_id, size, out = {field = {offset, type, scale}}, in = {...}}``.
+
+        Raises ConfigError naming the key on anything wrong.
+        """
+        if isinstance(spec, str):
+            if spec not in PRESETS:
+                raise ConfigError(f"{where}: unknown preset {spec!r}; presets: {', '.join(PRESETS)} "
+                                  "(or a table describing the reports)")
+            return cls.from_config(PRESETS[spec]["layout"], f"{where} (preset {spec})")
+        if not isinstance(spec, dict):
+            raise ConfigError(f"{where}: must be a preset name or a table, got {spec!r}")
+        unknown = set(spec) - {"report_id", "size", "out", "in"}
+        if unknown:
+            raise ConfigError(f"{where}.{sorted(unknown)[0]}: unknown key; keys: report_id, size, out, in")
+        report_id = spec.get("report_id", 0)
+        if not (isinstance(report_id, int) and not isinstance(report_id, bool) and 0 <= report_id <= 255):
+            raise ConfigError(f"{where}.report_id: must be an integer 0..255 (0: unnumbered reports), got {report_id!r}")
+        size = spec.get("size", MAX_REPORT_SIZE)
+        if not (isinstance(size, int) and not isinstance(size, bool) and 1 <= size <= MAX_REPORT_SIZE):
+            raise ConfigError(f"{where}.size: must be an integer 1..{MAX_REPORT_SIZE} (bytes of report data), "
+                              f"got {size!r}")
+        out = _report(spec.get("out"), f"{where}.out", report_id, size, OUT_FIELDS, FORCE_FIELDS)
+        inp = _report(spec.get("in"), f"{where}.in", report_id, size, IN_FIELDS, POSITION_FIELDS)
+        velocity = [n for n in VELOCITY_FIELDS if n in inp.fields]
+        if velocity and len(velocity) < 3:
+            missing = next(n for n in VELOCITY_FIELDS if n not in inp.fields)
+            raise ConfigError(f"{where}.in.{missing}: required with {velocity[0]} (velocity is all three or none)")
+        if "echo" in inp.fields and "seq" not in out.fields:
+            raise ConfigError(f"{where}.in.echo: needs a seq field in the OUT report to echo")
+        return cls(out, inp)
+
+
+def _report(table: Any, where: str, report_id: int, size: int, allowed: tuple[str, ...],
+            required: tuple[str, ...]) -> ReportLayout:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: required, a table of fields ({', '.join(allowed)})")
+    fields: dict[str, Field] = {}
+    for name, spec in table.items():
+        key = f"{where}.{name}"
+        if name not in allowed:
+            raise ConfigError(f"{key}: unknown field; fields: {', '.join(allowed)}")
+        if not isinstance(spec, dict):
+            raise ConfigError(f"{key}: must be a table {{offset = ..., type = ..., scale = ...}}, got {spec!r}")
+        extra = set(spec) - {"offset", "type", "scale"}
+        if extra:
+            raise ConfigError(f"{key}.{sorted(extra)[0]}: unknown key; keys: offset, type, scale")
+        type_name = spec.get("type")
+        if type_name not in TYPES:
+            raise ConfigError(f"{key}.type: unknown type {type_name!r}; types: {', '.join(TYPES)}")
+        ftype = TYPES[type_name]
+        offset = spec.get("offset")
+        if not (isinstance(offset, int) and not isinstance(offset, bool) and offset >= 0):
+            raise ConfigError(f"{key}.offset: must be an integer >= 0 (bytes), got {offset!r}")
+        if offset + ftype.size > size:
+            raise ConfigError(f"{key}.offset: bytes {offset}..{offset + ftype.size - 1} end past the "
+                              f"{size}-byte report")
+        scale = spec.get("scale", 1.0)
+        if name in COUNTER_FIELDS:
+            if ftype.is_float or ftype.lo < 0:
+                raise ConfigError(f"{key}.type: {name} must be an unsigned integer type (u8, u16le, ...), "
+                                  f"got {type_name}")
+            if scale != 1:
+                raise ConfigError(f"{key}.scale: {name} is a count, its scale is 1, got {scale!r}")
+        if not (isinstance(scale, (int, float)) and not isinstance(scale, bool) and math.isfinite(scale)
+                and scale != 0):
+            raise ConfigError(f"{key}.scale: must be a finite non-zero number (SI units per count), got {scale!r}")
+        field_ = Field(name, offset, ftype, float(scale))
+        for other in fields.values():
+            if field_.offset < other.end and other.offset < field_.end:
+                raise ConfigError(f"{key}: bytes {field_.offset}..{field_.end - 1} overlap {other.name} "
+                                  f"(bytes {other.offset}..{other.end - 1})")
+        fields[name] = field_
+    for name in required:
+        if name not in fields:
+            raise ConfigError(f"{where}.{name}: required (fields {', '.join(required)} must be described)")
+    return ReportLayout(report_id, size, fields)
+
+
+def _f(offset: int, type_: str, scale: float = 1.0) -> dict[str, Any]:
+    return {"offset": offset, "type": type_, "scale": scale}
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "teensy-rawhid": {
+        "vendor_id": 0x16C0, "product_id": 0x0486, "usage_page": 0xFFAB, "usage": 0x0200,
+        "layout": {
+            "report_id": 0, "size": 64,
+            "out": {"force_x": _f(0, "f32le"), "force_y": _f(4, "f32le"), "force_z": _f(8, "f32le"),
+                    "seq": _f(12, "u16le"), "flags": _f(14, "u8")},
+            "in": {"position_x": _f(0, "i32le", 1e-6), "position_y": _f(4, "i32le", 1e-6),
+                   "position_z": _f(8, "i32le", 1e-6),
+                   "velocity_x": _f(12, "i16le", 1e-3), "velocity_y": _f(14, "i16le", 1e-3),
+                   "velocity_z": _f(16, "i16le", 1e-3),
+                   "buttons": _f(18, "u8"), "status": _f(19, "u8"), "echo": _f(20, "u16le")},
+        },
+    },
+}
+"""Documented example devices: their USB selection and report layout (the module docstring draws it)."""
+
+
+def encode_force(layout: ReportLayout, force_D: np.ndarray, max_force: float) -> bytes:
+    """The OUT report's force fields for a force already clamped to ``max_force`` (N), other fields zero.
+
+    Rounds each component to its field's nearest count; when that would take
+    the force the device decodes above ``max_force``, truncates toward zero
+    instead (each component's magnitude then never grows).
+    """
+    fx, fy, fz = (layout.fields[n] for n in FORCE_FIELDS)
+    buffer = bytearray(layout.size)
+    values = [float(v) for v in force_D]
+    for f, v in zip((fx, fy, fz), values):
+        f.pack_into(buffer, v)
+    decoded = [f.unpack(buffer) for f in (fx, fy, fz)]
+    if math.hypot(*decoded) > max_force:
+        for f, v in zip((fx, fy, fz), values):
+            f.pack_into(buffer, v, toward_zero=True)
+            if f.type.is_float:  # a float's nearest representable may still be a hair larger: step toward 0
+                while abs(f.unpack(buffer)) > abs(v):
+                    x = f.type.fmt.unpack_from(buffer, f.offset)[0]
+                    f.type.fmt.pack_into(buffer, f.offset, float(np.nextafter(np.float32(x), np.float32(0)))
+                                         if f.type.size == 4 else float(np.nextafter(x, 0.0)))
+    return bytes(buffer)
+
+
+class HidHaptic:
+    """A RawHID haptic master (HapticOutput, EmitsEvents, ReportsHealth).
+
+    Args:
+        vendor_id, product_id: USB ids of the device (default: the preset's).
+        serial: its serial number, to choose among several identical devices.
+        path: its platform path (``/dev/hidraw3``, or hidapi's ``1-2:1.0`` with the
+            libusb backend this wheel uses on Linux); overrides the ids.
+        usage_page, usage: the top-level collection to open when the device has
+            several HID interfaces (default: the preset's).
+        layout: a preset name (``"teensy-rawhid"``) or a table describing the
+            reports (see the module docstring).
+        rate_hz: the command rate, Hz.
+        device_max_force: the largest force ever written, N.
+        read_timeout: how long the IN report answering a force may take before
+            the device counts as lost, s.
+        reconnect_interval: how often a lost device is tried again, s.
+        transport: ``"hidapi"`` (a real device) or ``"fake"`` (a simulated master
+            speaking the same layout, in this process: tests and dry runs).
+        fake_faults: faults the fake plays, ``kind@report[:count]`` with kind
+            ``unplug``, ``stale``, ``wrong_id`` or ``silent`` (transport ``"fake"``).
+
+    Attributes:
+        info: one line naming the device, after ``open``.
+        fake: the simulated master when ``transport = "fake"``.
+        written: OUT reports written.
+    """
+
+    def __init__(self, vendor_id: int | None = None, product_id: int | None = None, serial: str = "",
+                 path: str = "", usage_page: int | None = None, usage: int | None = None,
+                 layout: str | dict = "teensy-rawhid", rate_hz: float = 1000.0, device_max_force: float = 3.0,
+                 read_timeout: float = 0.05, reconnect_interval: float = 0.5, transport: str = "hidapi",
+                 fake_faults: list[str] | None = None):
+        self.layout = RawHidLayout.from_config(layout)
+        preset = PRESETS.get(layout, {}) if isinstance(layout, str) else {}
+        for key, value in (("rate_hz", rate_hz), ("device_max_force", device_max_force),
+                           ("read_timeout", read_timeout), ("reconnect_interval", reconnect_interval)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"haptic.{key}: must be a finite number > 0, got {value!r}")
+        vendor_id = preset.get("vendor_id") if vendor_id is None else vendor_id
+        product_id = preset.get("product_id") if product_id is None else product_id
+        if not path and (vendor_id is None or product_id is None):
+            raise ConfigError(f"haptic.{'vendor_id' if vendor_id is None else 'product_id'}: required with a "
+                              "layout table (or haptic.path), e.g. --set haptic.vendor_id=0x16C0")
+        for key, value in (("vendor_id", vendor_id), ("product_id", product_id), ("usage_page", usage_page),
+                           ("usage", usage)):
+            if value is not None and not 0 <= value <= 0xFFFF:
+                raise ConfigError(f"haptic.{key}: must be 0..0xFFFF, got {value!r}")
+        if transport not in ("hidapi", "fake"):
+            raise ConfigError(f"haptic.transport: must be \"hidapi\" or \"fake\", got {transport!r}")
+        try:
+            faults = [FakeFault.parse(text) for text in fake_faults or []]
+        except ValueError as exc:
+            raise ConfigError(f"haptic.fake_faults: {exc}") from None
+        if faults and transport != "fake":
+            raise ConfigError("haptic.fake_faults: only with transport = \"fake\"")
+        if any(f.kind == "wrong_id" for f in faults) and self.layout.inp.report_id == 0:
+            raise ConfigError("haptic.fake_faults: wrong_id needs numbered reports (layout.report_id > 0)")
+        for name in FORCE_FIELDS:  # the limit must be representable, else saturation would turn the force
+            f = self.layout.out.fields[name]
+            reach = f.type.hi * abs(f.scale)
+            if reach < device_max_force:
+                raise ConfigError(f"haptic.layout.out.{name}: {f.type.name} at {f.scale:g} N per count reaches only "
+                                  f"{reach:g} N, below device_max_force {device_max_force:g} N")
+        self.selector = DeviceSelector(
+            vendor_id or 0, product_id or 0, serial, path,
+            preset.get("usage_page") if usage_page is None else usage_page,
+            preset.get("usage") if usage is None else usage)
+        self.rate_hz = rate_hz
+        self.max_force = device_max_force
+        self.read_timeout, self.reconnect_interval = read_timeout, reconnect_interval
+        self.fake: FakeRawHidMaster | None = None
+        if transport == "fake":
+            self.fake = FakeRawHidMaster(self.layout, vendor_id or 0, product_id or 0,
+                                         usage_page=self.selector.usage_page or 0, usage=self.selector.usage or 0,
+                                         max_force=device_max_force, faults=faults)
+            if path:
+                self.fake.path = path.encode()
+            self.transport: RawHidTransport = HidapiTransport(FakeHidapi([self.fake]))
+        else:
+            self.transport = HidapiTransport()
+        out = self.layout.out
+        self._seq_field = out.fields.get("seq")
+        self._flags_field = out.fields.get("flags")
+        self._echo_field = self.layout.inp.fields.get("echo")
+        width = min(f.type.size for f in (self._seq_field, self._echo_field) if f is not None) \
+            if self._echo_field is not None else 1
+        self._echo_mask = (1 << (8 * width)) - 1
+        self._in_read_size = self.layout.inp.size + (1 if self.layout.inp.report_id else 0)
+        self.info = ""
+        self.opened = False
+        self.seq = 0
+        self.written = 0
+        self.lost: MasterLostError | None = None
+        self.next_try = 0.0
+        self.losses = 0
+        self.status = 0
+        self.counters = {"stale_reports": 0, "wrong_report_id": 0, "short_reports": 0, "bad_reports": 0}
+        self._state: DeviceState | None = None
+        self._events: list[Event] = []
+        self._reported: dict[str, int] = {}
+
+    # ------------------------------------------------------------------ HapticOutput
+
+    def open(self) -> None:
+        """Open the device (MasterOpenError names it and why not) and exchange a zero force with it."""
+        self.info = self.transport.open(self.selector)
+        self.opened = True
+        try:
+            reading = self._exchange(ZERO3, enabled=False)
+        except MasterLostError as exc:
+            self.transport.close()
+            self.opened = False
+            raise MasterOpenError(f"haptic: {self.info}: no answer to a first report: {exc}") from None
+        self._take(reading, 0)
+
+    def send(self, command: HapticCommand) -> None:
+        """Write the command's force (zero unless enabled; clamped; never NaN) and read the handle's state.
+
+        Raises MasterLostError when the device is lost (see the module's docstring).
+        """
+        enabled = bool(command.enabled)
+        force_D = clamp_force(command.force_D, self.max_force) if enabled else ZERO3
+        if not self.opened:
+            raise MasterLostError(f"{self.selector.describe()}: not open", "gone")
+        retrying = self.lost is not None
+        if retrying:
+            if time.monotonic() < self.next_try:
+                raise self._still_lost("not tried again yet")
+            self._retry()
+            force_D, enabled = ZERO3, False  # the first force after a loss is zero; the governor ramps up
+        try:
+            reading = self._exchange(force_D, enabled)
+        except MasterLostError as exc:
+            if retrying:  # still lost: the loss keeps its first message (one event per loss)
+                raise self._still_lost(f"a try failed: {exc}") from None
+            self._lose(exc, command.t_ns)
+            raise
+        self._take(reading, command.t_ns)
+        self._report_counters(command.t_ns)
+        if self.lost is not None:
+            raise self.lost
+
+    servo_cf = send
+    """CRTK name: servo in Cartesian force."""
+
+    def state(self) -> DeviceState | None:
+        """The handle's state from the last good IN report (None before); orientation is identity (3-DOF)."""
+        return self._state
+
+    measured_cp = state
+    """CRTK name: the measured Cartesian position (and velocity) of the handle."""
+
+    def close(self) -> None:
+        """Write a zero force with the enable flag cleared (best effort) and close the device."""
+        if not self.opened:
+            return
+        if self.lost is None:
+            try:
+                self.transport.write(self._out_report(ZERO3, enabled=False))
+            except MasterLostError:
+                pass
+        self.transport.close()
+        self.opened = False
+
+    # ------------------------------------------------------------------ capabilities
+
+    def drain_events(self) -> list[Event]:
+        """Losses, recoveries, link counter and device status changes since the last call."""
+        out, self._events = self._events, []
+        return out
+
+    def health_counters(self) -> dict[str, int]:
+        """Counts since ``open``: stale, wrong-id, short and bad IN reports, losses, OUT reports written."""
+        return {**self.counters, "losses": self.losses, "written": self.written}
+
+    # ------------------------------------------------------------------ one exchange
+
+    def _out_report(self, force_D: np.ndarray, enabled: bool) -> bytes:
+        out = self.layout.out
+        data = bytearray(encode_force(out, force_D, self.max_force))
+        if self._seq_field is not None:
+            self._seq_field.type.fmt.pack_into(data, self._seq_field.offset,
+                                               self.seq & int(self._seq_field.type.hi))
+        if self._flags_field is not None:
+            self._flags_field.pack_into(data, FLAG_ENABLE if enabled else 0)
+        return bytes([out.report_id]) + bytes(data)  # hidapi wants the id first, 0 when unnumbered
+
+    def _exchange(self, force_D: np.ndarray, enabled: bool) -> dict[str, float]:
+        """Write one OUT report and return the decoded IN report answering it; MasterLostError if none comes."""
+        self.seq += 1
+        sent_seq = self.seq
+        self.transport.write(self._out_report(force_D, enabled))
+        self.written += 1
+        deadline = time.monotonic() + self.read_timeout
+        newest: dict[str, float] | None = None
+        while True:
+            remaining = deadline - time.monotonic()
+            if newest is not None:  # no echo to match: drain what has come, keep the newest
+                remaining = 0.0
+            data = self.transport.read(self._in_read_size, max(remaining, 0.0))
+            if data is None:
+                if newest is not None:
+                    return newest
+                if remaining <= 0:
+                    raise MasterLostError(f"{self.selector.describe()}: no IN report answering the OUT report "
+                                          f"within {self.read_timeout * 1e3:g} ms", "silent")
+                continue
+            values = self._decode(data)
+            if values is None:
+                continue
+            if self._echo_field is None:
+                newest = values
+            elif (values["echo"] - sent_seq) & self._echo_mask == 0:
+                return values
+            else:
+                self.counters["stale_reports"] += 1
+
+    def _decode(self, data: bytes) -> dict[str, float] | None:
+        """An IN report's values, or None (counted) for one with another id, too short, or not finite."""
+        inp = self.layout.inp
+        if inp.report_id:
+            if data[0] != inp.report_id:
+                self.counters["wrong_report_id"] += 1
+                return None
+            data = data[1:]
+        if len(data) < inp.size:
+            self.counters["short_reports"] += 1
+            return None
+        values = inp.decode(data)
+        if not all(math.isfinite(values[n]) for n in (*POSITION_FIELDS, *VELOCITY_FIELDS) if n in values):
+            self.counters["bad_reports"] += 1
+            return None
+        return values
+
+    def _take(self, values: dict[str, float], t_ns: int) -> None:
+        status = int(values.get("status", 0))
+        if status != self.status:
+            said = [text for bit, text in STATUS_TEXT.items() if status & bit]
+            self._events.append(Event(t_ns, "haptic_device_status",
+                                      "haptic device: " + ("; ".join(said) or "status clear"), {"status": status}))
+            self.status = status
+        if status & framing.STATUS_FAULT:
+            self._lose(MasterLostError(f"{self.selector.describe()}: the device reports a fault "
+                                       f"(status 0x{status:02x})", "errors"), t_ns)
+            return
+        p_DoHo_D = np.array([values[n] for n in POSITION_FIELDS])
+        v_DHo_D = np.array([values[n] for n in VELOCITY_FIELDS]) if "velocity_x" in values else None
+        self._state = DeviceState(t_ns, IDENTITY_QUAT, p_DoHo_D, int(values.get("buttons", 0)), v_DHo_D)
+        if self.lost is not None:
+            self.lost = None
+            self._events.append(Event(t_ns, "haptic_device_back", f"haptic device answering again: {self.info}",
+                                      {"device": self.selector.describe()}))
+
+    # ------------------------------------------------------------------ losing and finding the device
+
+    def _lose(self, error: MasterLostError, t_ns: int) -> None:
+        if self.lost is None:
+            self.losses += 1
+            self._events.append(Event(t_ns, "haptic_device_lost", f"haptic device lost: {error}",
+                                      {"device": self.selector.describe(), "cause": error.cause}))
+        self.lost = error
+        self.next_try = time.monotonic() + self.reconnect_interval
+        if error.cause != "gone":  # it may still hear us: zero, at once, best effort
+            try:
+                self.transport.write(self._out_report(ZERO3, enabled=False))
+            except MasterLostError:
+                pass
+
+    def _retry(self) -> None:
+        """Reopen a device that went away; it stays lost until an IN report answers the try."""
+        self.next_try = time.monotonic() + self.reconnect_interval
+        if self.lost.cause == "gone":
+            self.transport.close()
+            try:
+                self.info = self.transport.open(self.selector)
+            except MasterOpenError as exc:
+                raise self._still_lost(f"trying again failed: {exc}") from None
+
+    def _still_lost(self, why: str) -> MasterLostError:
+        """The loss's own message first (the session records one event per distinct message up to its first
+        " ("), then why it is still lost."""
+        return MasterLostError(f"{self.lost.args[0]} (still lost: {why})", "lost")
+
+    def _report_counters(self, t_ns: int) -> None:
+        if self.counters != self._reported:
+            changed = {k: v for k, v in self.counters.items() if self._reported.get(k, 0) != v}
+            self._reported = dict(self.counters)
+            if changed:
+                text = ", ".join(f"{k} {v}" for k, v in changed.items())
+                self._events.append(Event(t_ns, "haptic_link", f"haptic link: {text}", changed))
+
+
+@hookimpl
+def register_haptic_outputs(register):
+    register("hid", HidHaptic)

@@ -32,7 +32,6 @@ import csv
 import math
 import os
 import select
-import signal
 import threading
 import time
 import tty
@@ -45,6 +44,7 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.types import EmulatorCommand
+from ..serving import serve_until_stopped
 from . import framing, inverse3
 
 PATHS = ("circle", "figure8", "hold")
@@ -491,8 +491,6 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ConfigError(f"emulate master: {exc}") from None
     stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
-        if threading.current_thread() is threading.main_thread() else None
     with emulator:
         print(emulator.port, flush=True)
         print(f"{args.protocol} master emulator on {emulator.port}: handle on {args.path}, max "
@@ -500,13 +498,7 @@ def run(args: argparse.Namespace) -> int:
               f" --set haptic.protocol={args.protocol}", flush=True)
         for fault in faults:
             threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
-        try:
-            stop.wait(args.duration)
-        except KeyboardInterrupt:
-            pass
-        stop.set()
-    if previous is not None:
-        signal.signal(signal.SIGTERM, previous)
+        serve_until_stopped(args.duration, stop)
     c = emulator.counts
     print(f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "
           f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s); "

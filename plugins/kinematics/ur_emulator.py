@@ -63,7 +63,6 @@ from __future__ import annotations
 import argparse
 import math
 import select
-import signal
 import socket
 import struct
 import threading
@@ -76,6 +75,7 @@ import numpy as np
 from ...core import hookimpl
 from ...core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
 from ...core.types import EmulatorCommand
+from ..serving import serve_until_stopped
 from ..simworld.physics import SimWorld, gaussian_noise
 from .sim import ENCODER_STREAM
 from .ur_arm import UR_DH, URArm
@@ -604,18 +604,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"emulate ur: {exc}") from None
     except OSError as exc:
         raise ConfigError(f"emulate ur: cannot serve on {args.address}:{RTDE_PORT}: {exc.strerror or exc}") from None
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
-        if threading.current_thread() is threading.main_thread() else None
     with emulator:
         print(f"UR {args.model} RTDE emulator on {emulator.address}:{emulator.port} "
               f"(controller {'.'.join(map(str, emulator.controller_version))}, {emulator.cycle_hz:g} Hz)", flush=True)
-        try:
-            stop.wait(args.duration)
-        except KeyboardInterrupt:
-            pass
-    if previous is not None:
-        signal.signal(signal.SIGTERM, previous)
+        serve_until_stopped(args.duration)
     inputs = emulator.inputs()
     print(f"sent {emulator.packages_sent} data packages; {len(inputs)} input field(s) written"
           + (f": {', '.join(sorted(inputs))}" if inputs else ""), flush=True)

@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import math
 import select
-import signal
 import socket
 import struct
 import threading
@@ -50,6 +49,7 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.types import STATUS_SATURATED, EmulatorCommand
+from ..serving import serve_until_stopped
 from ..simworld.physics import SimWorld
 from .netft import (ATI_ERROR_SUMMARY, ATI_SATURATION, FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_UNITS)
 from .sim import SimSensor
@@ -456,18 +456,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"emulate netft: {exc}") from None
     except OSError as exc:
         raise ConfigError(f"emulate netft: cannot serve on {args.address}: {exc.strerror or exc}") from None
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
-        if threading.current_thread() is threading.main_thread() else None
     with emulator:
         print(f"netft emulator on {emulator.address}: RDT udp/{emulator.rdt_port}, "
               f"netftapi2.xml http/{emulator.http_port}", flush=True)
-        try:
-            stop.wait(args.duration)
-        except KeyboardInterrupt:
-            pass
-    if previous is not None:
-        signal.signal(signal.SIGTERM, previous)
+        serve_until_stopped(args.duration)
     c = emulator.counts
     print(f"sent {c.sent} records ({c.dropped} dropped, {c.duplicated} duplicated, {c.reordered} reordered, "
           f"{c.stalled} stalled, {c.status} with a status); {c.starts} start, {c.stops} stop, "

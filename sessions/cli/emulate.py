@@ -15,8 +15,6 @@ it as to the device.
 from __future__ import annotations
 
 import argparse
-import signal
-import threading
 
 import pluggy
 
@@ -67,6 +65,7 @@ def run_lab(args: argparse.Namespace) -> int:
     """
     from ...core.plugins import ConfigError
     from ...plugins.kinematics.ur_emulator import UREmulator
+    from ...plugins.serving import serve_until_stopped
     from ...plugins.sensors.netft_emulator import NetFTEmulator, RdtFault
     from ...plugins.simworld import SimWorld
     from ..config import load_config
@@ -89,9 +88,6 @@ def run_lab(args: argparse.Namespace) -> int:
         raise ConfigError(f"emulate lab: {exc}") from None
     except OSError as exc:
         raise ConfigError(f"emulate lab: cannot serve on {args.netft} or {args.ur}: {exc.strerror or exc}") from None
-    stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: stop.set()) \
-        if threading.current_thread() is threading.main_thread() else None
     sensor.start()
     try:
         try:
@@ -102,16 +98,11 @@ def run_lab(args: argparse.Namespace) -> int:
             print(f"lab: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
                   f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}; "
                   f"t0_ns={sensor.t0_ns}", flush=True)
-            try:
-                stop.wait(args.duration)
-            except KeyboardInterrupt:
-                pass
+            serve_until_stopped(args.duration)
         finally:
             arm.stop()
     finally:
         sensor.stop()
-    if previous is not None:
-        signal.signal(signal.SIGTERM, previous)
     c = sensor.counts
     print(f"sent {c.sent} RDT records ({c.dropped} dropped, {c.duplicated} duplicated, {c.reordered} reordered, "
           f"{c.stalled} stalled, {c.status} with a status) and {arm.packages_sent} RTDE data packages "

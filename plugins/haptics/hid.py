@@ -74,7 +74,7 @@ from ...core.plugins import ConfigError
 from ...core.types import DeviceState, Event, HapticCommand
 from . import framing
 from .hid_transport import DeviceSelector, FakeFault, FakeHidapi, FakeRawHidMaster, HidapiTransport, RawHidTransport
-from .serial import MasterLostError, MasterOpenError, clamp_force
+from .serial import MasterLostError, MasterOpenError, clamp_force, link_event
 
 MAX_REPORT_SIZE = 64
 """Bytes of data in one report: the full-speed interrupt packet."""
@@ -616,12 +616,10 @@ class HidHaptic:
         return MasterLostError(f"{self.lost.args[0]} (still lost: {why})", "lost")
 
     def _report_counters(self, t_ns: int) -> None:
-        if self.counters != self._reported:
-            changed = {k: v for k, v in self.counters.items() if self._reported.get(k, 0) != v}
+        event = link_event(t_ns, self.counters, self._reported)
+        if event is not None:
             self._reported = dict(self.counters)
-            if changed:
-                text = ", ".join(f"{k} {v}" for k, v in changed.items())
-                self._events.append(Event(t_ns, "haptic_link", f"haptic link: {text}", changed))
+            self._events.append(event)
 
 
 @hookimpl

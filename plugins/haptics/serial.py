@@ -666,13 +666,18 @@ class SerialHaptic:
         return Inverse3Link(port, self.read_timeout)
 
     def _report_counters(self, t_ns: int) -> None:
-        counters = self.link.counters
-        if counters != self._reported:
-            changed = {k: v for k, v in counters.items() if self._reported.get(k, 0) != v}
-            self._reported = dict(counters)
-            if changed:
-                text = ", ".join(f"{k} {v}" for k, v in changed.items())
-                self._events.append(Event(t_ns, "haptic_link", f"haptic link: {text}", changed))
+        event = link_event(t_ns, self.link.counters, self._reported)
+        if event is not None:
+            self._reported = dict(self.link.counters)
+            self._events.append(event)
+
+
+def link_event(t_ns: int, counters: dict[str, int], reported: dict[str, int]) -> Event | None:
+    """A ``haptic_link`` event naming the link counters that changed since ``reported`` (None if none did)."""
+    changed = {k: v for k, v in counters.items() if reported.get(k, 0) != v}
+    if not changed:
+        return None
+    return Event(t_ns, "haptic_link", "haptic link: " + ", ".join(f"{k} {v}" for k, v in changed.items()), changed)
 
 
 @hookimpl

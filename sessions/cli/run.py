@@ -17,6 +17,7 @@ from rich.live import Live
 from rich.table import Table
 
 from ...core.plugins import KINDS, Registry
+from .errors import is_user_error
 from .render import err
 
 out = Console()
@@ -149,7 +150,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             traceback.print_exception(exc.__cause__, file=sys.stderr)
         print(exc.result.path)
-        return 1
+        return 2 if is_user_error(exc.__cause__) else 1  # e.g. a haptic.port that does not exist: the user's to fix
     ending = "interrupted" if result.interrupted else "finished"
     table = Table(title=f"session {ending}", show_header=False)
     table.add_row("recording", str(result.path))

@@ -58,3 +58,13 @@ def test_a_bug_keeps_its_traceback(monkeypatch, tmp_path):
     sub.choices["recover"].set_defaults(func=broken)
     with pytest.raises(ValueError, match="could not be broadcast"):
         main(["recover", str(tmp_path / "a.mcap"), "-o", str(tmp_path / "b.mcap")])
+
+
+def test_a_master_port_that_does_not_exist_is_the_users_to_fix(capsys, tmp_path):
+    """A device that cannot be opened for a reason in the config: one line naming the key, exit 2, file kept."""
+    out = tmp_path / "no_master.mcap"
+    code = main(["run", "--duration", "1", "--out", str(out), "--set", "session.realtime=false",
+                 "--set", "haptic.name=serial", "--set", f"haptic.port={tmp_path / 'ttyACM7'}"])
+    err = capsys.readouterr().err
+    assert code == 2 and "haptic.port" in err and "ttyACM7" in err
+    assert out.exists()  # the session's recording holds the failure (and nothing is lost)

@@ -52,6 +52,7 @@ class RearmKey:
         self.stream = sys.stdin if stream is None else stream
         self.active = False
         self._saved = None
+        self._fd: int | None = None
 
     def __enter__(self) -> "RearmKey":
         try:
@@ -61,6 +62,7 @@ class RearmKey:
             fd = self.stream.fileno()
             if os.isatty(fd):
                 self._saved = termios.tcgetattr(fd)
+                self._fd = fd
                 tty.setcbreak(fd)
                 self.active = True
         except (ImportError, OSError, ValueError, AttributeError):  # no termios (Windows), no real stdin
@@ -71,7 +73,10 @@ class RearmKey:
         if self._saved is not None:
             import termios
 
-            termios.tcsetattr(self.stream.fileno(), termios.TCSADRAIN, self._saved)
+            try:  # the terminal it was set on; gone (a hang-up) is nothing to restore, and must not hide the result
+                termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
+            except (termios.error, OSError):
+                pass
             self._saved = None
         self.active = False
 
@@ -79,13 +84,16 @@ class RearmKey:
         """The ``r`` key was pressed since the last call (never waits; other keys are dropped)."""
         if not self.active:
             return False
-        fd = self.stream.fileno()
         data = b""
-        while select.select([fd], [], [], 0)[0]:
-            chunk = os.read(fd, 64)
-            if not chunk:
-                break
-            data += chunk
+        try:
+            while select.select([self._fd], [], [], 0)[0]:
+                chunk = os.read(self._fd, 64)
+                if not chunk:
+                    break
+                data += chunk
+        except (OSError, ValueError):  # the terminal hung up: no more keys, the session goes on
+            self.active = False
+            return False
         return REARM_KEY in data.lower()
 
 

@@ -255,6 +255,8 @@ class LiveLoop:
             self.gate.on_event(event, now_ns)
         params, R_SE = self._primary_model()
         for event in self.gate.on_estimates(block, est, now_ns, params, R_SE):
+            if event.kind == "haptic_latched":  # a press from before the stop must not re-arm it
+                self.rearm_requests.clear()
             self._event(event)
         R_BE = block.R_EB[-1].T
         R_BS = R_BE if R_SE is None else R_BE @ R_SE.T
@@ -298,7 +300,10 @@ class LiveLoop:
         if fault is not None:
             self._event(fault)
         if self.force_limit is not None:
-            self.governor.device_max_force = self.force_limit.max_force
+            try:
+                self.governor.device_max_force = self.force_limit.max_force
+            except Exception:  # a device that cannot say its limit now: the governor zeroes a NaN limit
+                self.governor.device_max_force = float("nan")
         command = self.governor.command(now_ns, *(self.last_estimate or (None, None)), reason=reason)
         try:
             self.s.haptic.send(command)

@@ -94,7 +94,8 @@ def test_pynetft_reads_the_emulators_calibration_samples_and_bias():
                                                           pynetft.TorqueUnit.NEWTON_MILLIMETER)
     raw = np.array([s.raw_wrench for s in samples])
     ft = np.array([s.ft_sequence for s in samples])
-    assert (np.diff(ft) == 1).all()  # 7000 Hz: every internal sample
+    # 7000 Hz: every internal sample is sent; a loaded machine may drop one on loopback before pynetft reads it
+    assert (np.diff(ft) >= 1).all() and np.median(np.diff(ft)) == 1
     np.testing.assert_array_equal(raw, world_counts(emu, world, ft))
     force_N = np.array([s.force for s in samples])  # pynetft's scaling, in the sensor's unit (N)
     np.testing.assert_allclose(force_N, raw[:, :3] / COUNTS, rtol=1e-12)

@@ -184,12 +184,15 @@ class HapticCommand:
         force_D: (3,) force on the handle in the device base frame D, N.
         enabled: False when the output is held at zero for safety.
         reason: why the output is disabled ("" when enabled).
+        source_t_ns: stamp of the newest sensor sample behind the force, ns (None for a zero
+            command): ``t_ns − source_t_ns`` is the estimate's age when it was commanded.
     """
 
     t_ns: int
     force_D: np.ndarray
     enabled: bool
     reason: str = ""
+    source_t_ns: int | None = None
 
 
 @dataclass(frozen=True, slots=True)

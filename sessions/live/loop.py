@@ -154,7 +154,7 @@ class LiveLoop:
         self.behind_max_ns = 0
         self.next_overrun_event_ns = 0
         self.next_params_ns = 0
-        self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None  # (contact_force_S, R_BS)
+        self.last_estimate: tuple[np.ndarray, np.ndarray, int] | None = None  # (contact_force_S, R_BS, t_ns)
         self.haptic_reason = "starting"
         self.recorder: Recorder | None = None
         self.stopped_by = "Ctrl-C"  # or the signal that ended the session
@@ -260,7 +260,7 @@ class LiveLoop:
             self._event(event)
         R_BE = block.R_EB[-1].T
         R_BS = R_BE if R_SE is None else R_BE @ R_SE.T
-        self.last_estimate = (est.contact_force_S[-1], R_BS)
+        self.last_estimate = (est.contact_force_S[-1], R_BS, int(est.t_ns[-1]))
         self.status.contact = bool(est.contact[-1])
         self.contact_samples += int(np.count_nonzero(est.contact))
         for shadow in list(self.shadows):  # recorded, never rendered; one that fails is dropped
@@ -304,7 +304,8 @@ class LiveLoop:
                 self.governor.device_max_force = self.force_limit.max_force
             except Exception:  # a device that cannot say its limit now: the governor zeroes a NaN limit
                 self.governor.device_max_force = float("nan")
-        command = self.governor.command(now_ns, *(self.last_estimate or (None, None)), reason=reason)
+        force_S, R_BS, source_t_ns = self.last_estimate or (None, None, None)
+        command = self.governor.command(now_ns, force_S, R_BS, reason=reason, source_t_ns=source_t_ns)
         try:
             self.s.haptic.send(command)
             state = self.s.haptic.state()

@@ -95,7 +95,7 @@ class ForceGovernor:
         return min(self.settings.max_force, float(device))
 
     def command(self, t_ns: int, contact_force_S: np.ndarray | None, R_BS: np.ndarray | None,
-                reason: str = "") -> HapticCommand:
+                reason: str = "", source_t_ns: int | None = None) -> HapticCommand:
         """The command for this device period; ``reason`` non-empty forces zero.
 
         Args:
@@ -104,6 +104,7 @@ class ForceGovernor:
             R_BS: (3, 3) orientation of S in the robot base B (R_BE·R_ES: the flange's
                 orientation and the sensor's mount, identity unless an estimator knows it).
             reason: why the force must be zero ("" when it may be on).
+            source_t_ns: stamp of the sensor sample the contact force was estimated from, ns.
         """
         limit = self.limit()
         if not reason and not math.isfinite(limit):
@@ -133,7 +134,7 @@ class ForceGovernor:
                 and np.linalg.norm(target - self.last_force_D) <= self.max_step * (1 + TOLERANCE)):
             return self._zero(t_ns, "governor output out of bounds")  # unreachable by the arithmetic above
         self.last_force_D = target
-        return HapticCommand(t_ns, target, True, "")
+        return HapticCommand(t_ns, target, True, "", source_t_ns)
 
     def _zero(self, t_ns: int, reason: str) -> HapticCommand:
         """A zero command for ``reason``; the filter and the ramp start again from zero."""

@@ -70,6 +70,7 @@ class Taps:
     def command(self, command: HapticCommand) -> None:
         self.rec.write("/haptic/command", command.t_ns, {
             "force_D": command.force_D.tolist(), "enabled": command.enabled, "reason": command.reason,
+            "source_t_ns": command.source_t_ns,
         })
 
     def device_state(self, state: DeviceState) -> None:

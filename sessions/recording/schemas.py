@@ -169,6 +169,8 @@ _COMMAND_SCHEMA = _schema(
             "type": "string",
             "description": "Why the output is disabled; present when enabled is false.",
         },
+        "source_t_ns": {"type": ["integer", "null"],
+                        "description": "Stamp of the newest sensor sample behind the force, ns (null: zero command)."},
     },
     ["force_D", "enabled"],
 )

@@ -18,7 +18,7 @@ ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimat
 def loop_commands(rec):
     """The loop's haptic commands, (t_ns array, messages): all but the session's final zero, checked here."""
     *live, (_, last) = rec.topics["/haptic/command"]
-    assert last == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended"}
+    assert last == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended", "source_t_ns": None}
     return np.array([t for t, _ in live]), [m for _, m in live]
 
 
@@ -72,8 +72,14 @@ def test_haptics_wait_for_convergence_and_are_clamped(demo_recording):
     converged_at = next(t for t, m in rec.topics["/events"] if m["kind"] == "converged")
     assert not enabled[t_cmd < converged_at].any() and enabled[-100:-1].all()
     # the session ends with a zero command, sent and recorded
-    assert rec.topics["/haptic/command"][-1][1] == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended"}
+    assert rec.topics["/haptic/command"][-1][1] == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended", "source_t_ns": None}
     assert np.all(force_D[~enabled] == 0.0)
+    # each force says which sample it was estimated from: one in this tick (not stale), an estimate's stamp
+    source = np.array([m["source_t_ns"] for _, m in rec.topics["/haptic/command"]], dtype=object)
+    assert all(s is None for s in source[~enabled])
+    age_ns = t_cmd[enabled] - source[enabled].astype(np.int64)
+    assert age_ns.min() >= 0 and age_ns.max() < 1_000_000  # non-realtime: the tick's own sample
+    assert set(source[enabled].astype(np.int64)) <= set(rec.t_ns("/estimator/rls").tolist())
     assert np.linalg.norm(force_D, axis=1).max() <= 4.0 + 1e-9
     step = np.linalg.norm(np.diff(force_D[enabled], axis=0), axis=1)
     assert step.max() <= 400.0 * 1e-3 + 1e-9  # max_force_rate · device period

@@ -230,6 +230,20 @@ class HasForceLimit(Protocol):
     max_force: float
 
 
+@runtime_checkable
+class ServosCartesian(Protocol):
+    """A robot that follows a Cartesian target for its flange E (CRTK ``servo_cp``): what teleoperation drives.
+
+    ``servo_cp(t_ns, R_BE, p_BoEo_B)`` sends the target pose of E in B, ``R_BE`` (3, 3) and
+    ``p_BoEo_B`` (3,) m, to be followed from session time ``t_ns`` on; the robot moves there
+    under its own servo and limits, and the kinematics report where it actually is. Called
+    at most once per loop tick, only while the session's ``[teleop]`` is on. Built-in: the
+    ``sim`` kinematics when ``[world.motion] script = "servo"``; ``ur_rtde`` with ``follow = true``.
+    """
+
+    def servo_cp(self, t_ns: int, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> None: ...
+
+
 CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration,
-                HasRange, Reidentifies, ReportsHealth, HasLatency, HasForceLimit)
+                HasRange, Reidentifies, ReportsHealth, HasLatency, HasForceLimit, ServosCartesian)
 """Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

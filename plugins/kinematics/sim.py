@@ -15,7 +15,7 @@ from ...core.plugins import ConfigError
 from ...core.types import PoseSample
 from ..simworld.faults import kinematics_times
 from ..simworld.physics import SampleClock, SimWorld, gaussian_noise
-from ..simworld.prefetch import Prefetch
+from ..simworld.prefetch import PREFETCH_S, Prefetch
 
 ENCODER_STREAM = 2
 """The world's random stream of the robot's encoder jitter (0: sensor noise, 1: bias drift)."""
@@ -51,7 +51,7 @@ class SimKinematics:
         self.rate_hz = float(rate_hz)
         self.world = world
         self._clock = SampleClock(self.rate_hz)
-        self._ahead = Prefetch(self._exact_poses, self.rate_hz)
+        self._ahead = Prefetch(self._exact_poses, self.rate_hz, ahead_s=0.0 if world.live else PREFETCH_S)
 
     def open(self, t0_ns: int) -> None:
         """Start streaming: sample 0 is at ``t0_ns`` (world time 0)."""
@@ -100,7 +100,25 @@ class SimKinematics:
         self._clock.t0_ns = None
 
 
+class ServoedSimKinematics(SimKinematics):
+    """The simulated robot of a world whose motion is ``servo``: it also follows targets (ServosCartesian)."""
+
+    def servo_cp(self, t_ns: int, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> None:
+        """Follow the flange pose ``R_BE`` (3, 3), ``p_BoEo_B`` (3,) m from session time ``t_ns`` on."""
+        if self._clock.t0_ns is None:
+            raise RuntimeError("servo_cp before open()")
+        self.world.servo_cp((t_ns - self._clock.t0_ns) / 1e9, R_BE, p_BoEo_B)
+
+
+def sim_kinematics(rate_hz: float = 500.0, encoder_noise: float = 1e-7,
+                   world: SimWorld | None = None) -> SimKinematics:
+    """The ``sim`` kinematics (options as :class:`SimKinematics`): one that follows targets when the world's
+    motion is ``servo`` (:class:`ServoedSimKinematics`), else one that reports the scripted motion."""
+    factory = ServoedSimKinematics if world is not None and world.live else SimKinematics
+    return factory(rate_hz, encoder_noise, world)
+
+
 @hookimpl
 def register_kinematics(register):
     """Register the simulated robot's kinematics as ``sim``."""
-    register("sim", SimKinematics)
+    register("sim", sim_kinematics)

@@ -14,7 +14,7 @@ from ...core.plugins import ConfigError
 from ...core.types import WrenchSample
 from ..simworld.faults import apply_sensor_faults
 from ..simworld.physics import SampleClock, SimWorld
-from ..simworld.prefetch import Prefetch
+from ..simworld.prefetch import PREFETCH_S, Prefetch
 
 MAX_RATE_HZ = 100_000.0
 """Fastest sample rate accepted (a Net F/T streams at up to 7 kHz; an absurd rate would flood the loop)."""
@@ -43,7 +43,7 @@ class SimSensor:
         self.range_torque_S = world.sensor.saturation_torque_S.copy()
         """(3,) measurement range per torque axis, N·m."""
         self._clock = SampleClock(self.rate_hz)
-        self._ahead = Prefetch(self._reading, self.rate_hz)
+        self._ahead = Prefetch(self._reading, self.rate_hz, ahead_s=0.0 if world.live else PREFETCH_S)
 
     def open(self, t0_ns: int) -> None:
         """Start streaming: sample 0 is at ``t0_ns`` (world time 0)."""

@@ -56,7 +56,10 @@ from ...core.plugins import ConfigError
 from .faults import DEFAULT_DURATION_S as DEFAULT_FAULT_DURATION_S
 from .faults import KINDS as FAULT_KINDS
 from .faults import Fault
-from .motion import MOTION_SCRIPTS, DEFAULT_P_BoEo_B, MotionScript
+from .motion import MOTION_SCRIPTS as SCRIPTED_MOTIONS
+from .motion import DEFAULT_P_BoEo_B, MotionScript
+from .servo import ServoedMotion
+from .tissue import Tissue
 
 __all__ = [
     "CONTACT_KINDS",
@@ -300,7 +303,7 @@ class HangingMass:
         return np.where(attached[:, None], self.mass * gravity_accel_B, 0.0)
 
 
-Contact = Indentation | HangingMass
+Contact = Indentation | HangingMass | Tissue
 
 
 @dataclass(frozen=True, slots=True)
@@ -487,6 +490,14 @@ MOTION_OPTIONS: dict[str, dict[str, Parser]] = {
     "hold": {"tilt_deg": number(), "tilt_axis_B": vec3, "roll_deg": number()},
 }
 MOTION_OPTIONS["indentation"] = MOTION_OPTIONS["hold"]
+MOTION_OPTIONS["servo"] = {
+    **MOTION_OPTIONS["hold"], "bandwidth_hz": number(0.0, above=True), "max_speed": number(0.0, above=True),
+    "max_accel": number(0.0, above=True), "max_angular_speed": number(0.0, above=True),
+    "max_angular_accel": number(0.0, above=True), "step_s": number(0.0, above=True),
+    "history_s": number(0.0, above=True),
+}
+MOTION_SCRIPTS: dict[str, type[MotionScript]] = {**SCRIPTED_MOTIONS, "servo": ServoedMotion}
+"""Every ``[world.motion] script``: the scripted motions, and ``servo`` (the robot follows targets sent live)."""
 """Options of each motion script (``script`` itself aside); seed and position come from elsewhere."""
 
 CONTACT_OPTIONS: dict[str, dict[str, Parser]] = {
@@ -497,8 +508,12 @@ CONTACT_OPTIONS: dict[str, dict[str, Parser]] = {
     "hanging_mass": {
         "start": number(), "duration": number(0.0), "mass": number(0.0, above=True), "point_S": vec3,
     },
+    "tissue": {
+        "surface_B": vec3, "normal_B": vec3, "stiffness": number(0.0, above=True), "damping": number(0.0),
+        "point_S": vec3,
+    },
 }
-CONTACT_KINDS: dict[str, type] = {"indentation": Indentation, "hanging_mass": HangingMass}
+CONTACT_KINDS: dict[str, type] = {"indentation": Indentation, "hanging_mass": HangingMass, "tissue": Tissue}
 
 WORLD_OPTIONS: dict[str, Parser] = {
     "seed": integer(0),

@@ -74,6 +74,8 @@ from .config import (
 )
 from .faults import Fault
 from .motion import MotionScript, MotionState, RandomTour
+from .servo import ServoedMotion
+from .tissue import Tissue
 
 __all__ = ["DRIFT_STREAM", "NOISE_STREAM", "RandomWalk", "SampleClock", "SimWorld", "gaussian_noise"]
 
@@ -292,9 +294,12 @@ class SimWorld:
         for event in self.contacts:
             point_S = tool.tip_S if event.point_S is None else event.point_S
             by_point.setdefault(tuple(point_S), []).append(event)
-        self._contacts_by_point = [(skew(np.array(point_S)), events) for point_S, events in by_point.items()]
-        """The contacts grouped by where they act: ``([p]× (3, 3), events)`` per point p
-        (in S, m), so that the forces at one point are rotated and crossed once."""
+        self._contacts_by_point = [
+            (skew(np.array(point_S)), self.sensor.p_EoSo_E + R_SE.T @ np.array(point_S), events)
+            for point_S, events in by_point.items()]
+        """The contacts grouped by where they act: ``([p]× (3, 3), p_EoP_E (3,), events)`` per point p
+        (in S, m; ``p_EoP_E`` the point from the flange origin, in E, m), so that the forces at one
+        point are rotated and crossed once."""
         # The rotational terms of the inertial wrench as maps of the flange's angular
         # motion in E, with ω = R_SE ω_E (in S) and r the centre of mass from the flange
         # origin: [ω̇ × r, I ω̇] is linear in ω̇_E, and [ω × (ω × r), ω × I ω] is linear in
@@ -339,6 +344,22 @@ class SimWorld:
     def motion_state(self, t: float | np.ndarray) -> MotionState:
         """Flange pose and its analytic derivatives at times ``t`` (s)."""
         return self.motion.evaluate(t)
+
+    @property
+    def live(self) -> bool:
+        """True when the robot follows targets sent while the session runs (``servo``): the world is
+        only known up to now, so the simulated devices must not compute ahead."""
+        return isinstance(self.motion, ServoedMotion)
+
+    def servo_cp(self, t: float, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> None:
+        """Send the robot a flange target from world time ``t`` (s) on: ``R_BE`` (3, 3), ``p_BoEo_B`` (3,) m.
+
+        Only a world whose motion is ``servo`` follows targets; any other raises TypeError.
+        """
+        if not isinstance(self.motion, ServoedMotion):
+            raise TypeError(f"the simulated robot follows a scripted motion ({self.motion.name!r}), not targets; "
+                            f"set [world.motion] script = \"servo\"")
+        self.motion.servo_cp(t, R_BE, p_BoEo_B)
 
     def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(R_BE (N, 3, 3), p_BoEo_B (N, 3))``: the flange pose the kinematics report for stamps ``t`` (s), m.
@@ -415,8 +436,17 @@ class SimWorld:
 
         contact_force_S = np.zeros((n, 3))
         contact_torque_S = np.zeros((n, 3))
-        for point_cross_S, events in self._contacts_by_point:
-            force_S = _apply(R_SB, sum(event.force_B(t, self.gravity_accel_B) for event in events))
+        for point_cross_S, p_EoP_E, events in self._contacts_by_point:
+            force_B = np.zeros((n, 3))
+            for event in events:
+                if isinstance(event, Tissue):  # a reaction to where the point is: its position and velocity in B
+                    r_B = _apply(state.R_BE, p_EoP_E)
+                    x_B = state.p_BoEo_B + r_B
+                    v_B = state.v_BEo_B + _apply(state.R_BE, _apply(skew(-p_EoP_E), state.w_BE_E))  # ω × p
+                    force_B += event.force_B_at(x_B, v_B)
+                else:
+                    force_B += event.force_B(t, self.gravity_accel_B)
+            force_S = _apply(R_SB, force_B)
             contact_force_S += force_S
             contact_torque_S += _apply(point_cross_S, force_S)  # p × f
         contact = (contact_force_S != 0.0).any(axis=1) if self.contacts else np.zeros(n, dtype=bool)

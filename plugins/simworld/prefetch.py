@@ -6,7 +6,8 @@ depend on which samples are computed with it. Computing one sample per loop
 tick spends nearly all of the time in numpy's per-call overhead; computing
 ``PREFETCH_S`` of samples at once and handing out slices gives the same numbers
 for a fraction of the cost (``hapticlab bench loop``: sensor and kinematics
-reads).
+reads). A world whose robot follows live targets (``SimWorld.live``) is only
+known up to now: its devices pass ``ahead_s = 0`` and compute what is asked.
 """
 
 from __future__ import annotations
@@ -24,12 +25,14 @@ class Prefetch:
 
     Args:
         compute: ``compute(seq)`` → dict of arrays whose first axis runs along ``seq`` ((N,) int64 indices).
-        rate_hz: the device's sample rate, Hz (sets the chunk: ``PREFETCH_S`` of samples, at least one).
+        rate_hz: the device's sample rate, Hz (sets the chunk: ``ahead_s`` of samples, at least one).
+        ahead_s: how far ahead to compute, s (0: only the samples asked for).
     """
 
-    def __init__(self, compute: Callable[[np.ndarray], dict[str, np.ndarray]], rate_hz: float):
+    def __init__(self, compute: Callable[[np.ndarray], dict[str, np.ndarray]], rate_hz: float,
+                 ahead_s: float = PREFETCH_S):
         self.compute = compute
-        self.chunk = max(int(round(PREFETCH_S * rate_hz)), 1)
+        self.chunk = max(int(round(ahead_s * rate_hz)), 1)
         self.first = 0  # index of the cache's first sample
         self.cache: dict[str, np.ndarray] = {}
         self.size = 0

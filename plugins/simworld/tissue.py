@@ -1,0 +1,77 @@
+"""Soft tissue the tool can press into: a contact force that depends on where the tool is.
+
+The other contacts (``config.Indentation``, ``config.HangingMass``) are forces
+scheduled in time. In a teleoperated session the trainee decides where the
+tool goes, so the tissue's reaction must follow from the tool's position:
+:class:`Tissue` is a Kelvin–Voigt half-space. With ``n`` its outward unit
+normal (from the tissue into free space), ``q`` a point of its undeformed
+surface, the contact point ``x`` (the tool tip) and its velocity ``ẋ``, all in
+the robot base B::
+
+    depth d = (q − x) · n                        (> 0: the tip is in the tissue)
+    f_B     = max(0, k·d − c·(ẋ · n)) · n        while d > 0, else 0
+
+k the stiffness (N/m), c the damping (N·s/m). The force only pushes (tissue
+never pulls the tool in), and it is zero at the surface, so the force
+starts continuously as the tip touches. Soft tissues under a 5 mm probe are
+of the order 100–1000 N/m (liver ~ 200–500 N/m); the default 300 N/m gives
+3 N at 1 cm depth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def _vector3(value, name: str) -> np.ndarray:
+    v = np.asarray(value, dtype=float)
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise ValueError(f"{name} must be three finite numbers, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True, slots=True)
+class Tissue:
+    """A soft-tissue half-space in B that pushes back on the tool tip pressed into it.
+
+    Attributes:
+        surface_B: (3,) a point of the undeformed surface, in B, m.
+        normal_B: (3,) outward normal of the surface (normalised here), in B.
+        stiffness: N/m (> 0).
+        damping: N·s/m (>= 0).
+        point_S: (3,) the point of the tool that touches, in S, m; None: the tool tip.
+    """
+
+    surface_B: np.ndarray = (0.45, 0.0, 0.0)
+    normal_B: np.ndarray = (0.0, 0.0, 1.0)
+    stiffness: float = 300.0
+    damping: float = 2.0
+    point_S: np.ndarray | None = None
+
+
+    def __post_init__(self) -> None:
+        normal = _vector3(self.normal_B, "normal_B")
+        norm = float(np.linalg.norm(normal))
+        if norm == 0:
+            raise ValueError("normal_B must not be zero")
+        object.__setattr__(self, "normal_B", normal / norm)
+        object.__setattr__(self, "surface_B", _vector3(self.surface_B, "surface_B"))
+        if not (np.isfinite(self.stiffness) and self.stiffness > 0 and np.isfinite(self.damping)
+                and self.damping >= 0):
+            raise ValueError(f"need stiffness > 0 and damping >= 0, got {self.stiffness!r}, {self.damping!r}")
+        if self.point_S is not None:
+            object.__setattr__(self, "point_S", _vector3(self.point_S, "point_S"))
+
+    def depth(self, x_B: np.ndarray) -> np.ndarray:
+        """(N,) how deep the points ``x_B`` (N, 3) m are in the tissue, m (negative: above it)."""
+        return (self.surface_B - x_B) @ self.normal_B
+
+    def force_B_at(self, x_B: np.ndarray, v_B: np.ndarray) -> np.ndarray:
+        """(N, 3) force of the tissue on the tool, in B, N, for the touching point at ``x_B`` (N, 3) m
+        moving at ``v_B`` (N, 3) m/s."""
+        depth = self.depth(x_B)
+        push = self.stiffness * depth - self.damping * (v_B @ self.normal_B)
+        magnitude = np.where(depth > 0, np.maximum(push, 0.0), 0.0)
+        return magnitude[:, None] * self.normal_B

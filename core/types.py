@@ -216,6 +216,26 @@ class DeviceState:
 
 
 @dataclass(frozen=True, slots=True)
+class RobotTarget:
+    """Where teleoperation sends the robot's flange E (CRTK ``servo_cp``), one per loop tick.
+
+    Attributes:
+        t_ns: time the target was sent, ns.
+        R_BE: (3, 3) target orientation of E in B.
+        p_BoEo_B: (3,) target position of E's origin in B, m.
+        mode: ``"calibrating"`` (the identification tour before the hand takes over),
+            ``"following"`` (the handle drives the target) or ``"holding"`` (the target stays).
+        reason: why it is holding ("" otherwise).
+    """
+
+    t_ns: int
+    R_BE: np.ndarray
+    p_BoEo_B: np.ndarray
+    mode: str
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
 class Event:
     """Something a person reviewing the session should know about.
 

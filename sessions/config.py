@@ -10,6 +10,7 @@ missing tables take the ``demo`` preset's values only when you start from it):
 ``[kinematics]`` ``name`` of a registered kinematics source plus its options
 ``[estimator]`` ``name`` of the estimator that drives the haptics plus its options
 ``[haptic]``    ``name`` of a haptic output plus its options and the safety limits
+``[teleop]``    teleoperation: the master's handle moves the robot (``sessions/live/teleop.py``)
 ``[shadows.<label>]`` more estimators run side by side on the same samples and
                 recorded on ``/estimator/<label>`` (``name`` defaults to the label)
 
@@ -28,7 +29,7 @@ from typing import Any
 
 from ..core.plugins import ConfigError, validate_options
 
-TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "shadows")
+TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "shadows")
 """The host's own tables; a plugin's context (``register_contexts``, e.g. ``world``) adds its own."""
 PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator",
                  "haptic": "haptic_output"}
@@ -142,6 +143,57 @@ class HapticSettings:
                               f"got {list(self.rotation_DB)!r}")
         for value in self.rotation_DB:
             _require("haptic.rotation_DB", value)
+
+
+@dataclass(frozen=True)
+class TeleopSettings:
+    """The ``[teleop]`` table: the master's handle drives the robot's flange (``sessions/live/teleop.py``).
+
+    The handle's displacement since the robot was engaged, turned into B by the
+    haptic mapping's rotation (``haptic.rotation_DB``: the same frames as the
+    force, so pushing the handle along a direction moves the tool along the
+    direction the force then pushes back) and scaled, is added to where the
+    robot was at that moment: ``p_target = p_engaged + scale · R_BD (p_handle − p_handle_engaged)``.
+    The orientation is held (3-DoF masters have no orientation).
+
+    Attributes:
+        enabled: teleoperation on (the kinematics must follow targets, ``ServosCartesian``).
+        scale: robot displacement per handle displacement (motion scaling; surgical
+            consoles use 0.2–0.5 for precision).
+        clutch_button: bit of ``DeviceState.buttons`` that, while pressed, lets the
+            handle move without the robot (repositioning the hand); -1: no clutch.
+        max_speed: fastest the target may move, m/s (a handle that jumps moves the
+            robot at this speed, not at once).
+        workspace_radius: the target stays within this distance of where the robot
+            was when the session began, m.
+        calibration_tilt_deg: before the hand takes over, the robot visits tilted
+            orientations so the estimator identifies the tool (a teleoperated tool
+            at a fixed orientation never shows it); 0 = no calibration tour (use a
+            warm start).
+        calibration_dwell_s: time at each orientation of the calibration tour, s.
+        require_haptics: the robot follows only while the trainee feels the contact
+            (the haptic force is on); false lets it follow without force feedback.
+    """
+
+    enabled: bool = False
+    scale: float = 0.5
+    clutch_button: int = -1
+    max_speed: float = 0.1
+    workspace_radius: float = 0.15
+    calibration_tilt_deg: float = 25.0
+    calibration_dwell_s: float = 1.0
+    require_haptics: bool = True
+
+    def __post_init__(self) -> None:
+        _require("teleop.scale", self.scale, above=0.0, maximum=10.0)
+        _require("teleop.max_speed", self.max_speed, above=0.0, maximum=1.0)
+        _require("teleop.workspace_radius", self.workspace_radius, above=0.0, maximum=2.0)
+        _require("teleop.calibration_tilt_deg", self.calibration_tilt_deg, minimum=0.0, maximum=60.0)
+        _require("teleop.calibration_dwell_s", self.calibration_dwell_s, above=0.0, maximum=60.0)
+        if isinstance(self.clutch_button, bool) or not isinstance(self.clutch_button, int) or \
+                not -1 <= self.clutch_button <= MAX_BUTTON_BIT:
+            raise ConfigError(f"teleop.clutch_button: must be a button bit index in 0..{MAX_BUTTON_BIT} "
+                              f"or -1 (none), got {self.clutch_button!r}")
 
 
 MAX_BUTTON_BIT = 63
@@ -312,6 +364,11 @@ def haptic_settings(config: dict[str, Any]) -> HapticSettings:
     """The validated safety limits of the ``[haptic]`` table."""
     table = {k: v for k, v in config.get("haptic", {}).items() if k in HAPTIC_SAFETY_KEYS}
     return _dataclass_from(HapticSettings, table, "haptic")
+
+
+def teleop_settings(config: dict[str, Any]) -> TeleopSettings:
+    """The validated ``[teleop]`` table (teleoperation off when it is absent)."""
+    return _dataclass_from(TeleopSettings, config.get("teleop", {}), "teleop")
 
 
 def plugin_options(config: dict[str, Any], table: str) -> tuple[str, dict[str, Any]]:

@@ -4,7 +4,7 @@ The emulator opens a pty pair (raw mode) and plays the device on its master
 side; the slave side (``/dev/pts/N``, printed first) is the port a session or
 a vendor client opens as if it were the device's USB serial port. The handle
 moves along a scripted path in the device frame D (a slow circle or
-figure-eight, or a hold) or a recorded one (a CSV of ``t, x, y, z``: s, m,
+figure-eight, a hold, or a press down and back) or a recorded one (a CSV of ``t, x, y, z``: s, m,
 played in a loop), and every force command is answered as the device would:
 
 * ``--protocol hapticlab``: our framed protocol (``framing.py``,
@@ -47,7 +47,7 @@ from ...core.types import EmulatorCommand
 from ..serving import serve_until_stopped
 from . import framing, inverse3
 
-PATHS = ("circle", "figure8", "hold")
+PATHS = ("circle", "figure8", "hold", "press")
 
 
 @dataclass
@@ -77,8 +77,9 @@ HandleMotion = Callable[[float], tuple[np.ndarray, np.ndarray]]
 
 def scripted_motion(kind: str = "circle", radius: float = 0.03, period: float = 8.0,
                     center: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> HandleMotion:
-    """A handle moving in D's x-y plane about ``center`` (m): ``circle``, ``figure8`` (a lemniscate of
-    Gerono, ``radius`` wide each way) or ``hold`` (still at ``center``), one lap per ``period`` s."""
+    """A handle moving about ``center`` (m), one lap per ``period`` s: ``circle`` or ``figure8`` (a lemniscate
+    of Gerono, ``radius`` wide each way) in D's x-y plane, ``hold`` (still at ``center``), or ``press``
+    (down along D's −z by up to ``radius`` and back, a raised cosine: a hand probing tissue by teleoperation)."""
     if kind not in PATHS:
         raise ValueError(f"path: must be one of {', '.join(PATHS)} or a CSV file, got {kind!r}")
     if not (radius >= 0 and period > 0):
@@ -91,6 +92,9 @@ def scripted_motion(kind: str = "circle", radius: float = 0.03, period: float = 
         if kind == "circle":
             p = [radius * math.cos(a), radius * math.sin(a), 0.0]
             v = [-radius * w * math.sin(a), radius * w * math.cos(a), 0.0]
+        elif kind == "press":
+            p = [0.0, 0.0, -0.5 * radius * (1.0 - math.cos(a))]
+            v = [0.0, 0.0, -0.5 * radius * w * math.sin(a)]
         elif kind == "figure8":
             p = [radius * math.sin(a), radius * math.sin(a) * math.cos(a), 0.0]
             v = [radius * w * math.cos(a), radius * w * math.cos(2 * a), 0.0]
@@ -465,7 +469,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``hapticlab emulate master``."""
     parser.add_argument("--protocol", choices=("hapticlab", "inverse3"), default="hapticlab",
                         help="wire protocol: ours (framed, CRC-16) or Haply's Inverse3 (default hapticlab)")
-    parser.add_argument("--path", default="circle", metavar="circle|figure8|hold|FILE.csv",
+    parser.add_argument("--path", default="circle", metavar="circle|figure8|hold|press|FILE.csv",
                         help="the handle's motion in D: scripted, or a CSV of t,x,y,z (s, m) played in a loop")
     parser.add_argument("--radius", type=float, default=0.03, help="scripted path size, m (default 0.03)")
     parser.add_argument("--period", type=float, default=8.0, help="scripted path lap time, s (default 8)")

@@ -115,6 +115,7 @@ def _status_table(status, hint: str = "") -> Table:
         "torque " + ("[green]converged[/]" if status.converged_torque else "[yellow]converging[/]"),
         "[red]CONTACT[/]" if status.contact else "free",
         f"haptic {haptic}",
+        *([f"robot {status.teleop}"] if status.teleop else []),
         f"{status.events} events",
         *([f"[red]{status.behind_s * 1e3:.0f} ms behind[/]"] if status.behind_s > 0 else []),
     )

@@ -28,17 +28,20 @@ from ...core.interfaces import (
     ReportsParameterStd,
     SavesState,
     SensorSource,
+    ServosCartesian,
 )
 from ...core.plugins import ConfigError, Registry
 from ..config import (
     PLUGIN_TABLES,
     HapticSettings,
     SessionSettings,
+    TeleopSettings,
     check_tables,
     haptic_settings,
     plugin_options,
     session_settings,
     shadow_tables,
+    teleop_settings,
 )
 from .safety import ForceGovernor
 
@@ -101,6 +104,8 @@ class Session:
     shadows: list[EstimatorSlot] = field(default_factory=list)  # recorded, never rendered
     contexts: dict[str, Any] = field(default_factory=dict)  # e.g. {"world": SimWorld}
     device_events: list[tuple[str, EmitsEvents]] = field(default_factory=list)  # (label, device)
+    teleop_settings: TeleopSettings = field(default_factory=TeleopSettings)
+    robot: ServosCartesian | None = None  # the kinematics, when teleoperation drives it
 
     @property
     def estimator(self) -> Estimator:
@@ -155,10 +160,21 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
             "name": name, **registry.resolved_options("estimator", name, options)}
     device_events = [(table, built[table]) for table in ("sensor", "kinematics", "haptic")
                      if isinstance(built[table], EmitsEvents)]
+    teleop = teleop_settings(config)
+    resolved["teleop"] = asdict(teleop)
+    robot = None
+    if teleop.enabled:
+        robot = built["kinematics"]
+        if not isinstance(robot, ServosCartesian):
+            name = plugins["kinematics"]["name"]
+            hint = ('; the simulated robot follows targets with [world.motion] script = "servo"' if name == "sim"
+                    else "; ur_rtde follows them with kinematics.follow = true" if name == "ur_rtde" else "")
+            raise ConfigError(f"teleop.enabled: kinematics {name!r} cannot follow a target "
+                              f"(it has no servo_cp){hint}")
     return Session(config=config, settings=settings, haptic_settings=safety, sensor=built["sensor"],
                    kinematics=built["kinematics"], primary=EstimatorSlot.of(primary, built["estimator"]),
                    haptic=built["haptic"], plugins=plugins, resolved_config=resolved, shadows=shadows,
-                   contexts=contexts, device_events=device_events)
+                   contexts=contexts, device_events=device_events, teleop_settings=teleop, robot=robot)
 
 
 def _create(registry: Registry, kind: str, name: str, options: dict[str, Any], where: str,

@@ -7,7 +7,9 @@ Each iteration (one loop period):
 3. feed the usable samples (not stale, status good, finite) to every estimator,
    record their estimates and events;
 4. turn the primary estimate into one force command (``gate`` says whether,
-   ``safety.ForceGovernor`` how much), send and record it.
+   ``safety.ForceGovernor`` how much), send and record it;
+5. with ``[teleop]`` on, turn the master's state into the robot's next target
+   (``teleop.Teleoperation``), send it (``servo_cp``) and record it.
 
 A latched stop (``gate``) holds the force off until an explicit re-arm: a
 press of the device's ``haptic.rearm_button`` (an edge: released, then pressed),
@@ -56,6 +58,7 @@ from .build import EstimatorSlot, Session, calibration_path, default_out_path, s
 from .gate import HapticGate, implausible
 from .status import SessionError, SessionResult, SessionStatus
 from .taps import Taps
+from .teleop import Teleoperation
 
 PARAMS_INTERVAL_NS = 100_000_000
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""
@@ -142,6 +145,9 @@ class LiveLoop:
         self.rearm_bit = session.haptic_settings.rearm_button  # -1: no button
         self.button_down = True  # unknown counts as held: a button held at the start must be released first
         self.rearm_requests: deque[str] = deque()
+        self.teleop = (Teleoperation(session.teleop_settings, self.governor.R_DB)
+                       if session.robot is not None else None)
+        self.last_pose = None  # the newest measured flange pose (what teleoperation starts from)
         self.aligner = Aligner(float(session.kinematics.rate_hz), latency_s=session.kinematics.latency_s
                                if isinstance(session.kinematics, HasLatency) else 0.0)
         self.on_status, self.status_interval_s = on_status, status_interval_s
@@ -221,6 +227,7 @@ class LiveLoop:
             self.gate.on_poses(poses, now_ns)
             self.taps.poses(poses, now_ns)
             self.poses += len(poses)
+            self.last_pose = poses[-1]
         wrenches = self._call("sensor", self.s.sensor.read, now_ns)
         if wrenches:
             self.taps.wrenches(wrenches)
@@ -316,6 +323,8 @@ class LiveLoop:
         if state is not None:
             self.taps.device_state(state)
         self._watch_button(state)
+        if self.teleop is not None:
+            self._servo(now_ns, state, command.enabled)
         self.haptic_on_ticks += command.enabled
         if command.reason.split(" (")[0] != self.haptic_reason.split(" (")[0]:  # not each new figure in it
             self._event(Event(now_ns, "haptic_enabled", "haptic force on") if command.enabled else
@@ -323,6 +332,16 @@ class LiveLoop:
             self.haptic_reason = command.reason
         self.status.haptic_enabled, self.status.reason = command.enabled, command.reason
         self.status.latched = self.gate.latched
+
+    def _servo(self, now_ns: int, state, haptic_on: bool) -> None:
+        """The robot's next target from the master's state: sent (``servo_cp``) and recorded."""
+        target, events = self.teleop.step(now_ns, self.last_pose, state, haptic_on)
+        for event in events:
+            self._event(event)
+        if target is not None:
+            self._call("kinematics", self.s.robot.servo_cp, target.t_ns, target.R_BE, target.p_BoEo_B)
+            self.taps.robot_target(target)
+            self.status.teleop = target.mode if not target.reason else f"{target.mode}: {target.reason}"
 
     def _watch_button(self, state) -> None:
         """A press of the re-arm button (up, then down: a held button counts once) asks for a re-arm."""

@@ -6,14 +6,16 @@ loop hands over in one tick: ~7 samples at 7 kHz), the arrays handed over as
 they are: the recorder encodes them as CDR, one ``tobytes`` per field (format
 3; ``mcap``'s pure-Python writer costs ~10 µs per message, and JSON cost
 ~0.66 µs per float, issue 12). Poses (at the kinematics rate), commands and
-device states (one per tick) and events stay one JSON message each.
+device states and robot targets (one per tick) and events stay one JSON message each.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ...core.types import AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, WrenchSample
+from ...core.frames import quat_wxyz_from_matrix
+from ...core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, RobotTarget,
+                          WrenchSample)
 from ..recording import Recorder
 
 
@@ -22,6 +24,8 @@ class Taps:
 
     def __init__(self, recorder: Recorder):
         self.rec = recorder
+        self._target_R: np.ndarray | None = None  # the last robot target's orientation and its quaternion
+        self._target_quat: list[float] = []
 
     def poses(self, poses: list[PoseSample], now_ns: int) -> None:
         """The poses read at the tick ``now_ns``, each with its age then (``age_ns``: the kinematics' delay)."""
@@ -78,6 +82,14 @@ class Taps:
             "pose": {"quat_DH": state.quat_DH.tolist(), "p_DoHo_D": state.p_DoHo_D.tolist()},
             "buttons": int(state.buttons),
             "v_DHo_D": None if state.v_DHo_D is None else state.v_DHo_D.tolist(),
+        })
+
+    def robot_target(self, target: RobotTarget) -> None:
+        if target.R_BE is not self._target_R:  # teleoperation holds one orientation object while it holds it
+            self._target_R, self._target_quat = target.R_BE, quat_wxyz_from_matrix(target.R_BE).tolist()
+        self.rec.write("/robot/target", target.t_ns, {
+            "pose": {"quat_BE": self._target_quat, "p_BoEo_B": target.p_BoEo_B.tolist()},
+            "mode": target.mode, "reason": target.reason,
         })
 
     def event(self, event: Event) -> None:

@@ -3,7 +3,7 @@
 Topics (see DESIGN.md "Recording (MCAP)"; SI units, frames in the field
 names): ``/sensor/wrench``, ``/kinematics/pose``, ``/aligned/sample``,
 ``/estimator/<name>`` (one channel per estimator, one shared schema),
-``/haptic/command``, ``/haptic/state``, ``/events``. Any other topic is
+``/haptic/command``, ``/haptic/state``, ``/robot/target`` (teleoperation), ``/events``. Any other topic is
 refused with a ``ValueError``. :data:`SCHEMAS` holds the JSON schemas.
 
 Two layouts (:data:`FORMAT_VERSION`): format 1 wrote one message per sample on
@@ -195,6 +195,25 @@ _STATE_SCHEMA = _schema(
     ["pose", "buttons"],
 )
 
+_TARGET_SCHEMA = _schema(
+    "hapticlab.RobotTarget",
+    "Where teleoperation sends the robot's flange E (CRTK servo_cp), one per loop tick.",
+    {
+        "pose": {
+            "type": "object",
+            "description": "Target pose of the flange E in the robot base B.",
+            "properties": {
+                "quat_BE": _quat("Target orientation R_BE of E in B."),
+                "p_BoEo_B": _vec(3, "Target position of E's origin from B's origin, expressed in B, m."),
+            },
+            "required": ["quat_BE", "p_BoEo_B"],
+        },
+        "mode": {"type": "string", "description": "calibrating, following or holding."},
+        "reason": {"type": "string", "description": "Why the target is holding (empty otherwise)."},
+    },
+    ["pose", "mode"],
+)
+
 _EVENT_SCHEMA = _schema(
     "hapticlab.Event",
     "Something a person reviewing the session should know about.",
@@ -216,6 +235,7 @@ TOPICS: dict[str, dict[str, Any]] = {
     "/aligned/sample": _ALIGNED_SCHEMA,
     "/haptic/command": _COMMAND_SCHEMA,
     "/haptic/state": _STATE_SCHEMA,
+    "/robot/target": _TARGET_SCHEMA,
     "/events": _EVENT_SCHEMA,
 }
 ESTIMATOR_SCHEMA = _ESTIMATOR_SCHEMA

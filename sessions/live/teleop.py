@@ -1,0 +1,170 @@
+"""Teleoperation: the master's handle moves the robot's flange; the contact comes back as force.
+
+Once per loop tick, after the force command, :meth:`Teleoperation.step` turns
+the master's state into a target for the robot (a ``RobotTarget``, sent with
+the robot's ``servo_cp`` and recorded on ``/robot/target``). It runs in two
+phases:
+
+1. **calibrating**: from where the robot stands when the session starts, it
+   visits tilted and rolled orientations (``calibration_tilt_deg``, each for
+   ``calibration_dwell_s``) and comes back. A tool held at one orientation never
+   shows the estimator its weight from more than one side, so the haptic force
+   would never come on; this is the identification motion the paper runs
+   before the contact task. The tilts turn about the flange, which lifts the
+   tool tip: a tour started just above tissue does not touch it.
+2. **following** while the trainee may drive the robot, **holding** otherwise,
+   with the reason: the clutch button is pressed (the hand repositions on the
+   master without moving the robot), there is no fresh device state (a lost
+   device), or the haptic force is off (``require_haptics``: the trainee must
+   feel what the tool touches while moving it).
+
+Following: each time it (re-)engages, the offset between hand and robot is
+captured, so the robot never jumps: with ``p_engaged`` the target then and
+``h_engaged`` the handle position then (in the device base D)::
+
+    p_target = p_engaged + scale · R_BD (h − h_engaged)
+
+``R_BD`` is the transpose of the haptic mapping's ``R_DB``: pushing the handle
+along a direction moves the tool along it, and a contact force against that
+motion comes back against the hand. The target is then kept within
+``workspace_radius`` of where the robot started and moves at most
+``max_speed`` (m/s) per tick; the orientation is held (3-DoF masters have none).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from ...core.frames import matrix_from_quat_wxyz, matrix_from_rotvec
+from ...core.types import DeviceState, Event, PoseSample, RobotTarget
+from ..config import TeleopSettings
+
+STATE_TIMEOUT_NS = 50_000_000
+"""A device state older than this (ns) is no longer the hand's: the robot holds."""
+
+
+def calibration_tour(R_BE_0: np.ndarray, tilt_deg: float) -> list[np.ndarray]:
+    """The orientations the robot visits before teleoperation, each (3, 3), ending where it began.
+
+    Tilts about B's x and y axes (through the flange), two of them with the tool also
+    rolled ±90° about its own axis, so gravity is seen along every axis of the sensor.
+    """
+    if tilt_deg <= 0:
+        return []
+    tilt = math.radians(tilt_deg)
+
+    def about_B(axis, angle):
+        return matrix_from_rotvec(np.asarray(axis, dtype=float) * angle)
+
+    def roll(angle):
+        return matrix_from_rotvec(np.array([0.0, 0.0, angle]))
+
+    return [about_B([1, 0, 0], tilt) @ R_BE_0,
+            about_B([1, 0, 0], tilt) @ R_BE_0 @ roll(math.pi / 2),
+            about_B([0, 1, 0], tilt) @ R_BE_0,
+            about_B([1, 0, 0], -tilt) @ R_BE_0 @ roll(-math.pi / 2),
+            about_B([0, 1, 0], -tilt) @ R_BE_0,
+            R_BE_0]
+
+
+class Teleoperation:
+    """Master handle → robot flange target, with clutch, offset, speed limit and workspace bound.
+
+    Args:
+        settings: the ``[teleop]`` table.
+        R_DB: (3, 3) orientation of the robot base B in the device base D (``haptic.rotation_DB``).
+
+    Attributes:
+        mode: ``"waiting"`` (no robot pose yet), ``"calibrating"``, ``"following"`` or ``"holding"``.
+        reason: why it is holding ("" otherwise).
+        start: ``(R_BE (3, 3), p_BoEo_B (3,) m)`` where the robot stood at the first pose.
+    """
+
+    def __init__(self, settings: TeleopSettings, R_DB: np.ndarray):
+        self.settings = settings
+        self.R_BD = np.asarray(R_DB, dtype=float).T
+        self.mode, self.reason = "waiting", ""
+        self.start: tuple[np.ndarray, np.ndarray] | None = None
+        self.tour: list[np.ndarray] = []
+        self.tour_start_ns = 0
+        self.p_target = np.zeros(3)
+        self.R_target = np.eye(3)
+        self.engaged: tuple[np.ndarray, np.ndarray] | None = None  # (p_engaged, h_engaged)
+        self.last_ns: int | None = None
+
+    def step(self, now_ns: int, pose: PoseSample | None, state: DeviceState | None,
+             haptic_on: bool) -> tuple[RobotTarget | None, list[Event]]:
+        """This tick's target (None until the robot's pose is known) and the events of a change of mode.
+
+        Args:
+            now_ns: the tick's time, ns.
+            pose: the newest measured flange pose (None before the first).
+            state: the master's latest state (None: the device reports none, or is lost).
+            haptic_on: the haptic force is on this tick (the trainee feels the contact).
+        """
+        events: list[Event] = []
+        if self.start is None:
+            if pose is None:
+                return None, events
+            R_BE_0 = matrix_from_quat_wxyz(np.asarray(pose.quat_BE, dtype=float))
+            p_0 = np.asarray(pose.p_BoEo_B if pose.p_BoEo_B is not None else np.zeros(3), dtype=float)
+            self.start = (R_BE_0, p_0.copy())
+            self.R_target, self.p_target = R_BE_0, p_0.copy()
+            self.tour = calibration_tour(R_BE_0, self.settings.calibration_tilt_deg)
+            self.tour_start_ns = now_ns
+            if self.tour:
+                self.mode = "calibrating"
+                events.append(Event(now_ns, "teleop_calibrating",
+                                    f"calibration tour: {len(self.tour)} orientations, "
+                                    f"{len(self.tour) * self.settings.calibration_dwell_s:g} s, "
+                                    f"before the hand takes over"))
+        dt_s = 0.0 if self.last_ns is None else max(now_ns - self.last_ns, 0) * 1e-9
+        self.last_ns = now_ns
+        if self.mode == "calibrating":
+            index = int((now_ns - self.tour_start_ns) * 1e-9 / self.settings.calibration_dwell_s)
+            if index < len(self.tour):
+                self.R_target = self.tour[index]
+                return RobotTarget(now_ns, self.R_target, self.p_target.copy(), "calibrating"), events
+            self.R_target = self.start[0]
+            self.mode = "holding"
+            events.append(Event(now_ns, "teleop_calibrated", "calibration tour done; the hand takes over"))
+        reason = self._hold_reason(now_ns, state, haptic_on)
+        if reason:
+            if self.mode != "holding" or reason != self.reason:
+                events.append(Event(now_ns, "teleop_holding", f"robot holding: {reason}", {"reason": reason}))
+            self.mode, self.reason, self.engaged = "holding", reason, None
+            return RobotTarget(now_ns, self.R_target, self.p_target.copy(), "holding", reason), events
+        handle = np.asarray(state.p_DoHo_D, dtype=float)
+        if self.engaged is None:  # (re-)engaging: the offset is captured, nothing jumps
+            self.engaged = (self.p_target.copy(), handle.copy())
+            events.append(Event(now_ns, "teleop_following", "robot following the handle"))
+        self.mode, self.reason = "following", ""
+        p_engaged, h_engaged = self.engaged
+        desired = p_engaged + self.settings.scale * (self.R_BD @ (handle - h_engaged))
+        offset = desired - self.start[1]  # the workspace: a ball about where the robot started
+        distance = float(np.linalg.norm(offset))
+        if distance > self.settings.workspace_radius:
+            desired = self.start[1] + offset * (self.settings.workspace_radius / distance)
+        step = desired - self.p_target
+        step_norm = float(np.linalg.norm(step))
+        max_step = self.settings.max_speed * dt_s
+        if step_norm > max_step:
+            step = step * (max_step / step_norm)
+        self.p_target = self.p_target + step
+        return RobotTarget(now_ns, self.R_target, self.p_target.copy(), "following"), events
+
+    def _hold_reason(self, now_ns: int, state: DeviceState | None, haptic_on: bool) -> str:
+        """Why the robot must not follow the hand now ("" when it may)."""
+        if state is None:
+            return "no state from the master device"
+        if now_ns - state.t_ns > STATE_TIMEOUT_NS:
+            return f"the master's state is {(now_ns - state.t_ns) * 1e-6:.0f} ms old"
+        if not np.all(np.isfinite(state.p_DoHo_D)):
+            return "the master reports a non-finite handle position"
+        bit = self.settings.clutch_button
+        if bit >= 0 and (int(state.buttons) >> bit) & 1:
+            return "clutch pressed"
+        if self.settings.require_haptics and not haptic_on:
+            return "haptic force off"
+        return ""

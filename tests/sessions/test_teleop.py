@@ -1,0 +1,230 @@
+"""Teleoperation end to end: the master's handle moves the simulated robot, the tissue it presses comes back as force.
+
+The first tests use a scripted hand (a haptic output whose handle follows a
+function of the session's clock), so a non-realtime session is deterministic;
+the last one goes over a real pseudo-terminal to the master emulator in
+real time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hapticlab.core import hookimpl
+from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.types import DeviceState
+from hapticlab.plugins.haptics.master_emulator import MasterEmulator, scripted_motion
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.recording import read_recording
+
+DWELL_S = 0.4
+TOUR_S = 6 * DWELL_S  # the calibration tour: six orientations
+SCALE = 0.5
+TIP_ABOVE_TISSUE = 0.005  # m: the preset's tissue surface is 5 mm under the tool tip
+STIFFNESS = 300.0  # N/m, the tissue's
+
+
+def hand_z(t: float) -> float:
+    """The scripted hand in D (m): still during the tour, then presses 5 cm down and back up over 2 s,
+    clutched from 5.0 to 5.5 s while it moves 2 cm sideways (along D's x), lost from 6.0 to 6.2 s."""
+    s = t - (TOUR_S + 0.3)
+    return -0.025 * (1 - math.cos(2 * math.pi * s / 2.0)) if 0 <= s <= 2.0 else 0.0
+
+
+def hand_x(t: float) -> float:
+    return 0.02 * min(max((t - 5.0) / 0.5, 0.0), 1.0)
+
+
+class ScriptedHand:
+    """A haptic output whose handle follows ``hand_x``/``hand_z`` on the session clock (HapticOutput)."""
+
+    def __init__(self, rate_hz: float = 1000.0):
+        self.rate_hz = rate_hz
+        self.t0_ns = None
+        self.t_ns = 0
+        self.sent = []
+
+    def open(self): pass
+    def close(self): pass
+
+    def send(self, command):
+        if self.t0_ns is None:
+            self.t0_ns = command.t_ns
+        self.t_ns = command.t_ns
+        self.sent.append(command)
+
+    def state(self):
+        t = (self.t_ns - self.t0_ns) * 1e-9
+        if 6.0 <= t < 6.2:
+            return None  # lost
+        clutch = 5.0 <= t < 5.5
+        return DeviceState(self.t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.array([hand_x(t), 0.0, hand_z(t)]),
+                           buttons=0b10 if clutch else 0)
+
+
+class HandPlugin:
+    @hookimpl
+    def register_haptic_outputs(self, register):
+        register("scripted_hand", ScriptedHand)
+
+
+@pytest.fixture(scope="module")
+def registry():
+    pm = make_plugin_manager(load_entry_points=False)
+    pm.register(HandPlugin(), name="tests")
+    return Registry(pm)
+
+
+def teleop_config(*overrides: str, duration: float = 7.5):
+    config, _ = load_config("teleop-emulated")
+    return apply_overrides(config, ["session.realtime=false", f"session.duration={duration}",
+                                    f"teleop.calibration_dwell_s={DWELL_S}", *overrides])
+
+
+@pytest.fixture(scope="module")
+def scripted(tmp_path_factory, registry):
+    config = teleop_config("haptic.name=scripted_hand")
+    session = build_session(config, registry)
+    result = run_session(session, out=tmp_path_factory.mktemp("teleop") / "teleop.mcap")
+    return result, read_recording(result.path), session
+
+
+def targets(rec):
+    t = rec.t_ns("/robot/target")
+    messages = [m for _, m in rec.topics["/robot/target"]]
+    p = np.array([m["pose"]["p_BoEo_B"] for m in messages])
+    return (t - t[0]) * 1e-9, p, [m["mode"] for m in messages], [m["reason"] for m in messages]
+
+
+def test_the_robot_tours_then_follows_the_hand_scaled(scripted):
+    result, rec, _ = scripted
+    t, p, mode, _ = targets(rec)
+    assert len(t) == len(rec.topics["/haptic/command"]) - 1  # one target per tick (the final zero aside)
+    touring = t < TOUR_S - 0.01
+    assert set(np.array(mode)[touring]) == {"calibrating"}
+    kinds = [m["kind"] for _, m in rec.topics["/events"]]
+    assert kinds.index("teleop_calibrated") < kinds.index("teleop_following")
+    quat = np.array([m["pose"]["quat_BE"] for _, m in rec.topics["/robot/target"]])
+    assert len({tuple(q) for q in quat[touring].round(6)}) == 6  # six orientations visited
+    # following: the target moves by scale · the hand's move (D = B here), the start captured
+    following = (t > TOUR_S + 0.1) & (t < 5.0)
+    assert set(np.array(mode)[following]) == {"following"}
+    start = p[np.searchsorted(t, TOUR_S + 0.1)]
+    expected_z = start[2] + SCALE * np.array([hand_z(x) for x in t[following]])
+    assert np.abs(p[following, 2] - expected_z).max() < 1e-9
+    assert np.ptp(p[following, 0]) < 1e-12 and np.ptp(p[following, 1]) < 1e-12
+
+
+def test_the_hand_feels_the_tissue_the_tool_presses(scripted):
+    _, rec, session = scripted
+    world = session.contexts["world"]
+    t_cmd = (rec.t_ns("/haptic/command") - rec.t_ns("/robot/target")[0]) * 1e-9
+    force_D = rec.field("/haptic/command", "force_D")
+    enabled = rec.field("/haptic/command", "enabled").astype(bool)
+    assert enabled[(t_cmd > 3.0) & (t_cmd < 5.0)].all()  # converged during the tour
+    # the truth: the tissue's push from the tip's depth (the robot's measured pose)
+    t_pose = (rec.t_ns("/kinematics/pose") - rec.t_ns("/robot/target")[0]) * 1e-9
+    p_pose = np.array([m["p_BoEo_B"] for _, m in rec.topics["/kinematics/pose"]])
+    deepest = (t_pose > TOUR_S + 0.3) & (t_pose < TOUR_S + 2.3)
+    tip_z = p_pose[deepest, 2] - world.tool.tip_S[2]  # the tool points straight down again
+    depth = (world.contacts[0].surface_B[2] - tip_z).max()
+    assert 0.015 < depth < 0.02  # the hand went 5 cm down: 2.5 cm on the robot, 2 cm past the surface
+    pressing = (t_cmd > TOUR_S + 0.9) & (t_cmd < TOUR_S + 1.7)
+    assert (force_D[pressing, 2] > 1.0).all()  # the tissue pushes the hand back up
+    limit = session.haptic_settings.max_force
+    assert np.linalg.norm(force_D, axis=1).max() <= limit + 1e-9
+    assert np.abs(force_D[pressing, 2].max() - min(STIFFNESS * depth, limit)) < 0.3
+    free = (t_cmd > TOUR_S) & (t_cmd < TOUR_S + 0.3)
+    assert np.linalg.norm(force_D[free], axis=1).max() < 0.5  # nothing touched: only noise under the deadband
+
+
+def test_the_clutch_holds_the_robot_and_releasing_it_does_not_jump(scripted):
+    _, rec, _ = scripted
+    t, p, mode, reason = targets(rec)
+    clutched = (t > 5.0 + 0.002) & (t < 5.5)
+    assert set(np.array(reason)[clutched]) == {"clutch pressed"}
+    assert np.ptp(p[clutched], axis=0).max() < 1e-12  # the hand moved 2 cm: the robot did not
+    after = (t > 5.5) & (t < 6.0)
+    assert set(np.array(mode)[after]) == {"following"}
+    step = np.linalg.norm(np.diff(p[(t > 4.9) & (t < 6.0)], axis=0), axis=1)
+    assert step.max() < 1e-6  # re-engaging captured the new offset: no jump
+
+
+def test_a_master_that_stops_reporting_its_state_holds_the_robot(scripted):
+    _, rec, _ = scripted
+    t, p, mode, reason = targets(rec)
+    lost = (t > 6.0 + 0.002) & (t < 6.2)
+    assert set(np.array(reason)[lost]) == {"no state from the master device"}
+    assert np.ptp(p[lost], axis=0).max() < 1e-12
+    holding = [m["message"] for _, m in rec.topics["/events"] if m["kind"] == "teleop_holding"]
+    assert holding == ["robot holding: clutch pressed", "robot holding: no state from the master device"]
+
+
+def test_the_target_moves_no_faster_than_its_limit_and_stays_in_its_workspace(registry, tmp_path):
+    config = teleop_config("haptic.name=scripted_hand", "teleop.max_speed=0.01", "teleop.workspace_radius=0.008",
+                           duration=6.0)
+    result = run_session(build_session(config, registry), out=tmp_path / "slow.mcap")
+    rec = read_recording(result.path)
+    t, p, _, _ = targets(rec)
+    speed = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(t)
+    assert speed.max() <= 0.01 * (1 + 1e-6)
+    distance = np.linalg.norm(p - p[0], axis=1)
+    assert distance.max() <= 0.008 + 1e-12
+    assert np.isclose(distance.max(), 0.008)  # the hand asked for 2.5 cm: the bound held
+
+
+def test_teleoperation_needs_a_robot_that_follows_targets():
+    config = teleop_config("haptic.name=null")
+    config["world"]["motion"] = {"script": "random_tour"}
+    with pytest.raises(ConfigError, match=r'teleop.enabled: kinematics .sim. cannot follow a target.*script = "servo"'):
+        build_session(config)
+    with pytest.raises(ConfigError, match=r"teleop.clutch_button"):
+        build_session(teleop_config("haptic.name=null", "teleop.clutch_button=64"))
+
+
+def test_over_a_real_pty_the_master_emulator_moves_the_robot_and_feels_the_tissue(tmp_path):
+    emulator = MasterEmulator(motion=scripted_motion("press", radius=0.05, period=2.0), max_force=8.0)
+    with emulator:
+        config = teleop_config(f"haptic.port={emulator.port}", "session.realtime=true", duration=5.5)
+        result = run_session(build_session(config), out=tmp_path / "pty.mcap")
+        forces = np.array(emulator.forces)
+    rec = read_recording(result.path)
+    t, p, mode, _ = targets(rec)
+    following = np.array(mode) == "following"
+    assert following[t > TOUR_S + 0.2].all()
+    # the robot went down with the hand, up to 2.5 cm (half the hand's 5 cm)
+    assert 0.015 < p[following, 2].max() - p[following, 2].min() <= 0.025 + 1e-9
+    state_z = np.array([m["pose"]["p_DoHo_D"][2] for _, m in rec.topics["/haptic/state"]])
+    assert state_z.min() < -0.03  # the handle's state, recorded
+    # the device received upward forces while the tool was in the tissue, never above the limit
+    assert forces[:, 2].max() > 1.0
+    assert np.linalg.norm(forces, axis=1).max() <= 4.0 + 1e-6
+
+
+def test_the_hand_moves_the_tool_along_the_direction_the_force_comes_back_along():
+    """The position map uses the force map's frames: R_BD = R_DBᵀ. With B turned 90° about z in D
+    (x_B = y_D), a hand moving along +y_D moves the tool along +x_B, and a push on the tool along
+    −x_B comes back on the hand along −y_D."""
+    from hapticlab.core.frames import matrix_from_rotvec
+    from hapticlab.core.types import PoseSample
+    from hapticlab.sessions.config import HapticSettings, TeleopSettings
+    from hapticlab.sessions.live.safety import ForceGovernor
+    from hapticlab.sessions.live.teleop import Teleoperation
+
+    haptic = HapticSettings(rotation_DB=(0.0, 0.0, math.pi / 2), max_force_rate=1e6)
+    R_DB = ForceGovernor(haptic, 1e-3).R_DB
+    assert np.allclose(R_DB @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    teleop = Teleoperation(TeleopSettings(enabled=True, scale=0.5, calibration_tilt_deg=0.0), R_DB)
+    pose = PoseSample(0, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+    quat_DH = np.array([1.0, 0.0, 0.0, 0.0])
+    first, _ = teleop.step(0, pose, DeviceState(0, quat_DH, np.zeros(3)), True)
+    later, events = teleop.step(1_000_000_000, pose, DeviceState(1_000_000_000, quat_DH, np.array([0.0, 0.02, 0.0])),
+                                True)
+    assert np.allclose(later.p_BoEo_B - first.p_BoEo_B, [0.01, 0.0, 0.0])
+    assert np.allclose(later.R_BE, matrix_from_rotvec(np.array([math.pi, 0.0, 0.0])))  # orientation held
+    command = ForceGovernor(haptic, 1e-3).command(0, np.array([-2.0, 0.0, 0.0]), np.eye(3))
+    assert np.allclose(command.force_D, [0.0, -2.0, 0.0])

@@ -43,7 +43,15 @@ world's pose itself), ``actual_qd`` the difference of consecutive
 ``target_TCP_pose`` equal the actual values, ``robot_mode`` is 7 (running),
 ``safety_mode`` 1 (normal), ``runtime_state`` 1 (stopped: no program), input
 registers read back what clients wrote; every other known output is a
-constant of its type (0). Packages go out in bursts about once a millisecond,
+constant of its type (0).
+
+**Following** (a world whose motion is ``servo``, ``SimWorld.live``): the
+controller runs ``hapticlab_follow.script`` as the real one would
+(``ur_follow.py``): at each cycle a new sequence number in
+``input_int_register_21`` sends the world's robot to the target in registers
+18–20 (``servo_cp``), ``output_int_register_21`` echoes the number applied,
+``runtime_state`` is 2 (playing), and with no new number for ``WATCHDOG_S`` the
+arm stops where it is. Packages go out in bursts about once a millisecond,
 every one whose cycle has come (none is dropped when the scheduler is late).
 
 Run it as ``hapticlab emulate ur --address 127.0.0.x`` (:func:`add_arguments`,
@@ -79,6 +87,8 @@ from ..serving import serve_until_stopped
 from ..simworld.physics import SimWorld, gaussian_noise
 from .sim import ENCODER_STREAM
 from .ur_arm import UR_DH, URArm
+from .ur_follow import (POSITION_REGISTERS, ROTATION_REGISTERS, SEQUENCE_REGISTER, WATCHDOG_S,
+                        decode_target)
 
 RTDE_PORT = 30004
 PROTOCOL_VERSION = 2
@@ -109,6 +119,7 @@ CYCLE_HZ = {False: 500.0, True: 125.0}
 ROBOT_MODE_RUNNING = 7
 SAFETY_MODE_NORMAL = 1
 RUNTIME_STATE_STOPPED = 1
+RUNTIME_STATE_PLAYING = 2
 
 
 def _output_types() -> dict[str, str]:
@@ -289,6 +300,15 @@ class UREmulator:
         self.t0_ns: int | None = None
         """The controller's start (``timestamp`` 0, the world's time 0) on the monotonic clock, ns."""
         self._cycle = 0
+        self.follows = world.live
+        """The controller runs the follow script: the world's robot goes to the targets written to the registers."""
+        self.targets_applied = 0
+        """Targets the follow script took from the registers."""
+        self.watchdog_stops = 0
+        """Times the follow script stopped the arm because targets stopped coming."""
+        self._sequence_applied = 0
+        self._sequence_cycle = -1  # the cycle the last new sequence number came at
+        self._stopped = True
 
     # ------------------------------------------------------------------ life cycle
 
@@ -377,14 +397,41 @@ class UREmulator:
         return {"timestamp": t, "actual_q": q_t, "actual_qd": qd_t, "target_q": q_t, "target_qd": qd_t,
                 "actual_TCP_pose": pose, "target_TCP_pose": pose, "robot_mode": ROBOT_MODE_RUNNING,
                 "safety_mode": SAFETY_MODE_NORMAL, "safety_status": SAFETY_MODE_NORMAL,
-                "runtime_state": RUNTIME_STATE_STOPPED, "speed_scaling": 1.0, "target_speed_fraction": 1.0,
+                "runtime_state": RUNTIME_STATE_PLAYING if self.follows else RUNTIME_STATE_STOPPED,
+                f"output_int_register_{SEQUENCE_REGISTER}": self._sequence_applied, "speed_scaling": 1.0, "target_speed_fraction": 1.0,
                 "speed_scaling_combined": 1.0, "joint_mode": (255,) * 6}
+
+    def _follow(self, cycle: int) -> None:
+        """The follow script's cycle: a new target in the registers goes to the world's robot; none for
+        ``WATCHDOG_S`` stops it where it is."""
+        with self._lock:
+            inputs = dict(self._inputs)
+        t = cycle / self.cycle_hz
+        sequence = int(inputs.get(f"input_int_register_{SEQUENCE_REGISTER}", 0))
+        if sequence not in (0, self._sequence_applied):
+            R_BE, p_BoEo_B = decode_target([inputs.get(f"input_double_register_{r}", 0.0) for r in POSITION_REGISTERS],
+                                           [inputs.get(f"input_int_register_{r}", 0) for r in ROTATION_REGISTERS])
+            try:
+                self.world.servo_cp(t, R_BE, p_BoEo_B)
+            except ValueError as exc:  # a non-finite target: the script's get_inverse_kin would fail; keep the last
+                self._broadcast(pack_text_message(f"hapticlab_follow: target refused: {exc}", level=WARNING))
+                return
+            self._sequence_applied, self._sequence_cycle, self._stopped = sequence, cycle, False
+            self.targets_applied += 1
+        elif not self._stopped and (cycle - self._sequence_cycle) / self.cycle_hz > WATCHDOG_S:
+            R_BE, p_BoEo_B = (x[0] for x in self.world.pose(t))  # stopj: stop where it is
+            self.world.servo_cp(t, R_BE, p_BoEo_B)
+            self._stopped = True
+            self.watchdog_stops += 1
+            self._broadcast(pack_text_message("hapticlab_follow: no target for 100 ms, stopped", level=INFO))
 
     def _controller_loop(self) -> None:
         """Every cycle whose time has come: send the packages due (bursts about once a millisecond)."""
         while not self._stop.is_set():
             due = math.floor((time.monotonic_ns() - self.t0_ns) * self.cycle_hz / 1e9)
             while self._cycle <= due and not self._stop.is_set():
+                if self.follows:
+                    self._follow(self._cycle)
                 self._serve_cycle(self._cycle)
                 self._cycle += 1
             self._stop.wait(0.001)

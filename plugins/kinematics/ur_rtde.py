@@ -38,7 +38,9 @@ Options (``[kinematics]`` table, ``name = "ur_rtde"``): ``address`` (the
 controller's IP address or name, required), ``rate_hz`` (the RTDE output
 frequency: at most 500 Hz on an e-Series, 125 Hz on a CB3), ``receive_timeout``
 (s), ``model`` (e.g. "ur5e": check at the first package that the reported pose is
-the flange's, see ``TCP_CHECK_M``).
+the flange's, see ``TCP_CHECK_M``), ``follow`` (true: the arm also follows
+teleoperation's targets, ``ServosCartesian``, written to the input registers the
+shipped URScript reads: ``ur_follow.py``).
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ from ...core.plugins import ConfigError
 from ...core.types import Event, PoseSample
 from ..sensors.netft import DeviceClock
 from .ur_arm import UR_DH, URArm
+from .ur_follow import TargetWriter
 
 VARIABLES = ["actual_TCP_pose", "actual_q", "actual_qd", "timestamp"]
 """The outputs asked for; ``timestamp`` last, so a package's timestamp changes after its other fields."""
@@ -75,6 +78,8 @@ MISSED_EVENT_INTERVAL_NS = 1_000_000_000
 _HOSTNAME = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$")
 
 
+FOLLOW_RATE_HZ = 125.0
+"""Teleoperation targets written a second by default (``follow_rate_hz``): a CB3's cycle, a quarter of an e-Series'."""
 POLL_LATENCY_S = 0.002
 """The polling thread's share of a pose's age at the loop, s (it polls 4× a period, but waits for the
 interpreter's lock while the loop runs a tick)."""
@@ -296,7 +301,60 @@ def _valid_host(host: str) -> bool:
         return bool(_HOSTNAME.match(host)) and not host.replace(".", "").isdigit()
 
 
+class FollowingURRTDEKinematics(URRTDEKinematics):
+    """A UR arm that also follows flange targets (ServosCartesian): ``ur_rtde`` with ``follow = true``.
+
+    Targets go to the input registers ``hapticlab_follow.script`` reads (``ur_follow``), at most
+    ``follow_rate_hz`` a second: a target within that period of the last one written waits for the
+    next. Each target is seven RTDE packages (one per register, ~270 µs through ur-rtde), and the
+    script's ``servoj`` lookahead smooths between targets.
+    """
+
+    def __init__(self, address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = "",
+                 follow_rate_hz: float = FOLLOW_RATE_HZ):
+        super().__init__(address, rate_hz, receive_timeout, model)
+        if not 0 < follow_rate_hz <= self.rate_hz:
+            raise ConfigError(f"kinematics.follow_rate_hz: must be > 0 and at most rate_hz ({self.rate_hz:g} Hz), "
+                              f"got {follow_rate_hz!r}")
+        self.period_ns = int(round(1e9 / follow_rate_hz))
+        self._writer = None
+        self._last_sent_ns: int | None = None
+
+    def open(self, t0_ns: int) -> None:
+        super().open(t0_ns)
+        try:
+            self._writer = TargetWriter(self.address)
+        except ConnectionError:
+            self.close()
+            raise
+
+    def servo_cp(self, t_ns: int, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> None:
+        """Write the flange target for the controller's script (one per controller period)."""
+        if self._last_sent_ns is not None and t_ns - self._last_sent_ns < self.period_ns:
+            return
+        self._writer.send(R_BE, p_BoEo_B)
+        self._last_sent_ns = t_ns
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        super().close()
+
+
+def ur_rtde_kinematics(address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = "",
+                       follow: bool = False, follow_rate_hz: float = FOLLOW_RATE_HZ) -> URRTDEKinematics:
+    """The ``ur_rtde`` kinematics (options as :class:`URRTDEKinematics`); with ``follow`` the arm also follows
+    teleoperation's targets, ``follow_rate_hz`` a second (:class:`FollowingURRTDEKinematics`; run
+    ``hapticlab_follow.script`` on the arm)."""
+    if follow:
+        return FollowingURRTDEKinematics(address, rate_hz, receive_timeout, model, follow_rate_hz)
+    if follow_rate_hz != FOLLOW_RATE_HZ:
+        raise ConfigError("kinematics.follow_rate_hz: only with follow = true")
+    return URRTDEKinematics(address, rate_hz, receive_timeout, model)
+
+
 @hookimpl
 def register_kinematics(register):
     """Register the Universal Robots RTDE kinematics as ``ur_rtde``."""
-    register("ur_rtde", URRTDEKinematics)
+    register("ur_rtde", ur_rtde_kinematics)

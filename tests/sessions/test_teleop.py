@@ -15,6 +15,7 @@ import pytest
 
 from hapticlab.core import hookimpl
 from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.types import DeviceState
 from hapticlab.plugins.haptics.master_emulator import MasterEmulator, scripted_motion
 from hapticlab.sessions.config import apply_overrides, load_config
@@ -228,3 +229,69 @@ def test_the_hand_moves_the_tool_along_the_direction_the_force_comes_back_along(
     assert np.allclose(later.R_BE, matrix_from_rotvec(np.array([math.pi, 0.0, 0.0])))  # orientation held
     command = ForceGovernor(haptic, 1e-3).command(0, np.array([-2.0, 0.0, 0.0]), np.eye(3))
     assert np.allclose(command.force_D, [0.0, -2.0, 0.0])
+
+
+def emulator_process(*args: str):
+    """``hapticlab emulate ...`` in a process of its own (as a lab runs it): (process, its first line)."""
+    import select
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
+         "emulate", *args, "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], 60.0)
+    assert ready, f"emulate {args[0]} did not start"
+    return proc, proc.stdout.readline()
+
+
+def stop(proc) -> str:
+    """SIGTERM, then what the emulator printed after its first line."""
+    import signal
+
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=30)
+    return out
+
+
+def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tmp_path):
+    """Every part on its real wire and in its own process, as in a lab: the master emulator on a pty,
+    the Net F/T over RDT and the UR5e over RTDE in `hapticlab emulate lab`, the targets written with
+    ur-rtde's RTDEIOInterface to the registers the shipped URScript reads, the emulated arm running
+    that script's logic."""
+    netft, ur = "127.0.0.96", "127.0.0.97"
+    lab, line = emulator_process("lab", "--session", "teleop-lab-emulated", "--netft", netft, "--ur", ur)
+    try:
+        assert "following the targets written to its input registers" in line, line
+        master, port = emulator_process("master", "--path", "press", "--radius", "0.05", "--period", "2")
+        try:
+            config, _ = load_config("teleop-lab-emulated")
+            config = apply_overrides(config, [
+                "session.duration=5.5", f"teleop.calibration_dwell_s={DWELL_S}", f"haptic.port={port.strip()}",
+                f"sensor.address={netft}", f"kinematics.address={ur}"])
+            result = run_session(build_session(config), out=tmp_path / "ur.mcap")
+        finally:
+            device_counts = stop(master)
+    finally:
+        stop(lab)
+    assert " 0 CRC error(s)" in device_counts and "force command(s)" in device_counts
+    rec = read_recording(result.path)
+    t, p, mode, reason = targets(rec)
+    # following the hand; a hold only ever because the force went off (a pose or a sensor record late:
+    # the emulators share this 2-core machine, and a stale stream zeroes the force and holds the robot)
+    after_tour = t > TOUR_S + 0.2
+    assert np.mean(np.array(mode)[after_tour] == "following") > 0.5
+    assert set(np.array(reason)[after_tour]) <= {"", "haptic force off"}
+    # the arm itself (its RTDE poses, not our targets) toured, then went down and up with the hand
+    t_pose = (rec.t_ns("/kinematics/pose") - rec.t_ns("/robot/target")[0]) * 1e-9
+    quat = np.array([m["quat_BE"] for _, m in rec.topics["/kinematics/pose"]])
+    p_pose = np.array([m["p_BoEo_B"] for _, m in rec.topics["/kinematics/pose"]])
+    tool_axis_B = np.array([matrix_from_quat_wxyz(q)[:, 2] for q in quat])
+    tilt = np.degrees(np.arccos(np.clip(tool_axis_B @ tool_axis_B[0], -1.0, 1.0)))
+    assert 20 < tilt[t_pose < TOUR_S].max() < 30  # the 25° calibration tour, on the arm (a servo overshoots a little)
+    assert 0.015 < np.ptp(p_pose[t_pose > TOUR_S + 0.2, 2]) < 0.027
+    # the Net F/T felt the tissue and the hand was pushed back up, never above the limit
+    force_D = rec.field("/haptic/command", "force_D")
+    assert force_D[:, 2].max() > 1.0 and np.linalg.norm(force_D, axis=1).max() <= 4.0 + 1e-9
+    handle_z = np.array([m["pose"]["p_DoHo_D"][2] for _, m in rec.topics["/haptic/state"]])
+    assert handle_z.min() < -0.04  # the device's own replies: its handle pressed 5 cm down

@@ -242,7 +242,7 @@ def test_connection_refused_names_the_controller():
     ({"address": "robot..lab"}, "kinematics.address: 'robot..lab' is neither an IP address nor a host name"),
     ({"address": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be > 0 and at most 500 Hz"),
     ({"address": "10.0.0.2", "receive_timeout": 0}, "kinematics.receive_timeout: must be > 0 and at most 1 s"),
-    ({"address": "10.0.0.2", "frequency": 500}, "kinematics.frequency: unknown option; known options: address, model, rate_hz, receive_timeout"),
+    ({"address": "10.0.0.2", "frequency": 500}, "kinematics.frequency: unknown option; known options: address, follow, follow_rate_hz, model, rate_hz, receive_timeout"),
     ({"address": 10}, "kinematics.address: expected a string, got 10"),
     ({"address": "10.0.0.2", "model": "ur7e"}, "kinematics.model: unknown UR model 'ur7e'; known: ur3e, ur5e"),
 ])

@@ -13,7 +13,9 @@ with the reason. Otherwise, in this order:
    reaches 1 − e^(−n·T/τ) after n periods (τ = 1/(2π·fc));
 4. **clamp** the magnitude to ``max_force`` and the device's own limit
    (``HasForceLimit``), direction kept;
-5. **slew-rate limit**: at most ``max_force_rate · T`` from the last command.
+5. **slew-rate limit**: at most ``max_force_rate · T`` from the last command
+   (and never above the limit: a limit that falls below the last command, a
+   device lowering its maximum, brings the force down to it at once).
 
 Going to zero is never rate-limited; coming back from zero is (the ramp
 starts at zero), and a zero for a reason also empties the low-pass, so a force
@@ -130,8 +132,12 @@ class ForceGovernor:
         step_norm = float(np.linalg.norm(step))
         if step_norm > self.max_step:
             target = self.last_force_D + step * (self.max_step / step_norm)
+            norm = float(np.linalg.norm(target))
+            if norm > limit:  # the limit fell below the last command (a device lowered it): down at once
+                target = target * (limit / norm)
         if not (np.all(np.isfinite(target)) and np.linalg.norm(target) <= limit * (1 + TOLERANCE)
-                and np.linalg.norm(target - self.last_force_D) <= self.max_step * (1 + TOLERANCE)):
+                and (np.linalg.norm(target - self.last_force_D) <= self.max_step * (1 + TOLERANCE)
+                     or np.linalg.norm(target) < np.linalg.norm(self.last_force_D))):
             return self._zero(t_ns, "governor output out of bounds")  # unreachable by the arithmetic above
         self.last_force_D = target
         return HapticCommand(t_ns, target, True, "", source_t_ns)

@@ -111,6 +111,19 @@ def test_clamp_to_the_device_limit_keeps_the_direction():
         assert cmd.reason.startswith("haptic device reports no usable force limit")
 
 
+def test_a_device_limit_that_falls_below_the_command_brings_the_force_down_at_once():
+    """The device lowers its maximum (e.g. it reports a hot motor) while 4 N are on the hand: the next
+    command is at the new limit, still on, not zeroed as 'out of bounds' and not slewed down slowly."""
+    g = governor(max_force=5.0, max_force_rate=100.0)  # 0.1 N a period
+    for k in range(100):
+        on = g.command(k, np.array([4.0, 0.0, 0.0]), I3)
+    assert on.enabled and on.force_D[0] == pytest.approx(4.0)
+    g.device_max_force = 1.5
+    lowered = g.command(100, np.array([4.0, 0.0, 0.0]), I3)
+    assert lowered.enabled and lowered.reason == ""
+    assert np.allclose(lowered.force_D, [1.5, 0.0, 0.0])
+
+
 def test_the_order_is_map_deadband_lowpass_clamp_slew():
     # a quarter turn about z, scale 2: (1.5, 0, 0) in S → (0, 3, 0) in D; deadband 1 N → 2 N; clamp 1.5 N; slew 0.1 N
     g = governor(max_force=1.5, max_force_rate=100.0, scale=2.0, rotation_DB=(0.0, 0.0, np.pi / 2), deadband=1.0)

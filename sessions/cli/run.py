@@ -135,6 +135,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     err.print(f"[bold]hapticlab run[/] {origin}: {duration:g} s, sensor {session.plugins['sensor']['name']}, "
               f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "
               f"haptic {session.plugins['haptic']['name']}  (Ctrl-C stops and keeps the recording)")
+    live_at = args.live or ""
+    if live_at:
+        err.print(f"live view: ws://{live_at} (in Foxglove: Open connection → Foxglove WebSocket; "
+                  f"layout: docs/foxglove-layout.json)", markup=False, highlight=False)
     try:
         with RearmKey() as key:
             hint = rearm_hint(key.active, session.haptic_settings.rearm_button)
@@ -147,11 +151,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             if err.is_terminal:
                 with Live(console=err, refresh_per_second=4, transient=False) as live:
-                    result = run_session(session, out=args.out, duration=duration, on_status=on_status)
+                    result = run_session(session, out=args.out, duration=duration, on_status=on_status,
+                                         live=live_at)
             else:
                 live = None
                 result = run_session(session, out=args.out, duration=duration,
-                                     on_status=on_status if key.active else None)
+                                     on_status=on_status if key.active else None, live=live_at)
     except SessionError as exc:  # a device or estimator failed: one line, the recording is complete
         err.print(f"hapticlab run: session ended by an error: {exc}", markup=False, highlight=False)
         if exc.part.startswith("estimator"):  # an estimator's exception is a bug worth its traceback
@@ -188,6 +193,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, help="recording path (.mcap)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config value, e.g. --set estimator.name=batch")
+    p.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None, metavar="HOST:PORT",
+                   help="serve the session live to Foxglove over WebSocket (default 127.0.0.1:8765; "
+                        "needs the live extra: pip install 'hapticlab[live]')")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("plugins", help="list every registered plugin by kind, with where it came from")

@@ -49,6 +49,7 @@ import numpy as np
 
 from ...core.aligner import Aligner
 from ...core.errors import OutputExistsError
+from ...core.plugins import ConfigError
 from ...core.interfaces import HasCalibration, HasForceLimit, HasLatency, HasRange
 from ...core.types import Event
 from ..config import check_duration
@@ -66,6 +67,13 @@ OVERRUN_EVENT_INTERVAL_NS = 1_000_000_000
 """At most one ``overrun`` event a second; the ticks skipped in between are counted in it."""
 
 
+def check_live_address(address: str) -> None:
+    """A ``--live`` address: ``HOST:PORT`` with a port in 0..65535 (ConfigError naming it otherwise)."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit() or int(port) > 65535:
+        raise ConfigError(f"--live {address!r}: expected HOST:PORT, e.g. 127.0.0.1:8765")
+
+
 class _PartFailed(Exception):
     """A device or estimator raised inside the loop; ``part`` names it."""
 
@@ -76,9 +84,14 @@ class _PartFailed(Exception):
 
 def run_session(session: Session, out: str | Path | None = None, duration: float | None = None,
                 on_status: Callable[[SessionStatus], None] | None = None,
-                status_interval_s: float = 0.25) -> SessionResult:
-    """Run a built session until its duration ends (or Ctrl-C) and record it to one MCAP file."""
-    return LiveLoop(session, out, duration, on_status, status_interval_s).run()
+                status_interval_s: float = 0.25, live: str = "") -> SessionResult:
+    """Run a built session until its duration ends (or Ctrl-C) and record it to one MCAP file.
+
+    ``live`` ("HOST:PORT", e.g. "127.0.0.1:8765") also serves the session while it runs over
+    Foxglove's WebSocket protocol, the recording's topics as they are written (``foxglove-sdk``;
+    the recording's writer process serves it, so the loop does not pay for it).
+    """
+    return LiveLoop(session, out, duration, on_status, status_interval_s, live).run()
 
 
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
@@ -122,8 +135,14 @@ class LiveLoop:
     """One session's loop and its bookkeeping (built by :func:`run_session`)."""
 
     def __init__(self, session: Session, out: str | Path | None, duration: float | None,
-                 on_status: Callable[[SessionStatus], None] | None, status_interval_s: float):
+                 on_status: Callable[[SessionStatus], None] | None, status_interval_s: float, live: str = ""):
         self.s = session
+        if live:
+            check_live_address(live)
+            if session.settings.recording_writer != "process":
+                raise ConfigError("--live: the live view is served by the recording's writer process; "
+                                  "drop session.recording_writer = \"inline\"")
+        self.live = live
         settings = session.settings
         self.duration = settings.duration if duration is None else check_duration("duration", duration)
         self.path = Path(out) if out else default_out_path(settings)
@@ -174,8 +193,15 @@ class LiveLoop:
 
     def run(self) -> SessionResult:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.recorder = Recorder(self.path, metadata=session_metadata(self.s, self.duration, self.path),
-                                 writer=self.s.settings.recording_writer)
+        try:
+            self.recorder = Recorder(self.path, metadata=session_metadata(self.s, self.duration, self.path),
+                                     writer=self.s.settings.recording_writer, live=self.live)
+        except WriterProcessError as exc:
+            if self.live and "live view" in str(exc):  # the address taken, or no foxglove-sdk: the user's to fix
+                why = str(exc).rpartition(": live view on ")[2].partition(": ")[2]
+                raise ConfigError(f"--live {self.live}: the live view did not start: {why}") from None
+            raise
+        self.status.live_address = self.recorder.live_address
         self.taps = Taps(self.recorder)
         self.t0_ns = now_ns = time.monotonic_ns()
         interrupted, failure = False, None

@@ -29,6 +29,7 @@ class SessionStatus:
     events: int = 0
     behind_s: float = 0.0
     latched: bool = False
+    live_address: str = ""  # where the Foxglove live view listens ("" without one)
     teleop: str = ""  # teleoperation's mode ("following", "holding: clutch pressed", ...); "" when off
     rearm: Callable[[str], None] | None = field(default=None, repr=False)
 

@@ -22,6 +22,12 @@ was written. The child:
   process group, and the parent ends the session (and the file) itself.
 
 A full pipe blocks the loop (back-pressure): nothing is ever dropped.
+
+**Live view** (``live="HOST:PORT"``): the child also serves every message it
+writes over Foxglove's WebSocket protocol (:class:`FoxgloveTee`, the
+``foxglove-sdk`` extra), the same topics, schemas and bytes as the file, so an
+instructor watches the session in Foxglove while it runs. It costs the loop
+nothing: the messages are already in the writer process.
 """
 
 from __future__ import annotations
@@ -44,6 +50,8 @@ _LENGTH = struct.Struct("<I")
 PIPE_BYTES = 1 << 20
 """Pipe buffer asked for (Linux ``F_SETPIPE_SZ``): ~1 s of a 7 kHz session, so the loop rides out the child's pauses."""
 READY = b"ready\n"
+LIVE_ADDRESS = b"live-address "
+"""The child's first line when it serves a live view: this, then where (``HOST:PORT``)."""
 
 
 class Sink(Protocol):
@@ -111,6 +119,43 @@ class McapSink:
         self._file.close()
 
 
+class FoxgloveTee:
+    """Serves the recording's messages live over Foxglove's WebSocket protocol (``foxglove-sdk``).
+
+    Args:
+        address: ``"HOST:PORT"`` to listen on (loopback by default: ``127.0.0.1:8765``).
+
+    Each channel the recording registers becomes a Foxglove channel with the same
+    topic, schema and message encoding (JSON schema with JSON, ``ros2msg`` with CDR),
+    and each message is logged with its recording time as the log time.
+    """
+
+    def __init__(self, address: str):
+        import foxglove
+
+        host, _, port = address.rpartition(":")
+        self._foxglove = foxglove
+        self.server = foxglove.start_server(name="hapticlab", host=host or "127.0.0.1", port=int(port))
+        self.port = self.server.port
+        self._schemas: dict[int, tuple[str, str, bytes]] = {}
+        self._channels: dict[int, object] = {}
+
+    def register_schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None:
+        self._schemas[schema_id] = (name, encoding, data)
+
+    def register_channel(self, channel_id: int, topic: str, message_encoding: str, schema_id: int) -> None:
+        name, encoding, data = self._schemas[schema_id]
+        self._channels[channel_id] = self._foxglove.Channel(
+            topic, schema=self._foxglove.Schema(name=name, encoding=encoding, data=data),
+            message_encoding=message_encoding)
+
+    def add_message(self, channel_id: int, t_ns: int, data: bytes) -> None:
+        self._channels[channel_id].log(data, log_time=t_ns)
+
+    def stop(self) -> None:
+        self.server.stop()
+
+
 class WriterProcessError(RuntimeError):
     """The recording's writer process failed or exited; the message says how."""
 
@@ -123,13 +168,15 @@ class ProcessSink:
     constructor returns once the child is ready to write.
     """
 
-    def __init__(self, path: Path, library: str, flush_interval_s: float, chunk_size: int):
+    def __init__(self, path: Path, library: str, flush_interval_s: float, chunk_size: int, live: str = ""):
         self.path = path
+        self.live_address = ""
+        """Where the live view listens ("HOST:PORT"), "" without one."""
         self._ops: list[tuple] = []
         self._proc = subprocess.Popen(
             # this file run as a script: it needs mcap only, not hapticlab's packages (0.1 s to start, not 0.6)
             [sys.executable, "-c", _RUN_THIS_FILE, __file__, os.fspath(path), library,
-             repr(float(flush_interval_s)), str(int(chunk_size))],
+             repr(float(flush_interval_s)), str(int(chunk_size)), live],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=_child_env(),
             start_new_session=False,
         )
@@ -141,6 +188,9 @@ class ProcessSink:
         except (ImportError, AttributeError, OSError):  # not Linux, or above pipe-max-size: the default 64 KiB
             pass
         line = self._proc.stdout.readline()
+        if live and line.startswith(LIVE_ADDRESS):  # the live view's address, then ready
+            self.live_address = line[len(LIVE_ADDRESS):].decode().strip()
+            line = self._proc.stdout.readline()
         if line != READY:
             self._proc.wait()
             raise WriterProcessError(f"recording writer process for {path} did not start "
@@ -221,14 +271,27 @@ def _child_env() -> dict[str, str]:
 
 
 def serve(path: str, library: str, flush_interval_s: float, chunk_size: int,
-          source: IO[bytes], reply: IO[bytes]) -> None:
-    """Write batches read from ``source`` to ``path`` until ``finish`` or end of file; report on ``reply``."""
+          source: IO[bytes], reply: IO[bytes], live: str = "") -> None:
+    """Write batches read from ``source`` to ``path`` until ``finish`` or end of file; report on ``reply``.
+
+    With ``live`` ("HOST:PORT") every message also goes to a Foxglove WebSocket server there.
+    """
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):  # the parent ends the session; end of file ends us
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), signal.SIG_IGN)
+    tee = None
+    if live:  # first, so a live view that cannot start leaves the file as the parent created it (empty)
+        try:
+            tee = FoxgloveTee(live)
+        except Exception as exc:  # no foxglove-sdk, or the address is taken: one line to the parent
+            reply.write(f"live view on {live}: {type(exc).__name__}: {exc}\n".encode())
+            reply.flush()
+            return
     file = open(path, "r+b")  # noqa: SIM115 - the sink's finish() closes it
     file.truncate(0)
     sink = McapSink(file, library, flush_interval_s, chunk_size)
+    if tee is not None:
+        reply.write(LIVE_ADDRESS + f"{live.rpartition(':')[0] or '127.0.0.1'}:{tee.port}\n".encode())
     reply.write(READY)
     reply.flush()
     fd = source.fileno()
@@ -247,12 +310,18 @@ def serve(path: str, library: str, flush_interval_s: float, chunk_size: int,
                 kind = op[0]
                 if type(kind) is int:
                     sink.add_message(*op)
+                    if tee is not None:
+                        tee.add_message(*op[:3])
                 elif kind == "metadata":
                     sink.add_metadata(op[1], op[2])
                 elif kind == "schema":
                     sink.register_schema(*op[1:])
+                    if tee is not None:
+                        tee.register_schema(*op[1:])
                 elif kind == "channel":
                     sink.register_channel(*op[1:])
+                    if tee is not None:
+                        tee.register_channel(*op[1:])
                 elif kind == "flush":
                     sink.flush()
                 elif kind == "finish":
@@ -260,6 +329,8 @@ def serve(path: str, library: str, flush_interval_s: float, chunk_size: int,
                 else:
                     raise ValueError(f"unknown operation {kind!r} from the recorder")
     sink.finish()
+    if tee is not None:
+        tee.stop()
     try:
         reply.write(b"finished %d messages\n" % sink.messages)
         reply.flush()
@@ -291,8 +362,8 @@ class _Batches:
 
 
 def _main(argv: list[str]) -> int:
-    _this_file, path, library, flush_interval_s, chunk_size = argv
-    serve(path, library, float(flush_interval_s), int(chunk_size), sys.stdin.buffer, sys.stdout.buffer)
+    _this_file, path, library, flush_interval_s, chunk_size, live = argv
+    serve(path, library, float(flush_interval_s), int(chunk_size), sys.stdin.buffer, sys.stdout.buffer, live)
     return 0
 
 

@@ -177,6 +177,9 @@ class Recorder:
         writer: ``"inline"`` (the ``mcap`` writer in this process) or ``"process"``
             (in a child process: messages are handed over at each :meth:`send`, one
             pipe write per loop tick; the child finishes the file if this process dies).
+        live: ``"HOST:PORT"``: the writer process also serves every message live over
+            Foxglove's WebSocket protocol there (``foxglove-sdk``; port 0 picks a free one,
+            :attr:`live_address` says which); "" (default) no live view.
 
     ``write_block`` (a block of samples, per loop tick) and ``write`` (one
     message) are the hot path: one encode (CDR: one ``tobytes`` per field;
@@ -193,6 +196,7 @@ class Recorder:
         overwrite: bool = False,
         block_encoding: str = "cdr",
         writer: str = "inline",
+        live: str = "",
     ) -> None:
         if not flush_interval_s > 0:
             raise ValueError(f"flush_interval_s must be > 0 s, got {flush_interval_s!r}")
@@ -200,6 +204,8 @@ class Recorder:
             raise ValueError(f"block_encoding must be 'cdr' or 'json', got {block_encoding!r}")
         if writer not in ("inline", "process"):
             raise ValueError(f"writer must be 'inline' or 'process', got {writer!r}")
+        if live and writer != "process":
+            raise ValueError("live: the live view is served by the writer process (writer='process')")
         self.block_encoding = block_encoding
         self._cdr_blocks: dict[str, Any] = {}  # block topic -> its CdrBlock layout
         self.path = Path(path)
@@ -220,15 +226,20 @@ class Recorder:
         self.start_monotonic_ns = time.monotonic_ns()
         library = f"hapticlab/{_hapticlab_version()}"
         self.writer = writer
+        self.live_address = ""
+        """Where the live view listens ("HOST:PORT"), "" without one."""
         self._sink: Sink
         try:
             if writer == "process":
                 self._file.close()  # created here (an existing file refused here); the child writes it
-                self._sink = ProcessSink(self.path, library, self.flush_interval_s, chunk_size)
+                process = ProcessSink(self.path, library, self.flush_interval_s, chunk_size, live)
+                self._sink, self.live_address = process, process.live_address
             else:
                 self._sink = McapSink(self._file, library, self.flush_interval_s, chunk_size)
         except BaseException:
             self._file.close()
+            if self.path.stat().st_size == 0:  # ours, created a moment ago, nothing in it: do not leave it behind
+                self.path.unlink()
             raise
         try:
             given = {name: dict(values) for name, values in (metadata or {}).items()}

@@ -17,6 +17,7 @@ from ...core.frames import quat_wxyz_from_matrix
 from ...core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, RobotTarget,
                           WrenchSample)
 from ..recording import Recorder
+from ..recording.schemas import TF_INTERVAL_NS
 
 
 class Taps:
@@ -26,6 +27,7 @@ class Taps:
         self.rec = recorder
         self._target_R: np.ndarray | None = None  # the last robot target's orientation and its quaternion
         self._target_quat: list[float] = []
+        self._next_tf_ns = {"flange": 0, "target": 0}
 
     def poses(self, poses: list[PoseSample], now_ns: int) -> None:
         """The poses read at the tick ``now_ns``, each with its age then (``age_ns``: the kinematics' delay)."""
@@ -37,6 +39,19 @@ class Taps:
                 "joints": None if p.joints is None else p.joints.tolist(),
                 "age_ns": now_ns - p.t_ns,
             })
+        last = poses[-1]
+        if last.t_ns >= self._next_tf_ns["flange"] and last.p_BoEo_B is not None:
+            self.transform(last.t_ns, "flange", last.quat_BE.tolist(), last.p_BoEo_B.tolist())
+
+    def transform(self, t_ns: int, child: str, quat_wxyz: list[float], p: list[float]) -> None:
+        """``/tf``: the frame ``child`` in the robot base (Foxglove's FrameTransform), at most every 20 ms."""
+        self._next_tf_ns[child] = t_ns + TF_INTERVAL_NS
+        w, x, y, z = quat_wxyz
+        self.rec.write("/tf", t_ns, {
+            "timestamp": {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000},
+            "parent_frame_id": "base", "child_frame_id": child,
+            "translation": {"x": p[0], "y": p[1], "z": p[2]}, "rotation": {"x": x, "y": y, "z": z, "w": w},
+        })
 
     def wrenches(self, wrenches: list[WrenchSample]) -> None:
         if not wrenches:
@@ -87,10 +102,12 @@ class Taps:
     def robot_target(self, target: RobotTarget) -> None:
         if target.R_BE is not self._target_R:  # teleoperation holds one orientation object while it holds it
             self._target_R, self._target_quat = target.R_BE, quat_wxyz_from_matrix(target.R_BE).tolist()
+        p = target.p_BoEo_B.tolist()
         self.rec.write("/robot/target", target.t_ns, {
-            "pose": {"quat_BE": self._target_quat, "p_BoEo_B": target.p_BoEo_B.tolist()},
-            "mode": target.mode, "reason": target.reason,
+            "pose": {"quat_BE": self._target_quat, "p_BoEo_B": p}, "mode": target.mode, "reason": target.reason,
         })
+        if target.t_ns >= self._next_tf_ns["target"]:
+            self.transform(target.t_ns, "target", self._target_quat, p)
 
     def event(self, event: Event) -> None:
         self.rec.event(event.t_ns, event.kind, event.message, **event.data)

@@ -3,7 +3,8 @@
 Topics (see DESIGN.md "Recording (MCAP)"; SI units, frames in the field
 names): ``/sensor/wrench``, ``/kinematics/pose``, ``/aligned/sample``,
 ``/estimator/<name>`` (one channel per estimator, one shared schema),
-``/haptic/command``, ``/haptic/state``, ``/robot/target`` (teleoperation), ``/events``. Any other topic is
+``/haptic/command``, ``/haptic/state``, ``/robot/target`` (teleoperation), ``/tf``
+(Foxglove's ``foxglove.FrameTransform``, for its 3D panel), ``/events``. Any other topic is
 refused with a ``ValueError``. :data:`SCHEMAS` holds the JSON schemas.
 
 Two layouts (:data:`FORMAT_VERSION`): format 1 wrote one message per sample on
@@ -214,6 +215,28 @@ _TARGET_SCHEMA = _schema(
     ["pose", "mode"],
 )
 
+_XYZ = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
+_FRAME_TRANSFORM_SCHEMA = {
+    "title": "foxglove.FrameTransform",
+    "description": "A transform between two reference frames in 3D space (Foxglove's well-known schema, "
+                   "so its 3D panel draws the frames: base → flange, base → target).",
+    "type": "object",
+    "properties": {
+        "timestamp": {"type": "object", "title": "time", "description": "Timestamp of transform",
+                      "properties": {"sec": {"type": "integer", "minimum": 0},
+                                     "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}},
+        "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
+        "child_frame_id": {"type": "string", "description": "Name of the child frame"},
+        "translation": {**_XYZ, "title": "foxglove.Vector3",
+                        "description": "Translation component of the transform, m"},
+        "rotation": {"type": "object", "title": "foxglove.Quaternion",
+                     "description": "Rotation component of the transform",
+                     "properties": {k: {"type": "number"} for k in "xyzw"}},
+    },
+}
+TF_INTERVAL_NS = 20_000_000
+"""``/tf`` is written at most every 20 ms (50 Hz: what a 3D view needs, a sliver of the pose stream's cost)."""
+
 _EVENT_SCHEMA = _schema(
     "hapticlab.Event",
     "Something a person reviewing the session should know about.",
@@ -236,6 +259,7 @@ TOPICS: dict[str, dict[str, Any]] = {
     "/haptic/command": _COMMAND_SCHEMA,
     "/haptic/state": _STATE_SCHEMA,
     "/robot/target": _TARGET_SCHEMA,
+    "/tf": _FRAME_TRANSFORM_SCHEMA,
     "/events": _EVENT_SCHEMA,
 }
 ESTIMATOR_SCHEMA = _ESTIMATOR_SCHEMA

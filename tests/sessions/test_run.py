@@ -12,7 +12,7 @@ from hapticlab.sessions.recording import read_recording
 from hapticlab.sessions.live import build_session, run_session
 
 ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/rls",
-              "/haptic/command", "/haptic/state", "/events"}
+              "/haptic/command", "/haptic/state", "/tf", "/events"}
 
 
 def loop_commands(rec):
@@ -48,6 +48,21 @@ def test_recorded_demo_reopens_with_every_topic(demo_recording):
     assert rec.metadata["hapticlab.summary"]["samples"] == str(n)
     seq = rec.field("/sensor/wrench", "seq")
     assert np.array_equal(seq, np.arange(n))  # nothing dropped
+
+
+def test_the_flange_is_recorded_for_foxglove_s_3d_panel_at_50_hz(demo_recording):
+    _, rec = demo_recording
+    poses = dict(rec.topics["/kinematics/pose"])
+    tf = rec.topics["/tf"]
+    assert len(tf) == 401  # 0 to 8 s at 50 Hz, both ends: a pose every 2 ms, one in ten
+    assert np.all(np.diff([t for t, _ in tf]) == 20_000_000)
+    for t, m in tf[::50]:
+        pose = poses[t]  # the pose of that instant, base → flange, quaternion as x y z w
+        assert (m["parent_frame_id"], m["child_frame_id"]) == ("base", "flange")
+        assert m["timestamp"] == {"sec": t // 10**9, "nsec": t % 10**9}
+        w, x, y, z = pose["quat_BE"]
+        assert m["rotation"] == {"x": x, "y": y, "z": z, "w": w}
+        assert [m["translation"][k] for k in "xyz"] == pose["p_BoEo_B"]
 
 
 def test_demo_separates_the_indentation_from_the_tool_weight(demo_recording):

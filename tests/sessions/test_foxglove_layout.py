@@ -1,0 +1,57 @@
+"""The Foxglove layout shipped in docs/ names only topics and fields a session records (it cannot go stale)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.live import build_session, run_session
+
+LAYOUT = Path(__file__).resolve().parents[2] / "docs" / "foxglove-layout.json"
+PATH = re.compile(r"^(?P<topic>/[A-Za-z0-9_/]+)(?:\{(?P<filter>[^}]*)\})?(?:\.(?P<field>[A-Za-z_][A-Za-z0-9_]*))?")
+
+
+def panel_ids(node) -> list[str]:
+    return [node] if isinstance(node, str) else panel_ids(node["first"]) + panel_ids(node["second"])
+
+
+def message_paths(config: dict) -> list[str]:
+    paths = [p["value"] for p in config.get("paths", [])]
+    return paths + ([config["topicPath"]] if "topicPath" in config else [])
+
+
+def test_every_path_in_the_layout_is_a_recorded_topic_and_field(tmp_path):
+    layout = json.loads(LAYOUT.read_text())
+    assert sorted(panel_ids(layout["layout"])) == sorted(layout["configById"])
+    config, _ = load_config("demo")
+    path = tmp_path / "demo.mcap"
+    run_session(build_session(apply_overrides(config, ["session.realtime=false", "session.duration=1"])), out=path)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        fields: dict[str, set[str]] = {}
+        for channel in summary.channels.values():
+            schema = summary.schemas[channel.schema_id]
+            if schema.encoding == "ros2msg":  # field names from the message definition
+                fields[channel.topic] = {line.split()[1] for line in schema.data.decode().splitlines()
+                                         if line and not line.startswith("#")}
+            else:  # JSON: the keys of the schema's properties
+                fields[channel.topic] = set(json.loads(schema.data)["properties"])
+    checked = 0
+    for panel, panel_config in layout["configById"].items():
+        assert "foxglovePanelTitle" in panel_config, panel
+        for text in message_paths(panel_config):
+            m = PATH.match(text)
+            assert m and m["topic"] in fields, (panel, text)
+            if m["field"]:
+                assert m["field"] in fields[m["topic"]], (panel, text, sorted(fields[m["topic"]]))
+            if m["filter"]:
+                name = m["filter"].split("==")[0]
+                assert name in fields[m["topic"]], (panel, text)
+            checked += 1
+    assert checked >= 15
+    assert layout["configById"]["3D!tool"]["topics"] == {"/tf": {"visible": True}} and "/tf" in fields

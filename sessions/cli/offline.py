@@ -47,6 +47,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from ..offline.replay import replay
 
+    if Path(args.recording).is_dir():
+        return replay_folder_table(args)
     with err.status(f"replaying {Path(args.recording).name} through {args.estimator}"):
         result = replay(args.recording, args.estimator, args.output, overrides=args.set or [], force=args.force)
     t = Table(title=f"{Path(args.recording).name}: {result['rows']} samples; no-contact samples after convergence")
@@ -63,6 +65,53 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.output:
         err.print(f"wrote {args.output} (the original topics and {result['topic']})")
     return 0
+
+
+def replay_folder_table(args: argparse.Namespace) -> int:
+    """``hapticlab replay DIR/``: every recording in the folder, one row each."""
+    import math
+
+    from ...core.errors import UserError
+    from ..offline.replay import replay_folder
+
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers: at least 1, got {args.workers}")
+    run = replay_folder(args.recording, args.estimator, args.output, overrides=args.set or [], force=args.force,
+                        scheduler=args.scheduler, workers=args.workers, progress=err.is_terminal)
+
+    def norm(entry):
+        values = entry.get("rms_force_S") if entry else None
+        return fmt(math.sqrt(sum(v * v for v in values))) if values else "–"
+
+    t = Table(title=f"{args.recording}: {len(run.outcomes)} recordings through {args.estimator} "
+                    f"(|RMS| of the contact force on no-contact samples after convergence, N)")
+    for col in ("recording", "samples", "recorded estimators: conv. / |RMS|", "new: conv. / |RMS|"):
+        t.add_column(col, justify="right")
+    failed = 0
+    for outcome in run.outcomes:
+        name = str(outcome.path.relative_to(args.recording))
+        if outcome.error:
+            failed += 1
+            t.add_row(name, "–", f"[red]{outcome.error}[/]", "–")
+            continue
+        result = outcome.value
+        new = result["comparison"][result["topic"]]
+        recorded = "; ".join(f"{topic.removeprefix('/estimator/')} {e['converged_force_at']} / {norm(e)}"
+                             for topic, e in result["comparison"].items() if topic != result["topic"])
+        t.add_row(name, str(result["rows"]), recorded or "–", f"{new['converged_force_at']} / {norm(new)}")
+    wide_console(140).print(t)
+    peak = max(run.peak_rss_mb.values(), default=0.0)
+    err.print(f"{run.workers} worker(s), {run.wall_s:.1f} s, peak memory per worker {peak:.0f} MB"
+              + (f"; wrote the replayed recordings under {args.output}" if args.output else ""))
+    return 2 if failed else 0
+
+
+def add_folder_options(parser: argparse.ArgumentParser) -> None:
+    """``--scheduler`` and ``--workers``, for every command that takes a folder of recordings."""
+    parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                        help="run on an existing Dask cluster (tcp://HOST:PORT); default: local worker processes")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="local worker processes (default: one per core)")
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
@@ -87,10 +136,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     add_force(p)
     p.set_defaults(func=cmd_compensate)
 
-    p = sub.add_parser("replay", help="re-run a recording through another estimator and compare")
-    p.add_argument("recording", help="a session's .mcap")
+    p = sub.add_parser("replay", help="re-run a recording (or a folder of them) through another estimator and compare")
+    p.add_argument("recording", help="a session's .mcap, or a folder: every .mcap under it, in parallel")
     p.add_argument("--estimator", required=True, help="estimator name, e.g. batch")
-    p.add_argument("-o", "--output", default=None, help="write a new .mcap with the replayed estimator added")
+    p.add_argument("-o", "--output", default=None,
+                   help="write a new .mcap with the replayed estimator added (a folder, for a folder)")
+    add_folder_options(p)
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="estimator option, e.g. --set estimator.force_threshold=0.5")
     add_force(p)

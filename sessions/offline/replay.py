@@ -3,11 +3,13 @@
 The recorded sensor and pose streams are aligned offline (every sample
 interpolated between poses) and fed to the named estimator exactly as a session
 would; the new MCAP holds everything the original did plus the new estimator's
-topic, and a table compares every estimator in it.
+topic, and a table compares every estimator in it. :func:`replay_folder` does it
+for every recording in a folder, in parallel (Dask: ``folders.py``).
 """
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 from typing import Any
@@ -21,6 +23,7 @@ from ..output import atomic_output, check_output
 from ..recording import Recorder, RecordingError, read_recording, schema_for_topic
 from ..recording.stream import load_stream, message_field
 from .compensate import estimator_options, run_estimator
+from .folders import FolderRun, map_recordings, recordings_in
 from .metrics import max_ae, rms, scored_rows
 
 
@@ -77,6 +80,43 @@ def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path
                 })
     return {"topic": topic, "estimator": estimator_name, "rows": len(est), "comparison": comparison,
             "params": estimator.params()}
+
+
+def replay_folder(folder: str | Path, estimator_name: str, out_dir: str | Path | None = None,
+                  overrides: list[str] | None = None, force: bool = False, scheduler: str | None = None,
+                  workers: int | None = None, progress: bool = True) -> FolderRun:
+    """:func:`replay` over every recording under ``folder``, in parallel (``folders.map_recordings``).
+
+    With ``out_dir`` each replayed recording is written there at the same relative path;
+    every output is checked before the work starts (an existing one is refused unless
+    ``force``). Each outcome's value is :func:`replay`'s comparison for that file.
+    """
+    folder = Path(folder)
+    paths = recordings_in(folder)
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        if out_dir.resolve().is_relative_to(folder.resolve()):
+            raise ValueError(f"-o {out_dir}: inside the folder being replayed ({folder}); choose another folder")
+        for path in paths:
+            out = out_dir / path.relative_to(folder)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            check_output(out, force, label="-o", inputs=[path], role="recording")
+    task = functools.partial(_replay_one, estimator_name=estimator_name, overrides=list(overrides or []),
+                             force=force, folder=folder, out_dir=out_dir)
+    return map_recordings(task, paths, scheduler=scheduler, workers=workers, progress=progress,
+                          description=f"replaying through {estimator_name}")
+
+
+def _replay_one(path: Path, estimator_name: str, overrides: list[str], force: bool, folder: Path,
+                out_dir: Path | None) -> dict[str, Any]:
+    """One file of :func:`replay_folder` (in a worker process)."""
+    out = None
+    if out_dir is not None:
+        out = out_dir / path.relative_to(folder)
+        out.parent.mkdir(parents=True, exist_ok=True)
+    result = replay(path, estimator_name, out, overrides, force=force)
+    result.pop("params")
+    return result
 
 
 def _read_all(path: Path):

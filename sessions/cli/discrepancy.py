@@ -12,7 +12,7 @@ from rich.table import Table
 from ...core.errors import UserError
 from ...core.plugins import Registry
 from ..output import check_output, check_plots_folder, write_text
-from .offline import add_force
+from .offline import add_folder_options, add_force
 from .render import err, fmt, vec, wide_console
 
 
@@ -65,6 +65,36 @@ def print_discrepancy(result: dict) -> None:
                      f"{100 * (ratio - 1):.1f} % above the batch fit"))
 
 
+def discrepancy_folder_table(args: argparse.Namespace, settings) -> int:
+    """``hapticlab discrepancy DIR/``: every recording in the folder, one row each."""
+    from ..discrepancy.workflow import discrepancy_folder
+
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers: at least 1, got {args.workers}")
+    run = discrepancy_folder(args.input, settings, scheduler=args.scheduler, workers=args.workers,
+                             progress=err.is_terminal)
+    t = Table(title=f"{args.input}: {len(run.outcomes)} recordings; the effects named, and what is left "
+                    f"(force RMS over each axis's noise, x y z)")
+    for col in ("recording", "rows", "effects named", "left / noise", "warnings"):
+        t.add_column(col, justify="right")
+    failed = 0
+    for outcome in run.outcomes:
+        name = str(outcome.path.relative_to(args.input))
+        if outcome.error:
+            failed += 1
+            t.add_row(name, "–", "–", "–", f"[red]{outcome.error}[/]")
+            continue
+        r = outcome.value
+        named = ", ".join(step["effect"] for step in r["steps"]) or "none"
+        left = " ".join(fmt(v, 3) for v in r["final_rms_over_noise"]["force_S"])
+        warnings = ", ".join(k for k, v in r["warnings"].items() if v) or "–"
+        t.add_row(name, str(r["samples"]), named, left, warnings)
+    wide_console(140).print(t)
+    peak = max(run.peak_rss_mb.values(), default=0.0)
+    err.print(f"{run.workers} worker(s), {run.wall_s:.1f} s, peak memory per worker {peak:.0f} MB")
+    return 2 if failed else 0
+
+
 def cmd_discrepancy(args: argparse.Namespace) -> int:
     import json
 
@@ -92,6 +122,10 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
         settings.effect_options.setdefault(effect, {})[option] = parse_value(value)
     if args.folds < 3:
         raise UserError(f"--folds: at least 3, got {args.folds}")
+    if Path(args.input).is_dir():
+        if args.json or args.plots:
+            raise UserError("--json and --plots are for one recording; a folder gives one table")
+        return discrepancy_folder_table(args, settings)
     # check where the results go before the run, so a finished run is not lost to a bad path
     if args.json:
         check_output(args.json, args.force, label="--json", inputs=[args.input])
@@ -123,7 +157,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``hapticlab`` parser."""
     p = sub.add_parser("discrepancy", help="find where simulation and measurement disagree, name the missing "
                                           "effects, add them, show the gap shrink")
-    p.add_argument("input", help="CSV (import contract) or .mcap recording")
+    p.add_argument("input", help="CSV (import contract) or .mcap recording, or a folder: every .mcap under it, "
+                                 "in parallel, one table")
     p.add_argument("--json", default=None, help="write the result as JSON")
     p.add_argument("--plots", default=None, help="write the figures as PNG into this folder")
     p.add_argument("--effects", default=None, metavar="A,B", help="candidate effects (default: every registered one)")
@@ -134,5 +169,6 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="held-out mean-square reduction that names an effect (default 1 %%)")
     p.add_argument("--time-base", default="auto", choices=("auto", "seconds", "index"),
                    help="what t is: auto (rows when t is 0, 1, 2, ...), seconds, or index (rows)")
+    add_folder_options(p)
     add_force(p)
     p.set_defaults(func=cmd_discrepancy)

@@ -45,6 +45,8 @@ samples (every k-th, evenly spread); the RMS figures use every sample.
 
 from __future__ import annotations
 
+import functools
+
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -634,6 +636,22 @@ def discrepancy(source: str | Path | Stream, settings: Settings | None = None, r
     with numerical_failures(stream.name, "the discrepancy workflow"):  # a LinAlgError is the file's: one line
         workflow = Discrepancy(stream, registry, settings, progress)
         return workflow.run() | {"_stream": stream, "_motion": workflow.motion}
+
+
+def discrepancy_folder(folder: str | Path, settings: Settings | None = None, scheduler: str | None = None,
+                       workers: int | None = None, progress: bool = True):
+    """:func:`discrepancy` on every recording under ``folder``, in parallel (``offline.folders``); each
+    outcome's value is that file's result as :func:`json_ready` gives it (no arrays: it crosses processes)."""
+    from ..offline.folders import map_recordings, recordings_in
+
+    task = functools.partial(_discrepancy_one, settings=settings or Settings())
+    return map_recordings(task, recordings_in(folder), scheduler=scheduler, workers=workers, progress=progress,
+                          description="discrepancy")
+
+
+def _discrepancy_one(path: Path, settings: Settings) -> dict[str, Any]:
+    """One file of :func:`discrepancy_folder` (in a worker process; the registry is the worker's own)."""
+    return json_ready(discrepancy(path, settings))
 
 
 def json_ready(result: dict[str, Any]) -> dict[str, Any]:

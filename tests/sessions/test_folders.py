@@ -70,3 +70,12 @@ def test_a_folder_without_recordings_and_an_absent_scheduler_are_one_line(tmp_pa
     (tmp_path / "x.mcap").write_bytes(b"")
     with pytest.raises(ValueError, match=r"--scheduler tcp://127.0.0.66:1: no Dask scheduler answered"):
         map_recordings(len_of_wrench, [tmp_path / "x.mcap"], scheduler="tcp://127.0.0.66:1", progress=False)
+
+
+def test_a_folder_goes_through_the_discrepancy_workflow_as_one_file_does(archive):
+    from hapticlab.sessions.discrepancy.workflow import discrepancy, discrepancy_folder, json_ready
+
+    run = discrepancy_folder(archive, workers=2, progress=False)
+    assert [o.error == "" for o in run.outcomes] == [True, True, False, True]
+    alone = json_ready(discrepancy(archive / "a2.mcap"))
+    assert run.outcomes[1].value == alone  # the same result, effects named and all

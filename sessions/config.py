@@ -164,13 +164,15 @@ class TeleopSettings:
             handle move without the robot (repositioning the hand); -1: no clutch.
         max_speed: fastest the target may move, m/s (a handle that jumps moves the
             robot at this speed, not at once).
+        max_angular_speed: fastest the target may turn, rad/s (the calibration tour's
+            moves, and any return to the held orientation).
         workspace_radius: the target stays within this distance of where the robot
             was when the session began, m.
         calibration_tilt_deg: before the hand takes over, the robot visits tilted
             orientations so the estimator identifies the tool (a teleoperated tool
             at a fixed orientation never shows it); 0 = no calibration tour (use a
             warm start).
-        calibration_dwell_s: time at each orientation of the calibration tour, s.
+        calibration_dwell_s: time at each orientation of the calibration tour once reached, s.
         require_haptics: the robot follows only while the trainee feels the contact
             (the haptic force is on); false lets it follow without force feedback.
     """
@@ -179,6 +181,7 @@ class TeleopSettings:
     scale: float = 0.5
     clutch_button: int = -1
     max_speed: float = 0.1
+    max_angular_speed: float = 0.5
     workspace_radius: float = 0.15
     calibration_tilt_deg: float = 25.0
     calibration_dwell_s: float = 1.0
@@ -187,6 +190,7 @@ class TeleopSettings:
     def __post_init__(self) -> None:
         _require("teleop.scale", self.scale, above=0.0, maximum=10.0)
         _require("teleop.max_speed", self.max_speed, above=0.0, maximum=1.0)
+        _require("teleop.max_angular_speed", self.max_angular_speed, above=0.0, maximum=3.0)
         _require("teleop.workspace_radius", self.workspace_radius, above=0.0, maximum=2.0)
         _require("teleop.calibration_tilt_deg", self.calibration_tilt_deg, minimum=0.0, maximum=60.0)
         _require("teleop.calibration_dwell_s", self.calibration_dwell_s, above=0.0, maximum=60.0)

@@ -6,12 +6,14 @@ the robot's ``servo_cp`` and recorded on ``/robot/target``). It runs in two
 phases:
 
 1. **calibrating**: from where the robot stands when the session starts, it
-   visits tilted and rolled orientations (``calibration_tilt_deg``, each for
-   ``calibration_dwell_s``) and comes back. A tool held at one orientation never
-   shows the estimator its weight from more than one side, so the haptic force
-   would never come on; this is the identification motion the paper runs
-   before the contact task. The tilts turn about the flange, which lifts the
-   tool tip: a tour started just above tissue does not touch it.
+   visits tilted and rolled orientations (``calibration_tilt_deg``, holding
+   each for ``calibration_dwell_s`` once reached) and comes back. A tool held at
+   one orientation never shows the estimator its weight from more than one
+   side, so the haptic force would never come on; this is the identification
+   motion the paper runs before the contact task. The tilts turn about the
+   flange, which lifts the tool tip: a tour started just above tissue does not
+   touch it. The tour only advances while the master reports a fresh state (a
+   person at the console); without one the robot holds.
 2. **following** while the trainee may drive the robot, **holding** otherwise,
    with the reason: the clutch button is pressed (the hand repositions on the
    master without moving the robot), there is no fresh device state (a lost
@@ -29,6 +31,11 @@ along a direction moves the tool along it, and a contact force against that
 motion comes back against the hand. The target is then kept within
 ``workspace_radius`` of where the robot started and moves at most
 ``max_speed`` (m/s) per tick; the orientation is held (3-DoF masters have none).
+
+The target never jumps, in the tour either: its orientation turns towards the
+goal at most ``max_angular_speed`` (rad/s), its position moves at most
+``max_speed``, so a robot that servos to each target as it comes (a UR's
+``servoj``) is never asked for more than those speeds.
 """
 
 from __future__ import annotations
@@ -36,19 +43,21 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ...core.frames import matrix_from_quat_wxyz, matrix_from_rotvec
+from ...core.frames import matrix_from_quat_wxyz, matrix_from_rotvec, rotvec_from_matrix
 from ...core.types import DeviceState, Event, PoseSample, RobotTarget
 from ..config import TeleopSettings
 
 STATE_TIMEOUT_NS = 50_000_000
 """A device state older than this (ns) is no longer the hand's: the robot holds."""
+TOUR_ROLL_RAD = math.pi / 3
+"""The calibration tour's roll about the tool's axis, rad (±60°)."""
 
 
 def calibration_tour(R_BE_0: np.ndarray, tilt_deg: float) -> list[np.ndarray]:
     """The orientations the robot visits before teleoperation, each (3, 3), ending where it began.
 
     Tilts about B's x and y axes (through the flange), two of them with the tool also
-    rolled ±90° about its own axis, so gravity is seen along every axis of the sensor.
+    rolled ±60° about its own axis, so gravity is seen along every axis of the sensor.
     """
     if tilt_deg <= 0:
         return []
@@ -61,9 +70,9 @@ def calibration_tour(R_BE_0: np.ndarray, tilt_deg: float) -> list[np.ndarray]:
         return matrix_from_rotvec(np.array([0.0, 0.0, angle]))
 
     return [about_B([1, 0, 0], tilt) @ R_BE_0,
-            about_B([1, 0, 0], tilt) @ R_BE_0 @ roll(math.pi / 2),
+            about_B([1, 0, 0], tilt) @ R_BE_0 @ roll(TOUR_ROLL_RAD),
             about_B([0, 1, 0], tilt) @ R_BE_0,
-            about_B([1, 0, 0], -tilt) @ R_BE_0 @ roll(-math.pi / 2),
+            about_B([1, 0, 0], -tilt) @ R_BE_0 @ roll(-TOUR_ROLL_RAD),
             about_B([0, 1, 0], -tilt) @ R_BE_0,
             R_BE_0]
 
@@ -87,7 +96,8 @@ class Teleoperation:
         self.mode, self.reason = "waiting", ""
         self.start: tuple[np.ndarray, np.ndarray] | None = None
         self.tour: list[np.ndarray] = []
-        self.tour_start_ns = 0
+        self.tour_index = 0
+        self.reached_ns: int | None = None  # when the tour's current orientation was reached
         self.p_target = np.zeros(3)
         self.R_target = np.eye(3)
         self.engaged: tuple[np.ndarray, np.ndarray] | None = None  # (p_engaged, h_engaged)
@@ -112,29 +122,23 @@ class Teleoperation:
             self.start = (R_BE_0, p_0.copy())
             self.R_target, self.p_target = R_BE_0, p_0.copy()
             self.tour = calibration_tour(R_BE_0, self.settings.calibration_tilt_deg)
-            self.tour_start_ns = now_ns
             if self.tour:
                 self.mode = "calibrating"
                 events.append(Event(now_ns, "teleop_calibrating",
-                                    f"calibration tour: {len(self.tour)} orientations, "
-                                    f"{len(self.tour) * self.settings.calibration_dwell_s:g} s, "
-                                    f"before the hand takes over"))
+                                    f"calibration tour: {len(self.tour)} orientations, each held "
+                                    f"{self.settings.calibration_dwell_s:g} s, before the hand takes over"))
+            else:
+                self.mode = "holding"
         dt_s = 0.0 if self.last_ns is None else max(now_ns - self.last_ns, 0) * 1e-9
         self.last_ns = now_ns
         if self.mode == "calibrating":
-            index = int((now_ns - self.tour_start_ns) * 1e-9 / self.settings.calibration_dwell_s)
-            if index < len(self.tour):
-                self.R_target = self.tour[index]
-                return RobotTarget(now_ns, self.R_target, self.p_target.copy(), "calibrating"), events
-            self.R_target = self.start[0]
-            self.mode = "holding"
-            events.append(Event(now_ns, "teleop_calibrated", "calibration tour done; the hand takes over"))
+            return self._tour(now_ns, state, dt_s, events), events
         reason = self._hold_reason(now_ns, state, haptic_on)
         if reason:
             if self.mode != "holding" or reason != self.reason:
                 events.append(Event(now_ns, "teleop_holding", f"robot holding: {reason}", {"reason": reason}))
             self.mode, self.reason, self.engaged = "holding", reason, None
-            return RobotTarget(now_ns, self.R_target, self.p_target.copy(), "holding", reason), events
+            return self._target(now_ns, "holding", reason), events
         handle = np.asarray(state.p_DoHo_D, dtype=float)
         if self.engaged is None:  # (re-)engaging: the offset is captured, nothing jumps
             self.engaged = (self.p_target.copy(), handle.copy())
@@ -152,16 +156,65 @@ class Teleoperation:
         if step_norm > max_step:
             step = step * (max_step / step_norm)
         self.p_target = self.p_target + step
-        return RobotTarget(now_ns, self.R_target, self.p_target.copy(), "following"), events
+        self._turn(self.start[0], dt_s)  # back to the start orientation, should anything have turned it
+        return self._target(now_ns, "following"), events
 
-    def _hold_reason(self, now_ns: int, state: DeviceState | None, haptic_on: bool) -> str:
-        """Why the robot must not follow the hand now ("" when it may)."""
+    def _tour(self, now_ns: int, state: DeviceState | None, dt_s: float, events: list[Event]) -> RobotTarget:
+        """The calibration tour's target: towards the current orientation, held ``calibration_dwell_s`` once
+        there, then the next; paused (holding its target) while no person is at the master."""
+        absent = self._absent(now_ns, state)
+        if absent:
+            if self.reason != absent:
+                events.append(Event(now_ns, "teleop_holding", f"calibration tour paused: {absent}",
+                                    {"reason": absent}))
+            self.reason, self.reached_ns = absent, None
+            return self._target(now_ns, "calibrating", absent)
+        if self.reason:
+            events.append(Event(now_ns, "teleop_calibrating", "calibration tour resumed"))
+            self.reason = ""
+        if self._turn(self.tour[self.tour_index], dt_s):
+            if self.reached_ns is None:
+                self.reached_ns = now_ns
+            elif (now_ns - self.reached_ns) * 1e-9 >= self.settings.calibration_dwell_s:
+                self.tour_index, self.reached_ns = self.tour_index + 1, None
+                if self.tour_index == len(self.tour):
+                    self.mode = "holding"
+                    events.append(Event(now_ns, "teleop_calibrated", "calibration tour done; the hand takes over"))
+        return self._target(now_ns, "calibrating")
+
+    def _turn(self, goal: np.ndarray, dt_s: float) -> bool:
+        """Turn the target's orientation towards ``goal`` by at most ``max_angular_speed``·dt; True once there."""
+        if self.R_target is goal:
+            return True
+        delta = rotvec_from_matrix(self.R_target.T @ goal)
+        angle = float(np.linalg.norm(delta))
+        if angle < 1e-9:
+            return True
+        largest = self.settings.max_angular_speed * dt_s
+        if angle <= largest:
+            self.R_target = goal
+            return True
+        self.R_target = self.R_target @ matrix_from_rotvec(delta * (largest / angle))
+        return False
+
+    def _target(self, now_ns: int, mode: str, reason: str = "") -> RobotTarget:
+        return RobotTarget(now_ns, self.R_target, self.p_target.copy(), mode, reason)
+
+    def _absent(self, now_ns: int, state: DeviceState | None) -> str:
+        """Why no person is known to be at the master ("" when the master reports a fresh, finite state)."""
         if state is None:
             return "no state from the master device"
         if now_ns - state.t_ns > STATE_TIMEOUT_NS:
             return f"the master's state is {(now_ns - state.t_ns) * 1e-6:.0f} ms old"
         if not np.all(np.isfinite(state.p_DoHo_D)):
             return "the master reports a non-finite handle position"
+        return ""
+
+    def _hold_reason(self, now_ns: int, state: DeviceState | None, haptic_on: bool) -> str:
+        """Why the robot must not follow the hand now ("" when it may)."""
+        absent = self._absent(now_ns, state)
+        if absent:
+            return absent
         bit = self.settings.clutch_button
         if bit >= 0 and (int(state.buttons) >> bit) & 1:
             return "clutch pressed"

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from hapticlab.core import hookimpl
 from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
@@ -22,8 +23,9 @@ from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
 from hapticlab.sessions.recording import read_recording
 
-DWELL_S = 0.4
-TOUR_S = 6 * DWELL_S  # the calibration tour: six orientations
+DWELL_S = 0.3
+TURN_RAD_S = 3.0  # the target's turn rate in these tests (the tour is over in ~4 s)
+PRESS_AT = 5.0  # s: when the scripted hand starts pressing (the tour is over by then)
 SCALE = 0.5
 TIP_ABOVE_TISSUE = 0.005  # m: the preset's tissue surface is 5 mm under the tool tip
 STIFFNESS = 300.0  # N/m, the tissue's
@@ -31,13 +33,13 @@ STIFFNESS = 300.0  # N/m, the tissue's
 
 def hand_z(t: float) -> float:
     """The scripted hand in D (m): still during the tour, then presses 5 cm down and back up over 2 s,
-    clutched from 5.0 to 5.5 s while it moves 2 cm sideways (along D's x), lost from 6.0 to 6.2 s."""
-    s = t - (TOUR_S + 0.3)
+    clutched from 7.5 to 8.0 s while it moves 2 cm sideways (along D's x), lost from 8.5 to 8.7 s."""
+    s = t - PRESS_AT
     return -0.025 * (1 - math.cos(2 * math.pi * s / 2.0)) if 0 <= s <= 2.0 else 0.0
 
 
 def hand_x(t: float) -> float:
-    return 0.02 * min(max((t - 5.0) / 0.5, 0.0), 1.0)
+    return 0.02 * min(max((t - 7.5) / 0.5, 0.0), 1.0)
 
 
 class ScriptedHand:
@@ -60,9 +62,9 @@ class ScriptedHand:
 
     def state(self):
         t = (self.t_ns - self.t0_ns) * 1e-9
-        if 6.0 <= t < 6.2:
+        if 8.5 <= t < 8.7:
             return None  # lost
-        clutch = 5.0 <= t < 5.5
+        clutch = 7.5 <= t < 8.0
         return DeviceState(self.t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.array([hand_x(t), 0.0, hand_z(t)]),
                            buttons=0b10 if clutch else 0)
 
@@ -80,10 +82,18 @@ def registry():
     return Registry(pm)
 
 
-def teleop_config(*overrides: str, duration: float = 7.5):
-    config, _ = load_config("teleop-emulated")
+def teleop_config(*overrides: str, duration: float = 9.5, preset: str = "teleop-emulated"):
+    config, _ = load_config(preset)
     return apply_overrides(config, ["session.realtime=false", f"session.duration={duration}",
-                                    f"teleop.calibration_dwell_s={DWELL_S}", *overrides])
+                                    f"teleop.calibration_dwell_s={DWELL_S}", f"teleop.max_angular_speed={TURN_RAD_S}",
+                                    *overrides])
+
+
+def tour_end(rec) -> float:
+    """When the calibration tour ended, s from the first target."""
+    t0 = rec.t_ns("/robot/target")[0]
+    (t_cal,) = [t for t, m in rec.topics["/events"] if m["kind"] == "teleop_calibrated"]
+    return (t_cal - t0) * 1e-9
 
 
 @pytest.fixture(scope="module")
@@ -105,16 +115,23 @@ def test_the_robot_tours_then_follows_the_hand_scaled(scripted):
     result, rec, _ = scripted
     t, p, mode, _ = targets(rec)
     assert len(t) == len(rec.topics["/haptic/command"]) - 1  # one target per tick (the final zero aside)
-    touring = t < TOUR_S - 0.01
+    t_cal = tour_end(rec)
+    assert t_cal < PRESS_AT - 0.3
+    touring = t < t_cal - 0.01
     assert set(np.array(mode)[touring]) == {"calibrating"}
     kinds = [m["kind"] for _, m in rec.topics["/events"]]
     assert kinds.index("teleop_calibrated") < kinds.index("teleop_following")
     quat = np.array([m["pose"]["quat_BE"] for _, m in rec.topics["/robot/target"]])
-    assert len({tuple(q) for q in quat[touring].round(6)}) == 6  # six orientations visited
+    held = [tuple(q) for q, same in zip(quat[touring].round(9), np.all(np.diff(quat[touring], axis=0) == 0, axis=1))
+            if same]
+    assert len(set(held)) == 6  # six orientations held (the start's among them, where the tour ends)
+    # the target turned at most TURN_RAD_S: no step a servoing robot could not follow
+    turn = 2 * np.arccos(np.minimum(np.abs(np.sum(quat[1:] * quat[:-1], axis=1)), 1.0)) / np.diff(t)
+    assert turn.max() <= TURN_RAD_S * (1 + 1e-6)
     # following: the target moves by scale · the hand's move (D = B here), the start captured
-    following = (t > TOUR_S + 0.1) & (t < 5.0)
+    following = (t > t_cal + 0.1) & (t < 7.5)
     assert set(np.array(mode)[following]) == {"following"}
-    start = p[np.searchsorted(t, TOUR_S + 0.1)]
+    start = p[np.searchsorted(t, t_cal + 0.1)]
     expected_z = start[2] + SCALE * np.array([hand_z(x) for x in t[following]])
     assert np.abs(p[following, 2] - expected_z).max() < 1e-9
     assert np.ptp(p[following, 0]) < 1e-12 and np.ptp(p[following, 1]) < 1e-12
@@ -126,39 +143,39 @@ def test_the_hand_feels_the_tissue_the_tool_presses(scripted):
     t_cmd = (rec.t_ns("/haptic/command") - rec.t_ns("/robot/target")[0]) * 1e-9
     force_D = rec.field("/haptic/command", "force_D")
     enabled = rec.field("/haptic/command", "enabled").astype(bool)
-    assert enabled[(t_cmd > 3.0) & (t_cmd < 5.0)].all()  # converged during the tour
+    assert enabled[(t_cmd > tour_end(rec)) & (t_cmd < 7.5)].all()  # converged during the tour
     # the truth: the tissue's push from the tip's depth (the robot's measured pose)
     t_pose = (rec.t_ns("/kinematics/pose") - rec.t_ns("/robot/target")[0]) * 1e-9
     p_pose = np.array([m["p_BoEo_B"] for _, m in rec.topics["/kinematics/pose"]])
-    deepest = (t_pose > TOUR_S + 0.3) & (t_pose < TOUR_S + 2.3)
+    deepest = (t_pose > PRESS_AT) & (t_pose < PRESS_AT + 2.0)
     tip_z = p_pose[deepest, 2] - world.tool.tip_S[2]  # the tool points straight down again
     depth = (world.contacts[0].surface_B[2] - tip_z).max()
     assert 0.015 < depth < 0.02  # the hand went 5 cm down: 2.5 cm on the robot, 2 cm past the surface
-    pressing = (t_cmd > TOUR_S + 0.9) & (t_cmd < TOUR_S + 1.7)
+    pressing = (t_cmd > PRESS_AT + 0.6) & (t_cmd < PRESS_AT + 1.4)
     assert (force_D[pressing, 2] > 1.0).all()  # the tissue pushes the hand back up
     limit = session.haptic_settings.max_force
     assert np.linalg.norm(force_D, axis=1).max() <= limit + 1e-9
     assert np.abs(force_D[pressing, 2].max() - min(STIFFNESS * depth, limit)) < 0.3
-    free = (t_cmd > TOUR_S) & (t_cmd < TOUR_S + 0.3)
+    free = (t_cmd > tour_end(rec)) & (t_cmd < PRESS_AT)
     assert np.linalg.norm(force_D[free], axis=1).max() < 0.5  # nothing touched: only noise under the deadband
 
 
 def test_the_clutch_holds_the_robot_and_releasing_it_does_not_jump(scripted):
     _, rec, _ = scripted
     t, p, mode, reason = targets(rec)
-    clutched = (t > 5.0 + 0.002) & (t < 5.5)
+    clutched = (t > 7.5 + 0.002) & (t < 8.0)
     assert set(np.array(reason)[clutched]) == {"clutch pressed"}
     assert np.ptp(p[clutched], axis=0).max() < 1e-12  # the hand moved 2 cm: the robot did not
-    after = (t > 5.5) & (t < 6.0)
+    after = (t > 8.0) & (t < 8.5)
     assert set(np.array(mode)[after]) == {"following"}
-    step = np.linalg.norm(np.diff(p[(t > 4.9) & (t < 6.0)], axis=0), axis=1)
+    step = np.linalg.norm(np.diff(p[(t > 7.4) & (t < 8.5)], axis=0), axis=1)
     assert step.max() < 1e-6  # re-engaging captured the new offset: no jump
 
 
 def test_a_master_that_stops_reporting_its_state_holds_the_robot(scripted):
     _, rec, _ = scripted
     t, p, mode, reason = targets(rec)
-    lost = (t > 6.0 + 0.002) & (t < 6.2)
+    lost = (t > 8.5 + 0.002) & (t < 8.7)
     assert set(np.array(reason)[lost]) == {"no state from the master device"}
     assert np.ptp(p[lost], axis=0).max() < 1e-12
     holding = [m["message"] for _, m in rec.topics["/events"] if m["kind"] == "teleop_holding"]
@@ -167,7 +184,7 @@ def test_a_master_that_stops_reporting_its_state_holds_the_robot(scripted):
 
 def test_the_target_moves_no_faster_than_its_limit_and_stays_in_its_workspace(registry, tmp_path):
     config = teleop_config("haptic.name=scripted_hand", "teleop.max_speed=0.01", "teleop.workspace_radius=0.008",
-                           duration=6.0)
+                           duration=7.5)
     result = run_session(build_session(config, registry), out=tmp_path / "slow.mcap")
     rec = read_recording(result.path)
     t, p, _, _ = targets(rec)
@@ -190,13 +207,13 @@ def test_teleoperation_needs_a_robot_that_follows_targets():
 def test_over_a_real_pty_the_master_emulator_moves_the_robot_and_feels_the_tissue(tmp_path):
     emulator = MasterEmulator(motion=scripted_motion("press", radius=0.05, period=2.0), max_force=8.0)
     with emulator:
-        config = teleop_config(f"haptic.port={emulator.port}", "session.realtime=true", duration=5.5)
+        config = teleop_config(f"haptic.port={emulator.port}", "session.realtime=true", duration=7.0)
         result = run_session(build_session(config), out=tmp_path / "pty.mcap")
         forces = np.array(emulator.forces)
     rec = read_recording(result.path)
     t, p, mode, _ = targets(rec)
     following = np.array(mode) == "following"
-    assert following[t > TOUR_S + 0.2].all()
+    assert following[t > tour_end(rec) + 0.2].all()
     # the robot went down with the hand, up to 2.5 cm (half the hand's 5 cm)
     assert 0.015 < p[following, 2].max() - p[following, 2].min() <= 0.025 + 1e-9
     state_z = np.array([m["pose"]["p_DoHo_D"][2] for _, m in rec.topics["/haptic/state"]])
@@ -265,10 +282,8 @@ def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tm
         assert "following the targets written to its input registers" in line, line
         master, port = emulator_process("master", "--path", "press", "--radius", "0.05", "--period", "2")
         try:
-            config, _ = load_config("teleop-lab-emulated")
-            config = apply_overrides(config, [
-                "session.duration=5.5", f"teleop.calibration_dwell_s={DWELL_S}", f"haptic.port={port.strip()}",
-                f"sensor.address={netft}", f"kinematics.address={ur}"])
+            config = teleop_config(f"haptic.port={port.strip()}", f"sensor.address={netft}", f"kinematics.address={ur}",
+                                   "session.realtime=true", duration=7.0, preset="teleop-lab-emulated")
             result = run_session(build_session(config), out=tmp_path / "ur.mcap")
         finally:
             device_counts = stop(master)
@@ -279,7 +294,8 @@ def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tm
     t, p, mode, reason = targets(rec)
     # following the hand; a hold only ever because the force went off (a pose or a sensor record late:
     # the emulators share this 2-core machine, and a stale stream zeroes the force and holds the robot)
-    after_tour = t > TOUR_S + 0.2
+    t_cal = tour_end(rec)
+    after_tour = t > t_cal + 0.2
     assert np.mean(np.array(mode)[after_tour] == "following") > 0.5
     assert set(np.array(reason)[after_tour]) <= {"", "haptic force off"}
     # the arm itself (its RTDE poses, not our targets) toured, then went down and up with the hand
@@ -288,10 +304,32 @@ def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tm
     p_pose = np.array([m["p_BoEo_B"] for _, m in rec.topics["/kinematics/pose"]])
     tool_axis_B = np.array([matrix_from_quat_wxyz(q)[:, 2] for q in quat])
     tilt = np.degrees(np.arccos(np.clip(tool_axis_B @ tool_axis_B[0], -1.0, 1.0)))
-    assert 20 < tilt[t_pose < TOUR_S].max() < 30  # the 25° calibration tour, on the arm (a servo overshoots a little)
-    assert 0.015 < np.ptp(p_pose[t_pose > TOUR_S + 0.2, 2]) < 0.027
+    assert 20 < tilt[t_pose < t_cal].max() < 30  # the 25° calibration tour, on the arm (a servo overshoots a little)
+    assert 0.015 < np.ptp(p_pose[t_pose > t_cal + 0.5, 2]) < 0.027
     # the Net F/T felt the tissue and the hand was pushed back up, never above the limit
     force_D = rec.field("/haptic/command", "force_D")
     assert force_D[:, 2].max() > 1.0 and np.linalg.norm(force_D, axis=1).max() <= 4.0 + 1e-9
     handle_z = np.array([m["pose"]["p_DoHo_D"][2] for _, m in rec.topics["/haptic/state"]])
     assert handle_z.min() < -0.04  # the device's own replies: its handle pressed 5 cm down
+
+
+def test_the_calibration_tour_moves_the_robot_only_while_someone_is_at_the_master():
+    from hapticlab.core.types import PoseSample
+    from hapticlab.sessions.config import TeleopSettings
+    from hapticlab.sessions.live.teleop import Teleoperation
+
+    teleop = Teleoperation(TeleopSettings(enabled=True, max_angular_speed=1.0, calibration_dwell_s=0.1), np.eye(3))
+    pose = PoseSample(0, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+    present = lambda t_ns: DeviceState(t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))  # noqa: E731
+    events = []
+    for k in range(500):  # 0.5 s with no master: the tour waits where the robot stands
+        target, ev = teleop.step(k * 1_000_000, pose, None, False)
+        events += ev
+        assert target.mode == "calibrating" and target.reason == "no state from the master device"
+        assert np.array_equal(target.R_BE, teleop.start[0])
+    for k in range(500, 800):  # someone at the master: it turns, at most 1 rad/s
+        target, ev = teleop.step(k * 1_000_000, pose, present(k * 1_000_000), False)
+        events += ev
+    turned = np.degrees(np.linalg.norm(Rotation.from_matrix(target.R_BE @ teleop.start[0].T).as_rotvec()))
+    assert 16.0 < turned <= 0.3 * np.degrees(1.0) + 1e-6  # 0.3 s at 1 rad/s (17.2°), on its way to 25°
+    assert [e.kind for e in events] == ["teleop_calibrating", "teleop_holding", "teleop_calibrating"]

@@ -28,17 +28,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FolderRun", "Outcome", "map_recordings", "recordings_in"]
+from ...core.errors import UserError
+
+__all__ = ["FolderError", "FolderRun", "Outcome", "map_recordings", "recordings_in"]
+
+
+class FolderError(UserError, ValueError):
+    """A folder without recordings, a scheduler that does not answer: one line, the user's to fix."""
 
 
 def recordings_in(folder: str | os.PathLike[str]) -> list[Path]:
-    """The ``.mcap`` files under ``folder`` (recursively), sorted; ValueError naming the folder when none."""
+    """The ``.mcap`` files under ``folder`` (recursively), sorted; FolderError naming the folder when none."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise ValueError(f"{folder}: not a folder")
+        raise FolderError(f"{folder}: not a folder")
     paths = sorted(p for p in folder.rglob("*.mcap") if p.is_file())
     if not paths:
-        raise ValueError(f"{folder}: no .mcap recordings in it")
+        raise FolderError(f"{folder}: no .mcap recordings in it")
     return paths
 
 
@@ -115,7 +121,7 @@ def map_recordings(func: Callable[[Path], Any], paths: Sequence[str | os.PathLik
         try:
             client = Client(scheduler, timeout=10)
         except (OSError, TimeoutError) as exc:
-            raise ValueError(f"--scheduler {scheduler}: no Dask scheduler answered: {exc}") from None
+            raise FolderError(f"--scheduler {scheduler}: no Dask scheduler answered: {exc}") from None
     try:
         futures = {client.submit(_run_one, func, path, pure=False): i for i, path in enumerate(paths)}
         outcomes: list[Outcome | None] = [None] * len(paths)

@@ -23,7 +23,7 @@ from ..output import atomic_output, check_output
 from ..recording import Recorder, RecordingError, read_recording, schema_for_topic
 from ..recording.stream import load_stream, message_field
 from .compensate import estimator_options, run_estimator
-from .folders import FolderRun, map_recordings, recordings_in
+from .folders import FolderError, FolderRun, map_recordings, recordings_in
 from .metrics import max_ae, rms, scored_rows
 
 
@@ -96,7 +96,7 @@ def replay_folder(folder: str | Path, estimator_name: str, out_dir: str | Path |
     if out_dir is not None:
         out_dir = Path(out_dir)
         if out_dir.resolve().is_relative_to(folder.resolve()):
-            raise ValueError(f"-o {out_dir}: inside the folder being replayed ({folder}); choose another folder")
+            raise FolderError(f"-o {out_dir}: inside the folder being replayed ({folder}); choose another folder")
         for path in paths:
             out = out_dir / path.relative_to(folder)
             out.parent.mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,7 @@ from rich.table import Table
 from ...core.errors import UserError
 from ...core.plugins import Registry
 from ..output import check_output, check_plots_folder, write_text
-from .offline import add_folder_options, add_force
+from .offline import add_folder_options, add_force, print_folder_run
 from .render import err, fmt, vec, wide_console
 
 
@@ -73,26 +73,14 @@ def discrepancy_folder_table(args: argparse.Namespace, settings) -> int:
         raise UserError(f"--workers: at least 1, got {args.workers}")
     run = discrepancy_folder(args.input, settings, scheduler=args.scheduler, workers=args.workers,
                              progress=err.is_terminal)
-    t = Table(title=f"{args.input}: {len(run.outcomes)} recordings; the effects named, and what is left "
-                    f"(force RMS over each axis's noise, x y z)")
-    for col in ("recording", "rows", "effects named", "left / noise", "warnings"):
-        t.add_column(col, justify="right")
-    failed = 0
-    for outcome in run.outcomes:
-        name = str(outcome.path.relative_to(args.input))
-        if outcome.error:
-            failed += 1
-            t.add_row(name, "–", "–", "–", f"[red]{outcome.error}[/]")
-            continue
-        r = outcome.value
+    def row(r) -> list[str]:
         named = ", ".join(step["effect"] for step in r["steps"]) or "none"
         left = " ".join(fmt(v, 3) for v in r["final_rms_over_noise"]["force_S"])
-        warnings = ", ".join(k for k, v in r["warnings"].items() if v) or "–"
-        t.add_row(name, str(r["samples"]), named, left, warnings)
-    wide_console(140).print(t)
-    peak = max(run.peak_rss_mb.values(), default=0.0)
-    err.print(f"{run.workers} worker(s), {run.wall_s:.1f} s, peak memory per worker {peak:.0f} MB")
-    return 2 if failed else 0
+        return [str(r["samples"]), named, left, ", ".join(k for k, v in r["warnings"].items() if v) or "–"]
+
+    return print_folder_run(run, args.input, f"{args.input}: {len(run.outcomes)} recordings; the effects named, "
+                            f"and what is left (force RMS over each axis's noise, x y z)",
+                            ("rows", "effects named", "left / noise", "warnings"), row)
 
 
 def cmd_discrepancy(args: argparse.Namespace) -> int:

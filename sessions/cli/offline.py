@@ -83,26 +83,39 @@ def replay_folder_table(args: argparse.Namespace) -> int:
         values = entry.get("rms_force_S") if entry else None
         return fmt(math.sqrt(sum(v * v for v in values))) if values else "–"
 
-    t = Table(title=f"{args.recording}: {len(run.outcomes)} recordings through {args.estimator} "
-                    f"(|RMS| of the contact force on no-contact samples after convergence, N)")
-    for col in ("recording", "samples", "recorded estimators: conv. / |RMS|", "new: conv. / |RMS|"):
-        t.add_column(col, justify="right")
-    failed = 0
-    for outcome in run.outcomes:
-        name = str(outcome.path.relative_to(args.recording))
-        if outcome.error:
-            failed += 1
-            t.add_row(name, "–", f"[red]{outcome.error}[/]", "–")
-            continue
-        result = outcome.value
+    def row(result) -> list[str]:
         new = result["comparison"][result["topic"]]
         recorded = "; ".join(f"{topic.removeprefix('/estimator/')} {e['converged_force_at']} / {norm(e)}"
                              for topic, e in result["comparison"].items() if topic != result["topic"])
-        t.add_row(name, str(result["rows"]), recorded or "–", f"{new['converged_force_at']} / {norm(new)}")
+        return [str(result["rows"]), recorded or "–", f"{new['converged_force_at']} / {norm(new)}"]
+
+    status = print_folder_run(
+        run, args.recording, f"{args.recording}: {len(run.outcomes)} recordings through {args.estimator} "
+        f"(|RMS| of the contact force on no-contact samples after convergence, N)",
+        ("samples", "recorded estimators: conv. / |RMS|", "new: conv. / |RMS|"), row)
+    if args.output:
+        err.print(f"wrote the replayed recordings under {args.output}")
+    return status
+
+
+def print_folder_run(run, folder, title: str, columns: tuple[str, ...], row) -> int:
+    """A folder job's table (one row per recording, ``row(value)`` its cells; a refused file its error in
+    the last column) and its workers' figures; exit status 2 when a file was refused, else 0."""
+    t = Table(title=title)
+    for col in ("recording", *columns):
+        t.add_column(col, justify="right")
+    failed = 0
+    for outcome in run.outcomes:
+        name = str(outcome.path.relative_to(folder))
+        if outcome.error:
+            failed += 1
+            t.add_row(name, *["–"] * (len(columns) - 1), f"[red]{outcome.error}[/]")
+        else:
+            t.add_row(name, *row(outcome.value))
     wide_console(140).print(t)
     peak = max(run.peak_rss_mb.values(), default=0.0)
-    err.print(f"{run.workers} worker(s), {run.wall_s:.1f} s, peak memory per worker {peak:.0f} MB"
-              + (f"; wrote the replayed recordings under {args.output}" if args.output else ""))
+    err.print(f"{len(run.outcomes)} recordings, {run.workers} worker(s), {run.wall_s:.1f} s, "
+              f"peak memory per worker {peak:.0f} MB" + (f"; {failed} refused" if failed else ""))
     return 2 if failed else 0
 
 

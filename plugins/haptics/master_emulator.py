@@ -150,6 +150,8 @@ class MasterEmulator:
     Attributes:
         port: the slave side's path (``/dev/pts/N``), the port to open.
         forces: the last ``keep`` forces received, each the (3,) float32 on the wire, N.
+        received_ns: when each of ``forces`` came off the wire (``time.monotonic_ns()``, the clock a
+            session's sample stamps use on this machine), ns.
         applied_force_D: (3,) the force the device renders now (after its clamp and watchdog), N.
         last_reply: (p_DoHo_D, v_DHo_D) as float32 in the last state sent.
         counts: EmulatorCounts.
@@ -167,6 +169,7 @@ class MasterEmulator:
         self.uuid = uuid.UUID(int=0x4861_7074_6963_6C61_6200_0000_0000_0000 | device_id)
         self.counts = EmulatorCounts()
         self.forces: collections.deque[np.ndarray] = collections.deque(maxlen=keep)
+        self.received_ns: collections.deque[int] = collections.deque(maxlen=keep)
         self.applied_force_D = np.zeros(3, np.float32)
         self.last_reply: tuple[np.ndarray, np.ndarray] | None = None
         self.port = ""
@@ -276,10 +279,11 @@ class MasterEmulator:
             except OSError:  # EIO: no process has the slave open at the moment
                 time.sleep(0.005)
                 continue
+            t_ns = time.monotonic_ns()
             if self.protocol == "hapticlab":
-                self._on_hapticlab(data)
+                self._on_hapticlab(data, t_ns)
             else:
-                self._on_inverse3(data)
+                self._on_inverse3(data, t_ns)
 
     def _write(self, reply: bytes) -> None:
         with self._lock:
@@ -330,7 +334,22 @@ class MasterEmulator:
         self._seq = (self._seq + 1) & 0xFF
         return framing.encode_frame(kind, self._seq, payload)
 
-    def _on_hapticlab(self, data: bytes) -> None:
+    def _received(self, force: np.ndarray, t_ns: int) -> None:
+        self.forces.append(force)
+        self.received_ns.append(t_ns)
+        self.counts.forces += 1
+        self.applied_force_D = self._render(force)
+
+    def write_forces(self, path: str | Path) -> int:
+        """Write the forces received (``received_ns,fx,fy,fz``: ns, N) as CSV to a new ``path``; the row count."""
+        with open(path, "x", newline="") as f:  # never over an existing file
+            out = csv.writer(f)
+            out.writerow(("received_ns", "fx", "fy", "fz"))
+            rows = list(zip(self.received_ns, self.forces))
+            out.writerows((t, *(repr(float(x)) for x in force)) for t, force in rows)
+        return len(rows)
+
+    def _on_hapticlab(self, data: bytes, t_ns: int) -> None:
         errors = self._decoder.crc_errors
         frames = self._decoder.feed(data)
         self.counts.garbage_bytes = self._decoder.garbage_bytes
@@ -366,10 +385,7 @@ class MasterEmulator:
                 continue
             self._last_valid = time.monotonic()
             if frame.kind == framing.FORCE:
-                force = framing.unpack_force(frame.payload)
-                self.forces.append(force)
-                self.counts.forces += 1
-                self.applied_force_D = self._render(force)
+                self._received(framing.unpack_force(frame.payload), t_ns)
             else:
                 self.counts.heartbeats += 1
             p, v = self._state_now()
@@ -379,7 +395,7 @@ class MasterEmulator:
 
     # inverse3 -------------------------------------------------------------
 
-    def _on_inverse3(self, data: bytes) -> None:
+    def _on_inverse3(self, data: bytes, t_ns: int) -> None:
         buf = self._inverse3_buffer
         buf += data
         while buf:
@@ -401,10 +417,7 @@ class MasterEmulator:
                 if self._silent:
                     self.counts.requests_ignored += 1
                     continue
-                force = inverse3.unpack_force_request(request)
-                self.forces.append(force)
-                self.counts.forces += 1
-                self.applied_force_D = self._render(force)
+                self._received(inverse3.unpack_force_request(request), t_ns)
                 p, v = self._state_now()
                 self._write(inverse3.pack_state(p, v))
             else:  # a command this emulator does not implement: skipped, counted
@@ -481,6 +494,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"inject a fault ({', '.join(FAULT_KINDS)}), e.g. crc@5:3, silent@8:0.5, unplug@12; "
                         "repeatable")
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
+    parser.add_argument("--log-forces", default=None, metavar="FILE.csv",
+                        help="on exit, write the forces received (the last 100 000) with when each came off the wire (received_ns "
+                        "on this machine's monotonic clock, fx, fy, fz) to a new CSV (bench/haptic_wire.py)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -492,6 +508,9 @@ def run(args: argparse.Namespace) -> int:
                   else scripted_motion(args.path, args.radius, args.period, tuple(args.center)))
         emulator = MasterEmulator(args.protocol, motion, args.max_force, args.device_id)
         faults = [ScheduledFault.parse(text) for text in args.fault]
+        log = args.log_forces
+        if log is not None and Path(log).exists():
+            raise ValueError(f"--log-forces {log}: exists; give a new file name")
     except ValueError as exc:
         raise ConfigError(f"emulate master: {exc}") from None
     stop = threading.Event()
@@ -507,6 +526,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "
           f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s); "
           f"{c.replies_corrupted} reply(ies) corrupted, {c.requests_ignored} request(s) ignored")
+    if log is not None:
+        print(f"{emulator.write_forces(log)} force(s) with their receipt times written to {log}", flush=True)
     return 0
 
 

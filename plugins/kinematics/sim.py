@@ -13,7 +13,7 @@ from ...core import hookimpl
 from ...core.frames import quat_multiply, quat_wxyz_from_matrix
 from ...core.plugins import ConfigError
 from ...core.types import PoseSample
-from ..simworld.faults import kinematics_times
+from ..simworld.faults import kinematics_faults_act, kinematics_times
 from ..simworld.physics import SampleClock, SimWorld, gaussian_noise
 from ..simworld.prefetch import PREFETCH_S, Prefetch
 
@@ -81,8 +81,9 @@ class SimKinematics:
         seq, t_ns = self._clock.take(until_ns)
         if len(seq) == 0:
             return []
-        if self.world.faults:  # injected faults ([[world.faults]]): frozen, late or missing poses
-            t, t_reading, keep = kinematics_times(self.world.faults, (t_ns - self._clock.t0_ns) / 1e9)
+        t = (t_ns - self._clock.t0_ns) / 1e9
+        if kinematics_faults_act(self.world.faults, t):  # injected ([[world.faults]]): frozen, late or missing poses
+            t, t_reading, keep = kinematics_times(self.world.faults, t)
             t_ns, t = t_ns[keep], t[keep]
             if len(t_ns) == 0:
                 return []

@@ -114,6 +114,30 @@ def test_round_trip_forces_and_poses_are_bit_exact(emulator, device):
     assert abs(np.linalg.norm(device.state().p_DoHo_D[:2]) - 0.03) < 1e-6
 
 
+def test_the_emulator_logs_each_force_with_when_it_came_off_the_wire(emulator, device, tmp_path):
+    rng = np.random.default_rng(2)
+    sent = []
+    for k in range(50):
+        force = rng.uniform(-2.5, 2.5, 3)
+        before = time.monotonic_ns()
+        device.send(command(force, t_ns=k))  # waits for the reply: the frame was read before it returns
+        sent.append((before, time.monotonic_ns(), force.astype(np.float32)))
+    received = list(emulator.received_ns)
+    assert len(received) == 50
+    for (before, after, _), t in zip(sent, received):
+        assert before <= t <= after  # the receipt time is on the clock the sender uses, between write and reply
+    log = tmp_path / "forces.csv"
+    assert emulator.write_forces(log) == 50
+    rows = log.read_text().splitlines()
+    assert rows[0] == "received_ns,fx,fy,fz" and len(rows) == 51
+    for row, (_, _, force), t in zip(rows[1:], sent, received):
+        cells = row.split(",")
+        assert int(cells[0]) == t
+        np.testing.assert_array_equal(np.array(cells[1:], dtype=float).astype(np.float32), force)
+    with pytest.raises(FileExistsError):
+        emulator.write_forces(log)  # never over an existing file
+
+
 def test_crc_errors_are_rejected_counted_and_tolerated_up_to_the_limit(emulator, device):
     device.send(command([0.1, 0.2, 0.3]))
     before = device.state()

@@ -263,8 +263,10 @@ def validate_options(factory: Callable[..., Any], options: dict[str, Any], where
             known = ", ".join(sorted(accepted)) or "none"
             raise ConfigError(f"{where}.{key}: unknown option; known options: {known}")
         if not _type_ok(value, accepted[key]):
+            hint = (f" (a number read as text needs quotes: --set '{where}.{key}=\"{value}\"')"
+                    if accepted[key] is str and isinstance(value, (int, float)) else "")
             raise ConfigError(
-                f"{where}.{key}: expected {_type_name(accepted[key])}, got {value!r}"
+                f"{where}.{key}: expected {_type_name(accepted[key])}, got {value!r}{hint}"
             )
         if accepted[key] is float and isinstance(value, int):
             options[key] = float(value)

@@ -65,6 +65,10 @@ class SessionSettings:
             process fed one batch per tick: the writing and compression on the
             other core, and the child finishes the file if the session is
             killed) or ``"inline"`` (on the loop's thread, e.g. a one-core machine).
+        trainee: who holds the master (an id your lab uses, e.g. "T07"); every review shows it, and
+            a cohort review groups by it.
+        task: what the session trains (e.g. "palpation", "suturing"); shown and grouped alike.
+        notes: free text for the instructor (the review prints it as written).
     """
 
     name: str = "session"
@@ -77,6 +81,9 @@ class SessionSettings:
     max_turn_rate: float = 10.0
     max_speed: float = 5.0
     recording_writer: str = "process"
+    trainee: str = ""
+    task: str = ""
+    notes: str = ""
 
     def __post_init__(self) -> None:
         check_duration("session.duration", self.duration)

@@ -1,6 +1,6 @@
 """The ``hapticlab`` command line: a thin shell over the Python API.
 
-One module per command group (``run``, ``offline``, ``bench``, ``discrepancy``, ``emulate``),
+One module per command group (``run``, ``offline``, ``bench``, ``discrepancy``, ``review``, ``emulate``),
 each with an ``add_commands(sub)``; plugins add theirs through the
 ``register_commands`` hook. The error policy (``errors``): a user's mistake is
 one line naming the problem and exit status 2; a bug keeps its traceback.
@@ -13,11 +13,11 @@ import sys
 
 from ... import __version__
 from ...core.plugins import make_plugin_manager
-from . import bench, discrepancy, emulate, offline, run
+from . import bench, discrepancy, emulate, offline, review, run
 from .errors import one_line, is_user_error
 from .render import err
 
-COMMAND_MODULES = (run, offline, bench, discrepancy)
+COMMAND_MODULES = (run, offline, bench, discrepancy, review)
 
 
 def build_parser(load_plugins: bool = True) -> argparse.ArgumentParser:

@@ -8,7 +8,7 @@ whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
 (:class:`Stream`, the one offline stream type, from a CSV or an MCAP file).
 """
 
-from .reader import Recording, RecordingError, iter_messages, open_recording, read_recording
+from .reader import Recording, RecordingError, iter_blocks, iter_messages, open_recording, read_recording
 from .recover import recover
 from .schemas import (
     BLOCK_TOPICS,
@@ -38,6 +38,7 @@ __all__ = [
     "Recording",
     "RecordingError",
     "Stream",
+    "iter_blocks",
     "block_schema_for_topic",
     "iter_messages",
     "load_stream",

@@ -1,0 +1,5 @@
+"""Reviewing recorded sessions: one session's report (summary, tables, plots, a page) and a cohort's table."""
+
+from .summary import DEFAULT_FORCE_LIMIT_N, Contact, EstimatorReview, SessionReview, review
+
+__all__ = ["DEFAULT_FORCE_LIMIT_N", "Contact", "EstimatorReview", "SessionReview", "review"]

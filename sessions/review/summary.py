@@ -1,0 +1,546 @@
+"""One recorded session reviewed: who and what, the streams' health, convergence, contacts, the paper's table.
+
+:func:`review` reads the recording once, streaming (``iter_blocks``: the
+sensor-rate topics as whole blocks, in the order the session wrote them), so
+memory stays bounded whatever the length: the samples are gathered into
+chunks of :data:`CHUNK_ROWS` and each chunk is folded into running sums
+(Chan's merge for the standard deviations), a contact state machine and
+time-binned envelopes for the plots, then dropped.
+
+What an instructor grades by comes from the primary estimator's contact
+estimate (the force on the tissue, ``‖contact_force_S‖``, N):
+
+* **contacts**: runs of the estimator's contact flag, two runs less than
+  :data:`MERGE_GAP_S` apart counted as one; each with its start, duration,
+  peak and mean force;
+* **time over the force limit**: how long ‖contact force‖ was above the limit
+  (``force_limit``, N), summed over samples (each sample one sensor period).
+
+The paper's table (``metrics.error_stats``: MAE, Max AE, Std before and after,
+MAE compensation %) is scored on every estimator's no-contact samples from its
+convergence on (force axes from the force stage's, torque axes from the torque
+stage's), "before" being the raw aligned reading of the same sample.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...core.types import STATUS_OK, Event
+from ..offline.metrics import mae_compensation_pct
+from ..recording import ESTIMATOR_TOPIC_PREFIX, RecordingError, iter_blocks, open_recording
+from ..recording.reader import file_stats
+
+CHUNK_ROWS = 16384
+"""Samples gathered before they are folded into the running figures (memory: a few MB, whatever the file)."""
+MERGE_GAP_S = 0.1
+"""Two contact runs closer than this, s, are one contact (the flag flickers at the threshold)."""
+BINS = 1200
+"""Time bins of the plots' envelopes (min, max and mean per bin: every sample is in one)."""
+DEFAULT_FORCE_LIMIT_N = 3.0
+"""The contact force limit a review counts time above, N, unless told another (set it to your task's)."""
+AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
+
+
+@dataclass
+class Contact:
+    """One contact: when, how long, how hard (‖contact force‖, N)."""
+
+    start_s: float
+    duration_s: float
+    peak_N: float
+    mean_N: float
+    over_limit_s: float
+
+
+@dataclass
+class EstimatorReview:
+    """One estimator's run in the session.
+
+    Attributes:
+        name: its topic's label (``/estimator/<name>``).
+        samples: samples it estimated.
+        converged_force_s, converged_torque_s: first time each stage's flag was up, s from the start (None: never).
+        converged_at_end: the force stage's flag on the last sample.
+        table: the paper's table per axis (``metrics.error_stats`` keys), None when it never converged or
+            no no-contact sample followed.
+        scored: samples scored in the table (force axes).
+    """
+
+    name: str
+    samples: int = 0
+    converged_force_s: float | None = None
+    converged_torque_s: float | None = None
+    converged_at_end: bool = False
+    table: dict[str, dict[str, float]] | None = None
+    scored: int = 0
+
+
+@dataclass
+class Envelope:
+    """Time-binned min, max and mean of a (k,)-valued series over [t0_ns, t1_ns] (for plots)."""
+
+    t0_ns: int
+    t1_ns: int
+    width: int
+    bins: int = BINS
+    lo: np.ndarray = field(init=False)
+    hi: np.ndarray = field(init=False)
+    total: np.ndarray = field(init=False)
+    count: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.lo = np.full((self.bins, self.width), np.nan)
+        self.hi = np.full((self.bins, self.width), np.nan)
+        self.total = np.zeros((self.bins, self.width))
+        self.count = np.zeros((self.bins, self.width), np.int64)
+
+    def add(self, t_ns: np.ndarray, values: np.ndarray) -> None:
+        values = np.asarray(values, float).reshape(len(t_ns), self.width)
+        span = max(self.t1_ns - self.t0_ns, 1)
+        idx = np.clip((t_ns - self.t0_ns) * self.bins // span, 0, self.bins - 1)
+        np.fmin.at(self.lo, idx, values)
+        np.fmax.at(self.hi, idx, values)
+        finite = np.isfinite(values)
+        np.add.at(self.total, idx, np.where(finite, values, 0.0))
+        np.add.at(self.count, idx, finite)
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """(bins,) the bins' centres, s from t0."""
+        span = (self.t1_ns - self.t0_ns) / 1e9
+        return (np.arange(self.bins) + 0.5) * span / self.bins
+
+    @property
+    def mean(self) -> np.ndarray:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.count > 0, self.total / np.maximum(self.count, 1), np.nan)
+
+
+@dataclass
+class Series:
+    """What the plots draw, every one bounded in size whatever the session's length.
+
+    Attributes:
+        raw: (fx..tz) raw aligned wrench of the primary estimator's samples, N and N·m.
+        compensated: the primary estimator's contact wrench, same samples.
+        contact_force: ‖contact force‖, N.
+        command: ‖haptic command‖, N, and the share of ticks with the force on (2 columns); None when
+            the review was asked without plots.
+        params: (t s, {name: list}) the primary estimator's parameters as recorded (every 100 ms).
+    """
+
+    raw: Envelope
+    compensated: Envelope
+    contact_force: Envelope
+    command: Envelope | None
+    params: list[tuple[float, dict[str, list[float]]]] = field(default_factory=list)
+
+
+@dataclass
+class SessionReview:
+    """A session, reviewed (:func:`review`). Times are s from the session's start, forces N."""
+
+    path: Path
+    name: str
+    trainee: str
+    task: str
+    notes: str
+    date: str
+    duration_s: float
+    estimator: str
+    sensor_rate_hz: float
+    samples: int
+    lost_samples: int
+    bad_samples: int
+    kinematics_rate_hz: float
+    poses: int
+    estimators: list[EstimatorReview]
+    contacts: list[Contact]
+    force_limit_N: float
+    over_limit_s: float
+    contact_s: float
+    peak_force_N: float
+    haptic_on_s: float
+    events: list[Event]
+    complete: bool
+    start_ns: int = 0
+    series: Series | None = None
+
+    def t_s(self, t_ns: int) -> float:
+        """A recorded time as s from the session's start."""
+        return (t_ns - self.start_ns) / 1e9
+
+    @property
+    def primary(self) -> EstimatorReview | None:
+        return next((e for e in self.estimators if e.name == self.estimator), None)
+
+    def row(self) -> dict[str, Any]:
+        """The cohort's row: one line per session (CSV columns)."""
+        primary = self.primary
+        conv = primary.converged_force_s if primary else None
+        return {"recording": str(self.path), "trainee": self.trainee, "task": self.task, "date": self.date,
+                "duration_s": round(self.duration_s, 3), "contacts": len(self.contacts),
+                "peak_force_N": _round(self.peak_force_N), "over_limit_s": round(self.over_limit_s, 3),
+                "contact_s": round(self.contact_s, 3), "force_limit_N": self.force_limit_N,
+                "estimator": self.estimator, "converged_s": _round(conv), "lost_samples": self.lost_samples,
+                "faults": len(faults(self.events)), "complete": self.complete}
+
+
+ROUTINE_EVENTS = frozenset({"session_start", "session_end", "converged", "parameters_known", "haptic_enabled",
+                            "haptic_disabled", "teleop", "teleop_engaged", "teleop_calibrated", "haptic_rearmed",
+                            "overrun_summary"})
+"""Event kinds that are the session's ordinary course; every other kind is a fault or a fail-safe to look at."""
+
+
+def faults(events: list[Event]) -> list[Event]:
+    """The events an instructor should look at: faults, fail-safes, errors (not the session's ordinary course)."""
+    return [e for e in events if e.kind not in ROUTINE_EVENTS]
+
+
+def _round(x: float | None, digits: int = 3) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(x, digits)
+
+
+# --------------------------------------------------------------------------- the running figures
+
+
+class _Moments:
+    """Per-axis count, mean, M2 (Chan's merge), sum of |x| and max |x| over chunks of rows."""
+
+    def __init__(self, k: int):
+        self.n = np.zeros(k)
+        self.mean = np.zeros(k)
+        self.m2 = np.zeros(k)
+        self.abs_sum = np.zeros(k)
+        self.abs_max = np.zeros(k)
+
+    def add(self, x: np.ndarray) -> None:
+        if not len(x):
+            return
+        nb = len(x)
+        mean_b = x.mean(axis=0)
+        m2_b = ((x - mean_b) ** 2).sum(axis=0)
+        n = self.n + nb
+        delta = mean_b - self.mean
+        self.mean = self.mean + delta * nb / n
+        self.m2 = self.m2 + m2_b + delta ** 2 * self.n * nb / n
+        self.n = n
+        self.abs_sum += np.abs(x).sum(axis=0)
+        self.abs_max = np.maximum(self.abs_max, np.abs(x).max(axis=0))
+
+    def stats(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(MAE, Max AE, Std) per axis (population Std, as the paper's)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.abs_sum / self.n, self.abs_max, np.sqrt(self.m2 / self.n)
+
+
+class _EstimatorFold:
+    """One estimator's samples folded chunk by chunk (with the raw reading of each)."""
+
+    def __init__(self, name: str, t0_ns: int):
+        self.review = EstimatorReview(name)
+        self.t0_ns = t0_ns
+        self.first_force_ns: int | None = None
+        self.first_torque_ns: int | None = None
+        self.before = [_Moments(3), _Moments(3)]  # force, torque
+        self.after = [_Moments(3), _Moments(3)]
+        self.scored = [0, 0]
+
+    def add(self, c: dict[str, np.ndarray]) -> None:
+        r = self.review
+        r.samples += len(c["t_ns"])
+        for stage, key in ((0, "converged_force"), (1, "converged_torque")):
+            flags = c[key].astype(bool)
+            first = self.first_force_ns if stage == 0 else self.first_torque_ns
+            if first is None and flags.any():
+                first = int(c["t_ns"][np.argmax(flags)])
+                if stage == 0:
+                    self.first_force_ns = first
+                else:
+                    self.first_torque_ns = first
+            if first is None:
+                continue
+            raw = c["raw_force"] if stage == 0 else c["raw_torque"]
+            est = c["contact_force_S"] if stage == 0 else c["contact_torque_S"]
+            rows = (c["t_ns"] >= first) & ~c["contact"].astype(bool) & np.isfinite(raw).all(1) & \
+                np.isfinite(est).all(1)
+            self.before[stage].add(raw[rows])
+            self.after[stage].add(est[rows])
+            self.scored[stage] += int(rows.sum())
+        r.converged_at_end = bool(c["converged_force"][-1])
+
+    def finish(self) -> EstimatorReview:
+        r = self.review
+        to_s = lambda t: None if t is None else (t - self.t0_ns) / 1e9  # noqa: E731
+        r.converged_force_s, r.converged_torque_s = to_s(self.first_force_ns), to_s(self.first_torque_ns)
+        r.scored = self.scored[0]
+        if self.scored[0] or self.scored[1]:
+            table = {}
+            for stage in (0, 1):
+                (mae_b, max_b, std_b), (mae_a, max_a, std_a) = self.before[stage].stats(), self.after[stage].stats()
+                for k in range(3):
+                    table[AXES[3 * stage + k]] = {
+                        "mae_before": float(mae_b[k]), "max_before": float(max_b[k]), "std_before": float(std_b[k]),
+                        "mae_after": float(mae_a[k]), "max_after": float(max_a[k]), "std_after": float(std_a[k]),
+                        "mae_comp_pct": mae_compensation_pct(float(mae_b[k]), float(mae_a[k])),
+                        "samples": self.scored[stage]}
+            r.table = table
+        return r
+
+
+class _ContactFold:
+    """Contact runs, the time over the limit and the peak, from the primary estimator's samples."""
+
+    def __init__(self, t0_ns: int, limit: float, period_s: float):
+        self.t0_ns, self.limit, self.period_s = t0_ns, limit, period_s
+        self.contacts: list[Contact] = []
+        self.open: list[float] | None = None  # [start_ns, last_ns, peak, sum, n, over]
+        self.over_limit_s = 0.0
+        self.peak = float("nan")
+        self.contact_samples = 0
+
+    def add(self, t_ns: np.ndarray, contact: np.ndarray, force: np.ndarray) -> None:
+        over = np.nan_to_num(force) > self.limit
+        self.over_limit_s += int(over.sum()) * self.period_s
+        if len(force) and np.isfinite(force).any():
+            self.peak = float(np.nanmax([np.nan_to_num(self.peak, nan=-np.inf), np.nanmax(force)]))
+        idx = np.flatnonzero(contact)
+        self.contact_samples += len(idx)
+        if not len(idx):
+            return
+        # runs of contact samples: a new run where the time gap to the previous contact sample is large
+        t = t_ns[idx]
+        gap_ns = MERGE_GAP_S * 1e9
+        breaks = np.flatnonzero(np.diff(t) > gap_ns) + 1
+        starts = np.concatenate(([0], breaks))
+        ends = np.concatenate((breaks, [len(idx)]))
+        for s, e in zip(starts, ends):
+            f = np.nan_to_num(force[idx[s:e]])
+            run = [float(t[s]), float(t[e - 1]), float(f.max()), float(f.sum()), e - s, int((f > self.limit).sum())]
+            if self.open is not None and run[0] - self.open[1] <= gap_ns:
+                o = self.open
+                self.open = [o[0], run[1], max(o[2], run[2]), o[3] + run[3], o[4] + run[4], o[5] + run[5]]
+            else:
+                self._close()
+                self.open = run
+
+    def _close(self) -> None:
+        if self.open is None:
+            return
+        start, last, peak, total, n, over = self.open
+        self.contacts.append(Contact((start - self.t0_ns) / 1e9, (last - start) / 1e9 + self.period_s,
+                                     float(peak), float(total / n), over * self.period_s))
+        self.open = None
+
+    def finish(self) -> list[Contact]:
+        self._close()
+        return self.contacts
+
+
+# --------------------------------------------------------------------------- the pass
+
+
+def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMIT_N, plots: bool = True,
+           progress=None) -> SessionReview:
+    """Review one recording (streamed; memory bounded whatever its length).
+
+    Args:
+        path: the session's ``.mcap``.
+        force_limit: the contact force limit to count time above, N.
+        plots: also gather what the plots draw (the haptic commands are read only then).
+        progress: ``progress(done_fraction)`` called as the file is read (a progress bar), or None.
+
+    Raises ``RecordingError`` (a ``ValueError``, one line) for a file that is not a
+    hapticlab recording, is truncated or has no estimator.
+    """
+    if not force_limit > 0:
+        raise ValueError(f"force limit: must be > 0 N, got {force_limit!r}")
+    rec = open_recording(path)
+    config = rec.meta("hapticlab.session", "config", {}) or {}
+    if not isinstance(config, dict):
+        config = {}
+    session = config.get("session", {})
+    estimator = rec.meta("hapticlab.session", "estimator", "") or ""
+    names = [t[len(ESTIMATOR_TOPIC_PREFIX):] for t in rec.topic_names if t.startswith(ESTIMATOR_TOPIC_PREFIX)]
+    if "/aligned/sample" not in rec.topic_names or not names:
+        raise RecordingError(f"{rec.path}: no /aligned/sample or /estimator/<name> topic: not a session recording "
+                             "hapticlab can review")
+    estimator = estimator if estimator in names else names[0]
+    stats = file_stats(rec.path)
+    t0, t1, counts = stats.start_ns, stats.end_ns, stats.counts
+    duration = (t1 - t0) / 1e9
+    sensor_rate = float(config.get("sensor", {}).get("rate_hz") or 0.0)
+    period_s = 1.0 / sensor_rate if sensor_rate > 0 else 0.0
+
+    folds = {name: _EstimatorFold(name, t0) for name in names}
+    contact = None  # built once the sensor period is known
+    series = Series(Envelope(t0, t1, 6), Envelope(t0, t1, 6), Envelope(t0, t1, 1),
+                    Envelope(t0, t1, 2) if plots else None)
+    events: list[Event] = []
+    recent: deque[dict[str, np.ndarray]] = deque(maxlen=32)  # the last aligned blocks, for the estimators' joins
+    pending: dict[str, list[dict[str, np.ndarray]]] = {name: [] for name in names}
+    pending_rows = dict.fromkeys(names, 0)
+    aligned_chunk: list[dict[str, np.ndarray]] = []
+    aligned_rows = 0
+    health = {"samples": 0, "lost": 0, "bad": 0, "last_seq": None, "first_t": None, "last_t": None}
+    commands: list[tuple[int, float, bool]] = []
+
+    def fold_aligned() -> None:
+        nonlocal aligned_rows
+        if not aligned_chunk:
+            return
+        seq = np.concatenate([b["seq"] for b in aligned_chunk]).astype(np.int64)
+        status = np.concatenate([b["status"] for b in aligned_chunk]).astype(np.int64)
+        f = np.concatenate([b["force_S"] for b in aligned_chunk])
+        t = np.concatenate([b["t_ns"] for b in aligned_chunk])
+        if health["last_seq"] is not None:
+            seq = np.concatenate(([health["last_seq"]], seq))
+        steps = np.diff(seq)
+        health["lost"] += int(np.clip(steps - 1, 0, None).sum())
+        health["last_seq"] = int(seq[-1])
+        health["bad"] += int(((status != STATUS_OK) | ~np.isfinite(f).all(1)).sum())
+        health["samples"] += len(t)
+        health["first_t"] = health["first_t"] if health["first_t"] is not None else int(t[0])
+        health["last_t"] = int(t[-1])
+        aligned_chunk.clear()
+        aligned_rows = 0
+
+    def fold_estimator(name: str) -> None:
+        nonlocal contact
+        blocks = pending[name]
+        if not blocks:
+            return
+        c = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0] if k not in ("params", "cov_diag")}
+        blocks.clear()
+        pending_rows[name] = 0
+        folds[name].add(c)
+        if name == estimator:
+            force = np.linalg.norm(c["contact_force_S"], axis=1)
+            if contact is None:
+                contact = _ContactFold(t0, force_limit, period_s or _period(c["t_ns"]))
+            contact.add(c["t_ns"], c["contact"].astype(bool), force)
+            series.raw.add(c["t_ns"], np.hstack((c["raw_force"], c["raw_torque"])))
+            series.compensated.add(c["t_ns"], np.hstack((c["contact_force_S"], c["contact_torque_S"])))
+            series.contact_force.add(c["t_ns"], force)
+
+    def fold_commands() -> None:
+        if commands and series.command is not None:
+            arr = np.array(commands, dtype=float)
+            series.command.add(arr[:, 0].astype(np.int64), arr[:, 1:])
+        commands.clear()
+
+    topics = ["/aligned/sample", "/events", *(ESTIMATOR_TOPIC_PREFIX + n for n in names)]
+    if plots:
+        topics.append("/haptic/command")
+    total = max(sum(counts.get(t, 0) for t in topics), 1)
+    done = 0
+    for topic, t_ns, m, _ in iter_blocks(rec.path, topics):
+        done += 1
+        if progress is not None and done % 4096 == 0:
+            progress(done / total)
+        if topic == "/aligned/sample":
+            recent.append(m)
+            aligned_chunk.append(m)
+            aligned_rows += len(m["t_ns"])
+            if aligned_rows >= CHUNK_ROWS:
+                fold_aligned()
+        elif topic == "/haptic/command":
+            force = m.get("force_D") or [0.0, 0.0, 0.0]
+            commands.append((t_ns, math.hypot(*(x if x is not None else math.nan for x in force)),
+                             bool(m.get("enabled"))))
+            if len(commands) >= CHUNK_ROWS:
+                fold_commands()
+        elif topic == "/events":
+            events.append(Event(t_ns, m["kind"], m["message"], m.get("data") or {}))
+        else:
+            name = topic[len(ESTIMATOR_TOPIC_PREFIX):]
+            joined = _join(m, recent)
+            if joined is None:
+                continue
+            pending[name].append(joined)
+            pending_rows[name] += len(joined["t_ns"])
+            if name == estimator and m.get("params") is not None:
+                params = m["params"]
+                params = json.loads(params) if isinstance(params, str) else params
+                series.params.append(((int(m["t_ns"][-1]) - t0) / 1e9, params))
+            if pending_rows[name] >= CHUNK_ROWS:
+                fold_estimator(name)
+    fold_aligned()
+    for name in names:
+        fold_estimator(name)
+    fold_commands()
+    if progress is not None:
+        progress(1.0)
+
+    measured_rate = ((health["samples"] - 1) / ((health["last_t"] - health["first_t"]) / 1e9)
+                     if health["samples"] > 1 and health["last_t"] > health["first_t"] else 0.0)
+    contacts = contact.finish() if contact is not None else []
+    summary = rec.metadata.get("hapticlab.summary", {})
+    return SessionReview(
+        path=rec.path, name=str(session.get("name", "")), trainee=str(session.get("trainee", "")),
+        task=str(session.get("task", "")), notes=str(session.get("notes", "")),
+        date=str(rec.meta("hapticlab.session", "start_time", "") or ""), duration_s=duration,
+        estimator=estimator, sensor_rate_hz=measured_rate, samples=health["samples"],
+        lost_samples=health["lost"], bad_samples=health["bad"],
+        kinematics_rate_hz=(counts.get("/kinematics/pose", 0) / duration if duration > 0 else 0.0),
+        poses=counts.get("/kinematics/pose", 0),
+        estimators=[folds[n].finish() for n in names], contacts=contacts, force_limit_N=force_limit,
+        over_limit_s=contact.over_limit_s if contact is not None else 0.0,
+        contact_s=(contact.contact_samples * contact.period_s) if contact is not None else 0.0,
+        peak_force_N=contact.peak if contact is not None else float("nan"),
+        haptic_on_s=_haptic_on_s(events, t1), events=events, complete=bool(summary), start_ns=t0,
+        series=series if plots else None)
+
+
+def _period(t_ns: np.ndarray) -> float:
+    """A sample period from the samples' stamps, s (median step; 1 ms when there is one sample)."""
+    return float(np.median(np.diff(t_ns))) / 1e9 if len(t_ns) > 1 else 1e-3
+
+
+def _join(block: dict[str, np.ndarray], recent: deque) -> dict[str, np.ndarray] | None:
+    """An estimator block with the raw aligned reading of each of its samples (found by stamp in ``recent``).
+
+    The loop writes a tick's aligned block before its estimators' blocks, and an estimator's samples are
+    some of those aligned samples; samples not found (a damaged file) are dropped.
+    """
+    if not recent:
+        return None
+    last = recent[-1]
+    if len(last["t_ns"]) == len(block["t_ns"]) and np.array_equal(last["t_ns"], block["t_ns"]):  # the usual case
+        out = dict(block)
+        out["raw_force"], out["raw_torque"] = last["force_S"], last["torque_S"]
+        return out
+    t = np.concatenate([b["t_ns"] for b in recent])
+    i = np.searchsorted(t, block["t_ns"])
+    i = np.clip(i, 0, len(t) - 1)
+    found = t[i] == block["t_ns"]
+    if not found.any():
+        return None
+    force = np.concatenate([b["force_S"] for b in recent])
+    torque = np.concatenate([b["torque_S"] for b in recent])
+    out = {k: (v[found] if isinstance(v, np.ndarray) and len(v) == len(found) else v) for k, v in block.items()}
+    out["raw_force"], out["raw_torque"] = force[i[found]], torque[i[found]]
+    return out
+
+
+def _haptic_on_s(events: list[Event], end_ns: int) -> float:
+    """How long the haptic force was on, s, from the ``haptic_enabled``/``haptic_disabled`` events."""
+    on_since, total = None, 0
+    for e in events:
+        if e.kind == "haptic_enabled" and on_since is None:
+            on_since = e.t_ns
+        elif e.kind == "haptic_disabled" and on_since is not None:
+            total += e.t_ns - on_since
+            on_since = None
+    if on_since is not None:
+        total += end_ns - on_since
+    return total / 1e9

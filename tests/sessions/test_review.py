@@ -1,0 +1,181 @@
+"""``hapticlab review``: a session's report checked against the world that made it and against the
+whole-array metrics; its page in headless Chromium; a cohort over a folder on Dask."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hapticlab.sessions.cli import main
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.offline.metrics import error_stats
+from hapticlab.sessions.recording import open_recording
+from hapticlab.sessions.review import review
+from hapticlab.sessions.review import summary as summary_module
+
+# the demo world's contacts (sessions/presets/demo.toml): start s, duration s, peak N
+DEMO_CONTACTS = [(6.0, 1.5, 3.0), (9.5, 1.5, 2.0), (12.5, 1.0, 4.0)]
+
+
+def record(path: Path, *overrides: str) -> Path:
+    config, _ = load_config("demo")
+    config = apply_overrides(config, ["session.realtime=false", *overrides])
+    run_session(build_session(config), out=path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Path:
+    """The demo's 14 s (its three contacts) with a kalman shadow, a trainee, a task and notes."""
+    path = tmp_path_factory.mktemp("review") / "t07-palpation.mcap"
+    return record(path, "session.duration=14", "shadows.kalman.name=kalman", "session.trainee=T07",
+                  "session.task=palpation", 'session.notes="first try <b>left hand</b>"')
+
+
+def test_contacts_are_found_where_the_world_put_them(session):
+    r = review(session, force_limit=2.5, plots=False)
+    assert (r.trainee, r.task, r.notes) == ("T07", "palpation", "first try <b>left hand</b>")
+    assert r.samples == 14001 and r.lost_samples == 0 and r.bad_samples == 0
+    assert r.sensor_rate_hz == pytest.approx(1000.0, rel=1e-3) and r.kinematics_rate_hz == pytest.approx(500, rel=0.01)
+    assert len(r.contacts) == 3
+    for contact, (start, duration, peak) in zip(r.contacts, DEMO_CONTACTS):
+        # the estimator flags a contact once its force passes its 1 N threshold on the 0.3 s ramp
+        assert start <= contact.start_s <= start + 0.3
+        assert duration - 0.6 <= contact.duration_s <= duration
+        # the largest of ~1000 noisy samples on the plateau: the world's peak plus a few noise stds
+        # (0.12 N per axis, the demo sensor's), and the estimate's own error (~0.1 N)
+        assert peak <= contact.peak_N <= peak + 5 * 0.12
+        assert 0.5 * peak < contact.mean_N < peak
+    assert r.peak_force_N == pytest.approx(max(c.peak_N for c in r.contacts))
+    # the 2 N contact never passes 2.5 N; the 3 N and 4 N ones do, for most of their plateau
+    assert r.contacts[1].over_limit_s == 0.0
+    assert 0.3 < r.contacts[0].over_limit_s < 1.5 and 0.3 < r.contacts[2].over_limit_s < 1.0
+    assert r.over_limit_s == pytest.approx(sum(c.over_limit_s for c in r.contacts), abs=0.01)
+    assert r.complete and r.estimator == "rls" and [e.name for e in r.estimators] == ["kalman", "rls"]
+
+
+def test_the_streamed_figures_equal_the_whole_array_metrics(session, monkeypatch):
+    monkeypatch.setattr(summary_module, "CHUNK_ROWS", 997)  # many chunks: the merge of running sums is exercised
+    r = review(session, plots=False)
+    rec = open_recording(session)
+    t_aligned = rec.t_ns("/aligned/sample")
+    raw_f, raw_t = rec.field("/aligned/sample", "force_S"), rec.field("/aligned/sample", "torque_S")
+    for e in r.estimators:
+        topic = f"/estimator/{e.name}"
+        t = rec.t_ns(topic)
+        row = np.searchsorted(t_aligned, t)
+        assert np.array_equal(t_aligned[row], t)
+        contact = rec.field(topic, "contact").astype(bool)
+        for stage, (flag, raw, est, axes) in enumerate((
+                ("converged_force", raw_f, rec.field(topic, "contact_force_S"), ("fx", "fy", "fz")),
+                ("converged_torque", raw_t, rec.field(topic, "contact_torque_S"), ("tx", "ty", "tz")))):
+            first = int(np.argmax(rec.field(topic, flag).astype(bool)))
+            rows = (np.arange(len(t)) >= first) & ~contact
+            expected = error_stats(raw[row][rows], est[rows], axes)
+            for axis in axes:
+                for key, value in expected[axis].items():
+                    assert e.table[axis][key] == pytest.approx(value, rel=1e-9, abs=1e-12), (e.name, axis, key)
+                assert e.table[axis]["samples"] == rows.sum()
+            when = (t[first] - r.start_ns) / 1e9
+            assert (e.converged_force_s if stage == 0 else e.converged_torque_s) == pytest.approx(when)
+        # the compensation works: after it, the no-contact error is a fraction of before
+        assert all(e.table[a]["mae_after"] < 0.2 * e.table[a]["mae_before"] for a in ("fx", "fy", "fz"))
+
+
+def test_cli_prints_the_review_writes_plots_and_a_page_and_never_overwrites(session, tmp_path, capsys):
+    html, plots = tmp_path / "report.html", tmp_path / "plots"
+    assert main(["review", str(session), "--html", str(html), "--plots", str(plots), "--force-limit", "2.5"]) == 0
+    out = capsys.readouterr().out
+    assert "trainee T07" in out and "task palpation" in out and "first try <b>left hand</b>" in out
+    assert "compensation error" in out and "faults and fail-safes: none" in out
+    import matplotlib.image
+
+    for name in ("wrench", "convergence", "contact", "command"):
+        image = matplotlib.image.imread(plots / f"{name}.png")
+        assert image.shape[0] > 200 and image.shape[1] > 600 and image[..., :3].std() > 0.05  # drawn, not blank
+    page = html.read_text()
+    assert page.count("data:image/png;base64,") == 4 and "src=\"http" not in page  # self-contained
+    assert "first try &lt;b&gt;left hand&lt;/b&gt;" in page  # the notes escaped, not markup
+    before = html.read_bytes()
+    assert main(["review", str(session), "--html", str(html)]) == 2
+    assert "already exists" in capsys.readouterr().err and html.read_bytes() == before
+    assert main(["review", str(session), "--plots", str(plots)]) == 2
+    assert main(["review", str(session), "--html", str(html), "--force"]) == 0
+
+
+def test_the_page_renders_in_headless_chromium(session, tmp_path):
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert chromium, "Debian's chromium is needed (README: apt-get install chromium)"
+    html = tmp_path / "report.html"
+    assert main(["review", str(session), "--html", str(html)]) == 0
+    flags = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+             f"--user-data-dir={tmp_path / 'profile'}"]
+    dom = subprocess.run([*flags, "--dump-dom", html.as_uri()], capture_output=True, text=True, timeout=120).stdout
+    for table_id in ("who", "summary", "contacts", "estimators", "errors-rls", "errors-kalman"):
+        assert f'id="{table_id}"' in dom, table_id
+    assert dom.count("<tr>") > 30 and "T07" in dom
+    shot = tmp_path / "shot.png"
+    subprocess.run([*flags, "--window-size=1200,2400", f"--screenshot={shot}", html.as_uri()],
+                   capture_output=True, timeout=120, check=True)
+    import matplotlib.image
+
+    pixels = matplotlib.image.imread(shot)[..., :3]
+    assert pixels.std() > 0.05  # text, tables and plots: not a blank page
+    assert (pixels < 0.5).mean() > 0.01  # dark pixels: there is text on it
+
+
+def test_a_session_without_its_end_is_reviewed_and_says_so(session, tmp_path):
+    from hapticlab.sessions.recording import recover
+
+    cut = tmp_path / "cut.mcap"
+    data = session.read_bytes()
+    cut.write_bytes(data[: len(data) * 2 // 3])  # killed: no summary, no end
+    fixed = tmp_path / "fixed.mcap"
+    recover(cut, fixed)
+    r = review(fixed, plots=False)
+    assert not r.complete and 0 < r.samples < 14001 and r.trainee == "T07"
+
+
+def test_bad_inputs_get_one_line_and_status_2(tmp_path, capsys):
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a recording\n")
+    assert main(["review", str(text)]) == 2
+    assert main(["review", str(tmp_path / "missing.mcap")]) == 2
+    assert main(["review", str(text), "--force-limit", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("hapticlab review: error:") == 3 and "Traceback" not in err
+    assert "no such file" in err and "--force-limit" in err
+
+
+def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, capsys):
+    from dask.distributed import LocalCluster
+
+    folder = tmp_path / "cohort"
+    (folder / "t08").mkdir(parents=True)
+    shutil.copy(session, folder / "t07-1.mcap")
+    record(folder / "t08" / "t08-1.mcap", "session.duration=8", "session.trainee=T08", "session.task=palpation",
+           "world.seed=5")
+    (folder / "broken.mcap").write_text("not a recording\n")
+    out_csv, html = tmp_path / "cohort.csv", tmp_path / "cohort.html"
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        status = main(["review", str(folder), "--csv", str(out_csv), "--html", str(html),
+                       "--scheduler", cluster.scheduler_address])
+    assert status == 2  # one file refused: said, and the others reviewed
+    captured = capsys.readouterr()
+    assert "broken.mcap" in captured.out and "2 worker(s)" in captured.err
+    rows = list(csv.DictReader(io.StringIO(out_csv.read_text())))
+    assert [(r["recording"], r["trainee"]) for r in rows] == [("t07-1.mcap", "T07"), ("t08/t08-1.mcap", "T08")]
+    alone = review(session, plots=False)
+    assert int(rows[0]["contacts"]) == len(alone.contacts) == 3
+    assert float(rows[0]["peak_force_N"]) == pytest.approx(alone.peak_force_N, abs=1e-3)
+    assert float(rows[1]["duration_s"]) == pytest.approx(8.0, abs=0.01) and int(rows[1]["contacts"]) == 1
+    page = html.read_text()
+    assert 'id="cohort"' in page and 'id="refused"' in page and page.count("data:image/png;base64,") == 1

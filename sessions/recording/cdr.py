@@ -21,6 +21,7 @@ from __future__ import annotations
 import operator
 import struct
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -154,23 +155,48 @@ def encode_block(block: CdrBlock, topic: str, message: Mapping[str, Any],
     return b"".join(parts), t_last
 
 
-def decode_block(block: CdrBlock, data: bytes, decode_json: Callable[[str], Any]) -> dict[str, Any]:
-    """A CDR block message as ``{field: array}`` (``(n,)`` or ``(n, width)``; an empty sequence: absent).
+@dataclass(frozen=True)
+class BlockLayout:
+    """Where each field of one CDR block message lies (:func:`block_layout`); every block of the same
+    topic with the same sequence counts has the same layout.
 
-    Estimator blocks add ``params`` (decoded with ``decode_json``) and
-    ``cov_diag`` (a list) when reported with the block. Raises
-    :class:`CdrBlockError` when the bytes do not fit the definition.
+    Attributes:
+        n: the block's samples.
+        fields: ``(name, start, nbytes, dtype, width)`` of every field present, ``start`` counted from the
+            message's first byte (the encapsulation header included).
+        count_positions: where each sequence's ``uint32`` count lies (to check another message has the same).
+        params: ``(start, count)`` of the params string (estimator blocks), else None.
+        cov_diag: ``(start, count)`` of the cov_diag sequence, else None.
+        has_cov_diag: the flag byte after it is set.
     """
+
+    n: int
+    fields: tuple[tuple[str, int, int, np.dtype, int], ...]
+    count_positions: tuple[int, ...]
+    params: tuple[int, int] | None = None
+    cov_diag: tuple[int, int] | None = None
+    has_cov_diag: bool = False
+
+    @property
+    def reports(self) -> bool:
+        """The block carries its estimator's params or cov_diag (a block in a hundred)."""
+        return bool(self.params and self.params[1] > 1) or self.has_cov_diag
+
+
+def block_layout(block: CdrBlock, data: bytes) -> BlockLayout:
+    """The layout of a CDR block message; :class:`CdrBlockError` when the bytes do not fit the definition."""
     size = len(data)
     if size < 4 or data[:2] != CDR_HEADER[:2]:
         raise CdrBlockError(f"not little-endian plain CDR (header {data[:4].hex(' ')})")
     offset = 4
+    counts: list[int] = []
 
     def sequence(itemsize: int, what: str) -> tuple[int, int]:
         nonlocal offset
         offset += -(offset - 4) % 4
         if offset + 4 > size:
             raise CdrBlockError(f"ends before {what} ({size} bytes)")
+        counts.append(offset)
         (count,) = _U32.unpack_from(data, offset)
         offset += 4
         if count:
@@ -180,7 +206,7 @@ def decode_block(block: CdrBlock, data: bytes, decode_json: Callable[[str], Any]
             raise CdrBlockError(f"{what} runs past the end ({count} values, {size} bytes)")
         return start, count
 
-    out: dict[str, Any] = {}
+    fields = []
     n = 0
     for column in block.columns:
         dtype = column.dtype
@@ -193,21 +219,37 @@ def decode_block(block: CdrBlock, data: bytes, decode_json: Callable[[str], Any]
             continue  # not recorded with this block
         if count != n * column.width:
             raise CdrBlockError(f"field {column.name!r} does not hold one value for each of its {n} samples")
-        arr = np.frombuffer(data, dtype=dtype, count=count, offset=start)
-        out[column.name] = arr if column.width == 1 else arr.reshape(n, column.width)
-    if block.report:
-        start, count = sequence(1, "params")
-        if count:
-            if data[offset - 1] != 0:
-                raise CdrBlockError("params is not a NUL-terminated string")
-            if count > 1:
-                out["params"] = decode_json(data[start : offset - 1].decode("utf-8"))
-        start, count = sequence(8, "cov_diag")
-        if offset + 1 > size:
-            raise CdrBlockError(f"ends before has_cov_diag ({size} bytes)")
-        if data[offset]:
-            cov = np.frombuffer(data, dtype=_F64, count=count, offset=start)
-            out["cov_diag"] = listed(cov)
+        fields.append((column.name, start, count * dtype.itemsize, dtype, column.width))
+    if not block.report:
+        return BlockLayout(n, tuple(fields), tuple(counts))
+    params = sequence(1, "params")
+    if params[1] and data[offset - 1] != 0:
+        raise CdrBlockError("params is not a NUL-terminated string")
+    cov = sequence(8, "cov_diag")
+    if offset + 1 > size:
+        raise CdrBlockError(f"ends before has_cov_diag ({size} bytes)")
+    return BlockLayout(n, tuple(fields), tuple(counts), params, cov, bool(data[offset]))
+
+
+def decode_block(block: CdrBlock, data: bytes, decode_json: Callable[[str], Any]) -> dict[str, Any]:
+    """A CDR block message as ``{field: array}`` (``(n,)`` or ``(n, width)``; an empty sequence: absent).
+
+    Estimator blocks add ``params`` (decoded with ``decode_json``) and
+    ``cov_diag`` (a list) when reported with the block. Raises
+    :class:`CdrBlockError` when the bytes do not fit the definition.
+    """
+    layout = block_layout(block, data)
+    out: dict[str, Any] = {}
+    for name, start, nbytes, dtype, width in layout.fields:
+        arr = np.frombuffer(data, dtype=dtype, count=nbytes // dtype.itemsize, offset=start)
+        out[name] = arr if width == 1 else arr.reshape(layout.n, width)
+    if layout.params is not None:
+        start, count = layout.params
+        if count > 1:
+            out["params"] = decode_json(data[start:start + count - 1].decode("utf-8"))
+        if layout.has_cov_diag:
+            start, count = layout.cov_diag
+            out["cov_diag"] = listed(np.frombuffer(data, dtype=_F64, count=count, offset=start))
     return out
 
 

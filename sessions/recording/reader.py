@@ -425,7 +425,8 @@ def iter_blocks(
 
     The fast way through a long file: a block message (formats 2 and 3) comes
     out once, columnar (``{"t_ns": (n,) int64, field: (n,) or (n, k) array}``;
-    non-finite floats NaN, a field absent from JSON NaN); a format-1 message on
+    a non-finite float NaN (JSON's null) or as recorded (CDR: NaN or ±inf), a field
+    absent from a JSON block NaN); a format-1 message on
     a sensor-rate topic comes out as a one-sample block; any other message as
     decoded. File order is the order the session wrote them: each tick's
     wrench, aligned and estimator messages together, in that order.
@@ -450,9 +451,7 @@ def _columns(block: dict[str, Any]) -> dict[str, Any]:
     for key, column in block.items():
         if key in BLOCK_LAST_SAMPLE_FIELDS:
             out[key] = column
-        elif isinstance(column, np.ndarray):
-            if column.dtype.kind == "f":
-                column = np.where(np.isfinite(column), column, np.nan)
+        elif isinstance(column, np.ndarray):  # CDR: as recorded (a non-finite float NaN or ±inf)
             out[key] = column
         else:
             out[key] = np.asarray(column, dtype=np.int64) if key == "t_ns" else _stack(column)

@@ -37,6 +37,7 @@ import numpy as np
 from ...core.types import STATUS_OK, Event
 from ..offline.metrics import mae_compensation_pct
 from ..recording import ESTIMATOR_TOPIC_PREFIX, RecordingError, iter_blocks, open_recording
+from ..recording.columnar import can_read, iter_chunks
 from ..recording.reader import file_stats
 
 CHUNK_ROWS = 16384
@@ -350,7 +351,7 @@ class _ContactFold:
 
 
 def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMIT_N, plots: bool = True,
-           progress=None) -> SessionReview:
+           progress=None, fast: bool = True) -> SessionReview:
     """Review one recording (streamed; memory bounded whatever its length).
 
     Args:
@@ -358,6 +359,9 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
         force_limit: the contact force limit to count time above, N.
         plots: also gather what the plots draw (the haptic commands are read only then).
         progress: ``progress(done_fraction)`` called as the file is read (a progress bar), or None.
+        fast: read the file a chunk at a time as columns (``recording.columnar``; a finished format-3
+            file) rather than a message at a time (``iter_blocks``, every format): the same figures
+            (tested), several times faster.
 
     Raises ``RecordingError`` (a ``ValueError``, one line) for a file that is not a
     hapticlab recording, is truncated or has no estimator.
@@ -386,7 +390,6 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
     series = Series(Envelope(t0, t1, 6), Envelope(t0, t1, 6), Envelope(t0, t1, 1),
                     Envelope(t0, t1, 2) if plots else None)
     events: list[Event] = []
-    recent: deque[dict[str, np.ndarray]] = deque(maxlen=32)  # the last aligned blocks, for the estimators' joins
     pending: dict[str, list[dict[str, np.ndarray]]] = {name: [] for name in names}
     pending_rows = dict.fromkeys(names, 0)
     aligned_chunk: list[dict[str, np.ndarray]] = []
@@ -419,7 +422,7 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
         blocks = pending[name]
         if not blocks:
             return
-        c = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0] if k not in ("params", "cov_diag")}
+        c = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0] if k != "params"}
         blocks.clear()
         pending_rows[name] = 0
         folds[name].add(c)
@@ -441,37 +444,35 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
     topics = ["/aligned/sample", "/events", *(ESTIMATOR_TOPIC_PREFIX + n for n in names)]
     if plots:
         topics.append("/haptic/command")
-    total = max(sum(counts.get(t, 0) for t in topics), 1)
-    done = 0
-    for topic, t_ns, m, _ in iter_blocks(rec.path, topics):
-        done += 1
-        if progress is not None and done % 4096 == 0:
-            progress(done / total)
+    fast = fast and can_read(rec.path)
+    recent = deque(maxlen=3 if fast else 32)
+    for topic, batch in _batches(rec.path, topics, fast):
         if topic == "/aligned/sample":
-            recent.append(m)
-            aligned_chunk.append(m)
-            aligned_rows += len(m["t_ns"])
+            recent.append(batch)
+            aligned_chunk.append(batch)
+            aligned_rows += len(batch["t_ns"])
             if aligned_rows >= CHUNK_ROWS:
                 fold_aligned()
+            if progress is not None and t1 > t0:
+                progress(min(1.0, (int(batch["t_ns"][-1]) - t0) / (t1 - t0)))
         elif topic == "/haptic/command":
-            force = m.get("force_D") or [0.0, 0.0, 0.0]
-            commands.append((t_ns, math.hypot(*(x if x is not None else math.nan for x in force)),
-                             bool(m.get("enabled"))))
+            for t_ns, m in batch:
+                force = m.get("force_D") or [0.0, 0.0, 0.0]
+                commands.append((t_ns, math.hypot(*(x if x is not None else math.nan for x in force)),
+                                 bool(m.get("enabled"))))
             if len(commands) >= CHUNK_ROWS:
                 fold_commands()
         elif topic == "/events":
-            events.append(Event(t_ns, m["kind"], m["message"], m.get("data") or {}))
+            events.extend(Event(t_ns, m["kind"], m["message"], m.get("data") or {}) for t_ns, m in batch)
         else:
             name = topic[len(ESTIMATOR_TOPIC_PREFIX):]
-            joined = _join(m, recent)
+            if name == estimator:
+                series.params.extend(((t - t0) / 1e9, p) for t, p in batch["params"])
+            joined = _join(batch, recent)
             if joined is None:
                 continue
             pending[name].append(joined)
             pending_rows[name] += len(joined["t_ns"])
-            if name == estimator and m.get("params") is not None:
-                params = m["params"]
-                params = json.loads(params) if isinstance(params, str) else params
-                series.params.append(((int(m["t_ns"][-1]) - t0) / 1e9, params))
             if pending_rows[name] >= CHUNK_ROWS:
                 fold_estimator(name)
     fold_aligned()
@@ -499,6 +500,26 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
         peak_force_N=contact.peak if contact is not None else float("nan"),
         haptic_on_s=_haptic_on_s(events, t1), events=events, complete=bool(summary), start_ns=t0,
         series=series if plots else None)
+
+
+def _batches(path: Path, topics: list[str], fast: bool):
+    """``(topic, batch)`` in file order: a block topic's samples as columns (with ``params``:
+    ``[(t_ns, params)]``), any other topic's ``[(t_ns, message)]``; a chunk's aligned samples first."""
+    if fast:
+        for chunk in iter_chunks(path, topics):
+            for topic in sorted(chunk, key=lambda t: t != "/aligned/sample"):
+                if len(chunk[topic]):
+                    yield topic, chunk[topic]
+        return
+    for topic, t_ns, m, is_block in iter_blocks(path, topics):
+        if not is_block:
+            yield topic, [(t_ns, m)]
+            continue
+        params = m.pop("params", None)
+        m.pop("cov_diag", None)
+        params = json.loads(params) if isinstance(params, str) else params
+        m["params"] = [] if params is None else [(int(m["t_ns"][-1]), params)]
+        yield topic, m
 
 
 def _period(t_ns: np.ndarray) -> float:

@@ -90,6 +90,49 @@ def test_the_streamed_figures_equal_the_whole_array_metrics(session, monkeypatch
         assert all(e.table[a]["mae_after"] < 0.2 * e.table[a]["mae_before"] for a in ("fx", "fy", "fz"))
 
 
+def test_the_chunk_reader_gives_the_message_readers_figures(session):
+    fast, reference = review(session, fast=True), review(session, fast=False)
+    assert len(fast.contacts) == len(reference.contacts) == 3
+    for a, b in zip(fast.contacts, reference.contacts):
+        assert a.__dict__ == pytest.approx(b.__dict__, rel=1e-12)
+    for a, b in zip(fast.estimators, reference.estimators):
+        assert (a.name, a.samples, a.converged_force_s, a.converged_torque_s, a.scored) == \
+            (b.name, b.samples, b.converged_force_s, b.converged_torque_s, b.scored)
+        for axis in a.table:
+            assert a.table[axis] == pytest.approx(b.table[axis], rel=1e-12)
+    assert [e.kind for e in fast.events] == [e.kind for e in reference.events]
+    assert fast.series.params == reference.series.params
+    for name in ("raw", "compensated", "contact_force", "command"):
+        x, y = getattr(fast.series, name), getattr(reference.series, name)
+        np.testing.assert_array_equal(x.count, y.count)
+        np.testing.assert_allclose(x.mean, y.mean, rtol=1e-12, equal_nan=True)
+        np.testing.assert_array_equal(x.hi, y.hi)
+
+
+def test_the_chunk_reader_reads_what_the_recording_holds_at_7_khz(tmp_path):
+    from hapticlab.sessions.recording.columnar import iter_chunks
+
+    path = record(tmp_path / "7k.mcap", "session.duration=2", "sensor.rate_hz=7000")
+    rec = open_recording(path)
+    topics = ["/aligned/sample", "/estimator/rls", "/haptic/command"]
+    got: dict[str, list] = {t: [] for t in topics}
+    for chunk in iter_chunks(path, topics):
+        for topic, batch in chunk.items():
+            got[topic].append(batch)
+    for topic in topics[:2]:
+        t = np.concatenate([b["t_ns"] for b in got[topic]])
+        np.testing.assert_array_equal(t, rec.t_ns(topic))
+        assert len(t) > 13000  # 7 samples a tick, blocks of several lengths in each chunk
+        for name in ("force_S",) if topic == "/aligned/sample" else ("contact_force_S", "contact", "converged_force"):
+            np.testing.assert_array_equal(np.concatenate([b[name] for b in got[topic]]).astype(float),
+                                          rec.field(topic, name).astype(float))
+    params = [p for b in got["/estimator/rls"] for p in b["params"]]
+    recorded = [m["params"] for _, m in rec.messages("/estimator/rls") if m.get("params") is not None]
+    assert [p for _, p in params] == recorded and len(params) >= 15
+    commands = [m for b in got["/haptic/command"] for _, m in b]
+    assert commands == [m for _, m in rec.messages("/haptic/command")]
+
+
 def test_cli_prints_the_review_writes_plots_and_a_page_and_never_overwrites(session, tmp_path, capsys):
     html, plots = tmp_path / "report.html", tmp_path / "plots"
     assert main(["review", str(session), "--html", str(html), "--plots", str(plots), "--force-limit", "2.5"]) == 0

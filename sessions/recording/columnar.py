@@ -6,16 +6,17 @@ million messages, and the ``mcap`` reader's per-message Python work (~6 µs) plu
 a CDR decode per block (~15 µs) make a pass over it take minutes.
 :func:`iter_chunks` reads the file a chunk at a time instead:
 
-* each chunk is decompressed once (zstd or lz4, its CRC checked) and its
-  messages of the topics asked for are found from the chunk's message indexes
-  (arrays of offsets, read with numpy: no Python work per message);
+* consecutive chunks are decompressed once each (zstd or lz4, CRC checked)
+  and read together, up to :data:`GROUP_BYTES`; their messages of the topics
+  asked for are found from the chunks' message indexes (arrays of offsets,
+  read with numpy: no Python work per message);
 * the CDR blocks of a topic are gathered into a 2-D byte array per message
   length and each field is read for all of them at once (one layout per
   length: every block of one length has the same sample count; a block
   carrying an estimator's ``params`` is decoded alone);
 * the JSON messages of a topic are parsed with one ``json.loads`` per chunk.
 
-What it yields per chunk, per topic asked: for a CDR block topic the chunk's
+What it yields per group of chunks, per topic asked: for a CDR block topic the chunk's
 samples as columns (``t_ns`` and every field present, rows in time order) with
 ``params`` as ``[(t_ns of the block's last sample, params)]``; for any other
 topic ``[(log time, message)]``. Files whose blocks are JSON (format 2) or
@@ -69,44 +70,72 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
     raise RecordingError(f"chunk compression {compression!r} is not one hapticlab reads")
 
 
+GROUP_BYTES = 4 << 20
+"""Consecutive chunks read together, up to this many uncompressed bytes (a session's chunks are 128 KiB:
+the work per topic is paid per group, not per chunk; memory stays a few times this)."""
+
+
+def _chunk_data(f, path: Path, index) -> bytes:
+    """A chunk's records, decompressed and CRC-checked; RecordingError naming the chunk when damaged."""
+    f.seek(index.chunk_start_offset)
+    record = f.read(index.chunk_length)
+    try:
+        _, _, _, _, size, crc, _ = _CHUNK_HEAD.unpack_from(record)
+        data = _decompress(index.compression, record[-index.compressed_size:], size)
+    except Exception as exc:  # noqa: BLE001 - any decoding failure is a damaged file
+        raise RecordingError(f"{path}: chunk at byte {index.chunk_start_offset} is damaged ({exc}); "
+                             f"run `hapticlab recover {path} -o FIXED.mcap`") from None
+    if crc and zlib.crc32(data) != crc:
+        raise RecordingError(f"{path}: chunk at byte {index.chunk_start_offset} fails its CRC; "
+                             f"run `hapticlab recover {path} -o FIXED.mcap`")
+    return data
+
+
+def _index_pairs(f, offset: int) -> np.ndarray:
+    """A message index record's (log time, offset) pairs, (k, 2) int64."""
+    f.seek(offset)
+    _, _, _, length = _INDEX_HEAD.unpack(f.read(_INDEX_HEAD.size))
+    return np.frombuffer(f.read(length), dtype="<u8").reshape(-1, 2).astype(np.int64)
+
+
 def iter_chunks(path: str | os.PathLike[str], topics: Iterable[str]) -> Iterator[dict[str, Any]]:
-    """Per chunk in file order: ``{topic: columns or [(t_ns, message)]}`` for the ``topics`` in it (see above)."""
+    """Per group of consecutive chunks (up to :data:`GROUP_BYTES`), in file order: ``{topic: columns or
+    [(t_ns, message)]}`` for the ``topics`` in it (see above)."""
     path = Path(path)
     wanted = set(topics)
     f, _, summary = _open_reader(path)
     with f:
         channels = {cid: c for cid, c in summary.channels.items() if c.topic in wanted}
         kinds = {cid: _block_kind(summary.schemas.get(c.schema_id), c) for cid, c in channels.items()}
-        for index in sorted(summary.chunk_indexes, key=lambda i: i.chunk_start_offset):
-            ids = [cid for cid in index.message_index_offsets if cid in channels]
-            if not ids:
-                continue
-            f.seek(index.chunk_start_offset)
-            record = f.read(index.chunk_length)
-            try:
-                _, _, _, _, size, crc, _ = _CHUNK_HEAD.unpack_from(record)
-                data = _decompress(index.compression, record[-index.compressed_size:], size)
-            except Exception as exc:  # noqa: BLE001 - any decoding failure is a damaged file
-                raise RecordingError(f"{path}: chunk at byte {index.chunk_start_offset} is damaged ({exc}); "
-                                     f"run `hapticlab recover {path} -o FIXED.mcap`") from None
-            if crc and zlib.crc32(data) != crc:
-                raise RecordingError(f"{path}: chunk at byte {index.chunk_start_offset} fails its CRC; "
-                                     f"run `hapticlab recover {path} -o FIXED.mcap`")
+        indexes = [i for i in sorted(summary.chunk_indexes, key=lambda i: i.chunk_start_offset)
+                   if any(cid in channels for cid in i.message_index_offsets)]
+        while indexes:
+            group, size = [], 0
+            while indexes and (not group or size + indexes[0].uncompressed_size <= GROUP_BYTES):
+                size += indexes[0].uncompressed_size
+                group.append(indexes.pop(0))
+            parts, pairs, base = [], {}, 0
+            for index in group:
+                data = _chunk_data(f, path, index)
+                for cid, offset in index.message_index_offsets.items():
+                    if cid in channels:
+                        found = _index_pairs(f, offset)
+                        found[:, 1] += base
+                        pairs.setdefault(cid, []).append(found)
+                parts.append(data)
+                base += len(data)
+            data = b"".join(parts)
             buf = np.frombuffer(data, dtype=np.uint8)
             out: dict[str, Any] = {}
-            for cid in ids:
-                f.seek(index.message_index_offsets[cid])
-                head = f.read(_INDEX_HEAD.size)
-                _, _, _, length = _INDEX_HEAD.unpack(head)
-                pairs = np.frombuffer(f.read(length), dtype="<u8").reshape(-1, 2)
-                pairs = pairs[np.argsort(pairs[:, 1], kind="stable")]  # file order
+            for cid, found in pairs.items():
+                both = np.concatenate(found)
+                both = both[np.argsort(both[:, 1], kind="stable")]  # file order
                 topic = channels[cid].topic
                 try:
-                    out[topic] = _messages(data, buf, pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64),
-                                           kinds[cid])
+                    out[topic] = _messages(data, buf, both[:, 0], both[:, 1], kinds[cid])
                 except (CdrBlockError, ValueError) as exc:
-                    raise RecordingError(f"{path.name}: {topic} in the chunk at byte {index.chunk_start_offset}: "
-                                         f"{exc}") from None
+                    raise RecordingError(f"{path.name}: {topic} in the chunks from byte "
+                                         f"{group[0].chunk_start_offset}: {exc}") from None
             yield out
 
 

@@ -368,11 +368,26 @@ def _open_reader(path: Path):  # noqa: ANN202 - returns (file, reader)
     f = open(path, "rb")  # noqa: SIM115 - the caller closes it
     try:
         reader = make_reader(f, validate_crcs=True)  # a damaged chunk is an error, not bad data
-        summary = reader.get_summary()
+        stat = os.fstat(f.fileno())
+        summary = _summary(str(path), stat.st_mtime_ns, stat.st_size, reader)
     except Exception as exc:
         f.close()
         raise _damaged(path, exc) from None
     return f, reader, summary
+
+
+_SUMMARIES: dict[tuple[str, int, int], Any] = {}
+
+
+def _summary(path: str, mtime_ns: int, size: int, reader) -> Any:
+    """The file's MCAP summary, parsed once per version of the file (a long session's has thousands of chunk
+    indexes: a review opens the file several times)."""
+    key = (path, mtime_ns, size)
+    if key not in _SUMMARIES:
+        if len(_SUMMARIES) >= 2:  # the file in hand (and the one before): a cohort's worker reads hundreds
+            _SUMMARIES.clear()
+        _SUMMARIES[key] = reader.get_summary()
+    return _SUMMARIES[key]
 
 
 def _block_kind(schema: Any, channel: Channel) -> Any:

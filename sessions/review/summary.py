@@ -107,10 +107,20 @@ class Envelope:
     def add(self, t_ns: np.ndarray, values: np.ndarray) -> None:
         values = np.asarray(values, float).reshape(len(t_ns), self.width)
         span = max(self.t1_ns - self.t0_ns, 1)
-        idx = np.clip((t_ns - self.t0_ns) * self.bins // span, 0, self.bins - 1)
+        idx = np.clip((np.asarray(t_ns, np.int64) - self.t0_ns) * self.bins // span, 0, self.bins - 1)
+        if not len(idx):
+            return
+        finite = np.isfinite(values)
+        if np.all(idx[1:] >= idx[:-1]):  # in time order (always, from a recording): one reduction per run of a bin
+            starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
+            b = idx[starts]
+            self.lo[b] = np.fmin(self.lo[b], np.fmin.reduceat(values, starts, axis=0))
+            self.hi[b] = np.fmax(self.hi[b], np.fmax.reduceat(values, starts, axis=0))
+            self.total[b] += np.add.reduceat(np.where(finite, values, 0.0), starts, axis=0)
+            self.count[b] += np.add.reduceat(finite.astype(np.int64), starts, axis=0)
+            return
         np.fmin.at(self.lo, idx, values)
         np.fmax.at(self.hi, idx, values)
-        finite = np.isfinite(values)
         np.add.at(self.total, idx, np.where(finite, values, 0.0))
         np.add.at(self.count, idx, finite)
 

@@ -217,7 +217,9 @@ def lab(tmp_path_factory):
         (root / f"{name}.mcap").write_bytes(make(good))
     (root / "a_folder.csv").mkdir()
     (root / "a_folder.mcap").mkdir()
-    for name in ("existing.csv", "existing.json", "existing.mcap", "a_file"):
+    (root / "review_folder").mkdir()
+    (root / "review_folder" / "notes.mcap").write_text("not a recording\n")
+    for name in ("existing.csv", "existing.json", "existing.mcap", "existing.html", "a_file"):
         (root / name).write_bytes(SENTINEL)
     (root / "figs").mkdir()
     for name in ("steps.png", "fig3_force_parameters.png"):
@@ -270,6 +272,7 @@ def probes() -> list[tuple[str, list[str]]]:
         out.append((f"discrepancy-{name}.mcap", ["discrepancy", src, "--plots", "{lab}/figs", "--force"]))
         out.append((f"replay-{name}.mcap", ["replay", src, "--estimator", "kalman", "-o", "{lab}/existing.mcap",
                                             "--force"]))
+        out.append((f"review-{name}.mcap", ["review", src, "--html", "{lab}/existing.html", "--force"]))
     for name in ("empty", "text", "a_csv", "magic_only", "cut_in_the_magic", "a_folder", "missing"):
         out.append((f"recover-{name}.mcap", ["recover", f"{{lab}}/{name}.mcap", "-o", "{lab}/existing.mcap",
                                              "--force"]))
@@ -290,6 +293,8 @@ def probes() -> list[tuple[str, list[str]]]:
         "bench-paper-json": (["bench", "paper", "--json"], "json"),
         "bench-estimators-json": (["bench", "estimators", "--json"], "json"),
         "bench-faults-json": (["bench", "faults", "--json"], "json"),
+        "review-html": (["review", "{lab}/good.mcap", "--html"], "html"),
+        "review-csv": (["review", "{lab}/review_folder", "--csv"], "csv"),
     }
     for label, (argv, ext) in writers.items():
         for kind, target in (("exists", f"{{lab}}/existing.{ext}"), ("is-a-folder", "{lab}/figs"),
@@ -343,6 +348,14 @@ def probes() -> list[tuple[str, list[str]]]:
                    ["--set", "order=2"], ["--set", "wobble.order=2"], ["--set", "bias_drift.order=7"],
                    ["--set", "bias_drift.ordr=2"], ["--set", "bias_drift.order"]):
         out.append((f"discrepancy-{'-'.join(option)}", [*discrepancy, *option]))
+    review = ["review", "{lab}/good.mcap"]
+    for option in (["--force-limit", "0"], ["--force-limit", "-1"], ["--force-limit", "nan"], ["--csv", "{lab}/new.csv"],
+                   ["--plots", "{lab}/figs", "--force-limit", "0"], ["--plots", "{lab}/a_file"]):
+        out.append((f"review-{'-'.join(option)}", [*review, *option]))
+    for label, argv in (("workers-0", ["review", "{lab}/review_folder", "--workers", "0"]),
+                        ("no-recordings", ["review", "{lab}/empty_folder"]),
+                        ("plots-of-a-folder", ["review", "{lab}/review_folder", "--plots", "{lab}/figs3"])):
+        out.append((f"review-{label}", argv))
     for label, argv in (("real-plots", ["bench", "real", "--plots", "{lab}/figs2"]),
                         ("real-missing-folder", ["bench", "real", "{lab}/nowhere"]),
                         ("real-a-file", ["bench", "real", "{lab}/good.csv"]),

@@ -133,6 +133,29 @@ def test_the_chunk_reader_reads_what_the_recording_holds_at_7_khz(tmp_path):
     assert commands == [m for _, m in rec.messages("/haptic/command")]
 
 
+def test_an_envelope_holds_every_samples_min_max_and_mean_per_bin():
+    rng = np.random.default_rng(4)
+    t = np.sort(rng.integers(0, 10_000, 5000))
+    values = rng.normal(size=(5000, 2))
+    values[::97, 1] = np.nan  # a non-finite value is left out of its bin's figures
+    env = summary_module.Envelope(0, 10_000, 2, bins=37)
+    for part in np.array_split(np.arange(5000), 7):  # in pieces, as a review adds them
+        env.add(t[part], values[part])
+    shuffled = summary_module.Envelope(0, 10_000, 2, bins=37)
+    order = rng.permutation(5000)
+    shuffled.add(t[order], values[order])  # out of time order: the other way through
+    bins = np.clip(t * 37 // 10_000, 0, 36)
+    for b in range(37):
+        for k in range(2):
+            x = values[bins == b, k]
+            x = x[np.isfinite(x)]
+            for e in (env, shuffled):
+                assert e.count[b, k] == len(x)
+                if len(x):
+                    assert (e.lo[b, k], e.hi[b, k]) == (x.min(), x.max())
+                    assert e.mean[b, k] == pytest.approx(x.mean(), rel=1e-12)
+
+
 def test_cli_prints_the_review_writes_plots_and_a_page_and_never_overwrites(session, tmp_path, capsys):
     html, plots = tmp_path / "report.html", tmp_path / "plots"
     assert main(["review", str(session), "--html", str(html), "--plots", str(plots), "--force-limit", "2.5"]) == 0

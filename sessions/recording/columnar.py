@@ -27,7 +27,9 @@ that have no chunk index (unfinished) are not for this reader
 from __future__ import annotations
 
 import json
+import math
 import os
+import re
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
@@ -98,9 +100,16 @@ def _index_pairs(f, offset: int) -> np.ndarray:
     return np.frombuffer(f.read(length), dtype="<u8").reshape(-1, 2).astype(np.int64)
 
 
-def iter_chunks(path: str | os.PathLike[str], topics: Iterable[str]) -> Iterator[dict[str, Any]]:
+def iter_chunks(path: str | os.PathLike[str], topics: Iterable[str],
+                json_fields: dict[str, dict[str, int]] | None = None) -> Iterator[dict[str, Any]]:
     """Per group of consecutive chunks (up to :data:`GROUP_BYTES`), in file order: ``{topic: columns or
-    [(t_ns, message)]}`` for the ``topics`` in it (see above)."""
+    [(t_ns, message)]}`` for the ``topics`` in it (see above).
+
+    ``json_fields`` asks for a JSON topic as columns too: ``{topic: {field: width}}`` (width 0: a
+    boolean; else an array of that many numbers, null read as NaN), e.g. ``{"/haptic/command":
+    {"force_D": 3, "enabled": 0}}``: ``{"t_ns", field...}`` arrays, the messages never decoded one by
+    one (a chunk whose messages do not all have the fields so is decoded and picked from)."""
+    json_fields = json_fields or {}
     path = Path(path)
     wanted = set(topics)
     f, _, summary = _open_reader(path)
@@ -132,11 +141,23 @@ def iter_chunks(path: str | os.PathLike[str], topics: Iterable[str]) -> Iterator
                 both = both[np.argsort(both[:, 1], kind="stable")]  # file order
                 topic = channels[cid].topic
                 try:
-                    out[topic] = _messages(data, buf, both[:, 0], both[:, 1], kinds[cid])
+                    out[topic] = _messages(data, buf, both[:, 0], both[:, 1], kinds[cid], json_fields.get(topic))
                 except (CdrBlockError, ValueError) as exc:
                     raise RecordingError(f"{path.name}: {topic} in the chunks from byte "
                                          f"{group[0].chunk_start_offset}: {exc}") from None
             yield out
+
+
+def _picked(messages: list[dict[str, Any]], log_times: np.ndarray, fields: dict[str, int]) -> dict[str, np.ndarray]:
+    """``fields`` of decoded JSON messages as columns (a missing or null value NaN, a missing flag False)."""
+    out = {"t_ns": log_times}
+    for name, width in fields.items():
+        if width == 0:
+            out[name] = np.array([bool(m.get(name)) for m in messages], dtype=bool)
+        else:
+            out[name] = np.array([[math.nan if v is None else v for v in (m.get(name) or [None] * width)]
+                                  for m in messages], dtype=float).reshape(len(messages), width)
+    return out
 
 
 def _gather(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
@@ -144,12 +165,42 @@ def _gather(buf: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
     return buf[starts[:, None] + np.arange(width)]
 
 
-def _messages(data: bytes, buf: np.ndarray, log_times: np.ndarray, offsets: np.ndarray, kind: Any):
+def _json_columns(text: bytes, log_times: np.ndarray, fields: dict[str, int]) -> dict[str, np.ndarray] | None:
+    """The ``fields`` of a chunk's JSON messages (joined in ``text``) as columns, found by their keys; None
+    unless every message has each exactly once with the width asked (then the caller decodes them).
+    A key's quoted name cannot occur inside a JSON string value (its quotes would be escaped)."""
+    n = len(log_times)
+    out = {"t_ns": log_times}
+    for name, width in fields.items():
+        key = re.escape(json.dumps(name).encode()) + rb"\s*:\s*"
+        if width == 0:
+            found = re.findall(key + rb"(true|false)", text)
+            if len(found) != n:
+                return None
+            out[name] = np.array(found) == b"true"
+            continue
+        found = re.findall(key + rb"\[([^\]]*)\]", text)
+        if len(found) != n:
+            return None
+        numbers = b",".join(found).replace(b"null", b"nan").split(b",")
+        if len(numbers) != n * width:
+            return None
+        out[name] = np.array(numbers, dtype="S").astype(float).reshape(n, width)
+    return out
+
+
+def _messages(data: bytes, buf: np.ndarray, log_times: np.ndarray, offsets: np.ndarray, kind: Any,
+              json_fields: dict[str, int] | None = None):
     lengths = _gather(buf, offsets + 1, 8).copy().view("<u8").ravel().astype(np.int64)
     sizes = lengths - (MESSAGE_HEADER - 9)
     starts = offsets + MESSAGE_HEADER
     if kind is None:  # JSON messages: one parse for the chunk
         text = b"[" + b",".join(data[s:s + n] for s, n in zip(starts.tolist(), sizes.tolist())) + b"]"
+        if json_fields:
+            columns = _json_columns(text, log_times, json_fields)
+            if columns is not None:
+                return columns
+            return _picked(json.loads(text), log_times, json_fields)
         return list(zip(log_times.tolist(), json.loads(text)))
     groups: list[dict[str, np.ndarray]] = []  # each: (rows, width) columns of some of the blocks
     params: list[tuple[int, Any]] = []

@@ -49,6 +49,8 @@ BINS = 1200
 DEFAULT_FORCE_LIMIT_N = 3.0
 """The contact force limit a review counts time above, N, unless told another (set it to your task's)."""
 AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
+COMMAND_FIELDS = {"force_D": 3, "enabled": 0}
+"""What a review reads of each ``/haptic/command`` (as columns: ``recording.columnar``)."""
 
 
 @dataclass
@@ -405,7 +407,8 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
     aligned_chunk: list[dict[str, np.ndarray]] = []
     aligned_rows = 0
     health = {"samples": 0, "lost": 0, "bad": 0, "last_seq": None, "first_t": None, "last_t": None}
-    commands: list[tuple[int, float, bool]] = []
+    commands: list[dict[str, np.ndarray]] = []
+    command_rows = 0
 
     def fold_aligned() -> None:
         nonlocal aligned_rows
@@ -446,10 +449,14 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
             series.contact_force.add(c["t_ns"], force)
 
     def fold_commands() -> None:
+        nonlocal command_rows
         if commands and series.command is not None:
-            arr = np.array(commands, dtype=float)
-            series.command.add(arr[:, 0].astype(np.int64), arr[:, 1:])
+            force = np.concatenate([c["force_D"] for c in commands])
+            enabled = np.concatenate([c["enabled"] for c in commands])
+            series.command.add(np.concatenate([c["t_ns"] for c in commands]),
+                               np.column_stack((np.linalg.norm(force, axis=1), enabled)))
         commands.clear()
+        command_rows = 0
 
     topics = ["/aligned/sample", "/events", *(ESTIMATOR_TOPIC_PREFIX + n for n in names)]
     if plots:
@@ -466,11 +473,9 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
             if progress is not None and t1 > t0:
                 progress(min(1.0, (int(batch["t_ns"][-1]) - t0) / (t1 - t0)))
         elif topic == "/haptic/command":
-            for t_ns, m in batch:
-                force = m.get("force_D") or [0.0, 0.0, 0.0]
-                commands.append((t_ns, math.hypot(*(x if x is not None else math.nan for x in force)),
-                                 bool(m.get("enabled"))))
-            if len(commands) >= CHUNK_ROWS:
+            commands.append(batch)
+            command_rows += len(batch["t_ns"])
+            if command_rows >= CHUNK_ROWS:
                 fold_commands()
         elif topic == "/events":
             events.extend(Event(t_ns, m["kind"], m["message"], m.get("data") or {}) for t_ns, m in batch)
@@ -516,12 +521,17 @@ def _batches(path: Path, topics: list[str], fast: bool):
     """``(topic, batch)`` in file order: a block topic's samples as columns (with ``params``:
     ``[(t_ns, params)]``), any other topic's ``[(t_ns, message)]``; a chunk's aligned samples first."""
     if fast:
-        for chunk in iter_chunks(path, topics):
+        for chunk in iter_chunks(path, topics, json_fields={"/haptic/command": COMMAND_FIELDS}):
             for topic in sorted(chunk, key=lambda t: t != "/aligned/sample"):
                 if len(chunk[topic]):
                     yield topic, chunk[topic]
         return
     for topic, t_ns, m, is_block in iter_blocks(path, topics):
+        if topic == "/haptic/command":
+            force = [math.nan if v is None else v for v in (m.get("force_D") or [math.nan] * 3)]
+            yield topic, {"t_ns": np.array([t_ns]), "force_D": np.array([force], dtype=float),
+                          "enabled": np.array([bool(m.get("enabled"))])}
+            continue
         if not is_block:
             yield topic, [(t_ns, m)]
             continue

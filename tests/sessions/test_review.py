@@ -131,6 +131,27 @@ def test_the_chunk_reader_reads_what_the_recording_holds_at_7_khz(tmp_path):
     assert [p for _, p in params] == recorded and len(params) >= 15
     commands = [m for b in got["/haptic/command"] for _, m in b]
     assert commands == [m for _, m in rec.messages("/haptic/command")]
+    fields = {"force_D": 3, "enabled": 0}  # the same JSON read as columns by key, never decoded
+    columns = [c["/haptic/command"] for c in iter_chunks(path, ["/haptic/command"], {"/haptic/command": fields})]
+    np.testing.assert_array_equal(np.concatenate([c["force_D"] for c in columns]),
+                                  np.array([m["force_D"] for m in commands], dtype=float))
+    np.testing.assert_array_equal(np.concatenate([c["enabled"] for c in columns]), [m["enabled"] for m in commands])
+    np.testing.assert_array_equal(np.concatenate([c["t_ns"] for c in columns]), rec.t_ns("/haptic/command"))
+
+
+def test_json_read_by_key_falls_back_to_decoding_when_a_message_lacks_the_key():
+    from hapticlab.sessions.recording.columnar import _json_columns, _picked
+
+    messages = [{"force_D": [1.0, None, 3.0], "enabled": True, "reason": "\"force_D\":[9,9,9]"},
+                {"enabled": False, "reason": "no force"}]
+    text = json.dumps(messages).encode()
+    t = np.array([1, 2])
+    assert _json_columns(text, t, {"force_D": 3, "enabled": 0}) is None  # the second has no force_D
+    picked = _picked(messages, t, {"force_D": 3, "enabled": 0})
+    np.testing.assert_array_equal(picked["force_D"], [[1.0, np.nan, 3.0], [np.nan] * 3])
+    np.testing.assert_array_equal(picked["enabled"], [True, False])
+    first = _json_columns(json.dumps(messages[:1]).encode(), t[:1], {"force_D": 3, "enabled": 0})
+    np.testing.assert_array_equal(first["force_D"], [[1.0, np.nan, 3.0]])  # the key inside a string is not a key
 
 
 def test_an_envelope_holds_every_samples_min_max_and_mean_per_bin():

@@ -13,7 +13,8 @@ import math
 from collections.abc import Iterable, Sequence
 
 from . import plots
-from .summary import AXES, SessionReview, faults
+from .figures import AXES
+from .summary import SessionReview, faults
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1000px; color: #222; }

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..output import atomic_output, check_plots_folder
-from .summary import AXES, Envelope, SessionReview
+from .figures import AXES, Envelope
+from .summary import SessionReview
 
 PLOTS = ("wrench", "convergence", "contact", "command")
 """The plots, in the order a report shows them (file ``<name>.png``)."""

@@ -19,6 +19,7 @@ from hapticlab.sessions.live import build_session, run_session
 from hapticlab.sessions.offline.metrics import error_stats
 from hapticlab.sessions.recording import open_recording
 from hapticlab.sessions.review import review
+from hapticlab.sessions.review import figures
 from hapticlab.sessions.review import summary as summary_module
 
 # the demo world's contacts (sessions/presets/demo.toml): start s, duration s, peak N
@@ -159,10 +160,10 @@ def test_an_envelope_holds_every_samples_min_max_and_mean_per_bin():
     t = np.sort(rng.integers(0, 10_000, 5000))
     values = rng.normal(size=(5000, 2))
     values[::97, 1] = np.nan  # a non-finite value is left out of its bin's figures
-    env = summary_module.Envelope(0, 10_000, 2, bins=37)
+    env = figures.Envelope(0, 10_000, 2, bins=37)
     for part in np.array_split(np.arange(5000), 7):  # in pieces, as a review adds them
         env.add(t[part], values[part])
-    shuffled = summary_module.Envelope(0, 10_000, 2, bins=37)
+    shuffled = figures.Envelope(0, 10_000, 2, bins=37)
     order = rng.permutation(5000)
     shuffled.add(t[order], values[order])  # out of time order: the other way through
     bins = np.clip(t * 37 // 10_000, 0, 36)

@@ -54,6 +54,7 @@ import numpy as np
 from hapticlab.core.types import STATUS_OK
 from hapticlab.sessions.config import load_config
 from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.live.loop import stale_timeout_ns
 from hapticlab.sessions.recording import open_recording
 
 EMULATOR = ("import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
@@ -82,13 +83,6 @@ def config(port: str, protocol: str, wait_for_reply: bool, faults: int, stalls: 
     cfg["haptic"] = {**cfg["haptic"], "name": "serial", "port": port, "protocol": protocol,
                      "wait_for_reply": wait_for_reply, "device_max_force": 8.0}
     return cfg, duration
-
-
-def stale_timeout_ms(cfg: dict) -> float:
-    """The session's stale timeout, ms (0 in the config: 1.5 sensor periods + one loop period, as the loop sets it)."""
-    configured = cfg["session"].get("stale_timeout", 0.0)
-    return configured * 1e3 if configured > 0 else \
-        1.5e3 / cfg["sensor"]["rate_hz"] + 1e3 / cfg["session"]["loop_rate_hz"]
 
 
 def received(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -153,7 +147,8 @@ def measure(protocol: str, wait_for_reply: bool, faults: int, stalls: int, tmp: 
         stall_ms.append((t_rx[after[0]] - t_last) / 1e6)
     return {"label": label, "total": total, "to_tick": to_tick, "to_wire": to_wire,
             "fault_ms": np.array(fault_ms), "force_before": np.array(force_before), "stall_ms": np.array(stall_ms),
-            "stale_timeout_ms": stale_timeout_ms(cfg),
+            "stale_timeout_ms": stale_timeout_ns(cfg["session"].get("stale_timeout", 0.0), cfg["sensor"]["rate_hz"],
+                                                 cfg["session"]["loop_rate_hz"]) / 1e6,
             "overruns": sum(e.kind == "overrun" for e in rec.events)}
 
 

@@ -67,6 +67,16 @@ OVERRUN_EVENT_INTERVAL_NS = 1_000_000_000
 """At most one ``overrun`` event a second; the ticks skipped in between are counted in it."""
 
 
+def stale_timeout_ns(stale_timeout: float, sensor_rate_hz: float, loop_rate_hz: float,
+                     sensor_latency_s: float = 0.0) -> int:
+    """The age of the newest sensor sample at which the force is zeroed, ns: ``session.stale_timeout`` s, or
+    when 0 (automatic) 1.5 sensor periods plus the sensor's latency plus one loop period."""
+    period_ns = int(round(1e9 / loop_rate_hz))
+    if stale_timeout > 0:
+        return int(round(stale_timeout * 1e9))
+    return int(round((1.5 / sensor_rate_hz + sensor_latency_s) * 1e9)) + period_ns
+
+
 def check_live_address(address: str) -> None:
     """A ``--live`` address: ``HOST:PORT`` with a port in 0..65535 (ConfigError naming it otherwise)."""
     host, sep, port = address.rpartition(":")
@@ -152,8 +162,8 @@ class LiveLoop:
         self.period_ns = int(round(1e9 / settings.loop_rate_hz))
         self.duration_ns = int(round(self.duration * 1e9))
         sensor_latency_s = session.sensor.latency_s if isinstance(session.sensor, HasLatency) else 0.0
-        stale_ns = int(round(settings.stale_timeout * 1e9)) if settings.stale_timeout > 0 else \
-            int(round((1.5 / float(session.sensor.rate_hz) + sensor_latency_s) * 1e9)) + self.period_ns
+        stale_ns = stale_timeout_ns(settings.stale_timeout, float(session.sensor.rate_hz), settings.loop_rate_hz,
+                                    sensor_latency_s)
         self.gate = HapticGate(session.estimator_name, session.haptic_settings.ready_force_std,
                                session.primary.parameter_std, session.primary.reidentifies, stale_ns,
                                int(round(settings.frozen_pose_timeout * 1e9)), settings.max_turn_rate,

@@ -69,6 +69,8 @@ def csv_text(rows: Sequence[dict[str, Any]]) -> str:
 
 def progress_png(rows: Sequence[dict[str, Any]]) -> bytes:
     """Each trainee's sessions in date order: peak contact force and time over the limit, one line per trainee."""
+    from .plots import figure_png
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -93,11 +95,7 @@ def progress_png(rows: Sequence[dict[str, Any]]) -> bytes:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8, ncol=4)
     fig.suptitle("Progress per trainee")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return buf.getvalue()
+    return figure_png(plt, fig)
 
 
 def cohort_page(rows: Sequence[dict[str, Any]], title: str, refused: Sequence[tuple[str, str]] = ()) -> str:

@@ -142,14 +142,18 @@ def command(r: SessionReview):
 DRAW = {"wrench": wrench, "convergence": convergence, "contact": contact, "command": command}
 
 
-def png(r: SessionReview, name: str) -> bytes:
-    """One plot (a name of :data:`PLOTS`) as PNG bytes."""
-    plt, fig = DRAW[name](r)
+def figure_png(plt, fig) -> bytes:
+    """A finished matplotlib figure as PNG bytes (laid out tight, 90 dpi), closed."""
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
     return buf.getvalue()
+
+
+def png(r: SessionReview, name: str) -> bytes:
+    """One plot (a name of :data:`PLOTS`) as PNG bytes."""
+    return figure_png(*DRAW[name](r))
 
 
 def write_plots(r: SessionReview, folder: str | Path, force: bool = False) -> list[Path]:

@@ -48,12 +48,15 @@ MESSAGE_HEADER = 1 + 8 + 2 + 4 + 8 + 8
 
 
 def can_read(path: str | os.PathLike[str]) -> bool:
-    """The file is finished (chunk indexes in its summary) and every block channel is CDR (format 3)."""
+    """The file is finished (chunk indexes in its summary, each chunk's message indexes written) and every
+    block channel is CDR (format 3)."""
     f, _, summary = _open_reader(Path(path))
     with f:
         pass
     if summary is None or not summary.chunk_indexes:
         return False
+    if not all(index.message_index_offsets for index in summary.chunk_indexes):
+        return False  # a writer that left out the message indexes (MCAP allows it): no offsets to read by
     kinds = [_block_kind(summary.schemas.get(c.schema_id), c) for c in summary.channels.values()]
     return all(k is None or not isinstance(k, str) for k in kinds)
 

@@ -140,6 +140,23 @@ def test_the_chunk_reader_reads_what_the_recording_holds_at_7_khz(tmp_path):
     np.testing.assert_array_equal(np.concatenate([c["t_ns"] for c in columns]), rec.t_ns("/haptic/command"))
 
 
+def test_a_file_without_message_indexes_is_left_to_the_message_reader(tmp_path):
+    from mcap.writer import IndexType, Writer
+
+    from hapticlab.sessions.recording.columnar import can_read
+
+    for index_types, readable in ((IndexType.ALL, True), (IndexType.NONE, False)):  # MCAP lets a writer omit them
+        path = tmp_path / f"{index_types.name}.mcap"
+        with open(path, "wb") as f:
+            writer = Writer(f, index_types=index_types)
+            writer.start()
+            channel = writer.register_channel("/events", "json", writer.register_schema("e", "jsonschema", b"{}"))
+            for k in range(10):
+                writer.add_message(channel, k, b'{"kind": "a", "message": "b"}', k)
+            writer.finish()
+        assert can_read(path) is readable
+
+
 def test_json_read_by_key_falls_back_to_decoding_when_a_message_lacks_the_key():
     from hapticlab.sessions.recording.columnar import _json_columns, _picked
 

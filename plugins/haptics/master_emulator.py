@@ -514,14 +514,17 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ConfigError(f"emulate master: {exc}") from None
     stop = threading.Event()
-    with emulator:
+
+    def ready() -> None:
         print(emulator.port, flush=True)
         print(f"{args.protocol} master emulator on {emulator.port}: handle on {args.path}, max "
               f"{args.max_force:g} N; e.g. hapticlab run --set haptic.name=serial --set haptic.port={emulator.port}"
               f" --set haptic.protocol={args.protocol}", flush=True)
         for fault in faults:
             threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
-        serve_until_stopped(args.duration, stop)
+
+    with emulator:
+        serve_until_stopped(args.duration, stop, ready)
     c = emulator.counts
     print(f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "
           f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s); "

@@ -652,9 +652,9 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"emulate ur: cannot serve on {args.address}:{RTDE_PORT}: {exc.strerror or exc}") from None
     with emulator:
-        print(f"UR {args.model} RTDE emulator on {emulator.address}:{emulator.port} "
-              f"(controller {'.'.join(map(str, emulator.controller_version))}, {emulator.cycle_hz:g} Hz)", flush=True)
-        serve_until_stopped(args.duration)
+        serve_until_stopped(args.duration, ready=lambda: print(
+            f"UR {args.model} RTDE emulator on {emulator.address}:{emulator.port} "
+            f"(controller {'.'.join(map(str, emulator.controller_version))}, {emulator.cycle_hz:g} Hz)", flush=True))
     inputs = emulator.inputs()
     print(f"sent {emulator.packages_sent} data packages; {len(inputs)} input field(s) written"
           + (f": {', '.join(sorted(inputs))}" if inputs else ""), flush=True)

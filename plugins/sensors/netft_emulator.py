@@ -457,9 +457,9 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"emulate netft: cannot serve on {args.address}: {exc.strerror or exc}") from None
     with emulator:
-        print(f"netft emulator on {emulator.address}: RDT udp/{emulator.rdt_port}, "
-              f"netftapi2.xml http/{emulator.http_port}", flush=True)
-        serve_until_stopped(args.duration)
+        serve_until_stopped(args.duration, ready=lambda: print(
+            f"netft emulator on {emulator.address}: RDT udp/{emulator.rdt_port}, "
+            f"netftapi2.xml http/{emulator.http_port}", flush=True))
     c = emulator.counts
     print(f"sent {c.sent} records ({c.dropped} dropped, {c.duplicated} duplicated, {c.reordered} reordered, "
           f"{c.stalled} stalled, {c.status} with a status); {c.starts} start, {c.stops} stop, "

@@ -95,11 +95,11 @@ def run_lab(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise ConfigError(f"emulate lab: cannot serve RTDE on {args.ur}:30004: {exc.strerror or exc}") from None
         try:
-            print(f"lab: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
-                  f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}"
-                  f"{' following the targets written to its input registers (hapticlab_follow.script)' if arm.follows else ''}; "
-                  f"t0_ns={sensor.t0_ns}", flush=True)
-            serve_until_stopped(args.duration)
+            serve_until_stopped(args.duration, ready=lambda: print(
+                f"lab: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
+                f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}"
+                f"{' following the targets written to its input registers (hapticlab_follow.script)' if arm.follows else ''}; "
+                f"t0_ns={sensor.t0_ns}", flush=True))
         finally:
             arm.stop()
     finally:

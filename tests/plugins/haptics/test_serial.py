@@ -431,6 +431,22 @@ def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
             proc.wait()
 
 
+def test_a_sigterm_sent_as_soon_as_the_port_is_printed_ends_the_emulator_cleanly():
+    code = ("import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+            "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))")
+    for _ in range(5):  # the port is printed once the handler is in place: no window for the default handler
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+        try:
+            assert proc.stdout.readline().startswith("/dev/pts/")
+            proc.send_signal(signal.SIGTERM)
+            out, _ = proc.communicate(timeout=GUARD_S)
+            assert proc.returncode == 0 and "0 force command(s)" in out
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
 # --------------------------------------------------------------------------- a session with a serial master
 
 

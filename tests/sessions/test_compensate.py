@@ -82,7 +82,14 @@ def test_compensate_a_recording_matches_the_live_session(tmp_path):
     # Live, samples newer than the last pose use one period of extrapolation;
     # offline, every sample is interpolated. The difference is tiny.
     assert np.sqrt(np.mean((offline.estimates.contact_force_S - live_force) ** 2)) < 0.01
-    assert np.array_equal(offline.estimates.contact, live.field("/estimator/rls", "contact").astype(bool))
+    # The contact segments are the same. A sample whose residual lies within that tiny difference of the
+    # threshold may flip (seen on one CPU: one sample of 7001, 4e-7 N apart), so a flag may differ only
+    # next to a segment's edge, a boundary moved by one sample, and only a few times.
+    off, on = offline.estimates.contact, live.field("/estimator/rls", "contact").astype(bool)
+    edges = np.flatnonzero(np.diff(off.astype(np.int8)))  # the flag changes between samples k and k + 1
+    differ = np.flatnonzero(off != on)
+    assert len(differ) <= 3 and off.sum() > 500
+    assert all(np.any((edges >= k - 1) & (edges <= k)) for k in differ), differ
 
 
 def test_batch_estimator_offline_equals_batch_fit(tmp_path):

@@ -14,8 +14,13 @@ lockstep, one sample at a time from the reference's state, with the forward erro
 solves, 1e-14·cond(Λ)·‖x‖ (a flag may differ only where the reference's step is within that bound of ε), and the
 kernel must give the same bits whatever the block size (it runs sample by sample).
 
-``kalman``: bit-for-bit. The kernel is ``core.kalman._filter6`` transcribed expression by
-expression and numba compiles without fast-math (no FMA contraction, no reordering).
+``kalman``: the same decisions, the same numbers to rounding. The kernel is ``core.kalman._filter6``
+transcribed expression by expression and numba compiles without fast-math (no FMA contraction, no
+reordering), so on one machine the two agreed to the bit; but the numpy side's matrix products go
+through OpenBLAS, which picks its kernels by CPU: on an AVX-512 CPU (SkylakeX kernels) they round
+differently by an ulp (1.8e-15 N at most on this tour; ``OPENBLAS_CORETYPE=Haswell`` gives the bits
+back). So every flag must be identical, the numbers within :data:`ROUNDING` (N, N·m; relative for
+parameters and covariances).
 """
 
 from __future__ import annotations
@@ -29,6 +34,27 @@ from hapticlab.plugins.simworld import SimWorld
 from hapticlab.sessions.bench.paper import simulate
 
 KEYS = ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
+ROUNDING = 1e-12
+"""How far the kalman kernel and the numpy reference may differ: a few ulp of BLAS rounding (see above)."""
+
+
+def _same(a, b, key: str = "") -> bool:
+    """Flags identical; numbers within ROUNDING (NaN where the other is NaN)."""
+    a, b = np.asarray(a), np.asarray(b)
+    if a.dtype.kind in "biu" or key in KEYS[2:]:
+        return np.array_equal(a, b)
+    return a.shape == b.shape and np.allclose(a, b, rtol=ROUNDING, atol=ROUNDING, equal_nan=True)
+
+
+def _same_tree(a, b) -> bool:
+    """params(), cov_diag() and state() of the two: the same keys and flags, numbers within ROUNDING."""
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_same_tree(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and a and not isinstance(a[0], (int, float, bool)):
+        return isinstance(b, (list, tuple)) and len(a) == len(b) and all(_same_tree(x, y) for x, y in zip(a, b))
+    if isinstance(a, (bool, str)) or a is None:
+        return a == b
+    return _same(a, b)
 
 
 @pytest.fixture(scope="module")
@@ -145,16 +171,16 @@ def _run(est, block, size):
                                      {"convergence": "step"}],
                          ids=["cascade", "auto-noise", "mount", "step"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
-def test_kalman_kernel_gives_the_numpy_bits(sim6, size, options):
+def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     """The default model runs the compiled cascade; the others the compiled stage filter (``filter6``)."""
     ref, fast = KalmanEstimator(kernel="numpy", **options), KalmanEstimator(kernel="numba", **options)
     assert fast._cascade == (not options)
     a, b = _run(ref, sim6, size), _run(fast, sim6, size)
     for key in KEYS:
-        assert np.array_equal(a[key], b[key]), key
+        assert _same(a[key], b[key], key), key
     assert a["converged_force"].any() and a["converged_torque"].any()
-    assert ref.params() == fast.params() and ref.cov_diag() == fast.cov_diag()
-    assert ref.state() == fast.state()
+    assert _same_tree(ref.params(), fast.params()) and _same_tree(ref.cov_diag(), fast.cov_diag())
+    assert _same_tree(ref.state(), fast.state())
     assert (ref.first_converged_force, ref.first_converged_torque) == (fast.first_converged_force,
                                                                        fast.first_converged_torque)
 
@@ -235,7 +261,7 @@ def test_kernels_refuse_the_same_samples_and_keep_the_state(sim, size):
             a = _run(ref, block, size)
             assert ref.refused_samples == 3
             for key in KEYS:
-                assert np.array_equal(a[key], b[key], equal_nan=key.startswith("contact_")), key
+                assert _same(a[key], b[key], key), key
 
 
 def test_kalman_restart_and_payload_paths_use_the_kernel_and_agree(sim):
@@ -245,8 +271,8 @@ def test_kalman_restart_and_payload_paths_use_the_kernel_and_agree(sim):
         est.reidentify_bias("test")
     a, b = _run(ref, sim.subset(slice(1500, 3000)), 1), _run(fast, sim.subset(slice(1500, 3000)), 1)
     for key in KEYS:
-        assert np.array_equal(a[key], b[key]), key
-    assert ref.state() == fast.state()
+        assert _same(a[key], b[key], key), key
+    assert _same_tree(ref.state(), fast.state())
 
 
 def test_kalman_kernel_option_is_validated():

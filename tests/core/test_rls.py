@@ -118,9 +118,12 @@ def test_printed_covariance_update_deviates_early_and_the_deviation_decays():
 
     assert gap("contact_force_S", 1000, 2000) < gap("contact_force_S", 300, 600) < gap("contact_force_S", 0, 100)
     assert gap("contact_torque_S", 1000, 2000) < gap("contact_torque_S", 100, 300)  # the torque stage starts later
-    # a tenth of the test's sensor noise (0.1 N, 0.008 N·m per axis)
+    # well below the test's sensor noise (0.1 N, 0.008 N·m per axis): a tenth of it for force, a quarter
+    # for torque. Measured over samples 1000-2000 with OpenBLAS's Haswell kernels 0.0011 N, 7e-5 N·m; with
+    # its AVX-512 (SkylakeX) kernels, whose rounding the printed form amplifies more (1.6 N in the first
+    # 100 samples against 0.09), 0.0026 N, 0.0010 N·m.
     assert gap("contact_force_S", 1000, 2000) < 0.01
-    assert gap("contact_torque_S", 1000, 2000) < 0.0008
+    assert gap("contact_torque_S", 1000, 2000) < 0.002
 
 
 @pytest.mark.parametrize("size", [1, 7, 333])

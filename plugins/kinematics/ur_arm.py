@@ -28,6 +28,8 @@ continuous joint path (UR joints turn ±2π).
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,15 +91,44 @@ def link_transform(dh: DH, i: int, theta: float) -> np.ndarray:
 
 def forward(dh: DH, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Flange pose of joint angles ``q`` (6,) rad: ``(R_BE (3, 3), p_BoEo_B (3,) m)`` in the Base frame."""
-    T = np.eye(4)
-    for i in range(6):
-        T = T @ link_transform(dh, i, q[i])
-    return T[:3, :3], T[:3, 3]
+    R = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    px = py = pz = 0.0
+    for i, theta in enumerate(np.asarray(q, dtype=float).tolist()):  # T = T · link_transform(i), in floats
+        ct, st = math.cos(theta), math.sin(theta)
+        ca, sa = math.cos(dh.alpha[i]), math.sin(dh.alpha[i])
+        ox, oy, oz = dh.a[i] * ct, dh.a[i] * st, dh.d[i]
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+        px, py, pz = (px + r00 * ox + r01 * oy + r02 * oz, py + r10 * ox + r11 * oy + r12 * oz,
+                      pz + r20 * ox + r21 * oy + r22 * oz)
+        R = _mul(R, ((ct, -st * ca, st * sa), (st, ct * ca, -ct * sa), (0.0, sa, ca)))
+    return np.array(R), np.array([px, py, pz])
 
 
 def _wrap(angle: np.ndarray | float) -> np.ndarray | float:
     """Angle(s) wrapped into [−π, π)."""
     return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _mul(A, B):
+    """A·B of two 3×3 matrices given as row tuples."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B
+    return ((a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21, a00 * b02 + a01 * b12 + a02 * b22),
+            (a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21, a10 * b02 + a11 * b12 + a12 * b22),
+            (a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21, a20 * b02 + a21 * b12 + a22 * b22))
+
+
+def _mul_t(A, B):
+    """Aᵀ·B of two 3×3 matrices given as row tuples."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
+    return _mul(((a00, a10, a20), (a01, a11, a21), (a02, a12, a22)), B)
+
+
+def _apply_t(A, v):
+    """Aᵀ·v of a 3×3 matrix (row tuples) and a 3-vector."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
+    x, y, z = v
+    return (a00 * x + a10 * y + a20 * z, a01 * x + a11 * y + a21 * z, a02 * x + a12 * y + a22 * z)
 
 
 def inverse(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q6_singular: float = 0.0) -> np.ndarray:
@@ -112,46 +143,52 @@ def inverse(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q6_singular: float =
     give no solution (an empty array). At the wrist singularity (sin θ5 = 0)
     only θ2+…+θ4+θ6 is determined; θ6 is then taken as ``q6_singular``.
     """
-    R_BE = np.asarray(R_BE, dtype=float)
-    p = np.asarray(p_BoEo_B, dtype=float)
-    a2, a3 = dh.a[1], dh.a[2]
-    d1, d4, d6 = dh.d[0], dh.d[3], dh.d[5]
-    p5 = p - d6 * R_BE[:, 2]
-    r = np.hypot(p5[0], p5[1])
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(R_BE, dtype=float).tolist()
+    px, py, pz = np.asarray(p_BoEo_B, dtype=float).tolist()
+    a1, a2, a3 = dh.a[0], dh.a[1], dh.a[2]
+    d1, d4, d5, d6 = dh.d[0], dh.d[3], dh.d[4], dh.d[5]
+    # plain floats throughout (the emulated arm solves this at every RTDE cycle: ~20 µs, not ~350 with numpy)
+    x5, y5 = px - d6 * r02, py - d6 * r12  # p5 = p − d6·z_E
+    r = math.hypot(x5, y5)
     if r < abs(d4) or r == 0.0:
         return np.empty((0, 6))
-    phi = np.arctan2(p5[1], p5[0])
-    shoulder = np.arcsin(np.clip(d4 / r, -1.0, 1.0))
+    phi = math.atan2(y5, x5)
+    shoulder = math.asin(min(max(d4 / r, -1.0), 1.0))
+    ca0, sa0 = math.cos(dh.alpha[0]), math.sin(dh.alpha[0])
+    ca4, sa4 = math.cos(dh.alpha[4]), math.sin(dh.alpha[4])
     solutions = []
-    for theta1 in (phi + shoulder, phi + np.pi - shoulder):
-        T_01 = link_transform(dh, 0, theta1)
-        R_01, p_01 = T_01[:3, :3], T_01[:3, 3]
-        R_16 = R_01.T @ R_BE
-        p_16 = R_01.T @ (p - p_01)
+    for theta1 in (phi + shoulder, phi + math.pi - shoulder):
+        c1, s1 = math.cos(theta1), math.sin(theta1)
+        # R_01 = [[c1, −s1·ca0, s1·sa0], [s1, c1·ca0, −c1·sa0], [0, sa0, ca0]], p_01 = [a1·c1, a1·s1, d1]
+        R01 = ((c1, -s1 * ca0, s1 * sa0), (s1, c1 * ca0, -c1 * sa0), (0.0, sa0, ca0))
+        R16 = _mul_t(R01, ((r00, r01, r02), (r10, r11, r12), (r20, r21, r22)))  # R_01ᵀ R_BE
+        p16 = _apply_t(R01, (px - a1 * c1, py - a1 * s1, pz - d1))  # R_01ᵀ (p − p_01)
         # The last row of R_16 is [s5·c6, −s5·s6, c5] (and p_16 z = d4 + d6·c5 by the choice of θ1):
         # atan2 keeps θ5 accurate near sin θ5 = 0, where arccos(c5) would lose half the digits.
-        s5_abs = np.hypot(R_16[2, 0], R_16[2, 1])
+        s5_abs = math.hypot(R16[2][0], R16[2][1])
         for sign in (1.0, -1.0):
-            theta5 = np.arctan2(sign * s5_abs, R_16[2, 2])
-            if s5_abs > 1e-12:
-                theta6 = np.arctan2(-sign * R_16[2, 1], sign * R_16[2, 0])
-            else:
-                theta6 = q6_singular
-            T_46 = link_transform(dh, 4, theta5) @ link_transform(dh, 5, theta6)
-            T_16 = np.eye(4)
-            T_16[:3, :3], T_16[:3, 3] = R_16, p_16
-            T_64 = np.eye(4)  # the rigid inverse of T_46
-            T_64[:3, :3] = T_46[:3, :3].T
-            T_64[:3, 3] = -T_46[:3, :3].T @ T_46[:3, 3]
-            T_14 = T_16 @ T_64
-            theta234 = np.arctan2(T_14[1, 0], T_14[0, 0])
-            x, y = T_14[0, 3], T_14[1, 3]  # frame 3's origin in frame 1 (T_34 only moves along z1)
+            theta5 = math.atan2(sign * s5_abs, R16[2][2])
+            theta6 = (math.atan2(-sign * R16[2][1], sign * R16[2][0]) if s5_abs > 1e-12 else q6_singular)
+            # T_46 = L4(θ5)·L5(θ6) (a4 = a5 = 0); T_14 = T_16·T_46⁻¹: only its first two rows' x column
+            # and origin are needed
+            c5, s5, c6, s6 = math.cos(theta5), math.sin(theta5), math.cos(theta6), math.sin(theta6)
+            L4 = ((c5, -s5 * ca4, s5 * sa4), (s5, c5 * ca4, -c5 * sa4), (0.0, sa4, ca4))
+            L5 = ((c6, -s6, 0.0), (s6, c6, 0.0), (0.0, 0.0, 1.0))  # α5 = 0
+            R46 = _mul(L4, L5)
+            p46 = (L4[0][2] * d6, L4[1][2] * d6, L4[2][2] * d6 + d5)  # L4's origin (0, 0, d5) + L4's z·d6
+            # T_64 = [R_46ᵀ, −R_46ᵀ p_46]; T_14 = [R_16 R_46ᵀ, R_16 (−R_46ᵀ p_46) + p_16]
+            q64 = _apply_t(R46, p46)
+            (u0, u1, u2), (v0, v1, v2) = R16[0], R16[1]
+            theta234 = math.atan2(v0 * R46[0][0] + v1 * R46[0][1] + v2 * R46[0][2],
+                                  u0 * R46[0][0] + u1 * R46[0][1] + u2 * R46[0][2])
+            x = p16[0] - (u0 * q64[0] + u1 * q64[1] + u2 * q64[2])  # frame 3's origin in frame 1
+            y = p16[1] - (v0 * q64[0] + v1 * q64[1] + v2 * q64[2])
             c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
             if abs(c3) > 1.0 + 1e-12:
                 continue
-            c3 = float(np.clip(c3, -1.0, 1.0))
-            for theta3 in (np.arccos(c3), -np.arccos(c3)):
-                theta2 = np.arctan2(y, x) - np.arctan2(a3 * np.sin(theta3), a2 + a3 * np.cos(theta3))
+            c3 = min(max(c3, -1.0), 1.0)
+            for theta3 in (math.acos(c3), -math.acos(c3)):
+                theta2 = math.atan2(y, x) - math.atan2(a3 * math.sin(theta3), a2 + a3 * math.cos(theta3))
                 theta4 = theta234 - theta2 - theta3
                 solutions.append((theta1, theta2, theta3, theta4, theta5, theta6))
     return _wrap(np.array(solutions, dtype=float).reshape(-1, 6))

@@ -8,11 +8,13 @@ from scipy.spatial.transform import Rotation, Slerp
 from hapticlab.core.frames import (
     cross,
     matrix_from_quat_wxyz,
+    matrix_from_rotvec,
     quat_conjugate,
     quat_from_rotvec,
     quat_multiply,
     quat_slerp,
     quat_wxyz_from_matrix,
+    rotvec_from_matrix,
     rotvec_from_quat,
     skew,
     skew_stack,
@@ -53,6 +55,29 @@ def test_rotvec_round_trip_and_scipy():
     for k in range(10):
         assert np.allclose(rotvec_from_quat(Q[k]), v[k], atol=1e-12)
     assert np.allclose(quat_from_rotvec(np.zeros((1, 3))), [[1, 0, 0, 0]])
+
+
+def test_one_matrix_and_one_rotvec_take_the_float_path_and_match_scipy():
+    """The single-rotation paths (Shepperd, Rodrigues in floats) against scipy, with the corners: the
+    identity, angles at and below the series' switch, and angles at and next to π (where the axis's
+    sign is free: the matrices are compared)."""
+    rng = np.random.default_rng(5)
+    axes = rng.normal(size=(8, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    corners = [a * t for a, t in zip(axes, (0.0, 1e-12, 1e-5, 1e-4, 0.7, np.pi - 1e-3, np.pi - 1e-8, np.pi))]
+    for v in [*ROT.as_rotvec(), *corners]:
+        R = Rotation.from_rotvec(v).as_matrix()
+        assert np.abs(matrix_from_rotvec(v) - R).max() < 1e-15 * 8
+        r = rotvec_from_matrix(R)
+        assert np.linalg.norm(r) <= np.pi + 1e-15
+        assert np.abs(Rotation.from_rotvec(r).as_matrix() - R).max() < 1e-15 * 8
+        if np.linalg.norm(v) < np.pi - 1e-6:  # a unique rotation vector: the same one
+            assert np.allclose(r, Rotation.from_matrix(R).as_rotvec(), rtol=0, atol=1e-12)
+    singles = np.array([quat_wxyz_from_matrix(R) for R in ROT.as_matrix()])  # floats, one at a time
+    assert np.abs(singles - quat_wxyz_from_matrix(ROT.as_matrix())).max() < 1e-15 and (singles[:, 0] >= 0).all()
+    stack = ROT.as_matrix()[:5]  # stacks still go through scipy
+    assert np.allclose(rotvec_from_matrix(stack), ROT[:5].as_rotvec(), atol=1e-14)
+    assert np.allclose(matrix_from_rotvec(ROT[:5].as_rotvec()), stack, atol=1e-14)
 
 
 def test_cross_and_skew():

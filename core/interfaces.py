@@ -244,6 +244,20 @@ class ServosCartesian(Protocol):
     def servo_cp(self, t_ns: int, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> None: ...
 
 
+@runtime_checkable
+class PreparesAhead(Protocol):
+    """A sensor or kinematics source with work it can do before it is read (the simulated devices).
+
+    ``prepare(until_ns)`` does now whatever ``read`` would have to do for the samples up to
+    ``until_ns`` (ns, session clock) without handing any out: a paced loop calls it while it would
+    otherwise sleep before its next tick (with the next tick's end as ``until_ns``), so the work
+    leaves the path from a sample to its force command. What ``read`` returns must not depend on
+    whether or when ``prepare`` was called.
+    """
+
+    def prepare(self, until_ns: int) -> None: ...
+
+
 CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration,
-                HasRange, Reidentifies, ReportsHealth, HasLatency, HasForceLimit, ServosCartesian)
+                HasRange, Reidentifies, ReportsHealth, HasLatency, HasForceLimit, ServosCartesian, PreparesAhead)
 """Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

@@ -77,6 +77,10 @@ class SimSensor:
                                                    reading["status"].tolist())
         ]
 
+    def prepare(self, until_ns: int) -> None:
+        """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; not with a live world)."""
+        self._ahead.prepare(self._clock.next_index, self._clock.end_index(until_ns))
+
     def close(self) -> None:
         """Stop streaming (nothing to release)."""
         self._clock.t0_ns = None

@@ -217,6 +217,15 @@ class SampleClock:
         """(N,) int64 times of the samples ``seq``, ns."""
         return self.t0_ns + np.rint(seq * (1e9 / self.rate_hz)).astype(np.int64)
 
+    def end_index(self, until_ns: int) -> int:
+        """One past the index of the last sample with time <= ``until_ns`` (at least ``next_index``)."""
+        if self.t0_ns is None:
+            raise RuntimeError("read() before open()")
+        last = math.floor((int(until_ns) - self.t0_ns) * self.rate_hz / 1e9) + 1  # may overshoot by one
+        while last >= self.next_index and int(self.times(np.array(last))) > until_ns:
+            last -= 1
+        return max(last + 1, self.next_index)
+
     def take(self, until_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """Indices and times of every sample not yet taken with time <= ``until_ns``.
 

@@ -41,16 +41,27 @@ class Prefetch:
         """Forget the cache (the device was reopened: its clock starts again)."""
         self.cache, self.size = {}, 0
 
-    def take(self, seq: np.ndarray) -> dict[str, np.ndarray]:
-        """The arrays for ``seq`` (consecutive increasing indices), as read-only views."""
-        lo, hi = int(seq[0]), int(seq[-1]) + 1
-        if hi - lo != len(seq):
-            raise ValueError(f"Prefetch.take needs consecutive indices, got {len(seq)} spanning {lo}..{hi - 1}")
+    def prepare(self, lo: int, hi: int) -> None:
+        """Make sure the indices ``lo`` ≤ i < ``hi`` are computed (a chunk from ``lo`` on if they are not).
+
+        Nothing to do when computing ahead is off (``ahead_s = 0``: only what is asked for is known).
+        """
+        if self.chunk > 1 and hi > lo:
+            self._cover(lo, hi)
+
+    def _cover(self, lo: int, hi: int) -> None:
         if not (self.first <= lo and hi <= self.first + self.size):
             n = max(self.chunk, hi - lo)
             self.cache = self.compute(np.arange(lo, lo + n, dtype=np.int64))
             for array in self.cache.values():
                 array.setflags(write=False)
             self.first, self.size = lo, n
+
+    def take(self, seq: np.ndarray) -> dict[str, np.ndarray]:
+        """The arrays for ``seq`` (consecutive increasing indices), as read-only views."""
+        lo, hi = int(seq[0]), int(seq[-1]) + 1
+        if hi - lo != len(seq):
+            raise ValueError(f"Prefetch.take needs consecutive indices, got {len(seq)} spanning {lo}..{hi - 1}")
+        self._cover(lo, hi)
         a, b = lo - self.first, hi - self.first
         return {key: array[a:b] for key, array in self.cache.items()}

@@ -17,7 +17,8 @@ the ``r`` key of ``hapticlab run``, or :meth:`LiveLoop.rearm` (also handed to
 status callbacks as ``SessionStatus.rearm``); each is honoured at the next tick.
 
 Time: with ``realtime = true`` "now" is the monotonic wall clock, ticks are
-due every period from the start, and a loop that falls more than one period
+due every period from the start (a tick that ends early first lets the devices
+that can, ``PreparesAhead``, do the next tick's work, then sleeps), and a loop that falls more than one period
 behind skips the ticks it missed and records an ``overrun`` event saying how
 far behind it was (at most one such event a second). With ``realtime = false``
 (simulated devices as fast as the machine allows) "now" is the tick's own time.
@@ -50,7 +51,7 @@ import numpy as np
 from ...core.aligner import Aligner
 from ...core.errors import OutputExistsError
 from ...core.plugins import ConfigError
-from ...core.interfaces import HasCalibration, HasForceLimit, HasLatency, HasRange
+from ...core.interfaces import HasCalibration, HasForceLimit, HasLatency, HasRange, PreparesAhead
 from ...core.types import Event
 from ..config import check_duration
 from ..recording import Recorder
@@ -169,6 +170,9 @@ class LiveLoop:
                                int(round(settings.frozen_pose_timeout * 1e9)), settings.max_turn_rate,
                                settings.max_speed)
         self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
+        self.preparing = [(part, device) for part, device in (("sensor", session.sensor),
+                                                              ("kinematics", session.kinematics))
+                          if isinstance(device, PreparesAhead)]
         self.governor = session.governor()
         self.force_limit = session.haptic if isinstance(session.haptic, HasForceLimit) else None
         self.rearm_bit = session.haptic_settings.rearm_button  # -1: no button
@@ -244,6 +248,10 @@ class LiveLoop:
         if not self.s.settings.realtime:
             return tick, due_ns
         now_ns = time.monotonic_ns()
+        if now_ns < due_ns and self.preparing:  # time to spare: the devices' work for the tick ahead, now
+            for part, device in self.preparing:
+                self._call(part, device.prepare, due_ns + self.period_ns)
+            now_ns = time.monotonic_ns()
         if now_ns < due_ns:
             self.status.behind_s = 0.0
             time.sleep((due_ns - now_ns) * 1e-9)
@@ -283,7 +291,7 @@ class LiveLoop:
             self._events(device.drain_events(), label)
         self._command(now_ns)
         self._report(now_ns)
-        self._call("recording", self.recorder.send)  # the tick's messages to the writer process, one pipe write
+        self._call("recording", self.taps.send)  # encoded now, the command gone: one pipe write to the writer
 
     # ------------------------------------------------------------------ the stages
 
@@ -502,6 +510,7 @@ class LiveLoop:
                   else "session finished")
         self._event(Event(end_ns, "session_end", ending))
         try:
+            self.taps.send()
             self.recorder.close(summary=summary)
         except WriterProcessError:
             if failure is None or failure.part != "recording":

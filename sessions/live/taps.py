@@ -7,9 +7,17 @@ they are: the recorder encodes them as CDR, one ``tobytes`` per field (format
 3; ``mcap``'s pure-Python writer costs ~10 µs per message, and JSON cost
 ~0.66 µs per float, issue 12). Poses (at the kinematics rate), commands and
 device states and robot targets (one per tick) and events stay one JSON message each.
+
+The taps only queue their messages; :meth:`Taps.send` encodes them in the
+order written and hands them to the recorder at the end of the tick, after the
+haptic command has gone out, so encoding is not on the sample-to-command path.
+Nothing a tap is given may change before then (the loop builds fresh arrays
+every tick).
 """
 
 from __future__ import annotations
+
+from functools import partial
 
 import numpy as np
 
@@ -20,11 +28,38 @@ from ..recording import Recorder
 from ..recording.schemas import TF_INTERVAL_NS
 
 
-class Taps:
-    """Writes poses, wrenches, aligned samples, estimates, commands, device states and events."""
+class _TickQueue:
+    """The recorder's ``write``/``write_block``/``event``, held until :meth:`send` (in the order written)."""
 
     def __init__(self, recorder: Recorder):
-        self.rec = recorder
+        self.recorder = recorder
+        self.held: list[tuple] = []
+
+    def write(self, topic: str, t_ns: int, message: dict) -> None:
+        self.held.append((self.recorder.write, topic, t_ns, message))
+
+    def write_block(self, topic: str, message: dict) -> None:
+        self.held.append((self.recorder.write_block, topic, message))
+
+    def event(self, t_ns: int, kind: str, message: str, **data) -> None:
+        self.held.append((partial(self.recorder.event, t_ns, kind, message, **data),))
+
+    def send(self) -> None:
+        held, self.held = self.held, []
+        for method, *args in held:
+            method(*args)
+        self.recorder.send()
+
+
+class Taps:
+    """Writes poses, wrenches, aligned samples, estimates, commands, device states and events.
+
+    Each tap queues its message; :meth:`send` records the tick's messages (call it once per tick, after the
+    command, and before the recorder is closed).
+    """
+
+    def __init__(self, recorder: Recorder):
+        self.rec = _TickQueue(recorder)
         self._target_R: np.ndarray | None = None  # the last robot target's orientation and its quaternion
         self._target_quat: list[float] = []
         self._next_tf_ns = {"flange": 0, "target": 0}
@@ -111,3 +146,7 @@ class Taps:
 
     def event(self, event: Event) -> None:
         self.rec.event(event.t_ns, event.kind, event.message, **event.data)
+
+    def send(self) -> None:
+        """Encode the queued messages in order and hand them to the recorder (the writer process: one pipe write)."""
+        self.rec.send()

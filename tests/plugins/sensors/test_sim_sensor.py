@@ -141,3 +141,30 @@ def test_a_live_loop_reads_exactly_what_one_big_read_gives(rate_hz):
         assert np.array_equal(a, b)
     sample = reads[500][0]
     assert type(sample.t_ns) is int and type(sample.seq) is int and type(sample.status) is int
+
+
+@pytest.mark.parametrize("rate_hz", [1000.0, 7000.0])
+def test_prepared_reads_are_the_same_and_compute_nothing(rate_hz):
+    """prepare(until) (a paced loop's idle time) computes the world ahead; the reads after it hand out the
+    same bits as reads without it and compute nothing themselves."""
+    plain = SimSensor(rate_hz=rate_hz, world=full_world())
+    plain.open(T0)
+    prepared = SimSensor(rate_hz=rate_hz, world=full_world())
+    prepared.open(T0)
+    calls = []
+    compute = prepared._ahead.compute
+    prepared._ahead.compute = lambda seq: calls.append(("read" if reading else "prepare", len(seq))) or compute(seq)
+    a, b = [], []
+    for ms in range(1, 301):
+        until = T0 + ms * 1_000_000
+        reading = False
+        prepared.prepare(until)
+        reading = True
+        b += prepared.read(until)
+        a += plain.read(until)
+        reading = False
+        prepared.prepare(until + 1_000_000)  # the next tick's, as the loop asks
+    for x, y in zip(as_arrays(a), as_arrays(b)):
+        assert np.array_equal(x, y)
+    assert calls and {kind for kind, _ in calls} == {"prepare"}  # 300 ms: six 50 ms chunks, all while idle
+    assert len(calls) == 6 + 1 and all(n == round(0.05 * rate_hz) for _, n in calls)

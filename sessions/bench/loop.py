@@ -115,9 +115,9 @@ def _wrap_loop(loop: LiveLoop, watch: _Stopwatch) -> None:
     watch.wrap(loop.governor, "command", "governor")
     for method in ("send", "state"):
         watch.wrap(s.haptic, method, "device")
-    for method in ("poses", "wrenches", "aligned", "estimates", "command", "device_state", "event"):
+    for method in ("poses", "wrenches", "aligned", "estimates", "command", "device_state", "event",
+                   "send"):  # the taps queue; send encodes the tick's messages and hands them to the writer
         watch.wrap(loop.taps, method, "recording")
-    watch.wrap(loop.recorder, "send", "recording")
 
 
 def per_sample_us(factory: Callable[[], Any], block: AlignedSamples, size: int) -> tuple[float, float]:

@@ -34,6 +34,12 @@ paper's RLS:
   a contact lasts so long that the bias is no longer known to the bound, ~15 s
   with the defaults). Identical repeated rows are still counted as
   independent readings: five copies of a pose make P √5 too optimistic.
+  ``convergence = "identified"``: gravity (or the centre of gravity) as the
+  motion so far identifies it, from the accepted samples' information with the
+  bias held constant, and the wrench as known at each sample's pose (the
+  predicted reading's std with the filter's P), both under the bound: the
+  drift states' random walk no longer holds the flag back on a slow motion
+  (docs/estimators.md).
 
 Default drift intensities. The drift figure used is a thermal (warm-up) bias
 drift of **0.5 N/min** (0.0083 N/s), the drift of hapticlab's drift scenario
@@ -355,9 +361,9 @@ class KalmanEstimator(RefusesBadSamples):
                 raise ValueError(f"{key}: must be a finite number > 0, got {value!r}")
         if gating not in ("mahalanobis", "none"):
             raise ValueError(f"gating: must be 'mahalanobis' or 'none', got {gating!r}")
-        if convergence not in ("covariance", "step"):
-            raise ValueError(f"convergence: must be 'covariance' or 'step' (the paper's ‖Δx‖ < 1e-3), "
-                             f"got {convergence!r}")
+        if convergence not in ("covariance", "identified", "step"):
+            raise ValueError(f"convergence: must be 'covariance', 'identified' or 'step' (the paper's "
+                             f"‖Δx‖ < 1e-3), got {convergence!r}")
         if not (isinstance(gate_probability, (int, float)) and 0 < gate_probability <= 1):
             raise ValueError(f"gate_probability: must be in (0, 1], got {gate_probability!r}")
         for key, value in (("bias_rate", bias_rate), ("mount_rotation", mount_rotation), ("inertia", inertia)):
@@ -440,6 +446,8 @@ class KalmanEstimator(RefusesBadSamples):
         self._refused_since: int | None = None  # t_ns of the run's first refused sample
         self._accepted_in_run = 0  # consecutive accepted samples (a run survives a few)
         self._run_tested_full = False  # the run's whole window was tested (negative)
+        self._information: dict[str, np.ndarray] = {}  # convergence = "identified": Λ per stage (6, 6)
+        self._seed_information()
         if warm_start:
             self.load_state(warm_start)
         # the whole cascade in one compiled call: the default model (what it leaves out runs per stage)
@@ -504,7 +512,7 @@ class KalmanEstimator(RefusesBadSamples):
         if run_f.failed is not None:  # updates that could not be computed: not used, not converged
             usable = usable & ~run_f.failed
         accepted_f = usable & ~run_f.gated
-        conv_f = self._force_converged(run_f, x_before, accepted_f)
+        conv_f = self._force_converged(run_f, x_before, accepted_f, A_f)
         if run_f.failed is not None:
             conv_f &= ~run_f.failed
         x_t_before = self.torque.x[:6].copy()
@@ -513,7 +521,7 @@ class KalmanEstimator(RefusesBadSamples):
         if run_t.failed is not None:
             seen_t = seen_t & ~run_t.failed
         accepted_t = seen_t & ~run_t.gated
-        conv_t = self._torque_converged(run_t, X_f, x_t_before, accepted_t)
+        conv_t = self._torque_converged(run_t, X_f, x_t_before, accepted_t, A_t)
         if run_t.failed is not None:
             conv_t &= ~run_t.failed
         torque_for_contact = torque_S
@@ -703,25 +711,64 @@ class KalmanEstimator(RefusesBadSamples):
                 t = min(t, self._bound_cap[1])
         return f, t
 
-    def _force_converged(self, run_f, x_before, accepted) -> np.ndarray:
+    def _force_converged(self, run_f, x_before, accepted, A_f) -> np.ndarray:
         """(m,) the force stage's flag after each sample."""
         if self.convergence == "step":
             return self._step_converged(run_f.X[:, :6], x_before, accepted, self.converged_force)
         bound2 = self._bounds()[0] ** 2
-        conv = run_f.D[:, :6].max(axis=1) < bound2
+        if self.convergence == "identified":  # gravity from the motion's information; the force at this pose
+            conv = ((self._identified_var("force", A_f, accepted) < bound2)
+                    & (self._predicted_var(self.force, A_f) < bound2))
+        else:
+            conv = run_f.D[:, :6].max(axis=1) < bound2
         if self.mount_rotation:  # the force a mount error can cause: std(θ)·|gravity_force_B|
             n = self.force.n
             weight2 = (run_f.X[:, :3] ** 2).sum(axis=1)
             conv &= run_f.D[:, n - 3:n].max(axis=1) * weight2 < bound2
         return conv
 
-    def _torque_converged(self, run_t, X_f, x_before, accepted) -> np.ndarray:
+    def _torque_converged(self, run_t, X_f, x_before, accepted, A_t) -> np.ndarray:
         """(m,) the torque stage's flag after each sample."""
         if self.convergence == "step":
             return self._step_converged(run_t.X[:, :6], x_before, accepted, self.converged_torque)
         bound2 = self._bounds()[1] ** 2
         weight2 = (X_f[:, :3] ** 2).sum(axis=1)  # |gravity_force_B|², N²
+        if self.convergence == "identified":
+            return ((self._identified_var("torque", A_t, accepted) * weight2 < bound2)
+                    & (self._predicted_var(self.torque, A_t) < bound2))
         return (run_t.D[:, :3].max(axis=1) * weight2 < bound2) & (run_t.D[:, 3:6].max(axis=1) < bound2)
+
+    @staticmethod
+    def _predicted_var(stage, A: np.ndarray) -> np.ndarray:
+        """(m,) largest variance of the stage's predicted reading, max diag(C_k P Cᵀ_k), C_k = [A_k, I3], with
+        P as it is after the block (N² or (N·m)²): how well the non-contact wrench is known at each pose.
+
+        The filter's P of the constant and of the bias are each wide while the bias's random walk keeps
+        forgetting, but strongly anti-correlated: at the poses the robot is at, their sum is known."""
+        C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)
+        return np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C).max(axis=1)
+
+    def _identified_var(self, stage: str, A: np.ndarray, accepted: np.ndarray) -> np.ndarray:
+        """(m,) largest variance of the stage's constant (gravity_force_B, N², or cog_S, m²) after each sample,
+        from the information its accepted samples carry about [constant, bias] with the bias held constant.
+
+        ``convergence = "identified"``: the filter's own P of the constant also holds the bias's random
+        walk, which forgets what the motion taught within the bias's memory (~1 s by default); this is
+        what the motion so far identifies (Λ = Σ Cᵀ R⁻¹ C over accepted samples, C = [A, I3], from the
+        prior's information; re-seeded from P whenever the estimator re-opens a parameter).
+        """
+        r = (self.force if stage == "force" else self.torque).r
+        C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)  # (m, 3, 6)
+        gain = np.einsum("kij,i,kil->kjl", C, 1.0 / r, C) * accepted[:, None, None]
+        info = self._information[stage] + np.cumsum(gain, axis=0)
+        self._information[stage] = info[-1].copy()
+        return np.linalg.inv(info)[:, :3, :3].diagonal(axis1=1, axis2=2).max(axis=1)
+
+    def _seed_information(self) -> None:
+        """Λ of each stage from its current P (6×6: the constant and the bias): at the start, and after a
+        payload change, a bias re-identification or a warm start re-opened or set what is known."""
+        for name, stage in (("force", self.force), ("torque", self.torque)):
+            self._information[name] = np.linalg.inv(stage.P[:6, :6])
 
     @staticmethod
     def _step_converged(X, x_before, accepted, flag) -> np.ndarray:
@@ -884,6 +931,7 @@ class KalmanEstimator(RefusesBadSamples):
         accepted = ~run_f.gated
         A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
+        self._seed_information()  # what the replay left known (gravity re-opened along itself)
 
     def reidentify_bias(self, reason: str) -> None:
         """Reidentifies: the sensor's bias (force and torque) as unknown again, its covariance back to the prior.
@@ -898,6 +946,7 @@ class KalmanEstimator(RefusesBadSamples):
             P[:, 3:6] = 0.0
             P[3:6, 3:6] = np.diag(prior[3:6] ** 2)
             stage.P = P
+        self._seed_information()
         self.events.append(Event(self._last_t_ns or 0, "bias_reopened", f"bias re-opened: {reason}"))
 
     def drain_events(self) -> list[Event]:
@@ -961,6 +1010,8 @@ class KalmanEstimator(RefusesBadSamples):
             loaded.append((stage, x, (P + P.T) / 2))
         for stage, x, P in loaded:
             stage.x, stage.P = x, P
+        if loaded:
+            self._seed_information()
         if R_SE is not None:
             self.force.R_SE = self.R_SE = R_SE
         self._cog_known = bool(source.get("converged_torque"))

@@ -50,6 +50,8 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
     out: list[tuple[str, str, dict[str, Any] | str]] = [(name, name, {}) for name in registry.names("estimator")]
     if "kalman" in registry.names("estimator"):
         out.append(("kalman noise=auto", "kalman", dict(AUTO_NOISE)))
+        out.append(("kalman noise=auto, convergence=identified", "kalman",
+                    dict(AUTO_NOISE, convergence="identified")))
         from ..discrepancy.workflow import discrepancy
 
         try:

@@ -343,3 +343,73 @@ def test_gate_probability_one_never_refuses():
     assert not out.contact.any()
     out, _ = feed(KalmanEstimator(), block)
     assert out.contact[int(12.5 * RATE_HZ):int(14.5 * RATE_HZ)].all()
+
+
+def _turning_stream(R_BE: np.ndarray, seed: int, noise: float = 0.1, rate_hz: float = 100.0):
+    """The static model (helpers' default tool) at the flange orientations R_BE (n, 3, 3), gravity along −z_B,
+    Gaussian noise: what a slow calibration motion logs."""
+    rng = np.random.default_rng(seed)
+    n = len(R_BE)
+    R_EB = R_BE.transpose(0, 2, 1)
+    gravity_force_B, bias_force_S = np.array([0.0, 0.0, -3.4]), np.array([1.0, -0.5, 2.0])
+    cog_S, bias_torque_S = np.array([0.002, -0.001, 0.0435]), np.array([0.03, -0.02, 0.01])
+    gravity_S = R_EB @ gravity_force_B
+    force_S = gravity_S + bias_force_S + rng.normal(0, noise, (n, 3))
+    torque_S = np.cross(cog_S, gravity_S) + bias_torque_S + rng.normal(0, noise / 10, (n, 3))
+    return AlignedSamples(t_ns=np.arange(n, dtype=np.int64) * int(1e9 / rate_hz), force_S=force_S,
+                          torque_S=torque_S, R_EB=R_EB, seq=np.arange(n), status=np.zeros(n, dtype=np.int64),
+                          stale=np.zeros(n, dtype=bool))
+
+
+def _rot(axis: int, angle: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.zeros((len(angle), 3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R[:, axis, axis] = 1.0
+    R[:, i, i], R[:, i, j], R[:, j, i], R[:, j, j] = c, -s, s, c
+    return R
+
+
+def test_identified_convergence_waits_for_a_tilt_that_tells_gravity_from_the_bias():
+    """Turning about the vertical only, gravity stays one vector in E: no motion of that kind can tell it from
+    the bias, so convergence = "identified" must not converge however well the force at those poses is
+    predicted; once the tool tilts it converges, and its flags then mean a compensated force at the noise."""
+    t = np.arange(0.0, 60.0, 0.01)
+    yaw = 1.5 * np.sin(2 * np.pi * t / 20.0)
+    tilt = np.where(t < 30.0, 0.0, 0.5 * np.sin(2 * np.pi * (t - 30.0) / 15.0))
+    R0 = _rot(0, np.full(len(t), np.pi))  # flange pointing down
+    block = _turning_stream(_rot(2, yaw) @ _rot(0, tilt) @ R0, seed=3)
+    est = KalmanEstimator(noise_force="auto", noise_torque="auto", convergence="identified")
+    out = est.update_block(block)
+    first = est.first_converged_force
+    assert first is not None and t[first] > 30.0  # not before the tilt, whatever the yaw did
+    after = out.converged_force & (t > t[first] + 5.0)
+    rms = np.sqrt(np.mean(out.contact_force_S[after] ** 2, axis=0))
+    assert after.sum() > 2000 and np.all(rms < 0.1 * 1.1)
+    assert np.abs(np.array(est.params()["gravity_force_B"]) - [0.0, 0.0, -3.4]).max() < 0.05
+
+
+def test_identified_convergence_is_not_held_back_by_the_bias_random_walk():
+    """A slow tour with the default bias random walk: the filter's own P of gravity keeps forgetting what
+    earlier turns taught (convergence = "covariance" waits long or forever); "identified" converges once the
+    turns have told gravity from the bias, and its estimate then holds to the noise."""
+    t = np.arange(0.0, 900.0, 0.1)  # a 10 Hz log of a slow tour: turns of minutes, the bias's memory ~6 s
+    R_BE = (_rot(2, 1.2 * np.sin(2 * np.pi * t / 400.0)) @ _rot(0, 0.4 * np.sin(2 * np.pi * t / 310.0))
+            @ _rot(1, 0.4 * np.sin(2 * np.pi * t / 530.0)) @ _rot(0, np.full(len(t), np.pi)))
+    block = _turning_stream(R_BE, seed=5, rate_hz=10.0)
+    runs = {}
+    for rule in ("covariance", "identified"):
+        est = KalmanEstimator(noise_force="auto", noise_torque="auto", convergence=rule)
+        runs[rule] = (est, est.update_block(block))
+    first = {rule: est.first_converged_force for rule, (est, _) in runs.items()}
+    assert first["identified"] is not None
+    assert first["covariance"] is None or first["identified"] < first["covariance"] - 1000
+    est, out = runs["identified"]
+    after = out.converged_force & (np.arange(len(t)) > first["identified"])
+    rms = np.sqrt(np.mean(out.contact_force_S[after] ** 2, axis=0))
+    assert np.all(rms < 0.1 * 1.1)
+
+
+def test_convergence_option_is_validated():
+    with pytest.raises(ValueError, match="^convergence: must be 'covariance', 'identified' or 'step'"):
+        KalmanEstimator(convergence="fast")

@@ -234,13 +234,8 @@ class SampleClock:
         seq : (N,) int64 sample indices.
         t_ns : (N,) int64 sample times, ns.
         """
-        if self.t0_ns is None:
-            raise RuntimeError("read() before open()")
-        last = math.floor((int(until_ns) - self.t0_ns) * self.rate_hz / 1e9) + 1  # may overshoot by one
-        seq = np.arange(self.next_index, max(last + 1, self.next_index), dtype=np.int64)
+        seq = np.arange(self.next_index, self.end_index(until_ns), dtype=np.int64)
         t_ns = self.times(seq)
-        keep = t_ns <= until_ns
-        seq, t_ns = seq[keep], t_ns[keep]
         if len(seq):
             self.next_index = int(seq[-1]) + 1
         return seq, t_ns

@@ -114,14 +114,14 @@ def quat_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     return np.concatenate([np.cos(half)[..., None], rotvec * k[..., None]], axis=-1)
 
 
-def rotvec_from_quat(q: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis · angle, rad) of one [w, x, y, z] quaternion, angle in [0, π]."""
-    q = np.asarray(q, dtype=float)
-    if q[0] < 0:
-        q = -q
-    s = np.linalg.norm(q[1:])
-    angle = 2.0 * np.arctan2(s, q[0])
-    return q[1:] * (angle / s) if s > 1e-15 else 2.0 * q[1:]
+def rotvec_from_quat(q) -> np.ndarray:
+    """Rotation vector (axis · angle, rad) of one [w, x, y, z] unit quaternion, angle in [0, π] (plain floats)."""
+    w, x, y, z = (float(v) for v in q)
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    k = 2.0 * math.atan2(s, w) / s if s > 1e-15 else 2.0  # angle / sin(angle / 2), its limit 2 at 0
+    return np.array([x * k, y * k, z * k])
 
 
 _VEE = np.array([7, 2, 3])
@@ -190,10 +190,7 @@ def rotvec_from_matrix(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, dtype=float)
     if R.shape != (3, 3):
         return Rotation.from_matrix(R).as_rotvec()
-    w, x, y, z = _quat_floats(R)
-    s = math.sqrt(x * x + y * y + z * z)
-    k = 2.0 * math.atan2(s, w) / s if s > 1e-15 else 2.0  # angle / sin(angle / 2), its limit 2 at 0
-    return np.array([x * k, y * k, z * k])
+    return rotvec_from_quat(_quat_floats(R))
 
 
 def matrix_from_rotvec(rotvec: np.ndarray) -> np.ndarray:

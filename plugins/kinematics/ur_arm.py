@@ -79,14 +79,19 @@ HOME_Q = np.array([0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 """A usual start configuration (rad): elbow up, flange pointing down; ``inverse_nearest``'s default reference."""
 
 
+def _link(dh: DH, i: int, theta: float):
+    """DH frame i+1 in frame i for joint angle ``theta`` (rad), in plain floats: (rotation rows, origin)."""
+    ct, st = math.cos(theta), math.sin(theta)
+    ca, sa = math.cos(dh.alpha[i]), math.sin(dh.alpha[i])
+    return ((ct, -st * ca, st * sa), (st, ct * ca, -ct * sa), (0.0, sa, ca)), (dh.a[i] * ct, dh.a[i] * st, dh.d[i])
+
+
 def link_transform(dh: DH, i: int, theta: float) -> np.ndarray:
     """(4, 4) homogeneous transform of DH frame i+1 in frame i for joint angle ``theta`` (rad)."""
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(dh.alpha[i]), np.sin(dh.alpha[i])
-    return np.array([[ct, -st * ca, st * sa, dh.a[i] * ct],
-                     [st, ct * ca, -ct * sa, dh.a[i] * st],
-                     [0.0, sa, ca, dh.d[i]],
-                     [0.0, 0.0, 0.0, 1.0]])
+    R, o = _link(dh, i, float(theta))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, o
+    return T
 
 
 def forward(dh: DH, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -94,13 +99,11 @@ def forward(dh: DH, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     R = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     px = py = pz = 0.0
     for i, theta in enumerate(np.asarray(q, dtype=float).tolist()):  # T = T · link_transform(i), in floats
-        ct, st = math.cos(theta), math.sin(theta)
-        ca, sa = math.cos(dh.alpha[i]), math.sin(dh.alpha[i])
-        ox, oy, oz = dh.a[i] * ct, dh.a[i] * st, dh.d[i]
+        R_link, (ox, oy, oz) = _link(dh, i, theta)
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
         px, py, pz = (px + r00 * ox + r01 * oy + r02 * oz, py + r10 * ox + r11 * oy + r12 * oz,
                       pz + r20 * ox + r21 * oy + r22 * oz)
-        R = _mul(R, ((ct, -st * ca, st * sa), (st, ct * ca, -ct * sa), (0.0, sa, ca)))
+        R = _mul(R, R_link)
     return np.array(R), np.array([px, py, pz])
 
 
@@ -145,8 +148,8 @@ def inverse(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q6_singular: float =
     """
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(R_BE, dtype=float).tolist()
     px, py, pz = np.asarray(p_BoEo_B, dtype=float).tolist()
-    a1, a2, a3 = dh.a[0], dh.a[1], dh.a[2]
-    d1, d4, d5, d6 = dh.d[0], dh.d[3], dh.d[4], dh.d[5]
+    a2, a3 = dh.a[1], dh.a[2]
+    d4, d6 = dh.d[3], dh.d[5]
     # plain floats throughout (the emulated arm solves this at every RTDE cycle: ~20 µs, not ~350 with numpy)
     x5, y5 = px - d6 * r02, py - d6 * r12  # p5 = p − d6·z_E
     r = math.hypot(x5, y5)
@@ -154,28 +157,21 @@ def inverse(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q6_singular: float =
         return np.empty((0, 6))
     phi = math.atan2(y5, x5)
     shoulder = math.asin(min(max(d4 / r, -1.0), 1.0))
-    ca0, sa0 = math.cos(dh.alpha[0]), math.sin(dh.alpha[0])
-    ca4, sa4 = math.cos(dh.alpha[4]), math.sin(dh.alpha[4])
     solutions = []
     for theta1 in (phi + shoulder, phi + math.pi - shoulder):
-        c1, s1 = math.cos(theta1), math.sin(theta1)
-        # R_01 = [[c1, −s1·ca0, s1·sa0], [s1, c1·ca0, −c1·sa0], [0, sa0, ca0]], p_01 = [a1·c1, a1·s1, d1]
-        R01 = ((c1, -s1 * ca0, s1 * sa0), (s1, c1 * ca0, -c1 * sa0), (0.0, sa0, ca0))
+        R01, p01 = _link(dh, 0, theta1)
         R16 = _mul_t(R01, ((r00, r01, r02), (r10, r11, r12), (r20, r21, r22)))  # R_01ᵀ R_BE
-        p16 = _apply_t(R01, (px - a1 * c1, py - a1 * s1, pz - d1))  # R_01ᵀ (p − p_01)
+        p16 = _apply_t(R01, (px - p01[0], py - p01[1], pz - p01[2]))  # R_01ᵀ (p − p_01)
         # The last row of R_16 is [s5·c6, −s5·s6, c5] (and p_16 z = d4 + d6·c5 by the choice of θ1):
         # atan2 keeps θ5 accurate near sin θ5 = 0, where arccos(c5) would lose half the digits.
         s5_abs = math.hypot(R16[2][0], R16[2][1])
         for sign in (1.0, -1.0):
             theta5 = math.atan2(sign * s5_abs, R16[2][2])
             theta6 = (math.atan2(-sign * R16[2][1], sign * R16[2][0]) if s5_abs > 1e-12 else q6_singular)
-            # T_46 = L4(θ5)·L5(θ6) (a4 = a5 = 0); T_14 = T_16·T_46⁻¹: only its first two rows' x column
-            # and origin are needed
-            c5, s5, c6, s6 = math.cos(theta5), math.sin(theta5), math.cos(theta6), math.sin(theta6)
-            L4 = ((c5, -s5 * ca4, s5 * sa4), (s5, c5 * ca4, -c5 * sa4), (0.0, sa4, ca4))
-            L5 = ((c6, -s6, 0.0), (s6, c6, 0.0), (0.0, 0.0, 1.0))  # α5 = 0
-            R46 = _mul(L4, L5)
-            p46 = (L4[0][2] * d6, L4[1][2] * d6, L4[2][2] * d6 + d5)  # L4's origin (0, 0, d5) + L4's z·d6
+            # T_46 = L4(θ5)·L5(θ6); T_14 = T_16·T_46⁻¹: only its first two rows' x column and origin are needed
+            (R4, o4), (R5, o5) = _link(dh, 4, theta5), _link(dh, 5, theta6)
+            R46 = _mul(R4, R5)
+            p46 = tuple(o4[i] + R4[i][0] * o5[0] + R4[i][1] * o5[1] + R4[i][2] * o5[2] for i in range(3))
             # T_64 = [R_46ᵀ, −R_46ᵀ p_46]; T_14 = [R_16 R_46ᵀ, R_16 (−R_46ᵀ p_46) + p_16]
             q64 = _apply_t(R46, p46)
             (u0, u1, u2), (v0, v1, v2) = R16[0], R16[1]

@@ -447,6 +447,7 @@ class KalmanEstimator(RefusesBadSamples):
         self._accepted_in_run = 0  # consecutive accepted samples (a run survives a few)
         self._run_tested_full = False  # the run's whole window was tested (negative)
         self._information: dict[str, np.ndarray] = {}  # convergence = "identified": Λ per stage (6, 6)
+        self._predicted_force_var: np.ndarray | None = None  # ... and the force's variance at the last pose
         self._seed_information()
         if warm_start:
             self.load_state(warm_start)
@@ -717,8 +718,9 @@ class KalmanEstimator(RefusesBadSamples):
             return self._step_converged(run_f.X[:, :6], x_before, accepted, self.converged_force)
         bound2 = self._bounds()[0] ** 2
         if self.convergence == "identified":  # gravity from the motion's information; the force at this pose
-            conv = ((self._identified_var("force", A_f, accepted) < bound2)
-                    & (self._predicted_var(self.force, A_f) < bound2))
+            predicted = self._predicted_var(self.force, A_f)
+            self._predicted_force_var = predicted[-1]
+            conv = (self._identified_var("force", A_f, accepted) < bound2) & (predicted.max(axis=1) < bound2)
         else:
             conv = run_f.D[:, :6].max(axis=1) < bound2
         if self.mount_rotation:  # the force a mount error can cause: std(θ)·|gravity_force_B|
@@ -735,18 +737,18 @@ class KalmanEstimator(RefusesBadSamples):
         weight2 = (X_f[:, :3] ** 2).sum(axis=1)  # |gravity_force_B|², N²
         if self.convergence == "identified":
             return ((self._identified_var("torque", A_t, accepted) * weight2 < bound2)
-                    & (self._predicted_var(self.torque, A_t) < bound2))
+                    & (self._predicted_var(self.torque, A_t).max(axis=1) < bound2))
         return (run_t.D[:, :3].max(axis=1) * weight2 < bound2) & (run_t.D[:, 3:6].max(axis=1) < bound2)
 
     @staticmethod
     def _predicted_var(stage, A: np.ndarray) -> np.ndarray:
-        """(m,) largest variance of the stage's predicted reading, max diag(C_k P Cᵀ_k), C_k = [A_k, I3], with
+        """(m, 3) variance of the stage's predicted reading per axis, diag(C_k P Cᵀ_k), C_k = [A_k, I3], with
         P as it is after the block (N² or (N·m)²): how well the non-contact wrench is known at each pose.
 
         The filter's P of the constant and of the bias are each wide while the bias's random walk keeps
         forgetting, but strongly anti-correlated: at the poses the robot is at, their sum is known."""
         C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)
-        return np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C).max(axis=1)
+        return np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C)
 
     def _identified_var(self, stage: str, A: np.ndarray, accepted: np.ndarray) -> np.ndarray:
         """(m,) largest variance of the stage's constant (gravity_force_B, N², or cog_S, m²) after each sample,
@@ -1039,7 +1041,14 @@ class KalmanEstimator(RefusesBadSamples):
         return out
 
     def force_parameter_std(self) -> np.ndarray:
-        """(6,) standard deviation of [gravity_force_B, bias_force_S], N: sqrt of diag P_force."""
+        """(6,) standard deviation of [gravity_force_B, bias_force_S], N: sqrt of diag P_force.
+
+        With ``convergence = "identified"`` what that rule judges: gravity's std as the motion identifies it,
+        and in the bias's place the non-contact force's std per axis at the last sample's pose (the bias as
+        known where the robot is), so the haptic gate's "parameters known" agrees with the flag."""
+        if self.convergence == "identified" and self._predicted_force_var is not None:
+            gravity_var = np.linalg.inv(self._information["force"]).diagonal()[:3]
+            return np.sqrt(np.concatenate([gravity_var, self._predicted_force_var]))
         return np.sqrt(np.diag(self.force.P)[:6])
 
     def torque_parameter_std(self) -> np.ndarray:

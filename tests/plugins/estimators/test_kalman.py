@@ -408,6 +408,8 @@ def test_identified_convergence_is_not_held_back_by_the_bias_random_walk():
     after = out.converged_force & (np.arange(len(t)) > first["identified"])
     rms = np.sqrt(np.mean(out.contact_force_S[after] ** 2, axis=0))
     assert np.all(rms < 0.1 * 1.1)
+    # what the haptic gate reads agrees with the flag: the force stage known to the bound
+    assert est.converged_force and est.force_parameter_std().max() < est._bounds()[0]
 
 
 def test_convergence_option_is_validated():

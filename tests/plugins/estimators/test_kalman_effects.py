@@ -39,6 +39,21 @@ def test_a_5_degree_mount_is_estimated_within_0_3_degrees():
     assert np.linalg.norm(rms["kalman"]) > np.linalg.norm(rms["kalman mount_rotation"])  # the option closes the gap
 
 
+def test_an_estimated_mount_converges_under_either_rule_and_compensates(mounted):
+    """convergence = "identified" keeps the mount's own check (std(θ)·|gravity| under the bound) and
+    compensates the 5° mount as "covariance" does, to the noise once converged."""
+    world, block = mounted
+    first = {}
+    for rule in ("covariance", "identified"):
+        est = KalmanEstimator(mount_rotation=True, convergence=rule)
+        out, _ = feed(est, block, chunk=64)
+        first[rule] = est.first_converged_force
+        after = out.converged_force & (np.arange(len(out.converged_force)) > 15000)
+        rms = np.sqrt(np.mean(out.contact_force_S[after] ** 2, axis=0))
+        assert after.sum() > 10000 and np.all(rms < 1.1 * NOISE_F), (rule, rms)
+    assert first["identified"] is not None and first["identified"] <= first["covariance"]
+
+
 def test_the_reported_mount_is_the_estimate(mounted):
     world, block = mounted
     est = KalmanEstimator(mount_rotation=True)

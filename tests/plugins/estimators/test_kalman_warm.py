@@ -63,10 +63,11 @@ def reference_heavy():
 # ---------------------------------------------------------------- item 6: payload change
 
 
-def test_added_mass_is_a_payload_change_and_reconverges(reference_heavy):
+@pytest.mark.parametrize("rule", ["covariance", "identified"])
+def test_added_mass_is_a_payload_change_and_reconverges(reference_heavy, rule):
     start = 20.0
     block, _ = world(payload(start), seconds=30.0, drift_force=DRIFT_FORCE)
-    est = KalmanEstimator()
+    est = KalmanEstimator(convergence=rule)
     out, _ = feed(est, block, chunk=64)
     events = est.drain_events()
     assert [e.kind for e in events] == ["payload_change"] and est.drain_events() == []
@@ -137,10 +138,11 @@ def test_state_is_json_and_round_trips(saved_state):
     assert np.array_equal(warm.torque.x, est.torque.x) and np.array_equal(warm.torque.P, est.torque.P)
 
 
-def test_warm_start_with_the_same_tool_converges_at_once(saved_state):
+@pytest.mark.parametrize("rule", ["covariance", "identified"])
+def test_warm_start_with_the_same_tool_converges_at_once(saved_state, rule):
     path, _ = saved_state
     block, _ = world(seconds=10.0, seed=7)  # another session: other motion and noise, same tool and sensor
-    warm, cold = KalmanEstimator(warm_start=str(path)), KalmanEstimator()
+    warm, cold = KalmanEstimator(warm_start=str(path), convergence=rule), KalmanEstimator(convergence=rule)
     out, _ = feed(warm, block, chunk=64)
     feed(cold, block, chunk=64)
     print(f"\nwarm start, same tool: converged at sample {warm.first_converged_force} (force), "
@@ -152,10 +154,11 @@ def test_warm_start_with_the_same_tool_converges_at_once(saved_state):
     assert np.all(rms < 1.1 * NOISE["noise_force"]), rms
 
 
-def test_warm_start_with_a_changed_tool_recovers(saved_state):
+@pytest.mark.parametrize("rule", ["covariance", "identified"])
+def test_warm_start_with_a_changed_tool_recovers(saved_state, rule):
     path, _ = saved_state
     block, _ = world(seconds=10.0, seed=7, mass=0.3)  # a 100 g heavier tool since the saved session
-    warm = KalmanEstimator(warm_start=str(path))
+    warm = KalmanEstimator(warm_start=str(path), convergence=rule)
     out, _ = feed(warm, block, chunk=64)
     events = warm.drain_events()
     assert [e.kind for e in events] == ["payload_change"]

@@ -4,8 +4,11 @@ Header row, comma separated: ``t`` (s, increasing), ``fx,fy,fz`` (N) and
 ``tx,ty,tz`` (N·m) raw sensor wrench in S, ``qw,qx,qy,qz`` unit quaternion of
 E in B (forward kinematics, i.e. R_BE), optional ``px,py,pz`` (m, E origin in
 B), optional joint columns ``q1..q6`` (rad). Unknown extra columns are ignored
-with a note. A missing or non-numeric required column, a non-unit quaternion
-or a non-increasing ``t`` is a ``CsvError`` naming the file, line and column.
+with a note. A row that repeats the row before it exactly (every cell the same:
+a logger that wrote a record twice) is dropped, with a note saying how many and
+at which lines. A missing or non-numeric required column, a non-unit quaternion
+or a non-increasing ``t`` (a repeated time with other values: a conflicting
+duplicate) is a ``CsvError`` naming the file, line and column.
 """
 
 from __future__ import annotations
@@ -86,7 +89,7 @@ def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
         done = 0
         while batch := list(islice(records, rows)):
             stream = chunk.parse(batch, done)
-            stream.notes = notes if done == 0 else []
+            stream.notes = (notes if done == 0 else []) + stream.notes  # the chunk's dropped duplicates
             done += len(batch)
             del batch  # one chunk's rows (Python strings: ~1 kB a row) in memory at a time
             yield stream
@@ -120,6 +123,7 @@ class _Chunk:
         self.has_position, self.joint_cols = has_position, joint_cols
         self.t0: float | None = None  # the file's first t: t_ns counts from it
         self.last: tuple[int, float] | None = None  # (line, t) of the previous chunk's last row
+        self.last_cells: list[str] | None = None  # ... and its cells (a duplicate may follow it)
 
     def column(self, col: str, lines: list[int], data: list[list[str]]) -> np.ndarray:
         values = [row[self.index[col]].strip() for row in data]
@@ -150,10 +154,23 @@ class _Chunk:
             return np.column_stack([self.column(c, lines, data) for c in cols])
 
         t = self.column("t", lines, data)
+        rows = np.arange(offset, offset + len(batch))
+        t, lines, data, rows, notes = self._drop_exact_duplicates(t, lines, data, rows)
+        if not len(t):  # a whole batch repeating the row before it: no samples, the note
+            z = np.zeros((0, 3))
+            samples = AlignedSamples(np.zeros(0, dtype=np.int64), z, z, np.zeros((0, 3, 3)), rows,
+                                     np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros((0, 4)),
+                                     z if self.has_position else None)
+            return Stream(t, samples, notes, self.source,
+                          np.zeros((0, len(self.joint_cols))) if self.joint_cols else None)
         t_all, lines_all = (t, lines) if self.last is None else (np.r_[self.last[1], t], [self.last[0], *lines])
         bad = np.flatnonzero(np.diff(t_all) <= 0)
         if len(bad):
             k = int(bad[0])
+            if t_all[k + 1] == t_all[k]:
+                raise CsvError(f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} repeats the "
+                               f"time of line {lines_all[k]} with other values (a conflicting duplicate; rows "
+                               f"repeated exactly are dropped)")
             raise CsvError(f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} does not increase "
                            f"(previous {float(t_all[k])!r})")
         force_S = columns(("fx", "fy", "fz"))
@@ -168,13 +185,33 @@ class _Chunk:
         joints = columns(self.joint_cols) if self.joint_cols else None
         if self.t0 is None:
             self.t0 = float(t[0])
-        self.last = (lines[-1], float(t[-1]))
+        self.last, self.last_cells = (lines[-1], float(t[-1])), data[-1]
         n = len(t)
         t_ns = np.round((t - self.t0) * 1e9).astype(np.int64)
         R_EB = matrix_from_quat_wxyz(quat).transpose(0, 2, 1)
-        samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, np.arange(offset, offset + n),
+        samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, rows,
                                  np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), quat, p)
-        return Stream(t, samples, [], self.source, joints)
+        return Stream(t, samples, notes, self.source, joints)
+
+    def _drop_exact_duplicates(self, t, lines, data, rows):
+        """The batch without the rows that repeat the row before them cell for cell, and a note naming them.
+
+        Only a row whose ``t`` equals the previous row's can be one; its cells are compared as written
+        (stripped), the previous chunk's last row included. ``rows`` (the data-row numbers, the samples'
+        ``seq``) keep their gaps, so a dropped row stays visible."""
+        prev_t = np.r_[self.last[1] if self.last is not None else np.nan, t[:-1]]
+        same_t = np.flatnonzero(t == prev_t)
+        dropped = [k for k in same_t if [c.strip() for c in data[k]] ==
+                   [c.strip() for c in (data[k - 1] if k > 0 else self.last_cells)]]
+        if not dropped:
+            return t, lines, data, rows, []
+        keep = np.ones(len(t), dtype=bool)
+        keep[dropped] = False
+        at = [lines[k] for k in dropped]
+        where = ", ".join(map(str, at[:10])) + (f" and {len(at) - 10} more" if len(at) > 10 else "")
+        note = f"{self.name}: dropped {len(at)} row(s) that exactly repeat the row before them (line(s) {where})"
+        kept = np.flatnonzero(keep)
+        return t[keep], [lines[k] for k in kept], [data[k] for k in kept], rows[keep], [note]
 
 
 OUTPUT_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "contact", "converged_force", "converged_torque")

@@ -56,6 +56,9 @@ def test_optional_and_unknown_columns(tmp_path):
         (lambda lines: lines.__setitem__(3, lines[3] + ",1"),
          r"bad.csv line 4: 12 fields, the header has 11"),
         (lambda lines: lines.__delitem__(slice(1, None)), r"bad.csv: no data rows after the header"),
+        (lambda lines: lines.__setitem__(9, lines[8].split(",")[0] + lines[9][lines[9].index(","):]),
+         r"bad.csv line 10, column 't': 0.07 repeats the time of line 9 with other values \(a conflicting "
+         r"duplicate; rows repeated exactly are dropped\)"),
     ],
 )
 def test_errors_name_the_line_and_column(tmp_path, mutate, message):
@@ -73,3 +76,30 @@ def test_real_files_import(real_data):
         stream = read_csv(path)
         assert len(stream) > 50
         assert np.allclose(np.linalg.det(stream.samples.R_EB), 1.0)
+
+
+def test_rows_repeated_exactly_are_dropped_with_a_note_naming_them(tmp_path):
+    """Five rows written twice by a logger (one of them three times, one at a chunk's edge) in a file read in
+    chunks: the same samples as the file without them, the data rows' numbers (seq) keeping the gaps, and
+    one note per chunk naming the lines."""
+    from hapticlab.sessions.recording.csvimport import iter_csv
+    from hapticlab.sessions.recording.stream import Stream
+
+    clean, doubled = tmp_path / "clean.csv", tmp_path / "doubled.csv"
+    write_stream(clean, n=60)
+    lines = clean.read_text().splitlines()
+    out = []
+    for k, line in enumerate(lines):
+        out.append(line)
+        if k in (3, 17, 27, 44):
+            out.append(line)
+        if k == 17:
+            out.append(line)  # three times
+    doubled.write_text("\n".join(out) + "\n")
+    a = read_csv(clean)
+    b = Stream.concatenate(list(iter_csv(doubled, rows=30)))  # line 32, a chunk's first, repeats line 31
+    assert np.array_equal(a.t_s, b.t_s) and np.array_equal(a.samples.force_S, b.samples.force_S)
+    assert np.array_equal(a.samples.R_EB, b.samples.R_EB)
+    assert len(b) == 60 and len(set(b.samples.seq.tolist())) == 60 and b.samples.seq[-1] == 64
+    assert b.notes == ["doubled.csv: dropped 3 row(s) that exactly repeat the row before them (line(s) 5, 20, 21)",
+                       "doubled.csv: dropped 2 row(s) that exactly repeat the row before them (line(s) 32, 50)"]

@@ -156,13 +156,6 @@ class _Chunk:
         t = self.column("t", lines, data)
         rows = np.arange(offset, offset + len(batch))
         t, lines, data, rows, notes = self._drop_exact_duplicates(t, lines, data, rows)
-        if not len(t):  # a whole batch repeating the row before it: no samples, the note
-            z = np.zeros((0, 3))
-            samples = AlignedSamples(np.zeros(0, dtype=np.int64), z, z, np.zeros((0, 3, 3)), rows,
-                                     np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros((0, 4)),
-                                     z if self.has_position else None)
-            return Stream(t, samples, notes, self.source,
-                          np.zeros((0, len(self.joint_cols))) if self.joint_cols else None)
         t_all, lines_all = (t, lines) if self.last is None else (np.r_[self.last[1], t], [self.last[0], *lines])
         bad = np.flatnonzero(np.diff(t_all) <= 0)
         if len(bad):
@@ -185,7 +178,8 @@ class _Chunk:
         joints = columns(self.joint_cols) if self.joint_cols else None
         if self.t0 is None:
             self.t0 = float(t[0])
-        self.last, self.last_cells = (lines[-1], float(t[-1])), data[-1]
+        if len(t):  # (a batch that only repeated the row before it leaves the last row as it was)
+            self.last, self.last_cells = (lines[-1], float(t[-1])), data[-1]
         n = len(t)
         t_ns = np.round((t - self.t0) * 1e9).astype(np.int64)
         R_EB = matrix_from_quat_wxyz(quat).transpose(0, 2, 1)

@@ -103,3 +103,17 @@ def test_rows_repeated_exactly_are_dropped_with_a_note_naming_them(tmp_path):
     assert len(b) == 60 and len(set(b.samples.seq.tolist())) == 60 and b.samples.seq[-1] == 64
     assert b.notes == ["doubled.csv: dropped 3 row(s) that exactly repeat the row before them (line(s) 5, 20, 21)",
                        "doubled.csv: dropped 2 row(s) that exactly repeat the row before them (line(s) 32, 50)"]
+
+
+def test_a_chunk_that_only_repeats_the_row_before_it_yields_no_samples_and_its_note(tmp_path):
+    from hapticlab.sessions.recording.csvimport import iter_csv
+
+    path = tmp_path / "stuck.csv"
+    write_stream(path, n=10)
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:6] + [lines[5]] * 5 + lines[6:]) + "\n")  # a whole chunk of repeats
+    parts = list(iter_csv(path, rows=5))
+    assert [len(p) for p in parts] == [5, 0, 5]
+    assert parts[1].notes == ["stuck.csv: dropped 5 row(s) that exactly repeat the row before them "
+                              "(line(s) 7, 8, 9, 10, 11)"]
+    assert parts[2].samples.seq.tolist() == [10, 11, 12, 13, 14]

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+from hapticlab.core.frames import matrix_from_rotvec
 from hapticlab.core.interfaces import Estimator
 from hapticlab.core.kalman import KalmanStage
 from hapticlab.core.plugins import ConfigError, Registry
@@ -362,12 +363,8 @@ def _turning_stream(R_BE: np.ndarray, seed: int, noise: float = 0.1, rate_hz: fl
 
 
 def _rot(axis: int, angle: np.ndarray) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    R = np.zeros((len(angle), 3, 3))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    R[:, axis, axis] = 1.0
-    R[:, i, i], R[:, i, j], R[:, j, i], R[:, j, j] = c, -s, s, c
-    return R
+    """(n, 3, 3) rotations by ``angle`` (n,) rad about the coordinate axis ``axis``."""
+    return matrix_from_rotvec(np.outer(angle, np.eye(3)[axis]))
 
 
 def test_identified_convergence_waits_for_a_tilt_that_tells_gravity_from_the_bias():

@@ -28,6 +28,9 @@ import math
 import numpy as np
 from numba import njit
 
+from ..noise_estimate import (AUTO_BOUND_FRACTION, NOISE_CLIP, NOISE_CLIP_MEAN, NOISE_FLOOR, NOISE_PRIOR_SAMPLES,
+                              NOISE_REFUSED_WEIGHT, NOISE_WINDOW, NOISE_WINDOW_S)
+
 PREDICTED, UPDATED, GATED, FAILED = 0, 1, 2, 3
 """What ``stage_step`` did with a sample: predicted only (inactive), updated, refused by the
 gate, or the update could not be computed (S not numerically positive definite)."""
@@ -215,9 +218,96 @@ def filter6(x, P, y, A, dt, active, q, r, rc, gate2, X, D, gated, d2, failed):
     return n_failed
 
 
+ADAPT_NOISE, ADAPT_IDENTIFIED = 0, 1
+ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 2, 3, 4, 5
+ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 6, 7, 8, 9, 10
+ADAPT_SIZE = 13
+"""``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE`` the noise
+estimated as it runs (``core.noise_estimate``), ``ADAPT_IDENTIFIED`` convergence as identified
+(``core.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T`` the convergence bound from the noise estimate.
+State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
+yet known), whether the force flag was ever up, the bounds' caps (inf until the force flag first rises).
+Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``)."""
+
+
+@njit(cache=True, error_model="numpy")
+def predicted_var(P, A, out):
+    """out (3,) = diag(C P Cᵀ), C = [A, I3] (``core.identified.predicted_var``)."""
+    for i in range(3):
+        a0, a1, a2 = A[i, 0], A[i, 1], A[i, 2]
+        quad = (a0 * (P[0, 0] * a0 + P[0, 1] * a1 + P[0, 2] * a2) + a1 * (P[1, 0] * a0 + P[1, 1] * a1 + P[1, 2] * a2)
+                + a2 * (P[2, 0] * a0 + P[2, 1] * a1 + P[2, 2] * a2))
+        out[i] = quad + 2.0 * (a0 * P[0, 3 + i] + a1 * P[1, 3 + i] + a2 * P[2, 3 + i]) + P[3 + i, 3 + i]
+
+
+@njit(cache=True, error_model="numpy")
+def add_information(info, A, r):
+    """info (6, 6) += Cᵀ diag(1/r) C, C = [A, I3], in place (``core.identified.add_information``)."""
+    for j in range(6):
+        for l in range(j, 6):
+            s = 0.0
+            for i in range(3):
+                cj = A[i, j] if j < 3 else (1.0 if i == j - 3 else 0.0)
+                cl = A[i, l] if l < 3 else (1.0 if i == l - 3 else 0.0)
+                s += cj * cl / r[i]
+            info[j, l] += s
+            if l != j:
+                info[l, j] = info[j, l]
+
+
+@njit(cache=True, error_model="numpy")
+def constant_var_max(info, L):
+    """The largest of diag((Λ⁻¹)[:3, :3]) (``core.identified.constant_var``), inf if Λ is not positive definite.
+
+    Cholesky of Λ reordered as [b, a] (L (6, 6) scratch): the trailing 3×3 factor T has T Tᵀ = the Schur
+    complement Λ_aa − Λ_ab Λ_bb⁻¹ Λ_ba = ((Λ⁻¹)_aa)⁻¹, so diag((Λ⁻¹)_aa) are the squared column norms of T⁻¹."""
+    for i in range(6):
+        pi = (i + 3) % 6
+        for j in range(i + 1):
+            s = info[pi, (j + 3) % 6]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return math.inf
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    t00, t10, t11, t20, t21, t22 = L[3, 3], L[4, 3], L[4, 4], L[5, 3], L[5, 4], L[5, 5]
+    v00, v11, v22 = 1.0 / t00, 1.0 / t11, 1.0 / t22
+    v10 = -t10 * v00 / t11
+    v21 = -t21 * v11 / t22
+    v20 = -(t20 * v00 + t21 * v10) / t22
+    return max(v00 * v00 + v10 * v10 + v20 * v20, v11 * v11 + v21 * v21, v22 * v22)
+
+
+@njit(cache=True, error_model="numpy")
+def adapt_noise(r, count, e0, e1, e2, cpc, weight, window, floor):
+    """One covariance-matching step on r (3,) in place (``core.noise_estimate.adapt_noise``); returns the
+    count after it. A weight of 0 or a non-finite innovation changes nothing."""
+    if weight == 0.0 or not (math.isfinite(e0) and math.isfinite(e1) and math.isfinite(e2)):
+        return count
+    count += weight
+    lam = weight / min(count + NOISE_PRIOR_SAMPLES, window)
+    clip2 = NOISE_CLIP ** 2
+    for i in range(3):
+        e = e0 if i == 0 else (e1 if i == 1 else e2)
+        s2 = r[i] + cpc[i]
+        sq = min(e ** 2, clip2 * s2) / NOISE_CLIP_MEAN
+        r[i] = max(r[i] + lam * (max(sq - cpc[i], 0.0) - r[i]), floor * floor)
+    return count
+
+
+@njit(cache=True, error_model="numpy")
+def _auto_bound2(r, cap):
+    """The convergence bound², AUTO_BOUND_FRACTION·noise std (mean variance over the axes), at most cap."""
+    bound = min(AUTO_BOUND_FRACTION * math.sqrt((r[0] + r[1] + r[2]) / 3.0), cap)
+    return bound * bound
+
+
 @njit(cache=True, error_model="numpy")
 def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, inertial_S, usable,
-                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, limits, A_t,
+                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, limits, adapt, info_f, info_t, A_t, scratch,
                    X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
     """The ``kalman`` estimator's cascade over m samples (its ``_filter_block``), in order.
@@ -225,8 +315,13 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     Force stage y = y_f, C = [A_f, I3]; its flag: max diag P[:6] < bound_f²; the torque stage
     sees the samples the force stage accepted with its flag up, C = [−[force_S − b_f]ₓ, I3]
     (b_f after the sample); its flag: max diag P_cog · |gravity_force_B|² < bound_t² and
-    max diag P_bias < bound_t². A failed update (S not positive definite) is predicted only
-    and lowers the flag. The contact wrench at the states after each sample (paper eqs. 20–21).
+    max diag P_bias < bound_t². With ``adapt[ADAPT_IDENTIFIED]`` the flags are instead the
+    identified rule's (``core.identified``: the constant's variance from the accepted samples'
+    information, and the reading's predicted variance at the pose, both under the bound). With
+    ``adapt[ADAPT_NOISE]`` both stages' noise is re-estimated after each sample
+    (``core.noise_estimate``), the torque stage's carried force noise following the force's. A
+    failed update (S not positive definite) is predicted only and lowers the flag. The contact
+    wrench at the states after each sample (paper eqs. 20–21).
 
     Args:
         t_ns: (m,) int64 sample times, ns. last_t_ns: (2,) int64 [1 if a sample came before, its t_ns].
@@ -237,8 +332,11 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         usable: (m,) bool out: the
         samples the filter may use (``AlignedSamples.usable``: the guard has already refused a
         non-finite wrench or R_EB), less those whose force update failed.
-        x_f, P_f, x_t, P_t: the stages' (6,) and (6, 6), in place. q_*, r_*, rc_*: (3,) as ``stage_step``.
-        limits: (3,) [gate2, bound_f², bound_t²]. A_t: (3, 3) scratch for the torque stage's A_k.
+        x_f, P_f, x_t, P_t: the stages' (6,) and (6, 6), in place. q_*, r_*, rc_*: (3,) as ``stage_step``
+        (r_f, r_t, rc_t in place with the noise estimate).
+        limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_NOISE``.
+        info_f, info_t: (6, 6) the stages' information Λ (identified rule), in place.
+        A_t: (3, 3), scratch: (7, 6) scratch (the Cholesky factor, the torque reading's variance).
         Out, (m, 6): X_f, D_f, X_t, D_t (state, diag P);
         (m,): gated_f, failed_f, gated_t, failed_t; contact_force_S, contact_torque_S (m, 3);
         contact, converged_force, converged_torque (m,).
@@ -248,6 +346,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         force flag up or −1, the same for torque): what the caller would otherwise count.
     """
     gate2, bound_f2, bound_t2 = limits[0], limits[1], limits[2]
+    noise, identified = adapt[ADAPT_NOISE] != 0.0, adapt[ADAPT_IDENTIFIED] != 0.0
+    pred_f, pred_t = adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3], scratch[6, :3]
     previous = last_t_ns[1]
     n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
     positions = p_BoEo_B.shape[0] != 0
@@ -263,6 +363,11 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             step_ns = t_ns[k] - previous
         previous = t_ns[k]
         dt = max(step_ns, 0) * 1e-9
+        if adapt[ADAPT_AUTO_F] != 0.0:
+            bound_f2 = _auto_bound2(r_f, adapt[ADAPT_CAP_F])
+        if adapt[ADAPT_AUTO_T] != 0.0:
+            bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
+        fb0, fb1, fb2, fb3, fb4, fb5 = x_f[0], x_f[1], x_f[2], x_f[3], x_f[4], x_f[5]
         what, _ = stage_step(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, r_f, rc_f, gate2)
         failed = what == FAILED
         gated_f[k], failed_f[k] = what == GATED, failed
@@ -270,7 +375,15 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             usable[k] = False
             n_failed_f += 1
         n_gated_f += what == GATED
-        conv = max(P_f[0, 0], P_f[1, 1], P_f[2, 2], P_f[3, 3], P_f[4, 4], P_f[5, 5]) < bound_f2 and not failed
+        if identified or noise:
+            predicted_var(P_f, A_f[k], pred_f)
+        if identified:
+            if usable[k] and what != GATED:
+                add_information(info_f, A_f[k], r_f)
+            conv = (constant_var_max(info_f, scratch) < bound_f2 and max(pred_f[0], pred_f[1], pred_f[2]) < bound_f2
+                    and not failed)
+        else:
+            conv = max(P_f[0, 0], P_f[1, 1], P_f[2, 2], P_f[3, 3], P_f[4, 4], P_f[5, 5]) < bound_f2 and not failed
         converged_force[k] = conv
         if conv and first_f < 0:
             first_f = k
@@ -279,15 +392,56 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
         A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
         seen = usable[k] and what != GATED and conv
+        tb0, tb1, tb2, tb3, tb4, tb5 = x_t[0], x_t[1], x_t[2], x_t[3], x_t[4], x_t[5]
         what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
                                rc_t, gate2)
         gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
         n_failed_t += what_t == FAILED
+        seen = seen and what_t != FAILED
         weight2 = x_f[0] ** 2 + x_f[1] ** 2 + x_f[2] ** 2  # |gravity_force_B|², N²
-        converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
-                               and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)
+        if identified or noise:
+            predicted_var(P_t, A_t, pred_t)
+        if identified:
+            if seen and what_t != GATED:
+                add_information(info_t, A_t, r_t)
+            converged_torque[k] = (constant_var_max(info_t, scratch) * weight2 < bound_t2
+                                   and max(pred_t[0], pred_t[1], pred_t[2]) < bound_t2 and what_t != FAILED)
+        else:
+            converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
+                                   and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)
         if converged_torque[k] and first_t < 0:
             first_t = k
+        if noise:
+            if adapt[ADAPT_WINDOW] == 0.0 and dt > 0.0:  # the sensor's rate, from the first time step
+                adapt[ADAPT_WINDOW] = max(NOISE_WINDOW, int(NOISE_WINDOW_S / dt))
+            window = adapt[ADAPT_WINDOW] if adapt[ADAPT_WINDOW] != 0.0 else NOISE_WINDOW
+            refused_weight = NOISE_REFUSED_WEIGHT if adapt[ADAPT_FORCE_SEEN] == 0.0 else 0.0
+            if usable[k]:
+                A = A_f[k]
+                adapt[ADAPT_COUNT_F] = adapt_noise(
+                    r_f, adapt[ADAPT_COUNT_F],
+                    y_f[k, 0] - (A[0, 0] * fb0 + A[0, 1] * fb1 + A[0, 2] * fb2) - fb3,
+                    y_f[k, 1] - (A[1, 0] * fb0 + A[1, 1] * fb1 + A[1, 2] * fb2) - fb4,
+                    y_f[k, 2] - (A[2, 0] * fb0 + A[2, 1] * fb1 + A[2, 2] * fb2) - fb5,
+                    pred_f, refused_weight if what == GATED else 1.0, window, NOISE_FLOOR[0])
+            if seen:  # the torque stage's R carries the force noise through the centre of gravity: not its own
+                c0, c1, c2 = x_t[0], x_t[1], x_t[2]
+                pred_t[0] += rc_t[1] * c2 * c2 + rc_t[2] * c1 * c1
+                pred_t[1] += rc_t[0] * c2 * c2 + rc_t[2] * c0 * c0
+                pred_t[2] += rc_t[0] * c1 * c1 + rc_t[1] * c0 * c0
+                adapt[ADAPT_COUNT_T] = adapt_noise(
+                    r_t, adapt[ADAPT_COUNT_T],
+                    torque_S[k, 0] - (A_t[0, 0] * tb0 + A_t[0, 1] * tb1 + A_t[0, 2] * tb2) - tb3,
+                    torque_S[k, 1] - (A_t[1, 0] * tb0 + A_t[1, 1] * tb1 + A_t[1, 2] * tb2) - tb4,
+                    torque_S[k, 2] - (A_t[2, 0] * tb0 + A_t[2, 1] * tb1 + A_t[2, 2] * tb2) - tb5,
+                    pred_t, refused_weight if what_t == GATED else 1.0, window, NOISE_FLOOR[1])
+            rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
+        if conv and adapt[ADAPT_FORCE_SEEN] == 0.0:
+            adapt[ADAPT_FORCE_SEEN] = 1.0
+            if adapt[ADAPT_AUTO_F] != 0.0:  # an auto bound never grows past its value at first convergence
+                adapt[ADAPT_CAP_F] = math.sqrt(_auto_bound2(r_f, math.inf))
+            if adapt[ADAPT_AUTO_T] != 0.0:
+                adapt[ADAPT_CAP_T] = math.sqrt(_auto_bound2(r_t, math.inf))
         for i in range(6):
             X_f[k, i], D_f[k, i], X_t[k, i], D_t[k, i] = x_f[i], P_f[i, i], x_t[i], P_t[i, i]
         A = A_f[k]
@@ -325,6 +479,7 @@ class Buffers:
         self.d2 = np.empty(capacity)
         self.usable = np.empty(capacity, dtype=np.bool_)
         self.A_t = np.empty((3, 3))
+        self.scratch = np.empty((7, 6))
 
     def ensure(self, m: int) -> None:
         if m > self.capacity:
@@ -341,9 +496,13 @@ def warm_up() -> None:
     filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, np.zeros(3), 20.0,
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
     for p in (np.zeros((0, 3)), y):  # streams without and with positions
+        adapt = np.zeros(ADAPT_SIZE)
+        adapt[ADAPT_NOISE] = adapt[ADAPT_IDENTIFIED] = adapt[ADAPT_AUTO_F] = adapt[ADAPT_AUTO_T] = 1.0
+        adapt[ADAPT_CAP_F] = adapt[ADAPT_CAP_T] = np.inf
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
                        np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),
-                       np.zeros(6), np.eye(6), np.zeros(6), np.eye(6), v3, v3, np.zeros(3), v3, v3, v3,
-                       np.array([20.0, 1e-4, 1e-6]), b.A_t, b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t,
-                       b.gated_t, b.failed_t, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=np.bool_),
-                       np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_))
+                       np.zeros(6), np.eye(6), np.zeros(6), np.eye(6), v3, v3.copy(), np.zeros(3), v3, v3.copy(),
+                       v3.copy(), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6), np.eye(6), b.A_t, b.scratch,
+                       b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, np.empty((m, 3)),
+                       np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
+                       np.empty(m, dtype=np.bool_))

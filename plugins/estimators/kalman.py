@@ -100,10 +100,17 @@ from ...core.frames import (
     quat_wxyz_from_matrix,
     rotvec_from_matrix,
 )
-from ...core.kalman import I3, KalmanStage, MountStage, StageRun
+from ...core import identified
+from ...core.kalman import KalmanStage, MountStage, StageRun
 from ...core.kernels import inertia as inertia_kernel
 from ...core.kernels import kalman as kalman_kernel
+from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_COUNT_F,
+                                    ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_IDENTIFIED, ADAPT_NOISE, ADAPT_PRED_F,
+                                    ADAPT_SIZE, ADAPT_WINDOW)
 from ...core.kernels import kernel_option
+from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
+                                    NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
+                                    window_samples)
 from ...core.model import MAX_FORCE, MAX_TORQUE, RefusesBadSamples, SampleGuard, contact_wrench, named_params
 from ...core.types import STATUS_OK, AlignedSamples, Estimates, Event
 from scipy.stats import chi2
@@ -116,38 +123,10 @@ BIAS_RATE_PRIOR_TORQUE = 0.002
 """Prior std of the torque-bias rate, N·m/s (the force figure times 0.077 m)."""
 
 
-NOISE_AUTO_START_FORCE = 0.5
-"""With ``noise_force = "auto"``: the force noise std the estimate starts from, N (wide, so nothing
-is refused before the noise is known)."""
-NOISE_AUTO_START_TORQUE = 0.05
-"""The same for torque, N·m."""
-NOISE_WINDOW = 1000
-"""With auto noise: the estimate averages the accepted samples' innovations over a window that grows
-to this many samples, then forgets exponentially with it."""
-NOISE_PRIOR_SAMPLES = 50
-"""With auto noise: the start value weighs as much as this many samples."""
-NOISE_WINDOW_S = 10.0
-"""With auto noise: the window is at least this long (in samples at the sensor's rate), s."""
-NOISE_CLIP = 3.0
-"""With auto noise: innovations are clipped at this many predicted standard deviations ..."""
-NOISE_CLIP_MEAN = 0.9950
-"""... and E[min(z², 9)] = 0.9950 for a standard normal z corrects the clipped mean."""
-NOISE_REFUSED_WEIGHT = 0.1
-"""With auto noise: the weight of a refused sample in the noise estimate."""
-NOISE_FLOOR = (1e-3, 1e-4)
-"""The smallest noise std the estimate may reach (N, N·m): duplicated rows must not make R zero."""
 CONVERGED_FORCE_STD = 0.02
 """Default convergence bound with a configured noise, N (one sixth of the Gamma-class 0.12 N)."""
 CONVERGED_TORQUE_STD = 0.002
 """Default convergence bound with a configured noise, N·m."""
-AUTO_BOUND_FRACTION = 0.5
-"""With auto noise and no bound given: the bound is this fraction of the estimated noise std.
-Looser than the configured defaults (0.02 N against 0.12 N, a sixth): a sensor of unknown
-noise is usually one whose residual is mostly model error (0.1–0.5 N on the real logs), and
-there a sixth is not reached within a 100-pose file (``bench real``)."""
-CHUNK = 64
-"""With auto noise, a block is filtered in chunks of at most this many samples, the noise estimate
-updated after each (live blocks are 1–10 samples; offline blocks are long)."""
 MAX_KINEMATICS_LAG_S = 0.5
 """The longest kinematics lag (time_lag_s > 0) corrected, s: its poses are extrapolated from the
 motion's derivatives, so it is meant for lags of milliseconds; beyond half a second it is a fault."""
@@ -270,11 +249,12 @@ class KalmanEstimator(RefusesBadSamples):
         max_force: a sample with a force component beyond this (N) is refused.
         max_torque: the same for a torque component (N·m).
         kernel: ``"numba"`` (default): the stages' filter compiled (``core.kernels.kalman``, the
-            same bits as the "fast" Python one), and for the default model (no mount, inertia,
-            time lag, bias rate or auto noise; convergence from the covariance) the whole
-            cascade of a block in one compiled call; compiled or loaded from its cache when
-            the estimator is built. ``"numpy"``: the Python/numpy reference. ``implementation
-            = "filterpy"`` and ``bias_rate`` run the reference either way.
+            same bits as the "fast" Python one), and without a mount estimate, a sensor lag
+            (time_lag_s < 0), bias rate or the paper's step rule the whole cascade of a block
+            in one compiled call, noise estimate and convergence rules included; compiled or
+            loaded from its cache when the estimator is built. ``"numpy"``: the Python/numpy
+            reference (with the noise estimated or the identified rule, one sample at a time).
+            ``implementation = "filterpy"`` and ``bias_rate`` run the reference either way.
 
     Attributes:
         force, torque: the two KalmanStage stages.
@@ -431,10 +411,17 @@ class KalmanEstimator(RefusesBadSamples):
         self.first_converged_torque: int | None = None
         self.samples = 0
         self._last_t_ns: int | None = None
-        self._accepted_f = 0.0  # weight of the samples in each stage's noise estimate so far
-        self._accepted_t = 0.0
-        self._noise_window: int | None = None  # NOISE_WINDOW_S in samples, from the first block's rate
-        self._bound_cap: tuple[float, float] | None = None  # auto bounds at the first force convergence
+        # the noise estimate's and the identified rule's state, in the compiled cascade's layout (both paths use
+        # it): the samples' weight in each noise estimate, the window in samples (0 until the first time step),
+        # whether the force flag was ever up, the auto bounds' caps (inf until then), the force reading's
+        # predicted variance at the last pose (NaN until the first sample)
+        self._adapt = np.zeros(ADAPT_SIZE)
+        self._adapt[ADAPT_NOISE] = self.noise_auto
+        self._adapt[ADAPT_IDENTIFIED] = convergence == "identified"
+        self._adapt[ADAPT_AUTO_F] = self.noise_auto and converged_force_std is None
+        self._adapt[ADAPT_AUTO_T] = self.noise_auto and converged_torque_std is None
+        self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = math.inf
+        self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3] = math.nan
         self._cog_known = False  # a warm start's torque stage had converged
         self._mass_known = False  # a warm start's force stage had converged
         self.prior_f = np.array(prior_f, dtype=float)
@@ -446,14 +433,14 @@ class KalmanEstimator(RefusesBadSamples):
         self._refused_since: int | None = None  # t_ns of the run's first refused sample
         self._accepted_in_run = 0  # consecutive accepted samples (a run survives a few)
         self._run_tested_full = False  # the run's whole window was tested (negative)
+        self._per_sample = self.noise_auto or convergence == "identified"  # (the numpy reference's blocks)
         self._information: dict[str, np.ndarray] = {}  # convergence = "identified": Λ per stage (6, 6)
-        self._predicted_force_var: np.ndarray | None = None  # ... and the force's variance at the last pose
         self._seed_information()
         if warm_start:
             self.load_state(warm_start)
-        # the whole cascade in one compiled call: the default model (what it leaves out runs per stage)
-        self._cascade = (self.method == "numba" and not mount_rotation and convergence == "covariance"
-                         and not self.noise_auto and self.time_lag_s >= 0)
+        # the whole cascade in one compiled call (a mount estimate, a sensor lag, the step rule run per stage)
+        self._cascade = (self.method == "numba" and not mount_rotation and convergence != "step"
+                         and self.time_lag_s >= 0)
         if kernel == "numba":
             inertia_kernel.warm_up()
         if self.method == "numba":
@@ -483,9 +470,8 @@ class KalmanEstimator(RefusesBadSamples):
         m = len(block)
         if self._cascade and m:
             return self._filter_compiled(block)
-        if self.noise_auto and m > CHUNK:  # let the noise estimate follow within a long block
-            parts = [self._filter_block(block.subset(slice(i, i + CHUNK))) for i in range(0, m, CHUNK)]
-            return Estimates.concatenate(parts)
+        if self._per_sample and m > 1:  # the noise estimate and the identified rule follow sample by sample
+            return Estimates.concatenate([self._filter_block(block.subset(slice(i, i + 1))) for i in range(m)])
         if m == 0:
             empty = np.zeros((0, 3))
             flags = np.zeros(0, dtype=bool)
@@ -530,10 +516,10 @@ class KalmanEstimator(RefusesBadSamples):
             torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
         contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], run_t.X[:, :6])
         if self.noise_auto:
-            if self._noise_window is None and dt.max() > 0:  # the sensor's rate, from the first time step
-                self._noise_window = int(NOISE_WINDOW_S / float(np.median(dt[dt > 0])))
-            self._adapt_noise(self.force, y_f, A_f, x_before, run_f, usable, "_accepted_f")
-            self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, seen_t, "_accepted_t")
+            if self._adapt[ADAPT_WINDOW] == 0 and dt[0] > 0:  # the sensor's rate, from the first time step
+                self._adapt[ADAPT_WINDOW] = window_samples(float(dt[0]))
+            self._adapt_noise(self.force, y_f, A_f, x_before, run_f, usable, ADAPT_COUNT_F)
+            self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, seen_t, ADAPT_COUNT_T)
             self.torque.rc = self.force.r.copy()
 
         self.converged_force, self.converged_torque = bool(conv_f[-1]), bool(conv_t[-1])
@@ -542,7 +528,8 @@ class KalmanEstimator(RefusesBadSamples):
         if self.first_converged_force is None and conv_f.any():
             self.first_converged_force = self.samples + int(np.argmax(conv_f))
             if self.noise_auto:
-                self._bound_cap = self._bounds()
+                self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = self._bounds()
+            self._adapt[ADAPT_FORCE_SEEN] = 1.0
         if self.first_converged_torque is None and conv_t.any():
             self.first_converged_torque = self.samples + int(np.argmax(conv_t))
         self.samples += m
@@ -579,8 +566,10 @@ class KalmanEstimator(RefusesBadSamples):
         b.ensure(m)
         if self._last_t_ns is not None:
             clock[0], clock[1] = 1, self._last_t_ns
-        bound_f, bound_t = self._bounds()
-        limits[0], limits[1], limits[2] = self.gate2, bound_f * bound_f, bound_t * bound_t
+        limits[0] = self.gate2
+        if not (self._adapt[ADAPT_AUTO_F] and self._adapt[ADAPT_AUTO_T]):  # (auto bounds: the cascade's own)
+            bound_f, bound_t = self._bounds()
+            limits[1], limits[2] = bound_f * bound_f, bound_t * bound_t
         force, torque = self.force, self.torque
         out = Estimates(block.t_ns, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=bool),
                         np.empty(m, dtype=bool), np.empty(m, dtype=bool))
@@ -589,7 +578,8 @@ class KalmanEstimator(RefusesBadSamples):
             t_ns, clock, y_f, force_S, torque_S, A_f, contiguous(block.stale, bool),
             contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S,
             b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
-            torque.rc, limits, b.A_t, b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,
+            torque.rc, limits, self._adapt, self._information["force"], self._information["torque"], b.A_t, b.scratch,
+            b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,
             out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force, out.converged_torque)
         self._last_t_ns = int(t_ns[-1])
         force.failed += failed_f
@@ -704,12 +694,10 @@ class KalmanEstimator(RefusesBadSamples):
         f, t = self.converged_force_std_option, self.converged_torque_std_option
         if f is None:
             f = AUTO_BOUND_FRACTION * float(np.sqrt(self.force.r.mean())) if self.noise_auto else CONVERGED_FORCE_STD
-            if self._bound_cap is not None:  # the auto bound never grows past its value at first convergence
-                f = min(f, self._bound_cap[0])
+            f = min(f, self._adapt[ADAPT_CAP_F])  # an auto bound never grows past its value at first convergence
         if t is None:
             t = AUTO_BOUND_FRACTION * float(np.sqrt(self.torque.r.mean())) if self.noise_auto else CONVERGED_TORQUE_STD
-            if self._bound_cap is not None:
-                t = min(t, self._bound_cap[1])
+            t = min(t, self._adapt[ADAPT_CAP_T])
         return f, t
 
     def _force_converged(self, run_f, x_before, accepted, A_f) -> np.ndarray:
@@ -718,9 +706,9 @@ class KalmanEstimator(RefusesBadSamples):
             return self._step_converged(run_f.X[:, :6], x_before, accepted, self.converged_force)
         bound2 = self._bounds()[0] ** 2
         if self.convergence == "identified":  # gravity from the motion's information; the force at this pose
-            predicted = self._predicted_var(self.force, A_f)
-            self._predicted_force_var = predicted[-1]
-            conv = (self._identified_var("force", A_f, accepted) < bound2) & (predicted.max(axis=1) < bound2)
+            predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
+            predicted[:] = identified.predicted_var(self.force.P, A_f[-1])
+            conv = (self._identified_var("force", A_f, accepted) < bound2) & (predicted.max() < bound2)
         else:
             conv = run_f.D[:, :6].max(axis=1) < bound2
         if self.mount_rotation:  # the force a mount error can cause: std(θ)·|gravity_force_B|
@@ -737,34 +725,18 @@ class KalmanEstimator(RefusesBadSamples):
         weight2 = (X_f[:, :3] ** 2).sum(axis=1)  # |gravity_force_B|², N²
         if self.convergence == "identified":
             return ((self._identified_var("torque", A_t, accepted) * weight2 < bound2)
-                    & (self._predicted_var(self.torque, A_t).max(axis=1) < bound2))
+                    & (identified.predicted_var(self.torque.P, A_t[-1]).max() < bound2))
         return (run_t.D[:, :3].max(axis=1) * weight2 < bound2) & (run_t.D[:, 3:6].max(axis=1) < bound2)
 
-    @staticmethod
-    def _predicted_var(stage, A: np.ndarray) -> np.ndarray:
-        """(m, 3) variance of the stage's predicted reading per axis, diag(C_k P Cᵀ_k), C_k = [A_k, I3], with
-        P as it is after the block (N² or (N·m)²): how well the non-contact wrench is known at each pose.
-
-        The filter's P of the constant and of the bias are each wide while the bias's random walk keeps
-        forgetting, but strongly anti-correlated: at the poses the robot is at, their sum is known."""
-        C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)
-        return np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C)
-
     def _identified_var(self, stage: str, A: np.ndarray, accepted: np.ndarray) -> np.ndarray:
-        """(m,) largest variance of the stage's constant (gravity_force_B, N², or cog_S, m²) after each sample,
-        from the information its accepted samples carry about [constant, bias] with the bias held constant.
-
-        ``convergence = "identified"``: the filter's own P of the constant also holds the bias's random
-        walk, which forgets what the motion taught within the bias's memory (~1 s by default); this is
-        what the motion so far identifies (Λ = Σ Cᵀ R⁻¹ C over accepted samples, C = [A, I3], from the
-        prior's information; re-seeded from P whenever the estimator re-opens a parameter).
-        """
-        r = (self.force if stage == "force" else self.torque).r
-        C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)  # (m, 3, 6)
-        gain = np.einsum("kij,i,kil->kjl", C, 1.0 / r, C) * accepted[:, None, None]
-        info = self._information[stage] + np.cumsum(gain, axis=0)
-        self._information[stage] = info[-1].copy()
-        return np.linalg.inv(info)[:, :3, :3].diagonal(axis1=1, axis2=2).max(axis=1)
+        """(1,) the largest variance of the stage's constant (gravity_force_B, N², or cog_S, m²) after a
+        sample (the numpy reference runs this rule one sample at a time), from the information its
+        accepted samples carry with the bias held constant (``core.identified``); Λ is re-seeded from P
+        whenever the estimator re-opens a parameter."""
+        if accepted[0]:
+            r = (self.force if stage == "force" else self.torque).r
+            self._information[stage] = identified.add_information(self._information[stage], A[0], r)
+        return identified.constant_var(self._information[stage]).max(keepdims=True)
 
     def _seed_information(self) -> None:
         """Λ of each stage from its current P (6×6: the constant and the bias): at the start, and after a
@@ -785,52 +757,21 @@ class KalmanEstimator(RefusesBadSamples):
 
     # ------------------------------------------------------------------ noise estimate (noise = "auto")
 
-    def _adapt_noise(self, stage, y, A, x_before, run, usable, counter: str) -> None:
-        """Covariance matching: R per axis ← a running mean of e² − (C P Cᵀ)ᵢᵢ.
-
-        e_k = y_k − A_k a − b at the state the sample was predicted from (its variance is
-        R + C P Cᵀ, plus for the torque stage the force noise carried through the centre of
-        gravity, which R_k adds separately and is taken out here); C P Cᵀ with the
-        stage's full P after the block (a little small for a block's first samples while P
-        still shrinks fast, which makes R a little large: the safe side). The start value
-        counts as NOISE_PRIOR_SAMPLES samples, so a quiet start cannot collapse R before
-        the robot moves; the mean then grows over NOISE_WINDOW samples and forgets
-        exponentially. Each term is clipped at NOISE_CLIP standard deviations of the
-        predicted innovation, and a refused sample counts with weight NOISE_REFUSED_WEIGHT:
-        before the force stage first converges, so a model error that the gate keeps
-        refusing (R started too small for this sensor) still raises it; after that a refused
-        sample is a contact and does not count at all (a long contact must not inflate R).
-        """
-        idx = np.flatnonzero(usable)
-        if len(idx) == 0:
+    def _adapt_noise(self, stage, y, A, x_before, run, usable, counter: int) -> None:
+        """One sample's covariance matching (``core.noise_estimate``; the numpy reference runs ``noise =
+        "auto"`` one sample at a time): e at the state the sample was predicted from, C P Cᵀ with the
+        stage's P after it (for the torque stage plus the force noise it carries through the centre of
+        gravity, which its R adds separately)."""
+        if not usable[0]:
             return
-        e = _innovations(y, A, x_before, run.X)[idx]
-        A = A[idx]
-        C = np.concatenate([A, np.broadcast_to(I3, A.shape)], axis=2)  # (k, 3, 6)
-        cpc = np.einsum("kij,jl,kil->ki", C, stage.P[:6, :6], C)
+        e = _innovations(y, A, x_before, run.X)[0]
+        cpc = identified.predicted_var(stage.P, A[0])
         cpc += stage.measurement_cov(stage.x[:3]).diagonal() - stage.r  # the torque stage's carried force noise
-        # refused samples count only until the force stage first converges: they let a noise estimate
-        # that started too small escape before the parameters are known; after that a refusal is a
-        # contact, and a long one must not raise R (and with it the gate and the convergence bound)
-        refused_weight = NOISE_REFUSED_WEIGHT if self.first_converged_force is None else 0.0
-        weight = np.where(run.gated[idx], refused_weight, 1.0)
-        finite = np.isfinite(e).all(axis=1)
-        weight = np.where(finite, weight, 0.0)
-        e = np.where(finite[:, None], e, 0.0)
+        # refused samples count only until the force stage first converged (core.noise_estimate)
+        weight = 1.0 if not run.gated[0] else (NOISE_REFUSED_WEIGHT if self.first_converged_force is None else 0.0)
         floor = NOISE_FLOOR[0] if stage is self.force else NOISE_FLOOR[1]
-        r = stage.r.copy()
-        count = getattr(self, counter)
-        window = max(NOISE_WINDOW, self._noise_window or 0)
-        for k in range(len(idx)):  # a short loop: live blocks are a few samples, chunks at most CHUNK
-            if weight[k] == 0.0:
-                continue
-            count += weight[k]
-            lam = weight[k] / min(count + NOISE_PRIOR_SAMPLES, window)
-            s2 = r + cpc[k]
-            e2 = np.minimum(e[k] ** 2, NOISE_CLIP ** 2 * s2) / NOISE_CLIP_MEAN
-            r += lam * (np.maximum(e2 - cpc[k], 0.0) - r)
-        setattr(self, counter, count)
-        stage.r = np.maximum(r, floor ** 2)
+        window = self._adapt[ADAPT_WINDOW] or NOISE_WINDOW
+        stage.r, self._adapt[counter] = adapt_noise(stage.r, self._adapt[counter], e, cpc, weight, window, floor)
 
     # ------------------------------------------------------------------ payload change (issue 4, item 6)
 
@@ -1025,7 +966,7 @@ class KalmanEstimator(RefusesBadSamples):
                 if noise.shape == (3,) and np.all(np.isfinite(noise)):
                     stage.r = np.maximum(noise, floor) ** 2
             self.torque.rc = self.force.r.copy()
-            self._accepted_f = self._accepted_t = NOISE_WINDOW
+            self._adapt[[ADAPT_COUNT_F, ADAPT_COUNT_T]] = NOISE_WINDOW
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units); with bias_rate also the bias rates."""
@@ -1046,9 +987,10 @@ class KalmanEstimator(RefusesBadSamples):
         With ``convergence = "identified"`` what that rule judges: gravity's std as the motion identifies it,
         and in the bias's place the non-contact force's std per axis at the last sample's pose (the bias as
         known where the robot is), so the haptic gate's "parameters known" agrees with the flag."""
-        if self.convergence == "identified" and self._predicted_force_var is not None:
+        predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
+        if self.convergence == "identified" and not np.isnan(predicted).any():
             gravity_var = np.linalg.inv(self._information["force"]).diagonal()[:3]
-            return np.sqrt(np.concatenate([gravity_var, self._predicted_force_var]))
+            return np.sqrt(np.concatenate([gravity_var, predicted]))
         return np.sqrt(np.diag(self.force.P)[:6])
 
     def torque_parameter_std(self) -> np.ndarray:

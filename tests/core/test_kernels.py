@@ -20,7 +20,10 @@ reordering), so on one machine the two agreed to the bit; but the numpy side's m
 through OpenBLAS, which picks its kernels by CPU: on an AVX-512 CPU (SkylakeX kernels) they round
 differently by an ulp (1.8e-15 N at most on this tour; ``OPENBLAS_CORETYPE=Haswell`` gives the bits
 back). So every flag must be identical, the numbers within :data:`ROUNDING` (N, N·m; relative for
-parameters and covariances).
+parameters and covariances). With the noise estimated (``noise = "auto"``) the sums of diag(C P Cᵀ)
+are taken in another order than numpy's einsum and that estimate feeds R back into the gain: before
+convergence, with P still at the prior's 400 N², a few ulp grow to 2e-11 N on this tour
+(:data:`ROUNDING_NOISE`); the flags stay identical.
 """
 
 from __future__ import annotations
@@ -36,25 +39,27 @@ from hapticlab.sessions.bench.paper import simulate
 KEYS = ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
 ROUNDING = 1e-12
 """How far the kalman kernel and the numpy reference may differ: a few ulp of BLAS rounding (see above)."""
+ROUNDING_NOISE = 1e-10
+"""The same with the noise estimated: the rounding fed back through R (see above)."""
 
 
-def _same(a, b, key: str = "") -> bool:
-    """Flags identical; numbers within ROUNDING (NaN where the other is NaN)."""
+def _same(a, b, key: str = "", tol: float = ROUNDING) -> bool:
+    """Flags identical; numbers within tol (NaN where the other is NaN)."""
     a, b = np.asarray(a), np.asarray(b)
     if a.dtype.kind in "biu" or key in KEYS[2:]:
         return np.array_equal(a, b)
-    return a.shape == b.shape and np.allclose(a, b, rtol=ROUNDING, atol=ROUNDING, equal_nan=True)
+    return a.shape == b.shape and np.allclose(a, b, rtol=tol, atol=tol, equal_nan=True)
 
 
-def _same_tree(a, b) -> bool:
-    """params(), cov_diag() and state() of the two: the same keys and flags, numbers within ROUNDING."""
+def _same_tree(a, b, tol: float = ROUNDING) -> bool:
+    """params(), cov_diag() and state() of the two: the same keys and flags, numbers within tol."""
     if isinstance(a, dict):
-        return isinstance(b, dict) and a.keys() == b.keys() and all(_same_tree(a[k], b[k]) for k in a)
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_same_tree(a[k], b[k], tol) for k in a)
     if isinstance(a, (list, tuple)) and a and not isinstance(a[0], (int, float, bool)):
-        return isinstance(b, (list, tuple)) and len(a) == len(b) and all(_same_tree(x, y) for x, y in zip(a, b))
+        return isinstance(b, (list, tuple)) and len(a) == len(b) and all(_same_tree(x, y, tol) for x, y in zip(a, b))
     if isinstance(a, (bool, str)) or a is None:
         return a == b
-    return _same(a, b)
+    return _same(a, b, tol=tol)
 
 
 @pytest.fixture(scope="module")
@@ -167,20 +172,27 @@ def _run(est, block, size):
     return {key: np.concatenate([getattr(p, key) for p in parts]) for key in KEYS}
 
 
-@pytest.mark.parametrize("options", [{}, {"noise_force": "auto", "noise_torque": "auto"}, {"mount_rotation": True},
-                                     {"convergence": "step"}],
-                         ids=["cascade", "auto-noise", "mount", "step"])
+AUTO = {"noise_force": "auto", "noise_torque": "auto"}
+
+
+@pytest.mark.parametrize("options", [{}, AUTO, {"convergence": "identified"}, {**AUTO, "convergence": "identified"},
+                                     {"mount_rotation": True}, {"convergence": "step"}],
+                         ids=["cascade", "auto-noise", "identified", "auto-identified", "mount", "step"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
-    """The default model runs the compiled cascade; the others the compiled stage filter (``filter6``)."""
+    """The noise estimate and the convergence rules run in the compiled cascade (the numpy reference
+    runs them one sample at a time, so every block size gives the same numbers); a mount estimate and
+    the paper's step rule run the compiled stage filter (``filter6``)."""
     ref, fast = KalmanEstimator(kernel="numpy", **options), KalmanEstimator(kernel="numba", **options)
-    assert fast._cascade == (not options)
+    assert fast._cascade == ("mount_rotation" not in options and options.get("convergence") != "step")
     a, b = _run(ref, sim6, size), _run(fast, sim6, size)
+    tol = ROUNDING_NOISE if options.get("noise_force") == "auto" else ROUNDING
     for key in KEYS:
-        assert _same(a[key], b[key], key), key
+        assert _same(a[key], b[key], key, tol), key
     assert a["converged_force"].any() and a["converged_torque"].any()
-    assert _same_tree(ref.params(), fast.params()) and _same_tree(ref.cov_diag(), fast.cov_diag())
-    assert _same_tree(ref.state(), fast.state())
+    assert _same_tree(ref.params(), fast.params(), tol) and _same_tree(ref.cov_diag(), fast.cov_diag(), tol)
+    assert _same_tree(ref.state(), fast.state(), tol)
+    assert np.allclose(ref.force_parameter_std(), fast.force_parameter_std(), rtol=1e-9)
     assert (ref.first_converged_force, ref.first_converged_torque) == (fast.first_converged_force,
                                                                        fast.first_converged_torque)
 

@@ -1,0 +1,43 @@
+"""Convergence as the motion identifies the parameters: the ``kalman`` estimator's ``convergence = "identified"``.
+
+A stage's reading is y_k = A_k a + b + v_k, v_k ~ N(0, diag(r)), C_k = [A_k, I3]. Its filter's P
+of the constant a (gravity_force_B, cog_S) holds the bias's random walk, which forgets what the
+motion taught within the bias's memory (~1 s with the default drift): on a slow motion P of a
+stays wide long after the motion has determined a. Two questions answer "is it known" instead:
+
+* **identified**: how well the accepted samples determine a with the bias held constant, from
+  their information Λ = Λ₀ + Σ C_kᵀ R⁻¹ C_k (6×6, [a, b]); a's covariance is the top-left
+  block of Λ⁻¹ (Λ₀ from the filter's P whenever the estimator re-opens what it knows);
+* **known here**: the reading's variance at the current pose, diag(C_k P C_kᵀ) with the
+  filter's P: the constant and the bias are each wide but strongly anti-correlated, and at the
+  poses the robot is at their sum is known.
+
+The numpy reference, one sample at a time; the compiled twin is in ``core.kernels.kalman``.
+Shapes: A (3, 3), P (6, 6), info (6, 6), r (3,).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+I3 = np.eye(3)
+
+
+def predicted_var(P: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """(3,) diag(C P Cᵀ), C = [A, I3]: the variance of the predicted reading per axis, units²."""
+    C = np.hstack([A, I3])
+    return np.einsum("ij,jl,il->i", C, P[:6, :6], C)
+
+
+def add_information(info: np.ndarray, A: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(6, 6) Λ + Cᵀ diag(1/r) C, C = [A, I3]: one accepted sample's information added."""
+    C = np.hstack([A, I3])
+    return info + (C.T / r) @ C
+
+
+def constant_var(info: np.ndarray) -> np.ndarray:
+    """(3,) the variance of the constant a per axis, diag((Λ⁻¹)[:3, :3]), units² (inf if Λ is singular)."""
+    try:
+        return np.linalg.inv(info).diagonal()[:3].copy()
+    except np.linalg.LinAlgError:
+        return np.full(3, np.inf)

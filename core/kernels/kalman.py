@@ -218,12 +218,12 @@ def filter6(x, P, y, A, dt, active, q, r, rc, gate2, X, D, gated, d2, failed):
     return n_failed
 
 
-ADAPT_NOISE, ADAPT_IDENTIFIED = 0, 1
-ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 2, 3, 4, 5
-ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 6, 7, 8, 9, 10
-ADAPT_SIZE = 13
-"""``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE`` the noise
-estimated as it runs (``core.noise_estimate``), ``ADAPT_IDENTIFIED`` convergence as identified
+ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED = 0, 1, 2
+ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
+ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10, 11
+ADAPT_SIZE = 14
+"""``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
+``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``), ``ADAPT_IDENTIFIED`` convergence as identified
 (``core.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T`` the convergence bound from the noise estimate.
 State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
 yet known), whether the force flag was ever up, the bounds' caps (inf until the force flag first rises).
@@ -318,8 +318,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     max diag P_bias < bound_t². With ``adapt[ADAPT_IDENTIFIED]`` the flags are instead the
     identified rule's (``core.identified``: the constant's variance from the accepted samples'
     information, and the reading's predicted variance at the pose, both under the bound). With
-    ``adapt[ADAPT_NOISE]`` both stages' noise is re-estimated after each sample
-    (``core.noise_estimate``), the torque stage's carried force noise following the force's. A
+    ``adapt[ADAPT_NOISE_F]`` / ``adapt[ADAPT_NOISE_T]`` that stage's noise is re-estimated after each
+    sample (``core.noise_estimate``), the torque stage's carried force noise following the force's. A
     failed update (S not positive definite) is predicted only and lowers the flag. The contact
     wrench at the states after each sample (paper eqs. 20–21).
 
@@ -346,7 +346,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         force flag up or −1, the same for torque): what the caller would otherwise count.
     """
     gate2, bound_f2, bound_t2 = limits[0], limits[1], limits[2]
-    noise, identified = adapt[ADAPT_NOISE] != 0.0, adapt[ADAPT_IDENTIFIED] != 0.0
+    noise_f, noise_t, identified = adapt[ADAPT_NOISE_F] != 0.0, adapt[ADAPT_NOISE_T] != 0.0, adapt[ADAPT_IDENTIFIED] != 0.0
+    noise = noise_f or noise_t
     pred_f, pred_t = adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3], scratch[6, :3]
     previous = last_t_ns[1]
     n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
@@ -416,7 +417,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                 adapt[ADAPT_WINDOW] = max(NOISE_WINDOW, int(NOISE_WINDOW_S / dt))
             window = adapt[ADAPT_WINDOW] if adapt[ADAPT_WINDOW] != 0.0 else NOISE_WINDOW
             refused_weight = NOISE_REFUSED_WEIGHT if adapt[ADAPT_FORCE_SEEN] == 0.0 else 0.0
-            if usable[k]:
+            if noise_f and usable[k]:
                 A = A_f[k]
                 adapt[ADAPT_COUNT_F] = adapt_noise(
                     r_f, adapt[ADAPT_COUNT_F],
@@ -424,7 +425,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                     y_f[k, 1] - (A[1, 0] * fb0 + A[1, 1] * fb1 + A[1, 2] * fb2) - fb4,
                     y_f[k, 2] - (A[2, 0] * fb0 + A[2, 1] * fb1 + A[2, 2] * fb2) - fb5,
                     pred_f, refused_weight if what == GATED else 1.0, window, NOISE_FLOOR[0])
-            if seen:  # the torque stage's R carries the force noise through the centre of gravity: not its own
+            if noise_t and seen:  # the torque stage's R carries the force noise through the centre of gravity: not its own
                 c0, c1, c2 = x_t[0], x_t[1], x_t[2]
                 pred_t[0] += rc_t[1] * c2 * c2 + rc_t[2] * c1 * c1
                 pred_t[1] += rc_t[0] * c2 * c2 + rc_t[2] * c0 * c0
@@ -435,7 +436,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                     torque_S[k, 1] - (A_t[1, 0] * tb0 + A_t[1, 1] * tb1 + A_t[1, 2] * tb2) - tb4,
                     torque_S[k, 2] - (A_t[2, 0] * tb0 + A_t[2, 1] * tb1 + A_t[2, 2] * tb2) - tb5,
                     pred_t, refused_weight if what_t == GATED else 1.0, window, NOISE_FLOOR[1])
-            rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
+            if noise_f:
+                rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
         if conv and adapt[ADAPT_FORCE_SEEN] == 0.0:
             adapt[ADAPT_FORCE_SEEN] = 1.0
             if adapt[ADAPT_AUTO_F] != 0.0:  # an auto bound never grows past its value at first convergence
@@ -497,7 +499,7 @@ def warm_up() -> None:
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
     for p in (np.zeros((0, 3)), y):  # streams without and with positions
         adapt = np.zeros(ADAPT_SIZE)
-        adapt[ADAPT_NOISE] = adapt[ADAPT_IDENTIFIED] = adapt[ADAPT_AUTO_F] = adapt[ADAPT_AUTO_T] = 1.0
+        adapt[ADAPT_NOISE_F] = adapt[ADAPT_NOISE_T] = adapt[ADAPT_IDENTIFIED] = adapt[ADAPT_AUTO_F] = adapt[ADAPT_AUTO_T] = 1.0
         adapt[ADAPT_CAP_F] = adapt[ADAPT_CAP_T] = np.inf
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
                        np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),

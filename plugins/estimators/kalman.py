@@ -14,9 +14,9 @@ paper's RLS:
   ``bias_force_rate_rw`` / ``bias_torque_rate_rw``. Gravity and the centre of
   gravity stay constant. The time step of every prediction is the samples'
   own ``t_ns`` difference.
-* **Noise in physical units.** R is the sensor's noise (``noise_force`` N,
-  ``noise_torque`` N·m, per-axis std); the torque stage adds the force noise
-  carried into its C_k through the centre of gravity.
+* **Noise in physical units.** R is the sensor's noise, estimated as the filter runs by default
+  (``"auto"``: ``core.noise_estimate``) or given (``noise_force`` N, ``noise_torque`` N·m, per-axis
+  std); the torque stage adds the force noise carried into its C_k through the centre of gravity.
 * **Gating.** A sample whose innovation has a squared Mahalanobis distance
   eᵀ(C P Cᵀ + R)⁻¹e above the chi-square quantile of ``gate_probability``
   (3 degrees of freedom) is refused as contact. It does not update the stage,
@@ -24,7 +24,8 @@ paper's RLS:
   a long contact, so the gate reopens on a bias that has truly moved instead
   of locking out as the paper's fixed threshold does. A sample the force stage
   refuses is not given to the torque stage.
-* **Convergence from the covariance.** A stage counts as converged when every
+* **Convergence from the covariance** (``convergence = "covariance"``; the default is "identified",
+  below). A stage counts as converged when every
   parameter's standard deviation (sqrt diag P) is below a bound in physical
   units: ``converged_force_std`` (N) for gravity_force_B and bias_force_S;
   ``converged_torque_std`` (N·m) for bias_torque_S and for the torque a
@@ -105,7 +106,8 @@ from ...core.kalman import KalmanStage, MountStage, StageRun
 from ...core.kernels import inertia as inertia_kernel
 from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_COUNT_F,
-                                    ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_IDENTIFIED, ADAPT_NOISE, ADAPT_PRED_F,
+                                    ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_IDENTIFIED, ADAPT_NOISE_F, ADAPT_NOISE_T,
+                                    ADAPT_PRED_F,
                                     ADAPT_SIZE, ADAPT_WINDOW)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
@@ -222,8 +224,9 @@ class KalmanEstimator(RefusesBadSamples):
     """Cascaded Kalman filters of the non-contact wrench, with drifting biases.
 
     Args:
-        noise_force: sensor force noise, N, std per axis (one number or three).
-        noise_torque: sensor torque noise, N·m, std per axis (one number or three).
+        noise_force: sensor force noise: "auto" (estimated as it runs) or N, std per axis (one number
+            or three).
+        noise_torque: sensor torque noise: "auto" or N·m, std per axis (one number or three).
         bias_force_rw: random-walk intensity of bias_force_S, N/√s (0: constant bias).
         bias_torque_rw: random-walk intensity of bias_torque_S, N·m/√s.
         bias_rate: add bias-rate states (N/s, N·m/s) to both stages.
@@ -232,9 +235,13 @@ class KalmanEstimator(RefusesBadSamples):
         gate_probability: a sample whose innovation lies outside this
             probability mass of the predicted distribution (chi-square, 3 dof)
             is refused as contact; 1 never refuses.
-        converged_force_std: bound on the std of gravity_force_B and bias_force_S, N.
+        convergence: "identified" (default: the constants as the motion identifies them and the
+            wrench as known at the current pose), "covariance" (every parameter's std from P) or
+            "step" (the paper's ‖Δx‖ < 1e-3).
+        converged_force_std: bound on the std of gravity_force_B and bias_force_S, N (default: half
+            the estimated noise, or 0.02 N with the noise given).
         converged_torque_std: bound on the std of bias_torque_S and of
-            std(cog_S)·|gravity_force_B|, N·m.
+            std(cog_S)·|gravity_force_B|, N·m (default: half the estimated noise, or 0.002 N·m).
         prior_force_std: prior std of gravity_force_B and bias_force_S, N.
         prior_cog_std: prior std of cog_S, m.
         prior_torque_std: prior std of bias_torque_S, N·m.
@@ -271,8 +278,8 @@ class KalmanEstimator(RefusesBadSamples):
 
     def __init__(
         self,
-        noise_force: float | list[float] | str = 0.12,
-        noise_torque: float | list[float] | str = 0.01,
+        noise_force: float | list[float] | str = "auto",
+        noise_torque: float | list[float] | str = "auto",
         bias_force_rw: float = 0.005,
         bias_torque_rw: float = 0.0004,
         bias_rate: bool = False,
@@ -280,7 +287,7 @@ class KalmanEstimator(RefusesBadSamples):
         bias_torque_rate_rw: float = 2.5e-5,
         gating: str = "mahalanobis",
         gate_probability: float = 0.9999,
-        convergence: str = "covariance",
+        convergence: str = "identified",
         converged_force_std: float | None = None,
         converged_torque_std: float | None = None,
         prior_force_std: float = 20.0,
@@ -317,14 +324,12 @@ class KalmanEstimator(RefusesBadSamples):
         if "gain_crosstalk" in named and gain_force_S is None and gain_torque_S is None:
             raise ValueError("effects: 'gain_crosstalk' needs its value: set gain_force_S and/or gain_torque_S "
                              "(from hapticlab discrepancy)")
-        self.noise_auto = noise_force == "auto" or noise_torque == "auto"
-        if self.noise_auto and not (noise_force == "auto" and noise_torque == "auto"):
-            raise ValueError("noise_force: 'auto' estimates both noises; set noise_torque = 'auto' too")
-        if self.noise_auto:
-            noise_force, noise_torque = np.full(3, NOISE_AUTO_START_FORCE), np.full(3, NOISE_AUTO_START_TORQUE)
-        else:
-            noise_force = _axes("noise_force", noise_force)
-            noise_torque = _axes("noise_torque", noise_torque)
+        # "auto": the stage's noise estimated as it runs (core.noise_estimate), each stage on its own
+        self.noise_auto_force, self.noise_auto_torque = noise_force == "auto", noise_torque == "auto"
+        self.noise_auto = self.noise_auto_force or self.noise_auto_torque
+        noise_force = np.full(3, NOISE_AUTO_START_FORCE) if self.noise_auto_force else _axes("noise_force", noise_force)
+        noise_torque = (np.full(3, NOISE_AUTO_START_TORQUE) if self.noise_auto_torque
+                        else _axes("noise_torque", noise_torque))
         for key, value in (("bias_force_rw", bias_force_rw), ("bias_torque_rw", bias_torque_rw),
                            ("bias_force_rate_rw", bias_force_rate_rw),
                            ("bias_torque_rate_rw", bias_torque_rate_rw)):
@@ -416,10 +421,10 @@ class KalmanEstimator(RefusesBadSamples):
         # whether the force flag was ever up, the auto bounds' caps (inf until then), the force reading's
         # predicted variance at the last pose (NaN until the first sample)
         self._adapt = np.zeros(ADAPT_SIZE)
-        self._adapt[ADAPT_NOISE] = self.noise_auto
+        self._adapt[ADAPT_NOISE_F], self._adapt[ADAPT_NOISE_T] = self.noise_auto_force, self.noise_auto_torque
         self._adapt[ADAPT_IDENTIFIED] = convergence == "identified"
-        self._adapt[ADAPT_AUTO_F] = self.noise_auto and converged_force_std is None
-        self._adapt[ADAPT_AUTO_T] = self.noise_auto and converged_torque_std is None
+        self._adapt[ADAPT_AUTO_F] = self.noise_auto_force and converged_force_std is None
+        self._adapt[ADAPT_AUTO_T] = self.noise_auto_torque and converged_torque_std is None
         self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = math.inf
         self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3] = math.nan
         self._cog_known = False  # a warm start's torque stage had converged
@@ -468,10 +473,13 @@ class KalmanEstimator(RefusesBadSamples):
     def _filter_block(self, block: AlignedSamples) -> Estimates:
         """Filter a block of samples that passed the guard, in order."""
         m = len(block)
+        # the noise estimate and the identified rule follow sample by sample: the reference runs them one
+        # sample at a time, the compiled cascade in its loop (but for the inertial force, whose mass and
+        # centre of mass are the estimates before each sample)
+        if self._per_sample and m > 1 and (not self._cascade or self.inertia):
+            return Estimates.concatenate([self._filter_block(block.subset(slice(i, i + 1))) for i in range(m)])
         if self._cascade and m:
             return self._filter_compiled(block)
-        if self._per_sample and m > 1:  # the noise estimate and the identified rule follow sample by sample
-            return Estimates.concatenate([self._filter_block(block.subset(slice(i, i + 1))) for i in range(m)])
         if m == 0:
             empty = np.zeros((0, 3))
             flags = np.zeros(0, dtype=bool)
@@ -518,8 +526,10 @@ class KalmanEstimator(RefusesBadSamples):
         if self.noise_auto:
             if self._adapt[ADAPT_WINDOW] == 0 and dt[0] > 0:  # the sensor's rate, from the first time step
                 self._adapt[ADAPT_WINDOW] = window_samples(float(dt[0]))
-            self._adapt_noise(self.force, y_f, A_f, x_before, run_f, usable, ADAPT_COUNT_F)
-            self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, seen_t, ADAPT_COUNT_T)
+            if self.noise_auto_force:
+                self._adapt_noise(self.force, y_f, A_f, x_before, run_f, usable, ADAPT_COUNT_F)
+            if self.noise_auto_torque:  # (with the force noise it carried at this sample)
+                self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, seen_t, ADAPT_COUNT_T)
             self.torque.rc = self.force.r.copy()
 
         self.converged_force, self.converged_torque = bool(conv_f[-1]), bool(conv_t[-1])
@@ -693,10 +703,12 @@ class KalmanEstimator(RefusesBadSamples):
         """(force bound N, torque bound N·m) on the parameters' std for convergence."""
         f, t = self.converged_force_std_option, self.converged_torque_std_option
         if f is None:
-            f = AUTO_BOUND_FRACTION * float(np.sqrt(self.force.r.mean())) if self.noise_auto else CONVERGED_FORCE_STD
+            f = (AUTO_BOUND_FRACTION * float(np.sqrt(self.force.r.mean())) if self.noise_auto_force
+                 else CONVERGED_FORCE_STD)
             f = min(f, self._adapt[ADAPT_CAP_F])  # an auto bound never grows past its value at first convergence
         if t is None:
-            t = AUTO_BOUND_FRACTION * float(np.sqrt(self.torque.r.mean())) if self.noise_auto else CONVERGED_TORQUE_STD
+            t = (AUTO_BOUND_FRACTION * float(np.sqrt(self.torque.r.mean())) if self.noise_auto_torque
+                 else CONVERGED_TORQUE_STD)
             t = min(t, self._adapt[ADAPT_CAP_T])
         return f, t
 
@@ -960,8 +972,10 @@ class KalmanEstimator(RefusesBadSamples):
         self._cog_known = bool(source.get("converged_torque"))
         self._mass_known = bool(source.get("converged_force"))
         if self.noise_auto:  # the noise estimate carries over, as if its window were full
-            for key, stage, floor in (("noise_force_S", self.force, NOISE_FLOOR[0]),
-                                      ("noise_torque_S", self.torque, NOISE_FLOOR[1])):
+            for key, stage, floor, auto in (("noise_force_S", self.force, NOISE_FLOOR[0], self.noise_auto_force),
+                                            ("noise_torque_S", self.torque, NOISE_FLOOR[1], self.noise_auto_torque)):
+                if not auto:
+                    continue
                 noise = np.array(source.get(key, np.sqrt(stage.r)), dtype=float)
                 if noise.shape == (3,) and np.all(np.isfinite(noise)):
                     stage.r = np.maximum(noise, floor) ** 2

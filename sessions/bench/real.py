@@ -1,8 +1,9 @@
 """``hapticlab bench real``: every registered estimator on real recordings.
 
-For each CSV file of a folder and each registered estimator (and ``kalman``
-once more with ``noise = "auto"``, for sensors whose noise is not the
-simulated Gamma's): the online RMS of the estimated contact force per axis
+For each CSV file of a folder and each registered estimator with its defaults
+(``kalman``, the default, first; and ``kalman`` once more with the simulated
+Gamma sensor's noise and the covariance convergence rule, its defaults before
+it estimated the noise): the online RMS of the estimated contact force per axis
 over every row after the first convergence, against the offline batch fit of
 the whole file evaluated over the same rows (their ratio); the same ratio over
 the file's second half, a window that does not depend on each estimator's own
@@ -41,25 +42,26 @@ def default_real_dir() -> Path:
     return beside_checkout if beside_checkout.is_dir() else Path("../shared/data/real")
 
 
-AUTO_NOISE = {"noise_force": "auto", "noise_torque": "auto"}
+GAMMA_COVARIANCE = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
+"""kalman's options before it estimated the noise: the simulated Gamma-class sensor's noise, convergence from P."""
 
 
 def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[str, Any] | str]]:
-    """(label, estimator name, options or an error): every registered estimator with its defaults; kalman
-    with auto noise; and kalman with auto noise and the effects ``hapticlab discrepancy`` names on the file."""
-    out: list[tuple[str, str, dict[str, Any] | str]] = [(name, name, {}) for name in registry.names("estimator")]
-    if "kalman" in registry.names("estimator"):
-        out.append(("kalman noise=auto", "kalman", dict(AUTO_NOISE)))
-        out.append(("kalman noise=auto, convergence=identified", "kalman",
-                    dict(AUTO_NOISE, convergence="identified")))
+    """(label, estimator name, options or an error): every registered estimator with its defaults, the
+    default (kalman) first; kalman with the Gamma figures and the covariance rule (its defaults before); and
+    kalman with the effects ``hapticlab discrepancy`` names on the file."""
+    names = registry.names("estimator")
+    names = sorted(names, key=lambda name: name != "kalman")  # the default first, then the others as registered
+    out: list[tuple[str, str, dict[str, Any] | str]] = [(name, name, {}) for name in names]
+    if "kalman" in names:
+        out.append(("kalman noise=0.12 N, convergence=covariance", "kalman", dict(GAMMA_COVARIANCE)))
         from ..discrepancy.workflow import discrepancy
 
         try:
             named = discrepancy(stream, registry=registry)["estimator_options"]
         except UserError as exc:  # too short a file, its numbers defeat a solver: said in the row
             named = f"discrepancy: {exc}"
-        out.append(("kalman noise=auto + named effects", "kalman",
-                    dict(AUTO_NOISE, **named) if isinstance(named, dict) else named))
+        out.append(("kalman + named effects", "kalman", named))
     return out
 
 

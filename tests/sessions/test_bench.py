@@ -73,8 +73,11 @@ def test_bench_real_on_a_folder(tmp_path, capsys):
     rls = out["sim"]["estimators"]["rls"]
     assert rls["converged_force_at"] is not None and 0.9 < rls["ratio_norm"] < 1.1
     assert 0.9 < rls["ratio_norm_second_half"] < 1.1
-    auto = out["sim"]["estimators"]["kalman noise=auto"]  # kalman once more, estimating the sensor's noise
-    assert auto["converged_force_at"] is not None and auto["ratio_norm_second_half"] < 1.05
+    assert list(out["sim"]["estimators"])[0] == "kalman"  # the default first, estimating the sensor's noise
+    kalman = out["sim"]["estimators"]["kalman"]
+    assert kalman["converged_force_at"] is not None and kalman["ratio_norm_second_half"] < 1.05
+    gamma = out["sim"]["estimators"]["kalman noise=0.12 N, convergence=covariance"]  # the old defaults beside
+    assert gamma["ratio_norm_second_half"] < 1.05
     assert "sim" in capsys.readouterr().out
 
 

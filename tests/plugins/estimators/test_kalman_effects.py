@@ -264,6 +264,19 @@ def test_auto_noise_learns_the_sensor_noise():
     assert out.contact.mean() < 0.002
 
 
+def test_one_stage_noise_given_the_other_estimated():
+    """Each stage's noise is its own option: the force's given (the sensor's datasheet), the torque's estimated
+    (the default); the given one never moves, the torque stage still carries the given force noise."""
+    world, block = familybench.tour(30.0, seed=7, inertia=False)
+    est = KalmanEstimator(noise_force=0.12)
+    assert not est.noise_auto_force and est.noise_auto_torque
+    out, _ = feed(est, block, chunk=64)
+    assert np.array_equal(est.force.r, np.full(3, 0.12 ** 2)) and np.array_equal(est.torque.rc, est.force.r)
+    assert np.allclose(np.array(est.params()["noise_torque_S"]), 0.01, rtol=0.06)
+    assert est._bounds()[0] == 0.02 and est._bounds()[1] < 0.006  # the given noise's bound, half the estimate's
+    assert est.first_converged_torque is not None and out.contact.mean() < 0.002
+
+
 def test_auto_noise_refuses_contact_once_it_knows_the_noise():
     contacts = [{"kind": "indentation", "start": 15.0 + 5.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
                 for k in range(3)]

@@ -11,6 +11,8 @@ like third-party plugins, which are found through the entry-point group
 
 from __future__ import annotations
 
+import difflib
+
 import importlib
 import inspect
 import os
@@ -260,8 +262,13 @@ def validate_options(factory: Callable[..., Any], options: dict[str, Any], where
     accepted = {k: v for k, v in option_types(factory).items() if k not in host_provided}
     for key, value in options.items():
         if key not in accepted:
-            known = ", ".join(sorted(accepted)) or "none"
-            raise ConfigError(f"{where}.{key}: unknown option; known options: {known}")
+            names = sorted(accepted)
+            close = difflib.get_close_matches(key, names, n=1)
+            hint = f"; did you mean {close[0]}?" if close else ""
+            known = ", ".join(names) or "none"
+            if len(known) > 240:  # one line still: a long list only by where it is documented
+                known = f"{len(names)}, documented in {factory.__module__}.{factory.__qualname__}"
+            raise ConfigError(f"{where}.{key}: unknown option{hint}; known options: {known}")
         if not _type_ok(value, accepted[key]):
             hint = (f" (a number read as text needs quotes: --set '{where}.{key}=\"{value}\"')"
                     if accepted[key] is str and isinstance(value, (int, float)) else "")

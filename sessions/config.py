@@ -286,7 +286,10 @@ def apply_settings(config: dict[str, Any], settings: dict[str, Any]) -> dict[str
 
     Setting a plugin table's ``name`` to another plugin drops the options the
     file gave the old one (they belong to it), keeping the other settings, so
-    ``estimator.name = "kalman"`` works on any preset.
+    ``estimator.name = "kalman"`` works on any preset. Setting ``estimator.name``
+    to an estimator the file runs as a shadow of the same label (the presets'
+    ``[shadows.rls]``) promotes that shadow: it becomes the primary, with the
+    options the file gave it, and no longer runs beside itself.
     """
     config = copy.deepcopy(config)
     for key, value in settings.items():
@@ -294,6 +297,13 @@ def apply_settings(config: dict[str, Any], settings: dict[str, Any]) -> dict[str
         if rest == "name" and table in PLUGIN_TABLES and isinstance(config.get(table), dict) \
                 and config[table].get("name") != value:
             kept = {k: v for k, v in config[table].items() if table == "haptic" and k in HAPTIC_SAFETY_KEYS}
+            shadows = config.get("shadows")
+            shadow = shadows.get(value) if table == "estimator" and isinstance(shadows, dict) else None
+            if isinstance(shadow, dict) and shadow.get("name", value) == value:
+                kept = {**shadow, "name": value}
+                del shadows[value]
+                if not shadows:
+                    del config["shadows"]
             config[table] = kept
     for key, value in settings.items():
         key = key.strip()

@@ -23,10 +23,10 @@ def test_every_example_in_docs_api_runs(tmp_path, monkeypatch, capsys):
         exec(compile(block, str(DOCS), "exec"), namespace)  # noqa: S102 - our own documentation
     path = namespace["path"]
     assert Path(path).is_file() and Path(path).parent.name == "recordings"
-    assert namespace["config"]["estimator"]["name"] == "rls"
+    assert namespace["config"]["estimator"]["name"] == "kalman"  # the demo's (rls beside it)
     out = namespace["out"]
     assert out.contact_force_S.shape == (3001, 3) and bool(out.converged_force[-1])
-    assert (tmp_path / "kalman_demo.mcap").is_file()
+    assert (tmp_path / "rls_demo.mcap").is_file()
     printed = capsys.readouterr().out
     assert "session_start" in printed and "estimator rls" in printed
 

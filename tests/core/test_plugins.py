@@ -202,7 +202,7 @@ def test_create_checks_options_against_the_signature():
     registry = Registry(manager_with(module))
     made = registry.create("estimator", "d", {"gain": 2, "axes": [1, 2.5]}, where="estimator")
     assert made.gain == 2.0 and isinstance(made.gain, float) and made.axes == [1, 2.5]
-    with pytest.raises(ConfigError, match=r"^estimator.gian: unknown option; known options: axes, enabled, gain, label$"):
+    with pytest.raises(ConfigError, match=r"^estimator.gian: unknown option; did you mean gain\?; known options: axes, enabled, gain, label$"):
         registry.create("estimator", "d", {"gian": 2}, where="estimator")
     with pytest.raises(ConfigError, match=r"^estimator.gain: expected a number, got 'high'$"):
         registry.create("estimator", "d", {"gain": "high"}, where="estimator")

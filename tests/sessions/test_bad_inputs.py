@@ -367,12 +367,13 @@ def probes() -> list[tuple[str, list[str]]]:
 
     # run --set: refused before the session starts (each would otherwise run 50 ms, simulated)
     run = ["run", "--duration", "0.05", "--set", "session.realtime=false", "--out", "{lab}/new.mcap"]
-    for setting in ("estimator.force_treshold=2", "sesion.duration=2", "bogus", "=1", "session.loop_rate_hz=0",
+    for setting in ("shadows.rls.force_treshold=2", "estimator.noise_forse=2", "sesion.duration=2", "bogus", "=1", "session.loop_rate_hz=0",
                     "session.loop_rate_hz=-1", "session.loop_rate_hz=nan", "session.loop_rate_hz=abc",
                     "session.stale_timeout=-1", "session.stale_timeout=100", "haptic.max_force=-1",
                     "haptic.max_force_rate=nan", "haptic.scale=abc", "sensor.name=nope", "kinematics.name=nope",
                     "estimator.name=nope", "haptic.name=nope", "sensor.rate_hz=0", "kinematics.rate_hz=-5",
-                    "estimator.force_threshold=-1", "estimator.P0=abc", "shadows.rls={}", 'shadows.x={name="nope"}',
+                    "shadows.rls.force_threshold=-1", "shadows.rls.P0=abc", "estimator.noise_force=-1",
+                    "shadows.kalman={}", 'shadows.x={name="nope"}',
                     "shadows.y=3", "estimator.warm_start='{lab}/missing.json'", "estimator=3", "world.seed=abc",
                     "world.tool.mass=-1"):
         out.append((f"run-set-{setting}", [*run, "--set", setting]))

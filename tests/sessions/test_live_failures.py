@@ -153,8 +153,9 @@ def test_a_part_that_raises_ends_the_session_with_a_complete_recording(tmp_path,
 
 
 def test_every_estimators_events_are_recorded_with_their_source(tmp_path):
-    """rls drives the haptics, kalman runs beside it: kalman's payload change is recorded all the same."""
-    config = demo("shadows.kalman={}", duration=12.0)
+    """rls drives the haptics (the preset's rls shadow promoted), kalman runs beside it: kalman's payload change
+    is recorded all the same."""
+    config = demo("estimator.name=rls", "shadows.kalman={}", duration=12.0)
     config["world"]["contacts"] = [{"kind": "hanging_mass", "start": 9.0, "duration": 1e9, "mass": 0.1}]
     result = run_session(build_session(config), out=tmp_path / "shadow.mcap")
     rec = read_recording(result.path)

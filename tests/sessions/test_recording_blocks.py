@@ -120,7 +120,7 @@ def both_layouts(tmp_path_factory):
     """A real simulated session at 7 kHz (format 3), the same data in format 1 and in format 2."""
     tmp = tmp_path_factory.mktemp("layouts")
     config, _ = load_config("demo")
-    config = apply_overrides(config, ["session.realtime=false", "sensor.rate_hz=7000.0"])
+    config = apply_overrides(config, ["session.realtime=false", "sensor.rate_hz=7000.0", "estimator.name=rls"])
     result = run_session(build_session(config), out=tmp / "new.mcap", duration=0.4)
     new = read_recording(result.path)
     _write_old_layout(new, tmp / "old.mcap")

@@ -39,8 +39,8 @@ def test_shadows_run_side_by_side_and_are_recorded(with_shadows):
 
 def test_shadow_config_errors_name_the_key():
     config, _ = load_config("demo")
-    with pytest.raises(ConfigError, match=r"^shadows.rls: the primary estimator already records"):
-        build_session(apply_overrides(config, ["shadows.rls={}"]))
+    with pytest.raises(ConfigError, match=r"^shadows.kalman: the primary estimator already records"):
+        build_session(apply_overrides(config, ["shadows.kalman={}"]))
     with pytest.raises(ConfigError, match=r"^shadows.fast.force_treshold: unknown option"):
         build_session(apply_overrides(config, ['shadows.fast={name="rls", force_treshold=1}']))
     with pytest.raises(ConfigError, match=r"^shadows.k.name: unknown estimator 'nope'"):

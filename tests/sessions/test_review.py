@@ -35,9 +35,9 @@ def record(path: Path, *overrides: str) -> Path:
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory) -> Path:
-    """The demo's 14 s (its three contacts) with a kalman shadow, a trainee, a task and notes."""
+    """The demo's 14 s (its three contacts; kalman drives, rls beside it), a trainee, a task and notes."""
     path = tmp_path_factory.mktemp("review") / "t07-palpation.mcap"
-    return record(path, "session.duration=14", "shadows.kalman.name=kalman", "session.trainee=T07",
+    return record(path, "session.duration=14", "session.trainee=T07",
                   "session.task=palpation", 'session.notes="first try <b>left hand</b>"')
 
 
@@ -60,7 +60,7 @@ def test_contacts_are_found_where_the_world_put_them(session):
     assert r.contacts[1].over_limit_s == 0.0
     assert 0.3 < r.contacts[0].over_limit_s < 1.5 and 0.3 < r.contacts[2].over_limit_s < 1.0
     assert r.over_limit_s == pytest.approx(sum(c.over_limit_s for c in r.contacts), abs=0.01)
-    assert r.complete and r.estimator == "rls" and [e.name for e in r.estimators] == ["kalman", "rls"]
+    assert r.complete and r.estimator == "kalman" and [e.name for e in r.estimators] == ["kalman", "rls"]
 
 
 def test_the_streamed_figures_equal_the_whole_array_metrics(session, monkeypatch):

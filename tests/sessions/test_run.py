@@ -11,7 +11,7 @@ from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording
 from hapticlab.sessions.live import build_session, run_session
 
-ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/rls",
+ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/kalman", "/estimator/rls",
               "/haptic/command", "/haptic/state", "/tf", "/events"}
 
 
@@ -41,10 +41,12 @@ def test_recorded_demo_reopens_with_every_topic(demo_recording):
     assert set(rec.topics) == ALL_TOPICS
     n = result.samples
     assert n == 8001 and len(rec.topics["/sensor/wrench"]) == n
-    assert len(rec.topics["/aligned/sample"]) == n and len(rec.topics["/estimator/rls"]) == n
+    assert len(rec.topics["/aligned/sample"]) == n and len(rec.topics["/estimator/kalman"]) == n
+    assert len(rec.topics["/estimator/rls"]) == n  # the paper's, beside it on every sample
     assert len(rec.topics["/kinematics/pose"]) == result.poses == 4001
     session = rec.metadata["hapticlab.session"]
-    assert '"estimator": {"name": "rls"' in session["config"] and "sim" in session["plugins"]
+    assert '"estimator": {"name": "kalman"' in session["config"] and '"shadows": {"rls": {"name": "rls"' in \
+        session["config"] and "sim" in session["plugins"]
     assert rec.metadata["hapticlab.summary"]["samples"] == str(n)
     seq = rec.field("/sensor/wrench", "seq")
     assert np.array_equal(seq, np.arange(n))  # nothing dropped
@@ -105,7 +107,8 @@ def test_haptics_wait_for_convergence_and_are_clamped(demo_recording):
 def test_estimator_swap_from_overrides(tmp_path):
     result = run_session(build_session(demo("estimator.name=batch", duration=1.0)), out=tmp_path / "b.mcap")
     rec = read_recording(result.path)
-    assert "/estimator/batch" in rec.topics and "/estimator/rls" not in rec.topics
+    assert "/estimator/batch" in rec.topics and "/estimator/kalman" not in rec.topics
+    assert "/estimator/rls" in rec.topics  # the preset's shadow still beside it
 
 
 class FlakyDevice:
@@ -229,8 +232,11 @@ def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
     "override, message",
     [
         ("estimator.name=kalmann", r"^estimator.name: unknown estimator 'kalmann'; available: batch, kalman, rls$"),
-        ("estimator.force_treshold=2", r"^estimator.force_treshold: unknown option; known options: .*force_threshold"),
-        ("estimator.force_threshold=high", r"^estimator.force_threshold: expected a number, got 'high'$"),
+        ("shadows.rls.force_treshold=2", r"^shadows.rls.force_treshold: unknown option; did you mean force_threshold\?"
+                                         r"; known options: .*force_threshold"),
+        ("shadows.rls.force_threshold=high", r"^shadows.rls.force_threshold: expected a number, got 'high'$"),
+        ("estimator.noise_forse=0.1", r"^estimator.noise_forse: unknown option; did you mean noise_force\?; known "
+                                      r"options: 31, documented in hapticlab.plugins.estimators.kalman.KalmanEstimator$"),
         ("session.duration=soon", r"^session.duration: expected a number, got 'soon'$"),
         ("haptic.max_force=[1, 2]", r"^haptic.max_force: expected a number, got \[1, 2\]$"),
         ("world.tool.mass=heavy", r"^world.tool.mass: expected a number, got 'heavy'$"),

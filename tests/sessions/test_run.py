@@ -327,6 +327,18 @@ def test_switching_estimator_drops_the_presets_options_for_the_old_one():
     assert config["haptic"]["max_force_rate"] == 400.0
 
 
+def test_naming_the_presets_shadow_as_the_estimator_promotes_it():
+    """The presets run kalman with rls beside it; estimator.name=rls makes that rls the primary, with its options,
+    and it no longer runs beside itself; another name leaves the shadow beside the new primary."""
+    config = demo("estimator.name=rls")
+    assert config["estimator"] == {"name": "rls", "force_threshold": 1.0, "torque_threshold": 0.1}
+    assert "shadows" not in config
+    session = build_session(config)
+    assert session.estimator_name == "rls" and not session.shadows
+    config = demo("estimator.name=batch")
+    assert config["estimator"] == {"name": "batch"} and config["shadows"]["rls"]["force_threshold"] == 1.0
+
+
 def test_a_payload_change_holds_the_haptic_force_at_zero(tmp_path):
     """kalman recognises a 100 g mass hung for good; the loop then holds the force at zero for 1 s."""
     config = demo("estimator.name=kalman", duration=12.0)

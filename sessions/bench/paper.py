@@ -437,7 +437,7 @@ def bench_paper(quick: bool = False, all_estimators: bool = False, registry: Reg
                            "paper": PAPER}
     if all_estimators:
         out["estimators"] = {}
-        for name in registry.names("estimator"):
+        for name in sorted(registry.names("estimator"), key=lambda n: n != "kalman"):  # the default first
             say = (lambda m, n=name: progress(f"{n}: {m}")) if progress else None
             run = main if name == "rls" else run_paper(setup, estimator_factory(registry, name, setup), name,
                                                         quick=quick, progress=say, with_batch_bounds=False)

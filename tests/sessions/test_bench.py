@@ -31,7 +31,7 @@ def test_paper_json_has_every_key_the_issue_lists(quick):
     assert set(out["convergence"]) >= {"force_paper", "torque_paper", "force_truth", "torque_truth"}
     for speed in ("12", "30", "45", "72"):
         assert set(out["rotation_104g"][speed]) >= {"mae", "max_ae", "std"}
-    assert set(out["estimators"]) >= {"rls", "batch"}
+    assert set(out["estimators"]) >= {"rls", "batch"} and list(out["estimators"])[0] == "kalman"  # the default first
     assert set(out["estimators"]["batch"]["no_contact"]["force"]) == {"fx", "fy", "fz"}
     assert set(out["estimators"]["batch"]["bounds"]) == {"batch", "batch_frozen"}
 

@@ -223,8 +223,9 @@ ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
 ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10, 11
 ADAPT_SIZE = 14
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
-``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``), ``ADAPT_IDENTIFIED`` convergence as identified
-(``core.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T`` the convergence bound from the noise estimate.
+``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``),
+``ADAPT_IDENTIFIED`` convergence as identified (``core.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T``
+the convergence bound from the noise estimate.
 State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
 yet known), whether the force flag was ever up, the bounds' caps (inf until the force flag first rises).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``)."""
@@ -260,7 +261,8 @@ def constant_var_max(info, L):
     """The largest of diag((Λ⁻¹)[:3, :3]) (``core.identified.constant_var``), inf if Λ is not positive definite.
 
     Cholesky of Λ reordered as [b, a] (L (6, 6) scratch): the trailing 3×3 factor T has T Tᵀ = the Schur
-    complement Λ_aa − Λ_ab Λ_bb⁻¹ Λ_ba = ((Λ⁻¹)_aa)⁻¹, so diag((Λ⁻¹)_aa) are the squared column norms of T⁻¹."""
+    complement Λ_aa − Λ_ab Λ_bb⁻¹ Λ_ba = ((Λ⁻¹)_aa)⁻¹, so diag((Λ⁻¹)_aa) are the squared column norms
+    of T⁻¹."""
     for i in range(6):
         pi = (i + 3) % 6
         for j in range(i + 1):
@@ -282,9 +284,13 @@ def constant_var_max(info, L):
 
 
 @njit(cache=True, error_model="numpy")
-def adapt_noise(r, count, e0, e1, e2, cpc, weight, window, floor):
-    """One covariance-matching step on r (3,) in place (``core.noise_estimate.adapt_noise``); returns the
-    count after it. A weight of 0 or a non-finite innovation changes nothing."""
+def adapt_noise(r, count, y, A, x, cpc, weight, window, floor):
+    """One covariance-matching step on r (3,) in place (``core.noise_estimate.adapt_noise``) for the reading
+    y (3,), A (3, 3), at the state x (6,) the sample was predicted from: e = y − A a − b. Returns the count
+    after it. A weight of 0 or a non-finite innovation changes nothing."""
+    e0 = y[0] - (A[0, 0] * x[0] + A[0, 1] * x[1] + A[0, 2] * x[2]) - x[3]
+    e1 = y[1] - (A[1, 0] * x[0] + A[1, 1] * x[1] + A[1, 2] * x[2]) - x[4]
+    e2 = y[2] - (A[2, 0] * x[0] + A[2, 1] * x[1] + A[2, 2] * x[2]) - x[5]
     if weight == 0.0 or not (math.isfinite(e0) and math.isfinite(e1) and math.isfinite(e2)):
         return count
     count += weight
@@ -336,7 +342,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         (r_f, r_t, rc_t in place with the noise estimate).
         limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_NOISE``.
         info_f, info_t: (6, 6) the stages' information Λ (identified rule), in place.
-        A_t: (3, 3), scratch: (7, 6) scratch (the Cholesky factor, the torque reading's variance).
+        A_t: (3, 3), scratch: (9, 6) scratch (the Cholesky factor, the torque reading's variance, the
+        stages' states before the sample).
         Out, (m, 6): X_f, D_f, X_t, D_t (state, diag P);
         (m,): gated_f, failed_f, gated_t, failed_t; contact_force_S, contact_torque_S (m, 3);
         contact, converged_force, converged_torque (m,).
@@ -346,9 +353,11 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         force flag up or −1, the same for torque): what the caller would otherwise count.
     """
     gate2, bound_f2, bound_t2 = limits[0], limits[1], limits[2]
-    noise_f, noise_t, identified = adapt[ADAPT_NOISE_F] != 0.0, adapt[ADAPT_NOISE_T] != 0.0, adapt[ADAPT_IDENTIFIED] != 0.0
+    noise_f, noise_t = adapt[ADAPT_NOISE_F] != 0.0, adapt[ADAPT_NOISE_T] != 0.0
+    identified = adapt[ADAPT_IDENTIFIED] != 0.0
     noise = noise_f or noise_t
     pred_f, pred_t = adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3], scratch[6, :3]
+    before_f, before_t = scratch[7], scratch[8]
     previous = last_t_ns[1]
     n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
     positions = p_BoEo_B.shape[0] != 0
@@ -368,7 +377,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             bound_f2 = _auto_bound2(r_f, adapt[ADAPT_CAP_F])
         if adapt[ADAPT_AUTO_T] != 0.0:
             bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
-        fb0, fb1, fb2, fb3, fb4, fb5 = x_f[0], x_f[1], x_f[2], x_f[3], x_f[4], x_f[5]
+        before_f[:] = x_f
         what, _ = stage_step(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, r_f, rc_f, gate2)
         failed = what == FAILED
         gated_f[k], failed_f[k] = what == GATED, failed
@@ -393,7 +402,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
         A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
         seen = usable[k] and what != GATED and conv
-        tb0, tb1, tb2, tb3, tb4, tb5 = x_t[0], x_t[1], x_t[2], x_t[3], x_t[4], x_t[5]
+        before_t[:] = x_t
         what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
                                rc_t, gate2)
         gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
@@ -418,24 +427,15 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             window = adapt[ADAPT_WINDOW] if adapt[ADAPT_WINDOW] != 0.0 else NOISE_WINDOW
             refused_weight = NOISE_REFUSED_WEIGHT if adapt[ADAPT_FORCE_SEEN] == 0.0 else 0.0
             if noise_f and usable[k]:
-                A = A_f[k]
-                adapt[ADAPT_COUNT_F] = adapt_noise(
-                    r_f, adapt[ADAPT_COUNT_F],
-                    y_f[k, 0] - (A[0, 0] * fb0 + A[0, 1] * fb1 + A[0, 2] * fb2) - fb3,
-                    y_f[k, 1] - (A[1, 0] * fb0 + A[1, 1] * fb1 + A[1, 2] * fb2) - fb4,
-                    y_f[k, 2] - (A[2, 0] * fb0 + A[2, 1] * fb1 + A[2, 2] * fb2) - fb5,
-                    pred_f, refused_weight if what == GATED else 1.0, window, NOISE_FLOOR[0])
-            if noise_t and seen:  # the torque stage's R carries the force noise through the centre of gravity: not its own
+                adapt[ADAPT_COUNT_F] = adapt_noise(r_f, adapt[ADAPT_COUNT_F], y_f[k], A_f[k], before_f, pred_f,
+                                                   refused_weight if what == GATED else 1.0, window, NOISE_FLOOR[0])
+            if noise_t and seen:  # its R carries the force noise through the centre of gravity: not its own
                 c0, c1, c2 = x_t[0], x_t[1], x_t[2]
                 pred_t[0] += rc_t[1] * c2 * c2 + rc_t[2] * c1 * c1
                 pred_t[1] += rc_t[0] * c2 * c2 + rc_t[2] * c0 * c0
                 pred_t[2] += rc_t[0] * c1 * c1 + rc_t[1] * c0 * c0
-                adapt[ADAPT_COUNT_T] = adapt_noise(
-                    r_t, adapt[ADAPT_COUNT_T],
-                    torque_S[k, 0] - (A_t[0, 0] * tb0 + A_t[0, 1] * tb1 + A_t[0, 2] * tb2) - tb3,
-                    torque_S[k, 1] - (A_t[1, 0] * tb0 + A_t[1, 1] * tb1 + A_t[1, 2] * tb2) - tb4,
-                    torque_S[k, 2] - (A_t[2, 0] * tb0 + A_t[2, 1] * tb1 + A_t[2, 2] * tb2) - tb5,
-                    pred_t, refused_weight if what_t == GATED else 1.0, window, NOISE_FLOOR[1])
+                adapt[ADAPT_COUNT_T] = adapt_noise(r_t, adapt[ADAPT_COUNT_T], torque_S[k], A_t, before_t, pred_t,
+                                                   refused_weight if what_t == GATED else 1.0, window, NOISE_FLOOR[1])
             if noise_f:
                 rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
         if conv and adapt[ADAPT_FORCE_SEEN] == 0.0:
@@ -481,7 +481,7 @@ class Buffers:
         self.d2 = np.empty(capacity)
         self.usable = np.empty(capacity, dtype=np.bool_)
         self.A_t = np.empty((3, 3))
-        self.scratch = np.empty((7, 6))
+        self.scratch = np.empty((9, 6))
 
     def ensure(self, m: int) -> None:
         if m > self.capacity:
@@ -499,7 +499,8 @@ def warm_up() -> None:
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
     for p in (np.zeros((0, 3)), y):  # streams without and with positions
         adapt = np.zeros(ADAPT_SIZE)
-        adapt[ADAPT_NOISE_F] = adapt[ADAPT_NOISE_T] = adapt[ADAPT_IDENTIFIED] = adapt[ADAPT_AUTO_F] = adapt[ADAPT_AUTO_T] = 1.0
+        for option in (ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED, ADAPT_AUTO_F, ADAPT_AUTO_T):
+            adapt[option] = 1.0
         adapt[ADAPT_CAP_F] = adapt[ADAPT_CAP_T] = np.inf
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
                        np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),

@@ -982,10 +982,16 @@ class KalmanEstimator(RefusesBadSamples):
             self._adapt[[ADAPT_COUNT_F, ADAPT_COUNT_T]] = NOISE_WINDOW
 
     def params(self) -> dict[str, list[float]]:
-        """Identified parameters with physical names (SI units); with bias_rate also the bias rates."""
+        """Identified parameters with physical names (SI units); with bias_rate also the bias rates; with
+        ``convergence = "identified"`` the std per axis of gravity_force_B (N) and cog_S (m) as the motion so
+        far identifies them (the prior's, 20 N and 0.5 m, where it has not: a yaw-only motion leaves
+        gravity's horizontal part there); with auto noise the noise estimates."""
         out = named_params(self.force.x[:6], self.torque.x[:6])
         if self.mount_rotation or self.mount_configured:
             out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
+        if self.convergence == "identified":  # how well the motion so far has identified the constants
+            out["gravity_force_B_std"] = np.sqrt(identified.constant_var(self._information["force"])).tolist()  # N
+            out["cog_S_std"] = np.sqrt(identified.constant_var(self._information["torque"])).tolist()  # m
         if self.noise_auto:
             out["noise_force_S"] = np.sqrt(self.force.r).tolist()  # N
             out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m

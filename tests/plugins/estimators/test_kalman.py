@@ -18,7 +18,7 @@ from hapticlab.core.frames import matrix_from_rotvec
 from hapticlab.core.interfaces import Estimator
 from hapticlab.core.kalman import KalmanStage
 from hapticlab.core.plugins import ConfigError, Registry
-from hapticlab.core.types import STATUS_SATURATED, AlignedSamples
+from hapticlab.core.types import STATUS_SATURATED, AlignedSamples, Estimates
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
@@ -388,9 +388,12 @@ def test_identified_convergence_waits_for_a_tilt_that_tells_gravity_from_the_bia
     R0 = _rot(0, np.full(len(t), np.pi))  # flange pointing down
     block = _turning_stream(_rot(2, yaw) @ _rot(0, tilt) @ R0, seed=3)
     est = KalmanEstimator(noise_force="auto", noise_torque="auto", convergence="identified")
-    out = est.update_block(block)
+    yaw_only = est.update_block(block.subset(slice(0, 2900)))
+    unknown = np.array(est.params()["gravity_force_B_std"])  # N: the params say what the yaw could not tell
+    out = Estimates.concatenate([yaw_only, est.update_block(block.subset(slice(2900, len(block))))])
     first = est.first_converged_force
     assert first is not None and t[first] > 30.0  # not before the tilt, whatever the yaw did
+    assert unknown.max() > 1.0 and np.array(est.params()["gravity_force_B_std"]).max() < est._bounds()[0]
     after = out.converged_force & (t > t[first] + 5.0)
     rms = np.sqrt(np.mean(out.contact_force_S[after] ** 2, axis=0))
     assert after.sum() > 2000 and np.all(rms < 0.1 * 1.1)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-I3 = np.eye(3)
+from .kalman import I3
 
 
 def predicted_var(P: np.ndarray, A: np.ndarray) -> np.ndarray:

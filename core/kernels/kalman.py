@@ -340,7 +340,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         non-finite wrench or R_EB), less those whose force update failed.
         x_f, P_f, x_t, P_t: the stages' (6,) and (6, 6), in place. q_*, r_*, rc_*: (3,) as ``stage_step``
         (r_f, r_t, rc_t in place with the noise estimate).
-        limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_NOISE``.
+        limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_SIZE``.
         info_f, info_t: (6, 6) the stages' information Λ (identified rule), in place.
         A_t: (3, 3), scratch: (9, 6) scratch (the Cholesky factor, the torque reading's variance, the
         stages' states before the sample).
@@ -422,7 +422,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         if converged_torque[k] and first_t < 0:
             first_t = k
         if noise:
-            if adapt[ADAPT_WINDOW] == 0.0 and dt > 0.0:  # the sensor's rate, from the first time step
+            if adapt[ADAPT_WINDOW] == 0.0 and dt > 0.0:  # core.noise_estimate.window_samples, at the first step
                 adapt[ADAPT_WINDOW] = max(NOISE_WINDOW, int(NOISE_WINDOW_S / dt))
             window = adapt[ADAPT_WINDOW] if adapt[ADAPT_WINDOW] != 0.0 else NOISE_WINDOW
             refused_weight = NOISE_REFUSED_WEIGHT if adapt[ADAPT_FORCE_SEEN] == 0.0 else 0.0

@@ -779,7 +779,7 @@ class KalmanEstimator(RefusesBadSamples):
         cpc = identified.predicted_var(stage.P, A[0])
         cpc += stage.measurement_cov(stage.x[:3]).diagonal() - stage.r  # the torque stage's carried force noise
         # refused samples count only until the force stage first converged (core.noise_estimate)
-        weight = 1.0 if not run.gated[0] else (NOISE_REFUSED_WEIGHT if self.first_converged_force is None else 0.0)
+        weight = 1.0 if not run.gated[0] else (NOISE_REFUSED_WEIGHT if not self._adapt[ADAPT_FORCE_SEEN] else 0.0)
         floor = NOISE_FLOOR[0] if stage is self.force else NOISE_FLOOR[1]
         window = self._adapt[ADAPT_WINDOW] or NOISE_WINDOW
         stage.r, self._adapt[counter] = adapt_noise(stage.r, self._adapt[counter], e, cpc, weight, window, floor)
@@ -1008,8 +1008,7 @@ class KalmanEstimator(RefusesBadSamples):
         known where the robot is), so the haptic gate's "parameters known" agrees with the flag."""
         predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
         if self.convergence == "identified" and not np.isnan(predicted).any():
-            gravity_var = np.linalg.inv(self._information["force"]).diagonal()[:3]
-            return np.sqrt(np.concatenate([gravity_var, predicted]))
+            return np.sqrt(np.concatenate([identified.constant_var(self._information["force"]), predicted]))
         return np.sqrt(np.diag(self.force.P)[:6])
 
     def torque_parameter_std(self) -> np.ndarray:

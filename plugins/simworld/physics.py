@@ -222,7 +222,8 @@ class SampleClock:
         if self.t0_ns is None:
             raise RuntimeError("read() before open()")
         last = math.floor((int(until_ns) - self.t0_ns) * self.rate_hz / 1e9) + 1  # may overshoot by one
-        while last >= self.next_index and int(self.times(np.array(last))) > until_ns:
+        step = 1e9 / self.rate_hz
+        while last >= self.next_index and self.t0_ns + round(last * step) > until_ns:  # times(), for one index
             last -= 1
         return max(last + 1, self.next_index)
 

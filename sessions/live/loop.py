@@ -291,7 +291,7 @@ class LiveLoop:
             self._events(device.drain_events(), label)
         self._command(now_ns)
         self._report(now_ns)
-        self._call("recording", self.taps.send)  # encoded now, the command gone: one pipe write to the writer
+        self._call("recording", self.taps.send, now_ns)  # encoded now, the command gone; handed over every 20 ms
 
     # ------------------------------------------------------------------ the stages
 

@@ -1,18 +1,24 @@
 """The recorder's taps on the live stream: each stage's records as topic messages (the hot path).
 
 The sensor-rate topics (``/sensor/wrench``, ``/aligned/sample``,
-``/estimator/<name>``) are written one columnar message per block (what the
-loop hands over in one tick: ~7 samples at 7 kHz), the arrays handed over as
-they are: the recorder encodes them as CDR, one ``tobytes`` per field (format
-3; ``mcap``'s pure-Python writer costs ~10 µs per message, and JSON cost
-~0.66 µs per float, issue 12). Poses (at the kinematics rate), commands and
-device states and robot targets (one per tick) and events stay one JSON message each.
+``/estimator/<name>``) are written as columnar block messages, the arrays
+handed over as they are: the recorder encodes them as CDR, one ``tobytes`` per
+field (format 3; ``mcap``'s pure-Python writer costs ~10 µs per message, and
+JSON cost ~0.66 µs per float, issue 12). A block holds what the loop handed
+over in :data:`HAND_OVER_NS` (20 ms: 20 ticks at 1 kHz), not one tick: the taps
+keep each topic's blocks and write them as one message at the hand-over (an
+estimator block that carries ``params`` ends its message, so they still
+describe its last sample). Poses (at the kinematics rate), commands and device
+states and robot targets (one per tick) and events stay one JSON message each.
 
-The taps only queue their messages; :meth:`Taps.send` encodes them in the
-order written and hands them to the recorder at the end of the tick, after the
-haptic command has gone out, so encoding is not on the sample-to-command path.
-Nothing a tap is given may change before then (the loop builds fresh arrays
-every tick).
+The taps only queue their messages; :meth:`Taps.send` encodes the tick's JSON
+messages in the order written after the haptic command has gone out, so
+encoding is not on the sample-to-command path, and every
+:data:`HAND_OVER_NS` writes the held blocks and hands the lot to the recorder
+(with the writer process: one pipe write per hand-over, not per tick). A
+killed session loses those 20 ms more, well inside the second it may lose.
+Nothing a tap is given may change after it is given (the loop and the
+estimators build fresh arrays every tick).
 """
 
 from __future__ import annotations
@@ -25,7 +31,12 @@ from ...core.frames import quat_wxyz_from_matrix
 from ...core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, RobotTarget,
                           WrenchSample)
 from ..recording import Recorder
-from ..recording.schemas import TF_INTERVAL_NS
+from ..recording.schemas import BLOCK_LAST_SAMPLE_FIELDS, TF_INTERVAL_NS
+
+HAND_OVER_NS = 20_000_000
+"""How long the taps hold the sensor-rate blocks before writing them as one message per topic and handing
+the tick's messages to the recorder, ns (20 ms; issue 12: one encode per topic and one pipe write per
+hand-over, not per tick)."""
 
 
 class _TickQueue:
@@ -44,22 +55,66 @@ class _TickQueue:
     def event(self, t_ns: int, kind: str, message: str, **data) -> None:
         self.held.append((partial(self.recorder.event, t_ns, kind, message, **data),))
 
-    def send(self) -> None:
+    def encode(self) -> None:
+        """Encode the held messages (in the order written), keep them in the recorder until :meth:`send`."""
         held, self.held = self.held, []
         for method, *args in held:
             method(*args)
+
+    def send(self) -> None:
+        """Encode the held messages, hand everything encoded so far to the writer."""
+        self.encode()
         self.recorder.send()
+
+
+class _Blocks:
+    """One block topic's messages held until the hand-over, written as one (their fields concatenated)."""
+
+    __slots__ = ("topic", "parts", "fields")
+
+    def __init__(self, topic: str):
+        self.topic = topic
+        self.parts: list[dict] = []
+        self.fields: tuple[str, ...] = ()  # the fields present (not None) in the held parts
+
+    def add(self, message: dict, rec: _TickQueue) -> None:
+        """Hold ``message`` (no None values); one with ``params``/``cov_diag`` ends the held message."""
+        last = BLOCK_LAST_SAMPLE_FIELDS[0] in message or BLOCK_LAST_SAMPLE_FIELDS[1] in message
+        fields = tuple(k for k in message if k not in BLOCK_LAST_SAMPLE_FIELDS) if last else tuple(message)
+        if self.parts and fields != self.fields:  # a field came or went: what is held is one message, this another
+            self.write(rec)
+        self.fields = fields
+        self.parts.append(message)
+        if last:  # they describe the last sample
+            self.write(rec)
+
+    def write(self, rec: _TickQueue) -> None:
+        parts, self.parts = self.parts, []
+        if not parts:
+            return
+        if len(parts) == 1:
+            rec.write_block(self.topic, parts[0])
+            return
+        last = parts[-1]
+        message = {k: np.concatenate([p[k] for p in parts]) for k in self.fields}
+        for k in BLOCK_LAST_SAMPLE_FIELDS:
+            if last.get(k) is not None:
+                message[k] = last[k]
+        rec.write_block(self.topic, message)
 
 
 class Taps:
     """Writes poses, wrenches, aligned samples, estimates, commands, device states and events.
 
     Each tap queues its message; :meth:`send` records the tick's messages (call it once per tick, after the
-    command, and before the recorder is closed).
+    command, with the tick's time; and once without one before the recorder is closed: it writes what is held).
     """
 
     def __init__(self, recorder: Recorder):
         self.rec = _TickQueue(recorder)
+        self._wrenches: list[WrenchSample] = []  # the raw readings held until the hand-over
+        self._blocks: dict[str, _Blocks] = {}
+        self._hand_over_ns: int | None = None  # the next hand-over (set by the first send)
         self._target_R: np.ndarray | None = None  # the last robot target's orientation and its quaternion
         self._target_quat: list[float] = []
         self._next_tf_ns = {"flange": 0, "target": 0}
@@ -89,23 +144,33 @@ class Taps:
         })
 
     def wrenches(self, wrenches: list[WrenchSample]) -> None:
-        if not wrenches:
-            return
-        self.rec.write_block("/sensor/wrench", {
-            "t_ns": [w.t_ns for w in wrenches],
-            "force_S": np.array([w.force_S for w in wrenches]),
-            "torque_S": np.array([w.torque_S for w in wrenches]),
-            "seq": [w.seq for w in wrenches],
-            "status": [w.status for w in wrenches],
-        })
+        self._wrenches.extend(wrenches)
+
+    def _write_wrenches(self) -> None:
+        wrenches, self._wrenches = self._wrenches, []
+        if wrenches:
+            self.rec.write_block("/sensor/wrench", {
+                "t_ns": [w.t_ns for w in wrenches],
+                "force_S": np.array([w.force_S for w in wrenches]),
+                "torque_S": np.array([w.torque_S for w in wrenches]),
+                "seq": [w.seq for w in wrenches],
+                "status": [w.status for w in wrenches],
+            })
+
+    def _hold(self, topic: str, message: dict) -> None:
+        blocks = self._blocks.get(topic)
+        if blocks is None:
+            blocks = self._blocks[topic] = _Blocks(topic)
+        blocks.add(message, self.rec)
 
     def aligned(self, block: AlignedSamples) -> None:
         if not len(block.t_ns):
             return
-        self.rec.write_block("/aligned/sample", {
-            "t_ns": block.t_ns, "force_S": block.force_S, "torque_S": block.torque_S,
-            "quat_BE": block.quat_BE, "seq": block.seq, "status": block.status, "stale": block.stale,
-        })
+        message = {"t_ns": block.t_ns, "force_S": block.force_S, "torque_S": block.torque_S,
+                   "seq": block.seq, "status": block.status, "stale": block.stale}
+        if block.quat_BE is not None:
+            message["quat_BE"] = block.quat_BE
+        self._hold("/aligned/sample", message)
 
     def estimates(self, topic: str, est: Estimates, params=None, cov_diag=None) -> None:
         """One block message; ``params``/``cov_diag`` (when given) describe its last sample."""
@@ -119,7 +184,7 @@ class Taps:
             message["params"] = params
         if cov_diag is not None:
             message["cov_diag"] = cov_diag
-        self.rec.write_block(topic, message)
+        self._hold(topic, message)
 
     def command(self, command: HapticCommand) -> None:
         self.rec.write("/haptic/command", command.t_ns, {
@@ -147,6 +212,19 @@ class Taps:
     def event(self, event: Event) -> None:
         self.rec.event(event.t_ns, event.kind, event.message, **event.data)
 
-    def send(self) -> None:
-        """Encode the queued messages in order and hand them to the recorder (the writer process: one pipe write)."""
+    def send(self, now_ns: int | None = None) -> None:
+        """Encode the tick's queued messages in order; at the hand-over (every :data:`HAND_OVER_NS` of ``now_ns``,
+        and always without it: the session's end) write the held blocks and hand everything to the recorder
+        (the writer process: one pipe write)."""
+        if now_ns is not None:
+            if self._hand_over_ns is None:
+                self._hand_over_ns = now_ns + HAND_OVER_NS
+            elif now_ns < self._hand_over_ns:
+                self.rec.encode()
+                return
+            else:
+                self._hand_over_ns = now_ns + HAND_OVER_NS
+        self._write_wrenches()
+        for blocks in self._blocks.values():
+            blocks.write(self.rec)
         self.rec.send()

@@ -40,6 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.interfaces import HasRange, ReportsParameterStd, Reidentifies
+from ...core.kernels import screen as screen_kernel
 from ...core.types import STATUS_OK, AlignedSamples, Estimates, Event, PoseSample
 from .watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch
 
@@ -81,6 +82,27 @@ def data_reason(block: AlignedSamples, usable: np.ndarray, beyond: np.ndarray) -
     return "non-finite sensor reading"
 
 
+_NO_RANGE = np.empty(0)
+_NO_POSITION = np.empty((0, 3))
+_REASONS = ((screen_kernel.BEYOND, "implausible sensor reading (beyond its range)"),
+            (screen_kernel.STALE, "stale kinematics"), (screen_kernel.BAD_STATUS, "sensor saturated or in error"),
+            (screen_kernel.NON_FINITE, "non-finite sensor reading"))
+
+
+def screen(block: AlignedSamples, sensor: HasRange | None) -> tuple[np.ndarray, np.ndarray, str]:
+    """``(usable, beyond, reason)`` for a block: ``block.usable & ~implausible(...)``, ``implausible(...)`` and
+    :func:`data_reason`, in one compiled pass (``core.kernels.screen``; these three stay the reference)."""
+    n = len(block)
+    usable, beyond = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
+    ranges = (_NO_RANGE, _NO_RANGE) if sensor is None else (
+        np.asarray(sensor.range_force_S, dtype=float), np.asarray(sensor.range_torque_S, dtype=float))
+    bits = screen_kernel.screen_block(block.force_S, block.torque_S, block.R_EB,
+                                      _NO_POSITION if block.p_BoEo_B is None else block.p_BoEo_B,
+                                      block.stale, block.status, *ranges, usable, beyond)
+    reason = next((why for bit, why in _REASONS if bits & bit), "") if bits else ""
+    return usable, beyond, reason
+
+
 class HapticGate:
     """Tracks the data and the primary estimator, and tells the loop why the force must be zero.
 
@@ -106,6 +128,7 @@ class HapticGate:
         self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
         self.bias = BiasWatch()
         self.lag = LagWatch(max_turn_rate)
+        screen_kernel.warm_up()  # compiled (or loaded) before the first tick
         self.ready = [False, False]  # each stage has converged at least once
         self.converged = [False, False]  # each stage's flag after the last sample
         self.down_since_ns: int | None = None  # the force stage's flag has been down since (None: it is up)
@@ -148,10 +171,10 @@ class HapticGate:
         if self.poses.add(poses, now_ns):
             self.lag.reset()
 
-    def on_samples(self, block: AlignedSamples, usable: np.ndarray, beyond: np.ndarray) -> None:
-        """A new sensor block arrived (every sample, usable or not)."""
+    def on_samples(self, block: AlignedSamples, reason: str) -> None:
+        """A new sensor block arrived (every sample, usable or not), with what was wrong with it (:func:`screen`)."""
         self.last_sample_ns = int(block.t_ns[-1])
-        self.data_reason = data_reason(block, usable, beyond)
+        self.data_reason = reason
 
     def on_estimates(self, block: AlignedSamples, est: Estimates, now_ns: int,
                      params: dict[str, list[float]] | None = None, R_SE: np.ndarray | None = None) -> list[Event]:

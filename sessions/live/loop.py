@@ -57,7 +57,7 @@ from ..config import check_duration
 from ..recording import Recorder
 from ..recording.sinks import WriterProcessError
 from .build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
-from .gate import HapticGate, implausible
+from .gate import HapticGate, screen
 from .status import SessionError, SessionResult, SessionStatus
 from .taps import Taps
 from .teleop import Teleoperation
@@ -278,9 +278,8 @@ class LiveLoop:
             self.samples += len(wrenches)
             block = self.aligner.align(wrenches)
             self.taps.aligned(block)
-            beyond = implausible(block, self.sensor_range)
-            usable = block.usable & ~beyond
-            self.gate.on_samples(block, usable, beyond)
+            usable, _, reason = screen(block, self.sensor_range)
+            self.gate.on_samples(block, reason)
             if not self.gate.trusts_poses(now_ns):  # their orientation is not the robot's: keep them from the estimators
                 if usable.any():
                     self.gate.on_withheld(block.subset(usable), *self._primary_model())

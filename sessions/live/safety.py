@@ -45,10 +45,17 @@ TOLERANCE = 1e-9
 
 def deadband(force: np.ndarray, width: float) -> np.ndarray:
     """(3,) ``force`` with ``width`` (N) taken off its magnitude, zero when it is smaller; direction kept."""
-    norm = float(np.linalg.norm(force))
+    return np.array(_deadband3(*force.tolist(), width))
+
+
+def _deadband3(x: float, y: float, z: float, width: float) -> tuple[float, float, float]:
+    """:func:`deadband` on three floats (the governor's arithmetic is in Python floats: at one vector per
+    device period numpy's per-call cost is most of the work)."""
+    norm = math.hypot(x, y, z)
     if norm <= width:
-        return ZERO3
-    return force * ((norm - width) / norm)
+        return 0.0, 0.0, 0.0
+    k = (norm - width) / norm
+    return x * k, y * k, z * k
 
 
 def lowpass_gain(cutoff_hz: float, period_s: float) -> float:
@@ -113,34 +120,41 @@ class ForceGovernor:
             reason = f"haptic device reports no usable force limit ({self.device_max_force!r} N)"
         if not reason and (contact_force_S is None or R_BS is None):
             reason = "no estimate yet"
-        if not reason and not np.all(np.isfinite(contact_force_S)):
-            reason = "non-finite contact force"
         if not reason:
-            with np.errstate(over="ignore", invalid="ignore"):
-                mapped_D = self.settings.scale * (self.R_DB @ (R_BS @ contact_force_S))
-                if not np.isfinite(np.linalg.norm(mapped_D)):
-                    reason = "non-finite force after the mapping"
+            f0, f1, f2 = contact_force_S.tolist()
+            if not (math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2)):
+                reason = "non-finite contact force"
+        if not reason:  # Python floats: an overflow gives inf, no warning, and fails the check
+            scale = self.settings.scale
+            mapped_D = [scale * (r0 * f0 + r1 * f1 + r2 * f2) for r0, r1, r2 in (self.R_DB @ R_BS).tolist()]
+            if not math.isfinite(math.hypot(*mapped_D)):
+                reason = "non-finite force after the mapping"
         if reason:
             return self._zero(t_ns, reason)
         # a convex combination of finite forces: the filter's state stays finite
-        self.filtered_D = self.filtered_D + self.gain * (deadband(mapped_D, self.settings.deadband) - self.filtered_D)
-        target = self.filtered_D
-        norm = float(np.linalg.norm(target))
+        gain = self.gain
+        filtered = [y + gain * (x - y) for x, y in zip(_deadband3(*mapped_D, self.settings.deadband),
+                                                         self.filtered_D.tolist())]
+        self.filtered_D = np.array(filtered)
+        target = filtered
+        norm = math.hypot(*target)
         if norm > limit:
-            target = target * (limit / norm)
-        step = target - self.last_force_D
-        step_norm = float(np.linalg.norm(step))
+            target = [v * (limit / norm) for v in target]
+        last = self.last_force_D.tolist()
+        step = [v - w for v, w in zip(target, last)]
+        step_norm = math.hypot(*step)
         if step_norm > self.max_step:
-            target = self.last_force_D + step * (self.max_step / step_norm)
-            norm = float(np.linalg.norm(target))
+            target = [w + d * (self.max_step / step_norm) for w, d in zip(last, step)]
+            norm = math.hypot(*target)
             if norm > limit:  # the limit fell below the last command (a device lowered it): down at once
-                target = target * (limit / norm)
-        if not (np.all(np.isfinite(target)) and np.linalg.norm(target) <= limit * (1 + TOLERANCE)
-                and (np.linalg.norm(target - self.last_force_D) <= self.max_step * (1 + TOLERANCE)
-                     or np.linalg.norm(target) < np.linalg.norm(self.last_force_D))):
+                target = [v * (limit / norm) for v in target]
+        norm = math.hypot(*target)
+        if not (math.isfinite(norm) and norm <= limit * (1 + TOLERANCE)
+                and (math.hypot(*(v - w for v, w in zip(target, last))) <= self.max_step * (1 + TOLERANCE)
+                     or norm < math.hypot(*last))):
             return self._zero(t_ns, "governor output out of bounds")  # unreachable by the arithmetic above
-        self.last_force_D = target
-        return HapticCommand(t_ns, target, True, "", source_t_ns)
+        self.last_force_D = np.array(target)
+        return HapticCommand(t_ns, self.last_force_D, True, "", source_t_ns)
 
     def _zero(self, t_ns: int, reason: str) -> HapticCommand:
         """A zero command for ``reason``; the filter and the ramp start again from zero."""

@@ -257,8 +257,8 @@ def add_information(info, A, r):
 
 
 @njit(cache=True, error_model="numpy")
-def constant_var_max(info, L):
-    """The largest of diag((Λ⁻¹)[:3, :3]) (``core.identified.constant_var``), inf if Λ is not positive definite.
+def constant_var3(info, L):
+    """diag((Λ⁻¹)[:3, :3]) (``core.identified.constant_var``) as three floats, inf if Λ is not positive definite.
 
     Cholesky of Λ reordered as [b, a] (L (6, 6) scratch): the trailing 3×3 factor T has T Tᵀ = the Schur
     complement Λ_aa − Λ_ab Λ_bb⁻¹ Λ_ba = ((Λ⁻¹)_aa)⁻¹, so diag((Λ⁻¹)_aa) are the squared column norms
@@ -271,7 +271,7 @@ def constant_var_max(info, L):
                 s -= L[i, k] * L[j, k]
             if i == j:
                 if not s > 0.0:
-                    return math.inf
+                    return math.inf, math.inf, math.inf
                 L[i, i] = math.sqrt(s)
             else:
                 L[i, j] = s / L[j, j]
@@ -280,7 +280,14 @@ def constant_var_max(info, L):
     v10 = -t10 * v00 / t11
     v21 = -t21 * v11 / t22
     v20 = -(t20 * v00 + t21 * v10) / t22
-    return max(v00 * v00 + v10 * v10 + v20 * v20, v11 * v11 + v21 * v21, v22 * v22)
+    return v00 * v00 + v10 * v10 + v20 * v20, v11 * v11 + v21 * v21, v22 * v22
+
+
+@njit(cache=True, error_model="numpy")
+def constant_var_max(info, L):
+    """The largest of :func:`constant_var3` (inf if Λ is not positive definite)."""
+    a, b, c = constant_var3(info, L)
+    return max(a, b, c)
 
 
 @njit(cache=True, error_model="numpy")

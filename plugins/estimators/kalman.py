@@ -452,6 +452,7 @@ class KalmanEstimator(RefusesBadSamples):
             self._buffers = kalman_kernel.Buffers()
             self._clock = np.zeros(2, dtype=np.int64)  # [a sample came before, its t_ns]
             self._limits = np.zeros(3)  # [gate2, bound_f², bound_t²]
+            self._L6 = np.empty((6, 6))  # constant_var3's Cholesky factor
 
     def update_block(self, block: AlignedSamples) -> Estimates:
         """Filter a block of aligned samples, in order (bad samples refused first)."""
@@ -990,8 +991,8 @@ class KalmanEstimator(RefusesBadSamples):
         if self.mount_rotation or self.mount_configured:
             out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
         if self.convergence == "identified":  # how well the motion so far has identified the constants
-            out["gravity_force_B_std"] = np.sqrt(identified.constant_var(self._information["force"])).tolist()  # N
-            out["cog_S_std"] = np.sqrt(identified.constant_var(self._information["torque"])).tolist()  # m
+            out["gravity_force_B_std"] = np.sqrt(self._constant_var("force")).tolist()  # N
+            out["cog_S_std"] = np.sqrt(self._constant_var("torque")).tolist()  # m
         if self.noise_auto:
             out["noise_force_S"] = np.sqrt(self.force.r).tolist()  # N
             out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m
@@ -999,6 +1000,13 @@ class KalmanEstimator(RefusesBadSamples):
             out["bias_force_rate_S"] = self.force.x[6:9].tolist()  # N/s
             out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s
         return out
+
+    def _constant_var(self, stage: str) -> np.ndarray:
+        """(3,) how well the motion so far identifies the stage's constant, variance per axis
+        (``core.identified.constant_var``; compiled, ``kalman_kernel.constant_var3``, on the compiled path)."""
+        if self.method == "numba":
+            return np.array(kalman_kernel.constant_var3(self._information[stage], self._L6))
+        return identified.constant_var(self._information[stage])
 
     def force_parameter_std(self) -> np.ndarray:
         """(6,) standard deviation of [gravity_force_B, bias_force_S], N: sqrt of diag P_force.
@@ -1008,7 +1016,7 @@ class KalmanEstimator(RefusesBadSamples):
         known where the robot is), so the haptic gate's "parameters known" agrees with the flag."""
         predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
         if self.convergence == "identified" and not np.isnan(predicted).any():
-            return np.sqrt(np.concatenate([identified.constant_var(self._information["force"]), predicted]))
+            return np.sqrt(np.concatenate([self._constant_var("force"), predicted]))
         return np.sqrt(np.diag(self.force.P)[:6])
 
     def torque_parameter_std(self) -> np.ndarray:

@@ -376,3 +376,29 @@ def test_screen_kernel_gives_the_reference_s_masks_and_reason(sim, size):
             reasons.add(reason)
     assert reasons == {"", "implausible sensor reading (beyond its range)", "stale kinematics",
                        "sensor saturated or in error", "non-finite sensor reading"}  # every branch was taken
+
+
+def test_constant_var_kernel_matches_numpy(sim6):
+    """What the motion identifies of a stage's constant (params' gravity_force_B_std and cog_S_std, the gate's
+    std): the kernel's Cholesky against ``core.identified.constant_var``'s inverse, along the tour (Λ from a
+    yaw-free start to well identified) and for a Λ that is not positive definite (inf). Two ways of inverting
+    Λ agree to its forward error bound, 1e-14·cond(Λ) relative (cond reaches ~4e7 while the start's
+    motion leaves gravity's horizontal part unseen)."""
+    from hapticlab.core import identified
+    from hapticlab.core.kernels.kalman import constant_var3
+
+    est = KalmanEstimator(kernel="numpy")
+    L = np.empty((6, 6))
+    checked = 0
+    for i in range(0, 6000, 250):
+        est.update_block(sim6.subset(slice(i, i + 250)))
+        for stage in ("force", "torque"):
+            info = est._information[stage]
+            ref = identified.constant_var(info)
+            bound = 1e-14 * np.linalg.cond(info)
+            assert np.allclose(constant_var3(info, L), ref, rtol=bound, atol=0.0), (i, stage, bound)
+            checked += 1
+    assert checked == 48
+    singular = np.zeros((6, 6))
+    singular[3:, 3:] = np.eye(3)  # nothing known of the constant
+    assert constant_var3(singular, L) == (np.inf, np.inf, np.inf)

@@ -77,17 +77,6 @@ class _Blocks:
         self.parts: list[dict] = []
         self.fields: tuple[str, ...] = ()  # the fields present (not None) in the held parts
 
-    def add(self, message: dict, rec: _TickQueue) -> None:
-        """Hold ``message`` (no None values); one with ``params``/``cov_diag`` ends the held message."""
-        last = BLOCK_LAST_SAMPLE_FIELDS[0] in message or BLOCK_LAST_SAMPLE_FIELDS[1] in message
-        fields = tuple(k for k in message if k not in BLOCK_LAST_SAMPLE_FIELDS) if last else tuple(message)
-        if self.parts and fields != self.fields:  # a field came or went: what is held is one message, this another
-            self.write(rec)
-        self.fields = fields
-        self.parts.append(message)
-        if last:  # they describe the last sample
-            self.write(rec)
-
     def write(self, rec: _TickQueue) -> None:
         parts, self.parts = self.parts, []
         if not parts:
@@ -158,10 +147,26 @@ class Taps:
             })
 
     def _hold(self, topic: str, message: dict) -> None:
+        """Hold ``message`` (no None values) with the topic's others; one with ``params``/``cov_diag`` ends the
+        held messages (they describe its last sample), and so does a field that comes or goes. What is held
+        is always written whole and in the loop's order (the wrenches, the aligned samples, then the
+        estimators': a reader finds an estimate's raw reading written before it)."""
         blocks = self._blocks.get(topic)
         if blocks is None:
             blocks = self._blocks[topic] = _Blocks(topic)
-        blocks.add(message, self.rec)
+        last = BLOCK_LAST_SAMPLE_FIELDS[0] in message or BLOCK_LAST_SAMPLE_FIELDS[1] in message
+        fields = tuple(k for k in message if k not in BLOCK_LAST_SAMPLE_FIELDS) if last else tuple(message)
+        if blocks.parts and fields != blocks.fields:  # what is held is one message, this another
+            self._write_held()
+        blocks.fields = fields
+        blocks.parts.append(message)
+        if last:
+            self._write_held()
+
+    def _write_held(self) -> None:
+        self._write_wrenches()
+        for blocks in self._blocks.values():  # in the order the loop first handed them over
+            blocks.write(self.rec)
 
     def aligned(self, block: AlignedSamples) -> None:
         if not len(block.t_ns):
@@ -224,7 +229,5 @@ class Taps:
                 return
             else:
                 self._hand_over_ns = now_ns + HAND_OVER_NS
-        self._write_wrenches()
-        for blocks in self._blocks.values():
-            blocks.write(self.rec)
+        self._write_held()
         self.rec.send()

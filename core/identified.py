@@ -12,6 +12,11 @@ stays wide long after the motion has determined a. Two questions answer "is it k
   filter's P: the constant and the bias are each wide but strongly anti-correlated, and at the
   poses the robot is at their sum is known.
 
+A constant's axis the motion has not told apart from the bias at all is **not identifiable from the
+motion so far** (:func:`unidentified_axes`): a still tool leaves every axis of a there (the data fix
+a + b only), a turn about one axis leaves a's component along it (it maps to the same sensor
+direction at every pose, like the bias); the estimator reports no number for it.
+
 The numpy reference, one sample at a time; the compiled twin is in ``core.kernels.kalman``.
 Shapes: A (3, 3), P (6, 6), info (6, 6), r (3,).
 """
@@ -41,3 +46,27 @@ def constant_var(info: np.ndarray) -> np.ndarray:
         return np.linalg.inv(info).diagonal()[:3].copy()
     except np.linalg.LinAlgError:
         return np.full(3, np.inf)
+
+
+IDENTIFIABLE_FRACTION = 0.5
+"""An axis of a constant is identified by the motion so far once its std is below this fraction of its
+prior's. Measured by what the data cannot do: with a + b fixed and both at the prior p, a's std is p/√2
+(0.71 p); any motion that separates them brings it towards the noise's scale (~1e-3 p)."""
+
+
+def unidentified_axes(std: np.ndarray, prior_std: float) -> tuple[int, ...]:
+    """The axes (0, 1, 2) of a constant whose std (3,) is not below ``IDENTIFIABLE_FRACTION`` of its prior's
+    (same units): those the motion so far has not identified."""
+    return tuple(int(i) for i in np.flatnonzero(~(np.asarray(std) < IDENTIFIABLE_FRACTION * prior_std)))
+
+
+IDENTIFIED_FRACTION = 0.05
+"""An axis is clearly identified below this fraction of its prior's std (1 N of gravity, 25 mm of the centre
+of mass with the defaults): :func:`decided`."""
+
+
+def decided(std: np.ndarray, prior_std: float) -> bool:
+    """Every axis clearly identified (std below ``IDENTIFIED_FRACTION`` of the prior's) or clearly not (not
+    below ``IDENTIFIABLE_FRACTION``): none is on its way from one to the other."""
+    std = np.asarray(std)
+    return bool(np.all((std < IDENTIFIED_FRACTION * prior_std) | ~(std < IDENTIFIABLE_FRACTION * prior_std)))

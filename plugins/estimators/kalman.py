@@ -118,6 +118,8 @@ from scipy.stats import chi2
 
 STEP_EPSILON = 1e-3
 """``convergence = "step"``: the paper's threshold on ‖Δx‖ (mixed units, as in Algorithm 1)."""
+IDENTIFICATION_EVENTS = ("identified", "not_identifiable")
+"""The kinds of the events that say what the motion has identified of the tool (``convergence = "identified"``)."""
 BIAS_RATE_PRIOR_FORCE = 0.025
 """Prior std of the force-bias rate, N/s (three times the 0.5 N/min drift figure)."""
 BIAS_RATE_PRIOR_TORQUE = 0.002
@@ -432,6 +434,7 @@ class KalmanEstimator(RefusesBadSamples):
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = int(round(payload_change_s * 1e9))
         self.events: list[Event] = []
+        self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
         self.payload_changes = 0
         self._refused: list[dict[str, np.ndarray]] = []  # the refusal run's samples, by field
         self._refused_since: int | None = None  # t_ns of the run's first refused sample
@@ -461,6 +464,8 @@ class KalmanEstimator(RefusesBadSamples):
         if self.derivatives is not None or self.time_lag_s < 0:  # the pose's quaternion and position are used
             extras = tuple(a for a in (block.quat_BE, block.p_BoEo_B) if a is not None)
         out = self.guard.run(block, self._filter_block, (self.converged_force, self.converged_torque), extras)
+        if self.convergence == "identified" and len(block):
+            self._watch_identified(int(block.t_ns[-1]))
         if self.samples != start + len(block):
             # samples refused: the filter counted the accepted ones; the indices are rows of the block
             if first[0] is None and self.first_converged_force is not None:
@@ -750,6 +755,34 @@ class KalmanEstimator(RefusesBadSamples):
             self._information[stage] = identified.add_information(self._information[stage], A[0], r)
         return identified.constant_var(self._information[stage]).max(keepdims=True)
 
+    def _unidentified_now(self, stage: str) -> tuple[np.ndarray, tuple[int, ...]]:
+        """The stage's constant (gravity_force_B, N; cog_S, m): std per axis, and the axes not identified."""
+        std = np.sqrt(self._constant_var(stage))
+        return std, identified.unidentified_axes(std, (self.prior_f if stage == "force" else self.prior_t)[0])
+
+    def _watch_identified(self, t_ns: int) -> None:
+        """An event when what the motion identifies of a constant changes: ``not_identifiable`` when it has
+        identified some of its axes but not all (which, and how to move), ``identified`` once it has all;
+        only while every axis is clearly one or the other (``core.identified.decided``: as a motion starts,
+        its axes pass from one to the other within milliseconds). All three unidentified (a still tool, the
+        start, a re-opened bias) is no news."""
+        for stage, name, frame in (("force", "gravity_force_B", "B"), ("torque", "cog_S", "S")):
+            std, axes = self._unidentified_now(stage)
+            prior = (self.prior_f if stage == "force" else self.prior_t)[0]
+            if axes == self._unidentified[name] or not identified.decided(std, prior):
+                continue
+            self._unidentified[name] = axes
+            unit = "N" if stage == "force" else "m"
+            data = {"parameter": name, "axes": ["xyz"[i] for i in axes], "std": std.tolist()}
+            if not axes:
+                self.events.append(Event(t_ns, "identified", f"{name} identified by the motion on every axis "
+                                         f"(std {', '.join(f'{v:.2g}' for v in std)} {unit})", data))
+            elif len(axes) < 3:
+                self.events.append(Event(t_ns, "not_identifiable", (
+                    f"{name} along {frame}'s {', '.join(data['axes'])} not identifiable from the motion so far "
+                    f"(std {', '.join(f'{std[i]:.2g}' for i in axes)} {unit}): turn the tool about another axis"),
+                    data))
+
     def _seed_information(self) -> None:
         """Λ of each stage from its current P (6×6: the constant and the bias): at the start, and after a
         payload change, a bias re-identification or a warm start re-opened or set what is known."""
@@ -985,14 +1018,18 @@ class KalmanEstimator(RefusesBadSamples):
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units); with bias_rate also the bias rates; with
         ``convergence = "identified"`` the std per axis of gravity_force_B (N) and cog_S (m) as the motion so
-        far identifies them (the prior's, 20 N and 0.5 m, where it has not: a yaw-only motion leaves
-        gravity's horizontal part there); with auto noise the noise estimates."""
+        far identifies them, and NaN for an axis it has not identified at all (``core.identified.
+        unidentified_axes``: a still tool leaves all three, a turn about B's vertical alone gravity's vertical
+        component; the ``not_identifiable`` event names them); with auto noise the noise estimates."""
         out = named_params(self.force.x[:6], self.torque.x[:6])
         if self.mount_rotation or self.mount_configured:
             out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
         if self.convergence == "identified":  # how well the motion so far has identified the constants
-            out["gravity_force_B_std"] = np.sqrt(self._constant_var("force")).tolist()  # N
-            out["cog_S_std"] = np.sqrt(self._constant_var("torque")).tolist()  # m
+            for stage, name in (("force", "gravity_force_B"), ("torque", "cog_S")):
+                std, axes = self._unidentified_now(stage)
+                out[f"{name}_std"] = std.tolist()  # N, m
+                for i in axes:  # not identifiable from the motion so far: no number
+                    out[name][i] = math.nan
         if self.noise_auto:
             out["noise_force_S"] = np.sqrt(self.force.r).tolist()  # N
             out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m

@@ -136,6 +136,7 @@ class HapticGate:
         self.parameters_known = False
         self.parameters_lost = False
         self.hold_until_ns = 0
+        self.unidentified = ""  # the estimator's last not_identifiable message about the weight ("" none)
         self.bias_hold = ""  # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "latched"
         self.contact_now = False  # the estimator's contact flag for the newest sample
         self.last_sample_ns: int | None = None
@@ -254,9 +255,12 @@ class HapticGate:
         return Event(now_ns, "bias_step", message, {"bias_step_force_S": step.tolist()})
 
     def on_event(self, event: Event, now_ns: int) -> None:
-        """An event of the primary estimator: a payload change holds the force at zero for a while."""
+        """An event of the primary estimator: a payload change holds the force at zero for a while; what the
+        motion has not identified of the tool's weight goes into the reason while the estimator converges."""
         if event.kind == "payload_change":
             self.hold_until_ns = now_ns + PAYLOAD_HOLD_NS
+        elif event.kind in ("not_identifiable", "identified") and event.data.get("parameter") == "gravity_force_B":
+            self.unidentified = event.message if event.kind == "not_identifiable" else ""
 
     def reason(self, now_ns: int) -> str:
         """Why the force must be zero at ``now_ns`` ("" when it may be on)."""
@@ -276,7 +280,8 @@ class HapticGate:
         if self.bias_hold:
             return "sensor bias step: re-identifying"
         if not self.ready[0]:
-            return "estimator not converged"
+            return f"estimator not converged ({self.unidentified})" if self.unidentified else \
+                "estimator not converged"
         if self.parameter_std is None and self.down_since_ns is not None and \
                 self.last_sample_ns - self.down_since_ns >= CONVERGENCE_LOSS_NS:
             return "estimator no longer converged"
@@ -290,7 +295,8 @@ class HapticGate:
 
     def fault_event(self, reason: str, now_ns: int) -> Event | None:
         """An event when a new fault starts (a reason that is not the estimator warming up)."""
-        fault = "" if reason in WARMING_UP else reason.split(" (")[0]
+        fault = reason.split(" (")[0]
+        fault = "" if fault in WARMING_UP else fault
         if fault == self.fault:
             return None
         self.fault = fault

@@ -119,9 +119,9 @@ class SessionReview:
                 "faults": len(faults(self.events)), "complete": self.complete}
 
 
-ROUTINE_EVENTS = frozenset({"session_start", "session_end", "converged", "parameters_known", "haptic_enabled",
-                            "haptic_disabled", "teleop", "teleop_engaged", "teleop_calibrated", "haptic_rearmed",
-                            "overrun_summary"})
+ROUTINE_EVENTS = frozenset({"session_start", "session_end", "converged", "identified", "parameters_known",
+                            "haptic_enabled", "haptic_disabled", "teleop", "teleop_engaged", "teleop_calibrated",
+                            "haptic_rearmed", "overrun_summary"})
 """Event kinds that are the session's ordinary course; every other kind is a fault or a fail-safe to look at."""
 
 

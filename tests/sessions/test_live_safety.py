@@ -178,3 +178,25 @@ def test_a_second_ctrl_c_still_leaves_a_readable_file(tmp_path):
     rec = read_recording(out)
     assert rec.metadata["hapticlab.summary"]["interrupted"] == "true"
     assert rec.topics["/haptic/command"][-1][1]["force_D"] == [0.0] * 3
+
+
+def test_a_tool_turned_about_one_axis_only_is_told_what_the_motion_cannot_identify(tmp_path):
+    """The demo's estimator (kalman) while the tool turns about its own axis only (horizontal, about B's x):
+    the weight's x component maps to one sensor direction at every roll, like the bias, so no motion of this
+    kind identifies it. The estimator says so (a not_identifiable event naming x; NaN for it in its params),
+    the force stays zero all along, and the reason the haptic command gives names it and how to move: a warm-up,
+    not a fault."""
+    config = apply_overrides(load_config("demo")[0], [
+        "session.realtime=false",
+        'world.motion={script="axial_rotation", speed_deg_s=30.0, turns=2.0, ramp_s=1.0, start_s=0.5}'])
+    result = run_session(build_session(config), out=tmp_path / "axial.mcap", duration=6.0)
+    said = [e for e in result.events if e.kind == "not_identifiable"]
+    assert [(e.data["parameter"], e.data["axes"]) for e in said] == [("gravity_force_B", ["x"])]
+    assert np.isnan(result.params["gravity_force_B"][0]) and np.isfinite(result.params["gravity_force_B"][1:]).all()
+    rec = read_recording(tmp_path / "axial.mcap")
+    commands = [m for _, m in rec.topics["/haptic/command"]]
+    assert not any(m["enabled"] for m in commands) and not any(m["force_D"] != [0.0, 0.0, 0.0] for m in commands)
+    after = [m["reason"] for t, m in rec.topics["/haptic/command"] if t > said[0].t_ns and m["reason"] != "session ended"]
+    assert after and all(r == f"estimator not converged ({said[0].message})" for r in after)
+    assert "turn the tool about another axis" in after[0]
+    assert not [e for e in result.events if e.kind == "fault"]

@@ -389,11 +389,22 @@ def test_identified_convergence_waits_for_a_tilt_that_tells_gravity_from_the_bia
     block = _turning_stream(_rot(2, yaw) @ _rot(0, tilt) @ R0, seed=3)
     est = KalmanEstimator(noise_force="auto", noise_torque="auto", convergence="identified")
     yaw_only = est.update_block(block.subset(slice(0, 2900)))
-    unknown = np.array(est.params()["gravity_force_B_std"])  # N: the params say what the yaw could not tell
+    params = est.params()
+    unknown = np.array(params["gravity_force_B_std"])  # N: the params say what the yaw could not tell
+    said = [e for e in est.drain_events() if e.kind in ("not_identifiable", "identified")]
     out = Estimates.concatenate([yaw_only, est.update_block(block.subset(slice(2900, len(block))))])
     first = est.first_converged_force
     assert first is not None and t[first] > 30.0  # not before the tilt, whatever the yaw did
     assert unknown.max() > 1.0 and np.array(est.params()["gravity_force_B_std"]).max() < est._bounds()[0]
+    # the vertical maps to one sensor direction at every yaw, like the bias: no number for it, and an event
+    # naming it; the horizontal components the yaw did turn are numbers (0 N here)
+    gravity = np.array(params["gravity_force_B"])
+    assert np.isnan(gravity[2]) and np.abs(gravity[:2]).max() < 0.05
+    assert [(e.kind, e.data["parameter"], e.data["axes"]) for e in said][:1] == [
+        ("not_identifiable", "gravity_force_B", ["z"])]
+    assert "turn the tool about another axis" in said[0].message
+    later = [e for e in est.drain_events() if e.kind == "identified" and e.data["parameter"] == "gravity_force_B"]
+    assert later and later[0].t_ns > 30e9  # identified once the tool tilts
     after = out.converged_force & (t > t[first] + 5.0)
     rms = np.sqrt(np.mean(out.contact_force_S[after] ** 2, axis=0))
     assert after.sum() > 2000 and np.all(rms < 0.1 * 1.1)

@@ -26,7 +26,7 @@ from hapticlab.core.model import (
 from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.core.types import AlignedSamples, Estimates, first_true
 from hapticlab.plugins.estimators.batch import BatchEstimator
-from hapticlab.plugins.estimators.kalman import KalmanEstimator
+from hapticlab.plugins.estimators.kalman import IDENTIFICATION_EVENTS, KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.sessions.bench import family as familybench
 
@@ -105,7 +105,7 @@ def rows_equal(a: Estimates, b: Estimates) -> bool:
 
 def state_equal(a, b) -> bool:
     pa, pb = a.params(), b.params()
-    return (pa.keys() == pb.keys() and all(np.array_equal(pa[k], pb[k]) for k in pa)
+    return (pa.keys() == pb.keys() and all(np.array_equal(pa[k], pb[k], equal_nan=True) for k in pa)
             and np.array_equal(a.cov_diag(), b.cov_diag()))
 
 
@@ -149,7 +149,8 @@ def test_bad_samples_are_refused_and_leave_no_trace(tour, name, blocks):
     # counted and reported
     assert est.refused_samples == mask.sum() and ref.refused_samples == 0
     assert est.guard.by_reason == reasons
-    events = [e for e in est.drain_events() if e.kind == "sample_refused"]
+    said = est.drain_events()
+    events = [e for e in said if e.kind == "sample_refused"]
     t_bad = tour.t_ns[mask]
     assert events[0].t_ns in t_bad and events[0].data["count"] == events[0].data["new"]
     if blocks == "live":  # the first refusal is reported with the block it came in
@@ -163,7 +164,9 @@ def test_bad_samples_are_refused_and_leave_no_trace(tour, name, blocks):
     for event in events:
         assert event.message.startswith(name.split()[0] + ": ")
         assert all(words[why] in event.message for why in event.data["reasons"])
-    assert est.drain_events() == [] and ref.drain_events() == []
+    # anything else it said (what the motion identified), it said as it would without the bad samples
+    assert [(e.kind, e.data) for e in said if e.kind != "sample_refused"] == [(e.kind, e.data) for e in ref.drain_events()]
+    assert est.drain_events() == []
 
 
 @pytest.mark.parametrize("name", ESTIMATORS)
@@ -175,7 +178,8 @@ def test_the_guard_changes_nothing_on_clean_data(tour, name):
     edges = np.cumsum([0, *sizes(len(tour), seed=3)])
     parts = [tour.subset(slice(a, b)) for a, b in zip(edges[:-1], edges[1:])]
     assert rows_equal(run(guarded, parts), Estimates.concatenate([inner(p) for p in parts]))
-    assert state_equal(guarded, bare) and guarded.refused_samples == 0 and guarded.drain_events() == []
+    assert state_equal(guarded, bare) and guarded.refused_samples == 0
+    assert not [e for e in guarded.drain_events() if e.kind not in IDENTIFICATION_EVENTS]  # the guard said nothing
 
 
 @pytest.mark.parametrize("size", [1, 7, 8000])
@@ -306,6 +310,27 @@ def corners(tour):
     }
 
 
+def finite_where_identified(est) -> bool:
+    """Every parameter finite, but for the axes of gravity_force_B and cog_S the motion has not identified
+    (kalman's identified rule reports those as NaN, their std beside them, and only those)."""
+    from hapticlab.core.identified import unidentified_axes
+
+    params = est.params()
+    for name, value in params.items():
+        value = np.asarray(value, dtype=float)
+        std = params.get(f"{name}_std")
+        if std is None:
+            if not np.isfinite(value).all():
+                return False
+            continue
+        prior = est.prior_f[0] if name == "gravity_force_B" else est.prior_t[0]
+        unknown = np.zeros(3, dtype=bool)
+        unknown[list(unidentified_axes(std, prior))] = True
+        if np.isnan(std).any() or not np.array_equal(np.isnan(value), unknown) or not np.isfinite(value[~unknown]).all():
+            return False
+    return True
+
+
 @pytest.mark.parametrize("name", ESTIMATORS)
 def test_numerical_corners_never_raise(tour, name):
     for corner, block in corners(tour).items():
@@ -313,7 +338,7 @@ def test_numerical_corners_never_raise(tour, name):
             est = ESTIMATORS[name]()
             out = run(est, [block.subset(slice(i, i + size)) for i in range(0, len(block), size)])
             assert len(out) == len(block), corner
-            assert all(np.isfinite(v).all() for v in est.params().values()), corner
+            assert finite_where_identified(est), corner
             assert est.refused_samples == 0, corner
 
 

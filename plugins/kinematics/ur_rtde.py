@@ -169,11 +169,13 @@ class URRTDEKinematics:
         return out
 
     def close(self) -> None:
-        """Stop receiving and disconnect."""
+        """Stop receiving and disconnect; the missed packages not yet reported (the events are at most one a
+        second) are reported now, so the recording holds every one."""
         self._closing.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
+        self._report_missed(time.monotonic_ns())
         if self._rtde is not None:
             try:
                 self._rtde.disconnect()
@@ -246,18 +248,25 @@ class URRTDEKinematics:
         if self._timed_out:
             self._timed_out = False
             events.append(Event(received_ns, "kinematics_resumed", f"UR controller {self.address} streams again"))
-        if self.packages_missed > self._missed_reported and received_ns >= self._next_missed_event_ns:
-            new = self.packages_missed - self._missed_reported
-            self._missed_reported = self.packages_missed
-            self._next_missed_event_ns = received_ns + MISSED_EVENT_INTERVAL_NS
-            events.append(Event(received_ns, "kinematics_missed",
-                                f"{new} RTDE package(s) from {self.address} missed "
-                                f"({self.packages_missed} of {self.packages + self.packages_missed} so far)",
-                                {"missed": new, "missed_total": self.packages_missed, "received": self.packages}))
         self._last_received_ns = received_ns
         with self._lock:
             self._pending.append(sample)
             self._events.extend(events)
+        if received_ns >= self._next_missed_event_ns:
+            self._report_missed(received_ns)
+
+    def _report_missed(self, t_ns: int) -> None:
+        """A ``kinematics_missed`` event for the packages missed since the last one (none if none were)."""
+        if self.packages_missed <= self._missed_reported:
+            return
+        new = self.packages_missed - self._missed_reported
+        self._missed_reported = self.packages_missed
+        self._next_missed_event_ns = t_ns + MISSED_EVENT_INTERVAL_NS
+        event = Event(t_ns, "kinematics_missed", f"{new} RTDE package(s) from {self.address} missed "
+                      f"({self.packages_missed} of {self.packages + self.packages_missed} so far)",
+                      {"missed": new, "missed_total": self.packages_missed, "received": self.packages})
+        with self._lock:
+            self._events.append(event)
 
     def _check_tcp(self, received_ns: int, sample: PoseSample) -> list[Event]:
         """A ``kinematics_tcp_offset`` event when the reported pose is not the flange's (FK of the joints)."""

@@ -417,3 +417,38 @@ def test_encoders_jitter_so_a_still_arm_never_reports_a_frozen_pose():
     assert exact.state(100)["actual_TCP_pose"] == exact.state(101)["actual_TCP_pose"]
     with pytest.raises(ValueError, match="encoder_noise: must be within"):
         UREmulator(world, encoder_noise=0.1)
+
+
+STALLING_EMULATOR = (
+    "import sys, time\n"
+    "from hapticlab.plugins.kinematics.ur_emulator import UREmulator\n"
+    "from hapticlab.plugins.simworld import SimWorld\n"
+    "t0 = time.monotonic_ns()\n"
+    "emu = UREmulator(SimWorld.from_config({'seed': int(sys.argv[2])}), address=sys.argv[1],\n"
+    "                 stalls=[(0.5, 0.2), (0.9, 0.2)]).start(t0_ns=t0)\n"
+    "print(t0, flush=True)\n"
+    "time.sleep(20)\n")
+
+
+def test_every_missed_package_is_reported_by_the_time_the_plugin_closes():
+    """Missed-package events are at most one a second; two stalls 0.4 s apart (the emulator sends nothing for
+    0.2 s each, connection open) and a close 0.3 s after the second: the second stall's packages, held back by
+    the rate limit, are reported when the plugin closes, so the events add up to every package missed.
+    (The emulator in its own process: ur-rtde's client holds the GIL while it connects.)"""
+    process = subprocess.Popen([sys.executable, "-c", STALLING_EMULATOR, "127.0.0.78", str(SEED)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = int(process.stdout.readline())
+        kinematics = URRTDEKinematics(address="127.0.0.78", rate_hz=500.0, receive_timeout=1.0)
+        kinematics.open(time.monotonic_ns())
+        wait_for(lambda: time.monotonic_ns() - t0 > 1.4e9, timeout=20)
+        before_close = [e for e in kinematics.drain_events() if e.kind == "kinematics_missed"]
+        kinematics.close()
+    finally:
+        process.kill()
+        process.wait(timeout=10)
+    at_close = [e for e in kinematics.drain_events() if e.kind == "kinematics_missed"]
+    assert kinematics.packages_missed >= 2 * 0.9 * 0.2 * 500  # both stalls
+    assert sum(e.data["missed"] for e in before_close) < kinematics.packages_missed  # the second one held back
+    assert sum(e.data["missed"] for e in before_close + at_close) == kinematics.packages_missed
+    assert at_close[-1].data["missed_total"] == kinematics.packages_missed

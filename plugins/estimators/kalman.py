@@ -945,7 +945,9 @@ class KalmanEstimator(RefusesBadSamples):
     # ------------------------------------------------------------------ warm start (issue 4, item 7)
 
     def state(self) -> dict:
-        """A JSON-serialisable snapshot: estimator name, x and P of both stages, flags, last t_ns."""
+        """A JSON-serialisable snapshot: estimator name, x and P of both stages, flags, last t_ns, the noise
+        estimates and the identified rule's information (a warm start picks up what the motion had identified:
+        seeded from P alone it would start from what the bias's random walk had not yet forgotten)."""
         return {
             "estimator": "kalman",
             "bias_rate": self.bias_rate,
@@ -959,6 +961,8 @@ class KalmanEstimator(RefusesBadSamples):
             "noise_force_S": np.sqrt(self.force.r).tolist(),
             "noise_torque_S": np.sqrt(self.torque.r).tolist(),
             "params": self.params(),
+            # the identified rule's information per stage (core.identified): what the motion has told
+            "information": {k: v.tolist() for k, v in self._information.items()},
         }
 
     def load_state(self, source: str | Path | dict) -> None:
@@ -996,10 +1000,19 @@ class KalmanEstimator(RefusesBadSamples):
             if not np.allclose(P, P.T, rtol=1e-9, atol=1e-12 * scale) or np.linalg.eigvalsh((P + P.T) / 2).min() <= 0:
                 raise ValueError(f"warm_start: {where}: {key} stage's P is not symmetric positive definite")
             loaded.append((stage, x, (P + P.T) / 2))
+        information = {}
+        for key, info in (source.get("information") or {}).items():  # (states saved before it: none)
+            info = np.array(info, dtype=float) if key in ("force", "torque") else None
+            if info is None or info.shape != (6, 6) or not np.all(np.isfinite(info)) or \
+                    not np.allclose(info, info.T) or np.linalg.eigvalsh(info).min() <= 0:
+                raise ValueError(f"warm_start: {where}: information[{key!r}] is not a symmetric positive definite "
+                                 f"6x6 matrix")
+            information[key] = info
         for stage, x, P in loaded:
             stage.x, stage.P = x, P
         if loaded:
             self._seed_information()
+            self._information.update(information)  # what the motion had identified, not only what P still holds
         if R_SE is not None:
             self.force.R_SE = self.R_SE = R_SE
         self._cog_known = bool(source.get("converged_torque"))

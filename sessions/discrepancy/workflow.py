@@ -155,21 +155,42 @@ def solve_scaled(H: np.ndarray, g: np.ndarray, rcond: float = 1e-10) -> np.ndarr
     return (V[:, keep] @ (gs[keep] / lam[keep])) / d
 
 
-def noise_scale(residual: np.ndarray) -> np.ndarray:
-    """(6,) channel noise from sample-to-sample differences (MAD/√2, repeated rows skipped).
-
-    One value for the three force channels and one for the three torque
-    channels (their RMS over the axes): a sensor's axes are alike, and equal
-    weights within force and within torque keep the base fit's force residual
-    that of the offline batch fit.
-    """
+def axis_noise(residual: np.ndarray) -> np.ndarray:
+    """(6,) each channel's noise from sample-to-sample differences (MAD/√2, repeated rows skipped): what is
+    left that changes slower than the sampling (an unmodelled effect) does not count in it."""
     d = np.diff(residual, axis=0)
     d = d[np.any(d != 0, axis=1)]
     if len(d) < 5:
         d = residual - np.median(residual, axis=0)
     mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2)
-    sigma = np.maximum(mad, np.maximum(1e-3 * rms(residual), 1e-9))
+    return np.maximum(mad, np.maximum(1e-3 * rms(residual), 1e-9))
+
+
+def noise_scale(residual: np.ndarray) -> np.ndarray:
+    """(6,) channel weights' noise: one value for the three force channels and one for the three torque
+    channels (the RMS over the axes of :func:`axis_noise`): a sensor's axes are alike, and equal weights
+    within force and within torque keep the base fit's force residual that of the offline batch fit."""
+    sigma = axis_noise(residual)
     return np.repeat([rms(sigma[:3]), rms(sigma[3:])], 3)
+
+
+LEFTOVER_SIGMAS = 4.0
+"""How many of its own standard errors a channel's final RMS over its noise must lie above 1 to be a
+leftover (:func:`leftover_threshold`)."""
+LEFTOVER_SE = 1.1
+"""The standard error of a channel's RMS over its noise estimate is ``LEFTOVER_SE / √n`` on n clean samples:
+measured 0.88-1.15 per channel (std of (ratio − 1)·√n) over 60 simulated clean recordings of 1 000 to
+7 500 samples (``bench/discrepancy_null.py --seeds 1000:1060``; the RMS and the MAD of the differences,
+a 37 %-efficient estimator, each carry their sampling error)."""
+LEFTOVER_FLOOR = 0.05
+"""A leftover is at least 5 % over the noise, however long the recording (a real sensor's noise is not
+quite white)."""
+
+
+def leftover_threshold(n: int) -> float:
+    """The ratio of a channel's final RMS to its own noise estimate above which the report flags what is left
+    on it, for n samples: 1 + max(``LEFTOVER_FLOOR``, ``LEFTOVER_SIGMAS`` · ``LEFTOVER_SE`` / √n)."""
+    return 1.0 + max(LEFTOVER_FLOOR, LEFTOVER_SIGMAS * LEFTOVER_SE / math.sqrt(max(n, 1)))
 
 
 @dataclass
@@ -573,8 +594,13 @@ class Discrepancy:
             final_params[name] = effect.describe(params)
         noise = 1.0 / self.weights
         over = rms_kept[-1] / noise
+        own_noise = axis_noise(final.residual[kept])
+        over_own = rms_kept[-1] / own_noise
+        threshold = leftover_threshold(int(kept.sum()))
+        leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
         warnings = {"gate_not_applied": bool(self.gate_fallback),
-                    "final_above_noise": bool(np.any(over > self.settings.warn_rms_over_noise))}
+                    "final_above_noise": bool(np.any(over > self.settings.warn_rms_over_noise)),
+                    "leftover": bool(leftover)}
         notes = list(notes)
         if warnings["gate_not_applied"]:
             notes.append("the contact gate would have set aside half of the samples or more, so it was not applied: "
@@ -585,6 +611,11 @@ class Discrepancy:
                 f"the final RMS is {over[:3].max():.2f}x (force), {over[3:].max():.2f}x (torque) the noise estimate "
                 f"(above {self.settings.warn_rms_over_noise:g}x): something the tested effects do not explain remains "
                 f"(or contact the gate did not catch); see --plots")
+        if leftover:
+            notes.append(
+                "something the tested effects do not explain is left on " + ", ".join(
+                    f"{a} ({over_own[AXES.index(a)]:.2f}x its own noise)" for a in leftover)
+                + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples); see --plots")
         folds = rounds[0][0]["folds"] if rounds and rounds[0] else None
         if folds is not None and rounds[0][0]["wins_needed"] > folds:
             notes.append(f"{len(self.fit_rows)} samples give {folds} folds: no result over so few folds passes "
@@ -599,6 +630,9 @@ class Discrepancy:
             "rate_hz": self.motion.rate_hz,
             "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
             "final_rms_over_noise": {"force_S": over[:3].tolist(), "torque_S": over[3:].tolist()},
+            "axis_noise": {"force_S": own_noise[:3].tolist(), "torque_S": own_noise[3:].tolist()},
+            "leftover": {"axes": leftover, "threshold": threshold,
+                         "rms_over_axis_noise": {"force_S": over_own[:3].tolist(), "torque_S": over_own[3:].tolist()}},
             "warnings": warnings,
             "baseline": {"rms_force_S": rms_kept[0][:3].tolist(), "rms_torque_S": rms_kept[0][3:].tolist()},
             "steps": steps,

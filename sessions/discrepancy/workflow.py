@@ -174,6 +174,9 @@ def noise_scale(residual: np.ndarray) -> np.ndarray:
     return np.repeat([rms(sigma[:3]), rms(sigma[3:])], 3)
 
 
+NOT_IDENTIFIABLE = 1e-4
+"""An eigenvalue of the correlation-scaled information below this is a combination of parameters the data
+do not determine (:meth:`Discrepancy.uncertainty`): its standard error is over 100× theirs one at a time."""
 LEFTOVER_SIGMAS = 4.0
 """How many of its own standard errors a channel's final RMS over its noise must lie above 1 to be a
 leftover (:func:`leftover_threshold`)."""
@@ -355,6 +358,51 @@ class Discrepancy:
             if change.max() < 1e-8:
                 break
         return theta
+
+    def uncertainty(self, model: Model, theta: np.ndarray) -> dict[str, Any]:
+        """Each parameter's standard error, and the combinations the data cannot tell apart.
+
+        The Gauss–Newton information of the final fit on the kept rows, block by block as it was fitted (the
+        force block from the force channels, the torque block from the torques, given the force block),
+        scaled to a correlation form C = D⁻¹HD⁻¹ (D = √diag H). A parameter's standard error is
+        √((H⁻¹)ᵢᵢ · s²), s² the block's weighted residual mean square, times √stride when every k-th row was
+        fitted (the other rows carry the same information); residuals taken as white (a coloured residual
+        makes them optimistic). An eigenvector of C whose eigenvalue is below ``NOT_IDENTIFIABLE`` is a
+        combination the motion does not determine: its standard error is over 100× what the parameters in it
+        would have one at a time; it is reported with its largest components, and its parameters' errors
+        as not identifiable (NaN) instead of a number from an inverse that does not exist.
+        """
+        rows = self.kept[self.fit_rows]
+        J = model.jacobian(self.fit_motion, theta)
+        force = self.force_block(model, J)
+        Jw = J[rows] * self.weights[None, :, None]
+        r = (self.y_fit[rows] - model.predict6(self.fit_motion, theta)[rows]) * self.weights
+        HF, _, HT, _ = self._normal(Jw, r)
+        std = np.full(len(theta), np.nan)
+        combinations = []
+        for block, H, res in ((force, HF, r[:, :3]), (~force, HT, r[:, 3:])):
+            idx = np.flatnonzero(block)
+            Hb = H[np.ix_(idx, idx)]
+            d = np.sqrt(np.maximum(np.diag(Hb), 1e-300))
+            lam, V = np.linalg.eigh(Hb / np.outer(d, d))
+            s2 = float(np.sum(res**2)) / max(res.size - len(idx), 1) * self.stride
+            good = lam >= NOT_IDENTIFIABLE
+            cov = (V[:, good] / lam[good]) @ V[:, good].T  # the inverse on the identifiable directions
+            block_std = np.sqrt(np.maximum(np.diag(cov), 0.0) * s2) / d
+            lost = np.zeros(len(idx), dtype=bool)
+            for k in np.flatnonzero(~good):
+                v = V[:, k]
+                major = np.flatnonzero(np.abs(v) >= 0.2)
+                lost[major] = True
+                combinations.append({
+                    "parameters": [model.labels[idx[j]] for j in major],
+                    "weights": [float(v[j] / np.abs(v[major]).max()) for j in major],
+                    "eigenvalue": float(lam[k]),
+                })
+            block_std[lost] = np.nan
+            std[idx] = block_std
+        return {"std": {label: float(v) for label, v in zip(model.labels, std)},
+                "not_identifiable": combinations}
 
     def gate(self, model: Model, theta: np.ndarray) -> np.ndarray:
         """Rows kept after the contact gate on the residual of ``model`` (over every usable row)."""
@@ -611,6 +659,13 @@ class Discrepancy:
                 f"the final RMS is {over[:3].max():.2f}x (force), {over[3:].max():.2f}x (torque) the noise estimate "
                 f"(above {self.settings.warn_rms_over_noise:g}x): something the tested effects do not explain remains "
                 f"(or contact the gate did not catch); see --plots")
+        uncertainty = self.uncertainty(final.model, final.theta)
+        for combination in uncertainty["not_identifiable"]:
+            terms = " ".join(f"{'−' if w < 0 else '+'} {abs(w):.2f}·{name}" for w, name in
+                             zip(combination["weights"], combination["parameters"])).lstrip("+ ")
+            notes.append("not identifiable from this motion: " + " and ".join(combination["parameters"])
+                         + f" trade off ({terms} is not determined): their values are one of many that fit "
+                         f"as well, and their standard errors are given as NaN")
         if leftover:
             notes.append(
                 "something the tested effects do not explain is left on " + ", ".join(
@@ -637,7 +692,7 @@ class Discrepancy:
             "baseline": {"rms_force_S": rms_kept[0][:3].tolist(), "rms_torque_S": rms_kept[0][3:].tolist()},
             "steps": steps,
             "final": {"rms_force_S": rms_kept[-1][:3].tolist(), "rms_torque_S": rms_kept[-1][3:].tolist(),
-                      "params": final_params},
+                      "params": final_params, "uncertainty": uncertainty},
             "effects": named,
             "estimator_options": options,
             "batch_fit": {

@@ -69,24 +69,30 @@ def implausible(block: AlignedSamples, sensor: HasRange | None) -> np.ndarray:
     return beyond & (block.status == STATUS_OK)
 
 
+BEYOND_RANGE = "implausible sensor reading (beyond its range)"
+STALE = "stale kinematics"
+BAD_STATUS = "sensor saturated or in error"
+NON_FINITE = "non-finite sensor reading"
+
+
 def data_reason(block: AlignedSamples, usable: np.ndarray, beyond: np.ndarray) -> str:
     """What was wrong with a block of aligned samples ("" when every sample is usable)."""
     if usable.all():
         return ""
     if beyond.any():
-        return "implausible sensor reading (beyond its range)"
+        return BEYOND_RANGE
     if block.stale.any():
-        return "stale kinematics"
+        return STALE
     if (block.status != STATUS_OK).any():
-        return "sensor saturated or in error"
-    return "non-finite sensor reading"
+        return BAD_STATUS
+    return NON_FINITE
 
 
 _NO_RANGE = np.empty(0)
 _NO_POSITION = np.empty((0, 3))
-_REASONS = ((screen_kernel.BEYOND, "implausible sensor reading (beyond its range)"),
-            (screen_kernel.STALE, "stale kinematics"), (screen_kernel.BAD_STATUS, "sensor saturated or in error"),
-            (screen_kernel.NON_FINITE, "non-finite sensor reading"))
+_REASONS = ((screen_kernel.BEYOND, BEYOND_RANGE), (screen_kernel.STALE, STALE),
+            (screen_kernel.BAD_STATUS, BAD_STATUS), (screen_kernel.NON_FINITE, NON_FINITE))
+"""The kernel's bits and their reasons, in :func:`data_reason`'s order."""
 
 
 def screen(block: AlignedSamples, sensor: HasRange | None) -> tuple[np.ndarray, np.ndarray, str]:

@@ -59,7 +59,7 @@ from ..recording.sinks import WriterProcessError
 from .build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
 from .gate import HapticGate, screen
 from .status import SessionError, SessionResult, SessionStatus
-from .taps import Taps
+from .taps import HAND_OVER_NS, Taps
 from .teleop import Teleoperation
 
 PARAMS_INTERVAL_NS = 100_000_000
@@ -208,7 +208,10 @@ class LiveLoop:
     def run(self) -> SessionResult:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
+            # the taps hold up to HAND_OVER_NS before the recorder sees it: flushed that much sooner, a killed
+            # session still loses at most its last second
             self.recorder = Recorder(self.path, metadata=session_metadata(self.s, self.duration, self.path),
+                                     flush_interval_s=1.0 - HAND_OVER_NS * 1e-9,
                                      writer=self.s.settings.recording_writer, live=self.live)
         except WriterProcessError as exc:
             if self.live and "live view" in str(exc):  # the address taken, or no foxglove-sdk: the user's to fix

@@ -51,10 +51,19 @@ def _same(a, b, key: str = "", tol: float = ROUNDING) -> bool:
     return a.shape == b.shape and np.allclose(a, b, rtol=tol, atol=tol, equal_nan=True)
 
 
+def _same_information(a: dict, b: dict, tol: float) -> bool:
+    """The identified rule's information matrices (state()["information"]), within tol of each matrix's largest
+    entry: its entries are sums of C^T R^-1 C over every sample (up to ~1e8), off-diagonal ones cancelling to
+    ~1, so the rounding of R (above) shows at tol of the matrix's scale, not of each entry."""
+    return a.keys() == b.keys() and all(
+        np.abs(np.subtract(a[k], b[k])).max() <= tol * np.abs(a[k]).max() for k in a)
+
+
 def _same_tree(a, b, tol: float = ROUNDING) -> bool:
     """params(), cov_diag() and state() of the two: the same keys and flags, numbers within tol."""
     if isinstance(a, dict):
-        return isinstance(b, dict) and a.keys() == b.keys() and all(_same_tree(a[k], b[k], tol) for k in a)
+        return isinstance(b, dict) and a.keys() == b.keys() and all(
+            _same_information(a[k], b[k], tol) if k == "information" else _same_tree(a[k], b[k], tol) for k in a)
     if isinstance(a, (list, tuple)) and a and not isinstance(a[0], (int, float, bool)):
         return isinstance(b, (list, tuple)) and len(a) == len(b) and all(_same_tree(x, y, tol) for x, y in zip(a, b))
     if isinstance(a, (bool, str)) or a is None:
@@ -262,7 +271,7 @@ def test_motion_derivatives_kernel_matches_numpy(sim_inertia, size):
 
 @pytest.mark.parametrize("size", [1, 7])
 def test_kernels_refuse_the_same_samples_and_keep_the_state(sim, size):
-    block = sim.subset(slice(0, 1400))
+    block = sim.subset(np.arange(1400))  # a copy (a slice is a view): the module's tour must stay clean
     block.force_S[700, 1] = np.nan
     block.torque_S[703] = np.inf
     block.R_EB[1100] *= 2.0  # not a rotation

@@ -190,6 +190,52 @@ LEFTOVER_FLOOR = 0.05
 quite white)."""
 
 
+LEFTOVER_SEGMENTS = 10
+""":func:`where_left` splits the kept samples into this many stretches of time."""
+
+
+def where_left(t: np.ndarray, residual: np.ndarray, noise: float, threshold: float) -> dict[str, Any]:
+    """Where a channel's leftover lives: in time (the stretches whose RMS over ``noise`` exceeds ``threshold``
+    for their size) and in frequency (the periodogram's peak, the share of the residual's variance above the
+    noise within ±1 bin of it).
+
+    Args:
+        t: (m,) the kept samples' times, s (or rows); residual: (m,) that channel's final residual there;
+        noise: the channel's own noise (:func:`axis_noise`); threshold: its leftover threshold.
+    """
+    m = len(t)
+    edges = np.linspace(0, m, LEFTOVER_SEGMENTS + 1).astype(int)
+    stretches = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        if b - a < 2:
+            continue
+        ratio = float(rms(residual[a:b])) / noise
+        if ratio > leftover_threshold(b - a) + (threshold - leftover_threshold(m)):
+            stretches.append({"t_start": float(t[a]), "t_end": float(t[b - 1]), "rms_over_noise": ratio})
+    x = residual - residual.mean()
+    dt = float(np.median(np.diff(t))) if m > 1 else 1.0
+    spectrum = np.abs(np.fft.rfft(x * np.hanning(m))) ** 2
+    freq = np.fft.rfftfreq(m, dt)
+    k = int(np.argmax(spectrum[1:])) + 1 if m > 2 else 0
+    excess = max(float(np.mean(x**2)) - noise**2, 0.0)
+    share = float(spectrum[max(k - 1, 1):k + 2].sum() / spectrum[1:].sum()) if spectrum[1:].sum() > 0 else 0.0
+    return {"stretches": stretches, "peak_hz": float(freq[k]) if dt > 0 else float("nan"),
+            "peak_share": share, "excess_rms": math.sqrt(excess)}
+
+
+def _where_text(axis: str, where: dict[str, Any], time_base: str) -> str:
+    unit = "s" if time_base == "seconds" else "rows"
+    text = f"; {axis}: {where['excess_rms']:.3g} RMS beyond the noise"
+    if where["peak_share"] >= 0.25 and time_base == "seconds":
+        text += f", its spectrum peaking at {where['peak_hz']:.3g} Hz ({100 * where['peak_share']:.0f} % of the power)"
+    stretches = where["stretches"]
+    if stretches and len(stretches) < LEFTOVER_SEGMENTS:
+        text += ", mostly in " + ", ".join(f"{s['t_start']:.4g}-{s['t_end']:.4g} {unit}" for s in stretches)
+    elif stretches:
+        text += ", all along"
+    return text
+
+
 def leftover_threshold(n: int) -> float:
     """The ratio of a channel's final RMS to its own noise estimate above which the report flags what is left
     on it, for n samples: 1 + max(``LEFTOVER_FLOOR``, ``LEFTOVER_SIGMAS`` · ``LEFTOVER_SE`` / √n)."""
@@ -646,6 +692,8 @@ class Discrepancy:
         over_own = rms_kept[-1] / own_noise
         threshold = leftover_threshold(int(kept.sum()))
         leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
+        where = {a: where_left(self.motion.t[kept], final.residual[kept, AXES.index(a)],
+                               float(own_noise[AXES.index(a)]), threshold) for a in leftover}
         warnings = {"gate_not_applied": bool(self.gate_fallback),
                     "final_above_noise": bool(np.any(over > self.settings.warn_rms_over_noise)),
                     "leftover": bool(leftover)}
@@ -670,7 +718,8 @@ class Discrepancy:
             notes.append(
                 "something the tested effects do not explain is left on " + ", ".join(
                     f"{a} ({over_own[AXES.index(a)]:.2f}x its own noise)" for a in leftover)
-                + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples); see --plots")
+                + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples)"
+                + "".join(_where_text(a, where[a], self.motion.time_base) for a in leftover) + "; see --plots")
         folds = rounds[0][0]["folds"] if rounds and rounds[0] else None
         if folds is not None and rounds[0][0]["wins_needed"] > folds:
             notes.append(f"{len(self.fit_rows)} samples give {folds} folds: no result over so few folds passes "
@@ -686,7 +735,7 @@ class Discrepancy:
             "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
             "final_rms_over_noise": {"force_S": over[:3].tolist(), "torque_S": over[3:].tolist()},
             "axis_noise": {"force_S": own_noise[:3].tolist(), "torque_S": own_noise[3:].tolist()},
-            "leftover": {"axes": leftover, "threshold": threshold,
+            "leftover": {"axes": leftover, "threshold": threshold, "where": where,
                          "rms_over_axis_noise": {"force_S": over_own[:3].tolist(), "torque_S": over_own[3:].tolist()}},
             "warnings": warnings,
             "baseline": {"rms_force_S": rms_kept[0][:3].tolist(), "rms_torque_S": rms_kept[0][3:].tolist()},

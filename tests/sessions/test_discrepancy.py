@@ -454,7 +454,8 @@ def test_a_leftover_on_a_quiet_axis_is_flagged_against_that_axis_s_own_noise(tmp
     effect of the library models (a cable pulling 0.05 N at 0.2 Hz). Against one noise figure for the three
     force axes (their RMS, 0.1 N) the z residual is under half of it: the old warning (above 1.5x) was silent.
     Against z's own noise it is ~1.5x, well over the threshold (1.05x at 7 500 samples): the report flags fz
-    and only fz, names no effect, and says where it lives. The same recording without the swing flags nothing."""
+    and only fz, names no effect, and says where it lives (0.2 Hz, all along; a push from 12 to 18 s instead:
+    in those seconds). The same recording without either flags nothing."""
     from hapticlab.sessions.discrepancy.workflow import leftover_threshold
 
     world = SimWorld(sensor=SensorParams(noise_force_S=np.array([0.12, 0.12, 0.03])),
@@ -472,6 +473,16 @@ def test_a_leftover_on_a_quiet_axis_is_flagged_against_that_axis_s_own_noise(tmp
     assert result["leftover"]["rms_over_axis_noise"]["force_S"][2] > 1.4
     assert max(result["final_rms_over_noise"]["force_S"]) < 1.5 and not result["warnings"]["final_above_noise"]
     assert any("left on fz" in note for note in result["notes"])
+    where = result["leftover"]["where"]["fz"]  # where it lives: at the swing's frequency, all along
+    assert abs(where["peak_hz"] - 0.2) <= 1 / 30.0 and len(where["stretches"]) == 10
+    # the same sensor with a 0.06 N push on fz from 12 to 18 s instead (below the contact gate's 6 sigma):
+    # flagged, and placed in those seconds
+    write_csv(world, path, 30.0, 250.0)
+    _add_to_column(path, "fz", np.where((t > 12.0) & (t < 18.0), 0.06, 0.0))
+    result = discrepancy(path)
+    assert result["leftover"]["axes"] == ["fz"] and result["effects"] == []
+    stretches = result["leftover"]["where"]["fz"]["stretches"]
+    assert stretches and all(11.0 <= s["t_start"] and s["t_end"] <= 19.0 for s in stretches)
 
 
 def test_parameter_errors_are_the_spread_over_seeds_and_what_the_motion_cannot_tell_is_named(tmp_path):

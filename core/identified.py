@@ -54,10 +54,11 @@ prior's. Measured by what the data cannot do: with a + b fixed and both at the p
 (0.71 p); any motion that separates them brings it towards the noise's scale (~1e-3 p)."""
 
 
-def unidentified_axes(std: np.ndarray, prior_std: float) -> tuple[int, ...]:
-    """The axes (0, 1, 2) of a constant whose std (3,) is not below ``IDENTIFIABLE_FRACTION`` of its prior's
-    (same units): those the motion so far has not identified."""
-    return tuple(int(i) for i in np.flatnonzero(~(np.asarray(std) < IDENTIFIABLE_FRACTION * prior_std)))
+def unidentified_axes(std, prior_std: float) -> tuple[int, ...]:
+    """The axes (0, 1, 2) of a constant whose std (3 floats) is not below ``IDENTIFIABLE_FRACTION`` of its
+    prior's (same units): those the motion so far has not identified. (Plain floats: it runs every tick.)"""
+    bound = IDENTIFIABLE_FRACTION * prior_std
+    return tuple(i for i, s in enumerate(std) if not s < bound)
 
 
 IDENTIFIED_FRACTION = 0.05
@@ -65,8 +66,8 @@ IDENTIFIED_FRACTION = 0.05
 of mass with the defaults): :func:`decided`."""
 
 
-def decided(std: np.ndarray, prior_std: float) -> bool:
-    """Every axis clearly identified (std below ``IDENTIFIED_FRACTION`` of the prior's) or clearly not (not
-    below ``IDENTIFIABLE_FRACTION``): none is on its way from one to the other."""
-    std = np.asarray(std)
-    return bool(np.all((std < IDENTIFIED_FRACTION * prior_std) | ~(std < IDENTIFIABLE_FRACTION * prior_std)))
+def decided(std, prior_std: float) -> bool:
+    """Every axis of std (3 floats) clearly identified (below ``IDENTIFIED_FRACTION`` of the prior's) or
+    clearly not (not below ``IDENTIFIABLE_FRACTION``): none is on its way from one to the other."""
+    low, high = IDENTIFIED_FRACTION * prior_std, IDENTIFIABLE_FRACTION * prior_std
+    return all(s < low or not s < high for s in std)

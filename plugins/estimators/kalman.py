@@ -755,10 +755,16 @@ class KalmanEstimator(RefusesBadSamples):
             self._information[stage] = identified.add_information(self._information[stage], A[0], r)
         return identified.constant_var(self._information[stage]).max(keepdims=True)
 
-    def _unidentified_now(self, stage: str) -> tuple[np.ndarray, tuple[int, ...]]:
-        """The stage's constant (gravity_force_B, N; cog_S, m): std per axis, and the axes not identified."""
-        std = np.sqrt(self._constant_var(stage))
-        return std, identified.unidentified_axes(std, (self.prior_f if stage == "force" else self.prior_t)[0])
+    def _unidentified_now(self, stage: str) -> tuple[list[float], tuple[int, ...]]:
+        """The stage's constant (gravity_force_B, N; cog_S, m): std per axis, and the axes not identified
+        (plain floats: params() and the events run it every block)."""
+        # a variance < 0 or NaN is the rounding of a singular information: nothing identified
+        std = [math.sqrt(v) if v >= 0 else math.inf for v in self._constant_var(stage)]
+        return std, identified.unidentified_axes(std, self._prior_constant(stage))
+
+    def _prior_constant(self, stage: str) -> float:
+        """The prior std of the stage's constant: gravity_force_B's (N) or cog_S's (m)."""
+        return float((self.prior_f if stage == "force" else self.prior_t)[0])
 
     def _watch_identified(self, t_ns: int) -> None:
         """An event when what the motion identifies of a constant changes: ``not_identifiable`` when it has
@@ -768,12 +774,11 @@ class KalmanEstimator(RefusesBadSamples):
         start, a re-opened bias) is no news."""
         for stage, name, frame in (("force", "gravity_force_B", "B"), ("torque", "cog_S", "S")):
             std, axes = self._unidentified_now(stage)
-            prior = (self.prior_f if stage == "force" else self.prior_t)[0]
-            if axes == self._unidentified[name] or not identified.decided(std, prior):
+            if axes == self._unidentified[name] or not identified.decided(std, self._prior_constant(stage)):
                 continue
             self._unidentified[name] = axes
             unit = "N" if stage == "force" else "m"
-            data = {"parameter": name, "axes": ["xyz"[i] for i in axes], "std": std.tolist()}
+            data = {"parameter": name, "axes": ["xyz"[i] for i in axes], "std": std}
             if not axes:
                 self.events.append(Event(t_ns, "identified", f"{name} identified by the motion on every axis "
                                          f"(std {', '.join(f'{v:.2g}' for v in std)} {unit})", data))
@@ -1040,7 +1045,7 @@ class KalmanEstimator(RefusesBadSamples):
         if self.convergence == "identified":  # how well the motion so far has identified the constants
             for stage, name in (("force", "gravity_force_B"), ("torque", "cog_S")):
                 std, axes = self._unidentified_now(stage)
-                out[f"{name}_std"] = std.tolist()  # N, m
+                out[f"{name}_std"] = std  # N, m
                 for i in axes:  # not identifiable from the motion so far: no number
                     out[name][i] = math.nan
         if self.noise_auto:
@@ -1051,12 +1056,12 @@ class KalmanEstimator(RefusesBadSamples):
             out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s
         return out
 
-    def _constant_var(self, stage: str) -> np.ndarray:
-        """(3,) how well the motion so far identifies the stage's constant, variance per axis
+    def _constant_var(self, stage: str) -> tuple[float, float, float]:
+        """How well the motion so far identifies the stage's constant, variance per axis
         (``core.identified.constant_var``; compiled, ``kalman_kernel.constant_var3``, on the compiled path)."""
         if self.method == "numba":
-            return np.array(kalman_kernel.constant_var3(self._information[stage], self._L6))
-        return identified.constant_var(self._information[stage])
+            return kalman_kernel.constant_var3(self._information[stage], self._L6)
+        return tuple(identified.constant_var(self._information[stage]).tolist())
 
     def force_parameter_std(self) -> np.ndarray:
         """(6,) standard deviation of [gravity_force_B, bias_force_S], N: sqrt of diag P_force.

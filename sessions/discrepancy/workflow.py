@@ -194,14 +194,14 @@ LEFTOVER_SEGMENTS = 10
 """:func:`where_left` splits the kept samples into this many stretches of time."""
 
 
-def where_left(t: np.ndarray, residual: np.ndarray, noise: float, threshold: float) -> dict[str, Any]:
-    """Where a channel's leftover lives: in time (the stretches whose RMS over ``noise`` exceeds ``threshold``
-    for their size) and in frequency (the periodogram's peak, the share of the residual's variance above the
-    noise within ±1 bin of it).
+def where_left(t: np.ndarray, residual: np.ndarray, noise: float) -> dict[str, Any]:
+    """Where a channel's leftover lives: in time (the stretches whose RMS over ``noise`` exceeds the leftover
+    threshold for their size), in frequency (the periodogram's peak, and the share of the residual's power
+    within ±1 bin of it), and how much (the RMS beyond the noise).
 
     Args:
         t: (m,) the kept samples' times, s (or rows); residual: (m,) that channel's final residual there;
-        noise: the channel's own noise (:func:`axis_noise`); threshold: its leftover threshold.
+        noise: the channel's own noise (:func:`axis_noise`).
     """
     m = len(t)
     edges = np.linspace(0, m, LEFTOVER_SEGMENTS + 1).astype(int)
@@ -210,7 +210,7 @@ def where_left(t: np.ndarray, residual: np.ndarray, noise: float, threshold: flo
         if b - a < 2:
             continue
         ratio = float(rms(residual[a:b])) / noise
-        if ratio > leftover_threshold(b - a) + (threshold - leftover_threshold(m)):
+        if ratio > leftover_threshold(b - a):
             stretches.append({"t_start": float(t[a]), "t_end": float(t[b - 1]), "rms_over_noise": ratio})
     x = residual - residual.mean()
     dt = float(np.median(np.diff(t))) if m > 1 else 1.0
@@ -227,7 +227,8 @@ def _where_text(axis: str, where: dict[str, Any], time_base: str) -> str:
     unit = "s" if time_base == "seconds" else "rows"
     text = f"; {axis}: {where['excess_rms']:.3g} RMS beyond the noise"
     if where["peak_share"] >= 0.25 and time_base == "seconds":
-        text += f", its spectrum peaking at {where['peak_hz']:.3g} Hz ({100 * where['peak_share']:.0f} % of the power)"
+        text += (f", its spectrum peaking at {where['peak_hz']:.3g} Hz "
+                 f"({100 * where['peak_share']:.0f} % of the power)")
     stretches = where["stretches"]
     if stretches and len(stretches) < LEFTOVER_SEGMENTS:
         text += ", mostly in " + ", ".join(f"{s['t_start']:.4g}-{s['t_end']:.4g} {unit}" for s in stretches)
@@ -693,7 +694,7 @@ class Discrepancy:
         threshold = leftover_threshold(int(kept.sum()))
         leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
         where = {a: where_left(self.motion.t[kept], final.residual[kept, AXES.index(a)],
-                               float(own_noise[AXES.index(a)]), threshold) for a in leftover}
+                               float(own_noise[AXES.index(a)])) for a in leftover}
         warnings = {"gate_not_applied": bool(self.gate_fallback),
                     "final_above_noise": bool(np.any(over > self.settings.warn_rms_over_noise)),
                     "leftover": bool(leftover)}

@@ -430,11 +430,13 @@ STALLING_EMULATOR = (
     "time.sleep(20)\n")
 
 
-def test_every_missed_package_is_reported_by_the_time_the_plugin_closes():
-    """Missed-package events are at most one a second; two stalls 0.4 s apart (the emulator sends nothing for
-    0.2 s each, connection open) and a close 0.3 s after the second: the second stall's packages, held back by
-    the rate limit, are reported when the plugin closes, so the events add up to every package missed.
+def test_every_missed_package_is_reported_by_the_time_the_plugin_closes(monkeypatch):
+    """Missed-package events are rate limited (one a second; here one a minute, so that whatever the machine's
+    load makes of the first event's time, everything after it is held): two stalls 0.4 s apart (the emulator
+    sends nothing for 0.2 s each, connection open) and a close 0.3 s after the second: the packages held back
+    are reported when the plugin closes, so the events add up to every package missed.
     (The emulator in its own process: ur-rtde's client holds the GIL while it connects.)"""
+    monkeypatch.setattr("hapticlab.plugins.kinematics.ur_rtde.MISSED_EVENT_INTERVAL_NS", 60_000_000_000)
     process = subprocess.Popen([sys.executable, "-c", STALLING_EMULATOR, "127.0.0.78", str(SEED)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

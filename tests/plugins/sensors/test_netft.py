@@ -133,10 +133,12 @@ def test_the_emulator_answers_a_counted_start_request_from_its_own_socket():
 
 
 def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times(receiver):
+    """(The emulator runs in this process: a 1 s receive timeout keeps a pause of the machine under the full
+    suite's load from counting as a timeout, which the default 0.1 s did once in a CI run here.)"""
     world = demo_world()
     start = 2**32 - 2000  # the counter wraps ~0.3 s into the stream
     with NetFTEmulator(world, "127.0.0.132", 0, 0, ft_sequence_start=start) as emu:
-        sensor = NetFTSensor("127.0.0.132", emu.rdt_port, emu.http_port, receiver=receiver)
+        sensor = NetFTSensor("127.0.0.132", emu.rdt_port, emu.http_port, receiver=receiver, receive_timeout=1.0)
         assert isinstance(sensor, SensorSource) and isinstance(sensor, HasCalibration)
         assert isinstance(sensor, HasRange) and isinstance(sensor, EmitsEvents) and isinstance(sensor, ReportsHealth)
         sensor.open(time.monotonic_ns())

@@ -15,6 +15,7 @@ from hapticlab.sessions.offline.compensate import run_estimator
 from hapticlab.sessions.recording import load_stream
 from hapticlab.sessions.discrepancy.workflow import discrepancy
 from hapticlab.sessions.bench import real as realbench
+from hapticlab.sessions.bench.paper import feed
 
 AUTO = {"noise_force": "auto", "noise_torque": "auto"}
 
@@ -90,10 +91,6 @@ LONG = ("axia80_ur_log_10hz", "lwr4_2013_06_13", "lwr4_2014_06_24", "lwr4_2014_r
 """The real files long enough to split in two halves that each identify the tool."""
 
 
-def _feed(est, samples, chunk: int = 64) -> list:
-    return [est.update_block(samples.subset(slice(i, i + chunk))) for i in range(0, len(samples), chunk)]
-
-
 def test_a_warm_start_picks_up_a_real_file_where_its_first_half_left_it(real_data, tmp_path):
     """Defaults on each long file's first half, the state saved as a file; a new estimator warm-started from it
     on the second half converges (force stage) on its first row, and compensates exactly as the estimator
@@ -108,17 +105,16 @@ def test_a_warm_start_picks_up_a_real_file_where_its_first_half_left_it(real_dat
         s = load_stream(real_data / f"{stem}.csv").samples
         half = len(s) // 2
         cold = KalmanEstimator()
-        _feed(cold, s.subset(slice(0, half)))
+        feed(cold, s.subset(slice(0, half)), chunk=64)
         assert cold.converged_force, stem
         path = tmp_path / f"{stem}.json"
         path.write_text(json.dumps(cold.state()))
         warm = KalmanEstimator(warm_start=str(path))
         second = s.subset(slice(half, len(s)))
-        out_warm, out_cold = _feed(warm, second), _feed(cold, second)
+        (out_warm, _), (out_cold, _) = feed(warm, second, chunk=64), feed(cold, second, chunk=64)
         assert warm.first_converged_force == 0, (stem, warm.first_converged_force)
-        free = ~(np.concatenate([o.contact for o in out_warm]) | np.concatenate([o.contact for o in out_cold]))
-        rms = [np.sqrt(np.nanmean(np.concatenate([o.contact_force_S for o in out])[free] ** 2))
-               for out in (out_warm, out_cold)]
+        free = ~(out_warm.contact | out_cold.contact)
+        rms = [np.sqrt(np.nanmean(out.contact_force_S[free] ** 2)) for out in (out_warm, out_cold)]
         assert abs(rms[0] / rms[1] - 1) < 1e-3, (stem, rms)
 
 
@@ -140,8 +136,8 @@ def test_a_mass_hung_on_the_tool_in_a_real_log_is_a_payload_change(real_data):
     added_S[hang:] = s.R_EB[hang:] @ weight_B
     heavier = replace(s, force_S=s.force_S + added_S, torque_S=s.torque_S + np.cross(fit["cog_S"], added_S))
     plain, est = KalmanEstimator(), KalmanEstimator()
-    _feed(plain, s)
-    _feed(est, heavier)
+    feed(plain, s, chunk=64)
+    feed(est, heavier, chunk=64)
     changes = [e for e in est.drain_events() if e.kind == "payload_change"]
     assert len(changes) == 1 and changes[0].t_ns > s.t_ns[hang]
     grew = np.array(est.params()["gravity_force_B"]) - np.array(plain.params()["gravity_force_B"])

@@ -33,7 +33,7 @@ into E, forces N, torques N·m, time s (or rows, see :class:`Motion`).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -43,6 +43,7 @@ __all__ = [
     "BASE_LABELS",
     "STAGES",
     "Effect",
+    "LocatesItself",
     "Model",
     "ModelState",
     "Motion",
@@ -335,6 +336,26 @@ class Effect:
     def estimator_options(self, params: np.ndarray) -> dict[str, Any]:
         """Options of the ``kalman`` estimator that reproduce this effect online ({} when none)."""
         return {}
+
+
+@runtime_checkable
+class LocatesItself(Protocol):
+    """An effect with a setting no linearisation can find: an instant, a time constant.
+
+    At its switched-off parameters the prediction does not depend on such a
+    setting (a step of zero size has no instant), so the workflow's linear
+    candidate test would test it wherever it happened to start. Before each test
+    the workflow calls ``locate`` with what the current model leaves; the effect
+    sets the setting where that residual best fits its shape, and its
+    ``initial()`` then carries it. Whatever stays a parameter is refined by the
+    fit once the effect is named.
+    """
+
+    def locate(self, motion: Motion, residual: np.ndarray, weight_S: np.ndarray) -> None:
+        """Set the effect's shape from ``residual`` (n, 6), what the current model leaves at the rows of
+        ``motion`` in units of each axis's noise (force then torque), and the model's weight in S there,
+        ``weight_S`` (n, 3) N."""
+        ...
 
 
 class Model:

@@ -45,7 +45,9 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.simworld.context",
     "hapticlab.plugins.effects.mount_rotation",
     "hapticlab.plugins.effects.bias_drift",
+    "hapticlab.plugins.effects.warm_up",
     "hapticlab.plugins.effects.inertia",
+    "hapticlab.plugins.effects.payload_change",
     "hapticlab.plugins.effects.time_lag",
     "hapticlab.plugins.effects.gain_crosstalk",
 )

@@ -141,6 +141,8 @@ LAG_HISTORY_MARGIN_NS = 50_000_000
 EFFECT_OPTIONS = {
     "mount_rotation": "mount_rotation = true",
     "bias_drift": "bias_rate = true",
+    "warm_up": "bias_rate = true",  # the bias's rate state follows the settling online
+    "payload_change": "payload_change_s > 0 (the default)",
     "inertia": "inertia = true",
     "time_lag": "time_lag_s = <s>",
     "gain_crosstalk": "gain_force_S / gain_torque_S = <3x3>",
@@ -317,11 +319,14 @@ class KalmanEstimator(RefusesBadSamples):
                 raise ValueError(f"effects: unknown effect {effect!r}; the kalman estimator models "
                                  f"{', '.join(sorted(EFFECT_OPTIONS))}")
         named = set(effects or [])
-        bias_rate = bias_rate or "bias_drift" in named
+        bias_rate = bias_rate or bool(named & {"bias_drift", "warm_up"})
         mount_rotation = mount_rotation or "mount_rotation" in named
         inertia = inertia or "inertia" in named
         if "time_lag" in named and not time_lag_s:
             raise ValueError("effects: 'time_lag' needs its value: set time_lag_s (s, from hapticlab discrepancy)")
+        if "payload_change" in named and not payload_change_s:
+            raise ValueError("effects: 'payload_change' is watched for with payload_change_s > 0 (default 0.3 s), "
+                             "not 0")
         if "gain_crosstalk" in named and gain_force_S is None and gain_torque_S is None:
             raise ValueError("effects: 'gain_crosstalk' needs its value: set gain_force_S and/or gain_torque_S "
                              "(from hapticlab discrepancy)")

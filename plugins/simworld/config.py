@@ -122,8 +122,10 @@ class ToolParams:
 class SensorParams:
     """The six-axis force/torque sensor (defaults: ATI Gamma SI-65-5 class).
 
-    The bias at time t (s) is ``bias + drift·t + rw·W(t)`` with W a standard
-    Brownian path per axis (W(0) = 0, variance t).
+    The bias at time t (s) is ``bias + drift·t + rw·W(t) + warmup·exp(−t/τ)``
+    with W a standard Brownian path per axis (W(0) = 0, variance t) and τ the
+    warm-up's time constant: a sensor switched on just before the session whose
+    electronics are still settling (the bias ends at ``bias``).
 
     Attributes:
         bias_force_S: (3,) force bias at t = 0, N.
@@ -144,6 +146,9 @@ class SensorParams:
             coupling; an antisymmetric part acts as a small rotation of the
             force axes. Every entry within ±0.5 (an error, not another sensor).
         gain_torque_S: (3, 3) the same for the torque channels.
+        warmup_force_S: (3,) how far the force bias is from its settled value at t = 0, N.
+        warmup_torque_S: (3,) the same for the torque bias, N·m.
+        warmup_tau_s: the warm-up's time constant τ, s (> 0).
     """
 
     bias_force_S: np.ndarray = (1.2, -0.8, 2.5)
@@ -160,9 +165,17 @@ class SensorParams:
     p_EoSo_E: np.ndarray = (0.0, 0.0, 0.0)
     gain_force_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     gain_torque_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    warmup_force_S: np.ndarray = (0.0, 0.0, 0.0)
+    warmup_torque_S: np.ndarray = (0.0, 0.0, 0.0)
+    warmup_tau_s: float = 20.0
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.warmup_tau_s, (int, float)) and math.isfinite(self.warmup_tau_s)
+                and self.warmup_tau_s > 0):
+            raise ValueError(f"warmup_tau_s must be a finite number > 0, got {self.warmup_tau_s!r}")
         for name in self.__dataclass_fields__:
+            if name == "warmup_tau_s":
+                continue
             shape = (3, 3) if name.startswith("gain_") else (3,)
             object.__setattr__(self, name, _vector(getattr(self, name), name, shape))
         for name in ("gain_force_S", "gain_torque_S"):
@@ -459,6 +472,9 @@ SENSOR_OPTIONS: dict[str, Parser] = {
     "offset": vec3,
     "gain_force": gain_matrix,
     "gain_torque": gain_matrix,
+    "warmup_force": number_or_vec3(),
+    "warmup_torque": number_or_vec3(),
+    "warmup_tau": number(0.0, above=True),
 }
 # TOML key -> SensorParams field
 _SENSOR_FIELDS = {
@@ -469,6 +485,7 @@ _SENSOR_FIELDS = {
     "saturation_force": "saturation_force_S", "saturation_torque": "saturation_torque_S",
     "mount_rotation": "mount_rotation_SE", "offset": "p_EoSo_E",
     "gain_force": "gain_force_S", "gain_torque": "gain_torque_S",
+    "warmup_force": "warmup_force_S", "warmup_torque": "warmup_torque_S", "warmup_tau": "warmup_tau_s",
 }
 
 ROBOT_OPTIONS: dict[str, Parser] = {"base_tilt": vec3, "position": vec3, "kinematics_lag": lag_seconds}

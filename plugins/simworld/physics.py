@@ -321,6 +321,8 @@ class SimWorld:
         self._bias_S = np.concatenate([sensor.bias_force_S, sensor.bias_torque_S])
         self._drift_S = np.concatenate([sensor.drift_force_S, sensor.drift_torque_S])
         self._drift_rw_S = np.concatenate([sensor.drift_force_rw_S, sensor.drift_torque_rw_S])
+        self._warmup_S = np.concatenate([sensor.warmup_force_S, sensor.warmup_torque_S])
+        """(6,) the bias's distance from its settled value at t = 0 (N, N·m), decaying with ``warmup_tau_s``"""
         self._noise_S = np.concatenate([sensor.noise_force_S, sensor.noise_torque_S])
         self._saturation_S = np.concatenate([sensor.saturation_force_S, sensor.saturation_torque_S])
         has_gain = np.any(sensor.gain_force_S != 0) or np.any(sensor.gain_torque_S != 0)
@@ -387,6 +389,8 @@ class SimWorld:
     def _bias_wrench_S(self, t: np.ndarray) -> np.ndarray:
         """(N, 6) true bias at times ``t`` (N,) s: force (N) then torque (N·m)."""
         bias_S = self._bias_S + t[:, None] * self._drift_S
+        if self._warmup_S.any():  # the electronics settling: exp(−t/τ) of the way still to go
+            bias_S = bias_S + np.exp(-np.maximum(t, 0.0) / self.sensor.warmup_tau_s)[:, None] * self._warmup_S
         if self._walk is not None:
             bias_S = bias_S + self._walk(t) * self._drift_rw_S
         return bias_S

@@ -56,7 +56,7 @@ import numpy as np
 
 from ...core.batch import batch_fit
 from ...core.blas import single_threaded_blas
-from ...core.effects import Effect, Model, Motion, motion_from_poses
+from ...core.effects import Effect, LocatesItself, Model, Motion, motion_from_poses
 from ...core.frames import quat_wxyz_from_matrix
 from ...core.plugins import ConfigError, Registry
 
@@ -536,13 +536,19 @@ class Discrepancy:
                         candidates: list[tuple[str, Effect]]) -> tuple[list[Evidence], dict]:
         """Blocked cross-validation of each candidate added to ``model`` (linearised at ``theta``)."""
         s = self.settings
+        rows = self.kept[self.fit_rows]
+        r = (self.y_fit - model.predict6(self.fit_motion, theta)) * self.weights
+        located = [effect for _, effect in candidates if isinstance(effect, LocatesItself)]
+        if located:  # an instant or a time constant: set from what the model leaves, before initial() is read
+            motion = self.fit_motion.subset(rows)
+            weight_S = model.weight_S(motion, theta)
+            for effect in located:
+                effect.locate(motion, r[rows], weight_S)
         full = Model(model.effects + candidates)
         theta_full = full.initial(theta[:12])
         theta_full[:model.size] = theta
         J = full.jacobian(self.fit_motion, theta_full)
-        rows = self.kept[self.fit_rows]
         force = self.force_block(full, J)
-        r = (self.y_fit - model.predict6(self.fit_motion, theta)) * self.weights
         Jw = J * self.weights[None, :, None]
         chunk, folds = self._chunks()
         nch = 5 * folds

@@ -289,6 +289,11 @@ class ModelState:
         """(n, 3) vectors in E expressed in S."""
         return v_E @ self.R_SE.T
 
+    @property
+    def weight_S(self) -> np.ndarray:
+        """(n, 3) the tool's weight in S at each sample, ``R_SE R_EB gravity_force_B``, N."""
+        return self.to_S(self.motion.R_EB @ self.gravity_force_B)
+
     def replace(self, **changes: Any) -> ModelState:
         """A copy with some fields changed (effects never change arrays in place)."""
         return replace(self, **changes)
@@ -414,7 +419,7 @@ class Model:
         for name, effect in self.effects:
             if effect.stage == "mount":
                 state = effect.apply(state, theta[self.slices[name]])
-        return state.to_S(state.motion.R_EB @ state.gravity_force_B)
+        return state.weight_S
 
     def predict(self, motion: Motion, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The predicted reading ``(force_S (n, 3) N, torque_S (n, 3) N·m)`` along ``motion``."""
@@ -423,7 +428,7 @@ class Model:
                            bias_torque_S)
         for stage in STAGES[1:]:
             if stage == "load":
-                weight_S = state.to_S(state.motion.R_EB @ state.gravity_force_B)
+                weight_S = state.weight_S
                 state = state.replace(force_S=weight_S, torque_S=cross(state.cog_S, weight_S))
             if stage == "bias":
                 state = state.replace(force_S=state.force_S + state.bias_force_S,

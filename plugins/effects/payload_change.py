@@ -18,9 +18,8 @@ the held-out folds' too, so the candidate test is a little optimistic for this
 effect (on clean recordings it named nothing in 120; on the real 100-pose file,
 whose ``t`` counts poses, it named a 4.6 % lighter tool from pose 24 with a
 torque "calibration error" of 111 % beside it): it is only looked for along a
-time base in seconds. The added mass's own
-inertia and swing are left out (quasi-static, as ``HangingMass`` in the
-simulator). See ``docs/discrepancy.md`` for how small a change shows.
+time base in seconds. The added mass's own inertia and swing are left out
+(quasi-static, as ``HangingMass`` in the simulator). See ``docs/discrepancy.md`` for how small a change shows.
 """
 
 from __future__ import annotations
@@ -45,12 +44,10 @@ class PayloadChange(Effect):
 
     def __init__(self):
         self.t_change = 0.0
-        self.per_row = False
         self.mass_kg = float("nan")  # the tool's, from the last weight seen (for describe)
 
     def check(self, motion: Motion) -> str | None:
-        self.per_row = motion.time_base == "index"
-        if self.per_row:  # e.g. static poses, which may have been taken in any order
+        if motion.time_base == "index":  # e.g. static poses, which may have been taken in any order
             return "needs a time base in seconds (t counts rows here: no history for a load to change along)"
         if len(motion) < 40 or np.ptp(motion.t) <= 0:
             return "the recording is too short to have a before and an after"
@@ -76,14 +73,14 @@ class PayloadChange(Effect):
             return
         bc, Bc = b[lo:hi], B[lo:hi]
         denominator = Bc - Bc**2 / q_all
-        gain = np.where(denominator > 0, (bc - a_all * Bc / q_all) ** 2 / np.where(denominator > 0, denominator, 1),
-                        0.0)
+        gain = np.divide((bc - a_all * Bc / q_all) ** 2, denominator, out=np.zeros_like(denominator),
+                         where=denominator > 0)
         c = lo + int(np.argmax(gain))
         self.t_change = 0.5 * float(t[c - 1] + t[c])
 
     def apply(self, state: ModelState, params: np.ndarray) -> ModelState:
         after = (state.motion.t >= self.t_change)[:, None]
-        weight_S = state.to_S(state.motion.R_EB @ state.gravity_force_B)
+        weight_S = state.weight_S
         s, d = float(params[0]), np.asarray(params[1:4], float)
         self.mass_kg = state.mass_kg  # the tool's before the change, for describe (the last prediction's)
         return state.replace(force_S=state.force_S + after * (s * weight_S),
@@ -91,18 +88,17 @@ class PayloadChange(Effect):
 
     def describe(self, params: np.ndarray) -> dict:
         s, d = float(params[0]), np.asarray(params[1:4], float)
-        out = {"t_change_rows" if self.per_row else "t_change_s": self.t_change, "mass_ratio": s,
+        out = {"t_change_s": self.t_change, "mass_ratio": s,
                "moment_S": d.tolist(), "added_mass_kg": s * self.mass_kg}
         out["point_S"] = (d / s).tolist() if abs(s) > 1e-6 else None
         return out
 
     def summary(self, params: np.ndarray) -> str:
-        s = float(params[0])
-        at = f"row {self.t_change:.0f}" if self.per_row else f"{self.t_change:.3f} s"
-        grams = s * self.mass_kg * 1e3
-        point = np.asarray(params[1:4], float) / s if abs(s) > 1e-6 else None
+        found = self.describe(params)
+        point = found["point_S"]
         where = f" at [{', '.join(f'{1e3 * v:.0f}' for v in point)}] mm" if point is not None else ""
-        return f"{grams:+.0f} g ({100 * s:+.1f} % of the tool){where} from {at}"
+        return (f"{found['added_mass_kg'] * 1e3:+.0f} g ({100 * found['mass_ratio']:+.1f} % of the tool){where} "
+                f"from {self.t_change:.3f} s")
 
 
 @hookimpl

@@ -26,6 +26,7 @@ from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
 from hapticlab.plugins.sensors.netft import DeviceClock, NetFTSensor, describe_status, stream_status
 from hapticlab.plugins.sensors.netft_emulator import RECORD, REQUEST, NetFTEmulator, RdtFault, add_arguments, run
+from hapticlab.plugins.sensors.rdt import FT_RATE_HZ
 from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.sessions.config import load_config
 from hapticlab.sessions.recording import read_recording
@@ -134,15 +135,21 @@ def test_the_emulator_answers_a_counted_start_request_from_its_own_socket():
 
 def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times(receiver):
     """(The emulator runs in this process: a 1 s receive timeout keeps a pause of the machine under the full
-    suite's load from counting as a timeout, which the default 0.1 s did once in a CI run here.)"""
+    suite's load from counting as a timeout, which the default 0.1 s did once in a CI run here. The device's
+    counter runs from the emulator's start, not the stream's: the wrap is 2 s in, and the test reads until it
+    is 2 000 samples past it, because a CI run once took 0.3 s from the emulator's start to the first record.)"""
     world = demo_world()
-    start = 2**32 - 2000  # the counter wraps ~0.3 s into the stream
+    start = 2**32 - 2 * int(FT_RATE_HZ)  # the device counter wraps 2 s after the emulator starts sampling
     with NetFTEmulator(world, "127.0.0.132", 0, 0, ft_sequence_start=start) as emu:
         sensor = NetFTSensor("127.0.0.132", emu.rdt_port, emu.http_port, receiver=receiver, receive_timeout=1.0)
         assert isinstance(sensor, SensorSource) and isinstance(sensor, HasCalibration)
         assert isinstance(sensor, HasRange) and isinstance(sensor, EmitsEvents) and isinstance(sensor, ReportsHealth)
         sensor.open(time.monotonic_ns())
-        samples = read_samples(sensor, 4000)
+        samples = read_samples(sensor, 2000)
+        assert samples[0].seq < 2**32, "the stream began after the wrap: the machine paused for 2 s"
+        guard = time.monotonic() + DEADLINE_S
+        while samples[-1].seq < 2**32 + 2000 and time.monotonic() < guard:
+            samples += read_samples(sensor, 1)
         sensor.close()
     seq = np.array([s.seq for s in samples])
     assert seq[0] < 2**32 < seq[-1]  # unwrapped past the wrap

@@ -238,6 +238,38 @@ def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, et
     status[1] = 1 if conv_t else 0
 
 
+@njit(cache=True)
+def inverse_diag(Lam, L, out) -> bool:
+    """diag(Λ⁻¹) of a (6, 6) Λ into ``out`` (6,) by Cholesky, Λ = L Lᵀ (``L`` (6, 6) scratch, overwritten by
+    L⁻¹): Λ⁻¹ = L⁻ᵀ L⁻¹, so (Λ⁻¹)_ii = Σ_k (L⁻¹)_ki². False (``out`` untouched) where Λ is not numerically
+    positive definite; the caller inverts it as ``core.rls`` does (``RecursiveLeastSquares.P``)."""
+    n = 6
+    for i in range(n):
+        for j in range(i + 1):
+            s = Lam[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    for j in range(n):  # L⁻¹ column by column, in place (forward substitution on e_j)
+        L[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            s = 0.0
+            for k in range(j, i):
+                s -= L[i, k] * L[k, j]
+            L[i, j] = s / L[i, i]
+    for i in range(n):
+        s = 0.0
+        for k in range(i, n):
+            s += L[k, i] * L[k, i]
+        out[i] = s
+    return True
+
+
 def warm_up() -> None:
     """Compile ``rls_cascade`` (or load it from the cache) by running it once on two samples."""
     m = 2
@@ -246,3 +278,4 @@ def warm_up() -> None:
     rls_cascade(np.ones((m, 3)), np.ones((m, 3)), R, x, Lam, eta, x.copy(), Lam.copy(), eta.copy(),
                 np.array([400.0, 400.0, 1.0, 0.1, 1e-3]), status_array(), work_arrays(), DPOSV,
                 np.empty((2, m, 3)), np.empty((3, m), dtype=np.bool_))
+    inverse_diag(Lam, np.empty((6, 6)), np.empty(6))

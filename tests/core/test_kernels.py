@@ -411,3 +411,25 @@ def test_constant_var_kernel_matches_numpy(sim6):
     singular = np.zeros((6, 6))
     singular[3:, 3:] = np.eye(3)  # nothing known of the constant
     assert constant_var3(singular, L) == (np.inf, np.inf, np.inf)
+
+
+def test_rls_parameter_std_kernel_matches_the_inverse(sim):
+    """What the haptic gate reads every tick (``force_parameter_std``): the compiled path's diag(Λ⁻¹) by
+    Cholesky against ``np.linalg.inv`` (``RecursiveLeastSquares.P``), along the tour from P0 through the
+    motion's first, badly conditioned poses to well identified: agreeing to the inverses' forward error
+    bound, 1e-14·cond(Λ) relative; a Λ that is not positive definite goes to ``P`` (inf when singular)."""
+    from hapticlab.core.kernels.rls import inverse_diag
+
+    est = RLSEstimator(kernel="numba")
+    checked = 0
+    for i in range(0, 3000, 100):
+        ref = np.sqrt(np.diag(np.linalg.inv(est.force.Lambda)))
+        bound = 1e-14 * np.linalg.cond(est.force.Lambda)
+        assert np.allclose(est.force_parameter_std(), ref, rtol=bound, atol=0.0), (i, bound)
+        est.update_block(sim.subset(slice(i, i + 100)))
+        checked += 1
+    assert checked == 30 and est.force_parameter_std().max() < 0.01  # the tour identified the force stage
+    singular = np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 0.0])  # nothing known of bias_force_S's z
+    assert not inverse_diag(singular, np.empty((6, 6)), np.empty(6))
+    np.copyto(est.force.Lambda, singular)
+    assert np.isinf(est.force_parameter_std()).all()  # as P says: inf where Λ cannot be inverted

@@ -189,13 +189,17 @@ class HapticGate:
         events = []
         self.contact_now = bool(est.contact[-1])
         for stage, flags, name in ((0, est.converged_force, "force"), (1, est.converged_torque, "torque")):
-            self.flips[stage] += int(flags[0] != self.converged[stage]) + int(np.count_nonzero(flags[1:] != flags[:-1]))
-            self.converged[stage] = bool(flags[-1])
+            flags = flags.tolist()  # a live block is a few samples: Python's bools beat numpy's calls here
+            previous = self.converged[stage]
+            for flag in flags:
+                self.flips[stage] += flag != previous
+                previous = flag
+            self.converged[stage] = previous
             if stage == 0:
                 self._track_flag(est.t_ns, flags)
-            if not self.ready[stage] and flags.any():
+            if not self.ready[stage] and True in flags:
                 self.ready[stage] = True
-                k = int(np.argmax(flags))
+                k = flags.index(True)
                 events.append(Event(int(est.t_ns[k]), "converged", f"{self.label} {name} stage converged"))
         if self.ready[0] and not self.parameters_known:
             std = self._std()
@@ -308,14 +312,14 @@ class HapticGate:
         self.fault = fault
         return Event(now_ns, "fault", reason) if fault else None
 
-    def _track_flag(self, t_ns: np.ndarray, flags: np.ndarray) -> None:
+    def _track_flag(self, t_ns: np.ndarray, flags: list[bool]) -> None:
         """Keep when the force stage's flag went down, for the trailing run of samples it has been down."""
         if flags[-1]:
             self.down_since_ns = None
             return
-        up = np.flatnonzero(flags)
-        if len(up) or self.down_since_ns is None:
-            self.down_since_ns = int(t_ns[up[-1] + 1 if len(up) else 0])
+        up = len(flags) - flags[::-1].index(True) - 1 if True in flags else -1  # the last sample with it up
+        if up >= 0 or self.down_since_ns is None:
+            self.down_since_ns = int(t_ns[up + 1])
 
     def _std(self) -> float | None:
         if self.parameter_std is None:

@@ -140,3 +140,27 @@ def test_the_order_is_map_deadband_lowpass_clamp_slew():
 def test_bad_mapping_settings_are_refused(kw, key):
     with pytest.raises(ConfigError, match=f"^{key}: must be"):
         HapticSettings(**kw)
+
+
+def test_the_gate_counts_flag_flips_across_blocks_and_keeps_when_the_flag_went_down():
+    """What the session summary reports (``convergence_flag_flips``) and what "estimator no longer converged"
+    waits on: flips counted within and across blocks of any size, the first convergence an event at its sample,
+    and the time the force stage's flag has been down since."""
+    from hapticlab.core.types import Estimates
+    from hapticlab.sessions.live.gate import HapticGate
+
+    gate = HapticGate("rls", 0.1, None, None, 100_000_000, 500_000_000, 3.0, 1.0)
+    t0 = 0
+    events = []
+    for force, torque in (([0, 0, 1], [0, 0, 0]), ([1, 0], [0, 1]), ([0], [1]), ([0, 0, 1, 1, 0, 1, 0], [1] * 7)):
+        m = len(force)
+        t = np.arange(t0, t0 + m, dtype=np.int64) * 1_000_000
+        est = Estimates(t, np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m, dtype=bool), np.array(force, dtype=bool),
+                        np.array(torque, dtype=bool))
+        events += gate.on_estimates(None, est, int(t[-1]))
+        t0 += m
+    # force: 0 0 1 | 1 0 | 0 | 0 0 1 1 0 1 0 -> up at 2, down at 4, up at 8, down at 10, up at 11, down at 12
+    assert gate.flips == [6, 1] and gate.converged == [False, True]
+    assert gate.down_since_ns == 12_000_000  # the trailing run of samples with the flag down began at sample 12
+    assert [(e.t_ns, e.message) for e in events if e.kind == "converged"] == [
+        (2_000_000, "rls force stage converged"), (4_000_000, "rls torque stage converged")]

@@ -221,14 +221,95 @@ def filter6(x, P, y, A, dt, active, q, r, rc, gate2, X, D, gated, d2, failed):
 ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED = 0, 1, 2
 ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
 ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10, 11
-ADAPT_SIZE = 14
+ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
+ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
+ADAPT_SIZE = 29
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
 ``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``),
 ``ADAPT_IDENTIFIED`` convergence as identified (``core.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T``
-the convergence bound from the noise estimate.
+the convergence bound from the noise estimate; ``ADAPT_REOPEN_S`` the torque-only refusal (s) after which
+the torque bias is re-opened (0: never; :func:`torque_only_refusal`), ``ADAPT_REOPEN_LEVER`` the farthest a
+contact can act from the sensor's origin (m), the prior variance of bias_torque_S the bias goes back to
+(3 values from ``ADAPT_PRIOR_TB``, (N·m)²).
 State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
-yet known), whether the force flag was ever up, the bounds' caps (inf until the force flag first rises).
-Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``)."""
+yet known), whether the force flag was ever up, the bounds' caps (inf until the force flag first rises), the
+current torque-only refusal (s, samples, and the sums of its force and torque residuals: 3 values each from
+``ADAPT_TQ_SUM_F`` / ``ADAPT_TQ_SUM_T``), the torque bias re-opened so far (count).
+Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
+the block's row of its last torque bias re-opening (−1: none)."""
+
+TORQUE_REOPEN_MIN_SAMPLES = 10
+"""A torque-only refusal re-opens the torque bias only once it is this many samples long as well as
+``ADAPT_REOPEN_S`` (a few outliers of a slow stream are no drift)."""
+
+
+@njit(cache=True, error_model="numpy")
+def torque_only_refusal(adapt, force_gated, force_seen, torque_what, dt, residual_force, residual_torque) -> bool:
+    """Count a sample into the current torque-only refusal; True when the torque bias is to be re-opened.
+
+    A drift of the torque bias (warm-up, a bias that a pose first visited shows to be off) makes the torque
+    stage refuse samples the force stage accepts. So does a light contact (a force under the force stage's
+    gate, at the tool's tip: a lever), and that must stay a contact: a contact force f acting within
+    ``ADAPT_REOPEN_LEVER`` (L) of the sensor's origin makes a torque of at most L·|f|, so the bias is
+    re-opened only when the run's mean torque residual is larger than that for its mean force residual,
+    |Σ τ_res| > L·|Σ f_res|, once the run is ``ADAPT_REOPEN_S`` and ``TORQUE_REOPEN_MIN_SAMPLES`` long. A
+    force the force stage refuses ends the run (a contact), and so does a sample the torque stage accepts.
+    ``force_seen``: the force stage accepted the sample with its flag up (the torque stage saw it);
+    ``torque_what``: what the torque stage did with it; the residuals: the sample's contact wrench (N, N·m).
+    (The numpy reference runs this very function as Python: ``torque_only_refusal.py_func``.)"""
+    if adapt[ADAPT_REOPEN_S] <= 0.0:
+        return False
+    if force_gated or (force_seen and torque_what == UPDATED):
+        adapt[ADAPT_TQ_ONLY_S], adapt[ADAPT_TQ_ONLY_N] = 0.0, 0.0
+        for i in range(3):
+            adapt[ADAPT_TQ_SUM_F + i], adapt[ADAPT_TQ_SUM_T + i] = 0.0, 0.0
+        return False
+    if not (force_seen and torque_what == GATED):
+        return False
+    adapt[ADAPT_TQ_ONLY_S] += dt
+    adapt[ADAPT_TQ_ONLY_N] += 1.0
+    for i in range(3):
+        adapt[ADAPT_TQ_SUM_F + i] += residual_force[i]
+        adapt[ADAPT_TQ_SUM_T + i] += residual_torque[i]
+    if adapt[ADAPT_TQ_ONLY_S] < adapt[ADAPT_REOPEN_S] or adapt[ADAPT_TQ_ONLY_N] < TORQUE_REOPEN_MIN_SAMPLES:
+        return False
+    f0, f1, f2 = adapt[ADAPT_TQ_SUM_F], adapt[ADAPT_TQ_SUM_F + 1], adapt[ADAPT_TQ_SUM_F + 2]
+    t0, t1, t2 = adapt[ADAPT_TQ_SUM_T], adapt[ADAPT_TQ_SUM_T + 1], adapt[ADAPT_TQ_SUM_T + 2]
+    lever = adapt[ADAPT_REOPEN_LEVER]
+    if not t0 * t0 + t1 * t1 + t2 * t2 > lever * lever * (f0 * f0 + f1 * f1 + f2 * f2):
+        return False  # a force within reach explains it: a light contact (the run goes on)
+    adapt[ADAPT_TQ_ONLY_S], adapt[ADAPT_TQ_ONLY_N] = 0.0, 0.0
+    for i in range(3):
+        adapt[ADAPT_TQ_SUM_F + i], adapt[ADAPT_TQ_SUM_T + i] = 0.0, 0.0
+    adapt[ADAPT_REOPENS] += 1.0
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def reopen_bias(P, info, prior_var):
+    """The stage's bias (states 3..5) unknown again, the rest as known (``KalmanEstimator._reopen_torque_bias``):
+    P's bias rows and columns zeroed, its diagonal the prior variance ``prior_var`` (3,); the identified rule's
+    Λ (6, 6) re-seeded from that P, which is block-diagonal: inv(P[:3, :3]) (cofactors), then 1/prior_var."""
+    for i in range(3, 6):
+        for j in range(P.shape[0]):
+            P[i, j] = 0.0
+            P[j, i] = 0.0
+        P[i, i] = prior_var[i - 3]
+    a, b, c = P[0, 0], P[0, 1], P[0, 2]
+    d, e, f = P[1, 0], P[1, 1], P[1, 2]
+    g, h, k = P[2, 0], P[2, 1], P[2, 2]
+    c00, c01, c02 = e * k - f * h, c * h - b * k, b * f - c * e
+    c10, c11, c12 = f * g - d * k, a * k - c * g, c * d - a * f
+    c20, c21, c22 = d * h - e * g, b * g - a * h, a * e - b * d
+    det = a * c00 + b * c10 + c * c20
+    for i in range(6):
+        for j in range(6):
+            info[i, j] = 0.0
+    info[0, 0], info[0, 1], info[0, 2] = c00 / det, c01 / det, c02 / det
+    info[1, 0], info[1, 1], info[1, 2] = c10 / det, c11 / det, c12 / det
+    info[2, 0], info[2, 1], info[2, 2] = c20 / det, c21 / det, c22 / det
+    for i in range(3):
+        info[3 + i, 3 + i] = 1.0 / prior_var[i]
 
 
 @njit(cache=True, error_model="numpy")
@@ -367,6 +448,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     before_f, before_t = scratch[7], scratch[8]
     previous = last_t_ns[1]
     n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
+    adapt[ADAPT_REOPEN_ROW] = -1.0
     positions = p_BoEo_B.shape[0] != 0
     inertia = inertial_S.shape[0] != 0
     for k in range(t_ns.shape[0]):
@@ -414,6 +496,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                                rc_t, gate2)
         gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
         n_failed_t += what_t == FAILED
+        force_seen = seen
         seen = seen and what_t != FAILED
         weight2 = x_f[0] ** 2 + x_f[1] ** 2 + x_f[2] ** 2  # |gravity_force_B|², N²
         if identified or noise:
@@ -469,6 +552,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         contact_torque_S[k, 1] = t1 - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
         contact_torque_S[k, 2] = t2 - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
         contact[k] = gated_f[k] or gated_t[k]
+        if torque_only_refusal(adapt, what == GATED, force_seen, what_t, dt, contact_force_S[k], contact_torque_S[k]):
+            reopen_bias(P_t, info_t, adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3])  # (from the next sample on)
+            adapt[ADAPT_REOPEN_ROW] = k
     return n_failed_f, n_failed_t, n_gated_f, first_f, first_t
 
 

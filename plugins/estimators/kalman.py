@@ -107,7 +107,9 @@ from ...core.kernels import inertia as inertia_kernel
 from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_COUNT_F,
                                     ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_IDENTIFIED, ADAPT_NOISE_F, ADAPT_NOISE_T,
-                                    ADAPT_PRED_F, ADAPT_SIZE, ADAPT_WINDOW)
+                                    ADAPT_PRED_F, ADAPT_PRIOR_TB, ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S,
+                                    ADAPT_REOPENS,
+                                    ADAPT_SIZE, ADAPT_WINDOW, GATED, UPDATED, torque_only_refusal)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
@@ -254,6 +256,18 @@ class KalmanEstimator(RefusesBadSamples):
             force stage, test whether the refused residual is a change of the
             tool's weight (a payload change); if so, re-open gravity and the
             centre of gravity (0 disables the test).
+        torque_reopen_s: after this long (s, and ``TORQUE_REOPEN_MIN_SAMPLES`` samples) of samples the
+            force stage accepts with its flag up but the torque stage refuses, re-open the torque bias
+            (its covariance back to the prior; a ``torque_bias_reopened`` event): a torque bias that
+            drifted, or that a pose first visited shows to be off, is re-identified instead of refusing
+            every sample from there on as a contact. A contact at the tool makes the force stage refuse
+            too, which ends the run; a light one (a force under the force gate) is told by its lever: the
+            bias is re-opened only when the run's mean torque residual exceeds ``torque_reopen_lever``
+            times its mean force residual. Per sample in the compiled cascade and in the numpy reference with
+            the noise estimated or the identified rule (its one-sample blocks); per block elsewhere
+            (0 never re-opens).
+        torque_reopen_lever: the farthest from the sensor's origin a contact can act, m (the tool's
+            length; 0.5 by default, a long laparoscopic instrument).
         warm_start: path to a JSON file written from ``state()`` (e.g. a
             session's ``<recording>.calibration.json``): start from its x and P.
         max_force: a sample with a force component beyond this (N) is refused.
@@ -298,6 +312,8 @@ class KalmanEstimator(RefusesBadSamples):
         prior_torque_std: float = 5.0,
         implementation: str = "auto",
         payload_change_s: float = 0.3,
+        torque_reopen_s: float = 5.0,
+        torque_reopen_lever: float = 0.5,
         warm_start: str = "",
         mount_rotation: bool = False,
         mount_rotation_SE: list[float] | None = None,
@@ -367,6 +383,11 @@ class KalmanEstimator(RefusesBadSamples):
         if not (isinstance(payload_change_s, (int, float)) and math.isfinite(payload_change_s)
                 and payload_change_s >= 0):
             raise ValueError(f"payload_change_s: must be a finite number >= 0, got {payload_change_s!r}")
+        if not (isinstance(torque_reopen_s, (int, float)) and math.isfinite(torque_reopen_s) and torque_reopen_s >= 0):
+            raise ValueError(f"torque_reopen_s: must be a finite number >= 0, got {torque_reopen_s!r}")
+        if not (isinstance(torque_reopen_lever, (int, float)) and math.isfinite(torque_reopen_lever)
+                and torque_reopen_lever >= 0):
+            raise ValueError(f"torque_reopen_lever: must be a finite number >= 0 (m), got {torque_reopen_lever!r}")
         if not (isinstance(time_lag_s, (int, float)) and math.isfinite(time_lag_s)
                 and -MAX_SENSOR_LAG_S <= time_lag_s <= MAX_KINEMATICS_LAG_S):
             raise ValueError(f"time_lag_s: must be a number of seconds from -{MAX_SENSOR_LAG_S:g} (sensor late) "
@@ -438,6 +459,9 @@ class KalmanEstimator(RefusesBadSamples):
         self.prior_f = np.array(prior_f, dtype=float)
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = int(round(payload_change_s * 1e9))
+        self.torque_reopen_s = float(torque_reopen_s)
+        self._adapt[ADAPT_REOPEN_S], self._adapt[ADAPT_REOPEN_LEVER] = self.torque_reopen_s, float(torque_reopen_lever)
+        self._adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3] = self.prior_t[3:6] ** 2
         self.events: list[Event] = []
         self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
         self.payload_changes = 0
@@ -521,7 +545,7 @@ class KalmanEstimator(RefusesBadSamples):
         if run_f.failed is not None:
             conv_f &= ~run_f.failed
         x_t_before = self.torque.x[:6].copy()
-        seen_t = accepted_f & conv_f
+        seen_t = force_seen = accepted_f & conv_f
         run_t = self.torque.run(torque_S, A_t, dt, seen_t, self.gate2, self.method)
         if run_t.failed is not None:
             seen_t = seen_t & ~run_t.failed
@@ -533,6 +557,8 @@ class KalmanEstimator(RefusesBadSamples):
         if inertial_S is not None:  # the inertial force acts at the centre of mass like the weight
             torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
         contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], run_t.X[:, :6])
+        if self.torque_reopen_s > 0:
+            self._watch_torque_only(t_ns, run_f.gated, force_seen, run_t, dt, contact_force_S, contact_torque_S)
         if self.noise_auto:
             if self._adapt[ADAPT_WINDOW] == 0 and dt[0] > 0:  # the sensor's rate, from the first time step
                 self._adapt[ADAPT_WINDOW] = window_samples(float(dt[0]))
@@ -604,6 +630,8 @@ class KalmanEstimator(RefusesBadSamples):
         self._last_t_ns = int(t_ns[-1])
         force.failed += failed_f
         torque.failed += failed_t
+        if self._adapt[ADAPT_REOPEN_ROW] >= 0:  # (the block's last one: one event per block)
+            self._torque_reopened(int(t_ns[int(self._adapt[ADAPT_REOPEN_ROW])]))
         self.converged_force, self.converged_torque = bool(out.converged_force[-1]), bool(out.converged_torque[-1])
         if self.payload_change_ns > 0 and (gated_f or self._refused_since is not None):
             d2 = np.full(m, np.nan)  # (not kept by the cascade; the watcher does not use it)
@@ -930,6 +958,35 @@ class KalmanEstimator(RefusesBadSamples):
         A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
         self._seed_information()  # what the replay left known (gravity re-opened along itself)
+
+    def _watch_torque_only(self, t_ns, gated_f, force_seen, run_t, dt, contact_force_S, contact_torque_S) -> None:
+        """The reference's torque-only refusal rule (``kalman_kernel.torque_only_refusal``, run as Python): over
+        the block's samples in order, re-opening the torque bias where it says so, from the next sample on
+        (in one-sample blocks, as the compiled cascade; at the block's end otherwise: the stage has already
+        filtered the block)."""
+        for k in range(len(t_ns)):
+            failed = run_t.failed is not None and run_t.failed[k]
+            what_t = GATED if run_t.gated[k] else (UPDATED if force_seen[k] and not failed else -1)
+            if torque_only_refusal.py_func(self._adapt, bool(gated_f[k]), bool(force_seen[k]), what_t, float(dt[k]),
+                                           contact_force_S[k], contact_torque_S[k]):
+                self._reopen_torque_bias(int(t_ns[k]))
+
+    def _reopen_torque_bias(self, t_ns: int) -> None:
+        """The torque bias unknown again (P's bias rows and columns zeroed, its diagonal the prior; Λ re-seeded
+        from that P: ``kalman_kernel.reopen_bias``), the centre of gravity as known."""
+        P = self.torque.P.copy()
+        P[3:6, :] = 0.0
+        P[:, 3:6] = 0.0
+        P[3:6, 3:6] = np.diag(self.prior_t[3:6] ** 2)
+        self.torque.P = P
+        self._information["torque"] = np.linalg.inv(P[:6, :6])
+        self._torque_reopened(t_ns)
+
+    def _torque_reopened(self, t_ns: int) -> None:
+        self.events.append(Event(t_ns, "torque_bias_reopened", (
+            f"kalman: torque bias re-opened after {self.torque_reopen_s:g} s of samples the force stage accepted "
+            f"and the torque stage refused (a torque drift, not a contact; {int(self._adapt[ADAPT_REOPENS])} so "
+            f"far)"), {"reopens": int(self._adapt[ADAPT_REOPENS])}))
 
     def reidentify_bias(self, reason: str) -> None:
         """Reidentifies: the sensor's bias (force and torque) as unknown again, its covariance back to the prior.

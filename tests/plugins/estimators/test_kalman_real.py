@@ -142,3 +142,17 @@ def test_a_mass_hung_on_the_tool_in_a_real_log_is_a_payload_change(real_data):
     assert len(changes) == 1 and changes[0].t_ns > s.t_ns[hang]
     grew = np.array(est.params()["gravity_force_B"]) - np.array(plain.params()["gravity_force_B"])
     assert np.abs(grew - weight_B).max() < 0.05, (grew, weight_B)
+
+
+def test_lwr4_2013_06_13s_late_torque_refusal_is_reidentified(real_data):
+    """A contact-free log whose last 619 rows the torque stage refused (the force stage accepting from row ~4930
+    on): the torque bias re-opened once, and the rows refused down from 11.3 % to what the force stage refuses
+    while its own estimate catches up (~70 rows)."""
+    stream = load_stream(real_data / "lwr4_2013_06_13.csv")
+    est = KalmanEstimator()
+    with_rule = run_estimator(stream, est)
+    without = run_estimator(stream, KalmanEstimator(torque_reopen_s=0.0))
+    reopened = [e for e in est.drain_events() if e.kind == "torque_bias_reopened"]
+    assert len(reopened) == 1
+    assert without.contact.mean() > 0.11 and with_rule.contact.mean() < 0.02
+    assert with_rule.contact_force_S.tolist() == without.contact_force_S.tolist()

@@ -415,7 +415,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     ``adapt[ADAPT_NOISE_F]`` / ``adapt[ADAPT_NOISE_T]`` that stage's noise is re-estimated after each
     sample (``core.noise_estimate``), the torque stage's carried force noise following the force's. A
     failed update (S not positive definite) is predicted only and lowers the flag. The contact
-    wrench at the states after each sample (paper eqs. 20–21).
+    wrench at the states after each sample (paper eqs. 20–21). With ``adapt[ADAPT_REOPEN_S]`` a lasting
+    torque-only refusal re-opens the torque bias after the sample that completes it
+    (:func:`torque_only_refusal`, :func:`reopen_bias`).
 
     Args:
         t_ns: (m,) int64 sample times, ns. last_t_ns: (2,) int64 [1 if a sample came before, its t_ns].

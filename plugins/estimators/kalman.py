@@ -108,8 +108,7 @@ from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_COUNT_F,
                                     ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_IDENTIFIED, ADAPT_NOISE_F, ADAPT_NOISE_T,
                                     ADAPT_PRED_F, ADAPT_PRIOR_TB, ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S,
-                                    ADAPT_REOPENS,
-                                    ADAPT_SIZE, ADAPT_WINDOW, GATED, UPDATED, torque_only_refusal)
+                                    ADAPT_REOPENS, ADAPT_SIZE, ADAPT_WINDOW, GATED, UPDATED, torque_only_refusal)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,

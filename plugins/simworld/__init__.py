@@ -4,13 +4,14 @@ A :class:`SimWorld` holds a rigid tool on a wrist-mounted six-axis sensor
 (``ToolParams``, ``SensorParams``), a robot whose base may be tilted against
 gravity (``RobotParams``), a motion script for the flange (``motion.py``:
 ``RandomTour``, ``StaticPoses``, ``AxialRotation``, ``Hold``) and contact events
-(``Indentation``, ``HangingMass``). The ``sim`` sensor and ``sim`` kinematics
+(``Indentation``, ``HangingMass``, ``Tissue``, ``Cable``). The ``sim`` sensor and ``sim`` kinematics
 plugins both read the same world, so the simulated wrench and pose agree.
 
 Build one from a session's ``[world]`` table with ``SimWorld.from_config(table)``
 (keys and defaults in ``config.py``), or from the parameter records directly.
 """
 
+from .cable import Cable
 from .config import (
     HangingMass,
     Indentation,
@@ -33,6 +34,7 @@ from .physics import SimWorld
 
 __all__ = [
     "AxialRotation",
+    "Cable",
     "HangingMass",
     "Hold",
     "Indentation",

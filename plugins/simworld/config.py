@@ -35,7 +35,7 @@ TOML layout (every key optional; the defaults are the dataclass defaults)::
     script = "random_tour"   # | "static_poses" | "axial_rotation" | "hold" (alias "indentation")
     ...                      # that script's options, see MOTION_OPTIONS
     [[world.contacts]]
-    kind = "indentation"     # | "hanging_mass"
+    kind = "indentation"     # | "hanging_mass" | "tissue" | "cable"
     ...
 
 A wrong key or value raises :class:`hapticlab.core.plugins.ConfigError` with one
@@ -59,6 +59,7 @@ from .faults import Fault
 from .motion import MOTION_SCRIPTS as SCRIPTED_MOTIONS
 from .motion import DEFAULT_P_BoEo_B, MotionScript
 from .servo import ServoedMotion
+from .cable import Cable
 from .tissue import Tissue
 
 __all__ = [
@@ -127,6 +128,12 @@ class SensorParams:
     warm-up's time constant: a sensor switched on just before the session whose
     electronics are still settling (the bias ends at ``bias``).
 
+    With a hysteresis the channels read their load (after the calibration
+    error, before the bias) through a play operator of half-width r per axis
+    (``core/kernels/play.py``): on the way up a channel reads up to r low, on
+    the way down up to r high, and after a reversal it holds until the load has
+    moved 2r (the loading path is followed on a 1 ms grid from t = 0).
+
     Attributes:
         bias_force_S: (3,) force bias at t = 0, N.
         bias_torque_S: (3,) torque bias at t = 0, N·m.
@@ -149,6 +156,8 @@ class SensorParams:
         warmup_force_S: (3,) how far the force bias is from its settled value at t = 0, N.
         warmup_torque_S: (3,) the same for the torque bias, N·m.
         warmup_tau_s: the warm-up's time constant τ, s (> 0).
+        hysteresis_force_S: (3,) play half-width of each force channel, N (≥ 0; 0: none).
+        hysteresis_torque_S: (3,) the same for the torque channels, N·m.
     """
 
     bias_force_S: np.ndarray = (1.2, -0.8, 2.5)
@@ -168,6 +177,8 @@ class SensorParams:
     warmup_force_S: np.ndarray = (0.0, 0.0, 0.0)
     warmup_torque_S: np.ndarray = (0.0, 0.0, 0.0)
     warmup_tau_s: float = 20.0
+    hysteresis_force_S: np.ndarray = (0.0, 0.0, 0.0)
+    hysteresis_torque_S: np.ndarray = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.warmup_tau_s, (int, float)) and math.isfinite(self.warmup_tau_s)
@@ -182,7 +193,8 @@ class SensorParams:
             if np.abs(getattr(self, name)).max() >= 0.5:
                 raise ValueError(f"{name} entries must be within ±0.5 (a calibration error), "
                                  f"got {getattr(self, name).tolist()!r}")
-        for name in ("drift_force_rw_S", "drift_torque_rw_S", "noise_force_S", "noise_torque_S"):
+        for name in ("drift_force_rw_S", "drift_torque_rw_S", "noise_force_S", "noise_torque_S",
+                     "hysteresis_force_S", "hysteresis_torque_S"):
             if np.any(getattr(self, name) < 0):
                 raise ValueError(f"{name} must be >= 0")
         for name in ("saturation_force_S", "saturation_torque_S"):
@@ -316,7 +328,7 @@ class HangingMass:
         return np.where(attached[:, None], self.mass * gravity_accel_B, 0.0)
 
 
-Contact = Indentation | HangingMass | Tissue
+Contact = Indentation | HangingMass | Tissue | Cable
 
 
 @dataclass(frozen=True, slots=True)
@@ -475,6 +487,8 @@ SENSOR_OPTIONS: dict[str, Parser] = {
     "warmup_force": number_or_vec3(),
     "warmup_torque": number_or_vec3(),
     "warmup_tau": number(0.0, above=True),
+    "hysteresis_force": number_or_vec3(0.0),
+    "hysteresis_torque": number_or_vec3(0.0),
 }
 # TOML key -> SensorParams field
 _SENSOR_FIELDS = {
@@ -486,6 +500,7 @@ _SENSOR_FIELDS = {
     "mount_rotation": "mount_rotation_SE", "offset": "p_EoSo_E",
     "gain_force": "gain_force_S", "gain_torque": "gain_torque_S",
     "warmup_force": "warmup_force_S", "warmup_torque": "warmup_torque_S", "warmup_tau": "warmup_tau_s",
+    "hysteresis_force": "hysteresis_force_S", "hysteresis_torque": "hysteresis_torque_S",
 }
 
 ROBOT_OPTIONS: dict[str, Parser] = {"base_tilt": vec3, "position": vec3, "kinematics_lag": lag_seconds}
@@ -529,8 +544,10 @@ CONTACT_OPTIONS: dict[str, dict[str, Parser]] = {
         "surface_B": vec3, "normal_B": vec3, "stiffness": number(0.0, above=True), "damping": number(0.0),
         "point_S": vec3,
     },
+    "cable": {"anchor_B": vec3, "stiffness": number(0.0), "damping": number(0.0), "point_S": vec3},
 }
-CONTACT_KINDS: dict[str, type] = {"indentation": Indentation, "hanging_mass": HangingMass, "tissue": Tissue}
+CONTACT_KINDS: dict[str, type] = {"indentation": Indentation, "hanging_mass": HangingMass, "tissue": Tissue,
+                                  "cable": Cable}
 
 WORLD_OPTIONS: dict[str, Parser] = {
     "seed": integer(0),

@@ -62,6 +62,7 @@ from typing import Any
 
 import numpy as np
 from ...core.frames import rotvec_from_matrix, skew
+from ...core.kernels.play import play
 from ...core.types import STATUS_OK, STATUS_SATURATED
 
 from .config import (
@@ -75,6 +76,7 @@ from .config import (
 from .faults import Fault
 from .motion import MotionScript, MotionState, RandomTour
 from .servo import ServoedMotion
+from .cable import Cable
 from .tissue import Tissue
 
 __all__ = ["DRIFT_STREAM", "NOISE_STREAM", "RandomWalk", "SampleClock", "SimWorld", "gaussian_noise"]
@@ -195,6 +197,47 @@ class RandomWalk:
         return self._path.take(k, axis=0) * (1.0 - frac) + self._path.take(k + 1, axis=0) * frac
 
 
+class PlayHysteresis:
+    """The sensor channels' hysteresis: their load through play operators (``core/kernels/play.py``).
+
+    The operator's state is followed along the loading path on a grid of
+    ``grid_s`` from t = 0 (where it starts relaxed, at the load), grown block by
+    block as later times are asked for and cached, so the reading at a time
+    never depends on the times asked for before: at time t it is the state at
+    the grid point before t moved on to the load at t. Before t = 0 the state
+    is the load at 0.
+
+    Args:
+        r: (6,) half-widths, force (N) then torque (N·m), ≥ 0.
+        load: the channels' load at times (N,) s, as (N, 6).
+    """
+
+    def __init__(self, r: np.ndarray, load, grid_s: float = 1e-3, block: int = 1000):
+        self.r = np.asarray(r, dtype=float)
+        self.load, self.grid_s, self.block = load, grid_s, block
+        self._path = np.empty((0, 6))  # the operator's output at grid points 0, 1, ...
+        self._lock = threading.Lock()
+
+    def _ensure(self, points: int) -> None:
+        if len(self._path) >= points:  # the usual case: no lock needed (the path only grows)
+            return
+        with self._lock:
+            while len(self._path) < points:
+                start = len(self._path)
+                x = self.load(np.arange(start, start + self.block) * self.grid_s)
+                h0 = x[0].copy() if start == 0 else self._path[-1]
+                out = np.empty_like(x)
+                play(x, self.r, h0, out)
+                self._path = np.concatenate([self._path, out])
+
+    def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """(N, 6) what the channels read at times ``t`` (N,) s for the load ``x`` (N, 6) there."""
+        k = np.floor(np.maximum(t, 0.0) / self.grid_s).astype(np.int64)
+        self._ensure(int(k.max(initial=0)) + 1)
+        h = self._path.take(k, axis=0)
+        return np.minimum(np.maximum(h, x - self.r), x + self.r)
+
+
 class SampleClock:
     """Hands out the sample times of a simulated device once each, in order.
 
@@ -280,6 +323,8 @@ class SimWorld:
                               .generate_state(1, np.uint64)[0])
         has_walk = np.any(self.sensor.drift_force_rw_S > 0) or np.any(self.sensor.drift_torque_rw_S > 0)
         self._walk = RandomWalk(self.seed, DRIFT_STREAM, channels=6) if has_walk else None
+        widths = np.concatenate([self.sensor.hysteresis_force_S, self.sensor.hysteresis_torque_S])
+        self._hysteresis = (PlayHysteresis(widths, lambda t: self._loaded(t)[1]) if widths.any() else None)
 
     def _init_wrench_constants(self) -> None:
         """Everything wrench() needs that does not change, computed once.
@@ -419,6 +464,31 @@ class SimWorld:
             ``R_EB`` (N, 3, 3); ``p_BoEo_B`` (N, 3) m; ``t`` (N,) s.
         """
         t = _times(t)
+        parts, reading_S = self._loaded(t)
+        if self._hysteresis is not None:  # the channels follow their load through play operators
+            reading_S = self._hysteresis(t, reading_S)
+        # What the sensor reads, force then torque side by side: (N, 6)
+        bias_S = self._bias_wrench_S(t)
+        reading_S += bias_S
+        if noise:
+            t_ns = np.rint(t * 1e9).astype(np.int64)
+            reading_S += gaussian_noise(self._noise_key, t_ns, 6) * self._noise_S
+
+        limit = self._saturation_S
+        saturated = (np.abs(reading_S) > limit).any(axis=1)
+        reading_S = np.minimum(np.maximum(reading_S, -limit), limit)  # np.clip, without its overhead
+        parts.update({
+            "force_S": reading_S[:, :3],
+            "torque_S": reading_S[:, 3:],
+            "status": np.where(saturated, STATUS_SATURATED, STATUS_OK).astype(np.int64),
+            "bias_force_S": bias_S[:, :3],
+            "bias_torque_S": bias_S[:, 3:],
+        })
+        return parts
+
+    def _loaded(self, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The true wrench at times ``t`` (N,) s, by part (see :meth:`wrench`), and the load the sensor's
+        channels see, (N, 6) force (N) then torque (N·m): the sum, after the calibration error."""
         n = len(t)
         tool = self.tool
         state = self.motion.evaluate(t)
@@ -448,7 +518,7 @@ class SimWorld:
         for point_cross_S, p_EoP_E, events in self._contacts_by_point:
             force_B = np.zeros((n, 3))
             for event in events:
-                if isinstance(event, Tissue):  # a reaction to where the point is: its position and velocity in B
+                if isinstance(event, (Tissue, Cable)):  # a reaction to where the point is and how it moves, in B
                     r_B = _apply(state.R_BE, p_EoP_E)
                     x_B = state.p_BoEo_B + r_B
                     v_B = state.v_BEo_B + _apply(state.R_BE, _apply(skew(-p_EoP_E), state.w_BE_E))  # ω × p
@@ -460,27 +530,14 @@ class SimWorld:
             contact_torque_S += _apply(point_cross_S, force_S)  # p × f
         contact = (contact_force_S != 0.0).any(axis=1) if self.contacts else np.zeros(n, dtype=bool)
 
-        # What the sensor reads, force then torque side by side: (N, 6)
-        bias_S = self._bias_wrench_S(t)
         reading_S = np.empty((n, 6))
         reading_S[:, :3] = gravity_force_S + inertial_force_S + contact_force_S
         reading_S[:, 3:] = gravity_torque_S + inertial_torque_S + contact_torque_S
         if self._gain_S is not None:  # calibration error: the sensor reads (I + G)·true
             reading_S[:, :3] = _apply(self._gain_S[0], reading_S[:, :3])
             reading_S[:, 3:] = _apply(self._gain_S[1], reading_S[:, 3:])
-        reading_S += bias_S
-        if noise:
-            t_ns = np.rint(t * 1e9).astype(np.int64)
-            reading_S += gaussian_noise(self._noise_key, t_ns, 6) * self._noise_S
-
-        limit = self._saturation_S
-        saturated = (np.abs(reading_S) > limit).any(axis=1)
-        reading_S = np.minimum(np.maximum(reading_S, -limit), limit)  # np.clip, without its overhead
         return {
             "t": t,
-            "force_S": reading_S[:, :3],
-            "torque_S": reading_S[:, 3:],
-            "status": np.where(saturated, STATUS_SATURATED, STATUS_OK).astype(np.int64),
             "contact": contact,
             "contact_force_S": contact_force_S,
             "contact_torque_S": contact_torque_S,
@@ -488,13 +545,11 @@ class SimWorld:
             "gravity_torque_S": gravity_torque_S,
             "inertial_force_S": inertial_force_S,
             "inertial_torque_S": inertial_torque_S,
-            "bias_force_S": bias_S[:, :3],
-            "bias_torque_S": bias_S[:, 3:],
             "angular_velocity_S": w_S,
             "angular_acceleration_S": alpha_S,
             "R_EB": R_EB,
             "p_BoEo_B": state.p_BoEo_B,
-        }
+        }, reading_S
 
     # ---------------------------------------------------------------- truth
 

@@ -1,10 +1,12 @@
-"""The effects of issue 17, item 1, on new simulated recordings: a sensor warming up, a payload change.
+"""The effects of issue 17, item 1, on new simulated recordings: a sensor warming up, a payload change,
+a loading hysteresis.
 
 Each recording is the lively 30 s, 250 Hz tour of ``test_discrepancy`` with one
 of them hidden through the simulator's physics (an exponentially settling bias;
-a ``HangingMass`` attached at one instant, away from the sensor origin), with
-seeds used nowhere else. The workflow must name exactly that effect, find its
-parameters and bring the force to the sensor's noise.
+a ``HangingMass`` attached at one instant, away from the sensor origin; the
+channels read through play operators), with seeds used nowhere else. The
+workflow must name exactly that effect, find its parameters and bring the force
+to the sensor's noise.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hapticlab.core.kernels.play import play, play_signed
 from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.plugins.simworld import HangingMass, RandomTour, SensorParams, SimWorld
 from hapticlab.plugins.simworld.export import write_csv
@@ -74,3 +77,56 @@ def test_the_simulated_warm_up_settles_to_the_bias():
     np.testing.assert_allclose(torque[:, 2] - sensor.bias_torque_S[2], [0.02, 0.02 / np.e, 0.0], atol=1e-8)
     with pytest.raises(ValueError, match="warmup_tau_s"):
         SensorParams(warmup_tau_s=0.0)
+
+
+def test_the_play_operator_kernel_matches_its_reference_and_stays_within_its_width():
+    rng = np.random.default_rng(5)
+    x = np.cumsum(rng.normal(0.0, 0.05, (2000, 3)), axis=0)
+    r = np.array([0.0, 0.1, 0.4])
+    compiled, reference = np.empty_like(x), np.empty_like(x)
+    last = play(x, r, x[0].copy(), compiled)
+    play.py_func(x, r, x[0].copy(), reference)
+    np.testing.assert_array_equal(compiled, reference)
+    np.testing.assert_array_equal(last, compiled[-1])
+    np.testing.assert_array_equal(compiled[:, 0], x[:, 0])  # width 0: the load itself
+    lag = compiled - x
+    assert np.all(np.abs(lag) <= r + 1e-12)
+    assert np.all(np.abs(lag).max(axis=0)[1:] >= 0.99 * r[1:])  # the loop is reached both ways
+    rising = np.diff(x[:, 2]) > 0
+    held = np.abs(np.diff(compiled[:, 2])) == 0.0
+    assert held[1:].sum() > 0 and not np.all(held[rising])
+    # the signed widths: a negative one is the mirror image; the derivative at 0 is −sign(ẋ) where it moves
+    np.testing.assert_allclose(play_signed(x, -r) - x, -(compiled - x), atol=1e-12)
+    h = 1e-6
+    slope = (play_signed(x, np.full(3, h)) - play_signed(x, np.full(3, -h))) / (2 * h)
+    moving = np.abs(np.diff(x, axis=0)) > 4 * h
+    np.testing.assert_allclose(slope[1:][moving], -np.sign(np.diff(x, axis=0))[moving], atol=1e-6)
+
+
+def test_the_simulated_hysteresis_follows_the_loading_path_whatever_the_reads():
+    """The same reading at a time however it is asked for (in chunks, out of order), and the reading minus
+    the load is the play operator's: within ±r, typically −r while loading and +r while unloading (it crosses
+    over once the load has turned back by 2r)."""
+    sensor = SensorParams(hysteresis_force_S=(0.2, 0.0, 0.1), hysteresis_torque_S=(0.0, 0.01, 0.0))
+    motion = RandomTour(seed=9, segment_s=1.0, max_translation=0.05)
+    t = np.arange(0.0, 6.0, 1 / 700)
+    whole = SimWorld(sensor=sensor, seed=9, motion=motion).wrench(t, noise=False)
+    world = SimWorld(sensor=sensor, seed=9, motion=motion)
+    late_first = world.wrench(t[3000:], noise=False)["force_S"]
+    chunks = np.concatenate([world.wrench(t[i:min(i + 7, 3000)], noise=False)["force_S"]
+                             for i in range(0, 3000, 7)])
+    np.testing.assert_array_equal(np.concatenate([chunks, late_first]), whole["force_S"])
+    load = SimWorld(seed=9, motion=motion).wrench(t, noise=False)
+    lag_S = np.concatenate([whole["force_S"] - load["force_S"], whole["torque_S"] - load["torque_S"]], axis=1)
+    widths = np.array([0.2, 0.0, 0.1, 0.0, 0.01, 0.0])
+    assert np.all(np.abs(lag_S) <= widths + 1e-9)
+    np.testing.assert_allclose(np.abs(lag_S).max(axis=0), widths, rtol=1e-3)
+    # the play operator along these samples (the world follows it on its 1 ms grid: the same up to reversals
+    # between two samples)
+    x = np.concatenate([load["force_S"], load["torque_S"]], axis=1)
+    np.testing.assert_allclose(lag_S, play_signed(x, widths) - x, atol=1e-4)
+    rate = np.gradient(x[:, 0], t)
+    assert np.median(lag_S[rate > 0.5, 0]) == pytest.approx(-0.2) and np.median(lag_S[rate < -0.5, 0]) == \
+        pytest.approx(0.2)
+    with pytest.raises(ValueError, match="hysteresis_force_S"):
+        SensorParams(hysteresis_force_S=(-0.1, 0.0, 0.0))

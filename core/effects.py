@@ -313,6 +313,9 @@ class Effect:
     labels: tuple[str, ...] = ()
     steps: tuple[float, ...] = ()
     description: str = ""
+    online: bool = True
+    """The ``kalman`` estimator models it: its name goes into the suggested options' ``effects`` (False: the
+    report says it stays in the haptic rendering)."""
 
     def check(self, motion: Motion) -> str | None:
         """Why this effect cannot be tested on this recording (None: it can)."""

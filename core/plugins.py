@@ -50,6 +50,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.effects.payload_change",
     "hapticlab.plugins.effects.time_lag",
     "hapticlab.plugins.effects.gain_crosstalk",
+    "hapticlab.plugins.effects.hysteresis",
 )
 
 # kind -> the hook that registers it

@@ -36,7 +36,8 @@ def print_discrepancy(result: dict) -> None:
                         f"{100 * folds_rule['min_gain']:g} % and it improves ≥ {need})")
         for col in ("effect", "held-out gain", "folds improved", "t over folds", "verdict"):
             t.add_column(col, justify="right")
-        named = result["steps"][i - 1]["effect"] if i <= len(result["steps"]) else None
+        named = next((step["effect"] for step in result["steps"]
+                      if step["round"] == i and step["action"] == "named"), None)
         for e in sorted(rnd, key=lambda e: -e["heldout_gain"]):
             verdict = ("[green]named[/]" if e["effect"] == named else
                        "significant, smaller" if e["significant"] else "not significant")
@@ -50,13 +51,17 @@ def print_discrepancy(result: dict) -> None:
               vec(result["baseline"]["rms_torque_S"], 4))
     for i, step in enumerate(result["steps"], start=1):
         ev = step["evidence"]
-        t.add_row(str(i), step["effect"], f"{100 * ev['heldout_gain']:.1f} %, {ev['folds_improved']}/{ev['folds']} folds",
+        effect = {"named": step["effect"], "dropped": f"− {step['effect']} (dropped)",
+                  "set_aside": f"− {step['effect']} (set aside)"}[step["action"]]
+        t.add_row(str(i), effect, f"{100 * ev['heldout_gain']:.1f} %, {ev['folds_improved']}/{ev['folds']} folds",
                   step["summary"], f"{vec(step['rms_force_before'])} → {vec(step['rms_force_after'])}",
                   f"{vec(step['rms_torque_before'], 4)} → {vec(step['rms_torque_after'], 4)}")
     console.print(t)
     final, batch = result["final"], result["batch_fit"]
     ratio = np.linalg.norm(final["rms_force_S"]) / np.linalg.norm(batch["rms_force_S"])
-    named = ", ".join(result["effects"]) or "nothing (no candidate is significant)"
+    aside = [step["effect"] for step in result["steps"] if step["action"] == "set_aside"]
+    named = ", ".join(result["effects"]) or (f"nothing ({', '.join(aside)} set aside by the structure test)"
+                                             if aside else "nothing (no candidate is significant)")
     console.print(f"named: [bold]{named}[/]")
     console.print(f"final RMS force {vec(final['rms_force_S'])} N, torque {vec(final['rms_torque_S'], 4)} N·m; "
                   f"offline batch fit on the same samples {vec(batch['rms_force_S'])} N, "
@@ -74,7 +79,7 @@ def discrepancy_folder_table(args: argparse.Namespace, settings) -> int:
     run = discrepancy_folder(args.input, settings, scheduler=args.scheduler, workers=args.workers,
                              progress=err.is_terminal)
     def row(r) -> list[str]:
-        named = ", ".join(step["effect"] for step in r["steps"]) or "none"
+        named = ", ".join(r["effects"]) or "none"
         left = " ".join(fmt(v, 3) for v in r["final_rms_over_noise"]["force_S"])
         return [str(r["samples"]), named, left, ", ".join(k for k, v in r["warnings"].items() if v) or "–"]
 
@@ -93,7 +98,10 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
     registry = Registry()
     if not 0 <= args.min_gain < 100:
         raise UserError(f"--min-gain: a percentage in [0, 100), got {args.min_gain:g}")
-    settings = Settings(folds=args.folds, time_base=args.time_base, min_gain=args.min_gain / 100)
+    if not 0 <= args.min_structure <= 100:
+        raise UserError(f"--min-structure: a percentage in [0, 100], got {args.min_structure:g}")
+    settings = Settings(folds=args.folds, time_base=args.time_base, min_gain=args.min_gain / 100,
+                        min_structure_share=args.min_structure / 100)
     if args.effects is not None:
         names = [n.strip() for n in args.effects.split(",") if n.strip()]
         for name in names:
@@ -155,6 +163,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--folds", type=int, default=10, help="contiguous folds of the held-out test (default 10)")
     p.add_argument("--min-gain", type=float, default=1.0, metavar="PERCENT",
                    help="held-out mean-square reduction that names an effect (default 1 %%)")
+    p.add_argument("--min-structure", type=float, default=50.0, metavar="PERCENT",
+                   help="share of the structure the model leaves without it that a named effect must explain, "
+                        "or it is set aside (default 50 %%; 0: no structure test)")
     p.add_argument("--time-base", default="auto", choices=("auto", "seconds", "index"),
                    help="what t is: auto (rows when t is 0, 1, 2, ...), seconds, or index (rows)")
     add_folder_options(p)

@@ -32,9 +32,15 @@ On a measured recording (CSV import contract or MCAP):
    ``min_fold_share`` of the folds (80 %) and in enough of them for a one-sided
    sign test of at most ``max_sign_p`` (5.5 %: 8 of 10, 5 of 5; below 5 folds
    nothing passes). The t statistic over the folds is reported, not used. Add
-   it, re-identify everything, re-gate, repeat until no candidate is
-   significant.
-5. **Show the gap shrink**: RMS per axis before and after each step (every
+   it, re-identify everything, re-gate, test every effect named before again
+   beside it (dropped when no longer significant), repeat until no candidate
+   is significant.
+5. **The structure test**: a named effect must explain at least
+   ``min_structure_share`` (50 %) of the structure (each channel's excess over
+   its own noise) the model leaves without it, or it is set aside, reported,
+   not named: an effect outside the library gains on held-out data as some
+   library term that leaves most of the structure in place.
+6. **Show the gap shrink**: RMS per axis before and after each step (every
    figure on the final gate's samples), against the offline batch fit, plots,
    and JSON (``DESIGN.md``) with the ``kalman`` options that reproduce the
    named effects online.
@@ -86,6 +92,9 @@ class Settings:
     gate_dilate_s: float = 0.25
     max_fit_samples: int = 20000
     derivative_window_s: float = 0.04
+    min_structure_share: float = 0.5
+    """a named effect must remove at least this share of the structure (excess over the noise) the model
+    leaves without it (``Discrepancy.structure_test``)"""
     time_base: str = "auto"
     effects: list[str] | None = None
     """candidate effect names (None: every registered one)"""
@@ -194,14 +203,21 @@ LEFTOVER_SEGMENTS = 10
 """:func:`where_left` splits the kept samples into this many stretches of time."""
 
 
-def where_left(t: np.ndarray, residual: np.ndarray, noise: float) -> dict[str, Any]:
+GRAVITY_BINS = ("+x", "-x", "+y", "-y", "+z", "-z")
+"""The orientations :func:`where_left` tells apart: the axis of S closest to gravity, and its sign."""
+
+
+def where_left(t: np.ndarray, residual: np.ndarray, noise: float, weight_S: np.ndarray | None = None
+               ) -> dict[str, Any]:
     """Where a channel's leftover lives: in time (the stretches whose RMS over ``noise`` exceeds the leftover
     threshold for their size), in frequency (the periodogram's peak, and the share of the residual's power
-    within ±1 bin of it), and how much (the RMS beyond the noise).
+    within ±1 bin of it), in pose space (the orientations, by the axis of S gravity is closest to, where it
+    exceeds the threshold) and how much (the RMS beyond the noise).
 
     Args:
         t: (m,) the kept samples' times, s (or rows); residual: (m,) that channel's final residual there;
-        noise: the channel's own noise (:func:`axis_noise`).
+        noise: the channel's own noise (:func:`axis_noise`); weight_S: (m, 3) the model's weight in S
+        there, N (None: no pose-space split).
     """
     m = len(t)
     edges = np.linspace(0, m, LEFTOVER_SEGMENTS + 1).astype(int)
@@ -219,8 +235,22 @@ def where_left(t: np.ndarray, residual: np.ndarray, noise: float) -> dict[str, A
     k = int(np.argmax(spectrum[1:])) + 1 if m > 2 else 0
     excess = max(float(np.mean(x**2)) - noise**2, 0.0)
     share = float(spectrum[max(k - 1, 1):k + 2].sum() / spectrum[1:].sum()) if spectrum[1:].sum() > 0 else 0.0
+    orientations, tested = [], []
+    if weight_S is not None and m:
+        axis = np.argmax(np.abs(weight_S), axis=1)
+        sign = np.sign(weight_S[np.arange(m), axis]) < 0
+        for b, label in enumerate(GRAVITY_BINS):
+            here = (axis == b // 2) & (sign == bool(b % 2))
+            count = int(here.sum())
+            if count < max(2, 0.02 * m):  # too few samples to say
+                continue
+            tested.append(label)
+            ratio = float(rms(residual[here])) / noise
+            if ratio > leftover_threshold(count):
+                orientations.append({"gravity_S": label, "samples": count, "rms_over_noise": ratio})
     return {"stretches": stretches, "peak_hz": float(freq[k]) if dt > 0 else float("nan"),
-            "peak_share": share, "excess_rms": math.sqrt(excess)}
+            "peak_share": share, "orientations": orientations, "orientations_tested": tested,
+            "excess_rms": math.sqrt(excess)}
 
 
 def _where_text(axis: str, where: dict[str, Any], time_base: str) -> str:
@@ -234,6 +264,12 @@ def _where_text(axis: str, where: dict[str, Any], time_base: str) -> str:
         text += ", mostly in " + ", ".join(f"{s['t_start']:.4g}-{s['t_end']:.4g} {unit}" for s in stretches)
     elif stretches:
         text += ", all along"
+    seen = [o["gravity_S"] for o in where["orientations"]]
+    if seen:
+        worst = max(where["orientations"], key=lambda o: o["rms_over_noise"])
+        which = ("in every orientation" if len(seen) == len(where["orientations_tested"]) else
+                 f"with gravity along {', '.join(seen)} in S")
+        text += f"; {which} (worst with gravity along {worst['gravity_S']}: {worst['rms_over_noise']:.2f}x)"
     return text
 
 
@@ -656,9 +692,91 @@ class Discrepancy:
             model = new_model
             candidates = [(n, e) for n, e in candidates if n != name]
             states.append(State(f"after {name}", model, theta))
-            steps.append({"effect": name, "score": best.gain, "evidence": best.as_dict()})
+            steps.append({"effect": name, "action": "named", "round": len(rounds), "score": best.gain,
+                          "evidence": best.as_dict()})
+            model, theta = self.retest(model, theta, states, steps, len(rounds))
+        model, theta = self.structure_test(model, theta, states, steps, len(rounds))
         self.say("scoring")
         return self._report(states, steps, rounds, skipped, notes)
+
+    def retest(self, model: Model, theta: np.ndarray, states: list[State], steps: list[dict[str, Any]],
+               round_: int) -> tuple[Model, np.ndarray]:
+        """Test again each effect named before the newest one, as a candidate to the model without it; drop
+        (and re-identify without) those no longer significant: an effect that stood in for another, now named
+        (a hysteresis first fitted as a time lag), does not stay named. A dropped effect is not tested again."""
+        for name, effect in list(model.effects[:-1]):
+            without = Model([(n, e) for n, e in model.effects if n != name])
+            sl = model.slices[name]
+            theta_without = np.concatenate([theta[:sl.start], theta[sl.stop:]])
+            (evidence,), _ = self.test_candidates(without, theta_without, [(name, effect)])
+            if evidence.significant:
+                continue
+            self.say(f"dropping {name}: no longer significant beside the others; re-identifying")
+            params = model.effect_params(theta, name)
+            model, theta = without, self.fit(without, theta_without)
+            states.append(State(f"without {name}", model, theta))
+            steps.append({"effect": name, "action": "dropped", "round": round_, "score": evidence.gain,
+                          "evidence": evidence.as_dict(), "_effect": effect, "_params": params})
+        return model, theta
+
+    def structure_share(self, model: Model, theta: np.ndarray, name: str, own_noise: np.ndarray) -> float:
+        """The share of the structure ``model`` would leave without the effect ``name`` that the effect removes,
+        on the channels where it acts.
+
+        Without it, the other parameters are re-fitted on the same rows; each channel's structure is its
+        excess over the noise, mean((residual / own noise)²) − 1 (0 for white noise), counted as 0 with the
+        effect where it is under the leftover threshold squared (:func:`leftover_threshold`: what white noise
+        stays under, so a gap closed to the noise is closed), and the channels count by the size of the
+        effect's own contribution there (its prediction with and without, in noise units, squared): an
+        effect on the forces is judged on the forces, not on torques something else disturbs.
+        """
+        rows = self.kept[self.fit_rows]
+        sl = model.slices[name]
+        without = Model([(n, e) for n, e in model.effects if n != name])
+        theta_without = self.gauss_newton(without, np.concatenate([theta[:sl.start], theta[sl.stop:]]))
+        with_ = model.predict6(self.fit_motion, theta)[rows]
+        bare = without.predict6(self.fit_motion, theta_without)[rows]
+        y = self.y_fit[rows]
+        floor = leftover_threshold(int(rows.sum())) ** 2  # under it, white noise: the channel's gap is closed
+        ms_with = np.mean(((y - with_) / own_noise) ** 2, axis=0)
+        excess_with = np.where(ms_with > floor, ms_with - 1.0, 0.0)
+        excess_without = np.maximum(np.mean(((y - bare) / own_noise) ** 2, axis=0) - 1.0, 0.0)
+        footprint = np.mean(((with_ - bare) / own_noise) ** 2, axis=0)
+        before = float(footprint @ excess_without)
+        return float(footprint @ (excess_without - excess_with)) / before if before > 0 else 1.0
+
+    def structure_test(self, model: Model, theta: np.ndarray, states: list[State], steps: list[dict[str, Any]],
+                       round_: int) -> tuple[Model, np.ndarray]:
+        """Keep a named effect only if it explains most of the structure it is credited with
+        (:meth:`structure_share` at least ``min_structure_share``, 50 %). A significant held-out gain alone
+        is not enough: a physical effect outside the library projects onto some library term (a cable's pull
+        fitted as a negative inertial mass), which then gains on held-out data yet leaves most of the
+        structure in place. The effect that explains the least goes first, then the rest are tested again;
+        what is set aside is reported (``steps``, action "set_aside", with its share), not named."""
+        min_share = self.settings.min_structure_share
+        shares: dict[str, float] = {}
+        while model.effects:
+            own_noise = axis_noise((self.y_fit - model.predict6(self.fit_motion, theta))[self.kept[self.fit_rows]])
+            shares = {name: self.structure_share(model, theta, name, own_noise) for name, _ in model.effects}
+            name = min(shares, key=shares.get)
+            if shares[name] >= min_share:
+                break
+            self.say(f"setting {name} aside: it explains {100 * shares[name]:.0f} % of the structure it faces")
+            effect = dict(model.effects)[name]
+            params = model.effect_params(theta, name)
+            without = Model([(n, e) for n, e in model.effects if n != name])
+            sl = model.slices[name]
+            model, theta = without, self.fit(without, np.concatenate([theta[:sl.start], theta[sl.stop:]]))
+            states.append(State(f"without {name}", model, theta))
+            evidence = next(step["evidence"] for step in reversed(steps) if step["effect"] == name)
+            steps.append({"effect": name, "action": "set_aside", "round": round_, "score": 0.0,
+                          "structure_share": shares[name], "evidence": evidence, "_effect": effect,
+                          "_params": params})
+        named = dict(model.effects)
+        for step in steps:
+            if step["action"] == "named" and step["effect"] in named:
+                step["structure_share"] = shares[step["effect"]]
+        return model, theta
 
     # ------------------------------------------------------------------ the report
 
@@ -670,9 +788,12 @@ class Discrepancy:
         rms_kept = [rms(s.residual[kept]) for s in states]
         rms_all = [rms(s.residual[self.usable]) for s in states]
         for i, step in enumerate(steps):
-            model, theta = states[i + 1].model, states[i + 1].theta
-            effect = dict(model.effects)[step["effect"]]
-            params = model.effect_params(theta, step["effect"])
+            if step["action"] != "named":  # dropped or set aside: what it was when it went
+                effect, params = step.pop("_effect"), step.pop("_params")
+            else:
+                model, theta = states[i + 1].model, states[i + 1].theta
+                effect = dict(model.effects)[step["effect"]]
+                params = model.effect_params(theta, step["effect"])
             step.update({
                 "params": effect.describe(params),
                 "summary": effect.summary(params),
@@ -684,7 +805,7 @@ class Discrepancy:
         batch_kept = batch_fit(self.y[kept, :3], self.y[kept, 3:], self.motion.R_EB[kept])
         batch_all = batch_fit(self.y[use, :3], self.y[use, 3:], self.motion.R_EB[use])
         named = [name for name, _ in final.model.effects]
-        options: dict[str, Any] = {"effects": named}
+        options: dict[str, Any] = {"effects": [name for name, effect in final.model.effects if effect.online]}
         final_params: dict[str, Any] = {
             "gravity_force_B": final.theta[0:3].tolist(), "bias_force_S": final.theta[3:6].tolist(),
             "cog_S": final.theta[6:9].tolist(), "bias_torque_S": final.theta[9:12].tolist(),
@@ -700,11 +821,22 @@ class Discrepancy:
         threshold = leftover_threshold(int(kept.sum()))
         leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
         where = {a: where_left(self.motion.t[kept], final.residual[kept, AXES.index(a)],
-                               float(own_noise[AXES.index(a)])) for a in leftover}
+                               float(own_noise[AXES.index(a)]), final.weight_S[kept]) for a in leftover}
         warnings = {"gate_not_applied": bool(self.gate_fallback),
                     "final_above_noise": bool(np.any(over > self.settings.warn_rms_over_noise)),
                     "leftover": bool(leftover)}
         notes = list(notes)
+        for step in steps:
+            if step["action"] == "set_aside":
+                notes.append(
+                    f"{step['effect']} set aside: it gained {100 * step['evidence']['heldout_gain']:.1f} % on "
+                    f"held-out data but explains only {100 * step['structure_share']:.0f} % of the structure the "
+                    f"model leaves without it (at least {100 * self.settings.min_structure_share:.0f} % to be "
+                    f"named): it stood in for something the library does not model ({step['summary']})")
+        for name, effect in final.model.effects:
+            if not effect.online:
+                notes.append(f"{name} is not compensated online (the kalman estimator does not model it): the "
+                             f"haptic rendering keeps it")
         if warnings["gate_not_applied"]:
             notes.append("the contact gate would have set aside half of the samples or more, so it was not applied: "
                          "if the recording has that much contact every figure here is contaminated by it; "

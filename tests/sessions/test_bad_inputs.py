@@ -344,7 +344,8 @@ def probes() -> list[tuple[str, list[str]]]:
         out.append((f"replay-{'-'.join(option)}", [*replay, *option]))
     discrepancy = ["discrepancy", "{lab}/good.csv"]
     for option in (["--folds", "1"], ["--folds", "-3"], ["--min-gain", "100"], ["--min-gain", "-1"],
-                   ["--min-gain", "nan"], ["--effects", "wobble"], ["--effects", "mount_rotation,wobble"],
+                   ["--min-gain", "nan"], ["--min-structure", "101"], ["--min-structure", "nan"],
+                   ["--effects", "wobble"], ["--effects", "mount_rotation,wobble"],
                    ["--set", "order=2"], ["--set", "wobble.order=2"], ["--set", "bias_drift.order=7"],
                    ["--set", "bias_drift.ordr=2"], ["--set", "bias_drift.order"]):
         out.append((f"discrepancy-{'-'.join(option)}", [*discrepancy, *option]))

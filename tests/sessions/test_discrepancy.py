@@ -286,7 +286,10 @@ def test_every_real_recording(real_data):
         if result["effects"]:
             # every named step passed the rule, and together they take at least 10 % off the batch fit's RMS
             for step in result["steps"]:
+                if step["action"] != "named" or step["effect"] not in result["effects"]:
+                    continue
                 ev = step["evidence"]
+                assert step["structure_share"] >= 0.5, path.name
                 assert ev["heldout_gain"] >= 0.01 and ev["folds_improved"] >= ev["wins_needed"], path.name
                 assert sign_test_p(ev["folds"], ev["folds_improved"]) <= 0.055, path.name
             assert np.linalg.norm(final) < 0.9 * np.linalg.norm(batch), path.name
@@ -298,7 +301,12 @@ def test_every_real_recording(real_data):
     assert log["effects"][0] == "time_lag" and log["final"]["params"]["time_lag"]["time_lag_s"] < -0.4
     assert np.linalg.norm(log["final"]["rms_force_S"]) < 0.5 * np.linalg.norm(log["batch_fit"]["rms_force_S"])
     assert results["lwr4_2013_06_12_tool"]["effects"] == []
-    assert results["axia80_ur_100poses"]["effects"] == ["gain_crosstalk", "mount_rotation"]
+    # the mount rotation it named second explains a quarter of what the model leaves without it (fz's 0.40 N
+    # on the static poses, which nothing in the library explains): set aside, reported, not named
+    poses = results["axia80_ur_100poses"]
+    assert poses["effects"] == ["gain_crosstalk"]
+    aside = [step for step in poses["steps"] if step["action"] == "set_aside"]
+    assert [step["effect"] for step in aside] == ["mount_rotation"] and aside[0]["structure_share"] < 0.5
 
 
 # ------------------------------------------------------------------ contact over much of a recording

@@ -65,6 +65,7 @@ from ...core.frames import rotvec_from_matrix, skew
 from ...core.kernels.play import play
 from ...core.types import STATUS_OK, STATUS_SATURATED
 
+from .cable import Cable
 from .config import (
     Contact,
     RobotParams,
@@ -76,7 +77,6 @@ from .config import (
 from .faults import Fault
 from .motion import MotionScript, MotionState, RandomTour
 from .servo import ServoedMotion
-from .cable import Cable
 from .tissue import Tissue
 
 __all__ = ["DRIFT_STREAM", "NOISE_STREAM", "RandomWalk", "SampleClock", "SimWorld", "gaussian_noise"]
@@ -210,11 +210,13 @@ class PlayHysteresis:
     Args:
         r: (6,) half-widths, force (N) then torque (N·m), ≥ 0.
         load: the channels' load at times (N,) s, as (N, 6).
+        ahead: grow the path a ``block`` at a time (a scripted world); False: only up to the time asked
+            for (a world that follows targets sent as it runs is not known ahead of now).
     """
 
-    def __init__(self, r: np.ndarray, load, grid_s: float = 1e-3, block: int = 1000):
+    def __init__(self, r: np.ndarray, load, grid_s: float = 1e-3, block: int = 1000, ahead: bool = True):
         self.r = np.asarray(r, dtype=float)
-        self.load, self.grid_s, self.block = load, grid_s, block
+        self.load, self.grid_s, self.block, self.ahead = load, grid_s, block, ahead
         self._path = np.empty((0, 6))  # the operator's output at grid points 0, 1, ...
         self._lock = threading.Lock()
 
@@ -224,7 +226,8 @@ class PlayHysteresis:
         with self._lock:
             while len(self._path) < points:
                 start = len(self._path)
-                x = self.load(np.arange(start, start + self.block) * self.grid_s)
+                end = start + self.block if self.ahead else points
+                x = self.load(np.arange(start, end) * self.grid_s)
                 h0 = x[0].copy() if start == 0 else self._path[-1]
                 out = np.empty_like(x)
                 play(x, self.r, h0, out)
@@ -324,7 +327,8 @@ class SimWorld:
         has_walk = np.any(self.sensor.drift_force_rw_S > 0) or np.any(self.sensor.drift_torque_rw_S > 0)
         self._walk = RandomWalk(self.seed, DRIFT_STREAM, channels=6) if has_walk else None
         widths = np.concatenate([self.sensor.hysteresis_force_S, self.sensor.hysteresis_torque_S])
-        self._hysteresis = (PlayHysteresis(widths, lambda t: self._loaded(t)[1]) if widths.any() else None)
+        self._hysteresis = (PlayHysteresis(widths, lambda t: self._loaded(t)[1], ahead=not self.live)
+                            if widths.any() else None)
 
     def _init_wrench_constants(self) -> None:
         """Everything wrench() needs that does not change, computed once.

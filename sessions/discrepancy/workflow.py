@@ -51,8 +51,8 @@ samples (every k-th, evenly spread); the RMS figures use every sample.
 
 from __future__ import annotations
 
+import copy
 import functools
-
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -708,7 +708,8 @@ class Discrepancy:
             without = Model([(n, e) for n, e in model.effects if n != name])
             sl = model.slices[name]
             theta_without = np.concatenate([theta[:sl.start], theta[sl.stop:]])
-            (evidence,), _ = self.test_candidates(without, theta_without, [(name, effect)])
+            # a copy: an effect that locates itself (an instant) would be moved by the test
+            (evidence,), _ = self.test_candidates(without, theta_without, [(name, copy.copy(effect))])
             if evidence.significant:
                 continue
             self.say(f"dropping {name}: no longer significant beside the others; re-identifying")

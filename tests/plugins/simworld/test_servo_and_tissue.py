@@ -68,6 +68,29 @@ def test_the_past_stays_as_it_was_when_the_target_changes():
     assert later.p_BoEo_B[0, 1] < p_0[1]
 
 
+def test_a_servoed_sensor_with_hysteresis_reads_what_the_targets_made_of_its_past():
+    """The hysteresis follows the loading path; under a servo that path is only known up to now, so a read
+    before a target was sent must not fix the path beyond it: the same reads as a world that had the target
+    from the start."""
+    targets = [(0.05, [0.0, 0.0, 0.03]), (0.15, [0.0, 0.02, -0.01])]
+
+    def world():
+        return SimWorld.from_config({"motion": {"script": "servo"}, "sensor": {"hysteresis_force": 0.05}})
+
+    told, late = world(), world()
+    R_0, p_0 = told.motion.target
+    for t, step in targets:
+        told.servo_cp(t, R_0, p_0 + step)
+    t = np.arange(0.0, 0.4, 0.001)
+    reads = []
+    for k, now in enumerate(t):
+        for when, step in targets:
+            if abs(when - now) < 1e-9:
+                late.servo_cp(when, R_0, p_0 + step)
+        reads.append(late.wrench(np.array([now]), noise=False)["force_S"][0])
+    np.testing.assert_array_equal(np.array(reads), told.wrench(t, noise=False)["force_S"])
+
+
 def test_asked_one_sample_at_a_time_or_all_at_once_the_motion_is_the_same():
     one, other = ServoedMotion(), ServoedMotion()
     R_0, p_0 = one.target

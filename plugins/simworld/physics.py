@@ -162,7 +162,27 @@ def gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.ndarray:
     return out
 
 
-class RandomWalk:
+class GrowingPath:
+    """A path on a time grid that only grows: extended under a lock by :meth:`_more` as later points are
+    asked for, and read without one (so what it holds at a point never depends on what was asked before)."""
+
+    def __init__(self, start: np.ndarray):
+        self._path = start
+        self._lock = threading.Lock()
+
+    def _ensure(self, points: int) -> None:
+        if len(self._path) >= points:  # the usual case: no lock needed (the path only grows)
+            return
+        with self._lock:
+            while len(self._path) < points:
+                self._path = np.concatenate([self._path, self._more(points)])
+
+    def _more(self, points: int) -> np.ndarray:
+        """The rows after the last one held (towards ``points``)."""
+        raise NotImplementedError
+
+
+class RandomWalk(GrowingPath):
     """Standard Brownian paths W(t) for several channels (W(0) = 0, Var W(t) = t).
 
     Sampled on a grid of ``grid_s`` and linearly interpolated in between; before
@@ -173,20 +193,15 @@ class RandomWalk:
 
     def __init__(self, seed: int, stream: int = DRIFT_STREAM, channels: int = 6,
                  grid_s: float = 0.01, block: int = 4096):
+        super().__init__(np.zeros((1, channels)))  # W at grid points 0, 1, ...
         self.seed, self.stream, self.channels = seed, stream, channels
         self.grid_s, self.block = grid_s, block
-        self._path = np.zeros((1, channels))  # W at grid points 0, 1, ...
-        self._lock = threading.Lock()
 
-    def _ensure(self, points: int) -> None:
-        if len(self._path) >= points:  # the usual case: no lock needed (the path only grows)
-            return
-        with self._lock:
-            while len(self._path) < points:
-                b = (len(self._path) - 1) // self.block
-                rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.stream, b)))
-                steps = rng.standard_normal((self.block, self.channels)) * np.sqrt(self.grid_s)
-                self._path = np.concatenate([self._path, self._path[-1] + np.cumsum(steps, axis=0)])
+    def _more(self, points: int) -> np.ndarray:
+        b = (len(self._path) - 1) // self.block
+        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.stream, b)))
+        steps = rng.standard_normal((self.block, self.channels)) * np.sqrt(self.grid_s)
+        return self._path[-1] + np.cumsum(steps, axis=0)
 
     def __call__(self, t: np.ndarray) -> np.ndarray:
         """(N, channels) W at times ``t`` (s)."""
@@ -197,7 +212,7 @@ class RandomWalk:
         return self._path.take(k, axis=0) * (1.0 - frac) + self._path.take(k + 1, axis=0) * frac
 
 
-class PlayHysteresis:
+class PlayHysteresis(GrowingPath):
     """The sensor channels' hysteresis: their load through play operators (``core/kernels/play.py``).
 
     The operator's state is followed along the loading path on a grid of
@@ -215,23 +230,17 @@ class PlayHysteresis:
     """
 
     def __init__(self, r: np.ndarray, load, grid_s: float = 1e-3, block: int = 1000, ahead: bool = True):
+        super().__init__(np.empty((0, 6)))  # the operator's output at grid points 0, 1, ...
         self.r = np.asarray(r, dtype=float)
         self.load, self.grid_s, self.block, self.ahead = load, grid_s, block, ahead
-        self._path = np.empty((0, 6))  # the operator's output at grid points 0, 1, ...
-        self._lock = threading.Lock()
 
-    def _ensure(self, points: int) -> None:
-        if len(self._path) >= points:  # the usual case: no lock needed (the path only grows)
-            return
-        with self._lock:
-            while len(self._path) < points:
-                start = len(self._path)
-                end = start + self.block if self.ahead else points
-                x = self.load(np.arange(start, end) * self.grid_s)
-                h0 = x[0].copy() if start == 0 else self._path[-1]
-                out = np.empty_like(x)
-                play(x, self.r, h0, out)
-                self._path = np.concatenate([self._path, out])
+    def _more(self, points: int) -> np.ndarray:
+        start = len(self._path)
+        end = start + self.block if self.ahead else points
+        x = self.load(np.arange(start, end) * self.grid_s)
+        out = np.empty_like(x)
+        play(x, self.r, x[0].copy() if start == 0 else self._path[-1], out)
+        return out
 
     def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
         """(N, 6) what the channels read at times ``t`` (N,) s for the load ``x`` (N, 6) there."""

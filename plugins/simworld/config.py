@@ -53,13 +53,13 @@ import numpy as np
 from ...core.frames import GRAVITY_M_S2, matrix_from_rotvec
 from ...core.plugins import ConfigError
 
+from .cable import Cable
 from .faults import DEFAULT_DURATION_S as DEFAULT_FAULT_DURATION_S
 from .faults import KINDS as FAULT_KINDS
 from .faults import Fault
 from .motion import MOTION_SCRIPTS as SCRIPTED_MOTIONS
 from .motion import DEFAULT_P_BoEo_B, MotionScript
 from .servo import ServoedMotion
-from .cable import Cable
 from .tissue import Tissue
 
 __all__ = [

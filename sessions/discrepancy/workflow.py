@@ -756,7 +756,7 @@ class Discrepancy:
         what is set aside is reported (``steps``, action "set_aside", with its share), not named."""
         min_share = self.settings.min_structure_share
         shares: dict[str, float] = {}
-        while model.effects:
+        while model.effects and min_share > 0:  # 0: no structure test
             own_noise = axis_noise((self.y_fit - model.predict6(self.fit_motion, theta))[self.kept[self.fit_rows]])
             shares = {name: self.structure_share(model, theta, name, own_noise) for name, _ in model.effects}
             name = min(shares, key=shares.get)
@@ -775,7 +775,7 @@ class Discrepancy:
                           "_params": params})
         named = dict(model.effects)
         for step in steps:
-            if step["action"] == "named" and step["effect"] in named:
+            if step["action"] == "named" and step["effect"] in shares and step["effect"] in named:
                 step["structure_share"] = shares[step["effect"]]
         return model, theta
 

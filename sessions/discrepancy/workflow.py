@@ -715,7 +715,7 @@ class Discrepancy:
             self.say(f"dropping {name}: no longer significant beside the others; re-identifying")
             params = model.effect_params(theta, name)
             model, theta = without, self.fit(without, theta_without)
-            states.append(State(f"without {name}", model, theta))
+            states.append(State(f"{name} dropped", model, theta))
             steps.append({"effect": name, "action": "dropped", "round": round_, "score": evidence.gain,
                           "evidence": evidence.as_dict(), "_effect": effect, "_params": params})
         return model, theta
@@ -768,7 +768,7 @@ class Discrepancy:
             without = Model([(n, e) for n, e in model.effects if n != name])
             sl = model.slices[name]
             model, theta = without, self.fit(without, np.concatenate([theta[:sl.start], theta[sl.stop:]]))
-            states.append(State(f"without {name}", model, theta))
+            states.append(State(f"{name} set aside", model, theta))
             evidence = next(step["evidence"] for step in reversed(steps) if step["effect"] == name)
             steps.append({"effect": name, "action": "set_aside", "round": round_, "score": 0.0,
                           "structure_share": shares[name], "evidence": evidence, "_effect": effect,

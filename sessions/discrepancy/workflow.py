@@ -67,6 +67,7 @@ from ...core.frames import quat_wxyz_from_matrix
 from ...core.plugins import ConfigError, Registry
 
 from ..offline.metrics import rms
+from .leftover import axis_noise, leftover_threshold, where_left, where_text
 from ..offline.numerics import numerical_failures
 from ..recording.csvimport import CsvError
 from ..recording.stream import Stream, load_stream
@@ -164,17 +165,6 @@ def solve_scaled(H: np.ndarray, g: np.ndarray, rcond: float = 1e-10) -> np.ndarr
     return (V[:, keep] @ (gs[keep] / lam[keep])) / d
 
 
-def axis_noise(residual: np.ndarray) -> np.ndarray:
-    """(6,) each channel's noise from sample-to-sample differences (MAD/√2, repeated rows skipped): what is
-    left that changes slower than the sampling (an unmodelled effect) does not count in it."""
-    d = np.diff(residual, axis=0)
-    d = d[np.any(d != 0, axis=1)]
-    if len(d) < 5:
-        d = residual - np.median(residual, axis=0)
-    mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2)
-    return np.maximum(mad, np.maximum(1e-3 * rms(residual), 1e-9))
-
-
 def noise_scale(residual: np.ndarray) -> np.ndarray:
     """(6,) channel weights' noise: one value for the three force channels and one for the three torque
     channels (the RMS over the axes of :func:`axis_noise`): a sensor's axes are alike, and equal weights
@@ -186,99 +176,6 @@ def noise_scale(residual: np.ndarray) -> np.ndarray:
 NOT_IDENTIFIABLE = 1e-4
 """An eigenvalue of the correlation-scaled information below this is a combination of parameters the data
 do not determine (:meth:`Discrepancy.uncertainty`): its standard error is over 100× theirs one at a time."""
-LEFTOVER_SIGMAS = 4.0
-"""How many of its own standard errors a channel's final RMS over its noise must lie above 1 to be a
-leftover (:func:`leftover_threshold`)."""
-LEFTOVER_SE = 1.1
-"""The standard error of a channel's RMS over its noise estimate is ``LEFTOVER_SE / √n`` on n clean samples:
-measured 0.88-1.15 per channel (std of (ratio − 1)·√n) over 60 simulated clean recordings of 1 000 to
-7 500 samples (``bench/discrepancy_null.py --seeds 1000:1060``; the RMS and the MAD of the differences,
-a 37 %-efficient estimator, each carry their sampling error)."""
-LEFTOVER_FLOOR = 0.05
-"""A leftover is at least 5 % over the noise, however long the recording (a real sensor's noise is not
-quite white)."""
-
-
-LEFTOVER_SEGMENTS = 10
-""":func:`where_left` splits the kept samples into this many stretches of time."""
-
-
-GRAVITY_BINS = ("+x", "-x", "+y", "-y", "+z", "-z")
-"""The orientations :func:`where_left` tells apart: the axis of S closest to gravity, and its sign."""
-
-
-def where_left(t: np.ndarray, residual: np.ndarray, noise: float, weight_S: np.ndarray | None = None
-               ) -> dict[str, Any]:
-    """Where a channel's leftover lives: in time (the stretches whose RMS over ``noise`` exceeds the leftover
-    threshold for their size), in frequency (the periodogram's peak, and the share of the residual's power
-    within ±1 bin of it), in pose space (the orientations, by the axis of S gravity is closest to, where it
-    exceeds the threshold) and how much (the RMS beyond the noise).
-
-    Args:
-        t: (m,) the kept samples' times, s (or rows); residual: (m,) that channel's final residual there;
-        noise: the channel's own noise (:func:`axis_noise`); weight_S: (m, 3) the model's weight in S
-        there, N (None: no pose-space split).
-    """
-    m = len(t)
-    edges = np.linspace(0, m, LEFTOVER_SEGMENTS + 1).astype(int)
-    stretches = []
-    for a, b in zip(edges[:-1], edges[1:]):
-        if b - a < 2:
-            continue
-        ratio = float(rms(residual[a:b])) / noise
-        if ratio > leftover_threshold(b - a):
-            stretches.append({"t_start": float(t[a]), "t_end": float(t[b - 1]), "rms_over_noise": ratio})
-    x = residual - residual.mean()
-    dt = float(np.median(np.diff(t))) if m > 1 else 1.0
-    spectrum = np.abs(np.fft.rfft(x * np.hanning(m))) ** 2
-    freq = np.fft.rfftfreq(m, dt)
-    k = int(np.argmax(spectrum[1:])) + 1 if m > 2 else 0
-    excess = max(float(np.mean(x**2)) - noise**2, 0.0)
-    share = float(spectrum[max(k - 1, 1):k + 2].sum() / spectrum[1:].sum()) if spectrum[1:].sum() > 0 else 0.0
-    orientations, tested = [], []
-    if weight_S is not None and m:
-        axis = np.argmax(np.abs(weight_S), axis=1)
-        sign = np.sign(weight_S[np.arange(m), axis]) < 0
-        for b, label in enumerate(GRAVITY_BINS):
-            here = (axis == b // 2) & (sign == bool(b % 2))
-            count = int(here.sum())
-            if count < max(2, 0.02 * m):  # too few samples to say
-                continue
-            tested.append(label)
-            ratio = float(rms(residual[here])) / noise
-            if ratio > leftover_threshold(count):
-                orientations.append({"gravity_S": label, "samples": count, "rms_over_noise": ratio})
-    return {"stretches": stretches, "peak_hz": float(freq[k]) if dt > 0 else float("nan"),
-            "peak_share": share, "orientations": orientations, "orientations_tested": tested,
-            "excess_rms": math.sqrt(excess)}
-
-
-def _where_text(axis: str, where: dict[str, Any], time_base: str) -> str:
-    unit = "s" if time_base == "seconds" else "rows"
-    text = f"; {axis}: {where['excess_rms']:.3g} RMS beyond the noise"
-    if where["peak_share"] >= 0.25 and time_base == "seconds":
-        text += (f", its spectrum peaking at {where['peak_hz']:.3g} Hz "
-                 f"({100 * where['peak_share']:.0f} % of the power)")
-    stretches = where["stretches"]
-    if stretches and len(stretches) < LEFTOVER_SEGMENTS:
-        text += ", mostly in " + ", ".join(f"{s['t_start']:.4g}-{s['t_end']:.4g} {unit}" for s in stretches)
-    elif stretches:
-        text += ", all along"
-    seen = [o["gravity_S"] for o in where["orientations"]]
-    if seen:
-        worst = max(where["orientations"], key=lambda o: o["rms_over_noise"])
-        which = ("in every orientation" if len(seen) == len(where["orientations_tested"]) else
-                 f"with gravity along {', '.join(seen)} in S")
-        text += f"; {which} (worst with gravity along {worst['gravity_S']}: {worst['rms_over_noise']:.2f}x)"
-    return text
-
-
-def leftover_threshold(n: int) -> float:
-    """The ratio of a channel's final RMS to its own noise estimate above which the report flags what is left
-    on it, for n samples: 1 + max(``LEFTOVER_FLOOR``, ``LEFTOVER_SIGMAS`` · ``LEFTOVER_SE`` / √n)."""
-    return 1.0 + max(LEFTOVER_FLOOR, LEFTOVER_SIGMAS * LEFTOVER_SE / math.sqrt(max(n, 1)))
-
-
 @dataclass
 class Evidence:
     """How one candidate did on held-out data."""
@@ -859,7 +756,7 @@ class Discrepancy:
                 "something the tested effects do not explain is left on " + ", ".join(
                     f"{a} ({over_own[AXES.index(a)]:.2f}x its own noise)" for a in leftover)
                 + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples)"
-                + "".join(_where_text(a, where[a], self.motion.time_base) for a in leftover) + "; see --plots")
+                + "".join(where_text(a, where[a], self.motion.time_base) for a in leftover) + "; see --plots")
         folds = rounds[0][0]["folds"] if rounds and rounds[0] else None
         if folds is not None and rounds[0][0]["wins_needed"] > folds:
             notes.append(f"{len(self.fit_rows)} samples give {folds} folds: no result over so few folds passes "

@@ -464,7 +464,7 @@ def test_a_leftover_on_a_quiet_axis_is_flagged_against_that_axis_s_own_noise(tmp
     Against z's own noise it is ~1.5x, well over the threshold (1.05x at 7 500 samples): the report flags fz
     and only fz, names no effect, and says where it lives (0.2 Hz, all along; a push from 12 to 18 s instead:
     in those seconds). The same recording without either flags nothing."""
-    from hapticlab.sessions.discrepancy.workflow import leftover_threshold
+    from hapticlab.sessions.discrepancy.leftover import leftover_threshold
 
     world = SimWorld(sensor=SensorParams(noise_force_S=np.array([0.12, 0.12, 0.03])),
                      motion=RandomTour(seed=31, segment_s=1.0, max_translation=0.05), seed=31, inertia=False)

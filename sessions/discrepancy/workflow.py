@@ -617,7 +617,8 @@ class Discrepancy:
                           "evidence": evidence.as_dict(), "_effect": effect, "_params": params})
         return model, theta
 
-    def structure_share(self, model: Model, theta: np.ndarray, name: str, own_noise: np.ndarray) -> float:
+    def structure_share(self, model: Model, theta: np.ndarray, name: str, predicted: np.ndarray,
+                        own_noise: np.ndarray) -> float:
         """The share of the structure ``model`` would leave without the effect ``name`` that the effect removes,
         on the channels where it acts.
 
@@ -626,20 +627,20 @@ class Discrepancy:
         effect where it is under the leftover threshold squared (:func:`leftover_threshold`: what white noise
         stays under, so a gap closed to the noise is closed), and the channels count by the size of the
         effect's own contribution there (its prediction with and without, in noise units, squared): an
-        effect on the forces is judged on the forces, not on torques something else disturbs.
+        effect on the forces is judged on the forces, not on torques something else disturbs. ``predicted``
+        is ``model``'s prediction at the kept fit rows, ``own_noise`` (6,) each channel's noise there.
         """
         rows = self.kept[self.fit_rows]
         sl = model.slices[name]
         without = Model([(n, e) for n, e in model.effects if n != name])
         theta_without = self.gauss_newton(without, np.concatenate([theta[:sl.start], theta[sl.stop:]]))
-        with_ = model.predict6(self.fit_motion, theta)[rows]
         bare = without.predict6(self.fit_motion, theta_without)[rows]
         y = self.y_fit[rows]
         floor = leftover_threshold(int(rows.sum())) ** 2  # under it, white noise: the channel's gap is closed
-        ms_with = np.mean(((y - with_) / own_noise) ** 2, axis=0)
+        ms_with = np.mean(((y - predicted) / own_noise) ** 2, axis=0)
         excess_with = np.where(ms_with > floor, ms_with - 1.0, 0.0)
         excess_without = np.maximum(np.mean(((y - bare) / own_noise) ** 2, axis=0) - 1.0, 0.0)
-        footprint = np.mean(((with_ - bare) / own_noise) ** 2, axis=0)
+        footprint = np.mean(((predicted - bare) / own_noise) ** 2, axis=0)
         before = float(footprint @ excess_without)
         return float(footprint @ (excess_without - excess_with)) / before if before > 0 else 1.0
 
@@ -654,8 +655,11 @@ class Discrepancy:
         min_share = self.settings.min_structure_share
         shares: dict[str, float] = {}
         while model.effects and min_share > 0:  # 0: no structure test
-            own_noise = axis_noise((self.y_fit - model.predict6(self.fit_motion, theta))[self.kept[self.fit_rows]])
-            shares = {name: self.structure_share(model, theta, name, own_noise) for name, _ in model.effects}
+            rows = self.kept[self.fit_rows]
+            predicted = model.predict6(self.fit_motion, theta)[rows]
+            own_noise = axis_noise(self.y_fit[rows] - predicted)
+            shares = {name: self.structure_share(model, theta, name, predicted, own_noise)
+                      for name, _ in model.effects}
             name = min(shares, key=shares.get)
             if shares[name] >= min_share:
                 break

@@ -23,10 +23,12 @@ reported, so a job's size per worker is known before it goes to a cluster.
 from __future__ import annotations
 
 import os
+import socket
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from ...core.errors import UserError
 
@@ -89,6 +91,20 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _refused(address: str) -> None:
+    """Raise ConnectionRefusedError at once when nothing listens at a ``tcp://HOST:PORT`` scheduler address
+    (the client would wait out its 10 s timeout); a host that does not answer is left to the client."""
+    parts = urlsplit(address)
+    if parts.scheme != "tcp" or not parts.hostname or parts.port is None:
+        return
+    try:
+        socket.create_connection((parts.hostname, parts.port), timeout=2.0).close()
+    except ConnectionRefusedError:
+        raise
+    except OSError:  # unreachable, slow or not resolved here: the client's timeout decides
+        return
+
+
 def map_recordings(func: Callable[[Path], Any], paths: Sequence[str | os.PathLike[str]], *,
                    scheduler: str | None = None, workers: int | None = None, progress: bool = True,
                    description: str = "recordings") -> FolderRun:
@@ -119,6 +135,7 @@ def map_recordings(func: Callable[[Path], Any], paths: Sequence[str | os.PathLik
         client = Client(cluster)
     else:
         try:
+            _refused(scheduler)
             client = Client(scheduler, timeout=10)
         except (OSError, TimeoutError) as exc:
             raise FolderError(f"--scheduler {scheduler}: no Dask scheduler answered: {exc}") from None

@@ -211,9 +211,12 @@ def test_over_a_real_pty_the_master_emulator_moves_the_robot_and_feels_the_tissu
         result = run_session(build_session(config), out=tmp_path / "pty.mcap")
         forces = np.array(emulator.forces)
     rec = read_recording(result.path)
-    t, p, mode, _ = targets(rec)
+    t, p, mode, reason = targets(rec)
     following = np.array(mode) == "following"
-    assert following[t > tour_end(rec) + 0.2].all()
+    after = t > tour_end(rec) + 0.2
+    held = [(round(float(s), 3), m, r) for s, m, r, a, f in zip(t, mode, reason, after, following) if a and not f]
+    events = [(m["kind"], m["message"]) for _, m in rec.topics["/events"] if m["kind"] != "overrun"]
+    assert following[after].all(), (held[:3], len(held), events)  # why, should it ever hold (a CI run once did)
     # the robot went down with the hand, up to 2.5 cm (half the hand's 5 cm)
     assert 0.015 < p[following, 2].max() - p[following, 2].min() <= 0.025 + 1e-9
     state_z = np.array([m["pose"]["p_DoHo_D"][2] for _, m in rec.topics["/haptic/state"]])

@@ -4,8 +4,10 @@ The emulator opens a pty pair (raw mode) and plays the device on its master
 side; the slave side (``/dev/pts/N``, printed first) is the port a session or
 a vendor client opens as if it were the device's USB serial port. The handle
 moves along a scripted path in the device frame D (a slow circle or
-figure-eight, a hold, or a press down and back) or a recorded one (a CSV of ``t, x, y, z``: s, m,
-played in a loop), and every force command is answered as the device would:
+figure-eight, a hold, or a press down and back) or a recorded one (a CSV of
+``t, x, y, z``: s, m, played in a loop). The path starts at the first
+handshake, so every session meets the same hand. Every force command is
+answered as the device would:
 
 * ``--protocol hapticlab``: our framed protocol (``framing.py``,
   ``docs/serial-protocol.md``): HELLO → HELLO_ACK, FORCE/HEARTBEAT → STATE,
@@ -141,10 +143,12 @@ class MasterEmulator:
     Args:
         protocol: ``"hapticlab"`` or ``"inverse3"``.
         motion: the handle's motion (``scripted_motion`` or ``recorded_motion``); default a slow circle.
+            Its time starts at the first handshake (the handle rests at the path's start before it), so a
+            session sees the same hand whenever it connects (``path_time``).
         max_force: the device's own force limit, N (reported in the hapticlab HELLO_ACK).
         device_id: the device's id in its handshake answer.
         max_rate_hz: the command rate the device reports it keeps up with, Hz.
-        buttons: t (s) → the bit mask of pressed buttons (default none).
+        buttons: t (s, the path's time) → the bit mask of pressed buttons (default none).
         keep: how many of the last forces received ``forces`` keeps.
 
     Attributes:
@@ -190,6 +194,7 @@ class MasterEmulator:
         self._status = 0
         self._inverse3_buffer = bytearray()
         self._t0 = time.monotonic()
+        self._path_t0: float | None = None
 
     # ------------------------------------------------------------------ life cycle
 
@@ -260,8 +265,18 @@ class MasterEmulator:
     # ------------------------------------------------------------------ serving
 
     def now(self) -> float:
-        """Seconds since the emulator started (the handle's path time)."""
+        """Seconds since the emulator started (when scheduled faults fire)."""
         return time.monotonic() - self._t0
+
+    def path_time(self) -> float:
+        """Seconds since the first handshake, 0 before it: the time of the handle's path and buttons."""
+        if self._path_t0 is None:
+            return 0.0
+        return time.monotonic() - self._path_t0
+
+    def _greeted(self) -> None:
+        if self._path_t0 is None:
+            self._path_t0 = time.monotonic()
 
     def _serve(self) -> None:
         fd = self._master_fd
@@ -312,7 +327,7 @@ class MasterEmulator:
         return force
 
     def _state_now(self) -> tuple[np.ndarray, np.ndarray]:
-        p, v = self.motion(self.now())
+        p, v = self.motion(self.path_time())
         p32, v32 = np.asarray(p, np.float32), np.asarray(v, np.float32)
         self.last_reply = (p32, v32)
         return p32, v32
@@ -374,6 +389,7 @@ class MasterEmulator:
                     self._nak(frame.seq, framing.NAK_VERSION)
                     continue
                 self.counts.hellos += 1
+                self._greeted()
                 self._hello, self._watchdog_s = True, watchdog_ms / 1000.0
                 self._last_valid = time.monotonic()
                 self.applied_force_D = np.zeros(3, np.float32)
@@ -390,7 +406,7 @@ class MasterEmulator:
                 self.counts.heartbeats += 1
             p, v = self._state_now()
             status, self._status = self._status, 0  # each status bit is reported once, in the next state
-            state = framing.State(frame.seq, p, v, self.buttons(self.now()), status)
+            state = framing.State(frame.seq, p, v, self.buttons(self.path_time()), status)
             self._write(self._frame(framing.STATE, state.pack()))
 
     # inverse3 -------------------------------------------------------------
@@ -406,6 +422,7 @@ class MasterEmulator:
                     self.counts.requests_ignored += 1
                     continue
                 self.counts.hellos += 1
+                self._greeted()
                 info = inverse3.DeviceInfo(self.device_id, 3, 1, 1, self.uuid)
                 self._write(info.pack())
             elif code == inverse3.END_EFFECTOR_FORCE:

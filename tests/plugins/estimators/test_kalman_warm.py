@@ -210,3 +210,30 @@ def test_a_held_contact_is_not_a_payload_change(chunk):
     est = KalmanEstimator()
     feed(est, block, chunk=chunk)
     assert others(est) == []
+
+
+def test_the_refused_window_grows_and_fits_as_the_least_squares_over_it():
+    """The payload test's window: appended a tick at a time past its capacity, it keeps every sample in
+    order, and its running-sum fit equals the least squares of e = R_SB·Δg + residual over the stacked
+    window (np.linalg.lstsq on the stacked (3m, 3) system)."""
+    from scipy.spatial.transform import Rotation
+
+    from hapticlab.plugins.estimators.kalman import RefusedWindow
+
+    rng = np.random.default_rng(7)
+    R = Rotation.random(50, random_state=8).as_matrix()
+    dg_true = np.array([0.0, 0.0, -0.98])
+    e = R @ dg_true + rng.normal(0.0, 0.05, (50, 3))
+    window = RefusedWindow(capacity=4)
+    for k in range(0, 50, 3):  # blocks of 3 (and a last of 2): the buffers double several times
+        part = slice(k, k + 3)
+        window.append(e=e[part], A=R[part], y=e[part] + 1.0, f=e[part] + 2.0, tq=e[part] + 3.0, R=R[part])
+    stacked = window.window()
+    assert len(window) == 50 and np.array_equal(stacked["e"], e) and np.array_equal(stacked["R"], R)
+    assert np.array_equal(stacked["tq"], e + 3.0)
+    r = np.array([0.05, 0.04, 0.06]) ** 2
+    dg, ratio = window.fit(r)
+    dg_ls, *_ = np.linalg.lstsq(R.reshape(-1, 3), e.reshape(-1), rcond=None)
+    assert np.allclose(dg, dg_ls, atol=1e-12)
+    assert np.isclose(ratio, np.mean((e - R @ dg_ls) ** 2 / r), rtol=1e-9)
+    assert np.linalg.norm(dg - dg_true) < 0.03

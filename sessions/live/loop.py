@@ -4,12 +4,14 @@ Each iteration (one loop period):
 
 1. read new poses and wrench samples up to now, record them;
 2. pair each wrench with its orientation (``core.aligner``), record that;
-3. feed the usable samples (not stale, status good, finite) to every estimator,
-   record their estimates and events;
+3. feed the usable samples (not stale, status good, finite) to the primary
+   estimator, record its estimates and events;
 4. turn the primary estimate into one force command (``gate`` says whether,
    ``safety.ForceGovernor`` how much), send and record it;
 5. with ``[teleop]`` on, turn the master's state into the robot's next target
-   (``teleop.Teleoperation``), send it (``servo_cp``) and record it.
+   (``teleop.Teleoperation``), send it (``servo_cp``) and record it;
+6. feed the same samples to the shadow estimators (recorded, never rendered:
+   after the command, so their time is not on a sample's path to its command).
 
 A latched stop (``gate``) holds the force off until an explicit re-arm: a
 press of the device's ``haptic.rearm_button`` (an edge: released, then pressed),
@@ -188,6 +190,7 @@ class LiveLoop:
         self.next_status = 0.0
         self.events: list[Event] = []
         self.shadows = list(session.shadows)
+        self._shadow_block: tuple | None = None  # the tick's block for the shadows, run after the command
         self.samples = self.poses = self.contact_samples = self.haptic_on_ticks = 0
         self.overruns = self.skipped_since_event = 0
         self.behind_max_ns = 0
@@ -292,6 +295,7 @@ class LiveLoop:
         for label, device in self.s.device_events:
             self._events(device.drain_events(), label)
         self._command(now_ns)
+        self._update_shadows(now_ns)
         self._report(now_ns)
         self._call("recording", self.taps.send, now_ns)  # encoded now, the command gone; handed over every 20 ms
 
@@ -316,7 +320,16 @@ class LiveLoop:
         self.last_estimate = (est.contact_force_S[-1], R_BS, int(est.t_ns[-1]))
         self.status.contact = bool(est.contact[-1])
         self.contact_samples += int(np.count_nonzero(est.contact))
-        for shadow in list(self.shadows):  # recorded, never rendered; one that fails is dropped
+        if self.shadows:
+            self._shadow_block = (block, with_params)
+
+    def _update_shadows(self, now_ns: int) -> None:
+        """The shadows on the tick's block, after the command has gone out (they are recorded, never
+        rendered: their time is not on the path from a sample to its command)."""
+        if self._shadow_block is None:
+            return
+        (block, with_params), self._shadow_block = self._shadow_block, None
+        for shadow in list(self.shadows):  # one that fails is dropped
             try:
                 shadow_est = shadow.estimator.update_block(block)
             except Exception as exc:

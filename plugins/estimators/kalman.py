@@ -103,6 +103,7 @@ from ...core.frames import (
 )
 from ...core import identified
 from ...core.kalman import KalmanStage, MountStage, StageRun
+from ...core.payload import PayloadWatch
 from ...core.kernels import inertia as inertia_kernel
 from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_COUNT_F,
@@ -114,7 +115,7 @@ from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
                                     window_samples)
 from ...core.model import MAX_FORCE, MAX_TORQUE, RefusesBadSamples, SampleGuard, contact_wrench, named_params
-from ...core.types import STATUS_OK, AlignedSamples, Estimates, Event
+from ...core.types import AlignedSamples, Estimates, Event
 from scipy.stats import chi2
 
 STEP_EPSILON = 1e-3
@@ -222,61 +223,6 @@ def _axes(key: str, value) -> np.ndarray:
     if array.shape != (3,) or not np.all(np.isfinite(array)) or np.any(array <= 0):
         raise ValueError(f"{key}: must be a positive number, 3 positive numbers or 'auto', got {value!r}")
     return array
-
-
-class RefusedWindow:
-    """A refusal run's samples, field by field, in arrays that grow by doubling: appending a tick's samples
-    costs their copy, not the window's (a list of per-tick parts concatenated at every test was
-    quadratic: ~0.9 ms a tick at 1 kHz by the end of a 0.9 s window, issue 12).
-
-    Fields and shapes (m samples): e (m, 3) the refused residual, N; A (m, 3, 3) the force stage's
-    regressor; y (m, 3) its reading, N; f (m, 3) force_S, N; tq (m, 3) torque_S, N·m; R (m, 3, 3) R_EB.
-    """
-
-    SHAPES = {"e": (3,), "A": (3, 3), "y": (3,), "f": (3,), "tq": (3,), "R": (3, 3)}
-
-    def __init__(self, capacity: int = 256):
-        self.n = 0
-        self._data = {key: np.empty((capacity, *shape)) for key, shape in self.SHAPES.items()}
-        # the fit's sums over the first ``_summed`` samples: Σ Aᵀe (3,), Σ e² (3,), Σ e_i A_ij (3, 3),
-        # Σ A_ij A_il (3, 3, 3)
-        self._summed = 0
-        self._Ae, self._ee = np.zeros(3), np.zeros(3)
-        self._eA, self._AA = np.zeros((3, 3)), np.zeros((3, 3, 3))
-
-    def __len__(self) -> int:
-        return self.n
-
-    def append(self, **parts: np.ndarray) -> None:
-        m = len(parts["e"])
-        if self.n + m > len(self._data["e"]):
-            capacity = max(2 * len(self._data["e"]), self.n + m)
-            for key, old in self._data.items():
-                new = np.empty((capacity, *old.shape[1:]))
-                new[:self.n] = old[:self.n]
-                self._data[key] = new
-        for key, column in self._data.items():
-            column[self.n:self.n + m] = parts[key]
-        self.n += m
-
-    def window(self) -> dict[str, np.ndarray]:
-        """The samples so far, by field (views: valid until the next append)."""
-        return {key: column[:self.n] for key, column in self._data.items()}
-
-    def fit(self, r: np.ndarray) -> tuple[np.ndarray, float]:
-        """The least squares of e_k = A_k·Δg over the samples so far (A_k = R_SB,k, orthonormal, so
-        Δg = mean(A_kᵀ e_k)): (Δg (3,), N; the mean squared residual per axis in units of ``r``, the noise
-        variances (3,), N²). From running sums, each sample added once: O(1) a tick, not O(window)."""
-        new = slice(self._summed, self.n)
-        e, A = self._data["e"][new], self._data["A"][new]
-        self._Ae += np.einsum("kji,kj->i", A, e)
-        self._ee += np.einsum("ki,ki->i", e, e)
-        self._eA += np.einsum("ki,kij->ij", e, A)
-        self._AA += np.einsum("kij,kil->ijl", A, A)
-        self._summed = self.n
-        dg = self._Ae / self.n
-        squares = self._ee - 2.0 * (self._eA @ dg) + np.einsum("ijl,j,l->i", self._AA, dg, dg)
-        return dg, float(np.mean(squares / r)) / self.n
 
 
 class KalmanEstimator(RefusesBadSamples):
@@ -519,10 +465,7 @@ class KalmanEstimator(RefusesBadSamples):
         self.events: list[Event] = []
         self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
         self.payload_changes = 0
-        self._refused = RefusedWindow()  # the refusal run's samples, by field
-        self._refused_since: int | None = None  # t_ns of the run's first refused sample
-        self._accepted_in_run = 0  # consecutive accepted samples (a run survives a few)
-        self._run_tested_full = False  # the run's whole window was tested (negative)
+        self._payload = PayloadWatch(self.payload_change_ns)  # the force stage's refusal runs
         self._per_sample = self.noise_auto or convergence == "identified"  # (the numpy reference's blocks)
         self._information: dict[str, np.ndarray] = {}  # convergence = "identified": Λ per stage (6, 6)
         self._seed_information()
@@ -687,7 +630,7 @@ class KalmanEstimator(RefusesBadSamples):
         if self._adapt[ADAPT_REOPEN_ROW] >= 0:  # (the block's last one: one event per block)
             self._torque_reopened(int(t_ns[int(self._adapt[ADAPT_REOPEN_ROW])]))
         self.converged_force, self.converged_torque = bool(out.converged_force[-1]), bool(out.converged_torque[-1])
-        if self.payload_change_ns > 0 and (gated_f or self._refused_since is not None):
+        if self.payload_change_ns > 0 and (gated_f or self._payload.in_run):
             d2 = np.full(m, np.nan)  # (not kept by the cascade; the watcher does not use it)
             run_f = StageRun(b.X_f[:m], b.D_f[:m], b.gated_f[:m], d2, b.failed_f[:m])
             self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, x_before)
@@ -912,68 +855,22 @@ class KalmanEstimator(RefusesBadSamples):
 
     # ------------------------------------------------------------------ payload change (issue 4, item 6)
 
-    PAYLOAD_WINDOW_RUNS = 3
-    """The refused window tested is the run from its start, at most this many times payload_change_s."""
-    PAYLOAD_FIT_RATIO = 2.0
-    """The gravity-change fit must leave a mean squared residual below this many noise variances."""
-    PAYLOAD_MAX_TILT = 0.25
-    """rad: the fitted weight change must be along the identified weight (gravity) within this angle."""
-    PAYLOAD_RUN_BREAK = 10
-    """This many consecutive accepted samples end a refusal run (isolated ones do not)."""
-
     def _watch_payload(self, t_ns, y_f, force_S, torque_S, R_EB, A_f, usable, run_f, x_before) -> None:
-        """Track the force stage's refusal run; test it for a payload change once it is long enough.
-
-        While the force stage refuses, its state does not move (only P grows), so the refused
-        residual e_k = y_k - R_SB,k·g - b is taken at the state each refused sample saw. A
-        payload change adds Δg along gravity in B: e_k = R_SB,k·Δg + noise, so Δg = mean(R_SB,kᵀ e_k)
-        (R orthonormal) and the fit's residual is at noise level. A contact with a ramp, a
-        force fixed in S, or one along another direction leaves a larger residual or a Δg off
-        the vertical.
-        """
+        """Follow the force stage's refusal runs (``core.payload``); on a payload change re-open gravity and
+        the centre of gravity, replay the run, say so (``payload_change``)."""
         gated = run_f.gated
-        if not gated.any() and self._refused_since is None:
+        if not gated.any() and not self._payload.in_run:
             return
         e = _innovations(y_f, A_f, x_before, run_f.X)
-        start = 0
-        for k in np.flatnonzero(usable):
-            if gated[k]:
-                if self._refused_since is None:
-                    self._refused_since, self._refused, self._run_tested_full = int(t_ns[k]), RefusedWindow(), False
-                    start = k
-                self._accepted_in_run = 0
-            elif self._refused_since is not None:
-                self._accepted_in_run += 1
-                if self._accepted_in_run >= self.PAYLOAD_RUN_BREAK:
-                    self._refused_since, self._refused = None, RefusedWindow()
-                    start = k + 1
-        if self._refused_since is None:
+        change = self._payload.observe(t_ns, gated, usable, e, A_f, y_f, force_S, torque_S, R_EB,
+                                       self.force.r, self.force.x[:3])
+        if change is None:
             return
-        # the window is the run from its first refused sample on (its onset included: a contact
-        # ramps up, a payload is a step), at most PAYLOAD_WINDOW_RUNS·payload_change_s long
-        newest = self._refused_since + self.PAYLOAD_WINDOW_RUNS * self.payload_change_ns
-        keep = np.zeros(len(t_ns), dtype=bool)
-        keep[start:] = gated[start:] & (t_ns[start:] <= newest)
-        if keep.any():
-            self._refused.append(e=e[keep], A=A_f[keep], y=y_f[keep], f=force_S[keep], tq=torque_S[keep],
-                                 R=R_EB[keep])
-        t_last = int(t_ns[-1])
-        if t_last - self._refused_since < self.payload_change_ns or not self._refused or self._run_tested_full:
-            return
-        self._run_tested_full = t_last >= newest  # the whole window seen: no further test in this run
-        if len(self._refused) < 10:
-            return
-        dg, ratio = self._refused.fit(self.force.r)  # least squares of e = R_SB·Δg
-        g = self.force.x[:3]
-        gn, dn = float(np.linalg.norm(g)), float(np.linalg.norm(dg))
-        vertical = gn > 0 and dn > 0 and abs(float(g @ dg)) >= math.cos(self.PAYLOAD_MAX_TILT) * gn * dn
-        if ratio < self.PAYLOAD_FIT_RATIO and vertical:
-            self._reopen_payload(self._refused.window())
-            message = (f"kalman: payload change of {dn:.3g} N ({dn / 9.81 * 1000:.0f} g) "
-                       f"after {(t_last - self._refused_since) * 1e-9:.2f} s of refused samples; "
-                       f"gravity and centre of gravity re-opened")
-            self.events.append(Event(t_last, "payload_change", message))
-            self._refused_since, self._refused, self._accepted_in_run = None, RefusedWindow(), 0
+        self._reopen_payload(change.window)
+        dn = change.weight_change
+        self.events.append(Event(change.t_ns, "payload_change",
+                                 f"kalman: payload change of {dn:.3g} N ({dn / 9.81 * 1000:.0f} g) after "
+                                 f"{change.run_s:.2f} s of refused samples; gravity and centre of gravity re-opened"))
 
     def _reopen_payload(self, window: dict[str, np.ndarray]) -> None:
         """Re-open what a payload changes, then replay the refused window.

@@ -218,7 +218,7 @@ def test_the_refused_window_grows_and_fits_as_the_least_squares_over_it():
     window (np.linalg.lstsq on the stacked (3m, 3) system)."""
     from scipy.spatial.transform import Rotation
 
-    from hapticlab.plugins.estimators.kalman import RefusedWindow
+    from hapticlab.core.payload import RefusedWindow
 
     rng = np.random.default_rng(7)
     R = Rotation.random(50, random_state=8).as_matrix()

@@ -1,0 +1,162 @@
+"""A payload change told from a contact: the test ``kalman`` runs on the force stage's refusal runs.
+
+While the force stage refuses, its state does not move (only P grows), so the refused residual
+e_k = y_k − R_SB,k·g − b is taken at the state each refused sample saw. A payload change (a mass hung
+on the tool) adds Δg along gravity in B:
+
+    e_k = R_SB,k·Δg + v_k,   Δg = mean(R_SB,kᵀ e_k)   (R_SB,k orthonormal: the least squares)
+
+and the fit's residual is at the noise level. A contact with a ramp, a force fixed in S, or one along
+another direction leaves a larger residual or a Δg off the vertical. :class:`PayloadWatch` follows the
+runs sample by sample and tests a run once it is ``change_ns`` long (docs/estimators.md, "Payload
+change"); the estimator re-opens gravity and replays the window when the test passes.
+
+Symbols and shapes (m samples): e (m, 3) N; A = R_SB (m, 3, 3); y (m, 3) the force stage's reading, N;
+f (m, 3) force_S, N; tq (m, 3) torque_S, N·m; R (m, 3, 3) R_EB; r (3,) the force noise variances, N²;
+g (3,) gravity_force_B, N.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+WINDOW_RUNS = 3
+"""The refused window tested is the run from its start, at most this many times the test's delay."""
+FIT_RATIO = 2.0
+"""The gravity-change fit must leave a mean squared residual below this many noise variances."""
+MAX_TILT = 0.25
+"""rad: the fitted weight change must be along the identified weight (gravity) within this angle."""
+RUN_BREAK = 10
+"""This many consecutive accepted samples end a refusal run (isolated ones do not)."""
+MIN_SAMPLES = 10
+"""The fewest refused samples a test is made on."""
+
+
+class RefusedWindow:
+    """A refusal run's samples, field by field, in arrays that grow by doubling: appending a tick's samples
+    costs their copy, not the window's (a list of per-tick parts concatenated at every test was
+    quadratic: ~0.9 ms a tick at 1 kHz by the end of a 0.9 s window, issue 12). Fields: e, A, y, f, tq, R
+    (the module's symbols)."""
+
+    SHAPES = {"e": (3,), "A": (3, 3), "y": (3,), "f": (3,), "tq": (3,), "R": (3, 3)}
+
+    def __init__(self, capacity: int = 256):
+        self.n = 0
+        self._data = {key: np.empty((capacity, *shape)) for key, shape in self.SHAPES.items()}
+        # the fit's sums over the first ``_summed`` samples: Σ Aᵀe (3,), Σ e² (3,), Σ e_i A_ij (3, 3),
+        # Σ A_ij A_il (3, 3, 3)
+        self._summed = 0
+        self._Ae, self._ee = np.zeros(3), np.zeros(3)
+        self._eA, self._AA = np.zeros((3, 3)), np.zeros((3, 3, 3))
+
+    def __len__(self) -> int:
+        return self.n
+
+    def append(self, **parts: np.ndarray) -> None:
+        m = len(parts["e"])
+        if self.n + m > len(self._data["e"]):
+            capacity = max(2 * len(self._data["e"]), self.n + m)
+            for key, old in self._data.items():
+                new = np.empty((capacity, *old.shape[1:]))
+                new[:self.n] = old[:self.n]
+                self._data[key] = new
+        for key, column in self._data.items():
+            column[self.n:self.n + m] = parts[key]
+        self.n += m
+
+    def window(self) -> dict[str, np.ndarray]:
+        """The samples so far, by field (views: valid until the next append)."""
+        return {key: column[:self.n] for key, column in self._data.items()}
+
+    def fit(self, r: np.ndarray) -> tuple[np.ndarray, float]:
+        """The least squares of e_k = A_k·Δg over the samples so far (A_k orthonormal, so Δg = mean(A_kᵀ e_k)):
+        (Δg (3,), N; the mean squared residual per axis in units of ``r``, the noise variances (3,), N²).
+        From running sums, each sample added once: O(1) a tick, not O(window)."""
+        new = slice(self._summed, self.n)
+        e, A = self._data["e"][new], self._data["A"][new]
+        self._Ae += np.einsum("kji,kj->i", A, e)
+        self._ee += np.einsum("ki,ki->i", e, e)
+        self._eA += np.einsum("ki,kij->ij", e, A)
+        self._AA += np.einsum("kij,kil->ijl", A, A)
+        self._summed = self.n
+        dg = self._Ae / self.n
+        squares = self._ee - 2.0 * (self._eA @ dg) + np.einsum("ijl,j,l->i", self._AA, dg, dg)
+        return dg, float(np.mean(squares / r)) / self.n
+
+
+@dataclass(frozen=True)
+class PayloadChange:
+    """A refusal run the test found to be a payload change."""
+
+    t_ns: int
+    """The newest sample's time, ns."""
+    weight_change: float
+    """|Δg|, N."""
+    run_s: float
+    """How long the run had lasted, s."""
+    window: dict[str, np.ndarray]
+    """The run's refused samples (RefusedWindow fields), for the estimator to replay."""
+
+
+class PayloadWatch:
+    """The force stage's refusal runs, followed block by block; each run tested once it is ``change_ns`` long,
+    at every block until its whole window (``WINDOW_RUNS``·``change_ns`` from its first refused sample) was
+    seen."""
+
+    def __init__(self, change_ns: int):
+        self.change_ns = change_ns
+        self.since: int | None = None  # t_ns of the run's first refused sample (None: no run)
+        self.window = RefusedWindow()
+        self._accepted = 0  # consecutive accepted samples (a run survives a few)
+        self._tested_full = False  # the run's whole window was tested (negative)
+
+    @property
+    def in_run(self) -> bool:
+        return self.since is not None
+
+    def _end_run(self) -> None:
+        self.since, self.window, self._accepted = None, RefusedWindow(), 0
+
+    def observe(self, t_ns: np.ndarray, gated: np.ndarray, usable: np.ndarray, e: np.ndarray,
+                A: np.ndarray, y: np.ndarray, f: np.ndarray, tq: np.ndarray, R: np.ndarray,
+                r: np.ndarray, g: np.ndarray) -> PayloadChange | None:
+        """One block's samples (``gated``: refused by the force stage; ``usable``: given to it): the payload
+        change found, None otherwise. After a change the run ends (the estimator has re-opened gravity)."""
+        start = 0
+        for k in np.flatnonzero(usable):
+            if gated[k]:
+                if self.since is None:
+                    self.since, self.window, self._tested_full = int(t_ns[k]), RefusedWindow(), False
+                    start = k
+                self._accepted = 0
+            elif self.since is not None:
+                self._accepted += 1
+                if self._accepted >= RUN_BREAK:
+                    self._end_run()
+                    start = k + 1
+        if self.since is None:
+            return None
+        # the window is the run from its first refused sample on (its onset included: a contact
+        # ramps up, a payload is a step), at most WINDOW_RUNS·change_ns long
+        newest = self.since + WINDOW_RUNS * self.change_ns
+        keep = np.zeros(len(t_ns), dtype=bool)
+        keep[start:] = gated[start:] & (t_ns[start:] <= newest)
+        if keep.any():
+            self.window.append(e=e[keep], A=A[keep], y=y[keep], f=f[keep], tq=tq[keep], R=R[keep])
+        t_last = int(t_ns[-1])
+        if t_last - self.since < self.change_ns or not self.window or self._tested_full:
+            return None
+        self._tested_full = t_last >= newest  # the whole window seen: no further test in this run
+        if len(self.window) < MIN_SAMPLES:
+            return None
+        dg, ratio = self.window.fit(r)
+        gn, dn = float(np.linalg.norm(g)), float(np.linalg.norm(dg))
+        vertical = gn > 0 and dn > 0 and abs(float(g @ dg)) >= math.cos(MAX_TILT) * gn * dn
+        if not (ratio < FIT_RATIO and vertical):
+            return None
+        change = PayloadChange(t_last, dn, (t_last - self.since) * 1e-9, self.window.window())
+        self._end_run()
+        return change

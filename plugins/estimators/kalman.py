@@ -212,6 +212,16 @@ def _innovations(y: np.ndarray, A: np.ndarray, x_before: np.ndarray, X: np.ndarr
     return y - np.einsum("kij,kj->ki", A, X_prev[:, :3]) - X_prev[:, 3:6]
 
 
+def _bias_unknown(P: np.ndarray, prior: np.ndarray) -> np.ndarray:
+    """A copy of a stage's P with its bias (states 3..5) unknown again: its rows and columns zeroed, its
+    variance the prior's (``prior`` (6,) the stage's prior stds; the compiled twin is ``kalman_kernel.reopen_bias``)."""
+    P = P.copy()
+    P[3:6, :] = 0.0
+    P[:, 3:6] = 0.0
+    P[3:6, 3:6] = np.diag(prior[3:6] ** 2)
+    return P
+
+
 def _axes(key: str, value) -> np.ndarray:
     """A positive std per axis from one number or three; ValueError naming the option."""
     try:
@@ -920,11 +930,7 @@ class KalmanEstimator(RefusesBadSamples):
     def _reopen_torque_bias(self, t_ns: int) -> None:
         """The torque bias unknown again (P's bias rows and columns zeroed, its diagonal the prior; Λ re-seeded
         from that P: ``kalman_kernel.reopen_bias``), the centre of gravity as known."""
-        P = self.torque.P.copy()
-        P[3:6, :] = 0.0
-        P[:, 3:6] = 0.0
-        P[3:6, 3:6] = np.diag(self.prior_t[3:6] ** 2)
-        self.torque.P = P
+        P = self.torque.P = _bias_unknown(self.torque.P, self.prior_t)
         self._information["torque"] = np.linalg.inv(P[:6, :6])
         self._torque_reopened(t_ns)
 
@@ -942,11 +948,7 @@ class KalmanEstimator(RefusesBadSamples):
         convergence flags drop until it is.
         """
         for stage, prior in ((self.force, self.prior_f), (self.torque, self.prior_t)):
-            P = stage.P.copy()
-            P[3:6, :] = 0.0
-            P[:, 3:6] = 0.0
-            P[3:6, 3:6] = np.diag(prior[3:6] ** 2)
-            stage.P = P
+            stage.P = _bias_unknown(stage.P, prior)
         self._seed_information()
         self.events.append(Event(self._last_t_ns or 0, "bias_reopened", f"bias re-opened: {reason}"))
 

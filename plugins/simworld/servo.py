@@ -40,6 +40,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...core.frames import skew_stack
+from ...core.kernels import servo as servo_kernel
 from .motion import DEFAULT_P_BoEo_B, Hold, MotionScript, MotionState
 
 __all__ = ["ServoedMotion"]
@@ -155,6 +156,7 @@ class ServoedMotion(MotionScript):
         self._k = 0
         self._state = [tuple(start.p_BoEo_B.tolist()), zero, zero, tuple(start.R_BE.ravel().tolist()), zero, zero]
         self._controls()
+        servo_kernel.warm_up()  # compiled (or loaded from the cache) before the first live tick
 
     # ------------------------------------------------------------------ commands
 
@@ -212,8 +214,23 @@ class ServoedMotion(MotionScript):
         """The flange pose and its derivatives at times ``t`` (s), integrating up to the latest asked for.
 
         Within a step the rotation is ``R_k (I + [φ]× + ½[φ]×²)`` with φ = w_k τ + ½ α_k τ²:
-        Exp to second order, off by |φ|³/6 (2·10⁻¹⁰ at 1 rad/s and 1 ms steps).
+        Exp to second order, off by |φ|³/6 (2·10⁻¹⁰ at 1 rad/s and 1 ms steps). Compiled
+        (``core.kernels.servo``: the live loop asks one sample at a time); :meth:`evaluate_reference`
+        is the same in numpy.
         """
+        t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+        n = len(t)
+        R_BE = np.empty((n, 3, 3))
+        p, v, a, w, alpha = (np.empty((n, 3)) for _ in range(5))
+        with self._lock:
+            if n:
+                self._advance(float(t.max()))
+            servo_kernel.evaluate(self._history, t, self.dt, max(self._k - self._size + 1, 0), self._k,
+                                  R_BE, p, v, a, w, alpha)
+        return MotionState(t=t, R_BE=R_BE, p_BoEo_B=p, w_BE_E=w, alpha_BE_E=alpha, v_BEo_B=v, a_BEo_B=a)
+
+    def evaluate_reference(self, t: float | np.ndarray) -> MotionState:
+        """:meth:`evaluate` in numpy (the reference the tests compare the compiled kernel with)."""
         t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
         with self._lock:
             if len(t):

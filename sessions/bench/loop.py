@@ -14,6 +14,14 @@ Two tables, so the next change to the hot path is measured the same way:
   (``process``, the default), side by side. µs per tick and share of the
   tick, and the session's speed (simulated seconds per wall second; above 1 it
   keeps up in real time);
+* **per stage, teleoperation**: the same for ``teleop-emulated`` (the simulated
+  robot following a master whose handle presses 5 cm down and back every 2 s
+  once the calibration tour is over, :class:`PressingHand`; ``kalman`` with the
+  ``rls`` shadow, the preset's own), 1 kHz sensor, writer process: its rows
+  add the shadow estimators and the teleoperation step (the robot's next
+  target and ``servo_cp``); the simulated sensor and robot are computed one
+  sample at a time there (they cannot run ahead of a robot that follows the
+  hand);
 * **per estimator**: µs per sample at block sizes 1 (a 1 kHz sensor read at
   1 kHz), 7 (a 7 kHz Net F/T) and 1024 (offline), median and p99 over the
   converged second half of a simulated tour, for each estimator named.
@@ -31,7 +39,9 @@ from typing import Any
 
 import numpy as np
 
-from ...core.types import AlignedSamples
+from ...core import hookimpl
+from ...core.plugins import Registry, make_plugin_manager
+from ...core.types import AlignedSamples, DeviceState, HapticCommand
 from ...plugins.simworld import SimWorld
 from ..config import apply_overrides, load_config
 from ..live import build_session
@@ -39,7 +49,7 @@ from ..live.loop import LiveLoop
 from .paper import simulate
 
 STAGES = ("sensor read", "kinematics read", "aligner", "estimator", "gate and watches", "governor", "device",
-          "recording", "loop body")
+          "teleoperation", "shadow estimators", "recording", "loop body")
 """The table's rows, in the order of a tick (the loop body last: what the stopwatches leave)."""
 BLOCK_SIZES = (1, 7, 1024)
 
@@ -65,13 +75,65 @@ class _Stopwatch:
         setattr(obj, method, timed)
 
 
-def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str = "rls",
-                writer: str = "process") -> dict[str, Any]:
-    """One non-realtime demo session with every stage timed: µs per tick and share per stage, speed."""
-    config, _ = load_config("demo")
-    config = apply_overrides(config, ["session.realtime=false", f"sensor.rate_hz={float(sensor_rate_hz)}",
-                                      f"estimator.name={estimator}", f"session.recording_writer={writer}"])
-    session = build_session(config)
+TOUR_OVERRIDES = ("teleop.calibration_dwell_s=0.3", "teleop.max_angular_speed=3.0")
+"""The teleoperation table's calibration tour, shortened to ~4 s (the hand takes over for the rest)."""
+
+
+class PressingHand:
+    """A master device for the teleoperation table (HapticOutput, no wire): its handle rests for ``rest_s``
+    of session time (the calibration tour), then presses ``depth`` m down along D's −z and back every
+    ``period`` s (``scripted_motion("press")``); it renders nothing."""
+
+    def __init__(self, rest_s: float = 4.5, depth: float = 0.05, period: float = 2.0, rate_hz: float = 1000.0):
+        from ...plugins.haptics.master_emulator import scripted_motion
+
+        self.rate_hz, self.rest_s = rate_hz, rest_s
+        self.motion = scripted_motion("press", depth, period)
+        self.t0_ns: int | None = None
+        self.t_ns = 0
+
+    def open(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def send(self, command: HapticCommand) -> None:
+        if self.t0_ns is None:
+            self.t0_ns = command.t_ns
+        self.t_ns = command.t_ns
+
+    def state(self) -> DeviceState | None:
+        if self.t0_ns is None:
+            return None
+        p, v = self.motion(max((self.t_ns - self.t0_ns) * 1e-9 - self.rest_s, 0.0))
+        return DeviceState(self.t_ns, np.array([1.0, 0.0, 0.0, 0.0]), p, v_DHo_D=v)
+
+
+class _BenchHand:
+    @hookimpl
+    def register_haptic_outputs(self, register):
+        register("bench_pressing_hand", PressingHand)
+
+
+def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str | None = "rls",
+                writer: str = "process", preset: str = "demo") -> dict[str, Any]:
+    """One non-realtime session of ``preset`` ("demo" or "teleop-emulated", with :class:`PressingHand` as
+    its master) with every stage timed: µs per tick and share per stage, speed. ``estimator`` None keeps
+    the preset's own (and its shadows)."""
+    config, _ = load_config(preset)
+    overrides = ["session.realtime=false", f"sensor.rate_hz={float(sensor_rate_hz)}",
+                 f"session.recording_writer={writer}"]
+    if estimator is not None:
+        overrides.append(f"estimator.name={estimator}")
+    registry = None
+    if config.get("teleop", {}).get("enabled"):
+        pm = make_plugin_manager()
+        pm.register(_BenchHand(), name="bench-hand")
+        registry = Registry(pm)
+        overrides += ["haptic.name=bench_pressing_hand", *TOUR_OVERRIDES]
+    config = apply_overrides(config, overrides)
+    session = build_session(config, registry)
     with tempfile.TemporaryDirectory() as folder:
         loop = LiveLoop(session, Path(folder) / "bench.mcap", duration_s, None, 0.25)
         watch = _Stopwatch()
@@ -95,8 +157,10 @@ def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str =
     timed = sum(watch.ns[s] for s in STAGES if s != "loop body")
     watch.ns["loop body"] = max(wall_ns - timed, 0)
     return {
-        "sensor_rate_hz": sensor_rate_hz, "loop_rate_hz": session.settings.loop_rate_hz, "estimator": estimator,
+        "preset": preset, "sensor_rate_hz": sensor_rate_hz, "loop_rate_hz": session.settings.loop_rate_hz,
+        "estimator": session.primary.label, "shadows": [shadow.label for shadow in session.shadows],
         "writer": writer, "duration_s": duration_s, "samples": result.samples, "ticks": ticks,
+        "contact_samples": loop.contact_samples,  # the primary estimator's (a teleoperated press: the tissue)
         "x_real_time": duration_s / (wall_ns * 1e-9),
         "us_per_tick": {s: watch.ns[s] / ticks / 1e3 for s in STAGES},
         "share": {s: watch.ns[s] / wall_ns for s in STAGES},
@@ -115,6 +179,11 @@ def _wrap_loop(loop: LiveLoop, watch: _Stopwatch) -> None:
     watch.wrap(loop.governor, "command", "governor")
     for method in ("send", "state"):
         watch.wrap(s.haptic, method, "device")
+    if loop.teleop is not None:
+        watch.wrap(loop.teleop, "step", "teleoperation")
+        watch.wrap(s.robot, "servo_cp", "teleoperation")
+    for shadow in s.shadows:
+        watch.wrap(shadow.estimator, "update_block", "shadow estimators")
     for method in ("poses", "wrenches", "aligned", "estimates", "command", "device_state", "event",
                    "send"):  # the taps queue; send encodes the tick's messages and hands them to the writer
         watch.wrap(loop.taps, method, "recording")
@@ -158,7 +227,7 @@ def default_estimators() -> dict[str, Callable[[], Any]]:
 
 def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 5.0, samples: int = 20480,
                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Both tables (JSON-ready)."""
+    """The tables (JSON-ready): per stage at each sensor rate and writer, per stage in teleoperation, per estimator."""
     stages = []
     for rate in rates:
         for writer in ("inline", "process"):
@@ -166,9 +235,12 @@ def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 
                 progress(f"session, sensor at {rate:g} Hz, {writer} writer")
             stages.append(stage_table(rate, duration_s, writer=writer))
     if progress:
+        progress("teleoperation session, sensor at 1000 Hz, process writer")
+    teleop = stage_table(1000.0, max(duration_s, 8.0), estimator=None, preset="teleop-emulated")
+    if progress:
         progress("estimators, µs per sample")
     table = estimator_table(default_estimators(), samples)
-    return {"stages": stages,
+    return {"stages": stages, "teleop": teleop,
             "estimators": {label: {str(size): {"median_us": m, "p99_us": p} for size, (m, p) in row.items()}
                            for label, row in table.items()}}
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rich.console import Console
 from rich.table import Table
 
 from ...core.errors import UserError
@@ -175,20 +174,29 @@ def print_loop_tables(out: dict) -> None:
     """Per stage: µs per tick and share, per sensor rate; per estimator: µs per sample by block size."""
     from ..bench.loop import STAGES
 
+    def stage_rows(title: str, runs: list[dict], width: int) -> None:
+        t = Table(title=title)
+        t.add_column("stage")
+        for run in runs:
+            t.add_column(f"{run['sensor_rate_hz']:g} Hz sensor, {run['writer']} writer: µs/tick", justify="right")
+            t.add_column("share", justify="right")
+        for stage in STAGES:
+            if any(run["us_per_tick"][stage] for run in runs) or stage == "loop body":  # a stage this preset has
+                t.add_row(stage, *[v for run in runs for v in (f"{run['us_per_tick'][stage]:.1f}",
+                                                                f"{100 * run['share'][stage]:.0f} %")])
+        t.add_row("whole tick", *[v for run in runs for v in (f"{sum(run['us_per_tick'].values()):.1f}", "")],
+                  end_section=True)
+        t.add_row("× real time", *[v for run in runs for v in (f"{run['x_real_time']:.2f}", "")])
+        wide_console(width).print(t)
+
     stages = out["stages"]
-    t = Table(title="Where a tick goes (demo session, not paced, recording on; loop at "
-                    f"{stages[0]['loop_rate_hz']:g} Hz, estimator {stages[0]['estimator']})")
-    t.add_column("stage")
-    for run in stages:
-        t.add_column(f"{run['sensor_rate_hz']:g} Hz sensor, {run['writer']} writer: µs/tick", justify="right")
-        t.add_column("share", justify="right")
-    for stage in STAGES:
-        t.add_row(stage, *[v for run in stages for v in (f"{run['us_per_tick'][stage]:.1f}",
-                                                          f"{100 * run['share'][stage]:.0f} %")])
-    t.add_row("whole tick", *[v for run in stages for v in (f"{sum(run['us_per_tick'].values()):.1f}", "")],
-              end_section=True)
-    t.add_row("× real time", *[v for run in stages for v in (f"{run['x_real_time']:.2f}", "")])
-    wide_console(160).print(t)
+    stage_rows("Where a tick goes (demo session, not paced, recording on; loop at "
+               f"{stages[0]['loop_rate_hz']:g} Hz, estimator {stages[0]['estimator']})", stages, 160)
+    if "teleop" in out:
+        run = out["teleop"]
+        shadows = f", shadows {', '.join(run['shadows'])}" if run["shadows"] else ""
+        stage_rows(f"Where a tick goes in teleoperation ({run['preset']}, a master pressing 5 cm every 2 s after "
+                   f"the tour, not paced; estimator {run['estimator']}{shadows})", [run], 100)
     t = Table(title="Estimators: µs per sample (median / p99) by block size, simulated tour at 1 kHz")
     t.add_column("estimator")
     sizes = list(next(iter(out["estimators"].values())))

@@ -139,3 +139,19 @@ def test_bench_real_exposes_the_repeated_first_samples(real_data, tmp_path):
     # the LWR4 logs start with identical rows: ‖Δx‖ < 1e-3 at the second sample
     assert out["lwr4_2013_06_13"]["estimators"]["rls"]["converged_force_at"] == 1
     assert out["axia80_ur_100poses"]["estimators"]["rls"]["converged_force_at"] is None
+
+
+def test_the_teleoperation_stage_table_times_a_press_into_the_tissue():
+    """``bench loop``'s teleoperation table: the preset's own estimator and shadow, a master that presses
+    once the tour is over (the tool goes into the tissue: contact samples), and the teleoperation step and
+    the shadows timed in their own rows."""
+    from hapticlab.sessions.bench.loop import STAGES, stage_table
+
+    run = stage_table(1000.0, 6.0, estimator=None, preset="teleop-emulated")
+    assert (run["estimator"], run["shadows"], run["ticks"]) == ("kalman", ["rls"], 6000)
+    assert run["contact_samples"] > 100
+    assert set(run["us_per_tick"]) == set(STAGES)
+    for stage in ("teleoperation", "shadow estimators", "sensor read", "kinematics read"):
+        assert run["us_per_tick"][stage] > 0, stage
+    demo = stage_table(1000.0, 0.5)  # the demo with `rls` alone: no teleoperation, no shadow
+    assert demo["us_per_tick"]["teleoperation"] == demo["us_per_tick"]["shadow estimators"] == 0

@@ -1,6 +1,6 @@
 """``hapticlab bench loop``: where a tick of the run loop goes, and what each estimator costs per sample.
 
-Two tables, so the next change to the hot path is measured the same way:
+Three tables, so the next change to the hot path is measured the same way:
 
 * **per stage**: the demo session run as fast as the machine allows (``realtime
   = false``, recording on) at a 1 kHz loop with the sensor at 1 kHz and at

@@ -190,7 +190,6 @@ class LiveLoop:
         self.next_status = 0.0
         self.events: list[Event] = []
         self.shadows = list(session.shadows)
-        self._shadow_block: tuple | None = None  # the tick's block for the shadows, run after the command
         self.samples = self.poses = self.contact_samples = self.haptic_on_ticks = 0
         self.overruns = self.skipped_since_event = 0
         self.behind_max_ns = 0
@@ -279,6 +278,7 @@ class LiveLoop:
             self.poses += len(poses)
             self.last_pose = poses[-1]
         wrenches = self._call("sensor", self.s.sensor.read, now_ns)
+        estimated = None  # (the block the primary estimated, with its parameters recorded or not)
         if wrenches:
             self.taps.wrenches(wrenches)
             self.samples += len(wrenches)
@@ -291,17 +291,21 @@ class LiveLoop:
                     self.gate.on_withheld(block.subset(usable), *self._primary_model())
                 usable[:] = False
             if usable.any():
-                self._estimate(block if usable.all() else block.subset(usable), now_ns)
+                block = block if usable.all() else block.subset(usable)
+                estimated = (block, self._estimate(block, now_ns))
         for label, device in self.s.device_events:
             self._events(device.drain_events(), label)
         self._command(now_ns)
-        self._update_shadows(now_ns)
+        if estimated is not None and self.shadows:
+            self._update_shadows(*estimated, now_ns)
         self._report(now_ns)
         self._call("recording", self.taps.send, now_ns)  # encoded now, the command gone; handed over every 20 ms
 
     # ------------------------------------------------------------------ the stages
 
-    def _estimate(self, block, now_ns: int) -> None:
+    def _estimate(self, block, now_ns: int) -> bool:
+        """The primary estimator on ``block``, its estimates recorded, the gate told; True when its
+        parameters were recorded with them (every ``PARAMS_INTERVAL_NS``)."""
         with_params = now_ns >= self.next_params_ns
         if with_params:
             self.next_params_ns = now_ns + PARAMS_INTERVAL_NS
@@ -320,15 +324,11 @@ class LiveLoop:
         self.last_estimate = (est.contact_force_S[-1], R_BS, int(est.t_ns[-1]))
         self.status.contact = bool(est.contact[-1])
         self.contact_samples += int(np.count_nonzero(est.contact))
-        if self.shadows:
-            self._shadow_block = (block, with_params)
+        return with_params
 
-    def _update_shadows(self, now_ns: int) -> None:
-        """The shadows on the tick's block, after the command has gone out (they are recorded, never
-        rendered: their time is not on the path from a sample to its command)."""
-        if self._shadow_block is None:
-            return
-        (block, with_params), self._shadow_block = self._shadow_block, None
+    def _update_shadows(self, block, with_params: bool, now_ns: int) -> None:
+        """The shadows on the block the primary estimated, after the command has gone out (they are
+        recorded, never rendered: their time is not on the path from a sample to its command)."""
         for shadow in list(self.shadows):  # one that fails is dropped
             try:
                 shadow_est = shadow.estimator.update_block(block)

@@ -10,7 +10,9 @@ callable (the estimators' ``kernel = "numpy"``) and that the tests compare it to
   force of the ``kalman`` estimator's ``inertia`` option;
 * ``align``: the live aligner's per-block work (``core.aligner``);
 * ``servo``: the simulated servoed robot's state at the times a live
-  simulation asks for, one sample at a time (``plugins/simworld/servo.py``).
+  simulation asks for, one sample at a time (``plugins/simworld/servo.py``);
+* ``pose``: the quaternion a live simulated robot reports, encoder jitter included
+  (``plugins/kinematics/sim.py``).
 
 Compiled with ``cache=True`` (the machine code is kept in ``__pycache__``);
 each module's ``warm_up()`` compiles or loads it before the first live tick.

@@ -11,6 +11,7 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.frames import quat_multiply, quat_wxyz_from_matrix
+from ...core.kernels import pose as pose_kernel
 from ...core.plugins import ConfigError
 from ...core.types import PoseSample
 from ..simworld.faults import kinematics_faults_act, kinematics_times
@@ -52,6 +53,8 @@ class SimKinematics:
         self.world = world
         self._clock = SampleClock(self.rate_hz)
         self._ahead = Prefetch(self._exact_poses, self.rate_hz, ahead_s=0.0 if world.live else PREFETCH_S)
+        if world.live:
+            pose_kernel.warm_up()  # compiled (or loaded from the cache) before the first live tick
 
     def open(self, t0_ns: int) -> None:
         """Start streaming: sample 0 is at ``t0_ns`` (world time 0)."""
@@ -66,11 +69,30 @@ class SimKinematics:
 
     def _poses(self, t: np.ndarray, reading_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``quat_BE`` (N, 4) and ``p_BoEo_B`` (N, 3) m reported: the pose at world times ``t`` (s) with the
-        encoder jitter of the readings taken at world times ``reading_ns`` (ns)."""
+        encoder jitter of the readings taken at world times ``reading_ns`` (ns). A live world's poses come
+        one at a time: their quaternions are compiled (``core.kernels.pose``; :meth:`_poses_reference`
+        is the numpy the others take, in chunks)."""
+        if not self.world.live:
+            return self._poses_reference(t, reading_ns)
+        R_BE, p_BoEo_B = self.world.pose(t)
+        jitter = self._jitter(reading_ns, len(t))
+        quat_BE = np.empty((len(t), 4))
+        pose_kernel.reported_quat(R_BE, jitter[:, :3], self.encoder_noise > 0, quat_BE)
+        return quat_BE, (p_BoEo_B + jitter[:, 3:] if self.encoder_noise > 0 else p_BoEo_B)
+
+    def _jitter(self, reading_ns: np.ndarray, n: int) -> np.ndarray:
+        """(n, 6): each pose's small rotation δ (rad) and offset (m), a function of its stamp (zeros without
+        encoder noise)."""
+        if self.encoder_noise > 0:
+            return gaussian_noise(self._noise_key, reading_ns, 6) * self.encoder_noise
+        return np.zeros((n, 6))
+
+    def _poses_reference(self, t: np.ndarray, reading_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_poses` in numpy."""
         R_BE, p_BoEo_B = self.world.pose(t)
         quat_BE = quat_wxyz_from_matrix(R_BE)
-        if self.encoder_noise > 0:  # small rotation δ (rad) and offset (m) per pose, a function of its stamp
-            jitter = gaussian_noise(self._noise_key, reading_ns, 6) * self.encoder_noise
+        if self.encoder_noise > 0:
+            jitter = self._jitter(reading_ns, len(t))
             quat_BE = quat_BE + 0.5 * quat_multiply(quat_BE, np.column_stack([np.zeros(len(t)), jitter[:, :3]]))
             quat_BE /= np.linalg.norm(quat_BE, axis=1)[:, None]
             p_BoEo_B = p_BoEo_B + jitter[:, 3:]

@@ -116,6 +116,36 @@ def test_the_compiled_state_is_the_numpy_reference_s():
         assert np.allclose(getattr(compiled, field), getattr(reference, field), rtol=0, atol=1e-14), field
 
 
+
+def test_a_live_robot_reports_the_quaternions_the_numpy_path_gives():
+    """``core.kernels.pose`` (a live world's poses, one at a time) against the numpy path the prefetching
+    kinematics take: random orientations (each of Shepperd's four rows chosen) with the encoders' jitter
+    and without, and a servoed robot turning, read through ``_poses`` and ``_poses_reference``."""
+    from hapticlab.core.frames import quat_multiply, quat_wxyz_from_matrix
+    from hapticlab.core.kernels.pose import reported_quat
+
+    R = Rotation.random(400, random_state=5).as_matrix()
+    delta = np.random.default_rng(6).normal(0.0, 1e-3, (400, 3))
+    plain, turned = np.empty((400, 4)), np.empty((400, 4))
+    reported_quat(R, delta, False, plain)
+    reported_quat(R, delta, True, turned)
+    expected = quat_wxyz_from_matrix(R)
+    assert len({int(np.argmax(np.c_[np.trace(R, axis1=1, axis2=2), np.diagonal(R, axis1=1, axis2=2)][k]))
+                for k in range(400)}) == 4  # every branch
+    assert np.allclose(plain, expected, rtol=0, atol=1e-15)
+    expected = expected + 0.5 * quat_multiply(expected, np.column_stack([np.zeros(400), delta]))
+    assert np.allclose(turned, expected / np.linalg.norm(expected, axis=1)[:, None], rtol=0, atol=1e-15)
+
+    world = tissue_world()
+    kinematics = sim_kinematics(rate_hz=500.0, encoder_noise=1e-4, world=world)
+    R_0, p_0 = world.motion.target
+    world.servo_cp(0.01, Rotation.from_rotvec([0.0, 0.6, 0.3]).as_matrix() @ R_0, p_0)
+    t_ns = np.arange(0, 1_000_000_000, 2_000_000)
+    live, reference = kinematics._poses(t_ns / 1e9, t_ns), kinematics._poses_reference(t_ns / 1e9, t_ns)
+    assert np.allclose(live[0], reference[0], rtol=0, atol=1e-15) and np.array_equal(live[1], reference[1])
+    assert np.ptp(live[0][:, 2]) > 0.1  # it turned
+
+
 def test_a_non_finite_target_is_refused_and_the_robot_keeps_its_last():
     motion = ServoedMotion()
     R_0, p_0 = motion.target

@@ -23,12 +23,16 @@ import math
 import numpy as np
 from numba import njit
 
+from .align import _multiply
+
 
 @njit(cache=True)
 def reported_quat(R_BE, delta, jitter, out):
     """Fill ``out`` (n, 4) with the [w, x, y, z] quaternion of each ``R_BE`` (n, 3, 3), w ≥ 0; when
     ``jitter``, turned by the small rotation ``delta`` (n, 3) rad in E: q + ½ q ⊗ [0, δ], normalised."""
     K = np.empty(4)
+    turn = np.zeros(4)  # [0, δ]
+    product = np.empty(4)
     for i in range(R_BE.shape[0]):
         R = R_BE[i]
         trace = R[0, 0] + R[1, 1] + R[2, 2]
@@ -52,16 +56,17 @@ def reported_quat(R_BE, delta, jitter, out):
         else:
             K[0], K[1], K[2], K[3] = R[1, 0] - R[0, 1], R[0, 2] + R[2, 0], R[1, 2] + R[2, 1], diag3
         scale = (-1.0 if K[0] < 0 else 1.0) / math.sqrt(K[0] * K[0] + K[1] * K[1] + K[2] * K[2] + K[3] * K[3])
-        w, x, y, z = K[0] * scale, K[1] * scale, K[2] * scale, K[3] * scale
+        for k in range(4):
+            K[k] *= scale
         if jitter:
-            dx, dy, dz = delta[i, 0], delta[i, 1], delta[i, 2]
-            w, x, y, z = (w + 0.5 * (w * 0.0 - x * dx - y * dy - z * dz),
-                          x + 0.5 * (w * dx + x * 0.0 + y * dz - z * dy),
-                          y + 0.5 * (w * dy - x * dz + y * 0.0 + z * dx),
-                          z + 0.5 * (w * dz + x * dy - y * dx + z * 0.0))
-            norm = math.sqrt(w * w + x * x + y * y + z * z)
-            w, x, y, z = w / norm, x / norm, y / norm, z / norm
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = w, x, y, z
+            turn[1], turn[2], turn[3] = delta[i, 0], delta[i, 1], delta[i, 2]
+            _multiply(K, turn, product)
+            for k in range(4):
+                K[k] += 0.5 * product[k]
+            norm = math.sqrt(K[0] * K[0] + K[1] * K[1] + K[2] * K[2] + K[3] * K[3])
+            for k in range(4):
+                K[k] /= norm
+        out[i, :] = K
 
 
 def warm_up() -> None:

@@ -101,22 +101,22 @@ class SimKinematics:
     def read(self, until_ns: int) -> list[PoseSample]:
         """Every pose not yet returned with time <= ``until_ns``, in time order."""
         seq, t_ns = self._clock.take(until_ns)
-        if len(seq) == 0:
+        if not seq:
             return []
-        t = (t_ns - self._clock.t0_ns) / 1e9
-        if kinematics_faults_act(self.world.faults, t):  # injected ([[world.faults]]): frozen, late or missing poses
-            t, t_reading, keep = kinematics_times(self.world.faults, t)
-            t_ns, t = t_ns[keep], t[keep]
+        faults = self.world.faults
+        t = (np.array(t_ns) - self._clock.t0_ns) / 1e9 if faults else None
+        if faults and kinematics_faults_act(faults, t):  # injected ([[world.faults]]): frozen, late or missing poses
+            t, t_reading, keep = kinematics_times(faults, t)
+            t_ns, t = [t_ns[k] for k in np.flatnonzero(keep)], t[keep]
             if len(t_ns) == 0:
                 return []
             quat_BE, p_BoEo_B = self._poses(t, np.round(t_reading[keep] * 1e9).astype(np.int64))
             quat_BE.setflags(write=False)  # rows are handed out as views
             p_BoEo_B.setflags(write=False)
         else:
-            poses = self._ahead.take(seq)  # read-only views
+            poses = self._ahead.take(seq.start, seq.stop)  # read-only views
             quat_BE, p_BoEo_B = poses["quat_BE"], poses["p_BoEo_B"]
-        return [PoseSample(t_ns=t, quat_BE=quat, p_BoEo_B=p)
-                for t, quat, p in zip(t_ns.tolist(), quat_BE, p_BoEo_B)]
+        return [PoseSample(t_ns=t, quat_BE=quat, p_BoEo_B=p) for t, quat, p in zip(t_ns, quat_BE, p_BoEo_B)]
 
     def prepare(self, until_ns: int) -> None:
         """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; not with a live world)."""

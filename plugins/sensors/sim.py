@@ -9,6 +9,8 @@ samples one big read would.
 
 from __future__ import annotations
 
+import numpy as np
+
 from ...core import hookimpl
 from ...core.plugins import ConfigError
 from ...core.types import WrenchSample
@@ -58,23 +60,22 @@ class SimSensor:
     def read(self, until_ns: int) -> list[WrenchSample]:
         """Every sample not yet returned with time <= ``until_ns``, in time order."""
         seq, t_ns = self._clock.take(until_ns)
-        if len(seq) == 0:
+        if not seq:
             return []
-        reading = self._ahead.take(seq)  # read-only views: rows are handed out as they are
+        reading = self._ahead.take(seq.start, seq.stop)  # read-only views: rows are handed out as they are
         if self.world.faults:  # injected faults ([[world.faults]]): what the sensor delivers, not the physics
-            t = (t_ns - self._clock.t0_ns) / 1e9
+            t = (np.array(t_ns) - self._clock.t0_ns) / 1e9
             reading = {k: v.copy() for k, v in reading.items()}
             keep = apply_sensor_faults(self.world.faults, t, reading)
             if not keep.all():
-                seq, t_ns = seq[keep], t_ns[keep]
+                seq, t_ns = [seq[k] for k in np.flatnonzero(keep)], [t_ns[k] for k in np.flatnonzero(keep)]
                 reading = {k: v[keep] for k, v in reading.items()}
             for array in reading.values():
                 array.setflags(write=False)
         force_S, torque_S = reading["force_S"], reading["torque_S"]
         return [
             WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)
-            for t, force, torque, i, status in zip(t_ns.tolist(), force_S, torque_S, seq.tolist(),
-                                                   reading["status"].tolist())
+            for t, force, torque, i, status in zip(t_ns, force_S, torque_S, seq, reading["status"].tolist())
         ]
 
     def prepare(self, until_ns: int) -> None:

@@ -282,19 +282,21 @@ class SampleClock:
             last -= 1
         return max(last + 1, self.next_index)
 
-    def take(self, until_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    def take(self, until_ns: int) -> tuple[range, list[int]]:
         """Indices and times of every sample not yet taken with time <= ``until_ns``.
+
+        A live read takes one sample or a few: Python's integers cost less than numpy's per-call
+        overhead here, and give :meth:`times`'s values (the same float product, rounded half to even).
 
         Returns
         -------
-        seq : (N,) int64 sample indices.
-        t_ns : (N,) int64 sample times, ns.
+        seq : the sample indices (a range, empty when there is none).
+        t_ns : their times, ns (Python ints).
         """
-        seq = np.arange(self.next_index, self.end_index(until_ns), dtype=np.int64)
-        t_ns = self.times(seq)
-        if len(seq):
-            self.next_index = int(seq[-1]) + 1
-        return seq, t_ns
+        lo, hi = self.next_index, self.end_index(until_ns)
+        self.next_index = hi
+        t0_ns, step = self.t0_ns, 1e9 / self.rate_hz
+        return range(lo, hi), [t0_ns + round(i * step) for i in range(lo, hi)]
 
 
 # --------------------------------------------------------------------------- the world

@@ -57,11 +57,8 @@ class Prefetch:
                 array.setflags(write=False)
             self.first, self.size = lo, n
 
-    def take(self, seq: np.ndarray) -> dict[str, np.ndarray]:
-        """The arrays for ``seq`` (consecutive increasing indices), as read-only views."""
-        lo, hi = int(seq[0]), int(seq[-1]) + 1
-        if hi - lo != len(seq):
-            raise ValueError(f"Prefetch.take needs consecutive indices, got {len(seq)} spanning {lo}..{hi - 1}")
+    def take(self, lo: int, hi: int) -> dict[str, np.ndarray]:
+        """The arrays for the indices ``lo`` ≤ i < ``hi``, as read-only views."""
         self._cover(lo, hi)
         a, b = lo - self.first, hi - self.first
         return {key: array[a:b] for key, array in self.cache.items()}

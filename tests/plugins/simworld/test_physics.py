@@ -24,7 +24,7 @@ from hapticlab.plugins.simworld import (
     SimWorld,
     ToolParams,
 )
-from hapticlab.plugins.simworld.physics import gaussian_noise
+from hapticlab.plugins.simworld.physics import SampleClock, gaussian_noise
 from scipy.spatial.transform import Rotation
 
 G = 9.80665
@@ -578,3 +578,25 @@ def test_noise_stream_is_unchanged():
     ])
     np.testing.assert_allclose(gaussian_noise(8431846347943309920, np.array([0, 2**62]), 6), recorded,
                                rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("rate_hz", [7000.0, 1000.0, 500.0, 125.0, 333.3, 6999.7])
+def test_a_clock_read_tick_by_tick_hands_out_each_sample_once_at_its_formula_time(rate_hz):
+    """``take`` (Python ints, what a live read uses) gives ``times`` (numpy) for every index, each once."""
+    clock = SampleClock(rate_hz)
+    t0_ns = 1_234_567_890_123
+    clock.start(t0_ns)
+    rng = np.random.default_rng(7)
+    seqs, times = [], []
+    now_ns = t0_ns
+    for _ in range(3000):
+        now_ns += int(rng.integers(0, 3_000_000))  # 0–3 ms ticks, some landing exactly on a sample
+        if rng.random() < 0.1 and seqs:
+            now_ns = times[-1]
+        seq, t_ns = clock.take(now_ns)
+        assert all(t <= now_ns for t in t_ns)
+        seqs += list(seq)
+        times += t_ns
+    assert seqs == list(range(len(seqs)))
+    assert times == clock.times(np.arange(len(seqs))).tolist()
+    assert clock.times(np.array([len(seqs)]))[0] > now_ns  # nothing due was left behind

@@ -324,4 +324,4 @@ class HapticGate:
     def _std(self) -> float | None:
         if self.parameter_std is None:
             return None
-        return float(np.max(self.parameter_std.force_parameter_std()))
+        return float(self.parameter_std.force_parameter_std().max())  # (NaN when any is)

@@ -22,6 +22,9 @@ counts.)
 
 from __future__ import annotations
 
+import math
+from collections import deque
+
 import numpy as np
 
 from ...core.kernels.lag import lag_sums
@@ -54,39 +57,45 @@ class PoseWatch:
         self.last: tuple[bytes, bytes] | None = None
         self.changed_ns: int | None = None  # stamp of the last pose that differed from its predecessor
         self.newest_ns: int | None = None
-        self.previous: PoseSample | None = None
+        self.previous: tuple[int, list[float], list[float] | None] | None = None  # (t_ns, quat_BE, p_BoEo_B)
         self.jump: tuple[int, str] | None = None  # (stamp, what) of the last jump seen
 
     def add(self, poses: list[PoseSample], now_ns: int) -> bool:
         """Take the newest poses, read at ``now_ns`` (the session clock); True when they jumped (``jump``
         then says when, on the session clock, and how far). A non-finite pose is a jump too, and never the
-        pose the next one is compared with."""
+        pose the next one is compared with. (Per pose, in Python floats: a few poses a tick, where numpy's
+        per-call overhead would cost more than the arithmetic.)"""
         jumped = False
         for pose in poses:
             key = (pose.quat_BE.tobytes(), b"" if pose.p_BoEo_B is None else pose.p_BoEo_B.tobytes())
             if key != self.last:
                 self.last, self.changed_ns = key, pose.t_ns
             self.newest_ns = pose.t_ns
-            if not (np.isfinite(pose.quat_BE).all() and (pose.p_BoEo_B is None or np.isfinite(pose.p_BoEo_B).all())):
+            quat = pose.quat_BE.tolist()
+            p = None if pose.p_BoEo_B is None else pose.p_BoEo_B.tolist()
+            if not (all(map(math.isfinite, quat)) and (p is None or all(map(math.isfinite, p)))):
                 self.jump, jumped = (now_ns, "a non-finite pose"), True
                 continue
-            what = self._jump(self.previous, pose) if self.previous is not None else ""
+            current = (pose.t_ns, quat, p)
+            what = self._jump(self.previous, current) if self.previous is not None else ""
             if what:
                 self.jump, jumped = (now_ns, what), True
-            self.previous = pose
+            self.previous = current
         return jumped
 
-    def _jump(self, a: PoseSample, b: PoseSample) -> str:
-        """How two consecutive poses moved faster than the arm can ("" when they did not)."""
-        dt = (b.t_ns - a.t_ns) * 1e-9
+    def _jump(self, a: tuple, b: tuple) -> str:
+        """How two consecutive poses (t_ns, quat_BE, p_BoEo_B) moved faster than the arm can ("" when they
+        did not)."""
+        dt = (b[0] - a[0]) * 1e-9
         if dt <= 0:
             return ""
         # the angle between two unit quaternions: 2·acos|⟨a, b⟩|
-        angle = 2.0 * float(np.arccos(min(1.0, abs(float(np.dot(a.quat_BE, b.quat_BE))))))
+        qa, qb = a[1], b[1]
+        angle = 2.0 * math.acos(min(1.0, abs(qa[0] * qb[0] + qa[1] * qb[1] + qa[2] * qb[2] + qa[3] * qb[3])))
         if angle > self.max_turn_rate * dt:
             return f"turned {angle:.3g} rad in {dt * 1e3:.3g} ms"
-        if a.p_BoEo_B is not None and b.p_BoEo_B is not None:
-            distance = float(np.linalg.norm(b.p_BoEo_B - a.p_BoEo_B))
+        if a[2] is not None and b[2] is not None:
+            distance = math.dist(a[2], b[2])
             if distance > self.max_speed * dt:
                 return f"moved {distance * 1e3:.3g} mm in {dt * 1e3:.3g} ms"
         return ""
@@ -114,9 +123,10 @@ class BiasWatch:
     def __init__(self):
         self.start_ns: int | None = None  # the refused run's first sample
         self.R_EB_start: np.ndarray | None = None
-        self.first: list[np.ndarray] = []  # contact force (in S) over the run's first window
+        self.first: list[list[float]] = []  # contact force (in S) over the run's first window
         self.before: np.ndarray | None = None  # their mean, once the window is full
-        self.recent: list[tuple[int, np.ndarray]] = []
+        self.recent: deque[tuple[int, list[float]]] = deque()  # the last BIAS_WINDOW_NS of the run
+        self.recent_sum = [0.0, 0.0, 0.0]  # their sum (a running sum: a mean per tick, not a pass over them)
         self.max_departure = 0.0
 
     def add(self, block: AlignedSamples, est: Estimates) -> np.ndarray | None:
@@ -125,22 +135,33 @@ class BiasWatch:
         if not contact[-1]:
             self.start_ns = None
             return None
-        free = np.flatnonzero(~contact)
+        free = () if contact.all() else np.flatnonzero(~contact)
         k = int(free[-1]) + 1 if len(free) else 0  # the first row of the run this block ends with
         if self.start_ns is None or len(free):
             self.start_ns, self.R_EB_start = int(block.t_ns[k]), block.R_EB[k]
-            self.first, self.before, self.recent, self.max_departure = [], None, [], 0.0
-        for t, f in zip(block.t_ns[k:].tolist(), est.contact_force_S[k:]):
+            self.first, self.before, self.max_departure = [], None, 0.0
+            self.recent, self.recent_sum = deque(), [0.0, 0.0, 0.0]
+        total, recent = self.recent_sum, self.recent
+        for t, f in zip(block.t_ns[k:].tolist(), est.contact_force_S[k:].tolist()):
+            if not all(map(math.isfinite, f)):  # (never expected of a contact row) it would poison the sum
+                continue
             if self.before is None and t - self.start_ns <= BIAS_WINDOW_NS:
                 self.first.append(f)
-            self.recent.append((t, f))
+            recent.append((t, f))
+            total[0] += f[0]
+            total[1] += f[1]
+            total[2] += f[2]
         newest = int(block.t_ns[-1])
-        self.recent = [(t, f) for t, f in self.recent if newest - t <= BIAS_WINDOW_NS]
-        if newest - self.start_ns < 2 * BIAS_WINDOW_NS:
+        while recent and newest - recent[0][0] > BIAS_WINDOW_NS:
+            f = recent.popleft()[1]
+            total[0] -= f[0]
+            total[1] -= f[1]
+            total[2] -= f[2]
+        if newest - self.start_ns < 2 * BIAS_WINDOW_NS or not recent or not self.first:
             return None
         if self.before is None:
             self.before = np.mean(self.first, axis=0)
-        now = np.mean([f for _, f in self.recent], axis=0)
+        now = np.array(total) / len(recent)
         size = float(np.linalg.norm(self.before))
         tolerance = max(BIAS_TOLERANCE * size, BIAS_FLOOR_N)
         self.max_departure = max(self.max_departure, float(np.linalg.norm(now - self.before)))
@@ -224,19 +245,19 @@ class LagWatch:
         the estimator (which would otherwise learn the lag into its parameters and hide it). The sums
         are ``core.kernels.lag.lag_sums`` (compiled); the verdict is here.
         """
-        gravity_force_B = np.asarray(params["gravity_force_B"], dtype=float)
-        bias_force_S = np.asarray(params["bias_force_S"], dtype=float)
-        if not (np.isfinite(gravity_force_B).all() and np.isfinite(bias_force_S).all()):
+        gravity, bias = params["gravity_force_B"], params["bias_force_S"]
+        if not (all(map(math.isfinite, gravity)) and all(map(math.isfinite, bias))):
             return self.lag_s  # no weight to predict with: nothing to learn from this block
+        gravity_force_B, bias_force_S = np.asarray(gravity, dtype=float), np.asarray(bias, dtype=float)
         lag_sums(block.t_ns, block.R_EB, block.force_S, _EYE if R_SE is None else R_SE, gravity_force_B,
                  bias_force_S, self.noise, LAG_MAX_S, LAG_CONTACT_GUARD_NS, self.max_turn_rate, LAG_MEMORY_S,
                  self.sums, self.clock)
-        if not np.isfinite(self.sums).all():  # never expected (the kernel skips non-finite terms): start afresh
+        if not all(map(math.isfinite, self.sums.tolist())):  # never expected (the kernel skips non-finite terms): start afresh
             lag_s = self.lag_s
             self.reset()
             self.lag_s = lag_s
             return self.lag_s
-        if self.S_gg > 0 and self.noise / np.sqrt(self.S_gg) < LAG_MIN_RESOLUTION_S:
+        if self.S_gg > 0 and self.noise / math.sqrt(self.S_gg) < LAG_MIN_RESOLUTION_S:
             lag = self.S_rg / self.S_gg
             if abs(lag) <= LAG_LIMIT_S or lag * self.S_rg >= LAG_MIN_EXPLAINED * self.S_rr:
                 self.lag_s = lag

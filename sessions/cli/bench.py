@@ -186,7 +186,10 @@ def print_loop_tables(out: dict) -> None:
                                                                 f"{100 * run['share'][stage]:.0f} %")])
         t.add_row("whole tick", *[v for run in runs for v in (f"{sum(run['us_per_tick'].values()):.1f}", "")],
                   end_section=True)
-        t.add_row("× real time", *[v for run in runs for v in (f"{run['x_real_time']:.2f}", "")])
+        t.add_row("× real time", *[v for run in runs for v in (f"{run['x_real_time']:.2f}", "")], end_section=True)
+        t.add_row("start and end, ms once", *[v for run in runs for v in (f"{run['start_end_ms']:.0f}", "")])
+        t.add_row(f"× real time, whole {runs[0]['duration_s']:g} s run",
+                  *[v for run in runs for v in (f"{run['x_real_time_session']:.2f}", "")])
         wide_console(width).print(t)
 
     stages = out["stages"]

@@ -155,3 +155,5 @@ def test_the_teleoperation_stage_table_times_a_press_into_the_tissue():
         assert run["us_per_tick"][stage] > 0, stage
     demo = stage_table(1000.0, 0.5)  # the demo with `rls` alone: no teleoperation, no shadow
     assert demo["us_per_tick"]["teleoperation"] == demo["us_per_tick"]["shadow estimators"] == 0
+    # the session's start and end (the writer process's spawn, the file's end) are apart from the ticks
+    assert demo["start_end_ms"] > 0 and demo["x_real_time_session"] < demo["x_real_time"]

@@ -638,3 +638,26 @@ def test_damaged_chunk_is_skipped_not_salvaged_as_garbage(tmp_path, many_chunks)
     expected = [m for i, c in enumerate(chunks) if i != 3 for m in c[2]]
     assert stats["messages"] == len(expected) == sum(len(c[2]) for c in chunks) - len(lost)
     assert read_recording(fixed).topics == _by_topic(expected)
+
+
+def test_the_message_encoder_writes_what_json_dumps_writes_and_refuses_what_it_refuses():
+    """The recorder's JSON encoder (json's C encoder built once) gives the standard library's bytes."""
+    from hapticlab.sessions.recording.writer import _encode, _json_default
+
+    def reference(value):
+        return json.dumps(value, separators=(",", ":"), allow_nan=False, default=_json_default)
+
+    rng = np.random.default_rng(3)
+    messages = [
+        {"force_D": rng.normal(size=3).tolist(), "enabled": True, "reason": "", "source_t_ns": 2**63 - 1},
+        {"pose": {"quat_DH": rng.normal(size=4), "p_DoHo_D": [0.0, -0.0, 1e-300]}, "buttons": 3, "v_DHo_D": None},
+        {"kind": "fault", "message": "ünïcode \"quoted\"\n\ttab \u2603", "data": {"a": np.float32(0.1),
+                                                                                  "b": np.int64(-7), "c": (1, 2)}},
+        [1e308, -1e-308, 0.1 + 0.2, 12345678901234567890, False, "x"],
+    ]
+    for message in messages:
+        assert _encode(message) == reference(message)
+    for bad, error in (({"x": float("nan")}, ValueError), ({"x": [float("inf")]}, ValueError),
+                       ({"x": object()}, TypeError)):
+        with pytest.raises(error):
+            _encode(bad)

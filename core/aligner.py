@@ -123,23 +123,40 @@ class Aligner:
         self.kernel = kernel
         if kernel == "numba":
             align_kernel.warm_up()
-        self._t = np.zeros(0, dtype=np.int64)
-        self._q = np.zeros((0, 4))
-        self._p: np.ndarray | None = np.zeros((0, 3))  # None once a pose without a position came
+        # the buffers: rows [start, end) hold the newest `keep` poses (at most); appended in place, moved
+        # back to row 0 when full (a copy of `keep` rows every 3·keep poses, not a concatenation per tick)
+        capacity = 4 * keep
+        self._tb, self._qb, self._pb = np.zeros(capacity, dtype=np.int64), np.zeros((capacity, 4)), np.zeros((capacity, 3))
+        self._end = 0
+        self._with_p = True  # False once a pose without a position came
+        self._window(0)
+
+    def _window(self, start: int) -> None:
+        end = self._end
+        self._t, self._q = self._tb[start:end], self._qb[start:end]
+        self._p: np.ndarray | None = self._pb[start:end] if self._with_p else None
 
     def add_poses(self, poses: list[PoseSample]) -> None:
         """Append poses (in time order) to the buffer."""
         if not poses:
             return
-        t = np.array([p.t_ns for p in poses], dtype=np.int64)
-        q = np.array([p.quat_BE for p in poses], dtype=float)
-        self._t = np.concatenate([self._t, t])[-self.keep :]
-        self._q = np.concatenate([self._q, q])[-self.keep :]
-        if self._p is not None and all(p.p_BoEo_B is not None for p in poses):
-            p = np.array([p.p_BoEo_B for p in poses], dtype=float).reshape(len(poses), 3)
-            self._p = np.concatenate([self._p, p])[-self.keep :]
-        else:
-            self._p = None
+        poses = poses[-self.keep:]
+        m, end = len(poses), self._end
+        if end + m > len(self._tb):  # full: the newest rows back to the start
+            kept = min(end, self.keep - m)
+            for buffer in (self._tb, self._qb, self._pb):
+                buffer[:kept] = buffer[end - kept:end]
+            end = kept
+        tb, qb, pb = self._tb, self._qb, self._pb
+        for i, pose in enumerate(poses, start=end):
+            tb[i] = pose.t_ns
+            qb[i] = pose.quat_BE
+            if pose.p_BoEo_B is None:
+                self._with_p = False
+            elif self._with_p:
+                pb[i] = pose.p_BoEo_B
+        self._end = end = end + m
+        self._window(max(end - self.keep, 0))
 
     @property
     def latest_pose_ns(self) -> int | None:
@@ -149,11 +166,11 @@ class Aligner:
     def align(self, wrenches: list[WrenchSample]) -> AlignedSamples:
         """Pair each wrench with its orientation; ``stale`` marks the ones that could not be."""
         n = len(wrenches)
-        t = np.fromiter((w.t_ns for w in wrenches), dtype=np.int64, count=n)
+        t = np.array([w.t_ns for w in wrenches], dtype=np.int64).reshape(n)
         force_S = np.array([w.force_S for w in wrenches], dtype=float).reshape(n, 3)
         torque_S = np.array([w.torque_S for w in wrenches], dtype=float).reshape(n, 3)
-        seq = np.fromiter((w.seq for w in wrenches), dtype=np.int64, count=n)
-        status = np.fromiter((w.status for w in wrenches), dtype=np.int64, count=n)
+        seq = np.array([w.seq for w in wrenches], dtype=np.int64).reshape(n)
+        status = np.array([w.status for w in wrenches], dtype=np.int64).reshape(n)
         if len(self._t) == 0:
             quat_BE = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
             stale = np.ones(n, dtype=bool)

@@ -286,12 +286,13 @@ class LiveLoop:
             self.taps.aligned(block)
             usable, _, reason = screen(block, self.sensor_range)
             self.gate.on_samples(block, reason)
+            some = True if not reason else usable.any()  # no reason: every sample is usable (the usual case)
             if not self.gate.trusts_poses(now_ns):  # their orientation is not the robot's: keep them from the estimators
-                if usable.any():
-                    self.gate.on_withheld(block.subset(usable), *self._primary_model())
-                usable[:] = False
-            if usable.any():
-                block = block if usable.all() else block.subset(usable)
+                if some:
+                    self.gate.on_withheld(block if not reason else block.subset(usable), *self._primary_model())
+                some = False
+            if some:
+                block = block if not reason else block.subset(usable)
                 estimated = (block, self._estimate(block, now_ns))
         for label, device in self.s.device_events:
             self._events(device.drain_events(), label)

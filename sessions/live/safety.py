@@ -126,7 +126,10 @@ class ForceGovernor:
                 reason = "non-finite contact force"
         if not reason:  # Python floats: an overflow gives inf, no warning, and fails the check
             scale = self.settings.scale
-            mapped_D = [scale * (r0 * f0 + r1 * f1 + r2 * f2) for r0, r1, r2 in (self.R_DB @ R_BS).tolist()]
+            # R_BS · f, then R_DB · that, in Python floats (numpy's 3×3 product costs more than its 18 products)
+            force_B = [r0 * f0 + r1 * f1 + r2 * f2 for r0, r1, r2 in R_BS.tolist()]
+            b0, b1, b2 = force_B
+            mapped_D = [scale * (r0 * b0 + r1 * b1 + r2 * b2) for r0, r1, r2 in self.R_DB.tolist()]
             if not math.isfinite(math.hypot(*mapped_D)):
                 reason = "non-finite force after the mapping"
         if reason:

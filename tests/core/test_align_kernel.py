@@ -87,3 +87,24 @@ def test_one_pose_and_a_repeated_stamp_hold_the_orientation():
 def test_an_unknown_kernel_is_refused():
     with pytest.raises(ValueError, match="kernel"):
         Aligner(500.0, kernel="cuda")
+
+
+def test_the_aligner_keeps_exactly_the_newest_poses_as_they_stream_in():
+    """The pose buffer (appended in place, moved back when full) holds the newest ``keep`` poses in order
+    after every batch: batches of 1–5 poses, and now and then one longer than ``keep`` itself."""
+    rng = np.random.default_rng(5)
+    poses = pose_stream(rng, 3000, positions=True)
+    aligner = Aligner(500.0, keep=16)
+    given, k = [], 0
+    while k < len(poses):
+        size = 40 if rng.random() < 0.02 else int(rng.integers(1, 6))
+        batch = poses[k:k + size]
+        aligner.add_poses(batch)
+        given += batch
+        k += size
+        newest = given[-16:]
+        np.testing.assert_array_equal(aligner._t, [p.t_ns for p in newest])
+        np.testing.assert_array_equal(aligner._q, [p.quat_BE for p in newest])
+        np.testing.assert_array_equal(aligner._p, [p.p_BoEo_B for p in newest])
+    aligner.add_poses([PoseSample(t_ns=given[-1].t_ns + PERIOD_NS, quat_BE=np.array([1.0, 0, 0, 0]))])
+    assert aligner._p is None and len(aligner._t) == 16  # a pose without a position: positions are unknown

@@ -20,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .frames import cross
+from .kernels import plausible as plausible_kernel
 from .types import AlignedSamples, Estimates, Event
 
 
@@ -109,37 +110,11 @@ def all_plausible(force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, m
                   max_torque: float) -> bool:
     """True when ``refusal_codes`` would refuse none of the samples (a screen: False means "look closer").
 
-    One vectorised pass over the block: magnitudes first (a NaN fails every comparison, and
-    entries of R_EB within 1 + 1e-6 keep R Rᵀ finite), then ‖R Rᵀ − I‖_F summed over the
-    block (stricter than per sample: a block that fails only on the sum is looked at closer)
-    and det R. One sample (the live loop's usual block at 1 kHz) is checked in Python floats
-    instead: measured 2.8 µs against ~30 µs for the vectorised pass's dozen numpy calls (2-core
-    machine under load).
+    One compiled pass over the block (``core.kernels.plausible``; ``refusal_codes`` is the reference):
+    0.5 µs for one sample, 0.3 µs for a 7 kHz sensor's 7, against 2 µs (Python floats) and 12 µs
+    (a dozen numpy calls) before.
     """
-    m = len(force_S)
-    if m == 1:
-        (f0, f1, f2), = force_S.tolist()
-        (t0, t1, t2), = torque_S.tolist()
-        ((a, b, c), (d, e, g), (h, i, j)), = R_EB.tolist()
-        if not (-max_force <= f0 <= max_force and -max_force <= f1 <= max_force and -max_force <= f2 <= max_force
-                and -max_torque <= t0 <= max_torque and -max_torque <= t1 <= max_torque
-                and -max_torque <= t2 <= max_torque):
-            return False  # NaN fails every comparison
-        n0, n1, n2 = a * a + b * b + c * c - 1.0, d * d + e * e + g * g - 1.0, h * h + i * i + j * j - 1.0
-        o01, o02, o12 = a * d + b * e + c * g, a * h + b * i + c * j, d * h + e * i + g * j
-        frobenius2 = n0 * n0 + n1 * n1 + n2 * n2 + 2.0 * (o01 * o01 + o02 * o02 + o12 * o12)  # ‖R Rᵀ − I‖²
-        det = a * (e * j - g * i) - b * (d * j - g * h) + c * (d * i - e * h)
-        return frobenius2 <= ROTATION_TOLERANCE ** 2 and det > 0
-    if m == 0:
-        return True
-    largest = np.maximum.reduce  # (the ndarray.max method costs ~1 µs more per call)
-    if not (largest(np.abs(force_S), axis=None) <= max_force and largest(np.abs(torque_S), axis=None) <= max_torque
-            and largest(np.abs(R_EB), axis=None) <= 1.0 + ROTATION_TOLERANCE):
-        return False
-    G = R_EB @ R_EB.transpose(0, 2, 1)
-    G -= _I3
-    G = G.reshape(-1)
-    return bool(G @ G <= ROTATION_TOLERANCE ** 2 and np.minimum.reduce(np.linalg.det(R_EB)) > 0)
+    return plausible_kernel.all_plausible(force_S, torque_S, R_EB, max_force, max_torque, ROTATION_TOLERANCE)
 
 
 class SampleGuard:
@@ -166,6 +141,7 @@ class SampleGuard:
         self.source = source
         self.max_force = wrench_bound("max_force", max_force, LARGEST_BOUND[0])
         self.max_torque = wrench_bound("max_torque", max_torque, LARGEST_BOUND[1])
+        plausible_kernel.warm_up()  # compiled (or loaded from the cache) before the first block
         self.refused = 0
         self.by_reason = dict.fromkeys(REASONS, 0)
         self.events: list[Event] = []

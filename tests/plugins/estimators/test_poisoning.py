@@ -241,9 +241,9 @@ def test_blocks_all_refused_or_empty_change_nothing(tour, name):
     assert state_equal(est, ref) and est.refused_samples == 3
 
 
-def test_the_one_sample_check_agrees_with_the_vectorised_one(tour):
-    # the live loop's one-sample blocks are screened in Python floats; the screen and the
-    # vectorised check agree on good and bad samples of every kind
+def test_the_compiled_screen_agrees_with_the_refusal_codes(tour):
+    # the guard's screen (core.kernels.plausible) and the numpy reference agree on good and bad samples of
+    # every kind, one at a time (the live loop's 1 kHz blocks) and in blocks of 7 (a 7 kHz sensor's)
     bad, mask, _ = spoil(tour, 1000)
     spoilt = np.flatnonzero(mask)
     rows = np.concatenate([spoilt, np.setdiff1d(spoilt + 1, spoilt)])  # and their good neighbours
@@ -251,6 +251,14 @@ def test_the_one_sample_check_agrees_with_the_vectorised_one(tour):
     for k, code in zip(rows, codes):
         assert all_plausible(bad.force_S[k:k + 1], bad.torque_S[k:k + 1], bad.R_EB[k:k + 1], 1e4, 1e3) == (code == 0)
     assert (codes[: len(spoilt)] > 0).all() and (codes[len(spoilt):] == 0).all()
+    verdicts = []
+    for start in range(0, len(bad) - 7, 7):
+        block = slice(start, start + 7)
+        codes = refusal_codes(bad.force_S[block], bad.torque_S[block], bad.R_EB[block], 1e4, 1e3)
+        verdict = all_plausible(bad.force_S[block], bad.torque_S[block], bad.R_EB[block], 1e4, 1e3)
+        assert verdict == (codes == 0).all(), start
+        verdicts.append(verdict)
+    assert True in verdicts and False in verdicts
 
 
 # ---------------------------------------------------------------- options

@@ -22,7 +22,7 @@ from .frames import (
     rotvec_from_quat,
 )
 from .kernels import align as align_kernel
-from .types import AlignedSamples, PoseSample, WrenchSample
+from .types import AlignedSamples, PoseSample, WrenchBlock, WrenchSample
 
 _NO_POSITIONS = np.zeros((0, 3))
 """What the compiled aligner is given for poses without positions (and writes none into)."""
@@ -163,14 +163,14 @@ class Aligner:
         """Time of the newest pose, or None before the first."""
         return int(self._t[-1]) if len(self._t) else None
 
-    def align(self, wrenches: list[WrenchSample]) -> AlignedSamples:
-        """Pair each wrench with its orientation; ``stale`` marks the ones that could not be."""
+    def align(self, wrenches: WrenchBlock | list[WrenchSample]) -> AlignedSamples:
+        """Pair each wrench with its orientation; ``stale`` marks the ones that could not be. The block's
+        arrays are the aligned samples' own (not copied)."""
+        if not isinstance(wrenches, WrenchBlock):
+            wrenches = WrenchBlock.from_samples(wrenches)
         n = len(wrenches)
-        t = np.array([w.t_ns for w in wrenches], dtype=np.int64).reshape(n)
-        force_S = np.array([w.force_S for w in wrenches], dtype=float).reshape(n, 3)
-        torque_S = np.array([w.torque_S for w in wrenches], dtype=float).reshape(n, 3)
-        seq = np.array([w.seq for w in wrenches], dtype=np.int64).reshape(n)
-        status = np.array([w.status for w in wrenches], dtype=np.int64).reshape(n)
+        t, force_S, torque_S, seq, status = (wrenches.t_ns, wrenches.force_S, wrenches.torque_S, wrenches.seq,
+                                             wrenches.status)
         if len(self._t) == 0:
             quat_BE = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
             stale = np.ones(n, dtype=bool)

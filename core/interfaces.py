@@ -23,7 +23,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .types import AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, WrenchSample
+from .types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, WrenchBlock,
+                    WrenchSample)
 
 
 @runtime_checkable
@@ -258,6 +259,20 @@ class PreparesAhead(Protocol):
     def prepare(self, until_ns: int) -> None: ...
 
 
+@runtime_checkable
+class ReadsBlocks(Protocol):
+    """A sensor that hands its readings over as arrays.
+
+    ``read_block(until_ns)`` returns what ``read(until_ns)`` would, as one :class:`WrenchBlock` (empty when
+    nothing is new); the loop then uses it instead of ``read``. A fast sensor's loop would otherwise build
+    one record per sample and the same arrays from them again (at 7 kHz, 7 records a 1 ms tick). The
+    arrays must not change once handed over (a read-only view of the device's own buffer is fine).
+    """
+
+    def read_block(self, until_ns: int) -> WrenchBlock: ...
+
+
 CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration,
-                HasRange, Reidentifies, ReportsHealth, HasLatency, HasForceLimit, ServosCartesian, PreparesAhead)
+                HasRange, Reidentifies, ReportsHealth, HasLatency, HasForceLimit, ServosCartesian, PreparesAhead,
+                ReadsBlocks)
 """Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

@@ -41,6 +41,45 @@ class WrenchSample:
 
 
 @dataclass(frozen=True, slots=True)
+class WrenchBlock:
+    """Raw readings of a six-axis force/torque sensor, as arrays: what a sensor that ``ReadsBlocks``
+    hands over, and what the loop makes of any other sensor's list of :class:`WrenchSample`.
+
+    Attributes:
+        t_ns: (N,) int64 times of the readings, ns, monotonic session clock.
+        force_S: (N, 3) raw force in the sensor frame S, N.
+        torque_S: (N, 3) raw torque in S about the sensor origin, N·m.
+        seq: (N,) int64 the device's sequence numbers.
+        status: (N,) int64 device status bits, ``STATUS_OK`` (0) where a reading is good.
+    """
+
+    t_ns: np.ndarray
+    force_S: np.ndarray
+    torque_S: np.ndarray
+    seq: np.ndarray
+    status: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    @classmethod
+    def from_samples(cls, samples: list[WrenchSample]) -> "WrenchBlock":
+        """The readings of ``samples`` (in their order) as arrays."""
+        n = len(samples)
+        return cls(np.array([w.t_ns for w in samples], dtype=np.int64).reshape(n),
+                   np.array([w.force_S for w in samples], dtype=float).reshape(n, 3),
+                   np.array([w.torque_S for w in samples], dtype=float).reshape(n, 3),
+                   np.array([w.seq for w in samples], dtype=np.int64).reshape(n),
+                   np.array([w.status for w in samples], dtype=np.int64).reshape(n))
+
+    def samples(self) -> list[WrenchSample]:
+        """The readings one record each (rows of ``force_S``/``torque_S`` as views)."""
+        return [WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)
+                for t, force, torque, i, status in zip(self.t_ns.tolist(), self.force_S, self.torque_S,
+                                                       self.seq.tolist(), self.status.tolist())]
+
+
+@dataclass(frozen=True, slots=True)
 class PoseSample:
     """One forward-kinematics reading of the robot end (flange) frame E.
 

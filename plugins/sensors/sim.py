@@ -13,17 +13,23 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.plugins import ConfigError
-from ...core.types import WrenchSample
+from ...core.types import WrenchBlock, WrenchSample
 from ..simworld.faults import apply_sensor_faults
 from ..simworld.physics import SampleClock, SimWorld
 from ..simworld.prefetch import PREFETCH_S, Prefetch
+
+_NO_TIMES = np.zeros(0, dtype=np.int64)
+_NO_VECTORS = np.zeros((0, 3))
 
 MAX_RATE_HZ = 100_000.0
 """Fastest sample rate accepted (a Net F/T streams at up to 7 kHz; an absurd rate would flood the loop)."""
 
 
 class SimSensor:
-    """A simulated F/T sensor (SensorSource).
+    """A simulated F/T sensor (SensorSource, ReadsBlocks).
+
+    The loop reads it with :meth:`read_block` (arrays, no record per sample); :meth:`read` is built from
+    it, so a subclass that changes what the sensor delivers overrides :meth:`read_block`.
 
     Parameters
     ----------
@@ -58,25 +64,29 @@ class SimSensor:
         return {k: reading[k] for k in ("force_S", "torque_S", "status")}
 
     def read(self, until_ns: int) -> list[WrenchSample]:
-        """Every sample not yet returned with time <= ``until_ns``, in time order."""
+        """Every sample not yet returned with time <= ``until_ns``, in time order (read-only arrays)."""
+        block = self.read_block(until_ns)
+        block.force_S.setflags(write=False)
+        block.torque_S.setflags(write=False)
+        return block.samples()
+
+    def read_block(self, until_ns: int) -> WrenchBlock:
+        """:meth:`read` as arrays (ReadsBlocks): the loop's way in, no record per sample. The arrays are
+        the block's own (copied from the computed chunk, which stays read-only)."""
         seq, t_ns = self._clock.take(until_ns)
         if not seq:
-            return []
-        reading = self._ahead.take(seq.start, seq.stop)  # read-only views: rows are handed out as they are
+            return WrenchBlock(_NO_TIMES, _NO_VECTORS, _NO_VECTORS, _NO_TIMES, _NO_TIMES)
+        reading = self._ahead.take(seq.start, seq.stop)  # read-only views of the chunk
+        times = np.array(t_ns, dtype=np.int64)
+        numbers = np.arange(seq.start, seq.stop, dtype=np.int64)
+        reading = {k: v.copy() for k, v in reading.items()}
         if self.world.faults:  # injected faults ([[world.faults]]): what the sensor delivers, not the physics
-            t = (np.array(t_ns) - self._clock.t0_ns) / 1e9
-            reading = {k: v.copy() for k, v in reading.items()}
-            keep = apply_sensor_faults(self.world.faults, t, reading)
+            keep = apply_sensor_faults(self.world.faults, (times - self._clock.t0_ns) / 1e9, reading)
             if not keep.all():
-                seq, t_ns = [seq[k] for k in np.flatnonzero(keep)], [t_ns[k] for k in np.flatnonzero(keep)]
+                times, numbers = times[keep], numbers[keep]
                 reading = {k: v[keep] for k, v in reading.items()}
-            for array in reading.values():
-                array.setflags(write=False)
-        force_S, torque_S = reading["force_S"], reading["torque_S"]
-        return [
-            WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)
-            for t, force, torque, i, status in zip(t_ns, force_S, torque_S, seq, reading["status"].tolist())
-        ]
+        return WrenchBlock(times, reading["force_S"], reading["torque_S"], numbers,
+                           reading["status"].astype(np.int64, copy=False))
 
     def prepare(self, until_ns: int) -> None:
         """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; not with a live world)."""

@@ -187,7 +187,7 @@ def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str |
 
 def _wrap_loop(loop: LiveLoop, watch: _Stopwatch) -> None:
     s = loop.s
-    watch.wrap(s.sensor, "read", "sensor read")
+    watch.wrap(loop, "read_wrenches", "sensor read")  # the sensor's read_block, or its read made a block
     watch.wrap(s.kinematics, "read", "kinematics read")
     for method in ("align", "add_poses"):
         watch.wrap(loop.aligner, method, "aligner")

@@ -53,8 +53,9 @@ import numpy as np
 from ...core.aligner import Aligner
 from ...core.errors import OutputExistsError
 from ...core.plugins import ConfigError
-from ...core.interfaces import HasCalibration, HasForceLimit, HasLatency, HasRange, PreparesAhead
-from ...core.types import Event
+from ...core.interfaces import (HasCalibration, HasForceLimit, HasLatency, HasRange, PreparesAhead,
+                                ReadsBlocks)
+from ...core.types import Event, WrenchBlock
 from ..config import check_duration
 from ..recording import Recorder
 from ..recording.sinks import WriterProcessError
@@ -172,6 +173,11 @@ class LiveLoop:
                                int(round(settings.frozen_pose_timeout * 1e9)), settings.max_turn_rate,
                                settings.max_speed)
         self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
+        sensor = session.sensor
+        self.read_wrenches: Callable[[int], WrenchBlock] = (
+            sensor.read_block if isinstance(sensor, ReadsBlocks)
+            else lambda until_ns: WrenchBlock.from_samples(sensor.read(until_ns)))
+        """The sensor's new readings as one block (its own ``read_block``, or its records made one)."""
         self.preparing = [(part, device) for part, device in (("sensor", session.sensor),
                                                               ("kinematics", session.kinematics))
                           if isinstance(device, PreparesAhead)]
@@ -277,9 +283,9 @@ class LiveLoop:
             self.taps.poses(poses, now_ns)
             self.poses += len(poses)
             self.last_pose = poses[-1]
-        wrenches = self._call("sensor", self.s.sensor.read, now_ns)
+        wrenches = self._call("sensor", self.read_wrenches, now_ns)
         estimated = None  # (the block the primary estimated, with its parameters recorded or not)
-        if wrenches:
+        if len(wrenches):
             self.taps.wrenches(wrenches)
             self.samples += len(wrenches)
             block = self.aligner.align(wrenches)

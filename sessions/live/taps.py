@@ -29,7 +29,7 @@ import numpy as np
 
 from ...core.frames import quat_wxyz_from_matrix
 from ...core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, RobotTarget,
-                          WrenchSample)
+                          WrenchBlock)
 from ..recording import Recorder
 from ..recording.schemas import BLOCK_LAST_SAMPLE_FIELDS, TF_INTERVAL_NS
 
@@ -101,7 +101,7 @@ class Taps:
 
     def __init__(self, recorder: Recorder):
         self.rec = _TickQueue(recorder)
-        self._wrenches: list[WrenchSample] = []  # the raw readings held until the hand-over
+        self._wrenches: list[WrenchBlock] = []  # the raw readings held until the hand-over
         self._blocks: dict[str, _Blocks] = {}
         self._hand_over_ns: int | None = None  # the next hand-over (set by the first send)
         self._target_R: np.ndarray | None = None  # the last robot target's orientation and its quaternion
@@ -132,19 +132,16 @@ class Taps:
             "translation": {"x": p[0], "y": p[1], "z": p[2]}, "rotation": {"x": x, "y": y, "z": z, "w": w},
         })
 
-    def wrenches(self, wrenches: list[WrenchSample]) -> None:
-        self._wrenches.extend(wrenches)
+    def wrenches(self, wrenches: WrenchBlock) -> None:
+        self._wrenches.append(wrenches)
 
     def _write_wrenches(self) -> None:
-        wrenches, self._wrenches = self._wrenches, []
-        if wrenches:
-            self.rec.write_block("/sensor/wrench", {
-                "t_ns": [w.t_ns for w in wrenches],
-                "force_S": np.array([w.force_S for w in wrenches]),
-                "torque_S": np.array([w.torque_S for w in wrenches]),
-                "seq": [w.seq for w in wrenches],
-                "status": [w.status for w in wrenches],
-            })
+        blocks, self._wrenches = self._wrenches, []
+        if blocks:
+            one = blocks[0] if len(blocks) == 1 else WrenchBlock(*(np.concatenate(arrays) for arrays in zip(
+                *((b.t_ns, b.force_S, b.torque_S, b.seq, b.status) for b in blocks))))
+            self.rec.write_block("/sensor/wrench", {"t_ns": one.t_ns, "force_S": one.force_S,
+                                                    "torque_S": one.torque_S, "seq": one.seq, "status": one.status})
 
     def _hold(self, topic: str, message: dict) -> None:
         """Hold ``message`` (no None values) with the topic's others; one with ``params``/``cov_diag`` ends the

@@ -33,11 +33,11 @@ class BreakingSensor(SimSensor):
         super().__init__(rate_hz, world=world)
         self.fail_after, self.reads = fail_after, 0
 
-    def read(self, until_ns):
+    def read_block(self, until_ns):
         self.reads += 1
         if self.reads > self.fail_after:
             raise ConnectionResetError("RDT socket closed by the sensor")
-        return super().read(until_ns)
+        return super().read_block(until_ns)
 
 
 class BreakingKinematics(SimKinematics):
@@ -85,11 +85,11 @@ class ChattySensor(SimSensor):
         super().__init__(rate_hz, world=world)
         self.reads, self.pending = 0, []
 
-    def read(self, until_ns):
+    def read_block(self, until_ns):
         self.reads += 1
         if self.reads == 100:
             self.pending.append(Event(until_ns, "sensor_status", "temperature compensation active"))
-        return super().read(until_ns)
+        return super().read_block(until_ns)
 
     def drain_events(self):
         out, self.pending = self.pending, []
@@ -264,13 +264,13 @@ class WriterKillingSensor(SimSensor):
         super().__init__(rate_hz, world=world)
         self.kill_after, self.reads = kill_after, 0
 
-    def read(self, until_ns):
+    def read_block(self, until_ns):
         self.reads += 1
         if self.reads == self.kill_after:
             (pid,) = _writer_processes()
             os.kill(pid, signal.SIGKILL)
             os.waitpid(pid, 0)  # dead and reaped before the loop hands it the next tick
-        return super().read(until_ns)
+        return super().read_block(until_ns)
 
 
 class CommandLog:

@@ -465,11 +465,11 @@ def test_a_session_whose_master_is_unplugged_records_a_zero_force_and_an_event(t
                 super().__init__(rate_hz, world=world)
                 self.reads = 0
 
-            def read(self, until_ns):
+            def read_block(self, until_ns):
                 self.reads += 1
                 if self.reads == 2600:
                     em.unplug()
-                return super().read(until_ns)
+                return super().read_block(until_ns)
 
         class Plugins:
             @hookimpl

@@ -168,3 +168,29 @@ def test_prepared_reads_are_the_same_and_compute_nothing(rate_hz):
         assert np.array_equal(x, y)
     assert calls and {kind for kind, _ in calls} == {"prepare"}  # 300 ms: six 50 ms chunks, all while idle
     assert len(calls) == 6 + 1 and all(n == round(0.05 * rate_hz) for _, n in calls)
+
+
+@pytest.mark.parametrize("faulty", [False, True])
+def test_a_block_read_holds_what_the_records_hold(faulty):
+    """``read_block`` (the loop's way in) and ``read`` give the same readings tick by tick, faults included
+    (a dropout removes samples, a spike and a NaN change them)."""
+    from hapticlab.core.types import WrenchBlock
+    from hapticlab.plugins.simworld.faults import Fault
+
+    faults = (Fault("sensor_dropout", 0.3, 0.1), Fault("sensor_spike", 0.5, force=(5.0, 0.0, 0.0)),
+              Fault("sensor_nan", 0.7, 0.05)) if faulty else ()
+    by_block, by_record = (SimSensor(rate_hz=7000.0, world=SimWorld(faults=faults)) for _ in range(2))
+    by_block.open(T0)
+    by_record.open(T0)
+    rng = np.random.default_rng(4)
+    now, blocks, records = T0, [], []
+    while now < T0 + 999_999_999:
+        now = min(now + int(rng.integers(0, 2_000_000)), T0 + 999_999_999)  # the first second's samples
+        blocks.append(by_block.read_block(now))
+        records += by_record.read(now)
+    assert all(isinstance(b, WrenchBlock) for b in blocks)
+    joined = [np.concatenate([getattr(b, k) for b in blocks]) for k in ("t_ns", "force_S", "torque_S", "seq", "status")]
+    for got, want in zip(joined, as_arrays(records)):
+        np.testing.assert_array_equal(got, want)
+    assert len(joined[0]) == (6300 if faulty else 7000)  # 1 s at 7 kHz, less the 0.1 s dropout
+    assert not faulty or np.isnan(joined[1]).any()

@@ -72,6 +72,19 @@ class WrenchBlock:
                    np.array([w.seq for w in samples], dtype=np.int64).reshape(n),
                    np.array([w.status for w in samples], dtype=np.int64).reshape(n))
 
+    @classmethod
+    def concatenate(cls, blocks: list["WrenchBlock"]) -> "WrenchBlock":
+        """One block of ``blocks``' readings, in their order (at least one block)."""
+        if len(blocks) == 1:
+            return blocks[0]
+        return cls(*(np.concatenate(arrays) for arrays in zip(
+            *((b.t_ns, b.force_S, b.torque_S, b.seq, b.status) for b in blocks))))
+
+    def subset(self, index) -> "WrenchBlock":
+        """The readings selected by a slice, a boolean mask or an index array."""
+        return WrenchBlock(self.t_ns[index], self.force_S[index], self.torque_S[index], self.seq[index],
+                           self.status[index])
+
     def samples(self) -> list[WrenchSample]:
         """The readings one record each (rows of ``force_S``/``torque_S`` as views)."""
         return [WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)

@@ -38,7 +38,7 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.plugins import ConfigError
-from ...core.types import STATUS_SATURATED, Event, WrenchSample
+from ...core.types import STATUS_SATURATED, Event, WrenchBlock, WrenchSample
 from .rdt import (ATI_ERROR_SUMMARY, ATI_MONITOR_LATCHED, ATI_SATURATION, ATI_STATUS_BITS, COUNTER_DOC,  # noqa: F401
                   FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_SPELLING, TORQUE_UNITS, Calibration, DeviceClock,
                   RdtBatch, RdtReceiver, describe_status, fetch_configuration, stream_status, stream_status_array)
@@ -49,10 +49,13 @@ RECEIVERS = ("hapticlab", "pynetft")
 NETWORK_LATENCY_S = 0.003
 """How much older than now the newest record can be in ordinary operation (HasLatency), s: the
 network, and the loop draining the socket once a tick (a record just missed waits a loop period)."""
+_NO_SAMPLES = WrenchBlock(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64),
+                          np.zeros(0, dtype=np.int64))
 
 
 class NetFTSensor:
-    """An ATI Net F/T sensor over RDT/UDP (SensorSource, EmitsEvents, HasCalibration, HasRange, ReportsHealth).
+    """An ATI Net F/T sensor over RDT/UDP (SensorSource, ReadsBlocks, EmitsEvents, HasCalibration, HasRange,
+    ReportsHealth).
 
     Parameters
     ----------
@@ -130,7 +133,7 @@ class NetFTSensor:
         self.clock = DeviceClock(ft_rate_hz, clock_slew_ppm)
         self._link: _HapticlabLink | _PynetftLink | None = None
         self._scale = np.ones(6)  # N or N·m per value the link hands over (a count, or a sensor unit): set by open
-        self._pending: list[WrenchSample] = []
+        self._pending = _NO_SAMPLES  # received, not yet handed out
         self._events: list[Event] = []
         self._word = 0  # the last status word
         self._last_received_ns = 0
@@ -174,24 +177,33 @@ class NetFTSensor:
     # ------------------------------------------------------------------ the stream
 
     def read(self, until_ns: int) -> list[WrenchSample]:
-        """Every sample received and not yet returned whose time is <= ``until_ns``, in time order."""
+        """Every sample received and not yet returned whose time is <= ``until_ns``, in time order
+        (read-only arrays)."""
+        block = self.read_block(until_ns)
+        block.force_S.setflags(write=False)
+        block.torque_S.setflags(write=False)
+        return block.samples()
+
+    def read_block(self, until_ns: int) -> WrenchBlock:
+        """:meth:`read` as arrays (ReadsBlocks): the loop's way in, no record per sample."""
         if self._link is None:
             raise RuntimeError("read() before open()")
         batch = self._link.poll()
         if batch is not None:
             self._convert(batch)
         self._watch(until_ns)
-        if not self._pending or self._pending[0].t_ns > until_ns:
-            return []
-        if self._pending[-1].t_ns <= until_ns:
-            out, self._pending = self._pending, []
-            return out
-        cut = next(i for i, s in enumerate(self._pending) if s.t_ns > until_ns)
-        out, self._pending = self._pending[:cut], self._pending[cut:]
-        return out
+        pending = self._pending
+        if not len(pending) or pending.t_ns[0] > until_ns:
+            return _NO_SAMPLES
+        if pending.t_ns[-1] <= until_ns:
+            self._pending = _NO_SAMPLES
+            return pending
+        cut = int(np.argmax(pending.t_ns > until_ns))  # the first sample not yet due
+        self._pending = pending.subset(slice(cut, None))
+        return pending.subset(slice(0, cut))
 
     def _convert(self, batch: RdtBatch) -> None:
-        """A batch as WrenchSamples (SI units, device time, stream status), onto the pending list."""
+        """A batch as a WrenchBlock (SI units, device time, stream status), onto the pending readings."""
         received = batch.received_ns  # one time for the batch (hapticlab) or one per record (pynetft)
         at = (lambda i: received) if np.ndim(received) == 0 else (lambda i: int(received[i]))
         if batch.restarts:
@@ -220,9 +232,10 @@ class NetFTSensor:
         else:
             bits = [0] * len(words)
         wrench_S = batch.values * self._scale  # (n, 6) N and N·m
-        wrench_S.setflags(write=False)
-        self._pending.extend(map(WrenchSample, t_ns.tolist(), wrench_S[:, :3], wrench_S[:, 3:], batch.k.tolist(),
-                                 bits))
+        block = WrenchBlock(np.asarray(t_ns, dtype=np.int64), np.ascontiguousarray(wrench_S[:, :3]),
+                            np.ascontiguousarray(wrench_S[:, 3:]), np.asarray(batch.k, dtype=np.int64),
+                            np.asarray(bits, dtype=np.int64))
+        self._pending = WrenchBlock.concatenate([self._pending, block]) if len(self._pending) else block
         self._last_received_ns = self._silent_since_ns = at(len(words) - 1)
 
     def _status_event(self, t_ns: int, word: int) -> None:

@@ -138,8 +138,7 @@ class Taps:
     def _write_wrenches(self) -> None:
         blocks, self._wrenches = self._wrenches, []
         if blocks:
-            one = blocks[0] if len(blocks) == 1 else WrenchBlock(*(np.concatenate(arrays) for arrays in zip(
-                *((b.t_ns, b.force_S, b.torque_S, b.seq, b.status) for b in blocks))))
+            one = WrenchBlock.concatenate(blocks)
             self.rec.write_block("/sensor/wrench", {"t_ns": one.t_ns, "force_S": one.force_S,
                                                     "torque_S": one.torque_S, "seq": one.seq, "status": one.status})
 

@@ -16,8 +16,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-PREFETCH_S = 0.05
-"""How far ahead the simulated devices compute, s (50 samples at 1 kHz, 350 at 7 kHz)."""
+PREFETCH_S = 0.2
+"""How far ahead the simulated devices compute, s, up to ``PREFETCH_MAX_SAMPLES`` (200 samples at 1 kHz,
+100 poses at 500 Hz, 400 at 7 kHz: a chunk's ~0.1 ms of fixed cost spread over more samples, and no chunk
+longer than ~0.4 ms to compute, which a paced loop does between ticks)."""
+PREFETCH_MAX_SAMPLES = 400
+"""The most samples one chunk computes (a 7 kHz sensor's 57 ms)."""
 
 
 class Prefetch:
@@ -25,14 +29,15 @@ class Prefetch:
 
     Args:
         compute: ``compute(seq)`` → dict of arrays whose first axis runs along ``seq`` ((N,) int64 indices).
-        rate_hz: the device's sample rate, Hz (sets the chunk: ``ahead_s`` of samples, at least one).
+        rate_hz: the device's sample rate, Hz (sets the chunk: ``ahead_s`` of samples, at least one and at
+            most ``PREFETCH_MAX_SAMPLES``).
         ahead_s: how far ahead to compute, s (0: only the samples asked for).
     """
 
     def __init__(self, compute: Callable[[np.ndarray], dict[str, np.ndarray]], rate_hz: float,
                  ahead_s: float = PREFETCH_S):
         self.compute = compute
-        self.chunk = max(int(round(ahead_s * rate_hz)), 1)
+        self.chunk = min(max(int(round(ahead_s * rate_hz)), 1), PREFETCH_MAX_SAMPLES)
         self.first = 0  # index of the cache's first sample
         self.cache: dict[str, np.ndarray] = {}
         self.size = 0

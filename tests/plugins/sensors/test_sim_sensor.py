@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import math
 
 import numpy as np
 import pluggy
@@ -12,6 +13,7 @@ from hapticlab.core.interfaces import SensorSource
 from hapticlab.core.plugins import ConfigError, Registry
 from hapticlab.core.types import STATUS_SATURATED, WrenchSample
 from hapticlab.plugins.sensors.sim import SimSensor
+from hapticlab.plugins.simworld.prefetch import PREFETCH_MAX_SAMPLES, PREFETCH_S
 from hapticlab.plugins.simworld import Hold, Indentation, RandomTour, SensorParams, SimWorld, ToolParams
 
 T0 = 1_234_567_890_123  # an arbitrary session clock at open, ns
@@ -166,8 +168,11 @@ def test_prepared_reads_are_the_same_and_compute_nothing(rate_hz):
         prepared.prepare(until + 1_000_000)  # the next tick's, as the loop asks
     for x, y in zip(as_arrays(a), as_arrays(b)):
         assert np.array_equal(x, y)
-    assert calls and {kind for kind, _ in calls} == {"prepare"}  # 300 ms: six 50 ms chunks, all while idle
-    assert len(calls) == 6 + 1 and all(n == round(0.05 * rate_hz) for _, n in calls)
+    assert calls and {kind for kind, _ in calls} == {"prepare"}  # all while idle
+    # 301 ms asked for (the last prepare looks a tick ahead): 0.2 s chunks, at most 400 samples each
+    chunk = min(round(PREFETCH_S * rate_hz), PREFETCH_MAX_SAMPLES)
+    assert chunk == {1000.0: 200, 7000.0: 400}[rate_hz]
+    assert len(calls) == math.ceil((math.floor(0.301 * rate_hz) + 1) / chunk) and all(n == chunk for _, n in calls)
 
 
 @pytest.mark.parametrize("faulty", [False, True])

@@ -109,11 +109,11 @@ def _layout(block: CdrBlock, n: int, present: tuple[bool, ...]) -> tuple[list[by
 
 
 def encode_block(block: CdrBlock, topic: str, message: Mapping[str, Any],
-                 encode_json: Callable[[Any], str]) -> tuple[bytes, int]:
+                 encode_json: Callable[[Any], bytes]) -> tuple[bytes, int]:
     """``message`` (``t_ns`` and the block's fields, lists or numpy arrays) as CDR bytes, and its log time.
 
     A missing field is written as an empty sequence (read back as absent);
-    ``params`` (estimator blocks) is encoded with ``encode_json``. Raises
+    ``params`` (estimator blocks) is encoded with ``encode_json`` (to UTF-8 JSON bytes). Raises
     ``ValueError`` for bad times, a field of the wrong length or a field the
     block does not have, ``TypeError`` for values of the wrong type.
     """
@@ -136,7 +136,7 @@ def encode_block(block: CdrBlock, topic: str, message: Mapping[str, Any],
             parts.append(arr.tobytes())
     if block.report:
         params = message.get("params")
-        text = b"" if params is None else encode_json(params).encode("utf-8")
+        text = b"" if params is None else encode_json(params)
         pad = -offset % 4
         parts.append(bytes(pad) + _U32.pack(len(text) + 1) + text + b"\x00")
         offset += pad + 4 + len(text) + 1

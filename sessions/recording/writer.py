@@ -42,19 +42,20 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import math
 import operator
 import os
 import platform
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import orjson
+
 from ...core.errors import OutputExistsError
 from .cdr import encode_block
 from .schemas import (
@@ -85,49 +86,16 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON serializable")
 
 
-def _finite(obj: Any) -> Any:
-    """Copy of ``obj`` with numpy converted and non-finite floats replaced by None (slow path)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, np.ndarray):
-        return _finite(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _finite(obj.item())
-    if isinstance(obj, Mapping):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    return obj
+_MESSAGE_OPTIONS = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS
 
 
-def _compact_encoder() -> Callable[[Any], str]:
-    """``JSONEncoder(separators=(",", ":"), allow_nan=False, default=_json_default).encode``, faster.
-
-    ``JSONEncoder.encode`` builds ``json``'s C encoder anew at every call, about half of the ~4.4 µs a
-    per-tick message costs; this builds it once (when this Python has it and it gives the reference's
-    bytes on a probe, else the reference is used). Circular references are not checked: a message is
-    a tree.
-    """
-    reference = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_json_default).encode
-    make = getattr(json.encoder, "c_make_encoder", None)
-    if make is None:
-        return reference
-    try:
-        c_encoder = make(None, _json_default, json.encoder.encode_basestring_ascii, None, ":", ",", False, False,
-                         False)
-    except TypeError:  # another signature in another Python
-        return reference
-    join = "".join
-
-    def encode(value: Any) -> str:
-        return join(c_encoder(value, 0))
-
-    probe = {"force_D": [0.1, -2e-300, 1e300], "enabled": True, "reason": "é \"q\"\n", "n": None,
-             "t": 2**63 - 1, "a": np.arange(2.0), "s": np.float32(0.5)}
-    return encode if encode(probe) == reference(probe) else reference
+def _encode(value: Any) -> bytes:
+    """A message as compact JSON bytes: ``orjson`` (~0.2 µs for a per-tick message, against ~1.7 µs for
+    ``json``'s C encoder and ~2.6 for ``json.dumps``). Non-finite floats become ``null`` (JSON has no NaN);
+    numpy arrays and scalars are written as their values. ``TypeError`` for what JSON cannot hold."""
+    return orjson.dumps(value, default=_json_default, option=_MESSAGE_OPTIONS)
 
 
-_encode = _compact_encoder()
 _encode_meta = json.JSONEncoder(separators=(",", ":"), allow_nan=True, default=_json_default).encode
 
 
@@ -324,7 +292,7 @@ class Recorder:
         if channel_id is None:
             channel_id = self._register(topic, block=True)
         if self.block_encoding == "cdr":
-            data, t_last = encode_block(self._cdr_blocks[topic], topic, message, self._json)
+            data, t_last = encode_block(self._cdr_blocks[topic], topic, message, _encode)
             self._add_bytes(channel_id, t_last, data)
             return
         try:
@@ -340,21 +308,12 @@ class Recorder:
             message = {**message, "t_ns": t_ns}
         self._add(topic, channel_id, t_ns[-1], message)
 
-    @staticmethod
-    def _json(value: Any) -> str:
-        try:
-            return _encode(value)
-        except ValueError:  # NaN or inf somewhere: record them as null
-            return _encode(_finite(value))
-
     def _add(self, topic: str, channel_id: int, t_ns: int, message: Mapping[str, Any]) -> None:
         try:
             data = _encode(message)
-        except ValueError:  # NaN or inf somewhere: record them as null
-            data = _encode(_finite(message))
         except TypeError as exc:
             raise TypeError(f"cannot record message on {topic}: {exc}") from None
-        self._add_bytes(channel_id, t_ns, data.encode())
+        self._add_bytes(channel_id, t_ns, data)
 
     def _add_bytes(self, channel_id: int, t_ns: int, data: bytes) -> None:
         with self._lock:

@@ -664,3 +664,14 @@ def test_the_message_encoder_writes_the_values_json_would_and_null_for_what_is_n
     assert json.loads(_encode([np.float32(0.1)])) == [0.1]  # a float32 written as the float32 it is
     with pytest.raises(TypeError):
         _encode({"x": object()})
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_BATCH"), reason="Linux scheduling policies")
+def test_the_writer_process_never_preempts_the_loop_that_wakes_it(tmp_path):
+    """The writer process runs as SCHED_BATCH: a hand-over wakes it without taking the loop's core."""
+    recorder = Recorder(tmp_path / "batch.mcap", writer="process")
+    try:
+        assert os.sched_getscheduler(recorder.writer_pid) == os.SCHED_BATCH
+        assert os.sched_getscheduler(0) != os.SCHED_BATCH  # the loop's own process keeps its policy
+    finally:
+        recorder.close()

@@ -381,3 +381,17 @@ def test_a_master_that_does_not_open_ends_the_session_with_a_complete_recording(
     rec = read_recording(path)  # complete
     assert rec.metadata["hapticlab.summary"]["error"].startswith("haptic unplugged raised")
     assert _writer_processes() == []
+
+
+def test_a_paced_session_freezes_the_heap_while_it_runs_and_gives_it_back(tmp_path):
+    """Full collections skip what was built before the first tick (gc.freeze), only while the session runs."""
+    import gc
+
+    session = build_session(demo(duration=0.3, realtime=True))
+    frozen = []
+    send = session.haptic.send
+    session.haptic.send = lambda command: frozen.append(gc.get_freeze_count()) or send(command)
+    assert gc.get_freeze_count() == 0
+    run_session(session, out=tmp_path / "frozen.mcap")
+    assert min(frozen) > 10_000  # numpy, numba and the plugins: tens of thousands of objects
+    assert gc.get_freeze_count() == 0

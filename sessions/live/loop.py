@@ -249,12 +249,12 @@ class LiveLoop:
             try:
                 self._open()
                 tick = 0
-                while True:
-                    tick, now_ns = self._next_tick(tick)
-                    if now_ns - self.t0_ns > self.duration_ns:
-                        now_ns = min(now_ns, self.t0_ns + self.duration_ns)
+                while (tick + 1) * self.period_ns <= self.duration_ns:  # every tick due within the session
+                    tick, now_ns = self._next_tick(tick)  # (paced: the one due at its end too, read just after)
+                    if tick * self.period_ns > self.duration_ns:  # fell behind past the end
                         break
                     self._tick(now_ns)
+                now_ns = min(now_ns, self.t0_ns + self.duration_ns)
             except KeyboardInterrupt:
                 interrupted = True
             except _PartFailed as exc:

@@ -395,3 +395,11 @@ def test_a_paced_session_freezes_the_heap_while_it_runs_and_gives_it_back(tmp_pa
     run_session(session, out=tmp_path / "frozen.mcap")
     assert min(frozen) > 10_000  # numpy, numba and the plugins: tens of thousands of objects
     assert gc.get_freeze_count() == 0
+
+
+def test_a_paced_session_runs_the_tick_due_at_its_end_and_reads_every_sample_up_to_it(tmp_path):
+    """Sample i of a 1 kHz sensor is stamped i ms after the start: a 0.2 s paced session reads 0..200, the
+    one stamped at its very end included (the tick due then runs, a moment after it is due)."""
+    result = run_session(build_session(demo(duration=0.2, realtime=True)), out=tmp_path / "end.mcap")
+    assert result.samples == 201
+    assert result.duration_s == pytest.approx(0.2)

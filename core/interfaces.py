@@ -266,7 +266,9 @@ class ReadsBlocks(Protocol):
     ``read_block(until_ns)`` returns what ``read(until_ns)`` would, as one :class:`WrenchBlock` (empty when
     nothing is new); the loop then uses it instead of ``read``. A fast sensor's loop would otherwise build
     one record per sample and the same arrays from them again (at 7 kHz, 7 records a 1 ms tick). The
-    arrays must not change once handed over (a read-only view of the device's own buffer is fine).
+    arrays must not change once handed over. Hand writable, C-contiguous int64 and float64 arrays: the
+    compiled stages downstream are built for those (a read-only or strided array would have them compile
+    another version of themselves at the first tick).
     """
 
     def read_block(self, until_ns: int) -> WrenchBlock: ...

@@ -93,9 +93,9 @@ def _freeze_the_heap() -> None:
     """Collect once, then keep everything built so far out of the collector's full passes (``gc.freeze``).
 
     A paced session's heap is mostly what was built before its first tick (numpy, scipy, numba, the
-    plugins); a full (generation 2) collection went through all of it, ~80 ms in one tick of a 7 kHz
-    session, where the loop skips 80 ticks. Frozen, a full pass sees only what the session made since:
-    ~17-20 ms. The collection here costs ~0.1 s before the clock starts; the session's end unfreezes.
+    plugins); a full (generation 2) collection went through all of it, 60-80 ms in one tick of a 7 kHz
+    session, where the loop skips as many ticks. Frozen, a full pass sees only what the session made
+    since: 8-22 ms. The collection here costs ~0.1 s before the clock starts; the session's end unfreezes.
     """
     gc.collect()
     gc.freeze()
@@ -254,7 +254,9 @@ class LiveLoop:
                     if tick * self.period_ns > self.duration_ns:  # fell behind past the end
                         break
                     self._tick(now_ns)
-                now_ns = min(now_ns, self.t0_ns + self.duration_ns)
+                # paced, the session ends now, its last tick done (a moment after the end was due); simulated,
+                # at its duration
+                now_ns = time.monotonic_ns() if self.s.settings.realtime else self.t0_ns + self.duration_ns
             except KeyboardInterrupt:
                 interrupted = True
             except _PartFailed as exc:

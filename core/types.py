@@ -92,6 +92,11 @@ class WrenchBlock:
                                                        self.seq.tolist(), self.status.tolist())]
 
 
+NO_WRENCHES = WrenchBlock(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64),
+                          np.zeros(0, dtype=np.int64))
+"""The empty block: what a sensor that ``ReadsBlocks`` returns when nothing is new."""
+
+
 @dataclass(frozen=True, slots=True)
 class PoseSample:
     """One forward-kinematics reading of the robot end (flange) frame E.

@@ -38,7 +38,7 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.plugins import ConfigError
-from ...core.types import STATUS_SATURATED, Event, WrenchBlock, WrenchSample
+from ...core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
 from .rdt import (ATI_ERROR_SUMMARY, ATI_MONITOR_LATCHED, ATI_SATURATION, ATI_STATUS_BITS, COUNTER_DOC,  # noqa: F401
                   FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_SPELLING, TORQUE_UNITS, Calibration, DeviceClock,
                   RdtBatch, RdtReceiver, describe_status, fetch_configuration, stream_status, stream_status_array)
@@ -49,8 +49,6 @@ RECEIVERS = ("hapticlab", "pynetft")
 NETWORK_LATENCY_S = 0.003
 """How much older than now the newest record can be in ordinary operation (HasLatency), s: the
 network, and the loop draining the socket once a tick (a record just missed waits a loop period)."""
-_NO_SAMPLES = WrenchBlock(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64),
-                          np.zeros(0, dtype=np.int64))
 
 
 class NetFTSensor:
@@ -133,7 +131,7 @@ class NetFTSensor:
         self.clock = DeviceClock(ft_rate_hz, clock_slew_ppm)
         self._link: _HapticlabLink | _PynetftLink | None = None
         self._scale = np.ones(6)  # N or N·m per value the link hands over (a count, or a sensor unit): set by open
-        self._pending = _NO_SAMPLES  # received, not yet handed out
+        self._pending = NO_WRENCHES  # received, not yet handed out
         self._events: list[Event] = []
         self._word = 0  # the last status word
         self._last_received_ns = 0
@@ -194,9 +192,9 @@ class NetFTSensor:
         self._watch(until_ns)
         pending = self._pending
         if not len(pending) or pending.t_ns[0] > until_ns:
-            return _NO_SAMPLES
+            return NO_WRENCHES
         if pending.t_ns[-1] <= until_ns:
-            self._pending = _NO_SAMPLES
+            self._pending = NO_WRENCHES
             return pending
         cut = int(np.argmax(pending.t_ns > until_ns))  # the first sample not yet due
         self._pending = pending.subset(slice(cut, None))

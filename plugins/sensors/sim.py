@@ -13,13 +13,10 @@ import numpy as np
 
 from ...core import hookimpl
 from ...core.plugins import ConfigError
-from ...core.types import WrenchBlock, WrenchSample
+from ...core.types import NO_WRENCHES, WrenchBlock, WrenchSample
 from ..simworld.faults import apply_sensor_faults
 from ..simworld.physics import SampleClock, SimWorld
 from ..simworld.prefetch import PREFETCH_S, Prefetch
-
-_NO_TIMES = np.zeros(0, dtype=np.int64)
-_NO_VECTORS = np.zeros((0, 3))
 
 MAX_RATE_HZ = 100_000.0
 """Fastest sample rate accepted (a Net F/T streams at up to 7 kHz; an absurd rate would flood the loop)."""
@@ -75,7 +72,7 @@ class SimSensor:
         the block's own (copied from the computed chunk, which stays read-only)."""
         seq, t_ns = self._clock.take(until_ns)
         if not seq:
-            return WrenchBlock(_NO_TIMES, _NO_VECTORS, _NO_VECTORS, _NO_TIMES, _NO_TIMES)
+            return NO_WRENCHES
         reading = self._ahead.take(seq.start, seq.stop)  # read-only views of the chunk
         times = np.array(t_ns, dtype=np.int64)
         numbers = np.arange(seq.start, seq.stop, dtype=np.int64)

@@ -86,9 +86,13 @@ class WrenchBlock:
                            self.status[index])
 
     def samples(self) -> list[WrenchSample]:
-        """The readings one record each (rows of ``force_S``/``torque_S`` as views)."""
+        """The readings one record each (rows of ``force_S``/``torque_S`` as read-only views: a record's
+        reading cannot be changed; the block's own arrays stay as they are)."""
+        force_S, torque_S = self.force_S.view(), self.torque_S.view()
+        force_S.setflags(write=False)
+        torque_S.setflags(write=False)
         return [WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)
-                for t, force, torque, i, status in zip(self.t_ns.tolist(), self.force_S, self.torque_S,
+                for t, force, torque, i, status in zip(self.t_ns.tolist(), force_S, torque_S,
                                                        self.seq.tolist(), self.status.tolist())]
 
 

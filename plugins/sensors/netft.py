@@ -177,10 +177,7 @@ class NetFTSensor:
     def read(self, until_ns: int) -> list[WrenchSample]:
         """Every sample received and not yet returned whose time is <= ``until_ns``, in time order
         (read-only arrays)."""
-        block = self.read_block(until_ns)
-        block.force_S.setflags(write=False)
-        block.torque_S.setflags(write=False)
-        return block.samples()
+        return self.read_block(until_ns).samples()
 
     def read_block(self, until_ns: int) -> WrenchBlock:
         """:meth:`read` as arrays (ReadsBlocks): the loop's way in, no record per sample."""

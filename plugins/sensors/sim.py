@@ -62,10 +62,7 @@ class SimSensor:
 
     def read(self, until_ns: int) -> list[WrenchSample]:
         """Every sample not yet returned with time <= ``until_ns``, in time order (read-only arrays)."""
-        block = self.read_block(until_ns)
-        block.force_S.setflags(write=False)
-        block.torque_S.setflags(write=False)
-        return block.samples()
+        return self.read_block(until_ns).samples()
 
     def read_block(self, until_ns: int) -> WrenchBlock:
         """:meth:`read` as arrays (ReadsBlocks): the loop's way in, no record per sample. The arrays are

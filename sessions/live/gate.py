@@ -37,6 +37,8 @@ naming why.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ...core.interfaces import HasRange, ReportsParameterStd, Reidentifies
@@ -324,4 +326,5 @@ class HapticGate:
     def _std(self) -> float | None:
         if self.parameter_std is None:
             return None
-        return float(self.parameter_std.force_parameter_std().max())  # (NaN when any is)
+        values = self.parameter_std.force_parameter_std().tolist()  # six values: Python's max beats numpy's call
+        return math.nan if any(map(math.isnan, values)) else max(values)  # (NaN when any is)

@@ -11,14 +11,15 @@ estimator block that carries ``params`` ends its message, so they still
 describe its last sample). Poses (at the kinematics rate), commands and device
 states and robot targets (one per tick) and events stay one JSON message each.
 
-The taps only queue their messages; :meth:`Taps.send` encodes the tick's JSON
-messages in the order written after the haptic command has gone out, so
-encoding is not on the sample-to-command path, and every
-:data:`HAND_OVER_NS` writes the held blocks and hands the lot to the recorder
-(with the writer process: one pipe write per hand-over, not per tick). A
-killed session loses those 20 ms more, well inside the second it may lose.
-Nothing a tap is given may change after it is given (the loop and the
-estimators build fresh arrays every tick).
+The taps only queue their messages; every :data:`HAND_OVER_NS` :meth:`Taps.send`
+(called once a tick, after the haptic command has gone out, so none of this is
+on the sample-to-command path) encodes the queued JSON messages in the order
+written, writes the held blocks and hands the lot to the recorder (with the
+writer process: one pipe write per hand-over, not per tick). Encoding 20 ticks'
+messages in one pass costs less than a pass per tick (it runs with the
+encoder's code and data warm). A killed session loses those 20 ms more, well
+inside the second it may lose. Nothing a tap is given may change after it is
+given (the loop and the estimators build fresh arrays every tick).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from ...core.frames import quat_wxyz_from_matrix
 from ...core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, RobotTarget,
                           WrenchBlock)
 from ..recording import Recorder
-from ..recording.schemas import BLOCK_LAST_SAMPLE_FIELDS, TF_INTERVAL_NS
+from ..recording.schemas import TF_INTERVAL_NS
 
 HAND_OVER_NS = 20_000_000
 """How long the taps hold the sensor-rate blocks before writing them as one message per topic and handing
@@ -39,8 +40,8 @@ the tick's messages to the recorder, ns (20 ms; issue 12: one encode per topic a
 hand-over, not per tick)."""
 
 
-class _TickQueue:
-    """The recorder's ``write``/``write_block``/``event``, held until :meth:`send` (in the order written)."""
+class _HandOverQueue:
+    """The recorder's ``write``/``write_block``/``event``, held until the hand-over (:meth:`send`), in order."""
 
     def __init__(self, recorder: Recorder):
         self.recorder = recorder
@@ -55,41 +56,46 @@ class _TickQueue:
     def event(self, t_ns: int, kind: str, message: str, **data) -> None:
         self.held.append((partial(self.recorder.event, t_ns, kind, message, **data),))
 
-    def encode(self) -> None:
-        """Encode the held messages (in the order written), keep them in the recorder until :meth:`send`."""
+    def send(self) -> None:
+        """Encode the held messages in the order written, hand them to the writer."""
         held, self.held = self.held, []
         for method, *args in held:
             method(*args)
-
-    def send(self) -> None:
-        """Encode the held messages, hand everything encoded so far to the writer."""
-        self.encode()
         self.recorder.send()
 
 
 class _Blocks:
-    """One block topic's messages held until the hand-over, written as one (their fields concatenated)."""
+    """One block topic's rows held until the hand-over, written as one message (each field's parts concatenated).
 
-    __slots__ = ("topic", "parts", "fields")
+    A part is the tuple of a tick's arrays in ``fields``' order (the loop's own arrays, never changed once
+    given); ``last`` holds what describes the newest sample (``params``, ``cov_diag``) when a part brought it.
+    """
+
+    __slots__ = ("topic", "parts", "fields", "last")
 
     def __init__(self, topic: str):
         self.topic = topic
-        self.parts: list[dict] = []
-        self.fields: tuple[str, ...] = ()  # the fields present (not None) in the held parts
+        self.parts: list[tuple[np.ndarray, ...]] = []
+        self.fields: tuple[str, ...] = ()  # the fields of the held parts
+        self.last: dict[str, object] = {}
 
-    def write(self, rec: _TickQueue) -> None:
+    def write(self, rec: _HandOverQueue) -> None:
         parts, self.parts = self.parts, []
         if not parts:
             return
         if len(parts) == 1:
-            rec.write_block(self.topic, parts[0])
-            return
-        last = parts[-1]
-        message = {k: np.concatenate([p[k] for p in parts]) for k in self.fields}
-        for k in BLOCK_LAST_SAMPLE_FIELDS:
-            if last.get(k) is not None:
-                message[k] = last[k]
+            message = dict(zip(self.fields, parts[0]))
+        else:
+            message = {k: np.concatenate(column) for k, column in zip(self.fields, zip(*parts))}
+        if self.last:
+            message.update(self.last)
+            self.last = {}
         rec.write_block(self.topic, message)
+
+
+ALIGNED_FIELDS = ("t_ns", "force_S", "torque_S", "seq", "status", "stale")
+ALIGNED_FIELDS_WITH_QUAT = (*ALIGNED_FIELDS, "quat_BE")
+ESTIMATE_FIELDS = ("t_ns", "contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
 
 
 class Taps:
@@ -100,7 +106,7 @@ class Taps:
     """
 
     def __init__(self, recorder: Recorder):
-        self.rec = _TickQueue(recorder)
+        self.rec = _HandOverQueue(recorder)
         self._wrenches: list[WrenchBlock] = []  # the raw readings held until the hand-over
         self._blocks: dict[str, _Blocks] = {}
         self._hand_over_ns: int | None = None  # the next hand-over (set by the first send)
@@ -142,21 +148,21 @@ class Taps:
             self.rec.write_block("/sensor/wrench", {"t_ns": one.t_ns, "force_S": one.force_S,
                                                     "torque_S": one.torque_S, "seq": one.seq, "status": one.status})
 
-    def _hold(self, topic: str, message: dict) -> None:
-        """Hold ``message`` (no None values) with the topic's others; one with ``params``/``cov_diag`` ends the
-        held messages (they describe its last sample), and so does a field that comes or goes. What is held
-        is always written whole and in the loop's order (the wrenches, the aligned samples, then the
-        estimators': a reader finds an estimate's raw reading written before it)."""
+    def _hold(self, topic: str, fields: tuple[str, ...], values: tuple[np.ndarray, ...], **last) -> None:
+        """Hold a tick's ``values`` (one array per name in ``fields``) with the topic's others; ``last``
+        (``params``/``cov_diag``, when given) ends the held messages (they describe its last sample), and so
+        does a field that comes or goes. What is held is always written whole and in the loop's order (the
+        wrenches, the aligned samples, then the estimators': a reader finds an estimate's raw reading
+        written before it)."""
         blocks = self._blocks.get(topic)
         if blocks is None:
             blocks = self._blocks[topic] = _Blocks(topic)
-        last = BLOCK_LAST_SAMPLE_FIELDS[0] in message or BLOCK_LAST_SAMPLE_FIELDS[1] in message
-        fields = tuple(k for k in message if k not in BLOCK_LAST_SAMPLE_FIELDS) if last else tuple(message)
-        if blocks.parts and fields != blocks.fields:  # what is held is one message, this another
+        if blocks.parts and fields is not blocks.fields:  # what is held is one message, this another
             self._write_held()
         blocks.fields = fields
-        blocks.parts.append(message)
+        blocks.parts.append(values)
         if last:
+            blocks.last = last
             self._write_held()
 
     def _write_held(self) -> None:
@@ -167,25 +173,23 @@ class Taps:
     def aligned(self, block: AlignedSamples) -> None:
         if not len(block.t_ns):
             return
-        message = {"t_ns": block.t_ns, "force_S": block.force_S, "torque_S": block.torque_S,
-                   "seq": block.seq, "status": block.status, "stale": block.stale}
-        if block.quat_BE is not None:
-            message["quat_BE"] = block.quat_BE
-        self._hold("/aligned/sample", message)
+        values = (block.t_ns, block.force_S, block.torque_S, block.seq, block.status, block.stale)
+        if block.quat_BE is None:
+            self._hold("/aligned/sample", ALIGNED_FIELDS, values)
+        else:
+            self._hold("/aligned/sample", ALIGNED_FIELDS_WITH_QUAT, (*values, block.quat_BE))
 
     def estimates(self, topic: str, est: Estimates, params=None, cov_diag=None) -> None:
         """One block message; ``params``/``cov_diag`` (when given) describe its last sample."""
         if not len(est):
             return
-        message = {
-            "t_ns": est.t_ns, "contact_force_S": est.contact_force_S, "contact_torque_S": est.contact_torque_S,
-            "contact": est.contact, "converged_force": est.converged_force, "converged_torque": est.converged_torque,
-        }
-        if params is not None:
-            message["params"] = params
-        if cov_diag is not None:
-            message["cov_diag"] = cov_diag
-        self._hold(topic, message)
+        values = (est.t_ns, est.contact_force_S, est.contact_torque_S, est.contact, est.converged_force,
+                  est.converged_torque)
+        if params is None and cov_diag is None:
+            self._hold(topic, ESTIMATE_FIELDS, values)
+        else:
+            self._hold(topic, ESTIMATE_FIELDS, values,
+                       **{k: v for k, v in (("params", params), ("cov_diag", cov_diag)) if v is not None})
 
     def command(self, command: HapticCommand) -> None:
         self.rec.write("/haptic/command", command.t_ns, {
@@ -214,14 +218,13 @@ class Taps:
         self.rec.event(event.t_ns, event.kind, event.message, **event.data)
 
     def send(self, now_ns: int | None = None) -> None:
-        """Encode the tick's queued messages in order; at the hand-over (every :data:`HAND_OVER_NS` of ``now_ns``,
-        and always without it: the session's end) write the held blocks and hand everything to the recorder
-        (the writer process: one pipe write)."""
+        """At the hand-over (every :data:`HAND_OVER_NS` of ``now_ns``, and always without it: the session's end)
+        encode the queued messages in order, write the held blocks and hand everything to the recorder (the
+        writer process: one pipe write); between hand-overs, nothing."""
         if now_ns is not None:
             if self._hand_over_ns is None:
                 self._hand_over_ns = now_ns + HAND_OVER_NS
             elif now_ns < self._hand_over_ns:
-                self.rec.encode()
                 return
             else:
                 self._hand_over_ns = now_ns + HAND_OVER_NS

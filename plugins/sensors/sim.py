@@ -55,10 +55,13 @@ class SimSensor:
         self._clock.start(t0_ns)
         self._ahead.reset()
 
-    def _reading(self, seq):
-        """What the sensor reads for the samples ``seq`` (the world's physics, before any injected fault)."""
-        reading = self.world.wrench((self._clock.times(seq) - self._clock.t0_ns) / 1e9)
-        return {k: reading[k] for k in ("force_S", "torque_S", "status")}
+    def _reading(self, seq: np.ndarray) -> dict[str, np.ndarray]:
+        """What the sensor reads for the samples ``seq`` (the world's physics, before any injected fault):
+        :class:`WrenchBlock`'s fields, in its order."""
+        t_ns = self._clock.times(seq)
+        reading = self.world.wrench((t_ns - self._clock.t0_ns) / 1e9)
+        return {"t_ns": t_ns, "force_S": reading["force_S"], "torque_S": reading["torque_S"], "seq": seq,
+                "status": reading["status"].astype(np.int64, copy=False)}
 
     def read(self, until_ns: int) -> list[WrenchSample]:
         """Every sample not yet returned with time <= ``until_ns``, in time order (read-only arrays)."""
@@ -67,20 +70,17 @@ class SimSensor:
     def read_block(self, until_ns: int) -> WrenchBlock:
         """:meth:`read` as arrays (ReadsBlocks): the loop's way in, no record per sample. The arrays are
         the block's own (copied from the computed chunk, which stays read-only)."""
-        seq, t_ns = self._clock.take(until_ns)
+        seq = self._clock.advance(until_ns)
         if not seq:
             return NO_WRENCHES
-        reading = self._ahead.take(seq.start, seq.stop)  # read-only views of the chunk
-        times = np.array(t_ns, dtype=np.int64)
-        numbers = np.arange(seq.start, seq.stop, dtype=np.int64)
-        reading = {k: v.copy() for k, v in reading.items()}
+        t_ns, force_S, torque_S, numbers, status = self._ahead.copies(seq.start, seq.stop)
         if self.world.faults:  # injected faults ([[world.faults]]): what the sensor delivers, not the physics
-            keep = apply_sensor_faults(self.world.faults, (times - self._clock.t0_ns) / 1e9, reading)
+            reading = {"force_S": force_S, "torque_S": torque_S, "status": status}  # changed in place
+            keep = apply_sensor_faults(self.world.faults, (t_ns - self._clock.t0_ns) / 1e9, reading)
             if not keep.all():
-                times, numbers = times[keep], numbers[keep]
-                reading = {k: v[keep] for k, v in reading.items()}
-        return WrenchBlock(times, reading["force_S"], reading["torque_S"], numbers,
-                           reading["status"].astype(np.int64, copy=False))
+                t_ns, force_S, torque_S, numbers, status = (a[keep] for a in (t_ns, force_S, torque_S, numbers,
+                                                                               status))
+        return WrenchBlock(t_ns, force_S, torque_S, numbers, status)
 
     def prepare(self, until_ns: int) -> None:
         """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; not with a live world)."""

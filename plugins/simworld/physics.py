@@ -282,6 +282,12 @@ class SampleClock:
             last -= 1
         return max(last + 1, self.next_index)
 
+    def advance(self, until_ns: int) -> range:
+        """The indices of every sample not yet taken with time <= ``until_ns`` (taken now; empty when none)."""
+        lo = self.next_index
+        self.next_index = hi = self.end_index(until_ns)
+        return range(lo, hi)
+
     def take(self, until_ns: int) -> tuple[range, list[int]]:
         """Indices and times of every sample not yet taken with time <= ``until_ns``.
 
@@ -293,10 +299,9 @@ class SampleClock:
         seq : the sample indices (a range, empty when there is none).
         t_ns : their times, ns (Python ints).
         """
-        lo, hi = self.next_index, self.end_index(until_ns)
-        self.next_index = hi
+        seq = self.advance(until_ns)
         t0_ns, step = self.t0_ns, 1e9 / self.rate_hz
-        return range(lo, hi), [t0_ns + round(i * step) for i in range(lo, hi)]
+        return seq, [t0_ns + round(i * step) for i in seq]
 
 
 # --------------------------------------------------------------------------- the world

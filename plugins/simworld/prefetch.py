@@ -67,3 +67,10 @@ class Prefetch:
         self._cover(lo, hi)
         a, b = lo - self.first, hi - self.first
         return {key: array[a:b] for key, array in self.cache.items()}
+
+    def copies(self, lo: int, hi: int) -> list[np.ndarray]:
+        """The arrays for the indices ``lo`` ≤ i < ``hi`` as copies of their own (writable, contiguous), in the
+        order ``compute`` returned them."""
+        self._cover(lo, hi)
+        a, b = lo - self.first, hi - self.first
+        return [array[a:b].copy() for array in self.cache.values()]

@@ -91,8 +91,17 @@ class ForceGovernor:
         self.max_step = settings.max_force_rate * period_s
         self.gain = lowpass_gain(settings.cutoff_hz, period_s)
         self.device_max_force: float | None = None
-        self.filtered_D = ZERO3
         self.last_force_D = ZERO3
+        # the arithmetic's own copies, in Python floats (numpy's per-call cost is most of the work at one vector
+        # per device period): R_DB's rows, the low-pass state and the last command
+        self._R_DB_rows = tuple(tuple(row) for row in self.R_DB.tolist())
+        self._filtered: list[float] = [0.0, 0.0, 0.0]
+        self._last: list[float] = [0.0, 0.0, 0.0]
+
+    @property
+    def filtered_D(self) -> np.ndarray:
+        """(3,) the low-pass's state, N in D."""
+        return np.array(self._filtered)
 
     def limit(self) -> float:
         """The force limit in use, N: ``max_force``, or the device's own when smaller (NaN when it is unusable)."""
@@ -129,22 +138,21 @@ class ForceGovernor:
             # R_BS · f, then R_DB · that, in Python floats (numpy's 3×3 product costs more than its 18 products)
             force_B = [r0 * f0 + r1 * f1 + r2 * f2 for r0, r1, r2 in R_BS.tolist()]
             b0, b1, b2 = force_B
-            mapped_D = [scale * (r0 * b0 + r1 * b1 + r2 * b2) for r0, r1, r2 in self.R_DB.tolist()]
+            mapped_D = [scale * (r0 * b0 + r1 * b1 + r2 * b2) for r0, r1, r2 in self._R_DB_rows]
             if not math.isfinite(math.hypot(*mapped_D)):
                 reason = "non-finite force after the mapping"
         if reason:
             return self._zero(t_ns, reason)
         # a convex combination of finite forces: the filter's state stays finite
         gain = self.gain
-        filtered = [y + gain * (x - y) for x, y in zip(_deadband3(*mapped_D, self.settings.deadband),
-                                                         self.filtered_D.tolist())]
-        self.filtered_D = np.array(filtered)
-        target = filtered
+        x0, x1, x2 = _deadband3(*mapped_D, self.settings.deadband)
+        y0, y1, y2 = self._filtered
+        self._filtered = target = [y0 + gain * (x0 - y0), y1 + gain * (x1 - y1), y2 + gain * (x2 - y2)]
         norm = math.hypot(*target)
         if norm > limit:
             target = [v * (limit / norm) for v in target]
-        last = self.last_force_D.tolist()
-        step = [v - w for v, w in zip(target, last)]
+        last = self._last
+        step = [target[0] - last[0], target[1] - last[1], target[2] - last[2]]
         step_norm = math.hypot(*step)
         if step_norm > self.max_step:
             target = [w + d * (self.max_step / step_norm) for w, d in zip(last, step)]
@@ -153,14 +161,16 @@ class ForceGovernor:
                 target = [v * (limit / norm) for v in target]
         norm = math.hypot(*target)
         if not (math.isfinite(norm) and norm <= limit * (1 + TOLERANCE)
-                and (math.hypot(*(v - w for v, w in zip(target, last))) <= self.max_step * (1 + TOLERANCE)
+                and (math.hypot(target[0] - last[0], target[1] - last[1], target[2] - last[2])
+                     <= self.max_step * (1 + TOLERANCE)
                      or norm < math.hypot(*last))):
             return self._zero(t_ns, "governor output out of bounds")  # unreachable by the arithmetic above
+        self._last = target  # (never changed in place)
         self.last_force_D = np.array(target)
         return HapticCommand(t_ns, self.last_force_D, True, "", source_t_ns)
 
     def _zero(self, t_ns: int, reason: str) -> HapticCommand:
         """A zero command for ``reason``; the filter and the ramp start again from zero."""
-        self.filtered_D = ZERO3
+        self._filtered = self._last = [0.0, 0.0, 0.0]
         self.last_force_D = ZERO3
         return HapticCommand(t_ns, ZERO3, False, reason)

@@ -252,14 +252,16 @@ class LagWatch:
         lag_sums(block.t_ns, block.R_EB, block.force_S, _EYE if R_SE is None else R_SE, gravity_force_B,
                  bias_force_S, self.noise, LAG_MAX_S, LAG_CONTACT_GUARD_NS, self.max_turn_rate, LAG_MEMORY_S,
                  self.sums, self.clock)
-        if not all(map(math.isfinite, self.sums.tolist())):  # never expected (the kernel skips non-finite terms): start afresh
+        sums = self.sums.tolist()
+        if not all(map(math.isfinite, sums)):  # never expected (the kernel skips non-finite terms): start afresh
             lag_s = self.lag_s
             self.reset()
             self.lag_s = lag_s
             return self.lag_s
-        if self.S_gg > 0 and self.noise / math.sqrt(self.S_gg) < LAG_MIN_RESOLUTION_S:
-            lag = self.S_rg / self.S_gg
-            if abs(lag) <= LAG_LIMIT_S or lag * self.S_rg >= LAG_MIN_EXPLAINED * self.S_rr:
+        S_rg, S_gg, S_rr = sums[:3]
+        if S_gg > 0 and self.noise / math.sqrt(S_gg) < LAG_MIN_RESOLUTION_S:
+            lag = S_rg / S_gg
+            if abs(lag) <= LAG_LIMIT_S or lag * S_rg >= LAG_MIN_EXPLAINED * S_rr:
                 self.lag_s = lag
             # else: a residual the lag does not explain (a contact): the verdict stands
         # unresolved (the tool barely turns: a lag would do no harm yet): the verdict stands

@@ -205,13 +205,17 @@ class RLSEstimator(RefusesBadSamples):
         tick: the compiled path takes diag(Λ⁻¹) from a Cholesky factor (``rls_kernel.inverse_diag``, ~1 µs
         against ~7 for ``np.linalg.inv``), and inverts Λ as ``P`` does where it is not positive definite.
         """
-        if self._compiled and rls_kernel.inverse_diag(self.force.Lambda, self._work[1], self._diag):
-            return np.sqrt(self._diag)
-        return np.sqrt(np.diag(self.force.P))
+        return np.sqrt(self._P_diag(self.force))
 
     def cov_diag(self) -> list[float]:
         """Diagonal of P for the force stage then the torque stage (12 values)."""
-        return np.concatenate([np.diag(self.force.P), np.diag(self.torque.P)]).tolist()
+        return self._P_diag(self.force).tolist() + self._P_diag(self.torque).tolist()
+
+    def _P_diag(self, stage: RecursiveLeastSquares) -> np.ndarray:
+        """(6,) diag P of a stage: from Λ's Cholesky factor on the compiled path, else diag Λ⁻¹ (``P``)."""
+        if self._compiled and rls_kernel.inverse_diag(stage.Lambda, self._work[1], self._diag):
+            return self._diag
+        return np.diag(stage.P)
 
 
 @hookimpl

@@ -65,6 +65,11 @@ class SessionSettings:
             process fed one batch per tick: the writing and compression on the
             other core, and the child finishes the file if the session is
             killed) or ``"inline"`` (on the loop's thread, e.g. a one-core machine).
+        realtime_priority: with ``realtime``, the loop's thread runs at this
+            ``SCHED_FIFO`` priority (1-99) while it ticks, so the kernel wakes it
+            on time (``sessions/live/priority.py``); 0 leaves it at the ordinary
+            policy. Where it is not permitted the session runs anyway and records
+            a ``realtime_priority_unavailable`` event saying why.
         trainee: who holds the master (an id your lab uses, e.g. "T07"); every review shows it, and
             a cohort review groups by it.
         task: what the session trains (e.g. "palpation", "suturing"); shown and grouped alike.
@@ -81,6 +86,7 @@ class SessionSettings:
     max_turn_rate: float = 10.0
     max_speed: float = 5.0
     recording_writer: str = "process"
+    realtime_priority: int = 50
     trainee: str = ""
     task: str = ""
     notes: str = ""
@@ -95,6 +101,7 @@ class SessionSettings:
         _require("session.frozen_pose_timeout", self.frozen_pose_timeout, above=0.0, maximum=1.0)
         _require("session.max_turn_rate", self.max_turn_rate, above=0.0, maximum=1000.0)
         _require("session.max_speed", self.max_speed, above=0.0, maximum=100.0)
+        _require("session.realtime_priority", self.realtime_priority, minimum=0, maximum=99)  # SCHED_FIFO: 1-99
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,7 @@ from ..recording import Recorder
 from ..recording.sinks import WriterProcessError
 from .build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
 from .gate import HapticGate, screen
+from .priority import fifo_priority
 from .status import SessionError, SessionResult, SessionStatus
 from .taps import HAND_OVER_NS, Taps
 from .teleop import Teleoperation
@@ -217,6 +218,8 @@ class LiveLoop:
         self.last_estimate: tuple[np.ndarray, np.ndarray, int] | None = None  # (contact_force_S, R_BS, t_ns)
         self.haptic_reason = "starting"
         self.recorder: Recorder | None = None
+        self.priority = settings.realtime_priority if settings.realtime else 0
+        """The loop thread's SCHED_FIFO priority while it ticks (0: the ordinary policy; set to 0 if refused)."""
         self.stopped_by = "Ctrl-C"  # or the signal that ended the session
         self.signals_while_ending: list[str] = []
 
@@ -248,12 +251,17 @@ class LiveLoop:
         with _signals_end_the_session(self):
             try:
                 self._open()
-                tick = 0
-                while (tick + 1) * self.period_ns <= self.duration_ns:  # every tick due within the session
-                    tick, now_ns = self._next_tick(tick)  # (paced: the one due at its end too, read just after)
-                    if tick * self.period_ns > self.duration_ns:  # fell behind past the end
-                        break
-                    self._tick(now_ns)
+                with fifo_priority(self.priority) as refused:  # paced: woken on time (priority.py)
+                    if refused:
+                        self.priority = 0
+                        self._event(Event(time.monotonic_ns(), "realtime_priority_unavailable",
+                                          f"the loop runs at the ordinary priority: {refused}"))
+                    tick = 0
+                    while (tick + 1) * self.period_ns <= self.duration_ns:  # every tick due within the session
+                        tick, now_ns = self._next_tick(tick)  # (paced: the one due at its end too, read just after)
+                        if tick * self.period_ns > self.duration_ns:  # fell behind past the end
+                            break
+                        self._tick(now_ns)
                 # paced, the session ends now, its last tick done (a moment after the end was due); simulated,
                 # at its duration
                 now_ns = time.monotonic_ns() if self.s.settings.realtime else self.t0_ns + self.duration_ns
@@ -538,6 +546,7 @@ class LiveLoop:
             "contact_samples": self.contact_samples,
             "haptic_on_s": self.haptic_on_ticks * self.period_ns * 1e-9,
             "overruns": self.overruns,
+            "realtime_priority": self.priority,
             "signals_while_ending": self.signals_while_ending,
         }
         if primary.saves is not None and failure is None:

@@ -169,9 +169,9 @@ def test_prepared_reads_are_the_same_and_compute_nothing(rate_hz):
     for x, y in zip(as_arrays(a), as_arrays(b)):
         assert np.array_equal(x, y)
     assert calls and {kind for kind, _ in calls} == {"prepare"}  # all while idle
-    # 301 ms asked for (the last prepare looks a tick ahead): 0.2 s chunks, at most 400 samples each
+    # 301 ms asked for (the last prepare looks a tick ahead): chunks of up to 1 s, at most 400 samples each
     chunk = min(round(PREFETCH_S * rate_hz), PREFETCH_MAX_SAMPLES)
-    assert chunk == {1000.0: 200, 7000.0: 400}[rate_hz]
+    assert chunk == {1000.0: 400, 7000.0: 400}[rate_hz]
     assert len(calls) == math.ceil((math.floor(0.301 * rate_hz) + 1) / chunk) and all(n == chunk for _, n in calls)
 
 

@@ -17,7 +17,9 @@ Three tables, so the next change to the hot path is measured the same way:
   recording, which with the writer process starts that process, ~0.1 s;
   opening the devices; finishing the file) are counted once, in ms, apart from
   the ticks (in a 5 s run they would add ~20 µs to each), with the whole
-  run's speed beside them;
+  run's speed beside them. The stopwatches cost ~5 µs a tick themselves, so
+  each session then runs again with only its ticks timed ("no stopwatches"):
+  the loop's own speed, which the speed targets are about;
 * **per stage, teleoperation**: the same for ``teleop-emulated`` (the simulated
   robot following a master whose handle presses 5 cm down and back every 2 s
   once the calibration tour is over, :class:`PressingHand`; ``kalman`` with the
@@ -121,10 +123,11 @@ class _BenchHand:
 
 
 def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str | None = "rls",
-                writer: str = "process", preset: str = "demo") -> dict[str, Any]:
+                writer: str = "process", preset: str = "demo", stopwatches: bool = True) -> dict[str, Any]:
     """One non-realtime session of ``preset`` ("demo" or "teleop-emulated", with :class:`PressingHand` as
     its master) with every stage timed: µs per tick and share per stage, speed. ``estimator`` None keeps
-    the preset's own (and its shadows)."""
+    the preset's own (and its shadows). ``stopwatches`` False times the ticks alone (the loop's own speed:
+    the ~25 stopwatches cost ~5 µs a tick), every stage then in "loop body"."""
     config, _ = load_config(preset)
     overrides = ["session.realtime=false", f"sensor.rate_hz={float(sensor_rate_hz)}",
                  f"session.recording_writer={writer}"]
@@ -149,7 +152,8 @@ def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str |
 
             def open_and_wrap():
                 original_open()
-                _wrap_loop(loop, watch)
+                if stopwatches:
+                    _wrap_loop(loop, watch)
 
             loop._open = open_and_wrap
             return run()
@@ -251,7 +255,13 @@ def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 
         for writer in ("inline", "process"):
             if progress:
                 progress(f"session, sensor at {rate:g} Hz, {writer} writer")
-            stages.append(stage_table(rate, duration_s, writer=writer))
+            row = stage_table(rate, duration_s, writer=writer)
+            if progress:
+                progress(f"the same without the stopwatches, sensor at {rate:g} Hz, {writer} writer")
+            bare = stage_table(rate, duration_s, writer=writer, stopwatches=False)
+            row["bare"] = {key: bare[key] for key in ("x_real_time", "start_end_ms", "x_real_time_session")}
+            row["bare"]["us_per_tick"] = sum(bare["us_per_tick"].values())
+            stages.append(row)
     if progress:
         progress("teleoperation session, sensor at 1000 Hz, process writer")
     teleop = stage_table(1000.0, max(duration_s, 8.0), estimator=None, preset="teleop-emulated")

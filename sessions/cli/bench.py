@@ -189,7 +189,15 @@ def print_loop_tables(out: dict) -> None:
         t.add_row("× real time", *[v for run in runs for v in (f"{run['x_real_time']:.2f}", "")], end_section=True)
         t.add_row("start and end, ms once", *[v for run in runs for v in (f"{run['start_end_ms']:.0f}", "")])
         t.add_row(f"× real time, whole {runs[0]['duration_s']:g} s run",
-                  *[v for run in runs for v in (f"{run['x_real_time_session']:.2f}", "")])
+                  *[v for run in runs for v in (f"{run['x_real_time_session']:.2f}", "")],
+                  end_section=all("bare" in run for run in runs))
+        if all("bare" in run for run in runs):  # the same session run again, only its ticks timed
+            t.add_row("no stopwatches: whole tick",
+                      *[v for run in runs for v in (f"{run['bare']['us_per_tick']:.1f}", "")])
+            t.add_row("no stopwatches: × real time",
+                      *[v for run in runs for v in (f"{run['bare']['x_real_time']:.2f}", "")])
+            t.add_row(f"no stopwatches: × real time, whole {runs[0]['duration_s']:g} s run",
+                      *[v for run in runs for v in (f"{run['bare']['x_real_time_session']:.2f}", "")])
         wide_console(width).print(t)
 
     stages = out["stages"]

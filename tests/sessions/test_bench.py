@@ -157,3 +157,7 @@ def test_the_teleoperation_stage_table_times_a_press_into_the_tissue():
     assert demo["us_per_tick"]["teleoperation"] == demo["us_per_tick"]["shadow estimators"] == 0
     # the session's start and end (the writer process's spawn, the file's end) are apart from the ticks
     assert demo["start_end_ms"] > 0 and demo["x_real_time_session"] < demo["x_real_time"]
+    # without the stopwatches only the ticks are timed: the whole tick is the "loop body"
+    bare = stage_table(1000.0, 0.5, stopwatches=False)
+    assert bare["us_per_tick"]["loop body"] > 0 and bare["x_real_time"] > 0
+    assert all(bare["us_per_tick"][stage] == 0 for stage in STAGES if stage != "loop body")

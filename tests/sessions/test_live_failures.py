@@ -198,7 +198,7 @@ def test_a_realtime_session_runs_on_the_wall_clock(tmp_path):
 
 
 def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep(tmp_path):
-    session = build_session(demo(duration=1.0, realtime=True))
+    session = build_session(demo(duration=2.0, realtime=True))
     where = []
     for device in (session.sensor, session.kinematics):
         compute, prepare = device._ahead.compute, device.prepare
@@ -213,10 +213,34 @@ def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep
         device.prepare = counted
     preparing = [False]
     result = run_session(session, out=tmp_path / "ahead.mcap")
-    # 1 s of 0.2 s chunks: 6 per device (the last looks a tick ahead), computed while the loop had time to
-    # spare (a tick that overran on a loaded machine reads without it: the same samples, computed at the read)
-    assert len(where) >= 11 and sum(where) >= len(where) // 2
-    assert result.samples >= 995
+    # 2 s of 400-sample chunks: 5 of the 1 kHz sensor's, 3 of the 500 Hz poses' (the last ones look ten ticks
+    # ahead), computed while the loop had time to spare (a device whose turn found too little, or a tick that
+    # overran on a loaded machine, reads without it: the same samples, computed at the read)
+    assert len(where) >= 8 and sum(where) >= len(where) // 2
+    assert result.samples >= 1995
+
+
+def test_a_paced_loop_asks_ten_ticks_ahead_and_only_with_half_a_period_to_spare(tmp_path):
+    """A device's work ahead waits for an idle moment: each is asked only while half a period is left, so a
+    slow one (here the sensor's, 0.6 ms a call) leaves the other (the poses') no turn in its window."""
+    from hapticlab.sessions.live.loop import PREPARE_AHEAD_TICKS
+
+    session = build_session(demo(duration=0.5, realtime=True))
+    period_ns = 1_000_000
+    calls = []
+    for part, device, slow in (("sensor", session.sensor, True), ("kinematics", session.kinematics, False)):
+        def recorded(until_ns, prepare=device.prepare, part=part, slow=slow):
+            calls.append((part, until_ns - PREPARE_AHEAD_TICKS * period_ns - time.monotonic_ns()))  # (due - now)
+            if slow:
+                time.sleep(0.0006)
+            prepare(until_ns)
+        device.prepare = recorded
+    result = run_session(session, out=tmp_path / "turns.mcap")
+    sensor = [left for part, left in calls if part == "sensor"]
+    assert len(sensor) > 200  # in most windows
+    assert all(left >= period_ns // 2 - 50_000 for _, left in calls)  # (a few µs pass between check and call)
+    assert [part for part, _ in calls].count("kinematics") < len(sensor) // 10  # rarely a turn after the sensor
+    assert result.samples >= 495  # the poses computed at their reads instead: the same samples
 
 
 def test_a_loop_that_falls_behind_records_an_overrun(tmp_path, registry):

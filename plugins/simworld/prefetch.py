@@ -22,8 +22,8 @@ at 500 Hz and at 7 kHz alike). A chunk's first numpy calls run cold (the loop ha
 while): in a 1 kHz demo session 100 poses cost 390 µs, 400 poses 530 µs, so fewer, larger chunks cost less
 per sample (3.9 → 1.3 µs per pose)."""
 PREFETCH_MAX_SAMPLES = 400
-"""The most samples one chunk computes (a 7 kHz sensor's 57 ms): ~0.5 ms, which a paced loop computes
-between two ticks (``PreparesAhead``)."""
+"""The most samples one chunk computes (a 7 kHz sensor's 57 ms): up to ~1 ms in a paced session, which its
+loop computes while it would sleep, ten ticks ahead (``PreparesAhead``, ``loop.PREPARE_AHEAD_TICKS``)."""
 
 
 class Prefetch:

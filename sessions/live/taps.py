@@ -101,8 +101,9 @@ ESTIMATE_FIELDS = ("t_ns", "contact_force_S", "contact_torque_S", "contact", "co
 class Taps:
     """Writes poses, wrenches, aligned samples, estimates, commands, device states and events.
 
-    Each tap queues its message; :meth:`send` records the tick's messages (call it once per tick, after the
-    command, with the tick's time; and once without one before the recorder is closed: it writes what is held).
+    Each tap queues its message; :meth:`send` records what is queued at each hand-over (call it once per tick,
+    after the command, with the tick's time; and once without one before the recorder is closed: it writes
+    what is held).
     """
 
     def __init__(self, recorder: Recorder):
@@ -157,7 +158,7 @@ class Taps:
         blocks = self._blocks.get(topic)
         if blocks is None:
             blocks = self._blocks[topic] = _Blocks(topic)
-        if blocks.parts and fields is not blocks.fields:  # what is held is one message, this another
+        if blocks.parts and fields is not blocks.fields:  # (this module's field tuples) one message held, this another
             self._write_held()
         blocks.fields = fields
         blocks.parts.append(values)

@@ -225,18 +225,6 @@ class LagWatch:
         self.clock = np.zeros(3, dtype=np.int64)
         self.lag_s: float | None = None
 
-    @property
-    def S_rg(self) -> float:
-        return float(self.sums[0])
-
-    @property
-    def S_gg(self) -> float:
-        return float(self.sums[1])
-
-    @property
-    def S_rr(self) -> float:
-        return float(self.sums[2])
-
     def add(self, block: AlignedSamples, params: dict[str, list[float]], R_SE: np.ndarray | None) -> float | None:
         """The lag estimate after this block (s; positive: poses late), once it is resolved, else None.
 

@@ -91,7 +91,6 @@ class ForceGovernor:
         self.max_step = settings.max_force_rate * period_s
         self.gain = lowpass_gain(settings.cutoff_hz, period_s)
         self.device_max_force: float | None = None
-        self.last_force_D = ZERO3
         # the arithmetic's own copies, in Python floats (numpy's per-call cost is most of the work at one vector
         # per device period): R_DB's rows, the low-pass state and the last command
         self._R_DB_rows = tuple(tuple(row) for row in self.R_DB.tolist())
@@ -102,6 +101,11 @@ class ForceGovernor:
     def filtered_D(self) -> np.ndarray:
         """(3,) the low-pass's state, N in D."""
         return np.array(self._filtered)
+
+    @property
+    def last_force_D(self) -> np.ndarray:
+        """(3,) the last command's force, N in D."""
+        return np.array(self._last)
 
     def limit(self) -> float:
         """The force limit in use, N: ``max_force``, or the device's own when smaller (NaN when it is unusable)."""
@@ -166,11 +170,9 @@ class ForceGovernor:
                      or norm < math.hypot(*last))):
             return self._zero(t_ns, "governor output out of bounds")  # unreachable by the arithmetic above
         self._last = target  # (never changed in place)
-        self.last_force_D = np.array(target)
-        return HapticCommand(t_ns, self.last_force_D, True, "", source_t_ns)
+        return HapticCommand(t_ns, np.array(target), True, "", source_t_ns)
 
     def _zero(self, t_ns: int, reason: str) -> HapticCommand:
         """A zero command for ``reason``; the filter and the ramp start again from zero."""
         self._filtered = self._last = [0.0, 0.0, 0.0]
-        self.last_force_D = ZERO3
         return HapticCommand(t_ns, ZERO3, False, reason)

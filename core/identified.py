@@ -1,4 +1,5 @@
-"""Convergence as the motion identifies the parameters: the ``kalman`` estimator's ``convergence = "identified"``.
+"""Convergence as the motion identifies the parameters: the ``kalman`` estimator's ``convergence = "identified"``,
+and its default ``"pose"`` (the second question below alone; the first still followed and reported).
 
 A stage's reading is y_k = A_k a + b + v_k, v_k ~ N(0, diag(r)), C_k = [A_k, I3]. Its filter's P
 of the constant a (gravity_force_B, cog_S) holds the bias's random walk, which forgets what the

@@ -224,15 +224,18 @@ ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10
 ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
 ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
 ADAPT_SIZE = 29
+CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
 ``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``),
-``ADAPT_IDENTIFIED`` convergence as identified (``core.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T``
+``ADAPT_IDENTIFIED`` convergence as identified (``CONVERGENCE_IDENTIFIED``) or at the pose
+(``CONVERGENCE_AT_POSE``; ``core.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T``
 the convergence bound from the noise estimate; ``ADAPT_REOPEN_S`` the torque-only refusal (s) after which
 the torque bias is re-opened (0: never; :func:`torque_only_refusal`), ``ADAPT_REOPEN_LEVER`` the farthest a
 contact can act from the sensor's origin (m), the prior variance of bias_torque_S the bias goes back to
 (3 values from ``ADAPT_PRIOR_TB``, (N·m)²).
 State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
-yet known), whether the force flag was ever up, the bounds' caps (inf until the force flag first rises), the
+yet known), whether the force stage has settled (its flag first up; at the pose, the identified rule's
+test first passed), the bounds' caps (inf until it settles), the
 current torque-only refusal (s, samples, and the sums of its force and torque residuals: 3 values each from
 ``ADAPT_TQ_SUM_F`` / ``ADAPT_TQ_SUM_T``), the torque bias re-opened so far (count).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
@@ -411,7 +414,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     (b_f after the sample); its flag: max diag P_cog · |gravity_force_B|² < bound_t² and
     max diag P_bias < bound_t². With ``adapt[ADAPT_IDENTIFIED]`` the flags are instead the
     identified rule's (``core.identified``: the constant's variance from the accepted samples'
-    information, and the reading's predicted variance at the pose, both under the bound). With
+    information, and the reading's predicted variance at the pose, both under the bound), or at
+    ``CONVERGENCE_AT_POSE`` the predicted variance alone (the constant's information is still kept:
+    it says when the stage has settled, and what the motion has identified). With
     ``adapt[ADAPT_NOISE_F]`` / ``adapt[ADAPT_NOISE_T]`` that stage's noise is re-estimated after each
     sample (``core.noise_estimate``), the torque stage's carried force noise following the force's. A
     failed update (S not positive definite) is predicted only and lowers the flag. The contact
@@ -445,6 +450,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     gate2, bound_f2, bound_t2 = limits[0], limits[1], limits[2]
     noise_f, noise_t = adapt[ADAPT_NOISE_F] != 0.0, adapt[ADAPT_NOISE_T] != 0.0
     identified = adapt[ADAPT_IDENTIFIED] != 0.0
+    at_pose = adapt[ADAPT_IDENTIFIED] == CONVERGENCE_AT_POSE
     noise = noise_f or noise_t
     pred_f, pred_t = adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3], scratch[6, :3]
     before_f, before_t = scratch[7], scratch[8]
@@ -481,10 +487,12 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         if identified:
             if usable[k] and what != GATED:
                 add_information(info_f, A_f[k], r_f)
-            conv = (constant_var_max(info_f, scratch) < bound_f2 and max(pred_f[0], pred_f[1], pred_f[2]) < bound_f2
-                    and not failed)
+            known_here = max(pred_f[0], pred_f[1], pred_f[2]) < bound_f2 and not failed
+            settled = constant_var_max(info_f, scratch) < bound_f2 and known_here
+            conv = known_here if at_pose else settled
         else:
             conv = max(P_f[0, 0], P_f[1, 1], P_f[2, 2], P_f[3, 3], P_f[4, 4], P_f[5, 5]) < bound_f2 and not failed
+            settled = conv
         converged_force[k] = conv
         if conv and first_f < 0:
             first_f = k
@@ -492,7 +500,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
         A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
         A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
-        seen = usable[k] and what != GATED and conv
+        seen = usable[k] and what != GATED and settled  # (its regressor needs gravity identified, not only here)
         before_t[:] = x_t
         what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
                                rc_t, gate2)
@@ -506,8 +514,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         if identified:
             if seen and what_t != GATED:
                 add_information(info_t, A_t, r_t)
-            converged_torque[k] = (constant_var_max(info_t, scratch) * weight2 < bound_t2
-                                   and max(pred_t[0], pred_t[1], pred_t[2]) < bound_t2 and what_t != FAILED)
+            converged_torque[k] = (max(pred_t[0], pred_t[1], pred_t[2]) < bound_t2 and what_t != FAILED
+                                   and (at_pose or constant_var_max(info_t, scratch) * weight2 < bound_t2))
         else:
             converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
                                    and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)
@@ -530,7 +538,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                                                    refused_weight if what_t == GATED else 1.0, window, NOISE_FLOOR[1])
             if noise_f:
                 rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
-        if conv and adapt[ADAPT_FORCE_SEEN] == 0.0:
+        if settled and adapt[ADAPT_FORCE_SEEN] == 0.0:
             adapt[ADAPT_FORCE_SEEN] = 1.0
             if adapt[ADAPT_AUTO_F] != 0.0:  # an auto bound never grows past its value at first convergence
                 adapt[ADAPT_CAP_F] = math.sqrt(_auto_bound2(r_f, math.inf))

@@ -24,7 +24,7 @@ paper's RLS:
   a long contact, so the gate reopens on a bias that has truly moved instead
   of locking out as the paper's fixed threshold does. A sample the force stage
   refuses is not given to the torque stage.
-* **Convergence from the covariance** (``convergence = "covariance"``; the default is "identified",
+* **Convergence from the covariance** (``convergence = "covariance"``; the default is "pose",
   below). A stage counts as converged when every
   parameter's standard deviation (sqrt diag P) is below a bound in physical
   units: ``converged_force_std`` (N) for gravity_force_B and bias_force_S;
@@ -40,7 +40,13 @@ paper's RLS:
   bias held constant, and the wrench as known at each sample's pose (the
   predicted reading's std with the filter's P), both under the bound: the
   drift states' random walk no longer holds the flag back on a slow motion
-  (docs/estimators.md).
+  (docs/estimators.md). ``convergence = "pose"`` (the default): the wrench
+  known at the pose alone, so the flag is up wherever the compensated force
+  is right, before the motion has identified the tool; the identification is
+  still followed and still gates what needs it (the torque stage, whose
+  regressor needs gravity; the noise estimate's treatment of refusals; the
+  inertial force's mass; the haptic gate's parameter std), so the filter is
+  the one of "identified" and only the flags differ.
 
 Default drift intensities. The drift figure used is a thermal (warm-up) bias
 drift of **0.5 N/min** (0.0083 N/s), the drift of hapticlab's drift scenario
@@ -109,7 +115,8 @@ from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_COUNT_F,
                                     ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_IDENTIFIED, ADAPT_NOISE_F, ADAPT_NOISE_T,
                                     ADAPT_PRED_F, ADAPT_PRIOR_TB, ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S,
-                                    ADAPT_REOPENS, ADAPT_SIZE, ADAPT_WINDOW, GATED, UPDATED, torque_only_refusal)
+                                    ADAPT_REOPENS, ADAPT_SIZE, ADAPT_WINDOW, CONVERGENCE_AT_POSE,
+                                    CONVERGENCE_IDENTIFIED, GATED, UPDATED, torque_only_refusal)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
@@ -121,7 +128,8 @@ from scipy.stats import chi2
 STEP_EPSILON = 1e-3
 """``convergence = "step"``: the paper's threshold on ‖Δx‖ (mixed units, as in Algorithm 1)."""
 IDENTIFICATION_EVENTS = ("identified", "not_identifiable")
-"""The kinds of the events that say what the motion has identified of the tool (``convergence = "identified"``)."""
+"""The kinds of the events that say what the motion has identified of the tool (``convergence`` "pose" or
+"identified")."""
 BIAS_RATE_PRIOR_FORCE = 0.025
 """Prior std of the force-bias rate, N/s (three times the 0.5 N/min drift figure)."""
 BIAS_RATE_PRIOR_TORQUE = 0.002
@@ -250,9 +258,9 @@ class KalmanEstimator(RefusesBadSamples):
         gate_probability: a sample whose innovation lies outside this
             probability mass of the predicted distribution (chi-square, 3 dof)
             is refused as contact; 1 never refuses.
-        convergence: "identified" (default: the constants as the motion identifies them and the
-            wrench as known at the current pose), "covariance" (every parameter's std from P) or
-            "step" (the paper's ‖Δx‖ < 1e-3).
+        convergence: "pose" (default: the wrench known at the current pose), "identified" (that, and
+            the constants as the motion identifies them), "covariance" (every parameter's std from P)
+            or "step" (the paper's ‖Δx‖ < 1e-3).
         converged_force_std: bound on the std of gravity_force_B and bias_force_S, N (default: half
             the estimated noise, or 0.02 N with the noise given).
         converged_torque_std: bound on the std of bias_torque_S and of
@@ -314,7 +322,7 @@ class KalmanEstimator(RefusesBadSamples):
         bias_torque_rate_rw: float = 2.5e-5,
         gating: str = "mahalanobis",
         gate_probability: float = 0.9999,
-        convergence: str = "identified",
+        convergence: str = "pose",
         converged_force_std: float | None = None,
         converged_torque_std: float | None = None,
         prior_force_std: float = 20.0,
@@ -378,8 +386,8 @@ class KalmanEstimator(RefusesBadSamples):
                 raise ValueError(f"{key}: must be a finite number > 0, got {value!r}")
         if gating not in ("mahalanobis", "none"):
             raise ValueError(f"gating: must be 'mahalanobis' or 'none', got {gating!r}")
-        if convergence not in ("covariance", "identified", "step"):
-            raise ValueError(f"convergence: must be 'covariance', 'identified' or 'step' (the paper's "
+        if convergence not in ("covariance", "identified", "pose", "step"):
+            raise ValueError(f"convergence: must be 'pose', 'identified', 'covariance' or 'step' (the paper's "
                              f"‖Δx‖ < 1e-3), got {convergence!r}")
         if not (isinstance(gate_probability, (int, float)) and 0 < gate_probability <= 1):
             raise ValueError(f"gate_probability: must be in (0, 1], got {gate_probability!r}")
@@ -459,7 +467,8 @@ class KalmanEstimator(RefusesBadSamples):
         # predicted variance at the last pose (NaN until the first sample)
         self._adapt = np.zeros(ADAPT_SIZE)
         self._adapt[ADAPT_NOISE_F], self._adapt[ADAPT_NOISE_T] = self.noise_auto_force, self.noise_auto_torque
-        self._adapt[ADAPT_IDENTIFIED] = convergence == "identified"
+        self._adapt[ADAPT_IDENTIFIED] = {"identified": CONVERGENCE_IDENTIFIED,
+                                         "pose": CONVERGENCE_AT_POSE}.get(convergence, 0.0)
         self._adapt[ADAPT_AUTO_F] = self.noise_auto_force and converged_force_std is None
         self._adapt[ADAPT_AUTO_T] = self.noise_auto_torque and converged_torque_std is None
         self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = math.inf
@@ -476,8 +485,11 @@ class KalmanEstimator(RefusesBadSamples):
         self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
         self.payload_changes = 0
         self._payload = PayloadWatch(self.payload_change_ns)  # the force stage's refusal runs
-        self._per_sample = self.noise_auto or convergence == "identified"  # (the numpy reference's blocks)
-        self._information: dict[str, np.ndarray] = {}  # convergence = "identified": Λ per stage (6, 6)
+        # the rules that follow what the motion identifies ("pose" flags the wrench at the pose, and reports
+        # the identification beside it, as "identified" does)
+        self.identifies = convergence in ("identified", "pose")
+        self._per_sample = self.noise_auto or self.identifies  # (the numpy reference's blocks)
+        self._information: dict[str, np.ndarray] = {}  # the identification: Λ per stage (6, 6)
         self._seed_information()
         if warm_start:
             self.load_state(warm_start)
@@ -500,7 +512,7 @@ class KalmanEstimator(RefusesBadSamples):
         if self.derivatives is not None or self.time_lag_s < 0:  # the pose's quaternion and position are used
             extras = tuple(a for a in (block.quat_BE, block.p_BoEo_B) if a is not None)
         out = self.guard.run(block, self._filter_block, (self.converged_force, self.converged_torque), extras)
-        if self.convergence == "identified" and len(block):
+        if self.identifies and len(block):
             self._watch_identified(int(block.t_ns[-1]))
         if self.samples != start + len(block):
             # samples refused: the filter counted the accepted ones; the indices are rows of the block
@@ -548,11 +560,12 @@ class KalmanEstimator(RefusesBadSamples):
         if run_f.failed is not None:  # updates that could not be computed: not used, not converged
             usable = usable & ~run_f.failed
         accepted_f = usable & ~run_f.gated
-        conv_f = self._force_converged(run_f, x_before, accepted_f, A_f)
+        conv_f, settled_f = self._force_converged(run_f, x_before, accepted_f, A_f)
         if run_f.failed is not None:
             conv_f &= ~run_f.failed
+            settled_f &= ~run_f.failed
         x_t_before = self.torque.x[:6].copy()
-        seen_t = force_seen = accepted_f & conv_f
+        seen_t = force_seen = accepted_f & settled_f  # (its regressor needs gravity identified, not only here)
         run_t = self.torque.run(torque_S, A_t, dt, seen_t, self.gate2, self.method)
         if run_t.failed is not None:
             seen_t = seen_t & ~run_t.failed
@@ -580,6 +593,7 @@ class KalmanEstimator(RefusesBadSamples):
             self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, usable, run_f, x_before)
         if self.first_converged_force is None and conv_f.any():
             self.first_converged_force = self.samples + int(np.argmax(conv_f))
+        if not self._adapt[ADAPT_FORCE_SEEN] and settled_f.any():  # (at the pose: identified as well)
             if self.noise_auto:
                 self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = self._bounds()
             self._adapt[ADAPT_FORCE_SEEN] = 1.0
@@ -690,8 +704,8 @@ class KalmanEstimator(RefusesBadSamples):
             R_EB = step.transpose(0, 2, 1) @ R_EB
             w_E = w_E + alpha_E * tau
             # (a_B is not shifted: a second-order term of a second-order term)
-        if not self.inertia or not (self.first_converged_force is not None or self._mass_known):
-            # the mass comes from the identified weight: until the force stage has converged it may be
+        if not self.inertia or not (self._adapt[ADAPT_FORCE_SEEN] or self._mass_known):
+            # the mass comes from the identified weight: until the force stage has settled it may be
             # far off, and subtracting a wrong inertial force would feed back into the weight
             return force_S, torque_S, R_EB, None, usable
         return force_S, torque_S, R_EB, self._inertial_force(R_EB, w_E, alpha_E, a_B), usable
@@ -757,22 +771,31 @@ class KalmanEstimator(RefusesBadSamples):
             t = min(t, self._adapt[ADAPT_CAP_T])
         return f, t
 
-    def _force_converged(self, run_f, x_before, accepted, A_f) -> np.ndarray:
-        """(m,) the force stage's flag after each sample."""
+    def _force_converged(self, run_f, x_before, accepted, A_f) -> tuple[np.ndarray, np.ndarray]:
+        """(m,) the force stage's flag after each sample, and (m,) whether it has settled there (the flag;
+        at the pose, the identified rule's test as well: the noise estimate and the inertial force wait for
+        it)."""
         if self.convergence == "step":
-            return self._step_converged(run_f.X[:, :6], x_before, accepted, self.converged_force)
+            conv = self._step_converged(run_f.X[:, :6], x_before, accepted, self.converged_force)
+            return conv, conv
         bound2 = self._bounds()[0] ** 2
-        if self.convergence == "identified":  # gravity from the motion's information; the force at this pose
+        if self.identifies:  # gravity from the motion's information; the force at this pose
             predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
             predicted[:] = identified.predicted_var(self.force.P, A_f[-1])
-            conv = (self._identified_var("force", A_f, accepted) < bound2) & (predicted.max() < bound2)
+            known_here = np.array([predicted.max() < bound2])
+            settled = (self._identified_var("force", A_f, accepted) < bound2) & known_here
+            conv = known_here.copy() if self.convergence == "pose" else settled.copy()
         else:
             conv = run_f.D[:, :6].max(axis=1) < bound2
+            settled = conv
         if self.mount_rotation:  # the force a mount error can cause: std(θ)·|gravity_force_B|
             n = self.force.n
             weight2 = (run_f.X[:, :3] ** 2).sum(axis=1)
-            conv &= run_f.D[:, n - 3:n].max(axis=1) * weight2 < bound2
-        return conv
+            mount_known = run_f.D[:, n - 3:n].max(axis=1) * weight2 < bound2
+            conv &= mount_known
+            if settled is not conv:
+                settled &= mount_known
+        return conv, settled
 
     def _torque_converged(self, run_t, X_f, x_before, accepted, A_t) -> np.ndarray:
         """(m,) the torque stage's flag after each sample."""
@@ -780,9 +803,10 @@ class KalmanEstimator(RefusesBadSamples):
             return self._step_converged(run_t.X[:, :6], x_before, accepted, self.converged_torque)
         bound2 = self._bounds()[1] ** 2
         weight2 = (X_f[:, :3] ** 2).sum(axis=1)  # |gravity_force_B|², N²
-        if self.convergence == "identified":
-            return ((self._identified_var("torque", A_t, accepted) * weight2 < bound2)
-                    & (identified.predicted_var(self.torque.P, A_t[-1]).max() < bound2))
+        if self.identifies:
+            identified_here = self._identified_var("torque", A_t, accepted) * weight2 < bound2  # (Λ kept)
+            known_here = np.array([identified.predicted_var(self.torque.P, A_t[-1]).max() < bound2])
+            return known_here if self.convergence == "pose" else identified_here & known_here
         return (run_t.D[:, :3].max(axis=1) * weight2 < bound2) & (run_t.D[:, 3:6].max(axis=1) < bound2)
 
     def _identified_var(self, stage: str, A: np.ndarray, accepted: np.ndarray) -> np.ndarray:
@@ -1045,14 +1069,14 @@ class KalmanEstimator(RefusesBadSamples):
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units); with bias_rate also the bias rates; with
-        ``convergence = "identified"`` the std per axis of gravity_force_B (N) and cog_S (m) as the motion so
+        ``convergence`` "pose" or "identified" the std per axis of gravity_force_B (N) and cog_S (m) as the motion so
         far identifies them, and NaN for an axis it has not identified at all (``core.identified.
         unidentified_axes``: a still tool leaves all three, a turn about B's vertical alone gravity's vertical
         component; the ``not_identifiable`` event names them); with auto noise the noise estimates."""
         out = named_params(self.force.x[:6], self.torque.x[:6])
         if self.mount_rotation or self.mount_configured:
             out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
-        if self.convergence == "identified":  # how well the motion so far has identified the constants
+        if self.identifies:  # how well the motion so far has identified the constants
             for stage, name in (("force", "gravity_force_B"), ("torque", "cog_S")):
                 std, axes = self._unidentified_now(stage)
                 out[f"{name}_std"] = std  # N, m
@@ -1076,11 +1100,13 @@ class KalmanEstimator(RefusesBadSamples):
     def force_parameter_std(self) -> np.ndarray:
         """(6,) standard deviation of [gravity_force_B, bias_force_S], N: sqrt of diag P_force.
 
-        With ``convergence = "identified"`` what that rule judges: gravity's std as the motion identifies it,
-        and in the bias's place the non-contact force's std per axis at the last sample's pose (the bias as
-        known where the robot is), so the haptic gate's "parameters known" agrees with the flag."""
+        With ``convergence`` "pose" or "identified" what the identified rule judges: gravity's std as the motion
+        identifies it, and in the bias's place the non-contact force's std per axis at the last sample's pose
+        (the bias as known where the robot is), so the haptic gate's "parameters known" agrees with that rule's
+        flag (under "pose" the force stays off until the motion has identified the tool, though the flag
+        rises before)."""
         predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
-        if self.convergence == "identified" and not np.isnan(predicted).any():
+        if self.identifies and not np.isnan(predicted).any():
             return np.sqrt(np.concatenate([self._constant_var("force"), predicted]))
         return np.sqrt(np.diag(self.force.P)[:6])
 

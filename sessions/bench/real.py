@@ -1,9 +1,11 @@
 """``hapticlab bench real``: every registered estimator on real recordings.
 
 For each CSV file of a folder and each registered estimator with its defaults
-(``kalman``, the default, first; and ``kalman`` once more with the simulated
-Gamma sensor's noise and the covariance convergence rule, its defaults before
-it estimated the noise): the online RMS of the estimated contact force per axis
+(``kalman``, the default, first; ``kalman`` once more with the identified
+convergence rule, whose flag waits for the motion to identify the tool where the
+default's is up once the wrench is known at the pose; and once more with the
+simulated Gamma sensor's noise and the covariance convergence rule, its defaults
+before it estimated the noise): the online RMS of the estimated contact force per axis
 over every row after the first convergence, against the offline batch fit of
 the whole file evaluated over the same rows (their ratio); the same ratio over
 the file's second half, a window that does not depend on each estimator's own
@@ -42,18 +44,22 @@ def default_real_dir() -> Path:
     return beside_checkout if beside_checkout.is_dir() else Path("../shared/data/real")
 
 
+IDENTIFIED = {"convergence": "identified"}
+"""kalman's convergence rule before "pose": the wrench known at the pose and the tool identified by the motion."""
 GAMMA_COVARIANCE = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
 """kalman's options before it estimated the noise: the simulated Gamma-class sensor's noise, convergence from P."""
 
 
 def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[str, Any] | str]]:
     """(label, estimator name, options or an error): every registered estimator with its defaults, the
-    default (kalman) first; kalman with the Gamma figures and the covariance rule (its defaults before); and
+    default (kalman) first; kalman with the identified rule, and with the Gamma figures and the covariance rule
+    (its defaults before); and
     kalman with the effects ``hapticlab discrepancy`` names on the file."""
     names = registry.names("estimator")
     names = sorted(names, key=lambda name: name != "kalman")  # the default first, then the others as registered
     out: list[tuple[str, str, dict[str, Any] | str]] = [(name, name, {}) for name in names]
     if "kalman" in names:
+        out.append(("kalman convergence=identified", "kalman", dict(IDENTIFIED)))
         out.append(("kalman noise=0.12 N, convergence=covariance", "kalman", dict(GAMMA_COVARIANCE)))
         from ..discrepancy.workflow import discrepancy
 

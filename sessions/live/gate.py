@@ -298,7 +298,8 @@ class HapticGate:
                 self.last_sample_ns - self.down_since_ns >= CONVERGENCE_LOSS_NS:
             return "estimator no longer converged"
         if not self.parameters_known:
-            return "parameters not yet identified"
+            return f"parameters not yet identified ({self.unidentified})" if self.unidentified else \
+                "parameters not yet identified"
         if self.parameters_lost:
             return "parameters no longer known (uncertainty grew)"
         if now_ns < self.hold_until_ns:

@@ -212,8 +212,9 @@ def _tolerance(options) -> float:
 
 
 @pytest.mark.parametrize("options", [{}, GAMMA, {**GAMMA, "convergence": "identified"}, {"convergence": "covariance"},
-                                     {"mount_rotation": True}, {"convergence": "step"}],
-                         ids=["defaults", "gamma-covariance", "gamma-identified", "auto-covariance", "mount", "step"])
+                                     {"convergence": "identified"}, {"mount_rotation": True}, {"convergence": "step"}],
+                         ids=["defaults", "gamma-covariance", "gamma-identified", "auto-covariance", "auto-identified",
+                              "mount", "step"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     """The noise estimate and the convergence rules run in the compiled cascade (the numpy reference

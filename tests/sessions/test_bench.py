@@ -76,6 +76,9 @@ def test_bench_real_on_a_folder(tmp_path, capsys):
     assert list(out["sim"]["estimators"])[0] == "kalman"  # the default first, estimating the sensor's noise
     kalman = out["sim"]["estimators"]["kalman"]
     assert kalman["converged_force_at"] is not None and kalman["ratio_norm_second_half"] < 1.05
+    identified = out["sim"]["estimators"]["kalman convergence=identified"]  # the flag once the tool is identified
+    assert kalman["converged_force_at"] <= identified["converged_force_at"]  # (equal: this stream turns at once)
+    assert kalman["ratio_norm_second_half"] == identified["ratio_norm_second_half"]  # the same filter
     gamma = out["sim"]["estimators"]["kalman noise=0.12 N, convergence=covariance"]  # the old defaults beside
     assert gamma["ratio_norm_second_half"] < 1.05
     assert "sim" in capsys.readouterr().out

@@ -411,6 +411,41 @@ def test_identified_convergence_waits_for_a_tilt_that_tells_gravity_from_the_bia
     assert np.abs(np.array(est.params()["gravity_force_B"]) - [0.0, 0.0, -3.4]).max() < 0.05
 
 
+def test_pose_convergence_is_up_where_the_force_is_known_and_the_weight_waits_for_a_tilt():
+    """The default rule (convergence = "pose") on the same yaw-then-tilt stream: at every yaw pose gravity and
+    the bias add up to one known force, so the flag is up within a tenth of a second and the compensated force
+    is at the noise; the weight's vertical is still not identifiable (NaN, the event), so what the haptic gate
+    reads stays above its ready bound and the torque stage, whose regressor needs gravity, waits. When the
+    tool first tilts the pose is new: the flag drops until the force there is known, and the weight is then
+    identified. Wherever the flag is up, the compensated force is noise."""
+    t = np.arange(0.0, 60.0, 0.01)
+    yaw = 1.5 * np.sin(2 * np.pi * t / 20.0)
+    tilt = np.where(t < 30.0, 0.0, 0.5 * np.sin(2 * np.pi * (t - 30.0) / 15.0))
+    block = _turning_stream(_rot(2, yaw) @ _rot(0, tilt) @ _rot(0, np.full(len(t), np.pi)), seed=3)
+    est = KalmanEstimator()
+    assert est.convergence == "pose"
+    rows, gate_std = [], []
+    for i in range(len(t)):  # one sample at a time, as a live loop at the sensor's rate
+        rows.append(est.update_block(block.subset(slice(i, i + 1))))
+        gate_std.append(est.force_parameter_std().max())
+        if i == 2900:
+            yaw_params = est.params()
+    out, gate_std = Estimates.concatenate(rows), np.array(gate_std)
+    flag, norm = out.converged_force, np.linalg.norm(out.contact_force_S, axis=1)
+    yaw_phase = (t > 0.1) & (t < 30.0)
+    assert t[est.first_converged_force] < 0.1 and flag[yaw_phase].all()
+    rms = np.sqrt(np.mean(out.contact_force_S[yaw_phase] ** 2, axis=0))
+    assert np.all(rms < 0.1 * 1.1), rms
+    assert np.isnan(yaw_params["gravity_force_B"][2]) and (gate_std[yaw_phase] > 1.0).all()  # N; ready at 0.05
+    assert t[est.first_converged_torque] > 30.0 and not out.converged_torque[t < 30.0].any()
+    dropped = np.flatnonzero(~flag & (t > 0.1))
+    assert len(dropped) and 30.0 <= t[dropped[0]] < 30.2  # the first tilted poses: not yet known there
+    said = [(e.kind, e.data["parameter"], e.t_ns * 1e-9) for e in est.drain_events()]
+    assert said[0][:2] == ("not_identifiable", "gravity_force_B") and said[0][2] < 1.0
+    assert ("identified", "gravity_force_B") in [s[:2] for s in said if s[2] > 30.0]
+    assert gate_std[-1] < 0.05 and norm[flag].max() < 5 * 0.1  # N: where the flag is up, only noise
+
+
 def test_identified_convergence_is_not_held_back_by_the_bias_random_walk():
     """A slow tour with the default bias random walk: the filter's own P of gravity keeps forgetting what
     earlier turns taught (convergence = "covariance" waits long or forever); "identified" converges once the
@@ -435,5 +470,5 @@ def test_identified_convergence_is_not_held_back_by_the_bias_random_walk():
 
 
 def test_convergence_option_is_validated():
-    with pytest.raises(ValueError, match="^convergence: must be 'covariance', 'identified' or 'step'"):
+    with pytest.raises(ValueError, match="^convergence: must be 'pose', 'identified', 'covariance' or 'step'"):
         KalmanEstimator(convergence="fast")

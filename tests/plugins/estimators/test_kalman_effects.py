@@ -312,7 +312,7 @@ def test_gating_none_accepts_everything_and_step_convergence_is_the_papers():
     # the paper's criterion rises on the very first samples' small steps; the covariance one needs excitation
     step = KalmanEstimator(convergence="step")
     feed(step, block, chunk=64)
-    covariance = KalmanEstimator()
+    covariance = KalmanEstimator(convergence="covariance")
     feed(covariance, block, chunk=64)
     assert step.first_converged_force < covariance.first_converged_force
     for key, bad in (("gating", "threshold"), ("convergence", "soon")):

@@ -87,6 +87,34 @@ def test_identified_convergence_comes_as_soon_as_the_motion_allows_on_every_file
     assert any(wide_P)  # (lwr4_2014_06_24: the filter's P of gravity 0.067 N against a 0.058 N bound)
 
 
+def test_the_defaults_converge_within_the_first_quarter_and_match_the_batch_fit(real_data):
+    """The defaults (convergence = "pose") on every real file, scored as ``hapticlab bench real`` scores them:
+    the force flag is up within the first quarter of the file, and over every row from there on the online
+    ‖RMS‖ is at most 1.05 times the batch fit's over the same rows. The rule changes the flags only: the
+    contact wrench and the refusals are those of convergence = "identified" to the bit (the torque stage and
+    the noise estimate wait for the weight to be identified under both), and its flag is up wherever that
+    rule's is."""
+    import numpy as np
+
+    from hapticlab.core.types import first_true
+    from hapticlab.sessions.offline.metrics import norm_ratio, rms, scored_rows
+
+    for path in sorted(real_data.glob("*.csv")):
+        stream = load_stream(path)
+        s = stream.samples
+        residual = batch_fit(s.force_S, s.torque_S, s.R_EB)["residual_force_S"]
+        pose = run_estimator(stream, KalmanEstimator())
+        identified = run_estimator(stream, KalmanEstimator(convergence="identified"))
+        first = first_true(pose.converged_force)
+        assert first is not None and first <= len(s) // 4, (path.stem, first)
+        rows = scored_rows(first, pose.contact_force_S)
+        ratio = norm_ratio(rms(pose.contact_force_S[rows]), rms(residual[rows]))
+        assert ratio <= 1.05, (path.stem, ratio)
+        for key in ("contact_force_S", "contact_torque_S", "contact"):
+            assert np.array_equal(getattr(pose, key), getattr(identified, key), equal_nan=True), (path.stem, key)
+        assert not (identified.converged_force & ~pose.converged_force).any(), path.stem
+
+
 LONG = ("axia80_ur_log_10hz", "lwr4_2013_06_13", "lwr4_2014_06_24", "lwr4_2014_root")
 """The real files long enough to split in two halves that each identify the tool."""
 

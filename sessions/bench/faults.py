@@ -77,7 +77,8 @@ def measure(estimator: str, clean, fault: dict[str, Any]) -> dict[str, Any]:
     n = min(len(t), len(t_ref))
     made_up = made_up_force(force[:n], force_ref[:n])
     after = t[:n] >= FAULT_START_S
-    faulty = np.array([not m["enabled"] and m["reason"].split(" (")[0] not in WARMING_UP and m["reason"] != "" for m in messages[:n]])
+    faulty = np.array([not m["enabled"] and m["reason"].split(" (")[0] not in WARMING_UP and m["reason"] != ""
+                       for m in messages[:n]])
     detected = np.flatnonzero(after & faulty)
     t_detect = float(t[detected[0]]) if len(detected) else None
     end = FAULT_START_S + min(fault.get("duration", np.inf), DURATION_S)

@@ -40,11 +40,11 @@ def test_a_5_degree_mount_is_estimated_within_0_3_degrees():
 
 
 def test_an_estimated_mount_converges_under_either_rule_and_compensates(mounted):
-    """convergence = "identified" keeps the mount's own check (std(θ)·|gravity| under the bound) and
-    compensates the 5° mount as "covariance" does, to the noise once converged."""
+    """convergence = "identified" and the default "pose" keep the mount's own check (std(θ)·|gravity| under the
+    bound) and compensate the 5° mount as "covariance" does, to the noise once converged."""
     world, block = mounted
     first = {}
-    for rule in ("covariance", "identified"):
+    for rule in ("covariance", "identified", "pose"):
         est = KalmanEstimator(mount_rotation=True, convergence=rule)
         out, _ = feed(est, block, chunk=64)
         first[rule] = est.first_converged_force
@@ -52,6 +52,7 @@ def test_an_estimated_mount_converges_under_either_rule_and_compensates(mounted)
         rms = np.sqrt(np.mean(out.contact_force_S[after] ** 2, axis=0))
         assert after.sum() > 10000 and np.all(rms < 1.1 * NOISE_F), (rule, rms)
     assert first["identified"] is not None and first["identified"] <= first["covariance"]
+    assert first["pose"] <= first["identified"]
 
 
 def test_the_reported_mount_is_the_estimate(mounted):

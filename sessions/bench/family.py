@@ -153,7 +153,7 @@ def payload(start_s: float = 20.0) -> dict[str, Any]:
     block, _ = simulate(world, start_s + 10.0, RATE_HZ)
     est = KalmanEstimator()
     out, _ = feed(est, block, chunk=64)
-    events = est.drain_events()
+    events = [e for e in est.drain_events() if e.kind == "payload_change"]  # (not the identification's events)
     if not events:
         return {"recognised_after_s": None}
     t_event = events[0].t_ns

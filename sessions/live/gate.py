@@ -217,7 +217,9 @@ class HapticGate:
             events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
         if self.parameters_known and params is not None:
             self.lag.add(block, params, R_SE)
-        step = self.bias.add(block, est) if self.ready[0] and not self.bias_hold else None
+        # (once the parameters are known, as the lag watch: a refused run before the tool is identified says
+        # nothing of a bias step, and kalman's flag at the pose is up long before)
+        step = self.bias.add(block, est) if self.parameters_known and not self.bias_hold else None
         if step is not None:
             events.append(self._bias_step(step, now_ns))
             if self.bias_hold == "latched":

@@ -173,6 +173,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     table.add_row("poses", str(result.poses))
     table.add_row("force converged at sample", str(result.first_converged_force))
     table.add_row("torque converged at sample", str(result.first_converged_torque))
+    weight = weight_identified(result.params)
+    if weight:
+        table.add_row("tool's weight identified", weight)
     table.add_row("contact samples", str(result.contact_samples))
     table.add_row("haptic force on", f"{result.haptic_on_s:.2f} s")
     for key, value in result.params.items():
@@ -183,6 +186,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     err.print(table)
     print(result.path)
     return 0
+
+
+def weight_identified(params: dict[str, list[float]]) -> str:
+    """What the motion identified of the tool's weight, for an estimator that reports it (``kalman``: its
+    unidentified axes of gravity_force_B are NaN, its flag may be up before): "every axis", or which axes not;
+    "" for one that does not report it."""
+    if "gravity_force_B_std" not in params:
+        return ""
+    axes = [name for name, value in zip("xyz", params["gravity_force_B"]) if value != value]  # (NaN)
+    if not axes:
+        return "every axis"
+    return f"not along B's {', '.join(axes)}" + (" (turn the tool about another axis)" if len(axes) < 3 else
+                                                  " (turn the tool)")
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

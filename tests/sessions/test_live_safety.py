@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from hapticlab.core.plugins import ConfigError
+from hapticlab.sessions.cli.run import weight_identified
 from hapticlab.sessions.bench.faults import FAULT_START_S, FAULTS, made_up_force, measure, session
 from hapticlab.sessions.config import HapticSettings, apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
@@ -194,6 +195,10 @@ def test_a_tool_turned_about_one_axis_only_is_told_what_the_motion_cannot_identi
     said = [e for e in result.events if e.kind == "not_identifiable"]
     assert [(e.data["parameter"], e.data["axes"]) for e in said] == [("gravity_force_B", ["x"])]
     assert np.isnan(result.params["gravity_force_B"][0]) and np.isfinite(result.params["gravity_force_B"][1:]).all()
+    # what hapticlab run's summary says of it
+    assert weight_identified(result.params) == "not along B's x (turn the tool about another axis)"
+    assert weight_identified({**result.params, "gravity_force_B": [0.0, 0.0, -3.4]}) == "every axis"
+    assert weight_identified({"gravity_force_B": [0.0, 0.0, -3.4]}) == ""  # (rls: not reported)
     rec = read_recording(tmp_path / "axial.mcap")
     commands = [m for _, m in rec.topics["/haptic/command"]]
     assert not any(m["enabled"] for m in commands) and not any(m["force_D"] != [0.0, 0.0, 0.0] for m in commands)

@@ -223,7 +223,8 @@ ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
 ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10, 11
 ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
 ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
-ADAPT_SIZE = 29
+ADAPT_TORQUE_SEEN = 29
+ADAPT_SIZE = 30
 CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
 ``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``),
@@ -235,7 +236,8 @@ contact can act from the sensor's origin (m), the prior variance of bias_torque_
 (3 values from ``ADAPT_PRIOR_TB``, (N·m)²).
 State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
 yet known), whether the force stage has settled (its flag first up; at the pose, the identified rule's
-test first passed), the bounds' caps (inf until it settles), the
+test first passed), the bounds' caps (inf until it settles), whether the torque stage has settled
+(``ADAPT_TORQUE_SEEN``, the same way: the inertial force's centre of mass waits for it), the
 current torque-only refusal (s, samples, and the sums of its force and torque residuals: 3 values each from
 ``ADAPT_TQ_SUM_F`` / ``ADAPT_TQ_SUM_T``), the torque bias re-opened so far (count).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
@@ -514,11 +516,16 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         if identified:
             if seen and what_t != GATED:
                 add_information(info_t, A_t, r_t)
-            converged_torque[k] = (max(pred_t[0], pred_t[1], pred_t[2]) < bound_t2 and what_t != FAILED
-                                   and (at_pose or constant_var_max(info_t, scratch) * weight2 < bound_t2))
+            known_t = max(pred_t[0], pred_t[1], pred_t[2]) < bound_t2 and what_t != FAILED
+            settled_t = known_t and (adapt[ADAPT_TORQUE_SEEN] != 0.0 and at_pose  # (once settled, not asked again)
+                                     or constant_var_max(info_t, scratch) * weight2 < bound_t2)
+            converged_torque[k] = known_t if at_pose else settled_t
         else:
             converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
                                    and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)
+            settled_t = converged_torque[k]
+        if settled_t:
+            adapt[ADAPT_TORQUE_SEEN] = 1.0
         if converged_torque[k] and first_t < 0:
             first_t = k
         if noise:
@@ -540,7 +547,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                 rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
         if settled and adapt[ADAPT_FORCE_SEEN] == 0.0:
             adapt[ADAPT_FORCE_SEEN] = 1.0
-            if adapt[ADAPT_AUTO_F] != 0.0:  # an auto bound never grows past its value at first convergence
+            if adapt[ADAPT_AUTO_F] != 0.0:  # an auto bound never grows past its value once settled
                 adapt[ADAPT_CAP_F] = math.sqrt(_auto_bound2(r_f, math.inf))
             if adapt[ADAPT_AUTO_T] != 0.0:
                 adapt[ADAPT_CAP_T] = math.sqrt(_auto_bound2(r_t, math.inf))

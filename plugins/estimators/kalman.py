@@ -115,7 +115,7 @@ from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_COUNT_F,
                                     ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_IDENTIFIED, ADAPT_NOISE_F, ADAPT_NOISE_T,
                                     ADAPT_PRED_F, ADAPT_PRIOR_TB, ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S,
-                                    ADAPT_REOPENS, ADAPT_SIZE, ADAPT_WINDOW, CONVERGENCE_AT_POSE,
+                                    ADAPT_REOPENS, ADAPT_SIZE, ADAPT_TORQUE_SEEN, ADAPT_WINDOW, CONVERGENCE_AT_POSE,
                                     CONVERGENCE_IDENTIFIED, GATED, UPDATED, torque_only_refusal)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
@@ -463,7 +463,8 @@ class KalmanEstimator(RefusesBadSamples):
         self._last_t_ns: int | None = None
         # the noise estimate's and the identified rule's state, in the compiled cascade's layout (both paths use
         # it): the samples' weight in each noise estimate, the window in samples (0 until the first time step),
-        # whether the force flag was ever up, the auto bounds' caps (inf until then), the force reading's
+        # whether each stage has settled (its flag up; at the pose, identified too), the auto bounds' caps (inf
+        # until the force stage settles), the force reading's
         # predicted variance at the last pose (NaN until the first sample)
         self._adapt = np.zeros(ADAPT_SIZE)
         self._adapt[ADAPT_NOISE_F], self._adapt[ADAPT_NOISE_T] = self.noise_auto_force, self.noise_auto_torque
@@ -570,9 +571,12 @@ class KalmanEstimator(RefusesBadSamples):
         if run_t.failed is not None:
             seen_t = seen_t & ~run_t.failed
         accepted_t = seen_t & ~run_t.gated
-        conv_t = self._torque_converged(run_t, X_f, x_t_before, accepted_t, A_t)
+        conv_t, settled_t = self._torque_converged(run_t, X_f, x_t_before, accepted_t, A_t)
         if run_t.failed is not None:
             conv_t &= ~run_t.failed
+            settled_t &= ~run_t.failed
+        if settled_t.any():  # (at the pose: the centre of gravity identified as well)
+            self._adapt[ADAPT_TORQUE_SEEN] = 1.0
         torque_for_contact = torque_S
         if inertial_S is not None:  # the inertial force acts at the centre of mass like the weight
             torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
@@ -736,13 +740,13 @@ class KalmanEstimator(RefusesBadSamples):
         """(m, 3) the tool's inertial force in S, −m (a + α × c + ω × (ω × c)), N.
 
         m = |gravity_force_B| / g and c = cog_S are the current estimates, used once the
-        force stage has converged (before that no inertial force is subtracted: a wrong
-        weight would feed back through m); c once the torque stage has converged (until then
-        the centre of mass is taken at the sensor origin). a is the flange's acceleration (the sensor is taken at the flange
+        force stage has settled (converged; at the pose, identified as well: before that no
+        inertial force is subtracted, a wrong weight would feed back through m); c once the
+        torque stage has settled (until then the centre of mass is taken at the sensor origin). a is the flange's acceleration (the sensor is taken at the flange
         origin); ω, α in S through the mount.
         """
         mass = float(np.linalg.norm(self.force.x[:3])) / GRAVITY_M_S2
-        cog_S = self.torque.x[:3] if (self.first_converged_torque is not None or self._cog_known) else np.zeros(3)
+        cog_S = self.torque.x[:3] if (self._adapt[ADAPT_TORQUE_SEEN] or self._cog_known) else np.zeros(3)
         R_SE = self.R_SE
         if self.kernel == "numba":
             out = np.empty((len(R_EB), 3))
@@ -764,7 +768,7 @@ class KalmanEstimator(RefusesBadSamples):
         if f is None:
             f = (AUTO_BOUND_FRACTION * float(np.sqrt(self.force.r.mean())) if self.noise_auto_force
                  else CONVERGED_FORCE_STD)
-            f = min(f, self._adapt[ADAPT_CAP_F])  # an auto bound never grows past its value at first convergence
+            f = min(f, self._adapt[ADAPT_CAP_F])  # an auto bound never grows past its value once settled
         if t is None:
             t = (AUTO_BOUND_FRACTION * float(np.sqrt(self.torque.r.mean())) if self.noise_auto_torque
                  else CONVERGED_TORQUE_STD)
@@ -797,17 +801,21 @@ class KalmanEstimator(RefusesBadSamples):
                 settled &= mount_known
         return conv, settled
 
-    def _torque_converged(self, run_t, X_f, x_before, accepted, A_t) -> np.ndarray:
-        """(m,) the torque stage's flag after each sample."""
+    def _torque_converged(self, run_t, X_f, x_before, accepted, A_t) -> tuple[np.ndarray, np.ndarray]:
+        """(m,) the torque stage's flag after each sample, and (m,) whether it has settled there (as for the
+        force stage: at the pose, the centre of gravity identified as well)."""
         if self.convergence == "step":
-            return self._step_converged(run_t.X[:, :6], x_before, accepted, self.converged_torque)
+            conv = self._step_converged(run_t.X[:, :6], x_before, accepted, self.converged_torque)
+            return conv, conv
         bound2 = self._bounds()[1] ** 2
         weight2 = (X_f[:, :3] ** 2).sum(axis=1)  # |gravity_force_B|², N²
         if self.identifies:
             identified_here = self._identified_var("torque", A_t, accepted) * weight2 < bound2  # (Λ kept)
             known_here = np.array([identified.predicted_var(self.torque.P, A_t[-1]).max() < bound2])
-            return known_here if self.convergence == "pose" else identified_here & known_here
-        return (run_t.D[:, :3].max(axis=1) * weight2 < bound2) & (run_t.D[:, 3:6].max(axis=1) < bound2)
+            settled = identified_here & known_here
+            return (known_here, settled) if self.convergence == "pose" else (settled, settled)
+        conv = (run_t.D[:, :3].max(axis=1) * weight2 < bound2) & (run_t.D[:, 3:6].max(axis=1) < bound2)
+        return conv, conv
 
     def _identified_var(self, stage: str, A: np.ndarray, accepted: np.ndarray) -> np.ndarray:
         """(1,) the largest variance of the stage's constant (gravity_force_B, N², or cog_S, m²) after a
@@ -994,6 +1002,9 @@ class KalmanEstimator(RefusesBadSamples):
             "torque": {"x": self.torque.x.tolist(), "P": (0.5 * (self.torque.P + self.torque.P.T)).tolist()},
             "converged_force": self.converged_force,
             "converged_torque": self.converged_torque,
+            # the stages settled (at the pose: identified as well, which the flags above need not say)
+            "settled_force": bool(self._adapt[ADAPT_FORCE_SEEN]),
+            "settled_torque": bool(self._adapt[ADAPT_TORQUE_SEEN]),
             "t_ns": self._last_t_ns,
             "mount_rotation": self.mount_rotation,
             "mount_R_SE": self.R_SE.tolist(),
@@ -1054,8 +1065,9 @@ class KalmanEstimator(RefusesBadSamples):
             self._information.update(information)  # what the motion had identified, not only what P still holds
         if R_SE is not None:
             self.force.R_SE = self.R_SE = R_SE
-        self._cog_known = bool(source.get("converged_torque"))
-        self._mass_known = bool(source.get("converged_force"))
+        # (a state saved before "settled_*" was kept: its flags were the identified or covariance rule's)
+        self._cog_known = bool(source.get("settled_torque", source.get("converged_torque")))
+        self._mass_known = bool(source.get("settled_force", source.get("converged_force")))
         if self.noise_auto:  # the noise estimate carries over, as if its window were full
             for key, stage, floor, auto in (("noise_force_S", self.force, NOISE_FLOOR[0], self.noise_auto_force),
                                             ("noise_torque_S", self.torque, NOISE_FLOOR[1], self.noise_auto_torque)):
@@ -1103,10 +1115,13 @@ class KalmanEstimator(RefusesBadSamples):
         With ``convergence`` "pose" or "identified" what the identified rule judges: gravity's std as the motion
         identifies it, and in the bias's place the non-contact force's std per axis at the last sample's pose
         (the bias as known where the robot is), so the haptic gate's "parameters known" agrees with that rule's
-        flag (under "pose" the force stays off until the motion has identified the tool, though the flag
-        rises before)."""
+        flag; inf until the force stage has settled (the tool identified to the estimator's own bound, which
+        may be tighter than the gate's ``ready_force_std``): under "pose" the flag rises before, the haptic
+        force waits for both."""
         predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
         if self.identifies and not np.isnan(predicted).any():
+            if not self._adapt[ADAPT_FORCE_SEEN]:  # not yet identified to the estimator's own bound: inf
+                return np.full(6, math.inf)
             return np.sqrt(np.concatenate([self._constant_var("force"), predicted]))
         return np.sqrt(np.diag(self.force.P)[:6])
 

@@ -174,6 +174,44 @@ def test_inertia_closes_the_gap_on_a_lively_tour():
     assert min(rms["kalman"]) >= 1.05  # without the option the inertial force shows
 
 
+def test_the_pose_rule_is_the_identified_filter_with_inertia_and_the_gate_waits_for_identification(tmp_path):
+    """With inertia the inertial force uses the estimated mass and centre of mass once each stage has settled
+    (identified, not merely known at the pose), so "pose" and "identified" stay one filter: the same contact
+    wrench and refusals, the flags earlier. The haptic gate's parameter std is inf until the estimator's own
+    identification (a converged_force_std tighter than ready_force_std must not let the force on first), and a
+    state saved with the flag up at the pose but the tool unidentified does not give a warm start the mass."""
+    import json
+
+    from hapticlab.core.types import first_true
+
+    _, block = familybench.tour(12.0, seed=4)
+    outs = {}
+    for rule in ("pose", "identified"):
+        est = KalmanEstimator(inertia=True, convergence=rule)
+        outs[rule], _ = feed(est, block, chunk=64)
+    for key in ("contact_force_S", "contact_torque_S", "contact"):
+        assert np.array_equal(getattr(outs["pose"], key), getattr(outs["identified"], key)), key
+    assert first_true(outs["pose"].converged_torque) < first_true(outs["identified"].converged_torque)
+    pose, ref = KalmanEstimator(converged_force_std=0.03), KalmanEstimator(converged_force_std=0.03,
+                                                                        convergence="identified")
+    ready_at = None
+    for i in range(2400):
+        one = block.subset(slice(i, i + 1))
+        pose.update_block(one)
+        ref.update_block(one)
+        if ready_at is None and pose.force_parameter_std().max() <= 0.05:  # N: the gate's default ready_force_std
+            ready_at = i
+    assert pose.first_converged_force < ref.first_converged_force <= ready_at
+    early = KalmanEstimator()
+    early.update_block(block.subset(slice(0, 500)))  # the tour's first half second: known at the pose only
+    assert early.converged_force  # (its weight not yet identified to its bound: settled_force below)
+    path = tmp_path / "early.json"
+    path.write_text(json.dumps(early.state()))
+    assert early.state()["settled_force"] is False
+    warm = KalmanEstimator(inertia=True, warm_start=str(path))
+    assert not warm._mass_known and not warm._cog_known
+
+
 def test_the_inertial_force_matches_the_simulated_one():
     world, block = familybench.tour(20.0, seed=4, motion={"script": "random_tour", "max_translation": 0.1})
     est = KalmanEstimator(inertia=True)

@@ -212,7 +212,8 @@ class HapticGate:
             self.parameters_lost = self._std() > self.ready_force_std  # e.g. a drifting estimator in a long contact
         if self.bias_hold == "drop" and not self.converged[0]:
             self.bias_hold = "rise"
-        elif self.bias_hold == "rise" and self.converged[0] and not self.parameters_lost:  # (at the pose: sooner)
+        # (and the parameters known again: kalman's flag at the pose is back before the tool is re-identified)
+        elif self.bias_hold == "rise" and self.converged[0] and not self.parameters_lost:
             self.bias_hold = ""
             events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
         if self.parameters_known and params is not None:

@@ -788,17 +788,14 @@ class KalmanEstimator(RefusesBadSamples):
             predicted[:] = identified.predicted_var(self.force.P, A_f[-1])
             known_here = np.array([predicted.max() < bound2])
             settled = (self._identified_var("force", A_f, accepted) < bound2) & known_here
-            conv = known_here.copy() if self.convergence == "pose" else settled.copy()
+            conv = known_here if self.convergence == "pose" else settled
         else:
-            conv = run_f.D[:, :6].max(axis=1) < bound2
-            settled = conv
+            conv = settled = run_f.D[:, :6].max(axis=1) < bound2
         if self.mount_rotation:  # the force a mount error can cause: std(θ)·|gravity_force_B|
             n = self.force.n
             weight2 = (run_f.X[:, :3] ** 2).sum(axis=1)
             mount_known = run_f.D[:, n - 3:n].max(axis=1) * weight2 < bound2
-            conv &= mount_known
-            if settled is not conv:
-                settled &= mount_known
+            conv, settled = conv & mount_known, settled & mount_known
         return conv, settled
 
     def _torque_converged(self, run_t, X_f, x_before, accepted, A_t) -> tuple[np.ndarray, np.ndarray]:

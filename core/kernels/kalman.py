@@ -517,9 +517,13 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             if seen and what_t != GATED:
                 add_information(info_t, A_t, r_t)
             known_t = max(pred_t[0], pred_t[1], pred_t[2]) < bound_t2 and what_t != FAILED
-            settled_t = known_t and (adapt[ADAPT_TORQUE_SEEN] != 0.0 and at_pose  # (once settled, not asked again)
-                                     or constant_var_max(info_t, scratch) * weight2 < bound_t2)
-            converged_torque[k] = known_t if at_pose else settled_t
+            if at_pose:  # the flag at the pose; the centre of gravity's identification asked until it has settled
+                converged_torque[k] = known_t
+                settled_t = (known_t and adapt[ADAPT_TORQUE_SEEN] == 0.0
+                             and constant_var_max(info_t, scratch) * weight2 < bound_t2)
+            else:
+                settled_t = known_t and constant_var_max(info_t, scratch) * weight2 < bound_t2
+                converged_torque[k] = settled_t
         else:
             converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
                                    and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)

@@ -45,8 +45,9 @@ paper's RLS:
   is right, before the motion has identified the tool; the identification is
   still followed and still gates what needs it (the torque stage, whose
   regressor needs gravity; the noise estimate's treatment of refusals; the
-  inertial force's mass; the haptic gate's parameter std), so the filter is
-  the one of "identified" and only the flags differ.
+  inertial force's mass and centre of mass; a warm start; the haptic gate's
+  parameter std), so the filter is the one of "identified" and only the
+  flags differ.
 
 Default drift intensities. The drift figure used is a thermal (warm-up) bias
 drift of **0.5 N/min** (0.0083 N/s), the drift of hapticlab's drift scenario
@@ -742,7 +743,8 @@ class KalmanEstimator(RefusesBadSamples):
         m = |gravity_force_B| / g and c = cog_S are the current estimates, used once the
         force stage has settled (converged; at the pose, identified as well: before that no
         inertial force is subtracted, a wrong weight would feed back through m); c once the
-        torque stage has settled (until then the centre of mass is taken at the sensor origin). a is the flange's acceleration (the sensor is taken at the flange
+        torque stage has settled (until then the centre of mass is taken at the sensor origin).
+        a is the flange's acceleration (the sensor is taken at the flange
         origin); ω, α in S through the mount.
         """
         mass = float(np.linalg.norm(self.force.x[:3])) / GRAVITY_M_S2

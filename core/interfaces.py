@@ -121,6 +121,19 @@ class ReportsParameterStd(Protocol):
 
 
 @runtime_checkable
+class HoldsOutOutliers(Protocol):
+    """An estimator that refuses some samples from its update without judging them a contact.
+
+    ``held_out_samples`` counts them so far: lone outliers of the sensor's noise,
+    whose contact flag stays down (``kalman``'s ``contact_after``). Benchmarks
+    report them beside the contact rows, so a refusal never goes unseen.
+    """
+
+    @property
+    def held_out_samples(self) -> int: ...
+
+
+@runtime_checkable
 class KnowsMount(Protocol):
     """An estimator that knows the sensor's mount on the flange.
 

@@ -19,11 +19,14 @@ paper's RLS:
   std); the torque stage adds the force noise carried into its C_k through the centre of gravity.
 * **Gating.** A sample whose innovation has a squared Mahalanobis distance
   eᵀ(C P Cᵀ + R)⁻¹e above the chi-square quantile of ``gate_probability``
-  (3 degrees of freedom) is refused as contact. It does not update the stage,
+  (3 degrees of freedom) is refused. It does not update the stage,
   but time still propagates: the drift states' variance keeps growing through
   a long contact, so the gate reopens on a bias that has truly moved instead
   of locking out as the paper's fixed threshold does. A sample the force stage
-  refuses is not given to the torque stage.
+  refuses is not given to the torque stage. A refusal is judged a contact from
+  the ``contact_after``-th refused sample in a row (2 by default): a lone one is
+  held out of the update as an outlier of the noise, whose tails a real sensor
+  makes heavier than Gaussian, but not called a contact (``held_out_samples``).
 * **Convergence from the covariance** (``convergence = "covariance"``; the default is "pose",
   below). A stage counts as converged when every
   parameter's standard deviation (sqrt diag P) is below a bound in physical
@@ -113,11 +116,12 @@ from ...core.kalman import KalmanStage, MountStage, StageRun
 from ...core.payload import PayloadWatch
 from ...core.kernels import inertia as inertia_kernel
 from ...core.kernels import kalman as kalman_kernel
-from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_COUNT_F,
-                                    ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_IDENTIFIED, ADAPT_NOISE_F, ADAPT_NOISE_T,
-                                    ADAPT_PRED_F, ADAPT_PRIOR_TB, ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S,
-                                    ADAPT_REOPENS, ADAPT_SIZE, ADAPT_TORQUE_SEEN, ADAPT_WINDOW, CONVERGENCE_AT_POSE,
-                                    CONVERGENCE_IDENTIFIED, GATED, UPDATED, torque_only_refusal)
+from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_CONTACT_AFTER,
+                                    ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_HELD_OUT, ADAPT_IDENTIFIED,
+                                    ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_PRED_F, ADAPT_PRIOR_TB, ADAPT_REOPEN_LEVER,
+                                    ADAPT_REOPEN_ROW, ADAPT_REOPEN_S, ADAPT_REOPENS, ADAPT_SIZE, ADAPT_TORQUE_SEEN,
+                                    ADAPT_WINDOW, CONVERGENCE_AT_POSE, CONVERGENCE_IDENTIFIED, GATED, UPDATED,
+                                    judge_contact, torque_only_refusal)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
@@ -258,7 +262,10 @@ class KalmanEstimator(RefusesBadSamples):
         bias_torque_rate_rw: the same for the torque-bias rate, N·m/s/√s.
         gate_probability: a sample whose innovation lies outside this
             probability mass of the predicted distribution (chi-square, 3 dof)
-            is refused as contact; 1 never refuses.
+            is refused (not used by the stage); 1 never refuses.
+        contact_after: a refused sample is judged a contact once it is this many refused samples in a row
+            (1: every refused sample, as before 2026-11-27); the ones before are held out of the update but
+            not called a contact (a lone outlier of the noise). The contact wrench is the same either way.
         convergence: "pose" (default: the wrench known at the current pose), "identified" (that, and
             the constants as the motion identifies them), "covariance" (every parameter's std from P)
             or "step" (the paper's ‖Δx‖ < 1e-3).
@@ -323,6 +330,7 @@ class KalmanEstimator(RefusesBadSamples):
         bias_torque_rate_rw: float = 2.5e-5,
         gating: str = "mahalanobis",
         gate_probability: float = 0.9999,
+        contact_after: int = 2,
         convergence: str = "pose",
         converged_force_std: float | None = None,
         converged_torque_std: float | None = None,
@@ -392,6 +400,9 @@ class KalmanEstimator(RefusesBadSamples):
                              f"‖Δx‖ < 1e-3), got {convergence!r}")
         if not (isinstance(gate_probability, (int, float)) and 0 < gate_probability <= 1):
             raise ValueError(f"gate_probability: must be in (0, 1], got {gate_probability!r}")
+        if not (isinstance(contact_after, int) and not isinstance(contact_after, bool) and contact_after >= 1):
+            raise ValueError(f"contact_after: must be a whole number >= 1 (refused samples in a row), "
+                             f"got {contact_after!r}")
         for key, value in (("bias_rate", bias_rate), ("mount_rotation", mount_rotation), ("inertia", inertia)):
             if not isinstance(value, bool):
                 raise ValueError(f"{key}: must be true or false, got {value!r}")  # noqa: TRY004 (options: ValueError)
@@ -483,6 +494,7 @@ class KalmanEstimator(RefusesBadSamples):
         self.torque_reopen_s = float(torque_reopen_s)
         self._adapt[ADAPT_REOPEN_S], self._adapt[ADAPT_REOPEN_LEVER] = self.torque_reopen_s, float(torque_reopen_lever)
         self._adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3] = self.prior_t[3:6] ** 2
+        self._adapt[ADAPT_CONTACT_AFTER] = contact_after
         self.events: list[Event] = []
         self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
         self.payload_changes = 0
@@ -609,10 +621,20 @@ class KalmanEstimator(RefusesBadSamples):
             t_ns=block.t_ns,
             contact_force_S=contact_force_S,
             contact_torque_S=contact_torque_S,
-            contact=run_f.gated | run_t.gated,
+            contact=self._judge_contacts(run_f.gated | run_t.gated),
             converged_force=conv_f,
             converged_torque=conv_t,
         )
+
+    def _judge_contacts(self, refused: np.ndarray) -> np.ndarray:
+        """(m,) the refused samples judged a contact (``kalman_kernel.judge_contact``, run as Python)."""
+        judge = judge_contact.py_func
+        return np.array([judge(self._adapt, r) for r in refused.tolist()], dtype=bool)
+
+    @property
+    def held_out_samples(self) -> int:
+        """Samples refused but not judged a contact (lone outliers; see ``contact_after``)."""
+        return int(self._adapt[ADAPT_HELD_OUT])
 
     def _filter_compiled(self, block: AlignedSamples) -> Estimates:
         """``_filter_block`` in one compiled call (``kalman_kernel.kalman_cascade``): the default model, with

@@ -13,8 +13,9 @@ convergence test; ``kalman`` once more with the effects ``hapticlab discrepancy`
 names on the same file (their values fitted offline on that file, so this row
 is in-sample for them); the share of rows the estimator refused as contact, and the
 samples each stage took to converge by its own criterion. The recordings are
-contact-free calibration logs, so every refused row is a false contact, and
-refused rows are scored like the rest.
+contact-free calibration logs, so every row judged a contact is a false contact, and
+those rows are scored like the rest. An estimator that holds lone outliers out of its
+update without calling them contacts (``HoldsOutOutliers``) has those counted beside.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 
 from ...core.batch import batch_fit
 from ...core.errors import UserError
+from ...core.interfaces import HoldsOutOutliers
 from ...core.plugins import Registry
 from ...core.types import first_true
 
@@ -118,16 +120,20 @@ def bench_file(path: Path, registry: Registry, progress: Callable[[str], None] |
         if label.endswith("named effects"):
             entry["named_effects"] = options.get("effects", [])
         try:
-            est = run_estimator(stream, registry.create("estimator", name, options, where="estimator"))
+            estimator = registry.create("estimator", name, options, where="estimator")
+            est = run_estimator(stream, estimator)
         except UserError as exc:
             entry["estimators"][label] = {"error": str(exc)}
             continue
         first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
         result: dict[str, Any] = {"converged_force_at": first_f, "converged_torque_at": first_t,
-                                  "refused_rows": int(est.contact.sum()),
-                                  "refused_pct": 100.0 * float(np.mean(est.contact))}
+                                  "contact_rows": int(est.contact.sum()),
+                                  "contact_pct": 100.0 * float(np.mean(est.contact))}
+        if isinstance(estimator, HoldsOutOutliers):  # refused, not called contacts: shown beside
+            result["held_out_rows"] = estimator.held_out_samples
+            result["held_out_pct"] = 100.0 * estimator.held_out_samples / max(len(stream), 1)
         result["ratio_norm_second_half"] = second_half_ratio(est.contact_force_S, residual)
-        if first_f is not None:  # refused rows are scored too: every one is a false contact
+        if first_f is not None:  # contact rows are scored too: every one is a false contact
             rows = scored_rows(first_f, est.contact_force_S)
             online, batch = rms(est.contact_force_S[rows]), rms(residual[rows])
             result.update({

@@ -258,17 +258,18 @@ def print_estimators_table(out: dict) -> None:
 def print_real_table(out: dict) -> None:
     """One row per file and estimator."""
     t = Table(title="Real recordings: online RMS over every row after convergence, against the offline batch "
-                    "fit over the same rows; and the ‖·‖ ratio over the file's second half")
-    for col in ("file", "estimator", "force conv.", "torque conv.", "refused", "RMS fx, fy, fz (N)",
+                    "fit over the same rows; and the ‖·‖ ratio over the file's second half. Contact: rows judged "
+                    "a contact (every one a false contact here); held out: rows refused but not called a contact")
+    for col in ("file", "estimator", "force conv.", "torque conv.", "contact", "held out", "RMS fx, fy, fz (N)",
                 "batch, same rows", "ratio per axis", "ratio ‖·‖", "2nd half"):
         t.add_column(col, justify="right")
     for name, entry in out.items():
         if "error" in entry:
-            t.add_row(name, "", "", "", "", entry["error"], "", "", "", "", end_section=True)
+            t.add_row(name, "", "", "", "", "", entry["error"], "", "", "", "", end_section=True)
             continue
         for k, (est_name, r) in enumerate(entry["estimators"].items()):
             if "error" in r:
-                t.add_row(name if k == 0 else "", est_name, "", "", "", r["error"], "", "", "", "",
+                t.add_row(name if k == 0 else "", est_name, "", "", "", "", r["error"], "", "", "", "",
                           end_section=k == len(entry["estimators"]) - 1)
                 continue
             if est_name.endswith("named effects"):
@@ -276,8 +277,9 @@ def print_real_table(out: dict) -> None:
             rms = ", ".join(fmt(v) for v in r.get("rms_force_S", [])) or "never converged"
             batch = ", ".join(fmt(v) for v in r.get("batch_rms_same_rows", [])) or "–"
             ratio = ", ".join(fmt(v, 2) for v in r.get("ratio", [])) or "–"
+            held_out = f"{r['held_out_pct']:.1f} % ({r['held_out_rows']})" if "held_out_pct" in r else "–"
             t.add_row(name if k == 0 else "", est_name, str(r["converged_force_at"]), str(r["converged_torque_at"]),
-                      f"{r['refused_pct']:.1f} %", rms, batch, ratio, fmt(r.get("ratio_norm"), 2),
+                      f"{r['contact_pct']:.1f} % ({r['contact_rows']})", held_out, rms, batch, ratio, fmt(r.get("ratio_norm"), 2),
                       fmt(r.get("ratio_norm_second_half"), 2), end_section=k == len(entry["estimators"]) - 1)
     wide_console(140).print(t)
 

@@ -142,6 +142,9 @@ def test_bench_real_exposes_the_repeated_first_samples(real_data, tmp_path):
     # the LWR4 logs start with identical rows: ‖Δx‖ < 1e-3 at the second sample
     assert out["lwr4_2013_06_13"]["estimators"]["rls"]["converged_force_at"] == 1
     assert out["axia80_ur_100poses"]["estimators"]["rls"]["converged_force_at"] is None
+    # kalman's lone outliers on a contact-free log: held out, counted beside the contact rows (rls has none)
+    kalman, rls = (out["lwr4_2014_06_24"]["estimators"][name] for name in ("kalman", "rls"))
+    assert (kalman["contact_rows"], kalman["held_out_rows"]) == (0, 5) and "held_out_rows" not in rls
 
 
 def test_the_teleoperation_stage_table_times_a_press_into_the_tissue():

@@ -342,6 +342,9 @@ def test_runs_through_the_registry():
     ({"bias_rate": "yes"}, "bias_rate"),
     ({"implementation": "gpu"}, "implementation"),
     ({"implementation": "fast", "bias_rate": True}, "implementation"),
+    ({"contact_after": 0}, "contact_after"),
+    ({"contact_after": 1.5}, "contact_after"),
+    ({"contact_after": True}, "contact_after"),
 ])
 def test_bad_options_are_refused(options, key):
     with pytest.raises(ValueError, match=rf"^{key}: "):
@@ -355,6 +358,35 @@ def test_gate_probability_one_never_refuses():
     assert not out.contact.any()
     out, _ = feed(gamma(), block)
     assert out.contact[int(12.5 * RATE_HZ):int(14.5 * RATE_HZ)].all()
+
+
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
+def test_a_lone_refusal_is_held_out_and_a_contact_is_called_from_its_second_refused_sample(kernel):
+    """contact_after = 2 (the default) changes the contact flag alone: the same refusals, the same wrench to the
+    bit as contact_after = 1; a refused sample is called a contact when the sample before was refused too
+    (across blocks as well: fed in 64-sample blocks), and the first of each run is counted held out. The
+    simulator's Gaussian noise makes a lone refusal now and then; each indentation is still a
+    contact from its second refused sample on."""
+    block, w = world(indentations(40.0), seconds=40.0)
+    touching = np.asarray(w["contact"], dtype=bool)
+    runs = {}
+    for after in (1, 2):
+        est = KalmanEstimator(contact_after=after, kernel=kernel)
+        runs[after] = (feed(est, block, chunk=64)[0], est.held_out_samples)
+    (every, held_every), (second, held) = runs[1], runs[2]
+    assert second.contact_force_S.tolist() == every.contact_force_S.tolist()
+    assert second.contact_torque_S.tolist() == every.contact_torque_S.tolist()
+    refused = every.contact  # contact_after = 1: every refused sample
+    before = np.concatenate([[False], refused[:-1]])
+    assert np.array_equal(second.contact, refused & before)
+    assert held_every == 0 and held == int(np.count_nonzero(refused & ~before))
+    lone = refused & ~before & ~np.concatenate([refused[1:], [False]]) & ~touching
+    assert lone.sum() >= 1  # a lone refusal of the noise (this seed: one in 40 s): no longer a contact
+    assert not second.contact[lone].any()
+    t = block.t_ns * 1e-9
+    for k in range(4):  # each indentation's plateau: called a contact throughout
+        plateau = (t >= 5.4 + 10 * k) & (t <= 6.6 + 10 * k)
+        assert second.contact[plateau].all()
 
 
 def _turning_stream(R_BE: np.ndarray, seed: int, noise: float = 0.1, rate_hz: float = 100.0):

@@ -9,7 +9,7 @@ Prints, on this machine:
   1024), each with both kernels side by side (``kernel = "numba"``, compiled,
   and ``"numpy"``, the reference); ``batch`` over 1, 7, 64 and 1024; and
   ``kalman`` with each of its model options (mount rotation, inertia, auto
-  noise, bias rate), both kernels;
+  noise, bias rate, a late sensor stream), both kernels;
 * ``compensate`` throughput in samples/s over a simulated CSV;
 * a full simulated session (sensor → aligner → estimator → haptic command →
   MCAP) run as fast as possible: simulated seconds per wall second at 1 kHz
@@ -62,7 +62,7 @@ def main() -> None:
     print(f"{'option':<24}{'block':>7}{'numba median':>14}{'p99':>9}{'numpy median':>14}{'p99':>9}")
     options = {"mount_rotation = true": {"mount_rotation": True}, "inertia = true": {"inertia": True},
                "noise = auto": {"noise_force": "auto", "noise_torque": "auto"},
-               "bias_rate = true": {"bias_rate": True}}
+               "bias_rate = true": {"bias_rate": True}, "time_lag_s = -0.005": {"time_lag_s": -0.005}}
     for label, opts in options.items():
         for size in (1, 7, 64):
             row = [per_sample_us(lambda opts=opts, kernel=kernel: KalmanEstimator(kernel=kernel, **opts), block, size)

@@ -114,6 +114,7 @@ from ...core.frames import (
 from ...core import identified
 from ...core.kalman import KalmanStage, MountStage, StageRun
 from ...core.payload import PayloadWatch
+from ...core.kernels import align as align_kernel
 from ...core.kernels import inertia as inertia_kernel
 from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_CONTACT_AFTER,
@@ -299,8 +300,8 @@ class KalmanEstimator(RefusesBadSamples):
         max_force: a sample with a force component beyond this (N) is refused.
         max_torque: the same for a torque component (N·m).
         kernel: ``"numba"`` (default): the stages' filter compiled (``core.kernels.kalman``, the
-            same bits as the "fast" Python one), and without a mount estimate, a sensor lag
-            (time_lag_s < 0), bias rate or the paper's step rule the whole cascade of a block
+            same bits as the "fast" Python one), and without a mount estimate, bias rate or the
+            paper's step rule the whole cascade of a block (a lag of either sign included)
             in one compiled call, noise estimate and convergence rules included; compiled or
             loaded from its cache when the estimator is built. ``"numpy"``: the Python/numpy
             reference (with the noise estimated or the identified rule, one sample at a time).
@@ -507,11 +508,12 @@ class KalmanEstimator(RefusesBadSamples):
         self._seed_information()
         if warm_start:
             self.load_state(warm_start)
-        # the whole cascade in one compiled call (a mount estimate, a sensor lag, the step rule run per stage)
-        self._cascade = (self.method == "numba" and not mount_rotation and convergence != "step"
-                         and self.time_lag_s >= 0)
+        # the whole cascade in one compiled call (a mount estimate and the step rule run per stage)
+        self._cascade = self.method == "numba" and not mount_rotation and convergence != "step"
         if kernel == "numba":
             inertia_kernel.warm_up()
+            if self.time_lag_s < 0:
+                align_kernel.warm_up()
         if self.method == "numba":
             kalman_kernel.warm_up()
             self._buffers = kalman_kernel.Buffers()
@@ -638,13 +640,15 @@ class KalmanEstimator(RefusesBadSamples):
 
     def _filter_compiled(self, block: AlignedSamples) -> Estimates:
         """``_filter_block`` in one compiled call (``kalman_kernel.kalman_cascade``): the default model, with
-        inertia and a kinematics lag if set (their inputs from ``_prepare``, compiled too)."""
+        inertia and a kinematics or sensor lag if set (their inputs from ``_prepare``, compiled too)."""
         m = len(block)
         contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
         t_ns = contiguous(block.t_ns, np.int64)
-        inertial_S = None
-        if self.derivatives is not None:  # inertia, a kinematics lag
-            force_S, torque_S, R_EB, inertial_S, _ = self._prepare(block, usable=False)
+        inertial_S, stale = None, contiguous(block.stale, bool)
+        if self.derivatives is not None or self.time_lag_s < 0:  # inertia, a kinematics or sensor lag
+            force_S, torque_S, R_EB, inertial_S, known = self._prepare(block, usable=False)
+            if known is not None:  # a late sensor stream's first samples: no pose yet, not used (as stale)
+                stale = stale | ~known
             force_S, torque_S, R_EB = contiguous(force_S, float), contiguous(torque_S, float), contiguous(R_EB, float)
         else:
             force_S, torque_S = contiguous(block.force_S, float), contiguous(block.torque_S, float)
@@ -669,7 +673,7 @@ class KalmanEstimator(RefusesBadSamples):
                         np.empty(m, dtype=bool), np.empty(m, dtype=bool))
         x_before = force.x.copy() if self.payload_change_ns > 0 else None
         failed_f, failed_t, gated_f, first_f, first_t = kalman_kernel.kalman_cascade(
-            t_ns, clock, y_f, force_S, torque_S, A_f, contiguous(block.stale, bool),
+            t_ns, clock, y_f, force_S, torque_S, A_f, stale,
             contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S,
             b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
             torque.rc, limits, self._adapt, self._information["force"], self._information["torque"], b.A_t, b.scratch,
@@ -707,8 +711,9 @@ class KalmanEstimator(RefusesBadSamples):
         through the inverse calibration error (gain_crosstalk), the orientation at the
         sensor's time (time_lag), the tool's inertial force (inertia) in S, N, and the
         samples that may update the filter (block.usable, less the first |τ| seconds of a
-        late sensor stream, whose poses are not known; None when ``usable`` is False: the
-        compiled cascade finds them itself).
+        late sensor stream, whose poses are not known). When ``usable`` is False (the
+        compiled cascade tests the block's own flags itself) the last is None, or for a late
+        sensor stream the (m,) mask of the samples whose poses are known.
         """
         force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
         usable = block.usable if usable else None
@@ -719,7 +724,7 @@ class KalmanEstimator(RefusesBadSamples):
             torque_S = torque_S @ self.gain_inverse_torque.T
         if self.time_lag_s < 0:
             R_EB, quat_BE, p_BoEo_B, known = self._past_poses(block)
-            usable = usable & known
+            usable = known if usable is None else usable & known
         if self.derivatives is None:
             return force_S, torque_S, R_EB, None, usable
         w_E, alpha_E, a_B = self.derivatives.update(block.t_ns, quat_BE, p_BoEo_B, R_EB=R_EB)
@@ -750,14 +755,22 @@ class KalmanEstimator(RefusesBadSamples):
         has_p = block.p_BoEo_B is not None and self._lag_p is not None
         hist_p = np.concatenate([self._lag_p, block.p_BoEo_B]) if has_p else None
         target = t + int(round(self.time_lag_s * 1e9))
-        quat_BE, _ = orientation_at(target, hist_t, hist_q, 0)
         known = target >= hist_t[0]
-        p_BoEo_B = position_at(target, hist_t, hist_p, 0) if has_p else None
+        if self.kernel == "numba":  # the live aligner's compiled interpolation (to ~1e-12 of the numpy one)
+            m = len(t)
+            quat_BE, R_EB, p_BoEo_B = np.empty((m, 4)), np.empty((m, 3, 3)), np.empty((m, 3)) if has_p else None
+            align_kernel.align_block(target, hist_t, np.ascontiguousarray(hist_q, float),
+                                     np.ascontiguousarray(hist_p, float) if has_p else _NO_POSITIONS, 0, quat_BE,
+                                     R_EB, p_BoEo_B if has_p else _NO_POSITIONS, np.empty(m, dtype=np.bool_))
+        else:
+            quat_BE, _ = orientation_at(target, hist_t, hist_q, 0)
+            p_BoEo_B = position_at(target, hist_t, hist_p, 0) if has_p else None
+            R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
         keep = hist_t >= target[-1] - LAG_HISTORY_MARGIN_NS  # what the next block's targets may need
         keep[-2:] = True
         self._lag_t, self._lag_q = hist_t[keep], hist_q[keep]
         self._lag_p = hist_p[keep] if has_p else None
-        return matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1), quat_BE, p_BoEo_B, known
+        return R_EB, quat_BE, p_BoEo_B, known
 
     def _inertial_force(self, R_EB, w_E, alpha_E, a_B) -> np.ndarray:
         """(m, 3) the tool's inertial force in S, −m (a + α × c + ω × (ω × c)), N.

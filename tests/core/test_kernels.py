@@ -212,14 +212,16 @@ def _tolerance(options) -> float:
 
 
 @pytest.mark.parametrize("options", [{}, GAMMA, {**GAMMA, "convergence": "identified"}, {"convergence": "covariance"},
-                                     {"convergence": "identified"}, {"mount_rotation": True}, {"convergence": "step"}],
+                                     {"convergence": "identified"}, {"mount_rotation": True}, {"convergence": "step"},
+                                     {"time_lag_s": -0.004}, {**GAMMA, "time_lag_s": -0.004}],
                          ids=["defaults", "gamma-covariance", "gamma-identified", "auto-covariance", "auto-identified",
-                              "mount", "step"])
+                              "mount", "step", "sensor-late", "gamma-sensor-late"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     """The noise estimate and the convergence rules run in the compiled cascade (the numpy reference
     runs them one sample at a time, so every block size gives the same numbers); a mount estimate and
-    the paper's step rule run the compiled stage filter (``filter6``)."""
+    the paper's step rule run the compiled stage filter (``filter6``). A late sensor stream (its poses
+    interpolated per block before the cascade, its first 4 ms unused) runs in the cascade too."""
     (ref, a), fast = _reference(sim6, options, size), KalmanEstimator(kernel="numba", **options)
     assert fast._cascade == ("mount_rotation" not in options and options.get("convergence") != "step")
     b = _run(fast, sim6, size)
@@ -234,6 +236,27 @@ def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
                                                                        fast.first_converged_torque)
 
 
+@pytest.mark.parametrize("size", [1, 7])
+def test_a_late_sensor_streams_poses_and_positions_are_interpolated_as_the_reference_does(sim_inertia, size):
+    """The live aligner's blocks carry quaternions and positions: a late sensor stream's poses and positions
+    at t + τ come from the compiled interpolation (``core.kernels.align``) against numpy's slerp and lerp
+    (libm's sin/acos: not to the bit), with the inertial force from those positions. The flags the same, the
+    wrench within ROUNDING_NOISE."""
+    import dataclasses
+
+    from hapticlab.core.frames import quat_wxyz_from_matrix
+
+    t = sim_inertia.t_ns * 1e-9
+    p_BoEo_B = np.column_stack([0.4 + 0.05 * np.sin(1.3 * t), 0.1 * np.cos(0.7 * t), 0.3 + 0.02 * t])  # m
+    block = dataclasses.replace(sim_inertia, quat_BE=quat_wxyz_from_matrix(sim_inertia.R_EB.transpose(0, 2, 1)),
+                                p_BoEo_B=p_BoEo_B)
+    options = {"inertia": True, "time_lag_s": -0.004}
+    a, b = (_run(KalmanEstimator(kernel=kernel, **options), block, size) for kernel in ("numpy", "numba"))
+    for key in KEYS:
+        assert _same(a[key], b[key], key, ROUNDING_NOISE), key
+    assert a["converged_force"].any()
+
+
 @pytest.fixture(scope="module")
 def sim_inertia():
     block, _ = simulate(SimWorld(seed=1, inertia=True), 6.0, 1000.0)
@@ -243,8 +266,9 @@ def sim_inertia():
 @pytest.mark.parametrize("options, tol", [({**GAMMA, "inertia": True}, 1e-12),
                                           ({**GAMMA, "inertia": True, "time_lag_s": 0.004}, 1e-9),
                                           ({"inertia": True}, ROUNDING_NOISE),
-                                          ({"inertia": True, "time_lag_s": 0.004}, 1e-9)],
-                         ids=["gamma-inertia", "gamma-inertia-lag", "inertia", "inertia-lag"])
+                                          ({"inertia": True, "time_lag_s": 0.004}, 1e-9),
+                                          ({"inertia": True, "time_lag_s": -0.004}, ROUNDING_NOISE)],
+                         ids=["gamma-inertia", "gamma-inertia-lag", "inertia", "inertia-lag", "inertia-sensor-late"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol):
     """Not to the bit: the derivatives' window sums are taken in order, numpy's pairwise (see

@@ -15,7 +15,9 @@ Arrays: x (6,) in place; P (6, 6) symmetric in place (the upper triangle is read
 are written). Three entry points: ``stage_step`` (one sample), ``filter6`` (one stage
 over m samples: ``KalmanStage.run(method="numba")``) and ``kalman_cascade`` (both
 stages of the estimator's default model, their convergence flags and the contact
-wrench, in one call). Nothing is allocated; outputs go to arrays the caller owns.
+wrench, in one call). With bias-rate states (x = [a, b, ḃ], 9) the cascade steps each
+stage with ``stage_step_rate``, the same update in loops over the states after the
+rate's prediction. Nothing is allocated; outputs go to arrays the caller owns.
 
 Compile cost: ~4–6 s the first time on this machine (2 cores, shared), then ~0.4 s to load
 from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
@@ -191,6 +193,85 @@ def stage_step(x, P, y0, y1, y2, A, dt, active, q, r, rc, gate2):
     for i in range(6):
         for j in range(i):
             P[i, j] = P[j, i]
+    return UPDATED, d2
+
+
+@njit(cache=True, error_model="numpy")
+def stage_step_rate(x, P, y0, y1, y2, A, dt, active, q, q_rate, r, rc, gate2, work):
+    """``stage_step`` for x = [a, b, ḃ] (9 states: ``bias_rate``), in place; ``work`` (9, 6) scratch.
+
+    Predict over dt (``core.kalman.KalmanStage.transition``): b += ḃ·dt, P = F P Fᵀ + Q with
+    F = [I 0 0; 0 I dt·I; 0 0 I] (F P Fᵀ as F's rows, then its columns, added to P) and
+    Q = [0 0 0; 0 q·dt + q_rate·dt³/3  q_rate·dt²/2; 0 q_rate·dt²/2  q_rate·dt]. Update with
+    C = [A, I3, 0] as ``stage_step`` does (S = L·diag(d)·Lᵀ, three decorrelated scalar updates), in
+    loops over the 9 states: the filterpy reference's filter (its Joseph form; tests hold them to 1e-9).
+    Returns (what, d²) as ``stage_step``.
+    """
+    if dt != 0.0:
+        for i in range(3):
+            x[3 + i] += x[6 + i] * dt
+        for i in range(3, 6):  # F P: a bias row gains dt × its rate's row
+            for c in range(9):
+                P[i, c] += dt * P[i + 3, c]
+        for i in range(3, 6):  # (F P) Fᵀ: a bias column gains dt × its rate's column
+            for c in range(9):
+                P[c, i] += dt * P[c, i + 3]
+        for i in range(3):
+            half = q_rate[i] * dt * dt / 2.0
+            P[3 + i, 3 + i] += q[i] * dt + q_rate[i] * dt * dt * dt / 3.0
+            P[3 + i, 6 + i] += half
+            P[6 + i, 3 + i] += half
+            P[6 + i, 6 + i] += q_rate[i] * dt
+    if not active:
+        return PREDICTED, math.nan
+    for c in range(9):  # PCᵀ: column l is P[:, :3] · A[l] + P[:, 3 + l]
+        for l in range(3):
+            work[c, l] = P[c, 0] * A[l, 0] + P[c, 1] * A[l, 1] + P[c, 2] * A[l, 2] + P[c, 3 + l]
+    s00 = A[0, 0] * work[0, 0] + A[0, 1] * work[1, 0] + A[0, 2] * work[2, 0] + work[3, 0] + r[0]
+    s01 = A[0, 0] * work[0, 1] + A[0, 1] * work[1, 1] + A[0, 2] * work[2, 1] + work[3, 1]
+    s02 = A[0, 0] * work[0, 2] + A[0, 1] * work[1, 2] + A[0, 2] * work[2, 2] + work[3, 2]
+    s11 = A[1, 0] * work[0, 1] + A[1, 1] * work[1, 1] + A[1, 2] * work[2, 1] + work[4, 1] + r[1]
+    s12 = A[1, 0] * work[0, 2] + A[1, 1] * work[1, 2] + A[1, 2] * work[2, 2] + work[4, 2]
+    s22 = A[2, 0] * work[0, 2] + A[2, 1] * work[1, 2] + A[2, 2] * work[2, 2] + work[5, 2] + r[2]
+    x0, x1, x2 = x[0], x[1], x[2]
+    if rc[0] != 0.0 or rc[1] != 0.0 or rc[2] != 0.0:  # [a]ₓ diag(rc) [a]ₓᵀ at the prior estimate of a
+        s00 += rc[1] * x2 * x2 + rc[2] * x1 * x1
+        s11 += rc[0] * x2 * x2 + rc[2] * x0 * x0
+        s22 += rc[0] * x1 * x1 + rc[1] * x0 * x0
+        s01 -= rc[2] * x0 * x1
+        s02 -= rc[1] * x0 * x2
+        s12 -= rc[0] * x1 * x2
+    e0 = y0 - (A[0, 0] * x0 + A[0, 1] * x1 + A[0, 2] * x2 + x[3])
+    e1 = y1 - (A[1, 0] * x0 + A[1, 1] * x1 + A[1, 2] * x2 + x[4])
+    e2 = y2 - (A[2, 0] * x0 + A[2, 1] * x1 + A[2, 2] * x2 + x[5])
+    d0 = s00
+    l10 = s01 / d0
+    l20 = s02 / d0
+    d1 = s11 - l10 * s01
+    t = s12 - l20 * s01
+    l21 = t / d1
+    d2_ = s22 - l20 * s02 - l21 * t
+    z1 = e1 - l10 * e0
+    z2 = e2 - l20 * e0 - l21 * z1
+    z0 = e0 / d0
+    z1 /= d1
+    z2 /= d2_
+    if not (d0 > 0.0 and d1 > 0.0 and d2_ > 0.0):  # S not numerically positive definite: no update
+        return FAILED, math.nan
+    d2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_  # eᵀ S⁻¹ e
+    if not d2 <= gate2:  # refused (NaN too)
+        return GATED, d2
+    for c in range(9):  # U = PCᵀ L⁻ᵀ in work[:, 3:6] (its first column is PCᵀ's)
+        work[c, 3] = work[c, 0]
+        work[c, 4] = work[c, 1] - l10 * work[c, 0]
+        work[c, 5] = work[c, 2] - l20 * work[c, 0] - l21 * work[c, 4]
+    for c in range(9):
+        x[c] += work[c, 3] * z0 + work[c, 4] * z1 + work[c, 5] * z2
+    for i in range(9):  # P −= U D⁻¹ Uᵀ, symmetric
+        g0, g1, g2 = work[i, 3] / d0, work[i, 4] / d1, work[i, 5] / d2_
+        for j in range(i, 9):
+            P[i, j] -= g0 * work[j, 3] + g1 * work[j, 4] + g2 * work[j, 5]
+            P[j, i] = P[i, j]
     return UPDATED, d2
 
 
@@ -427,7 +508,8 @@ def _auto_bound2(r, cap):
 
 @njit(cache=True, error_model="numpy")
 def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, inertial_S, usable,
-                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, limits, adapt, info_f, info_t, A_t, scratch,
+                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, limits, adapt, info_f, info_t, A_t,
+                   scratch, work,
                    X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
     """The ``kalman`` estimator's cascade over m samples (its ``_filter_block``), in order.
@@ -456,13 +538,14 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         usable: (m,) bool out: the
         samples the filter may use (``AlignedSamples.usable``: the guard has already refused a
         non-finite wrench or R_EB), less those whose force update failed.
-        x_f, P_f, x_t, P_t: the stages' (6,) and (6, 6), in place. q_*, r_*, rc_*: (3,) as ``stage_step``
-        (r_f, r_t, rc_t in place with the noise estimate).
+        x_f, P_f, x_t, P_t: the stages' (n,) and (n, n), in place: n = 6, or 9 with bias-rate states
+        (``stage_step_rate``). q_*, r_*, rc_*: (3,) as ``stage_step`` (r_f, r_t, rc_t in place with the noise
+        estimate); qr_f, qr_t: (3,) the bias rates' random-walk variance per second (unused with 6 states).
         limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_SIZE``.
         info_f, info_t: (6, 6) the stages' information Λ (identified rule), in place.
         A_t: (3, 3), scratch: (9, 6) scratch (the Cholesky factor, the torque reading's variance, the
-        stages' states before the sample).
-        Out, (m, 6): X_f, D_f, X_t, D_t (state, diag P);
+        stages' [a, b] before the sample); work: (9, 6) ``stage_step_rate``'s scratch.
+        Out, (m, 6): X_f, D_f, X_t, D_t ([a, b] and their diag P);
         (m,): gated_f, failed_f, gated_t, failed_t; contact_force_S, contact_torque_S (m, 3);
         contact, converged_force, converged_torque (m,).
 
@@ -482,6 +565,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     adapt[ADAPT_REOPEN_ROW] = -1.0
     positions = p_BoEo_B.shape[0] != 0
     inertia = inertial_S.shape[0] != 0
+    rate = x_f.shape[0] == 9
     for k in range(t_ns.shape[0]):
         usable[k] = not stale[k] and status[k] == 0
         if positions:
@@ -497,8 +581,13 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             bound_f2 = _auto_bound2(r_f, adapt[ADAPT_CAP_F])
         if adapt[ADAPT_AUTO_T] != 0.0:
             bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
-        before_f[:] = x_f
-        what, _ = stage_step(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, r_f, rc_f, gate2)
+        before_f[:] = x_f[:6]
+        if rate:
+            what, _ = stage_step_rate(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, qr_f,
+                                      r_f, rc_f, gate2, work)
+        else:
+            what, _ = stage_step(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, r_f, rc_f,
+                                 gate2)
         failed = what == FAILED
         gated_f[k], failed_f[k] = what == GATED, failed
         if failed:
@@ -524,9 +613,13 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
         A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
         seen = usable[k] and what != GATED and settled  # (its regressor needs gravity identified, not only here)
-        before_t[:] = x_t
-        what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
-                               rc_t, gate2)
+        before_t[:] = x_t[:6]
+        if rate:
+            what_t, _ = stage_step_rate(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t,
+                                        qr_t, r_t, rc_t, gate2, work)
+        else:
+            what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
+                                   rc_t, gate2)
         gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
         n_failed_t += what_t == FAILED
         force_seen = seen
@@ -617,6 +710,7 @@ class Buffers:
         self.usable = np.empty(capacity, dtype=np.bool_)
         self.A_t = np.empty((3, 3))
         self.scratch = np.empty((9, 6))
+        self.work = np.empty((9, 6))
 
     def ensure(self, m: int) -> None:
         if m > self.capacity:
@@ -632,15 +726,16 @@ def warm_up() -> None:
     v3 = np.full(3, 1e-4)
     filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, np.zeros(3), 20.0,
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
-    for p in (np.zeros((0, 3)), y):  # streams without and with positions
+    for p, n in ((np.zeros((0, 3)), 6), (y, 6), (np.zeros((0, 3)), 9)):  # without and with positions, rates
         adapt = np.zeros(ADAPT_SIZE)
         for option in (ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED, ADAPT_AUTO_F, ADAPT_AUTO_T):
             adapt[option] = 1.0
         adapt[ADAPT_CAP_F] = adapt[ADAPT_CAP_T] = np.inf
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
                        np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),
-                       np.zeros(6), np.eye(6), np.zeros(6), np.eye(6), v3, v3.copy(), np.zeros(3), v3, v3.copy(),
-                       v3.copy(), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6), np.eye(6), b.A_t, b.scratch,
+                       np.zeros(n), np.eye(n), np.zeros(n), np.eye(n), v3, v3.copy(), np.zeros(3), v3, v3.copy(),
+                       v3.copy(), v3, v3, np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6), np.eye(6), b.A_t, b.scratch,
+                       b.work,
                        b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, np.empty((m, 3)),
                        np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
                        np.empty(m, dtype=np.bool_))

@@ -166,6 +166,8 @@ EFFECT_OPTIONS = {
 """The discrepancy workflow's effect names this estimator models, and the options they stand for."""
 _NO_POSITIONS = np.zeros((0, 3))
 """What the compiled cascade is given for a stream without positions."""
+_NO_RATE = np.zeros(3)
+"""What the compiled cascade is given for the bias rates' random walk without bias-rate states."""
 
 
 def mount_matrix(rotvec, matrix) -> np.ndarray:
@@ -277,8 +279,8 @@ class KalmanEstimator(RefusesBadSamples):
         prior_force_std: prior std of gravity_force_B and bias_force_S, N.
         prior_cog_std: prior std of cog_S, m.
         prior_torque_std: prior std of bias_torque_S, N·m.
-        implementation: "auto" (the unrolled filter, or filterpy's with
-            bias_rate), "fast" or "filterpy" (the reference, ~15× slower).
+        implementation: "auto" (the unrolled filter; with bias_rate filterpy's, or compiled
+            under ``kernel = "numba"``), "fast" or "filterpy" (the reference, ~15× slower).
         payload_change_s: after this long (s) of continuous refusal by the
             force stage, test whether the refused residual is a change of the
             tool's weight (a payload change); if so, re-open gravity and the
@@ -300,12 +302,13 @@ class KalmanEstimator(RefusesBadSamples):
         max_force: a sample with a force component beyond this (N) is refused.
         max_torque: the same for a torque component (N·m).
         kernel: ``"numba"`` (default): the stages' filter compiled (``core.kernels.kalman``, the
-            same bits as the "fast" Python one), and without a mount estimate, bias rate or the
-            paper's step rule the whole cascade of a block (a lag of either sign included)
-            in one compiled call, noise estimate and convergence rules included; compiled or
-            loaded from its cache when the estimator is built. ``"numpy"``: the Python/numpy
-            reference (with the noise estimated or the identified rule, one sample at a time).
-            ``implementation = "filterpy"`` and ``bias_rate`` run the reference either way.
+            same bits as the "fast" Python one), and without a mount estimate or the paper's
+            step rule the whole cascade of a block in one compiled call (a lag of either sign
+            and bias-rate states included: ``stage_step_rate``, filterpy's filter to 1e-9),
+            noise estimate and convergence rules included; compiled or loaded from its cache
+            when the estimator is built. ``"numpy"``: the Python/numpy reference (with the
+            noise estimated or the identified rule, one sample at a time; filterpy's filter with
+            bias_rate). ``implementation = "filterpy"`` runs the reference either way.
 
     Attributes:
         force, torque: the two KalmanStage stages.
@@ -508,13 +511,15 @@ class KalmanEstimator(RefusesBadSamples):
         self._seed_information()
         if warm_start:
             self.load_state(warm_start)
-        # the whole cascade in one compiled call (a mount estimate and the step rule run per stage)
-        self._cascade = self.method == "numba" and not mount_rotation and convergence != "step"
+        # the whole cascade in one compiled call (a mount estimate and the step rule run per stage); with
+        # bias-rate states too (kalman_kernel.stage_step_rate; the stage runs a payload replay makes stay filterpy's)
+        compiled = self.method == "numba" or (kernel == "numba" and implementation == "auto" and bias_rate)
+        self._cascade = compiled and not mount_rotation and convergence != "step"
         if kernel == "numba":
             inertia_kernel.warm_up()
             if self.time_lag_s < 0:
                 align_kernel.warm_up()
-        if self.method == "numba":
+        if self.method == "numba" or self._cascade:
             kalman_kernel.warm_up()
             self._buffers = kalman_kernel.Buffers()
             self._clock = np.zeros(2, dtype=np.int64)  # [a sample came before, its t_ns]
@@ -676,7 +681,9 @@ class KalmanEstimator(RefusesBadSamples):
             t_ns, clock, y_f, force_S, torque_S, A_f, stale,
             contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S,
             b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
-            torque.rc, limits, self._adapt, self._information["force"], self._information["torque"], b.A_t, b.scratch,
+            torque.rc, _NO_RATE if force.q_rate is None else force.q_rate,
+            _NO_RATE if torque.q_rate is None else torque.q_rate, limits, self._adapt, self._information["force"],
+            self._information["torque"], b.A_t, b.scratch, b.work,
             b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,
             out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force, out.converged_torque)
         self._last_t_ns = int(t_ns[-1])
@@ -1139,7 +1146,7 @@ class KalmanEstimator(RefusesBadSamples):
     def _constant_var(self, stage: str) -> tuple[float, float, float]:
         """How well the motion so far identifies the stage's constant, variance per axis
         (``core.identified.constant_var``; compiled, ``kalman_kernel.constant_var3``, on the compiled path)."""
-        if self.method == "numba":
+        if self.method == "numba" or self._cascade:
             return kalman_kernel.constant_var3(self._information[stage], self._L6)
         return tuple(identified.constant_var(self._information[stage]).tolist())
 

@@ -23,7 +23,10 @@ back). So every flag must be identical, the numbers within :data:`ROUNDING` (N, 
 parameters and covariances). With the noise estimated (``noise = "auto"``) the sums of diag(C P Cᵀ)
 are taken in another order than numpy's einsum and that estimate feeds R back into the gain: before
 convergence, with P still at the prior's 400 N², a few ulp grow to 2e-11 N on this tour
-(:data:`ROUNDING_NOISE`); the flags stay identical.
+(:data:`ROUNDING_NOISE`); the flags stay identical. With bias-rate states the reference is filterpy's
+filter (Joseph-form covariance update, F P Fᵀ as matrix products) and the kernel ``stage_step_rate``
+(the LDLᵀ update, F's rows and columns added): the same filter, another arithmetic, 9e-11 N apart on
+this tour (:data:`ROUNDING_RATE`, as the fast path is held to filterpy); the flags identical.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ KEYS = ("contact_force_S", "contact_torque_S", "contact", "converged_force", "co
 ROUNDING = 1e-12
 """How far the kalman kernel and the numpy reference may differ: a few ulp of BLAS rounding (see above)."""
 ROUNDING_NOISE = 1e-10
+ROUNDING_RATE = 1e-9
 """The same with the noise estimated: the rounding fed back through R (see above)."""
 
 
@@ -208,20 +212,24 @@ GAMMA = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
 
 
 def _tolerance(options) -> float:
+    if options.get("bias_rate"):
+        return ROUNDING_RATE
     return ROUNDING_NOISE if options.get("noise_force", "auto") == "auto" else ROUNDING
 
 
 @pytest.mark.parametrize("options", [{}, GAMMA, {**GAMMA, "convergence": "identified"}, {"convergence": "covariance"},
                                      {"convergence": "identified"}, {"mount_rotation": True}, {"convergence": "step"},
-                                     {"time_lag_s": -0.004}, {**GAMMA, "time_lag_s": -0.004}],
+                                     {"time_lag_s": -0.004}, {**GAMMA, "time_lag_s": -0.004}, {"bias_rate": True},
+                                     {**GAMMA, "bias_rate": True}],
                          ids=["defaults", "gamma-covariance", "gamma-identified", "auto-covariance", "auto-identified",
-                              "mount", "step", "sensor-late", "gamma-sensor-late"])
+                              "mount", "step", "sensor-late", "gamma-sensor-late", "bias-rate", "gamma-bias-rate"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     """The noise estimate and the convergence rules run in the compiled cascade (the numpy reference
     runs them one sample at a time, so every block size gives the same numbers); a mount estimate and
     the paper's step rule run the compiled stage filter (``filter6``). A late sensor stream (its poses
-    interpolated per block before the cascade, its first 4 ms unused) runs in the cascade too."""
+    interpolated per block before the cascade, its first 4 ms unused) runs in the cascade too, and so do
+    bias-rate states (``stage_step_rate`` against filterpy's filter)."""
     (ref, a), fast = _reference(sim6, options, size), KalmanEstimator(kernel="numba", **options)
     assert fast._cascade == ("mount_rotation" not in options and options.get("convergence") != "step")
     b = _run(fast, sim6, size)
@@ -267,8 +275,10 @@ def sim_inertia():
                                           ({**GAMMA, "inertia": True, "time_lag_s": 0.004}, 1e-9),
                                           ({"inertia": True}, ROUNDING_NOISE),
                                           ({"inertia": True, "time_lag_s": 0.004}, 1e-9),
-                                          ({"inertia": True, "time_lag_s": -0.004}, ROUNDING_NOISE)],
-                         ids=["gamma-inertia", "gamma-inertia-lag", "inertia", "inertia-lag", "inertia-sensor-late"])
+                                          ({"inertia": True, "time_lag_s": -0.004}, ROUNDING_NOISE),
+                                          ({"inertia": True, "bias_rate": True}, ROUNDING_RATE)],
+                         ids=["gamma-inertia", "gamma-inertia-lag", "inertia", "inertia-lag", "inertia-sensor-late",
+                              "inertia-bias-rate"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol):
     """Not to the bit: the derivatives' window sums are taken in order, numpy's pairwise (see

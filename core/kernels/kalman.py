@@ -197,42 +197,60 @@ def stage_step(x, P, y0, y1, y2, A, dt, active, q, r, rc, gate2):
 
 
 @njit(cache=True, error_model="numpy")
-def stage_step_rate(x, P, y0, y1, y2, A, dt, active, q, q_rate, r, rc, gate2, work):
-    """``stage_step`` for x = [a, b, ḃ] (9 states: ``bias_rate``), in place; ``work`` (9, 6) scratch.
+def _predict(x, P, dt, q, q_rate, rate):
+    """Predict a stage over dt, in place (``core.kalman.KalmanStage.transition``; n states, any beyond the
+    bias and its rate, a mount's θ, carried unchanged). Without rate states P's bias diagonal gains q·dt.
+    With them b += ḃ·dt and P = F P Fᵀ + Q, F = [I 0 0; 0 I dt·I; 0 0 I] (F's rows, then its columns,
+    added to P), Q = [0 0 0; 0 q·dt + q_rate·dt³/3  q_rate·dt²/2; 0 q_rate·dt²/2  q_rate·dt]."""
+    if dt == 0.0:
+        return
+    if not rate:
+        for i in range(3):
+            P[3 + i, 3 + i] += q[i] * dt
+        return
+    n = x.shape[0]
+    for i in range(3):
+        x[3 + i] += x[6 + i] * dt
+    for i in range(3, 6):  # F P: a bias row gains dt × its rate's row
+        for c in range(n):
+            P[i, c] += dt * P[i + 3, c]
+    for i in range(3, 6):  # (F P) Fᵀ: a bias column gains dt × its rate's column
+        for c in range(n):
+            P[c, i] += dt * P[c, i + 3]
+    for i in range(3):
+        half = q_rate[i] * dt * dt / 2.0
+        P[3 + i, 3 + i] += q[i] * dt + q_rate[i] * dt * dt * dt / 3.0
+        P[3 + i, 6 + i] += half
+        P[6 + i, 3 + i] += half
+        P[6 + i, 6 + i] += q_rate[i] * dt
 
-    Predict over dt (``core.kalman.KalmanStage.transition``): b += ḃ·dt, P = F P Fᵀ + Q with
-    F = [I 0 0; 0 I dt·I; 0 0 I] (F P Fᵀ as F's rows, then its columns, added to P) and
-    Q = [0 0 0; 0 q·dt + q_rate·dt³/3  q_rate·dt²/2; 0 q_rate·dt²/2  q_rate·dt]. Update with
-    C = [A, I3, 0] as ``stage_step`` does (S = L·diag(d)·Lᵀ, three decorrelated scalar updates), in
-    loops over the 9 states: the filterpy reference's filter (its Joseph form; tests hold them to 1e-9).
-    Returns (what, d²) as ``stage_step``.
-    """
-    if dt != 0.0:
-        for i in range(3):
-            x[3 + i] += x[6 + i] * dt
-        for i in range(3, 6):  # F P: a bias row gains dt × its rate's row
-            for c in range(9):
-                P[i, c] += dt * P[i + 3, c]
-        for i in range(3, 6):  # (F P) Fᵀ: a bias column gains dt × its rate's column
-            for c in range(9):
-                P[c, i] += dt * P[c, i + 3]
-        for i in range(3):
-            half = q_rate[i] * dt * dt / 2.0
-            P[3 + i, 3 + i] += q[i] * dt + q_rate[i] * dt * dt * dt / 3.0
-            P[3 + i, 6 + i] += half
-            P[6 + i, 3 + i] += half
-            P[6 + i, 6 + i] += q_rate[i] * dt
-    if not active:
-        return PREDICTED, math.nan
-    for c in range(9):  # PCᵀ: column l is P[:, :3] · A[l] + P[:, 3 + l]
+
+@njit(cache=True, error_model="numpy")
+def _update(x, P, y0, y1, y2, r, rc, gate2, work):
+    """The Kalman update of n states with the measurement matrix C (3, n) given as Cᵀ in ``work[:n, 6:9]``,
+    in place: S = C P Cᵀ + R (R = diag(r) + [a]ₓ diag(rc) [a]ₓᵀ at the prior a = x[:3]), e = y − C x,
+    S = L·diag(d)·Lᵀ, d² = eᵀ S⁻¹ e; gated beyond gate2, else x += P Cᵀ S⁻¹ e and P −= P Cᵀ S⁻¹ C P as
+    three decorrelated scalar updates (``stage_step``'s, in loops). ``work[:n, 0:6]``: scratch (P Cᵀ, then
+    U = P Cᵀ L⁻ᵀ). Returns (what, d²) as ``stage_step``."""
+    n = x.shape[0]
+    for c in range(n):  # P Cᵀ
         for l in range(3):
-            work[c, l] = P[c, 0] * A[l, 0] + P[c, 1] * A[l, 1] + P[c, 2] * A[l, 2] + P[c, 3 + l]
-    s00 = A[0, 0] * work[0, 0] + A[0, 1] * work[1, 0] + A[0, 2] * work[2, 0] + work[3, 0] + r[0]
-    s01 = A[0, 0] * work[0, 1] + A[0, 1] * work[1, 1] + A[0, 2] * work[2, 1] + work[3, 1]
-    s02 = A[0, 0] * work[0, 2] + A[0, 1] * work[1, 2] + A[0, 2] * work[2, 2] + work[3, 2]
-    s11 = A[1, 0] * work[0, 1] + A[1, 1] * work[1, 1] + A[1, 2] * work[2, 1] + work[4, 1] + r[1]
-    s12 = A[1, 0] * work[0, 2] + A[1, 1] * work[1, 2] + A[1, 2] * work[2, 2] + work[4, 2]
-    s22 = A[2, 0] * work[0, 2] + A[2, 1] * work[1, 2] + A[2, 2] * work[2, 2] + work[5, 2] + r[2]
+            acc = 0.0
+            for j in range(n):
+                acc += P[c, j] * work[j, 6 + l]
+            work[c, l] = acc
+    s00, s01, s02, s11, s12, s22 = r[0], 0.0, 0.0, r[1], 0.0, r[2]
+    e0, e1, e2 = y0, y1, y2
+    for j in range(n):
+        s00 += work[j, 6] * work[j, 0]
+        s01 += work[j, 6] * work[j, 1]
+        s02 += work[j, 6] * work[j, 2]
+        s11 += work[j, 7] * work[j, 1]
+        s12 += work[j, 7] * work[j, 2]
+        s22 += work[j, 8] * work[j, 2]
+        e0 -= work[j, 6] * x[j]
+        e1 -= work[j, 7] * x[j]
+        e2 -= work[j, 8] * x[j]
     x0, x1, x2 = x[0], x[1], x[2]
     if rc[0] != 0.0 or rc[1] != 0.0 or rc[2] != 0.0:  # [a]ₓ diag(rc) [a]ₓᵀ at the prior estimate of a
         s00 += rc[1] * x2 * x2 + rc[2] * x1 * x1
@@ -241,9 +259,6 @@ def stage_step_rate(x, P, y0, y1, y2, A, dt, active, q, q_rate, r, rc, gate2, wo
         s01 -= rc[2] * x0 * x1
         s02 -= rc[1] * x0 * x2
         s12 -= rc[0] * x1 * x2
-    e0 = y0 - (A[0, 0] * x0 + A[0, 1] * x1 + A[0, 2] * x2 + x[3])
-    e1 = y1 - (A[1, 0] * x0 + A[1, 1] * x1 + A[1, 2] * x2 + x[4])
-    e2 = y2 - (A[2, 0] * x0 + A[2, 1] * x1 + A[2, 2] * x2 + x[5])
     d0 = s00
     l10 = s01 / d0
     l20 = s02 / d0
@@ -261,18 +276,91 @@ def stage_step_rate(x, P, y0, y1, y2, A, dt, active, q, q_rate, r, rc, gate2, wo
     d2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_  # eᵀ S⁻¹ e
     if not d2 <= gate2:  # refused (NaN too)
         return GATED, d2
-    for c in range(9):  # U = PCᵀ L⁻ᵀ in work[:, 3:6] (its first column is PCᵀ's)
+    for c in range(n):  # U = P Cᵀ L⁻ᵀ in work[:, 3:6] (its first column is P Cᵀ's)
         work[c, 3] = work[c, 0]
         work[c, 4] = work[c, 1] - l10 * work[c, 0]
         work[c, 5] = work[c, 2] - l20 * work[c, 0] - l21 * work[c, 4]
-    for c in range(9):
+    for c in range(n):
         x[c] += work[c, 3] * z0 + work[c, 4] * z1 + work[c, 5] * z2
-    for i in range(9):  # P −= U D⁻¹ Uᵀ, symmetric
+    for i in range(n):  # P −= U D⁻¹ Uᵀ, symmetric
         g0, g1, g2 = work[i, 3] / d0, work[i, 4] / d1, work[i, 5] / d2_
-        for j in range(i, 9):
+        for j in range(i, n):
             P[i, j] -= g0 * work[j, 3] + g1 * work[j, 4] + g2 * work[j, 5]
             P[j, i] = P[i, j]
     return UPDATED, d2
+
+
+@njit(cache=True, error_model="numpy")
+def stage_step_rate(x, P, y0, y1, y2, A, dt, active, q, q_rate, r, rc, gate2, work):
+    """``stage_step`` for x = [a, b, ḃ] (9 states: ``bias_rate``), in place; ``work`` (≥ 9, 9) scratch.
+
+    :func:`_predict` with the rate, then :func:`_update` with C = [A, I3, 0]: the filterpy reference's
+    filter (its Joseph form, its products in another order; tests hold them to 1e-9). Returns (what, d²)
+    as ``stage_step``.
+    """
+    _predict(x, P, dt, q, q_rate, True)
+    if not active:
+        return PREDICTED, math.nan
+    n = x.shape[0]
+    for j in range(n):  # Cᵀ
+        for l in range(3):
+            work[j, 6 + l] = A[l, j] if j < 3 else (1.0 if j == 3 + l else 0.0)
+    return _update(x, P, y0, y1, y2, r, rc, gate2, work)
+
+
+@njit(cache=True, error_model="numpy")
+def stage_step_mount(x, P, R_SE, y0, y1, y2, R_EB, dt, active, q, q_rate, r, gate2, activate_var, work):
+    """The force stage with the mount rotation estimated (``core.kalman.MountStage``, an error-state EKF), one
+    sample in place: x = [a, b, (ḃ), θ] (9 or 12 states), R_SE (3, 3) the nominal mount.
+
+    :func:`_predict` (θ carried), then :func:`_update` with C = [R_SE R_EB, I3, (0), −R_SE [R_EB a]ₓ]
+    (the θ columns zero while max diag P_a > ``activate_var``: the weight not yet known, θ waits); after
+    an accepted update θ is folded into the mount, R_SE ← R_SE Exp(θ), θ ← 0 (Rodrigues, as
+    ``core.kalman._exp_so3``). No cross noise (the force stage's). ``work`` (≥ n, 9) scratch. Returns
+    (what, d²) as ``stage_step``.
+    """
+    n = x.shape[0]
+    _predict(x, P, dt, q, q_rate, n == 12)
+    if not active:
+        return PREDICTED, math.nan
+    v0 = R_EB[0, 0] * x[0] + R_EB[0, 1] * x[1] + R_EB[0, 2] * x[2]  # R_EB a: the weight in E
+    v1 = R_EB[1, 0] * x[0] + R_EB[1, 1] * x[1] + R_EB[1, 2] * x[2]
+    v2 = R_EB[2, 0] * x[0] + R_EB[2, 1] * x[1] + R_EB[2, 2] * x[2]
+    learn = not max(P[0, 0], P[1, 1], P[2, 2]) > activate_var
+    for l in range(3):
+        for j in range(n):
+            work[j, 6 + l] = 0.0
+        for j in range(3):  # R_SE R_EB
+            work[j, 6 + l] = R_SE[l, 0] * R_EB[0, j] + R_SE[l, 1] * R_EB[1, j] + R_SE[l, 2] * R_EB[2, j]
+        work[3 + l, 6 + l] = 1.0
+        if learn:  # −R_SE [v]ₓ, [v]ₓ = [[0, −v2, v1], [v2, 0, −v0], [−v1, v0, 0]]
+            work[n - 3, 6 + l] = -(R_SE[l, 1] * v2 - R_SE[l, 2] * v1)
+            work[n - 2, 6 + l] = -(-R_SE[l, 0] * v2 + R_SE[l, 2] * v0)
+            work[n - 1, 6 + l] = -(R_SE[l, 0] * v1 - R_SE[l, 1] * v0)
+    what, d2 = _update(x, P, y0, y1, y2, r, _NO_CROSS, gate2, work)
+    if what == UPDATED:
+        t0, t1, t2 = x[n - 3], x[n - 2], x[n - 1]
+        angle = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        if angle < 1e-8:
+            c1, c2 = 1.0, 0.5
+        else:
+            c1, c2 = math.sin(angle) / angle, (1.0 - math.cos(angle)) / (angle * angle)
+        # Exp(θ) = I + c1 K + c2 K², K = [θ]ₓ, K² = θ θᵀ − |θ|² I
+        a2 = angle * angle
+        e00, e01, e02 = 1.0 + c2 * (t0 * t0 - a2), -c1 * t2 + c2 * t0 * t1, c1 * t1 + c2 * t0 * t2
+        e10, e11, e12 = c1 * t2 + c2 * t1 * t0, 1.0 + c2 * (t1 * t1 - a2), -c1 * t0 + c2 * t1 * t2
+        e20, e21, e22 = -c1 * t1 + c2 * t2 * t0, c1 * t0 + c2 * t2 * t1, 1.0 + c2 * (t2 * t2 - a2)
+        for i in range(3):
+            m0 = R_SE[i, 0] * e00 + R_SE[i, 1] * e10 + R_SE[i, 2] * e20
+            m1 = R_SE[i, 0] * e01 + R_SE[i, 1] * e11 + R_SE[i, 2] * e21
+            m2 = R_SE[i, 0] * e02 + R_SE[i, 1] * e12 + R_SE[i, 2] * e22
+            R_SE[i, 0], R_SE[i, 1], R_SE[i, 2] = m0, m1, m2
+        x[n - 3], x[n - 2], x[n - 1] = 0.0, 0.0, 0.0
+    return what, d2
+
+
+_NO_CROSS = np.zeros(3)
+"""The force stage's cross noise: none."""
 
 
 @njit(cache=True, error_model="numpy")
@@ -304,8 +392,8 @@ ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
 ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10, 11
 ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
 ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
-ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT = 29, 30, 31, 32
-ADAPT_SIZE = 33
+ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT_MOUNT = 29, 30, 31, 32, 33
+ADAPT_SIZE = 34
 CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
 ``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``),
@@ -315,7 +403,8 @@ the convergence bound from the noise estimate; ``ADAPT_REOPEN_S`` the torque-onl
 the torque bias is re-opened (0: never; :func:`torque_only_refusal`), ``ADAPT_REOPEN_LEVER`` the farthest a
 contact can act from the sensor's origin (m), the prior variance of bias_torque_S the bias goes back to
 (3 values from ``ADAPT_PRIOR_TB``, (N·m)²), ``ADAPT_CONTACT_AFTER`` how many refused samples in a row make
-a contact (:func:`judge_contact`).
+a contact (:func:`judge_contact`), ``ADAPT_MOUNT`` the mount rotation estimated (:func:`stage_step_mount`):
+the variance of the weight under which its θ is learnt, N² (0: no mount estimate).
 State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
 yet known), whether the force stage has settled (its flag first up; at the pose, the identified rule's
 test first passed), the bounds' caps (inf until it settles), whether the torque stage has settled
@@ -508,8 +597,8 @@ def _auto_bound2(r, cap):
 
 @njit(cache=True, error_model="numpy")
 def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, inertial_S, usable,
-                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, limits, adapt, info_f, info_t, A_t,
-                   scratch, work,
+                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, R_SE, limits, adapt, info_f, info_t,
+                   A_t, scratch, work,
                    X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
     """The ``kalman`` estimator's cascade over m samples (its ``_filter_block``), in order.
@@ -532,7 +621,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     Args:
         t_ns: (m,) int64 sample times, ns. last_t_ns: (2,) int64 [1 if a sample came before, its t_ns].
         y_f: (m, 3) what gravity and bias explain, N. force_S: (m, 3) N. torque_S: (m, 3) N·m.
-        A_f: (m, 3, 3) R_SB per sample. stale: (m,) bool. status: (m,) int64 sensor status (0: good).
+        A_f: (m, 3, 3) R_SB per sample; with the mount estimated (``ADAPT_MOUNT``) R_EB in, and R_SB through
+        the mount as it is after each sample out (in place). stale: (m,) bool. status: (m,) int64 sensor
+        status (0: good).
         p_BoEo_B: (m, 3) positions, m, or (0, 3) when the stream has none. inertial_S: (m, 3) the
         tool's inertial force, N (y_f = force_S − inertial_S; it acts at the centre of mass), or (0, 3).
         usable: (m,) bool out: the
@@ -541,10 +632,12 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         x_f, P_f, x_t, P_t: the stages' (n,) and (n, n), in place: n = 6, or 9 with bias-rate states
         (``stage_step_rate``). q_*, r_*, rc_*: (3,) as ``stage_step`` (r_f, r_t, rc_t in place with the noise
         estimate); qr_f, qr_t: (3,) the bias rates' random-walk variance per second (unused with 6 states).
+        R_SE: (3, 3) the mount's nominal rotation, in place when it is estimated (then x_f is [a, b, (ḃ), θ],
+        9 or 12 states, and its flag waits for std(θ)·|gravity_force_B| under the bound as well).
         limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_SIZE``.
         info_f, info_t: (6, 6) the stages' information Λ (identified rule), in place.
         A_t: (3, 3), scratch: (9, 6) scratch (the Cholesky factor, the torque reading's variance, the
-        stages' [a, b] before the sample); work: (9, 6) ``stage_step_rate``'s scratch.
+        stages' [a, b] before the sample); work: (15, 9) the rate and mount steps' scratch.
         Out, (m, 6): X_f, D_f, X_t, D_t ([a, b] and their diag P);
         (m,): gated_f, failed_f, gated_t, failed_t; contact_force_S, contact_torque_S (m, 3);
         contact, converged_force, converged_torque (m,).
@@ -565,7 +658,10 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     adapt[ADAPT_REOPEN_ROW] = -1.0
     positions = p_BoEo_B.shape[0] != 0
     inertia = inertial_S.shape[0] != 0
-    rate = x_f.shape[0] == 9
+    rate = x_t.shape[0] == 9
+    activate_var = adapt[ADAPT_MOUNT]
+    mount = activate_var > 0.0
+    n_f = x_f.shape[0]
     for k in range(t_ns.shape[0]):
         usable[k] = not stale[k] and status[k] == 0
         if positions:
@@ -582,7 +678,15 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         if adapt[ADAPT_AUTO_T] != 0.0:
             bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
         before_f[:] = x_f[:6]
-        if rate:
+        if mount:
+            what, _ = stage_step_mount(x_f, P_f, R_SE, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f,
+                                       qr_f, r_f, gate2, activate_var, work)
+            R = A_f[k]  # R_EB in; R_SB = R_SE R_EB through the mount as it is now out
+            for j in range(3):
+                c0, c1, c2 = R[0, j], R[1, j], R[2, j]
+                for i in range(3):
+                    R[i, j] = R_SE[i, 0] * c0 + R_SE[i, 1] * c1 + R_SE[i, 2] * c2
+        elif rate:
             what, _ = stage_step_rate(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, qr_f,
                                       r_f, rc_f, gate2, work)
         else:
@@ -605,6 +709,11 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         else:
             conv = max(P_f[0, 0], P_f[1, 1], P_f[2, 2], P_f[3, 3], P_f[4, 4], P_f[5, 5]) < bound_f2 and not failed
             settled = conv
+        if mount:  # the force a mount error can cause: std(θ)·|gravity_force_B|
+            w2 = x_f[0] * x_f[0] + x_f[1] * x_f[1] + x_f[2] * x_f[2]
+            mount_known = max(P_f[n_f - 3, n_f - 3], P_f[n_f - 2, n_f - 2], P_f[n_f - 1, n_f - 1]) * w2 < bound_f2
+            conv = conv and mount_known
+            settled = settled and mount_known
         converged_force[k] = conv
         if conv and first_f < 0:
             first_f = k
@@ -710,7 +819,7 @@ class Buffers:
         self.usable = np.empty(capacity, dtype=np.bool_)
         self.A_t = np.empty((3, 3))
         self.scratch = np.empty((9, 6))
-        self.work = np.empty((9, 6))
+        self.work = np.empty((15, 9))
 
     def ensure(self, m: int) -> None:
         if m > self.capacity:
@@ -734,8 +843,8 @@ def warm_up() -> None:
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
                        np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),
                        np.zeros(n), np.eye(n), np.zeros(n), np.eye(n), v3, v3.copy(), np.zeros(3), v3, v3.copy(),
-                       v3.copy(), v3, v3, np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6), np.eye(6), b.A_t, b.scratch,
-                       b.work,
+                       v3.copy(), v3, v3, np.eye(3), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6), np.eye(6), b.A_t,
+                       b.scratch, b.work,
                        b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, np.empty((m, 3)),
                        np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
                        np.empty(m, dtype=np.bool_))

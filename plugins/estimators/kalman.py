@@ -119,10 +119,10 @@ from ...core.kernels import inertia as inertia_kernel
 from ...core.kernels import kalman as kalman_kernel
 from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_CONTACT_AFTER,
                                     ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_HELD_OUT, ADAPT_IDENTIFIED,
-                                    ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_PRED_F, ADAPT_PRIOR_TB, ADAPT_REOPEN_LEVER,
-                                    ADAPT_REOPEN_ROW, ADAPT_REOPEN_S, ADAPT_REOPENS, ADAPT_SIZE, ADAPT_TORQUE_SEEN,
-                                    ADAPT_WINDOW, CONVERGENCE_AT_POSE, CONVERGENCE_IDENTIFIED, GATED, UPDATED,
-                                    judge_contact, torque_only_refusal)
+                                    ADAPT_MOUNT, ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_PRED_F, ADAPT_PRIOR_TB,
+                                    ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S, ADAPT_REOPENS, ADAPT_SIZE,
+                                    ADAPT_TORQUE_SEEN, ADAPT_WINDOW, CONVERGENCE_AT_POSE, CONVERGENCE_IDENTIFIED,
+                                    GATED, UPDATED, judge_contact, torque_only_refusal)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
@@ -168,6 +168,8 @@ _NO_POSITIONS = np.zeros((0, 3))
 """What the compiled cascade is given for a stream without positions."""
 _NO_RATE = np.zeros(3)
 """What the compiled cascade is given for the bias rates' random walk without bias-rate states."""
+_NO_MOUNT = np.eye(3)
+"""What the compiled cascade is given for the mount when it does not estimate one (it is not read)."""
 
 
 def mount_matrix(rotvec, matrix) -> np.ndarray:
@@ -302,9 +304,10 @@ class KalmanEstimator(RefusesBadSamples):
         max_force: a sample with a force component beyond this (N) is refused.
         max_torque: the same for a torque component (N·m).
         kernel: ``"numba"`` (default): the stages' filter compiled (``core.kernels.kalman``, the
-            same bits as the "fast" Python one), and without a mount estimate or the paper's
-            step rule the whole cascade of a block in one compiled call (a lag of either sign
-            and bias-rate states included: ``stage_step_rate``, filterpy's filter to 1e-9),
+            same bits as the "fast" Python one), and but for the paper's step rule the whole
+            cascade of a block in one compiled call (a lag of either sign, bias-rate states and
+            a mount estimate included: ``stage_step_rate`` and ``stage_step_mount``, the
+            reference's filterpy filter and ``MountStage`` EKF to 1e-9),
             noise estimate and convergence rules included; compiled or loaded from its cache
             when the estimator is built. ``"numpy"``: the Python/numpy reference (with the
             noise estimated or the identified rule, one sample at a time; filterpy's filter with
@@ -453,7 +456,7 @@ class KalmanEstimator(RefusesBadSamples):
         self._lag_p: np.ndarray | None = np.zeros((0, 3))
         self.method = None if implementation == "auto" else implementation
         if mount_rotation:
-            self.method = None  # the mount stage has its own (numpy) filter
+            self.method = None  # the mount stage's own filter (its numpy reference; compiled in the cascade)
         if kernel == "numba" and implementation in ("auto", "fast") and not bias_rate:
             self.method = "numba"  # (the torque stage's with mount_rotation)
         self.gate2 = math.inf if (gate_probability == 1 or gating == "none") else float(chi2.ppf(gate_probability, 3))
@@ -499,6 +502,8 @@ class KalmanEstimator(RefusesBadSamples):
         self._adapt[ADAPT_REOPEN_S], self._adapt[ADAPT_REOPEN_LEVER] = self.torque_reopen_s, float(torque_reopen_lever)
         self._adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3] = self.prior_t[3:6] ** 2
         self._adapt[ADAPT_CONTACT_AFTER] = contact_after
+        if mount_rotation:  # the compiled cascade estimates the mount as MountStage does
+            self._adapt[ADAPT_MOUNT] = self.force.activate_var
         self.events: list[Event] = []
         self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
         self.payload_changes = 0
@@ -511,10 +516,11 @@ class KalmanEstimator(RefusesBadSamples):
         self._seed_information()
         if warm_start:
             self.load_state(warm_start)
-        # the whole cascade in one compiled call (a mount estimate and the step rule run per stage); with
-        # bias-rate states too (kalman_kernel.stage_step_rate; the stage runs a payload replay makes stay filterpy's)
+        # the whole cascade in one compiled call (the step rule runs per stage); with bias-rate states and a mount
+        # estimate too (kalman_kernel.stage_step_rate, stage_step_mount; the stage runs a payload replay makes stay
+        # the numpy ones)
         compiled = self.method == "numba" or (kernel == "numba" and implementation == "auto" and bias_rate)
-        self._cascade = compiled and not mount_rotation and convergence != "step"
+        self._cascade = compiled and convergence != "step"
         if kernel == "numba":
             inertia_kernel.warm_up()
             if self.time_lag_s < 0:
@@ -663,7 +669,10 @@ class KalmanEstimator(RefusesBadSamples):
             if self.gain_inverse_torque is not None:
                 torque_S = torque_S @ self.gain_inverse_torque.T
         y_f = force_S if inertial_S is None else force_S - inertial_S
-        A_f = contiguous(self._to_S(R_EB)) if self.mount_configured else R_EB
+        if self.mount_rotation:  # R_EB in (a copy: the cascade writes R_SB through its mount estimate into it)
+            A_f = np.array(R_EB, dtype=float, order="C")
+        else:
+            A_f = contiguous(self._to_S(R_EB)) if self.mount_configured else R_EB
         p_BoEo_B = _NO_POSITIONS if block.p_BoEo_B is None else contiguous(block.p_BoEo_B, float)
         b, clock, limits = self._buffers, self._clock, self._limits
         b.ensure(m)
@@ -682,11 +691,14 @@ class KalmanEstimator(RefusesBadSamples):
             contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S,
             b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
             torque.rc, _NO_RATE if force.q_rate is None else force.q_rate,
-            _NO_RATE if torque.q_rate is None else torque.q_rate, limits, self._adapt, self._information["force"],
+            _NO_RATE if torque.q_rate is None else torque.q_rate, force.R_SE if self.mount_rotation else _NO_MOUNT,
+            limits, self._adapt, self._information["force"],
             self._information["torque"], b.A_t, b.scratch, b.work,
             b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,
             out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force, out.converged_torque)
         self._last_t_ns = int(t_ns[-1])
+        if self.mount_rotation:
+            self.R_SE = force.R_SE
         force.failed += failed_f
         torque.failed += failed_t
         if self._adapt[ADAPT_REOPEN_ROW] >= 0:  # (the block's last one: one event per block)

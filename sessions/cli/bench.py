@@ -279,7 +279,8 @@ def print_real_table(out: dict) -> None:
             ratio = ", ".join(fmt(v, 2) for v in r.get("ratio", [])) or "–"
             held_out = f"{r['held_out_pct']:.1f} % ({r['held_out_rows']})" if "held_out_pct" in r else "–"
             t.add_row(name if k == 0 else "", est_name, str(r["converged_force_at"]), str(r["converged_torque_at"]),
-                      f"{r['contact_pct']:.1f} % ({r['contact_rows']})", held_out, rms, batch, ratio, fmt(r.get("ratio_norm"), 2),
+                      f"{r['contact_pct']:.1f} % ({r['contact_rows']})", held_out, rms, batch, ratio,
+                      fmt(r.get("ratio_norm"), 2),
                       fmt(r.get("ratio_norm_second_half"), 2), end_section=k == len(entry["estimators"]) - 1)
     wide_console(140).print(t)
 

@@ -212,7 +212,7 @@ GAMMA = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
 
 
 def _tolerance(options) -> float:
-    if options.get("bias_rate"):
+    if options.get("bias_rate") or options.get("mount_rotation"):
         return ROUNDING_RATE
     return ROUNDING_NOISE if options.get("noise_force", "auto") == "auto" else ROUNDING
 
@@ -220,18 +220,21 @@ def _tolerance(options) -> float:
 @pytest.mark.parametrize("options", [{}, GAMMA, {**GAMMA, "convergence": "identified"}, {"convergence": "covariance"},
                                      {"convergence": "identified"}, {"mount_rotation": True}, {"convergence": "step"},
                                      {"time_lag_s": -0.004}, {**GAMMA, "time_lag_s": -0.004}, {"bias_rate": True},
-                                     {**GAMMA, "bias_rate": True}],
+                                     {**GAMMA, "bias_rate": True}, {"mount_rotation": True, "bias_rate": True},
+                                     {"mount_rotation": True, "mount_rotation_SE": [0.0, 0.05, 0.02]}],
                          ids=["defaults", "gamma-covariance", "gamma-identified", "auto-covariance", "auto-identified",
-                              "mount", "step", "sensor-late", "gamma-sensor-late", "bias-rate", "gamma-bias-rate"])
+                              "mount", "step", "sensor-late", "gamma-sensor-late", "bias-rate", "gamma-bias-rate",
+                              "mount-bias-rate", "mount-from-3-deg"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     """The noise estimate and the convergence rules run in the compiled cascade (the numpy reference
-    runs them one sample at a time, so every block size gives the same numbers); a mount estimate and
-    the paper's step rule run the compiled stage filter (``filter6``). A late sensor stream (its poses
-    interpolated per block before the cascade, its first 4 ms unused) runs in the cascade too, and so do
-    bias-rate states (``stage_step_rate`` against filterpy's filter)."""
+    runs them one sample at a time, so every block size gives the same numbers); the paper's step rule
+    runs the compiled stage filter (``filter6``). A late sensor stream (its poses interpolated per block
+    before the cascade, its first 4 ms unused) runs in the cascade too, and so do bias-rate states
+    (``stage_step_rate`` against filterpy's filter) and a mount estimate (``stage_step_mount`` against
+    ``core.kalman.MountStage``'s EKF, from the identity or from a 3° mount, with and without rates)."""
     (ref, a), fast = _reference(sim6, options, size), KalmanEstimator(kernel="numba", **options)
-    assert fast._cascade == ("mount_rotation" not in options and options.get("convergence") != "step")
+    assert fast._cascade == (options.get("convergence") != "step")
     b = _run(fast, sim6, size)
     tol = _tolerance(options)
     for key in KEYS:

@@ -361,18 +361,20 @@ def raising(*args, **kwargs):
 
 @pytest.mark.parametrize("name, patch", [
     ("rls numpy", "solve"), ("rls", "nan"), ("rls printed", "inv"), ("batch", "svd"),
-    ("kalman filterpy", "solve"), ("kalman mount", "solve"), ("kalman", "indefinite"),
+    ("kalman filterpy", "solve"), ("kalman mount numpy", "solve"), ("kalman mount", "indefinite"),
+    ("kalman", "indefinite"),
 ])
 def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour, monkeypatch, name, patch):
     makers = {**ESTIMATORS, "kalman filterpy": lambda: KalmanEstimator(implementation="filterpy"),
-              "kalman mount": lambda: KalmanEstimator(mount_rotation=True),
+              "kalman mount": lambda: KalmanEstimator(mount_rotation=True),  # (compiled)
+              "kalman mount numpy": lambda: KalmanEstimator(mount_rotation=True, kernel="numpy"),
               "rls numpy": lambda: RLSEstimator(kernel="numpy")}
     est = makers[name]()
     est.update_block(tour.subset(slice(0, 6000)))
     assert est.update_block(tour.subset(slice(6000, 6001))).converged_force.all()
     before = est.params()
     if patch == "indefinite":  # S = C P Cᵀ + R not positive definite: the fast filter's LDLᵀ cannot update
-        est.force.P = -1e3 * np.eye(6)
+        est.force.P = -1e3 * np.eye(est.force.n)
         before = est.params()
     elif patch == "nan":  # the compiled kernel cannot be patched: a Λ that no solve gets a finite x from
         saved = est.force.Lambda.copy()

@@ -15,6 +15,7 @@ import sys
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
+from rich.text import Text
 
 from ...core.plugins import KINDS, Registry
 from .errors import is_user_error
@@ -177,9 +178,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     if weight:
         table.add_row("tool's weight identified", weight)
     table.add_row("contact samples", str(result.contact_samples))
+    if result.held_out_samples is not None:  # refused, but lone: the sensor's noise, not a contact
+        table.add_row("samples held out (lone outliers)", str(result.held_out_samples))
     table.add_row("haptic force on", f"{result.haptic_on_s:.2f} s")
-    for key, value in result.params.items():
-        table.add_row(key, "[" + ", ".join(f"{v:.4g}" for v in value) + "]")
+    for key, value in result.params.items():  # (as Text: rich would take "[nan, nan, nan]" for a style tag)
+        table.add_row(key, Text("[" + ", ".join(f"{v:.4g}" for v in value) + "]"))
     table.add_row("events", str(len(result.events)))
     if result.overruns:
         table.add_row("loop overruns", f"{result.overruns} (see the overrun events)")

@@ -22,6 +22,7 @@ from ...core.interfaces import (
     Estimator,
     HapticOutput,
     HasCalibration,
+    HoldsOutOutliers,
     KinematicsSource,
     KnowsMount,
     Reidentifies,
@@ -64,6 +65,7 @@ class EstimatorSlot:
         counts: the same object when it counts its first convergence, else None.
         saves: the same object when its state starts the next session, else None.
         reidentifies: the same object when it can re-identify its bias on request, else None.
+        holds_out: the same object when it holds samples out of its update without calling them a contact.
     """
 
     label: str
@@ -74,6 +76,7 @@ class EstimatorSlot:
     counts: CountsConvergence | None = None
     saves: SavesState | None = None
     reidentifies: Reidentifies | None = None
+    holds_out: HoldsOutOutliers | None = None
 
     @classmethod
     def of(cls, label: str, estimator: Any) -> "EstimatorSlot":
@@ -81,7 +84,7 @@ class EstimatorSlot:
         def has(capability):
             return estimator if isinstance(estimator, capability) else None
         return cls(label, estimator, has(EmitsEvents), has(ReportsParameterStd), has(KnowsMount),
-                   has(CountsConvergence), has(SavesState), has(Reidentifies))
+                   has(CountsConvergence), has(SavesState), has(Reidentifies), has(HoldsOutOutliers))
 
     @property
     def topic(self) -> str:

@@ -552,6 +552,7 @@ class LiveLoop:
             "first_converged_torque": primary.counts.first_converged_torque if primary.counts else None,
             "convergence_flag_flips": {"force": self.gate.flips[0], "torque": self.gate.flips[1]},
             "contact_samples": self.contact_samples,
+            "held_out_samples": primary.holds_out.held_out_samples if primary.holds_out else None,
             "haptic_on_s": self.haptic_on_ticks * self.period_ns * 1e-9,
             "overruns": self.overruns,
             "realtime_priority": self.priority,
@@ -581,4 +582,4 @@ class LiveLoop:
             first_converged_force=summary["first_converged_force"],
             first_converged_torque=summary["first_converged_torque"],
             contact_samples=self.contact_samples, haptic_on_s=summary["haptic_on_s"],
-            error=summary["error"], overruns=self.overruns)
+            error=summary["error"], overruns=self.overruns, held_out_samples=summary["held_out_samples"])

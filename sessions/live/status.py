@@ -47,6 +47,8 @@ class SessionResult:
         params: the primary estimator's parameters at the end.
         events: every event recorded.
         overruns: how often the loop fell more than one period behind its rate (realtime only).
+        held_out_samples: samples the primary estimator refused without calling them a contact (lone
+            outliers of the sensor's noise; ``kalman``'s ``contact_after``), None for one that does not.
     """
 
     path: Path
@@ -62,6 +64,7 @@ class SessionResult:
     haptic_on_s: float = 0.0
     error: str = ""
     overruns: int = 0
+    held_out_samples: int | None = None
 
 
 class SessionError(RuntimeError):

@@ -54,6 +54,9 @@ def test_recorded_demo_reopens_with_every_topic(demo_recording):
     assert '"estimator": {"name": "kalman"' in session["config"] and '"shadows": {"rls": {"name": "rls"' in \
         session["config"] and "sim" in session["plugins"]
     assert rec.metadata["hapticlab.summary"]["samples"] == str(n)
+    # kalman's refused lone samples (held out, not contacts) are counted in the summary as well
+    assert result.held_out_samples is not None and result.held_out_samples >= 0
+    assert rec.metadata["hapticlab.summary"]["held_out_samples"] == str(result.held_out_samples)
     seq = rec.field("/sensor/wrench", "seq")
     assert np.array_equal(seq, np.arange(n))  # nothing dropped
 
@@ -115,6 +118,7 @@ def test_estimator_swap_from_overrides(tmp_path):
     rec = read_recording(result.path)
     assert "/estimator/batch" in rec.topics and "/estimator/kalman" not in rec.topics
     assert "/estimator/rls" in rec.topics  # the preset's shadow still beside it
+    assert result.held_out_samples is None  # batch holds nothing out
 
 
 class FlakyDevice:

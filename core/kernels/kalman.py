@@ -39,6 +39,34 @@ gate, or the update could not be computed (S not numerically positive definite).
 
 
 @njit(cache=True, error_model="numpy")
+def _cross_noise(rc0, rc1, rc2, x0, x1, x2):
+    """[a]ₓ diag(rc) [a]ₓᵀ at a = (x0, x1, x2): its (0,0), (1,1), (2,2) terms and the negated (0,1), (0,2),
+    (1,2) ones (what S gains, and loses off the diagonal)."""
+    return (rc1 * x2 * x2 + rc2 * x1 * x1, rc0 * x2 * x2 + rc2 * x0 * x0, rc0 * x1 * x1 + rc1 * x0 * x0,
+            rc2 * x0 * x1, rc1 * x0 * x2, rc0 * x1 * x2)
+
+
+@njit(cache=True, error_model="numpy")
+def _ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2):
+    """S = L·diag(d)·Lᵀ (L unit lower triangular) of the symmetric 3×3 S, and z = D⁻¹ L⁻¹ e: returns
+    (l10, l20, l21, d0, d1, d2, z0, z1, z2). A d that is not positive (or NaN) means S is not numerically
+    positive definite (x/0 gives inf or NaN here, where the Python reference catches ZeroDivisionError)."""
+    d0 = s00
+    l10 = s01 / d0
+    l20 = s02 / d0
+    d1 = s11 - l10 * s01
+    t = s12 - l20 * s01
+    l21 = t / d1
+    d2 = s22 - l20 * s02 - l21 * t
+    z1 = e1 - l10 * e0  # z = L⁻¹ e
+    z2 = e2 - l20 * e0 - l21 * z1
+    z0 = e0 / d0  # then D⁻¹ z
+    z1 /= d1
+    z2 /= d2
+    return l10, l20, l21, d0, d1, d2, z0, z1, z2
+
+
+@njit(cache=True, error_model="numpy")
 def stage_step(x, P, y0, y1, y2, A, dt, active, q, r, rc, gate2):
     """One sample of one stage, in place.
 
@@ -98,30 +126,18 @@ def stage_step(x, P, y0, y1, y2, A, dt, active, q, r, rc, gate2):
     s12 = a10 * c02 + a11 * c12 + a12 * c22 + c42
     s22 = a20 * c02 + a21 * c12 + a22 * c22 + c52 + r2
     if cross:  # [a]ₓ diag(rc) [a]ₓᵀ at the prior estimate of a
-        s00 += rc1 * x2 * x2 + rc2 * x1 * x1
-        s11 += rc0 * x2 * x2 + rc2 * x0 * x0
-        s22 += rc0 * x1 * x1 + rc1 * x0 * x0
-        s01 -= rc2 * x0 * x1
-        s02 -= rc1 * x0 * x2
-        s12 -= rc0 * x1 * x2
+        k00, k11, k22, k01, k02, k12 = _cross_noise(rc0, rc1, rc2, x0, x1, x2)
+        s00 += k00
+        s11 += k11
+        s22 += k22
+        s01 -= k01
+        s02 -= k02
+        s12 -= k12
     e0 = y0 - (a00 * x0 + a01 * x1 + a02 * x2 + x3)
     e1 = y1 - (a10 * x0 + a11 * x1 + a12 * x2 + x4)
     e2 = y2 - (a20 * x0 + a21 * x1 + a22 * x2 + x5)
-    # S = L·diag(d)·Lᵀ (LDLᵀ, L unit lower triangular): d² and the update
-    # without forming S⁻¹, as three decorrelated scalar updates
-    # (the Python reference catches ZeroDivisionError; here x/0 is inf or NaN and the test below fails)
-    d0 = s00
-    l10 = s01 / d0
-    l20 = s02 / d0
-    d1 = s11 - l10 * s01
-    t = s12 - l20 * s01
-    l21 = t / d1
-    d2_ = s22 - l20 * s02 - l21 * t
-    z1 = e1 - l10 * e0  # z = L⁻¹ e
-    z2 = e2 - l20 * e0 - l21 * z1
-    z0 = e0 / d0  # then D⁻¹ z
-    z1 /= d1
-    z2 /= d2_
+    # S = L·diag(d)·Lᵀ: d² and the update without forming S⁻¹, as three decorrelated scalar updates
+    l10, l20, l21, d0, d1, d2_, z0, z1, z2 = _ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2)
     if not (d0 > 0.0 and d1 > 0.0 and d2_ > 0.0):  # S not numerically positive definite: no update
         return FAILED, math.nan
     d2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_  # eᵀ S⁻¹ e
@@ -253,24 +269,14 @@ def _update(x, P, y0, y1, y2, r, rc, gate2, work):
         e2 -= work[j, 8] * x[j]
     x0, x1, x2 = x[0], x[1], x[2]
     if rc[0] != 0.0 or rc[1] != 0.0 or rc[2] != 0.0:  # [a]ₓ diag(rc) [a]ₓᵀ at the prior estimate of a
-        s00 += rc[1] * x2 * x2 + rc[2] * x1 * x1
-        s11 += rc[0] * x2 * x2 + rc[2] * x0 * x0
-        s22 += rc[0] * x1 * x1 + rc[1] * x0 * x0
-        s01 -= rc[2] * x0 * x1
-        s02 -= rc[1] * x0 * x2
-        s12 -= rc[0] * x1 * x2
-    d0 = s00
-    l10 = s01 / d0
-    l20 = s02 / d0
-    d1 = s11 - l10 * s01
-    t = s12 - l20 * s01
-    l21 = t / d1
-    d2_ = s22 - l20 * s02 - l21 * t
-    z1 = e1 - l10 * e0
-    z2 = e2 - l20 * e0 - l21 * z1
-    z0 = e0 / d0
-    z1 /= d1
-    z2 /= d2_
+        k00, k11, k22, k01, k02, k12 = _cross_noise(rc[0], rc[1], rc[2], x0, x1, x2)
+        s00 += k00
+        s11 += k11
+        s22 += k22
+        s01 -= k01
+        s02 -= k02
+        s12 -= k12
+    l10, l20, l21, d0, d1, d2_, z0, z1, z2 = _ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2)
     if not (d0 > 0.0 and d1 > 0.0 and d2_ > 0.0):  # S not numerically positive definite: no update
         return FAILED, math.nan
     d2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_  # eᵀ S⁻¹ e

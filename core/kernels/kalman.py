@@ -39,18 +39,19 @@ gate, or the update could not be computed (S not numerically positive definite).
 
 
 @njit(cache=True, error_model="numpy")
-def _cross_noise(rc0, rc1, rc2, x0, x1, x2):
-    """[a]ₓ diag(rc) [a]ₓᵀ at a = (x0, x1, x2): its (0,0), (1,1), (2,2) terms and the negated (0,1), (0,2),
-    (1,2) ones (what S gains, and loses off the diagonal)."""
-    return (rc1 * x2 * x2 + rc2 * x1 * x1, rc0 * x2 * x2 + rc2 * x0 * x0, rc0 * x1 * x1 + rc1 * x0 * x0,
-            rc2 * x0 * x1, rc1 * x0 * x2, rc0 * x1 * x2)
+def _with_cross_noise(s00, s01, s02, s11, s12, s22, rc0, rc1, rc2, x0, x1, x2):
+    """S + [a]ₓ diag(rc) [a]ₓᵀ at a = (x0, x1, x2), S given and returned by its upper triangle."""
+    return (s00 + (rc1 * x2 * x2 + rc2 * x1 * x1), s01 - rc2 * x0 * x1, s02 - rc1 * x0 * x2,
+            s11 + (rc0 * x2 * x2 + rc2 * x0 * x0), s12 - rc0 * x1 * x2, s22 + (rc0 * x1 * x1 + rc1 * x0 * x0))
 
 
 @njit(cache=True, error_model="numpy")
-def _ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2):
-    """S = L·diag(d)·Lᵀ (L unit lower triangular) of the symmetric 3×3 S, and z = D⁻¹ L⁻¹ e: returns
-    (l10, l20, l21, d0, d1, d2, z0, z1, z2). A d that is not positive (or NaN) means S is not numerically
-    positive definite (x/0 gives inf or NaN here, where the Python reference catches ZeroDivisionError)."""
+def _gate_ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2, gate2):
+    """S = L·diag(d)·Lᵀ (L unit lower triangular) of the symmetric 3×3 S, z = D⁻¹ L⁻¹ e and the gate on
+    d² = eᵀ S⁻¹ e: returns (what, d², l10, l20, l21, d0, d1, d2, z0, z1, z2), what ``FAILED`` (a d not
+    positive or NaN: S not numerically positive definite; x/0 gives inf or NaN here, where the Python
+    reference catches ZeroDivisionError; d² NaN), ``GATED`` (d² > gate2, NaN too) or ``UPDATED`` (the
+    sample may update)."""
     d0 = s00
     l10 = s01 / d0
     l20 = s02 / d0
@@ -63,7 +64,12 @@ def _ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2):
     z0 = e0 / d0  # then D⁻¹ z
     z1 /= d1
     z2 /= d2
-    return l10, l20, l21, d0, d1, d2, z0, z1, z2
+    if not (d0 > 0.0 and d1 > 0.0 and d2 > 0.0):  # S not numerically positive definite: no update
+        return FAILED, math.nan, l10, l20, l21, d0, d1, d2, z0, z1, z2
+    m2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2  # eᵀ S⁻¹ e
+    if not m2 <= gate2:  # refused (NaN too)
+        return GATED, m2, l10, l20, l21, d0, d1, d2, z0, z1, z2
+    return UPDATED, m2, l10, l20, l21, d0, d1, d2, z0, z1, z2
 
 
 @njit(cache=True, error_model="numpy")
@@ -126,23 +132,14 @@ def stage_step(x, P, y0, y1, y2, A, dt, active, q, r, rc, gate2):
     s12 = a10 * c02 + a11 * c12 + a12 * c22 + c42
     s22 = a20 * c02 + a21 * c12 + a22 * c22 + c52 + r2
     if cross:  # [a]ₓ diag(rc) [a]ₓᵀ at the prior estimate of a
-        k00, k11, k22, k01, k02, k12 = _cross_noise(rc0, rc1, rc2, x0, x1, x2)
-        s00 += k00
-        s11 += k11
-        s22 += k22
-        s01 -= k01
-        s02 -= k02
-        s12 -= k12
+        s00, s01, s02, s11, s12, s22 = _with_cross_noise(s00, s01, s02, s11, s12, s22, rc0, rc1, rc2, x0, x1, x2)
     e0 = y0 - (a00 * x0 + a01 * x1 + a02 * x2 + x3)
     e1 = y1 - (a10 * x0 + a11 * x1 + a12 * x2 + x4)
     e2 = y2 - (a20 * x0 + a21 * x1 + a22 * x2 + x5)
     # S = L·diag(d)·Lᵀ: d² and the update without forming S⁻¹, as three decorrelated scalar updates
-    l10, l20, l21, d0, d1, d2_, z0, z1, z2 = _ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2)
-    if not (d0 > 0.0 and d1 > 0.0 and d2_ > 0.0):  # S not numerically positive definite: no update
-        return FAILED, math.nan
-    d2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_  # eᵀ S⁻¹ e
-    if not d2 <= gate2:  # refused (NaN too)
-        return GATED, d2
+    what, d2, l10, l20, l21, d0, d1, d2_, z0, z1, z2 = _gate_ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2, gate2)
+    if what != UPDATED:
+        return what, d2
     # U = PCᵀ L⁻ᵀ (columns u0, u1, u2); x += U D⁻¹ L⁻¹ e; P -= U D⁻¹ Uᵀ
     u10 = c01 - l10 * c00
     u11 = c11 - l10 * c10
@@ -269,19 +266,11 @@ def _update(x, P, y0, y1, y2, r, rc, gate2, work):
         e2 -= work[j, 8] * x[j]
     x0, x1, x2 = x[0], x[1], x[2]
     if rc[0] != 0.0 or rc[1] != 0.0 or rc[2] != 0.0:  # [a]ₓ diag(rc) [a]ₓᵀ at the prior estimate of a
-        k00, k11, k22, k01, k02, k12 = _cross_noise(rc[0], rc[1], rc[2], x0, x1, x2)
-        s00 += k00
-        s11 += k11
-        s22 += k22
-        s01 -= k01
-        s02 -= k02
-        s12 -= k12
-    l10, l20, l21, d0, d1, d2_, z0, z1, z2 = _ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2)
-    if not (d0 > 0.0 and d1 > 0.0 and d2_ > 0.0):  # S not numerically positive definite: no update
-        return FAILED, math.nan
-    d2 = z0 * z0 * d0 + z1 * z1 * d1 + z2 * z2 * d2_  # eᵀ S⁻¹ e
-    if not d2 <= gate2:  # refused (NaN too)
-        return GATED, d2
+        s00, s01, s02, s11, s12, s22 = _with_cross_noise(s00, s01, s02, s11, s12, s22, rc[0], rc[1], rc[2],
+                                                          x0, x1, x2)
+    what, d2, l10, l20, l21, d0, d1, d2_, z0, z1, z2 = _gate_ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2, gate2)
+    if what != UPDATED:
+        return what, d2
     for c in range(n):  # U = P Cᵀ L⁻ᵀ in work[:, 3:6] (its first column is P Cᵀ's)
         work[c, 3] = work[c, 0]
         work[c, 4] = work[c, 1] - l10 * work[c, 0]

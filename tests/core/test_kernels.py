@@ -268,6 +268,22 @@ def test_a_late_sensor_streams_poses_and_positions_are_interpolated_as_the_refer
     assert a["converged_force"].any()
 
 
+@pytest.mark.parametrize("size", [7, 1024])
+def test_a_compiled_mount_estimate_is_the_same_at_every_block_size(sim6, size):
+    """With the noise given the numpy reference filters a block and then turns every sample of it through
+    the mount estimated over the whole block (0.21 N apart from sample by sample, in blocks of 7, while the
+    mount converges); the compiled cascade turns each sample through the mount as it is after that sample,
+    the reference run one sample at a time, whatever the block size (so a session's live blocks and an
+    offline run agree)."""
+    options = {**GAMMA, "mount_rotation": True}
+    (_, a), fast = _reference(sim6, options, 1), KalmanEstimator(kernel="numba", **options)
+    b = _run(fast, sim6, size)
+    for key in KEYS:
+        assert _same(a[key], b[key], key, ROUNDING_RATE), key
+    block_wise = _reference(sim6, options, size)[1]  # the reference in blocks: not the same
+    assert np.abs(block_wise["contact_force_S"] - a["contact_force_S"]).max() > 1e-3
+
+
 @pytest.fixture(scope="module")
 def sim_inertia():
     block, _ = simulate(SimWorld(seed=1, inertia=True), 6.0, 1000.0)

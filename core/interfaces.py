@@ -124,8 +124,9 @@ class ReportsParameterStd(Protocol):
 class HoldsOutOutliers(Protocol):
     """An estimator that refuses some samples from its update without judging them a contact.
 
-    ``held_out_samples`` counts them so far: lone outliers of the sensor's noise,
-    whose contact flag stays down (``kalman``'s ``contact_after``). Benchmarks
+    ``held_out_samples`` counts them so far: the samples of refused runs too
+    short to be a contact, lone outliers of the sensor's noise whose contact
+    flag stays down (``kalman``'s ``contact_after``). Benchmarks
     report them beside the contact rows, so a refusal never goes unseen.
     """
 

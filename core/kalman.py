@@ -36,7 +36,8 @@ estimator's ``implementation`` option):
 * ``method="filterpy"``: ``filterpy.kalman.KalmanFilter`` does the
   predict/update bookkeeping per sample (Joseph-form covariance update). The
   reference, ~35 µs per sample per stage (~45 with bias-rate states); it is
-  also what runs with ``bias_rate``.
+  also what runs with ``bias_rate`` under ``kernel = "numpy"`` (the compiled cascade
+  has its own step for them, ``core.kernels.kalman.stage_step_rate``).
 * ``method="numba"`` (x = [a, b]): ``_filter6`` compiled (``core.kernels.kalman``),
   the same bits; the ``kalman`` estimator's default (``kernel = "numba"``).
 * ``method="fast"`` (x = [a, b], the default model): the same filter

@@ -406,27 +406,31 @@ test first passed), the bounds' caps (inf until it settles), whether the torque 
 (``ADAPT_TORQUE_SEEN``, the same way: the inertial force's centre of mass waits for it), the
 current torque-only refusal (s, samples, and the sums of its force and torque residuals: 3 values each from
 ``ADAPT_TQ_SUM_F`` / ``ADAPT_TQ_SUM_T``), the torque bias re-opened so far (count), the refused samples in a
-row up to the last (``ADAPT_REFUSED_RUN``) and the refused samples not judged a contact so far
-(``ADAPT_HELD_OUT``).
+row up to the last (``ADAPT_REFUSED_RUN``) and the samples of the refused runs that ended before they were
+judged a contact (``ADAPT_HELD_OUT``).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
 the block's row of its last torque bias re-opening (−1: none)."""
 
 @njit(cache=True, error_model="numpy")
-def judge_contact(adapt, refused) -> bool:
+def judge_contact(adapt, refused, tested) -> bool:
     """Whether a sample either stage refused is a contact: it is once it is the ``ADAPT_CONTACT_AFTER``-th
-    refused sample in a row. The ones before are held out of the update all the same (a lone outlier of a
-    heavy-tailed noise, which a real sensor has: 4.5–5.5 σ single samples on the LWR4 logs) but not called
-    a contact (counted in ``ADAPT_HELD_OUT``); a contact is seen that many samples late, its force is not:
-    the contact wrench of a refused sample is its whole residual either way. (The numpy reference runs this
-    very function as Python: ``judge_contact.py_func``.)"""
+    refused sample in a row. The ones before are held out of the update all the same but not called a
+    contact; a run that ends shorter (a lone outlier of a heavy-tailed noise, which a real sensor has:
+    single samples at a Mahalanobis distance of 4.6–5.5 on the LWR4 logs) is counted in ``ADAPT_HELD_OUT``.
+    A contact is seen that many samples late, its force is not: the contact wrench of a refused sample is
+    its whole residual either way. A sample no stage tested (``tested`` False: stale, a sensor status, a
+    failed update, no pose yet) neither continues nor ends the run. (The numpy reference runs this very
+    function as Python: ``judge_contact.py_func``.)"""
+    if not tested:
+        return False
+    run = adapt[ADAPT_REFUSED_RUN]
     if not refused:
+        if 0.0 < run < adapt[ADAPT_CONTACT_AFTER]:  # a run that ended short: refused, never a contact
+            adapt[ADAPT_HELD_OUT] += run
         adapt[ADAPT_REFUSED_RUN] = 0.0
         return False
-    adapt[ADAPT_REFUSED_RUN] += 1.0
-    if adapt[ADAPT_REFUSED_RUN] >= adapt[ADAPT_CONTACT_AFTER]:
-        return True
-    adapt[ADAPT_HELD_OUT] += 1.0
-    return False
+    adapt[ADAPT_REFUSED_RUN] = run + 1.0
+    return run + 1.0 >= adapt[ADAPT_CONTACT_AFTER]
 
 
 TORQUE_REOPEN_MIN_SAMPLES = 10
@@ -790,7 +794,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         contact_torque_S[k, 0] = t0 - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
         contact_torque_S[k, 1] = t1 - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
         contact_torque_S[k, 2] = t2 - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
-        contact[k] = judge_contact(adapt, gated_f[k] or gated_t[k])
+        contact[k] = judge_contact(adapt, gated_f[k] or gated_t[k], usable[k])
         if torque_only_refusal(adapt, what == GATED, force_seen, what_t, dt, contact_force_S[k], contact_torque_S[k]):
             reopen_bias(P_t, info_t, adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3])  # (from the next sample on)
             adapt[ADAPT_REOPEN_ROW] = k

@@ -26,7 +26,8 @@ paper's RLS:
   refuses is not given to the torque stage. A refusal is judged a contact from
   the ``contact_after``-th refused sample in a row (2 by default): a lone one is
   held out of the update as an outlier of the noise, whose tails a real sensor
-  makes heavier than Gaussian, but not called a contact (``held_out_samples``).
+  makes heavier than Gaussian, but not called a contact (``held_out_samples``
+  counts those).
 * **Convergence from the covariance** (``convergence = "covariance"``; the default is "pose",
   below). A stage counts as converged when every
   parameter's standard deviation (sqrt diag P) is below a bound in physical
@@ -304,7 +305,7 @@ class KalmanEstimator(RefusesBadSamples):
         max_force: a sample with a force component beyond this (N) is refused.
         max_torque: the same for a torque component (N·m).
         kernel: ``"numba"`` (default): the stages' filter compiled (``core.kernels.kalman``, the
-            same bits as the "fast" Python one), and but for the paper's step rule the whole
+            same bits as the "fast" Python one), and but for the paper's step rule, the whole
             cascade of a block in one compiled call (a lag of either sign, bias-rate states and
             a mount estimate included: ``stage_step_rate`` and ``stage_step_mount``, the
             reference's filterpy filter and ``MountStage`` EKF to 1e-9),
@@ -455,8 +456,6 @@ class KalmanEstimator(RefusesBadSamples):
         self._lag_q = np.zeros((0, 4))
         self._lag_p: np.ndarray | None = np.zeros((0, 3))
         self.method = None if implementation == "auto" else implementation
-        if mount_rotation:
-            self.method = None  # the mount stage's own filter (its numpy reference; compiled in the cascade)
         if kernel == "numba" and implementation in ("auto", "fast") and not bias_rate:
             self.method = "numba"  # (the torque stage's with mount_rotation)
         self.gate2 = math.inf if (gate_probability == 1 or gating == "none") else float(chi2.ppf(gate_probability, 3))
@@ -634,19 +633,21 @@ class KalmanEstimator(RefusesBadSamples):
             t_ns=block.t_ns,
             contact_force_S=contact_force_S,
             contact_torque_S=contact_torque_S,
-            contact=self._judge_contacts(run_f.gated | run_t.gated),
+            contact=self._judge_contacts(run_f.gated | run_t.gated, usable),
             converged_force=conv_f,
             converged_torque=conv_t,
         )
 
-    def _judge_contacts(self, refused: np.ndarray) -> np.ndarray:
-        """(m,) the refused samples judged a contact (``kalman_kernel.judge_contact``, run as Python)."""
+    def _judge_contacts(self, refused: np.ndarray, tested: np.ndarray) -> np.ndarray:
+        """(m,) the refused samples judged a contact (``kalman_kernel.judge_contact``, run as Python); ``tested``:
+        the samples a stage tested (the others neither continue nor end a refused run)."""
         judge = judge_contact.py_func
-        return np.array([judge(self._adapt, r) for r in refused.tolist()], dtype=bool)
+        return np.array([judge(self._adapt, r, t) for r, t in zip(refused.tolist(), tested.tolist())], dtype=bool)
 
     @property
     def held_out_samples(self) -> int:
-        """Samples refused but not judged a contact (lone outliers; see ``contact_after``)."""
+        """Samples of the refused runs that ended before they were judged a contact: lone outliers of the
+        sensor's noise (see ``contact_after``; a run still going is counted when it ends)."""
         return int(self._adapt[ADAPT_HELD_OUT])
 
     def _filter_compiled(self, block: AlignedSamples) -> Estimates:
@@ -698,7 +699,7 @@ class KalmanEstimator(RefusesBadSamples):
             out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force, out.converged_torque)
         self._last_t_ns = int(t_ns[-1])
         if self.mount_rotation:
-            self.R_SE = force.R_SE
+            self.R_SE = force.R_SE.copy()  # (the cascade turns force.R_SE in place)
         force.failed += failed_f
         torque.failed += failed_t
         if self._adapt[ADAPT_REOPEN_ROW] >= 0:  # (the block's last one: one event per block)
@@ -998,6 +999,8 @@ class KalmanEstimator(RefusesBadSamples):
         accepted = ~run_f.gated
         A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
+        if self.mount_rotation:  # (the replay refined the mount too)
+            self.R_SE = self.force.R_SE.copy()
         self._seed_information()  # what the replay left known (gravity re-opened along itself)
 
     def _watch_torque_only(self, t_ns, gated_f, force_seen, run_t, dt, contact_force_S, contact_torque_S) -> None:

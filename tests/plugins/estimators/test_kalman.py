@@ -364,7 +364,7 @@ def test_gate_probability_one_never_refuses():
 def test_a_lone_refusal_is_held_out_and_a_contact_is_called_from_its_second_refused_sample(kernel):
     """contact_after = 2 (the default) changes the contact flag alone: the same refusals, the same wrench to the
     bit as contact_after = 1; a refused sample is called a contact when the sample before was refused too
-    (across blocks as well: fed in 64-sample blocks), and the first of each run is counted held out. The
+    (across blocks as well: fed in 64-sample blocks), and a lone refused sample is counted held out. The
     simulator's Gaussian noise makes a lone refusal now and then; each indentation is still a
     contact from its second refused sample on."""
     block, w = world(indentations(40.0), seconds=40.0)
@@ -379,14 +379,32 @@ def test_a_lone_refusal_is_held_out_and_a_contact_is_called_from_its_second_refu
     refused = every.contact  # contact_after = 1: every refused sample
     before = np.concatenate([[False], refused[:-1]])
     assert np.array_equal(second.contact, refused & before)
-    assert held_every == 0 and held == int(np.count_nonzero(refused & ~before))
-    lone = refused & ~before & ~np.concatenate([refused[1:], [False]]) & ~touching
+    after = np.concatenate([refused[1:], [True]])  # (a refusal on the last sample: its run has not ended)
+    assert held_every == 0 and held == int(np.count_nonzero(refused & ~before & ~after))
+    lone = refused & ~before & ~after & ~touching
     assert lone.sum() >= 1  # a lone refusal of the noise (this seed: one in 40 s): no longer a contact
     assert not second.contact[lone].any()
     t = block.t_ns * 1e-9
     for k in range(4):  # each indentation's plateau: called a contact throughout
         plateau = (t >= 5.4 + 10 * k) & (t <= 6.6 + 10 * k)
         assert second.contact[plateau].all()
+
+
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
+def test_a_sample_no_stage_tested_does_not_break_a_contact(kernel):
+    """Stale samples (every tenth here; a saturated one is another, and comes in hard contacts) are neither
+    refused nor accepted: they leave a refused run as it was, so every tested sample of an indentation's
+    plateau is a contact under contact_after = 2, as under 1."""
+    import dataclasses
+
+    block, _ = world(indentations(20.0), seconds=20.0)
+    stale = np.zeros(len(block), dtype=bool)
+    stale[::10] = True
+    block = dataclasses.replace(block, stale=stale)
+    t = block.t_ns * 1e-9
+    plateau = ((t >= 5.4) & (t <= 6.6)) | ((t >= 15.4) & (t <= 16.6))
+    out, _ = feed(KalmanEstimator(kernel=kernel), block, chunk=64)
+    assert out.contact[plateau & ~stale].all() and not out.contact[stale].any()
 
 
 def _turning_stream(R_BE: np.ndarray, seed: int, noise: float = 0.1, rate_hz: float = 100.0):

@@ -148,7 +148,7 @@ def test_drift_with_repeated_indentations(kalman):
                       100.0 * np.mean(out.contact[~touching]))
         print(f"\n{name}: contact-force error in contact {np.round(rows[name][0], 3)} N per axis, "
               f"outside contact {np.round(rows[name][1], 3)} × noise, "
-              f"contact-free samples refused {rows[name][2]:.2f} %")
+              f"contact-free samples called a contact {rows[name][2]:.2f} %")
     in_contact, outside, refused = rows["kalman"]
     assert np.all(in_contact <= 0.16), in_contact  # N RMS, per axis
     assert np.all(outside <= 1.10), outside

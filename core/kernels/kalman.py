@@ -17,7 +17,9 @@ over m samples: ``KalmanStage.run(method="numba")``) and ``kalman_cascade`` (bot
 stages of the estimator's default model, their convergence flags and the contact
 wrench, in one call). With bias-rate states (x = [a, b, ḃ], 9) the cascade steps each
 stage with ``stage_step_rate``, the same update in loops over the states after the
-rate's prediction. Nothing is allocated; outputs go to arrays the caller owns.
+rate's prediction, and with the mount estimated the force stage with ``stage_step_mount``
+(``core.kalman.MountStage``'s error-state EKF). Nothing is allocated; outputs go to
+arrays the caller owns.
 
 Compile cost: ~4–6 s the first time on this machine (2 cores, shared), then ~0.4 s to load
 from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.

@@ -11,7 +11,7 @@ the whole file evaluated over the same rows (their ratio); the same ratio over
 the file's second half, a window that does not depend on each estimator's own
 convergence test; ``kalman`` once more with the effects ``hapticlab discrepancy``
 names on the same file (their values fitted offline on that file, so this row
-is in-sample for them); the share of rows the estimator refused as contact, and the
+is in-sample for them); the share of rows the estimator judged a contact, and the
 samples each stage took to converge by its own criterion. The recordings are
 contact-free calibration logs, so every row judged a contact is a false contact, and
 those rows are scored like the rest. An estimator that holds lone outliers out of its

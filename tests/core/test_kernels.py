@@ -25,7 +25,7 @@ are taken in another order than numpy's einsum and that estimate feeds R back in
 convergence, with P still at the prior's 400 N², a few ulp grow to 2e-11 N on this tour
 (:data:`ROUNDING_NOISE`); the flags stay identical. With bias-rate states the reference is filterpy's
 filter (Joseph-form covariance update, F P Fᵀ as matrix products) and the kernel ``stage_step_rate``
-(the LDLᵀ update, F's rows and columns added): the same filter, another arithmetic, 9e-11 N apart on
+(the LDLᵀ update, F's rows and columns added): the same filter, another arithmetic, ~1e-10 N apart on
 this tour (:data:`ROUNDING_RATE`, as the fast path is held to filterpy); the flags identical.
 """
 

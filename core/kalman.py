@@ -37,8 +37,8 @@ estimator's ``implementation`` option):
   predict/update bookkeeping per sample (Joseph-form covariance update). The
   reference, ~35 µs per sample per stage (~45 with bias-rate states); it is
   also what runs with ``bias_rate`` under ``kernel = "numpy"`` (the compiled cascade
-  has its own step for them, ``core.kernels.kalman.stage_step_rate``).
-* ``method="numba"`` (x = [a, b]): ``_filter6`` compiled (``core.kernels.kalman``),
+  has its own step for them, ``core.kernels.kalman_stage.stage_step_rate``).
+* ``method="numba"`` (x = [a, b]): ``_filter6`` compiled (``core.kernels.kalman_stage``),
   the same bits; the ``kalman`` estimator's default (``kernel = "numba"``).
 * ``method="fast"`` (x = [a, b], the default model): the same filter
   specialised to C = [A, I3] and a symmetric 6×6 P (21 numbers), unrolled in
@@ -56,7 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kernels import kalman as kernel
+from .kernels import kalman_stage as kernel
 
 I3 = np.eye(3)
 
@@ -247,7 +247,7 @@ class KalmanStage:
                         np.array(d2, dtype=float), self._failed(m, failed))
 
     def _run_numba(self, y, A, dt, active, gate2) -> StageRun:
-        """``_run_fast`` compiled (``core.kernels.kalman.filter6``): x and P updated in place, the same bits."""
+        """``_run_fast`` compiled (``core.kernels.kalman_stage.filter6``): x and P updated in place, the same bits."""
         self._materialise()
         m = len(y)
         X, D, d2 = np.empty((m, 6)), np.empty((m, 6)), np.empty(m)

@@ -304,7 +304,7 @@ class KalmanEstimator(RefusesBadSamples):
             session's ``<recording>.calibration.json``): start from its x and P.
         max_force: a sample with a force component beyond this (N) is refused.
         max_torque: the same for a torque component (N·m).
-        kernel: ``"numba"`` (default): the stages' filter compiled (``core.kernels.kalman``, the
+        kernel: ``"numba"`` (default): the stages' filter compiled (``core.kernels.kalman_stage``, the
             same bits as the "fast" Python one), and but for the paper's step rule, the whole
             cascade of a block in one compiled call (a lag of either sign, bias-rate states and
             a mount estimate included: ``stage_step_rate`` and ``stage_step_mount``, the
@@ -516,7 +516,7 @@ class KalmanEstimator(RefusesBadSamples):
         if warm_start:
             self.load_state(warm_start)
         # the whole cascade in one compiled call (the step rule runs per stage); with bias-rate states and a mount
-        # estimate too (kalman_kernel.stage_step_rate, stage_step_mount; the stage runs a payload replay makes stay
+        # estimate too (kalman_stage.stage_step_rate, stage_step_mount; the stage runs a payload replay makes stay
         # the numpy ones)
         compiled = self.method == "numba" or (kernel == "numba" and implementation == "auto" and bias_rate)
         self._cascade = compiled and convergence != "step"

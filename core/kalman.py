@@ -17,6 +17,13 @@ constant. Discretised exactly over the time between samples dt_k:
     x = [a, b]      F = I6                         Q = diag(0, q_b·dt·I3)
     x = [a, b, r]   F = [I 0 0; 0 I dt·I; 0 0 I]   Q = [0 0 0; 0 q_b·dt + q_r·dt³/3  q_r·dt²/2; 0 q_r·dt²/2  q_r·dt]
 
+The bias also walks with the tool's tilt (the "tilt walk"): Q's bias block gains
+q_θ·Δθ_k, Δθ_k the angle gravity's direction turned in the sensor since the
+previous sample (rad), q_θ in units²/rad. What the base model misses (a mount
+or calibration error, a cable's pull, hysteresis) is a function of the tool's
+orientation, so the bias that absorbs it moves when the tool tilts, not with
+time; added before the prediction, it is the same for both F.
+
 Measurement noise R_k: the sensor's per-axis variance, diag(σ²). The torque
 stage's A_k is built from the *measured* force, whose noise enters the torque
 equation through p × Δf, so its R_k adds [p]ₓ diag(σ_f²) [p]ₓᵀ at the current
@@ -94,13 +101,15 @@ class KalmanStage:
             (the torque stage: the force noise, N); zeros for the force stage.
         bias_rate_rw: (3,) random-walk intensity of the bias rate, units/s/√s,
             or None for no rate states.
+        bias_tilt_rw: (3,) random-walk intensity of the bias per tilt, units/√rad (q_θ = rw²).
 
     Attributes:
         x: (n,) state. P: (n, n) covariance. n: 6, or 9 with bias-rate states.
         failed: samples whose update could not be computed (``StageRun.failed``).
     """
 
-    def __init__(self, prior_std, bias_rw, noise, cross_noise=(0.0, 0.0, 0.0), bias_rate_rw=None):
+    def __init__(self, prior_std, bias_rw, noise, cross_noise=(0.0, 0.0, 0.0), bias_rate_rw=None,
+                 bias_tilt_rw=(0.0, 0.0, 0.0)):
         self.n = 6 if bias_rate_rw is None else 9
         prior_std = np.asarray(prior_std, dtype=float).reshape(self.n)
         self._lists: tuple[list, list] | None = None  # the fast path's state as Python floats
@@ -108,6 +117,7 @@ class KalmanStage:
         self.P = np.diag(prior_std ** 2)
         self.q_bias = np.asarray(bias_rw, dtype=float).reshape(3) ** 2
         self.q_rate = None if bias_rate_rw is None else np.asarray(bias_rate_rw, dtype=float).reshape(3) ** 2
+        self.q_tilt = np.asarray(bias_tilt_rw, dtype=float).reshape(3) ** 2
         self.r = np.asarray(noise, dtype=float).reshape(3) ** 2
         self.rc = np.asarray(cross_noise, dtype=float).reshape(3) ** 2
         self.failed = 0
@@ -176,12 +186,13 @@ class KalmanStage:
     # ------------------------------------------------------------------ running a block
 
     def run(self, y: np.ndarray, A: np.ndarray, dt: np.ndarray, active: np.ndarray, gate2: float,
-            method: str | None = None) -> StageRun:
+            method: str | None = None, tilt: np.ndarray | None = None) -> StageRun:
         """Filter m samples in order; the state is updated in place.
 
         Args:
             y: (m, 3) measurements. A: (m, 3, 3) the A_k of each sample.
             dt: (m,) time since the previous sample, s (>= 0).
+            tilt: (m,) the angle the tool tilted before each sample, rad (None: no tilt).
             active: (m,) bool, samples that may update (others only predict).
             gate2: a sample with d² > gate2 is refused.
             method: "numba" or "fast" (x = [a, b] only) or "filterpy"; None picks
@@ -189,17 +200,18 @@ class KalmanStage:
         """
         if method is None:
             method = "fast" if self.n == 6 else "filterpy"
+        tilt = np.zeros(len(y)) if tilt is None else np.asarray(tilt, dtype=float)
         if method in ("fast", "numba"):
             if self.n != 6:
                 raise ValueError(f"method: {method!r} needs x = [a, b] (no bias-rate states)")
             if method == "numba":
-                return self._run_numba(y, A, dt, active, gate2)
-            return self._run_fast(y, A, dt, active, gate2)
+                return self._run_numba(y, A, dt, tilt, active, gate2)
+            return self._run_fast(y, A, dt, tilt, active, gate2)
         if method == "filterpy":
-            return self._run_filterpy(y, A, dt, active, gate2)
+            return self._run_filterpy(y, A, dt, tilt, active, gate2)
         raise ValueError(f"method: unknown {method!r}; known: numba, fast, filterpy")
 
-    def _run_filterpy(self, y, A, dt, active, gate2) -> StageRun:
+    def _run_filterpy(self, y, A, dt, tilt, active, gate2) -> StageRun:
         """The reference: filterpy's KalmanFilter does the predict/update bookkeeping."""
         from filterpy.kalman import KalmanFilter
 
@@ -212,6 +224,7 @@ class KalmanStage:
         failed = []
         for k in range(m):
             F, Q = self.transition(float(dt[k]))
+            Q[3:6, 3:6] += np.diag(self.q_tilt * tilt[k])
             kf.predict(F=F, Q=Q)
             if active[k]:
                 H = self.measurement_matrix(A[k])
@@ -232,13 +245,13 @@ class KalmanStage:
         self.x, self.P = kf.x[:, 0].copy(), kf.P.copy()
         return StageRun(X, D, gated, d2, self._failed(m, failed))
 
-    def _run_fast(self, y, A, dt, active, gate2) -> StageRun:
+    def _run_fast(self, y, A, dt, tilt, active, gate2) -> StageRun:
         lists = self._lists
         if lists is None:
             lists = (self._x.tolist(), self._P[_UPPER6].tolist())
         X, D, gated, d2, x, P, failed = _filter6(
-            *lists, y.tolist(), A.reshape(-1, 9).tolist(), dt.tolist(), active.tolist(),
-            self.q_bias.tolist(), self.r.tolist(), self.rc.tolist(), float(gate2),
+            *lists, y.tolist(), A.reshape(-1, 9).tolist(), dt.tolist(), tilt.tolist(), active.tolist(),
+            self.q_bias.tolist(), self.q_tilt.tolist(), self.r.tolist(), self.rc.tolist(), float(gate2),
         )
         self._lists = (x, P)
         self._x = self._P = None  # built from the lists when read
@@ -246,7 +259,7 @@ class KalmanStage:
         return StageRun(np.array(X).reshape(m, 6), np.array(D).reshape(m, 6), np.array(gated, dtype=bool),
                         np.array(d2, dtype=float), self._failed(m, failed))
 
-    def _run_numba(self, y, A, dt, active, gate2) -> StageRun:
+    def _run_numba(self, y, A, dt, tilt, active, gate2) -> StageRun:
         """``_run_fast`` compiled (``core.kernels.kalman_stage.filter6``): x and P updated in place, the same bits."""
         self._materialise()
         m = len(y)
@@ -254,7 +267,8 @@ class KalmanStage:
         gated, failed = np.empty(m, dtype=bool), np.empty(m, dtype=bool)
         contiguous = np.ascontiguousarray
         n_failed = kernel.filter6(self._x, self._P, contiguous(y, float), contiguous(A, float), contiguous(dt, float),
-                                  contiguous(active, bool), self.q_bias, self.r, self.rc, float(gate2),
+                                  contiguous(tilt, float), contiguous(active, bool), self.q_bias, self.q_tilt, self.r,
+                                  self.rc, float(gate2),
                                   X, D, gated, d2, failed)
         return StageRun(X, D, gated, d2, self._failed(m, np.flatnonzero(failed)) if n_failed else None)
 
@@ -273,7 +287,7 @@ _UPPER6 = np.triu_indices(6)
 _LOWER6 = (_UPPER6[1], _UPPER6[0])
 
 
-def _filter6(x, P, Y, A, DT, ACTIVE, q, r, rc, gate2):
+def _filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2):
     """The stage filter for x = [a, b], C = [A, I3], in plain Python floats.
 
     P is the upper triangle of the symmetric 6×6 covariance, row by row
@@ -286,12 +300,18 @@ def _filter6(x, P, Y, A, DT, ACTIVE, q, r, rc, gate2):
     (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15,
      p22, p23, p24, p25, p33, p34, p35, p44, p45, p55) = P
     q0, q1, q2 = q
+    qt0, qt1, qt2 = qt
     r0, r1, r2 = r
     rc0, rc1, rc2 = rc
     cross = rc0 != 0.0 or rc1 != 0.0 or rc2 != 0.0
     nan = float("nan")
     X, D, G, E, FAILED = [], [], [], [], []
     for k in range(len(Y)):
+        tilt = TILT[k]
+        if tilt != 0.0:  # the tilt walk (kernel.add_tilt_noise)
+            p33 += qt0 * tilt
+            p44 += qt1 * tilt
+            p55 += qt2 * tilt
         dt = DT[k]
         if dt != 0.0:
             p33 += q0 * dt
@@ -452,9 +472,11 @@ class MountStage(KalmanStage):
     Attributes: R_SE: (3, 3) the current estimate of the mount rotation.
     """
 
-    def __init__(self, prior_std, bias_rw, noise, R_SE, mount_prior_std, bias_rate_rw=None, activate_std=0.5):
+    def __init__(self, prior_std, bias_rw, noise, R_SE, mount_prior_std, bias_rate_rw=None, activate_std=0.5,
+                 bias_tilt_rw=(0.0, 0.0, 0.0)):
         base = 6 if bias_rate_rw is None else 9
-        super().__init__(np.asarray(prior_std, dtype=float)[:base], bias_rw, noise, bias_rate_rw=bias_rate_rw)
+        super().__init__(np.asarray(prior_std, dtype=float)[:base], bias_rw, noise, bias_rate_rw=bias_rate_rw,
+                         bias_tilt_rw=bias_tilt_rw)
         self.n = base + 3
         x, P = np.zeros(self.n), np.zeros((self.n, self.n))
         P[:base, :base] = np.diag(np.asarray(prior_std, dtype=float)[:base] ** 2)
@@ -464,7 +486,7 @@ class MountStage(KalmanStage):
         self.activate_var = float(activate_std) ** 2
 
     def run(self, y: np.ndarray, R_EB: np.ndarray, dt: np.ndarray, active: np.ndarray, gate2: float,
-            method: str | None = None) -> StageRun:
+            method: str | None = None, tilt: np.ndarray | None = None) -> StageRun:
         """Filter m samples in order (numpy, one sample at a time); x, P and R_SE are updated in place.
 
         Same arguments as KalmanStage.run, except that R_EB (m, 3, 3) is the robot's
@@ -481,6 +503,8 @@ class MountStage(KalmanStage):
         C[:, 3:6] = I3
         In = np.eye(n)
         for k in range(m):
+            if tilt is not None and tilt[k] != 0.0:  # the tilt walk
+                P[3:6, 3:6] += np.diag(self.q_tilt * tilt[k])
             step = float(dt[k])
             if step != 0.0:
                 if step not in cache:

@@ -20,7 +20,8 @@ from numba import njit
 
 from ..noise_estimate import (AUTO_BOUND_FRACTION, NOISE_CLIP, NOISE_CLIP_MEAN, NOISE_FLOOR, NOISE_PRIOR_SAMPLES,
                               NOISE_REFUSED_WEIGHT, NOISE_WINDOW, NOISE_WINDOW_S)
-from .kalman_stage import FAILED, GATED, UPDATED, filter6, stage_step, stage_step_mount, stage_step_rate
+from .kalman_stage import (FAILED, GATED, UPDATED, add_tilt_noise, filter6, stage_step, stage_step_mount,
+                           stage_step_rate)
 
 ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED = 0, 1, 2
 ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
@@ -28,7 +29,8 @@ ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10
 ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
 ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
 ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT_MOUNT = 29, 30, 31, 32, 33
-ADAPT_SIZE = 34
+ADAPT_TILT = 34
+ADAPT_SIZE = 37
 CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
 ``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``),
@@ -47,7 +49,8 @@ test first passed), the bounds' caps (inf until it settles), whether the torque 
 current torque-only refusal (s, samples, and the sums of its force and torque residuals: 3 values each from
 ``ADAPT_TQ_SUM_F`` / ``ADAPT_TQ_SUM_T``), the torque bias re-opened so far (count), the refused samples in a
 row up to the last (``ADAPT_REFUSED_RUN``) and the samples of the refused runs that ended before they were
-judged a contact (``ADAPT_HELD_OUT``).
+judged a contact (``ADAPT_HELD_OUT``), gravity's direction at the last sample (3 values from
+``ADAPT_TILT``, NaN before the first: :func:`tilt_step`).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
 the block's row of its last torque bias re-opening (−1: none)."""
 
@@ -71,6 +74,24 @@ def judge_contact(adapt, refused, tested) -> bool:
         return False
     adapt[ADAPT_REFUSED_RUN] = run + 1.0
     return run + 1.0 >= adapt[ADAPT_CONTACT_AFTER]
+
+
+@njit(cache=True, error_model="numpy")
+def tilt_step(adapt, A) -> float:
+    """The angle gravity's direction turned in the sensor since the previous sample, rad: between A's third
+    column (B's z axis in S, with A = R_SB; in E with A = R_EB, the same angle) and the previous sample's,
+    kept in ``adapt[ADAPT_TILT:ADAPT_TILT + 3]``, which it then becomes (atan2 of the cross and dot
+    products: exact for small angles). 0 for the first sample; a non-finite A (a pose not known yet)
+    neither tilts nor becomes the previous one. (The numpy reference runs this as ``tilt_step.py_func``.)"""
+    g0, g1, g2 = A[0, 2], A[1, 2], A[2, 2]
+    if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
+        return 0.0
+    p0, p1, p2 = adapt[ADAPT_TILT], adapt[ADAPT_TILT + 1], adapt[ADAPT_TILT + 2]
+    adapt[ADAPT_TILT], adapt[ADAPT_TILT + 1], adapt[ADAPT_TILT + 2] = g0, g1, g2
+    if not math.isfinite(p0):
+        return 0.0
+    c0, c1, c2 = p1 * g2 - p2 * g1, p2 * g0 - p0 * g2, p0 * g1 - p1 * g0
+    return math.atan2(math.sqrt(c0 * c0 + c1 * c1 + c2 * c2), p0 * g0 + p1 * g1 + p2 * g2)
 
 
 TORQUE_REOPEN_MIN_SAMPLES = 10
@@ -236,7 +257,7 @@ def _auto_bound2(r, cap):
 
 @njit(cache=True, error_model="numpy")
 def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, inertial_S, usable,
-                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, R_SE, limits, adapt, info_f, info_t,
+                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, qt_f, qt_t, R_SE, limits, adapt, info_f, info_t,
                    A_t, scratch, work,
                    X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
@@ -270,7 +291,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         non-finite wrench or R_EB), less those whose force update failed.
         x_f, P_f, x_t, P_t: the stages' (n,) and (n, n), in place: n = 6, or 9 with bias-rate states
         (``stage_step_rate``). q_*, r_*, rc_*: (3,) as ``stage_step`` (r_f, r_t, rc_t in place with the noise
-        estimate); qr_f, qr_t: (3,) the bias rates' random-walk variance per second (unused with 6 states).
+        estimate); qr_f, qr_t: (3,) the bias rates' random-walk variance per second (unused with 6 states). qt_f, qt_t:
+        (3,) the biases' random-walk variance per radian of tilt, added to both stages before each sample
+        (:func:`tilt_step` on A_f, :func:`add_tilt_noise`).
         R_SE: (3, 3) the mount's nominal rotation, in place when it is estimated (then x_f is [a, b, (ḃ), θ],
         9 or 12 states, and its flag waits for std(θ)·|gravity_force_B| under the bound as well).
         limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_SIZE``.
@@ -316,6 +339,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             bound_f2 = _auto_bound2(r_f, adapt[ADAPT_CAP_F])
         if adapt[ADAPT_AUTO_T] != 0.0:
             bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
+        tilt = tilt_step(adapt, A_f[k])
+        add_tilt_noise(P_f, qt_f, tilt)
+        add_tilt_noise(P_t, qt_t, tilt)
         before_f[:] = x_f[:6]
         if mount:
             what, _ = stage_step_mount(x_f, P_f, R_SE, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f,
@@ -472,7 +498,8 @@ def warm_up() -> None:
     y = np.ones((m, 3))
     b = Buffers(m)
     v3 = np.full(3, 1e-4)
-    filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, np.zeros(3), 20.0,
+    filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, v3,
+            np.zeros(3), 20.0,
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
     for p, n in ((np.zeros((0, 3)), 6), (y, 6), (np.zeros((0, 3)), 9)):  # without and with positions, rates
         adapt = np.zeros(ADAPT_SIZE)
@@ -482,7 +509,7 @@ def warm_up() -> None:
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
                        np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),
                        np.zeros(n), np.eye(n), np.zeros(n), np.eye(n), v3, v3.copy(), np.zeros(3), v3, v3.copy(),
-                       v3.copy(), v3, v3, np.eye(3), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6), np.eye(6), b.A_t,
+                       v3.copy(), v3, v3, v3, v3, np.eye(3), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6), np.eye(6), b.A_t,
                        b.scratch, b.work,
                        b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, np.empty((m, 3)),
                        np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),

@@ -122,8 +122,9 @@ from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADA
                                     ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_HELD_OUT, ADAPT_IDENTIFIED,
                                     ADAPT_MOUNT, ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_PRED_F, ADAPT_PRIOR_TB,
                                     ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S, ADAPT_REOPENS, ADAPT_SIZE,
-                                    ADAPT_TORQUE_SEEN, ADAPT_WINDOW, CONVERGENCE_AT_POSE, CONVERGENCE_IDENTIFIED,
-                                    GATED, UPDATED, judge_contact, torque_only_refusal)
+                                    ADAPT_TILT, ADAPT_TORQUE_SEEN, ADAPT_WINDOW, CONVERGENCE_AT_POSE,
+                                    CONVERGENCE_IDENTIFIED, GATED, UPDATED, judge_contact, tilt_step,
+                                    torque_only_refusal)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
@@ -141,6 +142,8 @@ BIAS_RATE_PRIOR_FORCE = 0.025
 """Prior std of the force-bias rate, N/s (three times the 0.5 N/min drift figure)."""
 BIAS_RATE_PRIOR_TORQUE = 0.002
 """Prior std of the torque-bias rate, N·m/s (the force figure times 0.077 m)."""
+TORQUE_PER_FORCE = 5.0 / 65.0
+"""m: the Gamma SI-65-5's torque-to-force range, which scales a force default to its torque one."""
 
 
 CONVERGED_FORCE_STD = 0.02
@@ -263,6 +266,10 @@ class KalmanEstimator(RefusesBadSamples):
         noise_torque: sensor torque noise: "auto" or N·m, std per axis (one number or three).
         bias_force_rw: random-walk intensity of bias_force_S, N/√s (0: constant bias).
         bias_torque_rw: random-walk intensity of bias_torque_S, N·m/√s.
+        bias_force_tilt_rw: random-walk intensity of bias_force_S per tilt of the tool, N/√rad (the
+            model error a real sensor's base model leaves moves with the tool's orientation; 0: off).
+        bias_torque_tilt_rw: the same for bias_torque_S, N·m/√rad (default: the force figure times
+            5/65, the Gamma SI-65-5's torque-to-force range, as ``bias_torque_rw`` is ``bias_force_rw``'s).
         bias_rate: add bias-rate states (N/s, N·m/s) to both stages.
         bias_force_rate_rw: random-walk intensity of the force-bias rate, N/s/√s.
         bias_torque_rate_rw: the same for the torque-bias rate, N·m/s/√s.
@@ -333,6 +340,8 @@ class KalmanEstimator(RefusesBadSamples):
         noise_torque: float | list[float] | str = "auto",
         bias_force_rw: float = 0.005,
         bias_torque_rw: float = 0.0004,
+        bias_force_tilt_rw: float = 0.0,
+        bias_torque_tilt_rw: float | None = None,
         bias_rate: bool = False,
         bias_force_rate_rw: float = 3e-4,
         bias_torque_rate_rw: float = 2.5e-5,
@@ -387,7 +396,10 @@ class KalmanEstimator(RefusesBadSamples):
         noise_force = np.full(3, NOISE_AUTO_START_FORCE) if self.noise_auto_force else _axes("noise_force", noise_force)
         noise_torque = (np.full(3, NOISE_AUTO_START_TORQUE) if self.noise_auto_torque
                         else _axes("noise_torque", noise_torque))
+        if bias_torque_tilt_rw is None and isinstance(bias_force_tilt_rw, (int, float)):
+            bias_torque_tilt_rw = bias_force_tilt_rw * TORQUE_PER_FORCE
         for key, value in (("bias_force_rw", bias_force_rw), ("bias_torque_rw", bias_torque_rw),
+                           ("bias_force_tilt_rw", bias_force_tilt_rw), ("bias_torque_tilt_rw", bias_torque_tilt_rw),
                            ("bias_force_rate_rw", bias_force_rate_rw),
                            ("bias_torque_rate_rw", bias_torque_rate_rw)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
@@ -468,11 +480,12 @@ class KalmanEstimator(RefusesBadSamples):
         prior_t = [prior_cog_std] * 3 + [prior_torque_std] * 3 + ([BIAS_RATE_PRIOR_TORQUE] * 3 if bias_rate else [])
         if mount_rotation:
             self.force = MountStage(prior_f, [bias_force_rw] * 3, noise_force, R_SE, mount_prior_std,
-                                    bias_rate_rw=rate_f)
+                                    bias_rate_rw=rate_f, bias_tilt_rw=[bias_force_tilt_rw] * 3)
         else:
-            self.force = KalmanStage(prior_f, [bias_force_rw] * 3, noise_force, bias_rate_rw=rate_f)
+            self.force = KalmanStage(prior_f, [bias_force_rw] * 3, noise_force, bias_rate_rw=rate_f,
+                                     bias_tilt_rw=[bias_force_tilt_rw] * 3)
         self.torque = KalmanStage(prior_t, [bias_torque_rw] * 3, noise_torque, cross_noise=noise_force,
-                                  bias_rate_rw=rate_t)
+                                  bias_rate_rw=rate_t, bias_tilt_rw=[bias_torque_tilt_rw] * 3)
         self.converged_force = False
         self.converged_torque = False
         self.first_converged_force: int | None = None
@@ -492,6 +505,7 @@ class KalmanEstimator(RefusesBadSamples):
         self._adapt[ADAPT_AUTO_T] = self.noise_auto_torque and converged_torque_std is None
         self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = math.inf
         self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3] = math.nan
+        self._adapt[ADAPT_TILT:ADAPT_TILT + 3] = math.nan  # gravity's direction at the last sample: none yet
         self._cog_known = False  # a warm start's torque stage had converged
         self._mass_known = False  # a warm start's force stage had converged
         self.prior_f = np.array(prior_f, dtype=float)
@@ -574,13 +588,14 @@ class KalmanEstimator(RefusesBadSamples):
         y_f = force_S if inertial_S is None else force_S - inertial_S  # what gravity and bias explain
 
         x_before = self.force.x[:6].copy()
+        tilt = np.array([tilt_step.py_func(self._adapt, R) for R in R_EB])  # rad, before each sample
         if self.mount_rotation:  # the stage applies its own mount estimate, updated as it goes
-            run_f = self.force.run(y_f, R_EB, dt, usable, self.gate2)
+            run_f = self.force.run(y_f, R_EB, dt, usable, self.gate2, tilt=tilt)
             self.R_SE = self.force.R_SE
             A_f = self._to_S(R_EB)  # R_SB per sample, with the mount as it is after the block
         else:
             A_f = self._to_S(R_EB)  # R_SB per sample
-            run_f = self.force.run(y_f, A_f, dt, usable, self.gate2, self.method)
+            run_f = self.force.run(y_f, A_f, dt, usable, self.gate2, self.method, tilt)
         X_f = run_f.X
         A_t = -skew_stack(force_S - X_f[:, 3:6])  # C_k = [-skew(Δf), I3]; Δf includes the inertial force
         if run_f.failed is not None:  # updates that could not be computed: not used, not converged
@@ -592,7 +607,7 @@ class KalmanEstimator(RefusesBadSamples):
             settled_f &= ~run_f.failed
         x_t_before = self.torque.x[:6].copy()
         seen_t = force_seen = accepted_f & settled_f  # (its regressor needs gravity identified, not only here)
-        run_t = self.torque.run(torque_S, A_t, dt, seen_t, self.gate2, self.method)
+        run_t = self.torque.run(torque_S, A_t, dt, seen_t, self.gate2, self.method, tilt)
         if run_t.failed is not None:
             seen_t = seen_t & ~run_t.failed
         accepted_t = seen_t & ~run_t.gated
@@ -692,7 +707,7 @@ class KalmanEstimator(RefusesBadSamples):
             contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S,
             b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
             torque.rc, _NO_RATE if force.q_rate is None else force.q_rate,
-            _NO_RATE if torque.q_rate is None else torque.q_rate, force.R_SE if self.mount_rotation else _NO_MOUNT,
+            _NO_RATE if torque.q_rate is None else torque.q_rate, force.q_tilt, torque.q_tilt, force.R_SE if self.mount_rotation else _NO_MOUNT,
             limits, self._adapt, self._information["force"],
             self._information["torque"], b.A_t, b.scratch, b.work,
             b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,

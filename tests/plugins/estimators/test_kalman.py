@@ -75,12 +75,19 @@ def test_fast_stage_matches_the_filterpy_reference():
     dt[0], dt[500:510] = 0.0, 4e-3
     active = np.ones(m, dtype=bool)
     active[200:210] = False
+    tilt = np.abs(rng.standard_normal(m)) * 0.01  # rad before each sample (the tilt walk)
+    tilt[:1500] = 0.0
     for cross in ((0.0, 0.0, 0.0), (0.12, 0.1, 0.08)):
         runs, stages = {}, {}
-        for method in ("fast", "filterpy"):
-            stages[method] = KalmanStage([20.0] * 6, [0.005] * 3, [0.12, 0.12, 0.1], cross)
-            runs[method] = stages[method].run(y, A, dt, active, 21.1, method)
-        fast, ref = runs["fast"], runs["filterpy"]
+        for method in ("fast", "filterpy", "numba"):
+            stages[method] = KalmanStage([20.0] * 6, [0.005] * 3, [0.12, 0.12, 0.1], cross, bias_tilt_rw=[0.1] * 3)
+            runs[method] = stages[method].run(y, A, dt, active, 21.1, method, tilt)
+        fast, ref, compiled = runs["fast"], runs["filterpy"], runs["numba"]
+        assert all(np.array_equal(getattr(fast, key), getattr(compiled, key), equal_nan=True)
+                   for key in ("X", "D", "gated", "d2"))  # the compiled stage: the Python floats' bits
+        assert np.array_equal(stages["fast"].P, stages["numba"].P)
+        untilted = KalmanStage([20.0] * 6, [0.005] * 3, [0.12, 0.12, 0.1], cross).run(y, A, dt, active, 21.1, "fast")
+        assert np.array_equal(untilted.D[:1500], fast.D[:1500]) and (fast.D[-1, 3:] > 2 * untilted.D[-1, 3:]).all()
         assert np.array_equal(fast.gated, ref.gated) and 90 <= ref.gated.sum() <= 110
         assert np.abs(fast.X - ref.X).max() < 1e-9
         assert np.abs(fast.D - ref.D).max() < 1e-9
@@ -334,6 +341,8 @@ def test_runs_through_the_registry():
     ({"bias_force_rw": -1e-3}, "bias_force_rw"),
     ({"bias_torque_rw": math.inf}, "bias_torque_rw"),
     ({"bias_force_rate_rw": math.nan}, "bias_force_rate_rw"),
+    ({"bias_force_tilt_rw": -0.1}, "bias_force_tilt_rw"),
+    ({"bias_torque_tilt_rw": "x"}, "bias_torque_tilt_rw"),
     ({"gate_probability": 0.0}, "gate_probability"),
     ({"gate_probability": 1.2}, "gate_probability"),
     ({"converged_force_std": 0.0}, "converged_force_std"),

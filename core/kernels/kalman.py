@@ -29,8 +29,8 @@ ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10
 ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
 ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
 ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT_MOUNT = 29, 30, 31, 32, 33
-ADAPT_TILT = 34
-ADAPT_SIZE = 37
+ADAPT_TILT, ADAPT_GRAVITY_DIR = 34, 43
+ADAPT_SIZE = 46
 CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
 ``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``),
@@ -49,8 +49,10 @@ test first passed), the bounds' caps (inf until it settles), whether the torque 
 current torque-only refusal (s, samples, and the sums of its force and torque residuals: 3 values each from
 ``ADAPT_TQ_SUM_F`` / ``ADAPT_TQ_SUM_T``), the torque bias re-opened so far (count), the refused samples in a
 row up to the last (``ADAPT_REFUSED_RUN``) and the samples of the refused runs that ended before they were
-judged a contact (``ADAPT_HELD_OUT``), gravity's direction at the last sample (3 values from
-``ADAPT_TILT``, NaN before the first: :func:`tilt_step`).
+judged a contact (``ADAPT_HELD_OUT``), the last sample's A (9 values from ``ADAPT_TILT``, row by row,
+NaN before the first) and the direction of gravity in B its tilt is measured about (3 values from
+``ADAPT_GRAVITY_DIR``: B's z axis until the force stage settles, then the identified weight's;
+:func:`tilt_step`).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
 the block's row of its last torque bias re-opening (−1: none)."""
 
@@ -78,20 +80,40 @@ def judge_contact(adapt, refused, tested) -> bool:
 
 @njit(cache=True, error_model="numpy")
 def tilt_step(adapt, A) -> float:
-    """The angle gravity's direction turned in the sensor since the previous sample, rad: between A's third
-    column (B's z axis in S, with A = R_SB; in E with A = R_EB, the same angle) and the previous sample's,
-    kept in ``adapt[ADAPT_TILT:ADAPT_TILT + 3]``, which it then becomes (atan2 of the cross and dot
-    products: exact for small angles). 0 for the first sample; a non-finite A (a pose not known yet)
-    neither tilts nor becomes the previous one. (The numpy reference runs this as ``tilt_step.py_func``.)"""
-    g0, g1, g2 = A[0, 2], A[1, 2], A[2, 2]
+    """The angle gravity's direction turned in the sensor since the previous sample, rad: between A ĝ and
+    A_prev ĝ, ĝ the direction of gravity in B (``ADAPT_GRAVITY_DIR``; A = R_SB, or R_EB: the same angle),
+    A_prev the previous sample's A (``ADAPT_TILT``), which A then becomes. atan2 of the cross and dot
+    products: exact for small angles. 0 for the first sample; a non-finite A (a pose not known yet) neither
+    tilts nor becomes the previous one. (The numpy reference runs this as ``tilt_step.py_func``.)"""
+    d0, d1, d2 = adapt[ADAPT_GRAVITY_DIR], adapt[ADAPT_GRAVITY_DIR + 1], adapt[ADAPT_GRAVITY_DIR + 2]
+    g0 = A[0, 0] * d0 + A[0, 1] * d1 + A[0, 2] * d2
+    g1 = A[1, 0] * d0 + A[1, 1] * d1 + A[1, 2] * d2
+    g2 = A[2, 0] * d0 + A[2, 1] * d1 + A[2, 2] * d2
     if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
         return 0.0
-    p0, p1, p2 = adapt[ADAPT_TILT], adapt[ADAPT_TILT + 1], adapt[ADAPT_TILT + 2]
-    adapt[ADAPT_TILT], adapt[ADAPT_TILT + 1], adapt[ADAPT_TILT + 2] = g0, g1, g2
-    if not math.isfinite(p0):
+    known = math.isfinite(adapt[ADAPT_TILT])
+    p = adapt[ADAPT_TILT:ADAPT_TILT + 9]
+    p0 = p[0] * d0 + p[1] * d1 + p[2] * d2
+    p1 = p[3] * d0 + p[4] * d1 + p[5] * d2
+    p2 = p[6] * d0 + p[7] * d1 + p[8] * d2
+    for i in range(3):
+        for j in range(3):
+            p[3 * i + j] = A[i, j]
+    if not known:
         return 0.0
     c0, c1, c2 = p1 * g2 - p2 * g1, p2 * g0 - p0 * g2, p0 * g1 - p1 * g0
     return math.atan2(math.sqrt(c0 * c0 + c1 * c1 + c2 * c2), p0 * g0 + p1 * g1 + p2 * g2)
+
+
+@njit(cache=True, error_model="numpy")
+def set_gravity_direction(adapt, a) -> None:
+    """Measure tilts about the identified weight a (3,), N (its direction in B; a zero weight changes nothing):
+    the base need not stand upright (a wall mount has gravity along B's x). ``tilt_step`` measures both
+    samples' directions about the same ĝ, so the switch adds no spurious turn."""
+    norm = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    if norm > 0.0 and math.isfinite(norm):
+        for i in range(3):
+            adapt[ADAPT_GRAVITY_DIR + i] = a[i] / norm
 
 
 TORQUE_REOPEN_MIN_SAMPLES = 10
@@ -439,6 +461,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                 rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
         if settled and adapt[ADAPT_FORCE_SEEN] == 0.0:
             adapt[ADAPT_FORCE_SEEN] = 1.0
+            set_gravity_direction(adapt, x_f)  # tilts from here on about the identified weight
             if adapt[ADAPT_AUTO_F] != 0.0:  # an auto bound never grows past its value once settled
                 adapt[ADAPT_CAP_F] = math.sqrt(_auto_bound2(r_f, math.inf))
             if adapt[ADAPT_AUTO_T] != 0.0:

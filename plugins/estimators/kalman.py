@@ -122,9 +122,9 @@ from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADA
                                     ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_HELD_OUT, ADAPT_IDENTIFIED,
                                     ADAPT_MOUNT, ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_PRED_F, ADAPT_PRIOR_TB,
                                     ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S, ADAPT_REOPENS, ADAPT_SIZE,
-                                    ADAPT_TILT, ADAPT_TORQUE_SEEN, ADAPT_WINDOW, CONVERGENCE_AT_POSE,
-                                    CONVERGENCE_IDENTIFIED, GATED, UPDATED, judge_contact, tilt_step,
-                                    torque_only_refusal)
+                                    ADAPT_GRAVITY_DIR, ADAPT_TILT, ADAPT_TORQUE_SEEN, ADAPT_WINDOW,
+                                    CONVERGENCE_AT_POSE, CONVERGENCE_IDENTIFIED, GATED, UPDATED, judge_contact,
+                                    set_gravity_direction, tilt_step, torque_only_refusal)
 from ...core.kernels import kernel_option
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
@@ -505,7 +505,8 @@ class KalmanEstimator(RefusesBadSamples):
         self._adapt[ADAPT_AUTO_T] = self.noise_auto_torque and converged_torque_std is None
         self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = math.inf
         self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3] = math.nan
-        self._adapt[ADAPT_TILT:ADAPT_TILT + 3] = math.nan  # gravity's direction at the last sample: none yet
+        self._adapt[ADAPT_TILT:ADAPT_TILT + 9] = math.nan  # the last sample's pose: none yet
+        self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3] = (0.0, 0.0, 1.0)  # B's z until the weight is known
         self._cog_known = False  # a warm start's torque stage had converged
         self._mass_known = False  # a warm start's force stage had converged
         self.prior_f = np.array(prior_f, dtype=float)
@@ -641,6 +642,7 @@ class KalmanEstimator(RefusesBadSamples):
             if self.noise_auto:
                 self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = self._bounds()
             self._adapt[ADAPT_FORCE_SEEN] = 1.0
+            set_gravity_direction.py_func(self._adapt, self.force.x[:3])  # tilts about the identified weight
         if self.first_converged_torque is None and conv_t.any():
             self.first_converged_torque = self.samples + int(np.argmax(conv_t))
         self.samples += m
@@ -1139,6 +1141,8 @@ class KalmanEstimator(RefusesBadSamples):
         # (a state saved before "settled_*" was kept: its flags were the identified or covariance rule's)
         self._cog_known = bool(source.get("settled_torque", source.get("converged_torque")))
         self._mass_known = bool(source.get("settled_force", source.get("converged_force")))
+        if self._mass_known:  # the tilt measured about the weight it had identified
+            set_gravity_direction.py_func(self._adapt, self.force.x[:3])
         if self.noise_auto:  # the noise estimate carries over, as if its window were full
             for key, stage, floor, auto in (("noise_force_S", self.force, NOISE_FLOOR[0], self.noise_auto_force),
                                             ("noise_torque_S", self.torque, NOISE_FLOOR[1], self.noise_auto_torque)):

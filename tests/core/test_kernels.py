@@ -224,11 +224,12 @@ def _tolerance(options) -> float:
                                      {"mount_rotation": True, "mount_rotation_SE": [0.0, 0.05, 0.02]},
                                      {"bias_force_tilt_rw": 0.1}, {**GAMMA, "convergence": "identified", "bias_force_tilt_rw": 0.03},
                                      {"bias_force_tilt_rw": 0.1, "convergence": "step"},
+                                     {"bias_force_tilt_rw": 0.1, "time_lag_s": -0.004},
                                      {"bias_force_tilt_rw": 0.1, "mount_rotation": True, "bias_rate": True}],
                          ids=["defaults", "gamma-covariance", "gamma-identified", "auto-covariance", "auto-identified",
                               "mount", "step", "sensor-late", "gamma-sensor-late", "bias-rate", "gamma-bias-rate",
                               "mount-bias-rate", "mount-from-3-deg", "tilt-walk", "gamma-tilt-walk", "step-tilt-walk",
-                              "mount-bias-rate-tilt-walk"])
+                              "sensor-late-tilt-walk", "mount-bias-rate-tilt-walk"])
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     """The noise estimate and the convergence rules run in the compiled cascade (the numpy reference
@@ -236,8 +237,9 @@ def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     runs the compiled stage filter (``filter6``). A late sensor stream (its poses interpolated per block
     before the cascade, its first 4 ms unused) runs in the cascade too, and so do bias-rate states
     (``stage_step_rate`` against filterpy's filter) and a mount estimate (``stage_step_mount`` against
-    ``core.kalman.MountStage``'s EKF, from the identity or from a 3° mount, with and without rates), each
-    with the bias's tilt walk as well (``add_tilt_noise``, the tilt from ``tilt_step``)."""
+    ``core.kalman.MountStage``'s EKF, from the identity or from a 3° mount, with and without rates); and
+    the bias's tilt walk (``add_tilt_noise``, the tilt from ``tilt_step``) with the defaults, the noise given,
+    the step rule, a late sensor stream, and a mount with rates."""
     (ref, a), fast = _reference(sim6, options, size), KalmanEstimator(kernel="numba", **options)
     assert fast._cascade == (options.get("convergence") != "step")
     b = _run(fast, sim6, size)

@@ -222,7 +222,7 @@ def test_the_compiled_effects_are_the_reference_on_every_real_file(real_data, na
 
 
 def test_the_tilt_walk_follows_lwr4_2013_06_13s_fast_turn(real_data):
-    """lwr4_2013_06_13 turns gravity's direction 90° in ~100 rows near row 4900; the base model's error there
+    """lwr4_2013_06_13 turns gravity's direction 74° in the 100 rows from 4859; the base model's error there
     changes by 0.5 N, faster than the bias's walk over time follows, and the defaults refuse those rows as a
     contact. With the walk over the tilt (``bias_force_tilt_rw = 0.1`` N/√rad, half the smallest rate,
     ~0.2 N/√rad, at which the real files' batch residuals vary with the tilt) no row is, and the online RMS comes further under the batch fit's."""
@@ -234,6 +234,7 @@ def test_the_tilt_walk_follows_lwr4_2013_06_13s_fast_turn(real_data):
     refused = np.flatnonzero(plain.contact)
     assert len(refused) >= 50 and 4800 <= refused.min() and refused.max() <= 5000  # the turn, nowhere else
     assert not tilted.contact.any()
-    half = len(stream) // 2
-    assert np.linalg.norm(np.std(tilted.contact_force_S[half:], axis=0)) < \
-        np.linalg.norm(np.std(plain.contact_force_S[half:], axis=0))
+    s = stream.samples
+    residual = batch_fit(s.force_S, s.torque_S, s.R_EB)["residual_force_S"]
+    ratios = [realbench.second_half_ratio(out.contact_force_S, residual) for out in (plain, tilted)]
+    assert ratios[1] < ratios[0] < 1.0, ratios  # (measured 0.297 and 0.373)

@@ -279,8 +279,8 @@ def _auto_bound2(r, cap):
 
 @njit(cache=True, error_model="numpy")
 def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, inertial_S, usable,
-                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, qt_f, qt_t, R_SE, limits, adapt, info_f, info_t,
-                   A_t, scratch, work,
+                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, qt_f, qt_t, R_SE, limits, adapt,
+                   info_f, info_t, A_t, scratch, work,
                    X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
                    contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
     """The ``kalman`` estimator's cascade over m samples (its ``_filter_block``), in order.
@@ -313,9 +313,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         non-finite wrench or R_EB), less those whose force update failed.
         x_f, P_f, x_t, P_t: the stages' (n,) and (n, n), in place: n = 6, or 9 with bias-rate states
         (``stage_step_rate``). q_*, r_*, rc_*: (3,) as ``stage_step`` (r_f, r_t, rc_t in place with the noise
-        estimate); qr_f, qr_t: (3,) the bias rates' random-walk variance per second (unused with 6 states). qt_f, qt_t:
-        (3,) the biases' random-walk variance per radian of tilt, added to both stages before each sample
-        (:func:`tilt_step` on A_f, :func:`add_tilt_noise`).
+        estimate); qr_f, qr_t: (3,) the bias rates' random-walk variance per second (unused with 6 states);
+        qt_f, qt_t: (3,) the biases' random-walk variance per radian of tilt, added to both stages before each
+        sample (:func:`tilt_step` on A_f, :func:`add_tilt_noise`).
         R_SE: (3, 3) the mount's nominal rotation, in place when it is estimated (then x_f is [a, b, (ḃ), θ],
         9 or 12 states, and its flag waits for std(θ)·|gravity_force_B| under the bound as well).
         limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_SIZE``.
@@ -346,6 +346,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     activate_var = adapt[ADAPT_MOUNT]
     mount = activate_var > 0.0
     n_f = x_f.shape[0]
+    tilt_walk = qt_f.any() or qt_t.any()
     for k in range(t_ns.shape[0]):
         usable[k] = not stale[k] and status[k] == 0
         if positions:
@@ -361,9 +362,10 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             bound_f2 = _auto_bound2(r_f, adapt[ADAPT_CAP_F])
         if adapt[ADAPT_AUTO_T] != 0.0:
             bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
-        tilt = tilt_step(adapt, A_f[k])
-        add_tilt_noise(P_f, qt_f, tilt)
-        add_tilt_noise(P_t, qt_t, tilt)
+        if tilt_walk:
+            tilt = tilt_step(adapt, A_f[k])
+            add_tilt_noise(P_f, qt_f, tilt)
+            add_tilt_noise(P_t, qt_t, tilt)
         before_f[:] = x_f[:6]
         if mount:
             what, _ = stage_step_mount(x_f, P_f, R_SE, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f,
@@ -532,8 +534,8 @@ def warm_up() -> None:
         kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
                        np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),
                        np.zeros(n), np.eye(n), np.zeros(n), np.eye(n), v3, v3.copy(), np.zeros(3), v3, v3.copy(),
-                       v3.copy(), v3, v3, v3, v3, np.eye(3), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6), np.eye(6), b.A_t,
-                       b.scratch, b.work,
+                       v3.copy(), v3, v3, v3, v3, np.eye(3), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6),
+                       np.eye(6), b.A_t, b.scratch, b.work,
                        b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, np.empty((m, 3)),
                        np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
                        np.empty(m, dtype=np.bool_))

@@ -589,7 +589,9 @@ class KalmanEstimator(RefusesBadSamples):
         y_f = force_S if inertial_S is None else force_S - inertial_S  # what gravity and bias explain
 
         x_before = self.force.x[:6].copy()
-        tilt = np.array([tilt_step.py_func(self._adapt, R) for R in R_EB])  # rad, before each sample
+        tilt = None  # rad, before each sample, with the tilt walk on
+        if self.force.q_tilt.any() or self.torque.q_tilt.any():
+            tilt = np.array([tilt_step.py_func(self._adapt, R) for R in R_EB])
         if self.mount_rotation:  # the stage applies its own mount estimate, updated as it goes
             run_f = self.force.run(y_f, R_EB, dt, usable, self.gate2, tilt=tilt)
             self.R_SE = self.force.R_SE
@@ -709,7 +711,8 @@ class KalmanEstimator(RefusesBadSamples):
             contiguous(block.status, np.int64), p_BoEo_B, _NO_POSITIONS if inertial_S is None else inertial_S,
             b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
             torque.rc, _NO_RATE if force.q_rate is None else force.q_rate,
-            _NO_RATE if torque.q_rate is None else torque.q_rate, force.q_tilt, torque.q_tilt, force.R_SE if self.mount_rotation else _NO_MOUNT,
+            _NO_RATE if torque.q_rate is None else torque.q_rate, force.q_tilt, torque.q_tilt,
+            force.R_SE if self.mount_rotation else _NO_MOUNT,
             limits, self._adapt, self._information["force"],
             self._information["torque"], b.A_t, b.scratch, b.work,
             b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,

@@ -399,8 +399,9 @@ def test_new_options_reach_the_estimator_from_the_command_line_syntax():
 
 def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
     """A 5° mount the model lacks leaves an error that changes as the tool tilts (the weight's direction off
-    by 5°, a different force in S at every orientation). The bias's random walk over time cannot follow it; its walk over the tilt
-    (``bias_force_tilt_rw``) does, as closely as estimating the mount (three more states) does."""
+    by 5°, a different force in S at every orientation). The bias's random walk over time cannot follow it;
+    its walk over the tilt (``bias_force_tilt_rw``) does, as closely as estimating the mount (three more
+    states) does."""
     world, block = mounted
     rms = {}
     for label, options in (("kalman", {}), ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}),

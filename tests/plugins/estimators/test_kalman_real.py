@@ -225,7 +225,8 @@ def test_the_tilt_walk_follows_lwr4_2013_06_13s_fast_turn(real_data):
     """lwr4_2013_06_13 turns gravity's direction 74° in the 100 rows from 4859; the base model's error there
     changes by 0.5 N, faster than the bias's walk over time follows, and the defaults refuse those rows as a
     contact. With the walk over the tilt (``bias_force_tilt_rw = 0.1`` N/√rad, half the smallest rate,
-    ~0.2 N/√rad, at which the real files' batch residuals vary with the tilt) no row is, and the online RMS comes further under the batch fit's."""
+    ~0.2 N/√rad, at which the real files' batch residuals vary with the tilt) no row is, and the online RMS
+    over the second half comes further under the batch fit's."""
     import numpy as np
 
     stream = load_stream(real_data / "lwr4_2013_06_13.csv")

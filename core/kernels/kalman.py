@@ -22,6 +22,7 @@ from ..noise_estimate import (AUTO_BOUND_FRACTION, NOISE_CLIP, NOISE_CLIP_MEAN, 
                               NOISE_REFUSED_WEIGHT, NOISE_WINDOW, NOISE_WINDOW_S)
 from .kalman_stage import (FAILED, GATED, UPDATED, add_tilt_noise, filter6, stage_step, stage_step_mount,
                            stage_step_rate)
+from .tilt_walk import TW_SIZE, learn_tilt_walk
 
 ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED = 0, 1, 2
 ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
@@ -29,8 +30,9 @@ ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10
 ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
 ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
 ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT_MOUNT = 29, 30, 31, 32, 33
-ADAPT_TILT, ADAPT_GRAVITY_DIR = 34, 43
-ADAPT_SIZE = 46
+ADAPT_TILT, ADAPT_GRAVITY_DIR, ADAPT_TILT_AUTO, ADAPT_TILT_TORQUE = 34, 43, 46, 47
+ADAPT_GRAVITY_KNOWN, ADAPT_TW = 48, 49
+ADAPT_SIZE = ADAPT_TW + TW_SIZE
 CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
 ``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``core.noise_estimate``),
@@ -51,8 +53,11 @@ current torque-only refusal (s, samples, and the sums of its force and torque re
 row up to the last (``ADAPT_REFUSED_RUN``) and the samples of the refused runs that ended before they were
 judged a contact (``ADAPT_HELD_OUT``), the last sample's A (9 values from ``ADAPT_TILT``, row by row,
 NaN before the first) and the direction of gravity in B its tilt is measured about (3 values from
-``ADAPT_GRAVITY_DIR``: B's z axis until the force stage settles, then the identified weight's;
-:func:`tilt_step`).
+``ADAPT_GRAVITY_DIR``: B's z axis until the force stage settles, then the identified weight's, which
+``ADAPT_GRAVITY_KNOWN`` says (1.0; a warm start's direction is kept); :func:`tilt_step`). With
+``ADAPT_TILT_AUTO`` (1.0) the tilt walk's intensity is learnt from the data (``core.kernels.tilt_walk``, its
+state in ``TW_SIZE`` values from ``ADAPT_TW``) and written into qt_f after each sample, and into qt_t times
+``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
 the block's row of its last torque bias re-opening (−1: none)."""
 
@@ -114,6 +119,7 @@ def set_gravity_direction(adapt, a) -> None:
     if norm > 0.0 and math.isfinite(norm):
         for i in range(3):
             adapt[ADAPT_GRAVITY_DIR + i] = a[i] / norm
+        adapt[ADAPT_GRAVITY_KNOWN] = 1.0
 
 
 TORQUE_REOPEN_MIN_SAMPLES = 10
@@ -346,7 +352,9 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     activate_var = adapt[ADAPT_MOUNT]
     mount = activate_var > 0.0
     n_f = x_f.shape[0]
-    tilt_walk = qt_f.any() or qt_t.any()
+    learn_walk = adapt[ADAPT_TILT_AUTO] != 0.0
+    tilt_walk = qt_f.any() or qt_t.any() or learn_walk
+    q_time = (q_f[0] + q_f[1] + q_f[2]) / 3.0
     for k in range(t_ns.shape[0]):
         usable[k] = not stale[k] and status[k] == 0
         if positions:
@@ -463,7 +471,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                 rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
         if settled and adapt[ADAPT_FORCE_SEEN] == 0.0:
             adapt[ADAPT_FORCE_SEEN] = 1.0
-            set_gravity_direction(adapt, x_f)  # tilts from here on about the identified weight
+            if adapt[ADAPT_GRAVITY_KNOWN] == 0.0:  # tilts from here on about the identified weight
+                set_gravity_direction(adapt, x_f)
             if adapt[ADAPT_AUTO_F] != 0.0:  # an auto bound never grows past its value once settled
                 adapt[ADAPT_CAP_F] = math.sqrt(_auto_bound2(r_f, math.inf))
             if adapt[ADAPT_AUTO_T] != 0.0:
@@ -489,6 +498,13 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         if torque_only_refusal(adapt, what == GATED, force_seen, what_t, dt, contact_force_S[k], contact_torque_S[k]):
             reopen_bias(P_t, info_t, adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3])  # (from the next sample on)
             adapt[ADAPT_REOPEN_ROW] = k
+        if learn_walk and usable[k] and adapt[ADAPT_FORCE_SEEN] != 0.0:  # the tilt walk from the data
+            g_B = adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3]
+            q = learn_tilt_walk(adapt[ADAPT_TW:], y_f[k], A_f[k], x_f, g_B, t_ns[k] * 1e-9, gated_f[k], q_time)
+            qt_f[0], qt_f[1], qt_f[2] = q, q, q
+            if adapt[ADAPT_TILT_TORQUE] >= 0.0:
+                q *= adapt[ADAPT_TILT_TORQUE]
+                qt_t[0], qt_t[1], qt_t[2] = q, q, q
     return n_failed_f, n_failed_t, n_gated_f, first_f, first_t
 
 

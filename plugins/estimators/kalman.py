@@ -122,10 +122,14 @@ from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADA
                                     ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_FORCE_SEEN, ADAPT_HELD_OUT, ADAPT_IDENTIFIED,
                                     ADAPT_MOUNT, ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_PRED_F, ADAPT_PRIOR_TB,
                                     ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S, ADAPT_REOPENS, ADAPT_SIZE,
-                                    ADAPT_GRAVITY_DIR, ADAPT_TILT, ADAPT_TORQUE_SEEN, ADAPT_WINDOW,
+                                    ADAPT_GRAVITY_DIR, ADAPT_GRAVITY_KNOWN, ADAPT_TILT, ADAPT_TILT_AUTO,
+                                    ADAPT_TILT_TORQUE,
+                                    ADAPT_TORQUE_SEEN, ADAPT_TW, ADAPT_WINDOW,
                                     CONVERGENCE_AT_POSE, CONVERGENCE_IDENTIFIED, GATED, UPDATED, judge_contact,
                                     set_gravity_direction, tilt_step, torque_only_refusal)
 from ...core.kernels import kernel_option
+from ...core.kernels import tilt_walk as tilt_walk_kernel
+from ...core.kernels.tilt_walk import TW_PAIRS, TW_Q, learn_tilt_walk
 from ...core.noise_estimate import (AUTO_BOUND_FRACTION, NOISE_AUTO_START_FORCE, NOISE_AUTO_START_TORQUE,
                                     NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, adapt_noise,
                                     window_samples)
@@ -267,9 +271,13 @@ class KalmanEstimator(RefusesBadSamples):
         bias_force_rw: random-walk intensity of bias_force_S, N/√s (0: constant bias).
         bias_torque_rw: random-walk intensity of bias_torque_S, N·m/√s.
         bias_force_tilt_rw: random-walk intensity of bias_force_S per tilt of the tool, N/√rad (the
-            model error a real sensor's base model leaves moves with the tool's orientation; 0: off).
+            model error a real sensor's base model leaves moves with the tool's orientation; 0: off), or
+            "auto": learnt from the data as it runs (``core.kernels.tilt_walk``; 0 until it has seen a turn).
+            Default: "auto", and 0 with ``mount_rotation`` (the mount's states model an error that moves with
+            the tilt; a walk beside them takes part of it, and the mount comes out worse).
         bias_torque_tilt_rw: the same for bias_torque_S, N·m/√rad (default: the force figure times
-            5/65, the Gamma SI-65-5's torque-to-force range, as ``bias_torque_rw`` is ``bias_force_rw``'s).
+            5/65, the Gamma SI-65-5's torque-to-force range, as ``bias_torque_rw`` is ``bias_force_rw``'s;
+            with the force's "auto", its learnt figure times 5/65).
         bias_rate: add bias-rate states (N/s, N·m/s) to both stages.
         bias_force_rate_rw: random-walk intensity of the force-bias rate, N/s/√s.
         bias_torque_rate_rw: the same for the torque-bias rate, N·m/s/√s.
@@ -340,7 +348,7 @@ class KalmanEstimator(RefusesBadSamples):
         noise_torque: float | list[float] | str = "auto",
         bias_force_rw: float = 0.005,
         bias_torque_rw: float = 0.0004,
-        bias_force_tilt_rw: float = 0.0,
+        bias_force_tilt_rw: float | str | None = None,
         bias_torque_tilt_rw: float | None = None,
         bias_rate: bool = False,
         bias_force_rate_rw: float = 3e-4,
@@ -396,6 +404,13 @@ class KalmanEstimator(RefusesBadSamples):
         noise_force = np.full(3, NOISE_AUTO_START_FORCE) if self.noise_auto_force else _axes("noise_force", noise_force)
         noise_torque = (np.full(3, NOISE_AUTO_START_TORQUE) if self.noise_auto_torque
                         else _axes("noise_torque", noise_torque))
+        # "auto": the tilt walk's intensity learnt from the data (core.kernels.tilt_walk), the torque's following
+        if bias_force_tilt_rw is None:
+            bias_force_tilt_rw = 0.0 if mount_rotation else "auto"
+        self.tilt_walk_auto = bias_force_tilt_rw == "auto"
+        tilt_torque_follows = bias_torque_tilt_rw is None
+        if self.tilt_walk_auto:
+            bias_force_tilt_rw = 0.0  # (until the first pair of windows is scored)
         if bias_torque_tilt_rw is None and isinstance(bias_force_tilt_rw, (int, float)):
             bias_torque_tilt_rw = bias_force_tilt_rw * TORQUE_PER_FORCE
         for key, value in (("bias_force_rw", bias_force_rw), ("bias_torque_rw", bias_torque_rw),
@@ -403,7 +418,8 @@ class KalmanEstimator(RefusesBadSamples):
                            ("bias_force_rate_rw", bias_force_rate_rw),
                            ("bias_torque_rate_rw", bias_torque_rate_rw)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{key}: must be a finite number >= 0, got {value!r}")
+                hint = " or 'auto'" if key == "bias_force_tilt_rw" else ""
+                raise ValueError(f"{key}: must be a finite number >= 0{hint}, got {value!r}")
         for key, value in (("converged_force_std", converged_force_std),
                            ("converged_torque_std", converged_torque_std),
                            ("prior_force_std", prior_force_std), ("prior_cog_std", prior_cog_std),
@@ -507,6 +523,9 @@ class KalmanEstimator(RefusesBadSamples):
         self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3] = math.nan
         self._adapt[ADAPT_TILT:ADAPT_TILT + 9] = math.nan  # the last sample's pose: none yet
         self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3] = (0.0, 0.0, 1.0)  # B's z until the weight is known
+        self._adapt[ADAPT_TILT_AUTO] = self.tilt_walk_auto
+        self._adapt[ADAPT_TW:] = tilt_walk_kernel.new_state()
+        self._adapt[ADAPT_TILT_TORQUE] = TORQUE_PER_FORCE ** 2 if tilt_torque_follows else -1.0  # (q: variances)
         self._cog_known = False  # a warm start's torque stage had converged
         self._mass_known = False  # a warm start's force stage had converged
         self.prior_f = np.array(prior_f, dtype=float)
@@ -525,7 +544,7 @@ class KalmanEstimator(RefusesBadSamples):
         # the rules that follow what the motion identifies ("pose" flags the wrench at the pose, and reports
         # the identification beside it, as "identified" does)
         self.identifies = convergence in ("identified", "pose")
-        self._per_sample = self.noise_auto or self.identifies  # (the numpy reference's blocks)
+        self._per_sample = self.noise_auto or self.identifies or self.tilt_walk_auto  # (the numpy reference's blocks)
         self._information: dict[str, np.ndarray] = {}  # the identification: Λ per stage (6, 6)
         self._seed_information()
         if warm_start:
@@ -590,7 +609,7 @@ class KalmanEstimator(RefusesBadSamples):
 
         x_before = self.force.x[:6].copy()
         tilt = None  # rad, before each sample, with the tilt walk on
-        if self.force.q_tilt.any() or self.torque.q_tilt.any():
+        if self.force.q_tilt.any() or self.torque.q_tilt.any() or self.tilt_walk_auto:
             tilt = np.array([tilt_step.py_func(self._adapt, R) for R in R_EB])
         if self.mount_rotation:  # the stage applies its own mount estimate, updated as it goes
             run_f = self.force.run(y_f, R_EB, dt, usable, self.gate2, tilt=tilt)
@@ -644,7 +663,10 @@ class KalmanEstimator(RefusesBadSamples):
             if self.noise_auto:
                 self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = self._bounds()
             self._adapt[ADAPT_FORCE_SEEN] = 1.0
-            set_gravity_direction.py_func(self._adapt, self.force.x[:3])  # tilts about the identified weight
+            if not self._adapt[ADAPT_GRAVITY_KNOWN]:  # tilts about the identified weight
+                set_gravity_direction.py_func(self._adapt, self.force.x[:3])
+        if self.tilt_walk_auto:
+            self._learn_tilt_walk(y_f, A_f, t_ns, run_f.gated, usable)  # (the force stage's own: not the torque's)
         if self.first_converged_torque is None and conv_t.any():
             self.first_converged_torque = self.samples + int(np.argmax(conv_t))
         self.samples += m
@@ -656,6 +678,23 @@ class KalmanEstimator(RefusesBadSamples):
             converged_force=conv_f,
             converged_torque=conv_t,
         )
+
+    def _learn_tilt_walk(self, y_f, A_f, t_ns, refused, tested) -> None:
+        """The tilt walk's intensity from the block's samples (``tilt_walk.learn_tilt_walk``, run as Python, as the
+        cascade runs it after each sample): into both stages' q_tilt, the torque's times ``TORQUE_PER_FORCE``²
+        unless it was given. The reference filters one sample per block here, so x is the sample's."""
+        if not self._adapt[ADAPT_FORCE_SEEN]:
+            return
+        learn, tw = learn_tilt_walk.py_func, self._adapt[ADAPT_TW:]
+        g_B = self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3]
+        q_bias = self.force.q_bias
+        q_time = (q_bias[0] + q_bias[1] + q_bias[2]) / 3.0
+        for k in range(len(t_ns)):
+            if tested[k]:
+                q = learn(tw, y_f[k], A_f[k], self.force.x, g_B, t_ns[k] * 1e-9, bool(refused[k]), q_time)
+                self.force.q_tilt[:] = q
+                if self._adapt[ADAPT_TILT_TORQUE] >= 0.0:
+                    self.torque.q_tilt[:] = q * self._adapt[ADAPT_TILT_TORQUE]
 
     def _judge_contacts(self, refused: np.ndarray, tested: np.ndarray) -> np.ndarray:
         """(m,) the refused samples judged a contact (``kalman_kernel.judge_contact``, run as Python); ``tested``:
@@ -1086,6 +1125,13 @@ class KalmanEstimator(RefusesBadSamples):
             "mount_R_SE": self.R_SE.tolist(),
             "noise_force_S": np.sqrt(self.force.r).tolist(),
             "noise_torque_S": np.sqrt(self.torque.r).tolist(),
+            # the tilt's bookkeeping: the last pose's A (None before one), the direction tilts are measured about
+            # (None before the weight is identified), and the learnt walk's estimate, sums and windows
+            "tilt": {"last_A": None if np.isnan(self._adapt[ADAPT_TILT]) else
+                     self._adapt[ADAPT_TILT:ADAPT_TILT + 9].tolist(),
+                     "gravity_direction_B": self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3].tolist()
+                     if self._adapt[ADAPT_GRAVITY_KNOWN] else None,
+                     "walk": self._adapt[ADAPT_TW:].tolist()},
             "params": self.params(),
             # the identified rule's information per stage (core.identified): what the motion has told
             "information": {k: v.tolist() for k, v in self._information.items()},
@@ -1144,8 +1190,6 @@ class KalmanEstimator(RefusesBadSamples):
         # (a state saved before "settled_*" was kept: its flags were the identified or covariance rule's)
         self._cog_known = bool(source.get("settled_torque", source.get("converged_torque")))
         self._mass_known = bool(source.get("settled_force", source.get("converged_force")))
-        if self._mass_known:  # the tilt measured about the weight it had identified
-            set_gravity_direction.py_func(self._adapt, self.force.x[:3])
         if self.noise_auto:  # the noise estimate carries over, as if its window were full
             for key, stage, floor, auto in (("noise_force_S", self.force, NOISE_FLOOR[0], self.noise_auto_force),
                                             ("noise_torque_S", self.torque, NOISE_FLOOR[1], self.noise_auto_torque)):
@@ -1156,6 +1200,32 @@ class KalmanEstimator(RefusesBadSamples):
                     stage.r = np.maximum(noise, floor) ** 2
             self.torque.rc = self.force.r.copy()
             self._adapt[[ADAPT_COUNT_F, ADAPT_COUNT_T]] = NOISE_WINDOW
+        self._load_tilt(source.get("tilt") or {}, where)
+
+    def _load_tilt(self, tilt: dict, where: str) -> None:
+        """A warm start's tilt bookkeeping (``state()["tilt"]``; a state saved before it: the direction from the
+        weight if it had been identified, the walk learnt anew): the last pose, the direction of gravity tilts are
+        measured about, the learnt walk."""
+        try:
+            if tilt.get("last_A") is not None:
+                last_A = np.array(tilt["last_A"], dtype=float)
+                if last_A.shape != (9,) or not np.all(np.isfinite(last_A)):
+                    raise ValueError("last_A must be 9 finite numbers")
+                self._adapt[ADAPT_TILT:ADAPT_TILT + 9] = last_A
+            if tilt.get("gravity_direction_B") is not None:
+                direction = np.array(tilt["gravity_direction_B"], dtype=float)
+                if direction.shape != (3,) or not abs(np.linalg.norm(direction) - 1.0) < 1e-6:
+                    raise ValueError("gravity_direction_B must be a unit vector (3 numbers)")
+                set_gravity_direction.py_func(self._adapt, direction)
+            elif self._mass_known:  # the tilt measured about the weight it had identified
+                set_gravity_direction.py_func(self._adapt, self.force.x[:3])
+            if self.tilt_walk_auto and tilt.get("walk") is not None:
+                q = tilt_walk_kernel.restore(self._adapt[ADAPT_TW:], tilt["walk"])
+                self.force.q_tilt[:] = q
+                if self._adapt[ADAPT_TILT_TORQUE] >= 0.0:
+                    self.torque.q_tilt[:] = q * self._adapt[ADAPT_TILT_TORQUE]
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"warm_start: {where}: tilt: {exc}") from None
 
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units); with bias_rate also the bias rates; with
@@ -1175,6 +1245,9 @@ class KalmanEstimator(RefusesBadSamples):
         if self.noise_auto:
             out["noise_force_S"] = np.sqrt(self.force.r).tolist()  # N
             out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m
+        if self.tilt_walk_auto:  # the tilt walk learnt so far, N/√rad, and from how many pairs of windows
+            out["bias_force_tilt_rw"] = [math.sqrt(self._adapt[ADAPT_TW + TW_Q])]
+            out["tilt_walk_pairs"] = [self._adapt[ADAPT_TW + TW_PAIRS]]
         if self.bias_rate:
             out["bias_force_rate_S"] = self.force.x[6:9].tolist()  # N/s
             out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s

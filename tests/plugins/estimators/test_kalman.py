@@ -343,6 +343,8 @@ def test_runs_through_the_registry():
     ({"bias_force_rate_rw": math.nan}, "bias_force_rate_rw"),
     ({"bias_force_tilt_rw": -0.1}, "bias_force_tilt_rw"),
     ({"bias_torque_tilt_rw": "x"}, "bias_torque_tilt_rw"),
+    ({"bias_force_tilt_rw": "fast"}, "bias_force_tilt_rw"),
+    ({"bias_torque_tilt_rw": "auto"}, "bias_torque_tilt_rw"),
     ({"gate_probability": 0.0}, "gate_probability"),
     ({"gate_probability": 1.2}, "gate_probability"),
     ({"converged_force_std": 0.0}, "converged_force_std"),

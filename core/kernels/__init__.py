@@ -6,6 +6,9 @@ callable (the estimators' ``kernel = "numpy"``) and that the tests compare it to
 * ``rls``: the paper's Algorithm 1 cascade in information form (``core.rls``);
 * ``kalman``: the drift Kalman stage, x = [a, b] (``core.kalman._filter6``), and
   the whole force→torque cascade of the ``kalman`` estimator's default model;
+* ``tilt_walk``: the intensity of the ``kalman`` biases' walk with the tool's tilt,
+  learnt from the data in the cascade's loop (the reference runs the same function
+  as Python, ``learn_tilt_walk.py_func``);
 * ``inertia``: the motion derivatives (``core.derivatives``) and the inertial
   force of the ``kalman`` estimator's ``inertia`` option;
 * ``align``: the live aligner's per-block work (``core.aligner``);
@@ -15,7 +18,10 @@ callable (the estimators' ``kernel = "numpy"``) and that the tests compare it to
   (``plugins/kinematics/sim.py``).
 
 Compiled with ``cache=True`` (the machine code is kept in ``__pycache__``);
-each module's ``warm_up()`` compiles or loads it before the first live tick.
+each module's ``warm_up()`` compiles or loads it before the first live tick. numba checks a cached
+function against its own source file only: after editing a function another module's
+kernel calls (``kalman_stage`` or ``tilt_walk`` from the ``kalman`` cascade), delete the
+``__pycache__/*.nbi`` and ``*.nbc`` files, or the caller runs the old code.
 """
 
 KERNELS = ("numba", "numpy")

@@ -499,8 +499,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             reopen_bias(P_t, info_t, adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3])  # (from the next sample on)
             adapt[ADAPT_REOPEN_ROW] = k
         if learn_walk and usable[k] and adapt[ADAPT_FORCE_SEEN] != 0.0:  # the tilt walk from the data
-            g_B = adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3]
-            q = learn_tilt_walk(adapt[ADAPT_TW:], y_f[k], A_f[k], x_f, g_B, t_ns[k] * 1e-9, gated_f[k], q_time)
+            q = learn_tilt_walk(adapt[ADAPT_TW:], y_f[k], A_f[k], x_f, adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3],
+                                t_ns[k] * 1e-9, gated_f[k], q_time)
             qt_f[0], qt_f[1], qt_f[2] = q, q, q
             if adapt[ADAPT_TILT_TORQUE] >= 0.0:
                 q *= adapt[ADAPT_TILT_TORQUE]

@@ -1,32 +1,40 @@
 """The tilt walk's intensity learnt from the data (``kalman``'s ``bias_force_tilt_rw = "auto"``).
 
 The tilt walk (``core.kalman``) lets the bias move by q_θ per radian the tool tilts. How much a
-sensor's non-contact force changes with the tilt is the sensor's, its tool's and its cable's: 0 on the simulator
-(its model is the filter's), 0.2–0.45 N/√rad on the real logs. It is measured here the way a geostatistician
-measures a variogram, on the samples the filter accepts after the force stage has settled:
+sensor's non-contact force changes with the tilt is the sensor's, its tool's and its cable's: nothing on a
+simulator whose model is the filter's, 0.14–0.18 N/√rad on the real log that turns enough to tell. It is
+measured the way a geostatistician measures a variogram, on the samples the filter accepts after the force
+stage has settled:
 
 * the accepted samples are cut into windows, each closed once gravity's direction in the sensor has turned
   ``TILT_WINDOW`` from where the window began (rad);
 * between two neighbouring windows the residual's means, m̄ = ȳ − Ā·â (â the weight identified by the time
-  the pair is scored, Ā the window's mean R_SB), differ by d; per axis
+  the pair is scored, Ā the window's mean R_SB), differ by d. For a bias that walks by q_θ per radian and
+  q_t per second, windows of Δθ and Δt each, seen through white noise σ², per axis
 
-      E[|d|²]/3 = q_θ·Δθ + q_t·Δt + σ²·(1/n₁ + 1/n₂)
+      E[|d|²]/3 = ⅔·q_θ·Δθ + ⅔·q_t·Δt + σ²·(1/n₁ + 1/n₂)
 
-  with Δθ the angle between the windows' mean directions of gravity, Δt between their middles, q_t the
-  filter's own walk over time (N²/s) and σ² the sensor's white noise per axis, itself estimated from the
-  differences of consecutive accepted samples less than ``NOISE_MAX_TURN`` apart (E|Δm|² = 6σ²; unlike the
-  filter's noise estimate, it does not absorb a model error that changes with the tilt);
-* q_θ = max(0, Σ x / Σ Δθ), x = |d|²/3 − σ²·(1/n₁ + 1/n₂) − q_t·Δt, both sums forgetting with a memory of
-  ``TILT_PAIRS`` pairs, ΣΔθ starting at ``PRIOR_TURN``.
+  (the ⅔: the variance of the difference of two neighbouring means of a walk), with Δθ the angle between
+  the windows' mean directions of gravity and Δt between their middles, q_t the filter's own walk over time
+  (N²/s) and σ² the sensor's white noise per axis, itself estimated from the differences of consecutive
+  accepted samples less than ``NOISE_MAX_TURN`` apart (E|Δm|² = 6σ²; unlike the filter's noise estimate, it
+  does not absorb a model error that changes with the tilt);
+* each pair gives a sample q_i = 1.5·(|d|²/(3·c) − σ²·(1/n₁ + 1/n₂) − ⅔·q_t·Δt)/Δθ, c = ``CHI2_3_MEDIAN``
+  (|d|²/3 of a Gaussian d is σ²·χ²₃/3, whose median is c·σ²), and q_θ is the median of the last
+  ``TILT_PAIRS`` samples, 0 until ``MIN_PAIRS`` have been scored, and never below 0.
 
-A contact must not count: a window in which the force stage refused a sample, and the window after it, are
-left out, and a pair is scored only once the window after it has closed clean too (a contact's first
-newtons are accepted before the gate refuses its ramp). The torque stage's refusals do not count: the force
-stage never depends on the torque's. Until a pair is scored q_θ is 0: no walk.
+A contact must not count. A window in which the force stage refused a sample, and the window after it, are
+left out, and a pair is scored only once the window after it has closed clean too (a contact's first newtons
+are accepted before the gate refuses its ramp). A light contact the gate never refuses still moves a
+window's mean: the median keeps it out as long as fewer than half the recent pairs touch one. The torque
+stage's refusals do not count: the force stage never depends on the torque's. A re-identified bias or a
+payload change starts the windows afresh (``restart_windows``): a step of the bias or of the weight is no
+turn's. A drift of the bias faster than the filter's walk over time counts as tilt (the walk then follows it
+while the tool turns).
 
 ``learn_tilt_walk`` works on the state array ``tw`` (``TW_SIZE`` float64, laid out below); the compiled
 cascade calls it per sample, the numpy reference runs it as Python (``learn_tilt_walk.py_func``), so both
-learn the same q_θ to the bit.
+learn the same q_θ. Nothing is allocated.
 """
 
 from __future__ import annotations
@@ -39,11 +47,12 @@ from numba import njit
 TILT_WINDOW = 0.3
 """rad (17°): how far gravity's direction turns within one window. The real logs' model error changes
 smoothly with the tilt (their variogram grows as Δθ² below ~0.15 rad), so a shorter lag sees little of it."""
-TILT_PAIRS = 50
-"""The estimate's memory, in window pairs (exponential forgetting)."""
-PRIOR_TURN = 1.0
-"""rad: q_θ starts at 0 as if measured over this much turn (ΣΔθ's start; Σx's is 0), so one pair cannot set
-it alone (a pair's x is a single noisy square); it is forgotten as the pairs are."""
+TILT_PAIRS = 31
+"""q_θ is the median of this many pairs' samples, the last ones scored."""
+MIN_PAIRS = 5
+"""q_θ stays 0 until this many pairs have been scored (one pair's sample is a single noisy square)."""
+CHI2_3_MEDIAN = 0.7887
+"""The median of χ²₃/3: |d|²/3 of a Gaussian d of variance V per axis has its median at this times V."""
 NOISE_DIFFERENCES = 1000
 """The white-noise estimate's memory, in differences of consecutive accepted samples."""
 NOISE_MAX_TURN = 0.03
@@ -53,68 +62,90 @@ NOISE_MIN_DIFFERENCES = 30
 """No pair is scored before the white noise rests on this many differences (a stream of static poses far
 apart never tells its noise from its model error, and keeps q_θ at 0)."""
 
-TW_Q, TW_NUM, TW_DEN, TW_S2, TW_S2_N = 0, 1, 2, 3, 4
-TW_OPEN, TW_N, TW_T0, TW_DIRTY, TW_HAS_LAST, TW_PAIRS = 5, 6, 7, 8, 9, 10
-TW_SY, TW_SA, TW_G0, TW_LAST, TW_AFTER, TW_LAST_G = 11, 14, 23, 26, 29, 30
-TW_WIN = 33
-WIN_Y, WIN_A, WIN_N, WIN_T, WIN_DIRTY, WIN_KNOWN, WIN_SIZE = 0, 3, 12, 13, 14, 15, 16
-TW_SIZE = TW_WIN + 2 * WIN_SIZE
-"""``tw``, by index: the estimate q_θ (N²/rad per axis), its forgetting sums Σx and ΣΔθ, the white noise σ²
-and the differences it has seen; the open window's flag, accepted samples, start time (s), whether a sample
-was refused in it, whether its last sample is kept; the pairs scored so far; its sums of y (3) and R_SB
-(9, row by row), gravity's direction in S where it began (3), its last residual (3); whether the window
-before it had a refusal; gravity's direction in S at its last sample (3); then the two windows closed
-last, older first, each: mean y (3), mean R_SB (9), samples, middle time, dirty, known."""
+TW_Q, TW_S2, TW_S2_N, TW_PAIRS, TW_RING_AT = 0, 1, 2, 3, 4
+TW_OPEN, TW_N, TW_T0, TW_DIRTY, TW_HAS_LAST, TW_AFTER = 5, 6, 7, 8, 9, 10
+TW_SY, TW_SA, TW_G0, TW_LAST, TW_LAST_G, TW_SG = 11, 14, 23, 26, 29, 32
+TW_WIN = 35
+WIN_Y, WIN_A, WIN_G, WIN_N, WIN_T, WIN_DIRTY, WIN_KNOWN, WIN_SIZE = 0, 3, 12, 15, 16, 17, 18, 19
+TW_RING = TW_WIN + 2 * WIN_SIZE
+TW_SORT = TW_RING + TILT_PAIRS
+TW_SIZE = TW_SORT + TILT_PAIRS
+"""``tw``, by index: the estimate q_θ (N²/rad per axis), the white noise σ² and the differences it rests on,
+the pairs scored so far, where the next pair's sample goes in the ring; the open window's flag, accepted
+samples, start time (s), whether a sample was refused in it, whether its last sample is kept, whether the
+window before it had a refusal; its sums of y (3) and R_SB (9, row by row), gravity's direction in S where
+it began (3), its last residual (3), gravity's direction in S at its last sample (3) and its sum (3); the two
+windows closed last, older first, each: mean y (3), mean R_SB (9), gravity's mean direction (3), samples,
+middle time, dirty, known; the ring of the last ``TILT_PAIRS`` pairs' samples; scratch for their median."""
 
 
 def new_state() -> np.ndarray:
-    """A fresh ``tw``: no window open, no pair scored, q_θ 0 (worth ``PRIOR_TURN``)."""
-    tw = np.zeros(TW_SIZE)
-    tw[TW_DEN] = PRIOR_TURN
-    return tw
+    """A fresh ``tw``: no window open, no pair scored, q_θ 0."""
+    return np.zeros(TW_SIZE)
 
 
 def restore(tw: np.ndarray, values) -> float:
-    """Set ``tw`` (in place) to a saved one (a warm start: its windows go on where they were, and a pair that
-    spans a pause counts the bias's walk over the pause's time); returns q_θ. ValueError if unusable."""
+    """Set ``tw`` (in place) to a saved one (a warm start: its windows go on where they were; a pair across a
+    pause counts the pause's time as the bias's walk, one sample of the median, and a clock that went back
+    starts the windows afresh); returns q_θ. ValueError if ``values`` is not a ``tw``."""
     values = np.asarray(values, dtype=float)
-    if values.shape != tw.shape or not np.all(np.isfinite(values)) or values[TW_Q] < 0 or values[TW_DEN] <= 0:
-        raise ValueError(f"must be {len(tw)} finite numbers (the tilt walk's state, q_θ >= 0 first)")
+    if values.shape != tw.shape or not np.all(np.isfinite(values)):
+        raise ValueError(f"walk must be {len(tw)} finite numbers (the tilt walk's state)")
+    counts = values[[TW_Q, TW_S2, TW_S2_N, TW_PAIRS, TW_N]]
+    if counts.min() < 0 or not 0 <= values[TW_RING_AT] < TILT_PAIRS:
+        raise ValueError(f"walk: its estimate, noise and counts must be >= 0 and its ring index below {TILT_PAIRS}")
     tw[:] = values
     return float(tw[TW_Q])
 
 
 @njit(cache=True, error_model="numpy")
-def _score(tw, a, g_B, q_time):
-    """Score the pair of closed windows (older, newer) into the estimate; a: â (≥3,), g_B: gravity's
-    direction in B (3,), q_time: the bias's walk over time, N²/s."""
+def restart_windows(tw) -> None:
+    """Drop the open window and the closed ones (the estimate stays): the bias or the weight stepped."""
+    tw[TW_OPEN], tw[TW_AFTER] = 0.0, 0.0
+    tw[TW_WIN + WIN_KNOWN], tw[TW_WIN + WIN_SIZE + WIN_KNOWN] = 0.0, 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _median(tw, n) -> float:
+    """The median of the ring's first n samples (insertion into the scratch; n ≤ TILT_PAIRS, once a window)."""
+    for i in range(n):
+        v = tw[TW_RING + i]
+        j = i
+        while j > 0 and tw[TW_SORT + j - 1] > v:
+            tw[TW_SORT + j] = tw[TW_SORT + j - 1]
+            j -= 1
+        tw[TW_SORT + j] = v
+    mid = n // 2
+    return tw[TW_SORT + mid] if n % 2 == 1 else 0.5 * (tw[TW_SORT + mid - 1] + tw[TW_SORT + mid])
+
+
+@njit(cache=True, error_model="numpy")
+def _score(tw, a, q_time):
+    """Score the pair of closed windows (older, newer): its sample, 1.5·(|d|²/(3c) − σ²(1/n₁ + 1/n₂) −
+    ⅔·q_t·Δt)/Δθ, into the ring, and q_θ the ring's median. a: â (≥3,); q_time: the bias's walk over time,
+    N²/s."""
     o, w = TW_WIN, TW_WIN + WIN_SIZE
-    d2, u0, u1, u2, v0, v1, v2 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    d2 = 0.0
     for i in range(3):
         di = tw[w + WIN_Y + i] - tw[o + WIN_Y + i]
-        ui, vi = 0.0, 0.0
         for j in range(3):
             di -= (tw[w + WIN_A + 3 * i + j] - tw[o + WIN_A + 3 * i + j]) * a[j]
-            ui += tw[o + WIN_A + 3 * i + j] * g_B[j]
-            vi += tw[w + WIN_A + 3 * i + j] * g_B[j]
         d2 += di * di
-        if i == 0:
-            u0, v0 = ui, vi
-        elif i == 1:
-            u1, v1 = ui, vi
-        else:
-            u2, v2 = ui, vi
+    u0, u1, u2 = tw[o + WIN_G], tw[o + WIN_G + 1], tw[o + WIN_G + 2]
+    v0, v1, v2 = tw[w + WIN_G], tw[w + WIN_G + 1], tw[w + WIN_G + 2]
     c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
     turn = math.atan2(math.sqrt(c0 * c0 + c1 * c1 + c2 * c2), u0 * v0 + u1 * v1 + u2 * v2)
-    x = d2 / 3.0 - tw[TW_S2] * (1.0 / tw[o + WIN_N] + 1.0 / tw[w + WIN_N]) \
-        - q_time * abs(tw[w + WIN_T] - tw[o + WIN_T])
+    x = d2 / (3.0 * CHI2_3_MEDIAN) - tw[TW_S2] * (1.0 / tw[o + WIN_N] + 1.0 / tw[w + WIN_N]) \
+        - 2.0 / 3.0 * q_time * abs(tw[w + WIN_T] - tw[o + WIN_T])
     if not (math.isfinite(x) and turn > 0.0):
         return
-    keep = 1.0 - 1.0 / TILT_PAIRS
-    tw[TW_NUM] = keep * tw[TW_NUM] + x
-    tw[TW_DEN] = keep * tw[TW_DEN] + turn
-    tw[TW_Q] = max(tw[TW_NUM] / tw[TW_DEN], 0.0)
+    at = int(tw[TW_RING_AT])
+    tw[TW_RING + at] = 1.5 * x / turn
+    tw[TW_RING_AT] = (at + 1) % TILT_PAIRS
     tw[TW_PAIRS] += 1.0
+    n = int(min(tw[TW_PAIRS], TILT_PAIRS))
+    if n >= MIN_PAIRS:
+        tw[TW_Q] = max(_median(tw, n), 0.0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -123,25 +154,32 @@ def learn_tilt_walk(tw, y, A, a, g_B, t, refused, q_time) -> float:
 
     Args:
         tw: (TW_SIZE,) the state, in place. y: (3,) the force the weight and bias explain, N (force_S less
-        any inertial force). A: (3, 3) R_SB at the sample. a: (≥3,) the stage's state after the sample, its
-        first three the weight gravity_force_B, N. g_B: (3,) gravity's direction in B (unit). t: the
-        sample's time, s. refused: the force stage refused the sample. q_time: the bias's walk over time, N²/s
-        (the mean over the axes).
-    Call it only for samples the force stage tested, once it has settled."""
+        any inertial force). A: (3, 3) R_SB at the sample. a: (≥3,) the force stage's state after the
+        sample, its first three the weight gravity_force_B, N. g_B: (3,) gravity's direction in B (unit).
+        t: the sample's time, s. refused: the force stage refused the sample. q_time: the bias's walk over
+        time, N²/s (the mean over the axes).
+    Call it for the samples the force stage tested once both stages have settled."""
     s0 = A[0, 0] * g_B[0] + A[0, 1] * g_B[1] + A[0, 2] * g_B[2]
     s1 = A[1, 0] * g_B[0] + A[1, 1] * g_B[1] + A[1, 2] * g_B[2]
     s2 = A[2, 0] * g_B[0] + A[2, 1] * g_B[1] + A[2, 2] * g_B[2]
     if not (math.isfinite(s0) and math.isfinite(s1) and math.isfinite(s2) and math.isfinite(t)):
         return tw[TW_Q]
+    if tw[TW_OPEN] != 0.0 and t < tw[TW_T0]:  # the clock went back (a warm start from another clock)
+        restart_windows(tw)
     if tw[TW_OPEN] == 0.0:  # a new window begins here
         tw[TW_OPEN], tw[TW_N], tw[TW_T0], tw[TW_HAS_LAST] = 1.0, 0.0, t, 0.0
         for i in range(12):
             tw[TW_SY + i] = 0.0
+        for i in range(3):
+            tw[TW_SG + i] = 0.0
         tw[TW_G0], tw[TW_G0 + 1], tw[TW_G0 + 2] = s0, s1, s2
     if refused:
         tw[TW_DIRTY], tw[TW_HAS_LAST] = 1.0, 0.0
     else:
         tw[TW_N] += 1.0
+        tw[TW_SG] += s0
+        tw[TW_SG + 1] += s1
+        tw[TW_SG + 2] += s2
         dm2 = 0.0
         for i in range(3):
             tw[TW_SY + i] += y[i]
@@ -166,13 +204,14 @@ def learn_tilt_walk(tw, y, A, a, g_B, t, refused, q_time) -> float:
     n = tw[TW_N]
     this_clean = tw[TW_DIRTY] == 0.0 and tw[TW_AFTER] == 0.0 and n > 0.0
     if older_clean and newer_clean and this_clean and tw[TW_S2_N] >= NOISE_MIN_DIFFERENCES:
-        _score(tw, a, g_B, q_time)  # (the window after the pair closed clean: no contact's ramp in the pair)
+        _score(tw, a, q_time)  # (the window after the pair closed clean: no contact's ramp in the pair)
     for i in range(WIN_SIZE):
         tw[o + i] = tw[w + i]
+    inv = 1.0 / n if n > 0.0 else 0.0
+    for i in range(12):
+        tw[w + WIN_Y + i] = tw[TW_SY + i] * inv
     for i in range(3):
-        tw[w + WIN_Y + i] = tw[TW_SY + i] / n if n > 0.0 else 0.0
-    for i in range(9):
-        tw[w + WIN_A + i] = tw[TW_SA + i] / n if n > 0.0 else 0.0
+        tw[w + WIN_G + i] = tw[TW_SG + i] * inv
     tw[w + WIN_N], tw[w + WIN_T] = n, 0.5 * (tw[TW_T0] + t)
     tw[w + WIN_DIRTY] = 0.0 if this_clean else 1.0
     tw[w + WIN_KNOWN] = 1.0

@@ -272,9 +272,9 @@ class KalmanEstimator(RefusesBadSamples):
         bias_torque_rw: random-walk intensity of bias_torque_S, N·m/√s.
         bias_force_tilt_rw: random-walk intensity of bias_force_S per tilt of the tool, N/√rad (the
             model error a real sensor's base model leaves moves with the tool's orientation; 0: off), or
-            "auto": learnt from the data as it runs (``core.kernels.tilt_walk``; 0 until it has seen a turn).
-            Default: "auto", and 0 with ``mount_rotation`` (the mount's states model an error that moves with
-            the tilt; a walk beside them takes part of it, and the mount comes out worse).
+            "auto": learnt from the data as it runs (``core.kernels.tilt_walk``; 0 until it has seen enough
+            turns), as the real-lab preset sets it. Off by default: the simulator's model is the filter's, and
+            light contacts the gate lets through at a high duty are learnt as walk (docs/estimators.md).
         bias_torque_tilt_rw: the same for bias_torque_S, N·m/√rad (default: the force figure times
             5/65, the Gamma SI-65-5's torque-to-force range, as ``bias_torque_rw`` is ``bias_force_rw``'s;
             with the force's "auto", its learnt figure times 5/65).
@@ -348,7 +348,7 @@ class KalmanEstimator(RefusesBadSamples):
         noise_torque: float | list[float] | str = "auto",
         bias_force_rw: float = 0.005,
         bias_torque_rw: float = 0.0004,
-        bias_force_tilt_rw: float | str | None = None,
+        bias_force_tilt_rw: float | str = 0.0,
         bias_torque_tilt_rw: float | None = None,
         bias_rate: bool = False,
         bias_force_rate_rw: float = 3e-4,
@@ -405,8 +405,6 @@ class KalmanEstimator(RefusesBadSamples):
         noise_torque = (np.full(3, NOISE_AUTO_START_TORQUE) if self.noise_auto_torque
                         else _axes("noise_torque", noise_torque))
         # "auto": the tilt walk's intensity learnt from the data (core.kernels.tilt_walk), the torque's following
-        if bias_force_tilt_rw is None:
-            bias_force_tilt_rw = 0.0 if mount_rotation else "auto"
         self.tilt_walk_auto = bias_force_tilt_rw == "auto"
         tilt_torque_follows = bias_torque_tilt_rw is None
         if self.tilt_walk_auto:
@@ -1039,6 +1037,7 @@ class KalmanEstimator(RefusesBadSamples):
         the stages' clock).
         """
         self.payload_changes += 1
+        tilt_walk_kernel.restart_windows.py_func(self._adapt[ADAPT_TW:])  # (a weight step is no turn's)
         P = self.force.P.copy()
         g = self.force.x[:3]
         u = g / max(float(np.linalg.norm(g)), 1e-9)
@@ -1097,6 +1096,7 @@ class KalmanEstimator(RefusesBadSamples):
         for stage, prior in ((self.force, self.prior_f), (self.torque, self.prior_t)):
             stage.P = _bias_unknown(stage.P, prior)
         self._seed_information()
+        tilt_walk_kernel.restart_windows.py_func(self._adapt[ADAPT_TW:])  # (a bias step is no turn's)
         self.events.append(Event(self._last_t_ns or 0, "bias_reopened", f"bias re-opened: {reason}"))
 
     def drain_events(self) -> list[Event]:
@@ -1125,13 +1125,8 @@ class KalmanEstimator(RefusesBadSamples):
             "mount_R_SE": self.R_SE.tolist(),
             "noise_force_S": np.sqrt(self.force.r).tolist(),
             "noise_torque_S": np.sqrt(self.torque.r).tolist(),
-            # the tilt's bookkeeping: the last pose's A (None before one), the direction tilts are measured about
-            # (None before the weight is identified), and the learnt walk's estimate, sums and windows
-            "tilt": {"last_A": None if np.isnan(self._adapt[ADAPT_TILT]) else
-                     self._adapt[ADAPT_TILT:ADAPT_TILT + 9].tolist(),
-                     "gravity_direction_B": self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3].tolist()
-                     if self._adapt[ADAPT_GRAVITY_KNOWN] else None,
-                     "walk": self._adapt[ADAPT_TW:].tolist()},
+            # the tilt walk's bookkeeping (its learnt state's windows go on in a warm start: tilt_walk.restore)
+            "tilt": self._tilt_state(),
             "params": self.params(),
             # the identified rule's information per stage (core.identified): what the motion has told
             "information": {k: v.tolist() for k, v in self._information.items()},
@@ -1200,7 +1195,23 @@ class KalmanEstimator(RefusesBadSamples):
                     stage.r = np.maximum(noise, floor) ** 2
             self.torque.rc = self.force.r.copy()
             self._adapt[[ADAPT_COUNT_F, ADAPT_COUNT_T]] = NOISE_WINDOW
-        self._load_tilt(source.get("tilt") or {}, where)
+        tilt = source.get("tilt")  # (none: a state saved before it, or without the walk)
+        tilt = {} if tilt is None else tilt
+        if not isinstance(tilt, dict):
+            raise ValueError(f"warm_start: {where}: tilt: must be a table (last_A, gravity_direction_B, walk), "
+                             f"got {type(tilt).__name__}")
+        self._load_tilt(tilt, where)
+
+    def _tilt_state(self) -> dict | None:
+        """``state()["tilt"]`` with the tilt walk on (None without): the last pose's A (None before one), the
+        direction tilts are measured about (None before the weight is identified), the learnt walk's state."""
+        if not (self.tilt_walk_auto or self.force.q_tilt.any() or self.torque.q_tilt.any()):
+            return None
+        adapt = self._adapt
+        return {"last_A": None if np.isnan(adapt[ADAPT_TILT]) else adapt[ADAPT_TILT:ADAPT_TILT + 9].tolist(),
+                "gravity_direction_B": adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3].tolist()
+                if adapt[ADAPT_GRAVITY_KNOWN] else None,
+                "walk": adapt[ADAPT_TW:].tolist() if self.tilt_walk_auto else None}
 
     def _load_tilt(self, tilt: dict, where: str) -> None:
         """A warm start's tilt bookkeeping (``state()["tilt"]``; a state saved before it: the direction from the
@@ -1247,7 +1258,7 @@ class KalmanEstimator(RefusesBadSamples):
             out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m
         if self.tilt_walk_auto:  # the tilt walk learnt so far, N/√rad, and from how many pairs of windows
             out["bias_force_tilt_rw"] = [math.sqrt(self._adapt[ADAPT_TW + TW_Q])]
-            out["tilt_walk_pairs"] = [self._adapt[ADAPT_TW + TW_PAIRS]]
+            out["tilt_walk_pairs"] = [float(self._adapt[ADAPT_TW + TW_PAIRS])]
         if self.bias_rate:
             out["bias_force_rate_S"] = self.force.x[6:9].tolist()  # N/s
             out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s

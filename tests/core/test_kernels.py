@@ -48,7 +48,7 @@ ROUNDING_RATE = 1e-9
 ROUNDING_WALK = 1e-9
 """With the noise estimated on a tour the model lacks a 5° mount for, and the tilt walk learnt from it: the
 mount's 0.3 N error and the walk keep the gain up throughout, and the rounding fed back through R reaches
-1.5e-10 N (measured); the flags and the walk's windows stay identical."""
+1.5e-10 N (measured); the flags and the pairs scored stay identical."""
 
 
 def _same(a, b, key: str = "", tol: float = ROUNDING) -> bool:
@@ -62,7 +62,9 @@ def _same(a, b, key: str = "", tol: float = ROUNDING) -> bool:
 def _same_information(a: dict, b: dict, tol: float) -> bool:
     """The identified rule's information matrices (state()["information"]), within tol of each matrix's largest
     entry: its entries are sums of C^T R^-1 C over every sample (up to ~1e8), off-diagonal ones cancelling to
-    ~1, so the rounding of R (above) shows at tol of the matrix's scale, not of each entry."""
+    ~1, so the rounding of R (above) shows at tol of the matrix's scale, not of each entry. The same for the
+    learnt tilt walk's state (state()["tilt"]["walk"]): its windows' sums of R_SB over up to ~1000 samples
+    (a mount estimate's rounding in each R_SB adds up there: 3e-8 of −7.5 measured)."""
     return a.keys() == b.keys() and all(
         np.abs(np.subtract(a[k], b[k])).max() <= tol * np.abs(a[k]).max() for k in a)
 
@@ -71,7 +73,9 @@ def _same_tree(a, b, tol: float = ROUNDING) -> bool:
     """params(), cov_diag() and state() of the two: the same keys and flags, numbers within tol."""
     if isinstance(a, dict):
         return isinstance(b, dict) and a.keys() == b.keys() and all(
-            _same_information(a[k], b[k], tol) if k == "information" else _same_tree(a[k], b[k], tol) for k in a)
+            _same_information(a[k], b[k], tol) if k == "information" else
+            _same_information({k: a[k]}, {k: b[k]}, tol) if k == "walk" and a[k] is not None else
+            _same_tree(a[k], b[k], tol) for k in a)
     if isinstance(a, (list, tuple)) and a and not isinstance(a[0], (int, float, bool)):
         return isinstance(b, (list, tuple)) and len(a) == len(b) and all(_same_tree(x, y, tol) for x, y in zip(a, b))
     if isinstance(a, (bool, str)) or a is None:
@@ -268,17 +272,21 @@ def sim_mounted():
 
 
 @pytest.mark.parametrize("options", [{}, GAMMA, {"convergence": "step"}, {"bias_rate": True},
-                                     {"mount_rotation": True, "bias_force_tilt_rw": "auto"}],
-                         ids=["defaults", "gamma-covariance", "step", "bias-rate", "mount"])
+                                     {"mount_rotation": True}],
+                         ids=["auto", "gamma-covariance", "step", "bias-rate", "mount"])
 @pytest.mark.parametrize("size", [1, 64])
 def test_a_learnt_tilt_walk_is_the_reference_s(sim_mounted, size, options):
-    """The tilt walk learnt from the data (``core.kernels.tilt_walk``, the default) in the compiled cascade and
-    in the numpy reference (``learn_tilt_walk`` as Python, after each sample: the reference filters one sample
-    at a time with it, so every block size gives its numbers), on a tour with a 5° mount the model lacks, from
-    which both learn a walk: the same walk, the same flags, the wrench within rounding."""
+    """The tilt walk learnt from the data (``bias_force_tilt_rw = "auto"``, ``core.kernels.tilt_walk``) in the
+    compiled cascade and in the numpy reference (``learn_tilt_walk`` as Python, after each sample: the
+    reference filters one sample at a time with it, so every block size gives its numbers), on a tour with a
+    5° mount the model lacks, from which both learn a walk: the same pairs scored, the same flags, the walk
+    and the wrench within rounding. (With the step rule both sides run the learner as Python around the
+    compiled stage filter.)"""
+    options = {**options, "bias_force_tilt_rw": "auto"}
     (ref, a), fast = _reference(sim_mounted, options, size), KalmanEstimator(kernel="numba", **options)
     b = _run(fast, sim_mounted, size)
     tol = max(_tolerance(options), ROUNDING_WALK if options.get("noise_force", "auto") == "auto" else 0.0)
+    assert fast._cascade == (options.get("convergence") != "step")
     for key in KEYS:
         assert _same(a[key], b[key], key, tol), key
     learnt = ref.params()["bias_force_tilt_rw"][0]

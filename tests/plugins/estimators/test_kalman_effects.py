@@ -36,8 +36,7 @@ def test_a_5_degree_mount_is_estimated_within_0_3_degrees():
           f"last 15 s: {({k: np.round(v, 3).tolist() for k, v in rms.items()})}")
     assert result["mount_error_deg"] <= 0.3
     assert max(rms["kalman mount_rotation"]) <= 1.05
-    # the option closes the base model's gap (the default's tilt walk follows part of it: see the tilt walk tests)
-    assert np.linalg.norm(rms[familybench.BASE]) > np.linalg.norm(rms["kalman mount_rotation"])
+    assert np.linalg.norm(rms["kalman"]) > np.linalg.norm(rms["kalman mount_rotation"])  # the option closes the gap
 
 
 def test_an_estimated_mount_converges_under_either_rule_and_compensates(mounted):
@@ -130,15 +129,15 @@ def test_warm_start_round_trips_with_every_option(options, tmp_path):
 def test_a_warm_start_carries_the_learnt_tilt_walk(mounted, tmp_path):
     """The learnt walk, its windows, the last pose and the direction tilts are measured about go into the
     state: a warm start on the rest of the tour learns on as the estimator that ran on (the same pairs of
-    windows, the walk within 3e-5), and its contact force is as close to that estimator's as a warm start of
-    the base model is to its own (the noise estimate carries over as if its window were full: measured
-    0.97 mN apart, the base model 2.1 mN); a tilt entry that is not one is refused with its key named."""
+    windows, the walk within 1e-3), and its contact force is as close to that estimator's as a warm start of
+    the defaults is to its own (the noise estimate carries over as if its window were full: the defaults
+    measured 2.1 mN apart); a tilt entry that is not one is refused with its key named."""
     import json
 
     _, block = mounted
     first, rest = block.subset(slice(0, 15000)), block.subset(slice(15000, len(block)))
     apart = {}
-    for label, options in (("learnt", {}), ("base", {"bias_force_tilt_rw": 0.0})):
+    for label, options in (("learnt", {"bias_force_tilt_rw": "auto"}), ("base", {})):
         est = KalmanEstimator(**options)
         feed(est, first, chunk=64)
         path = tmp_path / f"{label}.json"
@@ -158,8 +157,26 @@ def test_a_warm_start_carries_the_learnt_tilt_walk(mounted, tmp_path):
     assert apart["learnt"] <= apart["base"]
     state["tilt"]["walk"] = state["tilt"]["walk"][:-1]
     path.write_text(json.dumps(state))
-    with pytest.raises(ValueError, match=r"^warm_start: .*: tilt: must be \d+ finite numbers"):
-        KalmanEstimator(warm_start=str(path))
+    with pytest.raises(ValueError, match=r"^warm_start: .*: tilt: walk must be \d+ finite numbers"):
+        KalmanEstimator(warm_start=str(path), bias_force_tilt_rw="auto")
+
+
+def test_a_bias_step_starts_the_learnt_walk_s_windows_afresh(mounted):
+    """A re-identified bias (the host saw a bias step) is no turn's: the windows open and closed so far are
+    dropped, so no pair straddles the step; what was learnt stays."""
+    from hapticlab.core.kernels import tilt_walk
+    from hapticlab.core.kernels.kalman import ADAPT_TW
+
+    _, block = mounted
+    est = KalmanEstimator(bias_force_tilt_rw="auto")
+    feed(est, block.subset(slice(0, 15000)), chunk=64)
+    tw = est._adapt[ADAPT_TW:]
+    learnt = est.params()["bias_force_tilt_rw"]
+    assert learnt[0] > 0.02 and tw[tilt_walk.TW_WIN + tilt_walk.WIN_SIZE + tilt_walk.WIN_KNOWN] == 1.0
+    est.reidentify_bias("a bias step")
+    older, newer = tilt_walk.TW_WIN + tilt_walk.WIN_KNOWN, tilt_walk.TW_WIN + tilt_walk.WIN_SIZE + tilt_walk.WIN_KNOWN
+    assert tw[tilt_walk.TW_OPEN] == 0.0 and tw[older] == tw[newer] == 0.0
+    assert est.params()["bias_force_tilt_rw"] == learnt
 
 
 def test_a_given_torque_walk_stays_while_the_force_s_is_learnt(mounted):
@@ -167,7 +184,7 @@ def test_a_given_torque_walk_stays_while_the_force_s_is_learnt(mounted):
     est = KalmanEstimator(bias_force_tilt_rw="auto", bias_torque_tilt_rw=0.002)
     feed(est, block, chunk=64)
     assert est.force.q_tilt[0] > 0.02 ** 2 and np.all(est.torque.q_tilt == 0.002 ** 2)
-    follows = KalmanEstimator()
+    follows = KalmanEstimator(bias_force_tilt_rw="auto")
     feed(follows, block, chunk=64)
     assert np.allclose(follows.torque.q_tilt, follows.force.q_tilt * (5 / 65) ** 2)
 
@@ -241,7 +258,7 @@ def test_inertia_closes_the_gap_on_a_lively_tour():
     print(f"\nrandom tour (tool inertial force RMS {np.round(result['inertial_force_rms_N'], 3)} N): RMS / noise "
           f"{({k: np.round(v, 3).tolist() for k, v in rms.items()})}")
     assert max(rms["kalman inertia"]) <= 1.02
-    assert min(rms[familybench.BASE]) >= 1.05  # without the option the inertial force shows in the base model
+    assert min(rms["kalman"]) >= 1.05  # without the option the inertial force shows
 
 
 def test_the_pose_rule_is_the_identified_filter_with_inertia_and_the_gate_waits_for_identification(tmp_path):
@@ -314,7 +331,7 @@ def test_time_lag_option_follows_a_late_kinematics_stream():
     rms = familybench.time_lag()["rms_over_noise_last_10s"]
     print(f"\nkinematics 20 ms late: RMS / noise {rms}")
     assert max(rms["kalman time_lag_s"]) <= 1.02
-    assert np.linalg.norm(rms[familybench.BASE]) > 1.03 * np.linalg.norm(rms["kalman time_lag_s"])
+    assert np.linalg.norm(rms["kalman"]) > 1.03 * np.linalg.norm(rms["kalman time_lag_s"])
 
 
 @pytest.mark.parametrize("chunk", [1, 64])
@@ -322,10 +339,10 @@ def test_a_late_sensor_stream_is_matched_with_past_poses(chunk):
     # τ < 0: the pose at the sensor's time t was stamped t − 0.3 s: interpolated from the poses seen
     world, block = familybench.tour(20.0, seed=5, robot={"kinematics_lag": -0.3}, inertia=False)
     out, _ = feed(KalmanEstimator(time_lag_s=-0.3), block, chunk=chunk)
-    plain, _ = feed(familybench.base_model(), block, chunk=64)
+    plain, _ = feed(KalmanEstimator(), block, chunk=64)
     rms, rms_plain = familybench.rms_after(out, block, 10.0), familybench.rms_after(plain, block, 10.0)
     print(f"\nsensor 0.3 s late: RMS {np.round(rms / NOISE_F, 3)} × noise with time_lag_s, "
-          f"{np.round(rms_plain / NOISE_F, 3)} without (the base model)")
+          f"{np.round(rms_plain / NOISE_F, 3)} without")
     assert np.all(rms <= 1.02 * NOISE_F) and np.linalg.norm(rms_plain) > 2 * np.linalg.norm(rms)
     assert not out.converged_force[:300].any()  # its first 0.3 s have no pose yet: they never update
 
@@ -447,22 +464,21 @@ def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
     """A 5° mount the model lacks leaves an error that changes as the tool tilts (the weight's direction off
     by 5°, a different force in S at every orientation). The bias's random walk over time cannot follow it;
     its walk over the tilt does, as closely as estimating the mount (three more states) does: given
-    (0.05 N/√rad) or learnt from the data (the default). The learnt intensity is of the error's scale: 5°
-    of the 3.4 N weight is 0.3 N, which changes by about that much per radian the tool turns."""
+    (0.05 N/√rad) or learnt from the data ("auto"). The learnt intensity is of the error's scale: 5° of the
+    3.4 N weight is 0.3 N, which changes by about that much per radian the tool turns."""
     world, block = mounted
     rms, learnt = {}, None
-    for label, options in (("walk off", {"bias_force_tilt_rw": 0.0}),
-                           ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}), ("learnt (default)", {}),
-                           ("mount_rotation", {"mount_rotation": True})):
+    for label, options in (("walk off", {}), ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}),
+                           ("learnt", {"bias_force_tilt_rw": "auto"}), ("mount_rotation", {"mount_rotation": True})):
         est = KalmanEstimator(**options)
         out, _ = feed(est, block, chunk=64)
         rms[label] = np.sqrt(np.mean(out.contact_force_S[15000:] ** 2, axis=0)) / NOISE_F
         assert not out.contact[15000:].any(), label
-        if not options:
+        if label == "learnt":
             learnt = est.params()["bias_force_tilt_rw"][0]
     print(f"\n5° mount the model lacks, 30 s tour: RMS / noise over the last 15 s "
           f"{({k: np.round(v, 3).tolist() for k, v in rms.items()})}; learnt walk {learnt:.3f} N/√rad")
-    for label in ("tilt walk 0.05 N/√rad", "learnt (default)"):
+    for label in ("tilt walk 0.05 N/√rad", "learnt"):
         assert max(rms[label]) <= 1.02, label
         assert np.linalg.norm(rms["walk off"]) > 1.05 * np.linalg.norm(rms[label]), label
         assert np.linalg.norm(rms[label]) <= np.linalg.norm(rms["mount_rotation"]), label
@@ -470,11 +486,11 @@ def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
 
 
 def test_the_tilt_walk_lets_a_contact_made_while_turning_into_the_bias():
-    """The price of the tilt walk, and why its intensity is learnt rather than fixed: at 1 kHz a tour turning
-    ~19°/s gives the bias enough walk per sample, at 0.1 N/√rad, to follow the first newtons of an
-    indentation's ramp before the gate refuses it, so the contact force the trainee feels is off by a part
-    of the contact while it lasts. The simulator's model is the filter's: the default learns no walk from
-    it (the indentations' windows left out), and keeps the base model's contact force."""
+    """The price of the tilt walk, and why it is off by default: at 1 kHz a tour turning ~19°/s gives the bias
+    enough walk per sample, at 0.1 N/√rad, to follow the first newtons of an indentation's ramp before the
+    gate refuses it, so the contact force the trainee feels is off by a part of the contact while it lasts.
+    The simulator's model is the filter's: learnt ("auto"), the walk stays 0 here (the indentations' windows
+    left out), and the contact force is that without the walk."""
     from hapticlab.sessions.bench.paper import PaperSetup, simulate
 
     contacts = [{"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
@@ -492,9 +508,9 @@ def test_the_tilt_walk_lets_a_contact_made_while_turning_into_the_bias():
     print(f"\nindentations while turning, contact-force error in contact: without the tilt walk "
           f"{np.round(error[0.0], 3)} N, with 0.1 N/√rad {np.round(error[0.1], 3)} N, learnt "
           f"{np.round(error['auto'], 3)} N ({learnt:.4f} N/√rad from {pairs:.0f} pairs of windows)")
-    assert np.all(error[0.0] <= 0.16) and np.all(error["auto"] <= 0.16)
+    assert np.all(error[0.0] <= 0.16) and np.allclose(error["auto"], error[0.0], rtol=0.01)
     assert np.linalg.norm(error[0.1]) > 1.5 * np.linalg.norm(error[0.0])
-    assert pairs >= 3 and learnt < 0.01
+    assert pairs >= 5 and learnt < 0.01
 
 
 @pytest.mark.parametrize("kernel", ["numba", "numpy"])

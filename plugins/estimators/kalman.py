@@ -123,8 +123,7 @@ from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADA
                                     ADAPT_MOUNT, ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_PRED_F, ADAPT_PRIOR_TB,
                                     ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S, ADAPT_REOPENS, ADAPT_SIZE,
                                     ADAPT_GRAVITY_DIR, ADAPT_GRAVITY_KNOWN, ADAPT_TILT, ADAPT_TILT_AUTO,
-                                    ADAPT_TILT_TORQUE,
-                                    ADAPT_TORQUE_SEEN, ADAPT_TW, ADAPT_WINDOW,
+                                    ADAPT_TILT_TORQUE, ADAPT_TORQUE_SEEN, ADAPT_TW, ADAPT_WINDOW,
                                     CONVERGENCE_AT_POSE, CONVERGENCE_IDENTIFIED, GATED, UPDATED, judge_contact,
                                     set_gravity_direction, tilt_step, torque_only_refusal)
 from ...core.kernels import kernel_option
@@ -689,10 +688,15 @@ class KalmanEstimator(RefusesBadSamples):
         q_time = (q_bias[0] + q_bias[1] + q_bias[2]) / 3.0
         for k in range(len(t_ns)):
             if tested[k]:
-                q = learn(tw, y_f[k], A_f[k], self.force.x, g_B, t_ns[k] * 1e-9, bool(refused[k]), q_time)
-                self.force.q_tilt[:] = q
-                if self._adapt[ADAPT_TILT_TORQUE] >= 0.0:
-                    self.torque.q_tilt[:] = q * self._adapt[ADAPT_TILT_TORQUE]
+                self._set_tilt_walk(learn(tw, y_f[k], A_f[k], self.force.x, g_B, t_ns[k] * 1e-9, bool(refused[k]),
+                                          q_time))
+
+    def _set_tilt_walk(self, q: float) -> None:
+        """The learnt walk q (N²/rad) into the force stage's q_tilt, and times ``TORQUE_PER_FORCE``² into the
+        torque stage's unless that was given (as the cascade writes qt_f and qt_t)."""
+        self.force.q_tilt[:] = q
+        if self._adapt[ADAPT_TILT_TORQUE] >= 0.0:
+            self.torque.q_tilt[:] = q * self._adapt[ADAPT_TILT_TORQUE]
 
     def _judge_contacts(self, refused: np.ndarray, tested: np.ndarray) -> np.ndarray:
         """(m,) the refused samples judged a contact (``kalman_kernel.judge_contact``, run as Python); ``tested``:
@@ -1231,10 +1235,7 @@ class KalmanEstimator(RefusesBadSamples):
             elif self._mass_known:  # the tilt measured about the weight it had identified
                 set_gravity_direction.py_func(self._adapt, self.force.x[:3])
             if self.tilt_walk_auto and tilt.get("walk") is not None:
-                q = tilt_walk_kernel.restore(self._adapt[ADAPT_TW:], tilt["walk"])
-                self.force.q_tilt[:] = q
-                if self._adapt[ADAPT_TILT_TORQUE] >= 0.0:
-                    self.torque.q_tilt[:] = q * self._adapt[ADAPT_TILT_TORQUE]
+                self._set_tilt_walk(tilt_walk_kernel.restore(self._adapt[ADAPT_TW:], tilt["walk"]))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"warm_start: {where}: tilt: {exc}") from None
 

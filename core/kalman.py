@@ -24,6 +24,15 @@ or calibration error, a cable's pull, hysteresis) is a function of the tool's
 orientation, so the bias that absorbs it moves when the tool tilts, not with
 time; added before the prediction, it is the same for both F.
 
+With a span s (rad) the walk's gain per axis is min(q_θ·Δθ_k, σ²·(Δθ_k/s)²), σ²
+the stage's noise variance. A walk seen through white noise is followed over
+about √(σ²·δ/q_θ) of turn, δ the turn per sample: at 1 kHz a tool turning
+20°/s with q_θ = (0.1 N/√rad)² and σ = 0.12 N is followed over 0.04 rad, fast
+enough to take in the first newtons of a contact's ramp before the gate
+refuses it. The cap keeps that span at s or more whatever the sample rate and
+the turn rate; the errors the walk stands for change smoothly with the tilt,
+so a finer span follows noise and contacts, not them (``tilt_noise``).
+
 Measurement noise R_k: the sensor's per-axis variance, diag(σ²). The torque
 stage's A_k is built from the *measured* force, whose noise enters the torque
 equation through p × Δf, so its R_k adds [p]ₓ diag(σ_f²) [p]ₓᵀ at the current
@@ -67,6 +76,21 @@ from .kernels import kalman_stage as kernel
 
 I3 = np.eye(3)
 
+TILT_SPAN = 0.15
+"""rad: the ``kalman`` estimator's default span of the tilt walk (``tilt_noise``), half the window of turn
+over which ``core.kernels.tilt_walk`` measures it: a walk learnt at that scale says nothing finer. On the
+lwr4_2013_06_13 log (1 Hz, 0.8°/s) it changes nothing the learnt walk does there (0 rows judged a
+contact, as without a span; 5 at 0.3 rad)."""
+
+
+def tilt_noise(q_tilt: np.ndarray, r: np.ndarray, tilt: float, span: float) -> np.ndarray:
+    """(3,) what the tilt walk adds to the bias's variance over one sample's turn: q_θ·Δθ per axis, capped at
+    σ²·(Δθ/span)² with a span (see the module docstring). q_tilt: (3,) units²/rad; r: (3,) the stage's noise
+    variance σ², units²; tilt: Δθ, rad; span: rad (0: the plain walk)."""
+    if span > 0.0:
+        return np.minimum(q_tilt * tilt, r * (tilt / span) ** 2)
+    return q_tilt * tilt
+
 
 @dataclass
 class StageRun:
@@ -102,6 +126,7 @@ class KalmanStage:
         bias_rate_rw: (3,) random-walk intensity of the bias rate, units/s/√s,
             or None for no rate states.
         bias_tilt_rw: (3,) random-walk intensity of the bias per tilt, units/√rad (q_θ = rw²).
+        tilt_span: rad, the least turn the bias follows its tilt walk over (0: the plain walk; ``tilt_noise``).
 
     Attributes:
         x: (n,) state. P: (n, n) covariance. n: 6, or 9 with bias-rate states.
@@ -109,7 +134,7 @@ class KalmanStage:
     """
 
     def __init__(self, prior_std, bias_rw, noise, cross_noise=(0.0, 0.0, 0.0), bias_rate_rw=None,
-                 bias_tilt_rw=(0.0, 0.0, 0.0)):
+                 bias_tilt_rw=(0.0, 0.0, 0.0), tilt_span=0.0):
         self.n = 6 if bias_rate_rw is None else 9
         prior_std = np.asarray(prior_std, dtype=float).reshape(self.n)
         self._lists: tuple[list, list] | None = None  # the fast path's state as Python floats
@@ -118,6 +143,7 @@ class KalmanStage:
         self.q_bias = np.asarray(bias_rw, dtype=float).reshape(3) ** 2
         self.q_rate = None if bias_rate_rw is None else np.asarray(bias_rate_rw, dtype=float).reshape(3) ** 2
         self.q_tilt = np.asarray(bias_tilt_rw, dtype=float).reshape(3) ** 2
+        self.tilt_span = float(tilt_span)
         self.r = np.asarray(noise, dtype=float).reshape(3) ** 2
         self.rc = np.asarray(cross_noise, dtype=float).reshape(3) ** 2
         self.failed = 0
@@ -224,7 +250,7 @@ class KalmanStage:
         failed = []
         for k in range(m):
             F, Q = self.transition(float(dt[k]))
-            Q[3:6, 3:6] += np.diag(self.q_tilt * tilt[k])
+            Q[3:6, 3:6] += np.diag(tilt_noise(self.q_tilt, self.r, float(tilt[k]), self.tilt_span))
             kf.predict(F=F, Q=Q)
             if active[k]:
                 H = self.measurement_matrix(A[k])
@@ -252,6 +278,7 @@ class KalmanStage:
         X, D, gated, d2, x, P, failed = _filter6(
             *lists, y.tolist(), A.reshape(-1, 9).tolist(), dt.tolist(), tilt.tolist(), active.tolist(),
             self.q_bias.tolist(), self.q_tilt.tolist(), self.r.tolist(), self.rc.tolist(), float(gate2),
+            self.tilt_span,
         )
         self._lists = (x, P)
         self._x = self._P = None  # built from the lists when read
@@ -268,7 +295,7 @@ class KalmanStage:
         contiguous = np.ascontiguousarray
         n_failed = kernel.filter6(self._x, self._P, contiguous(y, float), contiguous(A, float), contiguous(dt, float),
                                   contiguous(tilt, float), contiguous(active, bool), self.q_bias, self.q_tilt, self.r,
-                                  self.rc, float(gate2),
+                                  self.rc, float(gate2), self.tilt_span,
                                   X, D, gated, d2, failed)
         return StageRun(X, D, gated, d2, self._failed(m, np.flatnonzero(failed)) if n_failed else None)
 
@@ -287,7 +314,7 @@ _UPPER6 = np.triu_indices(6)
 _LOWER6 = (_UPPER6[1], _UPPER6[0])
 
 
-def _filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2):
+def _filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2, span):
     """The stage filter for x = [a, b], C = [A, I3], in plain Python floats.
 
     P is the upper triangle of the symmetric 6×6 covariance, row by row
@@ -309,9 +336,15 @@ def _filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2):
     for k in range(len(Y)):
         tilt = TILT[k]
         if tilt != 0.0:  # the tilt walk (kernel.add_tilt_noise)
-            p33 += qt0 * tilt
-            p44 += qt1 * tilt
-            p55 += qt2 * tilt
+            if span > 0.0:
+                s2 = (tilt / span) ** 2
+                p33 += min(qt0 * tilt, r0 * s2)
+                p44 += min(qt1 * tilt, r1 * s2)
+                p55 += min(qt2 * tilt, r2 * s2)
+            else:
+                p33 += qt0 * tilt
+                p44 += qt1 * tilt
+                p55 += qt2 * tilt
         dt = DT[k]
         if dt != 0.0:
             p33 += q0 * dt
@@ -473,10 +506,10 @@ class MountStage(KalmanStage):
     """
 
     def __init__(self, prior_std, bias_rw, noise, R_SE, mount_prior_std, bias_rate_rw=None, activate_std=0.5,
-                 bias_tilt_rw=(0.0, 0.0, 0.0)):
+                 bias_tilt_rw=(0.0, 0.0, 0.0), tilt_span=0.0):
         base = 6 if bias_rate_rw is None else 9
         super().__init__(np.asarray(prior_std, dtype=float)[:base], bias_rw, noise, bias_rate_rw=bias_rate_rw,
-                         bias_tilt_rw=bias_tilt_rw)
+                         bias_tilt_rw=bias_tilt_rw, tilt_span=tilt_span)
         self.n = base + 3
         x, P = np.zeros(self.n), np.zeros((self.n, self.n))
         P[:base, :base] = np.diag(np.asarray(prior_std, dtype=float)[:base] ** 2)
@@ -504,7 +537,7 @@ class MountStage(KalmanStage):
         In = np.eye(n)
         for k in range(m):
             if tilt is not None and tilt[k] != 0.0:  # the tilt walk
-                P[3:6, 3:6] += np.diag(self.q_tilt * tilt[k])
+                P[3:6, 3:6] += np.diag(tilt_noise(self.q_tilt, self.r, float(tilt[k]), self.tilt_span))
             step = float(dt[k])
             if step != 0.0:
                 if step not in cache:

@@ -31,7 +31,7 @@ ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOP
 ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
 ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT_MOUNT = 29, 30, 31, 32, 33
 ADAPT_TILT, ADAPT_GRAVITY_DIR, ADAPT_TILT_AUTO, ADAPT_TILT_TORQUE = 34, 43, 46, 47
-ADAPT_GRAVITY_KNOWN, ADAPT_TW = 48, 49
+ADAPT_GRAVITY_KNOWN, ADAPT_TILT_SPAN, ADAPT_TW = 48, 49, 50
 ADAPT_SIZE = ADAPT_TW + TW_SIZE
 CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
@@ -57,7 +57,8 @@ NaN before the first) and the direction of gravity in B its tilt is measured abo
 ``ADAPT_GRAVITY_KNOWN`` says (1.0; a warm start's direction is kept); :func:`tilt_step`). With
 ``ADAPT_TILT_AUTO`` (1.0) the tilt walk's intensity is learnt from the data (``core.kernels.tilt_walk``, its
 state in ``TW_SIZE`` values from ``ADAPT_TW``) and written into qt_f after each sample, and into qt_t times
-``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed).
+``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed). ``ADAPT_TILT_SPAN``: the least
+turn either bias follows its tilt walk over, rad (0: the plain walk; ``kalman_stage.add_tilt_noise``).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
 the block's row of its last torque bias re-opening (−1: none)."""
 
@@ -372,8 +373,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
         if tilt_walk:
             tilt = tilt_step(adapt, A_f[k])
-            add_tilt_noise(P_f, qt_f, tilt)
-            add_tilt_noise(P_t, qt_t, tilt)
+            add_tilt_noise(P_f, qt_f, r_f, tilt, adapt[ADAPT_TILT_SPAN])
+            add_tilt_noise(P_t, qt_t, r_t, tilt, adapt[ADAPT_TILT_SPAN])
         before_f[:] = x_f[:6]
         if mount:
             what, _ = stage_step_mount(x_f, P_f, R_SE, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f,
@@ -540,7 +541,7 @@ def warm_up() -> None:
     b = Buffers(m)
     v3 = np.full(3, 1e-4)
     filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, v3,
-            np.zeros(3), 20.0,
+            np.zeros(3), 20.0, 0.15,
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
     for p, n in ((np.zeros((0, 3)), 6), (y, 6), (np.zeros((0, 3)), 9)):  # without and with positions, rates
         adapt = np.zeros(ADAPT_SIZE)

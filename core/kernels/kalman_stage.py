@@ -68,16 +68,24 @@ def _gate_ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2, gate2):
 
 
 @njit(cache=True, error_model="numpy")
-def add_tilt_noise(P, qt, tilt):
-    """The bias's random walk over a tilt, in place: P's bias diagonal gains qt·tilt (``core.kalman``'s
-    "tilt walk"). P: (n, n), the bias at rows 3..5. qt: (3,) variance per radian, units²/rad. tilt: the
-    angle gravity's direction turned in the sensor since the previous sample, rad (0: nothing to add).
-    Added before the time step's prediction, which touches the bias block by F = I there (bias-rate
-    states too: F's rate column adds nothing to a bias-only term), so the order is the model's."""
+def add_tilt_noise(P, qt, r, tilt, span):
+    """The bias's random walk over a tilt, in place: P's bias diagonal gains qt·tilt per axis, or with a span
+    min(qt·tilt, r·(tilt/span)²) (``core.kalman``'s "tilt walk" and its span). P: (n, n), the bias at rows
+    3..5. qt: (3,) variance per radian, units²/rad. r: (3,) the stage's noise variance per sample, units².
+    tilt: the angle gravity's direction turned in the sensor since the previous sample, rad (0: nothing to
+    add). span: rad, the least turn the bias follows over (0: the plain walk). Added before the time step's
+    prediction, which touches the bias block by F = I there (bias-rate states too: F's rate column adds
+    nothing to a bias-only term), so the order is the model's."""
     if tilt != 0.0:
-        P[3, 3] += qt[0] * tilt
-        P[4, 4] += qt[1] * tilt
-        P[5, 5] += qt[2] * tilt
+        if span > 0.0:
+            s2 = (tilt / span) ** 2
+            P[3, 3] += min(qt[0] * tilt, r[0] * s2)
+            P[4, 4] += min(qt[1] * tilt, r[1] * s2)
+            P[5, 5] += min(qt[2] * tilt, r[2] * s2)
+        else:
+            P[3, 3] += qt[0] * tilt
+            P[4, 4] += qt[1] * tilt
+            P[5, 5] += qt[2] * tilt
 
 
 @njit(cache=True, error_model="numpy")
@@ -367,13 +375,13 @@ _NO_CROSS = np.zeros(3)
 
 
 @njit(cache=True, error_model="numpy")
-def filter6(x, P, y, A, dt, tilt, active, q, qt, r, rc, gate2, X, D, gated, d2, failed):
+def filter6(x, P, y, A, dt, tilt, active, q, qt, r, rc, gate2, span, X, D, gated, d2, failed):
     """One stage over m samples, in order (``core.kalman._filter6``); x and P in place.
 
     Args:
         y: (m, 3) measurements. A: (m, 3, 3). dt: (m,) s. tilt: (m,) rad the tool tilted before each
         sample (:func:`add_tilt_noise`). active: (m,) bool. qt: (3,) the bias's random-walk variance per
-        radian of tilt. The rest as ``stage_step``. Out: X, D (m, 6) the state and diag P after each
+        radian of tilt. span: rad, the tilt walk's (:func:`add_tilt_noise`). The rest as ``stage_step``. Out: X, D (m, 6) the state and diag P after each
         sample; gated, failed (m,) bool; d2 (m,) float.
 
     Returns:
@@ -381,7 +389,7 @@ def filter6(x, P, y, A, dt, tilt, active, q, qt, r, rc, gate2, X, D, gated, d2, 
     """
     n_failed = 0
     for k in range(y.shape[0]):
-        add_tilt_noise(P, qt, tilt[k])
+        add_tilt_noise(P, qt, r, tilt[k], span)
         what, d2[k] = stage_step(x, P, y[k, 0], y[k, 1], y[k, 2], A[k], dt[k], active[k], q, r, rc, gate2)
         gated[k] = what == GATED
         failed[k] = what == FAILED

@@ -113,7 +113,7 @@ from ...core.frames import (
     rotvec_from_matrix,
 )
 from ...core import identified
-from ...core.kalman import KalmanStage, MountStage, StageRun
+from ...core.kalman import TILT_SPAN, KalmanStage, MountStage, StageRun
 from ...core.payload import PayloadWatch
 from ...core.kernels import align as align_kernel
 from ...core.kernels import inertia as inertia_kernel
@@ -123,7 +123,7 @@ from ...core.kernels.kalman import (ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADA
                                     ADAPT_MOUNT, ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_PRED_F, ADAPT_PRIOR_TB,
                                     ADAPT_REOPEN_LEVER, ADAPT_REOPEN_ROW, ADAPT_REOPEN_S, ADAPT_REOPENS, ADAPT_SIZE,
                                     ADAPT_GRAVITY_DIR, ADAPT_GRAVITY_KNOWN, ADAPT_TILT, ADAPT_TILT_AUTO,
-                                    ADAPT_TILT_TORQUE, ADAPT_TORQUE_SEEN, ADAPT_TW, ADAPT_WINDOW,
+                                    ADAPT_TILT_SPAN, ADAPT_TILT_TORQUE, ADAPT_TORQUE_SEEN, ADAPT_TW, ADAPT_WINDOW,
                                     CONVERGENCE_AT_POSE, CONVERGENCE_IDENTIFIED, GATED, UPDATED, judge_contact,
                                     set_gravity_direction, tilt_step, torque_only_refusal)
 from ...core.kernels import kernel_option
@@ -277,6 +277,10 @@ class KalmanEstimator(RefusesBadSamples):
         bias_torque_tilt_rw: the same for bias_torque_S, N·m/√rad (default: the force figure times
             5/65, the Gamma SI-65-5's torque-to-force range, as ``bias_torque_rw`` is ``bias_force_rw``'s;
             with the force's "auto", its learnt figure times 5/65).
+        bias_tilt_span: rad, the least turn either bias follows its tilt walk over (default ``TILT_SPAN``,
+            0.15 rad: half the learner's window): per sample the walk adds min(q_θ·Δθ, σ²·(Δθ/span)²), so at a
+            high sample rate a fast turn does not let the bias take in a contact's ramp (``core.kalman``;
+            0: the plain walk).
         bias_rate: add bias-rate states (N/s, N·m/s) to both stages.
         bias_force_rate_rw: random-walk intensity of the force-bias rate, N/s/√s.
         bias_torque_rate_rw: the same for the torque-bias rate, N·m/s/√s.
@@ -349,6 +353,7 @@ class KalmanEstimator(RefusesBadSamples):
         bias_torque_rw: float = 0.0004,
         bias_force_tilt_rw: float | str = 0.0,
         bias_torque_tilt_rw: float | None = None,
+        bias_tilt_span: float = TILT_SPAN,
         bias_rate: bool = False,
         bias_force_rate_rw: float = 3e-4,
         bias_torque_rate_rw: float = 2.5e-5,
@@ -417,6 +422,9 @@ class KalmanEstimator(RefusesBadSamples):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 hint = " or 'auto'" if key == "bias_force_tilt_rw" else ""
                 raise ValueError(f"{key}: must be a finite number >= 0{hint}, got {value!r}")
+        if not (isinstance(bias_tilt_span, (int, float)) and math.isfinite(bias_tilt_span) and bias_tilt_span >= 0):
+            raise ValueError(f"bias_tilt_span: must be a finite number >= 0 (rad; 0: the plain tilt walk), "
+                             f"got {bias_tilt_span!r}")
         for key, value in (("converged_force_std", converged_force_std),
                            ("converged_torque_std", converged_torque_std),
                            ("prior_force_std", prior_force_std), ("prior_cog_std", prior_cog_std),
@@ -493,12 +501,14 @@ class KalmanEstimator(RefusesBadSamples):
         prior_t = [prior_cog_std] * 3 + [prior_torque_std] * 3 + ([BIAS_RATE_PRIOR_TORQUE] * 3 if bias_rate else [])
         if mount_rotation:
             self.force = MountStage(prior_f, [bias_force_rw] * 3, noise_force, R_SE, mount_prior_std,
-                                    bias_rate_rw=rate_f, bias_tilt_rw=[bias_force_tilt_rw] * 3)
+                                    bias_rate_rw=rate_f, bias_tilt_rw=[bias_force_tilt_rw] * 3,
+                                    tilt_span=bias_tilt_span)
         else:
             self.force = KalmanStage(prior_f, [bias_force_rw] * 3, noise_force, bias_rate_rw=rate_f,
-                                     bias_tilt_rw=[bias_force_tilt_rw] * 3)
+                                     bias_tilt_rw=[bias_force_tilt_rw] * 3, tilt_span=bias_tilt_span)
         self.torque = KalmanStage(prior_t, [bias_torque_rw] * 3, noise_torque, cross_noise=noise_force,
-                                  bias_rate_rw=rate_t, bias_tilt_rw=[bias_torque_tilt_rw] * 3)
+                                  bias_rate_rw=rate_t, bias_tilt_rw=[bias_torque_tilt_rw] * 3,
+                                  tilt_span=bias_tilt_span)
         self.converged_force = False
         self.converged_torque = False
         self.first_converged_force: int | None = None
@@ -521,6 +531,7 @@ class KalmanEstimator(RefusesBadSamples):
         self._adapt[ADAPT_TILT:ADAPT_TILT + 9] = math.nan  # the last sample's pose: none yet
         self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3] = (0.0, 0.0, 1.0)  # B's z until the weight is known
         self._adapt[ADAPT_TILT_AUTO] = self.tilt_walk_auto
+        self._adapt[ADAPT_TILT_SPAN] = bias_tilt_span
         self._adapt[ADAPT_TW:] = tilt_walk_kernel.new_state()
         self._adapt[ADAPT_TILT_TORQUE] = TORQUE_PER_FORCE ** 2 if tilt_torque_follows else -1.0  # (q: variances)
         self._cog_known = False  # a warm start's torque stage had converged

@@ -31,7 +31,7 @@ ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOP
 ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
 ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT_MOUNT = 29, 30, 31, 32, 33
 ADAPT_TILT, ADAPT_GRAVITY_DIR, ADAPT_TILT_AUTO, ADAPT_TILT_TORQUE = 34, 43, 46, 47
-ADAPT_GRAVITY_KNOWN, ADAPT_TILT_SPAN, ADAPT_TW = 48, 49, 50
+ADAPT_GRAVITY_KNOWN, ADAPT_TILT_SPAN, ADAPT_TURN_F, ADAPT_TURN_T, ADAPT_TW = 48, 49, 50, 51, 52
 ADAPT_SIZE = ADAPT_TW + TW_SIZE
 CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
 """``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
@@ -58,7 +58,8 @@ NaN before the first) and the direction of gravity in B its tilt is measured abo
 ``ADAPT_TILT_AUTO`` (1.0) the tilt walk's intensity is learnt from the data (``core.kernels.tilt_walk``, its
 state in ``TW_SIZE`` values from ``ADAPT_TW``) and written into qt_f after each sample, and into qt_t times
 ``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed). ``ADAPT_TILT_SPAN``: the least
-turn either bias follows its tilt walk over, rad (0: the plain walk; ``kalman_stage.add_tilt_noise``).
+turn either bias follows its tilt walk over, rad (0: the plain walk; ``kalman_stage.add_tilt_noise``), and
+each stage's turn since it last took a sample in (``ADAPT_TURN_F``, ``ADAPT_TURN_T``, rad; state).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
 the block's row of its last torque bias re-opening (−1: none)."""
 
@@ -356,6 +357,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     learn_walk = adapt[ADAPT_TILT_AUTO] != 0.0
     tilt_walk = qt_f.any() or qt_t.any() or learn_walk
     q_time = (q_f[0] + q_f[1] + q_f[2]) / 3.0
+    turn_f, turn_t = 0.0, 0.0
     for k in range(t_ns.shape[0]):
         usable[k] = not stale[k] and status[k] == 0
         if positions:
@@ -373,8 +375,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
         if tilt_walk:
             tilt = tilt_step(adapt, A_f[k])
-            add_tilt_noise(P_f, qt_f, r_f, tilt, adapt[ADAPT_TILT_SPAN])
-            add_tilt_noise(P_t, qt_t, r_t, tilt, adapt[ADAPT_TILT_SPAN])
+            turn_f = add_tilt_noise(P_f, qt_f, r_f, adapt[ADAPT_TURN_F], tilt, adapt[ADAPT_TILT_SPAN])
+            turn_t = add_tilt_noise(P_t, qt_t, r_t, adapt[ADAPT_TURN_T], tilt, adapt[ADAPT_TILT_SPAN])
         before_f[:] = x_f[:6]
         if mount:
             what, _ = stage_step_mount(x_f, P_f, R_SE, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f,
@@ -392,6 +394,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
                                  gate2)
         failed = what == FAILED
         gated_f[k], failed_f[k] = what == GATED, failed
+        if tilt_walk:
+            adapt[ADAPT_TURN_F] = 0.0 if what == UPDATED or what == GATED else turn_f
         if failed:
             usable[k] = False
             n_failed_f += 1
@@ -428,6 +432,8 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
                                    rc_t, gate2)
         gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
+        if tilt_walk:
+            adapt[ADAPT_TURN_T] = 0.0 if what_t == UPDATED or what_t == GATED else turn_t
         n_failed_t += what_t == FAILED
         force_seen = seen
         seen = seen and what_t != FAILED
@@ -541,7 +547,7 @@ def warm_up() -> None:
     b = Buffers(m)
     v3 = np.full(3, 1e-4)
     filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, v3,
-            np.zeros(3), 20.0, 0.15,
+            np.zeros(3), 20.0, 0.15, np.zeros(1),
             b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
     for p, n in ((np.zeros((0, 3)), 6), (y, 6), (np.zeros((0, 3)), 9)):  # without and with positions, rates
         adapt = np.zeros(ADAPT_SIZE)

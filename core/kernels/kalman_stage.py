@@ -68,24 +68,33 @@ def _gate_ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2, gate2):
 
 
 @njit(cache=True, error_model="numpy")
-def add_tilt_noise(P, qt, r, tilt, span):
-    """The bias's random walk over a tilt, in place: P's bias diagonal gains qt·tilt per axis, or with a span
-    min(qt·tilt, r·(tilt/span)²) (``core.kalman``'s "tilt walk" and its span). P: (n, n), the bias at rows
-    3..5. qt: (3,) variance per radian, units²/rad. r: (3,) the stage's noise variance per sample, units².
-    tilt: the angle gravity's direction turned in the sensor since the previous sample, rad (0: nothing to
-    add). span: rad, the least turn the bias follows over (0: the plain walk). Added before the time step's
+def add_tilt_noise(P, qt, r, turn, tilt, span) -> float:
+    """The bias's random walk over a tilt, in place (``core.kalman``'s "tilt walk" and its span); returns the
+    stage's turn after it, turn + tilt.
+
+    Per axis P's bias diagonal gains f(turn + tilt) − f(turn): f(Θ) = qt·Θ, or with a span
+    min(qt·Θ, r·(Θ/span)²), Θ the turn since the stage last took a sample in. Taken in sample by sample, that
+    is each sample's own capped walk; over samples it did not take in (refused, or with a sensor status) it
+    adds up to the capped walk of the whole turn, however finely the turn was sampled.
+    P: (n, n), the bias at rows 3..5. qt: (3,) variance per radian, units²/rad. r: (3,) the stage's noise
+    variance per sample, units². turn: rad, the stage's turn so far (0 after a sample it took in). tilt: the
+    angle gravity's direction turned in the sensor since the previous sample, rad (0: nothing to add).
+    span: rad, the least turn the bias follows over (0: the plain walk). Added before the time step's
     prediction, which touches the bias block by F = I there (bias-rate states too: F's rate column adds
     nothing to a bias-only term), so the order is the model's."""
-    if tilt != 0.0:
-        if span > 0.0:
-            s2 = (tilt / span) ** 2
-            P[3, 3] += min(qt[0] * tilt, r[0] * s2)
-            P[4, 4] += min(qt[1] * tilt, r[1] * s2)
-            P[5, 5] += min(qt[2] * tilt, r[2] * s2)
-        else:
-            P[3, 3] += qt[0] * tilt
-            P[4, 4] += qt[1] * tilt
-            P[5, 5] += qt[2] * tilt
+    if tilt == 0.0:
+        return turn
+    after = turn + tilt
+    if span > 0.0:
+        s0, s1 = (turn / span) ** 2, (after / span) ** 2
+        P[3, 3] += min(qt[0] * after, r[0] * s1) - min(qt[0] * turn, r[0] * s0)
+        P[4, 4] += min(qt[1] * after, r[1] * s1) - min(qt[1] * turn, r[1] * s0)
+        P[5, 5] += min(qt[2] * after, r[2] * s1) - min(qt[2] * turn, r[2] * s0)
+    else:
+        P[3, 3] += qt[0] * tilt
+        P[4, 4] += qt[1] * tilt
+        P[5, 5] += qt[2] * tilt
+    return after
 
 
 @njit(cache=True, error_model="numpy")
@@ -375,13 +384,14 @@ _NO_CROSS = np.zeros(3)
 
 
 @njit(cache=True, error_model="numpy")
-def filter6(x, P, y, A, dt, tilt, active, q, qt, r, rc, gate2, span, X, D, gated, d2, failed):
+def filter6(x, P, y, A, dt, tilt, active, q, qt, r, rc, gate2, span, turn, X, D, gated, d2, failed):
     """One stage over m samples, in order (``core.kalman._filter6``); x and P in place.
 
     Args:
         y: (m, 3) measurements. A: (m, 3, 3). dt: (m,) s. tilt: (m,) rad the tool tilted before each
         sample (:func:`add_tilt_noise`). active: (m,) bool. qt: (3,) the bias's random-walk variance per
-        radian of tilt. span: rad, the tilt walk's (:func:`add_tilt_noise`). The rest as ``stage_step``. Out: X, D (m, 6) the state and diag P after each
+        radian of tilt. span: rad, the tilt walk's; turn: (1,) the stage's turn since it last took a sample in,
+        in and out (:func:`add_tilt_noise`). The rest as ``stage_step``. Out: X, D (m, 6) the state and diag P after each
         sample; gated, failed (m,) bool; d2 (m,) float.
 
     Returns:
@@ -389,8 +399,9 @@ def filter6(x, P, y, A, dt, tilt, active, q, qt, r, rc, gate2, span, X, D, gated
     """
     n_failed = 0
     for k in range(y.shape[0]):
-        add_tilt_noise(P, qt, r, tilt[k], span)
+        after = add_tilt_noise(P, qt, r, turn[0], tilt[k], span)
         what, d2[k] = stage_step(x, P, y[k, 0], y[k, 1], y[k, 2], A[k], dt[k], active[k], q, r, rc, gate2)
+        turn[0] = 0.0 if what == UPDATED or what == GATED else after
         gated[k] = what == GATED
         failed[k] = what == FAILED
         n_failed += what == FAILED

@@ -63,9 +63,11 @@ def per_axis_rms(values):
 # ---------------------------------------------------------------- the fast filter is filterpy's filter
 
 
-def test_fast_stage_matches_the_filterpy_reference():
-    # random orientations, a contact, a gap in time, inactive samples, per-axis noise and
-    # the torque stage's cross term: every output and the final state agree to 1e-9
+@pytest.mark.parametrize("span", [0.0, 0.15])
+def test_fast_stage_matches_the_filterpy_reference(span):
+    # random orientations, a contact, a gap in time, inactive samples (some while turning), per-axis noise,
+    # the torque stage's cross term and the tilt walk, plain or with its span: every output and the final
+    # state agree to 1e-9
     rng = np.random.default_rng(1)
     m = 3000
     A = np.linalg.qr(rng.standard_normal((m, 3, 3)))[0]
@@ -75,12 +77,14 @@ def test_fast_stage_matches_the_filterpy_reference():
     dt[0], dt[500:510] = 0.0, 4e-3
     active = np.ones(m, dtype=bool)
     active[200:210] = False
+    active[2000:2040] = False  # (turning: the span's turn adds up over samples the stage does not test)
     tilt = np.abs(rng.standard_normal(m)) * 0.01  # rad before each sample (the tilt walk)
     tilt[:1500] = 0.0
     for cross in ((0.0, 0.0, 0.0), (0.12, 0.1, 0.08)):
         runs, stages = {}, {}
         for method in ("fast", "filterpy", "numba"):
-            stages[method] = KalmanStage([20.0] * 6, [0.005] * 3, [0.12, 0.12, 0.1], cross, bias_tilt_rw=[0.1] * 3)
+            stages[method] = KalmanStage([20.0] * 6, [0.005] * 3, [0.12, 0.12, 0.1], cross, bias_tilt_rw=[0.1] * 3,
+                                         tilt_span=span)
             runs[method] = stages[method].run(y, A, dt, active, 21.1, method, tilt)
         fast, ref, compiled = runs["fast"], runs["filterpy"], runs["numba"]
         assert all(np.array_equal(getattr(fast, key), getattr(compiled, key), equal_nan=True)
@@ -345,6 +349,9 @@ def test_runs_through_the_registry():
     ({"bias_torque_tilt_rw": "x"}, "bias_torque_tilt_rw"),
     ({"bias_force_tilt_rw": "fast"}, "bias_force_tilt_rw"),
     ({"bias_torque_tilt_rw": "auto"}, "bias_torque_tilt_rw"),
+    ({"bias_tilt_span": -0.1}, "bias_tilt_span"),
+    ({"bias_tilt_span": math.nan}, "bias_tilt_span"),
+    ({"bias_tilt_span": "wide"}, "bias_tilt_span"),
     ({"gate_probability": 0.0}, "gate_probability"),
     ({"gate_probability": 1.2}, "gate_probability"),
     ({"converged_force_std": 0.0}, "converged_force_std"),

@@ -526,29 +526,67 @@ def test_the_tilt_is_gravity_s_turn_whatever_way_the_base_stands(kernel):
     q_tilt, q_time = 0.1 ** 2, 0.005 ** 2
     vertical, horizontal = _wall_axes()
     for axis_B, expected in ((vertical, 0.0), (horizontal, q_tilt * np.pi / 2)):
-        est, grown, m = _turn_predicted(KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1, bias_tilt_span=0.0),
-                                        axis_B, 1000)
+        m = 1000
+        est, grown, _ = _turn_predicted(KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1, bias_tilt_span=0.0),
+                                        axis_B, m)
         # (the weight is identified to ~1e-3 rad of its direction: so is the tilt, to 1 % of a quarter turn)
         assert np.allclose(grown, q_time * m * 1e-3 + expected, rtol=0, atol=0.01 * q_tilt * np.pi / 2), grown
 
 
 @pytest.mark.parametrize("kernel", ["numba", "numpy"])
-def test_the_tilt_walk_s_span_caps_what_a_finely_sampled_turn_adds(kernel):
-    """With its span s (default 0.15 rad) the walk adds min(q_θ·δ, σ²·(δ/s)²) per sample that turned δ. The
-    same quarter turn sampled ten times finer then adds a tenth as much (the plain walk adds q_θ·π/2 either
-    way): the bias is followed over no less than s of turn whatever the sample rate. σ² is the stage's noise
-    estimate, which samples with a sensor status leave as it was."""
+def test_a_turn_no_sample_measures_adds_the_capped_walk_of_the_whole_turn(kernel):
+    """Samples with a sensor status are not tested: the turn they make adds up, and each stage's bias
+    variance grows by f(Θ) = min(q_θ·Θ, σ²·(Θ/s)²) for the whole turn Θ, whether it was cut into 100 samples
+    or 1000 (the span s bounds how fast the bias follows what is measured, not what a turn unseen may do).
+    A 0.005 rad turn is under the span's bend (σ²·(Θ/s)² < q_θ·Θ), a quarter turn over it (the plain walk)."""
     q_tilt, q_time = 0.1 ** 2, 0.005 ** 2
     _, horizontal = _wall_axes()
-    added = {}
-    for m in (1000, 10000):
-        est, grown, _ = _turn_predicted(KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1), horizontal, m)
-        delta = np.pi / 2 / (m - 1)  # rad per sample (the first sample turns nothing from the last pose)
-        expected = (m - 1) * np.minimum(q_tilt * delta, est.force.r * (delta / est.force.tilt_span) ** 2)
-        assert est.force.tilt_span == 0.15 and np.all(expected < 0.1 * q_tilt * np.pi / 2)
-        added[m] = grown - q_time * m * 1e-3
-        assert np.allclose(added[m], expected, rtol=0.03, atol=0), (added[m], expected)
-    assert np.allclose(added[10000], added[1000] / 10, rtol=0.05)
+    for angle in (0.005, np.pi / 2):
+        for m in (100, 1000):
+            est, grown, grown_t = _turn_predicted(KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1), horizontal,
+                                                  m, angle)
+            for stage, got, time_q in ((est.torque, grown_t, 0.0004 ** 2), (est.force, grown, q_time)):
+                expected = np.minimum(stage.q_tilt * angle, stage.r * (angle / stage.tilt_span) ** 2)
+                assert np.allclose(got - time_q * m * 1e-3, expected, rtol=0.03, atol=0), (angle, m, got, expected)
+            bent = expected < 0.7 * q_tilt * angle  # (the force stage's, last)
+            assert (bent.all() if angle < 0.1 else not bent.any()), (angle, expected, q_tilt * angle, est.force.r)
+
+
+@pytest.mark.parametrize("span", [0.0, 0.15, 0.3])
+def test_the_span_keeps_the_bias_from_following_the_tilt_finer_than_it(span):
+    """What the span is for, measured on the bias: a 0.3 N step of the bias's z while the tool turns 19°/s,
+    sampled at 1 kHz without noise (the filter's noise given, 0.12 N; its walk over time near 0, so only the
+    tilt walk, 0.1 N/√rad, lets the bias move). The plain walk takes 63 % of the step within 0.03 rad of turn
+    (√(σ²·δ/q_θ) = 0.022 rad); with a span, no sooner than 0.9 of the span."""
+    import dataclasses
+
+    from scipy.spatial.transform import Rotation
+    from helpers import static_model_stream
+
+    bias_S, weight_B = np.array([1.0, -0.5, 2.0]), np.array([0.12, -0.25, -3.4])
+    identify, _ = static_model_stream(3000, seed=4, noise_force=0.0, noise_torque=0.0, gravity_force_B=weight_B,
+                                      bias_force_S=bias_S)
+    rate, n, step_at = np.deg2rad(19.0), 4000, 1500  # rad/s, samples 1 ms apart, the step's sample
+    R_BE = Rotation.from_rotvec(np.outer(rate * 1e-3 * np.arange(1, n + 1), [1.0, 0.0, 0.0])).as_matrix() \
+        @ identify.R_EB[-1].T
+    R_EB = R_BE.transpose(0, 2, 1)
+    force_S = R_EB @ weight_B + bias_S + np.where(np.arange(n)[:, None] >= step_at, [0.0, 0.0, 0.3], 0.0)
+    cog_S = np.array([0.002, -0.001, 0.0435])
+    turning = dataclasses.replace(identify.subset(np.arange(n) % len(identify)), R_EB=R_EB, force_S=force_S,
+                                  torque_S=np.cross(cog_S, R_EB @ weight_B) + [0.03, -0.02, 0.01],
+                                  t_ns=identify.t_ns[-1] + 1_000_000 * np.arange(1, n + 1))
+    est = KalmanEstimator(noise_force=0.12, noise_torque=0.01, bias_force_rw=1e-6, bias_force_tilt_rw=0.1,
+                          bias_tilt_span=span)
+    est.update_block(identify)
+    out = est.update_block(turning)
+    left = out.contact_force_S[step_at:, 2]  # what the bias has not yet taken of the step, N
+    followed = int(np.argmax(left < 0.3 * np.exp(-1))) * rate * 1e-3  # rad of turn to take 63 % of it
+    print(f"\nspan {span} rad: 63 % of a bias step taken within {followed:.3f} rad of turn")
+    assert not out.contact.any() and left[-1] < 0.3 * np.exp(-1)
+    if span == 0.0:
+        assert followed < 0.03
+    else:
+        assert 0.9 * span <= followed <= 1.5 * span
 
 
 def _wall_axes() -> tuple[np.ndarray, np.ndarray]:
@@ -562,9 +600,10 @@ WALL_WEIGHT_B = np.array([-3.4, 0.1, 0.2])
 """N: the weight of a tool on a wall-mounted base, along B's x (nearly)."""
 
 
-def _turn_predicted(est: KalmanEstimator, axis_B: np.ndarray, m: int):
-    """Identify the weight on a still tool, then turn it 90° about axis_B (in B) over m samples 1 ms apart,
-    each with a sensor status (predicted only). Returns (est, what P's force-bias diagonal grew by, m)."""
+def _turn_predicted(est: KalmanEstimator, axis_B: np.ndarray, m: int, angle: float = np.pi / 2):
+    """Identify the weight on a still tool, then turn it by angle (rad; 90° by default) about axis_B (in B)
+    over m samples 1 ms apart, each with a sensor status (predicted only). Returns (est, what P's force-bias
+    diagonal grew by, and the torque bias's)."""
     import dataclasses
 
     from hapticlab.core.types import STATUS_SATURATED
@@ -575,7 +614,7 @@ def _turn_predicted(est: KalmanEstimator, axis_B: np.ndarray, m: int):
                                       gravity_force_B=WALL_WEIGHT_B)
     est.update_block(identify)
     assert est.first_converged_force is not None
-    turn = Rotation.from_rotvec(np.outer(np.linspace(0.0, np.pi / 2, m), axis_B)).as_matrix()
+    turn = Rotation.from_rotvec(np.outer(np.linspace(0.0, angle, m), axis_B)).as_matrix()
     R_EB = (turn @ identify.R_EB[-1].T).transpose(0, 2, 1)  # the last pose, turned about axis_B in B
     t_ns = identify.t_ns[-1] + 1_000_000 * np.arange(1, m + 1)
     rows = np.arange(m) % len(identify)
@@ -583,6 +622,6 @@ def _turn_predicted(est: KalmanEstimator, axis_B: np.ndarray, m: int):
                                force_S=np.tile(identify.force_S[-1], (m, 1)),
                                torque_S=np.tile(identify.torque_S[-1], (m, 1)),
                                status=np.full(m, STATUS_SATURATED))
-    before = np.diag(est.force.P)[3:6].copy()
+    before, before_t = np.diag(est.force.P)[3:6].copy(), np.diag(est.torque.P)[3:6].copy()
     est.update_block(held)
-    return est, np.diag(est.force.P)[3:6] - before, m
+    return est, np.diag(est.force.P)[3:6] - before, np.diag(est.torque.P)[3:6] - before_t

@@ -89,9 +89,9 @@ lwr4_2013_06_13 log (1 Hz) the learnt walk still leaves no row judged a contact 
 
 def tilt_noise(q_tilt: np.ndarray, r: np.ndarray, turn: float, tilt: float, span: float) -> np.ndarray:
     """(3,) what the tilt walk adds to the bias's variance over one sample's turn Δθ: f(Θ + Δθ) − f(Θ) per axis,
-    f(Θ) = q_θ·Θ, or with a span min(q_θ·Θ, σ²·(Θ/span)²), Θ the stage's turn since it last took a sample in
-    (0 after one: each sample's own capped walk; over samples it did not take in, the capped walk of their
-    whole turn, however finely sampled; see the module docstring). q_tilt: (3,) units²/rad; r: (3,) the
+    f(Θ) = q_θ·Θ, or with a span min(q_θ·Θ, σ²·(Θ/span)²), Θ the stage's turn since it last tested a sample
+    (took it in or refused it: 0 after one, so each tested sample adds its own capped walk; over samples it
+    did not test, the capped walk of their whole turn, however finely sampled; see the module docstring). q_tilt: (3,) units²/rad; r: (3,) the
     stage's noise variance σ², units²; turn: Θ, rad; tilt: Δθ, rad; span: rad (0: the plain walk)."""
     if span > 0.0:
         after = turn + tilt
@@ -347,7 +347,7 @@ def _filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2, span, turn):
     X, D, G, E, FAILED = [], [], [], [], []
     for k in range(len(Y)):
         tilt = TILT[k]
-        if tilt != 0.0:  # the tilt walk (kernel.add_tilt_noise; turn: since the stage last took a sample in)
+        if tilt != 0.0:  # the tilt walk (kernel.add_tilt_noise; turn: since the stage last tested a sample)
             after = turn + tilt
             if span > 0.0:
                 s0, s1 = (turn / span) ** 2, (after / span) ** 2

@@ -59,7 +59,7 @@ NaN before the first) and the direction of gravity in B its tilt is measured abo
 state in ``TW_SIZE`` values from ``ADAPT_TW``) and written into qt_f after each sample, and into qt_t times
 ``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed). ``ADAPT_TILT_SPAN``: the least
 turn either bias follows its tilt walk over, rad (0: the plain walk; ``kalman_stage.add_tilt_noise``), and
-each stage's turn since it last took a sample in (``ADAPT_TURN_F``, ``ADAPT_TURN_T``, rad; state).
+each stage's turn since it last tested a sample (``ADAPT_TURN_F``, ``ADAPT_TURN_T``, rad; state).
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
 the block's row of its last torque bias re-opening (−1: none)."""
 

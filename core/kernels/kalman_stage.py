@@ -73,11 +73,11 @@ def add_tilt_noise(P, qt, r, turn, tilt, span) -> float:
     stage's turn after it, turn + tilt.
 
     Per axis P's bias diagonal gains f(turn + tilt) − f(turn): f(Θ) = qt·Θ, or with a span
-    min(qt·Θ, r·(Θ/span)²), Θ the turn since the stage last took a sample in. Taken in sample by sample, that
-    is each sample's own capped walk; over samples it did not take in (refused, or with a sensor status) it
-    adds up to the capped walk of the whole turn, however finely the turn was sampled.
+    min(qt·Θ, r·(Θ/span)²), Θ the turn since the stage last tested a sample (took it in or refused it). Over
+    tested samples that is each sample's own capped walk; over samples it did not test (a sensor status, a
+    stale pose) it adds up to the capped walk of the whole turn, however finely the turn was sampled.
     P: (n, n), the bias at rows 3..5. qt: (3,) variance per radian, units²/rad. r: (3,) the stage's noise
-    variance per sample, units². turn: rad, the stage's turn so far (0 after a sample it took in). tilt: the
+    variance per sample, units². turn: rad, the stage's turn so far (0 after a sample it tested). tilt: the
     angle gravity's direction turned in the sensor since the previous sample, rad (0: nothing to add).
     span: rad, the least turn the bias follows over (0: the plain walk). Added before the time step's
     prediction, which touches the bias block by F = I there (bias-rate states too: F's rate column adds
@@ -390,9 +390,9 @@ def filter6(x, P, y, A, dt, tilt, active, q, qt, r, rc, gate2, span, turn, X, D,
     Args:
         y: (m, 3) measurements. A: (m, 3, 3). dt: (m,) s. tilt: (m,) rad the tool tilted before each
         sample (:func:`add_tilt_noise`). active: (m,) bool. qt: (3,) the bias's random-walk variance per
-        radian of tilt. span: rad, the tilt walk's; turn: (1,) the stage's turn since it last took a sample in,
-        in and out (:func:`add_tilt_noise`). The rest as ``stage_step``. Out: X, D (m, 6) the state and diag P after each
-        sample; gated, failed (m,) bool; d2 (m,) float.
+        radian of tilt. span: rad, the tilt walk's; turn: (1,) the stage's turn since it last tested a sample,
+        in and out (:func:`add_tilt_noise`). The rest as ``stage_step``. Out: X, D (m, 6) the state and diag P
+        after each sample; gated, failed (m,) bool; d2 (m,) float.
 
     Returns:
         The number of failed samples.

@@ -489,8 +489,8 @@ def test_the_tilt_walk_lets_a_contact_made_while_turning_into_the_bias_unless_it
     """The price of the tilt walk, and what its span is for: at 1 kHz a tour turning ~19°/s gives the plain
     walk (no span), at 0.1 N/√rad, enough per sample to follow the first newtons of an indentation's ramp
     before the gate refuses it, so the contact force the trainee feels is off by a part of the contact while
-    it lasts. With the default span (0.15 rad) the bias is followed over no less than 0.15 rad of turn, half
-    a second of this tour, and the error is within 5 % of the walk off. The simulator's model is the filter's:
+    it lasts. With the default span (0.15 rad) the tilt walk follows the bias over no less than 0.15 rad of
+    turn, half a second of this tour, and the error is within 5 % of the walk off. The simulator's model is the filter's:
     learnt ("auto"), the walk stays 0 here (the indentations' windows left out), and the contact force is that
     without the walk."""
     from hapticlab.sessions.bench.paper import PaperSetup, simulate

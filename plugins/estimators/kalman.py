@@ -280,7 +280,7 @@ class KalmanEstimator(RefusesBadSamples):
         bias_tilt_span: rad, the least turn either bias follows its tilt walk over (default ``TILT_SPAN``,
             0.15 rad: half the learner's window): per sample the walk adds min(q_θ·Δθ, σ²·(Δθ/span)²), so at a
             high sample rate a fast turn does not let the bias take in a contact's ramp (``core.kalman``;
-            0: the plain walk).
+            0: the plain walk; without a tilt walk it changes nothing).
         bias_rate: add bias-rate states (N/s, N·m/s) to both stages.
         bias_force_rate_rw: random-walk intensity of the force-bias rate, N/s/√s.
         bias_torque_rate_rw: the same for the torque-bias rate, N·m/s/√s.

@@ -35,7 +35,8 @@ time, on top, follows on its own); the errors the walk stands for change
 smoothly with the tilt, so a finer span follows noise and contacts, not them.
 Over samples the stage does not test (a sensor status, a stale pose) the turn
 adds up, and the whole turn Θ adds min(q_θ·Θ, σ²·(Θ/s)²), however finely it was
-sampled (``tilt_noise``).
+sampled (``kernels.kalman_stage.add_tilt_noise``, which every path runs: compiled, or as Python in the
+filterpy reference and the mount's EKF; the unrolled ``_filter6`` writes it out).
 
 Measurement noise R_k: the sensor's per-axis variance, diag(σ²). The torque
 stage's A_k is built from the *measured* force, whose noise enters the torque
@@ -79,24 +80,14 @@ import numpy as np
 from .kernels import kalman_stage as kernel
 
 I3 = np.eye(3)
+add_tilt_noise = kernel.add_tilt_noise.py_func
+"""The tilt walk's addition to the bias's variance, run as Python here (the compiled stage runs it compiled)."""
 
 TILT_SPAN = 0.15
-"""rad: the ``kalman`` estimator's default span of the tilt walk (``tilt_noise``), half the window of turn
+"""rad: the ``kalman`` estimator's default span of the tilt walk (``add_tilt_noise``), half the window of turn
 over which ``core.kernels.tilt_walk`` measures it: a walk learnt at that scale says nothing finer. On the
 lwr4_2013_06_13 log (1 Hz) the learnt walk still leaves no row judged a contact (5 at 0.3 rad), its RMS
 0.335 of the batch fit instead of 0.324 without a span."""
-
-
-def tilt_noise(q_tilt: np.ndarray, r: np.ndarray, turn: float, tilt: float, span: float) -> np.ndarray:
-    """(3,) what the tilt walk adds to the bias's variance over one sample's turn Δθ: f(Θ + Δθ) − f(Θ) per axis,
-    f(Θ) = q_θ·Θ, or with a span min(q_θ·Θ, σ²·(Θ/span)²), Θ the stage's turn since it last tested a sample
-    (took it in or refused it: 0 after one, so each tested sample adds its own capped walk; over samples it
-    did not test, the capped walk of their whole turn, however finely sampled; see the module docstring). q_tilt: (3,) units²/rad; r: (3,) the
-    stage's noise variance σ², units²; turn: Θ, rad; tilt: Δθ, rad; span: rad (0: the plain walk)."""
-    if span > 0.0:
-        after = turn + tilt
-        return np.minimum(q_tilt * after, r * (after / span) ** 2) - np.minimum(q_tilt * turn, r * (turn / span) ** 2)
-    return q_tilt * tilt
 
 
 @dataclass
@@ -133,7 +124,7 @@ class KalmanStage:
         bias_rate_rw: (3,) random-walk intensity of the bias rate, units/s/√s,
             or None for no rate states.
         bias_tilt_rw: (3,) random-walk intensity of the bias per tilt, units/√rad (q_θ = rw²).
-        tilt_span: rad, the least turn the bias follows its tilt walk over (0: the plain walk; ``tilt_noise``).
+        tilt_span: rad, the least turn the bias follows its tilt walk over (0: the plain walk; ``add_tilt_noise``).
 
     Attributes:
         x: (n,) state. P: (n, n) covariance. n: 6, or 9 with bias-rate states.
@@ -151,7 +142,7 @@ class KalmanStage:
         self.q_rate = None if bias_rate_rw is None else np.asarray(bias_rate_rw, dtype=float).reshape(3) ** 2
         self.q_tilt = np.asarray(bias_tilt_rw, dtype=float).reshape(3) ** 2
         self.tilt_span = float(tilt_span)
-        self.turn = 0.0  # rad the tool turned since the stage last tested a sample (``tilt_noise``)
+        self.turn = 0.0  # rad the tool turned since the stage last tested a sample (``add_tilt_noise``)
         self.r = np.asarray(noise, dtype=float).reshape(3) ** 2
         self.rc = np.asarray(cross_noise, dtype=float).reshape(3) ** 2
         self.failed = 0
@@ -258,8 +249,7 @@ class KalmanStage:
         failed = []
         for k in range(m):
             F, Q = self.transition(float(dt[k]))
-            Q[3:6, 3:6] += np.diag(tilt_noise(self.q_tilt, self.r, self.turn, float(tilt[k]), self.tilt_span))
-            self.turn += float(tilt[k])
+            self.turn = add_tilt_noise(Q, self.q_tilt, self.r, self.turn, float(tilt[k]), self.tilt_span)
             kf.predict(F=F, Q=Q)
             if active[k]:
                 H = self.measurement_matrix(A[k])
@@ -553,8 +543,7 @@ class MountStage(KalmanStage):
         In = np.eye(n)
         for k in range(m):
             if tilt is not None and tilt[k] != 0.0:  # the tilt walk
-                P[3:6, 3:6] += np.diag(tilt_noise(self.q_tilt, self.r, self.turn, float(tilt[k]), self.tilt_span))
-                self.turn += float(tilt[k])
+                self.turn = add_tilt_noise(P, self.q_tilt, self.r, self.turn, float(tilt[k]), self.tilt_span)
             step = float(dt[k])
             if step != 0.0:
                 if step not in cache:

@@ -418,13 +418,10 @@ class KalmanEstimator(RefusesBadSamples):
         for key, value in (("bias_force_rw", bias_force_rw), ("bias_torque_rw", bias_torque_rw),
                            ("bias_force_tilt_rw", bias_force_tilt_rw), ("bias_torque_tilt_rw", bias_torque_tilt_rw),
                            ("bias_force_rate_rw", bias_force_rate_rw),
-                           ("bias_torque_rate_rw", bias_torque_rate_rw)):
+                           ("bias_torque_rate_rw", bias_torque_rate_rw), ("bias_tilt_span", bias_tilt_span)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                hint = " or 'auto'" if key == "bias_force_tilt_rw" else ""
-                raise ValueError(f"{key}: must be a finite number >= 0{hint}, got {value!r}")
-        if not (isinstance(bias_tilt_span, (int, float)) and math.isfinite(bias_tilt_span) and bias_tilt_span >= 0):
-            raise ValueError(f"bias_tilt_span: must be a finite number >= 0 (rad; 0: the plain tilt walk), "
-                             f"got {bias_tilt_span!r}")
+                hint = {"bias_force_tilt_rw": " or 'auto'", "bias_tilt_span": " (rad; 0: the plain tilt walk)"}
+                raise ValueError(f"{key}: must be a finite number >= 0{hint.get(key, '')}, got {value!r}")
         for key, value in (("converged_force_std", converged_force_std),
                            ("converged_torque_std", converged_torque_std),
                            ("prior_force_std", prior_force_std), ("prior_cog_std", prior_cog_std),

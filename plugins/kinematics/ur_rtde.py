@@ -238,12 +238,11 @@ class URRTDEKinematics:
             else:
                 self.packages_missed += max(0, round(step * self.rate_hz / CLOCK_TICKS_HZ) - 1)
         self._last_ticks = ticks
-        self.packages += 1
         pose_arr = np.asarray(pose, dtype=float)
         sample = PoseSample(t_ns=self.clock.stamp(ticks, received_ns), quat_BE=quat_from_rotvec(pose_arr[3:]),
                             p_BoEo_B=pose_arr[:3], joints=np.asarray(q, dtype=float),
                             joint_velocities=np.asarray(qd, dtype=float))
-        if self.packages == 1 and self.arm is not None:
+        if self.packages == 0 and self.arm is not None:
             events.extend(self._check_tcp(received_ns, sample))
         if self._timed_out:
             self._timed_out = False
@@ -252,6 +251,7 @@ class URRTDEKinematics:
         with self._lock:
             self._pending.append(sample)
             self._events.extend(events)
+            self.packages += 1  # (after the package's events: ``open`` returns on the first, and they are there)
         if received_ns >= self._next_missed_event_ns:
             self._report_missed(received_ns)
 

@@ -231,6 +231,27 @@ def test_a_tcp_offset_in_the_installation_is_an_event():
     assert event.data["distance_m"] == pytest.approx(0.1, abs=1e-5)
 
 
+def test_the_first_package_s_events_are_there_when_open_returns(monkeypatch):
+    """``open`` returns once the first package is kept; its TCP check's event is published with it, not after:
+    with the check made slow (0.2 s, as a loaded machine can make it), the event is there when ``open``
+    returns (a package counted before its events were published lost this race under CI load)."""
+    check = URRTDEKinematics._check_tcp
+
+    def slow_check(self, received_ns, sample):
+        time.sleep(0.2)
+        return check(self, received_ns, sample)
+
+    monkeypatch.setattr(URRTDEKinematics, "_check_tcp", slow_check)
+    with emulator_process("127.0.0.88", "--tcp-offset", "0,0,0.1,0,0,0.5"):
+        kinematics = URRTDEKinematics(address="127.0.0.88", model="ur5e")
+        kinematics.open(time.monotonic_ns())
+        try:
+            events = kinematics.drain_events()
+        finally:
+            kinematics.close()
+    assert [e.kind for e in events].count("kinematics_tcp_offset") == 1
+
+
 def test_connection_refused_names_the_controller():
     kinematics = URRTDEKinematics(address="127.0.0.76")  # nothing listens there
     with pytest.raises(ConnectionError, match=r"127\.0\.0\.76:30004"):

@@ -5,8 +5,8 @@ For each CSV file of a folder and each registered estimator with its defaults
 convergence rule, whose flag waits for the motion to identify the tool where the
 default's is up once the wrench is known at the pose; and once more with the
 simulated Gamma sensor's noise and the covariance convergence rule, its defaults
-before it estimated the noise; and once more with the bias's walk over the tool's tilt
-learnt from the file, ``bias_force_tilt_rw = "auto"``, as the real-lab preset sets it):
+before it estimated the noise; and once more without the bias's walk over the tool's tilt,
+``bias_force_tilt_rw = 0``, its default before 2026-11-28):
 the online RMS of the estimated contact force per axis over every row after the first convergence, against the offline batch fit of
 the whole file evaluated over the same rows (their ratio); the same ratio over
 the file's second half, a window that does not depend on each estimator's own
@@ -51,15 +51,15 @@ IDENTIFIED = {"convergence": "identified"}
 """kalman's convergence rule before "pose": the wrench known at the pose and the tool identified by the motion."""
 GAMMA_COVARIANCE = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
 """kalman's options before it estimated the noise: the simulated Gamma-class sensor's noise, convergence from P."""
-TILT_WALK = {"bias_force_tilt_rw": "auto"}
-"""kalman with the bias's walk over the tool's tilt learnt from the data (off by default, on in the real-lab
-preset: docs/estimators.md, "The tilt walk")."""
+NO_TILT_WALK = {"bias_force_tilt_rw": 0.0}
+"""kalman without the bias's walk over the tool's tilt (learnt by default since 2026-11-28: docs/estimators.md,
+"The tilt walk")."""
 
 
 def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[str, Any] | str]]:
     """(label, estimator name, options or an error): every registered estimator with its defaults, the
     default (kalman) first; kalman with the identified rule, with the Gamma figures and the covariance rule
-    (its defaults before), and with the bias's tilt walk learnt; and
+    (its defaults before), and without the bias's tilt walk (its default before); and
     kalman with the effects ``hapticlab discrepancy`` names on the file."""
     names = registry.names("estimator")
     names = sorted(names, key=lambda name: name != "kalman")  # the default first, then the others as registered
@@ -67,7 +67,7 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
     if "kalman" in names:
         out.append(("kalman convergence=identified", "kalman", dict(IDENTIFIED)))
         out.append(("kalman noise=0.12 N, convergence=covariance", "kalman", dict(GAMMA_COVARIANCE)))
-        out.append(("kalman bias_force_tilt_rw=auto", "kalman", dict(TILT_WALK)))
+        out.append(("kalman bias_force_tilt_rw=0", "kalman", dict(NO_TILT_WALK)))
         from ..discrepancy.workflow import discrepancy
 
         try:

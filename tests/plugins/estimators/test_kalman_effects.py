@@ -36,7 +36,9 @@ def test_a_5_degree_mount_is_estimated_within_0_3_degrees():
           f"last 15 s: {({k: np.round(v, 3).tolist() for k, v in rms.items()})}")
     assert result["mount_error_deg"] <= 0.3
     assert max(rms["kalman mount_rotation"]) <= 1.05
-    assert np.linalg.norm(rms["kalman"]) > np.linalg.norm(rms["kalman mount_rotation"])  # the option closes the gap
+    base = np.linalg.norm(rms[familybench.BASE_MODEL])  # the paper's model alone: the gap the option closes
+    assert base > np.linalg.norm(rms["kalman mount_rotation"])
+    assert base > np.linalg.norm(rms["kalman"])  # the defaults' learnt tilt walk follows part of it
 
 
 def test_an_estimated_mount_converges_under_either_rule_and_compensates(mounted):
@@ -268,7 +270,8 @@ def test_inertia_closes_the_gap_on_a_lively_tour():
     print(f"\nrandom tour (tool inertial force RMS {np.round(result['inertial_force_rms_N'], 3)} N): RMS / noise "
           f"{({k: np.round(v, 3).tolist() for k, v in rms.items()})}")
     assert max(rms["kalman inertia"]) <= 1.02
-    assert min(rms["kalman"]) >= 1.05  # without the option the inertial force shows
+    assert min(rms[familybench.BASE_MODEL]) >= 1.05  # without the option (nor the tilt walk) the inertial force shows
+    assert np.linalg.norm(rms["kalman"]) > 1.01 * np.linalg.norm(rms["kalman inertia"])  # the walk follows less
 
 
 def test_the_pose_rule_is_the_identified_filter_with_inertia_and_the_gate_waits_for_identification(tmp_path):
@@ -341,7 +344,8 @@ def test_time_lag_option_follows_a_late_kinematics_stream():
     rms = familybench.time_lag()["rms_over_noise_last_10s"]
     print(f"\nkinematics 20 ms late: RMS / noise {rms}")
     assert max(rms["kalman time_lag_s"]) <= 1.02
-    assert np.linalg.norm(rms["kalman"]) > 1.03 * np.linalg.norm(rms["kalman time_lag_s"])
+    assert np.linalg.norm(rms[familybench.BASE_MODEL]) > 1.03 * np.linalg.norm(rms["kalman time_lag_s"])
+    assert np.linalg.norm(rms["kalman"]) > np.linalg.norm(rms["kalman time_lag_s"])
 
 
 @pytest.mark.parametrize("chunk", [1, 64])
@@ -361,7 +365,7 @@ def test_gain_option_undoes_a_calibration_error():
     rms = familybench.gain()["rms_over_noise_last_10s"]
     print(f"\n2 % calibration error: RMS / noise {rms}")
     assert max(rms["kalman gain_force_S"]) <= 1.02
-    assert np.linalg.norm(rms["kalman"]) > np.linalg.norm(rms["kalman gain_force_S"])
+    assert np.linalg.norm(rms[familybench.BASE_MODEL]) > np.linalg.norm(rms["kalman gain_force_S"])
 
 
 def test_effects_name_the_options():
@@ -478,7 +482,7 @@ def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
     3.4 N weight is 0.3 N, which changes by about that much per radian the tool turns."""
     world, block = mounted
     rms, learnt = {}, None
-    for label, options in (("walk off", {}), ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}),
+    for label, options in (("walk off", {"bias_force_tilt_rw": 0.0}), ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}),
                            ("learnt", {"bias_force_tilt_rw": "auto"}), ("mount_rotation", {"mount_rotation": True})):
         est = KalmanEstimator(**options)
         out, _ = feed(est, block, chunk=64)
@@ -512,7 +516,7 @@ def test_the_tilt_walk_lets_a_contact_made_while_turning_into_the_bias_unless_it
     block, w = simulate(sim, 30.0, RATE_HZ)
     touching = np.asarray(w["contact"], dtype=bool)
     error = {}
-    for label, options in (("off", {}), ("plain 0.1", {"bias_force_tilt_rw": 0.1, "bias_tilt_span": 0.0}),
+    for label, options in (("off", {"bias_force_tilt_rw": 0.0}), ("plain 0.1", {"bias_force_tilt_rw": 0.1, "bias_tilt_span": 0.0}),
                            ("spanned 0.1", {"bias_force_tilt_rw": 0.1}), ("auto", {"bias_force_tilt_rw": "auto"})):
         est = KalmanEstimator(**options)
         out, _ = feed(est, block, chunk=64)
@@ -543,7 +547,7 @@ def test_light_touches_the_gate_takes_in_are_not_learnt_as_tilt_walk():
     block, w = simulate(sim, 60.0, RATE_HZ)
     touching = np.asarray(w["contact"], dtype=bool)
     error = {}
-    for label, options in (("off", {}), ("auto", {"bias_force_tilt_rw": "auto"})):
+    for label, options in (("off", {"bias_force_tilt_rw": 0.0}), ("auto", {"bias_force_tilt_rw": "auto"})):
         est = KalmanEstimator(**options)
         out, _ = feed(est, block, chunk=64)
         assert label != "off" or not out.contact.any(), "the touches are under the gate"

@@ -175,18 +175,19 @@ def test_a_mass_hung_on_the_tool_in_a_real_log_is_a_payload_change(real_data):
 def test_lwr4_2013_06_13s_late_torque_refusal_is_reidentified(real_data):
     """A contact-free log whose last 619 rows the torque stage refused (the force stage accepting from row ~4930
     on): the torque bias re-opened once, and the rows refused down from 11.3 % to what the force stage refuses
-    while its own estimate catches up (~70 rows). With the tilt walk learnt (``bias_force_tilt_rw = "auto"``, the
-    real-lab preset's) the torque bias walks with the tilt too (5/65 of the force's), and nothing is refused."""
+    while its own estimate catches up (~70 rows); both with the tilt walk off, as before 2026-11-28. With the
+    tilt walk learnt (``bias_force_tilt_rw = "auto"``, the default since) the torque bias walks with the tilt
+    too (5/65 of the force's), and nothing is refused."""
     stream = load_stream(real_data / "lwr4_2013_06_13.csv")
-    est = KalmanEstimator()
+    est = KalmanEstimator(bias_force_tilt_rw=0.0)
     with_rule = run_estimator(stream, est)
-    without = run_estimator(stream, KalmanEstimator(torque_reopen_s=0.0))
+    without = run_estimator(stream, KalmanEstimator(torque_reopen_s=0.0, bias_force_tilt_rw=0.0))
     reopened = [e for e in est.drain_events() if e.kind == "torque_bias_reopened"]
     assert len(reopened) == 1
     assert without.contact.mean() > 0.11 and with_rule.contact.mean() < 0.02
     assert with_rule.contact_force_S.tolist() == without.contact_force_S.tolist()
-    learnt = KalmanEstimator(bias_force_tilt_rw="auto")
-    assert not run_estimator(stream, learnt).contact.any()
+    learnt = KalmanEstimator()
+    assert learnt.tilt_walk_auto and not run_estimator(stream, learnt).contact.any()
     assert not [e for e in learnt.drain_events() if e.kind == "torque_bias_reopened"]
 
 
@@ -227,19 +228,19 @@ def test_the_compiled_effects_are_the_reference_on_every_real_file(real_data, na
 
 def test_the_tilt_walk_follows_lwr4_2013_06_13s_fast_turn(real_data):
     """lwr4_2013_06_13 turns gravity's direction 74° in the 100 rows from 4859; the base model's error there
-    changes by 0.5 N, faster than the bias's walk over time follows, and the defaults (the tilt walk off)
-    refuse those rows as a contact. With the walk over the tilt, given (0.1 N/√rad, half the smallest rate,
+    changes by 0.5 N, faster than the bias's walk over time follows, and with the tilt walk off (the defaults
+    before 2026-11-28) those rows are refused as a contact. With the walk over the tilt, given (0.1 N/√rad, half the smallest rate,
     ~0.2 N/√rad, at which the real files' batch residuals vary with the tilt) or learnt from the file as it
-    runs ("auto"), no row is, and the online RMS over the second half comes further under the batch fit's.
+    runs ("auto", the default since), no row is, and the online RMS over the second half comes further under the batch fit's.
     The learnt walk is of the file's own scale, learnt from the rows before the turn."""
     import numpy as np
 
     stream = load_stream(real_data / "lwr4_2013_06_13.csv")
-    plain = run_estimator(stream, KalmanEstimator())
+    plain = run_estimator(stream, KalmanEstimator(bias_force_tilt_rw=0.0))
     before_turn = KalmanEstimator(bias_force_tilt_rw="auto")  # what it learns from the rows before the turn
     feed(before_turn, stream.samples.subset(slice(0, 4850)), chunk=64)
     tilted = run_estimator(stream, KalmanEstimator(bias_force_tilt_rw=0.1))
-    auto = KalmanEstimator(bias_force_tilt_rw="auto")
+    auto = KalmanEstimator()
     learnt = run_estimator(stream, auto)
     refused = np.flatnonzero(plain.contact)
     assert len(refused) >= 50 and 4800 <= refused.min() and refused.max() <= 5000  # the turn, nowhere else

@@ -28,7 +28,8 @@ left out, and a pair is scored only once the window after it has closed clean to
 are accepted before the gate refuses its ramp). A light contact the gate never refuses still moves a
 window's mean. Where it begins or ends within a window it steps the residual there, and the window's residuals
 spread more than the white noise and the walk over time explain: that window is left out too (``_stepped``,
-``STEP_EXCESS``). A touch whose edges both fall between windows, or one that rises over several, is left to
+``STEP_EXCESS``), unless most recent windows spread so (a sensor whose noise is not white, or so quiet that the
+tilt error's own change shows: the test then says nothing about contacts and stands down). A touch whose edges both fall between windows, or one that rises over several, is left to
 the median, which keeps it out as long as fewer than half the recent pairs touch one. The torque
 stage's refusals do not count: the force stage never depends on the torque's. A re-identified bias or a
 payload change starts the windows afresh (``restart_windows``): a step of the bias or of the weight is no
@@ -71,12 +72,19 @@ left out, as a refused one is: a light contact under the gate began or ended in 
 (median 1.49: half are left out, which leaves few clean triples of windows to score). On lwr4_2013_06_13, whose
 noise is not white, its windows spread 0.83 σ² (median) and at most 1.45 σ², its tilt error included: 0.3
 leaves out 3 of its 39 windows and still learns its walk, 0.2 leaves out 6 and lets one false contact through."""
+STEP_MEMORY = 16
+"""The step test's share of failed windows is a running mean over about this many windows (the first ones
+counted alike)."""
+STEP_STAND_DOWN = 0.75
+"""At this share of failed windows or more the step test stands down (``_stepped``). Light touches 2 s in every
+4 fail it in 0.3–0.5 of the windows (the ones a touch begins or ends in); a sensor with filtered (AR(1),
+ρ = 0.5) noise in all of them, a 0.01 N one on a 5° mount in 0.77."""
 
 TW_Q, TW_S2, TW_S2_N, TW_PAIRS, TW_RING_AT = 0, 1, 2, 3, 4
 TW_OPEN, TW_N, TW_T0, TW_DIRTY, TW_HAS_LAST, TW_AFTER = 5, 6, 7, 8, 9, 10
 TW_SY, TW_SA, TW_G0, TW_LAST, TW_LAST_G, TW_SG = 11, 14, 23, 26, 29, 32
-TW_SM, TW_SM2 = 35, 38
-TW_WIN = 39
+TW_SM, TW_SM2, TW_STEP_RATE, TW_STEP_N = 35, 38, 39, 40
+TW_WIN = 41
 WIN_Y, WIN_A, WIN_G, WIN_N, WIN_T, WIN_DIRTY, WIN_KNOWN, WIN_SIZE = 0, 3, 12, 15, 16, 17, 18, 19
 TW_RING = TW_WIN + 2 * WIN_SIZE
 TW_SORT = TW_RING + TILT_PAIRS
@@ -86,7 +94,8 @@ the pairs scored so far, where the next pair's sample goes in the ring; the open
 samples, start time (s), whether a sample was refused in it, whether its last sample is kept, whether the
 window before it had a refusal; its sums of y (3) and R_SB (9, row by row), gravity's direction in S where
 it began (3), its last residual (3), gravity's direction in S at its last sample (3) and its sum (3), the sum
-of its residuals (3) and of their squares; the two
+of its residuals (3) and of their squares; the share of the recent windows whose spread failed the step test,
+and how many it rests on (up to ``STEP_MEMORY``); the two
 windows closed last, older first, each: mean y (3), mean R_SB (9), gravity's mean direction (3), samples,
 middle time, dirty, known; the ring of the last ``TILT_PAIRS`` pairs' samples; scratch for their median."""
 
@@ -100,11 +109,13 @@ def restore(tw: np.ndarray, values) -> float:
     """Set ``tw`` (in place) to a saved one (a warm start: its windows go on where they were; a pair across a
     pause counts the pause's time as the bias's walk, one sample of the median, and a clock that went back
     starts the windows afresh); returns q_θ. ValueError if ``values`` is not a ``tw``. A state saved before
-    2026-11-28 lacks the open window's residual sums (``TW_SM``, ``TW_SM2``): they start at 0 (that window
-    is then not tested for a step)."""
+    2026-11-28 lacks the step test's values (``TW_SM`` to ``TW_STEP_N``): they start at 0, and its open window
+    is dropped (its residual sums are not there to test it).
+    """
     values = np.asarray(values, dtype=float)
     if values.ndim == 1 and len(values) == TW_SIZE - (TW_WIN - TW_SM):  # the layout before TW_SM
         values = np.insert(values, TW_SM, np.zeros(TW_WIN - TW_SM))
+        values[TW_OPEN] = 0.0
     if values.shape != tw.shape or not np.all(np.isfinite(values)):
         raise ValueError(f"walk must be {len(tw)} finite numbers (the tilt walk's state)")
     counts = values[[TW_Q, TW_S2, TW_S2_N, TW_PAIRS, TW_N]]
@@ -137,10 +148,14 @@ def _median(tw, n) -> float:
 
 @njit(cache=True, error_model="numpy")
 def _stepped(tw, t, q_time) -> bool:
-    """Whether the open window's residuals spread more than white noise and the walk over time explain: its
-    variance per axis above (1 + ``STEP_EXCESS``)·(σ² + q_t·T/6), T its duration (s). A light contact the gate
-    took in steps the residual within the window; a tilt error the window turns through moves it smoothly, by
-    a few per cent of σ² (see ``STEP_EXCESS``). Never before the white noise is known."""
+    """Whether the open window is left out for a step: its residuals spread more than white noise and the walk
+    over time explain, their variance (averaged over the axes) above (1 + ``STEP_EXCESS``)·(σ² + q_t·T/6), T
+    its duration (s), while fewer than ``STEP_STAND_DOWN`` of the recent windows did (``STEP_MEMORY``). A
+    light contact the gate took in steps the residual within the window; a tilt error the window turns through
+    moves it smoothly. A sensor whose noise is not white (filtered inside it: consecutive samples alike, so σ² from their
+    differences is too small), or so quiet that the tilt error's own change within a window shows, fails the
+    test in most windows: it then says nothing about contacts, and stands down until it passes again. Never
+    before the white noise is known."""
     n = tw[TW_N]
     if n < 2.0 or tw[TW_S2_N] < NOISE_MIN_DIFFERENCES:
         return False
@@ -148,7 +163,11 @@ def _stepped(tw, t, q_time) -> bool:
     for i in range(3):
         spread -= tw[TW_SM + i] * tw[TW_SM + i] / n
     expected = tw[TW_S2] + q_time * (t - tw[TW_T0]) / 6.0
-    return spread / (3.0 * (n - 1.0)) > (1.0 + STEP_EXCESS) * expected
+    failed = spread / (3.0 * (n - 1.0)) > (1.0 + STEP_EXCESS) * expected
+    standing = tw[TW_STEP_RATE] < STEP_STAND_DOWN  # (the share before this window)
+    tw[TW_STEP_N] = min(tw[TW_STEP_N] + 1.0, STEP_MEMORY)
+    tw[TW_STEP_RATE] += ((1.0 if failed else 0.0) - tw[TW_STEP_RATE]) / tw[TW_STEP_N]
+    return failed and standing
 
 
 @njit(cache=True, error_model="numpy")

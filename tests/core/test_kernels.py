@@ -294,6 +294,35 @@ def test_a_learnt_tilt_walk_is_the_reference_s(sim_mounted, size, options):
     assert _same_tree(ref.params(), fast.params(), tol) and _same_tree(ref.state(), fast.state(), tol)
 
 
+def test_the_learner_s_step_test_is_the_reference_s():
+    """``learn_tilt_walk`` compiled and as Python (``py_func``, which the numpy reference runs) on the same samples,
+    with 0.5 N steps inside some windows (a light touch the gate took in): the same state to the bit, windows
+    left out for their step, and the test's share of failed windows the same."""
+    from hapticlab.core.frames import matrix_from_rotvec
+    from hapticlab.core.kernels import tilt_walk
+
+    rng = np.random.default_rng(31)
+    n, rate = 20000, 1000.0
+    weight_B = np.array([0.02, -0.03, -3.4])
+    g_B = weight_B / np.linalg.norm(weight_B)
+    t = np.arange(n) / rate
+    angle = 0.35 * t  # rad: about 20°/s, about one window a second
+    axis = np.array([np.cos(0.1 * t), np.sin(0.1 * t), np.zeros(n)]).T  # (a turn whose axis drifts)
+    R_SB = np.array([matrix_from_rotvec(a * u) for a, u in zip(angle, axis)])
+    touching = (t % 4.0 > 1.3) & (t % 4.0 < 3.3)  # 2 s in every 4: edges fall inside windows
+    y = R_SB @ weight_B + np.array([1.0, 2.0, 0.5]) + rng.normal(0.0, 0.12, (n, 3)) + 0.5 * touching[:, None]
+    a = np.concatenate([weight_B, [1.0, 2.0, 0.5]])
+    fast, ref = tilt_walk.new_state(), tilt_walk.new_state()
+    for k in range(n):
+        q_fast = tilt_walk.learn_tilt_walk(fast, y[k], R_SB[k], a, g_B, t[k], False, 0.0)
+        q_ref = tilt_walk.learn_tilt_walk.py_func(ref, y[k], R_SB[k], a, g_B, t[k], False, 0.0)
+        assert q_fast == q_ref, k
+    print(f"\nstep test: share of failed windows {fast[tilt_walk.TW_STEP_RATE]:.2f} over "
+          f"{fast[tilt_walk.TW_STEP_N]:.0f}; pairs scored {fast[tilt_walk.TW_PAIRS]:.0f}; walk {np.sqrt(q_fast):.4f}")
+    assert np.array_equal(fast, ref)
+    assert 0.0 < fast[tilt_walk.TW_STEP_RATE] < tilt_walk.STEP_STAND_DOWN  # windows left out for a step
+
+
 @pytest.mark.parametrize("size", [1, 7])
 def test_a_late_sensor_streams_poses_and_positions_are_interpolated_as_the_reference_does(sim_inertia, size):
     """The live aligner's blocks carry quaternions and positions: a late sensor stream's poses and positions

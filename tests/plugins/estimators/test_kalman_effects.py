@@ -501,6 +501,31 @@ def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
     assert 0.03 <= learnt <= 0.15
 
 
+def _presses(start: float, every: float, count: int, peak: float) -> list[dict]:
+    """``count`` indentations of 2 s (0.4 s ramps) from ``start`` s, one every ``every`` s, peak force N."""
+    return [{"kind": "indentation", "start": start + every * k, "duration": 2.0, "peak_force": peak, "ramp": 0.4}
+            for k in range(count)]
+
+
+def _errors_in_contact(contacts: list[dict], seconds: float, variants: dict[str, dict]):
+    """Each ``kalman`` variant on a 1 kHz random tour (seed 2025, within 60° of vertical) with the contacts:
+    the contact-force error per axis over the samples in contact (N), the last variant's estimator, and
+    whether each variant called any sample a contact."""
+    from hapticlab.sessions.bench.paper import PaperSetup, simulate
+
+    sim = PaperSetup(seed=2025).world({"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0}, contacts,
+                                      noise_force=NOISE_F, noise_torque=0.01)
+    block, w = simulate(sim, seconds, RATE_HZ)
+    touching = np.asarray(w["contact"], dtype=bool)
+    error, called = {}, {}
+    for label, options in variants.items():
+        est = KalmanEstimator(**options)
+        out, _ = feed(est, block, chunk=64)
+        error[label] = np.sqrt(np.mean((out.contact_force_S - w["contact_force_S"])[touching] ** 2, axis=0))
+        called[label] = bool(out.contact.any())
+    return error, est, called
+
+
 def test_the_tilt_walk_lets_a_contact_made_while_turning_into_the_bias_unless_its_span_stops_it():
     """The price of the tilt walk, and what its span is for: at 1 kHz a tour turning ~19°/s gives the plain
     walk (no span), at 0.1 N/√rad, enough per sample to follow the first newtons of an indentation's ramp
@@ -509,20 +534,9 @@ def test_the_tilt_walk_lets_a_contact_made_while_turning_into_the_bias_unless_it
     turn, half a second of this tour, and the error is within 5 % of the walk off. The simulator's model is the filter's:
     learnt ("auto"), the walk stays 0 here (the indentations' windows left out), and the contact force is that
     without the walk."""
-    from hapticlab.sessions.bench.paper import PaperSetup, simulate
-
-    contacts = [{"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
-                for k in range(3)]
-    sim = PaperSetup(seed=2025).world({"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0}, contacts,
-                                      noise_force=NOISE_F, noise_torque=0.01)
-    block, w = simulate(sim, 30.0, RATE_HZ)
-    touching = np.asarray(w["contact"], dtype=bool)
-    error = {}
-    for label, options in (("off", {"bias_force_tilt_rw": 0.0}), ("plain 0.1", {"bias_force_tilt_rw": 0.1, "bias_tilt_span": 0.0}),
-                           ("spanned 0.1", {"bias_force_tilt_rw": 0.1}), ("auto", {"bias_force_tilt_rw": "auto"})):
-        est = KalmanEstimator(**options)
-        out, _ = feed(est, block, chunk=64)
-        error[label] = np.sqrt(np.mean((out.contact_force_S - w["contact_force_S"])[touching] ** 2, axis=0))
+    error, est, _ = _errors_in_contact(_presses(5.0, 10.0, 3, 3.0), 30.0, {
+        "off": {"bias_force_tilt_rw": 0.0}, "plain 0.1": {"bias_force_tilt_rw": 0.1, "bias_tilt_span": 0.0},
+        "spanned 0.1": {"bias_force_tilt_rw": 0.1}, "auto": {"bias_force_tilt_rw": "auto"}})
     learnt, pairs = est.params()["bias_force_tilt_rw"][0], est.params()["tilt_walk_pairs"][0]
     print(f"\nindentations while turning, contact-force error in contact (N): "
           f"{({k: np.round(v, 3).tolist() for k, v in error.items()})}; learnt {learnt:.4f} N/√rad from "
@@ -540,20 +554,9 @@ def test_light_touches_the_gate_takes_in_are_not_learnt_as_tilt_walk():
     followed the touches (contact-force error 0.25 → 0.30 N in z). A touch steps the residual within the
     window it starts or ends in, which a tilt error does not: such a window is left out as a refused one is
     (``tilt_walk.STEP_EXCESS``), and the walk stays 0 here, the simulator's model being the filter's."""
-    from hapticlab.sessions.bench.paper import PaperSetup, simulate
-
-    contacts = [{"kind": "indentation", "start": 1.0 + 4.0 * k, "duration": 2.0, "peak_force": 0.5, "ramp": 0.4}
-                for k in range(15)]
-    sim = PaperSetup(seed=2025).world({"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0}, contacts,
-                                      noise_force=NOISE_F, noise_torque=0.01)
-    block, w = simulate(sim, 60.0, RATE_HZ)
-    touching = np.asarray(w["contact"], dtype=bool)
-    error = {}
-    for label, options in (("off", {"bias_force_tilt_rw": 0.0}), ("auto", {"bias_force_tilt_rw": "auto"})):
-        est = KalmanEstimator(**options)
-        out, _ = feed(est, block, chunk=64)
-        assert label != "off" or not out.contact.any(), "the touches are under the gate"
-        error[label] = np.sqrt(np.mean((out.contact_force_S - w["contact_force_S"])[touching] ** 2, axis=0))
+    error, est, called = _errors_in_contact(_presses(1.0, 4.0, 15, 0.5), 60.0,
+                                            {"off": {"bias_force_tilt_rw": 0.0}, "auto": {"bias_force_tilt_rw": "auto"}})
+    assert not called["off"], "the touches are under the gate"
     learnt, pairs = est.params()["bias_force_tilt_rw"][0], est.params()["tilt_walk_pairs"][0]
     print(f"\n0.5 N touches 2 s in every 4, contact-force error in contact (N): "
           f"{({k: np.round(v, 3).tolist() for k, v in error.items()})}; learnt {learnt:.4f} N/√rad from "

@@ -19,7 +19,8 @@ from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.sessions.bench.family import MOUNT_ROTATION_SE
 from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
 
-VARIANTS = (("walk off", {"bias_force_tilt_rw": 0.0}), ('"auto", no span', {"bias_force_tilt_rw": "auto", "bias_tilt_span": 0.0}),
+VARIANTS = (("walk off", {"bias_force_tilt_rw": 0.0}),
+            ('"auto", no span', {"bias_force_tilt_rw": "auto", "bias_tilt_span": 0.0}),
             ('"auto" (span 0.15 rad)', {"bias_force_tilt_rw": "auto"}))
 
 

@@ -29,8 +29,9 @@ are accepted before the gate refuses its ramp). A light contact the gate never r
 window's mean. Where it begins or ends within a window it steps the residual there, and the window's residuals
 spread more than the white noise and the walk over time explain: that window is left out too (``_stepped``,
 ``STEP_EXCESS``), unless most recent windows spread so (a sensor whose noise is not white, or so quiet that the
-tilt error's own change shows: the test then says nothing about contacts and stands down). A touch whose edges both fall between windows, or one that rises over several, is left to
-the median, which keeps it out as long as fewer than half the recent pairs touch one. The torque
+tilt error's own change shows: the test then says nothing about contacts and stands down). A touch whose edges
+both fall between windows, or one that rises over several, is left to the median, which keeps it out as long
+as fewer than half the recent pairs touch one. The torque
 stage's refusals do not count: the force stage never depends on the torque's. A re-identified bias or a
 payload change starts the windows afresh (``restart_windows``): a step of the bias or of the weight is no
 turn's. A drift of the bias faster than the filter's walk over time counts as tilt (the walk then follows it
@@ -66,10 +67,10 @@ NOISE_MIN_DIFFERENCES = 30
 """No pair is scored before the white noise rests on this many differences (a stream of static poses far
 apart never tells its noise from its model error, and keeps q_θ at 0)."""
 STEP_EXCESS = 0.5
-"""A window whose residuals spread more than (1 + this)·σ² per axis (σ² plus the walk over time's share) is
-left out, as a refused one is: a light contact under the gate began or ended in it. On the simulator at 1 kHz
-(0.12 N) a window free of contact spreads 0.92–1.10 σ², one in which a 0.5 N touch begins or ends 0.98–2.29 σ²
-(median 1.49: half are left out, which leaves few clean triples of windows to score). On lwr4_2013_06_13, whose
+"""A window whose residuals spread more than (1 + this)·σ² (their variance averaged over the axes; σ² plus the
+walk over time's share) is left out, as a refused one is: a light contact under the gate began or ended in it.
+On the simulator at 1 kHz (0.12 N) a window free of contact spreads 0.92–1.10 σ², one in which a 0.5 N touch
+begins or ends 0.98–2.29 σ² (median 1.49: half are left out, which leaves few clean triples of windows to score). On lwr4_2013_06_13, whose
 noise is not white, its windows spread 0.83 σ² (median) and at most 1.45 σ², its tilt error included: 0.3
 leaves out 3 of its 39 windows and still learns its walk, 0.2 leaves out 6 and lets one false contact through."""
 STEP_MEMORY = 16
@@ -152,10 +153,10 @@ def _stepped(tw, t, q_time) -> bool:
     over time explain, their variance (averaged over the axes) above (1 + ``STEP_EXCESS``)·(σ² + q_t·T/6), T
     its duration (s), while fewer than ``STEP_STAND_DOWN`` of the recent windows did (``STEP_MEMORY``). A
     light contact the gate took in steps the residual within the window; a tilt error the window turns through
-    moves it smoothly. A sensor whose noise is not white (filtered inside it: consecutive samples alike, so σ² from their
-    differences is too small), or so quiet that the tilt error's own change within a window shows, fails the
-    test in most windows: it then says nothing about contacts, and stands down until it passes again. Never
-    before the white noise is known."""
+    moves it smoothly. A sensor whose noise is not white (filtered inside it: consecutive samples alike, so σ²
+    from their differences is too small), or so quiet that the tilt error's own change within a window shows,
+    fails the test in most windows: it then says nothing about contacts, and stands down until it passes
+    again. Never before the white noise is known."""
     n = tw[TW_N]
     if n < 2.0 or tw[TW_S2_N] < NOISE_MIN_DIFFERENCES:
         return False

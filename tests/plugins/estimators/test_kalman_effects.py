@@ -484,7 +484,8 @@ def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
     3.4 N weight is 0.3 N, which changes by about that much per radian the tool turns."""
     world, block = mounted
     rms, learnt = {}, None
-    for label, options in (("walk off", {"bias_force_tilt_rw": 0.0}), ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}),
+    for label, options in (("walk off", {"bias_force_tilt_rw": 0.0}),
+                           ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}),
                            ("learnt", {"bias_force_tilt_rw": "auto"}), ("mount_rotation", {"mount_rotation": True})):
         est = KalmanEstimator(**options)
         out, _ = feed(est, block, chunk=64)
@@ -554,8 +555,8 @@ def test_light_touches_the_gate_takes_in_are_not_learnt_as_tilt_walk():
     followed the touches (contact-force error 0.25 → 0.30 N in z). A touch steps the residual within the
     window it starts or ends in, which a tilt error does not: such a window is left out as a refused one is
     (``tilt_walk.STEP_EXCESS``), and the walk stays 0 here, the simulator's model being the filter's."""
-    error, est, called = _errors_in_contact(_presses(1.0, 4.0, 15, 0.5), 60.0,
-                                            {"off": {"bias_force_tilt_rw": 0.0}, "auto": {"bias_force_tilt_rw": "auto"}})
+    variants = {"off": {"bias_force_tilt_rw": 0.0}, "auto": {"bias_force_tilt_rw": "auto"}}
+    error, est, called = _errors_in_contact(_presses(1.0, 4.0, 15, 0.5), 60.0, variants)
     assert not called["off"], "the touches are under the gate"
     learnt, pairs = est.params()["bias_force_tilt_rw"][0], est.params()["tilt_walk_pairs"][0]
     print(f"\n0.5 N touches 2 s in every 4, contact-force error in contact (N): "

@@ -229,9 +229,10 @@ def test_the_compiled_effects_are_the_reference_on_every_real_file(real_data, na
 def test_the_tilt_walk_follows_lwr4_2013_06_13s_fast_turn(real_data):
     """lwr4_2013_06_13 turns gravity's direction 74° in the 100 rows from 4859; the base model's error there
     changes by 0.5 N, faster than the bias's walk over time follows, and with the tilt walk off (the defaults
-    before 2026-11-28) those rows are refused as a contact. With the walk over the tilt, given (0.1 N/√rad, half the smallest rate,
-    ~0.2 N/√rad, at which the real files' batch residuals vary with the tilt) or learnt from the file as it
-    runs ("auto", the default since), no row is, and the online RMS over the second half comes further under the batch fit's.
+    before 2026-11-28) those rows are refused as a contact. With the walk over the tilt, given (0.1 N/√rad, half
+    the smallest rate, ~0.2 N/√rad, at which the real files' batch residuals vary with the tilt) or learnt from
+    the file as it runs ("auto", the default since), no row is, and the online RMS over the second half comes
+    further under the batch fit's.
     The learnt walk is of the file's own scale, learnt from the rows before the turn."""
     import numpy as np
 

@@ -217,16 +217,21 @@ def test_emulator_stopped_no_fresh_poses_the_orientation_goes_stale_and_an_event
     assert block.stale.tolist() == [False, True, True]
 
 
-def test_a_tcp_offset_in_the_installation_is_an_event():
-    """With ``model`` set, a reported pose that is not the flange's FK (a TCP 100 mm out, turned 0.5 rad) is named."""
-    with emulator_process("127.0.0.85", "--tcp-offset", "0,0,0.1,0,0,0.5"):
-        kinematics = URRTDEKinematics(address="127.0.0.85", model="ur5e")
+def _events_when_open_returns(address: str) -> list:
+    """The events drained right after ``open`` returns, against an emulated ur5e whose installation sets a TCP
+    100 mm out along z, turned 0.5 rad about it."""
+    with emulator_process(address, "--tcp-offset", "0,0,0.1,0,0,0.5"):
+        kinematics = URRTDEKinematics(address=address, model="ur5e")
         kinematics.open(time.monotonic_ns())
         try:
-            events = kinematics.drain_events()
+            return kinematics.drain_events()
         finally:
             kinematics.close()
-    (event,) = [e for e in events if e.kind == "kinematics_tcp_offset"]
+
+
+def test_a_tcp_offset_in_the_installation_is_an_event():
+    """With ``model`` set, a reported pose that is not the flange's FK (a TCP 100 mm out, turned 0.5 rad) is named."""
+    (event,) = [e for e in _events_when_open_returns("127.0.0.85") if e.kind == "kinematics_tcp_offset"]
     assert "actual_TCP_pose is 100.0 mm and 0.500 rad from the ur5e flange" in event.message
     assert event.data["distance_m"] == pytest.approx(0.1, abs=1e-5)
 
@@ -242,13 +247,7 @@ def test_the_first_package_s_events_are_there_when_open_returns(monkeypatch):
         return check(self, received_ns, sample)
 
     monkeypatch.setattr(URRTDEKinematics, "_check_tcp", slow_check)
-    with emulator_process("127.0.0.88", "--tcp-offset", "0,0,0.1,0,0,0.5"):
-        kinematics = URRTDEKinematics(address="127.0.0.88", model="ur5e")
-        kinematics.open(time.monotonic_ns())
-        try:
-            events = kinematics.drain_events()
-        finally:
-            kinematics.close()
+    events = _events_when_open_returns("127.0.0.88")
     assert [e.kind for e in events].count("kinematics_tcp_offset") == 1
 
 

@@ -70,9 +70,10 @@ STEP_EXCESS = 0.5
 """A window whose residuals spread more than (1 + this)·σ² (their variance averaged over the axes; σ² plus the
 walk over time's share) is left out, as a refused one is: a light contact under the gate began or ended in it.
 On the simulator at 1 kHz (0.12 N) a window free of contact spreads 0.92–1.10 σ², one in which a 0.5 N touch
-begins or ends 0.98–2.29 σ² (median 1.49: half are left out, which leaves few clean triples of windows to score). On lwr4_2013_06_13, whose
-noise is not white, its windows spread 0.83 σ² (median) and at most 1.45 σ², its tilt error included: 0.3
-leaves out 3 of its 39 windows and still learns its walk, 0.2 leaves out 6 and lets one false contact through."""
+begins or ends 0.98–2.29 σ² (median 1.49: half are left out, which leaves few clean triples of windows to
+score). On lwr4_2013_06_13, whose noise is not white, its windows spread 0.83 σ² (median) and at most
+1.45 σ², its tilt error included: 0.3 leaves out 3 of its 39 windows and still learns its walk, 0.2 leaves
+out 6 and lets one false contact through."""
 STEP_MEMORY = 16
 """The step test's share of failed windows is a running mean over about this many windows (the first ones
 counted alike)."""
@@ -258,7 +259,9 @@ def learn_tilt_walk(tw, y, A, a, g_B, t, refused, q_time) -> float:
     older_clean = tw[o + WIN_KNOWN] != 0.0 and tw[o + WIN_DIRTY] == 0.0
     newer_clean = tw[w + WIN_KNOWN] != 0.0 and tw[w + WIN_DIRTY] == 0.0
     n = tw[TW_N]
-    this_clean = tw[TW_DIRTY] == 0.0 and tw[TW_AFTER] == 0.0 and n > 0.0 and not _stepped(tw, t, q_time)
+    this_clean = tw[TW_DIRTY] == 0.0 and tw[TW_AFTER] == 0.0 and n > 0.0
+    if this_clean:  # (the step test, and its share of failed windows, only where nothing else left it out: a
+        this_clean = not _stepped(tw, t, q_time)  # refused contact would fail it too and stand it down)
     if older_clean and newer_clean and this_clean and tw[TW_S2_N] >= NOISE_MIN_DIFFERENCES:
         _score(tw, a, q_time)  # (the window after the pair closed clean: no contact's ramp in the pair)
     for i in range(WIN_SIZE):

@@ -131,14 +131,16 @@ def test_indentations_are_not_payload_changes():
     assert out.contact.sum() > 18 * 1000  # the indentations were refused as contact
 
 
-@pytest.mark.parametrize("peak, start, noise", [(1.5, 5.0, NOISE), (3.0, 1.0, {})],
-                         ids=["1.5 N, the noise given", "3 N from the first second, auto noise"])
+@pytest.mark.parametrize("peak, start, noise", [(0.8, 5.0, NOISE), (1.0, 5.0, {}), (1.5, 5.0, NOISE), (3.0, 1.0, {})],
+                         ids=["0.8 N, the noise given", "1 N, auto noise", "1.5 N, the noise given",
+                              "3 N from the first second, auto noise"])
 def test_indentations_2_s_in_every_4_are_not_payload_changes(peak, start, noise):
     """Closer indentations, whose refusal runs begin where the ramp crosses the gate (about half way up) and
     whose window, grown past the ramp, fits a weight change to within the noise estimate. Before the onset
     test (``core.payload.ONSET_SHARE``) they were, each time re-opening gravity: 1.5 N ones 4 times, and the
     contact force where both flags were up was 0.32 / 0.34 / 0.83 N off (RMS); 3 N ones from the first
-    second, with the noise estimated, 5 times, 0.36 / 0.50 / 0.83 N."""
+    second, with the noise estimated, 5 times, 0.36 / 0.50 / 0.83 N. Lighter ones, whose plateau is near the
+    gate, passed an onset of refused samples only (those the noise pushed over the gate)."""
     touches = [{"kind": "indentation", "start": start + 4.0 * k, "duration": 2.0, "peak_force": peak, "ramp": 0.4}
                for k in range(int((20.0 - start) // 4.0))]
     block, truth = world(touches, seconds=20.0)
@@ -149,13 +151,14 @@ def test_indentations_2_s_in_every_4_are_not_payload_changes(peak, start, noise)
     print(f"\n{peak} N indentations 2 s in every 4: {len(others(est))} payload changes, error where both flags "
           f"are up {np.round(error, 3)} N")
     assert others(est) == []
-    assert np.all(error < 1.2 * NOISE["noise_force"]), error
+    assert np.all(error < 0.2), error  # (0.8 N ones are partly under the gate: 0.14–0.18 N)
 
 
 def test_a_run_that_begins_below_its_plateau_is_not_a_payload_change():
     """The watch on its own, fed refused runs that fit a weight change along gravity equally well once the
     window is full: a step (a mass hung at once) is named; a ramp from half its plateau to it over the first
-    0.1 s, then held, is not, though its window's fit passes (the onset carries 0.6 of the change)."""
+    0.1 s, then held, is not, though its window's fit passes (its onset, the first 30 ms, carries 0.57 of the
+    change)."""
     from scipy.spatial.transform import Rotation
 
     from hapticlab.core import payload as pl
@@ -171,7 +174,7 @@ def test_a_run_that_begins_below_its_plateau_is_not_a_payload_change():
         e = (A @ (0.5 * g)) * level[:, None] + rng.normal(0.0, 0.12, (m, 3))
         watch = pl.PayloadWatch(300_000_000)
         window = pl.RefusedWindow()
-        window.append(e=e, A=A, y=e, f=e, tq=e, R=A, t=np.arange(m) * 1e-3)
+        window.append(e=e, A=A, y=e, f=e, tq=e, R=A)
         dg, ratio = window.fit(r)
         named[label] = None
         for k in range(0, m, 64):  # ticks of 64 samples, every one refused, until the first change named
@@ -179,10 +182,12 @@ def test_a_run_that_begins_below_its_plateau_is_not_a_payload_change():
             refused = np.ones(len(t_ns[tick]), dtype=bool)
             named[label] = watch.observe(t_ns[tick], refused, refused, e[tick], A[tick], e[tick], e[tick], e[tick],
                                          A[tick], r, g)
+            if k == 0:
+                share = watch.onset_share(dg)  # (its 30 ms are in the first tick)
             if named[label] is not None:
                 break
-        print(f"\n{label}: full window's fit ratio {ratio:.2f}, onset share "
-              f"{window.onset_share(dg, 0.03, pl.ONSET_SAMPLES):.2f}, named {named[label] is not None}")
+        print(f"\n{label}: full window's fit ratio {ratio:.2f}, onset share {share:.2f}, "
+              f"named {named[label] is not None}")
         assert ratio < pl.FIT_RATIO  # the fit alone would pass both
     assert named["step"] is not None and named["ramp"] is None
     assert abs(named["step"].weight_change - 0.98) < 0.05
@@ -190,7 +195,8 @@ def test_a_run_that_begins_below_its_plateau_is_not_a_payload_change():
 
 def test_a_payload_whose_weight_comes_on_within_50_ms_is_still_named():
     """The onset test's price, bounded: 100 g whose weight comes on over 50 ms (a mass dropped onto a hook) still
-    begins its run with nearly all of it, and is named. (Over 0.1 s or more it is not: docs/estimators.md.)"""
+    begins its run with nearly all of it, and is named. (Over 0.1 s it is on 1 seed of 5, over 0.2 s on none:
+    docs/estimators.md.)"""
     down = [{"kind": "indentation", "start": 5.0, "duration": 1e9, "peak_force": 0.1 * 9.81, "ramp": 0.05,
              "direction_B": [0.0, 0.0, -1.0]}]
     block, _ = world(down, seconds=10.0)
@@ -320,8 +326,7 @@ def test_the_refused_window_grows_and_fits_as_the_least_squares_over_it():
     window = RefusedWindow(capacity=4)
     for k in range(0, 50, 3):  # blocks of 3 (and a last of 2): the buffers double several times
         part = slice(k, k + 3)
-        window.append(e=e[part], A=R[part], y=e[part] + 1.0, f=e[part] + 2.0, tq=e[part] + 3.0, R=R[part],
-                      t=np.arange(50)[part] * 1e-3)
+        window.append(e=e[part], A=R[part], y=e[part] + 1.0, f=e[part] + 2.0, tq=e[part] + 3.0, R=R[part])
     stacked = window.window()
     assert len(window) == 50 and np.array_equal(stacked["e"], e) and np.array_equal(stacked["R"], R)
     assert np.array_equal(stacked["tq"], e + 3.0)

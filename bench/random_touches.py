@@ -9,7 +9,7 @@ are up the RMS error of the contact force per axis in contact and out of it (N),
 contact force is more than 1 N off with both flags up, and the share of the touching samples judged a
 contact. The table in docs/estimators.md ("Payload change") is this script's output.
 
-Run: ``.venv/bin/python bench/random_touches.py`` (about half a minute).
+Run: ``.venv/bin/python bench/random_touches.py`` (about 10 s).
 """
 
 from __future__ import annotations

@@ -49,10 +49,6 @@ rates the test is blind: a 0.4 s ramp is 4 samples, and the first refused one is
 ONSET_SHARE = 0.8
 """The onset's mean change along the fitted Δg must be at least this share of |Δg|. Measured at 1 kHz on a
 random tour: see docs/estimators.md ("Payload change")."""
-UNDO_TOLERANCE = 0.25
-"""A run whose Δg undoes the last change named, to within this share of that change's |Δg|, is named without
-the onset test: a payload taken off by hand ramps down, and a push that began as a step (taken for a payload,
-which in force and torque it is) ends as its ramp does."""
 
 
 class RefusedWindow:
@@ -133,7 +129,6 @@ class PayloadWatch:
         self._accepted = 0  # consecutive accepted samples (a run survives a few)
         self._tested_full = False  # the run's whole window was tested (negative)
         self._onset, self._onset_n = np.zeros(3), 0  # the onset's sum of A_kᵀe_k (N, in B) and its samples
-        self._last: np.ndarray | None = None  # the last change named, Δg (N, in B), until undone
 
     @property
     def in_run(self) -> bool:
@@ -194,11 +189,8 @@ class PayloadWatch:
         vertical = gn > 0 and dn > 0 and abs(float(g @ dg)) >= math.cos(MAX_TILT) * gn * dn
         if not (ratio < FIT_RATIO and vertical):
             return None
-        last = self._last
-        undoes = last is not None and np.linalg.norm(dg + last) < UNDO_TOLERANCE * np.linalg.norm(last)
-        if not (undoes or self.onset_share(dg) >= ONSET_SHARE):
+        if not self.onset_share(dg) >= ONSET_SHARE:
             return None  # a ramp: the run began below its plateau
-        self._last = None if undoes else dg.copy()
         change = PayloadChange(t_last, dn, (t_last - self.since) * 1e-9, self.window.window())
         self._end_run()
         return change

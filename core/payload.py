@@ -17,8 +17,8 @@ residual is in units of the noise estimate, which the ramp's accepted part had r
 test passes.
 
 Symbols and shapes (m samples): e (m, 3) N; A = R_SB (m, 3, 3); y (m, 3) the force stage's reading, N;
-f (m, 3) force_S, N; tq (m, 3) torque_S, N·m; R (m, 3, 3) R_EB; t (m,) s since the run's first refused
-sample; r (3,) the force noise variances, N²; g (3,) gravity_force_B, N.
+f (m, 3) force_S, N; tq (m, 3) torque_S, N·m; R (m, 3, 3) R_EB; r (3,) the force noise variances, N²;
+g (3,) gravity_force_B, N.
 """
 
 from __future__ import annotations

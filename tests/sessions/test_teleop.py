@@ -302,12 +302,17 @@ def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tm
     assert " 0 CRC error(s)" in device_counts and "force command(s)" in device_counts
     rec = read_recording(result.path)
     t, p, mode, reason = targets(rec)
-    # following the hand; a hold only ever because the force went off (a pose or a sensor record late:
-    # the emulators share this 2-core machine, and a stale stream zeroes the force and holds the robot)
+    # following the hand; a hold only ever because a stream was late: the force went off (a pose or a sensor
+    # record late), or the master's state was (the three processes share this 2-core machine, and a host
+    # hiccup delays one: on 2026-11-28 this failed on the master's state in one CI run, and in 2 runs of 4 on
+    # the code before that day's changes while the machine was busy). Bounded: a lost master holds for good.
     t_cal = tour_end(rec)
     after_tour = t > t_cal + 0.2
+    reasons = np.array(reason)[after_tour]
     assert np.mean(np.array(mode)[after_tour] == "following") > 0.5
-    assert set(np.array(reason)[after_tour]) <= {"", "haptic force off"}
+    assert set(reasons) <= {"", "haptic force off", "no state from the master device"}
+    late_master = np.mean(reasons == "no state from the master device")
+    assert late_master < 0.05, late_master
     # the arm itself (its RTDE poses, not our targets) toured, then went down and up with the hand
     t_pose = (rec.t_ns("/kinematics/pose") - rec.t_ns("/robot/target")[0]) * 1e-9
     quat = np.array([m["quat_BE"] for _, m in rec.topics["/kinematics/pose"]])

@@ -129,6 +129,7 @@ class PayloadWatch:
         self._accepted = 0  # consecutive accepted samples (a run survives a few)
         self._tested_full = False  # the run's whole window was tested (negative)
         self._onset, self._onset_n = np.zeros(3), 0  # the onset's sum of A_kᵀe_k (N, in B) and its samples
+        self._onset_done = False  # the onset is complete (nothing more to add to it in this run)
 
     @property
     def in_run(self) -> bool:
@@ -136,7 +137,7 @@ class PayloadWatch:
 
     def _end_run(self) -> None:
         self.since, self.window, self._accepted = None, RefusedWindow(), 0
-        self._onset, self._onset_n = np.zeros(3), 0
+        self._onset, self._onset_n, self._onset_done = np.zeros(3), 0, False
 
     def onset_share(self, dg: np.ndarray) -> float:
         """The run's onset (``ONSET_FRACTION``): the mean of its samples' own changes A_kᵀe_k along ``dg``
@@ -155,7 +156,7 @@ class PayloadWatch:
             if gated[k]:
                 if self.since is None:
                     self.since, self.window, self._tested_full = int(t_ns[k]), RefusedWindow(), False
-                    self._onset, self._onset_n = np.zeros(3), 0
+                    self._onset, self._onset_n, self._onset_done = np.zeros(3), 0, False
                     start = k
                 self._accepted = 0
             elif self.since is not None:
@@ -165,12 +166,14 @@ class PayloadWatch:
                     start = k + 1
         if self.since is None:
             return None
-        onset_ns = ONSET_FRACTION * self.change_ns
-        for k in np.flatnonzero(usable[start:]) + start:  # the onset: accepted samples count too
-            if self._onset_n >= ONSET_SAMPLES and t_ns[k] - self.since > onset_ns:
-                break
-            self._onset += A[k].T @ e[k]  # the sample's own Δg, in B
-            self._onset_n += 1
+        if not self._onset_done:  # (a tick in a long run costs nothing more once its onset is complete)
+            onset_ns = ONSET_FRACTION * self.change_ns
+            for k in np.flatnonzero(usable[start:]) + start:  # the onset: accepted samples count too
+                if self._onset_n >= ONSET_SAMPLES and t_ns[k] - self.since > onset_ns:
+                    self._onset_done = True
+                    break
+                self._onset += A[k].T @ e[k]  # the sample's own Δg, in B
+                self._onset_n += 1
         # the window is the run from its first refused sample on (its onset included: a contact
         # ramps up, a payload is a step), at most WINDOW_RUNS·change_ns long
         newest = self.since + WINDOW_RUNS * self.change_ns

@@ -124,6 +124,10 @@ class PayloadWatch:
 
     def __init__(self, change_ns: int):
         self.change_ns = change_ns
+        self._end_run()
+
+    def _end_run(self) -> None:
+        """No run: what the next one starts from."""
         self.since: int | None = None  # t_ns of the run's first refused sample (None: no run)
         self.window = RefusedWindow()
         self._accepted = 0  # consecutive accepted samples (a run survives a few)
@@ -134,10 +138,6 @@ class PayloadWatch:
     @property
     def in_run(self) -> bool:
         return self.since is not None
-
-    def _end_run(self) -> None:
-        self.since, self.window, self._accepted = None, RefusedWindow(), 0
-        self._onset, self._onset_n, self._onset_done = np.zeros(3), 0, False
 
     def onset_share(self, dg: np.ndarray) -> float:
         """The run's onset (``ONSET_FRACTION``): the mean of its samples' own changes A_kᵀe_k along ``dg``
@@ -154,9 +154,8 @@ class PayloadWatch:
         start = 0
         for k in np.flatnonzero(usable):
             if gated[k]:
-                if self.since is None:
-                    self.since, self.window, self._tested_full = int(t_ns[k]), RefusedWindow(), False
-                    self._onset, self._onset_n, self._onset_done = np.zeros(3), 0, False
+                if self.since is None:  # (its window and onset were left empty by _end_run)
+                    self.since = int(t_ns[k])
                     start = k
                 self._accepted = 0
             elif self.since is not None:

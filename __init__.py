@@ -36,7 +36,7 @@ def load_session(session: str | Path | Mapping[str, Any] = "demo",
     ``settings`` maps dotted keys to values, as ``--set`` does on the command
     line: ``{"session.duration": 3, "estimator.name": "kalman"}``.
     """
-    from .sessions.config import apply_settings, load_config
+    from hapticlab.sessions.config import apply_settings, load_config
 
     if isinstance(session, Mapping):
         config = dict(session)
@@ -55,7 +55,7 @@ def run(session: str | Path | Mapping[str, Any] = "demo", settings: Mapping[str,
     A device or estimator that fails raises ``SessionError``; its
     ``result.path`` is the complete recording.
     """
-    from .sessions.live import build_session, run_session
+    from hapticlab.sessions.live import build_session, run_session
 
     return run_session(build_session(load_session(session, settings)), out=out).path
 
@@ -63,7 +63,7 @@ def run(session: str | Path | Mapping[str, Any] = "demo", settings: Mapping[str,
 def open_recording(path: str | Path):
     """Open a recording: ``metadata``, ``events``, ``topic_names``, ``messages(topic)`` yielding
     ``(t_ns, dict)``, and arrays: ``wrench()``, ``poses()``, ``estimates(name)``; topics are read on demand."""
-    from .sessions.recording import open_recording as _open
+    from hapticlab.sessions.recording import open_recording as _open
 
     return _open(path)
 
@@ -71,7 +71,7 @@ def open_recording(path: str | Path):
 def make_estimator(name: str, **options: Any):
     """A registered estimator built with ``options`` (checked against its signature, as a session's
     ``[estimator]`` table is): ``make_estimator("rls", force_threshold=0.6)``."""
-    from .core.plugins import Registry
+    from hapticlab.core.host.registry import Registry
 
     return Registry().create("estimator", name, options, where="estimator")
 
@@ -83,8 +83,8 @@ def compensate(stream_or_path, estimator="rls"):
     (e.g. from :func:`make_estimator`). Returns the ``Estimates``, one row per
     input row (rows the estimator could not use carry NaN).
     """
-    from .sessions.offline.compensate import run_estimator
-    from .sessions.recording.stream import Stream, load_stream
+    from hapticlab.sessions.offline.compensate import run_estimator
+    from hapticlab.sessions.recording.stream import Stream, load_stream
 
     stream = stream_or_path if isinstance(stream_or_path, Stream) else load_stream(stream_or_path)
     if isinstance(estimator, str):
@@ -94,6 +94,6 @@ def compensate(stream_or_path, estimator="rls"):
 
 def get_plugins() -> list[dict[str, str]]:
     """Every registered plugin: ``{"kind", "name", "origin"}``, by kind then name."""
-    from .core.plugins import Registry
+    from hapticlab.core.host.registry import Registry
 
     return [{"kind": e.kind, "name": e.name, "origin": e.origin} for e in Registry().entries()]

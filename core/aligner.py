@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .frames import (
+from hapticlab.core.frames import (
     matrix_from_quat_wxyz,
     quat_conjugate,
     quat_from_rotvec,
@@ -21,8 +21,8 @@ from .frames import (
     quat_slerp,
     rotvec_from_quat,
 )
-from .kernels import align as align_kernel
-from .types import AlignedSamples, PoseSample, WrenchBlock, WrenchSample
+from hapticlab.core import aligner_kernel as align_kernel
+from hapticlab.core.types import AlignedSamples, PoseSample, WrenchBlock, WrenchSample
 
 _NO_POSITIONS = np.zeros((0, 3))
 """What the compiled aligner is given for poses without positions (and writes none into)."""
@@ -110,7 +110,7 @@ class Aligner:
             operation (a networked arm, ``HasLatency``), s: added to the longest
             extrapolation.
         keep: how many recent poses to keep for interpolation.
-        kernel: "numba" (``core.kernels.align``, compiled: a few µs per block) or
+        kernel: "numba" (``core.aligner_kernel``, compiled: a few µs per block) or
             "numpy" (``orientation_at`` and ``position_at``: the reference).
     """
 

@@ -16,3 +16,11 @@ class UserError(Exception):
 
 class OutputExistsError(UserError, FileExistsError):
     """An output path already holds a file: nothing recorded is overwritten unless the user says so."""
+
+
+class PluginError(UserError):
+    """A plugin could not be found, registered or built; the message names it."""
+
+
+class ConfigError(PluginError):
+    """A configuration value is wrong; the message names the key."""

@@ -149,7 +149,7 @@ class PoseSample:
         a_BEo_B: (3,) translational acceleration of E's origin in B, expressed in B, m/s² (gravity
             not included); None if unknown.
 
-    The last three are what ``core.derivatives.MotionDerivatives`` estimates from the poses
+    The last three are what ``plugins.estimators.kalman.derivatives.MotionDerivatives`` estimates from the poses
     (its ``w_E``, ``alpha_E``, ``a_B``), for a tool's inertial wrench; a source that knows them
     from the joints fills them in. No estimator reads them yet: the aligner carries poses only.
     """

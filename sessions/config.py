@@ -27,7 +27,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ..core.plugins import ConfigError, validate_options
+from hapticlab.core.host.registry import ConfigError, validate_options
 
 TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "shadows")
 """The host's own tables; a plugin's context (``register_contexts``, e.g. ``world``) adds its own."""
@@ -343,7 +343,7 @@ def _dataclass_from(cls, table: Any, where: str):
 
 def _context_tables() -> list[str]:
     """The config tables the installed plugins' contexts read (e.g. ``world``)."""
-    from ..core.plugins import Registry
+    from hapticlab.core.host.registry import Registry
 
     return Registry().names("context")
 

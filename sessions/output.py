@@ -23,7 +23,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..core.errors import OutputExistsError, UserError
+from hapticlab.core.errors import OutputExistsError, UserError
 
 
 def _named(label: str, path: Path) -> str:

@@ -60,7 +60,7 @@ def test_the_one_liner_of_the_issue(tmp_path):
 def test_make_estimator_checks_its_options():
     import pytest
 
-    from hapticlab.core.plugins import ConfigError
+    from hapticlab.core.host.registry import ConfigError
 
     assert hapticlab.make_estimator("rls", force_threshold=0.6).force_threshold == 0.6
     with pytest.raises(ConfigError, match=r"^estimator.force_treshold: unknown option"):

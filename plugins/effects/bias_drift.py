@@ -13,8 +13,8 @@ from math import factorial
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.effects import Effect, ModelState, Motion
+from hapticlab.core import hookimpl
+from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
 
 
 class BiasDrift(Effect):

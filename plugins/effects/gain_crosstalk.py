@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.effects import Effect, ModelState
+from hapticlab.core import hookimpl
+from hapticlab.core.sensor_model.model import Effect, ModelState
 
 
 def gain_matrix(p: np.ndarray) -> np.ndarray:

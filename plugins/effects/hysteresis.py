@@ -4,7 +4,7 @@ A strain-gauge sensor's flexure and gauge adhesive do not follow their load
 exactly: loaded, a channel reads a little low, unloaded a little high, and
 after the load turns back it holds until the load has moved the width of the
 loop. The play (backlash) operator of half-width r models that per channel
-(``core/kernels/play.py``)::
+(``core/sensor_model/play_kernel.py``)::
 
     h_i = min(max(h_{i−1}, x_i − r), x_i + r)
 
@@ -33,9 +33,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.effects import Effect, ModelState, Motion
-from ...core.kernels.play import play_signed
+from hapticlab.core import hookimpl
+from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.sensor_model.play_kernel import play_signed
 
 AXES = tuple(f"{kind}_{axis}" for kind in ("force", "torque") for axis in "xyz")
 

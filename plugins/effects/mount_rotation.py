@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.effects import Effect, ModelState, Motion
-from ...core.frames import matrix_from_rotvec
+from hapticlab.core import hookimpl
+from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.frames import matrix_from_rotvec
 
 
 class MountRotation(Effect):

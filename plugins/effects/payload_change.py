@@ -26,9 +26,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.effects import Effect, ModelState, Motion
-from ...core.frames import cross
+from hapticlab.core import hookimpl
+from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.frames import cross
 
 EDGE = 0.05
 """Share of the rows at either end where no change is looked for (a step there is a bias or a weight)."""

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.effects import Effect, ModelState, Motion
+from hapticlab.core import hookimpl
+from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
 
 TAU_GRID = 60
 """Time constants tried by ``locate`` (geometric, from three samples to half the recording)."""

@@ -69,12 +69,12 @@ from typing import Any
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.plugins import ConfigError
-from ...core.types import DeviceState, Event, HapticCommand
-from . import framing
-from .hid_transport import DeviceSelector, FakeFault, FakeHidapi, FakeRawHidMaster, HidapiTransport, RawHidTransport
-from .serial import MasterLostError, MasterOpenError, clamp_force, link_event
+from hapticlab.core import hookimpl
+from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.types import DeviceState, Event, HapticCommand
+from hapticlab.plugins.haptics import framing
+from hapticlab.plugins.haptics.hid_transport import DeviceSelector, FakeFault, FakeHidapi, FakeRawHidMaster, HidapiTransport, RawHidTransport
+from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, clamp_force, link_event
 
 MAX_REPORT_SIZE = 64
 """Bytes of data in one report: the full-speed interrupt packet."""

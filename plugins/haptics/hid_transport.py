@@ -33,11 +33,11 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from .framing import STATUS_CLAMPED
-from .serial import MasterLostError, MasterOpenError
+from hapticlab.plugins.haptics.framing import STATUS_CLAMPED
+from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError
 
 if TYPE_CHECKING:
-    from .hid import RawHidLayout
+    from hapticlab.plugins.haptics.hid import RawHidLayout
 
 IN_QUEUE_REPORTS = 30
 """Reports hidapi's libusb backend keeps before it drops the oldest (the fake keeps as many)."""

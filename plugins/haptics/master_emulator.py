@@ -44,10 +44,10 @@ from typing import Callable
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.types import EmulatorCommand
-from ..serving import serve_until_stopped
-from . import framing, inverse3
+from hapticlab.core import hookimpl
+from hapticlab.core.types import EmulatorCommand
+from hapticlab.plugins.serving import serve_until_stopped
+from hapticlab.plugins.haptics import framing, inverse3
 
 PATHS = ("circle", "figure8", "hold", "press")
 
@@ -518,7 +518,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Serve until Ctrl-C, SIGTERM or ``--duration``; the first line printed is the port to open."""
-    from ...core.plugins import ConfigError
+    from hapticlab.core.host.registry import ConfigError
 
     try:
         motion = (recorded_motion(args.path) if args.path not in PATHS

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.types import DeviceState, HapticCommand
+from hapticlab.core import hookimpl
+from hapticlab.core.types import DeviceState, HapticCommand
 
 
 HOME_QUAT_DH = np.array([1.0, 0.0, 0.0, 0.0])

@@ -45,11 +45,11 @@ from typing import Protocol
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.errors import UserError
-from ...core.plugins import ConfigError
-from ...core.types import DeviceState, Event, HapticCommand
-from . import framing, inverse3
+from hapticlab.core import hookimpl
+from hapticlab.core.errors import UserError
+from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.types import DeviceState, Event, HapticCommand
+from hapticlab.plugins.haptics import framing, inverse3
 
 if typing.TYPE_CHECKING:
     import serial as pyserial

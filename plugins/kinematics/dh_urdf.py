@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ur_arm import UR_DH, DH
+from hapticlab.plugins.kinematics.ur_arm import UR_DH, DH
 
 LINKS = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
 """The moving links' names, base to flange (ROS ur_description's)."""

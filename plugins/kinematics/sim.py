@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.frames import quat_multiply, quat_wxyz_from_matrix
-from ...core.kernels import pose as pose_kernel
-from ...core.plugins import ConfigError
-from ...core.types import PoseSample
-from ..simworld.faults import kinematics_faults_act, kinematics_times
-from ..simworld.physics import SampleClock, SimWorld, gaussian_noise
-from ..simworld.prefetch import PREFETCH_S, Prefetch
+from hapticlab.core import hookimpl
+from hapticlab.core.frames import quat_multiply, quat_wxyz_from_matrix
+from hapticlab.plugins.kinematics import sim_kernel as pose_kernel
+from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.types import PoseSample
+from hapticlab.plugins.simworld.faults import kinematics_faults_act, kinematics_times
+from hapticlab.plugins.simworld.physics import SampleClock, SimWorld, gaussian_noise
+from hapticlab.plugins.simworld.prefetch import PREFETCH_S, Prefetch
 
 ENCODER_STREAM = 2
 """The world's random stream of the robot's encoder jitter (0: sensor noise, 1: bias drift)."""
@@ -70,7 +70,7 @@ class SimKinematics:
     def _poses(self, t: np.ndarray, reading_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``quat_BE`` (N, 4) and ``p_BoEo_B`` (N, 3) m reported: the pose at world times ``t`` (s) with the
         encoder jitter of the readings taken at world times ``reading_ns`` (ns). A live world's poses come
-        one at a time: their quaternions are compiled (``core.kernels.pose``; :meth:`_poses_reference`
+        one at a time: their quaternions are compiled (``plugins.kinematics.sim_kernel``; :meth:`_poses_reference`
         is the numpy the others take, in chunks)."""
         if not self.world.live:
             return self._poses_reference(t, reading_ns)

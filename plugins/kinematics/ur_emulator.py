@@ -80,14 +80,14 @@ from typing import Any
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
-from ...core.types import EmulatorCommand
-from ..serving import serve_until_stopped
-from ..simworld.physics import SimWorld, gaussian_noise
-from .sim import ENCODER_STREAM
-from .ur_arm import UR_DH, URArm
-from .ur_follow import (POSITION_REGISTERS, ROTATION_REGISTERS, SEQUENCE_REGISTER, WATCHDOG_S,
+from hapticlab.core import hookimpl
+from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
+from hapticlab.core.types import EmulatorCommand
+from hapticlab.plugins.serving import serve_until_stopped
+from hapticlab.plugins.simworld.physics import SimWorld, gaussian_noise
+from hapticlab.plugins.kinematics.sim import ENCODER_STREAM
+from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
+from hapticlab.plugins.kinematics.ur_follow import (POSITION_REGISTERS, ROTATION_REGISTERS, SEQUENCE_REGISTER, WATCHDOG_S,
                         decode_target)
 
 RTDE_PORT = 30004
@@ -635,8 +635,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Serve RTDE until Ctrl-C, SIGTERM or ``--duration``; the first line printed names the address. Exit status 0."""
-    from ...core.plugins import ConfigError
-    from ...sessions.config import load_config
+    from hapticlab.core.host.registry import ConfigError
+    from hapticlab.sessions.config import load_config
 
     config, _ = load_config(args.session)
     table = dict(config.get("world") or {})

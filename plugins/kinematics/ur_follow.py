@@ -35,9 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.frames import matrix_from_rotvec, rotvec_from_matrix
+from hapticlab.core.frames import matrix_from_rotvec, rotvec_from_matrix
 
-from .ur_target_writer import POSITION_REGISTERS, RECORD, ROTATION_REGISTERS, SEQUENCE_REGISTER
+from hapticlab.plugins.kinematics.ur_target_writer import POSITION_REGISTERS, RECORD, ROTATION_REGISTERS, SEQUENCE_REGISTER
 
 # POSITION_REGISTERS: input_double_register_N, the target position (m); ROTATION_REGISTERS:
 # input_int_register_N, the target rotation vector (µrad); SEQUENCE_REGISTER: input_int_register_N,

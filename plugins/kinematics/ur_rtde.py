@@ -53,13 +53,13 @@ from collections import deque
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
-from ...core.plugins import ConfigError
-from ...core.types import Event, PoseSample
-from ..sensors.netft import DeviceClock
-from .ur_arm import UR_DH, URArm
-from .ur_follow import TargetWriter
+from hapticlab.core import hookimpl
+from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
+from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.types import Event, PoseSample
+from hapticlab.plugins.sensors.netft import DeviceClock
+from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
+from hapticlab.plugins.kinematics.ur_follow import TargetWriter
 
 VARIABLES = ["actual_TCP_pose", "actual_q", "actual_qd", "timestamp"]
 """The outputs asked for; ``timestamp`` last, so a package's timestamp changes after its other fields."""

@@ -40,10 +40,10 @@ from typing import Any
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.interfaces import EmitsEvents, KinematicsSource, ReportsHealth
-from ...core.plugins import ConfigError, Registry
-from ...core.types import Event, PoseSample
+from hapticlab.core import hookimpl
+from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource, ReportsHealth
+from hapticlab.core.host.registry import ConfigError, Registry
+from hapticlab.core.types import Event, PoseSample
 
 SHIPPED = "urdf"
 """The package folder of the shipped URDF files (``plugins/kinematics/urdf/<name>.urdf``)."""

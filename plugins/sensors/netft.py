@@ -36,10 +36,10 @@ import time
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.plugins import ConfigError
-from ...core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
-from .rdt import (ATI_ERROR_SUMMARY, ATI_MONITOR_LATCHED, ATI_SATURATION, ATI_STATUS_BITS, COUNTER_DOC,  # noqa: F401
+from hapticlab.core import hookimpl
+from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
+from hapticlab.plugins.sensors.rdt import (ATI_ERROR_SUMMARY, ATI_MONITOR_LATCHED, ATI_SATURATION, ATI_STATUS_BITS, COUNTER_DOC,  # noqa: F401
                   FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_SPELLING, TORQUE_UNITS, Calibration, DeviceClock,
                   RdtBatch, RdtReceiver, describe_status, fetch_configuration, stream_status, stream_status_array)
 

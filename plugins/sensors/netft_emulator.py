@@ -47,12 +47,12 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.types import STATUS_SATURATED, EmulatorCommand
-from ..serving import serve_until_stopped
-from ..simworld.physics import SimWorld
-from .netft import (ATI_ERROR_SUMMARY, ATI_SATURATION, FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_UNITS)
-from .sim import SimSensor
+from hapticlab.core import hookimpl
+from hapticlab.core.types import STATUS_SATURATED, EmulatorCommand
+from hapticlab.plugins.serving import serve_until_stopped
+from hapticlab.plugins.simworld.physics import SimWorld
+from hapticlab.plugins.sensors.netft import (ATI_ERROR_SUMMARY, ATI_SATURATION, FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_UNITS)
+from hapticlab.plugins.sensors.sim import SimSensor
 
 REQUEST = struct.Struct(">HHI")
 """An RDT request: header 0x1234, command, sample count."""
@@ -442,8 +442,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Serve until Ctrl-C, SIGTERM or ``--duration``; the first line printed names the address and ports."""
-    from ...core.plugins import ConfigError
-    from ...sessions.config import load_config
+    from hapticlab.core.host.registry import ConfigError
+    from hapticlab.sessions.config import load_config
 
     config, _ = load_config(args.session)
     try:

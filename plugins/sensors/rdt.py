@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
+from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
 
 FT_RATE_HZ = 7000.0
 """The Net F/T's internal sample rate: ``ft_sequence`` counts at this rate, Hz."""

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.plugins import ConfigError
-from ...core.types import NO_WRENCHES, WrenchBlock, WrenchSample
-from ..simworld.faults import apply_sensor_faults
-from ..simworld.physics import SampleClock, SimWorld
-from ..simworld.prefetch import PREFETCH_S, Prefetch
+from hapticlab.core import hookimpl
+from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.types import NO_WRENCHES, WrenchBlock, WrenchSample
+from hapticlab.plugins.simworld.faults import apply_sensor_faults
+from hapticlab.plugins.simworld.physics import SampleClock, SimWorld
+from hapticlab.plugins.simworld.prefetch import PREFETCH_S, Prefetch
 
 MAX_RATE_HZ = 100_000.0
 """Fastest sample rate accepted (a Net F/T streams at up to 7 kHz; an absurd rate would flood the loop)."""

@@ -11,8 +11,8 @@ Build one from a session's ``[world]`` table with ``SimWorld.from_config(table)`
 (keys and defaults in ``config.py``), or from the parameter records directly.
 """
 
-from .cable import Cable
-from .config import (
+from hapticlab.plugins.simworld.cable import Cable
+from hapticlab.plugins.simworld.config import (
     HangingMass,
     Indentation,
     RobotParams,
@@ -21,7 +21,7 @@ from .config import (
     WorldSpec,
     parse_world_table,
 )
-from .motion import (
+from hapticlab.plugins.simworld.motion import (
     AxialRotation,
     Hold,
     MotionScript,
@@ -30,7 +30,7 @@ from .motion import (
     StaticPoses,
     make_motion,
 )
-from .physics import SimWorld
+from hapticlab.plugins.simworld.physics import SimWorld
 
 __all__ = [
     "AxialRotation",

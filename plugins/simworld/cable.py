@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .tissue import _vector3
+from hapticlab.plugins.simworld.tissue import _vector3
 
 
 @dataclass(frozen=True, slots=True)

@@ -38,7 +38,7 @@ TOML layout (every key optional; the defaults are the dataclass defaults)::
     kind = "indentation"     # | "hanging_mass" | "tissue" | "cable"
     ...
 
-A wrong key or value raises :class:`hapticlab.core.plugins.ConfigError` with one
+A wrong key or value raises :class:`hapticlab.core.host.registry.ConfigError` with one
 line naming the full key, e.g. ``world.tool.mass: expected a number, got 'heavy'``.
 """
 
@@ -50,17 +50,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from ...core.frames import GRAVITY_M_S2, matrix_from_rotvec
-from ...core.plugins import ConfigError
+from hapticlab.core.frames import GRAVITY_M_S2, matrix_from_rotvec
+from hapticlab.core.host.registry import ConfigError
 
-from .cable import Cable
-from .faults import DEFAULT_DURATION_S as DEFAULT_FAULT_DURATION_S
-from .faults import KINDS as FAULT_KINDS
-from .faults import Fault
-from .motion import MOTION_SCRIPTS as SCRIPTED_MOTIONS
-from .motion import DEFAULT_P_BoEo_B, MotionScript
-from .servo import ServoedMotion
-from .tissue import Tissue
+from hapticlab.plugins.simworld.cable import Cable
+from hapticlab.plugins.simworld.faults import DEFAULT_DURATION_S as DEFAULT_FAULT_DURATION_S
+from hapticlab.plugins.simworld.faults import KINDS as FAULT_KINDS
+from hapticlab.plugins.simworld.faults import Fault
+from hapticlab.plugins.simworld.motion import MOTION_SCRIPTS as SCRIPTED_MOTIONS
+from hapticlab.plugins.simworld.motion import DEFAULT_P_BoEo_B, MotionScript
+from hapticlab.plugins.simworld.servo import ServoedMotion
+from hapticlab.plugins.simworld.tissue import Tissue
 
 __all__ = [
     "CONTACT_KINDS",
@@ -130,7 +130,7 @@ class SensorParams:
 
     With a hysteresis the channels read their load (after the calibration
     error, before the bias) through a play operator of half-width r per axis
-    (``core/kernels/play.py``): on the way up a channel reads up to r low, on
+    (``core/sensor_model/play_kernel.py``): on the way up a channel reads up to r low, on
     the way down up to r high, and after a reversal it holds until the load has
     moved 2r (the loading path is followed on a 1 ms grid from t = 0).
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from ...core import hookimpl
-from .physics import SimWorld
+from hapticlab.core import hookimpl
+from hapticlab.plugins.simworld.physics import SimWorld
 
 
 def world(table: dict[str, Any]) -> SimWorld:

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.frames import quat_wxyz_from_matrix
+from hapticlab.core.frames import quat_wxyz_from_matrix
 
-from .physics import SimWorld
+from hapticlab.plugins.simworld.physics import SimWorld
 
 HEADER = "t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz,px,py,pz"
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core.types import STATUS_SATURATED
+from hapticlab.core.types import STATUS_SATURATED
 
 SENSOR_KINDS = ("sensor_spike", "sensor_nan", "sensor_saturated", "sensor_dropout", "sensor_bias_step")
 KINEMATICS_KINDS = ("kinematics_freeze", "kinematics_delay", "kinematics_dropout")

@@ -35,7 +35,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
 import numpy as np
-from ...core.frames import skew, skew_stack
+from hapticlab.core.frames import skew, skew_stack
 from scipy.spatial.transform import Rotation
 
 __all__ = [

@@ -61,12 +61,12 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
-from ...core.frames import rotvec_from_matrix, skew
-from ...core.kernels.play import play
-from ...core.types import STATUS_OK, STATUS_SATURATED
+from hapticlab.core.frames import rotvec_from_matrix, skew
+from hapticlab.core.sensor_model.play_kernel import play
+from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
 
-from .cable import Cable
-from .config import (
+from hapticlab.plugins.simworld.cable import Cable
+from hapticlab.plugins.simworld.config import (
     Contact,
     RobotParams,
     SensorParams,
@@ -74,10 +74,10 @@ from .config import (
     WorldSpec,
     parse_world_table,
 )
-from .faults import Fault
-from .motion import MotionScript, MotionState, RandomTour
-from .servo import ServoedMotion
-from .tissue import Tissue
+from hapticlab.plugins.simworld.faults import Fault
+from hapticlab.plugins.simworld.motion import MotionScript, MotionState, RandomTour
+from hapticlab.plugins.simworld.servo import ServoedMotion
+from hapticlab.plugins.simworld.tissue import Tissue
 
 __all__ = ["DRIFT_STREAM", "NOISE_STREAM", "RandomWalk", "SampleClock", "SimWorld", "gaussian_noise"]
 
@@ -213,7 +213,7 @@ class RandomWalk(GrowingPath):
 
 
 class PlayHysteresis(GrowingPath):
-    """The sensor channels' hysteresis: their load through play operators (``core/kernels/play.py``).
+    """The sensor channels' hysteresis: their load through play operators (``core/sensor_model/play_kernel.py``).
 
     The operator's state is followed along the loading path on a grid of
     ``grid_s`` from t = 0 (where it starts relaxed, at the load), grown block by
@@ -400,7 +400,7 @@ class SimWorld:
 
         Raises
         ------
-        hapticlab.core.plugins.ConfigError
+        hapticlab.core.host.registry.ConfigError
             On an unknown key or a wrong value, naming the full key.
         """
         return cls.from_spec(parse_world_table(table))

@@ -39,9 +39,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ...core.frames import skew_stack
-from ...core.kernels import servo as servo_kernel
-from .motion import DEFAULT_P_BoEo_B, Hold, MotionScript, MotionState
+from hapticlab.core.frames import skew_stack
+from hapticlab.plugins.simworld import servo_kernel as servo_kernel
+from hapticlab.plugins.simworld.motion import DEFAULT_P_BoEo_B, Hold, MotionScript, MotionState
 
 __all__ = ["ServoedMotion"]
 
@@ -215,7 +215,7 @@ class ServoedMotion(MotionScript):
 
         Within a step the rotation is ``R_k (I + [φ]× + ½[φ]×²)`` with φ = w_k τ + ½ α_k τ²:
         Exp to second order, off by |φ|³/6 (2·10⁻¹⁰ at 1 rad/s and 1 ms steps). Compiled
-        (``core.kernels.servo``: the live loop asks one sample at a time); :meth:`evaluate_reference`
+        (``plugins.simworld.servo_kernel``: the live loop asks one sample at a time); :meth:`evaluate_reference`
         is the same in numpy.
         """
         t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()

@@ -28,16 +28,16 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ...core.plugins import Registry
-from ...core.frames import GRAVITY_M_S2, quat_wxyz_from_matrix, rotvec_from_matrix
-from ...core.types import AlignedSamples, Estimates
-from ...plugins.estimators.kalman import KalmanEstimator
-from ...plugins.estimators.rls import RLSEstimator
-from ...plugins.simworld import SimWorld
+from hapticlab.core.host.registry import Registry
+from hapticlab.core.frames import GRAVITY_M_S2, quat_wxyz_from_matrix, rotvec_from_matrix
+from hapticlab.core.types import AlignedSamples, Estimates
+from hapticlab.plugins.estimators.kalman import KalmanEstimator
+from hapticlab.plugins.estimators.rls import RLSEstimator
+from hapticlab.plugins.simworld import SimWorld
 
-from ..offline.metrics import max_ae, rms
-from . import paper as paperbench
-from .paper import feed, simulate
+from hapticlab.sessions.offline.metrics import max_ae, rms
+from hapticlab.sessions.bench import paper as paperbench
+from hapticlab.sessions.bench.paper import feed, simulate
 
 RATE_HZ = 1000.0
 NOISE_FORCE = 0.12

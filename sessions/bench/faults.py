@@ -26,10 +26,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..config import apply_settings, load_config
-from ..live import build_session, run_session
-from ..live.gate import WARMING_UP
-from ..recording import read_recording
+from hapticlab.sessions.config import apply_settings, load_config
+from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.live.gate import WARMING_UP
+from hapticlab.sessions.recording import read_recording
 
 FAULT_START_S = 4.0
 DURATION_S = 7.0

@@ -45,14 +45,14 @@ from typing import Any
 
 import numpy as np
 
-from ...core import hookimpl
-from ...core.plugins import Registry, make_plugin_manager
-from ...core.types import AlignedSamples, DeviceState, HapticCommand
-from ...plugins.simworld import SimWorld
-from ..config import apply_overrides, load_config
-from ..live import build_session
-from ..live.loop import LiveLoop
-from .paper import simulate
+from hapticlab.core import hookimpl
+from hapticlab.core.host.registry import Registry, make_plugin_manager
+from hapticlab.core.types import AlignedSamples, DeviceState, HapticCommand
+from hapticlab.plugins.simworld import SimWorld
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.live import build_session
+from hapticlab.sessions.live.loop import LiveLoop
+from hapticlab.sessions.bench.paper import simulate
 
 STAGES = ("sensor read", "kinematics read", "aligner", "estimator", "gate and watches", "governor", "device",
           "teleoperation", "shadow estimators", "recording", "loop body")
@@ -91,7 +91,7 @@ class PressingHand:
     ``period`` s (``scripted_motion("press")``); it renders nothing."""
 
     def __init__(self, rest_s: float = 4.5, depth: float = 0.05, period: float = 2.0, rate_hz: float = 1000.0):
-        from ...plugins.haptics.master_emulator import scripted_motion
+        from hapticlab.plugins.haptics.master_emulator import scripted_motion
 
         self.rate_hz, self.rest_s = rate_hz, rest_s
         self.motion = scripted_motion("press", depth, period)
@@ -236,7 +236,7 @@ def estimator_table(factories: dict[str, Callable[[], Any]], samples: int = 2048
 def default_estimators() -> dict[str, Callable[[], Any]]:
     """The estimators the table shows: ``rls``, ``kalman`` and ``kalman`` with its inertia model (the
     costliest option), each compiled (the default) and as its numpy reference (``kernel = "numpy"``)."""
-    from ... import make_estimator
+    from hapticlab import make_estimator
 
     out: dict[str, Callable[[], Any]] = {}
     for label, name, options in (("rls", "rls", {}), ("kalman", "kalman", {}),

@@ -27,14 +27,14 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ...core.batch import batch_fit
-from ...core.frames import GRAVITY_M_S2
-from ...core.model import contact_wrench
-from ...core.plugins import Registry, option_types
-from ...core.types import AlignedSamples, Estimates, first_true
-from ...plugins.simworld import SimWorld
+from hapticlab.core.estimation.batch import batch_fit
+from hapticlab.core.frames import GRAVITY_M_S2
+from hapticlab.core.estimation.model import contact_wrench
+from hapticlab.core.host.registry import Registry, option_types
+from hapticlab.core.types import AlignedSamples, Estimates, first_true
+from hapticlab.plugins.simworld import SimWorld
 
-from ..offline.metrics import error_stats, mae, max_ae, rms, std
+from hapticlab.sessions.offline.metrics import error_stats, mae, max_ae, rms, std
 
 AXES_F = ("fx", "fy", "fz")
 AXES_T = ("tx", "ty", "tz")
@@ -458,7 +458,7 @@ def write_plots(plots: dict[str, Any], folder: Path, force: bool = False) -> lis
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..output import save_figure
+    from hapticlab.sessions.output import save_figure
 
     folder.mkdir(parents=True, exist_ok=True)
     written = []

@@ -27,16 +27,16 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ...core.batch import batch_fit
-from ...core.errors import UserError
-from ...core.interfaces import HoldsOutOutliers
-from ...core.plugins import Registry
-from ...core.types import first_true
+from hapticlab.core.estimation.batch import batch_fit
+from hapticlab.core.errors import UserError
+from hapticlab.core.host.interfaces import HoldsOutOutliers
+from hapticlab.core.host.registry import Registry
+from hapticlab.core.types import first_true
 
-from ..offline.compensate import run_estimator
-from ..offline.metrics import norm_ratio, rms, scored_rows
-from ..offline.numerics import numerical_failures
-from ..recording.stream import Stream, load_stream
+from hapticlab.sessions.offline.compensate import run_estimator
+from hapticlab.sessions.offline.metrics import norm_ratio, rms, scored_rows
+from hapticlab.sessions.offline.numerics import numerical_failures
+from hapticlab.sessions.recording.stream import Stream, load_stream
 
 def default_real_dir() -> Path:
     """``$HAPTICLAB_REAL_DATA``, else ``shared/data/real`` beside the source checkout, else ``../shared/data/real``."""
@@ -68,7 +68,7 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
         out.append(("kalman convergence=identified", "kalman", dict(IDENTIFIED)))
         out.append(("kalman noise=0.12 N, convergence=covariance", "kalman", dict(GAMMA_COVARIANCE)))
         out.append(("kalman bias_force_tilt_rw=0", "kalman", dict(NO_TILT_WALK)))
-        from ..discrepancy.workflow import discrepancy
+        from hapticlab.sessions.discrepancy.workflow import discrepancy
 
         try:
             named = discrepancy(stream, registry=registry)["estimator_options"]

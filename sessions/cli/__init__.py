@@ -11,11 +11,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ... import __version__
-from ...core.plugins import make_plugin_manager
-from . import bench, discrepancy, emulate, offline, review, run
-from .errors import one_line, is_user_error
-from .render import err
+from hapticlab import __version__
+from hapticlab.core.host.registry import make_plugin_manager
+from hapticlab.sessions.cli import bench, discrepancy, emulate, offline, review, run
+from hapticlab.sessions.cli.errors import one_line, is_user_error
+from hapticlab.sessions.cli.render import err
 
 COMMAND_MODULES = (run, offline, bench, discrepancy, review)
 

@@ -7,10 +7,10 @@ from pathlib import Path
 
 from rich.table import Table
 
-from ...core.errors import UserError
-from ..output import check_output, check_plots_folder, write_text
-from .offline import add_force
-from .render import err, finite_json, fmt, wide_console
+from hapticlab.core.errors import UserError
+from hapticlab.sessions.output import check_output, check_plots_folder, write_text
+from hapticlab.sessions.cli.offline import add_force
+from hapticlab.sessions.cli.render import err, finite_json, fmt, wide_console
 
 
 def print_paper_tables(out: dict) -> None:
@@ -107,11 +107,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.json:
         check_output(args.json, args.force, label="--json")
     if args.plots:
-        from ..bench.paper import FIGURES
+        from hapticlab.sessions.bench.paper import FIGURES
 
         check_plots_folder(args.plots, args.force, patterns=FIGURES)
     if args.which == "paper":
-        from ..bench.paper import bench_paper, write_plots
+        from hapticlab.sessions.bench.paper import bench_paper, write_plots
 
         with err.status("running the paper's experiments") as status:
             out, plots = bench_paper(quick=args.quick, all_estimators=args.all_estimators,
@@ -121,25 +121,25 @@ def cmd_bench(args: argparse.Namespace) -> int:
             for path in write_plots(plots, Path(args.plots), force=args.force):
                 err.print(f"wrote {path}")
     elif args.which == "estimators":
-        from ..bench.family import bench_estimators
+        from hapticlab.sessions.bench.family import bench_estimators
 
         with err.status("running the estimator family's scenarios") as status:
             out = bench_estimators(progress=lambda m: status.update(f"bench estimators: {m}"))
         print_estimators_table(out)
     elif args.which == "loop":
-        from ..bench.loop import bench_loop
+        from hapticlab.sessions.bench.loop import bench_loop
 
         with err.status("timing the run loop") as status:
             out = bench_loop(progress=lambda m: status.update(f"bench loop: {m}"))
         print_loop_tables(out)
     elif args.which == "faults":
-        from ..bench.faults import bench_faults
+        from hapticlab.sessions.bench.faults import bench_faults
 
         with err.status("injecting faults into the run loop") as status:
             out = bench_faults(progress=lambda m: status.update(f"bench faults: {m}"))
         print_faults_table(out)
     else:
-        from ..bench.real import bench_real, default_real_dir
+        from hapticlab.sessions.bench.real import bench_real, default_real_dir
 
         folder = Path(args.folder) if args.folder else default_real_dir()
         with err.status("evaluating real recordings") as status:
@@ -155,7 +155,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def print_faults_table(out: dict) -> None:
     """One row per estimator and fault: what reached the hand, how soon it was caught, the event."""
-    from ..bench.faults import FAULT_START_S
+    from hapticlab.sessions.bench.faults import FAULT_START_S
 
     t = Table(title=f"Injected faults (demo session, fault at {FAULT_START_S:g} s): force on the device that the "
                     f"contact does not explain, and how soon it went to zero")
@@ -172,7 +172,7 @@ def print_faults_table(out: dict) -> None:
 
 def print_loop_tables(out: dict) -> None:
     """Per stage: µs per tick and share, per sensor rate; per estimator: µs per sample by block size."""
-    from ..bench.loop import STAGES
+    from hapticlab.sessions.bench.loop import STAGES
 
     def stage_rows(title: str, runs: list[dict], width: int) -> None:
         t = Table(title=title)

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 from rich.table import Table
 
-from ...core.errors import UserError
-from ...core.plugins import Registry
-from ..output import check_output, check_plots_folder, write_text
-from .offline import add_folder_options, add_force, print_folder_run
-from .render import err, fmt, vec, wide_console
+from hapticlab.core.errors import UserError
+from hapticlab.core.host.registry import Registry
+from hapticlab.sessions.output import check_output, check_plots_folder, write_text
+from hapticlab.sessions.cli.offline import add_folder_options, add_force, print_folder_run
+from hapticlab.sessions.cli.render import err, fmt, vec, wide_console
 
 
 def print_discrepancy(result: dict) -> None:
@@ -72,7 +72,7 @@ def print_discrepancy(result: dict) -> None:
 
 def discrepancy_folder_table(args: argparse.Namespace, settings) -> int:
     """``hapticlab discrepancy DIR/``: every recording in the folder, one row each."""
-    from ..discrepancy.workflow import discrepancy_folder
+    from hapticlab.sessions.discrepancy.workflow import discrepancy_folder
 
     if args.workers is not None and args.workers < 1:
         raise UserError(f"--workers: at least 1, got {args.workers}")
@@ -91,9 +91,9 @@ def discrepancy_folder_table(args: argparse.Namespace, settings) -> int:
 def cmd_discrepancy(args: argparse.Namespace) -> int:
     import json
 
-    from ..config import parse_value
-    from ..discrepancy.plots import FIGURE_PATTERNS, write_plots
-    from ..discrepancy.workflow import Settings, discrepancy, json_ready, toml_snippet
+    from hapticlab.sessions.config import parse_value
+    from hapticlab.sessions.discrepancy.plots import FIGURE_PATTERNS, write_plots
+    from hapticlab.sessions.discrepancy.workflow import Settings, discrepancy, json_ready, toml_snippet
 
     registry = Registry()
     if not 0 <= args.min_gain < 100:

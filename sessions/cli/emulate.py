@@ -18,7 +18,7 @@ import argparse
 
 import pluggy
 
-from ...core.plugins import Registry
+from hapticlab.core.host.registry import Registry
 
 
 def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> None:
@@ -63,12 +63,12 @@ def run_lab(args: argparse.Namespace) -> int:
     clock (``t0_ns``; CLOCK_MONOTONIC is shared by every process of the machine),
     so a test can compare a session's stamps with the world's physics.
     """
-    from ...core.plugins import ConfigError
-    from ...plugins.kinematics.ur_emulator import UREmulator
-    from ...plugins.serving import serve_until_stopped
-    from ...plugins.sensors.netft_emulator import NetFTEmulator, RdtFault
-    from ...plugins.simworld import SimWorld
-    from ..config import load_config
+    from hapticlab.core.host.registry import ConfigError
+    from hapticlab.plugins.kinematics.ur_emulator import UREmulator
+    from hapticlab.plugins.serving import serve_until_stopped
+    from hapticlab.plugins.sensors.netft_emulator import NetFTEmulator, RdtFault
+    from hapticlab.plugins.simworld import SimWorld
+    from hapticlab.sessions.config import load_config
 
     def window(text: str) -> tuple[float, float]:  # --ur-stall START,DURATION
         try:

@@ -10,7 +10,7 @@ a bug and is not caught.
 
 from __future__ import annotations
 
-from ...core.errors import UserError
+from hapticlab.core.errors import UserError
 
 
 def is_user_error(exc: BaseException) -> bool:

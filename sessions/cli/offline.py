@@ -7,7 +7,7 @@ from pathlib import Path
 
 from rich.table import Table
 
-from .render import err, fmt, wide_console
+from hapticlab.sessions.cli.render import err, fmt, wide_console
 
 
 def add_force(parser: argparse.ArgumentParser) -> None:
@@ -20,7 +20,7 @@ def add_force(parser: argparse.ArgumentParser) -> None:
 def cmd_compensate(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
-    from ..offline.compensate import compensate
+    from hapticlab.sessions.offline.compensate import compensate
 
     with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(f"compensating {Path(args.input).name}", total=None)
@@ -45,7 +45,7 @@ def cmd_compensate(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from ..offline.replay import replay
+    from hapticlab.sessions.offline.replay import replay
 
     if Path(args.recording).is_dir():
         return replay_folder_table(args)
@@ -71,8 +71,8 @@ def replay_folder_table(args: argparse.Namespace) -> int:
     """``hapticlab replay DIR/``: every recording in the folder, one row each."""
     import math
 
-    from ...core.errors import UserError
-    from ..offline.replay import replay_folder
+    from hapticlab.core.errors import UserError
+    from hapticlab.sessions.offline.replay import replay_folder
 
     if args.workers is not None and args.workers < 1:
         raise UserError(f"--workers: at least 1, got {args.workers}")
@@ -128,7 +128,7 @@ def add_folder_options(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
-    from ..recording import recover
+    from hapticlab.sessions.recording import recover
 
     counts = recover(args.broken, args.output, force=args.force)
     err.print(f"recovered {counts.get('messages', 0)} messages into {args.output}")

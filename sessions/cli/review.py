@@ -7,16 +7,16 @@ from pathlib import Path
 
 from rich.table import Table
 
-from ...core.errors import UserError
-from ..output import check_output, check_plots_folder, write_text
-from .offline import add_folder_options, add_force, print_folder_run
-from .render import err, fmt, wide_console
+from hapticlab.core.errors import UserError
+from hapticlab.sessions.output import check_output, check_plots_folder, write_text
+from hapticlab.sessions.cli.offline import add_folder_options, add_force, print_folder_run
+from hapticlab.sessions.cli.render import err, fmt, wide_console
 
 
 def print_review(r) -> None:
     """A session's review as the terminal's tables."""
-    from ..review.page import error_rows, summary_rows
-    from ..review.summary import faults
+    from hapticlab.sessions.review.page import error_rows, summary_rows
+    from hapticlab.sessions.review.summary import faults
 
     console = wide_console(120)
     who = " · ".join(x for x in (r.trainee and f"trainee [bold]{r.trainee}[/]", r.task and f"task {r.task}") if x)
@@ -73,9 +73,9 @@ def print_review(r) -> None:
 def review_session(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
-    from ..review import review
-    from ..review.page import session_page
-    from ..review.plots import PLOTS, write_plots
+    from hapticlab.sessions.review import review
+    from hapticlab.sessions.review.page import session_page
+    from hapticlab.sessions.review.plots import PLOTS, write_plots
 
     html = check_output(args.html, args.force, label="--html", inputs=[args.input], role="recording") \
         if args.html else None
@@ -97,7 +97,7 @@ def review_session(args: argparse.Namespace) -> int:
 
 
 def review_cohort(args: argparse.Namespace) -> int:
-    from ..review.cohort import COLUMNS, cohort_page, csv_text, review_folder, rows_of
+    from hapticlab.sessions.review.cohort import COLUMNS, cohort_page, csv_text, review_folder, rows_of
 
     if args.plots:
         raise UserError("--plots: one session's figures; the cohort's progress plot is in --html")
@@ -140,7 +140,7 @@ def cmd_review(args: argparse.Namespace) -> int:
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add ``review`` to the ``hapticlab`` parser."""
-    from ..review.summary import DEFAULT_FORCE_LIMIT_N
+    from hapticlab.sessions.review.summary import DEFAULT_FORCE_LIMIT_N
 
     p = sub.add_parser("review", help="review a recorded session (summary, tables, plots, HTML) or a folder of them "
                                       "(a cohort: one row per session, CSV, HTML with progress per trainee)")

@@ -17,9 +17,9 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from ...core.plugins import KINDS, Registry
-from .errors import is_user_error
-from .render import err
+from hapticlab.core.host.registry import KINDS, Registry
+from hapticlab.sessions.cli.errors import is_user_error
+from hapticlab.sessions.cli.render import err
 
 out = Console()
 
@@ -124,8 +124,8 @@ def _status_table(status, hint: str = "") -> Table:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from ..config import apply_overrides, check_duration, load_config
-    from ..live import SessionError, build_session, run_session
+    from hapticlab.sessions.config import apply_overrides, check_duration, load_config
+    from hapticlab.sessions.live import SessionError, build_session, run_session
 
     config, origin = load_config(args.session)
     config = apply_overrides(config, args.set or [])

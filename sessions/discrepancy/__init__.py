@@ -1,5 +1,5 @@
 """The discrepancy workflow: find where simulation and measurement disagree, name the missing effect."""
 
-from .workflow import Settings, discrepancy, json_ready, toml_snippet
+from hapticlab.sessions.discrepancy.workflow import Settings, discrepancy, json_ready, toml_snippet
 
 __all__ = ["Settings", "discrepancy", "json_ready", "toml_snippet"]

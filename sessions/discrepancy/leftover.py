@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..offline.metrics import rms
+from hapticlab.sessions.offline.metrics import rms
 
 
 def axis_noise(residual: np.ndarray) -> np.ndarray:

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from ..offline.metrics import rms
-from ..output import save_figure
+from hapticlab.sessions.offline.metrics import rms
+from hapticlab.sessions.output import save_figure
 
 MAX_POINTS = 4000
 COLORS = ("tab:red", "tab:green", "tab:blue")

@@ -60,17 +60,17 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ...core.batch import batch_fit
-from ...core.blas import single_threaded_blas
-from ...core.effects import Effect, LocatesItself, Model, Motion, motion_from_poses
-from ...core.frames import quat_wxyz_from_matrix
-from ...core.plugins import ConfigError, Registry
+from hapticlab.core.estimation.batch import batch_fit
+from hapticlab.sessions.discrepancy.blas import single_threaded_blas
+from hapticlab.core.sensor_model.model import Effect, LocatesItself, Model, Motion, motion_from_poses
+from hapticlab.core.frames import quat_wxyz_from_matrix
+from hapticlab.core.host.registry import ConfigError, Registry
 
-from ..offline.metrics import rms
-from .leftover import axis_noise, leftover_threshold, where_left, where_text
-from ..offline.numerics import numerical_failures
-from ..recording.csvimport import CsvError
-from ..recording.stream import Stream, load_stream
+from hapticlab.sessions.offline.metrics import rms
+from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold, where_left, where_text
+from hapticlab.sessions.offline.numerics import numerical_failures
+from hapticlab.sessions.recording.csvimport import CsvError
+from hapticlab.sessions.recording.stream import Stream, load_stream
 
 AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
 
@@ -821,7 +821,7 @@ def discrepancy_folder(folder: str | Path, settings: Settings | None = None, sch
                        workers: int | None = None, progress: bool = True):
     """:func:`discrepancy` on every recording under ``folder``, in parallel (``offline.folders``); each
     outcome's value is that file's result as :func:`json_ready` gives it (no arrays: it crosses processes)."""
-    from ..offline.folders import map_recordings, recordings_in
+    from hapticlab.sessions.offline.folders import map_recordings, recordings_in
 
     task = functools.partial(_discrepancy_one, settings=settings or Settings())
     return map_recordings(task, recordings_in(folder), scheduler=scheduler, workers=workers, progress=progress,

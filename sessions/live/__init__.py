@@ -1,9 +1,9 @@
 """The live session: build the plugins from config (``build``), run the loop (``loop``), gate the
 haptic force (``gate``, ``safety``), record every stage (``taps``), report (``status``)."""
 
-from .build import EstimatorSlot, Session, build_session, calibration_path
-from .loop import run_session
-from .status import SessionError, SessionResult, SessionStatus
+from hapticlab.sessions.live.build import EstimatorSlot, Session, build_session, calibration_path
+from hapticlab.sessions.live.loop import run_session
+from hapticlab.sessions.live.status import SessionError, SessionResult, SessionStatus
 
 __all__ = ["EstimatorSlot", "Session", "SessionError", "SessionResult", "SessionStatus", "build_session",
            "calibration_path", "run_session"]

@@ -2,7 +2,7 @@
 
 Everything the loop needs is decided here, before the first sample: which
 plugins, with which options, which optional capabilities each has
-(``core.interfaces``), where the recording goes. The loop then only calls
+(``core.host.interfaces``), where the recording goes. The loop then only calls
 plain objects. The host knows nothing special about any plugin: a shared
 object such as the simulated world is a *context* (``register_contexts``),
 built from its own config table and handed to the factories that ask for it.
@@ -16,7 +16,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from ...core.interfaces import (
+from hapticlab.core.host.interfaces import (
     CountsConvergence,
     EmitsEvents,
     Estimator,
@@ -31,8 +31,8 @@ from ...core.interfaces import (
     SensorSource,
     ServosCartesian,
 )
-from ...core.plugins import ConfigError, Registry
-from ..config import (
+from hapticlab.core.host.registry import ConfigError, Registry
+from hapticlab.sessions.config import (
     PLUGIN_TABLES,
     HapticSettings,
     SessionSettings,
@@ -44,7 +44,7 @@ from ..config import (
     shadow_tables,
     teleop_settings,
 )
-from .safety import ForceGovernor
+from hapticlab.sessions.live.safety import ForceGovernor
 
 INTERFACES = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator,
               "haptic": HapticOutput}

@@ -41,10 +41,10 @@ import math
 
 import numpy as np
 
-from ...core.interfaces import HasRange, ReportsParameterStd, Reidentifies
-from ...core.kernels import screen as screen_kernel
-from ...core.types import STATUS_OK, AlignedSamples, Estimates, Event, PoseSample
-from .watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch
+from hapticlab.core.host.interfaces import HasRange, ReportsParameterStd, Reidentifies
+from hapticlab.sessions.live import gate_kernel as screen_kernel
+from hapticlab.core.types import STATUS_OK, AlignedSamples, Estimates, Event, PoseSample
+from hapticlab.sessions.live.watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
 """After an estimator's payload change the haptic force is held at zero this long (1 s): the change
@@ -99,7 +99,7 @@ _REASONS = ((screen_kernel.BEYOND, BEYOND_RANGE), (screen_kernel.STALE, STALE),
 
 def screen(block: AlignedSamples, sensor: HasRange | None) -> tuple[np.ndarray, np.ndarray, str]:
     """``(usable, beyond, reason)`` for a block: ``block.usable & ~implausible(...)``, ``implausible(...)`` and
-    :func:`data_reason`, in one compiled pass (``core.kernels.screen``; these three stay the reference)."""
+    :func:`data_reason`, in one compiled pass (``sessions.live.gate_kernel``; these three stay the reference)."""
     n = len(block)
     usable, beyond = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
     ranges = (_NO_RANGE, _NO_RANGE) if sensor is None else (

@@ -51,21 +51,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.aligner import Aligner
-from ...core.errors import OutputExistsError
-from ...core.plugins import ConfigError
-from ...core.interfaces import (HasCalibration, HasForceLimit, HasLatency, HasRange, PreparesAhead,
+from hapticlab.core.aligner import Aligner
+from hapticlab.core.errors import OutputExistsError
+from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.interfaces import (HasCalibration, HasForceLimit, HasLatency, HasRange, PreparesAhead,
                                 ReadsBlocks)
-from ...core.types import Event, WrenchBlock
-from ..config import check_duration
-from ..recording import Recorder
-from ..recording.sinks import WriterProcessError
-from .build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
-from .gate import HapticGate, screen
-from .priority import fifo_priority
-from .status import SessionError, SessionResult, SessionStatus
-from .taps import HAND_OVER_NS, Taps
-from .teleop import Teleoperation
+from hapticlab.core.types import Event, WrenchBlock
+from hapticlab.sessions.config import check_duration
+from hapticlab.sessions.recording import Recorder
+from hapticlab.sessions.recording.sinks import WriterProcessError
+from hapticlab.sessions.live.build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
+from hapticlab.sessions.live.gate import HapticGate, screen
+from hapticlab.sessions.live.priority import fifo_priority
+from hapticlab.sessions.live.status import SessionError, SessionResult, SessionStatus
+from hapticlab.sessions.live.taps import HAND_OVER_NS, Taps
+from hapticlab.sessions.live.teleop import Teleoperation
 
 PARAMS_INTERVAL_NS = 100_000_000
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""

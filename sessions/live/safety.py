@@ -33,10 +33,10 @@ import math
 
 import numpy as np
 
-from ...core.frames import matrix_from_rotvec
-from ...core.types import HapticCommand
+from hapticlab.core.frames import matrix_from_rotvec
+from hapticlab.core.types import HapticCommand
 
-from ..config import HapticSettings
+from hapticlab.sessions.config import HapticSettings
 
 ZERO3 = np.zeros(3)
 TOLERANCE = 1e-9

@@ -6,7 +6,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ...core.types import Event
+from hapticlab.core.types import Event
 
 
 @dataclass

@@ -28,11 +28,11 @@ from functools import partial
 
 import numpy as np
 
-from ...core.frames import quat_wxyz_from_matrix
-from ...core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, RobotTarget,
+from hapticlab.core.frames import quat_wxyz_from_matrix
+from hapticlab.core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, RobotTarget,
                           WrenchBlock)
-from ..recording import Recorder
-from ..recording.schemas import TF_INTERVAL_NS
+from hapticlab.sessions.recording import Recorder
+from hapticlab.sessions.recording.schemas import TF_INTERVAL_NS
 
 HAND_OVER_NS = 20_000_000
 """How long the taps hold the sensor-rate blocks before writing them as one message per topic and handing

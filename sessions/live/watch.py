@@ -27,9 +27,9 @@ from collections import deque
 
 import numpy as np
 
-from ...core.kernels.lag import lag_sums
-from ...core.kernels.lag import warm_up as warm_up_lag
-from ...core.types import AlignedSamples, Estimates, PoseSample
+from hapticlab.sessions.live.watch_kernel import lag_sums
+from hapticlab.sessions.live.watch_kernel import warm_up as warm_up_lag
+from hapticlab.core.types import AlignedSamples, Estimates, PoseSample
 
 BIAS_TOLERANCE = 0.15
 """A run's offset in S may depart from its start by this fraction of its size (or BIAS_FLOOR_N) and
@@ -220,8 +220,8 @@ class LagWatch:
 
     def reset(self) -> None:
         """Forget what was learnt (the poses jumped: what came before says nothing of what follows)."""
-        self.sums = np.zeros(6)  # S_rg, S_gg, S_rr, and the last sample's predicted weight in S (core.kernels.lag)
-        # the last sample's and the last contact's t_ns, then the bits HAS_LAST | HAS_CONTACT of core.kernels.lag
+        self.sums = np.zeros(6)  # S_rg, S_gg, S_rr, and the last sample's predicted weight in S (sessions.live.watch_kernel)
+        # the last sample's and the last contact's t_ns, then the bits HAS_LAST | HAS_CONTACT of sessions.live.watch_kernel
         self.clock = np.zeros(3, dtype=np.int64)
         self.lag_s: float | None = None
 
@@ -231,7 +231,7 @@ class LagWatch:
         The residual is the block's force less the weight and bias of the estimator's ``params``
         (``gravity_force_B``, ``bias_force_S``), so it can be computed while the samples are kept from
         the estimator (which would otherwise learn the lag into its parameters and hide it). The sums
-        are ``core.kernels.lag.lag_sums`` (compiled); the verdict is here.
+        are ``sessions.live.watch_kernel.lag_sums`` (compiled); the verdict is here.
         """
         gravity, bias = params["gravity_force_B"], params["bias_force_S"]
         if not (all(map(math.isfinite, gravity)) and all(map(math.isfinite, bias))):

@@ -17,16 +17,16 @@ from typing import Any
 
 import numpy as np
 
-from ...core.plugins import ConfigError, Registry
-from ...core.errors import UserError
-from ...core.types import Estimates
+from hapticlab.core.host.registry import ConfigError, Registry
+from hapticlab.core.errors import UserError
+from hapticlab.core.types import Estimates
 
-from ..config import parse_value
-from ..output import atomic_output, check_output, write_text
-from ..recording.csvimport import COMPENSATED_HEADER, write_compensated_rows
-from ..recording.stream import Stream, concat_samples, iter_stream, unused_note
-from .metrics import RmsAfterConvergence
-from .numerics import numerical_failures
+from hapticlab.sessions.config import parse_value
+from hapticlab.sessions.output import atomic_output, check_output, write_text
+from hapticlab.sessions.recording.csvimport import COMPENSATED_HEADER, write_compensated_rows
+from hapticlab.sessions.recording.stream import Stream, concat_samples, iter_stream, unused_note
+from hapticlab.sessions.offline.metrics import RmsAfterConvergence
+from hapticlab.sessions.offline.numerics import numerical_failures
 
 BLOCK = 1024
 """Usable samples per estimator call offline, counted across chunks (the result does not depend on the chunking)."""

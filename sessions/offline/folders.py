@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from ...core.errors import UserError
+from hapticlab.core.errors import UserError
 
 __all__ = ["FolderError", "FolderRun", "Outcome", "map_recordings", "recordings_in"]
 

@@ -18,7 +18,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from ...core.errors import UserError
+from hapticlab.core.errors import UserError
 
 
 class NumericalError(UserError):

@@ -16,15 +16,15 @@ from typing import Any
 
 import numpy as np
 
-from ...core.plugins import Registry
-from ...core.types import first_true
+from hapticlab.core.host.registry import Registry
+from hapticlab.core.types import first_true
 
-from ..output import atomic_output, check_output
-from ..recording import Recorder, RecordingError, read_recording, schema_for_topic
-from ..recording.stream import load_stream, message_field
-from .compensate import estimator_options, run_estimator
-from .folders import FolderError, FolderRun, map_recordings, recordings_in
-from .metrics import max_ae, rms, scored_rows
+from hapticlab.sessions.output import atomic_output, check_output
+from hapticlab.sessions.recording import Recorder, RecordingError, read_recording, schema_for_topic
+from hapticlab.sessions.recording.stream import load_stream, message_field
+from hapticlab.sessions.offline.compensate import estimator_options, run_estimator
+from hapticlab.sessions.offline.folders import FolderError, FolderRun, map_recordings, recordings_in
+from hapticlab.sessions.offline.metrics import max_ae, rms, scored_rows
 
 
 def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path | None = None,

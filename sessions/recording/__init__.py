@@ -8,9 +8,9 @@ whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
 (:class:`Stream`, the one offline stream type, from a CSV or an MCAP file).
 """
 
-from .reader import Recording, RecordingError, iter_blocks, iter_messages, open_recording, read_recording
-from .recover import recover
-from .schemas import (
+from hapticlab.sessions.recording.reader import Recording, RecordingError, iter_blocks, iter_messages, open_recording, read_recording
+from hapticlab.sessions.recording.recover import recover
+from hapticlab.sessions.recording.schemas import (
     BLOCK_TOPICS,
     ESTIMATOR_BLOCK_SCHEMA,
     ESTIMATOR_SCHEMA,
@@ -22,8 +22,8 @@ from .schemas import (
     block_schema_for_topic,
     schema_for_topic,
 )
-from .stream import Stream, load_stream
-from .writer import Recorder
+from hapticlab.sessions.recording.stream import Stream, load_stream
+from hapticlab.sessions.recording.writer import Recorder
 
 __all__ = [
     "BLOCK_TOPICS",

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from .schemas import CDR_HEADER, CdrBlock, CdrColumn
+from hapticlab.sessions.recording.schemas import CDR_HEADER, CdrBlock, CdrColumn
 
 _U32 = struct.Struct("<I")
 _I64 = np.dtype("<i8")

@@ -38,8 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from .cdr import CdrBlockError, block_layout, decode_block
-from .reader import RecordingError, _block_kind, _open_reader
+from hapticlab.sessions.recording.cdr import CdrBlockError, block_layout, decode_block
+from hapticlab.sessions.recording.reader import RecordingError, _block_kind, _open_reader
 
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, start, end, uncompressed size, crc, compression len
 _INDEX_HEAD = struct.Struct("<BQHI")  # opcode, record length, channel id, records length

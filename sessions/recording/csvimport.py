@@ -21,11 +21,11 @@ from typing import TextIO
 
 import numpy as np
 
-from ...core.errors import UserError
-from ...core.frames import matrix_from_quat_wxyz
-from ...core.types import AlignedSamples, Estimates
+from hapticlab.core.errors import UserError
+from hapticlab.core.frames import matrix_from_quat_wxyz
+from hapticlab.core.types import AlignedSamples, Estimates
 
-from .stream import CHUNK_ROWS, Stream
+from hapticlab.sessions.recording.stream import CHUNK_ROWS, Stream
 
 REQUIRED = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "qw", "qx", "qy", "qz")
 POSITION = ("px", "py", "pz")

@@ -37,10 +37,10 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Channel, Message
 
-from ...core.errors import UserError
-from ...core.types import Estimates, Event
-from .cdr import CdrBlockError, decode_block, listed
-from .schemas import (
+from hapticlab.core.errors import UserError
+from hapticlab.core.types import Estimates, Event
+from hapticlab.sessions.recording.cdr import CdrBlockError, decode_block, listed
+from hapticlab.sessions.recording.schemas import (
     BLOCK_TOPICS,
     BLOCK_LAST_SAMPLE_FIELDS,
     BLOCK_SCHEMA_TITLES,

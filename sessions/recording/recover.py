@@ -14,10 +14,10 @@ from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, 
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from ..output import atomic_output, check_output
-from .reader import RecordingError
-from .schemas import MCAP_MAGIC, RECOVERED_METADATA
-from .writer import _hapticlab_version, _metadata_strings, _utc_now_iso
+from hapticlab.sessions.output import atomic_output, check_output
+from hapticlab.sessions.recording.reader import RecordingError
+from hapticlab.sessions.recording.schemas import MCAP_MAGIC, RECOVERED_METADATA
+from hapticlab.sessions.recording.writer import _hapticlab_version, _metadata_strings, _utc_now_iso
 
 
 _KNOWN_OPCODES = {int(op) for op in Opcode}

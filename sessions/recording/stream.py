@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from ...core.aligner import orientation_at, position_at
-from ...core.frames import matrix_from_quat_wxyz
-from ...core.types import AlignedSamples
+from hapticlab.core.aligner import orientation_at, position_at
+from hapticlab.core.frames import matrix_from_quat_wxyz
+from hapticlab.core.types import AlignedSamples
 
-from .reader import RecordingError, iter_messages, open_recording
+from hapticlab.sessions.recording.reader import RecordingError, iter_messages, open_recording
 
 CHUNK_ROWS = 16384
 """Rows per chunk when a file is streamed (``compensate``): memory is a small multiple of this, not of the file."""
@@ -81,7 +81,7 @@ def iter_stream(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
     stream, but for the note on unused samples (:func:`unused_note`: count them as they go).
     """
     # csvimport builds its Stream from this module: import it here, not at the top
-    from .csvimport import CsvError, iter_csv
+    from hapticlab.sessions.recording.csvimport import CsvError, iter_csv
 
     path = Path(path)
     if not path.exists():
@@ -181,7 +181,7 @@ def _missing_topic(path: Path, topic: str) -> RecordingError:
 
 def _poses(path: Path, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The whole pose stream as arrays: (M,) t_ns, (M, 4) quat_BE, (M, 3) p_BoEo_B or None (not in every pose)."""
-    from .csvimport import off_unit
+    from hapticlab.sessions.recording.csvimport import off_unit
 
     name = path.name
     t_parts, quat_parts, p_parts = [], [], []

@@ -56,9 +56,9 @@ from typing import Any
 import numpy as np
 import orjson
 
-from ...core.errors import OutputExistsError
-from .cdr import encode_block
-from .schemas import (
+from hapticlab.core.errors import OutputExistsError
+from hapticlab.sessions.recording.cdr import encode_block
+from hapticlab.sessions.recording.schemas import (
     FORMAT_VERSION,
     SESSION_METADATA,
     SUMMARY_METADATA,
@@ -66,7 +66,7 @@ from .schemas import (
     cdr_block_for_topic,
     schema_for_topic,
 )
-from .sinks import McapSink, ProcessSink, Sink
+from hapticlab.sessions.recording.sinks import McapSink, ProcessSink, Sink
 
 # --------------------------------------------------------------------------
 # JSON encoding
@@ -127,7 +127,7 @@ def git_revision() -> str | None:
 
 def _hapticlab_version() -> str:
     try:
-        from ... import __version__
+        from hapticlab import __version__
     except ImportError:  # pragma: no cover - only when imported outside the package
         return "unknown"
     return str(__version__)

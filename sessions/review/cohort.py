@@ -20,8 +20,8 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ..offline.folders import FolderRun, map_recordings, recordings_in
-from .summary import DEFAULT_FORCE_LIMIT_N, review
+from hapticlab.sessions.offline.folders import FolderRun, map_recordings, recordings_in
+from hapticlab.sessions.review.summary import DEFAULT_FORCE_LIMIT_N, review
 
 COLUMNS = ("recording", "trainee", "task", "date", "duration_s", "contacts", "peak_force_N", "over_limit_s",
            "contact_s", "force_limit_N", "estimator", "converged_s", "lost_samples", "faults", "complete")
@@ -69,7 +69,7 @@ def csv_text(rows: Sequence[dict[str, Any]]) -> str:
 
 def progress_png(rows: Sequence[dict[str, Any]]) -> bytes:
     """Each trainee's sessions in date order: peak contact force and time over the limit, one line per trainee."""
-    from .plots import figure_png
+    from hapticlab.sessions.review.plots import figure_png
 
     import matplotlib
 
@@ -100,7 +100,7 @@ def progress_png(rows: Sequence[dict[str, Any]]) -> bytes:
 
 def cohort_page(rows: Sequence[dict[str, Any]], title: str, refused: Sequence[tuple[str, str]] = ()) -> str:
     """The cohort as a self-contained HTML page: the table, the refused files, the progress plot."""
-    from .page import _e, _img, document, table
+    from hapticlab.sessions.review.page import _e, _img, document, table
 
     shown = [c for c in COLUMNS if c != "complete"]
     body = [f"<h1>{_e(title)}</h1>", f"<p>{len(rows)} session(s), "

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..offline.metrics import mae_compensation_pct
+from hapticlab.sessions.offline.metrics import mae_compensation_pct
 
 MERGE_GAP_S = 0.1
 """Two contact runs closer than this, s, are one contact (the flag flickers at the threshold)."""

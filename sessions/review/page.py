@@ -12,9 +12,9 @@ import html
 import math
 from collections.abc import Iterable, Sequence
 
-from . import plots
-from .figures import AXES
-from .summary import SessionReview, faults
+from hapticlab.sessions.review import plots
+from hapticlab.sessions.review.figures import AXES
+from hapticlab.sessions.review.summary import SessionReview, faults
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1000px; color: #222; }

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..output import atomic_output, check_plots_folder
-from .figures import AXES, Envelope
-from .summary import SessionReview
+from hapticlab.sessions.output import atomic_output, check_plots_folder
+from hapticlab.sessions.review.figures import AXES, Envelope
+from hapticlab.sessions.review.summary import SessionReview
 
 PLOTS = ("wrench", "convergence", "contact", "command")
 """The plots, in the order a report shows them (file ``<name>.png``)."""

@@ -35,11 +35,11 @@ from typing import Any
 
 import numpy as np
 
-from ...core.types import STATUS_OK, Event
-from ..recording import ESTIMATOR_TOPIC_PREFIX, RecordingError, iter_blocks, open_recording
-from ..recording.columnar import can_read, iter_chunks
-from ..recording.reader import file_stats
-from .figures import Contact, ContactFold, Envelope, EstimatorFold, EstimatorReview
+from hapticlab.core.types import STATUS_OK, Event
+from hapticlab.sessions.recording import ESTIMATOR_TOPIC_PREFIX, RecordingError, iter_blocks, open_recording
+from hapticlab.sessions.recording.columnar import can_read, iter_chunks
+from hapticlab.sessions.recording.reader import file_stats
+from hapticlab.sessions.review.figures import Contact, ContactFold, Envelope, EstimatorFold, EstimatorReview
 
 CHUNK_ROWS = 16384
 """Samples gathered before they are folded into the running figures (memory: a few MB, whatever the file)."""

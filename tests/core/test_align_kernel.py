@@ -1,4 +1,4 @@
-"""The compiled aligner (``core.kernels.align``) against the numpy reference (``orientation_at``, ``position_at``)."""
+"""The compiled aligner (``core.aligner_kernel``) against the numpy reference (``orientation_at``, ``position_at``)."""
 
 from __future__ import annotations
 

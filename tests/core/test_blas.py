@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hapticlab.core.blas import _openblas, single_threaded_blas
+from hapticlab.sessions.discrepancy.blas import _openblas, single_threaded_blas
 
 
 def test_single_threaded_blas_sets_and_restores():

@@ -1,4 +1,4 @@
-"""The compiled kernels (``core.kernels``) against the numpy references they replace (issue 12).
+"""The compiled kernels (``core.estimation.kernels``) against the numpy references they replace (issue 12).
 
 Data: the simulated physics of ``bench paper`` (SimWorld, seeded), blocks of 1, 7 and 1024.
 
@@ -14,7 +14,7 @@ lockstep, one sample at a time from the reference's state, with the forward erro
 solves, 1e-14·cond(Λ)·‖x‖ (a flag may differ only where the reference's step is within that bound of ε), and the
 kernel must give the same bits whatever the block size (it runs sample by sample).
 
-``kalman``: the same decisions, the same numbers to rounding. The kernel is ``core.kalman._filter6``
+``kalman``: the same decisions, the same numbers to rounding. The kernel is ``plugins.estimators.kalman.stage._filter6``
 transcribed expression by expression and numba compiles without fast-math (no FMA contraction, no
 reordering), so on one machine the two agreed to the bit; but the numpy side's matrix products go
 through OpenBLAS, which picks its kernels by CPU: on an AVX-512 CPU (SkylakeX kernels) they round
@@ -246,7 +246,7 @@ def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     runs the compiled stage filter (``filter6``). A late sensor stream (its poses interpolated per block
     before the cascade, its first 4 ms unused) runs in the cascade too, and so do bias-rate states
     (``stage_step_rate`` against filterpy's filter) and a mount estimate (``stage_step_mount`` against
-    ``core.kalman.MountStage``'s EKF, from the identity or from a 3° mount, with and without rates); and
+    ``plugins.estimators.kalman.stage.MountStage``'s EKF, from the identity or from a 3° mount, with and without rates); and
     the bias's tilt walk (``add_tilt_noise``, the tilt from ``tilt_step``) with the defaults, the noise given,
     the step rule, a late sensor stream, and a mount with rates."""
     (ref, a), fast = _reference(sim6, options, size), KalmanEstimator(kernel="numba", **options)
@@ -276,7 +276,7 @@ def sim_mounted():
                          ids=["auto", "gamma-covariance", "step", "bias-rate", "mount"])
 @pytest.mark.parametrize("size", [1, 64])
 def test_a_learnt_tilt_walk_is_the_reference_s(sim_mounted, size, options):
-    """The tilt walk learnt from the data (``bias_force_tilt_rw = "auto"``, ``core.kernels.tilt_walk``) in the
+    """The tilt walk learnt from the data (``bias_force_tilt_rw = "auto"``, ``plugins.estimators.kalman.tilt_walk_kernel``) in the
     compiled cascade and in the numpy reference (``learn_tilt_walk`` as Python, after each sample: the
     reference filters one sample at a time with it, so every block size gives its numbers), on a tour with a
     5° mount the model lacks, from which both learn a walk: the same pairs scored, the same flags, the walk
@@ -299,8 +299,7 @@ def test_the_learner_s_step_test_is_the_reference_s():
     with 0.5 N steps inside some windows (a light touch the gate took in): the same state to the bit, windows
     left out for their step, and the test's share of failed windows the same."""
     from hapticlab.core.frames import matrix_from_rotvec
-    from hapticlab.core.kernels import tilt_walk
-
+    from hapticlab.plugins.estimators.kalman import tilt_walk_kernel as tilt_walk
     rng = np.random.default_rng(31)
     n, rate = 20000, 1000.0
     weight_B = np.array([0.02, -0.03, -3.4])
@@ -326,7 +325,7 @@ def test_the_learner_s_step_test_is_the_reference_s():
 @pytest.mark.parametrize("size", [1, 7])
 def test_a_late_sensor_streams_poses_and_positions_are_interpolated_as_the_reference_does(sim_inertia, size):
     """The live aligner's blocks carry quaternions and positions: a late sensor stream's poses and positions
-    at t + τ come from the compiled interpolation (``core.kernels.align``) against numpy's slerp and lerp
+    at t + τ come from the compiled interpolation (``core.aligner_kernel``) against numpy's slerp and lerp
     (libm's sin/acos: not to the bit), with the inertial force from those positions. The flags the same, the
     wrench within ROUNDING_NOISE."""
     import dataclasses
@@ -377,7 +376,7 @@ def sim_inertia():
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol):
     """Not to the bit: the derivatives' window sums are taken in order, numpy's pairwise (see
-    core/kernels/inertia.py); ω agrees to ~1e-13 relative, α to ~1e-9 of its largest value (a second
+    plugins/estimators/kalman/derivatives_kernel.py); ω agrees to ~1e-13 relative, α to ~1e-9 of its largest value (a second
     difference over 20 ms), the inertial force (0.35 kg) to ~1e-14 N. The filter carries that through:
     1e-12 N and N·m on the contact wrench (measured 2e-14), the same flags. With a kinematics lag the
     pose itself is extrapolated by ω τ + ½ α τ², so α's difference reaches R_EB: 1e-9 (measured 6e-11). With
@@ -398,9 +397,9 @@ def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol):
 
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_motion_derivatives_kernel_matches_numpy(sim_inertia, size):
-    from hapticlab.core.derivatives import MotionDerivatives
+    from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
     from hapticlab.core.frames import quat_wxyz_from_matrix
-    from hapticlab.core.kernels.inertia import CompiledMotionDerivatives
+    from hapticlab.plugins.estimators.kalman.derivatives_kernel import CompiledMotionDerivatives
 
     block = sim_inertia.subset(slice(0, 2000))
     t = block.t_ns * 1e-9
@@ -472,7 +471,7 @@ def test_quaternion_kernel_gives_the_numpy_bits():
     from scipy.spatial.transform import Rotation
 
     from hapticlab.core.frames import quat_wxyz_from_matrix
-    from hapticlab.core.kernels.inertia import quat_BE_from_R_EB
+    from hapticlab.plugins.estimators.kalman.derivatives_kernel import quat_BE_from_R_EB
 
     R_EB = Rotation.random(5000, random_state=3).as_matrix()
     R_EB[:4] = [np.eye(3), np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])]  # each branch
@@ -541,12 +540,12 @@ def test_screen_kernel_gives_the_reference_s_masks_and_reason(sim, size):
 
 def test_constant_var_kernel_matches_numpy(sim6):
     """What the motion identifies of a stage's constant (params' gravity_force_B_std and cog_S_std, the gate's
-    std): the kernel's Cholesky against ``core.identified.constant_var``'s inverse, along the tour (Λ from a
+    std): the kernel's Cholesky against ``plugins.estimators.kalman.identified.constant_var``'s inverse, along the tour (Λ from a
     yaw-free start to well identified) and for a Λ that is not positive definite (inf). Two ways of inverting
     Λ agree to its forward error bound, 1e-14·cond(Λ) relative (cond reaches ~4e7 while the start's
     motion leaves gravity's horizontal part unseen)."""
-    from hapticlab.core import identified
-    from hapticlab.core.kernels.kalman import constant_var3
+    from hapticlab.plugins.estimators.kalman import identified
+    from hapticlab.plugins.estimators.kalman.cascade_kernel import constant_var3
 
     est = KalmanEstimator(kernel="numpy")
     L = np.empty((6, 6))
@@ -570,7 +569,7 @@ def test_rls_parameter_std_kernel_matches_the_inverse(sim):
     Cholesky against ``np.linalg.inv`` (``RecursiveLeastSquares.P``), along the tour from P0 through the
     motion's first, badly conditioned poses to well identified: agreeing to the inverses' forward error
     bound, 1e-14·cond(Λ) relative; a Λ that is not positive definite goes to ``P`` (inf when singular)."""
-    from hapticlab.core.kernels.rls import inverse_diag
+    from hapticlab.plugins.estimators.rls.information_form_kernel import inverse_diag
 
     est = RLSEstimator(kernel="numba")
     checked = 0

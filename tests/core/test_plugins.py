@@ -10,10 +10,11 @@ from pathlib import Path
 import pluggy
 import pytest
 
-from hapticlab.core import hookimpl, hookspecs
-from hapticlab.core.interfaces import CAPABILITIES
+from hapticlab.core import hookimpl
+from hapticlab.core.host import hookspecs
+from hapticlab.core.host.interfaces import CAPABILITIES
 from hapticlab.sessions.live.build import REQUIRED
-from hapticlab.core.plugins import (
+from hapticlab.core.host.registry import (
     DEFAULT_PLUGINS,
     KINDS,
     ConfigError,

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from helpers import static_model_stream
 
-from hapticlab.core.algorithm1 import algorithm1
-from hapticlab.core.batch import batch_fit
-from hapticlab.core.plugins import ConfigError, Registry
-from hapticlab.core.rls import RecursiveLeastSquares, run_gated
+from hapticlab.plugins.estimators.rls.algorithm1 import algorithm1
+from hapticlab.core.estimation.batch import batch_fit
+from hapticlab.core.host.registry import ConfigError, Registry
+from hapticlab.plugins.estimators.rls.information_form import RecursiveLeastSquares, run_gated
 from hapticlab.plugins.estimators.rls import RLSEstimator
 
 
@@ -91,7 +91,7 @@ def test_printed_option_reproduces_algorithm1_as_printed(size):
     assert np.array_equal(out["contact"], ~ref["updated_force"] | (ref["converged_force"] & ~ref["updated_torque"]))
     # Both evaluate eqs. 26–28 with the same operations in the same order, one sample at a
     # time, so x and P agree to the last bit on any BLAS that rounds the same product the
-    # same way twice. Only the contact wrench is written differently (core.model's cross
+    # same way twice. Only the contact wrench is written differently (core.estimation.model's cross
     # product against algorithm1's skew matrix): a few ulps of the ~5 N, ~0.2 N·m readings
     # (~1e-15). 1e-12 is a thousand times that; a difference in the update itself would be
     # amplified by the printed form's sensitivity (next test) far past it.

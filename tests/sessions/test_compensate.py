@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import static_model_stream
 
-from hapticlab.core.batch import batch_fit
+from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.sessions.cli import main
 from hapticlab.sessions.offline.compensate import compensate
@@ -197,7 +197,7 @@ def test_epoch_times_keep_their_precision_and_blank_lines_are_ignored(tmp_path):
 def reference_output(path, estimator_name="rls") -> bytes:
     """The output of compensate as it was before it streamed (the whole file in memory, one pass of blocks
     of 1024 usable rows), written the same way: the oracle the streamed output must equal byte for byte."""
-    from hapticlab.core.plugins import Registry
+    from hapticlab.core.host.registry import Registry
 
     stream = load_stream(path)
     estimator = Registry().create("estimator", estimator_name, {}, where="estimator")
@@ -264,7 +264,7 @@ def test_the_streamed_output_is_the_whole_file_output(tmp_path, monkeypatch, row
 def test_a_chunk_without_usable_rows_carries_the_flags_over(tmp_path):
     """estimate_chunks on chunks cut anywhere, one of them with no usable row: the flags of the usable row
     before an unusable one, across chunk boundaries."""
-    from hapticlab.core.plugins import Registry
+    from hapticlab.core.host.registry import Registry
     from hapticlab.sessions.offline.compensate import estimate_chunks, run_estimator
     from hapticlab.sessions.recording.stream import iter_stream
 

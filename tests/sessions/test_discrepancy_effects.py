@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hapticlab.core.kernels.play import play, play_signed
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.sensor_model.play_kernel import play, play_signed
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.plugins.simworld import HangingMass, RandomTour, SensorParams, SimWorld
 from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.sessions.discrepancy.workflow import discrepancy

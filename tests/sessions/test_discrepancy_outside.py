@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hapticlab.core.plugins import Registry
+from hapticlab.core.host.registry import Registry
 from hapticlab.plugins.simworld import Cable, RandomTour, SensorParams, SimWorld
 from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.sessions.discrepancy.workflow import Settings, discrepancy

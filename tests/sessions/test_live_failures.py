@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hapticlab.core import hookimpl
-from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import Event
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.plugins.kinematics.sim import SimKinematics

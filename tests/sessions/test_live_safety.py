@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from hapticlab.core.plugins import ConfigError
+from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.cli.run import weight_identified
 from hapticlab.sessions.bench.faults import FAULT_START_S, FAULTS, made_up_force, measure, session
 from hapticlab.sessions.config import HapticSettings, apply_overrides, load_config

@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from hapticlab.core.plugins import ConfigError
+from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
 from hapticlab.sessions.live import priority

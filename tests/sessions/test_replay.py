@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hapticlab.core.plugins import ConfigError
+from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.cli import main
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording

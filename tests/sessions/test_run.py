@@ -2,20 +2,20 @@
 
 from __future__ import annotations
 
-import inspect
+import dataclasses
 
 import numpy as np
 import pytest
 
 from hapticlab.core import hookimpl
-from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.recording import read_recording
 from hapticlab.sessions.live import build_session, run_session
-from hapticlab.plugins.estimators.kalman import KalmanEstimator
+from hapticlab.plugins.estimators.kalman.options import KalmanOptions
 
-KALMAN_OPTIONS = len(inspect.signature(KalmanEstimator).parameters)
-"""How many options the message says ``kalman`` has (its constructor's keyword arguments)."""
+KALMAN_OPTIONS = len(dataclasses.fields(KalmanOptions))
+"""How many options the message says ``kalman`` has (its options record's fields)."""
 
 ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/kalman", "/estimator/rls",
               "/haptic/command", "/haptic/state", "/tf", "/events"}
@@ -247,7 +247,7 @@ def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
         ("shadows.rls.force_threshold=high", r"^shadows.rls.force_threshold: expected a number, got 'high'$"),
         ("estimator.noise_forse=0.1", r"^estimator.noise_forse: unknown option; did you mean noise_force\?; known "
                                       rf"options: {KALMAN_OPTIONS}, documented in "
-                                      r"hapticlab.plugins.estimators.kalman.KalmanEstimator$"),
+                                      r"hapticlab.plugins.estimators.kalman.options.KalmanOptions$"),
         ("session.duration=soon", r"^session.duration: expected a number, got 'soon'$"),
         ("haptic.max_force=[1, 2]", r"^haptic.max_force: expected a number, got \[1, 2\]$"),
         ("world.tool.mass=heavy", r"^world.tool.mass: expected a number, got 'heavy'$"),
@@ -306,7 +306,7 @@ class SaturatingSensor(InterruptingSensor):
 
 
 def test_saturated_samples_zero_the_force(tmp_path):
-    from hapticlab.core.plugins import Registry, make_plugin_manager
+    from hapticlab.core.host.registry import Registry, make_plugin_manager
 
     class Plug:
         @hookimpl

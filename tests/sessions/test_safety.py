@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hapticlab.core.plugins import ConfigError
+from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.config import HapticSettings
 from hapticlab.sessions.live.safety import ForceGovernor
 

@@ -15,7 +15,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hapticlab.core import hookimpl
-from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.types import DeviceState
 from hapticlab.sessions.config import apply_overrides, load_config

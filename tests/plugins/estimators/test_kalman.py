@@ -15,9 +15,9 @@ import math
 import numpy as np
 import pytest
 from hapticlab.core.frames import matrix_from_rotvec
-from hapticlab.core.interfaces import Estimator
-from hapticlab.core.kalman import KalmanStage
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.host.interfaces import Estimator
+from hapticlab.plugins.estimators.kalman.stage import KalmanStage
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import STATUS_SATURATED, AlignedSamples, Estimates
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator

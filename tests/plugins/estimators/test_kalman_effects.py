@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hapticlab.core.derivatives import MotionDerivatives
+from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
 from hapticlab.core.frames import matrix_from_rotvec, quat_wxyz_from_matrix
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.simworld import SimWorld
 from hapticlab.sessions.bench import family as familybench
@@ -136,7 +136,7 @@ def test_a_warm_start_carries_the_learnt_tilt_walk(mounted, tmp_path):
     measured 2.1 mN apart); a tilt entry that is not one is refused with its key named."""
     import json
 
-    from hapticlab.core.kernels.kalman import ADAPT_TW
+    from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_TW
 
     _, block = mounted
     first, rest = block.subset(slice(0, 15000)), block.subset(slice(15000, len(block)))
@@ -159,8 +159,7 @@ def test_a_warm_start_carries_the_learnt_tilt_walk(mounted, tmp_path):
             state = est.state()
     print(f"\nwarm start against running on, contact force apart: {apart} N")
     assert apart["learnt"] <= apart["base"]
-    from hapticlab.core.kernels import tilt_walk
-
+    from hapticlab.plugins.estimators.kalman import tilt_walk_kernel as tilt_walk
     walk = state["tilt"]["walk"]  # saved before 2026-11-28: without the open window's residual sums
     state["tilt"]["walk"] = walk[:tilt_walk.TW_SM] + walk[tilt_walk.TW_WIN:]
     path.write_text(json.dumps(state))
@@ -178,8 +177,8 @@ def test_a_warm_start_carries_the_learnt_tilt_walk(mounted, tmp_path):
 def test_a_bias_step_starts_the_learnt_walk_s_windows_afresh(mounted):
     """A re-identified bias (the host saw a bias step) is no turn's: the windows open and closed so far are
     dropped, so no pair straddles the step; what was learnt stays."""
-    from hapticlab.core.kernels import tilt_walk
-    from hapticlab.core.kernels.kalman import ADAPT_TW
+    from hapticlab.plugins.estimators.kalman import tilt_walk_kernel as tilt_walk
+    from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_TW
 
     _, block = mounted
     est = KalmanEstimator(bias_force_tilt_rw="auto")

@@ -9,7 +9,7 @@ flag says (``hapticlab bench real``'s "2nd half" column).
 from __future__ import annotations
 
 import pytest
-from hapticlab.core.batch import batch_fit
+from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.sessions.offline.compensate import run_estimator
 from hapticlab.sessions.recording import load_stream

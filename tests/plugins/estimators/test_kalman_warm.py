@@ -137,7 +137,7 @@ def test_indentations_are_not_payload_changes():
 def test_indentations_2_s_in_every_4_are_not_payload_changes(peak, start, noise):
     """Closer indentations, whose refusal runs begin where the ramp crosses the gate (about half way up) and
     whose window, grown past the ramp, fits a weight change to within the noise estimate. Before the onset
-    test (``core.payload.ONSET_SHARE``) they were, each time re-opening gravity: 1.5 N ones 4 times, and the
+    test (``plugins.estimators.kalman.payload.ONSET_SHARE``) they were, each time re-opening gravity: 1.5 N ones 4 times, and the
     contact force where both flags were up was 0.32 / 0.34 / 0.83 N off (RMS); 3 N ones from the first
     second, with the noise estimated, 5 times, 0.36 / 0.50 / 0.83 N. Lighter ones, whose plateau is near the
     gate, passed an onset of refused samples only (those the noise pushed over the gate)."""
@@ -161,8 +161,7 @@ def test_a_run_that_begins_below_its_plateau_is_not_a_payload_change():
     change)."""
     from scipy.spatial.transform import Rotation
 
-    from hapticlab.core import payload as pl
-
+    from hapticlab.plugins.estimators.kalman import payload as pl
     rng = np.random.default_rng(11)
     m = 900  # 0.9 s at 1 kHz: the whole window
     t_ns = 10**9 + np.arange(m) * 10**6
@@ -317,7 +316,7 @@ def test_the_refused_window_grows_and_fits_as_the_least_squares_over_it():
     window (np.linalg.lstsq on the stacked (3m, 3) system)."""
     from scipy.spatial.transform import Rotation
 
-    from hapticlab.core.payload import RefusedWindow
+    from hapticlab.plugins.estimators.kalman.payload import RefusedWindow
 
     rng = np.random.default_rng(7)
     R = Rotation.random(50, random_state=8).as_matrix()

@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 import pytest
-from hapticlab.core.algorithm1 import algorithm1
-from hapticlab.core.model import (
+from hapticlab.plugins.estimators.rls.algorithm1 import algorithm1
+from hapticlab.core.estimation.model import (
     BEYOND_THE_BOUND,
     NON_FINITE,
     NOT_A_ROTATION,
@@ -23,7 +23,7 @@ from hapticlab.core.model import (
     all_plausible,
     refusal_codes,
 )
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import AlignedSamples, Estimates, first_true
 from hapticlab.plugins.estimators.batch import BatchEstimator
 from hapticlab.plugins.estimators.kalman import IDENTIFICATION_EVENTS, KalmanEstimator
@@ -187,7 +187,7 @@ def test_the_guard_changes_nothing_on_clean_data(tour, name):
 
 @pytest.mark.parametrize("size", [1, 7, 8000])
 def test_rls_printed_on_a_spoilt_stream_is_algorithm1_on_the_clean_one(tour, size):
-    # Algorithm 1 as printed (core.algorithm1) over the samples that are left: the same flags,
+    # Algorithm 1 as printed (plugins.estimators.rls.algorithm1) over the samples that are left: the same flags,
     # the same contact (to the ulps of the contact wrench's formula, as in tests/core/test_rls.py)
     clean = RLSEstimator(seed=4, covariance_update="printed").update_block(tour)
     bad, mask, _ = spoil(tour, first_true(clean.converged_force))
@@ -244,7 +244,7 @@ def test_blocks_all_refused_or_empty_change_nothing(tour, name):
 
 
 def test_the_compiled_screen_agrees_with_the_refusal_codes(tour):
-    # the guard's screen (core.kernels.plausible) and the numpy reference agree on good and bad samples of
+    # the guard's screen (core.estimation.model_kernel) and the numpy reference agree on good and bad samples of
     # every kind, one at a time (the live loop's 1 kHz blocks) and in blocks of 7 (a 7 kHz sensor's)
     bad, mask, _ = spoil(tour, 1000)
     spoilt = np.flatnonzero(mask)
@@ -324,7 +324,7 @@ def corners(tour):
 def finite_where_identified(est) -> bool:
     """Every parameter finite, but for the axes of gravity_force_B and cog_S the motion has not identified
     (kalman's identified rule reports those as NaN, their std beside them, and only those)."""
-    from hapticlab.core.identified import unidentified_axes
+    from hapticlab.plugins.estimators.kalman.identified import unidentified_axes
 
     params = est.params()
     for name, value in params.items():
@@ -381,7 +381,7 @@ def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour
         est.force.Lambda[:] = np.nan
     elif patch == "solve":
         monkeypatch.setattr(np.linalg, "solve", raising)
-        monkeypatch.setattr("hapticlab.core.rls.dposv", lambda a, b: (None, None, 1))
+        monkeypatch.setattr("hapticlab.plugins.estimators.rls.information_form.dposv", lambda a, b: (None, None, 1))
     else:
         monkeypatch.setattr(np.linalg, patch, raising)
     failed = 0

@@ -8,8 +8,8 @@ import struct
 import numpy as np
 import pytest
 
-from hapticlab.core.interfaces import EmitsEvents, HapticOutput, ReportsHealth
-from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.host.interfaces import EmitsEvents, HapticOutput, ReportsHealth
+from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics.hid import PRESETS, HidHaptic, RawHidLayout, TYPES, Field, encode_force
 from hapticlab.plugins.haptics.hid_transport import (DeviceSelector, FakeHidapi, FakeRawHidMaster,

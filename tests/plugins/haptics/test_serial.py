@@ -19,8 +19,8 @@ import tty
 import numpy as np
 import pytest
 
-from hapticlab.core.interfaces import EmitsEvents, HapticOutput, ReportsHealth
-from hapticlab.core.plugins import ConfigError, Registry, make_plugin_manager
+from hapticlab.core.host.interfaces import EmitsEvents, HapticOutput, ReportsHealth
+from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics import framing
 from hapticlab.plugins.haptics.master_emulator import MasterEmulator, recorded_motion, scripted_motion

@@ -7,9 +7,9 @@ import importlib
 import numpy as np
 import pluggy
 import pytest
-from hapticlab.core import hookspecs
-from hapticlab.core.interfaces import KinematicsSource
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.host import hookspecs
+from hapticlab.core.host.interfaces import KinematicsSource
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.frames import quat_wxyz_from_matrix as quat_wxyz_from_matrices
 from hapticlab.plugins.kinematics.sim import SimKinematics
 from hapticlab.plugins.sensors.sim import SimSensor

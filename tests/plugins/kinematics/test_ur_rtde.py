@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 from hapticlab.core.aligner import Aligner
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix
-from hapticlab.core.interfaces import EmitsEvents, KinematicsSource
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import WrenchSample
 from hapticlab.plugins.kinematics.ur_arm import URArm
 from hapticlab.plugins.kinematics.ur_emulator import UREmulator

@@ -12,10 +12,11 @@ from importlib import resources
 import numpy as np
 import pluggy
 import pytest
-from hapticlab.core import hookimpl, hookspecs
+from hapticlab.core import hookimpl
+from hapticlab.core.host import hookspecs
 from hapticlab.core.frames import matrix_from_quat_wxyz, matrix_from_rotvec, quat_wxyz_from_matrix
-from hapticlab.core.interfaces import EmitsEvents, KinematicsSource
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import Event, PoseSample
 from hapticlab.plugins.kinematics import urdf as urdf_plugin
 from hapticlab.plugins.kinematics.dh_urdf import UR_DYNAMICS, urdf_from_dh

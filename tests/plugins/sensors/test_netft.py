@@ -21,8 +21,8 @@ import numpy as np
 import pynetft
 import pytest
 
-from hapticlab.core.interfaces import EmitsEvents, HasCalibration, HasRange, ReportsHealth, SensorSource
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.host.interfaces import EmitsEvents, HasCalibration, HasRange, ReportsHealth, SensorSource
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
 from hapticlab.plugins.sensors.netft import DeviceClock, NetFTSensor, describe_status, stream_status
 from hapticlab.plugins.sensors.netft_emulator import RECORD, REQUEST, NetFTEmulator, RdtFault, add_arguments, run

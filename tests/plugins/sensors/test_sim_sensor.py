@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pluggy
 import pytest
-from hapticlab.core import hookspecs
-from hapticlab.core.interfaces import SensorSource
-from hapticlab.core.plugins import ConfigError, Registry
+from hapticlab.core.host import hookspecs
+from hapticlab.core.host.interfaces import SensorSource
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import STATUS_SATURATED, WrenchSample
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.simworld.prefetch import PREFETCH_MAX_SAMPLES, PREFETCH_S

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hapticlab.core.plugins import ConfigError
+from hapticlab.core.host.registry import ConfigError
 from hapticlab.plugins.kinematics.sim import SimKinematics
 from hapticlab.plugins.simworld import RandomTour, RobotParams, SensorParams, SimWorld
 

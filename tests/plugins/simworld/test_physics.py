@@ -11,7 +11,7 @@ import tomllib
 
 import numpy as np
 import pytest
-from hapticlab.core.plugins import ConfigError
+from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import STATUS_SATURATED
 from hapticlab.plugins.simworld import (
     AxialRotation,

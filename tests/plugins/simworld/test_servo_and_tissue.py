@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hapticlab.core.plugins import ConfigError
+from hapticlab.core.host.registry import ConfigError
 from hapticlab.plugins.kinematics.sim import ServoedSimKinematics, SimKinematics, sim_kinematics
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.simworld.config import parse_world_table
@@ -103,7 +103,7 @@ def test_asked_one_sample_at_a_time_or_all_at_once_the_motion_is_the_same():
 
 
 def test_the_compiled_state_is_the_numpy_reference_s():
-    """``evaluate`` (core.kernels.servo) against ``evaluate_reference`` (numpy) on a move that turns and
+    """``evaluate`` (plugins.simworld.servo_kernel) against ``evaluate_reference`` (numpy) on a move that turns and
     translates at once, at 7 kHz times inside and on the 1 ms steps' edges, and before the first step."""
     motion = ServoedMotion(max_angular_speed=2.0)
     R_0, p_0 = motion.target
@@ -118,11 +118,11 @@ def test_the_compiled_state_is_the_numpy_reference_s():
 
 
 def test_a_live_robot_reports_the_quaternions_the_numpy_path_gives():
-    """``core.kernels.pose`` (a live world's poses, one at a time) against the numpy path the prefetching
+    """``plugins.kinematics.sim_kernel`` (a live world's poses, one at a time) against the numpy path the prefetching
     kinematics take: random orientations (each of Shepperd's four rows chosen) with the encoders' jitter
     and without, and a servoed robot turning, read through ``_poses`` and ``_poses_reference``."""
     from hapticlab.core.frames import quat_multiply, quat_wxyz_from_matrix
-    from hapticlab.core.kernels.pose import reported_quat
+    from hapticlab.plugins.kinematics.sim_kernel import reported_quat
 
     R = Rotation.random(400, random_state=5).as_matrix()
     delta = np.random.default_rng(6).normal(0.0, 1e-3, (400, 3))

@@ -1,0 +1,1 @@
+"""The plugin host: hook specifications, the registry that builds plugins from config, and the contracts."""

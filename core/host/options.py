@@ -1,0 +1,183 @@
+"""One option toolkit: every config reader checks its values with these, in one error style.
+
+A check takes the key (for the message) and the value, and returns the value checked and
+converted (a float, an int, a read-only numpy array) or raises :class:`OptionError` naming the key:
+``noise_force: must be a number > 0, 3 such numbers or 'auto', got -1``. A reader that knows where
+the key sits prefixes it (``estimator.noise_force: ...``, ``world.tool.mass: ...``) and the command
+line prints that one line with exit status 2.
+
+Who uses it: the plugins' typed options (a frozen dataclass per plugin whose ``__post_init__``
+runs these checks once), the simulated world's ``[world]`` tables and the session's own tables
+(``[session]``, ``[haptic]``, ``[teleop]``).
+
+Booleans are never numbers here (TOML's ``true`` is not 1), NaN is never a number, and a limit
+is printed with ``:g`` so the message shows what the user typed.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from hapticlab.core.errors import ConfigError
+
+Check = Callable[[str, Any], Any]
+"""A check: (key, value) -> the checked value, or OptionError."""
+
+
+class OptionError(ValueError):
+    """One option's value is wrong: ``key: problem``.
+
+    A ``ValueError`` so a plugin's constructor can raise it and the host (which knows the table)
+    names the full key; :meth:`under` does that.
+    """
+
+    def __init__(self, key: str, problem: str):
+        self.key, self.problem = key, problem
+        super().__init__(f"{key}: {problem}")
+
+    def under(self, where: str) -> ConfigError:
+        """The same error with the table in front: ``where.key: problem``."""
+        return ConfigError(f"{where}.{self.key}: {self.problem}" if where else str(self))
+
+
+def is_number(value: Any) -> bool:
+    """An int or float that is not a bool and not NaN (inf passes: the range checks decide)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and not math.isnan(value)
+
+
+def _range_words(minimum: float | None, above: float | None, maximum: float | None, below: float | None) -> str:
+    words = []
+    if minimum is not None:
+        words.append(f">= {minimum:g}")
+    if above is not None:
+        words.append(f"> {above:g}")
+    if maximum is not None:
+        words.append(f"<= {maximum:g}")
+    if below is not None:
+        words.append(f"< {below:g}")
+    return " and ".join(words)
+
+
+def _in_range(x: float, minimum: float | None, above: float | None, maximum: float | None,
+              below: float | None) -> bool:
+    return ((minimum is None or x >= minimum) and (above is None or x > above)
+            and (maximum is None or x <= maximum) and (below is None or x < below))
+
+
+def number(key: str, value: Any, *, minimum: float | None = None, above: float | None = None,
+           maximum: float | None = None, below: float | None = None, finite: bool = True,
+           hint: str = "") -> float:
+    """A number (int or float, not a bool, not NaN; finite unless ``finite=False``) within the limits given.
+
+    ``minimum``/``maximum`` are inclusive, ``above``/``below`` exclusive; ``hint`` ends the message
+    (e.g. the unit, or what else the option accepts: ``" or 'auto'"``).
+    """
+    ok = is_number(value) and (math.isfinite(value) or not finite)
+    if not ok or not _in_range(value, minimum, above, maximum, below):
+        limits = _range_words(minimum, above, maximum, below)
+        what = ("a finite number" if finite else "a number") + (f" {limits}" if limits else "")
+        raise OptionError(key, f"must be {what}{hint}, got {value!r}")
+    return float(value)
+
+
+def integer(key: str, value: Any, *, minimum: int | None = None, maximum: int | None = None,
+            hint: str = "") -> int:
+    """A whole number (an int, not a bool) within the inclusive limits given."""
+    if not isinstance(value, int) or isinstance(value, bool) or not _in_range(value, minimum, None, maximum, None):
+        limits = _range_words(minimum, None, maximum, None)
+        raise OptionError(key, f"must be a whole number{' ' + limits if limits else ''}{hint}, got {value!r}")
+    return value
+
+
+def boolean(key: str, value: Any) -> bool:
+    """true or false (not 0 or 1)."""
+    if not isinstance(value, bool):
+        raise OptionError(key, f"must be true or false, got {value!r}")
+    return value
+
+
+def text(key: str, value: Any, *, hint: str = "") -> str:
+    """A string."""
+    if not isinstance(value, str):
+        raise OptionError(key, f"must be a string{hint}, got {value!r}")
+    return value
+
+
+def choice(key: str, value: Any, choices: Sequence[Any], *, hint: str = "") -> Any:
+    """One of ``choices`` (compared with ==, so a string option also refuses a number)."""
+    if isinstance(value, bool) or value not in choices or not isinstance(value, type(choices[0])):
+        names = ", ".join(repr(c) for c in choices[:-1]) + f" or {choices[-1]!r}" if len(choices) > 1 \
+            else repr(choices[0])
+        raise OptionError(key, f"must be {names}{hint}, got {value!r}")
+    return value
+
+
+def vector(key: str, value: Any, *, size: int = 3, broadcast: bool = False, minimum: float | None = None,
+           above: float | None = None, hint: str = "") -> np.ndarray:
+    """``size`` finite numbers (with ``broadcast``, one number stands for all), each within the limits;
+    a read-only float array."""
+    if broadcast and is_number(value) and math.isfinite(value):
+        array = np.full(size, float(value))
+    elif (isinstance(value, (list, tuple, np.ndarray)) and len(value) == size
+          and all(is_number(v) and math.isfinite(v) for v in value)):
+        array = np.array(value, dtype=float)
+    else:
+        limits = _range_words(minimum, above, None, None)
+        each = f", each {limits}" if limits else ""
+        what = f"a number or {size} numbers" if broadcast else f"{size} numbers"
+        raise OptionError(key, f"must be {what}{each}{hint}, got {value!r}")
+    if not all(_in_range(float(v), minimum, above, None, None) for v in array):
+        each = ("each " if size > 1 else "") + _range_words(minimum, above, None, None)
+        raise OptionError(key, f"must be {each}{hint}, got {value!r}")
+    array.setflags(write=False)
+    return array
+
+
+def matrix(key: str, value: Any, *, shape: tuple[int, int] = (3, 3), hint: str = "") -> np.ndarray:
+    """A matrix of finite numbers given as rows (``[[...], [...], [...]]``); a read-only float array."""
+    rows, cols = shape
+    ok = (isinstance(value, (list, tuple, np.ndarray)) and len(value) == rows
+          and all(isinstance(row, (list, tuple, np.ndarray)) and len(row) == cols
+                  and all(is_number(v) and math.isfinite(v) for v in row) for row in value))
+    if not ok:
+        raise OptionError(key, f"must be a {rows}x{cols} matrix ({rows} rows of {cols} numbers){hint}, "
+                               f"got {value!r}")
+    array = np.array(value, dtype=float)
+    array.setflags(write=False)
+    return array
+
+
+def check(function: Callable[..., Any], **limits: Any) -> Check:
+    """A table's check from a toolkit function and its limits: ``check(number, above=0)``."""
+    return partial(function, **limits) if limits else function
+
+
+def unknown_key(where: str, key: str, known: Sequence[str]) -> ConfigError:
+    """The error for a key a table does not have, with the closest known key and the known ones."""
+    names = sorted(known)
+    close = difflib.get_close_matches(key, names, n=1)
+    hint = f"; did you mean {close[0]}?" if close else ""
+    listed = ", ".join(names) or "none"
+    return ConfigError(f"{where + '.' if where else ''}{key}: unknown option{hint}; known options: {listed}")
+
+
+def read_table(where: str, table: Any, checks: Mapping[str, Check]) -> dict[str, Any]:
+    """Every key of a config table through its check (the full key ``where.key`` in every message);
+    an unknown key or a table that is not one is a ConfigError."""
+    if not isinstance(table, Mapping):
+        raise ConfigError(f"{where}: must be a table, got {table!r}")
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in checks:
+            raise unknown_key(where, key, list(checks))
+        try:
+            out[key] = checks[key](f"{where}.{key}", value)
+        except OptionError as exc:
+            raise ConfigError(str(exc)) from None
+    return out

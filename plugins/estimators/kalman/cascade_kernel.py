@@ -1,0 +1,579 @@
+"""The ``kalman`` estimator's cascade compiled: both stages of a block in one call.
+
+``kalman_cascade`` runs the estimator's ``_filter_block`` over m samples: each stage's
+step (``plugins.estimators.kalman.stage_kernel``: ``stage_step``, with bias-rate states
+``stage_step_rate``, with the mount estimated ``stage_step_mount``), the noise estimate,
+the convergence rules, the contact wrench and the contact flag (``judge_contact``), and
+the torque bias's re-opening. Its options and state travel in the ``adapt`` array
+(``ADAPT_SIZE``). Nothing is allocated; outputs go to arrays the caller owns (``Buffers``).
+
+Compile cost: ~4–6 s the first time on this machine (2 cores, shared), then ~0.4 s to load
+from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hapticlab.plugins.estimators.kalman.noise import (
+    AUTO_BOUND_FRACTION,
+    NOISE_CLIP,
+    NOISE_CLIP_MEAN,
+    NOISE_FLOOR,
+    NOISE_PRIOR_SAMPLES,
+    NOISE_REFUSED_WEIGHT,
+    NOISE_WINDOW,
+    NOISE_WINDOW_S,
+)
+from hapticlab.plugins.estimators.kalman.stage_kernel import (
+    FAILED,
+    GATED,
+    UPDATED,
+    add_tilt_noise,
+    filter6,
+    stage_step,
+    stage_step_mount,
+    stage_step_rate,
+)
+from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import TW_SIZE, learn_tilt_walk
+from numba import njit
+
+ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED = 0, 1, 2
+ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
+ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10, 11
+ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
+ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
+ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT_MOUNT = 29, 30, 31, 32, 33
+ADAPT_TILT, ADAPT_GRAVITY_DIR, ADAPT_TILT_AUTO, ADAPT_TILT_TORQUE = 34, 43, 46, 47
+ADAPT_GRAVITY_KNOWN, ADAPT_TILT_SPAN, ADAPT_TURN_F, ADAPT_TURN_T, ADAPT_TW = 48, 49, 50, 51, 52
+ADAPT_SIZE = ADAPT_TW + TW_SIZE
+CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
+"""``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
+``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``plugins.estimators.kalman.noise``),
+``ADAPT_IDENTIFIED`` convergence as identified (``CONVERGENCE_IDENTIFIED``) or at the pose
+(``CONVERGENCE_AT_POSE``; ``plugins.estimators.kalman.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T``
+the convergence bound from the noise estimate; ``ADAPT_REOPEN_S`` the torque-only refusal (s) after which
+the torque bias is re-opened (0: never; :func:`torque_only_refusal`), ``ADAPT_REOPEN_LEVER`` the farthest a
+contact can act from the sensor's origin (m), the prior variance of bias_torque_S the bias goes back to
+(3 values from ``ADAPT_PRIOR_TB``, (N·m)²), ``ADAPT_CONTACT_AFTER`` how many refused samples in a row make
+a contact (:func:`judge_contact`), ``ADAPT_MOUNT`` the mount rotation estimated (:func:`stage_step_mount`):
+the variance of the weight under which its θ is learnt, N² (0: no mount estimate).
+State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
+yet known), whether the force stage has settled (its flag first up; at the pose, the identified rule's
+test first passed), the bounds' caps (inf until it settles), whether the torque stage has settled
+(``ADAPT_TORQUE_SEEN``, the same way: the inertial force's centre of mass waits for it), the
+current torque-only refusal (s, samples, and the sums of its force and torque residuals: 3 values each from
+``ADAPT_TQ_SUM_F`` / ``ADAPT_TQ_SUM_T``), the torque bias re-opened so far (count), the refused samples in a
+row up to the last (``ADAPT_REFUSED_RUN``) and the samples of the refused runs that ended before they were
+judged a contact (``ADAPT_HELD_OUT``), the last sample's A (9 values from ``ADAPT_TILT``, row by row,
+NaN before the first) and the direction of gravity in B its tilt is measured about (3 values from
+``ADAPT_GRAVITY_DIR``: B's z axis until the force stage settles, then the identified weight's, which
+``ADAPT_GRAVITY_KNOWN`` says (1.0; a warm start's direction is kept); :func:`tilt_step`). With
+``ADAPT_TILT_AUTO`` (1.0) the tilt walk's intensity is learnt from the data (``plugins.estimators.kalman.tilt_walk_kernel``, its
+state in ``TW_SIZE`` values from ``ADAPT_TW``) and written into qt_f after each sample, and into qt_t times
+``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed). ``ADAPT_TILT_SPAN``: the least
+turn either bias follows its tilt walk over, rad (0: the plain walk; ``kalman_stage.add_tilt_noise``), and
+each stage's turn since it last tested a sample (``ADAPT_TURN_F``, ``ADAPT_TURN_T``, rad; state).
+Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
+the block's row of its last torque bias re-opening (−1: none)."""
+
+@njit(cache=True, error_model="numpy")
+def judge_contact(adapt, refused, tested) -> bool:
+    """Whether a sample either stage refused is a contact: it is once it is the ``ADAPT_CONTACT_AFTER``-th
+    refused sample in a row. The ones before are held out of the update all the same but not called a
+    contact; a run that ends shorter (a lone outlier of a heavy-tailed noise, which a real sensor has:
+    single samples at a Mahalanobis distance of 4.6–5.5 on the LWR4 logs) is counted in ``ADAPT_HELD_OUT``.
+    A contact is seen that many samples late, its force is not: the contact wrench of a refused sample is
+    its whole residual either way. A sample no stage tested (``tested`` False: stale, a sensor status, a
+    failed update, no pose yet) neither continues nor ends the run. (The numpy reference runs this very
+    function as Python: ``judge_contact.py_func``.)"""
+    if not tested:
+        return False
+    run = adapt[ADAPT_REFUSED_RUN]
+    if not refused:
+        if 0.0 < run < adapt[ADAPT_CONTACT_AFTER]:  # a run that ended short: refused, never a contact
+            adapt[ADAPT_HELD_OUT] += run
+        adapt[ADAPT_REFUSED_RUN] = 0.0
+        return False
+    adapt[ADAPT_REFUSED_RUN] = run + 1.0
+    return run + 1.0 >= adapt[ADAPT_CONTACT_AFTER]
+
+
+@njit(cache=True, error_model="numpy")
+def tilt_step(adapt, A) -> float:
+    """The angle gravity's direction turned in the sensor since the previous sample, rad: between A ĝ and
+    A_prev ĝ, ĝ the direction of gravity in B (``ADAPT_GRAVITY_DIR``; A = R_SB, or R_EB: the same angle),
+    A_prev the previous sample's A (``ADAPT_TILT``), which A then becomes. atan2 of the cross and dot
+    products: exact for small angles. 0 for the first sample; a non-finite A (a pose not known yet) neither
+    tilts nor becomes the previous one. (The numpy reference runs this as ``tilt_step.py_func``.)"""
+    d0, d1, d2 = adapt[ADAPT_GRAVITY_DIR], adapt[ADAPT_GRAVITY_DIR + 1], adapt[ADAPT_GRAVITY_DIR + 2]
+    g0 = A[0, 0] * d0 + A[0, 1] * d1 + A[0, 2] * d2
+    g1 = A[1, 0] * d0 + A[1, 1] * d1 + A[1, 2] * d2
+    g2 = A[2, 0] * d0 + A[2, 1] * d1 + A[2, 2] * d2
+    if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
+        return 0.0
+    known = math.isfinite(adapt[ADAPT_TILT])
+    p = adapt[ADAPT_TILT:ADAPT_TILT + 9]
+    p0 = p[0] * d0 + p[1] * d1 + p[2] * d2
+    p1 = p[3] * d0 + p[4] * d1 + p[5] * d2
+    p2 = p[6] * d0 + p[7] * d1 + p[8] * d2
+    for i in range(3):
+        for j in range(3):
+            p[3 * i + j] = A[i, j]
+    if not known:
+        return 0.0
+    c0, c1, c2 = p1 * g2 - p2 * g1, p2 * g0 - p0 * g2, p0 * g1 - p1 * g0
+    return math.atan2(math.sqrt(c0 * c0 + c1 * c1 + c2 * c2), p0 * g0 + p1 * g1 + p2 * g2)
+
+
+@njit(cache=True, error_model="numpy")
+def set_gravity_direction(adapt, a) -> None:
+    """Measure tilts about the identified weight a (3,), N (its direction in B; a zero weight changes nothing):
+    the base need not stand upright (a wall mount has gravity along B's x). ``tilt_step`` measures both
+    samples' directions about the same ĝ, so the switch adds no spurious turn."""
+    norm = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    if norm > 0.0 and math.isfinite(norm):
+        for i in range(3):
+            adapt[ADAPT_GRAVITY_DIR + i] = a[i] / norm
+        adapt[ADAPT_GRAVITY_KNOWN] = 1.0
+
+
+TORQUE_REOPEN_MIN_SAMPLES = 10
+"""A torque-only refusal re-opens the torque bias only once it is this many samples long as well as
+``ADAPT_REOPEN_S`` (a few outliers of a slow stream are no drift)."""
+
+
+@njit(cache=True, error_model="numpy")
+def torque_only_refusal(adapt, force_gated, force_seen, torque_what, dt, residual_force, residual_torque) -> bool:
+    """Count a sample into the current torque-only refusal; True when the torque bias is to be re-opened.
+
+    A drift of the torque bias (warm-up, a bias that a pose first visited shows to be off) makes the torque
+    stage refuse samples the force stage accepts. So does a light contact (a force under the force stage's
+    gate, at the tool's tip: a lever), and that must stay a contact: a contact force f acting within
+    ``ADAPT_REOPEN_LEVER`` (L) of the sensor's origin makes a torque of at most L·|f|, so the bias is
+    re-opened only when the run's mean torque residual is larger than that for its mean force residual,
+    |Σ τ_res| > L·|Σ f_res|, once the run is ``ADAPT_REOPEN_S`` and ``TORQUE_REOPEN_MIN_SAMPLES`` long. A
+    force the force stage refuses ends the run (a contact), and so does a sample the torque stage accepts.
+    ``force_seen``: the force stage accepted the sample with its flag up (the torque stage saw it);
+    ``torque_what``: what the torque stage did with it; the residuals: the sample's contact wrench (N, N·m).
+    (The numpy reference runs this very function as Python: ``torque_only_refusal.py_func``.)"""
+    if adapt[ADAPT_REOPEN_S] <= 0.0:
+        return False
+    if force_gated or (force_seen and torque_what == UPDATED):
+        adapt[ADAPT_TQ_ONLY_S], adapt[ADAPT_TQ_ONLY_N] = 0.0, 0.0
+        for i in range(3):
+            adapt[ADAPT_TQ_SUM_F + i], adapt[ADAPT_TQ_SUM_T + i] = 0.0, 0.0
+        return False
+    if not (force_seen and torque_what == GATED):
+        return False
+    adapt[ADAPT_TQ_ONLY_S] += dt
+    adapt[ADAPT_TQ_ONLY_N] += 1.0
+    for i in range(3):
+        adapt[ADAPT_TQ_SUM_F + i] += residual_force[i]
+        adapt[ADAPT_TQ_SUM_T + i] += residual_torque[i]
+    if adapt[ADAPT_TQ_ONLY_S] < adapt[ADAPT_REOPEN_S] or adapt[ADAPT_TQ_ONLY_N] < TORQUE_REOPEN_MIN_SAMPLES:
+        return False
+    f0, f1, f2 = adapt[ADAPT_TQ_SUM_F], adapt[ADAPT_TQ_SUM_F + 1], adapt[ADAPT_TQ_SUM_F + 2]
+    t0, t1, t2 = adapt[ADAPT_TQ_SUM_T], adapt[ADAPT_TQ_SUM_T + 1], adapt[ADAPT_TQ_SUM_T + 2]
+    lever = adapt[ADAPT_REOPEN_LEVER]
+    if not t0 * t0 + t1 * t1 + t2 * t2 > lever * lever * (f0 * f0 + f1 * f1 + f2 * f2):
+        return False  # a force within reach explains it: a light contact (the run goes on)
+    adapt[ADAPT_TQ_ONLY_S], adapt[ADAPT_TQ_ONLY_N] = 0.0, 0.0
+    for i in range(3):
+        adapt[ADAPT_TQ_SUM_F + i], adapt[ADAPT_TQ_SUM_T + i] = 0.0, 0.0
+    adapt[ADAPT_REOPENS] += 1.0
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def reopen_bias(P, info, prior_var):
+    """The stage's bias (states 3..5) unknown again, the rest as known (``KalmanEstimator._reopen_torque_bias``):
+    P's bias rows and columns zeroed, its diagonal the prior variance ``prior_var`` (3,); the identified rule's
+    Λ (6, 6) re-seeded from that P, which is block-diagonal: inv(P[:3, :3]) (cofactors), then 1/prior_var."""
+    for i in range(3, 6):
+        for j in range(P.shape[0]):
+            P[i, j] = 0.0
+            P[j, i] = 0.0
+        P[i, i] = prior_var[i - 3]
+    a, b, c = P[0, 0], P[0, 1], P[0, 2]
+    d, e, f = P[1, 0], P[1, 1], P[1, 2]
+    g, h, k = P[2, 0], P[2, 1], P[2, 2]
+    c00, c01, c02 = e * k - f * h, c * h - b * k, b * f - c * e
+    c10, c11, c12 = f * g - d * k, a * k - c * g, c * d - a * f
+    c20, c21, c22 = d * h - e * g, b * g - a * h, a * e - b * d
+    det = a * c00 + b * c10 + c * c20
+    for i in range(6):
+        for j in range(6):
+            info[i, j] = 0.0
+    info[0, 0], info[0, 1], info[0, 2] = c00 / det, c01 / det, c02 / det
+    info[1, 0], info[1, 1], info[1, 2] = c10 / det, c11 / det, c12 / det
+    info[2, 0], info[2, 1], info[2, 2] = c20 / det, c21 / det, c22 / det
+    for i in range(3):
+        info[3 + i, 3 + i] = 1.0 / prior_var[i]
+
+
+@njit(cache=True, error_model="numpy")
+def predicted_var(P, A, out):
+    """out (3,) = diag(C P Cᵀ), C = [A, I3] (``plugins.estimators.kalman.identified.predicted_var``)."""
+    for i in range(3):
+        a0, a1, a2 = A[i, 0], A[i, 1], A[i, 2]
+        quad = (a0 * (P[0, 0] * a0 + P[0, 1] * a1 + P[0, 2] * a2) + a1 * (P[1, 0] * a0 + P[1, 1] * a1 + P[1, 2] * a2)
+                + a2 * (P[2, 0] * a0 + P[2, 1] * a1 + P[2, 2] * a2))
+        out[i] = quad + 2.0 * (a0 * P[0, 3 + i] + a1 * P[1, 3 + i] + a2 * P[2, 3 + i]) + P[3 + i, 3 + i]
+
+
+@njit(cache=True, error_model="numpy")
+def add_information(info, A, r):
+    """info (6, 6) += Cᵀ diag(1/r) C, C = [A, I3], in place (``plugins.estimators.kalman.identified.add_information``)."""
+    for j in range(6):
+        for l in range(j, 6):
+            s = 0.0
+            for i in range(3):
+                cj = A[i, j] if j < 3 else (1.0 if i == j - 3 else 0.0)
+                cl = A[i, l] if l < 3 else (1.0 if i == l - 3 else 0.0)
+                s += cj * cl / r[i]
+            info[j, l] += s
+            if l != j:
+                info[l, j] = info[j, l]
+
+
+@njit(cache=True, error_model="numpy")
+def constant_var3(info, L):
+    """diag((Λ⁻¹)[:3, :3]) (``plugins.estimators.kalman.identified.constant_var``) as three floats, inf if Λ is not positive definite.
+
+    Cholesky of Λ reordered as [b, a] (L (6, 6) scratch): the trailing 3×3 factor T has T Tᵀ = the Schur
+    complement Λ_aa − Λ_ab Λ_bb⁻¹ Λ_ba = ((Λ⁻¹)_aa)⁻¹, so diag((Λ⁻¹)_aa) are the squared column norms
+    of T⁻¹."""
+    for i in range(6):
+        pi = (i + 3) % 6
+        for j in range(i + 1):
+            s = info[pi, (j + 3) % 6]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return math.inf, math.inf, math.inf
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    t00, t10, t11, t20, t21, t22 = L[3, 3], L[4, 3], L[4, 4], L[5, 3], L[5, 4], L[5, 5]
+    v00, v11, v22 = 1.0 / t00, 1.0 / t11, 1.0 / t22
+    v10 = -t10 * v00 / t11
+    v21 = -t21 * v11 / t22
+    v20 = -(t20 * v00 + t21 * v10) / t22
+    return v00 * v00 + v10 * v10 + v20 * v20, v11 * v11 + v21 * v21, v22 * v22
+
+
+@njit(cache=True, error_model="numpy")
+def constant_var_max(info, L):
+    """The largest of :func:`constant_var3` (inf if Λ is not positive definite)."""
+    a, b, c = constant_var3(info, L)
+    return max(a, b, c)
+
+
+@njit(cache=True, error_model="numpy")
+def adapt_noise(r, count, y, A, x, cpc, weight, window, floor):
+    """One covariance-matching step on r (3,) in place (``plugins.estimators.kalman.noise.adapt_noise``) for the reading
+    y (3,), A (3, 3), at the state x (6,) the sample was predicted from: e = y − A a − b. Returns the count
+    after it. A weight of 0 or a non-finite innovation changes nothing."""
+    e0 = y[0] - (A[0, 0] * x[0] + A[0, 1] * x[1] + A[0, 2] * x[2]) - x[3]
+    e1 = y[1] - (A[1, 0] * x[0] + A[1, 1] * x[1] + A[1, 2] * x[2]) - x[4]
+    e2 = y[2] - (A[2, 0] * x[0] + A[2, 1] * x[1] + A[2, 2] * x[2]) - x[5]
+    if weight == 0.0 or not (math.isfinite(e0) and math.isfinite(e1) and math.isfinite(e2)):
+        return count
+    count += weight
+    lam = weight / min(count + NOISE_PRIOR_SAMPLES, window)
+    clip2 = NOISE_CLIP ** 2
+    for i in range(3):
+        e = e0 if i == 0 else (e1 if i == 1 else e2)
+        s2 = r[i] + cpc[i]
+        sq = min(e ** 2, clip2 * s2) / NOISE_CLIP_MEAN
+        r[i] = max(r[i] + lam * (max(sq - cpc[i], 0.0) - r[i]), floor * floor)
+    return count
+
+
+@njit(cache=True, error_model="numpy")
+def _auto_bound2(r, cap):
+    """The convergence bound², AUTO_BOUND_FRACTION·noise std (mean variance over the axes), at most cap."""
+    bound = min(AUTO_BOUND_FRACTION * math.sqrt((r[0] + r[1] + r[2]) / 3.0), cap)
+    return bound * bound
+
+
+@njit(cache=True, error_model="numpy")
+def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, inertial_S, usable,
+                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, qt_f, qt_t, R_SE, limits, adapt,
+                   info_f, info_t, A_t, scratch, work,
+                   X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
+                   contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
+    """The ``kalman`` estimator's cascade over m samples (its ``_filter_block``), in order.
+
+    Force stage y = y_f, C = [A_f, I3]; its flag: max diag P[:6] < bound_f²; the torque stage
+    sees the samples the force stage accepted with its flag up, C = [−[force_S − b_f]ₓ, I3]
+    (b_f after the sample); its flag: max diag P_cog · |gravity_force_B|² < bound_t² and
+    max diag P_bias < bound_t². With ``adapt[ADAPT_IDENTIFIED]`` the flags are instead the
+    identified rule's (``plugins.estimators.kalman.identified``: the constant's variance from the accepted samples'
+    information, and the reading's predicted variance at the pose, both under the bound), or at
+    ``CONVERGENCE_AT_POSE`` the predicted variance alone (the constant's information is still kept:
+    it says when the stage has settled, and what the motion has identified). With
+    ``adapt[ADAPT_NOISE_F]`` / ``adapt[ADAPT_NOISE_T]`` that stage's noise is re-estimated after each
+    sample (``plugins.estimators.kalman.noise``), the torque stage's carried force noise following the force's. A
+    failed update (S not positive definite) is predicted only and lowers the flag. The contact
+    wrench at the states after each sample (paper eqs. 20–21). With ``adapt[ADAPT_REOPEN_S]`` a lasting
+    torque-only refusal re-opens the torque bias after the sample that completes it
+    (:func:`torque_only_refusal`, :func:`reopen_bias`).
+
+    Args:
+        t_ns: (m,) int64 sample times, ns. last_t_ns: (2,) int64 [1 if a sample came before, its t_ns].
+        y_f: (m, 3) what gravity and bias explain, N. force_S: (m, 3) N. torque_S: (m, 3) N·m.
+        A_f: (m, 3, 3) R_SB per sample; with the mount estimated (``ADAPT_MOUNT``) R_EB in, and R_SB through
+        the mount as it is after each sample out (in place). stale: (m,) bool. status: (m,) int64 sensor
+        status (0: good).
+        p_BoEo_B: (m, 3) positions, m, or (0, 3) when the stream has none. inertial_S: (m, 3) the
+        tool's inertial force, N (y_f = force_S − inertial_S; it acts at the centre of mass), or (0, 3).
+        usable: (m,) bool out: the
+        samples the filter may use (``AlignedSamples.usable``: the guard has already refused a
+        non-finite wrench or R_EB), less those whose force update failed.
+        x_f, P_f, x_t, P_t: the stages' (n,) and (n, n), in place: n = 6, or 9 with bias-rate states
+        (``stage_step_rate``). q_*, r_*, rc_*: (3,) as ``stage_step`` (r_f, r_t, rc_t in place with the noise
+        estimate); qr_f, qr_t: (3,) the bias rates' random-walk variance per second (unused with 6 states);
+        qt_f, qt_t: (3,) the biases' random-walk variance per radian of tilt, added to both stages before each
+        sample (:func:`tilt_step` on A_f, :func:`add_tilt_noise`).
+        R_SE: (3, 3) the mount's nominal rotation, in place when it is estimated (then x_f is [a, b, (ḃ), θ],
+        9 or 12 states, and its flag waits for std(θ)·|gravity_force_B| under the bound as well).
+        limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_SIZE``.
+        info_f, info_t: (6, 6) the stages' information Λ (identified rule), in place.
+        A_t: (3, 3), scratch: (9, 6) scratch (the Cholesky factor, the torque reading's variance, the
+        stages' [a, b] before the sample); work: (15, 9) the rate and mount steps' scratch.
+        Out, (m, 6): X_f, D_f, X_t, D_t ([a, b] and their diag P);
+        (m,): gated_f, failed_f, gated_t, failed_t; contact_force_S, contact_torque_S (m, 3);
+        contact, converged_force, converged_torque (m,).
+
+    Returns:
+        (failed force updates, failed torque updates, gated force samples, first row with the
+        force flag up or −1, the same for torque): what the caller would otherwise count.
+    """
+    gate2, bound_f2, bound_t2 = limits[0], limits[1], limits[2]
+    noise_f, noise_t = adapt[ADAPT_NOISE_F] != 0.0, adapt[ADAPT_NOISE_T] != 0.0
+    identified = adapt[ADAPT_IDENTIFIED] != 0.0
+    at_pose = adapt[ADAPT_IDENTIFIED] == CONVERGENCE_AT_POSE
+    noise = noise_f or noise_t
+    pred_f, pred_t = adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3], scratch[6, :3]
+    before_f, before_t = scratch[7], scratch[8]
+    previous = last_t_ns[1]
+    n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
+    adapt[ADAPT_REOPEN_ROW] = -1.0
+    positions = p_BoEo_B.shape[0] != 0
+    inertia = inertial_S.shape[0] != 0
+    rate = x_t.shape[0] == 9
+    activate_var = adapt[ADAPT_MOUNT]
+    mount = activate_var > 0.0
+    n_f = x_f.shape[0]
+    learn_walk = adapt[ADAPT_TILT_AUTO] != 0.0
+    tilt_walk = qt_f.any() or qt_t.any() or learn_walk
+    q_time = (q_f[0] + q_f[1] + q_f[2]) / 3.0
+    turn_f, turn_t = 0.0, 0.0
+    for k in range(t_ns.shape[0]):
+        usable[k] = not stale[k] and status[k] == 0
+        if positions:
+            usable[k] = usable[k] and math.isfinite(p_BoEo_B[k, 0]) and math.isfinite(p_BoEo_B[k, 1]) \
+                and math.isfinite(p_BoEo_B[k, 2])
+        if k == 0 and last_t_ns[0] == 0:
+            step_ns = 0
+        else:
+            step_ns = t_ns[k] - previous
+        previous = t_ns[k]
+        dt = max(step_ns, 0) * 1e-9
+        if adapt[ADAPT_AUTO_F] != 0.0:
+            bound_f2 = _auto_bound2(r_f, adapt[ADAPT_CAP_F])
+        if adapt[ADAPT_AUTO_T] != 0.0:
+            bound_t2 = _auto_bound2(r_t, adapt[ADAPT_CAP_T])
+        if tilt_walk:
+            tilt = tilt_step(adapt, A_f[k])
+            turn_f = add_tilt_noise(P_f, qt_f, r_f, adapt[ADAPT_TURN_F], tilt, adapt[ADAPT_TILT_SPAN])
+            turn_t = add_tilt_noise(P_t, qt_t, r_t, adapt[ADAPT_TURN_T], tilt, adapt[ADAPT_TILT_SPAN])
+        before_f[:] = x_f[:6]
+        if mount:
+            what, _ = stage_step_mount(x_f, P_f, R_SE, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f,
+                                       qr_f, r_f, gate2, activate_var, work)
+            R = A_f[k]  # R_EB in; R_SB = R_SE R_EB through the mount as it is now out
+            for j in range(3):
+                c0, c1, c2 = R[0, j], R[1, j], R[2, j]
+                for i in range(3):
+                    R[i, j] = R_SE[i, 0] * c0 + R_SE[i, 1] * c1 + R_SE[i, 2] * c2
+        elif rate:
+            what, _ = stage_step_rate(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, qr_f,
+                                      r_f, rc_f, gate2, work)
+        else:
+            what, _ = stage_step(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, r_f, rc_f,
+                                 gate2)
+        failed = what == FAILED
+        gated_f[k], failed_f[k] = what == GATED, failed
+        if tilt_walk:
+            adapt[ADAPT_TURN_F] = 0.0 if what == UPDATED or what == GATED else turn_f
+        if failed:
+            usable[k] = False
+            n_failed_f += 1
+        n_gated_f += what == GATED
+        if identified or noise:
+            predicted_var(P_f, A_f[k], pred_f)
+        if identified:
+            if usable[k] and what != GATED:
+                add_information(info_f, A_f[k], r_f)
+            known_here = max(pred_f[0], pred_f[1], pred_f[2]) < bound_f2 and not failed
+            settled = constant_var_max(info_f, scratch) < bound_f2 and known_here
+            conv = known_here if at_pose else settled
+        else:
+            conv = max(P_f[0, 0], P_f[1, 1], P_f[2, 2], P_f[3, 3], P_f[4, 4], P_f[5, 5]) < bound_f2 and not failed
+            settled = conv
+        if mount:  # the force a mount error can cause: std(θ)·|gravity_force_B|
+            w2 = x_f[0] * x_f[0] + x_f[1] * x_f[1] + x_f[2] * x_f[2]
+            mount_known = max(P_f[n_f - 3, n_f - 3], P_f[n_f - 2, n_f - 2], P_f[n_f - 1, n_f - 1]) * w2 < bound_f2
+            conv = conv and mount_known
+            settled = settled and mount_known
+        converged_force[k] = conv
+        if conv and first_f < 0:
+            first_f = k
+        d0, d1, d2 = force_S[k, 0] - x_f[3], force_S[k, 1] - x_f[4], force_S[k, 2] - x_f[5]
+        A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
+        A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
+        A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
+        seen = usable[k] and what != GATED and settled  # (its regressor needs gravity identified, not only here)
+        before_t[:] = x_t[:6]
+        if rate:
+            what_t, _ = stage_step_rate(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t,
+                                        qr_t, r_t, rc_t, gate2, work)
+        else:
+            what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
+                                   rc_t, gate2)
+        gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
+        if tilt_walk:
+            adapt[ADAPT_TURN_T] = 0.0 if what_t == UPDATED or what_t == GATED else turn_t
+        n_failed_t += what_t == FAILED
+        force_seen = seen
+        seen = seen and what_t != FAILED
+        weight2 = x_f[0] ** 2 + x_f[1] ** 2 + x_f[2] ** 2  # |gravity_force_B|², N²
+        if identified or noise:
+            predicted_var(P_t, A_t, pred_t)
+        if identified:
+            if seen and what_t != GATED:
+                add_information(info_t, A_t, r_t)
+            known_t = max(pred_t[0], pred_t[1], pred_t[2]) < bound_t2 and what_t != FAILED
+            if at_pose:  # the flag at the pose; the centre of gravity's identification asked until it has settled
+                converged_torque[k] = known_t
+                settled_t = (known_t and adapt[ADAPT_TORQUE_SEEN] == 0.0
+                             and constant_var_max(info_t, scratch) * weight2 < bound_t2)
+            else:
+                settled_t = known_t and constant_var_max(info_t, scratch) * weight2 < bound_t2
+                converged_torque[k] = settled_t
+        else:
+            converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
+                                   and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)
+            settled_t = converged_torque[k]
+        if settled_t:
+            adapt[ADAPT_TORQUE_SEEN] = 1.0
+        if converged_torque[k] and first_t < 0:
+            first_t = k
+        if noise:
+            if adapt[ADAPT_WINDOW] == 0.0 and dt > 0.0:  # plugins.estimators.kalman.noise.window_samples, at the first step
+                adapt[ADAPT_WINDOW] = max(NOISE_WINDOW, int(NOISE_WINDOW_S / dt))
+            window = adapt[ADAPT_WINDOW] if adapt[ADAPT_WINDOW] != 0.0 else NOISE_WINDOW
+            refused_weight = NOISE_REFUSED_WEIGHT if adapt[ADAPT_FORCE_SEEN] == 0.0 else 0.0
+            if noise_f and usable[k]:
+                adapt[ADAPT_COUNT_F] = adapt_noise(r_f, adapt[ADAPT_COUNT_F], y_f[k], A_f[k], before_f, pred_f,
+                                                   refused_weight if what == GATED else 1.0, window, NOISE_FLOOR[0])
+            if noise_t and seen:  # its R carries the force noise through the centre of gravity: not its own
+                c0, c1, c2 = x_t[0], x_t[1], x_t[2]
+                pred_t[0] += rc_t[1] * c2 * c2 + rc_t[2] * c1 * c1
+                pred_t[1] += rc_t[0] * c2 * c2 + rc_t[2] * c0 * c0
+                pred_t[2] += rc_t[0] * c1 * c1 + rc_t[1] * c0 * c0
+                adapt[ADAPT_COUNT_T] = adapt_noise(r_t, adapt[ADAPT_COUNT_T], torque_S[k], A_t, before_t, pred_t,
+                                                   refused_weight if what_t == GATED else 1.0, window, NOISE_FLOOR[1])
+            if noise_f:
+                rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
+        if settled and adapt[ADAPT_FORCE_SEEN] == 0.0:
+            adapt[ADAPT_FORCE_SEEN] = 1.0
+            if adapt[ADAPT_GRAVITY_KNOWN] == 0.0:  # tilts from here on about the identified weight
+                set_gravity_direction(adapt, x_f)
+            if adapt[ADAPT_AUTO_F] != 0.0:  # an auto bound never grows past its value once settled
+                adapt[ADAPT_CAP_F] = math.sqrt(_auto_bound2(r_f, math.inf))
+            if adapt[ADAPT_AUTO_T] != 0.0:
+                adapt[ADAPT_CAP_T] = math.sqrt(_auto_bound2(r_t, math.inf))
+        for i in range(6):
+            X_f[k, i], D_f[k, i], X_t[k, i], D_t[k, i] = x_f[i], P_f[i, i], x_t[i], P_t[i, i]
+        A = A_f[k]
+        g0 = A[0, 0] * x_f[0] + A[0, 1] * x_f[1] + A[0, 2] * x_f[2]
+        g1 = A[1, 0] * x_f[0] + A[1, 1] * x_f[1] + A[1, 2] * x_f[2]
+        g2 = A[2, 0] * x_f[0] + A[2, 1] * x_f[1] + A[2, 2] * x_f[2]
+        contact_force_S[k, 0] = y_f[k, 0] - g0 - x_f[3]
+        contact_force_S[k, 1] = y_f[k, 1] - g1 - x_f[4]
+        contact_force_S[k, 2] = y_f[k, 2] - g2 - x_f[5]
+        t0, t1, t2 = torque_S[k, 0], torque_S[k, 1], torque_S[k, 2]
+        if inertia:  # the inertial force's torque about S, c × f_inertial
+            i0, i1, i2 = inertial_S[k, 0], inertial_S[k, 1], inertial_S[k, 2]
+            t0, t1, t2 = t0 - (x_t[1] * i2 - x_t[2] * i1), t1 - (x_t[2] * i0 - x_t[0] * i2), \
+                t2 - (x_t[0] * i1 - x_t[1] * i0)
+        contact_torque_S[k, 0] = t0 - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
+        contact_torque_S[k, 1] = t1 - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
+        contact_torque_S[k, 2] = t2 - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
+        contact[k] = judge_contact(adapt, gated_f[k] or gated_t[k], usable[k])
+        if torque_only_refusal(adapt, what == GATED, force_seen, what_t, dt, contact_force_S[k], contact_torque_S[k]):
+            reopen_bias(P_t, info_t, adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3])  # (from the next sample on)
+            adapt[ADAPT_REOPEN_ROW] = k
+        if learn_walk and usable[k] and adapt[ADAPT_FORCE_SEEN] != 0.0:  # the tilt walk from the data
+            q = learn_tilt_walk(adapt[ADAPT_TW:], y_f[k], A_f[k], x_f, adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3],
+                                t_ns[k] * 1e-9, gated_f[k], q_time)
+            qt_f[0], qt_f[1], qt_f[2] = q, q, q
+            if adapt[ADAPT_TILT_TORQUE] >= 0.0:
+                q *= adapt[ADAPT_TILT_TORQUE]
+                qt_t[0], qt_t[1], qt_t[2] = q, q, q
+    return n_failed_f, n_failed_t, n_gated_f, first_f, first_t
+
+
+class Buffers:
+    """The per-sample outputs of ``filter6`` / ``kalman_cascade`` for blocks of up to ``capacity`` samples,
+    allocated once (grown, never shrunk, when a longer block comes); ``view(m)`` gives the first m rows."""
+
+    def __init__(self, capacity: int = 64):
+        self.capacity = 0
+        self.grow(capacity)
+
+    def grow(self, capacity: int) -> None:
+        self.capacity = capacity
+        self.X_f, self.D_f, self.X_t, self.D_t = (np.empty((capacity, 6)) for _ in range(4))
+        self.gated_f, self.failed_f, self.gated_t, self.failed_t = (np.empty(capacity, dtype=np.bool_)
+                                                                    for _ in range(4))
+        self.d2 = np.empty(capacity)
+        self.usable = np.empty(capacity, dtype=np.bool_)
+        self.A_t = np.empty((3, 3))
+        self.scratch = np.empty((9, 6))
+        self.work = np.empty((15, 9))
+
+    def ensure(self, m: int) -> None:
+        if m > self.capacity:
+            self.grow(max(m, 2 * self.capacity))
+
+
+def warm_up() -> None:
+    """Compile ``filter6`` and ``kalman_cascade`` (or load them from the cache) by running each once."""
+    m = 2
+    A = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
+    y = np.ones((m, 3))
+    b = Buffers(m)
+    v3 = np.full(3, 1e-4)
+    filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, v3,
+            np.zeros(3), 20.0, 0.15, np.zeros(1),
+            b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
+    for p, n in ((np.zeros((0, 3)), 6), (y, 6), (np.zeros((0, 3)), 9)):  # without and with positions, rates
+        adapt = np.zeros(ADAPT_SIZE)
+        for option in (ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED, ADAPT_AUTO_F, ADAPT_AUTO_T):
+            adapt[option] = 1.0
+        adapt[ADAPT_CAP_F] = adapt[ADAPT_CAP_T] = np.inf
+        kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
+                       np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),
+                       np.zeros(n), np.eye(n), np.zeros(n), np.eye(n), v3, v3.copy(), np.zeros(3), v3, v3.copy(),
+                       v3.copy(), v3, v3, v3, v3, np.eye(3), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6),
+                       np.eye(6), b.A_t, b.scratch, b.work,
+                       b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, np.empty((m, 3)),
+                       np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
+                       np.empty(m, dtype=np.bool_))

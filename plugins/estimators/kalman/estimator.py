@@ -1,0 +1,515 @@
+"""``kalman``: the paper's cascade as Kalman filters, with drifting biases, Mahalanobis gating and
+convergence from the covariance.
+
+Force stage: x = [gravity_force_B, bias_force_S], C_k = [R_EB, I3]. Torque stage, at samples where the
+force stage has converged and accepted the sample: x = [cog_S, bias_torque_S],
+C_k = [-skew(force_S - bias_force_S), I3]. The filter of one stage is ``stage.py`` (its compiled twin
+``stage_kernel.py``), the whole cascade compiled ``cascade_kernel.py``. What differs from the paper's RLS
+(``docs/estimators.md``, "kalman", has the measurements behind every default):
+
+* **Drift.** The biases are random walks (in time, and with the tool's tilt) instead of constants;
+  gravity and the centre of gravity stay constant.
+* **Noise in physical units.** R is the sensor's noise, estimated as the filter runs (``noise.py``) or given.
+* **Gating.** A sample whose innovation lies outside ``gate_probability`` of its predicted distribution
+  is refused; time still propagates, so the gate reopens on a bias that has truly moved.
+* **Convergence** from what is known (``convergence.py``), never from a small step.
+
+The estimator is put together from parts, one file each: the model's inputs (``inputs.py``), convergence
+and identification (``convergence.py``), re-opening what changed (``reopen.py``) and the warm start
+(``warm_start.py``); its options are ``options.py``. Bad input (a NaN, an R_EB that is not a rotation, a
+wrench beyond ``max_force``/``max_torque``) is refused before anything sees it (``SampleGuard``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from hapticlab.core import aligner_kernel
+from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench, named_params
+from hapticlab.core.frames import (
+    cross,
+    rotvec_from_matrix,
+    skew_stack,
+)
+from hapticlab.core.types import AlignedSamples, Estimates, Event
+from hapticlab.plugins.estimators.kalman import cascade_kernel, derivatives_kernel, identified, tilt_walk_kernel
+from hapticlab.plugins.estimators.kalman.cascade_kernel import (
+    ADAPT_AUTO_F,
+    ADAPT_AUTO_T,
+    ADAPT_CAP_F,
+    ADAPT_CAP_T,
+    ADAPT_CONTACT_AFTER,
+    ADAPT_COUNT_F,
+    ADAPT_COUNT_T,
+    ADAPT_FORCE_SEEN,
+    ADAPT_GRAVITY_DIR,
+    ADAPT_GRAVITY_KNOWN,
+    ADAPT_HELD_OUT,
+    ADAPT_IDENTIFIED,
+    ADAPT_MOUNT,
+    ADAPT_NOISE_F,
+    ADAPT_NOISE_T,
+    ADAPT_PRED_F,
+    ADAPT_PRIOR_TB,
+    ADAPT_REOPEN_LEVER,
+    ADAPT_REOPEN_ROW,
+    ADAPT_REOPEN_S,
+    ADAPT_SIZE,
+    ADAPT_TILT,
+    ADAPT_TILT_AUTO,
+    ADAPT_TILT_SPAN,
+    ADAPT_TILT_TORQUE,
+    ADAPT_TORQUE_SEEN,
+    ADAPT_TW,
+    ADAPT_WINDOW,
+    CONVERGENCE_AT_POSE,
+    CONVERGENCE_IDENTIFIED,
+    judge_contact,
+    set_gravity_direction,
+    tilt_step,
+)
+from hapticlab.plugins.estimators.kalman.convergence import Convergence
+from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
+from hapticlab.plugins.estimators.kalman.inputs import NO_POSITIONS, ModelInputs
+from hapticlab.plugins.estimators.kalman.noise import (
+    NOISE_AUTO_START_FORCE,
+    NOISE_AUTO_START_TORQUE,
+    NOISE_FLOOR,
+    NOISE_REFUSED_WEIGHT,
+    NOISE_WINDOW,
+    adapt_noise,
+    window_samples,
+)
+from hapticlab.plugins.estimators.kalman.options import (
+    TORQUE_PER_FORCE,
+    KalmanOptions,
+    gain_inverse,
+    mount_matrix,
+    noise_axes,
+)
+from hapticlab.plugins.estimators.kalman.payload import PayloadWatch
+from hapticlab.plugins.estimators.kalman.reopen import Reopening
+from hapticlab.plugins.estimators.kalman.stage import KalmanStage, MountStage, StageRun, innovations
+from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import TW_PAIRS, TW_Q, learn_tilt_walk
+from hapticlab.plugins.estimators.kalman.warm_start import WarmStart
+from scipy.stats import chi2
+
+BIAS_RATE_PRIOR_FORCE = 0.025
+"""Prior std of the force-bias rate, N/s (three times the 0.5 N/min drift figure)."""
+BIAS_RATE_PRIOR_TORQUE = 0.002
+"""Prior std of the torque-bias rate, N·m/s (the force figure times 0.077 m)."""
+_NO_RATE = np.zeros(3)
+"""What the compiled cascade is given for the bias rates' random walk without bias-rate states."""
+_NO_MOUNT = np.eye(3)
+"""What the compiled cascade is given for the mount when it does not estimate one (it is not read)."""
+
+
+class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBadSamples):
+    """Cascaded Kalman filters of the non-contact wrench, with drifting biases.
+
+    Options: :class:`KalmanOptions` (``KalmanEstimator(noise_force=0.12)`` or ``KalmanEstimator(options)``).
+
+    Attributes:
+        force, torque: the two KalmanStage stages.
+        converged_force, converged_torque: the stages' flags after the last sample.
+        first_converged_force, first_converged_torque: index of the sample at
+            which each flag first became true (None until then).
+        samples: samples seen, refused ones included (the first_converged
+            indices count them too: they are rows of the estimates).
+        refused_samples: samples refused as bad input (never given to a stage).
+        failed_solves: samples whose update could not be computed (S singular or
+            not positive definite): predicted only, marked not converged.
+        gate2: the gate on the squared Mahalanobis distance.
+    """
+
+    Options = KalmanOptions
+
+    def __init__(self, options: KalmanOptions | None = None, /, **settings: Any):
+        o = self.options = options if options is not None else KalmanOptions(**settings)
+        bias_rate, mount_rotation, inertia = o.resolved_bias_rate, o.resolved_mount_rotation, o.resolved_inertia
+        bias_force_tilt_rw, bias_torque_tilt_rw = o.resolved_force_tilt_rw, o.bias_torque_tilt_rw
+        # "auto": the stage's noise estimated as it runs (noise.py), each stage on its own
+        self.noise_auto_force, self.noise_auto_torque = o.noise_force == "auto", o.noise_torque == "auto"
+        self.noise_auto = self.noise_auto_force or self.noise_auto_torque
+        noise_force = np.full(3, NOISE_AUTO_START_FORCE) if self.noise_auto_force else noise_axes("noise_force",
+                                                                                                  o.noise_force)
+        noise_torque = (np.full(3, NOISE_AUTO_START_TORQUE) if self.noise_auto_torque
+                        else noise_axes("noise_torque", o.noise_torque))
+        # "auto": the tilt walk's intensity learnt from the data (tilt_walk_kernel), the torque's following
+        self.tilt_walk_auto = bias_force_tilt_rw == "auto"
+        tilt_torque_follows = bias_torque_tilt_rw is None
+        if self.tilt_walk_auto:
+            bias_force_tilt_rw = 0.0  # (until the first pair of windows is scored)
+        if bias_torque_tilt_rw is None:
+            bias_torque_tilt_rw = bias_force_tilt_rw * TORQUE_PER_FORCE
+        self.kernel = o.kernel
+        R_SE = mount_matrix(o.mount_rotation_SE, o.mount_R_SE)
+        self.guard = SampleGuard("kalman", o.max_force, o.max_torque)
+        self.gain_inverse_force = gain_inverse("gain_force_S", o.gain_force_S)
+        self.gain_inverse_torque = gain_inverse("gain_torque_S", o.gain_torque_S)
+
+        self.bias_rate = bias_rate
+        self.mount_rotation = mount_rotation
+        self.mount_configured = o.mount_rotation_SE is not None or o.mount_R_SE is not None
+        self.R_SE = R_SE
+        self.inertia = inertia
+        self.time_lag_s = float(o.time_lag_s)
+        self.effects = sorted(set(o.effects or []) | ({"bias_drift"} if bias_rate else set())
+                              | ({"mount_rotation"} if mount_rotation else set())
+                              | ({"inertia"} if inertia else set())
+                              | ({"time_lag"} if o.time_lag_s else set())
+                              | ({"gain_crosstalk"} if o.gain_force_S is not None or o.gain_torque_S is not None
+                                 else set()))
+        derivatives = derivatives_kernel.CompiledMotionDerivatives if o.kernel == "numba" else MotionDerivatives
+        self.derivatives = derivatives(o.derivative_window_s) if (inertia or o.time_lag_s > 0) else None
+        self._lag_t = np.zeros(0, dtype=np.int64)  # the poses a late sensor stream still needs (time_lag_s < 0)
+        self._lag_q = np.zeros((0, 4))
+        self._lag_p: np.ndarray | None = np.zeros((0, 3))
+        self.method = None if o.implementation == "auto" else o.implementation
+        if o.kernel == "numba" and o.implementation in ("auto", "fast") and not bias_rate:
+            self.method = "numba"  # (the torque stage's with mount_rotation)
+        self.gate2 = (math.inf if (o.gate_probability == 1 or o.gating == "none")
+                      else float(chi2.ppf(o.gate_probability, 3)))
+        self.convergence = o.convergence
+        self.converged_force_std_option = o.converged_force_std
+        self.converged_torque_std_option = o.converged_torque_std
+        rate_f = [o.bias_force_rate_rw] * 3 if bias_rate else None
+        rate_t = [o.bias_torque_rate_rw] * 3 if bias_rate else None
+        prior_f = [o.prior_force_std] * 6 + ([BIAS_RATE_PRIOR_FORCE] * 3 if bias_rate else [])
+        prior_t = ([o.prior_cog_std] * 3 + [o.prior_torque_std] * 3
+                   + ([BIAS_RATE_PRIOR_TORQUE] * 3 if bias_rate else []))
+        if mount_rotation:
+            self.force = MountStage(prior_f, [o.bias_force_rw] * 3, noise_force, R_SE, o.mount_prior_std,
+                                    bias_rate_rw=rate_f, bias_tilt_rw=[bias_force_tilt_rw] * 3,
+                                    tilt_span=o.bias_tilt_span)
+        else:
+            self.force = KalmanStage(prior_f, [o.bias_force_rw] * 3, noise_force, bias_rate_rw=rate_f,
+                                     bias_tilt_rw=[bias_force_tilt_rw] * 3, tilt_span=o.bias_tilt_span)
+        self.torque = KalmanStage(prior_t, [o.bias_torque_rw] * 3, noise_torque, cross_noise=noise_force,
+                                  bias_rate_rw=rate_t, bias_tilt_rw=[bias_torque_tilt_rw] * 3,
+                                  tilt_span=o.bias_tilt_span)
+        self.converged_force = False
+        self.converged_torque = False
+        self.first_converged_force: int | None = None
+        self.first_converged_torque: int | None = None
+        self.samples = 0
+        self._last_t_ns: int | None = None
+        # the noise estimate's and the identified rule's state, in the compiled cascade's layout (both paths use
+        # it): the samples' weight in each noise estimate, the window in samples (0 until the first time step),
+        # whether each stage has settled (its flag up; at the pose, identified too), the auto bounds' caps (inf
+        # until the force stage settles), the force reading's
+        # predicted variance at the last pose (NaN until the first sample)
+        self._adapt = np.zeros(ADAPT_SIZE)
+        self._adapt[ADAPT_NOISE_F], self._adapt[ADAPT_NOISE_T] = self.noise_auto_force, self.noise_auto_torque
+        self._adapt[ADAPT_IDENTIFIED] = {"identified": CONVERGENCE_IDENTIFIED,
+                                         "pose": CONVERGENCE_AT_POSE}.get(o.convergence, 0.0)
+        self._adapt[ADAPT_AUTO_F] = self.noise_auto_force and o.converged_force_std is None
+        self._adapt[ADAPT_AUTO_T] = self.noise_auto_torque and o.converged_torque_std is None
+        self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = math.inf
+        self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3] = math.nan
+        self._adapt[ADAPT_TILT:ADAPT_TILT + 9] = math.nan  # the last sample's pose: none yet
+        self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3] = (0.0, 0.0, 1.0)  # B's z until the weight is known
+        self._adapt[ADAPT_TILT_AUTO] = self.tilt_walk_auto
+        self._adapt[ADAPT_TILT_SPAN] = o.bias_tilt_span
+        self._adapt[ADAPT_TW:] = tilt_walk_kernel.new_state()
+        self._adapt[ADAPT_TILT_TORQUE] = TORQUE_PER_FORCE ** 2 if tilt_torque_follows else -1.0  # (q: variances)
+        self._cog_known = False  # a warm start's torque stage had converged
+        self._mass_known = False  # a warm start's force stage had converged
+        self.prior_f = np.array(prior_f, dtype=float)
+        self.prior_t = np.array(prior_t, dtype=float)
+        self.payload_change_ns = int(round(o.payload_change_s * 1e9))
+        self.torque_reopen_s = float(o.torque_reopen_s)
+        self._adapt[ADAPT_REOPEN_S], self._adapt[ADAPT_REOPEN_LEVER] = self.torque_reopen_s, float(o.torque_reopen_lever)
+        self._adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3] = self.prior_t[3:6] ** 2
+        self._adapt[ADAPT_CONTACT_AFTER] = o.contact_after
+        if mount_rotation:  # the compiled cascade estimates the mount as MountStage does
+            self._adapt[ADAPT_MOUNT] = self.force.activate_var
+        self.events: list[Event] = []
+        self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
+        self.payload_changes = 0
+        self._payload = PayloadWatch(self.payload_change_ns)  # the force stage's refusal runs
+        # the rules that follow what the motion identifies ("pose" flags the wrench at the pose, and reports
+        # the identification beside it, as "identified" does)
+        self.identifies = o.convergence in ("identified", "pose")
+        self._per_sample = self.noise_auto or self.identifies or self.tilt_walk_auto  # (the numpy reference's blocks)
+        self._information: dict[str, np.ndarray] = {}  # the identification: Λ per stage (6, 6)
+        self._seed_information()
+        if o.warm_start:
+            self.load_state(o.warm_start)
+        # the whole cascade in one compiled call (the step rule runs per stage); with bias-rate states and a mount
+        # estimate too (stage_kernel.stage_step_rate, stage_step_mount; the stage runs a payload replay makes stay
+        # the numpy ones)
+        compiled = self.method == "numba" or (o.kernel == "numba" and o.implementation == "auto" and bias_rate)
+        self._cascade = compiled and o.convergence != "step"
+        if o.kernel == "numba":
+            derivatives_kernel.warm_up()
+            if self.time_lag_s < 0:
+                aligner_kernel.warm_up()
+        if self.method == "numba" or self._cascade:
+            cascade_kernel.warm_up()
+            self._buffers = cascade_kernel.Buffers()
+            self._clock = np.zeros(2, dtype=np.int64)  # [a sample came before, its t_ns]
+            self._limits = np.zeros(3)  # [gate2, bound_f², bound_t²]
+            self._L6 = np.empty((6, 6))  # constant_var3's Cholesky factor
+
+    def update_block(self, block: AlignedSamples) -> Estimates:
+        """Filter a block of aligned samples, in order (bad samples refused first)."""
+        start, first = self.samples, (self.first_converged_force, self.first_converged_torque)
+        extras = ()
+        if self.derivatives is not None or self.time_lag_s < 0:  # the pose's quaternion and position are used
+            extras = tuple(a for a in (block.quat_BE, block.p_BoEo_B) if a is not None)
+        out = self.guard.run(block, self._filter_block, (self.converged_force, self.converged_torque), extras)
+        if self.identifies and len(block):
+            self._watch_identified(int(block.t_ns[-1]))
+        if self.samples != start + len(block):
+            # samples refused: the filter counted the accepted ones; the indices are rows of the block
+            if first[0] is None and self.first_converged_force is not None:
+                self.first_converged_force = start + int(np.argmax(out.converged_force))
+            if first[1] is None and self.first_converged_torque is not None:
+                self.first_converged_torque = start + int(np.argmax(out.converged_torque))
+            self.samples = start + len(block)
+        return out
+
+    def _filter_block(self, block: AlignedSamples) -> Estimates:
+        """Filter a block of samples that passed the guard, in order."""
+        m = len(block)
+        # the noise estimate and the identified rule follow sample by sample: the reference runs them one
+        # sample at a time, the compiled cascade in its loop (but for the inertial force, whose mass and
+        # centre of mass are the estimates before each sample)
+        if self._per_sample and m > 1 and (not self._cascade or self.inertia):
+            return Estimates.concatenate([self._filter_block(block.subset(slice(i, i + 1))) for i in range(m)])
+        if self._cascade and m:
+            return self._filter_compiled(block)
+        if m == 0:
+            empty = np.zeros((0, 3))
+            flags = np.zeros(0, dtype=bool)
+            return Estimates(block.t_ns, empty, empty.copy(), flags, flags.copy(), flags.copy())
+        t_ns = np.asarray(block.t_ns, dtype=np.int64)
+        dt_ns = np.empty(m, dtype=np.int64)
+        dt_ns[0] = 0 if self._last_t_ns is None else t_ns[0] - self._last_t_ns
+        dt_ns[1:] = t_ns[1:] - t_ns[:-1]
+        dt = np.maximum(dt_ns, 0) * 1e-9  # s; a repeated or reversed stamp adds no time
+        self._last_t_ns = int(t_ns[-1])
+        usable = block.usable
+        force_S, torque_S, R_EB, inertial_S, usable = self._prepare(block)
+        y_f = force_S if inertial_S is None else force_S - inertial_S  # what gravity and bias explain
+
+        x_before = self.force.x[:6].copy()
+        tilt = None  # rad, before each sample, with the tilt walk on
+        if self.force.q_tilt.any() or self.torque.q_tilt.any() or self.tilt_walk_auto:
+            tilt = np.array([tilt_step.py_func(self._adapt, R) for R in R_EB])
+        if self.mount_rotation:  # the stage applies its own mount estimate, updated as it goes
+            run_f = self.force.run(y_f, R_EB, dt, usable, self.gate2, tilt=tilt)
+            self.R_SE = self.force.R_SE
+            A_f = self._to_S(R_EB)  # R_SB per sample, with the mount as it is after the block
+        else:
+            A_f = self._to_S(R_EB)  # R_SB per sample
+            run_f = self.force.run(y_f, A_f, dt, usable, self.gate2, self.method, tilt)
+        X_f = run_f.X
+        A_t = -skew_stack(force_S - X_f[:, 3:6])  # C_k = [-skew(Δf), I3]; Δf includes the inertial force
+        if run_f.failed is not None:  # updates that could not be computed: not used, not converged
+            usable = usable & ~run_f.failed
+        accepted_f = usable & ~run_f.gated
+        conv_f, settled_f = self._force_converged(run_f, x_before, accepted_f, A_f)
+        if run_f.failed is not None:
+            conv_f &= ~run_f.failed
+            settled_f &= ~run_f.failed
+        x_t_before = self.torque.x[:6].copy()
+        seen_t = force_seen = accepted_f & settled_f  # (its regressor needs gravity identified, not only here)
+        run_t = self.torque.run(torque_S, A_t, dt, seen_t, self.gate2, self.method, tilt)
+        if run_t.failed is not None:
+            seen_t = seen_t & ~run_t.failed
+        accepted_t = seen_t & ~run_t.gated
+        conv_t, settled_t = self._torque_converged(run_t, X_f, x_t_before, accepted_t, A_t)
+        if run_t.failed is not None:
+            conv_t &= ~run_t.failed
+            settled_t &= ~run_t.failed
+        if settled_t.any():  # (at the pose: the centre of gravity identified as well)
+            self._adapt[ADAPT_TORQUE_SEEN] = 1.0
+        torque_for_contact = torque_S
+        if inertial_S is not None:  # the inertial force acts at the centre of mass like the weight
+            torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
+        contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], run_t.X[:, :6])
+        if self.torque_reopen_s > 0:
+            self._watch_torque_only(t_ns, run_f.gated, force_seen, run_t, dt, contact_force_S, contact_torque_S)
+        if self.noise_auto:
+            if self._adapt[ADAPT_WINDOW] == 0 and dt[0] > 0:  # the sensor's rate, from the first time step
+                self._adapt[ADAPT_WINDOW] = window_samples(float(dt[0]))
+            if self.noise_auto_force:
+                self._adapt_noise(self.force, y_f, A_f, x_before, run_f, usable, ADAPT_COUNT_F)
+            if self.noise_auto_torque:  # (with the force noise it carried at this sample)
+                self._adapt_noise(self.torque, torque_S, A_t, x_t_before, run_t, seen_t, ADAPT_COUNT_T)
+            self.torque.rc = self.force.r.copy()
+
+        self.converged_force, self.converged_torque = bool(conv_f[-1]), bool(conv_t[-1])
+        if self.payload_change_ns > 0:
+            self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, usable, run_f, x_before)
+        if self.first_converged_force is None and conv_f.any():
+            self.first_converged_force = self.samples + int(np.argmax(conv_f))
+        if not self._adapt[ADAPT_FORCE_SEEN] and settled_f.any():  # (at the pose: identified as well)
+            if self.noise_auto:
+                self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = self._bounds()
+            self._adapt[ADAPT_FORCE_SEEN] = 1.0
+            if not self._adapt[ADAPT_GRAVITY_KNOWN]:  # tilts about the identified weight
+                set_gravity_direction.py_func(self._adapt, self.force.x[:3])
+        if self.tilt_walk_auto:
+            self._learn_tilt_walk(y_f, A_f, t_ns, run_f.gated, usable)  # (the force stage's own: not the torque's)
+        if self.first_converged_torque is None and conv_t.any():
+            self.first_converged_torque = self.samples + int(np.argmax(conv_t))
+        self.samples += m
+        return Estimates(
+            t_ns=block.t_ns,
+            contact_force_S=contact_force_S,
+            contact_torque_S=contact_torque_S,
+            contact=self._judge_contacts(run_f.gated | run_t.gated, usable),
+            converged_force=conv_f,
+            converged_torque=conv_t,
+        )
+
+    def _learn_tilt_walk(self, y_f, A_f, t_ns, refused, tested) -> None:
+        """The tilt walk's intensity from the block's samples (``tilt_walk_kernel.learn_tilt_walk``, run as Python, as the
+        cascade runs it after each sample): into both stages' q_tilt, the torque's times ``TORQUE_PER_FORCE``²
+        unless it was given. The reference filters one sample per block here, so x is the sample's."""
+        if not self._adapt[ADAPT_FORCE_SEEN]:
+            return
+        learn, tw = learn_tilt_walk.py_func, self._adapt[ADAPT_TW:]
+        g_B = self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3]
+        q_bias = self.force.q_bias
+        q_time = (q_bias[0] + q_bias[1] + q_bias[2]) / 3.0
+        for k in range(len(t_ns)):
+            if tested[k]:
+                self._set_tilt_walk(learn(tw, y_f[k], A_f[k], self.force.x, g_B, t_ns[k] * 1e-9, bool(refused[k]),
+                                          q_time))
+
+    def _judge_contacts(self, refused: np.ndarray, tested: np.ndarray) -> np.ndarray:
+        """(m,) the refused samples judged a contact (``cascade_kernel.judge_contact``, run as Python); ``tested``:
+        the samples a stage tested (the others neither continue nor end a refused run)."""
+        judge = judge_contact.py_func
+        return np.array([judge(self._adapt, r, t) for r, t in zip(refused.tolist(), tested.tolist())], dtype=bool)
+
+    @property
+    def held_out_samples(self) -> int:
+        """Samples of the refused runs that ended before they were judged a contact: lone outliers of the
+        sensor's noise (see ``contact_after``; a run still going is counted when it ends)."""
+        return int(self._adapt[ADAPT_HELD_OUT])
+
+    def _filter_compiled(self, block: AlignedSamples) -> Estimates:
+        """``_filter_block`` in one compiled call (``cascade_kernel.kalman_cascade``): the default model, with
+        inertia and a kinematics or sensor lag if set (their inputs from ``_prepare``, compiled too)."""
+        m = len(block)
+        contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
+        t_ns = contiguous(block.t_ns, np.int64)
+        inertial_S, stale = None, contiguous(block.stale, bool)
+        if self.derivatives is not None or self.time_lag_s < 0:  # inertia, a kinematics or sensor lag
+            force_S, torque_S, R_EB, inertial_S, known = self._prepare(block, usable=False)
+            if known is not None:  # a late sensor stream's first samples: no pose yet, not used (as stale)
+                stale = stale | ~known
+            force_S, torque_S, R_EB = contiguous(force_S, float), contiguous(torque_S, float), contiguous(R_EB, float)
+        else:
+            force_S, torque_S = contiguous(block.force_S, float), contiguous(block.torque_S, float)
+            R_EB = contiguous(block.R_EB, float)
+            if self.gain_inverse_force is not None:
+                force_S = force_S @ self.gain_inverse_force.T
+            if self.gain_inverse_torque is not None:
+                torque_S = torque_S @ self.gain_inverse_torque.T
+        y_f = force_S if inertial_S is None else force_S - inertial_S
+        if self.mount_rotation:  # R_EB in (a copy: the cascade writes R_SB through its mount estimate into it)
+            A_f = np.array(R_EB, dtype=float, order="C")
+        else:
+            A_f = contiguous(self._to_S(R_EB)) if self.mount_configured else R_EB
+        p_BoEo_B = NO_POSITIONS if block.p_BoEo_B is None else contiguous(block.p_BoEo_B, float)
+        b, clock, limits = self._buffers, self._clock, self._limits
+        b.ensure(m)
+        if self._last_t_ns is not None:
+            clock[0], clock[1] = 1, self._last_t_ns
+        limits[0] = self.gate2
+        if not (self._adapt[ADAPT_AUTO_F] and self._adapt[ADAPT_AUTO_T]):  # (auto bounds: the cascade's own)
+            bound_f, bound_t = self._bounds()
+            limits[1], limits[2] = bound_f * bound_f, bound_t * bound_t
+        force, torque = self.force, self.torque
+        out = Estimates(block.t_ns, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=bool),
+                        np.empty(m, dtype=bool), np.empty(m, dtype=bool))
+        x_before = force.x.copy() if self.payload_change_ns > 0 else None
+        failed_f, failed_t, gated_f, first_f, first_t = cascade_kernel.kalman_cascade(
+            t_ns, clock, y_f, force_S, torque_S, A_f, stale,
+            contiguous(block.status, np.int64), p_BoEo_B, NO_POSITIONS if inertial_S is None else inertial_S,
+            b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
+            torque.rc, _NO_RATE if force.q_rate is None else force.q_rate,
+            _NO_RATE if torque.q_rate is None else torque.q_rate, force.q_tilt, torque.q_tilt,
+            force.R_SE if self.mount_rotation else _NO_MOUNT,
+            limits, self._adapt, self._information["force"],
+            self._information["torque"], b.A_t, b.scratch, b.work,
+            b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,
+            out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force, out.converged_torque)
+        self._last_t_ns = int(t_ns[-1])
+        if self.mount_rotation:
+            self.R_SE = force.R_SE.copy()  # (the cascade turns force.R_SE in place)
+        force.failed += failed_f
+        torque.failed += failed_t
+        if self._adapt[ADAPT_REOPEN_ROW] >= 0:  # (the block's last one: one event per block)
+            self._torque_reopened(int(t_ns[int(self._adapt[ADAPT_REOPEN_ROW])]))
+        self.converged_force, self.converged_torque = bool(out.converged_force[-1]), bool(out.converged_torque[-1])
+        if self.payload_change_ns > 0 and (gated_f or self._payload.in_run):
+            d2 = np.full(m, np.nan)  # (not kept by the cascade; the watcher does not use it)
+            run_f = StageRun(b.X_f[:m], b.D_f[:m], b.gated_f[:m], d2, b.failed_f[:m])
+            self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, x_before)
+        if self.first_converged_force is None and first_f >= 0:
+            self.first_converged_force = self.samples + first_f
+        if self.first_converged_torque is None and first_t >= 0:
+            self.first_converged_torque = self.samples + first_t
+        self.samples += m
+        return out
+
+    def _adapt_noise(self, stage, y, A, x_before, run, usable, counter: int) -> None:
+        """One sample's covariance matching (``plugins.estimators.kalman.noise``; the numpy reference runs ``noise =
+        "auto"`` one sample at a time): e at the state the sample was predicted from, C P Cᵀ with the
+        stage's P after it (for the torque stage plus the force noise it carries through the centre of
+        gravity, which its R adds separately)."""
+        if not usable[0]:
+            return
+        e = innovations(y, A, x_before, run.X)[0]
+        cpc = identified.predicted_var(stage.P, A[0])
+        cpc += stage.measurement_cov(stage.x[:3]).diagonal() - stage.r  # the torque stage's carried force noise
+        # refused samples count only until the force stage first converged (plugins.estimators.kalman.noise)
+        weight = 1.0 if not run.gated[0] else (NOISE_REFUSED_WEIGHT if not self._adapt[ADAPT_FORCE_SEEN] else 0.0)
+        floor = NOISE_FLOOR[0] if stage is self.force else NOISE_FLOOR[1]
+        window = self._adapt[ADAPT_WINDOW] or NOISE_WINDOW
+        stage.r, self._adapt[counter] = adapt_noise(stage.r, self._adapt[counter], e, cpc, weight, window, floor)
+
+    def drain_events(self) -> list[Event]:
+        """The events since the last call (EmitsEvents): ``payload_change``, ``sample_refused``."""
+        out, self.events = self.events + self.guard.drain_events(), []
+        return out
+
+    def params(self) -> dict[str, list[float]]:
+        """Identified parameters with physical names (SI units); with bias_rate also the bias rates; with
+        ``convergence`` "pose" or "identified" the std per axis of gravity_force_B (N) and cog_S (m) as the motion so
+        far identifies them, and NaN for an axis it has not identified at all (``plugins.estimators.kalman.identified.
+        unidentified_axes``: a still tool leaves all three, a turn about B's vertical alone gravity's vertical
+        component; the ``not_identifiable`` event names them); with auto noise the noise estimates."""
+        out = named_params(self.force.x[:6], self.torque.x[:6])
+        if self.mount_rotation or self.mount_configured:
+            out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
+        if self.identifies:  # how well the motion so far has identified the constants
+            for stage, name in (("force", "gravity_force_B"), ("torque", "cog_S")):
+                std, axes = self._unidentified_now(stage)
+                out[f"{name}_std"] = std  # N, m
+                for i in axes:  # not identifiable from the motion so far: no number
+                    out[name][i] = math.nan
+        if self.noise_auto:
+            out["noise_force_S"] = np.sqrt(self.force.r).tolist()  # N
+            out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m
+        if self.tilt_walk_auto:  # the tilt walk learnt so far, N/√rad, and from how many pairs of windows
+            out["bias_force_tilt_rw"] = [math.sqrt(self._adapt[ADAPT_TW + TW_Q])]
+            out["tilt_walk_pairs"] = [float(self._adapt[ADAPT_TW + TW_PAIRS])]
+        if self.bias_rate:
+            out["bias_force_rate_S"] = self.force.x[6:9].tolist()  # N/s
+            out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s
+        return out
+
+    def cov_diag(self) -> list[float]:
+        """Diagonal of P for the force stage then the torque stage (12 values; 18 with bias_rate;
+        3 more, the mount's θ at the end of the force stage's, with mount_rotation)."""
+        return np.concatenate([np.diag(self.force.P), np.diag(self.torque.P)]).tolist()

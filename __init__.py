@@ -29,8 +29,9 @@ except PackageNotFoundError:  # running from a source tree that is not installed
 __all__ = ["compensate", "get_plugins", "load_session", "make_estimator", "open_recording", "run"]
 
 
-def load_session(session: str | Path | Mapping[str, Any] = "demo",
-                 settings: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def load_session(
+    session: str | Path | Mapping[str, Any] = "demo", settings: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """A session's config: a preset name, a TOML path or a dict, with ``settings`` applied.
 
     ``settings`` maps dotted keys to values, as ``--set`` does on the command
@@ -45,8 +46,12 @@ def load_session(session: str | Path | Mapping[str, Any] = "demo",
     return apply_settings(config, dict(settings or {}))
 
 
-def run(session: str | Path | Mapping[str, Any] = "demo", settings: Mapping[str, Any] | None = None, *,
-        out: str | Path | None = None) -> Path:
+def run(
+    session: str | Path | Mapping[str, Any] = "demo",
+    settings: Mapping[str, Any] | None = None,
+    *,
+    out: str | Path | None = None,
+) -> Path:
     """Run a session to its end and return the path of its recording (an MCAP file).
 
     ``session`` is a preset name (``"demo"``), a TOML path or a config dict;

@@ -32,7 +32,6 @@ from hapticlab.plugins.simworld import Indentation, RandomTour, RobotParams, Sen
 from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.sessions.discrepancy.workflow import discrepancy
 
-
 COMMAND = "import sys; from hapticlab.sessions.cli import main; sys.exit(main(sys.argv[1:]))"
 """``hapticlab`` in a fresh process (``sessions.cli`` is a package without ``__main__``)."""
 
@@ -50,7 +49,9 @@ def world_for(case: str) -> tuple[SimWorld, str]:
         robot=RobotParams(kinematics_lag_s=0.008),
         motion=RandomTour(seed=3, segment_s=1.0, max_translation=0.05),
         contacts=[Indentation(start=s, duration=1.5, peak_force=2.5) for s in (20.0, 50.0, 80.0, 100.0)],
-        seed=3, inertia=True)
+        seed=3,
+        inertia=True,
+    )
     return world, hidden
 
 
@@ -62,16 +63,31 @@ def bench(case: str, duration: float, rate: float) -> None:
         n = sum(1 for _ in path.open()) - 1
         print(f"[{case}] {n} samples ({duration:g} s at {rate:g} Hz), hidden: {hidden}; 4 indentations")
         start = time.perf_counter()
-        subprocess.run([sys.executable, "-c", COMMAND, "discrepancy", str(path), "--json",
-                        str(Path(tmp) / "out.json"), "--plots", str(Path(tmp) / "plots")], check=True,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                COMMAND,
+                "discrepancy",
+                str(path),
+                "--json",
+                str(Path(tmp) / "out.json"),
+                "--plots",
+                str(Path(tmp) / "plots"),
+            ],
+            check=True,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         command = time.perf_counter() - start
         start = time.perf_counter()
         result = discrepancy(path)
         workflow = time.perf_counter() - start
     print(f"  named {result['effects']}; gated {result['gated']} samples; fitted on {result['fit_samples']}")
-    print(f"  final force RMS {np.round(result['final']['rms_force_S'], 4).tolist()} N "
-          f"(noise {world.sensor.noise_force_S[0]:g} N)")
+    print(
+        f"  final force RMS {np.round(result['final']['rms_force_S'], 4).tolist()} N "
+        f"(noise {world.sensor.noise_force_S[0]:g} N)"
+    )
     print(f"  whole command (fresh process, CSV read, plots, JSON): {command:.1f} s")
     print(f"  workflow alone (CSV read included): {workflow:.1f} s")
 
@@ -80,10 +96,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=120.0, help="s (default 120)")
     parser.add_argument("--rate", type=float, default=500.0, help="samples/s (default 500)")
-    parser.add_argument("--case", default="both", choices=("three", "five", "both"),
-                        help="three hidden effects, all five, or both (default)")
+    parser.add_argument(
+        "--case",
+        default="both",
+        choices=("three", "five", "both"),
+        help="three hidden effects, all five, or both (default)",
+    )
     args = parser.parse_args()
-    for case in (("three", "five") if args.case == "both" else (args.case,)):
+    for case in ("three", "five") if args.case == "both" else (args.case,):
         bench(case, args.duration, args.rate)
 
 

@@ -37,10 +37,17 @@ def one(seed: int, folder: Path) -> dict:
     result = discrepancy(path)
     path.unlink()
     n = result["usable"] - result["gated"]
-    over = np.concatenate([result["leftover"]["rms_over_axis_noise"]["force_S"],
-                           result["leftover"]["rms_over_axis_noise"]["torque_S"]])
-    return {"seed": seed, "samples": n, "named": result["effects"], "leftover": result["leftover"]["axes"],
-            "threshold": result["leftover"]["threshold"], "z": ((over - 1.0) * np.sqrt(n)).tolist()}
+    over = np.concatenate(
+        [result["leftover"]["rms_over_axis_noise"]["force_S"], result["leftover"]["rms_over_axis_noise"]["torque_S"]]
+    )
+    return {
+        "seed": seed,
+        "samples": n,
+        "named": result["effects"],
+        "leftover": result["leftover"]["axes"],
+        "threshold": result["leftover"]["threshold"],
+        "z": ((over - 1.0) * np.sqrt(n)).tolist(),
+    }
 
 
 def main() -> None:
@@ -54,17 +61,24 @@ def main() -> None:
         for seed in range(first, end):
             record = one(seed, Path(tmp))
             records.append(record)
-            print(f"seed {seed}: {record['samples']} samples, named {record['named'] or 'nothing'}, "
-                  f"leftover {record['leftover'] or 'none'} (threshold {record['threshold']:.3f}), "
-                  f"z max {max(record['z']):.2f}", flush=True)
+            print(
+                f"seed {seed}: {record['samples']} samples, named {record['named'] or 'nothing'}, "
+                f"leftover {record['leftover'] or 'none'} (threshold {record['threshold']:.3f}), "
+                f"z max {max(record['z']):.2f}",
+                flush=True,
+            )
     z = np.array([r["z"] for r in records])
     named = sum(bool(r["named"]) for r in records)
     flagged = sum(bool(r["leftover"]) for r in records)
-    print(f"{len(records)} clean recordings: named something in {named} ({100 * named / len(records):.1f} %), "
-          f"leftover flagged in {flagged} ({100 * flagged / len(records):.1f} %)")
-    print(f"z per channel (fx fy fz tx ty tz): mean {np.round(z.mean(0), 2).tolist()}, "
-          f"std {np.round(z.std(0), 2).tolist()}; max over channels, 99th percentile "
-          f"{np.percentile(z.max(1), 99):.2f}")
+    print(
+        f"{len(records)} clean recordings: named something in {named} ({100 * named / len(records):.1f} %), "
+        f"leftover flagged in {flagged} ({100 * flagged / len(records):.1f} %)"
+    )
+    print(
+        f"z per channel (fx fy fz tx ty tz): mean {np.round(z.mean(0), 2).tolist()}, "
+        f"std {np.round(z.std(0), 2).tolist()}; max over channels, 99th percentile "
+        f"{np.percentile(z.max(1), 99):.2f}"
+    )
     if args.json:
         Path(args.json).write_text(json.dumps(records, indent=1))
 

@@ -57,8 +57,10 @@ from hapticlab.sessions.live import build_session, run_session
 from hapticlab.sessions.live.loop import stale_timeout_ns
 from hapticlab.sessions.recording import open_recording
 
-EMULATOR = ("import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
-            "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))")
+EMULATOR = (
+    "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+    "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
+)
 FAULT_KINDS = ("sensor_nan", "sensor_saturated", "sensor_spike")
 FIRST_FAULT_S = 10.0  # the estimator has converged and the contact is on
 SPACING_S = 0.4
@@ -72,16 +74,30 @@ def config(port: str, protocol: str, wait_for_reply: bool, faults: int, stalls: 
     n = faults + stalls
     duration = FIRST_FAULT_S + n * SPACING_S + 1.0
     cfg["session"]["duration"] = duration
-    cfg["world"]["contacts"] = [{"kind": "indentation", "start": 6.0, "duration": duration, "peak_force": 3.0,
-                                 "ramp": 0.3}]
+    cfg["world"]["contacts"] = [
+        {"kind": "indentation", "start": 6.0, "duration": duration, "peak_force": 3.0, "ramp": 0.3}
+    ]
     cfg["world"]["faults"] = [
-        {"kind": FAULT_KINDS[i % len(FAULT_KINDS)], "start": FIRST_FAULT_S + i * SPACING_S, "duration": FAULT_S,
-         **({"force": [500.0, 0.0, 0.0]} if FAULT_KINDS[i % len(FAULT_KINDS)] == "sensor_spike" else {})}
-        for i in range(faults)]
-    cfg["world"]["faults"] += [{"kind": "sensor_dropout", "start": FIRST_FAULT_S + (faults + i) * SPACING_S,
-                                "duration": STALL_S} for i in range(stalls)]
-    cfg["haptic"] = {**cfg["haptic"], "name": "serial", "port": port, "protocol": protocol,
-                     "wait_for_reply": wait_for_reply, "device_max_force": 8.0}
+        {
+            "kind": FAULT_KINDS[i % len(FAULT_KINDS)],
+            "start": FIRST_FAULT_S + i * SPACING_S,
+            "duration": FAULT_S,
+            **({"force": [500.0, 0.0, 0.0]} if FAULT_KINDS[i % len(FAULT_KINDS)] == "sensor_spike" else {}),
+        }
+        for i in range(faults)
+    ]
+    cfg["world"]["faults"] += [
+        {"kind": "sensor_dropout", "start": FIRST_FAULT_S + (faults + i) * SPACING_S, "duration": STALL_S}
+        for i in range(stalls)
+    ]
+    cfg["haptic"] = {
+        **cfg["haptic"],
+        "name": "serial",
+        "port": port,
+        "protocol": protocol,
+        "wait_for_reply": wait_for_reply,
+        "device_max_force": 8.0,
+    }
     return cfg, duration
 
 
@@ -89,20 +105,24 @@ def received(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """The emulator's log: (N,) receipt times, ns, and (N, 3) float32 forces, N."""
     with open(path, newline="") as f:
         rows = list(csv.reader(f))[1:]
-    return (np.array([int(r[0]) for r in rows], np.int64),
-            np.array([[float(x) for x in r[1:]] for r in rows], np.float32))
+    return (
+        np.array([int(r[0]) for r in rows], np.int64),
+        np.array([[float(x) for x in r[1:]] for r in rows], np.float32),
+    )
 
 
 def percentiles(x: np.ndarray) -> str:
-    return (f"p50 {np.percentile(x, 50):7.3f}  p99 {np.percentile(x, 99):7.3f}  "
-            f"max {x.max():7.3f} ms  (n={len(x)})")
+    return f"p50 {np.percentile(x, 50):7.3f}  p99 {np.percentile(x, 99):7.3f}  max {x.max():7.3f} ms  (n={len(x)})"
 
 
 def measure(protocol: str, wait_for_reply: bool, faults: int, stalls: int, tmp: Path) -> dict:
     label = f"{protocol}, {'waits for each reply' if wait_for_reply else 'pipelined'}"
     log = tmp / f"received-{protocol}-{wait_for_reply}.csv"
-    proc = subprocess.Popen([sys.executable, "-c", EMULATOR, "--protocol", protocol, "--path", "hold",
-                             "--log-forces", str(log)], stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", EMULATOR, "--protocol", protocol, "--path", "hold", "--log-forces", str(log)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         port = proc.stdout.readline().strip()
         cfg, duration = config(port, protocol, wait_for_reply, faults, stalls)
@@ -119,8 +139,10 @@ def measure(protocol: str, wait_for_reply: bool, faults: int, stalls: int, tmp: 
     enabled = rec.field("/haptic/command", "enabled").astype(bool)
     n = len(force_D)  # then the plugin's close() writes one more zero, unrecorded
     if len(t_rx) < n or not np.array_equal(f_rx[:n], force_D) or np.any(f_rx[n:]):
-        raise SystemExit(f"{label}: {n} commands recorded, {len(t_rx)} frames received, and they do not match "
-                         "one to one: the latencies would be meaningless")
+        raise SystemExit(
+            f"{label}: {n} commands recorded, {len(t_rx)} frames received, and they do not match "
+            "one to one: the latencies would be meaningless"
+        )
     t_rx, f_rx = t_rx[:n], f_rx[:n]
     on = enabled & np.isfinite(source_f)
     source = np.where(on, source_f, 0).astype(np.int64)  # ns since boot < 2**53: exact in a float
@@ -145,11 +167,20 @@ def measure(protocol: str, wait_for_reply: bool, faults: int, stalls: int, tmp: 
     for t_last in t_s[:-1][gap]:  # the last good sample before each silence
         after = np.flatnonzero((t_rx > t_last) & zero)
         stall_ms.append((t_rx[after[0]] - t_last) / 1e6)
-    return {"label": label, "total": total, "to_tick": to_tick, "to_wire": to_wire,
-            "fault_ms": np.array(fault_ms), "force_before": np.array(force_before), "stall_ms": np.array(stall_ms),
-            "stale_timeout_ms": stale_timeout_ns(cfg["session"].get("stale_timeout", 0.0), cfg["sensor"]["rate_hz"],
-                                                 cfg["session"]["loop_rate_hz"]) / 1e6,
-            "overruns": sum(e.kind == "overrun" for e in rec.events)}
+    return {
+        "label": label,
+        "total": total,
+        "to_tick": to_tick,
+        "to_wire": to_wire,
+        "fault_ms": np.array(fault_ms),
+        "force_before": np.array(force_before),
+        "stall_ms": np.array(stall_ms),
+        "stale_timeout_ms": stale_timeout_ns(
+            cfg["session"].get("stale_timeout", 0.0), cfg["sensor"]["rate_hz"], cfg["session"]["loop_rate_hz"]
+        )
+        / 1e6,
+        "overruns": sum(e.kind == "overrun" for e in rec.events),
+    }
 
 
 def main() -> int:
@@ -158,8 +189,10 @@ def main() -> int:
     parser.add_argument("--stalls", type=int, default=10, help="sensor stalls injected after them (default 10)")
     parser.add_argument("--protocol", choices=("hapticlab", "inverse3"), default="hapticlab")
     args = parser.parse_args()
-    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; "
-          f"{time.strftime('%Y-%m-%d %H:%M')}", flush=True)
+    print(
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; {time.strftime('%Y-%m-%d %H:%M')}",
+        flush=True,
+    )
     with tempfile.TemporaryDirectory() as tmp:
         runs = [measure(args.protocol, wait, args.faults, args.stalls, Path(tmp)) for wait in (True, False)]
     period_ms = 1.0
@@ -169,14 +202,18 @@ def main() -> int:
         print(f"    sample → the tick's start        {percentiles(r['to_tick'])}")
         print(f"    tick's start → on the wire       {percentiles(r['to_wire'])}")
         f = r["fault_ms"]
-        print(f"  fault → zero on the wire, {len(f)} faults ({', '.join(FAULT_KINDS)}): "
-              f"p50 {np.median(f):.3f}  worst {f.max():.3f} ms; within one device period ({period_ms:g} ms): "
-              f"{np.count_nonzero(f <= period_ms)}/{len(f)}; force on the wire just before: "
-              f"{r['force_before'].min():.2f}–{r['force_before'].max():.2f} N")
+        print(
+            f"  fault → zero on the wire, {len(f)} faults ({', '.join(FAULT_KINDS)}): "
+            f"p50 {np.median(f):.3f}  worst {f.max():.3f} ms; within one device period ({period_ms:g} ms): "
+            f"{np.count_nonzero(f <= period_ms)}/{len(f)}; force on the wire just before: "
+            f"{r['force_before'].min():.2f}–{r['force_before'].max():.2f} N"
+        )
         s = r["stall_ms"]
         if len(s):
-            print(f"  sensor stall → zero on the wire, {len(s)} stalls (from the last sample; stale timeout "
-                  f"{r['stale_timeout_ms']:g} ms): p50 {np.median(s):.3f}  worst {s.max():.3f} ms")
+            print(
+                f"  sensor stall → zero on the wire, {len(s)} stalls (from the last sample; stale timeout "
+                f"{r['stale_timeout_ms']:g} ms): p50 {np.median(s):.3f}  worst {s.max():.3f} ms"
+            )
     return 0
 
 

@@ -19,14 +19,19 @@ from hapticlab.sessions.recording.csvimport import read_csv
 
 
 def main(folder: Path) -> None:
-    print(f"{'file':24s} {'rows':>6s} | gravity std / σ after 10 %, 25 %, 50 %, 100 % of the rows "
-          f"| first row < 0.5 σ, < 1 σ | a quarter")
+    print(
+        f"{'file':24s} {'rows':>6s} | gravity std / σ after 10 %, 25 %, 50 %, 100 % of the rows "
+        f"| first row < 0.5 σ, < 1 σ | a quarter"
+    )
     for path in sorted(folder.glob("*.csv")):
         std = gravity_std_over_rows(read_csv(path).samples.R_EB)
         n = len(std)
         at = [std[max(int(n * f), 1) - 1] for f in (0.1, 0.25, 0.5, 1.0)]
-        print(f"{path.stem:24s} {n:6d} | " + "  ".join(f"{v:8.3g}" for v in at)
-              + f" | {first_below(std, 0.5)!s:>6}, {first_below(std, 1.0)!s:>6} | {n // 4}")
+        print(
+            f"{path.stem:24s} {n:6d} | "
+            + "  ".join(f"{v:8.3g}" for v in at)
+            + f" | {first_below(std, 0.5)!s:>6}, {first_below(std, 1.0)!s:>6} | {n // 4}"
+        )
 
 
 if __name__ == "__main__":

@@ -70,9 +70,25 @@ BURST_NS = 1_000_000  # netft_emulator.BURST_S
 def start_lab(rate_hz: float, seconds: float) -> tuple[subprocess.Popen, int]:
     """``hapticlab emulate lab`` at ``rate_hz`` in a child process: (process, t0_ns)."""
     proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
-         "emulate", "lab", "--netft", NETFT, "--ur", UR, "--rate", f"{rate_hz:g}", "--duration", f"{seconds + 60:g}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
+            "emulate",
+            "lab",
+            "--netft",
+            NETFT,
+            "--ur",
+            UR,
+            "--rate",
+            f"{rate_hz:g}",
+            "--duration",
+            f"{seconds + 60:g}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     ready, _, _ = select.select([proc.stdout], [], [], 60.0)
     line = proc.stdout.readline() if ready else ""
     if not line.startswith("lab: "):
@@ -100,8 +116,15 @@ def run(rate_hz: float, seconds: float, warmup_s: float = 1.0) -> dict:
     seqs: list[np.ndarray] = []
     try:
         config, _ = load_config("lab-emulated")
-        config = apply_overrides(config, [f"sensor.address={NETFT}", f"kinematics.address={UR}",
-                                          f"sensor.rate_hz={rate_hz:g}", f"session.duration={seconds:g}"])
+        config = apply_overrides(
+            config,
+            [
+                f"sensor.address={NETFT}",
+                f"kinematics.address={UR}",
+                f"sensor.rate_hz={rate_hz:g}",
+                f"session.duration={seconds:g}",
+            ],
+        )
         session = build_session(config)
         estimator = session.primary.estimator
         update_block = estimator.update_block
@@ -145,25 +168,40 @@ def run(rate_hz: float, seconds: float, warmup_s: float = 1.0) -> dict:
     from_sample, from_burst = (done - sample_ns) / 1e3, (done - burst_ns) / 1e3
 
     def stats(x: np.ndarray) -> dict:
-        return {"p50_us": float(np.percentile(x, 50)), "p99_us": float(np.percentile(x, 99)),
-                "max_us": float(x.max())}
+        return {"p50_us": float(np.percentile(x, 50)), "p99_us": float(np.percentile(x, 99)), "max_us": float(x.max())}
 
-    return {"rate_hz": rate_hz, "seconds": seconds, "recorded": kept, "expected": expected,
-            "kept": kept / expected, "lost": expected - kept, "estimated": int(steady.sum()), "warmup_s": warmup_s,
-            "latency_from_sample": stats(from_sample[steady]), "latency_from_burst": stats(from_burst[steady]),
-            "send_to_receipt": stats(((receipt_ns - sample_ns) / 1e3)[steady]),
-            "receipt_to_estimate": stats(((done - receipt_ns) / 1e3)[steady]),
-            "all_samples": {"estimated": int(len(i)), "latency_from_sample": stats(from_sample)},
-            "overruns": result.overruns, "ticks": int(round(result.duration_s * 1000)), "poses": result.poses,
-            "lab": sent_line, "load_before": None}
+    return {
+        "rate_hz": rate_hz,
+        "seconds": seconds,
+        "recorded": kept,
+        "expected": expected,
+        "kept": kept / expected,
+        "lost": expected - kept,
+        "estimated": int(steady.sum()),
+        "warmup_s": warmup_s,
+        "latency_from_sample": stats(from_sample[steady]),
+        "latency_from_burst": stats(from_burst[steady]),
+        "send_to_receipt": stats(((receipt_ns - sample_ns) / 1e3)[steady]),
+        "receipt_to_estimate": stats(((done - receipt_ns) / 1e3)[steady]),
+        "all_samples": {"estimated": int(len(i)), "latency_from_sample": stats(from_sample)},
+        "overruns": result.overruns,
+        "ticks": int(round(result.duration_s * 1000)),
+        "poses": result.poses,
+        "lab": sent_line,
+        "load_before": None,
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=30.0, help="each session's length, s (default 30)")
     parser.add_argument("--rates", default="1000,7000", help="RDT rates, Hz (default 1000,7000)")
-    parser.add_argument("--warmup", type=float, default=1.0,
-                        help="latency: leave out the samples sent within this long of the first estimate, s (1)")
+    parser.add_argument(
+        "--warmup",
+        type=float,
+        default=1.0,
+        help="latency: leave out the samples sent within this long of the first estimate, s (1)",
+    )
     parser.add_argument("--json", action="store_true", help="print JSON instead of the table")
     args = parser.parse_args()
     rows = []
@@ -178,24 +216,32 @@ def main() -> None:
         print(json.dumps(rows, indent=2))
         return
     goal = {1000.0: 0.999, 7000.0: 0.99}
-    print(f"lab-emulated, paced 1 kHz loop, recording on, {args.seconds:g} s per rate (2 shared cores); "
-          f"latency of the samples that reached the estimator after the first {args.warmup:g} s")
-    print("| RDT rate | load | kept (goal) | lost | estimated | latency from sample p50 / p99 / max, µs "
-          "| from burst p50 / p99, µs | send→receipt p50 / p99 | receipt→estimate p50 / p99 | overruns / ticks |")
+    print(
+        f"lab-emulated, paced 1 kHz loop, recording on, {args.seconds:g} s per rate (2 shared cores); "
+        f"latency of the samples that reached the estimator after the first {args.warmup:g} s"
+    )
+    print(
+        "| RDT rate | load | kept (goal) | lost | estimated | latency from sample p50 / p99 / max, µs "
+        "| from burst p50 / p99, µs | send→receipt p50 / p99 | receipt→estimate p50 / p99 | overruns / ticks |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         a, b = r["latency_from_sample"], r["latency_from_burst"]
         c, d = r["send_to_receipt"], r["receipt_to_estimate"]
         g = goal.get(r["rate_hz"])
-        print(f"| {r['rate_hz']:g} Hz | {r['load_before']:.2f} | {100 * r['kept']:.3f} % "
-              f"({'≥ ' + format(100 * g, 'g') + ' %' if g else '-'}) | {r['lost']} of {r['expected']} "
-              f"| {r['estimated']} | {a['p50_us']:.0f} / {a['p99_us']:.0f} / {a['max_us']:.0f} "
-              f"| {b['p50_us']:.0f} / {b['p99_us']:.0f} | {c['p50_us']:.0f} / {c['p99_us']:.0f} "
-              f"| {d['p50_us']:.0f} / {d['p99_us']:.0f} | {r['overruns']} / {r['ticks']} |")
+        print(
+            f"| {r['rate_hz']:g} Hz | {r['load_before']:.2f} | {100 * r['kept']:.3f} % "
+            f"({'≥ ' + format(100 * g, 'g') + ' %' if g else '-'}) | {r['lost']} of {r['expected']} "
+            f"| {r['estimated']} | {a['p50_us']:.0f} / {a['p99_us']:.0f} / {a['max_us']:.0f} "
+            f"| {b['p50_us']:.0f} / {b['p99_us']:.0f} | {c['p50_us']:.0f} / {c['p99_us']:.0f} "
+            f"| {d['p50_us']:.0f} / {d['p99_us']:.0f} | {r['overruns']} / {r['ticks']} |"
+        )
     for r in rows:
         a = r["all_samples"]["latency_from_sample"]
-        print(f"{r['rate_hz']:g} Hz, every estimated sample ({r['all_samples']['estimated']}), from sample time: "
-              f"p50 {a['p50_us']:.0f} µs, p99 {a['p99_us']:.0f} µs, max {a['max_us']:.0f} µs")
+        print(
+            f"{r['rate_hz']:g} Hz, every estimated sample ({r['all_samples']['estimated']}), from sample time: "
+            f"p50 {a['p50_us']:.0f} µs, p99 {a['p99_us']:.0f} µs, max {a['max_us']:.0f} µs"
+        )
     for r in rows:
         print(f"lab at {r['rate_hz']:g} Hz: {r['lab']}")
 

@@ -51,8 +51,9 @@ def _watch(address: str, done, count) -> None:
                     if op["op"] == "advertise":
                         new = [c["id"] for c in op["channels"] if c["id"] not in subscribed]
                         subscribed.update(new)
-                        await ws.send(json.dumps({"op": "subscribe",
-                                                  "subscriptions": [{"id": c, "channelId": c} for c in new]}))
+                        await ws.send(
+                            json.dumps({"op": "subscribe", "subscriptions": [{"id": c, "channelId": c} for c in new]})
+                        )
                 else:
                     count.value += 1
 
@@ -71,8 +72,9 @@ class Client:
 
     def on_status(self, status) -> None:
         if status.live_address and self.process is None:
-            self.process = self.context.Process(target=_watch, args=(status.live_address, self.done, self.count),
-                                                daemon=True)
+            self.process = self.context.Process(
+                target=_watch, args=(status.live_address, self.done, self.count), daemon=True
+            )
             self.process.start()
 
     @property
@@ -87,22 +89,39 @@ class Client:
 
 def one_run(duration: float, rate: float, realtime: bool, live: bool, folder: Path, k: int) -> dict:
     config, _ = load_config("demo")
-    config = apply_overrides(config, [f"session.duration={duration}", f"session.realtime={str(realtime).lower()}",
-                                      f"sensor.rate_hz={rate}", f"session.loop_rate_hz={min(rate, 1000.0)}"])
+    config = apply_overrides(
+        config,
+        [
+            f"session.duration={duration}",
+            f"session.realtime={str(realtime).lower()}",
+            f"sensor.rate_hz={rate}",
+            f"session.loop_rate_hz={min(rate, 1000.0)}",
+        ],
+    )
     session = build_session(config)
     client = Client() if live else None
     out = folder / f"{'live' if live else 'off'}-{'rt' if realtime else 'fast'}-{k}.mcap"
     t0 = time.perf_counter()
-    result = run_session(session, out=out, live="127.0.0.65:0" if live else "",
-                         on_status=client.on_status if client else None, status_interval_s=0.05)
+    result = run_session(
+        session,
+        out=out,
+        live="127.0.0.65:0" if live else "",
+        on_status=client.on_status if client else None,
+        status_interval_s=0.05,
+    )
     wall = time.perf_counter() - t0
     if client:
         client.stop()
     rec = read_recording(out)
     ticks = rec.t_ns("/haptic/command")[:-1]
-    return {"wall_s": wall, "ticks": len(ticks), "us_per_tick": wall / len(ticks) * 1e6,
-            "overruns": result.overruns, "interval_ms": np.diff(ticks) * 1e-6,
-            "received": client.messages if client else 0}
+    return {
+        "wall_s": wall,
+        "ticks": len(ticks),
+        "us_per_tick": wall / len(ticks) * 1e6,
+        "overruns": result.overruns,
+        "interval_ms": np.diff(ticks) * 1e-6,
+        "received": client.messages if client else 0,
+    }
 
 
 def main() -> None:
@@ -125,11 +144,15 @@ def main() -> None:
                 r = rows[live]
                 us = [x["us_per_tick"] for x in r]
                 intervals = np.concatenate([x["interval_ms"] for x in r])
-                line = (f"  live view {'on ' if live else 'off'}: {np.median(us):7.1f} µs/tick (median of runs; "
-                        f"{min(us):.1f}–{max(us):.1f}), overruns {[x['overruns'] for x in r]}")
+                line = (
+                    f"  live view {'on ' if live else 'off'}: {np.median(us):7.1f} µs/tick (median of runs; "
+                    f"{min(us):.1f}–{max(us):.1f}), overruns {[x['overruns'] for x in r]}"
+                )
                 if realtime:
-                    line += (f", tick interval p50 {np.median(intervals):.3f} p99 {np.percentile(intervals, 99):.3f} "
-                             f"max {intervals.max():.2f} ms")
+                    line += (
+                        f", tick interval p50 {np.median(intervals):.3f} p99 {np.percentile(intervals, 99):.3f} "
+                        f"max {intervals.max():.2f} ms"
+                    )
                 if live:
                     line += f", messages received by the client {[x['received'] for x in r]}"
                 print(line)

@@ -37,11 +37,27 @@ class Emulator:
     """``netft_emulator.run`` in a child process on ADDRESS with ports the kernel picks."""
 
     def __init__(self, seconds: float):
-        code = ("import argparse, sys; from hapticlab.plugins.sensors.netft_emulator import add_arguments, run; "
-                "p = argparse.ArgumentParser(); add_arguments(p); sys.exit(run(p.parse_args(sys.argv[1:])))")
+        code = (
+            "import argparse, sys; from hapticlab.plugins.sensors.netft_emulator import add_arguments, run; "
+            "p = argparse.ArgumentParser(); add_arguments(p); sys.exit(run(p.parse_args(sys.argv[1:])))"
+        )
         self.process = subprocess.Popen(
-            [sys.executable, "-c", code, "--address", ADDRESS, "--rdt-port", "0", "--http-port", "0",
-             "--duration", f"{seconds:g}"], stdout=subprocess.PIPE, text=True)
+            [
+                sys.executable,
+                "-c",
+                code,
+                "--address",
+                ADDRESS,
+                "--rdt-port",
+                "0",
+                "--http-port",
+                "0",
+                "--duration",
+                f"{seconds:g}",
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         first = self.process.stdout.readline()  # "netft emulator on ADDRESS: RDT udp/PORT, netftapi2.xml http/PORT"
         self.rdt_port = int(first.split("udp/")[1].split(",")[0])
         self.http_port = int(first.split("http/")[1])
@@ -78,8 +94,14 @@ def read_cost(receiver: str, seconds: float) -> dict:
     finally:
         emulator.close()
     us = np.array(per_sample_us)
-    return {"median_us": float(np.median(us)), "p99_us": float(np.percentile(us, 99)), "samples": total,
-            "per_s": total / seconds, "lost": health["lost"], "reconnect": health["reconnect"]}
+    return {
+        "median_us": float(np.median(us)),
+        "p99_us": float(np.percentile(us, 99)),
+        "samples": total,
+        "per_s": total / seconds,
+        "lost": health["lost"],
+        "reconnect": health["reconnect"],
+    }
 
 
 def session_overruns(sensor: str, seconds: float) -> dict:
@@ -91,8 +113,14 @@ def session_overruns(sensor: str, seconds: float) -> dict:
         config["sensor"] = {"name": "sim", "rate_hz": 7000.0}
     else:
         emulator = Emulator(seconds + 30)
-        config["sensor"] = {"name": "netft", "address": ADDRESS, "rdt_port": emulator.rdt_port,
-                            "http_port": emulator.http_port, "receiver": sensor, "rate_hz": 7000.0}
+        config["sensor"] = {
+            "name": "netft",
+            "address": ADDRESS,
+            "rdt_port": emulator.rdt_port,
+            "http_port": emulator.http_port,
+            "receiver": sensor,
+            "rate_hz": 7000.0,
+        }
     try:
         with tempfile.TemporaryDirectory() as folder:
             result = run_session(build_session(config), out=Path(folder) / "netft.mcap")

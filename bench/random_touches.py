@@ -40,8 +40,16 @@ def touches(rng: np.random.Generator, peak, duration, ramp, gap: float, up: bool
     while t < SECONDS - 3.0:
         d = np.array([0.0, 0.0, 1.0]) if up else rng.normal(size=3)
         length = rng.uniform(*duration)
-        out.append({"kind": "indentation", "start": t, "duration": length, "peak_force": rng.uniform(*peak),
-                    "ramp": min(rng.uniform(*ramp), length / 2), "direction_B": list(d / np.linalg.norm(d))})
+        out.append(
+            {
+                "kind": "indentation",
+                "start": t,
+                "duration": length,
+                "peak_force": rng.uniform(*peak),
+                "ramp": min(rng.uniform(*ramp), length / 2),
+                "direction_B": list(d / np.linalg.norm(d)),
+            }
+        )
         t += length + rng.exponential(gap)
     return out
 
@@ -67,8 +75,11 @@ def main() -> None:
             outside = np.sqrt(np.mean(error[~touching & up_both] ** 2, axis=0))
             far = np.mean((np.linalg.norm(error, axis=1) > 1.0) & up_both)
             changes = sum(e.kind == "payload_change" for e in est.events if e.kind not in IDENTIFICATION_EVENTS)
-            print(f"| {label} ({len(contacts)}) | {noise} | {touching.mean():.0%} | {changes} | {axes(inside)} | "
-                  f"{axes(outside)} | {far:.1%} | {out.contact[touching].mean():.0%} |", flush=True)
+            print(
+                f"| {label} ({len(contacts)}) | {noise} | {touching.mean():.0%} | {changes} | {axes(inside)} | "
+                f"{axes(outside)} | {far:.1%} | {out.contact[touching].mean():.0%} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

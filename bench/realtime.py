@@ -13,5 +13,9 @@ if __name__ == "__main__":
     seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 600.0
     rate = float(sys.argv[2]) if len(sys.argv) > 2 else 7000.0
     writer = sys.argv[3] if len(sys.argv) > 3 else "process"
-    print(json.dumps(realtime_run(seconds, rate, progress=lambda m: print(m, file=sys.stderr, flush=True),
-                                  writer=writer), indent=1))
+    print(
+        json.dumps(
+            realtime_run(seconds, rate, progress=lambda m: print(m, file=sys.stderr, flush=True), writer=writer),
+            indent=1,
+        )
+    )

@@ -62,11 +62,29 @@ def session(cache: Path, minutes: float, rate_hz: float = 1000.0) -> Path:
     path = cache / f"demo-{minutes:g}min-{rate_hz:g}Hz.mcap"
     if not path.exists():
         print(f"making {path.name} ...", flush=True)
-        subprocess.run([sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
-                        "run", "demo", "--set", "session.realtime=false",
-                        "--set", f"session.duration={minutes * 60:g}", "--set", f"sensor.rate_hz={rate_hz:g}",
-                        "--set", "session.trainee=T01", "--set", "session.task=palpation", "--out", str(path)],
-                       check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
+                "run",
+                "demo",
+                "--set",
+                "session.realtime=false",
+                "--set",
+                f"session.duration={minutes * 60:g}",
+                "--set",
+                f"sensor.rate_hz={rate_hz:g}",
+                "--set",
+                "session.trainee=T01",
+                "--set",
+                "session.task=palpation",
+                "--out",
+                str(path),
+            ],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
     return path
 
 
@@ -88,36 +106,52 @@ def main() -> int:
     long = session(cache, args.minutes)
     short = session(cache, 1.0)
     fast = session(cache, args.fast_minutes, 7000.0)
-    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; {time.strftime('%Y-%m-%d %H:%M')}; "
-          f"{long.name}: {long.stat().st_size / 1e6:.0f} MB", flush=True)
+    print(
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; {time.strftime('%Y-%m-%d %H:%M')}; "
+        f"{long.name}: {long.stat().st_size / 1e6:.0f} MB",
+        flush=True,
+    )
     print(f"\nreview of a {args.minutes:g}-minute 1 kHz session (one process each; peak memory of the process)")
     for reader in () if args.cohort_only else ("fast", "reference"):
         for plots in ("noplots", "plots"):
             r = run(REVIEW, str(long), plots, reader)
             extra = f", then the HTML page with 4 plots {r['page']:.1f} s" if plots == "plots" else ""
-            print(f"  {'chunks as columns' if reader == 'fast' else 'message at a time':18s} "
-                  f"{'with plots' if plots == 'plots' else 'no plots':10s} {r['wall']:7.1f} s, peak "
-                  f"{r['rss_mb']:.0f} MB ({r['samples']} samples){extra}", flush=True)
-    for path, what in () if args.cohort_only else ((short, "a 1-minute 1 kHz session"),
-                                                  (fast, f"a {args.fast_minutes:g}-minute 7 kHz session")):
+            print(
+                f"  {'chunks as columns' if reader == 'fast' else 'message at a time':18s} "
+                f"{'with plots' if plots == 'plots' else 'no plots':10s} {r['wall']:7.1f} s, peak "
+                f"{r['rss_mb']:.0f} MB ({r['samples']} samples){extra}",
+                flush=True,
+            )
+    for path, what in (
+        ()
+        if args.cohort_only
+        else ((short, "a 1-minute 1 kHz session"), (fast, f"a {args.fast_minutes:g}-minute 7 kHz session"))
+    ):
         r1 = run(REVIEW, str(path), "plots", "fast")
-        print(f"  memory: {what} ({r1['samples']} samples) peaks at {r1['rss_mb']:.0f} MB with plots "
-              f"(review {r1['wall']:.2f} s)")
+        print(
+            f"  memory: {what} ({r1['samples']} samples) peaks at {r1['rss_mb']:.0f} MB with plots "
+            f"(review {r1['wall']:.2f} s)"
+        )
     if args.cohort:
         folder = cache / f"cohort-{args.cohort}x{long.stem}"
         if not folder.exists():
             folder.mkdir()
             for i in range(args.cohort):
                 os.link(long, folder / f"session-{i:03d}.mcap")
-        print(f"\ncohort: {args.cohort} recordings of {args.minutes:g} min (hard links to {long.name}), "
-              "review_folder (hapticlab review DIR/) on local workers")
+        print(
+            f"\ncohort: {args.cohort} recordings of {args.minutes:g} min (hard links to {long.name}), "
+            "review_folder (hapticlab review DIR/) on local workers"
+        )
         walls = {}
         for workers in (1, 2):
             c = run(COHORT, str(folder), str(workers))
             walls[workers] = c["wall"]
             peaks = ", ".join(f"{v:.0f}" for v in c["peaks"].values())
-            print(f"  {workers} worker(s): {c['wall']:.1f} s ({c['reviewed']} reviewed), peak memory per worker "
-                  f"{peaks} MB", flush=True)
+            print(
+                f"  {workers} worker(s): {c['wall']:.1f} s ({c['reviewed']} reviewed), peak memory per worker "
+                f"{peaks} MB",
+                flush=True,
+            )
         print(f"  speed-up with 2 workers: {walls[1] / walls[2]:.2f}x")
     return 0
 

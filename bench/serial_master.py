@@ -25,14 +25,15 @@ import numpy as np
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics.serial import SerialHaptic
 
-EMULATOR = ("import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
-            "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))")
+EMULATOR = (
+    "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+    "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
+)
 
 
 def measure(protocol: str, n: int, rate_hz: float | None, wait_for_reply: bool = True) -> np.ndarray:
     """Times of ``n`` sends, µs (paced at ``rate_hz``, or back to back when None)."""
-    proc = subprocess.Popen([sys.executable, "-c", EMULATOR, "--protocol", protocol],
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", EMULATOR, "--protocol", protocol], stdout=subprocess.PIPE, text=True)
     try:
         port = proc.stdout.readline().strip()
         # a long read timeout: this measures latency; a loaded machine that stalls the emulator is not a loss here
@@ -69,8 +70,9 @@ def main() -> int:
             t = measure(protocol, args.n, rate, wait)
             pacing = f"{rate:g} Hz" if rate else "back to back"
             mode = "waits for reply" if wait else "pipelined"
-            print(f"{protocol:10} {mode:>16} {pacing:>12} {np.median(t):8.0f} {np.percentile(t, 99):8.0f} "
-                  f"{t.max():8.0f}")
+            print(
+                f"{protocol:10} {mode:>16} {pacing:>12} {np.median(t):8.0f} {np.percentile(t, 99):8.0f} {t.max():8.0f}"
+            )
     return 0
 
 

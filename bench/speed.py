@@ -27,15 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from hapticlab.core.frames import quat_wxyz_from_matrix  # noqa: E402
-from hapticlab.plugins.simworld import SimWorld  # noqa: E402
-from hapticlab.sessions.bench.paper import simulate  # noqa: E402
 from hapticlab.plugins.estimators.batch import BatchEstimator  # noqa: E402
 from hapticlab.plugins.estimators.kalman import KalmanEstimator  # noqa: E402
 from hapticlab.plugins.estimators.rls import RLSEstimator  # noqa: E402
-from hapticlab.sessions.offline.compensate import compensate  # noqa: E402
+from hapticlab.plugins.simworld import SimWorld  # noqa: E402
+from hapticlab.sessions.bench.loop import per_sample_us  # noqa: E402
+from hapticlab.sessions.bench.paper import simulate  # noqa: E402
 from hapticlab.sessions.config import apply_overrides, load_config  # noqa: E402
 from hapticlab.sessions.live import build_session, run_session  # noqa: E402
-from hapticlab.sessions.bench.loop import per_sample_us  # noqa: E402
+from hapticlab.sessions.offline.compensate import compensate  # noqa: E402
 
 
 def main() -> None:
@@ -50,8 +50,10 @@ def main() -> None:
     print(f"{'estimator':<10}{'block':>7}{'numba median':>14}{'p99':>9}{'numpy median':>14}{'p99':>9}")
     for name, factory in (("rls", RLSEstimator), ("kalman", KalmanEstimator)):
         for size in (1, 7, 1024):
-            row = [per_sample_us(lambda kernel=kernel: factory(kernel=kernel), block, size)
-                   for kernel in ("numba", "numpy")]
+            row = [
+                per_sample_us(lambda kernel=kernel: factory(kernel=kernel), block, size)
+                for kernel in ("numba", "numpy")
+            ]
             print(f"{name:<10}{size:>7}{row[0][0]:>14.2f}{row[0][1]:>9.2f}{row[1][0]:>14.2f}{row[1][1]:>9.2f}")
     for size in (1, 7, 64, 1024):
         if size == 1 and not args.quick:
@@ -60,13 +62,19 @@ def main() -> None:
         print(f"{'batch':<10}{size:>7}{'':>14}{'':>9}{med:>14.2f}{p99:>9.2f}")
     print(f"\nkalman options, µs per sample ({n} samples, second half timed)")
     print(f"{'option':<24}{'block':>7}{'numba median':>14}{'p99':>9}{'numpy median':>14}{'p99':>9}")
-    options = {"mount_rotation = true": {"mount_rotation": True}, "inertia = true": {"inertia": True},
-               "noise = auto": {"noise_force": "auto", "noise_torque": "auto"},
-               "bias_rate = true": {"bias_rate": True}, "time_lag_s = -0.005": {"time_lag_s": -0.005}}
+    options = {
+        "mount_rotation = true": {"mount_rotation": True},
+        "inertia = true": {"inertia": True},
+        "noise = auto": {"noise_force": "auto", "noise_torque": "auto"},
+        "bias_rate = true": {"bias_rate": True},
+        "time_lag_s = -0.005": {"time_lag_s": -0.005},
+    }
     for label, opts in options.items():
         for size in (1, 7, 64):
-            row = [per_sample_us(lambda opts=opts, kernel=kernel: KalmanEstimator(kernel=kernel, **opts), block, size)
-                   for kernel in ("numba", "numpy")]
+            row = [
+                per_sample_us(lambda opts=opts, kernel=kernel: KalmanEstimator(kernel=kernel, **opts), block, size)
+                for kernel in ("numba", "numpy")
+            ]
             print(f"{label:<24}{size:>7}{row[0][0]:>14.2f}{row[0][1]:>9.2f}{row[1][0]:>14.2f}{row[1][1]:>9.2f}")
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -88,8 +96,10 @@ def main() -> None:
             t0 = time.perf_counter()
             result = run_session(session, out=Path(tmp) / f"s{rate}.mcap", duration=duration)
             dt = time.perf_counter() - t0
-            print(f"  sensor {rate:>5} Hz: {result.samples} samples, {duration / dt:.2f}× real time "
-                  f"({dt / result.samples * 1e6:.1f} µs per sample, loop at 1 kHz)")
+            print(
+                f"  sensor {rate:>5} Hz: {result.samples} samples, {duration / dt:.2f}× real time "
+                f"({dt / result.samples * 1e6:.1f} µs per sample, loop at 1 kHz)"
+            )
 
 
 if __name__ == "__main__":

@@ -19,20 +19,29 @@ from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.sessions.bench.family import MOUNT_ROTATION_SE
 from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
 
-VARIANTS = (("walk off", {"bias_force_tilt_rw": 0.0}),
-            ('"auto", no span', {"bias_force_tilt_rw": "auto", "bias_tilt_span": 0.0}),
-            ('"auto" (span 0.15 rad)', {"bias_force_tilt_rw": "auto"}))
+VARIANTS = (
+    ("walk off", {"bias_force_tilt_rw": 0.0}),
+    ('"auto", no span', {"bias_force_tilt_rw": "auto", "bias_tilt_span": 0.0}),
+    ('"auto" (span 0.15 rad)', {"bias_force_tilt_rw": "auto"}),
+)
 
 
 def presses(start: float, every: float, seconds: float, peak: float) -> list[dict]:
     """Indentations of 2 s (0.4 s ramps) from ``start`` every ``every`` s until ``seconds``, peak force in N."""
-    return [{"kind": "indentation", "start": start + every * k, "duration": 2.0, "peak_force": peak, "ramp": 0.4}
-            for k in range(math.ceil((seconds - start) / every))]
+    return [
+        {"kind": "indentation", "start": start + every * k, "duration": 2.0, "peak_force": peak, "ramp": 0.4}
+        for k in range(math.ceil((seconds - start) / every))
+    ]
 
 
 def row(label: str, contacts: list[dict], seconds: float, **sensor) -> str:
-    world = PaperSetup(seed=2025).world({"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0},
-                                        contacts, noise_force=0.12, noise_torque=0.01, **sensor)
+    world = PaperSetup(seed=2025).world(
+        {"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0},
+        contacts,
+        noise_force=0.12,
+        noise_torque=0.01,
+        **sensor,
+    )
     block, truth = simulate(world, seconds, 1000.0)
     touching = np.asarray(truth["contact"], dtype=bool)
     cells = [label]
@@ -50,11 +59,12 @@ def main() -> None:
     print("|---" * (len(VARIANTS) + 1) + "|")
     indentations = presses(5.0, 10.0, 180.0, 3.0)
     print(row("3 N indentations every 10 s, 180 s, the model exact", indentations, 180.0), flush=True)
-    print(row("the same with a 5° mount the model lacks", indentations, 180.0, mount_rotation=MOUNT_ROTATION_SE),
-          flush=True)
+    print(
+        row("the same with a 5° mount the model lacks", indentations, 180.0, mount_rotation=MOUNT_ROTATION_SE),
+        flush=True,
+    )
     for every, peak in ((4.0, 0.5), (4.0, 0.8), (10.0, 0.5)):
-        print(row(f"{peak} N touches, 2 s in every {every:g}, 60 s", presses(1.0, every, 60.0, peak), 60.0),
-              flush=True)
+        print(row(f"{peak} N touches, 2 s in every {every:g}, 60 s", presses(1.0, every, 60.0, peak), 60.0), flush=True)
 
 
 if __name__ == "__main__":

@@ -3,12 +3,4 @@
 from hapticlab.core.host.hookspecs import hookimpl, hookspec
 from hapticlab.core.host.registry import DEFAULT_PLUGINS, ConfigError, PluginError, Registry, make_plugin_manager
 
-__all__ = [
-    "DEFAULT_PLUGINS",
-    "ConfigError",
-    "PluginError",
-    "Registry",
-    "hookimpl",
-    "hookspec",
-    "make_plugin_manager",
-]
+__all__ = ["DEFAULT_PLUGINS", "ConfigError", "PluginError", "Registry", "hookimpl", "hookspec", "make_plugin_manager"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hapticlab.core import aligner_kernel as align_kernel
 from hapticlab.core.frames import (
     matrix_from_quat_wxyz,
     quat_conjugate,
@@ -21,7 +22,6 @@ from hapticlab.core.frames import (
     quat_slerp,
     rotvec_from_quat,
 )
-from hapticlab.core import aligner_kernel as align_kernel
 from hapticlab.core.types import AlignedSamples, PoseSample, WrenchBlock, WrenchSample
 
 _NO_POSITIONS = np.zeros((0, 3))
@@ -126,7 +126,11 @@ class Aligner:
         # the buffers: rows [start, end) hold the newest `keep` poses (at most); appended in place, moved
         # back to row 0 when full (a copy of `keep` rows every 3·keep poses, not a concatenation per tick)
         capacity = 4 * keep
-        self._tb, self._qb, self._pb = np.zeros(capacity, dtype=np.int64), np.zeros((capacity, 4)), np.zeros((capacity, 3))
+        self._tb, self._qb, self._pb = (
+            np.zeros(capacity, dtype=np.int64),
+            np.zeros((capacity, 4)),
+            np.zeros((capacity, 3)),
+        )
         self._end = 0
         self._with_p = True  # False once a pose without a position came
         self._window(0)
@@ -140,12 +144,12 @@ class Aligner:
         """Append poses (in time order) to the buffer."""
         if not poses:
             return
-        poses = poses[-self.keep:]
+        poses = poses[-self.keep :]
         m, end = len(poses), self._end
         if end + m > len(self._tb):  # full: the newest rows back to the start
             kept = min(end, self.keep - m)
             for buffer in (self._tb, self._qb, self._pb):
-                buffer[:kept] = buffer[end - kept:end]
+                buffer[:kept] = buffer[end - kept : end]
             end = kept
         tb, qb, pb = self._tb, self._qb, self._pb
         for i, pose in enumerate(poses, start=end):
@@ -169,8 +173,13 @@ class Aligner:
         if not isinstance(wrenches, WrenchBlock):
             wrenches = WrenchBlock.from_samples(wrenches)
         n = len(wrenches)
-        t, force_S, torque_S, seq, status = (wrenches.t_ns, wrenches.force_S, wrenches.torque_S, wrenches.seq,
-                                             wrenches.status)
+        t, force_S, torque_S, seq, status = (
+            wrenches.t_ns,
+            wrenches.force_S,
+            wrenches.torque_S,
+            wrenches.seq,
+            wrenches.status,
+        )
         if len(self._t) == 0:
             quat_BE = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
             stale = np.ones(n, dtype=bool)
@@ -180,8 +189,17 @@ class Aligner:
             quat_BE, R_EB, stale = np.empty((n, 4)), np.empty((n, 3, 3)), np.empty(n, dtype=bool)
             with_p = self._p is not None
             p_BoEo_B = np.empty((n, 3)) if with_p else None
-            align_kernel.align_block(t, self._t, self._q, self._p if with_p else _NO_POSITIONS, self.period_ns,
-                                     quat_BE, R_EB, p_BoEo_B if with_p else _NO_POSITIONS, stale)
+            align_kernel.align_block(
+                t,
+                self._t,
+                self._q,
+                self._p if with_p else _NO_POSITIONS,
+                self.period_ns,
+                quat_BE,
+                R_EB,
+                p_BoEo_B if with_p else _NO_POSITIONS,
+                stale,
+            )
         else:
             quat_BE, stale = orientation_at(t, self._t, self._q, self.period_ns)
             R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)

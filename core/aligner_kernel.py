@@ -147,5 +147,14 @@ def warm_up() -> None:
     quat = np.array([[1.0, 0.0, 0.0, 0.0], [0.9998, 0.02, 0.0, 0.0]])
     quat /= np.linalg.norm(quat, axis=1)[:, None]
     p = np.zeros((2, 3))
-    align_block(t, pose_t, quat, p, 2_000_000, np.empty((3, 4)), np.empty((3, 3, 3)), np.empty((3, 3)),
-                np.empty(3, dtype=np.bool_))
+    align_block(
+        t,
+        pose_t,
+        quat,
+        p,
+        2_000_000,
+        np.empty((3, 4)),
+        np.empty((3, 3, 3)),
+        np.empty((3, 3)),
+        np.empty(3, dtype=np.bool_),
+    )

@@ -75,12 +75,15 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product a ⊗ b of [w, x, y, z] quaternions (broadcasting), so R(a⊗b) = R(a) R(b)."""
     aw, ax, ay, az = np.moveaxis(np.asarray(a, dtype=float), -1, 0)
     bw, bx, by, bz = np.moveaxis(np.asarray(b, dtype=float), -1, 0)
-    return np.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ], axis=-1)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
@@ -209,8 +212,10 @@ def matrix_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     else:
         theta = math.sqrt(theta2)
         a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta2
-    return np.array([
-        [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
-        [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
-        [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
+            [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
+            [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
+        ]
+    )

@@ -47,6 +47,7 @@ def record(cls):
     cls.__init__ = init
     return cls
 
+
 # Status bits of a WrenchSample. 0 means a good reading.
 STATUS_OK = 0
 STATUS_SATURATED = 1 << 0
@@ -98,24 +99,31 @@ class WrenchBlock:
     def from_samples(cls, samples: list[WrenchSample]) -> "WrenchBlock":
         """The readings of ``samples`` (in their order) as arrays."""
         n = len(samples)
-        return cls(np.array([w.t_ns for w in samples], dtype=np.int64).reshape(n),
-                   np.array([w.force_S for w in samples], dtype=float).reshape(n, 3),
-                   np.array([w.torque_S for w in samples], dtype=float).reshape(n, 3),
-                   np.array([w.seq for w in samples], dtype=np.int64).reshape(n),
-                   np.array([w.status for w in samples], dtype=np.int64).reshape(n))
+        return cls(
+            np.array([w.t_ns for w in samples], dtype=np.int64).reshape(n),
+            np.array([w.force_S for w in samples], dtype=float).reshape(n, 3),
+            np.array([w.torque_S for w in samples], dtype=float).reshape(n, 3),
+            np.array([w.seq for w in samples], dtype=np.int64).reshape(n),
+            np.array([w.status for w in samples], dtype=np.int64).reshape(n),
+        )
 
     @classmethod
     def concatenate(cls, blocks: list["WrenchBlock"]) -> "WrenchBlock":
         """One block of ``blocks``' readings, in their order (at least one block)."""
         if len(blocks) == 1:
             return blocks[0]
-        return cls(*(np.concatenate(arrays) for arrays in zip(
-            *((b.t_ns, b.force_S, b.torque_S, b.seq, b.status) for b in blocks))))
+        return cls(
+            *(
+                np.concatenate(arrays)
+                for arrays in zip(*((b.t_ns, b.force_S, b.torque_S, b.seq, b.status) for b in blocks))
+            )
+        )
 
     def subset(self, index) -> "WrenchBlock":
         """The readings selected by a slice, a boolean mask or an index array."""
-        return WrenchBlock(self.t_ns[index], self.force_S[index], self.torque_S[index], self.seq[index],
-                           self.status[index])
+        return WrenchBlock(
+            self.t_ns[index], self.force_S[index], self.torque_S[index], self.seq[index], self.status[index]
+        )
 
     def samples(self) -> list[WrenchSample]:
         """The readings one record each (rows of ``force_S``/``torque_S`` as read-only views: a record's
@@ -123,13 +131,21 @@ class WrenchBlock:
         force_S, torque_S = self.force_S.view(), self.torque_S.view()
         force_S.setflags(write=False)
         torque_S.setflags(write=False)
-        return [WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)
-                for t, force, torque, i, status in zip(self.t_ns.tolist(), force_S, torque_S,
-                                                       self.seq.tolist(), self.status.tolist())]
+        return [
+            WrenchSample(t_ns=t, force_S=force, torque_S=torque, seq=i, status=status)
+            for t, force, torque, i, status in zip(
+                self.t_ns.tolist(), force_S, torque_S, self.seq.tolist(), self.status.tolist()
+            )
+        ]
 
 
-NO_WRENCHES = WrenchBlock(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64),
-                          np.zeros(0, dtype=np.int64))
+NO_WRENCHES = WrenchBlock(
+    np.zeros(0, dtype=np.int64),
+    np.zeros((0, 3)),
+    np.zeros((0, 3)),
+    np.zeros(0, dtype=np.int64),
+    np.zeros(0, dtype=np.int64),
+)
 """The empty block: what a sensor that ``ReadsBlocks`` returns when nothing is new."""
 
 
@@ -202,8 +218,13 @@ class AlignedSamples:
     @property
     def usable(self) -> np.ndarray:
         """(N,) samples an estimator may see: orientation not stale, status good, wrench and pose finite."""
-        ok = (~self.stale & (self.status == STATUS_OK) & np.isfinite(self.force_S).all(1)
-              & np.isfinite(self.torque_S).all(1) & np.isfinite(self.R_EB).all(axis=(1, 2)))
+        ok = (
+            ~self.stale
+            & (self.status == STATUS_OK)
+            & np.isfinite(self.force_S).all(1)
+            & np.isfinite(self.torque_S).all(1)
+            & np.isfinite(self.R_EB).all(axis=(1, 2))
+        )
         if self.p_BoEo_B is not None:
             ok &= np.isfinite(self.p_BoEo_B).all(1)
         return ok
@@ -211,8 +232,13 @@ class AlignedSamples:
     def subset(self, index) -> "AlignedSamples":
         """The samples selected by a boolean mask or index array."""
         return AlignedSamples(
-            self.t_ns[index], self.force_S[index], self.torque_S[index], self.R_EB[index],
-            self.seq[index], self.status[index], self.stale[index],
+            self.t_ns[index],
+            self.force_S[index],
+            self.torque_S[index],
+            self.R_EB[index],
+            self.seq[index],
+            self.status[index],
+            self.stale[index],
             None if self.quat_BE is None else self.quat_BE[index],
             None if self.p_BoEo_B is None else self.p_BoEo_B[index],
         )

@@ -7,13 +7,13 @@ import threading
 import time
 from collections.abc import Callable
 
-
 WAKE_S = 0.1
 """Longest the main thread sleeps before it runs a signal handler another thread received (s)."""
 
 
-def serve_until_stopped(duration_s: float | None, stop: threading.Event | None = None,
-                        ready: Callable[[], None] | None = None) -> None:
+def serve_until_stopped(
+    duration_s: float | None, stop: threading.Event | None = None, ready: Callable[[], None] | None = None
+) -> None:
     """Block until Ctrl-C, SIGTERM, ``stop`` is set or ``duration_s`` (s; None: no limit) has passed.
 
     SIGTERM ends the wait for the while (only the main thread can install a

@@ -31,8 +31,7 @@ from hapticlab.core.host.registry import ConfigError, validate_options
 
 TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "shadows")
 """The host's own tables; a plugin's context (``register_contexts``, e.g. ``world``) adds its own."""
-PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator",
-                 "haptic": "haptic_output"}
+PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator", "haptic": "haptic_output"}
 
 
 @dataclass(frozen=True)
@@ -94,8 +93,7 @@ class SessionSettings:
     def __post_init__(self) -> None:
         check_duration("session.duration", self.duration)
         if self.recording_writer not in ("process", "inline"):
-            raise ConfigError(f"session.recording_writer: must be \"process\" or \"inline\", "
-                              f"got {self.recording_writer!r}")
+            raise ConfigError(f'session.recording_writer: must be "process" or "inline", got {self.recording_writer!r}')
         _require("session.loop_rate_hz", self.loop_rate_hz, above=0.0, maximum=MAX_LOOP_RATE_HZ)
         _require("session.stale_timeout", self.stale_timeout, minimum=0.0, maximum=1.0)
         _require("session.frozen_pose_timeout", self.frozen_pose_timeout, above=0.0, maximum=1.0)
@@ -147,14 +145,20 @@ class HapticSettings:
         _require("haptic.scale", self.scale, minimum=0.0)
         _require("haptic.deadband", self.deadband, minimum=0.0)
         _require("haptic.cutoff_hz", self.cutoff_hz, minimum=0.0, maximum=MAX_LOOP_RATE_HZ)
-        if isinstance(self.rearm_button, bool) or not isinstance(self.rearm_button, int) or \
-                not -1 <= self.rearm_button <= MAX_BUTTON_BIT:
-            raise ConfigError(f"haptic.rearm_button: must be a button bit index in 0..{MAX_BUTTON_BIT} "
-                              f"or -1 (none), got {self.rearm_button!r}")
+        if (
+            isinstance(self.rearm_button, bool)
+            or not isinstance(self.rearm_button, int)
+            or not -1 <= self.rearm_button <= MAX_BUTTON_BIT
+        ):
+            raise ConfigError(
+                f"haptic.rearm_button: must be a button bit index in 0..{MAX_BUTTON_BIT} "
+                f"or -1 (none), got {self.rearm_button!r}"
+            )
         _require("haptic.ready_force_std", self.ready_force_std, above=0.0)
         if len(self.rotation_DB) != 3:
-            raise ConfigError(f"haptic.rotation_DB: must be 3 numbers (a rotation vector, rad), "
-                              f"got {list(self.rotation_DB)!r}")
+            raise ConfigError(
+                f"haptic.rotation_DB: must be 3 numbers (a rotation vector, rad), got {list(self.rotation_DB)!r}"
+            )
         for value in self.rotation_DB:
             _require("haptic.rotation_DB", value)
 
@@ -208,10 +212,15 @@ class TeleopSettings:
         _require("teleop.workspace_radius", self.workspace_radius, above=0.0, maximum=2.0)
         _require("teleop.calibration_tilt_deg", self.calibration_tilt_deg, minimum=0.0, maximum=60.0)
         _require("teleop.calibration_dwell_s", self.calibration_dwell_s, above=0.0, maximum=60.0)
-        if isinstance(self.clutch_button, bool) or not isinstance(self.clutch_button, int) or \
-                not -1 <= self.clutch_button <= MAX_BUTTON_BIT:
-            raise ConfigError(f"teleop.clutch_button: must be a button bit index in 0..{MAX_BUTTON_BIT} "
-                              f"or -1 (none), got {self.clutch_button!r}")
+        if (
+            isinstance(self.clutch_button, bool)
+            or not isinstance(self.clutch_button, int)
+            or not -1 <= self.clutch_button <= MAX_BUTTON_BIT
+        ):
+            raise ConfigError(
+                f"teleop.clutch_button: must be a button bit index in 0..{MAX_BUTTON_BIT} "
+                f"or -1 (none), got {self.clutch_button!r}"
+            )
 
 
 MAX_BUTTON_BIT = 63
@@ -228,8 +237,9 @@ def check_duration(key: str, value: float) -> float:
     return float(value)
 
 
-def _require(key: str, value: float, minimum: float | None = None, above: float | None = None,
-             maximum: float | None = None) -> None:
+def _require(
+    key: str, value: float, minimum: float | None = None, above: float | None = None, maximum: float | None = None
+) -> None:
     """Refuse a non-finite or out-of-range number, naming the key."""
     if not math.isfinite(value):
         raise ConfigError(f"{key}: must be a finite number, got {value!r}")
@@ -301,8 +311,12 @@ def apply_settings(config: dict[str, Any], settings: dict[str, Any]) -> dict[str
     config = copy.deepcopy(config)
     for key, value in settings.items():
         table, _, rest = key.strip().partition(".")
-        if rest == "name" and table in PLUGIN_TABLES and isinstance(config.get(table), dict) \
-                and config[table].get("name") != value:
+        if (
+            rest == "name"
+            and table in PLUGIN_TABLES
+            and isinstance(config.get(table), dict)
+            and config[table].get("name") != value
+        ):
             kept = {k: v for k, v in config[table].items() if table == "haptic" and k in HAPTIC_SAFETY_KEYS}
             shadows = config.get("shadows")
             shadow = shadows.get(value) if table == "estimator" and isinstance(shadows, dict) else None

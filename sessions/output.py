@@ -47,8 +47,14 @@ def _same_file(a: Path, b: Path) -> bool:
         return a.resolve() == b.resolve()
 
 
-def check_output(path: str | os.PathLike[str], force: bool = False, *, label: str = "",
-                 inputs: Iterable[str | os.PathLike[str] | None] = (), role: str = "input") -> Path:
+def check_output(
+    path: str | os.PathLike[str],
+    force: bool = False,
+    *,
+    label: str = "",
+    inputs: Iterable[str | os.PathLike[str] | None] = (),
+    role: str = "input",
+) -> Path:
     """Check an output path before any work is done; return it as a Path.
 
     ``label`` names the option in the messages (``"-o"``, ``"--json"``);
@@ -67,16 +73,16 @@ def check_output(path: str | os.PathLike[str], force: bool = False, *, label: st
         raise UserError(f"{named}: folder {parent} {what}")
     for source in inputs:
         if source and path.exists() and _same_file(path, Path(source)):
-            raise UserError(f"{named}: the output would overwrite the {role} {source}; "
-                            f"write to a different file")
+            raise UserError(f"{named}: the output would overwrite the {role} {source}; write to a different file")
     if (path.exists() or path.is_symlink()) and not force:
         raise OutputExistsError(f"{named}: already exists; --force overwrites it")
     _check_writable(parent, named)
     return path
 
 
-def check_plots_folder(folder: str | os.PathLike[str], force: bool = False, *, label: str = "--plots",
-                       patterns: Iterable[str] = ("*.png",)) -> Path:
+def check_plots_folder(
+    folder: str | os.PathLike[str], force: bool = False, *, label: str = "--plots", patterns: Iterable[str] = ("*.png",)
+) -> Path:
     """Check a folder of figures before any work: it is (or can be made) a writable folder, and holds no
     file matching ``patterns`` (the figures the command writes) unless ``force``."""
     folder = Path(folder)

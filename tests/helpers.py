@@ -12,9 +12,16 @@ from hapticlab.core.types import AlignedSamples
 REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
 
-def static_model_stream(n: int, seed: int, noise_force: float = 0.0, noise_torque: float = 0.0,
-                        gravity_force_B=(0.12, -0.25, -3.4), bias_force_S=(1.0, -0.5, 2.0),
-                        cog_S=(0.002, -0.001, 0.0435), bias_torque_S=(0.03, -0.02, 0.01)):
+def static_model_stream(
+    n: int,
+    seed: int,
+    noise_force: float = 0.0,
+    noise_torque: float = 0.0,
+    gravity_force_B=(0.12, -0.25, -3.4),
+    bias_force_S=(1.0, -0.5, 2.0),
+    cog_S=(0.002, -0.001, 0.0435),
+    bias_torque_S=(0.03, -0.02, 0.01),
+):
     """Samples of the paper's static model (eqs. 16–17) at random orientations.
 
     Returns (AlignedSamples, truth dict). Orientations are uniformly random
@@ -27,9 +34,18 @@ def static_model_stream(n: int, seed: int, noise_force: float = 0.0, noise_torqu
     force_S = gravity_S + bias_force_S + rng.normal(0, noise_force, (n, 3))
     torque_S = np.cross(cog_S, gravity_S) + bias_torque_S + rng.normal(0, noise_torque, (n, 3))
     block = AlignedSamples(
-        t_ns=np.arange(n, dtype=np.int64) * 1_000_000, force_S=force_S, torque_S=torque_S, R_EB=R_EB,
-        seq=np.arange(n), status=np.zeros(n, dtype=np.int64), stale=np.zeros(n, dtype=bool),
+        t_ns=np.arange(n, dtype=np.int64) * 1_000_000,
+        force_S=force_S,
+        torque_S=torque_S,
+        R_EB=R_EB,
+        seq=np.arange(n),
+        status=np.zeros(n, dtype=np.int64),
+        stale=np.zeros(n, dtype=bool),
     )
-    truth = {"gravity_force_B": gravity_force_B, "bias_force_S": np.asarray(bias_force_S, float),
-             "cog_S": np.asarray(cog_S, float), "bias_torque_S": np.asarray(bias_torque_S, float)}
+    truth = {
+        "gravity_force_B": gravity_force_B,
+        "bias_force_S": np.asarray(bias_force_S, float),
+        "cog_S": np.asarray(cog_S, float),
+        "bias_torque_S": np.asarray(bias_torque_S, float),
+    }
     return block, truth

@@ -32,8 +32,7 @@ def test_every_example_in_docs_api_runs(tmp_path, monkeypatch, capsys):
 
 
 def test_run_returns_the_recording_and_open_recording_reads_it_back(tmp_path):
-    path = hapticlab.run("demo", settings={"session.duration": 1, "session.realtime": False},
-                         out=tmp_path / "api.mcap")
+    path = hapticlab.run("demo", settings={"session.duration": 1, "session.realtime": False}, out=tmp_path / "api.mcap")
     rec = hapticlab.open_recording(path)
     assert rec.meta("hapticlab.summary", "samples") == 1001
     t_ns, force_S, _ = rec.wrench()
@@ -50,8 +49,10 @@ def test_run_returns_the_recording_and_open_recording_reads_it_back(tmp_path):
 
 
 def test_the_one_liner_of_the_issue(tmp_path):
-    code = ("import hapticlab; p = hapticlab.run('demo', settings={'session.duration': 3, "
-            "'session.realtime': False}); print(hapticlab.open_recording(p).metadata)")
+    code = (
+        "import hapticlab; p = hapticlab.run('demo', settings={'session.duration': 3, "
+        "'session.realtime': False}); print(hapticlab.open_recording(p).metadata)"
+    )
     done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "'hapticlab.session'" in done.stdout and "'hapticlab.summary'" in done.stdout

@@ -18,8 +18,9 @@ def package_folders() -> set[str]:
     names = {"hapticlab"}
     for init in ROOT.rglob("__init__.py"):
         rel = init.parent.relative_to(ROOT)
-        if rel.parts and (rel.parts[0] in SKIP or rel.parts[0].startswith(".")
-                          or any(p.endswith(".egg-info") for p in rel.parts)):
+        if rel.parts and (
+            rel.parts[0] in SKIP or rel.parts[0].startswith(".") or any(p.endswith(".egg-info") for p in rel.parts)
+        ):
             continue
         if rel.parts:
             names.add(".".join(("hapticlab", *rel.parts)))
@@ -31,7 +32,9 @@ def wheel(tmp_path_factory) -> zipfile.ZipFile:
     out = tmp_path_factory.mktemp("wheel")
     result = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(out), str(ROOT)],
-        capture_output=True, text=True, timeout=600,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert result.returncode == 0, result.stderr[-2000:]
     (path,) = out.glob("hapticlab-*.whl")

@@ -16,9 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hapticlab.core.frames import skew_stack
 from hapticlab.core.estimation.model import contact_wrench
-
+from hapticlab.core.frames import skew_stack
 
 I3 = np.eye(3)
 

@@ -19,8 +19,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hapticlab.core.frames import cross
 from hapticlab.core.estimation import model_kernel as plausible_kernel
+from hapticlab.core.frames import cross
 from hapticlab.core.types import AlignedSamples, Estimates, Event
 
 
@@ -79,13 +79,15 @@ _I3 = np.eye(3)
 def wrench_bound(key: str, value, largest: float) -> float:
     """A ``max_force`` / ``max_torque`` option: a finite number in (0, largest]; ValueError naming the key."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= largest:
-        raise ValueError(f"{key}: must be a number > 0 and <= {largest:g} (a bound far above the sensor's "
-                         f"range), got {value!r}")
+        raise ValueError(
+            f"{key}: must be a number > 0 and <= {largest:g} (a bound far above the sensor's range), got {value!r}"
+        )
     return float(value)
 
 
-def refusal_codes(force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, max_force: float,
-                  max_torque: float, extras: tuple = ()) -> np.ndarray:
+def refusal_codes(
+    force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, max_force: float, max_torque: float, extras: tuple = ()
+) -> np.ndarray:
     """(m,) int: 0 for a sample the model may see, else 1 + the index of its reason in ``REASONS``.
 
     Non-finite: a NaN or inf in force_S (m, 3), torque_S (m, 3), R_EB (m, 3, 3) or one of ``extras``
@@ -101,13 +103,14 @@ def refusal_codes(force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, m
     with np.errstate(over="ignore", invalid="ignore"):  # 1e300 entries overflow to inf: not a rotation
         G = R @ R.transpose(0, 2, 1)
         G -= _I3
-        rotation = (np.einsum("kij,kij->k", G, G) <= ROTATION_TOLERANCE ** 2) & (np.linalg.det(R) > 0)
+        rotation = (np.einsum("kij,kij->k", G, G) <= ROTATION_TOLERANCE**2) & (np.linalg.det(R) > 0)
     inside = (np.abs(force_S).max(1) <= max_force) & (np.abs(torque_S).max(1) <= max_torque)
     return np.where(~finite, 1, np.where(~rotation, 2, np.where(~inside, 3, 0)))
 
 
-def all_plausible(force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, max_force: float,
-                  max_torque: float) -> bool:
+def all_plausible(
+    force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, max_force: float, max_torque: float
+) -> bool:
     """True when ``refusal_codes`` would refuse none of the samples (a screen: False means "look closer").
 
     One compiled pass over the block (``core.estimation.model_kernel``; ``refusal_codes`` is the reference):
@@ -149,8 +152,13 @@ class SampleGuard:
         self._pending = 0  # ... and in all
         self._reported_ns: int | None = None
 
-    def run(self, block: AlignedSamples, update: Callable[[AlignedSamples], Estimates],
-            flags: tuple[bool, bool], extras: tuple = ()) -> Estimates:
+    def run(
+        self,
+        block: AlignedSamples,
+        update: Callable[[AlignedSamples], Estimates],
+        flags: tuple[bool, bool],
+        extras: tuple = (),
+    ) -> Estimates:
         """``update`` over the accepted samples of ``block``; one row per sample of ``block``.
 
         Args:
@@ -167,7 +175,8 @@ class SampleGuard:
     def accepted(self, block: AlignedSamples, extras: tuple = ()) -> np.ndarray | None:
         """None when every sample may be used (the usual case), else the (m,) mask of those that may."""
         if all_plausible(block.force_S, block.torque_S, block.R_EB, self.max_force, self.max_torque) and (
-                not extras or all(np.isfinite(extra).all() for extra in extras)):
+            not extras or all(np.isfinite(extra).all() for extra in extras)
+        ):
             if self._pending and len(block):  # refusals held back by the interval: report them once it has passed
                 self._report(int(block.t_ns[-1]))
             return None
@@ -189,16 +198,21 @@ class SampleGuard:
             return
         counts = {reason: n for reason, n in self._unreported.items() if n}
         new = self._pending
-        why = {NON_FINITE: "NaN or inf in the force, torque or pose",
-               NOT_A_ROTATION: f"R_EB not a rotation (‖R Rᵀ − I‖ > {ROTATION_TOLERANCE:g} or det ≤ 0)",
-               BEYOND_THE_BOUND: f"beyond the bound (a force component above max_force = {self.max_force:g} N "
-                                 f"or a torque component above max_torque = {self.max_torque:g} N·m)"}
+        why = {
+            NON_FINITE: "NaN or inf in the force, torque or pose",
+            NOT_A_ROTATION: f"R_EB not a rotation (‖R Rᵀ − I‖ > {ROTATION_TOLERANCE:g} or det ≤ 0)",
+            BEYOND_THE_BOUND: f"beyond the bound (a force component above max_force = {self.max_force:g} N "
+            f"or a torque component above max_torque = {self.max_torque:g} N·m)",
+        }
         since = "" if self._reported_ns is None else " since the last report"
-        message = (f"{self.source}: {new} sample{'s' if new > 1 else ''} refused{since}: "
-                   + "; ".join(f"{n} {why[reason]}" for reason, n in counts.items())
-                   + f"; {self.refused} in all, the estimate left as it was")
-        self.events.append(Event(t_ns, "sample_refused", message,
-                                 {"count": self.refused, "new": new, "reasons": counts}))
+        message = (
+            f"{self.source}: {new} sample{'s' if new > 1 else ''} refused{since}: "
+            + "; ".join(f"{n} {why[reason]}" for reason, n in counts.items())
+            + f"; {self.refused} in all, the estimate left as it was"
+        )
+        self.events.append(
+            Event(t_ns, "sample_refused", message, {"count": self.refused, "new": new, "reasons": counts})
+        )
         self._unreported = dict.fromkeys(REASONS, 0)
         self._pending = 0
         self._reported_ns = t_ns

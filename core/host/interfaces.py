@@ -23,8 +23,16 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from hapticlab.core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, WrenchBlock,
-                    WrenchSample)
+from hapticlab.core.types import (
+    AlignedSamples,
+    DeviceState,
+    Estimates,
+    Event,
+    HapticCommand,
+    PoseSample,
+    WrenchBlock,
+    WrenchSample,
+)
 
 
 @runtime_checkable
@@ -288,7 +296,20 @@ class ReadsBlocks(Protocol):
     def read_block(self, until_ns: int) -> WrenchBlock: ...
 
 
-CAPABILITIES = (EmitsEvents, ReportsParameterStd, KnowsMount, CountsConvergence, SavesState, HasCalibration,
-                HasRange, Reidentifies, ReportsHealth, HasLatency, HasForceLimit, ServosCartesian, PreparesAhead,
-                ReadsBlocks)
+CAPABILITIES = (
+    EmitsEvents,
+    ReportsParameterStd,
+    KnowsMount,
+    CountsConvergence,
+    SavesState,
+    HasCalibration,
+    HasRange,
+    Reidentifies,
+    ReportsHealth,
+    HasLatency,
+    HasForceLimit,
+    ServosCartesian,
+    PreparesAhead,
+    ReadsBlocks,
+)
 """Every optional capability the host looks for, in the order ``docs/plugins.md`` lists them."""

@@ -64,15 +64,26 @@ def _range_words(minimum: float | None, above: float | None, maximum: float | No
     return " and ".join(words)
 
 
-def _in_range(x: float, minimum: float | None, above: float | None, maximum: float | None,
-              below: float | None) -> bool:
-    return ((minimum is None or x >= minimum) and (above is None or x > above)
-            and (maximum is None or x <= maximum) and (below is None or x < below))
+def _in_range(x: float, minimum: float | None, above: float | None, maximum: float | None, below: float | None) -> bool:
+    return (
+        (minimum is None or x >= minimum)
+        and (above is None or x > above)
+        and (maximum is None or x <= maximum)
+        and (below is None or x < below)
+    )
 
 
-def number(key: str, value: Any, *, minimum: float | None = None, above: float | None = None,
-           maximum: float | None = None, below: float | None = None, finite: bool = True,
-           hint: str = "") -> float:
+def number(
+    key: str,
+    value: Any,
+    *,
+    minimum: float | None = None,
+    above: float | None = None,
+    maximum: float | None = None,
+    below: float | None = None,
+    finite: bool = True,
+    hint: str = "",
+) -> float:
     """A number (int or float, not a bool, not NaN; finite unless ``finite=False``) within the limits given.
 
     ``minimum``/``maximum`` are inclusive, ``above``/``below`` exclusive; ``hint`` ends the message
@@ -86,8 +97,7 @@ def number(key: str, value: Any, *, minimum: float | None = None, above: float |
     return float(value)
 
 
-def integer(key: str, value: Any, *, minimum: int | None = None, maximum: int | None = None,
-            hint: str = "") -> int:
+def integer(key: str, value: Any, *, minimum: int | None = None, maximum: int | None = None, hint: str = "") -> int:
     """A whole number (an int, not a bool) within the inclusive limits given."""
     if not isinstance(value, int) or isinstance(value, bool) or not _in_range(value, minimum, None, maximum, None):
         limits = _range_words(minimum, None, maximum, None)
@@ -112,20 +122,32 @@ def text(key: str, value: Any, *, hint: str = "") -> str:
 def choice(key: str, value: Any, choices: Sequence[Any], *, hint: str = "") -> Any:
     """One of ``choices`` (compared with ==, so a string option also refuses a number)."""
     if isinstance(value, bool) or value not in choices or not isinstance(value, type(choices[0])):
-        names = ", ".join(repr(c) for c in choices[:-1]) + f" or {choices[-1]!r}" if len(choices) > 1 \
-            else repr(choices[0])
+        names = (
+            ", ".join(repr(c) for c in choices[:-1]) + f" or {choices[-1]!r}" if len(choices) > 1 else repr(choices[0])
+        )
         raise OptionError(key, f"must be {names}{hint}, got {value!r}")
     return value
 
 
-def vector(key: str, value: Any, *, size: int = 3, broadcast: bool = False, minimum: float | None = None,
-           above: float | None = None, hint: str = "") -> np.ndarray:
+def vector(
+    key: str,
+    value: Any,
+    *,
+    size: int = 3,
+    broadcast: bool = False,
+    minimum: float | None = None,
+    above: float | None = None,
+    hint: str = "",
+) -> np.ndarray:
     """``size`` finite numbers (with ``broadcast``, one number stands for all), each within the limits;
     a read-only float array."""
     if broadcast and is_number(value) and math.isfinite(value):
         array = np.full(size, float(value))
-    elif (isinstance(value, (list, tuple, np.ndarray)) and len(value) == size
-          and all(is_number(v) and math.isfinite(v) for v in value)):
+    elif (
+        isinstance(value, (list, tuple, np.ndarray))
+        and len(value) == size
+        and all(is_number(v) and math.isfinite(v) for v in value)
+    ):
         array = np.array(value, dtype=float)
     else:
         limits = _range_words(minimum, above, None, None)
@@ -142,12 +164,18 @@ def vector(key: str, value: Any, *, size: int = 3, broadcast: bool = False, mini
 def matrix(key: str, value: Any, *, shape: tuple[int, int] = (3, 3), hint: str = "") -> np.ndarray:
     """A matrix of finite numbers given as rows (``[[...], [...], [...]]``); a read-only float array."""
     rows, cols = shape
-    ok = (isinstance(value, (list, tuple, np.ndarray)) and len(value) == rows
-          and all(isinstance(row, (list, tuple, np.ndarray)) and len(row) == cols
-                  and all(is_number(v) and math.isfinite(v) for v in row) for row in value))
+    ok = (
+        isinstance(value, (list, tuple, np.ndarray))
+        and len(value) == rows
+        and all(
+            isinstance(row, (list, tuple, np.ndarray))
+            and len(row) == cols
+            and all(is_number(v) and math.isfinite(v) for v in row)
+            for row in value
+        )
+    )
     if not ok:
-        raise OptionError(key, f"must be a {rows}x{cols} matrix ({rows} rows of {cols} numbers){hint}, "
-                               f"got {value!r}")
+        raise OptionError(key, f"must be a {rows}x{cols} matrix ({rows} rows of {cols} numbers){hint}, got {value!r}")
     array = np.array(value, dtype=float)
     array.setflags(write=False)
     return array

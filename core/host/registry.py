@@ -24,8 +24,8 @@ from typing import Any, Callable, Mapping
 
 import pluggy
 
-from hapticlab.core.host import hookspecs
 from hapticlab.core.errors import ConfigError, PluginError
+from hapticlab.core.host import hookspecs
 from hapticlab.core.host.options import OptionError
 
 DEFAULT_PLUGINS: tuple[str, ...] = (
@@ -128,9 +128,7 @@ class Registry:
                 raise PluginError(f"{origin}: {kind} {name!r} factory is not callable")
             existing = self._entries[kind].get(name)
             if existing is not None:
-                raise PluginError(
-                    f"{kind} {name!r} registered twice: by {existing.origin} and by {origin}"
-                )
+                raise PluginError(f"{kind} {name!r} registered twice: by {existing.origin} and by {origin}")
             self._entries[kind][name] = PluginEntry(kind, name, factory, origin)
 
         return register
@@ -153,8 +151,9 @@ class Registry:
             available = ", ".join(self.names(kind)) or "none"
             raise PluginError(f"unknown {kind} {name!r}; available: {available}") from None
 
-    def create(self, kind: str, name: str, options: Mapping[str, Any] | None = None,
-               where: str | None = None, **context: Any) -> Any:
+    def create(
+        self, kind: str, name: str, options: Mapping[str, Any] | None = None, where: str | None = None, **context: Any
+    ) -> Any:
         """Build the named plugin from config options, checking them against its signature.
 
         ``where`` is the config path used in error messages (e.g. ``"estimator"``),
@@ -165,8 +164,9 @@ class Registry:
             entry = self.get(kind, name)
         except PluginError as exc:
             raise ConfigError(f"{where or kind}.name: {exc}") from None
-        kwargs = validate_options(entry.factory, dict(options or {}), where or kind,
-                                  host_provided=frozenset(self.names("context")))
+        kwargs = validate_options(
+            entry.factory, dict(options or {}), where or kind, host_provided=frozenset(self.names("context"))
+        )
         params = inspect.signature(entry.factory).parameters
         for key, value in context.items():
             if key in params:
@@ -184,8 +184,11 @@ class Registry:
 
     def resolved_options(self, kind: str, name: str, options: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """The options a plugin runs with: its defaults updated by ``options``."""
-        resolved = {key: default for key, (_, default) in option_signature(self.get(kind, name).factory).items()
-                    if key not in self.names("context") and default is not inspect.Parameter.empty}
+        resolved = {
+            key: default
+            for key, (_, default) in option_signature(self.get(kind, name).factory).items()
+            if key not in self.names("context") and default is not inspect.Parameter.empty
+        }
         resolved.update(options or {})
         return resolved
 
@@ -199,15 +202,23 @@ def option_signature(factory: Callable[..., Any]) -> dict[str, tuple[Any, Any]]:
     options_class = getattr(factory, "Options", None)
     if dataclasses.is_dataclass(options_class) and isinstance(options_class, type):
         hints = typing.get_type_hints(options_class)
-        return {f.name: (hints.get(f.name, Any), f.default if f.default is not dataclasses.MISSING
-                         else inspect.Parameter.empty) for f in dataclasses.fields(options_class)}
+        return {
+            f.name: (
+                hints.get(f.name, Any),
+                f.default if f.default is not dataclasses.MISSING else inspect.Parameter.empty,
+            )
+            for f in dataclasses.fields(options_class)
+        }
     target = factory.__init__ if inspect.isclass(factory) else factory
     try:
         hints = typing.get_type_hints(target)
     except Exception:  # an unresolvable annotation: check names only
         hints = {}
-    return {name: (hints.get(name, Any), param.default) for name, param in inspect.signature(factory).parameters.items()
-            if param.kind not in (param.VAR_POSITIONAL, param.VAR_KEYWORD)}
+    return {
+        name: (hints.get(name, Any), param.default)
+        for name, param in inspect.signature(factory).parameters.items()
+        if param.kind not in (param.VAR_POSITIONAL, param.VAR_KEYWORD)
+    }
 
 
 def option_types(factory: Callable[..., Any]) -> dict[str, Any]:
@@ -254,8 +265,9 @@ def _type_name(annotation: Any) -> str:
     return str(annotation).replace("typing.", "")
 
 
-def validate_options(factory: Callable[..., Any], options: dict[str, Any], where: str,
-                     host_provided: frozenset[str] = frozenset()) -> dict[str, Any]:
+def validate_options(
+    factory: Callable[..., Any], options: dict[str, Any], where: str, host_provided: frozenset[str] = frozenset()
+) -> dict[str, Any]:
     """Check option names and types against the factory's signature.
 
     ``host_provided`` names keyword arguments the host passes itself (the
@@ -275,11 +287,12 @@ def validate_options(factory: Callable[..., Any], options: dict[str, Any], where
                 known = f"{len(names)}, documented in {documented.__module__}.{documented.__qualname__}"
             raise ConfigError(f"{where}.{key}: unknown option{hint}; known options: {known}")
         if not _type_ok(value, accepted[key]):
-            hint = (f" (a number read as text needs quotes: --set '{where}.{key}=\"{value}\"')"
-                    if accepted[key] is str and isinstance(value, (int, float)) else "")
-            raise ConfigError(
-                f"{where}.{key}: expected {_type_name(accepted[key])}, got {value!r}{hint}"
+            hint = (
+                f" (a number read as text needs quotes: --set '{where}.{key}=\"{value}\"')"
+                if accepted[key] is str and isinstance(value, (int, float))
+                else ""
             )
+            raise ConfigError(f"{where}.{key}: expected {_type_name(accepted[key])}, got {value!r}{hint}")
         if accepted[key] is float and isinstance(value, int):
             options[key] = float(value)
     return options

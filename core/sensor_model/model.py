@@ -39,25 +39,24 @@ import numpy as np
 
 from hapticlab.core.frames import GRAVITY_M_S2, cross, matrix_from_quat_wxyz, quat_conjugate, quat_multiply, quat_slerp
 
-__all__ = [
-    "BASE_LABELS",
-    "STAGES",
-    "Effect",
-    "LocatesItself",
-    "Model",
-    "ModelState",
-    "Motion",
-    "motion_from_poses",
-]
+__all__ = ["BASE_LABELS", "STAGES", "Effect", "LocatesItself", "Model", "ModelState", "Motion", "motion_from_poses"]
 
 STAGES = ("timing", "mount", "load", "sensor", "bias")
 """Where an effect acts in the measurement chain, in evaluation order (see the module docstring)."""
 
 BASE_LABELS = (
-    "gravity_force_B.x", "gravity_force_B.y", "gravity_force_B.z",
-    "bias_force_S.x", "bias_force_S.y", "bias_force_S.z",
-    "cog_S.x", "cog_S.y", "cog_S.z",
-    "bias_torque_S.x", "bias_torque_S.y", "bias_torque_S.z",
+    "gravity_force_B.x",
+    "gravity_force_B.y",
+    "gravity_force_B.z",
+    "bias_force_S.x",
+    "bias_force_S.y",
+    "bias_force_S.z",
+    "cog_S.x",
+    "cog_S.y",
+    "cog_S.z",
+    "bias_torque_S.x",
+    "bias_torque_S.y",
+    "bias_torque_S.z",
 )
 """The paper's twelve parameters, in the order of the parameter vector's head."""
 
@@ -114,8 +113,17 @@ class Motion:
         if self.source is not None:
             raise ValueError("subset() of a shifted motion; take the subset of the recording, then shift")
         pick = lambda a: None if a is None else a[index]  # noqa: E731
-        return Motion(self.t[index], self.R_EB[index], self.quat_BE[index], pick(self.w_E), pick(self.alpha_E),
-                      pick(self.a_B), self.time_base, self.rate_hz, self.t_ref)
+        return Motion(
+            self.t[index],
+            self.R_EB[index],
+            self.quat_BE[index],
+            pick(self.w_E),
+            pick(self.alpha_E),
+            pick(self.a_B),
+            self.time_base,
+            self.rate_hz,
+            self.t_ref,
+        )
 
     def shifted(self, dt: float) -> Motion:
         """The motion recorded at ``t + dt`` for each sample (slerp and linear interpolation; held at the ends).
@@ -134,8 +142,19 @@ class Motion:
         u = np.clip(np.divide(at - t[k], span, out=np.zeros_like(at), where=span > 0), 0.0, 1.0)
         quat = quat_slerp(src.quat_BE[k], src.quat_BE[k + 1], u)
         lerp = lambda a: None if a is None else a[k] + u[:, None] * (a[k + 1] - a[k])  # noqa: E731
-        return Motion(t, matrix_from_quat_wxyz(quat).transpose(0, 2, 1), quat, lerp(src.w_E),
-                      lerp(src.alpha_E), lerp(src.a_B), src.time_base, src.rate_hz, src.t_ref, total, src)
+        return Motion(
+            t,
+            matrix_from_quat_wxyz(quat).transpose(0, 2, 1),
+            quat,
+            lerp(src.w_E),
+            lerp(src.alpha_E),
+            lerp(src.a_B),
+            src.time_base,
+            src.rate_hz,
+            src.t_ref,
+            total,
+            src,
+        )
 
 
 def _continuous(quat: np.ndarray) -> np.ndarray:
@@ -164,11 +183,12 @@ def savgol(x: np.ndarray, window: int, deriv: int, dt: float, order: int = 3) ->
     out = np.empty_like(x, dtype=float)
     # interior: a correlation with the coefficients, column by column
     from numpy.lib.stride_tricks import sliding_window_view
+
     windows = sliding_window_view(x, window, axis=0)  # (n - window + 1, k, window)
-    out[half:n - half] = windows @ coeff
+    out[half : n - half] = windows @ coeff
     # the edges: derivative of the first/last window's polynomial at each edge sample
     powers = np.arange(order + 1)
-    for rows, block in ((slice(0, half), x[:window]), (slice(n - half, n), x[n - window:])):
+    for rows, block in ((slice(0, half), x[:window]), (slice(n - half, n), x[n - window :])):
         poly = fit @ block  # (order+1, k)
         at = s[:half] if rows.start == 0 else s[-half:]
         d = np.zeros((len(at), order + 1))
@@ -207,8 +227,13 @@ def savgol_t(x: np.ndarray, t: np.ndarray, window: int, deriv: int, order: int =
     return np.einsum("nw,nwk->nk", weights, x[idx])
 
 
-def motion_from_poses(t: np.ndarray, quat_BE: np.ndarray, p_BoEo_B: np.ndarray | None = None,
-                      time_base: str = "seconds", window_s: float = 0.04) -> Motion:
+def motion_from_poses(
+    t: np.ndarray,
+    quat_BE: np.ndarray,
+    p_BoEo_B: np.ndarray | None = None,
+    time_base: str = "seconds",
+    window_s: float = 0.04,
+) -> Motion:
     """The recorded motion with its derivatives, from the poses at each sample.
 
     Derivatives (only with a time base in seconds) come from a centred
@@ -427,15 +452,15 @@ class Model:
     def predict(self, motion: Motion, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The predicted reading ``(force_S (n, 3) N, torque_S (n, 3) N·m)`` along ``motion``."""
         gravity_force_B, bias_force_S, cog_S, bias_torque_S = np.split(np.asarray(theta[:12], float), 4)
-        state = ModelState(self._timed(motion, theta), np.eye(3), gravity_force_B, bias_force_S, cog_S,
-                           bias_torque_S)
+        state = ModelState(self._timed(motion, theta), np.eye(3), gravity_force_B, bias_force_S, cog_S, bias_torque_S)
         for stage in STAGES[1:]:
             if stage == "load":
                 weight_S = state.weight_S
                 state = state.replace(force_S=weight_S, torque_S=cross(state.cog_S, weight_S))
             if stage == "bias":
-                state = state.replace(force_S=state.force_S + state.bias_force_S,
-                                      torque_S=state.torque_S + state.bias_torque_S)
+                state = state.replace(
+                    force_S=state.force_S + state.bias_force_S, torque_S=state.torque_S + state.bias_torque_S
+                )
             for name, effect in self.effects:
                 if effect.stage == stage:
                     state = effect.apply(state, theta[self.slices[name]])

@@ -33,8 +33,7 @@ class BiasDrift(Effect):
         self.order = order
         self.per_row = False  # t counts rows (set by check)
         names = ["rate", "accel", "jerk"][:order]
-        self.labels = tuple(f"{q}_{kind}_{axis}" for q in names for kind in ("force", "torque")
-                            for axis in "xyz")
+        self.labels = tuple(f"{q}_{kind}_{axis}" for q in names for kind in ("force", "torque") for axis in "xyz")
         # steps: a change of ~1e-4 N (1e-5 N·m) over 100 s (or rows)
         self.steps = tuple(s / 100.0**k for k in range(1, order + 1) for s in [1e-4] * 3 + [1e-5] * 3)
 
@@ -64,8 +63,10 @@ class BiasDrift(Effect):
     def summary(self, params: np.ndarray) -> str:
         rate = np.asarray(params[:6]) * (100.0 if self.per_row else 60.0)
         per = "100 rows" if self.per_row else "min"
-        text = (f"force [{', '.join(f'{v:.3g}' for v in rate[:3])}] N/{per}, "
-                f"torque [{', '.join(f'{v:.3g}' for v in rate[3:])}] N·m/{per}")
+        text = (
+            f"force [{', '.join(f'{v:.3g}' for v in rate[:3])}] N/{per}, "
+            f"torque [{', '.join(f'{v:.3g}' for v in rate[3:])}] N·m/{per}"
+        )
         return text + (f" (polynomial of order {self.order})" if self.order > 1 else "")
 
 

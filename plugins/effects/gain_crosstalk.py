@@ -47,17 +47,21 @@ class GainCrosstalk(Effect):
 
     def apply(self, state: ModelState, params: np.ndarray) -> ModelState:
         I3 = np.eye(3)
-        return state.replace(force_S=state.force_S @ (I3 + gain_matrix(params[:5])).T,
-                             torque_S=state.torque_S @ (I3 + gain_matrix(params[5:])).T)
+        return state.replace(
+            force_S=state.force_S @ (I3 + gain_matrix(params[:5])).T,
+            torque_S=state.torque_S @ (I3 + gain_matrix(params[5:])).T,
+        )
 
     def describe(self, params: np.ndarray) -> dict:
         return {"gain_force_S": gain_matrix(params[:5]).tolist(), "gain_torque_S": gain_matrix(params[5:]).tolist()}
 
     def summary(self, params: np.ndarray) -> str:
         f, t = gain_matrix(params[:5]), gain_matrix(params[5:])
-        return (f"force diag [{', '.join(f'{100 * v:.2f}' for v in np.diag(f))}] %, largest coupling "
-                f"{100 * np.abs(f - np.diag(np.diag(f))).max():.2f} %; torque diag "
-                f"[{', '.join(f'{100 * v:.2f}' for v in np.diag(t))}] %")
+        return (
+            f"force diag [{', '.join(f'{100 * v:.2f}' for v in np.diag(f))}] %, largest coupling "
+            f"{100 * np.abs(f - np.diag(np.diag(f))).max():.2f} %; torque diag "
+            f"[{', '.join(f'{100 * v:.2f}' for v in np.diag(t))}] %"
+        )
 
     def estimator_options(self, params: np.ndarray) -> dict:
         return self.describe(params)

@@ -65,8 +65,9 @@ class Hysteresis(Effect):
 
     def summary(self, params: np.ndarray) -> str:
         leads = " (a negative width: the reading leads its load, unphysical)" if np.any(params < 0) else ""
-        return (f"±{', '.join(f'{v:.3g}' for v in params[:3])} N, "
-                f"±{', '.join(f'{v:.3g}' for v in params[3:])} N·m{leads}")
+        return (
+            f"±{', '.join(f'{v:.3g}' for v in params[:3])} N, ±{', '.join(f'{v:.3g}' for v in params[3:])} N·m{leads}"
+        )
 
 
 @hookimpl

@@ -26,8 +26,8 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
 from hapticlab.core.frames import cross
+from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
 
 MIN_RATE_HZ = 25.0
 """Below this sample rate the poses do not resolve a robot's accelerations."""
@@ -57,8 +57,10 @@ class Inertia(Effect):
 
     def notes(self, motion: Motion) -> list[str]:
         if motion.has_time and motion.a_B is None:
-            return ["inertia: no flange positions in the recording, so only the rotational terms "
-                    "(α × c, ω × (ω × c), I α + ω × I ω) are modelled"]
+            return [
+                "inertia: no flange positions in the recording, so only the rotational terms "
+                "(α × c, ω × (ω × c), I α + ω × I ω) are modelled"
+            ]
         return []
 
     def apply(self, state: ModelState, params: np.ndarray) -> ModelState:
@@ -73,12 +75,14 @@ class Inertia(Effect):
         force_i = -params[0] * state.mass_kg * a_cm
         inertia = _inertia_matrix(params[1:7])
         euler = alpha_S @ inertia.T + cross(w_S, w_S @ inertia.T)
-        return state.replace(force_S=state.force_S + force_i,
-                             torque_S=state.torque_S + cross(c, force_i) - euler)
+        return state.replace(force_S=state.force_S + force_i, torque_S=state.torque_S + cross(c, force_i) - euler)
 
     def describe(self, params: np.ndarray) -> dict:
-        return {"mass_scale": float(params[0]), "inertia_S": _inertia_matrix(params[1:7]).tolist(),
-                "sensor_offset_S": [float(v) for v in params[7:10]]}
+        return {
+            "mass_scale": float(params[0]),
+            "inertia_S": _inertia_matrix(params[1:7]).tolist(),
+            "sensor_offset_S": [float(v) for v in params[7:10]],
+        }
 
     def summary(self, params: np.ndarray) -> str:
         diag = ", ".join(f"{v:.2g}" for v in params[1:4])

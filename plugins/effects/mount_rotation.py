@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
 from hapticlab.core.frames import matrix_from_rotvec
+from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
 
 
 class MountRotation(Effect):
@@ -35,8 +35,7 @@ class MountRotation(Effect):
         return state.replace(R_SE=matrix_from_rotvec(params) @ state.R_SE)
 
     def describe(self, params: np.ndarray) -> dict:
-        return {"mount_rotation_SE": [float(v) for v in params],
-                "angle_deg": float(np.degrees(np.linalg.norm(params)))}
+        return {"mount_rotation_SE": [float(v) for v in params], "angle_deg": float(np.degrees(np.linalg.norm(params)))}
 
     def summary(self, params: np.ndarray) -> str:
         return f"{np.degrees(np.linalg.norm(params)):.2f}° (rotvec [{', '.join(f'{v:.4f}' for v in params)}] rad)"

@@ -27,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
 from hapticlab.core.frames import cross
+from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
 
 EDGE = 0.05
 """Share of the rows at either end where no change is looked for (a step there is a bias or a weight)."""
@@ -73,8 +73,9 @@ class PayloadChange(Effect):
             return
         bc, Bc = b[lo:hi], B[lo:hi]
         denominator = Bc - Bc**2 / q_all
-        gain = np.divide((bc - a_all * Bc / q_all) ** 2, denominator, out=np.zeros_like(denominator),
-                         where=denominator > 0)
+        gain = np.divide(
+            (bc - a_all * Bc / q_all) ** 2, denominator, out=np.zeros_like(denominator), where=denominator > 0
+        )
         c = lo + int(np.argmax(gain))
         self.t_change = 0.5 * float(t[c - 1] + t[c])
 
@@ -83,13 +84,13 @@ class PayloadChange(Effect):
         weight_S = state.weight_S
         s, d = float(params[0]), np.asarray(params[1:4], float)
         self.mass_kg = state.mass_kg  # the tool's before the change, for describe (the last prediction's)
-        return state.replace(force_S=state.force_S + after * (s * weight_S),
-                             torque_S=state.torque_S + after * cross(d, weight_S))
+        return state.replace(
+            force_S=state.force_S + after * (s * weight_S), torque_S=state.torque_S + after * cross(d, weight_S)
+        )
 
     def describe(self, params: np.ndarray) -> dict:
         s, d = float(params[0]), np.asarray(params[1:4], float)
-        out = {"t_change_s": self.t_change, "mass_ratio": s,
-               "moment_S": d.tolist(), "added_mass_kg": s * self.mass_kg}
+        out = {"t_change_s": self.t_change, "mass_ratio": s, "moment_S": d.tolist(), "added_mass_kg": s * self.mass_kg}
         out["point_S"] = (d / s).tolist() if abs(s) > 1e-6 else None
         return out
 
@@ -97,8 +98,10 @@ class PayloadChange(Effect):
         found = self.describe(params)
         point = found["point_S"]
         where = f" at [{', '.join(f'{1e3 * v:.0f}' for v in point)}] mm" if point is not None else ""
-        return (f"{found['added_mass_kg'] * 1e3:+.0f} g ({100 * found['mass_ratio']:+.1f} % of the tool){where} "
-                f"from {self.t_change:.3f} s")
+        return (
+            f"{found['added_mass_kg'] * 1e3:+.0f} g ({100 * found['mass_ratio']:+.1f} % of the tool){where} "
+            f"from {self.t_change:.3f} s"
+        )
 
 
 @hookimpl

@@ -84,16 +84,21 @@ class WarmUp(Effect):
 
     def describe(self, params: np.ndarray) -> dict:
         unit = "rows" if self.per_row else "s"
-        return {"settle_force_S": list(map(float, params[:3])), "settle_torque_S": list(map(float, params[3:6])),
-                f"tau_{unit}": float(params[6])}
+        return {
+            "settle_force_S": list(map(float, params[:3])),
+            "settle_torque_S": list(map(float, params[3:6])),
+            f"tau_{unit}": float(params[6]),
+        }
 
     def summary(self, params: np.ndarray) -> str:
         unit = " rows" if self.per_row else " s"
         tau = float(params[6])
         slow = " (longer than the recording: as well a curved drift)" if tau > self.span else ""
-        return (f"bias {', '.join(f'{v:+.3g}' for v in params[:3])} N, "
-                f"{', '.join(f'{v:+.3g}' for v in params[3:6])} N·m from settled at the start, "
-                f"τ {tau:.3g}{unit}{slow}")
+        return (
+            f"bias {', '.join(f'{v:+.3g}' for v in params[:3])} N, "
+            f"{', '.join(f'{v:+.3g}' for v in params[3:6])} N·m from settled at the start, "
+            f"τ {tau:.3g}{unit}{slow}"
+        )
 
 
 @hookimpl

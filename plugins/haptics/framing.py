@@ -47,8 +47,13 @@ NAK_UNKNOWN_TYPE = 2
 NAK_BAD_LENGTH = 3
 NAK_VERSION = 4
 NAK_NOT_READY = 5  # a FORCE or HEARTBEAT before the HELLO (the device restarted)
-NAK_NAMES = {NAK_CRC: "bad CRC", NAK_UNKNOWN_TYPE: "unknown message type", NAK_BAD_LENGTH: "bad payload length",
-             NAK_VERSION: "protocol version not supported", NAK_NOT_READY: "no HELLO yet (device restarted?)"}
+NAK_NAMES = {
+    NAK_CRC: "bad CRC",
+    NAK_UNKNOWN_TYPE: "unknown message type",
+    NAK_BAD_LENGTH: "bad payload length",
+    NAK_VERSION: "protocol version not supported",
+    NAK_NOT_READY: "no HELLO yet (device restarted?)",
+}
 
 # STATE status bits
 STATUS_WATCHDOG = 1 << 0  # the device zeroed its force: no valid host frame within the watchdog time
@@ -61,8 +66,14 @@ FORCE_FORMAT = struct.Struct("<3f")  # force_D, N
 STATE_FORMAT = struct.Struct("<B3f3fHB")  # ack seq, p_DoHo_D m, v_DHo_D m/s, buttons, status
 NAK_FORMAT = struct.Struct("<BB")  # seq of the rejected frame (0 when unknown), code
 
-PAYLOAD_SIZES = {HELLO: HELLO_FORMAT.size, FORCE: FORCE_FORMAT.size, HEARTBEAT: 0,
-                 HELLO_ACK: HELLO_ACK_FORMAT.size, STATE: STATE_FORMAT.size, NAK: NAK_FORMAT.size}
+PAYLOAD_SIZES = {
+    HELLO: HELLO_FORMAT.size,
+    FORCE: FORCE_FORMAT.size,
+    HEARTBEAT: 0,
+    HELLO_ACK: HELLO_ACK_FORMAT.size,
+    STATE: STATE_FORMAT.size,
+    NAK: NAK_FORMAT.size,
+}
 """The payload length of each message type in version 1, bytes."""
 
 
@@ -128,7 +139,7 @@ class FrameDecoder:
             if start < 0:  # keep a trailing 0xA5: it may be the first half of a sync pair
                 keep = 1 if buf.endswith(SYNC[:1]) else 0
                 self.garbage_bytes += len(buf) - keep
-                del buf[:len(buf) - keep]
+                del buf[: len(buf) - keep]
                 return frames
             if start:
                 self.garbage_bytes += start
@@ -143,8 +154,8 @@ class FrameDecoder:
             end = HEADER_SIZE + length + CRC_SIZE
             if len(buf) < end:
                 return frames
-            body = bytes(buf[2:HEADER_SIZE + length])
-            if crc16_ccitt_false(body) != int.from_bytes(buf[end - CRC_SIZE:end], "little"):
+            body = bytes(buf[2 : HEADER_SIZE + length])
+            if crc16_ccitt_false(body) != int.from_bytes(buf[end - CRC_SIZE : end], "little"):
                 self.crc_errors += 1
                 self.garbage_bytes += 1
                 del buf[:1]  # hunt again from the next byte: a good frame may start inside this one
@@ -179,8 +190,9 @@ class HelloAck:
     max_rate_hz: float
 
     def pack(self) -> bytes:
-        return HELLO_ACK_FORMAT.pack(self.version, self.device_id, self.firmware_version, self.max_force,
-                                     self.max_rate_hz)
+        return HELLO_ACK_FORMAT.pack(
+            self.version, self.device_id, self.firmware_version, self.max_force, self.max_rate_hz
+        )
 
     @classmethod
     def unpack(cls, payload: bytes) -> "HelloAck":
@@ -206,8 +218,13 @@ class State:
     status: int
 
     def pack(self) -> bytes:
-        return STATE_FORMAT.pack(self.ack_seq, *np.asarray(self.p_DoHo_D, np.float32).tolist(),
-                                 *np.asarray(self.v_DHo_D, np.float32).tolist(), self.buttons, self.status)
+        return STATE_FORMAT.pack(
+            self.ack_seq,
+            *np.asarray(self.p_DoHo_D, np.float32).tolist(),
+            *np.asarray(self.v_DHo_D, np.float32).tolist(),
+            self.buttons,
+            self.status,
+        )
 
     @classmethod
     def unpack(cls, payload: bytes) -> "State":

@@ -73,7 +73,14 @@ from hapticlab.core import hookimpl
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import DeviceState, Event, HapticCommand
 from hapticlab.plugins.haptics import framing
-from hapticlab.plugins.haptics.hid_transport import DeviceSelector, FakeFault, FakeHidapi, FakeRawHidMaster, HidapiTransport, RawHidTransport
+from hapticlab.plugins.haptics.hid_transport import (
+    DeviceSelector,
+    FakeFault,
+    FakeHidapi,
+    FakeRawHidMaster,
+    HidapiTransport,
+    RawHidTransport,
+)
 from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, clamp_force, link_event
 
 MAX_REPORT_SIZE = 64
@@ -84,9 +91,11 @@ FLAG_ENABLE = 1 << 0
 
 IDENTITY_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
 ZERO3 = np.zeros(3)
-STATUS_TEXT = {framing.STATUS_WATCHDOG: "its watchdog zeroed the force",
-               framing.STATUS_CLAMPED: "it clamped a force to its own maximum",
-               framing.STATUS_FAULT: "it reports a fault"}
+STATUS_TEXT = {
+    framing.STATUS_WATCHDOG: "its watchdog zeroed the force",
+    framing.STATUS_CLAMPED: "it clamped a force to its own maximum",
+    framing.STATUS_FAULT: "it reports a fault",
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,17 +120,25 @@ def _int_type(name: str, code: str, bits: int, signed: bool) -> FieldType:
 
 F32_MAX = float(np.finfo(np.float32).max)
 F64_MAX = float(np.finfo(np.float64).max)
-TYPES: dict[str, FieldType] = {t.name: t for t in (
-    _int_type("u8", "<B", 8, False), _int_type("i8", "<b", 8, True),
-    _int_type("u16le", "<H", 16, False), _int_type("i16le", "<h", 16, True),
-    _int_type("u32le", "<I", 32, False), _int_type("i32le", "<i", 32, True),
-    _int_type("u16be", ">H", 16, False), _int_type("i16be", ">h", 16, True),
-    _int_type("u32be", ">I", 32, False), _int_type("i32be", ">i", 32, True),
-    FieldType("f32le", struct.Struct("<f"), True, -F32_MAX, F32_MAX),
-    FieldType("f32be", struct.Struct(">f"), True, -F32_MAX, F32_MAX),
-    FieldType("f64le", struct.Struct("<d"), True, -F64_MAX, F64_MAX),
-    FieldType("f64be", struct.Struct(">d"), True, -F64_MAX, F64_MAX),
-)}
+TYPES: dict[str, FieldType] = {
+    t.name: t
+    for t in (
+        _int_type("u8", "<B", 8, False),
+        _int_type("i8", "<b", 8, True),
+        _int_type("u16le", "<H", 16, False),
+        _int_type("i16le", "<h", 16, True),
+        _int_type("u32le", "<I", 32, False),
+        _int_type("i32le", "<i", 32, True),
+        _int_type("u16be", ">H", 16, False),
+        _int_type("i16be", ">h", 16, True),
+        _int_type("u32be", ">I", 32, False),
+        _int_type("i32be", ">i", 32, True),
+        FieldType("f32le", struct.Struct("<f"), True, -F32_MAX, F32_MAX),
+        FieldType("f32be", struct.Struct(">f"), True, -F32_MAX, F32_MAX),
+        FieldType("f64le", struct.Struct("<d"), True, -F64_MAX, F64_MAX),
+        FieldType("f64be", struct.Struct(">d"), True, -F64_MAX, F64_MAX),
+    )
+}
 
 FORCE_FIELDS = ("force_x", "force_y", "force_z")
 POSITION_FIELDS = ("position_x", "position_y", "position_z")
@@ -213,8 +230,10 @@ class RawHidLayout:
         """
         if isinstance(spec, str):
             if spec not in PRESETS:
-                raise ConfigError(f"{where}: unknown preset {spec!r}; presets: {', '.join(PRESETS)} "
-                                  "(or a table describing the reports)")
+                raise ConfigError(
+                    f"{where}: unknown preset {spec!r}; presets: {', '.join(PRESETS)} "
+                    "(or a table describing the reports)"
+                )
             return cls.from_config(PRESETS[spec]["layout"], f"{where} (preset {spec})")
         if not isinstance(spec, dict):
             raise ConfigError(f"{where}: must be a preset name or a table, got {spec!r}")
@@ -223,11 +242,14 @@ class RawHidLayout:
             raise ConfigError(f"{where}.{sorted(unknown)[0]}: unknown key; keys: report_id, size, out, in")
         report_id = spec.get("report_id", 0)
         if not (isinstance(report_id, int) and not isinstance(report_id, bool) and 0 <= report_id <= 255):
-            raise ConfigError(f"{where}.report_id: must be an integer 0..255 (0: unnumbered reports), got {report_id!r}")
+            raise ConfigError(
+                f"{where}.report_id: must be an integer 0..255 (0: unnumbered reports), got {report_id!r}"
+            )
         size = spec.get("size", MAX_REPORT_SIZE)
         if not (isinstance(size, int) and not isinstance(size, bool) and 1 <= size <= MAX_REPORT_SIZE):
-            raise ConfigError(f"{where}.size: must be an integer 1..{MAX_REPORT_SIZE} (bytes of report data), "
-                              f"got {size!r}")
+            raise ConfigError(
+                f"{where}.size: must be an integer 1..{MAX_REPORT_SIZE} (bytes of report data), got {size!r}"
+            )
         out = _report(spec.get("out"), f"{where}.out", report_id, size, OUT_FIELDS, FORCE_FIELDS)
         inp = _report(spec.get("in"), f"{where}.in", report_id, size, IN_FIELDS, POSITION_FIELDS)
         velocity = [n for n in VELOCITY_FIELDS if n in inp.fields]
@@ -239,8 +261,9 @@ class RawHidLayout:
         return cls(out, inp)
 
 
-def _report(table: Any, where: str, report_id: int, size: int, allowed: tuple[str, ...],
-            required: tuple[str, ...]) -> ReportLayout:
+def _report(
+    table: Any, where: str, report_id: int, size: int, allowed: tuple[str, ...], required: tuple[str, ...]
+) -> ReportLayout:
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: required, a table of fields ({', '.join(allowed)})")
     fields: dict[str, Field] = {}
@@ -261,23 +284,28 @@ def _report(table: Any, where: str, report_id: int, size: int, allowed: tuple[st
         if not (isinstance(offset, int) and not isinstance(offset, bool) and offset >= 0):
             raise ConfigError(f"{key}.offset: must be an integer >= 0 (bytes), got {offset!r}")
         if offset + ftype.size > size:
-            raise ConfigError(f"{key}.offset: bytes {offset}..{offset + ftype.size - 1} end past the "
-                              f"{size}-byte report")
+            raise ConfigError(
+                f"{key}.offset: bytes {offset}..{offset + ftype.size - 1} end past the {size}-byte report"
+            )
         scale = spec.get("scale", 1.0)
         if name in COUNTER_FIELDS:
             if ftype.is_float or ftype.lo < 0:
-                raise ConfigError(f"{key}.type: {name} must be an unsigned integer type (u8, u16le, ...), "
-                                  f"got {type_name}")
+                raise ConfigError(
+                    f"{key}.type: {name} must be an unsigned integer type (u8, u16le, ...), got {type_name}"
+                )
             if scale != 1:
                 raise ConfigError(f"{key}.scale: {name} is a count, its scale is 1, got {scale!r}")
-        if not (isinstance(scale, (int, float)) and not isinstance(scale, bool) and math.isfinite(scale)
-                and scale != 0):
+        if not (
+            isinstance(scale, (int, float)) and not isinstance(scale, bool) and math.isfinite(scale) and scale != 0
+        ):
             raise ConfigError(f"{key}.scale: must be a finite non-zero number (SI units per count), got {scale!r}")
         field_ = Field(name, offset, ftype, float(scale))
         for other in fields.values():
             if field_.offset < other.end and other.offset < field_.end:
-                raise ConfigError(f"{key}: bytes {field_.offset}..{field_.end - 1} overlap {other.name} "
-                                  f"(bytes {other.offset}..{other.end - 1})")
+                raise ConfigError(
+                    f"{key}: bytes {field_.offset}..{field_.end - 1} overlap {other.name} "
+                    f"(bytes {other.offset}..{other.end - 1})"
+                )
         fields[name] = field_
     for name in required:
         if name not in fields:
@@ -291,18 +319,33 @@ def _f(offset: int, type_: str, scale: float = 1.0) -> dict[str, Any]:
 
 PRESETS: dict[str, dict[str, Any]] = {
     "teensy-rawhid": {
-        "vendor_id": 0x16C0, "product_id": 0x0486, "usage_page": 0xFFAB, "usage": 0x0200,
+        "vendor_id": 0x16C0,
+        "product_id": 0x0486,
+        "usage_page": 0xFFAB,
+        "usage": 0x0200,
         "layout": {
-            "report_id": 0, "size": 64,
-            "out": {"force_x": _f(0, "f32le"), "force_y": _f(4, "f32le"), "force_z": _f(8, "f32le"),
-                    "seq": _f(12, "u16le"), "flags": _f(14, "u8")},
-            "in": {"position_x": _f(0, "i32le", 1e-6), "position_y": _f(4, "i32le", 1e-6),
-                   "position_z": _f(8, "i32le", 1e-6),
-                   "velocity_x": _f(12, "i16le", 1e-3), "velocity_y": _f(14, "i16le", 1e-3),
-                   "velocity_z": _f(16, "i16le", 1e-3),
-                   "buttons": _f(18, "u8"), "status": _f(19, "u8"), "echo": _f(20, "u16le")},
+            "report_id": 0,
+            "size": 64,
+            "out": {
+                "force_x": _f(0, "f32le"),
+                "force_y": _f(4, "f32le"),
+                "force_z": _f(8, "f32le"),
+                "seq": _f(12, "u16le"),
+                "flags": _f(14, "u8"),
+            },
+            "in": {
+                "position_x": _f(0, "i32le", 1e-6),
+                "position_y": _f(4, "i32le", 1e-6),
+                "position_z": _f(8, "i32le", 1e-6),
+                "velocity_x": _f(12, "i16le", 1e-3),
+                "velocity_y": _f(14, "i16le", 1e-3),
+                "velocity_z": _f(16, "i16le", 1e-3),
+                "buttons": _f(18, "u8"),
+                "status": _f(19, "u8"),
+                "echo": _f(20, "u16le"),
+            },
         },
-    },
+    }
 }
 """Documented example devices: their USB selection and report layout (the module docstring draws it)."""
 
@@ -326,8 +369,13 @@ def encode_force(layout: ReportLayout, force_D: np.ndarray, max_force: float) ->
             if f.type.is_float:  # a float's nearest representable may still be a hair larger: step toward 0
                 while abs(f.unpack(buffer)) > abs(v):
                     x = f.type.fmt.unpack_from(buffer, f.offset)[0]
-                    f.type.fmt.pack_into(buffer, f.offset, float(np.nextafter(np.float32(x), np.float32(0)))
-                                         if f.type.size == 4 else float(np.nextafter(x, 0.0)))
+                    f.type.fmt.pack_into(
+                        buffer,
+                        f.offset,
+                        float(np.nextafter(np.float32(x), np.float32(0)))
+                        if f.type.size == 4
+                        else float(np.nextafter(x, 0.0)),
+                    )
     return bytes(buffer)
 
 
@@ -359,54 +407,87 @@ class HidHaptic:
         written: OUT reports written.
     """
 
-    def __init__(self, vendor_id: int | None = None, product_id: int | None = None, serial: str = "",
-                 path: str = "", usage_page: int | None = None, usage: int | None = None,
-                 layout: str | dict = "teensy-rawhid", rate_hz: float = 1000.0, device_max_force: float = 3.0,
-                 read_timeout: float = 0.05, reconnect_interval: float = 0.5, transport: str = "hidapi",
-                 fake_faults: list[str] | None = None):
+    def __init__(
+        self,
+        vendor_id: int | None = None,
+        product_id: int | None = None,
+        serial: str = "",
+        path: str = "",
+        usage_page: int | None = None,
+        usage: int | None = None,
+        layout: str | dict = "teensy-rawhid",
+        rate_hz: float = 1000.0,
+        device_max_force: float = 3.0,
+        read_timeout: float = 0.05,
+        reconnect_interval: float = 0.5,
+        transport: str = "hidapi",
+        fake_faults: list[str] | None = None,
+    ):
         self.layout = RawHidLayout.from_config(layout)
         preset = PRESETS.get(layout, {}) if isinstance(layout, str) else {}
-        for key, value in (("rate_hz", rate_hz), ("device_max_force", device_max_force),
-                           ("read_timeout", read_timeout), ("reconnect_interval", reconnect_interval)):
+        for key, value in (
+            ("rate_hz", rate_hz),
+            ("device_max_force", device_max_force),
+            ("read_timeout", read_timeout),
+            ("reconnect_interval", reconnect_interval),
+        ):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ConfigError(f"haptic.{key}: must be a finite number > 0, got {value!r}")
         vendor_id = preset.get("vendor_id") if vendor_id is None else vendor_id
         product_id = preset.get("product_id") if product_id is None else product_id
         if not path and (vendor_id is None or product_id is None):
-            raise ConfigError(f"haptic.{'vendor_id' if vendor_id is None else 'product_id'}: required with a "
-                              "layout table (or haptic.path), e.g. --set haptic.vendor_id=0x16C0")
-        for key, value in (("vendor_id", vendor_id), ("product_id", product_id), ("usage_page", usage_page),
-                           ("usage", usage)):
+            raise ConfigError(
+                f"haptic.{'vendor_id' if vendor_id is None else 'product_id'}: required with a "
+                "layout table (or haptic.path), e.g. --set haptic.vendor_id=0x16C0"
+            )
+        for key, value in (
+            ("vendor_id", vendor_id),
+            ("product_id", product_id),
+            ("usage_page", usage_page),
+            ("usage", usage),
+        ):
             if value is not None and not 0 <= value <= 0xFFFF:
                 raise ConfigError(f"haptic.{key}: must be 0..0xFFFF, got {value!r}")
         if transport not in ("hidapi", "fake"):
-            raise ConfigError(f"haptic.transport: must be \"hidapi\" or \"fake\", got {transport!r}")
+            raise ConfigError(f'haptic.transport: must be "hidapi" or "fake", got {transport!r}')
         try:
             faults = [FakeFault.parse(text) for text in fake_faults or []]
         except ValueError as exc:
             raise ConfigError(f"haptic.fake_faults: {exc}") from None
         if faults and transport != "fake":
-            raise ConfigError("haptic.fake_faults: only with transport = \"fake\"")
+            raise ConfigError('haptic.fake_faults: only with transport = "fake"')
         if any(f.kind == "wrong_id" for f in faults) and self.layout.inp.report_id == 0:
             raise ConfigError("haptic.fake_faults: wrong_id needs numbered reports (layout.report_id > 0)")
         for name in FORCE_FIELDS:  # the limit must be representable, else saturation would turn the force
             f = self.layout.out.fields[name]
             reach = f.type.hi * abs(f.scale)
             if reach < device_max_force:
-                raise ConfigError(f"haptic.layout.out.{name}: {f.type.name} at {f.scale:g} N per count reaches only "
-                                  f"{reach:g} N, below device_max_force {device_max_force:g} N")
+                raise ConfigError(
+                    f"haptic.layout.out.{name}: {f.type.name} at {f.scale:g} N per count reaches only "
+                    f"{reach:g} N, below device_max_force {device_max_force:g} N"
+                )
         self.selector = DeviceSelector(
-            vendor_id or 0, product_id or 0, serial, path,
+            vendor_id or 0,
+            product_id or 0,
+            serial,
+            path,
             preset.get("usage_page") if usage_page is None else usage_page,
-            preset.get("usage") if usage is None else usage)
+            preset.get("usage") if usage is None else usage,
+        )
         self.rate_hz = rate_hz
         self.max_force = device_max_force
         self.read_timeout, self.reconnect_interval = read_timeout, reconnect_interval
         self.fake: FakeRawHidMaster | None = None
         if transport == "fake":
-            self.fake = FakeRawHidMaster(self.layout, vendor_id or 0, product_id or 0,
-                                         usage_page=self.selector.usage_page or 0, usage=self.selector.usage or 0,
-                                         max_force=device_max_force, faults=faults)
+            self.fake = FakeRawHidMaster(
+                self.layout,
+                vendor_id or 0,
+                product_id or 0,
+                usage_page=self.selector.usage_page or 0,
+                usage=self.selector.usage or 0,
+                max_force=device_max_force,
+                faults=faults,
+            )
             if path:
                 self.fake.path = path.encode()
             self.transport: RawHidTransport = HidapiTransport(FakeHidapi([self.fake]))
@@ -416,8 +497,11 @@ class HidHaptic:
         self._seq_field = out.fields.get("seq")
         self._flags_field = out.fields.get("flags")
         self._echo_field = self.layout.inp.fields.get("echo")
-        width = min(f.type.size for f in (self._seq_field, self._echo_field) if f is not None) \
-            if self._echo_field is not None else 1
+        width = (
+            min(f.type.size for f in (self._seq_field, self._echo_field) if f is not None)
+            if self._echo_field is not None
+            else 1
+        )
         self._echo_mask = (1 << (8 * width)) - 1
         self._in_read_size = self.layout.inp.size + (1 if self.layout.inp.report_id else 0)
         self.info = ""
@@ -513,8 +597,7 @@ class HidHaptic:
         out = self.layout.out
         data = bytearray(encode_force(out, force_D, self.max_force))
         if self._seq_field is not None:
-            self._seq_field.type.fmt.pack_into(data, self._seq_field.offset,
-                                               self.seq & int(self._seq_field.type.hi))
+            self._seq_field.type.fmt.pack_into(data, self._seq_field.offset, self.seq & int(self._seq_field.type.hi))
         if self._flags_field is not None:
             self._flags_field.pack_into(data, FLAG_ENABLE if enabled else 0)
         return bytes([out.report_id]) + bytes(data)  # hidapi wants the id first, 0 when unnumbered
@@ -536,8 +619,11 @@ class HidHaptic:
                 if newest is not None:
                     return newest
                 if remaining <= 0:
-                    raise MasterLostError(f"{self.selector.describe()}: no IN report answering the OUT report "
-                                          f"within {self.read_timeout * 1e3:g} ms", "silent")
+                    raise MasterLostError(
+                        f"{self.selector.describe()}: no IN report answering the OUT report "
+                        f"within {self.read_timeout * 1e3:g} ms",
+                        "silent",
+                    )
                 continue
             values = self._decode(data)
             if values is None:
@@ -570,28 +656,50 @@ class HidHaptic:
         status = int(values.get("status", 0))
         if status != self.status:
             said = [text for bit, text in STATUS_TEXT.items() if status & bit]
-            self._events.append(Event(t_ns, "haptic_device_status",
-                                      "haptic device: " + ("; ".join(said) or "status clear"), {"status": status}))
+            self._events.append(
+                Event(
+                    t_ns,
+                    "haptic_device_status",
+                    "haptic device: " + ("; ".join(said) or "status clear"),
+                    {"status": status},
+                )
+            )
             self.status = status
         if status & framing.STATUS_FAULT:
-            self._lose(MasterLostError(f"{self.selector.describe()}: the device reports a fault "
-                                       f"(status 0x{status:02x})", "errors"), t_ns)
+            self._lose(
+                MasterLostError(
+                    f"{self.selector.describe()}: the device reports a fault (status 0x{status:02x})", "errors"
+                ),
+                t_ns,
+            )
             return
         p_DoHo_D = np.array([values[n] for n in POSITION_FIELDS])
         v_DHo_D = np.array([values[n] for n in VELOCITY_FIELDS]) if "velocity_x" in values else None
         self._state = DeviceState(t_ns, IDENTITY_QUAT, p_DoHo_D, int(values.get("buttons", 0)), v_DHo_D)
         if self.lost is not None:
             self.lost = None
-            self._events.append(Event(t_ns, "haptic_device_back", f"haptic device answering again: {self.info}",
-                                      {"device": self.selector.describe()}))
+            self._events.append(
+                Event(
+                    t_ns,
+                    "haptic_device_back",
+                    f"haptic device answering again: {self.info}",
+                    {"device": self.selector.describe()},
+                )
+            )
 
     # ------------------------------------------------------------------ losing and finding the device
 
     def _lose(self, error: MasterLostError, t_ns: int) -> None:
         if self.lost is None:
             self.losses += 1
-            self._events.append(Event(t_ns, "haptic_device_lost", f"haptic device lost: {error}",
-                                      {"device": self.selector.describe(), "cause": error.cause}))
+            self._events.append(
+                Event(
+                    t_ns,
+                    "haptic_device_lost",
+                    f"haptic device lost: {error}",
+                    {"device": self.selector.describe(), "cause": error.cause},
+                )
+            )
         self.lost = error
         self.next_try = time.monotonic() + self.reconnect_interval
         if error.cause != "gone":  # it may still hear us: zero, at once, best effort

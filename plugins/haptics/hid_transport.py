@@ -78,9 +78,11 @@ class DeviceSelector:
 
     def matches(self, info: dict[str, Any]) -> bool:
         """Whether one of hidapi's ``enumerate`` entries is this device."""
-        return ((not self.serial or info.get("serial_number") == self.serial)
-                and (self.usage_page is None or info.get("usage_page") == self.usage_page)
-                and (self.usage is None or info.get("usage") == self.usage))
+        return (
+            (not self.serial or info.get("serial_number") == self.serial)
+            and (self.usage_page is None or info.get("usage_page") == self.usage_page)
+            and (self.usage is None or info.get("usage") == self.usage)
+        )
 
 
 class RawHidTransport(Protocol):
@@ -124,11 +126,15 @@ def _import_hidapi() -> HidapiModule:
     try:
         import hid
     except ImportError:
-        raise MasterOpenError("haptic: the hid plugin needs the hidapi package (pip install 'hidapi>=0.14,<0.15'; "
-                              "not the package named 'hid', which has the same module name)") from None
+        raise MasterOpenError(
+            "haptic: the hid plugin needs the hidapi package (pip install 'hidapi>=0.14,<0.15'; "
+            "not the package named 'hid', which has the same module name)"
+        ) from None
     if not hasattr(hid, "device"):
-        raise MasterOpenError(f"haptic: the module 'hid' at {getattr(hid, '__file__', '?')} is not hidapi's "
-                              "(the package 'hid' is installed: pip uninstall hid; pip install hidapi)")
+        raise MasterOpenError(
+            f"haptic: the module 'hid' at {getattr(hid, '__file__', '?')} is not hidapi's "
+            "(the package 'hid' is installed: pip uninstall hid; pip install hidapi)"
+        )
     return hid
 
 
@@ -155,20 +161,30 @@ class HidapiTransport:
             found = [info for info in listed if selector.matches(info)]
             if not found:
                 others = "; ".join(_describe_info(info) for info in listed)
-                raise MasterOpenError(f"haptic: no {self.name}" + (f" (there is {others})" if others else
-                                      " (plugged in? on Linux, does a udev rule give you access to it?)"))
+                raise MasterOpenError(
+                    f"haptic: no {self.name}"
+                    + (
+                        f" (there is {others})"
+                        if others
+                        else " (plugged in? on Linux, does a udev rule give you access to it?)"
+                    )
+                )
             if len(found) > 1:
-                raise MasterOpenError(f"haptic: {len(found)} devices match {self.name}: "
-                                      + "; ".join(_describe_info(info) for info in found)
-                                      + " (set haptic.serial, haptic.usage_page or haptic.path)")
+                raise MasterOpenError(
+                    f"haptic: {len(found)} devices match {self.name}: "
+                    + "; ".join(_describe_info(info) for info in found)
+                    + " (set haptic.serial, haptic.usage_page or haptic.path)"
+                )
             info = found[0]
             path = info["path"]
         device = self.module.device()
         try:
             device.open_path(path)
         except (OSError, ValueError) as exc:
-            raise MasterOpenError(f"haptic: cannot open {self.name} at {path.decode(errors='replace')}: {exc} "
-                                  "(held by another program? permission: a udev rule for the device?)") from None
+            raise MasterOpenError(
+                f"haptic: cannot open {self.name} at {path.decode(errors='replace')}: {exc} "
+                "(held by another program? permission: a udev rule for the device?)"
+            ) from None
         device.set_nonblocking(1)  # read() without a timeout returns at once
         self.device = device
         try:
@@ -215,9 +231,11 @@ class HidapiTransport:
 
 def _describe_info(info: dict[str, Any]) -> str:
     path = info.get("path", b"")
-    return (f"{info.get('vendor_id', 0):04x}:{info.get('product_id', 0):04x} "
-            f"usage page 0x{info.get('usage_page', 0):04x} usage 0x{info.get('usage', 0):04x} "
-            f"serial {info.get('serial_number', '')!r} at {path.decode(errors='replace')}")
+    return (
+        f"{info.get('vendor_id', 0):04x}:{info.get('product_id', 0):04x} "
+        f"usage page 0x{info.get('usage_page', 0):04x} usage 0x{info.get('usage', 0):04x} "
+        f"serial {info.get('serial_number', '')!r} at {path.decode(errors='replace')}"
+    )
 
 
 # --------------------------------------------------------------------------- the fake device
@@ -361,10 +379,19 @@ class FakeRawHidMaster:
             self._stale -= 1
             self._queue(self.last_reply)
             return
-        reply = self.layout.inp.encode({
-            "position_x": self.p_DoHo_D[0], "position_y": self.p_DoHo_D[1], "position_z": self.p_DoHo_D[2],
-            "velocity_x": self.v_DHo_D[0], "velocity_y": self.v_DHo_D[1], "velocity_z": self.v_DHo_D[2],
-            "buttons": self.buttons, "echo": values.get("seq", 0), "status": status})
+        reply = self.layout.inp.encode(
+            {
+                "position_x": self.p_DoHo_D[0],
+                "position_y": self.p_DoHo_D[1],
+                "position_z": self.p_DoHo_D[2],
+                "velocity_x": self.v_DHo_D[0],
+                "velocity_y": self.v_DHo_D[1],
+                "velocity_z": self.v_DHo_D[2],
+                "buttons": self.buttons,
+                "echo": values.get("seq", 0),
+                "status": status,
+            }
+        )
         if self.layout.inp.report_id:
             reply = bytes([self.layout.inp.report_id]) + reply
         self.last_reply = reply
@@ -389,10 +416,18 @@ class FakeRawHidMaster:
 
     def enumerate_info(self) -> dict[str, Any]:
         """This device as hidapi's ``enumerate`` lists it."""
-        return {"path": self.path, "vendor_id": self.vendor_id, "product_id": self.product_id,
-                "serial_number": self.serial, "release_number": 0x0100, "manufacturer_string": "hapticlab",
-                "product_string": "fake RawHID master", "usage_page": self.usage_page, "usage": self.usage,
-                "interface_number": 0}
+        return {
+            "path": self.path,
+            "vendor_id": self.vendor_id,
+            "product_id": self.product_id,
+            "serial_number": self.serial,
+            "release_number": 0x0100,
+            "manufacturer_string": "hapticlab",
+            "product_string": "fake RawHID master",
+            "usage_page": self.usage_page,
+            "usage": self.usage,
+            "interface_number": 0,
+        }
 
 
 class FakeHidDevice:
@@ -462,6 +497,8 @@ class FakeHidapi:
         return FakeHidDevice(self)
 
     def enumerate(self, vendor_id: int = 0, product_id: int = 0) -> list[dict[str, Any]]:
-        return [m.enumerate_info() for m in self.masters if m.plugged
-                and vendor_id in (0, m.vendor_id) and product_id in (0, m.product_id)]
-
+        return [
+            m.enumerate_info()
+            for m in self.masters
+            if m.plugged and vendor_id in (0, m.vendor_id) and product_id in (0, m.product_id)
+        ]

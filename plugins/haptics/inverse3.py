@@ -82,14 +82,17 @@ class DeviceInfo:
     def pack(self) -> bytes:
         """The device info reply on the wire, code included (22 bytes)."""
         return bytes((DEVICE_INFO,)) + DEVICE_INFO_FORMAT.pack(
-            self.device_id, self.model, self.hardware_version, self.firmware_version, self.device_id_ext.bytes)
+            self.device_id, self.model, self.hardware_version, self.firmware_version, self.device_id_ext.bytes
+        )
 
     @classmethod
     def unpack(cls, reply: bytes) -> "DeviceInfo":
         """Parse a 22-byte device info reply (code included); ValueError naming what is wrong."""
         if len(reply) != DEVICE_INFO_SIZE or reply[0] != DEVICE_INFO:
-            raise ValueError(f"expected a {DEVICE_INFO_SIZE}-byte device info reply starting 0x0B, "
-                             f"got {len(reply)} byte(s) {reply[:8].hex(' ')}{' ...' if len(reply) > 8 else ''}")
+            raise ValueError(
+                f"expected a {DEVICE_INFO_SIZE}-byte device info reply starting 0x0B, "
+                f"got {len(reply)} byte(s) {reply[:8].hex(' ')}{' ...' if len(reply) > 8 else ''}"
+            )
         device_id, model, hardware, firmware, ext = DEVICE_INFO_FORMAT.unpack(reply[1:])
         return cls(device_id, model, hardware, firmware, uuid.UUID(bytes=ext))
 
@@ -113,7 +116,9 @@ def pack_state(p_DoHo_D: np.ndarray, v_DHo_D: np.ndarray) -> bytes:
 def unpack_state(reply: bytes) -> tuple[np.ndarray, np.ndarray]:
     """(p_DoHo_D m, v_DHo_D m/s) of a 25-byte state reply; ValueError naming what is wrong."""
     if len(reply) != STATE_SIZE or reply[0] != END_EFFECTOR_STATE:
-        raise ValueError(f"expected a {STATE_SIZE}-byte end-effector state starting 0x2B, "
-                         f"got {len(reply)} byte(s) starting {reply[:4].hex(' ') or 'nothing'}")
+        raise ValueError(
+            f"expected a {STATE_SIZE}-byte end-effector state starting 0x2B, "
+            f"got {len(reply)} byte(s) starting {reply[:4].hex(' ') or 'nothing'}"
+        )
     values = np.array(STATE_FORMAT.unpack(reply[1:]))
     return values[:3], values[3:]

@@ -46,8 +46,8 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.types import EmulatorCommand
-from hapticlab.plugins.serving import serve_until_stopped
 from hapticlab.plugins.haptics import framing, inverse3
+from hapticlab.plugins.serving import serve_until_stopped
 
 PATHS = ("circle", "figure8", "hold", "press")
 
@@ -77,8 +77,12 @@ HandleMotion = Callable[[float], tuple[np.ndarray, np.ndarray]]
 """t (s since start) → (p_DoHo_D m, v_DHo_D m/s)."""
 
 
-def scripted_motion(kind: str = "circle", radius: float = 0.03, period: float = 8.0,
-                    center: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> HandleMotion:
+def scripted_motion(
+    kind: str = "circle",
+    radius: float = 0.03,
+    period: float = 8.0,
+    center: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> HandleMotion:
     """A handle moving about ``center`` (m), one lap per ``period`` s: ``circle`` or ``figure8`` (a lemniscate
     of Gerono, ``radius`` wide each way) in D's x-y plane, ``hold`` (still at ``center``), or ``press``
     (down along D's −z by up to ``radius`` and back, a raised cosine: a hand probing tissue by teleoperation)."""
@@ -161,9 +165,16 @@ class MasterEmulator:
         counts: EmulatorCounts.
     """
 
-    def __init__(self, protocol: str = "hapticlab", motion: HandleMotion | None = None, max_force: float = 8.0,
-                 device_id: int = 0x4C41, max_rate_hz: float = 4000.0,
-                 buttons: Callable[[float], int] | None = None, keep: int = 100_000):
+    def __init__(
+        self,
+        protocol: str = "hapticlab",
+        motion: HandleMotion | None = None,
+        max_force: float = 8.0,
+        device_id: int = 0x4C41,
+        max_rate_hz: float = 4000.0,
+        buttons: Callable[[float], int] | None = None,
+        keep: int = 100_000,
+    ):
         if protocol not in ("hapticlab", "inverse3"):
             raise ValueError(f"protocol: must be 'hapticlab' or 'inverse3', got {protocol!r}")
         self.protocol = protocol
@@ -308,8 +319,11 @@ class MasterEmulator:
                 self._corrupt -= 1
                 self.counts.replies_corrupted += 1
         if corrupt:
-            reply = reply[:-1] + bytes((reply[-1] ^ 0x01,)) if self.protocol == "hapticlab" \
+            reply = (
+                reply[:-1] + bytes((reply[-1] ^ 0x01,))
+                if self.protocol == "hapticlab"
                 else bytes((reply[0] ^ 0x80,)) + reply[1:]
+            )
         try:
             os.write(self._master_fd, garbage + reply)
         except OSError:
@@ -335,8 +349,13 @@ class MasterEmulator:
     # hapticlab ------------------------------------------------------------
 
     def _check_watchdog(self) -> None:
-        if (self.protocol == "hapticlab" and self._hello and self._watchdog_s > 0
-                and time.monotonic() - self._last_valid > self._watchdog_s and self.applied_force_D.any()):
+        if (
+            self.protocol == "hapticlab"
+            and self._hello
+            and self._watchdog_s > 0
+            and time.monotonic() - self._last_valid > self._watchdog_s
+            and self.applied_force_D.any()
+        ):
             self.applied_force_D = np.zeros(3, np.float32)
             self._status |= framing.STATUS_WATCHDOG
             self.counts.watchdog_trips += 1
@@ -428,8 +447,8 @@ class MasterEmulator:
             elif code == inverse3.END_EFFECTOR_FORCE:
                 if len(buf) < inverse3.FORCE_REQUEST_SIZE:
                     return
-                request = bytes(buf[:inverse3.FORCE_REQUEST_SIZE])
-                del buf[:inverse3.FORCE_REQUEST_SIZE]
+                request = bytes(buf[: inverse3.FORCE_REQUEST_SIZE])
+                del buf[: inverse3.FORCE_REQUEST_SIZE]
                 self.counts.frames += 1
                 if self._silent:
                     self.counts.requests_ignored += 1
@@ -494,26 +513,47 @@ class ScheduledFault:
         print(f"{emulator.now():.3f} s: injected {self.kind}", flush=True)
 
 
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``hapticlab emulate master``."""
-    parser.add_argument("--protocol", choices=("hapticlab", "inverse3"), default="hapticlab",
-                        help="wire protocol: ours (framed, CRC-16) or Haply's Inverse3 (default hapticlab)")
-    parser.add_argument("--path", default="circle", metavar="circle|figure8|hold|press|FILE.csv",
-                        help="the handle's motion in D: scripted, or a CSV of t,x,y,z (s, m) played in a loop")
+    parser.add_argument(
+        "--protocol",
+        choices=("hapticlab", "inverse3"),
+        default="hapticlab",
+        help="wire protocol: ours (framed, CRC-16) or Haply's Inverse3 (default hapticlab)",
+    )
+    parser.add_argument(
+        "--path",
+        default="circle",
+        metavar="circle|figure8|hold|press|FILE.csv",
+        help="the handle's motion in D: scripted, or a CSV of t,x,y,z (s, m) played in a loop",
+    )
     parser.add_argument("--radius", type=float, default=0.03, help="scripted path size, m (default 0.03)")
     parser.add_argument("--period", type=float, default=8.0, help="scripted path lap time, s (default 8)")
-    parser.add_argument("--center", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
-                        help="scripted path centre in D, m")
+    parser.add_argument(
+        "--center",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help="scripted path centre in D, m",
+    )
     parser.add_argument("--max-force", type=float, default=8.0, help="the device's force limit, N (default 8)")
     parser.add_argument("--device-id", type=int, default=0x4C41, help="device id in the handshake answer")
-    parser.add_argument("--fault", action="append", default=[], metavar="KIND@SECONDS[:ARG]",
-                        help=f"inject a fault ({', '.join(FAULT_KINDS)}), e.g. crc@5:3, silent@8:0.5, unplug@12; "
-                        "repeatable")
+    parser.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND@SECONDS[:ARG]",
+        help=f"inject a fault ({', '.join(FAULT_KINDS)}), e.g. crc@5:3, silent@8:0.5, unplug@12; repeatable",
+    )
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
-    parser.add_argument("--log-forces", default=None, metavar="FILE.csv",
-                        help="on exit, write the forces received (the last 100 000) with when each came off the wire (received_ns "
-                        "on this machine's monotonic clock, fx, fy, fz) to a new CSV (bench/haptic_wire.py)")
+    parser.add_argument(
+        "--log-forces",
+        default=None,
+        metavar="FILE.csv",
+        help="on exit, write the forces received (the last 100 000) with when each came off the wire (received_ns "
+        "on this machine's monotonic clock, fx, fy, fz) to a new CSV (bench/haptic_wire.py)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -521,8 +561,11 @@ def run(args: argparse.Namespace) -> int:
     from hapticlab.core.host.registry import ConfigError
 
     try:
-        motion = (recorded_motion(args.path) if args.path not in PATHS
-                  else scripted_motion(args.path, args.radius, args.period, tuple(args.center)))
+        motion = (
+            recorded_motion(args.path)
+            if args.path not in PATHS
+            else scripted_motion(args.path, args.radius, args.period, tuple(args.center))
+        )
         emulator = MasterEmulator(args.protocol, motion, args.max_force, args.device_id)
         faults = [ScheduledFault.parse(text) for text in args.fault]
         log = args.log_forces
@@ -534,18 +577,23 @@ def run(args: argparse.Namespace) -> int:
 
     def ready() -> None:
         print(emulator.port, flush=True)
-        print(f"{args.protocol} master emulator on {emulator.port}: handle on {args.path}, max "
-              f"{args.max_force:g} N; e.g. hapticlab run --set haptic.name=serial --set haptic.port={emulator.port}"
-              f" --set haptic.protocol={args.protocol}", flush=True)
+        print(
+            f"{args.protocol} master emulator on {emulator.port}: handle on {args.path}, max "
+            f"{args.max_force:g} N; e.g. hapticlab run --set haptic.name=serial --set haptic.port={emulator.port}"
+            f" --set haptic.protocol={args.protocol}",
+            flush=True,
+        )
         for fault in faults:
             threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
 
     with emulator:
         serve_until_stopped(args.duration, stop, ready)
     c = emulator.counts
-    print(f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "
-          f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s); "
-          f"{c.replies_corrupted} reply(ies) corrupted, {c.requests_ignored} request(s) ignored")
+    print(
+        f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "
+        f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s); "
+        f"{c.replies_corrupted} reply(ies) corrupted, {c.requests_ignored} request(s) ignored"
+    )
     if log is not None:
         print(f"{emulator.write_forces(log)} force(s) with their receipt times written to {log}", flush=True)
     return 0
@@ -553,5 +601,11 @@ def run(args: argparse.Namespace) -> int:
 
 @hookimpl
 def register_emulators(register):
-    register("master", EmulatorCommand(help="serial haptic master on a pseudo-terminal: hapticlab's framed protocol "
-                                            "or Haply Inverse3", add_arguments=add_arguments, run=run))
+    register(
+        "master",
+        EmulatorCommand(
+            help="serial haptic master on a pseudo-terminal: hapticlab's framed protocol or Haply Inverse3",
+            add_arguments=add_arguments,
+            run=run,
+        ),
+    )

@@ -13,7 +13,6 @@ import numpy as np
 from hapticlab.core import hookimpl
 from hapticlab.core.types import DeviceState, HapticCommand
 
-
 HOME_QUAT_DH = np.array([1.0, 0.0, 0.0, 0.0])
 HOME_P_DoHo_D = np.zeros(3)
 

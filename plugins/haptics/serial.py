@@ -58,8 +58,10 @@ PROTOCOLS = ("hapticlab", "inverse3")
 IDENTITY_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
 ZERO3_F32 = np.zeros(3, np.float32)
 CLAMP_MARGIN = 1.0 - 1e-6  # float32 rounding of a force scaled to the limit stays below the limit
-STATUS_TEXT = {framing.STATUS_WATCHDOG: "its watchdog zeroed the force (no host frame in time)",
-               framing.STATUS_CLAMPED: "it clamped a force to its own maximum"}
+STATUS_TEXT = {
+    framing.STATUS_WATCHDOG: "its watchdog zeroed the force (no host frame in time)",
+    framing.STATUS_CLAMPED: "it clamped a force to its own maximum",
+}
 
 
 class MasterOpenError(UserError, ConnectionError):
@@ -104,12 +106,14 @@ class SerialPort:
         try:
             import serial
         except ImportError:
-            raise MasterOpenError(f"haptic.port {port}: the serial plugin needs pyserial "
-                                  "(pip install pyserial)") from None
+            raise MasterOpenError(
+                f"haptic.port {port}: the serial plugin needs pyserial (pip install pyserial)"
+            ) from None
         self._serial_exception = serial.SerialException
         try:
-            self.serial: pyserial.Serial = serial.Serial(port, baudrate, timeout=read_timeout,
-                                                         write_timeout=read_timeout, exclusive=True)
+            self.serial: pyserial.Serial = serial.Serial(
+                port, baudrate, timeout=read_timeout, write_timeout=read_timeout, exclusive=True
+            )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise MasterOpenError(f"haptic.port {port}: cannot open: {_why(exc)}") from None
 
@@ -219,29 +223,41 @@ class HapticlabLink:
                 data = self.port.read(4096, retry_at)
                 received += len(data)
                 for frame in self.decoder.feed(data):
-                    if (frame.kind == framing.NAK and len(frame.payload) == framing.NAK_FORMAT.size
-                            and frame.payload[1] == framing.NAK_VERSION):  # other NAKs: line noise, try again
-                        raise MasterOpenError(f"{where}: the device refused HELLO: it does not speak hapticlab "
-                                              f"protocol version {framing.PROTOCOL_VERSION}")
+                    if (
+                        frame.kind == framing.NAK
+                        and len(frame.payload) == framing.NAK_FORMAT.size
+                        and frame.payload[1] == framing.NAK_VERSION
+                    ):  # other NAKs: line noise, try again
+                        raise MasterOpenError(
+                            f"{where}: the device refused HELLO: it does not speak hapticlab "
+                            f"protocol version {framing.PROTOCOL_VERSION}"
+                        )
                     if frame.kind == framing.HELLO_ACK and len(frame.payload) == framing.HELLO_ACK_FORMAT.size:
                         ack = framing.HelloAck.unpack(frame.payload)
                         if ack.version != framing.PROTOCOL_VERSION:
-                            raise MasterOpenError(f"{where}: the device speaks hapticlab protocol version "
-                                                  f"{ack.version}, this host speaks {framing.PROTOCOL_VERSION}")
+                            raise MasterOpenError(
+                                f"{where}: the device speaks hapticlab protocol version "
+                                f"{ack.version}, this host speaks {framing.PROTOCOL_VERSION}"
+                            )
                         if not (math.isfinite(ack.max_force) and ack.max_force > 0):
-                            raise MasterOpenError(f"{where}: the device reports a maximum force of "
-                                                  f"{ack.max_force!r} N")
+                            raise MasterOpenError(f"{where}: the device reports a maximum force of {ack.max_force!r} N")
                         self.max_force = ack.max_force
                         self._sync_counters()
-                        return (f"hapticlab protocol v{ack.version} device {ack.device_id} firmware "
-                                f"{ack.firmware_version}, max {ack.max_force:g} N, {ack.max_rate_hz:g} Hz")
+                        return (
+                            f"hapticlab protocol v{ack.version} device {ack.device_id} firmware "
+                            f"{ack.firmware_version}, max {ack.max_force:g} N, {ack.max_rate_hz:g} Hz"
+                        )
         self._sync_counters()
         if received:
-            raise MasterOpenError(f"{where}: {received} byte(s) arrived in {timeout_s:g} s but no hapticlab "
-                                  f"HELLO_ACK ({self.decoder.crc_errors} CRC error(s)): wrong baud rate, "
-                                  "or not a hapticlab master (protocol = \"inverse3\"?)")
-        raise MasterOpenError(f"{where}: no reply to the hapticlab HELLO within {timeout_s:g} s "
-                              "(is the firmware flashed, the baud rate right, the device powered?)")
+            raise MasterOpenError(
+                f"{where}: {received} byte(s) arrived in {timeout_s:g} s but no hapticlab "
+                f"HELLO_ACK ({self.decoder.crc_errors} CRC error(s)): wrong baud rate, "
+                'or not a hapticlab master (protocol = "inverse3"?)'
+            )
+        raise MasterOpenError(
+            f"{where}: no reply to the hapticlab HELLO within {timeout_s:g} s "
+            "(is the firmware flashed, the baud rate right, the device powered?)"
+        )
 
     def exchange(self, force_D: np.ndarray) -> Reading | None:
         seq = self._next_seq()
@@ -294,10 +310,12 @@ class HapticlabLink:
             elif frame.kind == framing.NAK and len(frame.payload) == framing.NAK_FORMAT.size:
                 self.counters["naks"] += 1
                 if frame.payload[1] == framing.NAK_NOT_READY:
-                    raise MasterLostError(f"{self.port.name}: the device forgot the handshake (restarted?)",
-                                          "restarted")
-                self.outstanding.pop(frame.payload[0], None) if frame.payload[0] in self.outstanding \
-                    else self._forget_oldest()
+                    raise MasterLostError(
+                        f"{self.port.name}: the device forgot the handshake (restarted?)", "restarted"
+                    )
+                self.outstanding.pop(frame.payload[0], None) if frame.payload[
+                    0
+                ] in self.outstanding else self._forget_oldest()
                 outcomes.append(None)
             else:
                 self.counters["bad_replies"] += 1
@@ -335,8 +353,9 @@ class HapticlabLink:
                     self.counters["naks"] += 1
                     self._sync_counters()
                     if frame.payload[1] == framing.NAK_NOT_READY:
-                        raise MasterLostError(f"{self.port.name}: the device forgot the handshake (restarted?)",
-                                              "restarted")
+                        raise MasterLostError(
+                            f"{self.port.name}: the device forgot the handshake (restarted?)", "restarted"
+                        )
                     return None
                 self.counters["bad_replies"] += 1  # a frame that answers nothing we asked
             self._sync_counters()
@@ -384,14 +403,18 @@ class Inverse3Link:
                 reply += self._read_exactly(inverse3.DEVICE_INFO_SIZE - len(reply), time.monotonic() + 0.05)
                 break
         if not reply:
-            raise MasterOpenError(f"{where}: no reply to the Inverse3 wake-up (0x0A) within {timeout_s:g} s "
-                                  "(is it an Inverse3, powered, and not held by another program?)")
+            raise MasterOpenError(
+                f"{where}: no reply to the Inverse3 wake-up (0x0A) within {timeout_s:g} s "
+                "(is it an Inverse3, powered, and not held by another program?)"
+            )
         try:
             info = inverse3.DeviceInfo.unpack(reply)
         except ValueError as exc:
             raise MasterOpenError(f"{where}: not an Inverse3 answer to the wake-up: {exc}") from None
-        return (f"Haply Inverse3 device {info.device_id} ({info.device_id_ext}), model {info.model}, "
-                f"hardware {info.hardware_version}, firmware {info.firmware_version}")
+        return (
+            f"Haply Inverse3 device {info.device_id} ({info.device_id_ext}), model {info.model}, "
+            f"hardware {info.hardware_version}, firmware {info.firmware_version}"
+        )
 
     def exchange(self, force_D: np.ndarray) -> Reading | None:
         self.port.write(inverse3.pack_force_request(force_D))
@@ -468,18 +491,34 @@ class SerialHaptic:
         status: the device's status bits (``framing.STATUS_*``) in its last good reply.
     """
 
-    def __init__(self, port: str = "", protocol: str = "hapticlab", baudrate: int = 1_000_000,
-                 rate_hz: float = 1000.0, device_max_force: float = 3.0, open_timeout: float = 3.0,
-                 read_timeout: float = 0.05, max_consecutive_errors: int = 5, watchdog: float = 0.1,
-                 reconnect_interval: float = 0.5, wait_for_reply: bool = True):
+    def __init__(
+        self,
+        port: str = "",
+        protocol: str = "hapticlab",
+        baudrate: int = 1_000_000,
+        rate_hz: float = 1000.0,
+        device_max_force: float = 3.0,
+        open_timeout: float = 3.0,
+        read_timeout: float = 0.05,
+        max_consecutive_errors: int = 5,
+        watchdog: float = 0.1,
+        reconnect_interval: float = 0.5,
+        wait_for_reply: bool = True,
+    ):
         if not isinstance(port, str) or not port.strip():
-            raise ConfigError("haptic.port: the serial device is required, e.g. --set haptic.port=/dev/ttyACM0 "
-                              "(hapticlab emulate master prints one)")
+            raise ConfigError(
+                "haptic.port: the serial device is required, e.g. --set haptic.port=/dev/ttyACM0 "
+                "(hapticlab emulate master prints one)"
+            )
         if protocol not in PROTOCOLS:
             raise ConfigError(f"haptic.protocol: must be one of {', '.join(map(repr, PROTOCOLS))}, got {protocol!r}")
-        for key, value in (("rate_hz", rate_hz), ("device_max_force", device_max_force),
-                           ("open_timeout", open_timeout), ("read_timeout", read_timeout),
-                           ("reconnect_interval", reconnect_interval)):
+        for key, value in (
+            ("rate_hz", rate_hz),
+            ("device_max_force", device_max_force),
+            ("open_timeout", open_timeout),
+            ("read_timeout", read_timeout),
+            ("reconnect_interval", reconnect_interval),
+        ):
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"haptic.{key}: must be a finite number > 0, got {value!r}")
         if not baudrate > 0:
@@ -487,8 +526,10 @@ class SerialHaptic:
         if not max_consecutive_errors >= 0:
             raise ConfigError(f"haptic.max_consecutive_errors: must be >= 0, got {max_consecutive_errors!r}")
         if not wait_for_reply and protocol != "hapticlab":
-            raise ConfigError("haptic.wait_for_reply: false needs protocol = \"hapticlab\" (the Inverse3's replies "
-                              "have no sequence numbers or framing to match them to their commands)")
+            raise ConfigError(
+                'haptic.wait_for_reply: false needs protocol = "hapticlab" (the Inverse3\'s replies '
+                "have no sequence numbers or framing to match them to their commands)"
+            )
         if not (math.isfinite(watchdog) and 0 <= watchdog <= 65.535):
             raise ConfigError(f"haptic.watchdog: must be in [0, 65.535] s, got {watchdog!r}")
         self.port_name, self.protocol, self.baudrate = port.strip(), protocol, int(baudrate)
@@ -565,25 +606,34 @@ class SerialHaptic:
             self.errors_in_row += 1
             if self.errors_in_row > self.max_consecutive_errors:
                 self._report_counters(t_ns)
-                self._lose(MasterLostError(f"{self.port_name}: {self.errors_in_row} bad replies in a row",
-                                           "errors"), t_ns)
+                self._lose(
+                    MasterLostError(f"{self.port_name}: {self.errors_in_row} bad replies in a row", "errors"), t_ns
+                )
                 raise self.lost
             return
         self.errors_in_row = 0
         if reading.status & framing.STATUS_FAULT:
-            self._lose(MasterLostError(f"{self.port_name}: the device reports a fault (status "
-                                       f"0x{reading.status:02x})", "errors"), t_ns)
+            self._lose(
+                MasterLostError(
+                    f"{self.port_name}: the device reports a fault (status 0x{reading.status:02x})", "errors"
+                ),
+                t_ns,
+            )
             raise self.lost
         self._state = DeviceState(t_ns, IDENTITY_QUAT, reading.p_DoHo_D, reading.buttons, reading.v_DHo_D)
         self.status = reading.status
         if reading.status:
             said = [text for bit, text in STATUS_TEXT.items() if reading.status & bit]
-            self._events.append(Event(t_ns, "haptic_device_status", "haptic device: " + "; ".join(said),
-                                      {"status": reading.status}))
+            self._events.append(
+                Event(t_ns, "haptic_device_status", "haptic device: " + "; ".join(said), {"status": reading.status})
+            )
         if self.lost is not None:
             self.lost = None
-            self._events.append(Event(t_ns, "haptic_device_back",
-                                      f"haptic device answering again: {self.info}", {"port": self.port_name}))
+            self._events.append(
+                Event(
+                    t_ns, "haptic_device_back", f"haptic device answering again: {self.info}", {"port": self.port_name}
+                )
+            )
 
     servo_cf = send
     """CRTK name: servo in Cartesian force."""
@@ -626,8 +676,14 @@ class SerialHaptic:
     def _lose(self, error: MasterLostError, t_ns: int) -> None:
         if self.lost is None:
             self.losses += 1
-            self._events.append(Event(t_ns, "haptic_device_lost", f"haptic device lost: {error}",
-                                      {"port": self.port_name, "cause": error.cause}))
+            self._events.append(
+                Event(
+                    t_ns,
+                    "haptic_device_lost",
+                    f"haptic device lost: {error}",
+                    {"port": self.port_name, "cause": error.cause},
+                )
+            )
         self.lost = error
         self.errors_in_row = 0
         self.next_try = time.monotonic() + self.reconnect_interval

@@ -45,12 +45,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hapticlab.plugins.kinematics.ur_arm import UR_DH, DH
+from hapticlab.plugins.kinematics.ur_arm import DH, UR_DH
 
 LINKS = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
 """The moving links' names, base to flange (ROS ur_description's)."""
-JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
-          "wrist_3_joint")
+JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
 """The six revolute joints' names, base to flange (RTDE's ``actual_q`` order)."""
 
 
@@ -70,8 +69,15 @@ class LinkDynamics:
 UR_DYNAMICS: dict[str, LinkDynamics] = {
     "ur5e": LinkDynamics(
         mass=(3.761, 8.058, 2.846, 1.37, 1.3, 0.365),
-        com=((0.0, -0.02561, 0.00193), (0.2125, 0.0, 0.11336), (0.15, 0.0, 0.0265),
-             (0.0, -0.0018, 0.01634), (0.0, 0.0018, 0.01634), (0.0, 0.0, -0.001159))),
+        com=(
+            (0.0, -0.02561, 0.00193),
+            (0.2125, 0.0, 0.11336),
+            (0.15, 0.0, 0.0265),
+            (0.0, -0.0018, 0.01634),
+            (0.0, 0.0018, 0.01634),
+            (0.0, 0.0, -0.001159),
+        ),
+    )
 }
 """Universal Robots' published link masses and centres of mass (the DH page cited above), by model."""
 
@@ -115,8 +121,13 @@ def urdf_from_dh(model: str) -> str:
         "     dh-parameters-for-calculations-of-kinematics-and-dynamics/); do not edit, regenerate:",
         f"     python -m hapticlab.plugins.kinematics.dh_urdf {model}",
         "     Frames: base (the controller's Base, B) ... tool0 (the flange, E); link frames are DH frames.",
-        "     " + ("Inertial: UR's published link masses and centres of mass; inertia tensors zero (UR: negligible)."
-                  if dynamics else "No inertial values (none published here): kinematics only.") + " -->",
+        "     "
+        + (
+            "Inertial: UR's published link masses and centres of mass; inertia tensors zero (UR: negligible)."
+            if dynamics
+            else "No inertial values (none published here): kinematics only."
+        )
+        + " -->",
         f'<robot name="{model}">',
         '  <link name="base_link"/>',
         '  <link name="base"/>',
@@ -169,8 +180,9 @@ def urdf_from_dh(model: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Print a UR model's URDF to stdout."""
-    parser = argparse.ArgumentParser(prog="python -m hapticlab.plugins.kinematics.dh_urdf",
-                                     description="a UR arm's URDF from its published DH table")
+    parser = argparse.ArgumentParser(
+        prog="python -m hapticlab.plugins.kinematics.dh_urdf", description="a UR arm's URDF from its published DH table"
+    )
     parser.add_argument("model", choices=sorted(UR_DH), help="the UR model")
     args = parser.parse_args(argv)
     sys.stdout.write(urdf_from_dh(args.model))

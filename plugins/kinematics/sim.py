@@ -11,9 +11,9 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import quat_multiply, quat_wxyz_from_matrix
-from hapticlab.plugins.kinematics import sim_kernel as pose_kernel
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import PoseSample
+from hapticlab.plugins.kinematics import sim_kernel as pose_kernel
 from hapticlab.plugins.simworld.faults import kinematics_faults_act, kinematics_times
 from hapticlab.plugins.simworld.physics import SampleClock, SimWorld, gaussian_noise
 from hapticlab.plugins.simworld.prefetch import PREFETCH_S, Prefetch
@@ -40,15 +40,18 @@ class SimKinematics:
 
     def __init__(self, rate_hz: float = 500.0, encoder_noise: float = 1e-7, world: SimWorld | None = None):
         if world is None:
-            raise ConfigError("kinematics sim: needs the session's simulated world; "
-                              "add a [world] table to the session (or pass world=SimWorld(...))")
+            raise ConfigError(
+                "kinematics sim: needs the session's simulated world; "
+                "add a [world] table to the session (or pass world=SimWorld(...))"
+            )
         if not 0 < rate_hz <= MAX_RATE_HZ:
             raise ConfigError(f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz, got {rate_hz!r}")
         if not 0 <= encoder_noise <= 1e-3:
             raise ConfigError(f"kinematics.encoder_noise: must be within [0, 1e-3] (rad and m), got {encoder_noise!r}")
         self.encoder_noise = float(encoder_noise)
-        self._noise_key = int(np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,))
-                              .generate_state(1, np.uint64)[0])
+        self._noise_key = int(
+            np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,)).generate_state(1, np.uint64)[0]
+        )
         self.rate_hz = float(rate_hz)
         self.world = world
         self._clock = SampleClock(self.rate_hz)
@@ -137,8 +140,7 @@ class ServoedSimKinematics(SimKinematics):
         self.world.servo_cp((t_ns - self._clock.t0_ns) / 1e9, R_BE, p_BoEo_B)
 
 
-def sim_kinematics(rate_hz: float = 500.0, encoder_noise: float = 1e-7,
-                   world: SimWorld | None = None) -> SimKinematics:
+def sim_kinematics(rate_hz: float = 500.0, encoder_noise: float = 1e-7, world: SimWorld | None = None) -> SimKinematics:
     """The ``sim`` kinematics (options as :class:`SimKinematics`): one that follows targets when the world's
     motion is ``servo`` (:class:`ServoedSimKinematics`), else one that reports the scripted motion."""
     factory = ServoedSimKinematics if world is not None and world.live else SimKinematics

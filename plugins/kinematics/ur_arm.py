@@ -29,7 +29,6 @@ continuous joint path (UR joints turn ±2π).
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,10 +59,13 @@ _ALPHA = (np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0)
 
 UR_DH: dict[str, DH] = {
     # e-Series (controller 5.x, RTDE at up to 500 Hz)
-    "ur3e": DH(a=(0.0, -0.24355, -0.2132, 0.0, 0.0, 0.0), d=(0.15185, 0.0, 0.0, 0.13105, 0.08535, 0.0921), alpha=_ALPHA),
+    "ur3e": DH(
+        a=(0.0, -0.24355, -0.2132, 0.0, 0.0, 0.0), d=(0.15185, 0.0, 0.0, 0.13105, 0.08535, 0.0921), alpha=_ALPHA
+    ),
     "ur5e": DH(a=(0.0, -0.425, -0.3922, 0.0, 0.0, 0.0), d=(0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996), alpha=_ALPHA),
-    "ur10e": DH(a=(0.0, -0.6127, -0.57155, 0.0, 0.0, 0.0), d=(0.1807, 0.0, 0.0, 0.17415, 0.11985, 0.11655),
-                alpha=_ALPHA),
+    "ur10e": DH(
+        a=(0.0, -0.6127, -0.57155, 0.0, 0.0, 0.0), d=(0.1807, 0.0, 0.0, 0.17415, 0.11985, 0.11655), alpha=_ALPHA
+    ),
     "ur16e": DH(a=(0.0, -0.4784, -0.36, 0.0, 0.0, 0.0), d=(0.1807, 0.0, 0.0, 0.17415, 0.11985, 0.11655), alpha=_ALPHA),
     # CB3 (controller 3.x, RTDE at up to 125 Hz)
     "ur3": DH(a=(0.0, -0.24365, -0.21325, 0.0, 0.0, 0.0), d=(0.1519, 0.0, 0.0, 0.11235, 0.08535, 0.0819), alpha=_ALPHA),
@@ -101,8 +103,11 @@ def forward(dh: DH, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     for i, theta in enumerate(np.asarray(q, dtype=float).tolist()):  # T = T · link_transform(i), in floats
         R_link, (ox, oy, oz) = _link(dh, i, theta)
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
-        px, py, pz = (px + r00 * ox + r01 * oy + r02 * oz, py + r10 * ox + r11 * oy + r12 * oz,
-                      pz + r20 * ox + r21 * oy + r22 * oz)
+        px, py, pz = (
+            px + r00 * ox + r01 * oy + r02 * oz,
+            py + r10 * ox + r11 * oy + r12 * oz,
+            pz + r20 * ox + r21 * oy + r22 * oz,
+        )
         R = _mul(R, R_link)
     return np.array(R), np.array([px, py, pz])
 
@@ -116,9 +121,11 @@ def _mul(A, B):
     """A·B of two 3×3 matrices given as row tuples."""
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = A
     (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B
-    return ((a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21, a00 * b02 + a01 * b12 + a02 * b22),
-            (a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21, a10 * b02 + a11 * b12 + a12 * b22),
-            (a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21, a20 * b02 + a21 * b12 + a22 * b22))
+    return (
+        (a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21, a00 * b02 + a01 * b12 + a02 * b22),
+        (a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21, a10 * b02 + a11 * b12 + a12 * b22),
+        (a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21, a20 * b02 + a21 * b12 + a22 * b22),
+    )
 
 
 def _mul_t(A, B):
@@ -167,7 +174,7 @@ def inverse(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q6_singular: float =
         s5_abs = math.hypot(R16[2][0], R16[2][1])
         for sign in (1.0, -1.0):
             theta5 = math.atan2(sign * s5_abs, R16[2][2])
-            theta6 = (math.atan2(-sign * R16[2][1], sign * R16[2][0]) if s5_abs > 1e-12 else q6_singular)
+            theta6 = math.atan2(-sign * R16[2][1], sign * R16[2][0]) if s5_abs > 1e-12 else q6_singular
             # T_46 = L4(θ5)·L5(θ6); T_14 = T_16·T_46⁻¹: only its first two rows' x column and origin are needed
             (R4, o4), (R5, o5) = _link(dh, 4, theta5), _link(dh, 5, theta6)
             R46 = _mul(R4, R5)
@@ -175,8 +182,9 @@ def inverse(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q6_singular: float =
             # T_64 = [R_46ᵀ, −R_46ᵀ p_46]; T_14 = [R_16 R_46ᵀ, R_16 (−R_46ᵀ p_46) + p_16]
             q64 = _apply_t(R46, p46)
             (u0, u1, u2), (v0, v1, v2) = R16[0], R16[1]
-            theta234 = math.atan2(v0 * R46[0][0] + v1 * R46[0][1] + v2 * R46[0][2],
-                                  u0 * R46[0][0] + u1 * R46[0][1] + u2 * R46[0][2])
+            theta234 = math.atan2(
+                v0 * R46[0][0] + v1 * R46[0][1] + v2 * R46[0][2], u0 * R46[0][0] + u1 * R46[0][1] + u2 * R46[0][2]
+            )
             x = p16[0] - (u0 * q64[0] + u1 * q64[1] + u2 * q64[2])  # frame 3's origin in frame 1
             y = p16[1] - (v0 * q64[0] + v1 * q64[1] + v2 * q64[2])
             c3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
@@ -190,7 +198,9 @@ def inverse(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q6_singular: float =
     return _wrap(np.array(solutions, dtype=float).reshape(-1, 6))
 
 
-def inverse_nearest(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q_near: np.ndarray | None = None) -> np.ndarray | None:
+def inverse_nearest(
+    dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q_near: np.ndarray | None = None
+) -> np.ndarray | None:
     """The solution (6,) rad closest to ``q_near`` (default ``HOME_Q``), each joint unwrapped by 2π onto it.
 
     Distance is the largest joint difference (after unwrapping), so the pick is
@@ -232,6 +242,8 @@ class URArm:
         """Every solution (k <= 8, 6) rad of a flange pose."""
         return inverse(self.dh, R_BE, p_BoEo_B)
 
-    def inverse_nearest(self, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q_near: np.ndarray | None = None) -> np.ndarray | None:
+    def inverse_nearest(
+        self, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q_near: np.ndarray | None = None
+    ) -> np.ndarray | None:
         """The solution closest to ``q_near`` (a continuous branch), or None when out of reach."""
         return inverse_nearest(self.dh, R_BE, p_BoEo_B, q_near)

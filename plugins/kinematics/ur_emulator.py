@@ -83,12 +83,17 @@ import numpy as np
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
 from hapticlab.core.types import EmulatorCommand
-from hapticlab.plugins.serving import serve_until_stopped
-from hapticlab.plugins.simworld.physics import SimWorld, gaussian_noise
 from hapticlab.plugins.kinematics.sim import ENCODER_STREAM
 from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
-from hapticlab.plugins.kinematics.ur_follow import (POSITION_REGISTERS, ROTATION_REGISTERS, SEQUENCE_REGISTER, WATCHDOG_S,
-                        decode_target)
+from hapticlab.plugins.kinematics.ur_follow import (
+    POSITION_REGISTERS,
+    ROTATION_REGISTERS,
+    SEQUENCE_REGISTER,
+    WATCHDOG_S,
+    decode_target,
+)
+from hapticlab.plugins.serving import serve_until_stopped
+from hapticlab.plugins.simworld.physics import SimWorld, gaussian_noise
 
 RTDE_PORT = 30004
 PROTOCOL_VERSION = 2
@@ -107,8 +112,18 @@ PAUSE = ord("P")
 EXCEPTION, ERROR, WARNING, INFO = 0, 1, 2, 3
 """Text message warning levels."""
 
-TYPE_FORMATS = {"BOOL": "?", "UINT8": "B", "UINT32": "I", "UINT64": "Q", "INT32": "i", "DOUBLE": "d",
-                "VECTOR3D": "3d", "VECTOR6D": "6d", "VECTOR6INT32": "6i", "VECTOR6UINT32": "6I"}
+TYPE_FORMATS = {
+    "BOOL": "?",
+    "UINT8": "B",
+    "UINT32": "I",
+    "UINT64": "Q",
+    "INT32": "i",
+    "DOUBLE": "d",
+    "VECTOR3D": "3d",
+    "VECTOR6D": "6d",
+    "VECTOR6INT32": "6i",
+    "VECTOR6UINT32": "6I",
+}
 """struct format of each RTDE type (big-endian)."""
 
 CONTROLLER_VERSIONS = {False: (5, 15, 0, 0), True: (3, 15, 8, 0)}
@@ -125,26 +140,72 @@ RUNTIME_STATE_PLAYING = 2
 def _output_types() -> dict[str, str]:
     """Every output name the emulator knows, with its RTDE type (the RTDE guide's output table)."""
     types = {"timestamp": "DOUBLE"}
-    for name in ("target_q", "target_qd", "target_qdd", "target_current", "target_moment", "actual_q", "actual_qd",
-                 "actual_qdd", "actual_current", "actual_current_as_torque", "joint_control_output",
-                 "actual_TCP_pose", "actual_TCP_speed", "actual_TCP_force", "target_TCP_pose", "target_TCP_speed",
-                 "joint_temperatures", "actual_joint_voltage", "ft_raw_wrench", "payload_inertia"):
+    for name in (
+        "target_q",
+        "target_qd",
+        "target_qdd",
+        "target_current",
+        "target_moment",
+        "actual_q",
+        "actual_qd",
+        "actual_qdd",
+        "actual_current",
+        "actual_current_as_torque",
+        "joint_control_output",
+        "actual_TCP_pose",
+        "actual_TCP_speed",
+        "actual_TCP_force",
+        "target_TCP_pose",
+        "target_TCP_speed",
+        "joint_temperatures",
+        "actual_joint_voltage",
+        "ft_raw_wrench",
+        "payload_inertia",
+    ):
         types[name] = "VECTOR6D"
-    for name in ("actual_execution_time", "speed_scaling", "target_speed_fraction", "actual_momentum",
-                 "actual_main_voltage", "actual_robot_voltage", "actual_robot_current", "standard_analog_input0",
-                 "standard_analog_input1", "standard_analog_output0", "standard_analog_output1", "io_current",
-                 "euromap67_24V_voltage", "euromap67_24V_current", "tool_analog_input0", "tool_analog_input1",
-                 "tool_output_current", "tool_temperature", "tcp_force_scalar", "speed_scaling_combined",
-                 "payload"):
+    for name in (
+        "actual_execution_time",
+        "speed_scaling",
+        "target_speed_fraction",
+        "actual_momentum",
+        "actual_main_voltage",
+        "actual_robot_voltage",
+        "actual_robot_current",
+        "standard_analog_input0",
+        "standard_analog_input1",
+        "standard_analog_output0",
+        "standard_analog_output1",
+        "io_current",
+        "euromap67_24V_voltage",
+        "euromap67_24V_current",
+        "tool_analog_input0",
+        "tool_analog_input1",
+        "tool_output_current",
+        "tool_temperature",
+        "tcp_force_scalar",
+        "speed_scaling_combined",
+        "payload",
+    ):
         types[name] = "DOUBLE"
     for name in ("actual_tool_accelerometer", "elbow_position", "elbow_velocity", "payload_cog"):
         types[name] = "VECTOR3D"
     for name in ("actual_digital_input_bits", "actual_digital_output_bits"):
         types[name] = "UINT64"
-    for name in ("runtime_state", "robot_status_bits", "safety_status_bits", "analog_io_types",
-                 "euromap67_input_bits", "euromap67_output_bits", "tool_mode", "tool_analog_input_types",
-                 "output_bit_registers0_to_31", "output_bit_registers32_to_63", "input_bit_registers0_to_31",
-                 "input_bit_registers32_to_63", "script_control_line"):
+    for name in (
+        "runtime_state",
+        "robot_status_bits",
+        "safety_status_bits",
+        "analog_io_types",
+        "euromap67_input_bits",
+        "euromap67_output_bits",
+        "tool_mode",
+        "tool_analog_input_types",
+        "output_bit_registers0_to_31",
+        "output_bit_registers32_to_63",
+        "input_bit_registers0_to_31",
+        "input_bit_registers32_to_63",
+        "script_control_line",
+    ):
         types[name] = "UINT32"
     for name in ("robot_mode", "safety_mode", "safety_status", "tool_output_voltage"):
         types[name] = "INT32"
@@ -159,14 +220,24 @@ def _output_types() -> dict[str, str]:
 
 def _input_types() -> dict[str, str]:
     """Every input name the emulator accepts, with its RTDE type (the RTDE guide's input table)."""
-    types = {"speed_slider_mask": "UINT32", "speed_slider_fraction": "DOUBLE",
-             "standard_digital_output_mask": "UINT8", "standard_digital_output": "UINT8",
-             "configurable_digital_output_mask": "UINT8", "configurable_digital_output": "UINT8",
-             "tool_digital_output_mask": "UINT8", "tool_digital_output": "UINT8",
-             "standard_analog_output_mask": "UINT8", "standard_analog_output_type": "UINT8",
-             "standard_analog_output_0": "DOUBLE", "standard_analog_output_1": "DOUBLE",
-             "input_bit_registers0_to_31": "UINT32", "input_bit_registers32_to_63": "UINT32",
-             "external_force_torque": "VECTOR6D", "ft_rtde_input_enable": "BOOL"}
+    types = {
+        "speed_slider_mask": "UINT32",
+        "speed_slider_fraction": "DOUBLE",
+        "standard_digital_output_mask": "UINT8",
+        "standard_digital_output": "UINT8",
+        "configurable_digital_output_mask": "UINT8",
+        "configurable_digital_output": "UINT8",
+        "tool_digital_output_mask": "UINT8",
+        "tool_digital_output": "UINT8",
+        "standard_analog_output_mask": "UINT8",
+        "standard_analog_output_type": "UINT8",
+        "standard_analog_output_0": "DOUBLE",
+        "standard_analog_output_1": "DOUBLE",
+        "input_bit_registers0_to_31": "UINT32",
+        "input_bit_registers32_to_63": "UINT32",
+        "external_force_torque": "VECTOR6D",
+        "ft_rtde_input_enable": "BOOL",
+    }
     for i in range(48):
         types[f"input_int_register_{i}"] = "INT32"
         types[f"input_double_register_{i}"] = "DOUBLE"
@@ -250,9 +321,16 @@ class UREmulator:
         at the current cycle, so a client sees the timestamp jump.
     """
 
-    def __init__(self, world: SimWorld, address: str = "127.0.0.1", model: str = "ur5e", port: int = RTDE_PORT,
-                 encoder_noise: float = 1e-7, tcp_offset: tuple[float, ...] = (0.0,) * 6,
-                 stalls: tuple[tuple[float, float], ...] | list[tuple[float, float]] = ()):
+    def __init__(
+        self,
+        world: SimWorld,
+        address: str = "127.0.0.1",
+        model: str = "ur5e",
+        port: int = RTDE_PORT,
+        encoder_noise: float = 1e-7,
+        tcp_offset: tuple[float, ...] = (0.0,) * 6,
+        stalls: tuple[tuple[float, float], ...] | list[tuple[float, float]] = (),
+    ):
         if model not in UR_DH:
             raise ValueError(f"model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
         self.world = world
@@ -266,8 +344,10 @@ class UREmulator:
         q0 = self.arm.inverse_nearest(*[x[0] for x in world.pose(0.0)])
         if q0 is None:
             p = world.pose(0.0)[1][0]
-            raise ValueError(f"model: a {model} cannot reach the world's flange position "
-                             f"{np.round(p, 3).tolist()} m at t = 0; give the world's motion a p_BoEo_B within reach")
+            raise ValueError(
+                f"model: a {model} cannot reach the world's flange position "
+                f"{np.round(p, 3).tolist()} m at t = 0; give the world's motion a p_BoEo_B within reach"
+            )
         self._q, self._q_reported, self._q_t = q0, q0, 0.0
         if not 0 <= encoder_noise <= 1e-3:
             raise ValueError(f"encoder_noise: must be within [0, 1e-3] rad, got {encoder_noise!r}")
@@ -282,8 +362,9 @@ class UREmulator:
                 raise ValueError(f"stall: start must be >= 0 s and duration > 0 s, got {start!r}, {duration!r}")
         self.packages_stalled = 0
         """Data packages not sent because they fell in a stall."""
-        self._noise_key = int(np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,))
-                              .generate_state(1, np.uint64)[0])
+        self._noise_key = int(
+            np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,)).generate_state(1, np.uint64)[0]
+        )
         self._qd = np.zeros(6)
         self._unreachable_reported = False
         self._inputs: dict[str, Any] = {}
@@ -381,8 +462,13 @@ class UREmulator:
             q = self._q
             if not self._unreachable_reported:
                 self._unreachable_reported = True
-                self._broadcast(pack_text_message(f"flange pose {np.round(p_BoEo_B, 3).tolist()} m at t = {t:.3f} s "
-                                                  f"is out of the {self.model}'s reach; joints held", level=WARNING))
+                self._broadcast(
+                    pack_text_message(
+                        f"flange pose {np.round(p_BoEo_B, 3).tolist()} m at t = {t:.3f} s "
+                        f"is out of the {self.model}'s reach; joints held",
+                        level=WARNING,
+                    )
+                )
         self._q = q  # the continuous branch follows the true joints
         if self.encoder_noise > 0:  # the encoders' reading, and the controller's FK of it
             t_ns = np.array([round(t * 1e9)], dtype=np.int64)
@@ -394,12 +480,24 @@ class UREmulator:
         p_BoEo_B, R_BE = p_BoEo_B + R_BE @ self.p_EoTo_E, R_BE @ self.R_ET  # the TCP's pose (E's when no offset)
         pose = tuple(np.concatenate([p_BoEo_B, rotvec_from_quat(quat_wxyz_from_matrix(R_BE))]).tolist())
         q_t, qd_t = tuple(q.tolist()), tuple(self._qd.tolist())
-        return {"timestamp": t, "actual_q": q_t, "actual_qd": qd_t, "target_q": q_t, "target_qd": qd_t,
-                "actual_TCP_pose": pose, "target_TCP_pose": pose, "robot_mode": ROBOT_MODE_RUNNING,
-                "safety_mode": SAFETY_MODE_NORMAL, "safety_status": SAFETY_MODE_NORMAL,
-                "runtime_state": RUNTIME_STATE_PLAYING if self.follows else RUNTIME_STATE_STOPPED,
-                f"output_int_register_{SEQUENCE_REGISTER}": self._sequence_applied, "speed_scaling": 1.0, "target_speed_fraction": 1.0,
-                "speed_scaling_combined": 1.0, "joint_mode": (255,) * 6}
+        return {
+            "timestamp": t,
+            "actual_q": q_t,
+            "actual_qd": qd_t,
+            "target_q": q_t,
+            "target_qd": qd_t,
+            "actual_TCP_pose": pose,
+            "target_TCP_pose": pose,
+            "robot_mode": ROBOT_MODE_RUNNING,
+            "safety_mode": SAFETY_MODE_NORMAL,
+            "safety_status": SAFETY_MODE_NORMAL,
+            "runtime_state": RUNTIME_STATE_PLAYING if self.follows else RUNTIME_STATE_STOPPED,
+            f"output_int_register_{SEQUENCE_REGISTER}": self._sequence_applied,
+            "speed_scaling": 1.0,
+            "target_speed_fraction": 1.0,
+            "speed_scaling_combined": 1.0,
+            "joint_mode": (255,) * 6,
+        }
 
     def _follow(self, cycle: int) -> None:
         """The follow script's cycle: a new target in the registers goes to the world's robot; none for
@@ -409,8 +507,10 @@ class UREmulator:
         t = cycle / self.cycle_hz
         sequence = int(inputs.get(f"input_int_register_{SEQUENCE_REGISTER}", 0))
         if sequence not in (0, self._sequence_applied):
-            R_BE, p_BoEo_B = decode_target([inputs.get(f"input_double_register_{r}", 0.0) for r in POSITION_REGISTERS],
-                                           [inputs.get(f"input_int_register_{r}", 0) for r in ROTATION_REGISTERS])
+            R_BE, p_BoEo_B = decode_target(
+                [inputs.get(f"input_double_register_{r}", 0.0) for r in POSITION_REGISTERS],
+                [inputs.get(f"input_int_register_{r}", 0) for r in ROTATION_REGISTERS],
+            )
             try:
                 self.world.servo_cp(t, R_BE, p_BoEo_B)
             except ValueError as exc:  # a non-finite target: the script's get_inverse_kin would fail; keep the last
@@ -438,8 +538,13 @@ class UREmulator:
 
     def _serve_cycle(self, cycle: int) -> None:
         with self._lock:
-            due = [(client, recipe) for client in self._clients if client.streaming
-                   for recipe in client.outputs.values() if recipe.next_cycle <= cycle]
+            due = [
+                (client, recipe)
+                for client in self._clients
+                if client.streaming
+                for recipe in client.outputs.values()
+                if recipe.next_cycle <= cycle
+            ]
             inputs = dict(self._inputs)
         if not due:
             return
@@ -480,8 +585,9 @@ class UREmulator:
             client = _Client(sock, f"{peer[0]}:{peer[1]}")
             with self._lock:
                 self._clients.append(client)
-            threading.Thread(target=self._client_loop, args=(client,), name=f"ur-emulator {client.peer}",
-                             daemon=True).start()
+            threading.Thread(
+                target=self._client_loop, args=(client,), name=f"ur-emulator {client.peer}", daemon=True
+            ).start()
 
     def _client_loop(self, client: _Client) -> None:
         buffer = b""
@@ -500,7 +606,7 @@ class UREmulator:
                         return
                     if len(buffer) < size:
                         break
-                    payload, buffer = buffer[HEADER.size:size], buffer[size:]
+                    payload, buffer = buffer[HEADER.size : size], buffer[size:]
                     self._handle(client, kind, payload)
         except (OSError, ValueError):
             pass
@@ -540,11 +646,12 @@ class UREmulator:
         elif kind == DATA_PACKAGE:
             recipe = client.inputs.get(payload[0]) if payload else None
             if recipe is None:
-                client.send(pack_text_message(f"data package for unknown input recipe {payload[:1].hex()}",
-                                              level=ERROR))
+                client.send(
+                    pack_text_message(f"data package for unknown input recipe {payload[:1].hex()}", level=ERROR)
+                )
                 return
             names, packer = recipe
-            flat = list(packer.unpack(payload[1:1 + packer.size]))
+            flat = list(packer.unpack(payload[1 : 1 + packer.size]))
             with self._lock:
                 for name in names:
                     width = _width(INPUT_TYPES[name])
@@ -560,8 +667,12 @@ class UREmulator:
         ok = bool(names) and "NOT_FOUND" not in types
         if not 0 < frequency <= self.cycle_hz:
             ok = False
-            client.send(pack_text_message(f"output frequency {frequency:g} Hz: must be within (0, {self.cycle_hz:g}] "
-                                          f"on this controller", level=ERROR))
+            client.send(
+                pack_text_message(
+                    f"output frequency {frequency:g} Hz: must be within (0, {self.cycle_hz:g}] on this controller",
+                    level=ERROR,
+                )
+            )
         recipe_id = 0
         if ok:
             with self._lock:
@@ -574,8 +685,10 @@ class UREmulator:
         names = _names(payload)
         with self._lock:
             types = [INPUT_TYPES.get(name, "NOT_FOUND") for name in names]
-            types = ["IN_USE" if t != "NOT_FOUND" and self._input_owner.get(n, client) is not client else t
-                     for n, t in zip(names, types)]
+            types = [
+                "IN_USE" if t != "NOT_FOUND" and self._input_owner.get(n, client) is not client else t
+                for n, t in zip(names, types)
+            ]
             recipe_id = 0
             if names and not {"NOT_FOUND", "IN_USE"} & set(types):
                 recipe_id = len(client.inputs) + 1
@@ -600,7 +713,7 @@ def _width(rtde_type: str) -> int:
 
 def _unpack_text_message(payload: bytes) -> str:
     n = payload[0] if payload else 0
-    return payload[1:1 + n].decode(errors="replace")
+    return payload[1 : 1 + n].decode(errors="replace")
 
 
 def _close(sock: socket.socket) -> None:
@@ -616,20 +729,35 @@ def _close(sock: socket.socket) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``hapticlab emulate ur``."""
-    parser.add_argument("--address", default="127.0.0.1",
-                        help="loopback address to serve RTDE on, port 30004 (127.0.0.x; default 127.0.0.1)")
-    parser.add_argument("--model", default="ur5e", choices=list(UR_DH),
-                        help="UR model: its DH geometry; ur3/ur5/ur10 are CB3 (3.x controller, 125 Hz), "
-                             "the others e-Series (5.x, 500 Hz) (default ur5e)")
-    parser.add_argument("--session", default=None,
-                        help="preset name or TOML file whose [world] moves the arm (default: demo)")
+    parser.add_argument(
+        "--address",
+        default="127.0.0.1",
+        help="loopback address to serve RTDE on, port 30004 (127.0.0.x; default 127.0.0.1)",
+    )
+    parser.add_argument(
+        "--model",
+        default="ur5e",
+        choices=list(UR_DH),
+        help="UR model: its DH geometry; ur3/ur5/ur10 are CB3 (3.x controller, 125 Hz), "
+        "the others e-Series (5.x, 500 Hz) (default ur5e)",
+    )
+    parser.add_argument(
+        "--session", default=None, help="preset name or TOML file whose [world] moves the arm (default: demo)"
+    )
     parser.add_argument("--seed", type=int, default=None, help="the world's seed (overrides the session's)")
-    parser.add_argument("--encoder-noise", type=float, default=1e-7,
-                        help="std of each joint reading around the true angle, rad (0: the world's exact pose; "
-                             "default 1e-7)")
-    parser.add_argument("--tcp-offset", default="0,0,0,0,0,0", metavar="X,Y,Z,RX,RY,RZ",
-                        help="the installation's TCP in the flange (m, rotation vector in rad): actual_TCP_pose "
-                             "is then that point's pose (default: none, the flange)")
+    parser.add_argument(
+        "--encoder-noise",
+        type=float,
+        default=1e-7,
+        help="std of each joint reading around the true angle, rad (0: the world's exact pose; default 1e-7)",
+    )
+    parser.add_argument(
+        "--tcp-offset",
+        default="0,0,0,0,0,0",
+        metavar="X,Y,Z,RX,RY,RZ",
+        help="the installation's TCP in the flange (m, rotation vector in rad): actual_TCP_pose "
+        "is then that point's pose (default: none, the flange)",
+    )
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
@@ -644,24 +772,43 @@ def run(args: argparse.Namespace) -> int:
         table["seed"] = args.seed
     try:
         tcp_offset = tuple(float(x) for x in args.tcp_offset.split(","))
-        emulator = UREmulator(SimWorld.from_config(table), address=args.address, model=args.model,
-                              encoder_noise=args.encoder_noise, tcp_offset=tcp_offset)
+        emulator = UREmulator(
+            SimWorld.from_config(table),
+            address=args.address,
+            model=args.model,
+            encoder_noise=args.encoder_noise,
+            tcp_offset=tcp_offset,
+        )
         emulator.start()
     except ValueError as exc:
         raise ConfigError(f"emulate ur: {exc}") from None
     except OSError as exc:
         raise ConfigError(f"emulate ur: cannot serve on {args.address}:{RTDE_PORT}: {exc.strerror or exc}") from None
     with emulator:
-        serve_until_stopped(args.duration, ready=lambda: print(
-            f"UR {args.model} RTDE emulator on {emulator.address}:{emulator.port} "
-            f"(controller {'.'.join(map(str, emulator.controller_version))}, {emulator.cycle_hz:g} Hz)", flush=True))
+        serve_until_stopped(
+            args.duration,
+            ready=lambda: print(
+                f"UR {args.model} RTDE emulator on {emulator.address}:{emulator.port} "
+                f"(controller {'.'.join(map(str, emulator.controller_version))}, {emulator.cycle_hz:g} Hz)",
+                flush=True,
+            ),
+        )
     inputs = emulator.inputs()
-    print(f"sent {emulator.packages_sent} data packages; {len(inputs)} input field(s) written"
-          + (f": {', '.join(sorted(inputs))}" if inputs else ""), flush=True)
+    print(
+        f"sent {emulator.packages_sent} data packages; {len(inputs)} input field(s) written"
+        + (f": {', '.join(sorted(inputs))}" if inputs else ""),
+        flush=True,
+    )
     return 0
 
 
 @hookimpl
 def register_emulators(register):
-    register("ur", EmulatorCommand(help="Universal Robots controller: RTDE v2 on port 30004 (e-Series 500 Hz, "
-                                        "CB3 125 Hz)", add_arguments=add_arguments, run=run))
+    register(
+        "ur",
+        EmulatorCommand(
+            help="Universal Robots controller: RTDE v2 on port 30004 (e-Series 500 Hz, CB3 125 Hz)",
+            add_arguments=add_arguments,
+            run=run,
+        ),
+    )

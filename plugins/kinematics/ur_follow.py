@@ -36,8 +36,12 @@ from pathlib import Path
 import numpy as np
 
 from hapticlab.core.frames import matrix_from_rotvec, rotvec_from_matrix
-
-from hapticlab.plugins.kinematics.ur_target_writer import POSITION_REGISTERS, RECORD, ROTATION_REGISTERS, SEQUENCE_REGISTER
+from hapticlab.plugins.kinematics.ur_target_writer import (
+    POSITION_REGISTERS,
+    RECORD,
+    ROTATION_REGISTERS,
+    SEQUENCE_REGISTER,
+)
 
 # POSITION_REGISTERS: input_double_register_N, the target position (m); ROTATION_REGISTERS:
 # input_int_register_N, the target rotation vector (µrad); SEQUENCE_REGISTER: input_int_register_N,
@@ -81,7 +85,11 @@ class TargetWriter:
         self.address = address
         self._proc = subprocess.Popen(
             [sys.executable, str(Path(__file__).with_name("ur_target_writer.py")), address],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=False)
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=False,
+        )
         self._pipe = self._proc.stdin.fileno()
         ready, _, _ = select.select([self._proc.stdout], [], [], WRITER_START_TIMEOUT_S)
         line = self._proc.stdout.readline().decode(errors="replace").strip() if ready else ""
@@ -99,8 +107,10 @@ class TargetWriter:
         except (BrokenPipeError, OSError):
             self._proc.wait()
             why = self._proc.stdout.read().decode(errors="replace").strip().removeprefix("error: ")
-            raise ConnectionError(f"UR controller {self.address}: the target writer stopped "
-                                  f"(exit status {self._proc.returncode}){': ' + why if why else ''}") from None
+            raise ConnectionError(
+                f"UR controller {self.address}: the target writer stopped "
+                f"(exit status {self._proc.returncode}){': ' + why if why else ''}"
+            ) from None
 
     def close(self) -> None:
         """End the writer (end of file on its pipe); the arm's script stops the arm when targets stop."""

@@ -57,9 +57,9 @@ from hapticlab.core import hookimpl
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import Event, PoseSample
-from hapticlab.plugins.sensors.netft import DeviceClock
 from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
 from hapticlab.plugins.kinematics.ur_follow import TargetWriter
+from hapticlab.plugins.sensors.netft import DeviceClock
 
 VARIABLES = ["actual_TCP_pose", "actual_q", "actual_qd", "timestamp"]
 """The outputs asked for; ``timestamp`` last, so a package's timestamp changes after its other fields."""
@@ -75,7 +75,9 @@ FIRST_PACKAGE_TIMEOUT_S = 1.0
 """``open`` waits this long for the first data package, s."""
 MISSED_EVENT_INTERVAL_NS = 1_000_000_000
 """Missed packages are reported at most this often, ns."""
-_HOSTNAME = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$")
+_HOSTNAME = re.compile(
+    r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$"
+)
 
 
 FOLLOW_RATE_HZ = 125.0
@@ -101,13 +103,17 @@ class URRTDEKinematics:
 
     def __init__(self, address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = ""):
         if not address:
-            raise ConfigError("kinematics.address: missing; the UR controller's IP address or host name "
-                              "(e.g. address = \"192.168.1.10\")")
+            raise ConfigError(
+                "kinematics.address: missing; the UR controller's IP address or host name "
+                '(e.g. address = "192.168.1.10")'
+            )
         if not _valid_host(address):
             raise ConfigError(f"kinematics.address: {address!r} is neither an IP address nor a host name")
         if not 0 < rate_hz <= MAX_RATE_HZ:
-            raise ConfigError(f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz "
-                              f"(e-Series 500, CB3 125), got {rate_hz!r}")
+            raise ConfigError(
+                f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz "
+                f"(e-Series 500, CB3 125), got {rate_hz!r}"
+            )
         if not 0 < receive_timeout <= 1.0:
             raise ConfigError(f"kinematics.receive_timeout: must be > 0 and at most 1 s, got {receive_timeout!r}")
         if model and model not in UR_DH:
@@ -155,10 +161,12 @@ class URRTDEKinematics:
             time.sleep(0.005)
         if self.packages == 0:
             self.close()
-            raise ConnectionError(f"UR controller {self.address}:30004 (RTDE at {self.rate_hz:g} Hz): connected, but no "
-                                  f"data package within {FIRST_PACKAGE_TIMEOUT_S:g} s; the controller refused the "
-                                  f"output recipe (a CB3 streams at most 125 Hz: set kinematics.rate_hz = 125) "
-                                  f"or is not running")
+            raise ConnectionError(
+                f"UR controller {self.address}:30004 (RTDE at {self.rate_hz:g} Hz): connected, but no "
+                f"data package within {FIRST_PACKAGE_TIMEOUT_S:g} s; the controller refused the "
+                f"output recipe (a CB3 streams at most 125 Hz: set kinematics.rate_hz = 125) "
+                f"or is not running"
+            )
 
     def read(self, until_ns: int) -> list[PoseSample]:
         """Every pose received and not yet returned with time <= ``until_ns``, in time order."""
@@ -231,17 +239,26 @@ class URRTDEKinematics:
             step = ticks - self._last_ticks
             if step < 0:
                 self.clock.reset()
-                events.append(Event(received_ns, "kinematics_restart",
-                                    f"UR controller {self.address} timestamp went back "
-                                    f"({self._last_ticks / CLOCK_TICKS_HZ:.3f} -> {ticks / CLOCK_TICKS_HZ:.3f} s): "
-                                    f"controller restarted, time re-anchored"))
+                events.append(
+                    Event(
+                        received_ns,
+                        "kinematics_restart",
+                        f"UR controller {self.address} timestamp went back "
+                        f"({self._last_ticks / CLOCK_TICKS_HZ:.3f} -> {ticks / CLOCK_TICKS_HZ:.3f} s): "
+                        f"controller restarted, time re-anchored",
+                    )
+                )
             else:
                 self.packages_missed += max(0, round(step * self.rate_hz / CLOCK_TICKS_HZ) - 1)
         self._last_ticks = ticks
         pose_arr = np.asarray(pose, dtype=float)
-        sample = PoseSample(t_ns=self.clock.stamp(ticks, received_ns), quat_BE=quat_from_rotvec(pose_arr[3:]),
-                            p_BoEo_B=pose_arr[:3], joints=np.asarray(q, dtype=float),
-                            joint_velocities=np.asarray(qd, dtype=float))
+        sample = PoseSample(
+            t_ns=self.clock.stamp(ticks, received_ns),
+            quat_BE=quat_from_rotvec(pose_arr[3:]),
+            p_BoEo_B=pose_arr[:3],
+            joints=np.asarray(q, dtype=float),
+            joint_velocities=np.asarray(qd, dtype=float),
+        )
         if self.packages == 0 and self.arm is not None:
             events.extend(self._check_tcp(received_ns, sample))
         if self._timed_out:
@@ -262,9 +279,13 @@ class URRTDEKinematics:
         new = self.packages_missed - self._missed_reported
         self._missed_reported = self.packages_missed
         self._next_missed_event_ns = t_ns + MISSED_EVENT_INTERVAL_NS
-        event = Event(t_ns, "kinematics_missed", f"{new} RTDE package(s) from {self.address} missed "
-                      f"({self.packages_missed} of {self.packages + self.packages_missed} so far)",
-                      {"missed": new, "missed_total": self.packages_missed, "received": self.packages})
+        event = Event(
+            t_ns,
+            "kinematics_missed",
+            f"{new} RTDE package(s) from {self.address} missed "
+            f"({self.packages_missed} of {self.packages + self.packages_missed} so far)",
+            {"missed": new, "missed_total": self.packages_missed, "received": self.packages},
+        )
         with self._lock:
             self._events.append(event)
 
@@ -276,11 +297,16 @@ class URRTDEKinematics:
         distance = float(np.linalg.norm(sample.p_BoEo_B - p_BoEo_B))
         if distance <= TCP_CHECK_M and angle <= TCP_CHECK_RAD:
             return []
-        return [Event(received_ns, "kinematics_tcp_offset",
-                      f"UR controller {self.address}: actual_TCP_pose is {distance * 1e3:.1f} mm and {angle:.3f} rad "
-                      f"from the {self.arm.model} flange (forward kinematics of actual_q): the installation's TCP "
-                      f"is not the flange; set it to zero, hapticlab needs the flange pose",
-                      {"distance_m": distance, "angle_rad": angle})]
+        return [
+            Event(
+                received_ns,
+                "kinematics_tcp_offset",
+                f"UR controller {self.address}: actual_TCP_pose is {distance * 1e3:.1f} mm and {angle:.3f} rad "
+                f"from the {self.arm.model} flange (forward kinematics of actual_q): the installation's TCP "
+                f"is not the flange; set it to zero, hapticlab needs the flange pose",
+                {"distance_m": distance, "angle_rad": angle},
+            )
+        ]
 
     def _watch(self) -> None:
         """A ``kinematics_timeout`` event once the packages have stopped for ``receive_timeout``."""
@@ -290,11 +316,16 @@ class URRTDEKinematics:
             self._timed_out = True
             connected = self._rtde.isConnected()
             with self._lock:
-                self._events.append(Event(now_ns, "kinematics_timeout",
-                                          f"no RTDE package from UR controller {self.address} for "
-                                          f"{silent_ns * 1e-6:.0f} ms ({'connected' if connected else 'connection lost'}): "
-                                          f"no fresh poses, haptic force held at zero",
-                                          {"silent_s": silent_ns * 1e-9, "connected": connected}))
+                self._events.append(
+                    Event(
+                        now_ns,
+                        "kinematics_timeout",
+                        f"no RTDE package from UR controller {self.address} for "
+                        f"{silent_ns * 1e-6:.0f} ms ({'connected' if connected else 'connection lost'}): "
+                        f"no fresh poses, haptic force held at zero",
+                        {"silent_s": silent_ns * 1e-9, "connected": connected},
+                    )
+                )
 
 
 def _ticks(timestamp: float) -> int:
@@ -319,12 +350,20 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
     script's ``servoj`` lookahead smooths between targets.
     """
 
-    def __init__(self, address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = "",
-                 follow_rate_hz: float = FOLLOW_RATE_HZ):
+    def __init__(
+        self,
+        address: str = "",
+        rate_hz: float = 500.0,
+        receive_timeout: float = 0.1,
+        model: str = "",
+        follow_rate_hz: float = FOLLOW_RATE_HZ,
+    ):
         super().__init__(address, rate_hz, receive_timeout, model)
         if not 0 < follow_rate_hz <= self.rate_hz:
-            raise ConfigError(f"kinematics.follow_rate_hz: must be > 0 and at most rate_hz ({self.rate_hz:g} Hz), "
-                              f"got {follow_rate_hz!r}")
+            raise ConfigError(
+                f"kinematics.follow_rate_hz: must be > 0 and at most rate_hz ({self.rate_hz:g} Hz), "
+                f"got {follow_rate_hz!r}"
+            )
         self.period_ns = int(round(1e9 / follow_rate_hz))
         self._writer = None
         self._last_sent_ns: int | None = None
@@ -351,8 +390,14 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
         super().close()
 
 
-def ur_rtde_kinematics(address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = "",
-                       follow: bool = False, follow_rate_hz: float = FOLLOW_RATE_HZ) -> URRTDEKinematics:
+def ur_rtde_kinematics(
+    address: str = "",
+    rate_hz: float = 500.0,
+    receive_timeout: float = 0.1,
+    model: str = "",
+    follow: bool = False,
+    follow_rate_hz: float = FOLLOW_RATE_HZ,
+) -> URRTDEKinematics:
     """The ``ur_rtde`` kinematics (options as :class:`URRTDEKinematics`); with ``follow`` the arm also follows
     teleoperation's targets, ``follow_rate_hz`` a second (:class:`FollowingURRTDEKinematics`; run
     ``hapticlab_follow.script`` on the arm)."""

@@ -49,13 +49,17 @@ def serve(address: str, source_fd: int, reply) -> int:
             x, y, z, rx, ry, rz = RECORD.unpack_from(pending, whole - RECORD.size)  # the newest target only
             pending = pending[whole:]
             sequence = sequence % INT32_MAX + 1
-            ok = all([io.setInputDoubleRegister(POSITION_REGISTERS[0], x),
-                      io.setInputDoubleRegister(POSITION_REGISTERS[1], y),
-                      io.setInputDoubleRegister(POSITION_REGISTERS[2], z),
-                      io.setInputIntRegister(ROTATION_REGISTERS[0], rx),
-                      io.setInputIntRegister(ROTATION_REGISTERS[1], ry),
-                      io.setInputIntRegister(ROTATION_REGISTERS[2], rz),
-                      io.setInputIntRegister(SEQUENCE_REGISTER, sequence)])
+            ok = all(
+                [
+                    io.setInputDoubleRegister(POSITION_REGISTERS[0], x),
+                    io.setInputDoubleRegister(POSITION_REGISTERS[1], y),
+                    io.setInputDoubleRegister(POSITION_REGISTERS[2], z),
+                    io.setInputIntRegister(ROTATION_REGISTERS[0], rx),
+                    io.setInputIntRegister(ROTATION_REGISTERS[1], ry),
+                    io.setInputIntRegister(ROTATION_REGISTERS[2], rz),
+                    io.setInputIntRegister(SEQUENCE_REGISTER, sequence),
+                ]
+            )
             if not ok:
                 reply.write("error: the controller did not take the target's input registers\n")
                 reply.flush()

@@ -60,8 +60,9 @@ def _import_pinocchio():
     try:
         import pinocchio
     except ImportError:
-        raise ConfigError("kinematics.name: the urdf kinematics needs Pinocchio; "
-                          "pip install 'hapticlab[urdf]'") from None
+        raise ConfigError(
+            "kinematics.name: the urdf kinematics needs Pinocchio; pip install 'hapticlab[urdf]'"
+        ) from None
     return pinocchio
 
 
@@ -71,8 +72,9 @@ def _urdf_text(urdf: str) -> tuple[str, str]:
         return (resources.files(__package__) / SHIPPED / f"{urdf}.urdf").read_text(), f"shipped {urdf}"
     path = Path(urdf).expanduser()
     if not path.is_file():
-        raise ConfigError(f"kinematics.urdf: {urdf!r} is neither a shipped model "
-                          f"({', '.join(shipped_models())}) nor a URDF file")
+        raise ConfigError(
+            f"kinematics.urdf: {urdf!r} is neither a shipped model ({', '.join(shipped_models())}) nor a URDF file"
+        )
     try:
         return path.read_text(), str(path)
     except (OSError, UnicodeDecodeError) as exc:
@@ -101,9 +103,11 @@ class UrdfModel:
             reason = (str(exc).strip() or type(exc).__name__).splitlines()[0]
             raise ConfigError(f"kinematics.urdf: {self.source} is not a URDF Pinocchio can read: {reason}") from None
         if model.nq != model.nv:
-            raise ConfigError(f"kinematics.urdf: {self.source} has joints with more angles than velocities "
-                              f"(continuous, floating or spherical: nq {model.nq}, nv {model.nv}); "
-                              f"only revolute and prismatic joints are supported")
+            raise ConfigError(
+                f"kinematics.urdf: {self.source} has joints with more angles than velocities "
+                f"(continuous, floating or spherical: nq {model.nq}, nv {model.nv}); "
+                f"only revolute and prismatic joints are supported"
+            )
         names = sorted({f.name for f in model.frames})
         for key, name in (("frame", frame), ("base", base)):
             if not model.existFrame(name):
@@ -111,9 +115,11 @@ class UrdfModel:
         self._pin, self.model, self.data = pin, model, model.createData()
         self.frame_id, self.base_id = model.getFrameId(frame), model.getFrameId(base)
         if model.frames[self.base_id].parentJoint != 0:
-            raise ConfigError(f"kinematics.base: frame {base!r} moves with joint "
-                              f"{model.names[model.frames[self.base_id].parentJoint]!r}; "
-                              f"the base must be fixed to the URDF's root link")
+            raise ConfigError(
+                f"kinematics.base: frame {base!r} moves with joint "
+                f"{model.names[model.frames[self.base_id].parentJoint]!r}; "
+                f"the base must be fixed to the URDF's root link"
+            )
         self.frame, self.base = frame, base
         self.n_joints = model.nq
         self.joint_names = list(model.names[1:])
@@ -149,8 +155,9 @@ class UrdfModel:
             relative to the URDF's root).
         """
         pin, model, data = self._pin, self.model, self.data
-        pin.forwardKinematics(model, data, np.asarray(q, dtype=float), np.asarray(qd, dtype=float),
-                              np.asarray(qdd, dtype=float))
+        pin.forwardKinematics(
+            model, data, np.asarray(q, dtype=float), np.asarray(qd, dtype=float), np.asarray(qdd, dtype=float)
+        )
         pin.updateFramePlacement(model, data, self.frame_id)
         R_BE, p_BoEo_B = self._placement()
         w_BE_E = pin.getFrameVelocity(model, data, self.frame_id, pin.LOCAL).angular
@@ -240,10 +247,15 @@ class UrdfKinematics:
         q, qd_measured = sample.joints, sample.joint_velocities
         n = self.model.n_joints
         if q is None or len(q) != n or (qd_measured is not None and len(qd_measured) != n):
-            got = "no joint angles" if q is None else (
-                f"{len(q)} joint angles" if len(q) != n else f"{len(qd_measured)} joint velocities")
-            raise ConfigError(f"kinematics.joints: the inner source gives {got}; {self.model.source} needs {n} "
-                              f"({', '.join(self.model.joint_names)})")
+            got = (
+                "no joint angles"
+                if q is None
+                else (f"{len(q)} joint angles" if len(q) != n else f"{len(qd_measured)} joint velocities")
+            )
+            raise ConfigError(
+                f"kinematics.joints: the inner source gives {got}; {self.model.source} needs {n} "
+                f"({', '.join(self.model.joint_names)})"
+            )
         qd, qdd = self._rates.update(sample.t_ns, q, qd_measured)
         if qd is None:  # the first readings of a source without velocities: the pose only
             R_BE, p_BoEo_B = self.model.pose(q)
@@ -252,9 +264,16 @@ class UrdfKinematics:
             R_BE, p_BoEo_B, w_BE_E, alpha_BE_E, a_BEo_B = self.model.motion(q, qd, np.zeros(n) if qdd is None else qdd)
             if qdd is None:
                 alpha_BE_E = a_BEo_B = None
-        return PoseSample(t_ns=sample.t_ns, quat_BE=self.model.quaternion(R_BE), p_BoEo_B=p_BoEo_B,
-                          joints=q, joint_velocities=qd_measured, w_BE_E=w_BE_E, alpha_BE_E=alpha_BE_E,
-                          a_BEo_B=a_BEo_B)
+        return PoseSample(
+            t_ns=sample.t_ns,
+            quat_BE=self.model.quaternion(R_BE),
+            p_BoEo_B=p_BoEo_B,
+            joints=q,
+            joint_velocities=qd_measured,
+            w_BE_E=w_BE_E,
+            alpha_BE_E=alpha_BE_E,
+            a_BEo_B=a_BEo_B,
+        )
 
     def close(self) -> None:
         """Close the inner source."""
@@ -269,8 +288,13 @@ class UrdfKinematics:
         return self._inner_health.health_counters() if self._inner_health is not None else {}
 
 
-def urdf_kinematics(urdf: str = "ur5e", frame: str = "tool0", base: str = "base",
-                    joints: dict | None = None, acceleration_window_s: float = 0.01) -> UrdfKinematics:
+def urdf_kinematics(
+    urdf: str = "ur5e",
+    frame: str = "tool0",
+    base: str = "base",
+    joints: dict | None = None,
+    acceleration_window_s: float = 0.01,
+) -> UrdfKinematics:
     """The ``urdf`` source from its config table: the inner source is built from ``joints`` (a table with a ``name``).
 
     Parameters
@@ -286,8 +310,10 @@ def urdf_kinematics(urdf: str = "ur5e", frame: str = "tool0", base: str = "base"
     own: the built-ins and the entry points, as the command line sees them).
     """
     if joints is None or not isinstance(joints.get("name"), str):
-        raise ConfigError('kinematics.joints.name: missing; name the source of the joint angles, '
-                          'e.g. joints = { name = "ur_rtde", address = "192.168.1.10" }')
+        raise ConfigError(
+            "kinematics.joints.name: missing; name the source of the joint angles, "
+            'e.g. joints = { name = "ur_rtde", address = "192.168.1.10" }'
+        )
     options: dict[str, Any] = {k: v for k, v in joints.items() if k != "name"}
     model = UrdfModel(urdf, frame, base)  # Pinocchio, the file and its frames: checked before anything connects
     _check_window(acceleration_window_s)
@@ -296,7 +322,7 @@ def urdf_kinematics(urdf: str = "ur5e", frame: str = "tool0", base: str = "base"
     except ConfigError as exc:  # a kinematics plugin names its keys as if its table were [kinematics]
         message = str(exc)
         if message.startswith("kinematics.") and not message.startswith("kinematics.joints."):
-            raise ConfigError("kinematics.joints." + message[len("kinematics."):]) from None
+            raise ConfigError("kinematics.joints." + message[len("kinematics.") :]) from None
         raise
     if not isinstance(inner, KinematicsSource):
         raise ConfigError(f"kinematics.joints.name: {joints['name']!r} is not a kinematics source")

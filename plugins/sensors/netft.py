@@ -39,9 +39,26 @@ import numpy as np
 from hapticlab.core import hookimpl
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
-from hapticlab.plugins.sensors.rdt import (ATI_ERROR_SUMMARY, ATI_MONITOR_LATCHED, ATI_SATURATION, ATI_STATUS_BITS, COUNTER_DOC,  # noqa: F401
-                  FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_SPELLING, TORQUE_UNITS, Calibration, DeviceClock,
-                  RdtBatch, RdtReceiver, describe_status, fetch_configuration, stream_status, stream_status_array)
+from hapticlab.plugins.sensors.rdt import (  # noqa: F401
+    ATI_ERROR_SUMMARY,
+    ATI_MONITOR_LATCHED,
+    ATI_SATURATION,
+    ATI_STATUS_BITS,
+    COUNTER_DOC,
+    FORCE_UNITS,
+    FT_RATE_HZ,
+    RDT_PORT,
+    TORQUE_SPELLING,
+    TORQUE_UNITS,
+    Calibration,
+    DeviceClock,
+    RdtBatch,
+    RdtReceiver,
+    describe_status,
+    fetch_configuration,
+    stream_status,
+    stream_status_array,
+)
 
 HEALTH_COUNTERS = tuple(COUNTER_DOC)
 """The stream's health counters (:meth:`NetFTSensor.health_counters`), counts since ``open``."""
@@ -79,35 +96,55 @@ class NetFTSensor:
     queue_size : records pynetft keeps between reads (the oldest go first when it is full).
     """
 
-    def __init__(self, address: str = "192.168.1.1", rdt_port: int = RDT_PORT, http_port: int = 80,
-                 rate_hz: float = FT_RATE_HZ, ft_rate_hz: float = FT_RATE_HZ, receiver: str = "hapticlab",
-                 receive_timeout: float = 0.1, counts_per_force: float | None = None,
-                 counts_per_torque: float | None = None, force_unit: str | None = None,
-                 torque_unit: str | None = None, recovery: str = "reconnect",
-                 range_force: float | list[float] | None = None, range_torque: float | list[float] | None = None,
-                 connect_timeout: float = 2.0, reconnect_delay: float = 0.002, health_interval: float = 1.0,
-                 clock_slew_ppm: float = 200.0, queue_size: int = 65536):
+    def __init__(
+        self,
+        address: str = "192.168.1.1",
+        rdt_port: int = RDT_PORT,
+        http_port: int = 80,
+        rate_hz: float = FT_RATE_HZ,
+        ft_rate_hz: float = FT_RATE_HZ,
+        receiver: str = "hapticlab",
+        receive_timeout: float = 0.1,
+        counts_per_force: float | None = None,
+        counts_per_torque: float | None = None,
+        force_unit: str | None = None,
+        torque_unit: str | None = None,
+        recovery: str = "reconnect",
+        range_force: float | list[float] | None = None,
+        range_torque: float | list[float] | None = None,
+        connect_timeout: float = 2.0,
+        reconnect_delay: float = 0.002,
+        health_interval: float = 1.0,
+        clock_slew_ppm: float = 200.0,
+        queue_size: int = 65536,
+    ):
         if not isinstance(address, str) or not address.strip():
             raise ConfigError(f"sensor.address: must be the sensor's IP address or host name, got {address!r}")
         for key, port in (("rdt_port", rdt_port), ("http_port", http_port)):
             if not 0 < port < 65536:
                 raise ConfigError(f"sensor.{key}: must be a port number 1..65535, got {port!r}")
-        for key, value in (("rate_hz", rate_hz), ("ft_rate_hz", ft_rate_hz), ("receive_timeout", receive_timeout),
-                           ("connect_timeout", connect_timeout), ("reconnect_delay", reconnect_delay),
-                           ("health_interval", health_interval)):
+        for key, value in (
+            ("rate_hz", rate_hz),
+            ("ft_rate_hz", ft_rate_hz),
+            ("receive_timeout", receive_timeout),
+            ("connect_timeout", connect_timeout),
+            ("reconnect_delay", reconnect_delay),
+            ("health_interval", health_interval),
+        ):
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"sensor.{key}: must be a finite number > 0, got {value!r}")
         if not rate_hz <= ft_rate_hz:
-            raise ConfigError(f"sensor.rate_hz: the RDT rate cannot exceed ft_rate_hz ({ft_rate_hz:g} Hz), "
-                              f"got {rate_hz!r}")
+            raise ConfigError(
+                f"sensor.rate_hz: the RDT rate cannot exceed ft_rate_hz ({ft_rate_hz:g} Hz), got {rate_hz!r}"
+            )
         if not (math.isfinite(clock_slew_ppm) and clock_slew_ppm >= 0):
             raise ConfigError(f"sensor.clock_slew_ppm: must be a finite number >= 0, got {clock_slew_ppm!r}")
         if queue_size < 1:
             raise ConfigError(f"sensor.queue_size: must be >= 1, got {queue_size!r}")
         if recovery not in ("reconnect", "fail_stop"):
-            raise ConfigError(f"sensor.recovery: must be \"reconnect\" or \"fail_stop\", got {recovery!r}")
+            raise ConfigError(f'sensor.recovery: must be "reconnect" or "fail_stop", got {recovery!r}')
         if receiver not in RECEIVERS:
-            raise ConfigError(f"sensor.receiver: must be \"hapticlab\" or \"pynetft\", got {receiver!r}")
+            raise ConfigError(f'sensor.receiver: must be "hapticlab" or "pynetft", got {receiver!r}')
         self.address, self.rdt_port, self.http_port = address.strip(), int(rdt_port), int(http_port)
         self.rate_hz = float(rate_hz)
         self.latency_s = NETWORK_LATENCY_S
@@ -123,8 +160,11 @@ class NetFTSensor:
         """(3,) rated range per force axis, N (HasRange; inf: unchecked)."""
         self.range_torque_S = _range("range_torque", range_torque)
         """(3,) rated range per torque axis, N·m."""
-        self.calibration: dict[str, str] = {"sensor": "ATI Net F/T", "address": self.address,
-                                            "source": "override" if self.override else "sensor (netftapi2.xml)"}
+        self.calibration: dict[str, str] = {
+            "sensor": "ATI Net F/T",
+            "address": self.address,
+            "source": "override" if self.override else "sensor (netftapi2.xml)",
+        }
         """The calibration in use (HasCalibration); completed by ``open`` with what the sensor reports."""
         if self.override is not None:
             self.calibration.update(self.override.fields())
@@ -153,13 +193,22 @@ class NetFTSensor:
         product, calibration = link.open()
         self._link = link
         # pynetft hands over values in the sensor's units (N or lbf ..., N·m or N·mm ...), ours counts
-        self._scale = (np.repeat([FORCE_UNITS[calibration.force_unit], TORQUE_UNITS[calibration.torque_unit]], 3)
-                       if link.scaled else calibration.si_per_count())
+        self._scale = (
+            np.repeat([FORCE_UNITS[calibration.force_unit], TORQUE_UNITS[calibration.torque_unit]], 3)
+            if link.scaled
+            else calibration.si_per_count()
+        )
         self.calibration.update({"product": product, **calibration.fields()})
-        self._events.append(Event(t0_ns, "sensor_calibration",
-                                  f"Net F/T {self.address}: {calibration.counts_per_force:g} counts/"
-                                  f"{calibration.force_unit}, {calibration.counts_per_torque:g} counts/"
-                                  f"{calibration.torque_unit} ({self.calibration['source']})", dict(self.calibration)))
+        self._events.append(
+            Event(
+                t0_ns,
+                "sensor_calibration",
+                f"Net F/T {self.address}: {calibration.counts_per_force:g} counts/"
+                f"{calibration.force_unit}, {calibration.counts_per_torque:g} counts/"
+                f"{calibration.torque_unit} ({self.calibration['source']})",
+                dict(self.calibration),
+            )
+        )
         self._next_health_ns = t0_ns + self.health_interval_ns
         self._last_received_ns = self._silent_since_ns = time.monotonic_ns()
 
@@ -205,14 +254,23 @@ class NetFTSensor:
             pieces, start = [], 0
             for i, old, new in batch.restarts:  # the sensor restarted its counter: a new clock from there on
                 if i > start:
-                    pieces.append(self.clock.stamp_many(batch.k[start:i], received if np.ndim(received) == 0
-                                                        else received[start:i]))
+                    pieces.append(
+                        self.clock.stamp_many(
+                            batch.k[start:i], received if np.ndim(received) == 0 else received[start:i]
+                        )
+                    )
                 self.clock.reset()
-                self._events.append(Event(at(i), "sensor_restart", f"Net F/T {self.address} restarted its sample "
-                                          f"counter ({old} -> {new}): time re-anchored"))
+                self._events.append(
+                    Event(
+                        at(i),
+                        "sensor_restart",
+                        f"Net F/T {self.address} restarted its sample counter ({old} -> {new}): time re-anchored",
+                    )
+                )
                 start = i
-            pieces.append(self.clock.stamp_many(batch.k[start:], received if np.ndim(received) == 0
-                                                else received[start:]))
+            pieces.append(
+                self.clock.stamp_many(batch.k[start:], received if np.ndim(received) == 0 else received[start:])
+            )
             t_ns = np.concatenate(pieces)
         elif len(batch.k) <= 16 and np.ndim(received) == 0:  # a usual tick: 16 scalar steps beat 10 array calls
             stamp = self.clock.stamp
@@ -227,19 +285,36 @@ class NetFTSensor:
         else:
             bits = [0] * len(words)
         wrench_S = batch.values * self._scale  # (n, 6) N and N·m
-        block = WrenchBlock(np.asarray(t_ns, dtype=np.int64), np.ascontiguousarray(wrench_S[:, :3]),
-                            np.ascontiguousarray(wrench_S[:, 3:]), np.asarray(batch.k, dtype=np.int64),
-                            np.asarray(bits, dtype=np.int64))
+        block = WrenchBlock(
+            np.asarray(t_ns, dtype=np.int64),
+            np.ascontiguousarray(wrench_S[:, :3]),
+            np.ascontiguousarray(wrench_S[:, 3:]),
+            np.asarray(batch.k, dtype=np.int64),
+            np.asarray(bits, dtype=np.int64),
+        )
         self._pending = WrenchBlock.concatenate([self._pending, block]) if len(self._pending) else block
         self._last_received_ns = self._silent_since_ns = at(len(words) - 1)
 
     def _status_event(self, t_ns: int, word: int) -> None:
         previous, self._word = self._word, word
         bits = stream_status(word)
-        kind = "sensor_status_ok" if word == 0 else "sensor_saturated" if bits & STATUS_SATURATED else \
-            "sensor_error" if bits else "sensor_warning"
-        self._events.append(Event(t_ns, kind, f"Net F/T {self.address} status 0x{word:08x}: {describe_status(word)}",
-                                  {"status_word": word, "previous_status_word": previous, "stream_status": bits}))
+        kind = (
+            "sensor_status_ok"
+            if word == 0
+            else "sensor_saturated"
+            if bits & STATUS_SATURATED
+            else "sensor_error"
+            if bits
+            else "sensor_warning"
+        )
+        self._events.append(
+            Event(
+                t_ns,
+                kind,
+                f"Net F/T {self.address} status 0x{word:08x}: {describe_status(word)}",
+                {"status_word": word, "previous_status_word": previous, "stream_status": bits},
+            )
+        )
 
     def _watch(self, now_ns: int) -> None:
         """Receive timeout and health counters: events when they change."""
@@ -249,11 +324,16 @@ class NetFTSensor:
         if not self._timed_out and silent_ns > timeout_ns:
             self._timed_out = True
             self._link.on_timeout()
-            self._events.append(Event(now_ns, "sensor_timeout",
-                                      f"no Net F/T record from {self.address} for {silent_ns * 1e-6:.0f} ms: "
-                                      f"no sensor data, haptic force held at zero"
-                                      + ("; reconnecting" if self.recovery == "reconnect" else ""),
-                                      {"silent_s": silent_ns * 1e-9}))
+            self._events.append(
+                Event(
+                    now_ns,
+                    "sensor_timeout",
+                    f"no Net F/T record from {self.address} for {silent_ns * 1e-6:.0f} ms: "
+                    f"no sensor data, haptic force held at zero"
+                    + ("; reconnecting" if self.recovery == "reconnect" else ""),
+                    {"silent_s": silent_ns * 1e-9},
+                )
+            )
             if self.recovery == "fail_stop" and self.receiver == "hapticlab":
                 raise ConnectionError(f"Net F/T {self.address} stopped: no record for {silent_ns * 1e-6:.0f} ms")
         elif self._timed_out and silent_ns <= timeout_ns:
@@ -269,14 +349,23 @@ class NetFTSensor:
 
     def _health_event(self, t_ns: int, final: bool = False) -> None:
         """The counters as an event when a fault counter moved (or at the end of the stream)."""
-        changed = {k: v - self._recorded_counters[k] for k, v in self._counters.items()
-                   if k != "received" and v != self._recorded_counters[k]}
+        changed = {
+            k: v - self._recorded_counters[k]
+            for k, v in self._counters.items()
+            if k != "received" and v != self._recorded_counters[k]
+        }
         if not changed and not final:
             return
         self._recorded_counters = dict(self._counters)
         what = ", ".join(f"{k} +{v}" for k, v in changed.items()) or "no faults"
-        self._events.append(Event(t_ns, "sensor_health", f"Net F/T {self.address}: {what}"
-                                  + (" (stream closed)" if final else ""), dict(self._counters)))
+        self._events.append(
+            Event(
+                t_ns,
+                "sensor_health",
+                f"Net F/T {self.address}: {what}" + (" (stream closed)" if final else ""),
+                dict(self._counters),
+            )
+        )
 
     # ------------------------------------------------------------------ capabilities
 
@@ -356,27 +445,45 @@ class _PynetftLink:
 
     def open(self) -> tuple[str, Calibration]:
         pynetft, s = self.pynetft, self.sensor
-        override = None if s.override is None else pynetft.Calibration(
-            s.override.counts_per_force, s.override.counts_per_torque, pynetft.ForceUnit(s.override.force_unit),
-            pynetft.TorqueUnit(s.override.torque_unit))
+        override = (
+            None
+            if s.override is None
+            else pynetft.Calibration(
+                s.override.counts_per_force,
+                s.override.counts_per_torque,
+                pynetft.ForceUnit(s.override.force_unit),
+                pynetft.TorqueUnit(s.override.torque_unit),
+            )
+        )
         config = pynetft.Config(
-            sensor_host=s.address, rdt_port=s.rdt_port, http_port=s.http_port, receive_timeout=s.receive_timeout,
-            configuration_timeout=s.connect_timeout, configuration_connect_timeout=min(0.5, s.connect_timeout),
-            reconnect_initial_delay=s.reconnect_delay, reconnect_max_delay=max(5.0, s.reconnect_delay),
+            sensor_host=s.address,
+            rdt_port=s.rdt_port,
+            http_port=s.http_port,
+            receive_timeout=s.receive_timeout,
+            configuration_timeout=s.connect_timeout,
+            configuration_connect_timeout=min(0.5, s.connect_timeout),
+            reconnect_initial_delay=s.reconnect_delay,
+            reconnect_max_delay=max(5.0, s.reconnect_delay),
             deliver_samples_with_error_status=True,  # saturation must reach the stream, not vanish
-            recovery_policy=pynetft.RecoveryPolicy.RECONNECT if s.recovery == "reconnect"
-            else pynetft.RecoveryPolicy.FAIL_STOP, calibration_override=override)
+            recovery_policy=pynetft.RecoveryPolicy.RECONNECT
+            if s.recovery == "reconnect"
+            else pynetft.RecoveryPolicy.FAIL_STOP,
+            calibration_override=override,
+        )
         self.client = pynetft.Client(config, queue_size=s.queue_size)
         self.client.start()
         if not self.client.wait_for_first_sample(s.connect_timeout):
             health = self.client.health()
             self.client.stop()
-            raise ConnectionError(f"no Net F/T record from {s.address}:{s.rdt_port} within "
-                                  f"{s.connect_timeout:g} s ({health.last_error or health.state.value})")
+            raise ConnectionError(
+                f"no Net F/T record from {s.address}:{s.rdt_port} within "
+                f"{s.connect_timeout:g} s ({health.last_error or health.state.value})"
+            )
         configuration = self.client.health().sensor_configuration
         c = configuration.calibration
-        return configuration.product_name, Calibration(c.counts_per_force_unit, c.counts_per_torque_unit,
-                                                       c.force_unit.value, c.torque_unit.value)
+        return configuration.product_name, Calibration(
+            c.counts_per_force_unit, c.counts_per_torque_unit, c.force_unit.value, c.torque_unit.value
+        )
 
     def poll(self) -> RdtBatch | None:
         batch = []
@@ -386,8 +493,9 @@ class _PynetftLink:
         except TimeoutError:  # nothing more queued
             pass
         except self.pynetft.SensorFaultError as exc:  # fail_stop: the stream is over
-            raise ConnectionError(f"Net F/T {self.sensor.address} stopped: {exc.fault_code.value} "
-                                  f"({exc.health.last_error})") from None
+            raise ConnectionError(
+                f"Net F/T {self.sensor.address} stopped: {exc.fault_code.value} ({exc.health.last_error})"
+            ) from None
         if not batch:
             return None
         ft = np.array([sample.ft_sequence for sample in batch], dtype=np.int64)
@@ -399,17 +507,32 @@ class _PynetftLink:
         step[backward] = 1
         k = self._k + np.cumsum(step)
         self._ft, self._k = int(ft[-1]), int(k[-1])
-        return RdtBatch(k, np.array([sample.status for sample in batch], dtype=np.int64),
-                        np.array([sample.wrench for sample in batch]),
-                        np.array([sample.received_at_ns for sample in batch], dtype=np.int64), restarts)
+        return RdtBatch(
+            k,
+            np.array([sample.status for sample in batch], dtype=np.int64),
+            np.array([sample.wrench for sample in batch]),
+            np.array([sample.received_at_ns for sample in batch], dtype=np.int64),
+            restarts,
+        )
 
     def counters(self) -> dict[str, int]:
         h = self.client.health()
-        return dict(received=h.received_count, lost=h.lost_count, duplicate=h.duplicate_count,
-                    out_of_order=h.out_of_order_count, stall=h.ft_stall_count, ft_backward=h.ft_backward_count,
-                    ft_restart=h.ft_restart_count, malformed=h.malformed_count, timeout=h.timeout_count,
-                    reconnect=h.reconnect_count, device_error=h.device_error_count, warning=h.warning_count,
-                    queue_dropped=h.python_queue_dropped_count, calibration_change=h.calibration_change_count)
+        return dict(
+            received=h.received_count,
+            lost=h.lost_count,
+            duplicate=h.duplicate_count,
+            out_of_order=h.out_of_order_count,
+            stall=h.ft_stall_count,
+            ft_backward=h.ft_backward_count,
+            ft_restart=h.ft_restart_count,
+            malformed=h.malformed_count,
+            timeout=h.timeout_count,
+            reconnect=h.reconnect_count,
+            device_error=h.device_error_count,
+            warning=h.warning_count,
+            queue_dropped=h.python_queue_dropped_count,
+            calibration_change=h.calibration_change_count,
+        )
 
     def on_timeout(self) -> None:
         pass  # pynetft counts its own timeouts
@@ -428,8 +551,10 @@ def _calibration_override(cpf, cpt, force_unit, torque_unit) -> Calibration | No
         return None
     missing = [k for k, v in given.items() if v is None]
     if missing:
-        raise ConfigError(f"sensor.{missing[0]}: a calibration override needs counts_per_force, counts_per_torque, "
-                          f"force_unit and torque_unit together")
+        raise ConfigError(
+            f"sensor.{missing[0]}: a calibration override needs counts_per_force, counts_per_torque, "
+            f"force_unit and torque_unit together"
+        )
     for key in ("counts_per_force", "counts_per_torque"):
         if not (math.isfinite(given[key]) and given[key] > 0):
             raise ConfigError(f"sensor.{key}: must be a finite number of counts > 0, got {given[key]!r}")

@@ -49,10 +49,17 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.types import STATUS_SATURATED, EmulatorCommand
+from hapticlab.plugins.sensors.netft import (
+    ATI_ERROR_SUMMARY,
+    ATI_SATURATION,
+    FORCE_UNITS,
+    FT_RATE_HZ,
+    RDT_PORT,
+    TORQUE_UNITS,
+)
+from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.serving import serve_until_stopped
 from hapticlab.plugins.simworld.physics import SimWorld
-from hapticlab.plugins.sensors.netft import (ATI_ERROR_SUMMARY, ATI_SATURATION, FORCE_UNITS, FT_RATE_HZ, RDT_PORT, TORQUE_UNITS)
-from hapticlab.plugins.sensors.sim import SimSensor
 
 REQUEST = struct.Struct(">HHI")
 """An RDT request: header 0x1234, command, sample count."""
@@ -153,11 +160,21 @@ class NetFTEmulator:
     product_name : ``prodname``.
     """
 
-    def __init__(self, world: SimWorld, address: str = "127.0.0.1", rdt_port: int = RDT_PORT,
-                 http_port: int = 80, rdt_rate_hz: float = FT_RATE_HZ, counts_per_force: float = 1_000_000.0,
-                 counts_per_torque: float = 1_000_000.0, force_unit: str = "N", torque_unit: str = "Nm",
-                 faults: tuple[RdtFault, ...] | list[RdtFault] = (), ft_sequence_start: int = 0x7FFF_0000,
-                 product_name: str = "Net F/T emulator (hapticlab)"):
+    def __init__(
+        self,
+        world: SimWorld,
+        address: str = "127.0.0.1",
+        rdt_port: int = RDT_PORT,
+        http_port: int = 80,
+        rdt_rate_hz: float = FT_RATE_HZ,
+        counts_per_force: float = 1_000_000.0,
+        counts_per_torque: float = 1_000_000.0,
+        force_unit: str = "N",
+        torque_unit: str = "Nm",
+        faults: tuple[RdtFault, ...] | list[RdtFault] = (),
+        ft_sequence_start: int = 0x7FFF_0000,
+        product_name: str = "Net F/T emulator (hapticlab)",
+    ):
         decimation = FT_RATE_HZ / rdt_rate_hz if rdt_rate_hz > 0 else 0.0
         if not (decimation >= 1 and abs(decimation - round(decimation)) < 1e-9):
             raise ValueError(f"rdt_rate_hz: must be {FT_RATE_HZ:g} Hz divided by a whole number, got {rdt_rate_hz!r}")
@@ -176,8 +193,9 @@ class NetFTEmulator:
         self.ft_sequence_start = int(ft_sequence_start)
         self.product_name = product_name
         # counts per SI unit (N, N·m), per axis
-        self._counts_per_si = np.array([counts_per_force / FORCE_UNITS[force_unit]] * 3
-                                       + [counts_per_torque / TORQUE_UNITS[torque_unit]] * 3)
+        self._counts_per_si = np.array(
+            [counts_per_force / FORCE_UNITS[force_unit]] * 3 + [counts_per_torque / TORQUE_UNITS[torque_unit]] * 3
+        )
         saturation = np.concatenate([world.sensor.saturation_force_S, world.sensor.saturation_torque_S])
         self._saturation_counts = np.minimum(np.rint(saturation * self._counts_per_si), INT32_MAX).astype(np.int64)
         self._sensor = SimSensor(FT_RATE_HZ, world=world)
@@ -215,9 +233,12 @@ class NetFTEmulator:
         """Start the device's clock and serve RDT and HTTP in background threads."""
         self.t0_ns = time.monotonic_ns()
         self._sensor.open(self.t0_ns)
-        self._threads = [threading.Thread(target=self._serve_rdt, name="netft-emulator-rdt", daemon=True),
-                         threading.Thread(target=self._http.serve_forever, kwargs={"poll_interval": 0.05},
-                                          name="netft-emulator-http", daemon=True)]
+        self._threads = [
+            threading.Thread(target=self._serve_rdt, name="netft-emulator-rdt", daemon=True),
+            threading.Thread(
+                target=self._http.serve_forever, kwargs={"poll_interval": 0.05}, name="netft-emulator-http", daemon=True
+            ),
+        ]
         for thread in self._threads:
             thread.start()
         return self
@@ -274,12 +295,21 @@ class NetFTEmulator:
 
     def xml(self) -> bytes:
         """The ``netftapi2.xml`` page."""
-        rating = np.concatenate([self.world.sensor.saturation_force_S / FORCE_UNITS[self.force_unit],
-                                 self.world.sensor.saturation_torque_S / TORQUE_UNITS[self.torque_unit]])
+        rating = np.concatenate(
+            [
+                self.world.sensor.saturation_force_S / FORCE_UNITS[self.force_unit],
+                self.world.sensor.saturation_torque_S / TORQUE_UNITS[self.torque_unit],
+            ]
+        )
         fields = {
-            "prodname": self.product_name, "runstat": "0x00000000", "runrate": f"{FT_RATE_HZ:g}",
-            "comrdtrate": f"{self.rdt_rate_hz:g}", "cfgcpf": f"{self.counts_per_force:g}",
-            "cfgcpt": f"{self.counts_per_torque:g}", "scfgfu": self.force_unit, "scfgtu": self.torque_unit,
+            "prodname": self.product_name,
+            "runstat": "0x00000000",
+            "runrate": f"{FT_RATE_HZ:g}",
+            "comrdtrate": f"{self.rdt_rate_hz:g}",
+            "cfgcpf": f"{self.counts_per_force:g}",
+            "cfgcpt": f"{self.counts_per_torque:g}",
+            "scfgfu": self.force_unit,
+            "scfgtu": self.torque_unit,
             "cfgmr": ";".join(f"{v:g}" for v in rating),
         }
         body = "".join(f"<{k}>{escape(v)}</{k}>" for k, v in fields.items())
@@ -371,8 +401,12 @@ class NetFTEmulator:
                 self.counts.stalled += 1
         self._last = (ft_sequence, raw - self.bias_counts)
         self._rdt_sequence = (self._rdt_sequence + 1) % 2**32
-        record = RECORD.pack(self._rdt_sequence, ft_sequence, status,
-                             *np.clip(raw - self.bias_counts, -INT32_MAX - 1, INT32_MAX).tolist())
+        record = RECORD.pack(
+            self._rdt_sequence,
+            ft_sequence,
+            status,
+            *np.clip(raw - self.bias_counts, -INT32_MAX - 1, INT32_MAX).tolist(),
+        )
         self.counts.status += status != 0
         kinds = {f.kind for f in self.faults if f.kind in ("drop", "duplicate", "reorder") and f.hits(t, index)}
         if "drop" in kinds:
@@ -428,15 +462,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--address", default="127.0.0.1", help="loopback address to serve on (127.0.0.x)")
     parser.add_argument("--rdt-port", type=int, default=RDT_PORT, help="UDP port of the RDT stream (default 49152)")
     parser.add_argument("--http-port", type=int, default=80, help="TCP port of netftapi2.xml (default 80)")
-    parser.add_argument("--session", default=None,
-                        help="preset name or TOML file whose [world] feeds the sensor (default: demo)")
+    parser.add_argument(
+        "--session", default=None, help="preset name or TOML file whose [world] feeds the sensor (default: demo)"
+    )
     parser.add_argument("--rate", type=float, default=FT_RATE_HZ, help="RDT output rate, Hz (7000/n; default 7000)")
     parser.add_argument("--counts-per-force", type=float, default=1_000_000.0, help="cfgcpf, counts per force unit")
     parser.add_argument("--counts-per-torque", type=float, default=1_000_000.0, help="cfgcpt, counts per torque unit")
     parser.add_argument("--force-unit", default="N", choices=sorted(FORCE_UNITS), help="scfgfu")
     parser.add_argument("--torque-unit", default="Nm", choices=sorted(TORQUE_UNITS), help="scfgtu")
-    parser.add_argument("--fault", action="append", default=[], metavar="KIND[,start=S][,duration=S][,every=N]"
-                        "[,status=0x...]", help=f"inject a wire fault ({', '.join(FAULT_KINDS)}); repeatable")
+    parser.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND[,start=S][,duration=S][,every=N][,status=0x...]",
+        help=f"inject a wire fault ({', '.join(FAULT_KINDS)}); repeatable",
+    )
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
@@ -449,25 +489,47 @@ def run(args: argparse.Namespace) -> int:
     try:
         faults = [RdtFault.parse(text) for text in args.fault]
         world = SimWorld.from_config(config.get("world"))
-        emulator = NetFTEmulator(world, args.address, args.rdt_port, args.http_port, args.rate,
-                                 args.counts_per_force, args.counts_per_torque, args.force_unit,
-                                 args.torque_unit, faults)
+        emulator = NetFTEmulator(
+            world,
+            args.address,
+            args.rdt_port,
+            args.http_port,
+            args.rate,
+            args.counts_per_force,
+            args.counts_per_torque,
+            args.force_unit,
+            args.torque_unit,
+            faults,
+        )
     except ValueError as exc:
         raise ConfigError(f"emulate netft: {exc}") from None
     except OSError as exc:
         raise ConfigError(f"emulate netft: cannot serve on {args.address}: {exc.strerror or exc}") from None
     with emulator:
-        serve_until_stopped(args.duration, ready=lambda: print(
-            f"netft emulator on {emulator.address}: RDT udp/{emulator.rdt_port}, "
-            f"netftapi2.xml http/{emulator.http_port}", flush=True))
+        serve_until_stopped(
+            args.duration,
+            ready=lambda: print(
+                f"netft emulator on {emulator.address}: RDT udp/{emulator.rdt_port}, "
+                f"netftapi2.xml http/{emulator.http_port}",
+                flush=True,
+            ),
+        )
     c = emulator.counts
-    print(f"sent {c.sent} records ({c.dropped} dropped, {c.duplicated} duplicated, {c.reordered} reordered, "
-          f"{c.stalled} stalled, {c.status} with a status); {c.starts} start, {c.stops} stop, "
-          f"{c.biases} bias request(s)")
+    print(
+        f"sent {c.sent} records ({c.dropped} dropped, {c.duplicated} duplicated, {c.reordered} reordered, "
+        f"{c.stalled} stalled, {c.status} with a status); {c.starts} start, {c.stops} stop, "
+        f"{c.biases} bias request(s)"
+    )
     return 0
 
 
 @hookimpl
 def register_emulators(register):
-    register("netft", EmulatorCommand(help="ATI Net F/T: RDT over UDP and netftapi2.xml over HTTP, up to 7000 "
-                                           "samples/s", add_arguments=add_arguments, run=run))
+    register(
+        "netft",
+        EmulatorCommand(
+            help="ATI Net F/T: RDT over UDP and netftapi2.xml over HTTP, up to 7000 samples/s",
+            add_arguments=add_arguments,
+            run=run,
+        ),
+    )

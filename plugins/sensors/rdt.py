@@ -59,12 +59,25 @@ REWIND_ASKED = 16
 """... or only this many behind, within 2·REWIND records after our own start request: a start request
 still in flight may renumber the stream once more after its records have come back."""
 
-FORCE_UNITS: dict[str, float] = {"N": 1.0, "kN": 1000.0, "lbf": 4.4482216152605, "klbf": 4448.2216152605,
-                                 "kgf": 9.80665}
+FORCE_UNITS: dict[str, float] = {
+    "N": 1.0,
+    "kN": 1000.0,
+    "lbf": 4.4482216152605,
+    "klbf": 4448.2216152605,
+    "kgf": 9.80665,
+}
 """N per force unit, by the spelling ``scfgfu`` uses."""
-TORQUE_UNITS: dict[str, float] = {"N-m": 1.0, "Nm": 1.0, "N-mm": 1e-3, "Nmm": 1e-3, "kN-m": 1000.0,
-                                  "lbf-in": 0.1129848290276167, "lbf-ft": 1.3558179483314004,
-                                  "kgf-cm": 0.0980665, "kg-cm": 0.0980665}
+TORQUE_UNITS: dict[str, float] = {
+    "N-m": 1.0,
+    "Nm": 1.0,
+    "N-mm": 1e-3,
+    "Nmm": 1e-3,
+    "kN-m": 1000.0,
+    "lbf-in": 0.1129848290276167,
+    "lbf-ft": 1.3558179483314004,
+    "kgf-cm": 0.0980665,
+    "kg-cm": 0.0980665,
+}
 """N·m per torque unit, by the spellings ``scfgtu`` uses."""
 TORQUE_SPELLING = {"Nm": "N-m", "Nmm": "N-mm", "kg-cm": "kgf-cm"}
 """Other spellings of a torque unit -> the one recorded (pynetft's)."""
@@ -76,17 +89,35 @@ ATI_SATURATION = 0x0002_0000
 ATI_MONITOR_LATCHED = 0x0001_0000
 """A threshold monitor condition latched (the user's own thresholds; the reading itself is good)."""
 ATI_STATUS_BITS: dict[int, str] = {
-    30: "CPU or RAM error", 29: "digital board error", 28: "analog board error",
-    27: "serial link error", 26: "program memory check failed", 25: "halted on configuration errors",
-    24: "settings validation error", 23: "configuration does not fit the calibration",
-    22: "network communication failure", 21: "CAN error", 20: "RDT communication error",
-    19: "EtherNet/IP failure", 18: "DeviceNet failure", 17: "transducer saturation or A/D error",
-    16: "monitor condition latched", 14: "watchdog timeout", 13: "stack check error",
-    12: "serial EEPROM failure", 11: "serial flash failure", 10: "analog board watchdog timeout",
-    9: "strain gage excitation current too high", 8: "strain gage excitation current too low",
-    7: "artificial analog ground out of range", 6: "analog supply too high", 5: "analog supply too low",
-    4: "serial link data unavailable", 3: "reference voltage or power monitor error",
-    2: "internal temperature error", 1: "HTTP failure",
+    30: "CPU or RAM error",
+    29: "digital board error",
+    28: "analog board error",
+    27: "serial link error",
+    26: "program memory check failed",
+    25: "halted on configuration errors",
+    24: "settings validation error",
+    23: "configuration does not fit the calibration",
+    22: "network communication failure",
+    21: "CAN error",
+    20: "RDT communication error",
+    19: "EtherNet/IP failure",
+    18: "DeviceNet failure",
+    17: "transducer saturation or A/D error",
+    16: "monitor condition latched",
+    14: "watchdog timeout",
+    13: "stack check error",
+    12: "serial EEPROM failure",
+    11: "serial flash failure",
+    10: "analog board watchdog timeout",
+    9: "strain gage excitation current too high",
+    8: "strain gage excitation current too low",
+    7: "artificial analog ground out of range",
+    6: "analog supply too high",
+    5: "analog supply too low",
+    4: "serial link data unavailable",
+    3: "reference voltage or power monitor error",
+    2: "internal temperature error",
+    1: "HTTP failure",
 }
 """What each bit of the status word says (bit 31 is the error summary)."""
 _OTHER_ERRORS = 0xFFFF_FFFF & ~(ATI_ERROR_SUMMARY | ATI_SATURATION | ATI_MONITOR_LATCHED)
@@ -94,10 +125,10 @@ _OTHER_ERRORS = 0xFFFF_FFFF & ~(ATI_ERROR_SUMMARY | ATI_SATURATION | ATI_MONITOR
 COUNTER_DOC = {
     "received": "records received (duplicates and late ones included)",
     "lost": "rdt_sequence numbers the stream skipped: records dropped on the way, or arriving too late "
-            "to be delivered in order (those also count as late)",
+    "to be delivered in order (those also count as late)",
     "duplicate": "records whose rdt_sequence had already been received (not delivered)",
     "out_of_order": "records (duplicates aside) that arrived after one with a higher rdt_sequence; "
-                    "delivered in order when they arrive in the same read, else late",
+    "delivered in order when they arrive in the same read, else late",
     "late": "out-of-order records that arrived after the stream had passed them (not delivered)",
     "stall": "records repeating the previous ft_sequence: the sensor's sampling stalled (not delivered)",
     "ft_backward": "records whose ft_sequence went back within one stream (not delivered)",
@@ -155,13 +186,22 @@ class Calibration:
 
     def si_per_count(self) -> np.ndarray:
         """(6,) N per count (×3) and N·m per count (×3)."""
-        return np.repeat([FORCE_UNITS[self.force_unit] / self.counts_per_force,
-                          TORQUE_UNITS[self.torque_unit] / self.counts_per_torque], 3)
+        return np.repeat(
+            [
+                FORCE_UNITS[self.force_unit] / self.counts_per_force,
+                TORQUE_UNITS[self.torque_unit] / self.counts_per_torque,
+            ],
+            3,
+        )
 
     def fields(self) -> dict[str, str]:
         """As the ``calibration`` strings (HasCalibration)."""
-        return {"counts_per_force": f"{self.counts_per_force:g}", "counts_per_torque": f"{self.counts_per_torque:g}",
-                "force_unit": self.force_unit, "torque_unit": self.torque_unit}
+        return {
+            "counts_per_force": f"{self.counts_per_force:g}",
+            "counts_per_torque": f"{self.counts_per_torque:g}",
+            "force_unit": self.force_unit,
+            "torque_unit": self.torque_unit,
+        }
 
 
 def fetch_configuration(address: str, http_port: int, timeout: float) -> tuple[str, Calibration]:
@@ -180,8 +220,9 @@ def fetch_configuration(address: str, http_port: int, timeout: float) -> tuple[s
     except (KeyError, ValueError) as exc:
         raise ValueError(f"netftapi2.xml: no usable calibration ({exc})") from None
     if force_unit not in FORCE_UNITS or torque_unit not in TORQUE_UNITS or not (cpf > 0 and cpt > 0):
-        raise ValueError(f"netftapi2.xml: unusable calibration {cpf:g} counts/{force_unit}, "
-                         f"{cpt:g} counts/{torque_unit}")
+        raise ValueError(
+            f"netftapi2.xml: unusable calibration {cpf:g} counts/{force_unit}, {cpt:g} counts/{torque_unit}"
+        )
     return fields.get("prodname", "ATI Net F/T"), Calibration(cpf, cpt, force_unit, torque_unit)
 
 
@@ -409,7 +450,7 @@ class RdtReceiver:
         # a record far behind (REWIND, or REWIND_ASKED after our start request) numbered at most REWIND starts
         # a new stream: the sensor numbers rdt_sequence from 1 after every start request
         previous = np.concatenate([[self._rdt if self._rdt is not None else rdt[0]], rdt[:-1]])
-        behind = ((previous - rdt) & 0xFFFF_FFFF)
+        behind = (previous - rdt) & 0xFFFF_FFFF
         far = REWIND_ASKED if self._asked_left > 0 else REWIND
         self._asked_left -= len(rdt)
         starts = np.flatnonzero((behind > far) & (behind < 2**31) & (rdt <= REWIND))

@@ -37,8 +37,10 @@ class SimSensor:
 
     def __init__(self, rate_hz: float = 1000.0, world: SimWorld | None = None):
         if world is None:
-            raise ConfigError("sensor sim: needs the session's simulated world; "
-                              "add a [world] table to the session (or pass world=SimWorld(...))")
+            raise ConfigError(
+                "sensor sim: needs the session's simulated world; "
+                "add a [world] table to the session (or pass world=SimWorld(...))"
+            )
         if not 0 < rate_hz <= MAX_RATE_HZ:
             raise ConfigError(f"sensor.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz, got {rate_hz!r}")
         self.rate_hz = float(rate_hz)
@@ -60,8 +62,13 @@ class SimSensor:
         :class:`WrenchBlock`'s fields, in its order."""
         t_ns = self._clock.times(seq)
         reading = self.world.wrench((t_ns - self._clock.t0_ns) / 1e9)
-        return {"t_ns": t_ns, "force_S": reading["force_S"], "torque_S": reading["torque_S"], "seq": seq,
-                "status": reading["status"].astype(np.int64, copy=False)}
+        return {
+            "t_ns": t_ns,
+            "force_S": reading["force_S"],
+            "torque_S": reading["torque_S"],
+            "seq": seq,
+            "status": reading["status"].astype(np.int64, copy=False),
+        }
 
     def read(self, until_ns: int) -> list[WrenchSample]:
         """Every sample not yet returned with time <= ``until_ns``, in time order (read-only arrays)."""
@@ -78,8 +85,7 @@ class SimSensor:
             reading = {"force_S": force_S, "torque_S": torque_S, "status": status}  # changed in place
             keep = apply_sensor_faults(self.world.faults, (t_ns - self._clock.t0_ns) / 1e9, reading)
             if not keep.all():
-                t_ns, force_S, torque_S, numbers, status = (a[keep] for a in (t_ns, force_S, torque_S, numbers,
-                                                                               status))
+                t_ns, force_S, torque_S, numbers, status = (a[keep] for a in (t_ns, force_S, torque_S, numbers, status))
         return WrenchBlock(t_ns, force_S, torque_S, numbers, status)
 
     def prepare(self, until_ns: int) -> None:

@@ -41,8 +41,9 @@ class Cable:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "anchor_B", _vector3(self.anchor_B, "anchor_B"))
-        if not (np.isfinite(self.stiffness) and self.stiffness >= 0 and np.isfinite(self.damping)
-                and self.damping >= 0):
+        if not (
+            np.isfinite(self.stiffness) and self.stiffness >= 0 and np.isfinite(self.damping) and self.damping >= 0
+        ):
             raise ValueError(f"need stiffness >= 0 and damping >= 0, got {self.stiffness!r}, {self.damping!r}")
         if self.point_S is not None:
             object.__setattr__(self, "point_S", _vector3(self.point_S, "point_S"))

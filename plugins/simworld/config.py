@@ -50,9 +50,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
 from hapticlab.core.frames import GRAVITY_M_S2, matrix_from_rotvec
 from hapticlab.core.host.registry import ConfigError
-
 from hapticlab.plugins.simworld.cable import Cable
 from hapticlab.plugins.simworld.faults import DEFAULT_DURATION_S as DEFAULT_FAULT_DURATION_S
 from hapticlab.plugins.simworld.faults import KINDS as FAULT_KINDS
@@ -181,8 +181,9 @@ class SensorParams:
     hysteresis_torque_S: np.ndarray = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.warmup_tau_s, (int, float)) and math.isfinite(self.warmup_tau_s)
-                and self.warmup_tau_s > 0):
+        if not (
+            isinstance(self.warmup_tau_s, (int, float)) and math.isfinite(self.warmup_tau_s) and self.warmup_tau_s > 0
+        ):
             raise ValueError(f"warmup_tau_s must be a finite number > 0, got {self.warmup_tau_s!r}")
         for name in self.__dataclass_fields__:
             if name == "warmup_tau_s":
@@ -191,10 +192,17 @@ class SensorParams:
             object.__setattr__(self, name, _vector(getattr(self, name), name, shape))
         for name in ("gain_force_S", "gain_torque_S"):
             if np.abs(getattr(self, name)).max() >= 0.5:
-                raise ValueError(f"{name} entries must be within ±0.5 (a calibration error), "
-                                 f"got {getattr(self, name).tolist()!r}")
-        for name in ("drift_force_rw_S", "drift_torque_rw_S", "noise_force_S", "noise_torque_S",
-                     "hysteresis_force_S", "hysteresis_torque_S"):
+                raise ValueError(
+                    f"{name} entries must be within ±0.5 (a calibration error), got {getattr(self, name).tolist()!r}"
+                )
+        for name in (
+            "drift_force_rw_S",
+            "drift_torque_rw_S",
+            "noise_force_S",
+            "noise_torque_S",
+            "hysteresis_force_S",
+            "hysteresis_torque_S",
+        ):
             if np.any(getattr(self, name) < 0):
                 raise ValueError(f"{name} must be >= 0")
         for name in ("saturation_force_S", "saturation_torque_S"):
@@ -392,8 +400,11 @@ def boolean(key: str, value: Any) -> bool:
 
 def vec3(key: str, value: Any) -> np.ndarray:
     """Three finite numbers."""
-    if (not isinstance(value, (list, tuple)) or len(value) != 3
-            or not all(_is_number(v) and math.isfinite(v) for v in value)):
+    if (
+        not isinstance(value, (list, tuple))
+        or len(value) != 3
+        or not all(_is_number(v) and math.isfinite(v) for v in value)
+    ):
         raise ConfigError(f"{key}: expected 3 numbers, got {value!r}")
     return np.array(value, dtype=float)
 
@@ -404,8 +415,11 @@ def number_or_vec3(minimum: float | None = None, *, above: bool = False) -> Pars
     def parse(key: str, value: Any) -> np.ndarray:
         if _is_number(value) and math.isfinite(value):
             array = np.full(3, float(value))
-        elif (isinstance(value, (list, tuple)) and len(value) == 3
-              and all(_is_number(v) and math.isfinite(v) for v in value)):
+        elif (
+            isinstance(value, (list, tuple))
+            and len(value) == 3
+            and all(_is_number(v) and math.isfinite(v) for v in value)
+        ):
             array = np.array(value, dtype=float)
         else:
             raise ConfigError(f"{key}: expected a number or 3 numbers, got {value!r}")
@@ -492,15 +506,25 @@ SENSOR_OPTIONS: dict[str, Parser] = {
 }
 # TOML key -> SensorParams field
 _SENSOR_FIELDS = {
-    "bias_force": "bias_force_S", "bias_torque": "bias_torque_S",
-    "drift_force": "drift_force_S", "drift_torque": "drift_torque_S",
-    "drift_force_rw": "drift_force_rw_S", "drift_torque_rw": "drift_torque_rw_S",
-    "noise_force": "noise_force_S", "noise_torque": "noise_torque_S",
-    "saturation_force": "saturation_force_S", "saturation_torque": "saturation_torque_S",
-    "mount_rotation": "mount_rotation_SE", "offset": "p_EoSo_E",
-    "gain_force": "gain_force_S", "gain_torque": "gain_torque_S",
-    "warmup_force": "warmup_force_S", "warmup_torque": "warmup_torque_S", "warmup_tau": "warmup_tau_s",
-    "hysteresis_force": "hysteresis_force_S", "hysteresis_torque": "hysteresis_torque_S",
+    "bias_force": "bias_force_S",
+    "bias_torque": "bias_torque_S",
+    "drift_force": "drift_force_S",
+    "drift_torque": "drift_torque_S",
+    "drift_force_rw": "drift_force_rw_S",
+    "drift_torque_rw": "drift_torque_rw_S",
+    "noise_force": "noise_force_S",
+    "noise_torque": "noise_torque_S",
+    "saturation_force": "saturation_force_S",
+    "saturation_torque": "saturation_torque_S",
+    "mount_rotation": "mount_rotation_SE",
+    "offset": "p_EoSo_E",
+    "gain_force": "gain_force_S",
+    "gain_torque": "gain_torque_S",
+    "warmup_force": "warmup_force_S",
+    "warmup_torque": "warmup_torque_S",
+    "warmup_tau": "warmup_tau_s",
+    "hysteresis_force": "hysteresis_force_S",
+    "hysteresis_torque": "hysteresis_torque_S",
 }
 
 ROBOT_OPTIONS: dict[str, Parser] = {"base_tilt": vec3, "position": vec3, "kinematics_lag": lag_seconds}
@@ -508,24 +532,40 @@ ROBOT_OPTIONS: dict[str, Parser] = {"base_tilt": vec3, "position": vec3, "kinema
 _optional_count = integer(1)
 MOTION_OPTIONS: dict[str, dict[str, Parser]] = {
     "random_tour": {
-        "max_tilt_deg": number(0.0), "max_roll_deg": number(0.0), "segment_s": number(0.0, above=True),
-        "dwell_s": number(0.0), "max_translation": number(0.0), "waypoints": _optional_count,
+        "max_tilt_deg": number(0.0),
+        "max_roll_deg": number(0.0),
+        "segment_s": number(0.0, above=True),
+        "dwell_s": number(0.0),
+        "max_translation": number(0.0),
+        "waypoints": _optional_count,
     },
     "static_poses": {
-        "max_tilt_deg": number(0.0), "max_roll_deg": number(0.0), "hold_s": number(0.0),
-        "move_s": number(0.0, above=True), "max_translation": number(0.0), "poses": _optional_count,
+        "max_tilt_deg": number(0.0),
+        "max_roll_deg": number(0.0),
+        "hold_s": number(0.0),
+        "move_s": number(0.0, above=True),
+        "max_translation": number(0.0),
+        "poses": _optional_count,
     },
     "axial_rotation": {
-        "speed_deg_s": number(), "duration": number(0.0, above=True), "turns": number(0.0, above=True),
-        "ramp_s": number(0.0, above=True), "start_s": number(0.0), "roll0_deg": number(),
+        "speed_deg_s": number(),
+        "duration": number(0.0, above=True),
+        "turns": number(0.0, above=True),
+        "ramp_s": number(0.0, above=True),
+        "start_s": number(0.0),
+        "roll0_deg": number(),
     },
     "hold": {"tilt_deg": number(), "tilt_axis_B": vec3, "roll_deg": number()},
 }
 MOTION_OPTIONS["indentation"] = MOTION_OPTIONS["hold"]
 MOTION_OPTIONS["servo"] = {
-    **MOTION_OPTIONS["hold"], "bandwidth_hz": number(0.0, above=True), "max_speed": number(0.0, above=True),
-    "max_accel": number(0.0, above=True), "max_angular_speed": number(0.0, above=True),
-    "max_angular_accel": number(0.0, above=True), "step_s": number(0.0, above=True),
+    **MOTION_OPTIONS["hold"],
+    "bandwidth_hz": number(0.0, above=True),
+    "max_speed": number(0.0, above=True),
+    "max_accel": number(0.0, above=True),
+    "max_angular_speed": number(0.0, above=True),
+    "max_angular_accel": number(0.0, above=True),
+    "step_s": number(0.0, above=True),
     "history_s": number(0.0, above=True),
 }
 MOTION_SCRIPTS: dict[str, type[MotionScript]] = {**SCRIPTED_MOTIONS, "servo": ServoedMotion}
@@ -534,20 +574,29 @@ MOTION_SCRIPTS: dict[str, type[MotionScript]] = {**SCRIPTED_MOTIONS, "servo": Se
 
 CONTACT_OPTIONS: dict[str, dict[str, Parser]] = {
     "indentation": {
-        "start": number(), "duration": number(0.0), "peak_force": number(0.0),
-        "ramp": number(0.0), "direction_B": vec3, "point_S": vec3,
+        "start": number(),
+        "duration": number(0.0),
+        "peak_force": number(0.0),
+        "ramp": number(0.0),
+        "direction_B": vec3,
+        "point_S": vec3,
     },
-    "hanging_mass": {
-        "start": number(), "duration": number(0.0), "mass": number(0.0, above=True), "point_S": vec3,
-    },
+    "hanging_mass": {"start": number(), "duration": number(0.0), "mass": number(0.0, above=True), "point_S": vec3},
     "tissue": {
-        "surface_B": vec3, "normal_B": vec3, "stiffness": number(0.0, above=True), "damping": number(0.0),
+        "surface_B": vec3,
+        "normal_B": vec3,
+        "stiffness": number(0.0, above=True),
+        "damping": number(0.0),
         "point_S": vec3,
     },
     "cable": {"anchor_B": vec3, "stiffness": number(0.0), "damping": number(0.0), "point_S": vec3},
 }
-CONTACT_KINDS: dict[str, type] = {"indentation": Indentation, "hanging_mass": HangingMass, "tissue": Tissue,
-                                  "cable": Cable}
+CONTACT_KINDS: dict[str, type] = {
+    "indentation": Indentation,
+    "hanging_mass": HangingMass,
+    "tissue": Tissue,
+    "cable": Cable,
+}
 
 WORLD_OPTIONS: dict[str, Parser] = {
     "seed": integer(0),
@@ -562,8 +611,13 @@ WORLD_OPTIONS: dict[str, Parser] = {
 }
 
 FAULT_OPTIONS: dict[str, Parser] = {
-    "kind": string, "start": number(), "duration": number(0.0, above=True), "force": vec3, "torque": vec3,
-    "delay": number(0.0), "ramp": number(0.0),
+    "kind": string,
+    "start": number(),
+    "duration": number(0.0, above=True),
+    "force": vec3,
+    "torque": vec3,
+    "delay": number(0.0),
+    "ramp": number(0.0),
 }
 
 

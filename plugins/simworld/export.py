@@ -13,14 +13,12 @@ from pathlib import Path
 import numpy as np
 
 from hapticlab.core.frames import quat_wxyz_from_matrix
-
 from hapticlab.plugins.simworld.physics import SimWorld
 
 HEADER = "t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz,px,py,pz"
 
 
-def write_csv(world: SimWorld, path: str | Path, duration: float, rate_hz: float,
-              positions: bool = True) -> np.ndarray:
+def write_csv(world: SimWorld, path: str | Path, duration: float, rate_hz: float, positions: bool = True) -> np.ndarray:
     """Write ``duration`` s of ``world`` sampled at ``rate_hz`` to ``path``; returns the contact flag per row.
 
     Columns ``t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz`` and, with ``positions``, ``px,py,pz``.

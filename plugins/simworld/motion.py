@@ -35,8 +35,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
 import numpy as np
-from hapticlab.core.frames import skew, skew_stack
 from scipy.spatial.transform import Rotation
+
+from hapticlab.core.frames import skew, skew_stack
 
 __all__ = [
     "HORIZONTAL_R_BE",
@@ -203,16 +204,24 @@ class _Moves:
         axis_E = np.divide(u_E, angle[:, None], out=np.zeros_like(u_E), where=angle[:, None] > 0)
         n_cross = skew_stack(axis_E)
         R_a_n = R_a @ n_cross
-        return cls(u_E=u_E, angle=angle, R_BE_a=R_a.copy(), R_BE_a_n=R_a_n, R_BE_a_nn=R_a_n @ n_cross,
-                   p_BoEo_B_a=p_BoEo_B[:-1].copy(), step_B=p_BoEo_B[1:] - p_BoEo_B[:-1])
+        return cls(
+            u_E=u_E,
+            angle=angle,
+            R_BE_a=R_a.copy(),
+            R_BE_a_n=R_a_n,
+            R_BE_a_nn=R_a_n @ n_cross,
+            p_BoEo_B_a=p_BoEo_B[:-1].copy(),
+            step_B=p_BoEo_B[1:] - p_BoEo_B[:-1],
+        )
 
     def __len__(self) -> int:
         return len(self.angle)
 
     def extended(self, more: _Moves) -> _Moves:
         """These moves followed by ``more``."""
-        return _Moves(*(np.concatenate([getattr(self, field.name), getattr(more, field.name)])
-                        for field in fields(self)))
+        return _Moves(
+            *(np.concatenate([getattr(self, field.name), getattr(more, field.name)]) for field in fields(self))
+        )
 
 
 class MotionScript:
@@ -247,8 +256,13 @@ class Hold(MotionScript):
 
     name = "hold"
 
-    def __init__(self, tilt_deg: float = 0.0, tilt_axis_B: Sequence[float] = (1.0, 0.0, 0.0),
-                 roll_deg: float = 0.0, p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B):
+    def __init__(
+        self,
+        tilt_deg: float = 0.0,
+        tilt_axis_B: Sequence[float] = (1.0, 0.0, 0.0),
+        roll_deg: float = 0.0,
+        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+    ):
         axis = np.asarray(tilt_axis_B, dtype=float)
         if axis.shape != (3,) or not np.linalg.norm(axis) > 0:
             raise ValueError(f"tilt_axis_B must be a non-zero 3-vector, got {tilt_axis_B!r}")
@@ -290,9 +304,17 @@ class RandomTour(MotionScript):
 
     name = "random_tour"
 
-    def __init__(self, seed: int = 1, max_tilt_deg: float = 75.0, max_roll_deg: float = 90.0,
-                 segment_s: float = 1.5, dwell_s: float = 0.0, max_translation: float = 0.0,
-                 waypoints: int | None = None, p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B):
+    def __init__(
+        self,
+        seed: int = 1,
+        max_tilt_deg: float = 75.0,
+        max_roll_deg: float = 90.0,
+        segment_s: float = 1.5,
+        dwell_s: float = 0.0,
+        max_translation: float = 0.0,
+        waypoints: int | None = None,
+        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+    ):
         if segment_s <= 0:
             raise ValueError(f"segment_s must be > 0, got {segment_s!r}")
         if dwell_s < 0:
@@ -377,8 +399,12 @@ class RandomTour(MotionScript):
         s_ddot = dds / self.segment_s**2
 
         # R_BE_a Exp(s u_E) (see _Moves); x.take(k, axis=0) is x[k] without the cost of fancy indexing
-        R_BE = _rodrigues(moves.R_BE_a.take(k, axis=0), moves.R_BE_a_n.take(k, axis=0),
-                          moves.R_BE_a_nn.take(k, axis=0), s * moves.angle[k])
+        R_BE = _rodrigues(
+            moves.R_BE_a.take(k, axis=0),
+            moves.R_BE_a_n.take(k, axis=0),
+            moves.R_BE_a_nn.take(k, axis=0),
+            s * moves.angle[k],
+        )
         u_E = moves.u_E.take(k, axis=0)
         step_B = moves.step_B.take(k, axis=0)
         return MotionState(
@@ -409,12 +435,27 @@ class StaticPoses(RandomTour):
 
     name = "static_poses"
 
-    def __init__(self, seed: int = 1, max_tilt_deg: float = 75.0, max_roll_deg: float = 90.0,
-                 hold_s: float = 1.0, move_s: float = 2.0, max_translation: float = 0.0,
-                 poses: int | None = None, p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B):
-        super().__init__(seed=seed, max_tilt_deg=max_tilt_deg, max_roll_deg=max_roll_deg,
-                         segment_s=move_s, dwell_s=hold_s, max_translation=max_translation,
-                         waypoints=poses, p_BoEo_B=p_BoEo_B)
+    def __init__(
+        self,
+        seed: int = 1,
+        max_tilt_deg: float = 75.0,
+        max_roll_deg: float = 90.0,
+        hold_s: float = 1.0,
+        move_s: float = 2.0,
+        max_translation: float = 0.0,
+        poses: int | None = None,
+        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+    ):
+        super().__init__(
+            seed=seed,
+            max_tilt_deg=max_tilt_deg,
+            max_roll_deg=max_roll_deg,
+            segment_s=move_s,
+            dwell_s=hold_s,
+            max_translation=max_translation,
+            waypoints=poses,
+            p_BoEo_B=p_BoEo_B,
+        )
 
 
 class AxialRotation(MotionScript):
@@ -447,9 +488,16 @@ class AxialRotation(MotionScript):
 
     name = "axial_rotation"
 
-    def __init__(self, speed_deg_s: float = 30.0, duration: float | None = None,
-                 turns: float | None = None, ramp_s: float = 0.2, start_s: float = 0.0,
-                 roll0_deg: float = 0.0, p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B):
+    def __init__(
+        self,
+        speed_deg_s: float = 30.0,
+        duration: float | None = None,
+        turns: float | None = None,
+        ramp_s: float = 0.2,
+        start_s: float = 0.0,
+        roll0_deg: float = 0.0,
+        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+    ):
         if duration is not None and turns is not None:
             raise ValueError("give either duration or turns, not both")
         if speed_deg_s == 0:
@@ -469,8 +517,7 @@ class AxialRotation(MotionScript):
         else:
             self.cruise_s = float(duration) - 2.0 * self.ramp_s
         if self.cruise_s < 0:
-            raise ValueError("the rotation is too short for its two speed ramps; "
-                             "lower ramp_s or raise duration/turns")
+            raise ValueError("the rotation is too short for its two speed ramps; lower ramp_s or raise duration/turns")
         # HORIZONTAL_R_BE [z]× and HORIZONTAL_R_BE [z]×²: Rot_z by Rodrigues' formula (see _rodrigues)
         z_cross = skew(np.array([0.0, 0.0, 1.0]))
         self._R_BE_0_n = HORIZONTAL_R_BE @ z_cross

@@ -61,10 +61,10 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
+
 from hapticlab.core.frames import rotvec_from_matrix, skew
 from hapticlab.core.sensor_model.play_kernel import play
 from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
-
 from hapticlab.plugins.simworld.cable import Cable
 from hapticlab.plugins.simworld.config import (
     Contact,
@@ -191,8 +191,9 @@ class RandomWalk(GrowingPath):
     and cached, so W at a time never depends on the times asked for before.
     """
 
-    def __init__(self, seed: int, stream: int = DRIFT_STREAM, channels: int = 6,
-                 grid_s: float = 0.01, block: int = 4096):
+    def __init__(
+        self, seed: int, stream: int = DRIFT_STREAM, channels: int = 6, grid_s: float = 0.01, block: int = 4096
+    ):
         super().__init__(np.zeros((1, channels)))  # W at grid points 0, 1, ...
         self.seed, self.stream, self.channels = seed, stream, channels
         self.grid_s, self.block = grid_s, block
@@ -321,10 +322,17 @@ class SimWorld:
     inertia : include the tool's inertial wrench (False: the paper's static model).
     """
 
-    def __init__(self, tool: ToolParams | None = None, sensor: SensorParams | None = None,
-                 robot: RobotParams | None = None, motion: MotionScript | None = None,
-                 contacts: Iterable[Contact] = (), seed: int = 1, inertia: bool = True,
-                 faults: Iterable[Fault] = ()):
+    def __init__(
+        self,
+        tool: ToolParams | None = None,
+        sensor: SensorParams | None = None,
+        robot: RobotParams | None = None,
+        motion: MotionScript | None = None,
+        contacts: Iterable[Contact] = (),
+        seed: int = 1,
+        inertia: bool = True,
+        faults: Iterable[Fault] = (),
+    ):
         self.tool = tool if tool is not None else ToolParams()
         self.sensor = sensor if sensor is not None else SensorParams()
         self.robot = robot if robot is not None else RobotParams()
@@ -338,13 +346,15 @@ class SimWorld:
         self.R_BG = self.robot.R_BG
         self.gravity_accel_B = self.robot.gravity_accel_B
         self._init_wrench_constants()
-        self._noise_key = int(np.random.SeedSequence(self.seed, spawn_key=(NOISE_STREAM,))
-                              .generate_state(1, np.uint64)[0])
+        self._noise_key = int(
+            np.random.SeedSequence(self.seed, spawn_key=(NOISE_STREAM,)).generate_state(1, np.uint64)[0]
+        )
         has_walk = np.any(self.sensor.drift_force_rw_S > 0) or np.any(self.sensor.drift_torque_rw_S > 0)
         self._walk = RandomWalk(self.seed, DRIFT_STREAM, channels=6) if has_walk else None
         widths = np.concatenate([self.sensor.hysteresis_force_S, self.sensor.hysteresis_torque_S])
-        self._hysteresis = (PlayHysteresis(widths, lambda t: self._loaded(t)[1], ahead=not self.live)
-                            if widths.any() else None)
+        self._hysteresis = (
+            PlayHysteresis(widths, lambda t: self._loaded(t)[1], ahead=not self.live) if widths.any() else None
+        )
 
     def _init_wrench_constants(self) -> None:
         """Everything wrench() needs that does not change, computed once.
@@ -366,7 +376,8 @@ class SimWorld:
             by_point.setdefault(tuple(point_S), []).append(event)
         self._contacts_by_point = [
             (skew(np.array(point_S)), self.sensor.p_EoSo_E + R_SE.T @ np.array(point_S), events)
-            for point_S, events in by_point.items()]
+            for point_S, events in by_point.items()
+        ]
         """The contacts grouped by where they act: ``([p]× (3, 3), p_EoP_E (3,), events)`` per point p
         (in S, m; ``p_EoP_E`` the point from the flange origin, in E, m), so that the forces at one
         point are rotated and crossed once."""
@@ -408,8 +419,16 @@ class SimWorld:
     @classmethod
     def from_spec(cls, spec: WorldSpec) -> SimWorld:
         """Build from a parsed WorldSpec."""
-        return cls(tool=spec.tool, sensor=spec.sensor, robot=spec.robot, motion=spec.motion,
-                   contacts=spec.contacts, seed=spec.seed, inertia=spec.inertia, faults=spec.faults)
+        return cls(
+            tool=spec.tool,
+            sensor=spec.sensor,
+            robot=spec.robot,
+            motion=spec.motion,
+            contacts=spec.contacts,
+            seed=spec.seed,
+            inertia=spec.inertia,
+            faults=spec.faults,
+        )
 
     # ---------------------------------------------------------------- kinematics
 
@@ -429,8 +448,10 @@ class SimWorld:
         Only a world whose motion is ``servo`` follows targets; any other raises TypeError.
         """
         if not isinstance(self.motion, ServoedMotion):
-            raise TypeError(f"the simulated robot follows a scripted motion ({self.motion.name!r}), not targets; "
-                            f"set [world.motion] script = \"servo\"")
+            raise TypeError(
+                f"the simulated robot follows a scripted motion ({self.motion.name!r}), not targets; "
+                f'set [world.motion] script = "servo"'
+            )
         self.motion.servo_cp(t, R_BE, p_BoEo_B)
 
     def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -497,13 +518,15 @@ class SimWorld:
         limit = self._saturation_S
         saturated = (np.abs(reading_S) > limit).any(axis=1)
         reading_S = np.minimum(np.maximum(reading_S, -limit), limit)  # np.clip, without its overhead
-        parts.update({
-            "force_S": reading_S[:, :3],
-            "torque_S": reading_S[:, 3:],
-            "status": np.where(saturated, STATUS_SATURATED, STATUS_OK).astype(np.int64),
-            "bias_force_S": bias_S[:, :3],
-            "bias_torque_S": bias_S[:, 3:],
-        })
+        parts.update(
+            {
+                "force_S": reading_S[:, :3],
+                "torque_S": reading_S[:, 3:],
+                "status": np.where(saturated, STATUS_SATURATED, STATUS_OK).astype(np.int64),
+                "bias_force_S": bias_S[:, :3],
+                "bias_torque_S": bias_S[:, 3:],
+            }
+        )
         return parts
 
     def _loaded(self, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:

@@ -36,8 +36,9 @@ class Prefetch:
         ahead_s: how far ahead to compute, s (0: only the samples asked for).
     """
 
-    def __init__(self, compute: Callable[[np.ndarray], dict[str, np.ndarray]], rate_hz: float,
-                 ahead_s: float = PREFETCH_S):
+    def __init__(
+        self, compute: Callable[[np.ndarray], dict[str, np.ndarray]], rate_hz: float, ahead_s: float = PREFETCH_S
+    ):
         self.compute = compute
         self.chunk = min(max(int(round(ahead_s * rate_hz)), 1), PREFETCH_MAX_SAMPLES)
         self.first = 0  # index of the cache's first sample

@@ -50,22 +50,39 @@ __all__ = ["ServoedMotion"]
 # (3-vectors as tuples, 3x3 matrices as 9-tuples, row-major) cost a fraction of numpy's
 # per-call overhead on arrays this small.
 
+
 def _matmul(A, B):
     """A·B for 3x3 matrices as row-major 9-tuples."""
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = A
     b0, b1, b2, b3, b4, b5, b6, b7, b8 = B
-    return (a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
-            a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
-            a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8)
+    return (
+        a0 * b0 + a1 * b3 + a2 * b6,
+        a0 * b1 + a1 * b4 + a2 * b7,
+        a0 * b2 + a1 * b5 + a2 * b8,
+        a3 * b0 + a4 * b3 + a5 * b6,
+        a3 * b1 + a4 * b4 + a5 * b7,
+        a3 * b2 + a4 * b5 + a5 * b8,
+        a6 * b0 + a7 * b3 + a8 * b6,
+        a6 * b1 + a7 * b4 + a8 * b7,
+        a6 * b2 + a7 * b5 + a8 * b8,
+    )
 
 
 def _transpose_matmul(A, B):
     """Aᵀ·B for 3x3 matrices as row-major 9-tuples."""
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = A
     b0, b1, b2, b3, b4, b5, b6, b7, b8 = B
-    return (a0 * b0 + a3 * b3 + a6 * b6, a0 * b1 + a3 * b4 + a6 * b7, a0 * b2 + a3 * b5 + a6 * b8,
-            a1 * b0 + a4 * b3 + a7 * b6, a1 * b1 + a4 * b4 + a7 * b7, a1 * b2 + a4 * b5 + a7 * b8,
-            a2 * b0 + a5 * b3 + a8 * b6, a2 * b1 + a5 * b4 + a8 * b7, a2 * b2 + a5 * b5 + a8 * b8)
+    return (
+        a0 * b0 + a3 * b3 + a6 * b6,
+        a0 * b1 + a3 * b4 + a6 * b7,
+        a0 * b2 + a3 * b5 + a6 * b8,
+        a1 * b0 + a4 * b3 + a7 * b6,
+        a1 * b1 + a4 * b4 + a7 * b7,
+        a1 * b2 + a4 * b5 + a7 * b8,
+        a2 * b0 + a5 * b3 + a8 * b6,
+        a2 * b1 + a5 * b4 + a8 * b7,
+        a2 * b2 + a5 * b5 + a8 * b8,
+    )
 
 
 def _exp(x, y, z):
@@ -74,9 +91,17 @@ def _exp(x, y, z):
     if angle < 1e-12:
         return (1.0, -z, y, z, 1.0, -x, -y, x, 1.0)
     s, c = math.sin(angle) / angle, (1.0 - math.cos(angle)) / (angle * angle)
-    return (1.0 - c * (y * y + z * z), -s * z + c * x * y, s * y + c * x * z,
-            s * z + c * x * y, 1.0 - c * (x * x + z * z), -s * x + c * y * z,
-            -s * y + c * x * z, s * x + c * y * z, 1.0 - c * (x * x + y * y))
+    return (
+        1.0 - c * (y * y + z * z),
+        -s * z + c * x * y,
+        s * y + c * x * z,
+        s * z + c * x * y,
+        1.0 - c * (x * x + z * z),
+        -s * x + c * y * z,
+        -s * y + c * x * z,
+        s * x + c * y * z,
+        1.0 - c * (x * x + y * y),
+    )
 
 
 def _log(R):
@@ -127,19 +152,36 @@ class ServoedMotion(MotionScript):
     name = "servo"
     live = True
 
-    def __init__(self, tilt_deg: float = 0.0, tilt_axis_B: Sequence[float] = (1.0, 0.0, 0.0),
-                 roll_deg: float = 0.0, p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
-                 bandwidth_hz: float = 8.0, max_speed: float = 0.25, max_accel: float = 2.5,
-                 max_angular_speed: float = 1.0, max_angular_accel: float = 10.0,
-                 step_s: float = 0.001, history_s: float = 10.0):
-        for name, value in (("bandwidth_hz", bandwidth_hz), ("max_speed", max_speed), ("max_accel", max_accel),
-                            ("max_angular_speed", max_angular_speed), ("max_angular_accel", max_angular_accel),
-                            ("step_s", step_s), ("history_s", history_s)):
+    def __init__(
+        self,
+        tilt_deg: float = 0.0,
+        tilt_axis_B: Sequence[float] = (1.0, 0.0, 0.0),
+        roll_deg: float = 0.0,
+        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+        bandwidth_hz: float = 8.0,
+        max_speed: float = 0.25,
+        max_accel: float = 2.5,
+        max_angular_speed: float = 1.0,
+        max_angular_accel: float = 10.0,
+        step_s: float = 0.001,
+        history_s: float = 10.0,
+    ):
+        for name, value in (
+            ("bandwidth_hz", bandwidth_hz),
+            ("max_speed", max_speed),
+            ("max_accel", max_accel),
+            ("max_angular_speed", max_angular_speed),
+            ("max_angular_accel", max_angular_accel),
+            ("step_s", step_s),
+            ("history_s", history_s),
+        ):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if step_s > 0.01 or bandwidth_hz * step_s > 0.05:
-            raise ValueError(f"step_s must be at most 10 ms and at most 1/20 of the servo's period "
-                             f"(bandwidth_hz · step_s <= 0.05), got step_s={step_s!r}, bandwidth_hz={bandwidth_hz!r}")
+            raise ValueError(
+                f"step_s must be at most 10 ms and at most 1/20 of the servo's period "
+                f"(bandwidth_hz · step_s <= 0.05), got step_s={step_s!r}, bandwidth_hz={bandwidth_hz!r}"
+            )
         start = Hold(tilt_deg, tilt_axis_B, roll_deg, p_BoEo_B)
         self.omega = 2.0 * math.pi * bandwidth_hz
         self.max_speed, self.max_accel = float(max_speed), float(max_accel)
@@ -169,8 +211,11 @@ class ServoedMotion(MotionScript):
         """
         R_BE = np.asarray(R_BE, dtype=float)
         p_BoEo_B = np.asarray(p_BoEo_B, dtype=float)
-        if R_BE.shape != (3, 3) or p_BoEo_B.shape != (3,) or not (np.isfinite(R_BE).all()
-                                                                   and np.isfinite(p_BoEo_B).all()):
+        if (
+            R_BE.shape != (3, 3)
+            or p_BoEo_B.shape != (3,)
+            or not (np.isfinite(R_BE).all() and np.isfinite(p_BoEo_B).all())
+        ):
             raise ValueError(f"servo_cp: need a finite (3, 3) R_BE and (3,) p_BoEo_B, got {R_BE!r}, {p_BoEo_B!r}")
         with self._lock:
             self._advance(t)
@@ -183,10 +228,17 @@ class ServoedMotion(MotionScript):
         """The newest step's accelerations from its state and the target; its history row written."""
         p, v, _, R, w, _ = self._state
         R_target, p_target = self._target
-        a = _servo_accel((p_target[0] - p[0], p_target[1] - p[1], p_target[2] - p[2]), v, self.omega, self.dt,
-                         self.max_accel, self.max_speed)
-        alpha = _servo_accel(_log(_transpose_matmul(R, R_target)), w, self.omega, self.dt,
-                             self.max_angular_accel, self.max_angular_speed)
+        a = _servo_accel(
+            (p_target[0] - p[0], p_target[1] - p[1], p_target[2] - p[2]),
+            v,
+            self.omega,
+            self.dt,
+            self.max_accel,
+            self.max_speed,
+        )
+        alpha = _servo_accel(
+            _log(_transpose_matmul(R, R_target)), w, self.omega, self.dt, self.max_angular_accel, self.max_angular_speed
+        )
         self._state[2], self._state[5] = a, alpha
         self._history[self._k % self._size] = (*p, *v, *a, *R, *w, *alpha)
 
@@ -198,12 +250,21 @@ class ServoedMotion(MotionScript):
         while self._k < last:
             p, v, a, R, w, alpha = self._state
             self._state = [
-                (p[0] + v[0] * dt + a[0] * half_dt2, p[1] + v[1] * dt + a[1] * half_dt2,
-                 p[2] + v[2] * dt + a[2] * half_dt2),
+                (
+                    p[0] + v[0] * dt + a[0] * half_dt2,
+                    p[1] + v[1] * dt + a[1] * half_dt2,
+                    p[2] + v[2] * dt + a[2] * half_dt2,
+                ),
                 (v[0] + a[0] * dt, v[1] + a[1] * dt, v[2] + a[2] * dt),
                 a,
-                _matmul(R, _exp(w[0] * dt + alpha[0] * half_dt2, w[1] * dt + alpha[1] * half_dt2,
-                                w[2] * dt + alpha[2] * half_dt2)),
+                _matmul(
+                    R,
+                    _exp(
+                        w[0] * dt + alpha[0] * half_dt2,
+                        w[1] * dt + alpha[1] * half_dt2,
+                        w[2] * dt + alpha[2] * half_dt2,
+                    ),
+                ),
                 (w[0] + alpha[0] * dt, w[1] + alpha[1] * dt, w[2] + alpha[2] * dt),
                 alpha,
             ]
@@ -225,8 +286,9 @@ class ServoedMotion(MotionScript):
         with self._lock:
             if n:
                 self._advance(float(t.max()))
-            servo_kernel.evaluate(self._history, t, self.dt, max(self._k - self._size + 1, 0), self._k,
-                                  R_BE, p, v, a, w, alpha)
+            servo_kernel.evaluate(
+                self._history, t, self.dt, max(self._k - self._size + 1, 0), self._k, R_BE, p, v, a, w, alpha
+            )
         return MotionState(t=t, R_BE=R_BE, p_BoEo_B=p, w_BE_E=w, alpha_BE_E=alpha, v_BEo_B=v, a_BEo_B=a)
 
     def evaluate_reference(self, t: float | np.ndarray) -> MotionState:

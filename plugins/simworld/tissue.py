@@ -50,7 +50,6 @@ class Tissue:
     damping: float = 2.0
     point_S: np.ndarray | None = None
 
-
     def __post_init__(self) -> None:
         normal = _vector3(self.normal_B, "normal_B")
         norm = float(np.linalg.norm(normal))
@@ -58,8 +57,7 @@ class Tissue:
             raise ValueError("normal_B must not be zero")
         object.__setattr__(self, "normal_B", normal / norm)
         object.__setattr__(self, "surface_B", _vector3(self.surface_B, "surface_B"))
-        if not (np.isfinite(self.stiffness) and self.stiffness > 0 and np.isfinite(self.damping)
-                and self.damping >= 0):
+        if not (np.isfinite(self.stiffness) and self.stiffness > 0 and np.isfinite(self.damping) and self.damping >= 0):
             raise ValueError(f"need stiffness > 0 and damping >= 0, got {self.stiffness!r}, {self.damping!r}")
         if self.point_S is not None:
             object.__setattr__(self, "point_S", _vector3(self.point_S, "point_S"))

@@ -28,16 +28,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hapticlab.core.host.registry import Registry
 from hapticlab.core.frames import GRAVITY_M_S2, quat_wxyz_from_matrix, rotvec_from_matrix
+from hapticlab.core.host.registry import Registry
 from hapticlab.core.types import AlignedSamples, Estimates
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.plugins.simworld import SimWorld
-
-from hapticlab.sessions.offline.metrics import max_ae, rms
 from hapticlab.sessions.bench import paper as paperbench
 from hapticlab.sessions.bench.paper import feed, simulate
+from hapticlab.sessions.offline.metrics import max_ae, rms
 
 RATE_HZ = 1000.0
 NOISE_FORCE = 0.12
@@ -66,8 +65,17 @@ def tour(seconds: float = 30.0, seed: int = 3, **world: Any) -> tuple[SimWorld, 
     w = SimWorld.from_config({"seed": seed, "motion": {"script": "random_tour"}, **world})
     block, _ = simulate(w, seconds, RATE_HZ)
     R_BE, p_BoEo_B = w.pose(block.t_ns * 1e-9)
-    block = AlignedSamples(block.t_ns, block.force_S, block.torque_S, R_BE.transpose(0, 2, 1), block.seq,
-                           block.status, block.stale, quat_wxyz_from_matrix(R_BE), p_BoEo_B)
+    block = AlignedSamples(
+        block.t_ns,
+        block.force_S,
+        block.torque_S,
+        R_BE.transpose(0, 2, 1),
+        block.seq,
+        block.status,
+        block.stale,
+        quat_wxyz_from_matrix(R_BE),
+        p_BoEo_B,
+    )
     return w, block
 
 
@@ -81,8 +89,9 @@ def angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     return float(np.rad2deg(np.linalg.norm(rotvec_from_matrix(R_a.T @ R_b))))
 
 
-def compare(block: AlignedSamples, after_s: float, variants: dict[str, Callable[[], Any]],
-            chunk: int = 7) -> tuple[dict[str, Any], dict[str, Any]]:
+def compare(
+    block: AlignedSamples, after_s: float, variants: dict[str, Callable[[], Any]], chunk: int = 7
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """Run each estimator variant over the block; (RMS / noise per variant, the estimators)."""
     rows, built = {}, {}
     for name, make in variants.items():
@@ -96,11 +105,20 @@ def compare(block: AlignedSamples, after_s: float, variants: dict[str, Callable[
 def mount() -> dict[str, Any]:
     """5° mount rotation: how well ``mount_rotation = true`` finds it, and what it does to the RMS."""
     world, block = tour(30.0, sensor={"mount_rotation": MOUNT_ROTATION_SE})
-    rows, built = compare(block, 15.0, {"rls": RLSEstimator, "kalman": KalmanEstimator,
-                                        BASE_MODEL: base_model,
-                                        "kalman mount_rotation": lambda: KalmanEstimator(mount_rotation=True)})
-    return {"rms_over_noise_last_15s": rows,
-            "mount_error_deg": angle_deg(world.R_SE, built["kalman mount_rotation"].R_SE)}
+    rows, built = compare(
+        block,
+        15.0,
+        {
+            "rls": RLSEstimator,
+            "kalman": KalmanEstimator,
+            BASE_MODEL: base_model,
+            "kalman mount_rotation": lambda: KalmanEstimator(mount_rotation=True),
+        },
+    )
+    return {
+        "rms_over_noise_last_15s": rows,
+        "mount_error_deg": angle_deg(world.R_SE, built["kalman mount_rotation"].R_SE),
+    }
 
 
 TRANSLATION_M = 0.1
@@ -110,11 +128,18 @@ TRANSLATION_M = 0.1
 def inertia_tour() -> dict[str, Any]:
     """The tool's inertial force on a lively tour that turns and translates, with and without ``inertia = true``."""
     world, block = tour(30.0, seed=4, motion={"script": "random_tour", "max_translation": TRANSLATION_M})
-    rows, _ = compare(block, 15.0, {"rls": RLSEstimator, "kalman": KalmanEstimator,
-                                    BASE_MODEL: base_model, "kalman inertia": lambda: KalmanEstimator(inertia=True)})
+    rows, _ = compare(
+        block,
+        15.0,
+        {
+            "rls": RLSEstimator,
+            "kalman": KalmanEstimator,
+            BASE_MODEL: base_model,
+            "kalman inertia": lambda: KalmanEstimator(inertia=True),
+        },
+    )
     w = world.wrench(block.t_ns[block.t_ns >= 15e9] * 1e-9)
-    return {"rms_over_noise_last_15s": rows,
-            "inertial_force_rms_N": rms(w["inertial_force_S"]).tolist()}
+    return {"rms_over_noise_last_15s": rows, "inertial_force_rms_N": rms(w["inertial_force_S"]).tolist()}
 
 
 def rotation_104g(speed: float = 72.0) -> dict[str, Any]:
@@ -130,35 +155,56 @@ def rotation_104g(speed: float = 72.0) -> dict[str, Any]:
     for name, make in variants.items():
         numbers, _, magnitude = paperbench.rotation_test(setup, make, speed, noise)
         smoothed = np.convolve(magnitude, np.ones(10) / 10, mode="valid") - load
-        out[name] = {"max_ae": numbers["max_ae"], "max_ae_10ms": float(max_ae(smoothed)),
-                     "mae": numbers["mae"], "contact_detected_pct": numbers["contact_detected_pct"]}
+        out[name] = {
+            "max_ae": numbers["max_ae"],
+            "max_ae_10ms": float(max_ae(smoothed)),
+            "mae": numbers["mae"],
+            "contact_detected_pct": numbers["contact_detected_pct"],
+        }
     return {"speed_deg_s": speed, "noise_force": noise["noise_force"], "estimators": out}
 
 
 def time_lag() -> dict[str, Any]:
     """Kinematics 20 ms late, with and without ``time_lag_s``."""
     _, block = tour(20.0, seed=5, robot={"kinematics_lag": KINEMATICS_LAG_S}, inertia=False)
-    rows, _ = compare(block, 10.0, {"kalman": KalmanEstimator, BASE_MODEL: base_model,
-                                    "kalman time_lag_s": lambda: KalmanEstimator(time_lag_s=KINEMATICS_LAG_S)})
+    rows, _ = compare(
+        block,
+        10.0,
+        {
+            "kalman": KalmanEstimator,
+            BASE_MODEL: base_model,
+            "kalman time_lag_s": lambda: KalmanEstimator(time_lag_s=KINEMATICS_LAG_S),
+        },
+    )
     return {"lag_s": KINEMATICS_LAG_S, "rms_over_noise_last_10s": rows}
 
 
 def gain() -> dict[str, Any]:
     """A 2 % force calibration error, with and without ``gain_force_S``."""
     _, block = tour(20.0, seed=6, sensor={"gain_force": GAIN_FORCE_S}, inertia=False)
-    rows, _ = compare(block, 10.0, {"kalman": KalmanEstimator, BASE_MODEL: base_model,
-                                    "kalman gain_force_S": lambda: KalmanEstimator(gain_force_S=GAIN_FORCE_S)},
-                      chunk=64)
+    rows, _ = compare(
+        block,
+        10.0,
+        {
+            "kalman": KalmanEstimator,
+            BASE_MODEL: base_model,
+            "kalman gain_force_S": lambda: KalmanEstimator(gain_force_S=GAIN_FORCE_S),
+        },
+        chunk=64,
+    )
     return {"gain_force_S": GAIN_FORCE_S, "rms_over_noise_last_10s": rows}
 
 
 def payload(start_s: float = 20.0) -> dict[str, Any]:
     """100 g hung for good at ``start_s`` during a tour with 0.5 N/min drift (the payload tests' world)."""
     setup = paperbench.PaperSetup(mass=0.2)
-    world = setup.world({"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0},
-                        [{"kind": "hanging_mass", "start": start_s, "duration": 1e9, "mass": 0.1}],
-                        noise_force=0.12, noise_torque=0.01,
-                        drift_force=[0.5 / 60.0 / np.sqrt(2), 0.5 / 60.0 / np.sqrt(2), 0.0])
+    world = setup.world(
+        {"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0},
+        [{"kind": "hanging_mass", "start": start_s, "duration": 1e9, "mass": 0.1}],
+        noise_force=0.12,
+        noise_torque=0.01,
+        drift_force=[0.5 / 60.0 / np.sqrt(2), 0.5 / 60.0 / np.sqrt(2), 0.0],
+    )
     block, _ = simulate(world, start_s + 10.0, RATE_HZ)
     est = KalmanEstimator()
     out, _ = feed(est, block, chunk=64)
@@ -187,8 +233,12 @@ def up_after(block: AlignedSamples, flags: np.ndarray, t_ns: int) -> float | Non
 
 
 SCENARIOS: dict[str, Callable[[], dict[str, Any]]] = {
-    "mount": mount, "inertia_tour": inertia_tour, "rotation_104g": rotation_104g,
-    "time_lag": time_lag, "gain": gain, "payload": payload,
+    "mount": mount,
+    "inertia_tour": inertia_tour,
+    "rotation_104g": rotation_104g,
+    "time_lag": time_lag,
+    "gain": gain,
+    "payload": payload,
 }
 
 

@@ -41,8 +41,12 @@ FAULTS: dict[str, dict[str, Any]] = {
     "sensor bias step +2 N": {"kind": "sensor_bias_step", "force": [2.0, 0.0, 0.0]},
     "kinematics frozen, 2 s": {"kind": "kinematics_freeze", "duration": 2.0},
     "kinematics 200 ms late, 2 s": {"kind": "kinematics_delay", "delay": 0.2, "duration": 2.0},
-    "kinematics late by 0→200 ms over 0.5 s, 2 s": {"kind": "kinematics_delay", "delay": 0.2, "ramp": 0.5,
-                                                    "duration": 2.0},
+    "kinematics late by 0→200 ms over 0.5 s, 2 s": {
+        "kind": "kinematics_delay",
+        "delay": 0.2,
+        "ramp": 0.5,
+        "duration": 2.0,
+    },
     "kinematics dropout, 500 ms": {"kind": "kinematics_dropout", "duration": 0.5},
 }
 
@@ -50,8 +54,9 @@ FAULTS: dict[str, dict[str, Any]] = {
 def session(estimator: str, fault: dict[str, Any] | None) -> tuple[np.ndarray, np.ndarray, list[dict], list, int]:
     """One demo session with ``fault`` injected: command times (s), forces, messages, events, and t0 (ns)."""
     config, _ = load_config("demo")
-    config = apply_settings(config, {"session.realtime": False, "session.duration": DURATION_S,
-                                     "estimator.name": estimator})
+    config = apply_settings(
+        config, {"session.realtime": False, "session.duration": DURATION_S, "estimator.name": estimator}
+    )
     if fault is not None:
         config["world"]["faults"] = [{"start": FAULT_START_S, **fault}]
     with tempfile.TemporaryDirectory() as folder:
@@ -77,8 +82,9 @@ def measure(estimator: str, clean, fault: dict[str, Any]) -> dict[str, Any]:
     n = min(len(t), len(t_ref))
     made_up = made_up_force(force[:n], force_ref[:n])
     after = t[:n] >= FAULT_START_S
-    faulty = np.array([not m["enabled"] and m["reason"].split(" (")[0] not in WARMING_UP and m["reason"] != ""
-                       for m in messages[:n]])
+    faulty = np.array(
+        [not m["enabled"] and m["reason"].split(" (")[0] not in WARMING_UP and m["reason"] != "" for m in messages[:n]]
+    )
     detected = np.flatnonzero(after & faulty)
     t_detect = float(t[detected[0]]) if len(detected) else None
     end = FAULT_START_S + min(fault.get("duration", np.inf), DURATION_S)
@@ -86,19 +92,22 @@ def measure(estimator: str, clean, fault: dict[str, Any]) -> dict[str, Any]:
     back = np.flatnonzero((t[:n] >= end) & ((made_up < 0.05) | faulty))
     window = after & (t[:n] <= (t[back[0]] if len(back) else t[n - 1]))
     zeros = np.flatnonzero(after & (np.linalg.norm(force[:n], axis=1) == 0.0))
-    event = next((e for e in events if (e.t_ns - t0) * 1e-9 >= FAULT_START_S and e.kind in ("fault", "bias_step")),
-                 None)
+    event = next(
+        (e for e in events if (e.t_ns - t0) * 1e-9 >= FAULT_START_S and e.kind in ("fault", "bias_step")), None
+    )
     return {
         "made_up_force_N": float(made_up[window].max()) if window.any() else 0.0,
         "detected_after_s": None if t_detect is None else t_detect - FAULT_START_S,
-        "zero_after_detection_s": None if t_detect is None or not len(zeros) else
-        float(t[zeros[zeros >= detected[0]][0]]) - t_detect,
+        "zero_after_detection_s": None
+        if t_detect is None or not len(zeros)
+        else float(t[zeros[zeros >= detected[0]][0]]) - t_detect,
         "event": None if event is None else f"{event.kind}: {event.message}",
     }
 
 
-def bench_faults(estimators: tuple[str, ...] = ("rls", "kalman"),
-                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+def bench_faults(
+    estimators: tuple[str, ...] = ("rls", "kalman"), progress: Callable[[str], None] | None = None
+) -> dict[str, Any]:
     """Per estimator and fault: the numbers of the module docstring (JSON-ready)."""
     out: dict[str, Any] = {}
     for estimator in estimators:

@@ -21,8 +21,7 @@ def gravity_std_over_rows(R_EB: np.ndarray) -> np.ndarray:
     out = np.full(n, np.inf)
     determined = np.linalg.cond(info) < 1e12
     if determined.any():
-        out[determined] = np.sqrt(np.linalg.inv(info[determined])[:, :3, :3]
-                                  .diagonal(axis1=1, axis2=2).max(axis=1))
+        out[determined] = np.sqrt(np.linalg.inv(info[determined])[:, :3, :3].diagonal(axis1=1, axis2=2).max(axis=1))
     return out
 
 

@@ -49,13 +49,24 @@ from hapticlab.core import hookimpl
 from hapticlab.core.host.registry import Registry, make_plugin_manager
 from hapticlab.core.types import AlignedSamples, DeviceState, HapticCommand
 from hapticlab.plugins.simworld import SimWorld
+from hapticlab.sessions.bench.paper import simulate
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session
 from hapticlab.sessions.live.loop import LiveLoop
-from hapticlab.sessions.bench.paper import simulate
 
-STAGES = ("sensor read", "kinematics read", "aligner", "estimator", "gate and watches", "governor", "device",
-          "teleoperation", "shadow estimators", "recording", "loop body")
+STAGES = (
+    "sensor read",
+    "kinematics read",
+    "aligner",
+    "estimator",
+    "gate and watches",
+    "governor",
+    "device",
+    "teleoperation",
+    "shadow estimators",
+    "recording",
+    "loop body",
+)
 """The table's rows, in the order of a tick (the loop body last: what the stopwatches leave)."""
 BLOCK_SIZES = (1, 7, 1024)
 
@@ -122,15 +133,24 @@ class _BenchHand:
         register("bench_pressing_hand", PressingHand)
 
 
-def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str | None = "rls",
-                writer: str = "process", preset: str = "demo", stopwatches: bool = True) -> dict[str, Any]:
+def stage_table(
+    sensor_rate_hz: float,
+    duration_s: float = 5.0,
+    estimator: str | None = "rls",
+    writer: str = "process",
+    preset: str = "demo",
+    stopwatches: bool = True,
+) -> dict[str, Any]:
     """One non-realtime session of ``preset`` ("demo" or "teleop-emulated", with :class:`PressingHand` as
     its master) with every stage timed: µs per tick and share per stage, speed. ``estimator`` None keeps
     the preset's own (and its shadows). ``stopwatches`` False times the ticks alone (the loop's own speed:
     the ~25 stopwatches cost ~5 µs a tick), every stage then in "loop body"."""
     config, _ = load_config(preset)
-    overrides = ["session.realtime=false", f"sensor.rate_hz={float(sensor_rate_hz)}",
-                 f"session.recording_writer={writer}"]
+    overrides = [
+        "session.realtime=false",
+        f"sensor.rate_hz={float(sensor_rate_hz)}",
+        f"session.recording_writer={writer}",
+    ]
     if estimator is not None:
         overrides.append(f"estimator.name={estimator}")
     registry = None
@@ -177,9 +197,15 @@ def stage_table(sensor_rate_hz: float, duration_s: float = 5.0, estimator: str |
     timed = sum(watch.ns[s] for s in STAGES if s != "loop body")
     watch.ns["loop body"] = max(tick_ns - timed, 0)
     return {
-        "preset": preset, "sensor_rate_hz": sensor_rate_hz, "loop_rate_hz": session.settings.loop_rate_hz,
-        "estimator": session.primary.label, "shadows": [shadow.label for shadow in session.shadows],
-        "writer": writer, "duration_s": duration_s, "samples": result.samples, "ticks": ticks,
+        "preset": preset,
+        "sensor_rate_hz": sensor_rate_hz,
+        "loop_rate_hz": session.settings.loop_rate_hz,
+        "estimator": session.primary.label,
+        "shadows": [shadow.label for shadow in session.shadows],
+        "writer": writer,
+        "duration_s": duration_s,
+        "samples": result.samples,
+        "ticks": ticks,
         "contact_samples": loop.contact_samples,  # the primary estimator's (a teleoperated press: the tissue)
         "x_real_time": duration_s / (tick_ns * 1e-9),
         "start_end_ms": (wall_ns - tick_ns) * 1e-6,
@@ -206,8 +232,16 @@ def _wrap_loop(loop: LiveLoop, watch: _Stopwatch) -> None:
         watch.wrap(s.robot, "servo_cp", "teleoperation")
     for shadow in s.shadows:
         watch.wrap(shadow.estimator, "update_block", "shadow estimators")
-    for method in ("poses", "wrenches", "aligned", "estimates", "command", "device_state", "event",
-                   "send"):  # the taps queue; send encodes the tick's messages and hands them to the writer
+    for method in (
+        "poses",
+        "wrenches",
+        "aligned",
+        "estimates",
+        "command",
+        "device_state",
+        "event",
+        "send",
+    ):  # the taps queue; send encodes the tick's messages and hands them to the writer
         watch.wrap(loop.taps, method, "recording")
 
 
@@ -221,16 +255,18 @@ def per_sample_us(factory: Callable[[], Any], block: AlignedSamples, size: int) 
         t0 = time.perf_counter_ns()
         est.update_block(part)
         times.append((time.perf_counter_ns() - t0) / size / 1e3)
-    times = np.array(times[len(times) // 2:])
+    times = np.array(times[len(times) // 2 :])
     return float(np.median(times)), float(np.percentile(times, 99))
 
 
-def estimator_table(factories: dict[str, Callable[[], Any]], samples: int = 20480,
-                    sizes: tuple[int, ...] = BLOCK_SIZES) -> dict[str, dict[int, tuple[float, float]]]:
+def estimator_table(
+    factories: dict[str, Callable[[], Any]], samples: int = 20480, sizes: tuple[int, ...] = BLOCK_SIZES
+) -> dict[str, dict[int, tuple[float, float]]]:
     """µs per sample (median, p99) per estimator and block size, on a seeded simulated tour (1 kHz)."""
     block, _ = simulate(SimWorld(seed=1, inertia=False), samples / 1000.0, 1000.0)
-    return {label: {size: per_sample_us(factory, block, size) for size in sizes}
-            for label, factory in factories.items()}
+    return {
+        label: {size: per_sample_us(factory, block, size) for size in sizes} for label, factory in factories.items()
+    }
 
 
 def default_estimators() -> dict[str, Callable[[], Any]]:
@@ -239,16 +275,24 @@ def default_estimators() -> dict[str, Callable[[], Any]]:
     from hapticlab import make_estimator
 
     out: dict[str, Callable[[], Any]] = {}
-    for label, name, options in (("rls", "rls", {}), ("kalman", "kalman", {}),
-                                 ("kalman, inertia", "kalman", {"inertia": True})):
+    for label, name, options in (
+        ("rls", "rls", {}),
+        ("kalman", "kalman", {}),
+        ("kalman, inertia", "kalman", {"inertia": True}),
+    ):
         for kernel in ("numba", "numpy"):
             out[f"{label} ({kernel})"] = lambda name=name, options=options, kernel=kernel: make_estimator(
-                name, kernel=kernel, **options)
+                name, kernel=kernel, **options
+            )
     return out
 
 
-def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 5.0, samples: int = 20480,
-               progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+def bench_loop(
+    rates: tuple[float, ...] = (1000.0, 7000.0),
+    duration_s: float = 5.0,
+    samples: int = 20480,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
     """The tables (JSON-ready): per stage at each sensor rate and writer, per stage in teleoperation, per estimator."""
     stages = []
     for rate in rates:
@@ -268,20 +312,37 @@ def bench_loop(rates: tuple[float, ...] = (1000.0, 7000.0), duration_s: float = 
     if progress:
         progress("estimators, µs per sample")
     table = estimator_table(default_estimators(), samples)
-    return {"stages": stages, "teleop": teleop,
-            "estimators": {label: {str(size): {"median_us": m, "p99_us": p} for size, (m, p) in row.items()}
-                           for label, row in table.items()}}
+    return {
+        "stages": stages,
+        "teleop": teleop,
+        "estimators": {
+            label: {str(size): {"median_us": m, "p99_us": p} for size, (m, p) in row.items()}
+            for label, row in table.items()
+        },
+    }
 
 
-def realtime_run(duration_s: float, sensor_rate_hz: float = 7000.0, estimator: str = "rls",
-                 progress: Callable[[str], None] | None = None, writer: str = "process") -> dict[str, Any]:
+def realtime_run(
+    duration_s: float,
+    sensor_rate_hz: float = 7000.0,
+    estimator: str = "rls",
+    progress: Callable[[str], None] | None = None,
+    writer: str = "process",
+) -> dict[str, Any]:
     """One paced (``realtime = true``) demo session: samples expected and received, overruns, the latency
     from the newest sample's stamp to the haptic command's send (µs: median, p99, max; the stamp is when a
     real sensor's sample would have arrived), and the resident memory once a second (MB) of the process
     and, with ``writer="process"``, of the writer process."""
     config, _ = load_config("demo")
-    config = apply_overrides(config, ["session.realtime=true", f"sensor.rate_hz={float(sensor_rate_hz)}",
-                                      f"estimator.name={estimator}", f"session.recording_writer={writer}"])
+    config = apply_overrides(
+        config,
+        [
+            "session.realtime=true",
+            f"sensor.rate_hz={float(sensor_rate_hz)}",
+            f"estimator.name={estimator}",
+            f"session.recording_writer={writer}",
+        ],
+    )
     session = build_session(config)
     # allocated up front (a Python list of 600,000 ints is ~22 MB the session's own memory would be blamed for)
     latencies = np.full(int(duration_s * session.settings.loop_rate_hz) + 2, -1, dtype=np.int64)  # pages touched now
@@ -313,16 +374,24 @@ def realtime_run(duration_s: float, sensor_rate_hz: float = 7000.0, estimator: s
         session.haptic.send = timed_send
         result = loop.run()
         size_mb = result.path.stat().st_size / 1e6
-    lat = latencies[:count[0]] / 1e3
+    lat = latencies[: count[0]] / 1e3
     return {
-        "duration_s": duration_s, "sensor_rate_hz": sensor_rate_hz, "estimator": estimator,
-        "samples_expected": int(duration_s * sensor_rate_hz), "samples": result.samples,
-        "overruns": result.overruns, "ticks": count[0],
+        "duration_s": duration_s,
+        "sensor_rate_hz": sensor_rate_hz,
+        "estimator": estimator,
+        "samples_expected": int(duration_s * sensor_rate_hz),
+        "samples": result.samples,
+        "overruns": result.overruns,
+        "ticks": count[0],
         "latency_us": {"median": float(np.median(lat)), "p99": float(np.percentile(lat, 99)), "max": float(lat.max())},
-        "rss_mb": {"first": rss_mb[0], "last": rss_mb[-1], "peak": max(rss_mb)}, "recording_mb": size_mb,
+        "rss_mb": {"first": rss_mb[0], "last": rss_mb[-1], "peak": max(rss_mb)},
+        "recording_mb": size_mb,
         "writer": writer,
-        "writer_rss_mb": ({"first": writer_rss_mb[0], "last": writer_rss_mb[-1], "peak": max(writer_rss_mb)}
-                          if writer_rss_mb else None),
+        "writer_rss_mb": (
+            {"first": writer_rss_mb[0], "last": writer_rss_mb[-1], "peak": max(writer_rss_mb)}
+            if writer_rss_mb
+            else None
+        ),
     }
 
 

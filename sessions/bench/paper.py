@@ -28,12 +28,11 @@ from typing import Any, Callable
 import numpy as np
 
 from hapticlab.core.estimation.batch import batch_fit
-from hapticlab.core.frames import GRAVITY_M_S2
 from hapticlab.core.estimation.model import contact_wrench
+from hapticlab.core.frames import GRAVITY_M_S2
 from hapticlab.core.host.registry import Registry, option_types
 from hapticlab.core.types import AlignedSamples, Estimates, first_true
 from hapticlab.plugins.simworld import SimWorld
-
 from hapticlab.sessions.offline.metrics import error_stats, mae, max_ae, rms, std
 
 AXES_F = ("fx", "fy", "fz")
@@ -44,20 +43,62 @@ REFERENCE_MASS_KG = 0.104
 PAPER = {
     "no_contact": {
         "force": {
-            "fx": {"mae_before": 5.055, "max_before": 7.317, "std_before": 0.998,
-                   "mae_after": 0.113, "max_after": 0.578, "std_after": 0.151, "mae_comp_pct": 97.8},
-            "fy": {"mae_before": 2.702, "max_before": 4.302, "std_before": 1.271,
-                   "mae_after": 0.127, "max_after": 0.573, "std_after": 0.172, "mae_comp_pct": 95.3},
-            "fz": {"mae_before": 3.049, "max_before": 3.530, "std_before": 0.262,
-                   "mae_after": 0.059, "max_after": 0.254, "std_after": 0.076, "mae_comp_pct": 98.1},
+            "fx": {
+                "mae_before": 5.055,
+                "max_before": 7.317,
+                "std_before": 0.998,
+                "mae_after": 0.113,
+                "max_after": 0.578,
+                "std_after": 0.151,
+                "mae_comp_pct": 97.8,
+            },
+            "fy": {
+                "mae_before": 2.702,
+                "max_before": 4.302,
+                "std_before": 1.271,
+                "mae_after": 0.127,
+                "max_after": 0.573,
+                "std_after": 0.172,
+                "mae_comp_pct": 95.3,
+            },
+            "fz": {
+                "mae_before": 3.049,
+                "max_before": 3.530,
+                "std_before": 0.262,
+                "mae_after": 0.059,
+                "max_after": 0.254,
+                "std_after": 0.076,
+                "mae_comp_pct": 98.1,
+            },
         },
         "torque": {
-            "tx": {"mae_before": 0.082, "max_before": 0.132, "std_before": 0.064,
-                   "mae_after": 0.007, "max_after": 0.048, "std_after": 0.010, "mae_comp_pct": 91.4},
-            "ty": {"mae_before": 0.112, "max_before": 0.181, "std_before": 0.041,
-                   "mae_after": 0.008, "max_after": 0.029, "std_after": 0.011, "mae_comp_pct": 92.8},
-            "tz": {"mae_before": 0.024, "max_before": 0.035, "std_before": 0.003,
-                   "mae_after": 0.001, "max_after": 0.015, "std_after": 0.003, "mae_comp_pct": 94.0},
+            "tx": {
+                "mae_before": 0.082,
+                "max_before": 0.132,
+                "std_before": 0.064,
+                "mae_after": 0.007,
+                "max_after": 0.048,
+                "std_after": 0.010,
+                "mae_comp_pct": 91.4,
+            },
+            "ty": {
+                "mae_before": 0.112,
+                "max_before": 0.181,
+                "std_before": 0.041,
+                "mae_after": 0.008,
+                "max_after": 0.029,
+                "std_after": 0.011,
+                "mae_comp_pct": 92.8,
+            },
+            "tz": {
+                "mae_before": 0.024,
+                "max_before": 0.035,
+                "std_before": 0.003,
+                "mae_after": 0.001,
+                "max_after": 0.015,
+                "std_after": 0.003,
+                "mae_comp_pct": 94.0,
+            },
         },
     },
     "bounds": {
@@ -117,21 +158,30 @@ class PaperSetup:
     @property
     def tour(self) -> dict[str, Any]:
         """The identification motion: random orientations without contact."""
-        return {"script": "random_tour", "max_tilt_deg": self.identification_tilt_deg,
-                "segment_s": self.identification_segment_s}
+        return {
+            "script": "random_tour",
+            "max_tilt_deg": self.identification_tilt_deg,
+            "segment_s": self.identification_segment_s,
+        }
 
     def world(self, motion: dict[str, Any], contacts: list[dict] | None = None, **sensor: Any) -> SimWorld:
         """A world with this set-up's tool and sensor, moving and touched as given."""
-        table = {"noise_force": list(self.noise_force), "noise_torque": list(self.noise_torque),
-                 "bias_force": list(self.bias_force_S), "bias_torque": list(self.bias_torque_S)}
+        table = {
+            "noise_force": list(self.noise_force),
+            "noise_torque": list(self.noise_torque),
+            "bias_force": list(self.bias_force_S),
+            "bias_torque": list(self.bias_torque_S),
+        }
         table.update(sensor)
-        return SimWorld.from_config({
-            "seed": self.seed,
-            "tool": {"mass": self.mass, "cog": list(self.cog_S)},
-            "sensor": table,
-            "motion": motion,
-            "contacts": contacts or [],
-        })
+        return SimWorld.from_config(
+            {
+                "seed": self.seed,
+                "tool": {"mass": self.mass, "cog": list(self.cog_S)},
+                "sensor": table,
+                "motion": motion,
+                "contacts": contacts or [],
+            }
+        )
 
 
 @dataclass
@@ -151,8 +201,13 @@ def simulate(world: SimWorld, seconds: float, rate_hz: float, t0: float = 0.0) -
     w = world.wrench(t)
     n = len(t)
     block = AlignedSamples(
-        t_ns=np.round(t * 1e9).astype(np.int64), force_S=np.array(w["force_S"]), torque_S=np.array(w["torque_S"]),
-        R_EB=w["R_EB"], seq=np.arange(n), status=np.asarray(w["status"]), stale=np.zeros(n, dtype=bool),
+        t_ns=np.round(t * 1e9).astype(np.int64),
+        force_S=np.array(w["force_S"]),
+        torque_S=np.array(w["torque_S"]),
+        R_EB=w["R_EB"],
+        seq=np.arange(n),
+        status=np.asarray(w["status"]),
+        stale=np.zeros(n, dtype=bool),
     )
     return block, w
 
@@ -191,8 +246,9 @@ def first_stays(ok: np.ndarray, index: np.ndarray) -> int | None:
 
 def truth_convergence(index: np.ndarray, trace: dict[str, np.ndarray], truth: dict) -> tuple[int | None, int | None]:
     """Truth-based convergence: gravity within 1 % and force bias within 0.05 N; torque bias within 0.002 N·m."""
-    g = np.linalg.norm(trace["gravity_force_B"] - truth["gravity_force_B"], axis=1) \
-        <= 0.01 * np.linalg.norm(truth["gravity_force_B"])
+    g = np.linalg.norm(trace["gravity_force_B"] - truth["gravity_force_B"], axis=1) <= 0.01 * np.linalg.norm(
+        truth["gravity_force_B"]
+    )
     f0 = np.abs(trace["bias_force_S"] - truth["bias_force_S"]).max(axis=1) <= 0.05
     t0 = np.abs(trace["bias_torque_S"] - truth["bias_torque_S"]).max(axis=1) <= 0.002
     return first_stays(g & f0, index), first_stays(t0, index)
@@ -201,9 +257,15 @@ def truth_convergence(index: np.ndarray, trace: dict[str, np.ndarray], truth: di
 PARAMS = ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S")
 
 
-def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = "rls", quick: bool = False,
-              progress: Callable[[str], None] | None = None, with_batch_bounds: bool = True,
-              make_printed: Callable[[], Any] | None = None) -> dict[str, Any]:
+def run_paper(
+    setup: PaperSetup,
+    make_estimator: Callable[[], Any],
+    name: str = "rls",
+    quick: bool = False,
+    progress: Callable[[str], None] | None = None,
+    with_batch_bounds: bool = True,
+    make_printed: Callable[[], Any] | None = None,
+) -> dict[str, Any]:
     """All experiments for one estimator (called ``name`` in the results); numbers and plot data.
 
     ``make_printed`` builds the same estimator with the paper's covariance update as
@@ -250,8 +312,15 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
 
     # 2. + 3. random poses, no contact; the same estimator carries on (as in the paper)
     say(f"{poses} random poses")
-    pose_world = setup.world({"script": "static_poses", "hold_s": setup.hold_s, "move_s": setup.move_s,
-                              "poses": poses + 1, "max_tilt_deg": setup.pose_tilt_deg})
+    pose_world = setup.world(
+        {
+            "script": "static_poses",
+            "hold_s": setup.hold_s,
+            "move_s": setup.move_s,
+            "poses": poses + 1,
+            "max_tilt_deg": setup.pose_tilt_deg,
+        }
+    )
     period = setup.hold_s + setup.move_s
     block, w = simulate(pose_world, (poses + 1) * period + setup.move_s, rate)
     est, _ = feed(estimator, block)
@@ -264,8 +333,9 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
     }
     for group, axes, noise in (("force", AXES_F, setup.noise_force), ("torque", AXES_T, setup.noise_torque)):
         for axis, sigma in zip(axes, noise):
-            result["no_contact"][group][axis]["std_after_over_noise"] = \
+            result["no_contact"][group][axis]["std_after_over_noise"] = (
                 result["no_contact"][group][axis]["std_after"] / sigma
+            )
     # Error bounds over the poses (Table III): the estimator as it runs (it keeps
     # learning during the poses, as the paper's does), the same estimator frozen
     # after identification, and Yu et al.'s way: a batch fit of the identification
@@ -281,8 +351,10 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
 
     # 4. phantom indentation: tool held pointing down, five indentations
     say("phantom indentation")
-    contacts = [{"kind": "indentation", "start": 2.0 + 4.0 * k, "duration": 2.0, "peak_force": 2.0 + 0.5 * k,
-                 "ramp": 0.4} for k in range(5)]
+    contacts = [
+        {"kind": "indentation", "start": 2.0 + 4.0 * k, "duration": 2.0, "peak_force": 2.0 + 0.5 * k, "ramp": 0.4}
+        for k in range(5)
+    ]
     ind_world = setup.world({"script": "hold", "tilt_deg": 20.0}, contacts)
     block, w = simulate(ind_world, 22.0, rate)
     est, _ = feed(estimator, block)
@@ -317,16 +389,27 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
     # 6. not in the paper: a log whose rows repeat (a sensor read faster than it
     # updates, as in the LWR4 files): ‖Δx‖ < 1e-3 holds at the second row
     say("repeated rows")
-    rep_world = setup.world({"script": "static_poses", "hold_s": 0.5, "move_s": 1.0, "poses": 40,
-                             "max_tilt_deg": setup.identification_tilt_deg})
+    rep_world = setup.world(
+        {
+            "script": "static_poses",
+            "hold_s": 0.5,
+            "move_s": 1.0,
+            "poses": 40,
+            "max_tilt_deg": setup.identification_tilt_deg,
+        }
+    )
     held = rep_world.motion.hold_midpoints(40)
     t_rows = np.repeat(held, 5)  # five identical rows per pose
     w = rep_world.wrench(held)
     n = len(t_rows)
     block = AlignedSamples(
-        t_ns=np.round(np.arange(n) * 1e6).astype(np.int64), force_S=np.repeat(np.array(w["force_S"]), 5, axis=0),
-        torque_S=np.repeat(np.array(w["torque_S"]), 5, axis=0), R_EB=np.repeat(w["R_EB"], 5, axis=0),
-        seq=np.arange(n), status=np.zeros(n, dtype=np.int64), stale=np.zeros(n, dtype=bool),
+        t_ns=np.round(np.arange(n) * 1e6).astype(np.int64),
+        force_S=np.repeat(np.array(w["force_S"]), 5, axis=0),
+        torque_S=np.repeat(np.array(w["torque_S"]), 5, axis=0),
+        R_EB=np.repeat(w["R_EB"], 5, axis=0),
+        seq=np.arange(n),
+        status=np.zeros(n, dtype=np.int64),
+        stale=np.zeros(n, dtype=bool),
     )
     est, _ = feed(make_estimator(), block)
     result["repeated_rows"] = {
@@ -339,10 +422,11 @@ def run_paper(setup: PaperSetup, make_estimator: Callable[[], Any], name: str = 
     # 7. not in the paper: bias drift 0.5 N/min with an indentation every 10 s
     say("drift with contacts")
     drift_s = 180.0  # the drift needs minutes to show; cheap to simulate
-    contacts = [{"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
-                for k in range(int(drift_s // 10))]
-    drift_world = setup.world(setup.tour, contacts,
-                              drift_force=[0.5 / 60.0 / np.sqrt(2), 0.5 / 60.0 / np.sqrt(2), 0.0])
+    contacts = [
+        {"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
+        for k in range(int(drift_s // 10))
+    ]
+    drift_world = setup.world(setup.tour, contacts, drift_force=[0.5 / 60.0 / np.sqrt(2), 0.5 / 60.0 / np.sqrt(2), 0.0])
     block, w = simulate(drift_world, drift_s, rate)
     fresh = make_estimator()
     est, _ = feed(fresh, block)
@@ -367,8 +451,9 @@ LOW_NOISE = {"noise_force": [0.03, 0.03, 0.015], "noise_torque": [0.002, 0.002, 
 """Sensor noise that Fig. 9's Std (< 0.046 N) allows: a quarter of the set-up's."""
 
 
-def rotation_test(setup: PaperSetup, make_estimator: Callable[[], Any], speed: float,
-                  noise: dict[str, Any]) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
+def rotation_test(
+    setup: PaperSetup, make_estimator: Callable[[], Any], speed: float, noise: dict[str, Any]
+) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
     """Identify on a random tour, then turn the horizontal instrument once with the 104 g mass on its tip.
 
     Returns the metrics of |contact force| against the load (MAE, Max AE, Std,
@@ -382,7 +467,8 @@ def rotation_test(setup: PaperSetup, make_estimator: Callable[[], Any], speed: f
     turn_s = 360.0 / speed + ramp
     world = setup.world(
         {"script": "axial_rotation", "speed_deg_s": float(speed), "turns": 1.0, "ramp_s": ramp, "start_s": start},
-        [{"kind": "hanging_mass", "start": 0.0, "duration": 1e9, "mass": REFERENCE_MASS_KG}], **noise,
+        [{"kind": "hanging_mass", "start": 0.0, "duration": 1e9, "mass": REFERENCE_MASS_KG}],
+        **noise,
     )
     block, _ = simulate(world, start + turn_s + 0.5, rate)
     est, _ = feed(estimator, block)
@@ -391,8 +477,11 @@ def rotation_test(setup: PaperSetup, make_estimator: Callable[[], Any], speed: f
     magnitude = np.linalg.norm(est.contact_force_S[turning], axis=1)
     e = magnitude - REFERENCE_MASS_KG * GRAVITY_M_S2
     numbers = {
-        "mae": float(mae(e)), "max_ae": float(max_ae(e)), "std": float(std(magnitude)),
-        "mean": float(np.mean(magnitude)), "contact_detected_pct": 100.0 * float(np.mean(est.contact[turning])),
+        "mae": float(mae(e)),
+        "max_ae": float(max_ae(e)),
+        "std": float(std(magnitude)),
+        "mean": float(np.mean(magnitude)),
+        "contact_detected_pct": 100.0 * float(np.mean(est.contact[turning])),
     }
     angle_deg = np.rad2deg(world.motion.angle(t[turning])[0] - world.motion.angle(np.array([start]))[0][0])
     return numbers, angle_deg, magnitude
@@ -426,28 +515,58 @@ def estimator_factory(registry: Registry, name: str, setup: PaperSetup, **extra:
     return lambda: registry.create("estimator", name, options, where="estimator")
 
 
-def bench_paper(quick: bool = False, all_estimators: bool = False, registry: Registry | None = None,
-                progress: Callable[[str], None] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+def bench_paper(
+    quick: bool = False,
+    all_estimators: bool = False,
+    registry: Registry | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """Run the benchmark; returns (JSON-ready results, plot data)."""
     registry = registry if registry is not None else Registry()
     setup = PaperSetup()
-    main = run_paper(setup, estimator_factory(registry, "rls", setup), "rls", quick=quick, progress=progress,
-                     make_printed=estimator_factory(registry, "rls", setup, covariance_update="printed"))
-    out: dict[str, Any] = {"setup": {**asdict(setup), "quick": quick, "estimator": "rls"}, **main["result"],
-                           "paper": PAPER}
+    main = run_paper(
+        setup,
+        estimator_factory(registry, "rls", setup),
+        "rls",
+        quick=quick,
+        progress=progress,
+        make_printed=estimator_factory(registry, "rls", setup, covariance_update="printed"),
+    )
+    out: dict[str, Any] = {
+        "setup": {**asdict(setup), "quick": quick, "estimator": "rls"},
+        **main["result"],
+        "paper": PAPER,
+    }
     if all_estimators:
         out["estimators"] = {}
         for name in sorted(registry.names("estimator"), key=lambda n: n != "kalman"):  # the default first
             say = (lambda m, n=name: progress(f"{n}: {m}")) if progress else None
-            run = main if name == "rls" else run_paper(setup, estimator_factory(registry, name, setup), name,
-                                                        quick=quick, progress=say, with_batch_bounds=False)
+            run = (
+                main
+                if name == "rls"
+                else run_paper(
+                    setup,
+                    estimator_factory(registry, name, setup),
+                    name,
+                    quick=quick,
+                    progress=say,
+                    with_batch_bounds=False,
+                )
+            )
             out["estimators"][name] = run["result"]
     return out, main["plots"]
 
 
-FIGURES = ("fig3_force_parameters.png", "fig4_torque_parameters.png", "fig5_force_compensation.png",
-           "fig6_torque_compensation.png", "fig7_indentation.png", "fig8_rotation_104g.png",
-           "fig9_rotation_metrics.png", "drift_contact.png")
+FIGURES = (
+    "fig3_force_parameters.png",
+    "fig4_torque_parameters.png",
+    "fig5_force_compensation.png",
+    "fig6_torque_compensation.png",
+    "fig7_indentation.png",
+    "fig8_rotation_104g.png",
+    "fig9_rotation_metrics.png",
+    "drift_contact.png",
+)
 """The files :func:`write_plots` writes (an existing one is refused unless ``force``)."""
 
 
@@ -468,8 +587,10 @@ def write_plots(plots: dict[str, Any], folder: Path, force: bool = False) -> lis
         written.append(save_figure(fig, folder / name, force, dpi=110))
 
     index, trace, truth = plots["identification"]
-    for name, keys, units in (("fig3_force_parameters.png", ("gravity_force_B", "bias_force_S"), ("N", "N")),
-                              ("fig4_torque_parameters.png", ("cog_S", "bias_torque_S"), ("m", "N·m"))):
+    for name, keys, units in (
+        ("fig3_force_parameters.png", ("gravity_force_B", "bias_force_S"), ("N", "N")),
+        ("fig4_torque_parameters.png", ("cog_S", "bias_torque_S"), ("m", "N·m")),
+    ):
         fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
         for ax, key, unit in zip(axes, keys, units):
             for k, c in enumerate("rgb"):
@@ -486,8 +607,10 @@ def write_plots(plots: dict[str, Any], folder: Path, force: bool = False) -> lis
         save(fig, name)
 
     raw_f, comp_f, raw_t, comp_t = plots["poses"]
-    for name, raw, comp, unit, axes_names in (("fig5_force_compensation.png", raw_f, comp_f, "N", AXES_F),
-                                              ("fig6_torque_compensation.png", raw_t, comp_t, "N·m", AXES_T)):
+    for name, raw, comp, unit, axes_names in (
+        ("fig5_force_compensation.png", raw_f, comp_f, "N", AXES_F),
+        ("fig6_torque_compensation.png", raw_t, comp_t, "N·m", AXES_T),
+    ):
         fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharex=True)
         for k, c in enumerate("rgb"):
             axes[0].plot(raw[:, k], c, lw=1, label=axes_names[k])
@@ -538,8 +661,15 @@ def write_plots(plots: dict[str, Any], folder: Path, force: bool = False) -> lis
     fig, ax = plt.subplots(figsize=(10, 3.4))
     ax.plot(t, np.linalg.norm(truth_f, axis=1), "k", lw=0.8, label="true contact")
     ax.plot(t, np.linalg.norm(comp, axis=1), "b", lw=0.6, label="rls |contact force|")
-    ax.fill_between(t, 0, 1, where=contact & ~touching, transform=ax.get_xaxis_transform(), color="mistyrose",
-                    label="refused as contact, no contact")
+    ax.fill_between(
+        t,
+        0,
+        1,
+        where=contact & ~touching,
+        transform=ax.get_xaxis_transform(),
+        color="mistyrose",
+        label="refused as contact, no contact",
+    )
     ax.set_xlabel("time (s)")
     ax.set_ylabel("N")
     ax.set_title("bias drifting 0.5 N/min, indentation every 10 s")

@@ -27,16 +27,16 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.errors import UserError
+from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.host.interfaces import HoldsOutOutliers
 from hapticlab.core.host.registry import Registry
 from hapticlab.core.types import first_true
-
 from hapticlab.sessions.offline.compensate import run_estimator
 from hapticlab.sessions.offline.metrics import norm_ratio, rms, scored_rows
 from hapticlab.sessions.offline.numerics import numerical_failures
 from hapticlab.sessions.recording.stream import Stream, load_stream
+
 
 def default_real_dir() -> Path:
     """``$HAPTICLAB_REAL_DATA``, else ``shared/data/real`` beside the source checkout, else ``../shared/data/real``."""
@@ -84,8 +84,9 @@ def second_half_ratio(contact_force_S: np.ndarray, residual_force_S: np.ndarray)
     return norm_ratio(rms(contact_force_S[rows]), rms(residual_force_S[rows]))
 
 
-def bench_real(folder: Path, registry: Registry | None = None,
-               progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+def bench_real(
+    folder: Path, registry: Registry | None = None, progress: Callable[[str], None] | None = None
+) -> dict[str, Any]:
     """Results per file, then per estimator (JSON-ready)."""
     registry = registry if registry is not None else Registry()
     folder = Path(folder)
@@ -111,11 +112,7 @@ def bench_file(path: Path, registry: Registry, progress: Callable[[str], None] |
     s = stream.samples
     fit = batch_fit(s.force_S, s.torque_S, s.R_EB)
     residual = fit["residual_force_S"]
-    entry: dict[str, Any] = {
-        "rows": len(stream),
-        "batch_rms_force_S": rms(residual).tolist(),
-        "estimators": {},
-    }
+    entry: dict[str, Any] = {"rows": len(stream), "batch_rms_force_S": rms(residual).tolist(), "estimators": {}}
     for label, name, options in variants(registry, stream):
         if progress:
             progress(f"{path.name}: {label}")
@@ -131,9 +128,12 @@ def bench_file(path: Path, registry: Registry, progress: Callable[[str], None] |
             entry["estimators"][label] = {"error": str(exc)}
             continue
         first_f, first_t = first_true(est.converged_force), first_true(est.converged_torque)
-        result: dict[str, Any] = {"converged_force_at": first_f, "converged_torque_at": first_t,
-                                  "contact_rows": int(est.contact.sum()),
-                                  "contact_pct": 100.0 * float(np.mean(est.contact))}
+        result: dict[str, Any] = {
+            "converged_force_at": first_f,
+            "converged_torque_at": first_t,
+            "contact_rows": int(est.contact.sum()),
+            "contact_pct": 100.0 * float(np.mean(est.contact)),
+        }
         if isinstance(estimator, HoldsOutOutliers):  # refused, not called contacts: shown beside
             result["held_out_rows"] = estimator.held_out_samples
             result["held_out_pct"] = 100.0 * estimator.held_out_samples / max(len(stream), 1)
@@ -141,12 +141,14 @@ def bench_file(path: Path, registry: Registry, progress: Callable[[str], None] |
         if first_f is not None:  # contact rows are scored too: every one is a false contact
             rows = scored_rows(first_f, est.contact_force_S)
             online, batch = rms(est.contact_force_S[rows]), rms(residual[rows])
-            result.update({
-                "rows_scored": int(rows.sum()),
-                "rms_force_S": online.tolist(),
-                "batch_rms_same_rows": batch.tolist(),
-                "ratio": (online / batch).tolist(),
-                "ratio_norm": norm_ratio(online, batch),
-            })
+            result.update(
+                {
+                    "rows_scored": int(rows.sum()),
+                    "rms_force_S": online.tolist(),
+                    "batch_rms_same_rows": batch.tolist(),
+                    "ratio": (online / batch).tolist(),
+                    "ratio_norm": norm_ratio(online, batch),
+                }
+            )
         entry["estimators"][label] = result
     return entry

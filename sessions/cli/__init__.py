@@ -14,7 +14,7 @@ import sys
 from hapticlab import __version__
 from hapticlab.core.host.registry import make_plugin_manager
 from hapticlab.sessions.cli import bench, discrepancy, emulate, offline, review, run
-from hapticlab.sessions.cli.errors import one_line, is_user_error
+from hapticlab.sessions.cli.errors import is_user_error, one_line
 from hapticlab.sessions.cli.render import err
 
 COMMAND_MODULES = (run, offline, bench, discrepancy, review)
@@ -24,8 +24,7 @@ def build_parser(load_plugins: bool = True) -> argparse.ArgumentParser:
     """The parser with every built-in subcommand, and those plugins add (``register_commands``)."""
     parser = argparse.ArgumentParser(
         prog="hapticlab",
-        description="Haptic teleoperation for robotic-surgery training: real-time F/T compensation, "
-                    "recorded sessions.",
+        description="Haptic teleoperation for robotic-surgery training: real-time F/T compensation, recorded sessions.",
     )
     parser.add_argument("--version", action="version", version=f"hapticlab {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)

@@ -23,8 +23,11 @@ from hapticlab.core.host.registry import Registry
 
 def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> None:
     """``emulate`` and one subcommand per registered emulator (``register_emulators``), and ``lab``."""
-    parser = sub.add_parser("emulate", help="serve a real device's protocol on loopback, fed by the simulator",
-                            description=__doc__.split("\n\n")[0])
+    parser = sub.add_parser(
+        "emulate",
+        help="serve a real device's protocol on loopback, fed by the simulator",
+        description=__doc__.split("\n\n")[0],
+    )
     devices = parser.add_subparsers(dest="device", required=True, metavar="DEVICE")
     registry = Registry(pm)
     for name in registry.names("emulator"):
@@ -32,26 +35,41 @@ def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> N
         device = devices.add_parser(name, help=emulator.help, description=emulator.help)
         emulator.add_arguments(device)
         device.set_defaults(func=emulator.run)
-    lab = devices.add_parser("lab", help="a Net F/T and a UR arm on one simulated world and one clock "
-                                         "(the lab-emulated preset's devices)",
-                             description="A Net F/T (RDT/UDP and netftapi2.xml) and a UR controller (RTDE) "
-                                         "served together, fed by one simulated world on one clock.")
-    lab.add_argument("--session", default="lab-emulated",
-                     help="preset name or TOML file whose [world] both devices live in (default: lab-emulated)")
+    lab = devices.add_parser(
+        "lab",
+        help="a Net F/T and a UR arm on one simulated world and one clock (the lab-emulated preset's devices)",
+        description="A Net F/T (RDT/UDP and netftapi2.xml) and a UR controller (RTDE) "
+        "served together, fed by one simulated world on one clock.",
+    )
+    lab.add_argument(
+        "--session",
+        default="lab-emulated",
+        help="preset name or TOML file whose [world] both devices live in (default: lab-emulated)",
+    )
     lab.add_argument("--netft", default="127.0.0.2", metavar="ADDRESS", help="the Net F/T's address (127.0.0.2)")
     lab.add_argument("--rdt-port", type=int, default=49152, help="its RDT UDP port (49152)")
-    lab.add_argument("--http-port", type=int, default=8080,
-                     help="its netftapi2.xml HTTP port (8080: port 80 needs privileges)")
+    lab.add_argument(
+        "--http-port", type=int, default=8080, help="its netftapi2.xml HTTP port (8080: port 80 needs privileges)"
+    )
     lab.add_argument("--rate", type=float, default=1000.0, help="its RDT rate, Hz (7000/n; default 1000)")
-    lab.add_argument("--ur", default="127.0.0.3", metavar="ADDRESS", help="the UR controller's address, "
-                                                                           "port 30004 (127.0.0.3)")
+    lab.add_argument(
+        "--ur", default="127.0.0.3", metavar="ADDRESS", help="the UR controller's address, port 30004 (127.0.0.3)"
+    )
     lab.add_argument("--model", default="ur5e", help="the UR model (default ur5e: e-Series, 500 Hz)")
-    lab.add_argument("--netft-fault", action="append", default=[],
-                     metavar="KIND[,start=S][,duration=S][,every=N][,status=0x...]",
-                     help="a wire fault of the Net F/T, as emulate netft --fault; repeatable")
-    lab.add_argument("--ur-stall", action="append", default=[], metavar="START,DURATION",
-                     help="the UR stream stalls over this window of world time, s: no data package, the "
-                          "connection open; repeatable")
+    lab.add_argument(
+        "--netft-fault",
+        action="append",
+        default=[],
+        metavar="KIND[,start=S][,duration=S][,every=N][,status=0x...]",
+        help="a wire fault of the Net F/T, as emulate netft --fault; repeatable",
+    )
+    lab.add_argument(
+        "--ur-stall",
+        action="append",
+        default=[],
+        metavar="START,DURATION",
+        help="the UR stream stalls over this window of world time, s: no data package, the connection open; repeatable",
+    )
     lab.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
     lab.set_defaults(func=run_lab)
 
@@ -65,8 +83,8 @@ def run_lab(args: argparse.Namespace) -> int:
     """
     from hapticlab.core.host.registry import ConfigError
     from hapticlab.plugins.kinematics.ur_emulator import UREmulator
-    from hapticlab.plugins.serving import serve_until_stopped
     from hapticlab.plugins.sensors.netft_emulator import NetFTEmulator, RdtFault
+    from hapticlab.plugins.serving import serve_until_stopped
     from hapticlab.plugins.simworld import SimWorld
     from hapticlab.sessions.config import load_config
 
@@ -95,17 +113,25 @@ def run_lab(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise ConfigError(f"emulate lab: cannot serve RTDE on {args.ur}:30004: {exc.strerror or exc}") from None
         try:
-            serve_until_stopped(args.duration, ready=lambda: print(
-                f"lab: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
-                f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}"
-                f"{' following the targets written to its input registers (hapticlab_follow.script)' if arm.follows else ''}; "
-                f"t0_ns={sensor.t0_ns}", flush=True))
+            serve_until_stopped(
+                args.duration,
+                ready=lambda: print(
+                    f"lab: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
+                    f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}"
+                    f"{' following the targets written to its input registers (hapticlab_follow.script)' if arm.follows else ''}; "
+                    f"t0_ns={sensor.t0_ns}",
+                    flush=True,
+                ),
+            )
         finally:
             arm.stop()
     finally:
         sensor.stop()
     c = sensor.counts
-    print(f"sent {c.sent} RDT records ({c.dropped} dropped, {c.duplicated} duplicated, {c.reordered} reordered, "
-          f"{c.stalled} stalled, {c.status} with a status) and {arm.packages_sent} RTDE data packages "
-          f"({arm.packages_stalled} stalled)", flush=True)
+    print(
+        f"sent {c.sent} RDT records ({c.dropped} dropped, {c.duplicated} duplicated, {c.reordered} reordered, "
+        f"{c.stalled} stalled, {c.status} with a status) and {arm.packages_sent} RTDE data packages "
+        f"({arm.packages_stalled} stalled)",
+        flush=True,
+    )
     return 0

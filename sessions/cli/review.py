@@ -8,9 +8,9 @@ from pathlib import Path
 from rich.table import Table
 
 from hapticlab.core.errors import UserError
-from hapticlab.sessions.output import check_output, check_plots_folder, write_text
 from hapticlab.sessions.cli.offline import add_folder_options, add_force, print_folder_run
 from hapticlab.sessions.cli.render import err, fmt, wide_console
+from hapticlab.sessions.output import check_output, check_plots_folder, write_text
 
 
 def print_review(r) -> None:
@@ -20,9 +20,11 @@ def print_review(r) -> None:
 
     console = wide_console(120)
     who = " · ".join(x for x in (r.trainee and f"trainee [bold]{r.trainee}[/]", r.task and f"task {r.task}") if x)
-    console.print(f"[bold]{r.name or r.path.name}[/] ({r.path.name}) · {who or 'no trainee recorded'} · "
-                  f"{r.date or 'no date'} · {r.duration_s:.1f} s · estimator {r.estimator}"
-                  + ("" if r.complete else " · [yellow]no summary: recovered or cut short[/]"))
+    console.print(
+        f"[bold]{r.name or r.path.name}[/] ({r.path.name}) · {who or 'no trainee recorded'} · "
+        f"{r.date or 'no date'} · {r.duration_s:.1f} s · estimator {r.estimator}"
+        + ("" if r.complete else " · [yellow]no summary: recovered or cut short[/]")
+    )
     if r.notes:
         console.print(f"notes: {r.notes}")
     t = Table(title="summary", show_header=False)
@@ -36,24 +38,45 @@ def print_review(r) -> None:
         for col in ("#", "start (s)", "duration (s)", "peak (N)", "mean (N)", f"over {r.force_limit_N:g} N (s)"):
             t.add_column(col, justify="right")
         for i, c in enumerate(r.contacts, start=1):
-            t.add_row(str(i), fmt(c.start_s, 2), fmt(c.duration_s, 2), fmt(c.peak_N, 2), fmt(c.mean_N, 2),
-                      fmt(c.over_limit_s, 2))
+            t.add_row(
+                str(i),
+                fmt(c.start_s, 2),
+                fmt(c.duration_s, 2),
+                fmt(c.peak_N, 2),
+                fmt(c.mean_N, 2),
+                fmt(c.over_limit_s, 2),
+            )
         console.print(t)
     t = Table(title="estimators")
     for col in ("estimator", "samples", "force converged (s)", "torque converged (s)", "converged at end"):
         t.add_column(col, justify="right")
     for e in r.estimators:
-        t.add_row(e.name, str(e.samples), fmt(e.converged_force_s, 2), fmt(e.converged_torque_s, 2),
-                  "yes" if e.converged_at_end else "[red]no[/]")
+        t.add_row(
+            e.name,
+            str(e.samples),
+            fmt(e.converged_force_s, 2),
+            fmt(e.converged_torque_s, 2),
+            "yes" if e.converged_at_end else "[red]no[/]",
+        )
     console.print(t)
     for e in r.estimators:
         if not e.table:
             console.print(f"{e.name}: not scored (never converged, or no contact-free sample after)")
             continue
-        t = Table(title=f"{e.name}: compensation error on {e.scored} no-contact samples after convergence "
-                        "(the paper's table; N, N·m)")
-        for col in ("axis", "MAE before", "Max AE before", "Std before", "MAE after", "Max AE after", "Std after",
-                    "MAE comp. %"):
+        t = Table(
+            title=f"{e.name}: compensation error on {e.scored} no-contact samples after convergence "
+            "(the paper's table; N, N·m)"
+        )
+        for col in (
+            "axis",
+            "MAE before",
+            "Max AE before",
+            "Std before",
+            "MAE after",
+            "Max AE after",
+            "Std after",
+            "MAE comp. %",
+        ):
             t.add_column(col, justify="right")
         for row in error_rows(e):
             t.add_row(*row)
@@ -77,15 +100,22 @@ def review_session(args: argparse.Namespace) -> int:
     from hapticlab.sessions.review.page import session_page
     from hapticlab.sessions.review.plots import PLOTS, write_plots
 
-    html = check_output(args.html, args.force, label="--html", inputs=[args.input], role="recording") \
-        if args.html else None
+    html = (
+        check_output(args.html, args.force, label="--html", inputs=[args.input], role="recording")
+        if args.html
+        else None
+    )
     plots = check_plots_folder(args.plots, args.force, patterns=[f"{n}.png" for n in PLOTS]) if args.plots else None
     if args.csv:
         raise UserError("--csv: a cohort's table; give a folder of recordings (hapticlab review DIR/ --csv FILE)")
     with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(f"reviewing {Path(args.input).name}", total=1.0)
-        r = review(args.input, force_limit=args.force_limit, plots=bool(html or plots),
-                   progress=lambda done: progress.update(task, completed=done))
+        r = review(
+            args.input,
+            force_limit=args.force_limit,
+            plots=bool(html or plots),
+            progress=lambda done: progress.update(task, completed=done),
+        )
     print_review(r)
     if plots is not None:
         for path in write_plots(r, plots, args.force):
@@ -105,17 +135,37 @@ def review_cohort(args: argparse.Namespace) -> int:
         raise UserError(f"--workers: at least 1, got {args.workers}")
     html = check_output(args.html, args.force, label="--html") if args.html else None
     out_csv = check_output(args.csv, args.force, label="--csv") if args.csv else None
-    run = review_folder(args.input, args.force_limit, scheduler=args.scheduler, workers=args.workers,
-                        progress=err.is_terminal)
+    run = review_folder(
+        args.input, args.force_limit, scheduler=args.scheduler, workers=args.workers, progress=err.is_terminal
+    )
     rows = {r["recording"]: r for r in rows_of(run)}
-    shown = ("trainee", "task", "date", "duration_s", "contacts", "peak_force_N", "over_limit_s", "estimator",
-             "converged_s")
+    shown = (
+        "trainee",
+        "task",
+        "date",
+        "duration_s",
+        "contacts",
+        "peak_force_N",
+        "over_limit_s",
+        "estimator",
+        "converged_s",
+    )
 
     def row(value) -> list[str]:
-        return ["–" if value[c] is None or value[c] == "" else
-                (fmt(value[c], 2) if isinstance(value[c], float) else str(value[c])) for c in shown]
-    status = print_folder_run(run, args.input, f"{args.input}: {len(run.outcomes)} recordings "
-                              f"(force limit {args.force_limit:g} N)", shown, row)
+        return [
+            "–"
+            if value[c] is None or value[c] == ""
+            else (fmt(value[c], 2) if isinstance(value[c], float) else str(value[c]))
+            for c in shown
+        ]
+
+    status = print_folder_run(
+        run,
+        args.input,
+        f"{args.input}: {len(run.outcomes)} recordings (force limit {args.force_limit:g} N)",
+        shown,
+        row,
+    )
     ordered = list(rows.values())
     if out_csv is not None:
         write_text(out_csv, csv_text(ordered), args.force, label="--csv")
@@ -142,15 +192,24 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add ``review`` to the ``hapticlab`` parser."""
     from hapticlab.sessions.review.summary import DEFAULT_FORCE_LIMIT_N
 
-    p = sub.add_parser("review", help="review a recorded session (summary, tables, plots, HTML) or a folder of them "
-                                      "(a cohort: one row per session, CSV, HTML with progress per trainee)")
+    p = sub.add_parser(
+        "review",
+        help="review a recorded session (summary, tables, plots, HTML) or a folder of them "
+        "(a cohort: one row per session, CSV, HTML with progress per trainee)",
+    )
     p.add_argument("input", help="a session's .mcap, or a folder of them (a cohort)")
-    p.add_argument("--html", default=None, metavar="FILE.html",
-                   help="write a self-contained page (tables and plots embedded)")
+    p.add_argument(
+        "--html", default=None, metavar="FILE.html", help="write a self-contained page (tables and plots embedded)"
+    )
     p.add_argument("--plots", default=None, metavar="DIR", help="write the session's plots as PNG into DIR")
     p.add_argument("--csv", default=None, metavar="FILE.csv", help="a cohort: write its table as CSV")
-    p.add_argument("--force-limit", type=float, default=DEFAULT_FORCE_LIMIT_N, metavar="N",
-                   help=f"contact force limit the review counts time above, N (default {DEFAULT_FORCE_LIMIT_N:g})")
+    p.add_argument(
+        "--force-limit",
+        type=float,
+        default=DEFAULT_FORCE_LIMIT_N,
+        metavar="N",
+        help=f"contact force limit the review counts time above, N (default {DEFAULT_FORCE_LIMIT_N:g})",
+    )
     add_folder_options(p)
     add_force(p)
     p.set_defaults(func=cmd_review)

@@ -133,13 +133,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     with err.status("building the session (the first run compiles the numba kernels, ~10 s)"):
         session = build_session(config)
     duration = session.settings.duration if args.duration is None else check_duration("--duration", args.duration)
-    err.print(f"[bold]hapticlab run[/] {origin}: {duration:g} s, sensor {session.plugins['sensor']['name']}, "
-              f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "
-              f"haptic {session.plugins['haptic']['name']}  (Ctrl-C stops and keeps the recording)")
+    err.print(
+        f"[bold]hapticlab run[/] {origin}: {duration:g} s, sensor {session.plugins['sensor']['name']}, "
+        f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "
+        f"haptic {session.plugins['haptic']['name']}  (Ctrl-C stops and keeps the recording)"
+    )
     live_at = args.live or ""
     if live_at:
-        err.print(f"live view: ws://{live_at} (in Foxglove: Open connection → Foxglove WebSocket; "
-                  f"layout: docs/foxglove-layout.json)", markup=False, highlight=False)
+        err.print(
+            f"live view: ws://{live_at} (in Foxglove: Open connection → Foxglove WebSocket; "
+            f"layout: docs/foxglove-layout.json)",
+            markup=False,
+            highlight=False,
+        )
     try:
         with RearmKey() as key:
             hint = rearm_hint(key.active, session.haptic_settings.rearm_button)
@@ -152,12 +158,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             if err.is_terminal:
                 with Live(console=err, refresh_per_second=4, transient=False) as live:
-                    result = run_session(session, out=args.out, duration=duration, on_status=on_status,
-                                         live=live_at)
+                    result = run_session(session, out=args.out, duration=duration, on_status=on_status, live=live_at)
             else:
                 live = None
-                result = run_session(session, out=args.out, duration=duration,
-                                     on_status=on_status if key.active else None, live=live_at)
+                result = run_session(
+                    session, out=args.out, duration=duration, on_status=on_status if key.active else None, live=live_at
+                )
     except SessionError as exc:  # a device or estimator failed: one line, the recording is complete
         err.print(f"hapticlab run: session ended by an error: {exc}", markup=False, highlight=False)
         if exc.part.startswith("estimator"):  # an estimator's exception is a bug worth its traceback
@@ -200,8 +206,9 @@ def weight_identified(params: dict[str, list[float]]) -> str:
     axes = [name for name, value in zip("xyz", params["gravity_force_B"]) if value != value]  # (NaN)
     if not axes:
         return "every axis"
-    return f"not along B's {', '.join(axes)}" + (" (turn the tool about another axis)" if len(axes) < 3 else
-                                                  " (turn the tool)")
+    return f"not along B's {', '.join(axes)}" + (
+        " (turn the tool about another axis)" if len(axes) < 3 else " (turn the tool)"
+    )
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -210,11 +217,18 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("session", nargs="?", default=None, help="preset name or path to a .toml file")
     p.add_argument("--duration", type=float, default=None, help="seconds to run (overrides the config)")
     p.add_argument("--out", default=None, help="recording path (.mcap)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="override a config value, e.g. --set estimator.name=batch")
-    p.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None, metavar="HOST:PORT",
-                   help="serve the session live to Foxglove over WebSocket (default 127.0.0.1:8765; "
-                        "needs the live extra: pip install 'hapticlab[live]')")
+    p.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a config value, e.g. --set estimator.name=batch"
+    )
+    p.add_argument(
+        "--live",
+        nargs="?",
+        const="127.0.0.1:8765",
+        default=None,
+        metavar="HOST:PORT",
+        help="serve the session live to Foxglove over WebSocket (default 127.0.0.1:8765; "
+        "needs the live extra: pip install 'hapticlab[live]')",
+    )
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("plugins", help="list every registered plugin by kind, with where it came from")

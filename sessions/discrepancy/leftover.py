@@ -49,8 +49,7 @@ GRAVITY_BINS = ("+x", "-x", "+y", "-y", "+z", "-z")
 """The orientations :func:`where_left` tells apart: the axis of S closest to gravity, and its sign."""
 
 
-def where_left(t: np.ndarray, residual: np.ndarray, noise: float, weight_S: np.ndarray | None = None
-               ) -> dict[str, Any]:
+def where_left(t: np.ndarray, residual: np.ndarray, noise: float, weight_S: np.ndarray | None = None) -> dict[str, Any]:
     """Where a channel's leftover lives: in time (the stretches whose RMS over ``noise`` exceeds the leftover
     threshold for their size), in frequency (the periodogram's peak, and the share of the residual's power
     within ±1 bin of it), in pose space (the orientations, by the axis of S gravity is closest to, where it
@@ -76,7 +75,7 @@ def where_left(t: np.ndarray, residual: np.ndarray, noise: float, weight_S: np.n
     freq = np.fft.rfftfreq(m, dt)
     k = int(np.argmax(spectrum[1:])) + 1 if m > 2 else 0
     excess = max(float(np.mean(x**2)) - noise**2, 0.0)
-    share = float(spectrum[max(k - 1, 1):k + 2].sum() / spectrum[1:].sum()) if spectrum[1:].sum() > 0 else 0.0
+    share = float(spectrum[max(k - 1, 1) : k + 2].sum() / spectrum[1:].sum()) if spectrum[1:].sum() > 0 else 0.0
     orientations, tested = [], []
     if weight_S is not None and m:
         axis = np.argmax(np.abs(weight_S), axis=1)
@@ -90,17 +89,21 @@ def where_left(t: np.ndarray, residual: np.ndarray, noise: float, weight_S: np.n
             ratio = float(rms(residual[here])) / noise
             if ratio > leftover_threshold(count):
                 orientations.append({"gravity_S": label, "samples": count, "rms_over_noise": ratio})
-    return {"stretches": stretches, "peak_hz": float(freq[k]) if dt > 0 else float("nan"),
-            "peak_share": share, "orientations": orientations, "orientations_tested": tested,
-            "excess_rms": math.sqrt(excess)}
+    return {
+        "stretches": stretches,
+        "peak_hz": float(freq[k]) if dt > 0 else float("nan"),
+        "peak_share": share,
+        "orientations": orientations,
+        "orientations_tested": tested,
+        "excess_rms": math.sqrt(excess),
+    }
 
 
 def where_text(axis: str, where: dict[str, Any], time_base: str) -> str:
     unit = "s" if time_base == "seconds" else "rows"
     text = f"; {axis}: {where['excess_rms']:.3g} RMS beyond the noise"
     if where["peak_share"] >= 0.25 and time_base == "seconds":
-        text += (f", its spectrum peaking at {where['peak_hz']:.3g} Hz "
-                 f"({100 * where['peak_share']:.0f} % of the power)")
+        text += f", its spectrum peaking at {where['peak_hz']:.3g} Hz ({100 * where['peak_share']:.0f} % of the power)"
     stretches = where["stretches"]
     if stretches and len(stretches) < LEFTOVER_SEGMENTS:
         text += ", mostly in " + ", ".join(f"{s['t_start']:.4g}-{s['t_end']:.4g} {unit}" for s in stretches)
@@ -109,8 +112,11 @@ def where_text(axis: str, where: dict[str, Any], time_base: str) -> str:
     seen = [o["gravity_S"] for o in where["orientations"]]
     if seen:
         worst = max(where["orientations"], key=lambda o: o["rms_over_noise"])
-        which = ("in every orientation" if len(seen) == len(where["orientations_tested"]) else
-                 f"with gravity along {', '.join(seen)} in S")
+        which = (
+            "in every orientation"
+            if len(seen) == len(where["orientations_tested"])
+            else f"with gravity along {', '.join(seen)} in S"
+        )
         text += f"; {which} (worst with gravity along {worst['gravity_S']}: {worst['rms_over_noise']:.2f}x)"
     return text
 

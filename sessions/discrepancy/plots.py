@@ -80,15 +80,19 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
         norm_f = np.linalg.norm(res[:, :3], axis=1)
         rms_f = rms(res[rows, :3])
         fig, axes = plt.subplots(2, 3, figsize=(16, 9))
-        fig.suptitle(f"{result['input']}: {state.label} — force RMS [{', '.join(f'{v:.3f}' for v in rms_f)}] N "
-                     f"on {len(rows)} samples")
+        fig.suptitle(
+            f"{result['input']}: {state.label} — force RMS [{', '.join(f'{v:.3f}' for v in rms_f)}] N "
+            f"on {len(rows)} samples"
+        )
         ax = axes[0, 0]
         for k in range(3):
             ax.plot(motion.t[thin], res[thin, k], ".", ms=1.5, color=COLORS[k], label="xyz"[k])
         ax.set(title="force residual against time", xlabel=f"t ({unit})", ylabel="N")
         ax.legend(markerscale=6, loc="upper right")
-        for ax, x, name, xunit in ((axes[0, 1], speed, "angular speed", "rad/s"),
-                                   (axes[0, 2], accel, "angular acceleration", "rad/s²")):
+        for ax, x, name, xunit in (
+            (axes[0, 1], speed, "angular speed", "rad/s"),
+            (axes[0, 2], accel, "angular acceleration", "rad/s²"),
+        ):
             if x is None:
                 ax.text(0.5, 0.5, "no time base: t counts rows", ha="center", va="center", transform=ax.transAxes)
                 ax.set_title(f"|force residual| against {name}")
@@ -104,8 +108,13 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
         lat = np.degrees(np.arcsin(np.clip(g[:, 2], -1, 1)))
         sc = ax.scatter(lon[thin], lat[thin], c=norm_f[thin], s=4, cmap="viridis")
         fig.colorbar(sc, ax=ax, label="|force residual| (N)")
-        ax.set(title="gravity direction in S, coloured by |force residual|", xlabel="longitude (deg)",
-               ylabel="latitude (deg)", xlim=(-180, 180), ylim=(-90, 90))
+        ax.set(
+            title="gravity direction in S, coloured by |force residual|",
+            xlabel="longitude (deg)",
+            ylabel="latitude (deg)",
+            xlim=(-180, 180),
+            ylim=(-90, 90),
+        )
         ax = axes[1, 1]
         predicted = force_S - res[:, :3]
         for k in range(3):
@@ -113,10 +122,17 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
             if len(rows) > 10:
                 slope = np.polyfit(predicted[rows, k], res[rows, k], 1)[0]
                 xs = np.linspace(predicted[rows, k].min(), predicted[rows, k].max(), 2)
-                ax.plot(xs, slope * (xs - predicted[rows, k].mean()) + res[rows, k].mean(), color=COLORS[k],
-                        label=f"{'xyz'[k]}: slope {100 * slope:+.2f} %")
-        ax.set(title="force residual against load (predicted force, per axis)", xlabel="predicted force (N)",
-               ylabel="residual (N)")
+                ax.plot(
+                    xs,
+                    slope * (xs - predicted[rows, k].mean()) + res[rows, k].mean(),
+                    color=COLORS[k],
+                    label=f"{'xyz'[k]}: slope {100 * slope:+.2f} %",
+                )
+        ax.set(
+            title="force residual against load (predicted force, per axis)",
+            xlabel="predicted force (N)",
+            ylabel="residual (N)",
+        )
         ax.legend(loc="upper left")
         ax = axes[1, 2]
         for k in range(3):
@@ -130,13 +146,15 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
     labels = [s.label for s in states]
     x = np.arange(len(states))
     for ax, offset, unit, key in ((axes[0], 0, "N", "rms_force_S"), (axes[1], 3, "N·m", "rms_torque_S")):
-        values = np.array([rms(s.residual[rows, offset:offset + 3]) for s in states])
+        values = np.array([rms(s.residual[rows, offset : offset + 3]) for s in states])
         for k in range(3):
             ax.bar(x + (k - 1) * 0.27, values[:, k], 0.27, color=COLORS[k], label="xyz"[k])
             ax.axhline(result["batch_fit"][key][k], color=COLORS[k], ls="--", lw=0.8)
         ax.set_xticks(x, labels, rotation=20, ha="right")
-        ax.set(ylabel=f"RMS ({unit})", title=f"{'force' if offset == 0 else 'torque'} RMS per step "
-                                             f"(dashed: offline batch fit)")
+        ax.set(
+            ylabel=f"RMS ({unit})",
+            title=f"{'force' if offset == 0 else 'torque'} RMS per step (dashed: offline batch fit)",
+        )
         ax.legend()
     fig.suptitle(result["input"])
     fig.tight_layout()

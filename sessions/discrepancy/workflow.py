@@ -61,13 +61,12 @@ from typing import Any, Callable
 import numpy as np
 
 from hapticlab.core.estimation.batch import batch_fit
-from hapticlab.sessions.discrepancy.blas import single_threaded_blas
-from hapticlab.core.sensor_model.model import Effect, LocatesItself, Model, Motion, motion_from_poses
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.host.registry import ConfigError, Registry
-
-from hapticlab.sessions.offline.metrics import rms
+from hapticlab.core.sensor_model.model import Effect, LocatesItself, Model, Motion, motion_from_poses
+from hapticlab.sessions.discrepancy.blas import single_threaded_blas
 from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold, where_left, where_text
+from hapticlab.sessions.offline.metrics import rms
 from hapticlab.sessions.offline.numerics import numerical_failures
 from hapticlab.sessions.recording.csvimport import CsvError
 from hapticlab.sessions.recording.stream import Stream, load_stream
@@ -133,13 +132,17 @@ def recorded_motion(stream: Stream, time_base: str = "auto", window_s: float = 0
     notes = []
     base = detect_time_base(t) if time_base == "auto" else time_base
     if base == "index" and time_base == "auto":
-        notes.append(f"{name}: t counts rows (0, 1, 2, ...), not seconds: the time-based effects "
-                     f"(time_lag, inertia) cannot be tested; use --time-base seconds if it is a time")
+        notes.append(
+            f"{name}: t counts rows (0, 1, 2, ...), not seconds: the time-based effects "
+            f"(time_lag, inertia) cannot be tested; use --time-base seconds if it is a time"
+        )
     if base == "seconds":
         dt = np.diff(t)
         if dt.max() > 3 * np.median(dt):
-            notes.append(f"{name}: the sampling has gaps (up to {dt.max():.3g} s against a median "
-                         f"{np.median(dt):.3g} s); derivatives next to them are unreliable")
+            notes.append(
+                f"{name}: the sampling has gaps (up to {dt.max():.3g} s against a median "
+                f"{np.median(dt):.3g} s); derivatives next to them are unreliable"
+            )
     quat = samples.quat_BE if samples.quat_BE is not None else quat_wxyz_from_matrix(samples.R_EB.transpose(0, 2, 1))
     positions = samples.p_BoEo_B
     if positions is not None and not np.isfinite(positions).all():
@@ -176,6 +179,8 @@ def noise_scale(residual: np.ndarray) -> np.ndarray:
 NOT_IDENTIFIABLE = 1e-4
 """An eigenvalue of the correlation-scaled information below this is a combination of parameters the data
 do not determine (:meth:`Discrepancy.uncertainty`): its standard error is over 100× theirs one at a time."""
+
+
 @dataclass
 class Evidence:
     """How one candidate did on held-out data."""
@@ -192,8 +197,15 @@ class Evidence:
     wins_needed: int = 0
 
     def as_dict(self) -> dict[str, Any]:
-        return {"effect": self.effect, "heldout_gain": self.gain, "folds_improved": self.folds_improved,
-                "folds": self.folds, "wins_needed": self.wins_needed, "t": self.t, "significant": self.significant}
+        return {
+            "effect": self.effect,
+            "heldout_gain": self.gain,
+            "folds_improved": self.folds_improved,
+            "folds": self.folds,
+            "wins_needed": self.wins_needed,
+            "t": self.t,
+            "significant": self.significant,
+        }
 
 
 def sign_test_p(folds: int, wins: int) -> float:
@@ -230,8 +242,13 @@ class Discrepancy:
     """The workflow on one recording stream and the motion derived from it (``run()`` does it all; see the
     module docstring)."""
 
-    def __init__(self, stream: Stream, registry: Registry | None = None, settings: Settings | None = None,
-                 progress: Callable[[str], None] | None = None):
+    def __init__(
+        self,
+        stream: Stream,
+        registry: Registry | None = None,
+        settings: Settings | None = None,
+        progress: Callable[[str], None] | None = None,
+    ):
         self.registry = registry if registry is not None else Registry()
         self.settings = settings if settings is not None else Settings()
         self.say = progress or (lambda message: None)
@@ -292,8 +309,9 @@ class Discrepancy:
         JF, JT = J[:, :3].reshape(-1, p), J[:, 3:].reshape(-1, p)
         return JF.T @ JF, JF.T @ r[:, :3].reshape(-1), JT.T @ JT, JT.T @ r[:, 3:].reshape(-1)
 
-    def gauss_newton(self, model: Model, theta: np.ndarray, J: np.ndarray | None = None,
-                     max_iter: int = 8) -> np.ndarray:
+    def gauss_newton(
+        self, model: Model, theta: np.ndarray, J: np.ndarray | None = None, max_iter: int = 8
+    ) -> np.ndarray:
         """Weighted least squares of ``model`` on the kept fit rows, from ``theta`` (force block, then torque).
 
         Step control follows the cascade: the force block's step is halved
@@ -374,15 +392,16 @@ class Discrepancy:
                 v = V[:, k]
                 major = np.flatnonzero(np.abs(v) >= 0.2)
                 lost[major] = True
-                combinations.append({
-                    "parameters": [model.labels[idx[j]] for j in major],
-                    "weights": [float(v[j] / np.abs(v[major]).max()) for j in major],
-                    "eigenvalue": float(lam[k]),
-                })
+                combinations.append(
+                    {
+                        "parameters": [model.labels[idx[j]] for j in major],
+                        "weights": [float(v[j] / np.abs(v[major]).max()) for j in major],
+                        "eigenvalue": float(lam[k]),
+                    }
+                )
             block_std[lost] = np.nan
             std[idx] = block_std
-        return {"std": {label: float(v) for label, v in zip(model.labels, std)},
-                "not_identifiable": combinations}
+        return {"std": {label: float(v) for label, v in zip(model.labels, std)}, "not_identifiable": combinations}
 
     def gate(self, model: Model, theta: np.ndarray) -> np.ndarray:
         """Rows kept after the contact gate on the residual of ``model`` (over every usable row)."""
@@ -465,8 +484,9 @@ class Discrepancy:
         chunk[kept] = (np.arange(m) * chunks) // max(m, 1)
         return chunk, folds
 
-    def test_candidates(self, model: Model, theta: np.ndarray,
-                        candidates: list[tuple[str, Effect]]) -> tuple[list[Evidence], dict]:
+    def test_candidates(
+        self, model: Model, theta: np.ndarray, candidates: list[tuple[str, Effect]]
+    ) -> tuple[list[Evidence], dict]:
         """Blocked cross-validation of each candidate added to ``model`` (linearised at ``theta``)."""
         s = self.settings
         rows = self.kept[self.fit_rows]
@@ -479,7 +499,7 @@ class Discrepancy:
                 effect.locate(motion, r[rows], weight_S)
         full = Model(model.effects + candidates)
         theta_full = full.initial(theta[:12])
-        theta_full[:model.size] = theta
+        theta_full[: model.size] = theta
         J = full.jacobian(self.fit_motion, theta_full)
         force = self.force_block(full, J)
         Jw = J * self.weights[None, :, None]
@@ -497,16 +517,15 @@ class Discrepancy:
 
         def solve(chunks: np.ndarray, cols: np.ndarray) -> np.ndarray:
             pick = lambda M: M[chunks].sum(0)[np.ix_(cols, cols)]  # noqa: E731
-            return self.block_solve(pick(HF), gF[chunks].sum(0)[cols], pick(HT), gT[chunks].sum(0)[cols],
-                                    force[cols])
+            return self.block_solve(pick(HF), gF[chunks].sum(0)[cols], pick(HT), gT[chunks].sum(0)[cols], force[cols])
 
         def heldout(cols: np.ndarray) -> np.ndarray:
             sse = np.zeros(folds)
             for f in range(folds):
                 test = np.zeros(nch, dtype=bool)
-                test[5 * f: 5 * f + 5] = True
+                test[5 * f : 5 * f + 5] = True
                 train = np.ones(nch, dtype=bool)
-                train[max(0, 5 * f - 1): 5 * f + 6] = False  # the fold and a buffer chunk either side
+                train[max(0, 5 * f - 1) : 5 * f + 6] = False  # the fold and a buffer chunk either side
                 delta = solve(train, cols)
                 H = (HF[test] + HT[test]).sum(0)[np.ix_(cols, cols)]
                 g = (gF[test] + gT[test]).sum(0)[cols]
@@ -524,12 +543,25 @@ class Discrepancy:
             gain = float((without.sum() - with_.sum()) / max(without.sum(), 1e-300))
             wins = int(np.sum(improvement > 0))
             sd = float(np.std(improvement, ddof=1)) if folds > 1 else 0.0
-            tstat = float(np.mean(improvement) / (sd / math.sqrt(folds))) if sd > 0 else math.copysign(
-                math.inf, float(np.mean(improvement)) or -1.0)
+            tstat = (
+                float(np.mean(improvement) / (sd / math.sqrt(folds)))
+                if sd > 0
+                else math.copysign(math.inf, float(np.mean(improvement)) or -1.0)
+            )
             significant = gain >= s.min_gain and wins >= wins_needed(folds, s.min_fold_share, s.max_sign_p)
             # the all-data step: the candidate's parameters if named
-            out.append(Evidence(name, gain, wins, folds, tstat, significant, solve(everything, cols),
-                                wins_needed(folds, s.min_fold_share, s.max_sign_p)))
+            out.append(
+                Evidence(
+                    name,
+                    gain,
+                    wins,
+                    folds,
+                    tstat,
+                    significant,
+                    solve(everything, cols),
+                    wins_needed(folds, s.min_fold_share, s.max_sign_p),
+                )
+            )
         return out, {"J": J, "full": full, "theta_full": theta_full}
 
     # ------------------------------------------------------------------ the loop
@@ -539,8 +571,9 @@ class Discrepancy:
         names = self.settings.effects if self.settings.effects is not None else self.registry.names("effect")
         testable, skipped, notes = [], [], []
         for name in names:
-            effect = self.registry.create("effect", name, self.settings.effect_options.get(name, {}),
-                                          where=f"effects.{name}")
+            effect = self.registry.create(
+                "effect", name, self.settings.effect_options.get(name, {}), where=f"effects.{name}"
+            )
             reason = effect.check(self.motion)
             if reason:
                 skipped.append({"effect": name, "reason": reason})
@@ -589,22 +622,30 @@ class Discrepancy:
             model = new_model
             candidates = [(n, e) for n, e in candidates if n != name]
             states.append(State(f"after {name}", model, theta))
-            steps.append({"effect": name, "action": "named", "round": len(rounds), "score": best.gain,
-                          "evidence": best.as_dict()})
+            steps.append(
+                {
+                    "effect": name,
+                    "action": "named",
+                    "round": len(rounds),
+                    "score": best.gain,
+                    "evidence": best.as_dict(),
+                }
+            )
             model, theta = self.retest(model, theta, states, steps, len(rounds))
         model, theta = self.structure_test(model, theta, states, steps, len(rounds))
         self.say("scoring")
         return self._report(states, steps, rounds, skipped, notes)
 
-    def retest(self, model: Model, theta: np.ndarray, states: list[State], steps: list[dict[str, Any]],
-               round_: int) -> tuple[Model, np.ndarray]:
+    def retest(
+        self, model: Model, theta: np.ndarray, states: list[State], steps: list[dict[str, Any]], round_: int
+    ) -> tuple[Model, np.ndarray]:
         """Test again each effect named before the newest one, as a candidate to the model without it; drop
         (and re-identify without) those no longer significant: an effect that stood in for another, now named
         (a hysteresis first fitted as a time lag), does not stay named. A dropped effect is not tested again."""
         for name, effect in list(model.effects[:-1]):
             without = Model([(n, e) for n, e in model.effects if n != name])
             sl = model.slices[name]
-            theta_without = np.concatenate([theta[:sl.start], theta[sl.stop:]])
+            theta_without = np.concatenate([theta[: sl.start], theta[sl.stop :]])
             # a copy: an effect that locates itself (an instant) would be moved by the test
             (evidence,), _ = self.test_candidates(without, theta_without, [(name, copy.copy(effect))])
             if evidence.significant:
@@ -613,12 +654,22 @@ class Discrepancy:
             params = model.effect_params(theta, name)
             model, theta = without, self.fit(without, theta_without)
             states.append(State(f"{name} dropped", model, theta))
-            steps.append({"effect": name, "action": "dropped", "round": round_, "score": evidence.gain,
-                          "evidence": evidence.as_dict(), "_effect": effect, "_params": params})
+            steps.append(
+                {
+                    "effect": name,
+                    "action": "dropped",
+                    "round": round_,
+                    "score": evidence.gain,
+                    "evidence": evidence.as_dict(),
+                    "_effect": effect,
+                    "_params": params,
+                }
+            )
         return model, theta
 
-    def structure_share(self, model: Model, theta: np.ndarray, name: str, predicted: np.ndarray,
-                        own_noise: np.ndarray) -> float:
+    def structure_share(
+        self, model: Model, theta: np.ndarray, name: str, predicted: np.ndarray, own_noise: np.ndarray
+    ) -> float:
         """The share of the structure ``model`` would leave without the effect ``name`` that the effect removes,
         on the channels where it acts.
 
@@ -633,7 +684,7 @@ class Discrepancy:
         rows = self.kept[self.fit_rows]
         sl = model.slices[name]
         without = Model([(n, e) for n, e in model.effects if n != name])
-        theta_without = self.gauss_newton(without, np.concatenate([theta[:sl.start], theta[sl.stop:]]))
+        theta_without = self.gauss_newton(without, np.concatenate([theta[: sl.start], theta[sl.stop :]]))
         bare = without.predict6(self.fit_motion, theta_without)[rows]
         y = self.y_fit[rows]
         floor = leftover_threshold(int(rows.sum())) ** 2  # under it, white noise: the channel's gap is closed
@@ -644,8 +695,9 @@ class Discrepancy:
         before = float(footprint @ excess_without)
         return float(footprint @ (excess_without - excess_with)) / before if before > 0 else 1.0
 
-    def structure_test(self, model: Model, theta: np.ndarray, states: list[State], steps: list[dict[str, Any]],
-                       round_: int) -> tuple[Model, np.ndarray]:
+    def structure_test(
+        self, model: Model, theta: np.ndarray, states: list[State], steps: list[dict[str, Any]], round_: int
+    ) -> tuple[Model, np.ndarray]:
         """Keep a named effect only if it explains most of the structure it is credited with
         (:meth:`structure_share` at least ``min_structure_share``, 50 %). A significant held-out gain alone
         is not enough: a physical effect outside the library projects onto some library term (a cable's pull
@@ -658,8 +710,7 @@ class Discrepancy:
             rows = self.kept[self.fit_rows]
             predicted = model.predict6(self.fit_motion, theta)[rows]
             own_noise = axis_noise(self.y_fit[rows] - predicted)
-            shares = {name: self.structure_share(model, theta, name, predicted, own_noise)
-                      for name, _ in model.effects}
+            shares = {name: self.structure_share(model, theta, name, predicted, own_noise) for name, _ in model.effects}
             name = min(shares, key=shares.get)
             if shares[name] >= min_share:
                 break
@@ -668,12 +719,21 @@ class Discrepancy:
             params = model.effect_params(theta, name)
             without = Model([(n, e) for n, e in model.effects if n != name])
             sl = model.slices[name]
-            model, theta = without, self.fit(without, np.concatenate([theta[:sl.start], theta[sl.stop:]]))
+            model, theta = without, self.fit(without, np.concatenate([theta[: sl.start], theta[sl.stop :]]))
             states.append(State(f"{name} set aside", model, theta))
             evidence = next(step["evidence"] for step in reversed(steps) if step["effect"] == name)
-            steps.append({"effect": name, "action": "set_aside", "round": round_, "score": 0.0,
-                          "structure_share": shares[name], "evidence": evidence, "_effect": effect,
-                          "_params": params})
+            steps.append(
+                {
+                    "effect": name,
+                    "action": "set_aside",
+                    "round": round_,
+                    "score": 0.0,
+                    "structure_share": shares[name],
+                    "evidence": evidence,
+                    "_effect": effect,
+                    "_params": params,
+                }
+            )
         named = dict(model.effects)
         for step in steps:
             if step["action"] == "named" and step["effect"] in shares and step["effect"] in named:
@@ -696,12 +756,16 @@ class Discrepancy:
                 model, theta = states[i + 1].model, states[i + 1].theta
                 effect = dict(model.effects)[step["effect"]]
                 params = model.effect_params(theta, step["effect"])
-            step.update({
-                "params": effect.describe(params),
-                "summary": effect.summary(params),
-                "rms_force_before": rms_kept[i][:3].tolist(), "rms_force_after": rms_kept[i + 1][:3].tolist(),
-                "rms_torque_before": rms_kept[i][3:].tolist(), "rms_torque_after": rms_kept[i + 1][3:].tolist(),
-            })
+            step.update(
+                {
+                    "params": effect.describe(params),
+                    "summary": effect.summary(params),
+                    "rms_force_before": rms_kept[i][:3].tolist(),
+                    "rms_force_after": rms_kept[i + 1][:3].tolist(),
+                    "rms_torque_before": rms_kept[i][3:].tolist(),
+                    "rms_torque_after": rms_kept[i + 1][3:].tolist(),
+                }
+            )
         final = states[-1]
         use = self.usable
         batch_kept = batch_fit(self.y[kept, :3], self.y[kept, 3:], self.motion.R_EB[kept])
@@ -709,8 +773,10 @@ class Discrepancy:
         named = [name for name, _ in final.model.effects]
         options: dict[str, Any] = {"effects": [name for name, effect in final.model.effects if effect.online]}
         final_params: dict[str, Any] = {
-            "gravity_force_B": final.theta[0:3].tolist(), "bias_force_S": final.theta[3:6].tolist(),
-            "cog_S": final.theta[6:9].tolist(), "bias_torque_S": final.theta[9:12].tolist(),
+            "gravity_force_B": final.theta[0:3].tolist(),
+            "bias_force_S": final.theta[3:6].tolist(),
+            "cog_S": final.theta[6:9].tolist(),
+            "bias_torque_S": final.theta[9:12].tolist(),
         }
         for name, effect in final.model.effects:
             params = final.model.effect_params(final.theta, name)
@@ -722,11 +788,20 @@ class Discrepancy:
         over_own = rms_kept[-1] / own_noise
         threshold = leftover_threshold(int(kept.sum()))
         leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
-        where = {a: where_left(self.motion.t[kept], final.residual[kept, AXES.index(a)],
-                               float(own_noise[AXES.index(a)]), final.weight_S[kept]) for a in leftover}
-        warnings = {"gate_not_applied": bool(self.gate_fallback),
-                    "final_above_noise": bool(np.any(over > self.settings.warn_rms_over_noise)),
-                    "leftover": bool(leftover)}
+        where = {
+            a: where_left(
+                self.motion.t[kept],
+                final.residual[kept, AXES.index(a)],
+                float(own_noise[AXES.index(a)]),
+                final.weight_S[kept],
+            )
+            for a in leftover
+        }
+        warnings = {
+            "gate_not_applied": bool(self.gate_fallback),
+            "final_above_noise": bool(np.any(over > self.settings.warn_rms_over_noise)),
+            "leftover": bool(leftover),
+        }
         notes = list(notes)
         for step in steps:
             if step["action"] == "set_aside":
@@ -734,37 +809,52 @@ class Discrepancy:
                     f"{step['effect']} set aside: it gained {100 * step['evidence']['heldout_gain']:.1f} % on "
                     f"held-out data but explains only {100 * step['structure_share']:.0f} % of the structure the "
                     f"model leaves without it (at least {100 * self.settings.min_structure_share:.0f} % to be "
-                    f"named): it stood in for something the library does not model ({step['summary']})")
+                    f"named): it stood in for something the library does not model ({step['summary']})"
+                )
         for name, effect in final.model.effects:
             if not effect.online:
-                notes.append(f"{name} is not compensated online (the kalman estimator does not model it): the "
-                             f"haptic rendering keeps it")
+                notes.append(
+                    f"{name} is not compensated online (the kalman estimator does not model it): the "
+                    f"haptic rendering keeps it"
+                )
         if warnings["gate_not_applied"]:
-            notes.append("the contact gate would have set aside half of the samples or more, so it was not applied: "
-                         "if the recording has that much contact every figure here is contaminated by it; "
-                         "cut the contact out of the file")
+            notes.append(
+                "the contact gate would have set aside half of the samples or more, so it was not applied: "
+                "if the recording has that much contact every figure here is contaminated by it; "
+                "cut the contact out of the file"
+            )
         if warnings["final_above_noise"]:
             notes.append(
                 f"the final RMS is {over[:3].max():.2f}x (force), {over[3:].max():.2f}x (torque) the noise estimate "
                 f"(above {self.settings.warn_rms_over_noise:g}x): something the tested effects do not explain remains "
-                f"(or contact the gate did not catch); see --plots")
+                f"(or contact the gate did not catch); see --plots"
+            )
         uncertainty = self.uncertainty(final.model, final.theta)
         for combination in uncertainty["not_identifiable"]:
-            terms = " ".join(f"{'−' if w < 0 else '+'} {abs(w):.2f}·{name}" for w, name in
-                             zip(combination["weights"], combination["parameters"])).lstrip("+ ")
-            notes.append("not identifiable from this motion: " + " and ".join(combination["parameters"])
-                         + f" trade off ({terms} is not determined): their values are one of many that fit "
-                         f"as well, and their standard errors are given as NaN")
+            terms = " ".join(
+                f"{'−' if w < 0 else '+'} {abs(w):.2f}·{name}"
+                for w, name in zip(combination["weights"], combination["parameters"])
+            ).lstrip("+ ")
+            notes.append(
+                "not identifiable from this motion: "
+                + " and ".join(combination["parameters"])
+                + f" trade off ({terms} is not determined): their values are one of many that fit "
+                f"as well, and their standard errors are given as NaN"
+            )
         if leftover:
             notes.append(
-                "something the tested effects do not explain is left on " + ", ".join(
-                    f"{a} ({over_own[AXES.index(a)]:.2f}x its own noise)" for a in leftover)
+                "something the tested effects do not explain is left on "
+                + ", ".join(f"{a} ({over_own[AXES.index(a)]:.2f}x its own noise)" for a in leftover)
                 + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples)"
-                + "".join(where_text(a, where[a], self.motion.time_base) for a in leftover) + "; see --plots")
+                + "".join(where_text(a, where[a], self.motion.time_base) for a in leftover)
+                + "; see --plots"
+            )
         folds = rounds[0][0]["folds"] if rounds and rounds[0] else None
         if folds is not None and rounds[0][0]["wins_needed"] > folds:
-            notes.append(f"{len(self.fit_rows)} samples give {folds} folds: no result over so few folds passes "
-                         f"the sign test (p ≤ {100 * self.settings.max_sign_p:g} %), so nothing can be named")
+            notes.append(
+                f"{len(self.fit_rows)} samples give {folds} folds: no result over so few folds passes "
+                f"the sign test (p ≤ {100 * self.settings.max_sign_p:g} %), so nothing can be named"
+            )
         return {
             "input": self.stream.name,
             "samples": int(self.n),
@@ -776,13 +866,21 @@ class Discrepancy:
             "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
             "final_rms_over_noise": {"force_S": over[:3].tolist(), "torque_S": over[3:].tolist()},
             "axis_noise": {"force_S": own_noise[:3].tolist(), "torque_S": own_noise[3:].tolist()},
-            "leftover": {"axes": leftover, "threshold": threshold, "where": where,
-                         "rms_over_axis_noise": {"force_S": over_own[:3].tolist(), "torque_S": over_own[3:].tolist()}},
+            "leftover": {
+                "axes": leftover,
+                "threshold": threshold,
+                "where": where,
+                "rms_over_axis_noise": {"force_S": over_own[:3].tolist(), "torque_S": over_own[3:].tolist()},
+            },
             "warnings": warnings,
             "baseline": {"rms_force_S": rms_kept[0][:3].tolist(), "rms_torque_S": rms_kept[0][3:].tolist()},
             "steps": steps,
-            "final": {"rms_force_S": rms_kept[-1][:3].tolist(), "rms_torque_S": rms_kept[-1][3:].tolist(),
-                      "params": final_params, "uncertainty": uncertainty},
+            "final": {
+                "rms_force_S": rms_kept[-1][:3].tolist(),
+                "rms_torque_S": rms_kept[-1][3:].tolist(),
+                "params": final_params,
+                "uncertainty": uncertainty,
+            },
             "effects": named,
             "estimator_options": options,
             "batch_fit": {
@@ -790,7 +888,8 @@ class Discrepancy:
                 "rms_torque_S": rms(np.c_[batch_kept["residual_torque_S"]]).tolist(),
             },
             "all_usable_rows": {
-                "final_rms_force_S": rms_all[-1][:3].tolist(), "final_rms_torque_S": rms_all[-1][3:].tolist(),
+                "final_rms_force_S": rms_all[-1][:3].tolist(),
+                "final_rms_torque_S": rms_all[-1][3:].tolist(),
                 "batch_rms_force_S": rms(batch_all["residual_force_S"]).tolist(),
                 "batch_rms_torque_S": rms(batch_all["residual_torque_S"]).tolist(),
             },
@@ -803,8 +902,12 @@ class Discrepancy:
         }
 
 
-def discrepancy(source: str | Path | Stream, settings: Settings | None = None, registry: Registry | None = None,
-                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+def discrepancy(
+    source: str | Path | Stream,
+    settings: Settings | None = None,
+    registry: Registry | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
     """Run the workflow on a stream or a file (CSV or MCAP); the JSON-ready result.
 
     Plus, for the plots: ``_stream`` (the input), ``_motion`` (the motion derived from it),
@@ -817,15 +920,21 @@ def discrepancy(source: str | Path | Stream, settings: Settings | None = None, r
         return workflow.run() | {"_stream": stream, "_motion": workflow.motion}
 
 
-def discrepancy_folder(folder: str | Path, settings: Settings | None = None, scheduler: str | None = None,
-                       workers: int | None = None, progress: bool = True):
+def discrepancy_folder(
+    folder: str | Path,
+    settings: Settings | None = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+):
     """:func:`discrepancy` on every recording under ``folder``, in parallel (``offline.folders``); each
     outcome's value is that file's result as :func:`json_ready` gives it (no arrays: it crosses processes)."""
     from hapticlab.sessions.offline.folders import map_recordings, recordings_in
 
     task = functools.partial(_discrepancy_one, settings=settings or Settings())
-    return map_recordings(task, recordings_in(folder), scheduler=scheduler, workers=workers, progress=progress,
-                          description="discrepancy")
+    return map_recordings(
+        task, recordings_in(folder), scheduler=scheduler, workers=workers, progress=progress, description="discrepancy"
+    )
 
 
 def _discrepancy_one(path: Path, settings: Settings) -> dict[str, Any]:
@@ -835,6 +944,7 @@ def _discrepancy_one(path: Path, settings: Settings) -> dict[str, Any]:
 
 def json_ready(result: dict[str, Any]) -> dict[str, Any]:
     """The result without its private arrays, NaN as null."""
+
     def clean(value):
         if isinstance(value, float):
             return value if math.isfinite(value) else None
@@ -845,11 +955,13 @@ def json_ready(result: dict[str, Any]) -> dict[str, Any]:
         if isinstance(value, np.generic):
             return clean(value.item())
         return value
+
     return clean(result)
 
 
 def toml_snippet(options: dict[str, Any]) -> str:
     """The ``[estimator]`` table reproducing the named effects online, to paste into a session file."""
+
     def fmt(value):
         if isinstance(value, str):
             return f'"{value}"'
@@ -858,6 +970,7 @@ def toml_snippet(options: dict[str, Any]) -> str:
         if isinstance(value, float):
             return f"{value:.6g}"
         return str(value)
+
     lines = ["[estimator]", 'name = "kalman"']
     lines += [f"{key} = {fmt(value)}" for key, value in options.items()]
     return "\n".join(lines)

@@ -5,5 +5,13 @@ from hapticlab.sessions.live.build import EstimatorSlot, Session, build_session,
 from hapticlab.sessions.live.loop import run_session
 from hapticlab.sessions.live.status import SessionError, SessionResult, SessionStatus
 
-__all__ = ["EstimatorSlot", "Session", "SessionError", "SessionResult", "SessionStatus", "build_session",
-           "calibration_path", "run_session"]
+__all__ = [
+    "EstimatorSlot",
+    "Session",
+    "SessionError",
+    "SessionResult",
+    "SessionStatus",
+    "build_session",
+    "calibration_path",
+    "run_session",
+]

@@ -46,8 +46,7 @@ from hapticlab.sessions.config import (
 )
 from hapticlab.sessions.live.safety import ForceGovernor
 
-INTERFACES = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator,
-              "haptic": HapticOutput}
+INTERFACES = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator, "haptic": HapticOutput}
 """The interface each plugin table's object must have (checked at build time)."""
 REQUIRED = tuple(INTERFACES.values())
 
@@ -81,10 +80,21 @@ class EstimatorSlot:
     @classmethod
     def of(cls, label: str, estimator: Any) -> "EstimatorSlot":
         """The slot for ``estimator``, its capabilities checked once."""
+
         def has(capability):
             return estimator if isinstance(estimator, capability) else None
-        return cls(label, estimator, has(EmitsEvents), has(ReportsParameterStd), has(KnowsMount),
-                   has(CountsConvergence), has(SavesState), has(Reidentifies), has(HoldsOutOutliers))
+
+        return cls(
+            label,
+            estimator,
+            has(EmitsEvents),
+            has(ReportsParameterStd),
+            has(KnowsMount),
+            has(CountsConvergence),
+            has(SavesState),
+            has(Reidentifies),
+            has(HoldsOutOutliers),
+        )
 
     @property
     def topic(self) -> str:
@@ -136,8 +146,11 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     check_tables(config, extra_tables=context_names)
     settings = session_settings(config)
     safety = haptic_settings(config)
-    contexts = {name: registry.create("context", name, {"table": config[name]}, where=name)
-                for name in context_names if name in config}
+    contexts = {
+        name: registry.create("context", name, {"table": config[name]}, where=name)
+        for name in context_names
+        if name in config
+    }
     built: dict[str, Any] = {}
     plugins: dict[str, dict[str, str]] = {}
     resolved: dict[str, Any] = {"session": asdict(settings)}
@@ -154,15 +167,20 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     shadows = []
     for label, (name, options) in shadow_tables(config).items():
         if label == primary:
-            raise ConfigError(f"shadows.{label}: the primary estimator already records on /estimator/{label}; "
-                              f"give the shadow another label")
+            raise ConfigError(
+                f"shadows.{label}: the primary estimator already records on /estimator/{label}; "
+                f"give the shadow another label"
+            )
         where = f"shadows.{label}"
         shadows.append(EstimatorSlot.of(label, _create(registry, "estimator", name, options, where, contexts)))
         plugins[f"shadow:{label}"] = {"name": name, "origin": registry.get("estimator", name).origin}
         resolved.setdefault("shadows", {})[label] = {
-            "name": name, **registry.resolved_options("estimator", name, options)}
-    device_events = [(table, built[table]) for table in ("sensor", "kinematics", "haptic")
-                     if isinstance(built[table], EmitsEvents)]
+            "name": name,
+            **registry.resolved_options("estimator", name, options),
+        }
+    device_events = [
+        (table, built[table]) for table in ("sensor", "kinematics", "haptic") if isinstance(built[table], EmitsEvents)
+    ]
     teleop = teleop_settings(config)
     resolved["teleop"] = asdict(teleop)
     robot = None
@@ -170,31 +188,52 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
         robot = built["kinematics"]
         if not isinstance(robot, ServosCartesian):
             name = plugins["kinematics"]["name"]
-            hint = ('; the simulated robot follows targets with [world.motion] script = "servo"' if name == "sim"
-                    else "; ur_rtde follows them with kinematics.follow = true" if name == "ur_rtde" else "")
-            raise ConfigError(f"teleop.enabled: kinematics {name!r} cannot follow a target "
-                              f"(it has no servo_cp){hint}")
-    return Session(config=config, settings=settings, haptic_settings=safety, sensor=built["sensor"],
-                   kinematics=built["kinematics"], primary=EstimatorSlot.of(primary, built["estimator"]),
-                   haptic=built["haptic"], plugins=plugins, resolved_config=resolved, shadows=shadows,
-                   contexts=contexts, device_events=device_events, teleop_settings=teleop, robot=robot)
+            hint = (
+                '; the simulated robot follows targets with [world.motion] script = "servo"'
+                if name == "sim"
+                else "; ur_rtde follows them with kinematics.follow = true"
+                if name == "ur_rtde"
+                else ""
+            )
+            raise ConfigError(f"teleop.enabled: kinematics {name!r} cannot follow a target (it has no servo_cp){hint}")
+    return Session(
+        config=config,
+        settings=settings,
+        haptic_settings=safety,
+        sensor=built["sensor"],
+        kinematics=built["kinematics"],
+        primary=EstimatorSlot.of(primary, built["estimator"]),
+        haptic=built["haptic"],
+        plugins=plugins,
+        resolved_config=resolved,
+        shadows=shadows,
+        contexts=contexts,
+        device_events=device_events,
+        teleop_settings=teleop,
+        robot=robot,
+    )
 
 
-def _create(registry: Registry, kind: str, name: str, options: dict[str, Any], where: str,
-            contexts: dict[str, Any]) -> Any:
+def _create(
+    registry: Registry, kind: str, name: str, options: dict[str, Any], where: str, contexts: dict[str, Any]
+) -> Any:
     """Build one plugin and check it has the interface its table needs."""
     obj = registry.create(kind, name, options, where=where, **contexts)
     interface = INTERFACES["estimator" if where.startswith("shadows.") else where]
     if not isinstance(obj, interface):
         missing = [m for m in _members(interface) if not hasattr(obj, m)]
-        raise ConfigError(f"{where}.name: {kind} {name!r} ({registry.get(kind, name).origin}) is not a "
-                          f"{interface.__name__}: it lacks {', '.join(missing)}")
+        raise ConfigError(
+            f"{where}.name: {kind} {name!r} ({registry.get(kind, name).origin}) is not a "
+            f"{interface.__name__}: it lacks {', '.join(missing)}"
+        )
     return obj
 
 
 def _members(protocol: type) -> list[str]:
-    return sorted(set(getattr(protocol, "__annotations__", {})) |
-                  {k for k, v in vars(protocol).items() if callable(v) and not k.startswith("_")})
+    return sorted(
+        set(getattr(protocol, "__annotations__", {}))
+        | {k for k, v in vars(protocol).items() if callable(v) and not k.startswith("_")}
+    )
 
 
 def session_metadata(session: Session, duration: float, path: Path) -> dict[str, dict[str, Any]]:

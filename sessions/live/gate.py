@@ -41,9 +41,9 @@ import math
 
 import numpy as np
 
-from hapticlab.core.host.interfaces import HasRange, ReportsParameterStd, Reidentifies
-from hapticlab.sessions.live import gate_kernel as screen_kernel
+from hapticlab.core.host.interfaces import HasRange, Reidentifies, ReportsParameterStd
 from hapticlab.core.types import STATUS_OK, AlignedSamples, Estimates, Event, PoseSample
+from hapticlab.sessions.live import gate_kernel as screen_kernel
 from hapticlab.sessions.live.watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
@@ -66,8 +66,9 @@ def implausible(block: AlignedSamples, sensor: HasRange | None) -> np.ndarray:
     if sensor is None:
         return np.zeros(len(block), dtype=bool)
     with np.errstate(invalid="ignore"):
-        beyond = (np.abs(block.force_S) > sensor.range_force_S).any(1) | \
-                 (np.abs(block.torque_S) > sensor.range_torque_S).any(1)
+        beyond = (np.abs(block.force_S) > sensor.range_force_S).any(1) | (
+            np.abs(block.torque_S) > sensor.range_torque_S
+        ).any(1)
     return beyond & (block.status == STATUS_OK)
 
 
@@ -92,8 +93,12 @@ def data_reason(block: AlignedSamples, usable: np.ndarray, beyond: np.ndarray) -
 
 _NO_RANGE = np.empty(0)
 _NO_POSITION = np.empty((0, 3))
-_REASONS = ((screen_kernel.BEYOND, BEYOND_RANGE), (screen_kernel.STALE, STALE),
-            (screen_kernel.BAD_STATUS, BAD_STATUS), (screen_kernel.NON_FINITE, NON_FINITE))
+_REASONS = (
+    (screen_kernel.BEYOND, BEYOND_RANGE),
+    (screen_kernel.STALE, STALE),
+    (screen_kernel.BAD_STATUS, BAD_STATUS),
+    (screen_kernel.NON_FINITE, NON_FINITE),
+)
 """The kernel's bits and their reasons, in :func:`data_reason`'s order."""
 
 
@@ -102,11 +107,22 @@ def screen(block: AlignedSamples, sensor: HasRange | None) -> tuple[np.ndarray, 
     :func:`data_reason`, in one compiled pass (``sessions.live.gate_kernel``; these three stay the reference)."""
     n = len(block)
     usable, beyond = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
-    ranges = (_NO_RANGE, _NO_RANGE) if sensor is None else (
-        np.asarray(sensor.range_force_S, dtype=float), np.asarray(sensor.range_torque_S, dtype=float))
-    bits = screen_kernel.screen_block(block.force_S, block.torque_S, block.R_EB,
-                                      _NO_POSITION if block.p_BoEo_B is None else block.p_BoEo_B,
-                                      block.stale, block.status, *ranges, usable, beyond)
+    ranges = (
+        (_NO_RANGE, _NO_RANGE)
+        if sensor is None
+        else (np.asarray(sensor.range_force_S, dtype=float), np.asarray(sensor.range_torque_S, dtype=float))
+    )
+    bits = screen_kernel.screen_block(
+        block.force_S,
+        block.torque_S,
+        block.R_EB,
+        _NO_POSITION if block.p_BoEo_B is None else block.p_BoEo_B,
+        block.stale,
+        block.status,
+        *ranges,
+        usable,
+        beyond,
+    )
     reason = next((why for bit, why in _REASONS if bits & bit), "") if bits else ""
     return usable, beyond, reason
 
@@ -125,9 +141,17 @@ class HapticGate:
         max_speed: fastest motion between two poses before "kinematics jumped", m/s.
     """
 
-    def __init__(self, label: str, ready_force_std: float, parameter_std: ReportsParameterStd | None,
-                 reidentifies: Reidentifies | None, stale_timeout_ns: int, frozen_pose_timeout_ns: int,
-                 max_turn_rate: float, max_speed: float):
+    def __init__(
+        self,
+        label: str,
+        ready_force_std: float,
+        parameter_std: ReportsParameterStd | None,
+        reidentifies: Reidentifies | None,
+        stale_timeout_ns: int,
+        frozen_pose_timeout_ns: int,
+        max_turn_rate: float,
+        max_speed: float,
+    ):
         self.label = label
         self.ready_force_std = ready_force_std
         self.parameter_std = parameter_std
@@ -163,8 +187,9 @@ class HapticGate:
         """
         return not (self.frozen() or self._jumped(now_ns) or self._out_of_step())
 
-    def on_withheld(self, block: AlignedSamples, params: dict[str, list[float]] | None,
-                    R_SE: np.ndarray | None) -> None:
+    def on_withheld(
+        self, block: AlignedSamples, params: dict[str, list[float]] | None, R_SE: np.ndarray | None
+    ) -> None:
         """Samples kept from the estimators because the poses are not trusted: the lag watch still sees them."""
         if self.parameters_known and params is not None and not self.frozen():
             self.lag.add(block, params, R_SE)
@@ -185,8 +210,14 @@ class HapticGate:
         self.last_sample_ns = int(block.t_ns[-1])
         self.data_reason = reason
 
-    def on_estimates(self, block: AlignedSamples, est: Estimates, now_ns: int,
-                     params: dict[str, list[float]] | None = None, R_SE: np.ndarray | None = None) -> list[Event]:
+    def on_estimates(
+        self,
+        block: AlignedSamples,
+        est: Estimates,
+        now_ns: int,
+        params: dict[str, list[float]] | None = None,
+        R_SE: np.ndarray | None = None,
+    ) -> list[Event]:
         """The primary estimator's output for the usable samples: the events it makes (convergence, bias step)."""
         events = []
         self.contact_now = bool(est.contact[-1])
@@ -224,8 +255,14 @@ class HapticGate:
         if step is not None:
             events.append(self._bias_step(step, now_ns))
             if self.bias_hold == "latched":
-                events.append(Event(now_ns, "haptic_latched", f"haptic force latched off: {LATCHED}; "
-                                    f"{self.label} cannot re-identify its bias", {"cause": "sensor bias step"}))
+                events.append(
+                    Event(
+                        now_ns,
+                        "haptic_latched",
+                        f"haptic force latched off: {LATCHED}; {self.label} cannot re-identify its bias",
+                        {"cause": "sensor bias step"},
+                    )
+                )
         return events
 
     @property
@@ -251,15 +288,17 @@ class HapticGate:
             other = "the estimator still sees a contact (the bias step, or a real one): free the tool"
         if other:
             self.bias_hold = "latched"
-            return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}",
-                         {"source": source})
+            return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
         self.bias = BiasWatch()
-        return Event(now_ns, "haptic_rearmed", f"haptic force re-armed by {source}; it ramps in from zero",
-                     {"source": source})
+        return Event(
+            now_ns, "haptic_rearmed", f"haptic force re-armed by {source}; it ramps in from zero", {"source": source}
+        )
 
     def _bias_step(self, step: np.ndarray, now_ns: int) -> Event:
-        message = (f"sensor bias step of {np.linalg.norm(step):.2f} N: the refused force stayed fixed in the "
-                   f"sensor frame while the tool turned")
+        message = (
+            f"sensor bias step of {np.linalg.norm(step):.2f} N: the refused force stayed fixed in the "
+            f"sensor frame while the tool turned"
+        )
         if self.reidentifies is not None:
             self.reidentifies.reidentify_bias("bias step")
             self.bias_hold = "drop"
@@ -288,21 +327,28 @@ class HapticGate:
         if self._jumped(now_ns):
             return f"kinematics jumped ({self.poses.jump[1]})"
         if self._out_of_step():
-            return (f"kinematics out of step with the sensor (poses {abs(self.lag.lag_s) * 1e3:.0f} ms "
-                    f"{'late' if self.lag.lag_s > 0 else 'early'})")
+            return (
+                f"kinematics out of step with the sensor (poses {abs(self.lag.lag_s) * 1e3:.0f} ms "
+                f"{'late' if self.lag.lag_s > 0 else 'early'})"
+            )
         if self.bias_hold == "latched":
             return LATCHED
         if self.bias_hold:
             return "sensor bias step: re-identifying"
         if not self.ready[0]:
-            return f"estimator not converged ({self.unidentified})" if self.unidentified else \
-                "estimator not converged"
-        if self.parameter_std is None and self.down_since_ns is not None and \
-                self.last_sample_ns - self.down_since_ns >= CONVERGENCE_LOSS_NS:
+            return f"estimator not converged ({self.unidentified})" if self.unidentified else "estimator not converged"
+        if (
+            self.parameter_std is None
+            and self.down_since_ns is not None
+            and self.last_sample_ns - self.down_since_ns >= CONVERGENCE_LOSS_NS
+        ):
             return "estimator no longer converged"
         if not self.parameters_known:
-            return f"parameters not yet identified ({self.unidentified})" if self.unidentified else \
-                "parameters not yet identified"
+            return (
+                f"parameters not yet identified ({self.unidentified})"
+                if self.unidentified
+                else "parameters not yet identified"
+            )
         if self.parameters_lost:
             return "parameters no longer known (uncertainty grew)"
         if now_ns < self.hold_until_ns:

@@ -22,8 +22,7 @@ BEYOND, STALE, BAD_STATUS, NON_FINITE = 1, 2, 4, 8
 
 
 @njit(cache=True)
-def screen_block(force_S, torque_S, R_EB, p_BoEo_B, stale, status, range_force_S, range_torque_S, usable,
-                 beyond):
+def screen_block(force_S, torque_S, R_EB, p_BoEo_B, stale, status, range_force_S, range_torque_S, usable, beyond):
     """Fill ``usable`` and ``beyond`` ((N,) bool) in place; return the bits of what was wrong in the block.
 
     Args:
@@ -68,6 +67,15 @@ def screen_block(force_S, torque_S, R_EB, p_BoEo_B, stale, status, range_force_S
 def warm_up() -> None:
     """Compile (or load from the cache) ``screen_block`` before the first live tick."""
     n = 2
-    screen_block(np.zeros((n, 3)), np.zeros((n, 3)), np.tile(np.eye(3), (n, 1, 1)), np.zeros((0, 3)),
-                 np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64), np.ones(3), np.ones(3),
-                 np.empty(n, dtype=np.bool_), np.empty(n, dtype=np.bool_))
+    screen_block(
+        np.zeros((n, 3)),
+        np.zeros((n, 3)),
+        np.tile(np.eye(3), (n, 1, 1)),
+        np.zeros((0, 3)),
+        np.zeros(n, dtype=np.bool_),
+        np.zeros(n, dtype=np.int64),
+        np.ones(3),
+        np.ones(3),
+        np.empty(n, dtype=np.bool_),
+        np.empty(n, dtype=np.bool_),
+    )

@@ -42,30 +42,36 @@ from __future__ import annotations
 import gc
 import json
 import signal
-from collections import deque
 import threading
 import time
-from contextlib import contextmanager
+from collections import deque
 from collections.abc import Callable
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from hapticlab.core.aligner import Aligner
 from hapticlab.core.errors import OutputExistsError
+from hapticlab.core.host.interfaces import (
+    HasCalibration,
+    HasForceLimit,
+    HasLatency,
+    HasRange,
+    PreparesAhead,
+    ReadsBlocks,
+)
 from hapticlab.core.host.registry import ConfigError
-from hapticlab.core.host.interfaces import (HasCalibration, HasForceLimit, HasLatency, HasRange, PreparesAhead,
-                                ReadsBlocks)
 from hapticlab.core.types import Event, WrenchBlock
 from hapticlab.sessions.config import check_duration
-from hapticlab.sessions.recording import Recorder
-from hapticlab.sessions.recording.sinks import WriterProcessError
 from hapticlab.sessions.live.build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
 from hapticlab.sessions.live.gate import HapticGate, screen
 from hapticlab.sessions.live.priority import fifo_priority
 from hapticlab.sessions.live.status import SessionError, SessionResult, SessionStatus
 from hapticlab.sessions.live.taps import HAND_OVER_NS, Taps
 from hapticlab.sessions.live.teleop import Teleoperation
+from hapticlab.sessions.recording import Recorder
+from hapticlab.sessions.recording.sinks import WriterProcessError
 
 PARAMS_INTERVAL_NS = 100_000_000
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""
@@ -80,8 +86,9 @@ OVERRUN_EVENT_INTERVAL_NS = 1_000_000_000
 """At most one ``overrun`` event a second; the ticks skipped in between are counted in it."""
 
 
-def stale_timeout_ns(stale_timeout: float, sensor_rate_hz: float, loop_rate_hz: float,
-                     sensor_latency_s: float = 0.0) -> int:
+def stale_timeout_ns(
+    stale_timeout: float, sensor_rate_hz: float, loop_rate_hz: float, sensor_latency_s: float = 0.0
+) -> int:
     """The age of the newest sensor sample at which the force is zeroed, ns: ``session.stale_timeout`` s, or
     when 0 (automatic) 1.5 sensor periods plus the sensor's latency plus one loop period."""
     period_ns = int(round(1e9 / loop_rate_hz))
@@ -117,9 +124,14 @@ class _PartFailed(Exception):
         self.part = part
 
 
-def run_session(session: Session, out: str | Path | None = None, duration: float | None = None,
-                on_status: Callable[[SessionStatus], None] | None = None,
-                status_interval_s: float = 0.25, live: str = "") -> SessionResult:
+def run_session(
+    session: Session,
+    out: str | Path | None = None,
+    duration: float | None = None,
+    on_status: Callable[[SessionStatus], None] | None = None,
+    status_interval_s: float = 0.25,
+    live: str = "",
+) -> SessionResult:
     """Run a built session until its duration ends (or Ctrl-C) and record it to one MCAP file.
 
     ``live`` ("HOST:PORT", e.g. "127.0.0.1:8765") also serves the session while it runs over
@@ -157,8 +169,10 @@ def _signals_ignored(loop: "LiveLoop"):
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {s: signal.signal(s, lambda signum, frame: loop.signals_while_ending.append(
-        signal.Signals(signum).name)) for s in STOP_SIGNALS}
+    previous = {
+        s: signal.signal(s, lambda signum, frame: loop.signals_while_ending.append(signal.Signals(signum).name))
+        for s in STOP_SIGNALS
+    }
     try:
         yield
     finally:
@@ -169,49 +183,71 @@ def _signals_ignored(loop: "LiveLoop"):
 class LiveLoop:
     """One session's loop and its bookkeeping (built by :func:`run_session`)."""
 
-    def __init__(self, session: Session, out: str | Path | None, duration: float | None,
-                 on_status: Callable[[SessionStatus], None] | None, status_interval_s: float, live: str = ""):
+    def __init__(
+        self,
+        session: Session,
+        out: str | Path | None,
+        duration: float | None,
+        on_status: Callable[[SessionStatus], None] | None,
+        status_interval_s: float,
+        live: str = "",
+    ):
         self.s = session
         if live:
             check_live_address(live)
             if session.settings.recording_writer != "process":
-                raise ConfigError("--live: the live view is served by the recording's writer process; "
-                                  "drop session.recording_writer = \"inline\"")
+                raise ConfigError(
+                    "--live: the live view is served by the recording's writer process; "
+                    'drop session.recording_writer = "inline"'
+                )
         self.live = live
         settings = session.settings
         self.duration = settings.duration if duration is None else check_duration("duration", duration)
         self.path = Path(out) if out else default_out_path(settings)
         if self.path.exists():
-            raise OutputExistsError(f"{self.path} already exists; choose another --out "
-                                    f"(recordings are never overwritten)")
+            raise OutputExistsError(
+                f"{self.path} already exists; choose another --out (recordings are never overwritten)"
+            )
         self.period_ns = int(round(1e9 / settings.loop_rate_hz))
         self.duration_ns = int(round(self.duration * 1e9))
         sensor_latency_s = session.sensor.latency_s if isinstance(session.sensor, HasLatency) else 0.0
-        stale_ns = stale_timeout_ns(settings.stale_timeout, float(session.sensor.rate_hz), settings.loop_rate_hz,
-                                    sensor_latency_s)
-        self.gate = HapticGate(session.estimator_name, session.haptic_settings.ready_force_std,
-                               session.primary.parameter_std, session.primary.reidentifies, stale_ns,
-                               int(round(settings.frozen_pose_timeout * 1e9)), settings.max_turn_rate,
-                               settings.max_speed)
+        stale_ns = stale_timeout_ns(
+            settings.stale_timeout, float(session.sensor.rate_hz), settings.loop_rate_hz, sensor_latency_s
+        )
+        self.gate = HapticGate(
+            session.estimator_name,
+            session.haptic_settings.ready_force_std,
+            session.primary.parameter_std,
+            session.primary.reidentifies,
+            stale_ns,
+            int(round(settings.frozen_pose_timeout * 1e9)),
+            settings.max_turn_rate,
+            settings.max_speed,
+        )
         self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
         sensor = session.sensor
         self.read_wrenches: Callable[[int], WrenchBlock] = (
-            sensor.read_block if isinstance(sensor, ReadsBlocks)
-            else lambda until_ns: WrenchBlock.from_samples(sensor.read(until_ns)))
+            sensor.read_block
+            if isinstance(sensor, ReadsBlocks)
+            else lambda until_ns: WrenchBlock.from_samples(sensor.read(until_ns))
+        )
         """The sensor's new readings as one block (its own ``read_block``, or its records made one)."""
-        self.preparing = [(part, device) for part, device in (("sensor", session.sensor),
-                                                              ("kinematics", session.kinematics))
-                          if isinstance(device, PreparesAhead)]
+        self.preparing = [
+            (part, device)
+            for part, device in (("sensor", session.sensor), ("kinematics", session.kinematics))
+            if isinstance(device, PreparesAhead)
+        ]
         self.governor = session.governor()
         self.force_limit = session.haptic if isinstance(session.haptic, HasForceLimit) else None
         self.rearm_bit = session.haptic_settings.rearm_button  # -1: no button
         self.button_down = True  # unknown counts as held: a button held at the start must be released first
         self.rearm_requests: deque[str] = deque()
-        self.teleop = (Teleoperation(session.teleop_settings, self.governor.R_DB)
-                       if session.robot is not None else None)
+        self.teleop = Teleoperation(session.teleop_settings, self.governor.R_DB) if session.robot is not None else None
         self.last_pose = None  # the newest measured flange pose (what teleoperation starts from)
-        self.aligner = Aligner(float(session.kinematics.rate_hz), latency_s=session.kinematics.latency_s
-                               if isinstance(session.kinematics, HasLatency) else 0.0)
+        self.aligner = Aligner(
+            float(session.kinematics.rate_hz),
+            latency_s=session.kinematics.latency_s if isinstance(session.kinematics, HasLatency) else 0.0,
+        )
         self.on_status, self.status_interval_s = on_status, status_interval_s
         self.status = SessionStatus(rearm=self.rearm)
         self.next_status = 0.0
@@ -241,9 +277,13 @@ class LiveLoop:
         try:
             # the taps hold up to HAND_OVER_NS before the recorder sees it: flushed that much sooner, a killed
             # session still loses at most its last second
-            self.recorder = Recorder(self.path, metadata=session_metadata(self.s, self.duration, self.path),
-                                     flush_interval_s=1.0 - HAND_OVER_NS * 1e-9,
-                                     writer=self.s.settings.recording_writer, live=self.live)
+            self.recorder = Recorder(
+                self.path,
+                metadata=session_metadata(self.s, self.duration, self.path),
+                flush_interval_s=1.0 - HAND_OVER_NS * 1e-9,
+                writer=self.s.settings.recording_writer,
+                live=self.live,
+            )
         except WriterProcessError as exc:
             if self.live and "live view" in str(exc):  # the address taken, or no foxglove-sdk: the user's to fix
                 why = str(exc).rpartition(": live view on ")[2].partition(": ")[2]
@@ -261,8 +301,13 @@ class LiveLoop:
                 with fifo_priority(self.priority) as refused:  # paced: woken on time (priority.py)
                     if refused:
                         self.priority = 0
-                        self._event(Event(time.monotonic_ns(), "realtime_priority_unavailable",
-                                          f"the loop runs at the ordinary priority: {refused}"))
+                        self._event(
+                            Event(
+                                time.monotonic_ns(),
+                                "realtime_priority_unavailable",
+                                f"the loop runs at the ordinary priority: {refused}",
+                            )
+                        )
                     tick = 0
                     while (tick + 1) * self.period_ns <= self.duration_ns:  # every tick due within the session
                         tick, now_ns = self._next_tick(tick)  # (paced: the one due at its end too, read just after)
@@ -283,8 +328,11 @@ class LiveLoop:
                     if self.s.settings.realtime:
                         gc.unfreeze()  # the caller's heap as it was (a script may run many sessions)
         if failure is not None:
-            kept = (f"salvage what it wrote with: hapticlab recover {self.path}" if failure.part == "recording"
-                    else f"the recording is complete: {self.path}")
+            kept = (
+                f"salvage what it wrote with: hapticlab recover {self.path}"
+                if failure.part == "recording"
+                else f"the recording is complete: {self.path}"
+            )
             raise SessionError(f"{failure}; {kept}", failure.part, result) from failure.__cause__
         return result
 
@@ -330,7 +378,9 @@ class LiveLoop:
             usable, _, reason = screen(block, self.sensor_range)
             self.gate.on_samples(block, reason)
             some = True if not reason else usable.any()  # no reason: every sample is usable (the usual case)
-            if not self.gate.trusts_poses(now_ns):  # their orientation is not the robot's: keep them from the estimators
+            if not self.gate.trusts_poses(
+                now_ns
+            ):  # their orientation is not the robot's: keep them from the estimators
                 if some:
                     self.gate.on_withheld(block if not reason else block.subset(usable), *self._primary_model())
                 some = False
@@ -378,8 +428,14 @@ class LiveLoop:
                 shadow_est = shadow.estimator.update_block(block)
             except Exception as exc:
                 self.shadows.remove(shadow)
-                self._event(Event(now_ns, "error", f"shadow estimator {shadow.label} raised "
-                                  f"{type(exc).__name__}: {exc}; dropped", {"source": shadow.label}))
+                self._event(
+                    Event(
+                        now_ns,
+                        "error",
+                        f"shadow estimator {shadow.label} raised {type(exc).__name__}: {exc}; dropped",
+                        {"source": shadow.label},
+                    )
+                )
                 continue
             self._record_estimates(shadow, shadow_est, with_params)
             self._drain(shadow)
@@ -430,8 +486,11 @@ class LiveLoop:
             self._servo(now_ns, state, command.enabled)
         self.haptic_on_ticks += command.enabled
         if command.reason.split(" (")[0] != self.haptic_reason.split(" (")[0]:  # not each new figure in it
-            self._event(Event(now_ns, "haptic_enabled", "haptic force on") if command.enabled else
-                        Event(now_ns, "haptic_disabled", f"haptic force zeroed: {command.reason}"))
+            self._event(
+                Event(now_ns, "haptic_enabled", "haptic force on")
+                if command.enabled
+                else Event(now_ns, "haptic_disabled", f"haptic force zeroed: {command.reason}")
+            )
             self.haptic_reason = command.reason
         self.status.haptic_enabled, self.status.reason = command.enabled, command.reason
         self.status.latched = self.gate.latched
@@ -489,10 +548,15 @@ class LiveLoop:
         """The overruns since the last such event, as one event (how far behind at most, ticks skipped)."""
         if self.skipped_since_event:
             rate = self.s.settings.loop_rate_hz
-            self._event(Event(now_ns, "overrun",
-                              f"loop {self.behind_max_ns * 1e-6:.1f} ms behind its {rate:g} Hz rate; "
-                              f"{self.skipped_since_event} tick(s) skipped",
-                              {"behind_s": self.behind_max_ns * 1e-9, "ticks_skipped": self.skipped_since_event}))
+            self._event(
+                Event(
+                    now_ns,
+                    "overrun",
+                    f"loop {self.behind_max_ns * 1e-6:.1f} ms behind its {rate:g} Hz rate; "
+                    f"{self.skipped_since_event} tick(s) skipped",
+                    {"behind_s": self.behind_max_ns * 1e-9, "ticks_skipped": self.skipped_since_event},
+                )
+            )
             self.next_overrun_event_ns = now_ns + OVERRUN_EVENT_INTERVAL_NS
             self.skipped_since_event, self.behind_max_ns = 0, 0
 
@@ -513,8 +577,13 @@ class LiveLoop:
             self.recorder.add_metadata("hapticlab.calibration", dict(self.s.sensor.calibration))
         self._call("kinematics", self.s.kinematics.open, self.t0_ns)
         self._call("haptic", self.s.haptic.open)
-        self._event(Event(self.t0_ns, "session_start",
-                          f"session {self.s.settings.name!r} started, estimator {self.s.estimator_name}"))
+        self._event(
+            Event(
+                self.t0_ns,
+                "session_start",
+                f"session {self.s.settings.name!r} started, estimator {self.s.estimator_name}",
+            )
+        )
 
     def _finish(self, end_ns: int, interrupted: bool, failure: _PartFailed | None) -> SessionResult:
         """Zero the device and record it, close the devices, save the state, finish the file."""
@@ -526,8 +595,7 @@ class LiveLoop:
         except Exception as exc:
             self._event(Event(end_ns, "error", f"the final zero command could not be sent: {exc}"))
         self.taps.command(zero)
-        for label, device in (("haptic", self.s.haptic), ("sensor", self.s.sensor),
-                              ("kinematics", self.s.kinematics)):
+        for label, device in (("haptic", self.s.haptic), ("sensor", self.s.sensor), ("kinematics", self.s.kinematics)):
             try:
                 device.close()
             except Exception as exc:
@@ -546,8 +614,11 @@ class LiveLoop:
             params = {}
             self._event(Event(end_ns, "error", f"estimator parameters unavailable: {exc}"))
         summary = {
-            "samples": self.samples, "poses": self.poses, "interrupted": interrupted,
-            "error": str(failure) if failure else "", "params": params,
+            "samples": self.samples,
+            "poses": self.poses,
+            "interrupted": interrupted,
+            "error": str(failure) if failure else "",
+            "params": params,
             "first_converged_force": primary.counts.first_converged_force if primary.counts else None,
             "first_converged_torque": primary.counts.first_converged_torque if primary.counts else None,
             "convergence_flag_flips": {"force": self.gate.flips[0], "torque": self.gate.flips[1]},
@@ -567,8 +638,13 @@ class LiveLoop:
                 summary["estimator_state_path"] = str(state_path)
             except Exception as exc:
                 self._event(Event(end_ns, "estimator_state_not_saved", f"estimator state not saved: {exc}"))
-        ending = (f"interrupted ({self.stopped_by})" if interrupted else "ended by an error" if failure
-                  else "session finished")
+        ending = (
+            f"interrupted ({self.stopped_by})"
+            if interrupted
+            else "ended by an error"
+            if failure
+            else "session finished"
+        )
         self._event(Event(end_ns, "session_end", ending))
         try:
             self.taps.send()
@@ -577,9 +653,18 @@ class LiveLoop:
             if failure is None or failure.part != "recording":
                 raise
         return SessionResult(
-            path=self.path, samples=self.samples, poses=self.poses, duration_s=(end_ns - self.t0_ns) * 1e-9,
-            interrupted=interrupted, params=params, events=self.events,
+            path=self.path,
+            samples=self.samples,
+            poses=self.poses,
+            duration_s=(end_ns - self.t0_ns) * 1e-9,
+            interrupted=interrupted,
+            params=params,
+            events=self.events,
             first_converged_force=summary["first_converged_force"],
             first_converged_torque=summary["first_converged_torque"],
-            contact_samples=self.contact_samples, haptic_on_s=summary["haptic_on_s"],
-            error=summary["error"], overruns=self.overruns, held_out_samples=summary["held_out_samples"])
+            contact_samples=self.contact_samples,
+            haptic_on_s=summary["haptic_on_s"],
+            error=summary["error"],
+            overruns=self.overruns,
+            held_out_samples=summary["held_out_samples"],
+        )

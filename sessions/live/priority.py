@@ -22,6 +22,7 @@ import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+
 @contextmanager
 def fifo_priority(priority: int) -> Iterator[str]:
     """Run the body with the calling thread at ``SCHED_FIFO`` ``priority`` (1-99; 0: leave it as it is).
@@ -39,8 +40,10 @@ def fifo_priority(priority: int) -> Iterator[str]:
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except OSError as exc:
-        yield (f"SCHED_FIFO priority {priority} refused ({exc.strerror or exc}): give the user CAP_SYS_NICE or "
-               f"an rtprio limit of {priority} (limits.conf), or set session.realtime_priority = 0")
+        yield (
+            f"SCHED_FIFO priority {priority} refused ({exc.strerror or exc}): give the user CAP_SYS_NICE or "
+            f"an rtprio limit of {priority} (limits.conf), or set session.realtime_priority = 0"
+        )
         return
     try:
         yield ""

@@ -35,7 +35,6 @@ import numpy as np
 
 from hapticlab.core.frames import matrix_from_rotvec
 from hapticlab.core.types import HapticCommand
-
 from hapticlab.sessions.config import HapticSettings
 
 ZERO3 = np.zeros(3)
@@ -116,8 +115,14 @@ class ForceGovernor:
             return math.nan
         return min(self.settings.max_force, float(device))
 
-    def command(self, t_ns: int, contact_force_S: np.ndarray | None, R_BS: np.ndarray | None,
-                reason: str = "", source_t_ns: int | None = None) -> HapticCommand:
+    def command(
+        self,
+        t_ns: int,
+        contact_force_S: np.ndarray | None,
+        R_BS: np.ndarray | None,
+        reason: str = "",
+        source_t_ns: int | None = None,
+    ) -> HapticCommand:
         """The command for this device period; ``reason`` non-empty forces zero.
 
         Args:
@@ -164,10 +169,15 @@ class ForceGovernor:
             if norm > limit:  # the limit fell below the last command (a device lowered it): down at once
                 target = [v * (limit / norm) for v in target]
         norm = math.hypot(*target)
-        if not (math.isfinite(norm) and norm <= limit * (1 + TOLERANCE)
-                and (math.hypot(target[0] - last[0], target[1] - last[1], target[2] - last[2])
-                     <= self.max_step * (1 + TOLERANCE)
-                     or norm < math.hypot(*last))):
+        if not (
+            math.isfinite(norm)
+            and norm <= limit * (1 + TOLERANCE)
+            and (
+                math.hypot(target[0] - last[0], target[1] - last[1], target[2] - last[2])
+                <= self.max_step * (1 + TOLERANCE)
+                or norm < math.hypot(*last)
+            )
+        ):
             return self._zero(t_ns, "governor output out of bounds")  # unreachable by the arithmetic above
         self._last = target  # (never changed in place)
         return HapticCommand(t_ns, np.array(target), True, "", source_t_ns)

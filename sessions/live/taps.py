@@ -29,8 +29,16 @@ from functools import partial
 import numpy as np
 
 from hapticlab.core.frames import quat_wxyz_from_matrix
-from hapticlab.core.types import (AlignedSamples, DeviceState, Estimates, Event, HapticCommand, PoseSample, RobotTarget,
-                          WrenchBlock)
+from hapticlab.core.types import (
+    AlignedSamples,
+    DeviceState,
+    Estimates,
+    Event,
+    HapticCommand,
+    PoseSample,
+    RobotTarget,
+    WrenchBlock,
+)
 from hapticlab.sessions.recording import Recorder
 from hapticlab.sessions.recording.schemas import TF_INTERVAL_NS
 
@@ -119,12 +127,16 @@ class Taps:
         """The poses read at the tick ``now_ns``, each with its age then (``age_ns``: the kinematics' delay)."""
         write = self.rec.write
         for p in poses:
-            write("/kinematics/pose", p.t_ns, {
-                "quat_BE": p.quat_BE.tolist(),
-                "p_BoEo_B": None if p.p_BoEo_B is None else p.p_BoEo_B.tolist(),
-                "joints": None if p.joints is None else p.joints.tolist(),
-                "age_ns": now_ns - p.t_ns,
-            })
+            write(
+                "/kinematics/pose",
+                p.t_ns,
+                {
+                    "quat_BE": p.quat_BE.tolist(),
+                    "p_BoEo_B": None if p.p_BoEo_B is None else p.p_BoEo_B.tolist(),
+                    "joints": None if p.joints is None else p.joints.tolist(),
+                    "age_ns": now_ns - p.t_ns,
+                },
+            )
         last = poses[-1]
         if last.t_ns >= self._next_tf_ns["flange"] and last.p_BoEo_B is not None:
             self.transform(last.t_ns, "flange", last.quat_BE.tolist(), last.p_BoEo_B.tolist())
@@ -133,11 +145,17 @@ class Taps:
         """``/tf``: the frame ``child`` in the robot base (Foxglove's FrameTransform), at most every 20 ms."""
         self._next_tf_ns[child] = t_ns + TF_INTERVAL_NS
         w, x, y, z = quat_wxyz
-        self.rec.write("/tf", t_ns, {
-            "timestamp": {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000},
-            "parent_frame_id": "base", "child_frame_id": child,
-            "translation": {"x": p[0], "y": p[1], "z": p[2]}, "rotation": {"x": x, "y": y, "z": z, "w": w},
-        })
+        self.rec.write(
+            "/tf",
+            t_ns,
+            {
+                "timestamp": {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000},
+                "parent_frame_id": "base",
+                "child_frame_id": child,
+                "translation": {"x": p[0], "y": p[1], "z": p[2]},
+                "rotation": {"x": x, "y": y, "z": z, "w": w},
+            },
+        )
 
     def wrenches(self, wrenches: WrenchBlock) -> None:
         self._wrenches.append(wrenches)
@@ -146,8 +164,16 @@ class Taps:
         blocks, self._wrenches = self._wrenches, []
         if blocks:
             one = WrenchBlock.concatenate(blocks)
-            self.rec.write_block("/sensor/wrench", {"t_ns": one.t_ns, "force_S": one.force_S,
-                                                    "torque_S": one.torque_S, "seq": one.seq, "status": one.status})
+            self.rec.write_block(
+                "/sensor/wrench",
+                {
+                    "t_ns": one.t_ns,
+                    "force_S": one.force_S,
+                    "torque_S": one.torque_S,
+                    "seq": one.seq,
+                    "status": one.status,
+                },
+            )
 
     def _hold(self, topic: str, fields: tuple[str, ...], values: tuple[np.ndarray, ...], **last) -> None:
         """Hold a tick's ``values`` (one array per name in ``fields``) with the topic's others; ``last``
@@ -184,34 +210,56 @@ class Taps:
         """One block message; ``params``/``cov_diag`` (when given) describe its last sample."""
         if not len(est):
             return
-        values = (est.t_ns, est.contact_force_S, est.contact_torque_S, est.contact, est.converged_force,
-                  est.converged_torque)
+        values = (
+            est.t_ns,
+            est.contact_force_S,
+            est.contact_torque_S,
+            est.contact,
+            est.converged_force,
+            est.converged_torque,
+        )
         if params is None and cov_diag is None:
             self._hold(topic, ESTIMATE_FIELDS, values)
         else:
-            self._hold(topic, ESTIMATE_FIELDS, values,
-                       **{k: v for k, v in (("params", params), ("cov_diag", cov_diag)) if v is not None})
+            self._hold(
+                topic,
+                ESTIMATE_FIELDS,
+                values,
+                **{k: v for k, v in (("params", params), ("cov_diag", cov_diag)) if v is not None},
+            )
 
     def command(self, command: HapticCommand) -> None:
-        self.rec.write("/haptic/command", command.t_ns, {
-            "force_D": command.force_D.tolist(), "enabled": command.enabled, "reason": command.reason,
-            "source_t_ns": command.source_t_ns,
-        })
+        self.rec.write(
+            "/haptic/command",
+            command.t_ns,
+            {
+                "force_D": command.force_D.tolist(),
+                "enabled": command.enabled,
+                "reason": command.reason,
+                "source_t_ns": command.source_t_ns,
+            },
+        )
 
     def device_state(self, state: DeviceState) -> None:
-        self.rec.write("/haptic/state", state.t_ns, {
-            "pose": {"quat_DH": state.quat_DH.tolist(), "p_DoHo_D": state.p_DoHo_D.tolist()},
-            "buttons": int(state.buttons),
-            "v_DHo_D": None if state.v_DHo_D is None else state.v_DHo_D.tolist(),
-        })
+        self.rec.write(
+            "/haptic/state",
+            state.t_ns,
+            {
+                "pose": {"quat_DH": state.quat_DH.tolist(), "p_DoHo_D": state.p_DoHo_D.tolist()},
+                "buttons": int(state.buttons),
+                "v_DHo_D": None if state.v_DHo_D is None else state.v_DHo_D.tolist(),
+            },
+        )
 
     def robot_target(self, target: RobotTarget) -> None:
         if target.R_BE is not self._target_R:  # teleoperation holds one orientation object while it holds it
             self._target_R, self._target_quat = target.R_BE, quat_wxyz_from_matrix(target.R_BE).tolist()
         p = target.p_BoEo_B.tolist()
-        self.rec.write("/robot/target", target.t_ns, {
-            "pose": {"quat_BE": self._target_quat, "p_BoEo_B": p}, "mode": target.mode, "reason": target.reason,
-        })
+        self.rec.write(
+            "/robot/target",
+            target.t_ns,
+            {"pose": {"quat_BE": self._target_quat, "p_BoEo_B": p}, "mode": target.mode, "reason": target.reason},
+        )
         if target.t_ns >= self._next_tf_ns["target"]:
             self.transform(target.t_ns, "target", self._target_quat, p)
 

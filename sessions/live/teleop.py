@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from hapticlab.core.frames import matrix_from_quat_wxyz, matrix_from_rotvec, rotvec_from_matrix
 from hapticlab.core.types import DeviceState, Event, PoseSample, RobotTarget
 from hapticlab.sessions.config import TeleopSettings
@@ -69,12 +70,14 @@ def calibration_tour(R_BE_0: np.ndarray, tilt_deg: float) -> list[np.ndarray]:
     def roll(angle):
         return matrix_from_rotvec(np.array([0.0, 0.0, angle]))
 
-    return [about_B([1, 0, 0], tilt) @ R_BE_0,
-            about_B([1, 0, 0], tilt) @ R_BE_0 @ roll(TOUR_ROLL_RAD),
-            about_B([0, 1, 0], tilt) @ R_BE_0,
-            about_B([1, 0, 0], -tilt) @ R_BE_0 @ roll(-TOUR_ROLL_RAD),
-            about_B([0, 1, 0], -tilt) @ R_BE_0,
-            R_BE_0]
+    return [
+        about_B([1, 0, 0], tilt) @ R_BE_0,
+        about_B([1, 0, 0], tilt) @ R_BE_0 @ roll(TOUR_ROLL_RAD),
+        about_B([0, 1, 0], tilt) @ R_BE_0,
+        about_B([1, 0, 0], -tilt) @ R_BE_0 @ roll(-TOUR_ROLL_RAD),
+        about_B([0, 1, 0], -tilt) @ R_BE_0,
+        R_BE_0,
+    ]
 
 
 class Teleoperation:
@@ -103,8 +106,9 @@ class Teleoperation:
         self.engaged: tuple[np.ndarray, np.ndarray] | None = None  # (p_engaged, h_engaged)
         self.last_ns: int | None = None
 
-    def step(self, now_ns: int, pose: PoseSample | None, state: DeviceState | None,
-             haptic_on: bool) -> tuple[RobotTarget | None, list[Event]]:
+    def step(
+        self, now_ns: int, pose: PoseSample | None, state: DeviceState | None, haptic_on: bool
+    ) -> tuple[RobotTarget | None, list[Event]]:
         """This tick's target (None until the robot's pose is known) and the events of a change of mode.
 
         Args:
@@ -124,9 +128,14 @@ class Teleoperation:
             self.tour = calibration_tour(R_BE_0, self.settings.calibration_tilt_deg)
             if self.tour:
                 self.mode = "calibrating"
-                events.append(Event(now_ns, "teleop_calibrating",
-                                    f"calibration tour: {len(self.tour)} orientations, each held "
-                                    f"{self.settings.calibration_dwell_s:g} s, before the hand takes over"))
+                events.append(
+                    Event(
+                        now_ns,
+                        "teleop_calibrating",
+                        f"calibration tour: {len(self.tour)} orientations, each held "
+                        f"{self.settings.calibration_dwell_s:g} s, before the hand takes over",
+                    )
+                )
             else:
                 self.mode = "holding"
         dt_s = 0.0 if self.last_ns is None else max(now_ns - self.last_ns, 0) * 1e-9
@@ -165,8 +174,7 @@ class Teleoperation:
         absent = self._absent(now_ns, state)
         if absent:
             if self.reason != absent:
-                events.append(Event(now_ns, "teleop_holding", f"calibration tour paused: {absent}",
-                                    {"reason": absent}))
+                events.append(Event(now_ns, "teleop_holding", f"calibration tour paused: {absent}", {"reason": absent}))
             self.reason, self.reached_ns = absent, None
             return self._target(now_ns, "calibrating", absent)
         if self.reason:

@@ -27,9 +27,9 @@ from collections import deque
 
 import numpy as np
 
+from hapticlab.core.types import AlignedSamples, Estimates, PoseSample
 from hapticlab.sessions.live.watch_kernel import lag_sums
 from hapticlab.sessions.live.watch_kernel import warm_up as warm_up_lag
-from hapticlab.core.types import AlignedSamples, Estimates, PoseSample
 
 BIAS_TOLERANCE = 0.15
 """A run's offset in S may depart from its start by this fraction of its size (or BIAS_FLOOR_N) and
@@ -220,7 +220,9 @@ class LagWatch:
 
     def reset(self) -> None:
         """Forget what was learnt (the poses jumped: what came before says nothing of what follows)."""
-        self.sums = np.zeros(6)  # S_rg, S_gg, S_rr, and the last sample's predicted weight in S (sessions.live.watch_kernel)
+        self.sums = np.zeros(
+            6
+        )  # S_rg, S_gg, S_rr, and the last sample's predicted weight in S (sessions.live.watch_kernel)
         # the last sample's and the last contact's t_ns, then the bits HAS_LAST | HAS_CONTACT of sessions.live.watch_kernel
         self.clock = np.zeros(3, dtype=np.int64)
         self.lag_s: float | None = None
@@ -237,9 +239,21 @@ class LagWatch:
         if not (all(map(math.isfinite, gravity)) and all(map(math.isfinite, bias))):
             return self.lag_s  # no weight to predict with: nothing to learn from this block
         gravity_force_B, bias_force_S = np.asarray(gravity, dtype=float), np.asarray(bias, dtype=float)
-        lag_sums(block.t_ns, block.R_EB, block.force_S, _EYE if R_SE is None else R_SE, gravity_force_B,
-                 bias_force_S, self.noise, LAG_MAX_S, LAG_CONTACT_GUARD_NS, self.max_turn_rate, LAG_MEMORY_S,
-                 self.sums, self.clock)
+        lag_sums(
+            block.t_ns,
+            block.R_EB,
+            block.force_S,
+            _EYE if R_SE is None else R_SE,
+            gravity_force_B,
+            bias_force_S,
+            self.noise,
+            LAG_MAX_S,
+            LAG_CONTACT_GUARD_NS,
+            self.max_turn_rate,
+            LAG_MEMORY_S,
+            self.sums,
+            self.clock,
+        )
         sums = self.sums.tolist()
         if not all(map(math.isfinite, sums)):  # never expected (the kernel skips non-finite terms): start afresh
             lag_s = self.lag_s

@@ -35,8 +35,21 @@ HAS_LAST, HAS_CONTACT = 1, 2
 
 
 @njit(cache=True)
-def lag_sums(t_ns, R_EB, force_S, R_SE, gravity_force_B, bias_force_S, noise, max_lag_s, guard_ns,
-             max_turn_rad_s, memory_s, sums, clock):
+def lag_sums(
+    t_ns,
+    R_EB,
+    force_S,
+    R_SE,
+    gravity_force_B,
+    bias_force_S,
+    noise,
+    max_lag_s,
+    guard_ns,
+    max_turn_rad_s,
+    memory_s,
+    sums,
+    clock,
+):
     """Update ``sums`` and ``clock`` (see the module) with one block of n samples, in place.
 
     Args:
@@ -111,6 +124,18 @@ def lag_sums(t_ns, R_EB, force_S, R_SE, gravity_force_B, bias_force_S, noise, ma
 def warm_up() -> None:
     """Compile (or load from the cache) ``lag_sums`` before the first live tick."""
     eye = np.eye(3)
-    lag_sums(np.array([0, 1_000_000], dtype=np.int64), np.stack([eye, eye]), np.zeros((2, 3)), eye,
-             np.array([0.0, 0.0, -3.0]), np.zeros(3), 0.12, 0.5, 500_000_000, 10.0, 0.25, np.zeros(6),
-             np.zeros(3, dtype=np.int64))
+    lag_sums(
+        np.array([0, 1_000_000], dtype=np.int64),
+        np.stack([eye, eye]),
+        np.zeros((2, 3)),
+        eye,
+        np.array([0.0, 0.0, -3.0]),
+        np.zeros(3),
+        0.12,
+        0.5,
+        500_000_000,
+        10.0,
+        0.25,
+        np.zeros(6),
+        np.zeros(3, dtype=np.int64),
+    )

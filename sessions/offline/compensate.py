@@ -17,16 +17,15 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.errors import UserError
+from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import Estimates
-
 from hapticlab.sessions.config import parse_value
+from hapticlab.sessions.offline.metrics import RmsAfterConvergence
+from hapticlab.sessions.offline.numerics import numerical_failures
 from hapticlab.sessions.output import atomic_output, check_output, write_text
 from hapticlab.sessions.recording.csvimport import COMPENSATED_HEADER, write_compensated_rows
 from hapticlab.sessions.recording.stream import Stream, concat_samples, iter_stream, unused_note
-from hapticlab.sessions.offline.metrics import RmsAfterConvergence
-from hapticlab.sessions.offline.numerics import numerical_failures
 
 BLOCK = 1024
 """Usable samples per estimator call offline, counted across chunks (the result does not depend on the chunking)."""
@@ -44,7 +43,7 @@ def estimator_options(overrides: list[str]) -> dict[str, Any]:
         if not sep or not key:
             raise ConfigError(f"--set {item!r}: expected key=value, e.g. estimator.force_threshold=2")
         if key.startswith("estimator."):
-            key = key[len("estimator."):]
+            key = key[len("estimator.") :]
         elif "." in key:
             raise ConfigError(f"{key}: compensate takes estimator options only (estimator.<option>=value)")
         options[key] = parse_value(value)
@@ -64,8 +63,11 @@ class _Pending:
         self.contact, self.conv_f, self.conv_t = (np.zeros(n, dtype=bool) for _ in range(3))
 
     def fill(self, rows: np.ndarray, est: Estimates, a: int, b: int) -> None:
-        self.force[rows], self.torque[rows], self.contact[rows] = \
-            est.contact_force_S[a:b], est.contact_torque_S[a:b], est.contact[a:b]
+        self.force[rows], self.torque[rows], self.contact[rows] = (
+            est.contact_force_S[a:b],
+            est.contact_torque_S[a:b],
+            est.contact[a:b],
+        )
         self.conv_f[rows], self.conv_t[rows] = est.converged_force[a:b], est.converged_torque[a:b]
         self.left -= len(rows)
 
@@ -81,8 +83,9 @@ class _Pending:
         return Estimates(self.stream.samples.t_ns, self.force, self.torque, self.contact, self.conv_f, self.conv_t)
 
 
-def estimate_chunks(chunks: Iterable[Stream], estimator: Any, progress=None,
-                    total: int | None = None) -> Iterator[tuple[Stream, Estimates]]:
+def estimate_chunks(
+    chunks: Iterable[Stream], estimator: Any, progress=None, total: int | None = None
+) -> Iterator[tuple[Stream, Estimates]]:
     """Feed the usable rows of consecutive chunks through the estimator; yield each chunk with its estimates.
 
     The estimator gets blocks of :data:`BLOCK` usable rows counted across chunk
@@ -219,15 +222,18 @@ def compensate(
         notes += unused_note(Path(source).name, unused)
     rows = scored_f.rows
     params: dict[str, Any] = dict(estimator.params())
-    params.update({
-        "estimator": estimator_name,
-        "samples": rows,
-        "first_converged_force": scored_f.first,
-        "first_converged_torque": scored_t.first,
-        "cov_diag": estimator.cov_diag(),
-    })
+    params.update(
+        {
+            "estimator": estimator_name,
+            "samples": rows,
+            "first_converged_force": scored_f.first,
+            "first_converged_torque": scored_t.first,
+            "cov_diag": estimator.cov_diag(),
+        }
+    )
     if params_out:
         write_text(params_out, json.dumps(params, indent=2) + "\n", force, label="--params-out")
     estimates = Estimates.concatenate(parts, estimator.params(), estimator.cov_diag()) if keep_estimates else None
-    return CompensateResult(rows, estimates, params, scored_f.value.tolist(), scored_t.value.tolist(),
-                            scored_f.first, scored_t.first, notes)
+    return CompensateResult(
+        rows, estimates, params, scored_f.value.tolist(), scored_t.value.tolist(), scored_f.first, scored_t.first, notes
+    )

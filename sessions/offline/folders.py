@@ -105,9 +105,15 @@ def _refused(address: str) -> None:
         return
 
 
-def map_recordings(func: Callable[[Path], Any], paths: Sequence[str | os.PathLike[str]], *,
-                   scheduler: str | None = None, workers: int | None = None, progress: bool = True,
-                   description: str = "recordings") -> FolderRun:
+def map_recordings(
+    func: Callable[[Path], Any],
+    paths: Sequence[str | os.PathLike[str]],
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+    description: str = "recordings",
+) -> FolderRun:
     """Run ``func(path)`` for every path in parallel; the outcomes in the order of ``paths``.
 
     Args:
@@ -130,8 +136,9 @@ def map_recordings(func: Callable[[Path], Any], paths: Sequence[str | os.PathLik
     if scheduler is None:
         n = workers or os.cpu_count() or 1
         n = max(1, min(n, len(paths)))
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=40)
+        cluster = LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40
+        )
         client = Client(cluster)
     else:
         try:
@@ -164,5 +171,12 @@ def _progress(show: bool, description: str, total: int):
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                    console=Console(stderr=True), disable=not show, transient=False)
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=Console(stderr=True),
+        disable=not show,
+        transient=False,
+    )

@@ -25,7 +25,7 @@ def rms(values: np.ndarray) -> np.ndarray:
     values = np.asarray(values, dtype=float)
     if len(values) == 0:
         return np.full(values.shape[1:], np.nan)
-    return np.sqrt(np.mean(values ** 2, axis=0))
+    return np.sqrt(np.mean(values**2, axis=0))
 
 
 def mae(values: np.ndarray) -> np.ndarray:
@@ -57,11 +57,18 @@ def error_stats(before: np.ndarray, after: np.ndarray, axes: Sequence[str]) -> d
     mae_b, mae_a = mae(before), mae(after)
     max_b, max_a = max_ae(before), max_ae(after)
     std_b, std_a = std(before), std(after)
-    return {axis: {
-        "mae_before": float(mae_b[k]), "max_before": float(max_b[k]), "std_before": float(std_b[k]),
-        "mae_after": float(mae_a[k]), "max_after": float(max_a[k]), "std_after": float(std_a[k]),
-        "mae_comp_pct": mae_compensation_pct(float(mae_b[k]), float(mae_a[k])),
-    } for k, axis in enumerate(axes)}
+    return {
+        axis: {
+            "mae_before": float(mae_b[k]),
+            "max_before": float(max_b[k]),
+            "std_before": float(std_b[k]),
+            "mae_after": float(mae_a[k]),
+            "max_after": float(max_a[k]),
+            "std_after": float(std_a[k]),
+            "mae_comp_pct": mae_compensation_pct(float(mae_b[k]), float(mae_a[k])),
+        }
+        for k, axis in enumerate(axes)
+    }
 
 
 def scored_rows(first: int | None, values: np.ndarray, contact: np.ndarray | None = None) -> np.ndarray:

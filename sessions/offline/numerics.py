@@ -37,5 +37,7 @@ def numerical_failures(where: str, what: str = "") -> Iterator[None]:
             yield
         except np.linalg.LinAlgError as exc:
             during = f" in {what}" if what else ""
-            raise NumericalError(f"{where}: numerical failure{during} ({exc}); check the values there "
-                                 f"(magnitudes, repeated or degenerate rows)") from exc
+            raise NumericalError(
+                f"{where}: numerical failure{during} ({exc}); check the values there "
+                f"(magnitudes, repeated or degenerate rows)"
+            ) from exc

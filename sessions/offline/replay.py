@@ -18,18 +18,22 @@ import numpy as np
 
 from hapticlab.core.host.registry import Registry
 from hapticlab.core.types import first_true
-
-from hapticlab.sessions.output import atomic_output, check_output
-from hapticlab.sessions.recording import Recorder, RecordingError, read_recording, schema_for_topic
-from hapticlab.sessions.recording.stream import load_stream, message_field
 from hapticlab.sessions.offline.compensate import estimator_options, run_estimator
 from hapticlab.sessions.offline.folders import FolderError, FolderRun, map_recordings, recordings_in
 from hapticlab.sessions.offline.metrics import max_ae, rms, scored_rows
+from hapticlab.sessions.output import atomic_output, check_output
+from hapticlab.sessions.recording import Recorder, RecordingError, read_recording, schema_for_topic
+from hapticlab.sessions.recording.stream import load_stream, message_field
 
 
-def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path | None = None,
-           overrides: list[str] | None = None, registry: Registry | None = None,
-           force: bool = False) -> dict[str, Any]:
+def replay(
+    recording_path: str | Path,
+    estimator_name: str,
+    out_path: str | Path | None = None,
+    overrides: list[str] | None = None,
+    registry: Registry | None = None,
+    force: bool = False,
+) -> dict[str, Any]:
     """Replay a recording through ``estimator_name``; returns the comparison (and writes ``out_path``).
 
     ``out_path`` is checked before the work (an existing file is refused unless
@@ -49,8 +53,10 @@ def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path
             try:
                 schema_for_topic(name)
             except ValueError:
-                raise RecordingError(f"{recording_path.name}: topic {name!r} is not a hapticlab topic; replay -o "
-                                     f"copies every topic and cannot record that one") from None
+                raise RecordingError(
+                    f"{recording_path.name}: topic {name!r} is not a hapticlab topic; replay -o "
+                    f"copies every topic and cannot record that one"
+                ) from None
     est = run_estimator(stream, estimator)
 
     label = estimator_name
@@ -58,15 +64,21 @@ def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path
         label += "_replay"
     topic = f"/estimator/{label}"
     flags = {
-        "contact_force_S": est.contact_force_S.tolist(), "contact_torque_S": est.contact_torque_S.tolist(),
-        "contact": est.contact.tolist(), "converged_force": est.converged_force.tolist(),
+        "contact_force_S": est.contact_force_S.tolist(),
+        "contact_torque_S": est.contact_torque_S.tolist(),
+        "contact": est.contact.tolist(),
+        "converged_force": est.converged_force.tolist(),
         "converged_torque": est.converged_torque.tolist(),
     }
     comparison = compare(original, stream.samples.t_ns, {topic: est})
     if out_path is not None:
         metadata = {name: dict(values) for name, values in original.metadata.items()}
-        metadata["hapticlab.replay"] = {"source": str(recording_path), "estimator": estimator_name,
-                                        "topic": topic, "options": json.dumps(options)}
+        metadata["hapticlab.replay"] = {
+            "source": str(recording_path),
+            "estimator": estimator_name,
+            "topic": topic,
+            "options": json.dumps(options),
+        }
         with atomic_output(out_path, force, label="-o") as tmp, Recorder(tmp, metadata=metadata) as rec:
             # every original message in time order, then the new estimator's
             for name, messages in original.topics.items():
@@ -74,17 +86,34 @@ def replay(recording_path: str | Path, estimator_name: str, out_path: str | Path
                     rec.write(name, t_ns, message)
             n = len(est)
             for i, t_ns in enumerate(stream.samples.t_ns.tolist()):
-                rec.write(topic, t_ns, {key: values[i] for key, values in flags.items()} | {
-                    "params": estimator.params() if i == n - 1 else None,
-                    "cov_diag": estimator.cov_diag() if i == n - 1 else None,
-                })
-    return {"topic": topic, "estimator": estimator_name, "rows": len(est), "comparison": comparison,
-            "params": estimator.params()}
+                rec.write(
+                    topic,
+                    t_ns,
+                    {key: values[i] for key, values in flags.items()}
+                    | {
+                        "params": estimator.params() if i == n - 1 else None,
+                        "cov_diag": estimator.cov_diag() if i == n - 1 else None,
+                    },
+                )
+    return {
+        "topic": topic,
+        "estimator": estimator_name,
+        "rows": len(est),
+        "comparison": comparison,
+        "params": estimator.params(),
+    }
 
 
-def replay_folder(folder: str | Path, estimator_name: str, out_dir: str | Path | None = None,
-                  overrides: list[str] | None = None, force: bool = False, scheduler: str | None = None,
-                  workers: int | None = None, progress: bool = True) -> FolderRun:
+def replay_folder(
+    folder: str | Path,
+    estimator_name: str,
+    out_dir: str | Path | None = None,
+    overrides: list[str] | None = None,
+    force: bool = False,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+) -> FolderRun:
     """:func:`replay` over every recording under ``folder``, in parallel (``folders.map_recordings``).
 
     With ``out_dir`` each replayed recording is written there at the same relative path;
@@ -101,14 +130,27 @@ def replay_folder(folder: str | Path, estimator_name: str, out_dir: str | Path |
             out = out_dir / path.relative_to(folder)
             out.parent.mkdir(parents=True, exist_ok=True)
             check_output(out, force, label="-o", inputs=[path], role="recording")
-    task = functools.partial(_replay_one, estimator_name=estimator_name, overrides=list(overrides or []),
-                             force=force, folder=folder, out_dir=out_dir)
-    return map_recordings(task, paths, scheduler=scheduler, workers=workers, progress=progress,
-                          description=f"replaying through {estimator_name}")
+    task = functools.partial(
+        _replay_one,
+        estimator_name=estimator_name,
+        overrides=list(overrides or []),
+        force=force,
+        folder=folder,
+        out_dir=out_dir,
+    )
+    return map_recordings(
+        task,
+        paths,
+        scheduler=scheduler,
+        workers=workers,
+        progress=progress,
+        description=f"replaying through {estimator_name}",
+    )
 
 
-def _replay_one(path: Path, estimator_name: str, overrides: list[str], force: bool, folder: Path,
-                out_dir: Path | None) -> dict[str, Any]:
+def _replay_one(
+    path: Path, estimator_name: str, overrides: list[str], force: bool, folder: Path, out_dir: Path | None
+) -> dict[str, Any]:
     """One file of :func:`replay_folder` (in a worker process)."""
     out = None
     if out_dir is not None:
@@ -139,8 +181,11 @@ def _recorded(original, topic: str, t_ns: np.ndarray) -> dict[str, np.ndarray] |
     index = {t: k for k, (t, _) in enumerate(messages)}
     rows = np.array([index.get(int(t), -1) for t in t_ns], dtype=np.int64)
     seen = rows >= 0
-    pick = lambda values, empty: np.where(seen.reshape(-1, *([1] * (values.ndim - 1))),  # noqa: E731
-                                          values[np.maximum(rows, 0)], empty)
+    pick = lambda values, empty: np.where(
+        seen.reshape(-1, *([1] * (values.ndim - 1))),  # noqa: E731
+        values[np.maximum(rows, 0)],
+        empty,
+    )
     return {
         "contact_force_S": pick(force, np.nan),
         "contact": pick(contact, 0.0).astype(bool),
@@ -162,8 +207,12 @@ def compare(original, t_ns: np.ndarray, new: dict[str, Any]) -> dict[str, dict[s
         if data is not None:
             series[topic] = data
     for topic, est in new.items():
-        series[topic] = {"contact_force_S": est.contact_force_S, "contact": est.contact,
-                         "converged_force": est.converged_force, "seen": np.isfinite(est.contact_force_S).all(1)}
+        series[topic] = {
+            "contact_force_S": est.contact_force_S,
+            "contact": est.contact,
+            "converged_force": est.converged_force,
+            "seen": np.isfinite(est.contact_force_S).all(1),
+        }
     primary = series.get(f"/estimator/{primary_name}") if primary_name else None
     out = {}
     for topic, data in series.items():

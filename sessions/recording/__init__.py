@@ -8,7 +8,14 @@ whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
 (:class:`Stream`, the one offline stream type, from a CSV or an MCAP file).
 """
 
-from hapticlab.sessions.recording.reader import Recording, RecordingError, iter_blocks, iter_messages, open_recording, read_recording
+from hapticlab.sessions.recording.reader import (
+    Recording,
+    RecordingError,
+    iter_blocks,
+    iter_messages,
+    open_recording,
+    read_recording,
+)
 from hapticlab.sessions.recording.recover import recover
 from hapticlab.sessions.recording.schemas import (
     BLOCK_TOPICS,

@@ -71,11 +71,14 @@ def _column(topic: str, column: CdrColumn, value: Any, n: int) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=_F64) if column.ros_type == "float64" else np.asarray(value)
     except (TypeError, ValueError) as exc:  # ragged lists, strings in a float field, ...
-        raise ValueError(f"{topic}: field {column.name!r} is not {n} samples of "
-                         f"{column.width} {column.ros_type} ({exc})") from None
+        raise ValueError(
+            f"{topic}: field {column.name!r} is not {n} samples of {column.width} {column.ros_type} ({exc})"
+        ) from None
     if arr.shape != shape:
-        raise ValueError(f"{topic}: field {column.name!r} does not hold one value for each of its {n} samples "
-                         f"(shape {arr.shape}, expected {shape})")
+        raise ValueError(
+            f"{topic}: field {column.name!r} does not hold one value for each of its {n} samples "
+            f"(shape {arr.shape}, expected {shape})"
+        )
     if column.ros_type == "int64":
         if arr.dtype.kind not in "iub" or (arr.dtype.kind == "u" and arr.size and arr.max() > _I64_MAX):
             raise TypeError(f"{topic}: field {column.name!r} must hold 64-bit integers, got {arr.dtype}")
@@ -108,8 +111,9 @@ def _layout(block: CdrBlock, n: int, present: tuple[bool, ...]) -> tuple[list[by
     return layout
 
 
-def encode_block(block: CdrBlock, topic: str, message: Mapping[str, Any],
-                 encode_json: Callable[[Any], bytes]) -> tuple[bytes, int]:
+def encode_block(
+    block: CdrBlock, topic: str, message: Mapping[str, Any], encode_json: Callable[[Any], bytes]
+) -> tuple[bytes, int]:
     """``message`` (``t_ns`` and the block's fields, lists or numpy arrays) as CDR bytes, and its log time.
 
     A missing field is written as an empty sequence (read back as absent);
@@ -119,9 +123,10 @@ def encode_block(block: CdrBlock, topic: str, message: Mapping[str, Any],
     """
     if not block.field_names.issuperset(message):
         unknown = sorted(set(message) - block.field_names)
-        raise ValueError(f"{topic}: {block.name} has no field {unknown[0]!r}; "
-                         f"fields: {', '.join(c.name for c in block.columns)}"
-                         + (", params, cov_diag" if block.report else ""))
+        raise ValueError(
+            f"{topic}: {block.name} has no field {unknown[0]!r}; "
+            f"fields: {', '.join(c.name for c in block.columns)}" + (", params, cov_diag" if block.report else "")
+        )
     t, t_last = _times(topic, message.get("t_ns"))
     n = t.size
     arrays = [t]
@@ -246,7 +251,7 @@ def decode_block(block: CdrBlock, data: bytes, decode_json: Callable[[str], Any]
     if layout.params is not None:
         start, count = layout.params
         if count > 1:
-            out["params"] = decode_json(data[start:start + count - 1].decode("utf-8"))
+            out["params"] = decode_json(data[start : start + count - 1].decode("utf-8"))
         if layout.has_cov_diag:
             start, count = layout.cov_diag
             out["cov_diag"] = listed(np.frombuffer(data, dtype=_F64, count=count, offset=start))

@@ -86,13 +86,17 @@ def _chunk_data(f, path: Path, index) -> bytes:
     record = f.read(index.chunk_length)
     try:
         _, _, _, _, size, crc, _ = _CHUNK_HEAD.unpack_from(record)
-        data = _decompress(index.compression, record[-index.compressed_size:], size)
+        data = _decompress(index.compression, record[-index.compressed_size :], size)
     except Exception as exc:  # noqa: BLE001 - any decoding failure is a damaged file
-        raise RecordingError(f"{path}: chunk at byte {index.chunk_start_offset} is damaged ({exc}); "
-                             f"run `hapticlab recover {path} -o FIXED.mcap`") from None
+        raise RecordingError(
+            f"{path}: chunk at byte {index.chunk_start_offset} is damaged ({exc}); "
+            f"run `hapticlab recover {path} -o FIXED.mcap`"
+        ) from None
     if crc and zlib.crc32(data) != crc:
-        raise RecordingError(f"{path}: chunk at byte {index.chunk_start_offset} fails its CRC; "
-                             f"run `hapticlab recover {path} -o FIXED.mcap`")
+        raise RecordingError(
+            f"{path}: chunk at byte {index.chunk_start_offset} fails its CRC; "
+            f"run `hapticlab recover {path} -o FIXED.mcap`"
+        )
     return data
 
 
@@ -103,8 +107,9 @@ def _index_pairs(f, offset: int) -> np.ndarray:
     return np.frombuffer(f.read(length), dtype="<u8").reshape(-1, 2).astype(np.int64)
 
 
-def iter_chunks(path: str | os.PathLike[str], topics: Iterable[str],
-                json_fields: dict[str, dict[str, int]] | None = None) -> Iterator[dict[str, Any]]:
+def iter_chunks(
+    path: str | os.PathLike[str], topics: Iterable[str], json_fields: dict[str, dict[str, int]] | None = None
+) -> Iterator[dict[str, Any]]:
     """Per group of consecutive chunks (up to :data:`GROUP_BYTES`), in file order: ``{topic: columns or
     [(t_ns, message)]}`` for the ``topics`` in it (see above).
 
@@ -119,8 +124,11 @@ def iter_chunks(path: str | os.PathLike[str], topics: Iterable[str],
     with f:
         channels = {cid: c for cid, c in summary.channels.items() if c.topic in wanted}
         kinds = {cid: _block_kind(summary.schemas.get(c.schema_id), c) for cid, c in channels.items()}
-        indexes = [i for i in sorted(summary.chunk_indexes, key=lambda i: i.chunk_start_offset)
-                   if any(cid in channels for cid in i.message_index_offsets)]
+        indexes = [
+            i
+            for i in sorted(summary.chunk_indexes, key=lambda i: i.chunk_start_offset)
+            if any(cid in channels for cid in i.message_index_offsets)
+        ]
         while indexes:
             group, size = [], 0
             while indexes and (not group or size + indexes[0].uncompressed_size <= GROUP_BYTES):
@@ -146,8 +154,9 @@ def iter_chunks(path: str | os.PathLike[str], topics: Iterable[str],
                 try:
                     out[topic] = _messages(data, buf, both[:, 0], both[:, 1], kinds[cid], json_fields.get(topic))
                 except (CdrBlockError, ValueError) as exc:
-                    raise RecordingError(f"{path.name}: {topic} in the chunks from byte "
-                                         f"{group[0].chunk_start_offset}: {exc}") from None
+                    raise RecordingError(
+                        f"{path.name}: {topic} in the chunks from byte {group[0].chunk_start_offset}: {exc}"
+                    ) from None
             yield out
 
 
@@ -158,8 +167,9 @@ def _picked(messages: list[dict[str, Any]], log_times: np.ndarray, fields: dict[
         if width == 0:
             out[name] = np.array([bool(m.get(name)) for m in messages], dtype=bool)
         else:
-            out[name] = np.array([[math.nan if v is None else v for v in (m.get(name) or [None] * width)]
-                                  for m in messages], dtype=float).reshape(len(messages), width)
+            out[name] = np.array(
+                [[math.nan if v is None else v for v in (m.get(name) or [None] * width)] for m in messages], dtype=float
+            ).reshape(len(messages), width)
     return out
 
 
@@ -192,13 +202,19 @@ def _json_columns(text: bytes, log_times: np.ndarray, fields: dict[str, int]) ->
     return out
 
 
-def _messages(data: bytes, buf: np.ndarray, log_times: np.ndarray, offsets: np.ndarray, kind: Any,
-              json_fields: dict[str, int] | None = None):
+def _messages(
+    data: bytes,
+    buf: np.ndarray,
+    log_times: np.ndarray,
+    offsets: np.ndarray,
+    kind: Any,
+    json_fields: dict[str, int] | None = None,
+):
     lengths = _gather(buf, offsets + 1, 8).copy().view("<u8").ravel().astype(np.int64)
     sizes = lengths - (MESSAGE_HEADER - 9)
     starts = offsets + MESSAGE_HEADER
     if kind is None:  # JSON messages: one parse for the chunk
-        text = b"[" + b",".join(data[s:s + n] for s, n in zip(starts.tolist(), sizes.tolist())) + b"]"
+        text = b"[" + b",".join(data[s : s + n] for s, n in zip(starts.tolist(), sizes.tolist())) + b"]"
         if json_fields:
             columns = _json_columns(text, log_times, json_fields)
             if columns is not None:
@@ -209,28 +225,32 @@ def _messages(data: bytes, buf: np.ndarray, log_times: np.ndarray, offsets: np.n
     params: list[tuple[int, Any]] = []
     for size in np.unique(sizes).tolist():
         rows = np.flatnonzero(sizes == size)
-        layout = block_layout(kind, data[starts[rows[0]]:starts[rows[0]] + size])
+        layout = block_layout(kind, data[starts[rows[0]] : starts[rows[0]] + size])
         block = _gather(buf, starts[rows], size)
         same = np.ones(len(rows), dtype=bool)
         for pos in layout.count_positions:  # the same sequence counts: the same layout
-            same &= (block[:, pos:pos + 4] == block[0, pos:pos + 4]).all(axis=1)
+            same &= (block[:, pos : pos + 4] == block[0, pos : pos + 4]).all(axis=1)
         if layout.reports:
             same[:] = False  # a block with its estimator's params: decoded alone (one in a hundred)
         for r in rows[~same].tolist():
-            one = decode_block(kind, data[starts[r]:starts[r] + size], json.loads)
+            one = decode_block(kind, data[starts[r] : starts[r] + size], json.loads)
             if "params" in one:
                 params.append((int(one["t_ns"][-1]), one["params"]))
-            groups.append({k: v.reshape(len(one["t_ns"]), -1) for k, v in one.items()
-                           if k not in ("params", "cov_diag")})
+            groups.append(
+                {k: v.reshape(len(one["t_ns"]), -1) for k, v in one.items() if k not in ("params", "cov_diag")}
+            )
         if same.any():
             batch = block[same]
-            groups.append({name: batch[:, start:start + nbytes].copy().view(dtype).reshape(-1, width)
-                           for name, start, nbytes, dtype, width in layout.fields})
+            groups.append(
+                {
+                    name: batch[:, start : start + nbytes].copy().view(dtype).reshape(-1, width)
+                    for name, start, nbytes, dtype, width in layout.fields
+                }
+            )
     widths = {name: (arr.shape[1], arr.dtype) for g in groups for name, arr in g.items()}
     out = {}
     for name, (width, dtype) in widths.items():  # a field absent from some blocks: NaN there
-        out[name] = np.concatenate([g[name] if name in g else np.full((len(g["t_ns"]), width), np.nan)
-                                    for g in groups])
+        out[name] = np.concatenate([g[name] if name in g else np.full((len(g["t_ns"]), width), np.nan) for g in groups])
     order = np.argsort(out["t_ns"].ravel(), kind="stable")  # the groups back in time order
     out = {name: (arr[order].ravel() if arr.shape[1] == 1 else arr[order]) for name, arr in out.items()}
     out["params"] = sorted(params, key=lambda p: p[0])

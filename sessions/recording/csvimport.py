@@ -24,7 +24,6 @@ import numpy as np
 from hapticlab.core.errors import UserError
 from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.types import AlignedSamples, Estimates
-
 from hapticlab.sessions.recording.stream import CHUNK_ROWS, Stream
 
 REQUIRED = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "qw", "qx", "qy", "qz")
@@ -78,8 +77,10 @@ def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
         index = {h: i for i, h in enumerate(header)}
         missing = [c for c in REQUIRED if c not in index]
         if missing:
-            raise CsvError(f"{name} line {first[0]}: missing required column(s) {', '.join(missing)} "
-                           f"(required: {','.join(REQUIRED)})")
+            raise CsvError(
+                f"{name} line {first[0]}: missing required column(s) {', '.join(missing)} "
+                f"(required: {','.join(REQUIRED)})"
+            )
         has_position = all(c in index for c in POSITION)
         joint_cols = [c for c in JOINTS if c in index]
         known = set(REQUIRED) | (set(POSITION) if has_position else set()) | set(joint_cols)
@@ -116,8 +117,7 @@ def _records(reader, path: Path) -> Iterator[tuple[int, list[str]]]:
 class _Chunk:
     """Parses consecutive batches of rows of one file into streams, carrying what spans them."""
 
-    def __init__(self, path: Path, header: list[str], index: dict[str, int], has_position: bool,
-                 joint_cols: list[str]):
+    def __init__(self, path: Path, header: list[str], index: dict[str, int], has_position: bool, joint_cols: list[str]):
         self.name, self.source = path.name, str(path)
         self.header, self.index = header, index
         self.has_position, self.joint_cols = has_position, joint_cols
@@ -161,18 +161,21 @@ class _Chunk:
         if len(bad):
             k = int(bad[0])
             if t_all[k + 1] == t_all[k]:
-                raise CsvError(f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} repeats the "
-                               f"time of line {lines_all[k]} with other values (a conflicting duplicate; rows "
-                               f"repeated exactly are dropped)")
-            raise CsvError(f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} does not increase "
-                           f"(previous {float(t_all[k])!r})")
+                raise CsvError(
+                    f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} repeats the "
+                    f"time of line {lines_all[k]} with other values (a conflicting duplicate; rows "
+                    f"repeated exactly are dropped)"
+                )
+            raise CsvError(
+                f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} does not increase "
+                f"(previous {float(t_all[k])!r})"
+            )
         force_S = columns(("fx", "fy", "fz"))
         torque_S = columns(("tx", "ty", "tz"))
         quat = columns(("qw", "qx", "qy", "qz"))
         norm = np.linalg.norm(quat, axis=1)
         if (k := off_unit(norm)) is not None:
-            raise CsvError(f"{name} line {lines[k]}, columns qw,qx,qy,qz: not a unit quaternion "
-                           f"(norm {norm[k]:.6g})")
+            raise CsvError(f"{name} line {lines[k]}, columns qw,qx,qy,qz: not a unit quaternion (norm {norm[k]:.6g})")
         quat = quat / norm[:, None]
         p = columns(POSITION) if self.has_position else None
         joints = columns(self.joint_cols) if self.joint_cols else None
@@ -183,8 +186,9 @@ class _Chunk:
         n = len(t)
         t_ns = np.round((t - self.t0) * 1e9).astype(np.int64)
         R_EB = matrix_from_quat_wxyz(quat).transpose(0, 2, 1)
-        samples = AlignedSamples(t_ns, force_S, torque_S, R_EB, rows,
-                                 np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), quat, p)
+        samples = AlignedSamples(
+            t_ns, force_S, torque_S, R_EB, rows, np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), quat, p
+        )
         return Stream(t, samples, notes, self.source, joints)
 
     def _drop_exact_duplicates(self, t, lines, data, rows):
@@ -195,8 +199,11 @@ class _Chunk:
         ``seq``) keep their gaps, so a dropped row stays visible."""
         prev_t = np.r_[self.last[1] if self.last is not None else np.nan, t[:-1]]
         same_t = np.flatnonzero(t == prev_t)
-        dropped = [k for k in same_t if [c.strip() for c in data[k]] ==
-                   [c.strip() for c in (data[k - 1] if k > 0 else self.last_cells)]]
+        dropped = [
+            k
+            for k in same_t
+            if [c.strip() for c in data[k]] == [c.strip() for c in (data[k - 1] if k > 0 else self.last_cells)]
+        ]
         if not dropped:
             return t, lines, data, rows, []
         keep = np.ones(len(t), dtype=bool)

@@ -27,7 +27,8 @@ import json
 import os
 import struct
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass, field as _dc_field
+from dataclasses import dataclass
+from dataclasses import field as _dc_field
 from pathlib import Path
 from typing import Any
 
@@ -41,9 +42,9 @@ from hapticlab.core.errors import UserError
 from hapticlab.core.types import Estimates, Event
 from hapticlab.sessions.recording.cdr import CdrBlockError, decode_block, listed
 from hapticlab.sessions.recording.schemas import (
-    BLOCK_TOPICS,
     BLOCK_LAST_SAMPLE_FIELDS,
     BLOCK_SCHEMA_TITLES,
+    BLOCK_TOPICS,
     CDR_BLOCK_SCHEMAS,
     ESTIMATOR_TOPIC_PREFIX,
     MCAP_MAGIC,
@@ -55,16 +56,12 @@ class RecordingError(UserError, ValueError):
     """A recording that cannot be read: not an MCAP file, truncated or corrupt."""
 
 
-
-
 def _recover_hint(path: Path) -> str:
     return f"run `hapticlab recover {path} -o FIXED.mcap` to salvage it"
 
 
 def _truncated(path: Path) -> RecordingError:
-    return RecordingError(
-        f"{path} is truncated (no MCAP footer; the writer probably died): {_recover_hint(path)}"
-    )
+    return RecordingError(f"{path} is truncated (no MCAP footer; the writer probably died): {_recover_hint(path)}")
 
 
 def _damaged(path: Path, exc: BaseException) -> RecordingError:
@@ -171,11 +168,15 @@ class Recording:
             reports = [b["params"] for b in blocks if b.get("params")]
         else:
             reports = [m["params"] for _, m in self._msgs(topic) if m.get("params")]
-        return Estimates(self.t_ns(topic), self.field(topic, "contact_force_S"),
-                         self.field(topic, "contact_torque_S"), self.field(topic, "contact").astype(bool),
-                         self.field(topic, "converged_force").astype(bool),
-                         self.field(topic, "converged_torque").astype(bool),
-                         params=reports[-1] if reports else None)
+        return Estimates(
+            self.t_ns(topic),
+            self.field(topic, "contact_force_S"),
+            self.field(topic, "contact_torque_S"),
+            self.field(topic, "contact").astype(bool),
+            self.field(topic, "converged_force").astype(bool),
+            self.field(topic, "converged_torque").astype(bool),
+            params=reports[-1] if reports else None,
+        )
 
     @property
     def estimator_names(self) -> list[str]:
@@ -293,8 +294,9 @@ def _cdr_block_field(topic: str, blocks: list[dict[str, Any]], name: str) -> np.
         raise KeyError(f"{topic} has no field {name!r}")
     if len(present) < len(parts):
         shape = present[0].shape[1:]
-        parts = [np.full((len(b["t_ns"]), *shape), np.nan) if p is None else p.astype(float)
-                 for b, p in zip(blocks, parts)]
+        parts = [
+            np.full((len(b["t_ns"]), *shape), np.nan) if p is None else p.astype(float) for b, p in zip(blocks, parts)
+        ]
     out = np.concatenate(parts)
     if out.dtype.kind == "f":
         bad = ~np.isfinite(out)
@@ -453,9 +455,18 @@ def iter_blocks(
         if block:
             yield topic, t_ns, _columns(message), True
         elif topic in BLOCK_TOPICS or topic.startswith(ESTIMATOR_TOPIC_PREFIX):
-            yield topic, t_ns, _columns({"t_ns": [t_ns], **{k: [v] for k, v in message.items()
-                                                           if k not in BLOCK_LAST_SAMPLE_FIELDS},
-                                         **{k: message.get(k) for k in BLOCK_LAST_SAMPLE_FIELDS}}), True
+            yield (
+                topic,
+                t_ns,
+                _columns(
+                    {
+                        "t_ns": [t_ns],
+                        **{k: [v] for k, v in message.items() if k not in BLOCK_LAST_SAMPLE_FIELDS},
+                        **{k: message.get(k) for k in BLOCK_LAST_SAMPLE_FIELDS},
+                    }
+                ),
+                True,
+            )
         else:
             yield topic, t_ns, message, False
 
@@ -477,13 +488,13 @@ def _decoder(path: Path, channel: Channel):
     try:
         return DECODERS[channel.message_encoding]
     except KeyError:
-        raise RecordingError(f"{path}: topic {channel.topic} has message encoding "
-                             f"{channel.message_encoding!r}; hapticlab reads {', '.join(DECODERS)}") from None
+        raise RecordingError(
+            f"{path}: topic {channel.topic} has message encoding "
+            f"{channel.message_encoding!r}; hapticlab reads {', '.join(DECODERS)}"
+        ) from None
 
 
-def _decode(
-    raw: Iterator[tuple[Any, Channel, Message]], path: Path
-) -> Iterator[tuple[bool, str, int, dict[str, Any]]]:
+def _decode(raw: Iterator[tuple[Any, Channel, Message]], path: Path) -> Iterator[tuple[bool, str, int, dict[str, Any]]]:
     """``(is a block, topic, log time, decoded message)``; a block message is checked."""
     decoders: dict[int, Any] = {}
     for block, channel, message in raw:
@@ -496,8 +507,9 @@ def _decode(
             try:
                 decoded = decode_block(block, message.data, json.loads)
             except (CdrBlockError, UnicodeDecodeError, ValueError) as exc:
-                raise RecordingError(f"{path.name}: {channel.topic} block message at {message.log_time} ns: "
-                                     f"{exc}") from None
+                raise RecordingError(
+                    f"{path.name}: {channel.topic} block message at {message.log_time} ns: {exc}"
+                ) from None
         yield block is not None, channel.topic, message.log_time, decoded
 
 
@@ -619,9 +631,7 @@ def read_recording(path: str | os.PathLike[str], topics: Iterable[str] | str | N
     return Recording(path=path, metadata=metadata, topics=samples, schemas=schemas, blocks=blocks)
 
 
-def _read_head(
-    path: Path,
-) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]], dict[str, int], set[str]]:
+def _read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]], dict[str, int], set[str]]:
     """Metadata records, schemas by topic, message counts by topic and the block topics (from the summary)."""
     f, reader, summary = _open_reader(path)
     with f:

@@ -19,12 +19,12 @@ from hapticlab.sessions.recording.reader import RecordingError
 from hapticlab.sessions.recording.schemas import MCAP_MAGIC, RECOVERED_METADATA
 from hapticlab.sessions.recording.writer import _hapticlab_version, _metadata_strings, _utc_now_iso
 
-
 _KNOWN_OPCODES = {int(op) for op in Opcode}
 
 
-def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[str],
-            force: bool = False) -> dict[str, Any]:
+def recover(
+    broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[str], force: bool = False
+) -> dict[str, Any]:
     """Salvage a recording whose writer died (no footer/summary) into a valid MCAP file.
 
     Reads the file front to back without seeking to the end; keeps every
@@ -69,9 +69,7 @@ def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[s
         if magic != MCAP_MAGIC:
             if len(magic) < len(MCAP_MAGIC) and MCAP_MAGIC.startswith(magic):
                 raise RecordingError(f"{src} is cut off inside the MCAP magic bytes: nothing to recover")
-            raise RecordingError(
-                f"{src} is not an MCAP file (bad magic bytes at the start): nothing to recover"
-            )
+            raise RecordingError(f"{src} is not an MCAP file (bad magic bytes at the start): nothing to recover")
         with atomic_output(dst, force, label="-o") as tmp, open(tmp, "wb") as out_file:
             writer = Writer(out_file, compression=CompressionType.ZSTD)
             started = False
@@ -109,9 +107,7 @@ def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[s
                     stats["orphan_messages"] += 1
                     return
                 new_id, topic = target
-                writer.add_message(
-                    new_id, message.log_time, message.data, message.publish_time, message.sequence
-                )
+                writer.add_message(new_id, message.log_time, message.data, message.publish_time, message.sequence)
                 stats["messages"] += 1
                 topic_counts[topic] = topic_counts.get(topic, 0) + 1
                 last = stats["last_t_ns"]
@@ -145,9 +141,7 @@ def recover(broken_path: str | os.PathLike[str], fixed_path: str | os.PathLike[s
                     elif opcode == Opcode.ATTACHMENT:
                         att = Attachment.read(stream)
                         start()
-                        writer.add_attachment(
-                            att.create_time, att.log_time, att.name, att.media_type, att.data
-                        )
+                        writer.add_attachment(att.create_time, att.log_time, att.name, att.media_type, att.data)
                     elif opcode == Opcode.CHUNK:
                         try:
                             records = breakup_chunk(Chunk.read(stream), validate_crc=True)

@@ -53,13 +53,7 @@ _NUM = {"type": ["number", "null"]}  # null marks a non-finite value (NaN/inf)
 
 
 def _vec(n: int, description: str) -> dict[str, Any]:
-    return {
-        "type": "array",
-        "items": _NUM,
-        "minItems": n,
-        "maxItems": n,
-        "description": description,
-    }
+    return {"type": "array", "items": _NUM, "minItems": n, "maxItems": n, "description": description}
 
 
 def _quat(description: str) -> dict[str, Any]:
@@ -83,14 +77,8 @@ _WRENCH_SCHEMA = _schema(
     {
         "force_S": _vec(3, "Raw force in the sensor frame S, N."),
         "torque_S": _vec(3, "Raw torque in S about the sensor origin, N·m."),
-        "seq": {
-            "type": "integer",
-            "description": "Device sequence number (NetFT RDT sequence or a counter).",
-        },
-        "status": {
-            "type": "integer",
-            "description": "Device status bits; 0 = good, 1 = saturated, 2 = device error.",
-        },
+        "seq": {"type": "integer", "description": "Device sequence number (NetFT RDT sequence or a counter)."},
+        "status": {"type": "integer", "description": "Device status bits; 0 = good, 1 = saturated, 2 = device error."},
     },
     ["force_S", "torque_S", "seq", "status"],
 )
@@ -109,8 +97,11 @@ _POSE_SCHEMA = _schema(
             "items": _NUM,
             "description": "Joint positions, rad (m for prismatic joints); null when unknown.",
         },
-        "age_ns": {"type": "integer", "description": "How old the pose was when the loop read it: the "
-                   "session clock at that tick minus the pose's time, ns (a networked arm's delay)."},
+        "age_ns": {
+            "type": "integer",
+            "description": "How old the pose was when the loop read it: the "
+            "session clock at that tick minus the pose's time, ns (a networked arm's delay).",
+        },
     },
     ["quat_BE"],
 )
@@ -126,9 +117,7 @@ _ALIGNED_SCHEMA = _schema(
         "status": {"type": "integer", "description": "Sensor status bits; 0 = good."},
         "stale": {
             "type": "boolean",
-            "description": (
-                "True when the orientation was held longer than one kinematics period past the last pose."
-            ),
+            "description": ("True when the orientation was held longer than one kinematics period past the last pose."),
         },
     },
     ["force_S", "torque_S", "quat_BE", "seq", "status", "stale"],
@@ -166,12 +155,11 @@ _COMMAND_SCHEMA = _schema(
     {
         "force_D": _vec(3, "Force on the handle in the device base frame D, N."),
         "enabled": {"type": "boolean", "description": "False when the output is held at zero for safety."},
-        "reason": {
-            "type": "string",
-            "description": "Why the output is disabled; present when enabled is false.",
+        "reason": {"type": "string", "description": "Why the output is disabled; present when enabled is false."},
+        "source_t_ns": {
+            "type": ["integer", "null"],
+            "description": "Stamp of the newest sensor sample behind the force, ns (null: zero command).",
         },
-        "source_t_ns": {"type": ["integer", "null"],
-                        "description": "Stamp of the newest sensor sample behind the force, ns (null: zero command)."},
     },
     ["force_D", "enabled"],
 )
@@ -190,8 +178,13 @@ _STATE_SCHEMA = _schema(
             "required": ["quat_DH", "p_DoHo_D"],
         },
         "buttons": {"type": "integer", "description": "Bit mask of pressed buttons."},
-        "v_DHo_D": {"type": ["array", "null"], "items": {"type": ["number", "null"]}, "minItems": 3, "maxItems": 3,
-                    "description": "Velocity of H's origin in D, expressed in D, m/s (null: not reported)."},
+        "v_DHo_D": {
+            "type": ["array", "null"],
+            "items": {"type": ["number", "null"]},
+            "minItems": 3,
+            "maxItems": 3,
+            "description": "Velocity of H's origin in D, expressed in D, m/s (null: not reported).",
+        },
     },
     ["pose", "buttons"],
 )
@@ -219,19 +212,31 @@ _XYZ = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 _FRAME_TRANSFORM_SCHEMA = {
     "title": "foxglove.FrameTransform",
     "description": "A transform between two reference frames in 3D space (Foxglove's well-known schema, "
-                   "so its 3D panel draws the frames: base → flange, base → target).",
+    "so its 3D panel draws the frames: base → flange, base → target).",
     "type": "object",
     "properties": {
-        "timestamp": {"type": "object", "title": "time", "description": "Timestamp of transform",
-                      "properties": {"sec": {"type": "integer", "minimum": 0},
-                                     "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}},
+        "timestamp": {
+            "type": "object",
+            "title": "time",
+            "description": "Timestamp of transform",
+            "properties": {
+                "sec": {"type": "integer", "minimum": 0},
+                "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999},
+            },
+        },
         "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
         "child_frame_id": {"type": "string", "description": "Name of the child frame"},
-        "translation": {**_XYZ, "title": "foxglove.Vector3",
-                        "description": "Translation component of the transform, m"},
-        "rotation": {"type": "object", "title": "foxglove.Quaternion",
-                     "description": "Rotation component of the transform",
-                     "properties": {k: {"type": "number"} for k in "xyzw"}},
+        "translation": {
+            **_XYZ,
+            "title": "foxglove.Vector3",
+            "description": "Translation component of the transform, m",
+        },
+        "rotation": {
+            "type": "object",
+            "title": "foxglove.Quaternion",
+            "description": "Rotation component of the transform",
+            "properties": {k: {"type": "number"} for k in "xyzw"},
+        },
     },
 }
 TF_INTERVAL_NS = 20_000_000
@@ -241,10 +246,7 @@ _EVENT_SCHEMA = _schema(
     "hapticlab.Event",
     "Something a person reviewing the session should know about.",
     {
-        "kind": {
-            "type": "string",
-            "description": "Short machine-readable tag, e.g. haptic_disabled, converged.",
-        },
+        "kind": {"type": "string", "description": "Short machine-readable tag, e.g. haptic_disabled, converged."},
         "message": {"type": "string", "description": "One human-readable line."},
         "data": {"type": "object", "description": "Optional details (SI units, frames in the names)."},
     },
@@ -277,12 +279,9 @@ def schema_for_topic(topic: str) -> dict[str, Any]:
         if _ESTIMATOR_NAME.match(name):
             return ESTIMATOR_SCHEMA
         raise ValueError(
-            f"bad estimator topic {topic!r}: the name after /estimator/ must be "
-            "letters, digits, '_', '.' or '-'"
+            f"bad estimator topic {topic!r}: the name after /estimator/ must be letters, digits, '_', '.' or '-'"
         )
-    raise ValueError(
-        f"unknown recording topic {topic!r}; known topics: {', '.join(TOPICS)}, /estimator/<name>"
-    )
+    raise ValueError(f"unknown recording topic {topic!r}; known topics: {', '.join(TOPICS)}, /estimator/<name>")
 
 
 # --------------------------------------------------------------------------
@@ -308,8 +307,11 @@ def _block_schema(sample: dict[str, Any], what: str, last_sample: tuple[str, ...
     }
     for name, prop in sample["properties"].items():
         if name in last_sample:
-            props[name] = {**prop, "description": prop["description"] + " As of the block's last sample; "
-                           "absent when not reported with this block."}
+            props[name] = {
+                **prop,
+                "description": prop["description"] + " As of the block's last sample; "
+                "absent when not reported with this block.",
+            }
         else:
             props[name] = _column({k: v for k, v in prop.items() if k != "description"}, prop["description"])
     return _schema(
@@ -395,17 +397,22 @@ class CdrBlock:
     @property
     def definition(self) -> str:
         """The ROS 2 message definition (``.msg`` text), the schema data."""
-        lines = [f"# {self.description}", "# Columnar: every array holds its samples in order, row-major "
-                 "(a 3-vector is 3 values per sample). An empty array: the field was not recorded with this block.",
-                 "# Non-finite values (NaN, inf) are recorded as they are. Frame letters are lower case here "
-                 "(ROS 2 field names): force_s is hapticlab's force_S."]
+        lines = [
+            f"# {self.description}",
+            "# Columnar: every array holds its samples in order, row-major "
+            "(a 3-vector is 3 values per sample). An empty array: the field was not recorded with this block.",
+            "# Non-finite values (NaN, inf) are recorded as they are. Frame letters are lower case here "
+            "(ROS 2 field names): force_s is hapticlab's force_S.",
+        ]
         for c in self.columns:
             lines.append(f"{c.ros_type}[] {c.ros_name}  # {c.doc} ({c.name})")
         if self.report:
-            lines += ["string params  # JSON object name -> list of floats, as of the block's last sample; "
-                      "empty when not reported with this block (non-finite numbers as null)",
-                      "float64[] cov_diag  # diagonal of the parameter covariance as of the block's last sample",
-                      "bool has_cov_diag  # cov_diag was reported with this block"]
+            lines += [
+                "string params  # JSON object name -> list of floats, as of the block's last sample; "
+                "empty when not reported with this block (non-finite numbers as null)",
+                "float64[] cov_diag  # diagonal of the parameter covariance as of the block's last sample",
+                "bool has_cov_diag  # cov_diag was reported with this block",
+            ]
         return "\n".join(lines) + "\n"
 
 
@@ -414,32 +421,52 @@ def _col(name: str, ros_type: str, width: int, doc: str) -> CdrColumn:
 
 
 _T_NS = _col("t_ns", "int64", 1, "time of each sample, ns on the session's monotonic clock (log time = the last)")
-_SENSOR = (_col("force_S", "float64", 3, "raw force in the sensor frame S, N (fx, fy, fz per sample)"),
-           _col("torque_S", "float64", 3, "raw torque in S about the sensor origin, N·m (3 per sample)"))
-_SEQ_STATUS = (_col("seq", "int64", 1, "sensor sequence number"),
-               _col("status", "int64", 1, "sensor status bits; 0 = good, 1 = saturated, 2 = device error"))
+_SENSOR = (
+    _col("force_S", "float64", 3, "raw force in the sensor frame S, N (fx, fy, fz per sample)"),
+    _col("torque_S", "float64", 3, "raw torque in S about the sensor origin, N·m (3 per sample)"),
+)
+_SEQ_STATUS = (
+    _col("seq", "int64", 1, "sensor sequence number"),
+    _col("status", "int64", 1, "sensor status bits; 0 = good, 1 = saturated, 2 = device error"),
+)
 
 #: Block topics -> CDR layout (format 3). Estimator topics use :data:`ESTIMATOR_CDR_BLOCK`.
 CDR_BLOCKS: dict[str, CdrBlock] = {
     "/sensor/wrench": CdrBlock(
-        "hapticlab/msg/SensorWrenchBlock", (_T_NS, *_SENSOR, *_SEQ_STATUS),
-        description="A block of raw force/torque sensor readings (/sensor/wrench)."),
+        "hapticlab/msg/SensorWrenchBlock",
+        (_T_NS, *_SENSOR, *_SEQ_STATUS),
+        description="A block of raw force/torque sensor readings (/sensor/wrench).",
+    ),
     "/aligned/sample": CdrBlock(
         "hapticlab/msg/AlignedSampleBlock",
-        (_T_NS, *_SENSOR, _col("quat_BE", "float64", 4, "orientation R_BE of E in B at the sample's time, "
-                               "unit quaternion w, x, y, z (4 per sample)"),
-         *_SEQ_STATUS, _col("stale", "bool", 1, "orientation held longer than one kinematics period")),
-        description="A block of wrench samples with the robot orientation at their own times (/aligned/sample)."),
+        (
+            _T_NS,
+            *_SENSOR,
+            _col(
+                "quat_BE",
+                "float64",
+                4,
+                "orientation R_BE of E in B at the sample's time, unit quaternion w, x, y, z (4 per sample)",
+            ),
+            *_SEQ_STATUS,
+            _col("stale", "bool", 1, "orientation held longer than one kinematics period"),
+        ),
+        description="A block of wrench samples with the robot orientation at their own times (/aligned/sample).",
+    ),
 }
 ESTIMATOR_CDR_BLOCK = CdrBlock(
     "hapticlab/msg/EstimatorEstimateBlock",
-    (_T_NS,
-     _col("contact_force_S", "float64", 3, "estimated contact force in S, N (3 per sample)"),
-     _col("contact_torque_S", "float64", 3, "estimated contact torque in S, N·m (3 per sample)"),
-     _col("contact", "bool", 1, "the estimator judged the sample to be in contact"),
-     _col("converged_force", "bool", 1, "the force stage has converged"),
-     _col("converged_torque", "bool", 1, "the torque stage has converged")),
-    report=True, description="A block of one estimator's outputs (/estimator/<name>).")
+    (
+        _T_NS,
+        _col("contact_force_S", "float64", 3, "estimated contact force in S, N (3 per sample)"),
+        _col("contact_torque_S", "float64", 3, "estimated contact torque in S, N·m (3 per sample)"),
+        _col("contact", "bool", 1, "the estimator judged the sample to be in contact"),
+        _col("converged_force", "bool", 1, "the force stage has converged"),
+        _col("converged_torque", "bool", 1, "the torque stage has converged"),
+    ),
+    report=True,
+    description="A block of one estimator's outputs (/estimator/<name>).",
+)
 #: Schema name -> CDR layout, every CDR block schema a recording may contain.
 CDR_BLOCK_SCHEMAS: dict[str, CdrBlock] = {b.name: b for b in (*CDR_BLOCKS.values(), ESTIMATOR_CDR_BLOCK)}
 

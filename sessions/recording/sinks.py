@@ -88,7 +88,8 @@ class McapSink:
 
     def register_channel(self, channel_id: int, topic: str, message_encoding: str, schema_id: int) -> None:
         self._channels[channel_id] = self._writer.register_channel(
-            topic=topic, message_encoding=message_encoding, schema_id=self._schemas[schema_id])
+            topic=topic, message_encoding=message_encoding, schema_id=self._schemas[schema_id]
+        )
 
     def add_message(self, channel_id: int, t_ns: int, data: bytes, seq: int) -> None:
         self._writer.add_message(self._channels[channel_id], t_ns, data, t_ns, seq)
@@ -146,8 +147,10 @@ class FoxgloveTee:
     def register_channel(self, channel_id: int, topic: str, message_encoding: str, schema_id: int) -> None:
         name, encoding, data = self._schemas[schema_id]
         self._channels[channel_id] = self._foxglove.Channel(
-            topic, schema=self._foxglove.Schema(name=name, encoding=encoding, data=data),
-            message_encoding=message_encoding)
+            topic,
+            schema=self._foxglove.Schema(name=name, encoding=encoding, data=data),
+            message_encoding=message_encoding,
+        )
 
     def add_message(self, channel_id: int, t_ns: int, data: bytes) -> None:
         self._channels[channel_id].log(data, log_time=t_ns)
@@ -175,9 +178,20 @@ class ProcessSink:
         self._ops: list[tuple] = []
         self._proc = subprocess.Popen(
             # this file run as a script: it needs mcap only, not hapticlab's packages (0.1 s to start, not 0.6)
-            [sys.executable, "-c", _RUN_THIS_FILE, __file__, os.fspath(path), library,
-             repr(float(flush_interval_s)), str(int(chunk_size)), live],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=_child_env(),
+            [
+                sys.executable,
+                "-c",
+                _RUN_THIS_FILE,
+                __file__,
+                os.fspath(path),
+                library,
+                repr(float(flush_interval_s)),
+                str(int(chunk_size)),
+                live,
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=_child_env(),
             start_new_session=False,
         )
         self._pipe = self._proc.stdin.fileno()
@@ -189,12 +203,14 @@ class ProcessSink:
             pass
         line = self._proc.stdout.readline()
         if live and line.startswith(LIVE_ADDRESS):  # the live view's address, then ready
-            self.live_address = line[len(LIVE_ADDRESS):].decode().strip()
+            self.live_address = line[len(LIVE_ADDRESS) :].decode().strip()
             line = self._proc.stdout.readline()
         if line != READY:
             self._proc.wait()
-            raise WriterProcessError(f"recording writer process for {path} did not start "
-                                     f"(exit status {self._proc.returncode}): {line.decode(errors='replace').strip()}")
+            raise WriterProcessError(
+                f"recording writer process for {path} did not start "
+                f"(exit status {self._proc.returncode}): {line.decode(errors='replace').strip()}"
+            )
 
     @property
     def pid(self) -> int:
@@ -236,8 +252,10 @@ class ProcessSink:
             self._proc.stdout.close()
             status = self._proc.wait()
         if status != 0 or not reply.startswith(b"finished"):
-            raise WriterProcessError(f"recording writer process for {self.path} failed (exit status {status}): "
-                                     f"{reply.decode(errors='replace').strip() or 'no reply'}")
+            raise WriterProcessError(
+                f"recording writer process for {self.path} failed (exit status {status}): "
+                f"{reply.decode(errors='replace').strip() or 'no reply'}"
+            )
 
     def abort(self) -> None:
         """Stop the child without a footer (a failed start)."""
@@ -250,11 +268,12 @@ class ProcessSink:
         view = memoryview(data)
         try:
             while view:
-                view = view[os.write(self._pipe, view):]
+                view = view[os.write(self._pipe, view) :]
         except BrokenPipeError:
             status = self._proc.wait()
-            raise WriterProcessError(f"recording writer process for {self.path} exited (status {status}); "
-                                     f"the file holds what it had written") from None
+            raise WriterProcessError(
+                f"recording writer process for {self.path} exited (status {status}); the file holds what it had written"
+            ) from None
 
 
 _RUN_THIS_FILE = "import runpy, sys; runpy.run_path(sys.argv[1], run_name='__main__')"
@@ -270,8 +289,15 @@ def _child_env() -> dict[str, str]:
 # ----------------------------------------------------------------------------- the child
 
 
-def serve(path: str, library: str, flush_interval_s: float, chunk_size: int,
-          source: IO[bytes], reply: IO[bytes], live: str = "") -> None:
+def serve(
+    path: str,
+    library: str,
+    flush_interval_s: float,
+    chunk_size: int,
+    source: IO[bytes],
+    reply: IO[bytes],
+    live: str = "",
+) -> None:
     """Write batches read from ``source`` to ``path`` until ``finish`` or end of file; report on ``reply``.
 
     With ``live`` ("HOST:PORT") every message also goes to a Foxglove WebSocket server there.
@@ -356,8 +382,8 @@ class _Batches:
             (n,) = _LENGTH.unpack_from(self.buffer)
             if len(self.buffer) < 4 + n:
                 break
-            out.append(bytes(self.buffer[4:4 + n]))
-            del self.buffer[:4 + n]
+            out.append(bytes(self.buffer[4 : 4 + n]))
+            del self.buffer[: 4 + n]
         return out
 
 
@@ -384,4 +410,3 @@ def _main(argv: list[str]) -> int:
 
 if __name__ == "__main__":
     sys.exit(_main(sys.argv[1:]))
-

@@ -22,7 +22,6 @@ import numpy as np
 from hapticlab.core.aligner import orientation_at, position_at
 from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.types import AlignedSamples
-
 from hapticlab.sessions.recording.reader import RecordingError, iter_messages, open_recording
 
 CHUNK_ROWS = 16384
@@ -56,9 +55,13 @@ class Stream:
         if len(parts) == 1:
             return parts[0]
         joints = [p.joints for p in parts]
-        return cls(np.concatenate([p.t_s for p in parts]), concat_samples([p.samples for p in parts]),
-                   [note for p in parts for note in p.notes], parts[0].source,
-                   None if any(j is None for j in joints) else np.concatenate(joints))
+        return cls(
+            np.concatenate([p.t_s for p in parts]),
+            concat_samples([p.samples for p in parts]),
+            [note for p in parts for note in p.notes],
+            parts[0].source,
+            None if any(j is None for j in joints) else np.concatenate(joints),
+        )
 
     @property
     def name(self) -> str:
@@ -112,8 +115,16 @@ POSE_TOPIC = "/kinematics/pose"
 _REQUIRED = object()
 
 
-def message_field(source: str, topic: str, messages: list[tuple[int, Any]], name: str, width: int | None,
-                  dtype: Any = float, default: Any = _REQUIRED, first: int = 0) -> np.ndarray:
+def message_field(
+    source: str,
+    topic: str,
+    messages: list[tuple[int, Any]],
+    name: str,
+    width: int | None,
+    dtype: Any = float,
+    default: Any = _REQUIRED,
+    first: int = 0,
+) -> np.ndarray:
     """Field ``name`` of each ``(t_ns, message)`` as an (n, width) array ((n,) for ``width`` None).
 
     JSON null (a recorded NaN) becomes NaN. ``default`` stands in for a
@@ -175,8 +186,9 @@ def _batches(messages: Iterator[tuple[int, Any]], rows: int) -> Iterator[list[tu
 
 def _missing_topic(path: Path, topic: str) -> RecordingError:
     present = ", ".join(sorted(open_recording(path).topics)) or "none"
-    return RecordingError(f"{path.name}: no {topic} messages (topics: {present}); offline tools need "
-                          f"{WRENCH_TOPIC} and {POSE_TOPIC}")
+    return RecordingError(
+        f"{path.name}: no {topic} messages (topics: {present}); offline tools need {WRENCH_TOPIC} and {POSE_TOPIC}"
+    )
 
 
 def _poses(path: Path, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -192,8 +204,10 @@ def _poses(path: Path, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | 
         quat = message_field(name, POSE_TOPIC, batch, "quat_BE", 4, first=done)
         norm = np.linalg.norm(quat, axis=1)
         if (k := off_unit(norm)) is not None:  # NaN rows pass: they make samples unusable
-            raise RecordingError(f"{name}: {POSE_TOPIC} message {done + k + 1}, field 'quat_BE': not a unit "
-                                 f"quaternion (norm {norm[k]:.6g})")
+            raise RecordingError(
+                f"{name}: {POSE_TOPIC} message {done + k + 1}, field 'quat_BE': not a unit "
+                f"quaternion (norm {norm[k]:.6g})"
+            )
         quat_parts.append(quat)
         has_p = has_p and all(isinstance(m, dict) and m.get("p_BoEo_B") is not None for _, m in batch)
         if has_p:

@@ -113,11 +113,7 @@ def git_revision() -> str | None:
     here = Path(__file__).resolve().parent
     try:
         result = subprocess.run(
-            ["git", "-C", str(here), "rev-parse", "HEAD"],
-            capture_output=True,
-            text=True,
-            timeout=2.0,
-            check=False,
+            ["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=2.0, check=False
         )
     except (OSError, subprocess.SubprocessError):
         return None

@@ -23,8 +23,23 @@ from typing import Any
 from hapticlab.sessions.offline.folders import FolderRun, map_recordings, recordings_in
 from hapticlab.sessions.review.summary import DEFAULT_FORCE_LIMIT_N, review
 
-COLUMNS = ("recording", "trainee", "task", "date", "duration_s", "contacts", "peak_force_N", "over_limit_s",
-           "contact_s", "force_limit_N", "estimator", "converged_s", "lost_samples", "faults", "complete")
+COLUMNS = (
+    "recording",
+    "trainee",
+    "task",
+    "date",
+    "duration_s",
+    "contacts",
+    "peak_force_N",
+    "over_limit_s",
+    "contact_s",
+    "force_limit_N",
+    "estimator",
+    "converged_s",
+    "lost_samples",
+    "faults",
+    "complete",
+)
 """The cohort's columns (CSV header), in order."""
 
 
@@ -33,8 +48,14 @@ def review_row(path: Path, force_limit: float = DEFAULT_FORCE_LIMIT_N) -> dict[s
     return review(path, force_limit=force_limit, plots=False).row()
 
 
-def review_folder(folder: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMIT_N, *,
-                  scheduler: str | None = None, workers: int | None = None, progress: bool = True) -> FolderRun:
+def review_folder(
+    folder: str | os.PathLike[str],
+    force_limit: float = DEFAULT_FORCE_LIMIT_N,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+) -> FolderRun:
     """Review every recording under ``folder``; a :class:`FolderRun` whose values are the rows.
 
     The rows' ``recording`` is the path relative to ``folder``. A file that is
@@ -43,8 +64,14 @@ def review_folder(folder: str | os.PathLike[str], force_limit: float = DEFAULT_F
     if not force_limit > 0:
         raise ValueError(f"--force-limit: must be > 0 N, got {force_limit!r}")
     folder = Path(folder)
-    run = map_recordings(partial(review_row, force_limit=force_limit), recordings_in(folder), scheduler=scheduler,
-                         workers=workers, progress=progress, description="reviewing")
+    run = map_recordings(
+        partial(review_row, force_limit=force_limit),
+        recordings_in(folder),
+        scheduler=scheduler,
+        workers=workers,
+        progress=progress,
+        description="reviewing",
+    )
     for outcome in run.outcomes:
         if outcome.value is not None:
             outcome.value["recording"] = str(outcome.path.relative_to(folder))
@@ -69,9 +96,9 @@ def csv_text(rows: Sequence[dict[str, Any]]) -> str:
 
 def progress_png(rows: Sequence[dict[str, Any]]) -> bytes:
     """Each trainee's sessions in date order: peak contact force and time over the limit, one line per trainee."""
-    from hapticlab.sessions.review.plots import figure_png
-
     import matplotlib
+
+    from hapticlab.sessions.review.plots import figure_png
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -82,8 +109,12 @@ def progress_png(rows: Sequence[dict[str, Any]]) -> bytes:
         by_trainee.setdefault(row["trainee"] or "(unnamed)", []).append(row)
     for trainee, sessions in sorted(by_trainee.items()):
         n = range(1, len(sessions) + 1)
-        axes[0].plot(n, [s["peak_force_N"] if s["peak_force_N"] is not None else float("nan") for s in sessions],
-                     marker="o", label=trainee)
+        axes[0].plot(
+            n,
+            [s["peak_force_N"] if s["peak_force_N"] is not None else float("nan") for s in sessions],
+            marker="o",
+            label=trainee,
+        )
         axes[1].plot(n, [s["over_limit_s"] for s in sessions], marker="o", label=trainee)
     limits = sorted({r["force_limit_N"] for r in rows})
     if len(limits) == 1:
@@ -103,13 +134,18 @@ def cohort_page(rows: Sequence[dict[str, Any]], title: str, refused: Sequence[tu
     from hapticlab.sessions.review.page import _e, _img, document, table
 
     shown = [c for c in COLUMNS if c != "complete"]
-    body = [f"<h1>{_e(title)}</h1>", f"<p>{len(rows)} session(s), "
-            f"{len({r['trainee'] for r in rows})} trainee(s).</p>",
-            table(shown, [[_e("" if r.get(c) is None else r[c]) for c in shown] for r in rows], id="cohort",
-                  text_columns=4)]
+    body = [
+        f"<h1>{_e(title)}</h1>",
+        f"<p>{len(rows)} session(s), {len({r['trainee'] for r in rows})} trainee(s).</p>",
+        table(
+            shown, [[_e("" if r.get(c) is None else r[c]) for c in shown] for r in rows], id="cohort", text_columns=4
+        ),
+    ]
     if refused:
-        body.append("<h2>Not reviewed</h2>" + table(("recording", "why"), [(_e(p), _e(w)) for p, w in refused],
-                                                     id="refused", text_columns=2))
+        body.append(
+            "<h2>Not reviewed</h2>"
+            + table(("recording", "why"), [(_e(p), _e(w)) for p, w in refused], id="refused", text_columns=2)
+        )
     if rows:
         body.append(f"<h2>Progress per trainee</h2>{_img(progress_png(rows), 'progress per trainee')}")
     return document(title, "".join(body))

@@ -130,7 +130,7 @@ class Moments:
         n = self.n + nb
         delta = mean_b - self.mean
         self.mean = self.mean + delta * nb / n
-        self.m2 = self.m2 + m2_b + delta ** 2 * self.n * nb / n
+        self.m2 = self.m2 + m2_b + delta**2 * self.n * nb / n
         self.n = n
         self.abs_sum += np.abs(x).sum(axis=0)
         self.abs_max = np.maximum(self.abs_max, np.abs(x).max(axis=0))
@@ -169,8 +169,7 @@ class EstimatorFold:
                 continue
             raw = c["raw_force"] if stage == 0 else c["raw_torque"]
             est = c["contact_force_S"] if stage == 0 else c["contact_torque_S"]
-            rows = (c["t_ns"] >= first) & ~c["contact"].astype(bool) & np.isfinite(raw).all(1) & \
-                np.isfinite(est).all(1)
+            rows = (c["t_ns"] >= first) & ~c["contact"].astype(bool) & np.isfinite(raw).all(1) & np.isfinite(est).all(1)
             self.before[stage].add(raw[rows])
             self.after[stage].add(est[rows])
             self.scored[stage] += int(rows.sum())
@@ -187,10 +186,15 @@ class EstimatorFold:
                 (mae_b, max_b, std_b), (mae_a, max_a, std_a) = self.before[stage].stats(), self.after[stage].stats()
                 for k in range(3):
                     table[AXES[3 * stage + k]] = {
-                        "mae_before": float(mae_b[k]), "max_before": float(max_b[k]), "std_before": float(std_b[k]),
-                        "mae_after": float(mae_a[k]), "max_after": float(max_a[k]), "std_after": float(std_a[k]),
+                        "mae_before": float(mae_b[k]),
+                        "max_before": float(max_b[k]),
+                        "std_before": float(std_b[k]),
+                        "mae_after": float(mae_a[k]),
+                        "max_after": float(max_a[k]),
+                        "std_after": float(std_a[k]),
                         "mae_comp_pct": mae_compensation_pct(float(mae_b[k]), float(mae_a[k])),
-                        "samples": self.scored[stage]}
+                        "samples": self.scored[stage],
+                    }
             r.table = table
         return r
 
@@ -235,8 +239,15 @@ class ContactFold:
         if self.open is None:
             return
         start, last, peak, total, n, over = self.open
-        self.contacts.append(Contact((start - self.t0_ns) / 1e9, (last - start) / 1e9 + self.period_s,
-                                     float(peak), float(total / n), over * self.period_s))
+        self.contacts.append(
+            Contact(
+                (start - self.t0_ns) / 1e9,
+                (last - start) / 1e9 + self.period_s,
+                float(peak),
+                float(total / n),
+                over * self.period_s,
+            )
+        )
         self.open = None
 
     def finish(self) -> list[Contact]:

@@ -38,8 +38,10 @@ def _num(x, digits: int = 2, unit: str = "") -> str:
 
 def table(header: Sequence[str], rows: Iterable[Sequence[str]], id: str = "", text_columns: int = 1) -> str:
     """An HTML table (cells already escaped); the first ``text_columns`` columns left-aligned."""
+
     def cells(values, tag):
-        return "".join(f'<{tag}{" class=text" if i < text_columns else ""}>{v}</{tag}>' for i, v in enumerate(values))
+        return "".join(f"<{tag}{' class=text' if i < text_columns else ''}>{v}</{tag}>" for i, v in enumerate(values))
+
     body = "".join(f"<tr>{cells(r, 'td')}</tr>" for r in rows)
     attr = f' id="{id}"' if id else ""
     return f"<table{attr}><thead><tr>{cells(header, 'th')}</tr></thead><tbody>{body}</tbody></table>"
@@ -50,44 +52,101 @@ def _img(png: bytes, alt: str) -> str:
 
 
 def document(title: str, body: str) -> str:
-    return (f"<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8><title>{_e(title)}</title>"
-            f"<style>{STYLE}</style></head><body>{body}</body></html>\n")
+    return (
+        f"<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8><title>{_e(title)}</title>"
+        f"<style>{STYLE}</style></head><body>{body}</body></html>\n"
+    )
 
 
 def session_page(r: SessionReview) -> str:
     """One session's report as a self-contained HTML page."""
     who = r.trainee or "(no trainee recorded)"
-    parts = [f"<h1>Session review: {_e(r.name or r.path.name)}</h1>",
-             table(("session", ""), [(k, _e(v)) for k, v in (
-                 ("trainee", who), ("task", r.task or "–"), ("date", r.date or "–"),
-                 ("recording", r.path.name), ("duration", f"{r.duration_s:.1f} s"),
-                 ("estimator", r.estimator), ("complete", "yes" if r.complete else "no (recovered or cut short)"))],
-                   id="who", text_columns=2)]
+    parts = [
+        f"<h1>Session review: {_e(r.name or r.path.name)}</h1>",
+        table(
+            ("session", ""),
+            [
+                (k, _e(v))
+                for k, v in (
+                    ("trainee", who),
+                    ("task", r.task or "–"),
+                    ("date", r.date or "–"),
+                    ("recording", r.path.name),
+                    ("duration", f"{r.duration_s:.1f} s"),
+                    ("estimator", r.estimator),
+                    ("complete", "yes" if r.complete else "no (recovered or cut short)"),
+                )
+            ],
+            id="who",
+            text_columns=2,
+        ),
+    ]
     if r.notes:
         parts.append(f"<div class=notes>{_e(r.notes)}</div>")
     parts.append("<h2>Summary</h2>")
     parts.append(table(("measure", "value"), [(k, _e(v)) for k, v in summary_rows(r)], id="summary", text_columns=2))
     parts.append("<h2>Contacts</h2>")
-    parts.append(table(("#", "start [s]", "duration [s]", "peak [N]", "mean [N]", f"over {r.force_limit_N:g} N [s]"),
-                       [(str(i + 1), _num(c.start_s), _num(c.duration_s), _num(c.peak_N), _num(c.mean_N),
-                         _num(c.over_limit_s)) for i, c in enumerate(r.contacts)], id="contacts")
-                 if r.contacts else "<p>No contact.</p>")
+    parts.append(
+        table(
+            ("#", "start [s]", "duration [s]", "peak [N]", "mean [N]", f"over {r.force_limit_N:g} N [s]"),
+            [
+                (str(i + 1), _num(c.start_s), _num(c.duration_s), _num(c.peak_N), _num(c.mean_N), _num(c.over_limit_s))
+                for i, c in enumerate(r.contacts)
+            ],
+            id="contacts",
+        )
+        if r.contacts
+        else "<p>No contact.</p>"
+    )
     parts.append("<h2>Estimators</h2>")
-    parts.append(table(("estimator", "samples", "force converged [s]", "torque converged [s]", "converged at end"),
-                       [(_e(e.name), str(e.samples), _num(e.converged_force_s), _num(e.converged_torque_s),
-                         "yes" if e.converged_at_end else '<span class=warn>no</span>') for e in r.estimators],
-                       id="estimators"))
+    parts.append(
+        table(
+            ("estimator", "samples", "force converged [s]", "torque converged [s]", "converged at end"),
+            [
+                (
+                    _e(e.name),
+                    str(e.samples),
+                    _num(e.converged_force_s),
+                    _num(e.converged_torque_s),
+                    "yes" if e.converged_at_end else "<span class=warn>no</span>",
+                )
+                for e in r.estimators
+            ],
+            id="estimators",
+        )
+    )
     for e in r.estimators:
         parts.append(f"<h2>Compensation error, {_e(e.name)} (the paper's table; no contact, after convergence)</h2>")
-        parts.append(table(("axis", "MAE before", "Max AE before", "Std before", "MAE after", "Max AE after",
-                            "Std after", "MAE comp. %"), error_rows(e), id=f"errors-{_e(e.name)}")
-                     if e.table else "<p>Not scored: the estimator never converged, or no contact-free sample "
-                                     "followed.</p>")
+        parts.append(
+            table(
+                (
+                    "axis",
+                    "MAE before",
+                    "Max AE before",
+                    "Std before",
+                    "MAE after",
+                    "Max AE after",
+                    "Std after",
+                    "MAE comp. %",
+                ),
+                error_rows(e),
+                id=f"errors-{_e(e.name)}",
+            )
+            if e.table
+            else "<p>Not scored: the estimator never converged, or no contact-free sample followed.</p>"
+        )
     parts.append("<h2>Faults and fail-safes</h2>")
     shown = faults(r.events)
-    parts.append(table(("time [s]", "event", "message"),
-                       [(_num(r.t_s(ev.t_ns)), _e(ev.kind), _e(ev.message)) for ev in shown], id="events",
-                       text_columns=0) if shown else "<p>None.</p>")
+    parts.append(
+        table(
+            ("time [s]", "event", "message"),
+            [(_num(r.t_s(ev.t_ns)), _e(ev.kind), _e(ev.message)) for ev in shown],
+            id="events",
+            text_columns=0,
+        )
+        if shown
+        else "<p>None.</p>"
+    )
     if r.series is not None:
         for name in plots.PLOTS:
             parts.append(f"<h2>{_e(plots.TITLES[name])}</h2>{_img(plots.png(r, name), plots.TITLES[name])}")
@@ -97,8 +156,11 @@ def session_page(r: SessionReview) -> str:
 def summary_rows(r: SessionReview) -> list[tuple[str, str]]:
     """The summary as (measure, value) lines: what the terminal and the page both show."""
     return [
-        ("sensor", f"{r.samples} samples at {r.sensor_rate_hz:.0f} Hz; {r.lost_samples} lost, {r.bad_samples} "
-                   "flagged or non-finite"),
+        (
+            "sensor",
+            f"{r.samples} samples at {r.sensor_rate_hz:.0f} Hz; {r.lost_samples} lost, {r.bad_samples} "
+            "flagged or non-finite",
+        ),
         ("kinematics", f"{r.poses} poses at {r.kinematics_rate_hz:.0f} Hz"),
         ("contacts", f"{len(r.contacts)}, {r.contact_s:.2f} s in contact"),
         ("peak contact force", _num(r.peak_force_N, 2, " N")),
@@ -110,7 +172,14 @@ def summary_rows(r: SessionReview) -> list[tuple[str, str]]:
 
 def error_rows(e) -> list[tuple[str, ...]]:
     """The paper's table of one estimator, a row per axis (N or N·m)."""
-    return [(axis.upper(), *(_num(e.table[axis][key], 3) for key in (
-        "mae_before", "max_before", "std_before", "mae_after", "max_after", "std_after")),
-             _num(e.table[axis]["mae_comp_pct"], 1)) for axis in AXES]
-
+    return [
+        (
+            axis.upper(),
+            *(
+                _num(e.table[axis][key], 3)
+                for key in ("mae_before", "max_before", "std_before", "mae_after", "max_after", "std_after")
+            ),
+            _num(e.table[axis]["mae_comp_pct"], 1),
+        )
+        for axis in AXES
+    ]

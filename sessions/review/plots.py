@@ -66,8 +66,11 @@ def wrench(r: SessionReview):
     plt, fig, axes = _figure(6, 1.4)
     units = ["N"] * 3 + ["N·m"] * 3
     primary = r.primary
-    settled = [primary.converged_force_s if k < 3 else primary.converged_torque_s for k in range(6)] \
-        if primary else [None] * 6
+    settled = (
+        [primary.converged_force_s if k < 3 else primary.converged_torque_s for k in range(6)]
+        if primary
+        else [None] * 6
+    )
     for k, ax in enumerate(axes):
         _band(ax, r.series.raw, k, "0.45", "raw (sensor)")
         _band(ax, r.series.compensated, k, "tab:blue", f"compensated ({r.estimator})")
@@ -94,8 +97,10 @@ def convergence(r: SessionReview):
         ax.legend(loc="upper right", fontsize=7, ncol=3)
     primary = r.primary
     for ax in axes:
-        for when, style in ((primary.converged_force_s if primary else None, "--"),
-                            (primary.converged_torque_s if primary else None, ":")):
+        for when, style in (
+            (primary.converged_force_s if primary else None, "--"),
+            (primary.converged_torque_s if primary else None, ":"),
+        ):
             if when is not None:
                 ax.axvline(when, color="k", linestyle=style, linewidth=0.8)
     if not names:
@@ -110,8 +115,13 @@ def contact(r: SessionReview):
     ax = axes[0]
     _band(ax, r.series.contact_force, 0, "tab:blue", "‖contact force‖")
     _shade_contacts(ax, r)
-    ax.axhline(r.force_limit_N, color="tab:red", linestyle="--", linewidth=1.0,
-               label=f"limit {r.force_limit_N:g} N ({r.over_limit_s:.2f} s over)")
+    ax.axhline(
+        r.force_limit_N,
+        color="tab:red",
+        linestyle="--",
+        linewidth=1.0,
+        label=f"limit {r.force_limit_N:g} N ({r.over_limit_s:.2f} s over)",
+    )
     ax.set_ylabel("force [N]")
     ax.set_xlabel("time [s]")
     ax.grid(alpha=0.3)

@@ -111,17 +111,41 @@ class SessionReview:
         """The cohort's row: one line per session (CSV columns)."""
         primary = self.primary
         conv = primary.converged_force_s if primary else None
-        return {"recording": str(self.path), "trainee": self.trainee, "task": self.task, "date": self.date,
-                "duration_s": round(self.duration_s, 3), "contacts": len(self.contacts),
-                "peak_force_N": _round(self.peak_force_N), "over_limit_s": round(self.over_limit_s, 3),
-                "contact_s": round(self.contact_s, 3), "force_limit_N": self.force_limit_N,
-                "estimator": self.estimator, "converged_s": _round(conv), "lost_samples": self.lost_samples,
-                "faults": len(faults(self.events)), "complete": self.complete}
+        return {
+            "recording": str(self.path),
+            "trainee": self.trainee,
+            "task": self.task,
+            "date": self.date,
+            "duration_s": round(self.duration_s, 3),
+            "contacts": len(self.contacts),
+            "peak_force_N": _round(self.peak_force_N),
+            "over_limit_s": round(self.over_limit_s, 3),
+            "contact_s": round(self.contact_s, 3),
+            "force_limit_N": self.force_limit_N,
+            "estimator": self.estimator,
+            "converged_s": _round(conv),
+            "lost_samples": self.lost_samples,
+            "faults": len(faults(self.events)),
+            "complete": self.complete,
+        }
 
 
-ROUTINE_EVENTS = frozenset({"session_start", "session_end", "converged", "identified", "parameters_known",
-                            "haptic_enabled", "haptic_disabled", "teleop", "teleop_engaged", "teleop_calibrated",
-                            "haptic_rearmed", "overrun_summary"})
+ROUTINE_EVENTS = frozenset(
+    {
+        "session_start",
+        "session_end",
+        "converged",
+        "identified",
+        "parameters_known",
+        "haptic_enabled",
+        "haptic_disabled",
+        "teleop",
+        "teleop_engaged",
+        "teleop_calibrated",
+        "haptic_rearmed",
+        "overrun_summary",
+    }
+)
 """Event kinds that are the session's ordinary course; every other kind is a fault or a fail-safe to look at."""
 
 
@@ -137,8 +161,13 @@ def _round(x: float | None, digits: int = 3) -> float | None:
 # --------------------------------------------------------------------------- the pass
 
 
-def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMIT_N, plots: bool = True,
-           progress=None, fast: bool = True) -> SessionReview:
+def review(
+    path: str | os.PathLike[str],
+    force_limit: float = DEFAULT_FORCE_LIMIT_N,
+    plots: bool = True,
+    progress=None,
+    fast: bool = True,
+) -> SessionReview:
     """Review one recording (streamed; memory bounded whatever its length).
 
     Args:
@@ -161,10 +190,11 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
         config = {}
     session = config.get("session", {})
     estimator = rec.meta("hapticlab.session", "estimator", "") or ""
-    names = [t[len(ESTIMATOR_TOPIC_PREFIX):] for t in rec.topic_names if t.startswith(ESTIMATOR_TOPIC_PREFIX)]
+    names = [t[len(ESTIMATOR_TOPIC_PREFIX) :] for t in rec.topic_names if t.startswith(ESTIMATOR_TOPIC_PREFIX)]
     if "/aligned/sample" not in rec.topic_names or not names:
-        raise RecordingError(f"{rec.path}: no /aligned/sample or /estimator/<name> topic: not a session recording "
-                             "hapticlab can review")
+        raise RecordingError(
+            f"{rec.path}: no /aligned/sample or /estimator/<name> topic: not a session recording hapticlab can review"
+        )
     estimator = estimator if estimator in names else names[0]
     stats = file_stats(rec.path)
     t0, t1, counts = stats.start_ns, stats.end_ns, stats.counts
@@ -174,8 +204,9 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
 
     folds = {name: EstimatorFold(name, t0) for name in names}
     contact = None  # built once the sensor period is known
-    series = Series(Envelope(t0, t1, 6), Envelope(t0, t1, 6), Envelope(t0, t1, 1),
-                    Envelope(t0, t1, 2) if plots else None)
+    series = Series(
+        Envelope(t0, t1, 6), Envelope(t0, t1, 6), Envelope(t0, t1, 1), Envelope(t0, t1, 2) if plots else None
+    )
     events: list[Event] = []
     pending: dict[str, list[dict[str, np.ndarray]]] = {name: [] for name in names}
     pending_rows = dict.fromkeys(names, 0)
@@ -228,8 +259,9 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
         if commands and series.command is not None:
             force = np.concatenate([c["force_D"] for c in commands])
             enabled = np.concatenate([c["enabled"] for c in commands])
-            series.command.add(np.concatenate([c["t_ns"] for c in commands]),
-                               np.column_stack((np.linalg.norm(force, axis=1), enabled)))
+            series.command.add(
+                np.concatenate([c["t_ns"] for c in commands]), np.column_stack((np.linalg.norm(force, axis=1), enabled))
+            )
         commands.clear()
         command_rows = 0
 
@@ -255,7 +287,7 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
         elif topic == "/events":
             events.extend(Event(t_ns, m["kind"], m["message"], m.get("data") or {}) for t_ns, m in batch)
         else:
-            name = topic[len(ESTIMATOR_TOPIC_PREFIX):]
+            name = topic[len(ESTIMATOR_TOPIC_PREFIX) :]
             if name == estimator:
                 series.params.extend(((t - t0) / 1e9, p) for t, p in batch["params"])
             joined = _join(batch, recent)
@@ -272,24 +304,40 @@ def review(path: str | os.PathLike[str], force_limit: float = DEFAULT_FORCE_LIMI
     if progress is not None:
         progress(1.0)
 
-    measured_rate = ((health["samples"] - 1) / ((health["last_t"] - health["first_t"]) / 1e9)
-                     if health["samples"] > 1 and health["last_t"] > health["first_t"] else 0.0)
+    measured_rate = (
+        (health["samples"] - 1) / ((health["last_t"] - health["first_t"]) / 1e9)
+        if health["samples"] > 1 and health["last_t"] > health["first_t"]
+        else 0.0
+    )
     contacts = contact.finish() if contact is not None else []
     summary = rec.metadata.get("hapticlab.summary", {})
     return SessionReview(
-        path=rec.path, name=str(session.get("name", "")), trainee=str(session.get("trainee", "")),
-        task=str(session.get("task", "")), notes=str(session.get("notes", "")),
-        date=str(rec.meta("hapticlab.session", "start_time", "") or ""), duration_s=duration,
-        estimator=estimator, sensor_rate_hz=measured_rate, samples=health["samples"],
-        lost_samples=health["lost"], bad_samples=health["bad"],
+        path=rec.path,
+        name=str(session.get("name", "")),
+        trainee=str(session.get("trainee", "")),
+        task=str(session.get("task", "")),
+        notes=str(session.get("notes", "")),
+        date=str(rec.meta("hapticlab.session", "start_time", "") or ""),
+        duration_s=duration,
+        estimator=estimator,
+        sensor_rate_hz=measured_rate,
+        samples=health["samples"],
+        lost_samples=health["lost"],
+        bad_samples=health["bad"],
         kinematics_rate_hz=(counts.get("/kinematics/pose", 0) / duration if duration > 0 else 0.0),
         poses=counts.get("/kinematics/pose", 0),
-        estimators=[folds[n].finish() for n in names], contacts=contacts, force_limit_N=force_limit,
+        estimators=[folds[n].finish() for n in names],
+        contacts=contacts,
+        force_limit_N=force_limit,
         over_limit_s=contact.over_limit_s if contact is not None else 0.0,
         contact_s=(contact.contact_samples * contact.period_s) if contact is not None else 0.0,
         peak_force_N=contact.peak if contact is not None else float("nan"),
-        haptic_on_s=_haptic_on_s(events, t1), events=events, complete=bool(summary), start_ns=t0,
-        series=series if plots else None)
+        haptic_on_s=_haptic_on_s(events, t1),
+        events=events,
+        complete=bool(summary),
+        start_ns=t0,
+        series=series if plots else None,
+    )
 
 
 def _batches(path: Path, topics: list[str], fast: bool):
@@ -304,8 +352,14 @@ def _batches(path: Path, topics: list[str], fast: bool):
     for topic, t_ns, m, is_block in iter_blocks(path, topics):
         if topic == "/haptic/command":
             force = [math.nan if v is None else v for v in (m.get("force_D") or [math.nan] * 3)]
-            yield topic, {"t_ns": np.array([t_ns]), "force_D": np.array([force], dtype=float),
-                          "enabled": np.array([bool(m.get("enabled"))])}
+            yield (
+                topic,
+                {
+                    "t_ns": np.array([t_ns]),
+                    "force_D": np.array([force], dtype=float),
+                    "enabled": np.array([bool(m.get("enabled"))]),
+                },
+            )
             continue
         if not is_block:
             yield topic, [(t_ns, m)]

@@ -24,14 +24,15 @@ def pose_stream(rng: np.random.Generator, n: int, positions: bool) -> list[PoseS
         q.append(quat_multiply(step, q[-1]))
     signs = np.where(rng.random(n) < 0.5, -1.0, 1.0)
     p = np.cumsum(rng.normal(size=(n, 3)) * 1e-4, axis=0)
-    return [PoseSample(t_ns=int(t[i]), quat_BE=q[i] * signs[i], p_BoEo_B=p[i] if positions else None)
-            for i in range(n)]
+    return [PoseSample(t_ns=int(t[i]), quat_BE=q[i] * signs[i], p_BoEo_B=p[i] if positions else None) for i in range(n)]
 
 
 def wrenches_between(rng: np.random.Generator, t0: int, t1: int, count: int) -> list[WrenchSample]:
     t = np.sort(rng.integers(t0, t1, count))
-    return [WrenchSample(t_ns=int(ti), force_S=rng.normal(size=3), torque_S=rng.normal(size=3), seq=i, status=0)
-            for i, ti in enumerate(t)]
+    return [
+        WrenchSample(t_ns=int(ti), force_S=rng.normal(size=3), torque_S=rng.normal(size=3), seq=i, status=0)
+        for i, ti in enumerate(t)
+    ]
 
 
 @pytest.mark.parametrize("positions", [True, False])
@@ -44,15 +45,16 @@ def test_compiled_and_numpy_aligners_agree_on_every_case(positions):
     compared = 0
     block_sizes = [1, 7, 40]
     for k in range(0, len(poses), 3):
-        new = poses[k:k + 3]
+        new = poses[k : k + 3]
         for aligner in (numba_aligner, numpy_aligner):
             aligner.add_poses(new)
         t_newest = new[-1].t_ns
         size = block_sizes[(k // 3) % 3]
         start = poses[max(k - 10, 0)].t_ns - (3_000_000 if k == 0 else 0)  # before the first pose on the first
         block = wrenches_between(rng, start, t_newest + 3 * PERIOD_NS, size)
-        block[0] = WrenchSample(t_ns=poses[max(k - 1, 0)].t_ns, force_S=block[0].force_S,
-                                torque_S=block[0].torque_S, seq=0, status=0)  # exactly on a pose
+        block[0] = WrenchSample(
+            t_ns=poses[max(k - 1, 0)].t_ns, force_S=block[0].force_S, torque_S=block[0].torque_S, seq=0, status=0
+        )  # exactly on a pose
         block.sort(key=lambda w: w.t_ns)
         a, b = numba_aligner.align(block), numpy_aligner.align(block)
         np.testing.assert_array_equal(a.stale, b.stale)
@@ -69,15 +71,25 @@ def test_compiled_and_numpy_aligners_agree_on_every_case(positions):
 def test_one_pose_and_a_repeated_stamp_hold_the_orientation():
     """With one pose (or two with the same stamp) there is no velocity: every sample gets that pose."""
     q = np.array([0.5, 0.5, 0.5, 0.5])
-    for poses in ([PoseSample(t_ns=1_000_000, quat_BE=q, p_BoEo_B=np.ones(3))],
-                  [PoseSample(t_ns=1_000_000, quat_BE=-q, p_BoEo_B=np.ones(3)),
-                   PoseSample(t_ns=1_000_000, quat_BE=q, p_BoEo_B=np.ones(3))]):
+    for poses in (
+        [PoseSample(t_ns=1_000_000, quat_BE=q, p_BoEo_B=np.ones(3))],
+        [
+            PoseSample(t_ns=1_000_000, quat_BE=-q, p_BoEo_B=np.ones(3)),
+            PoseSample(t_ns=1_000_000, quat_BE=q, p_BoEo_B=np.ones(3)),
+        ],
+    ):
         out = []
         for kernel in ("numba", "numpy"):
             aligner = Aligner(500.0, kernel=kernel)
             aligner.add_poses(poses)
-            out.append(aligner.align([WrenchSample(t_ns=t, force_S=np.zeros(3), torque_S=np.zeros(3), seq=0,
-                                                   status=0) for t in (0, 1_000_000, 2_500_000, 9_000_000)]))
+            out.append(
+                aligner.align(
+                    [
+                        WrenchSample(t_ns=t, force_S=np.zeros(3), torque_S=np.zeros(3), seq=0, status=0)
+                        for t in (0, 1_000_000, 2_500_000, 9_000_000)
+                    ]
+                )
+            )
         for a in out:
             np.testing.assert_allclose(np.abs(a.quat_BE @ q), 1.0, atol=1e-15)
             np.testing.assert_array_equal(a.stale, [True, False, False, True])
@@ -98,7 +110,7 @@ def test_the_aligner_keeps_exactly_the_newest_poses_as_they_stream_in():
     given, k = [], 0
     while k < len(poses):
         size = 40 if rng.random() < 0.02 else int(rng.integers(1, 6))
-        batch = poses[k:k + size]
+        batch = poses[k : k + size]
         aligner.add_poses(batch)
         given += batch
         k += size

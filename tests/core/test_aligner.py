@@ -47,8 +47,7 @@ def test_live_aligner_blocks():
     wrench = [WrenchSample(k * 1_000_000, np.zeros(3), np.zeros(3), k) for k in range(5)]
     before = aligner.align(wrench)
     assert before.stale.all()  # no pose yet: nothing can be aligned
-    poses = [PoseSample(k * 2_000_000, rotating(np.array([k * 2e-3])).as_quat(scalar_first=True)[0])
-             for k in range(3)]
+    poses = [PoseSample(k * 2_000_000, rotating(np.array([k * 2e-3])).as_quat(scalar_first=True)[0]) for k in range(3)]
     aligner.add_poses(poses)
     block = aligner.align(wrench)
     assert not block.stale.any() and block.seq.tolist() == [0, 1, 2, 3, 4]

@@ -14,9 +14,9 @@ import pytest
 from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
-from hapticlab.core.sensor_model.model import STAGES, Effect, Model, motion_from_poses, savgol, savgol_t
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.host.registry import Registry, make_plugin_manager
+from hapticlab.core.sensor_model.model import STAGES, Effect, Model, motion_from_poses, savgol, savgol_t
 from hapticlab.plugins.effects.bias_drift import BiasDrift
 from hapticlab.plugins.effects.gain_crosstalk import GainCrosstalk, gain_matrix
 from hapticlab.plugins.effects.hysteresis import Hysteresis
@@ -27,8 +27,14 @@ from hapticlab.plugins.simworld import RandomTour, RobotParams, SensorParams, Si
 
 GF = np.array([[0.02, 0.01, -0.005], [0.01, -0.015, 0.008], [-0.005, 0.008, -0.005]])  # traceless
 GT = np.array([[-0.01, 0.004, 0.0], [0.004, 0.02, -0.01], [0.0, -0.01, -0.01]])
-BUILTINS = {"mount_rotation": MountRotation, "bias_drift": BiasDrift, "inertia": Inertia, "time_lag": TimeLag,
-            "gain_crosstalk": GainCrosstalk, "hysteresis": Hysteresis}
+BUILTINS = {
+    "mount_rotation": MountRotation,
+    "bias_drift": BiasDrift,
+    "inertia": Inertia,
+    "time_lag": TimeLag,
+    "gain_crosstalk": GainCrosstalk,
+    "hysteresis": Hysteresis,
+}
 
 
 def recorded(world: SimWorld, duration: float = 12.0, rate: float = 500.0, positions: bool = True):
@@ -54,9 +60,12 @@ def test_builtins_are_registered_as_effects():
 def test_savgol_is_scipys():
     x = np.cumsum(np.random.default_rng(1).normal(size=(400, 4)), axis=0)
     for deriv in (0, 1, 2):
-        np.testing.assert_allclose(savgol(x, 11, deriv, 0.004),
-                                   savgol_filter(x, 11, 3, deriv=deriv, delta=0.004, axis=0, mode="interp"),
-                                   rtol=1e-9, atol=1e-9 * np.abs(x).max() / 0.004**deriv)
+        np.testing.assert_allclose(
+            savgol(x, 11, deriv, 0.004),
+            savgol_filter(x, 11, 3, deriv=deriv, delta=0.004, axis=0, mode="interp"),
+            rtol=1e-9,
+            atol=1e-9 * np.abs(x).max() / 0.004**deriv,
+        )
 
 
 def test_motion_derivatives_match_the_analytic_ones():
@@ -64,8 +73,11 @@ def test_motion_derivatives_match_the_analytic_ones():
     t, motion, _ = recorded(world)
     truth = world.motion_state(t)
     inner = slice(50, -50)  # the filter's edge windows extrapolate
-    for got, want, name in ((motion.w_E, truth.w_BE_E, "w"), (motion.alpha_E, truth.alpha_BE_E, "alpha"),
-                            (motion.a_B, truth.a_BEo_B, "a")):
+    for got, want, name in (
+        (motion.w_E, truth.w_BE_E, "w"),
+        (motion.alpha_E, truth.alpha_BE_E, "alpha"),
+        (motion.a_B, truth.a_BEo_B, "a"),
+    ):
         err = np.sqrt(np.mean((got[inner] - want[inner]) ** 2))
         assert err < 0.02 * np.sqrt(np.mean(want[inner] ** 2)), name
 
@@ -79,8 +91,11 @@ def test_derivatives_use_the_actual_time_steps_of_jittered_stamps():
     motion = motion_from_poses(t, quat_wxyz_from_matrix(R_BE), p)
     truth = world.motion_state(t)
     inner = slice(50, -50)
-    for got, want, name in ((motion.w_E, truth.w_BE_E, "w"), (motion.alpha_E, truth.alpha_BE_E, "alpha"),
-                            (motion.a_B, truth.a_BEo_B, "a")):
+    for got, want, name in (
+        (motion.w_E, truth.w_BE_E, "w"),
+        (motion.alpha_E, truth.alpha_BE_E, "alpha"),
+        (motion.a_B, truth.a_BEo_B, "a"),
+    ):
         err = np.sqrt(np.mean((got[inner] - want[inner]) ** 2))
         assert err < 0.02 * np.sqrt(np.mean(want[inner] ** 2)), name
 
@@ -89,8 +104,12 @@ def test_savgol_on_real_times_is_savgol_on_a_uniform_grid():
     x = np.cumsum(np.random.default_rng(1).normal(size=(400, 4)), axis=0)
     t = np.arange(400) * 0.004
     for deriv in (0, 1, 2):
-        np.testing.assert_allclose(savgol_t(x, t, 11, deriv), savgol(x, 11, deriv, 0.004), rtol=1e-9,
-                                   atol=1e-9 * np.abs(x).max() / 0.004**deriv)
+        np.testing.assert_allclose(
+            savgol_t(x, t, 11, deriv),
+            savgol(x, 11, deriv, 0.004),
+            rtol=1e-9,
+            atol=1e-9 * np.abs(x).max() / 0.004**deriv,
+        )
 
 
 def test_an_index_time_base_has_no_derivatives():
@@ -119,21 +138,40 @@ def test_the_model_with_the_true_effects_reproduces_the_simulated_sensor():
     """Every effect at once, with the world's own parameters: the prediction is the noise-free reading."""
     mount, lag, drift = np.deg2rad([2.0, -1.5, 1.0]), 0.008, np.array([0.5, -0.3, 0.4, 0.01, -0.02, 0.015]) / 60
     offset_E = np.array([0.01, -0.02, 0.05])  # the sensor origin 5 cm out from the flange
-    world = SimWorld(sensor=SensorParams(mount_rotation_SE=mount, gain_force_S=GF, gain_torque_S=GT,
-                                         drift_force_S=drift[:3], drift_torque_S=drift[3:], p_EoSo_E=offset_E),
-                     robot=RobotParams(kinematics_lag_s=lag), motion=lively(), seed=5, inertia=True)
+    world = SimWorld(
+        sensor=SensorParams(
+            mount_rotation_SE=mount,
+            gain_force_S=GF,
+            gain_torque_S=GT,
+            drift_force_S=drift[:3],
+            drift_torque_S=drift[3:],
+            p_EoSo_E=offset_E,
+        ),
+        robot=RobotParams(kinematics_lag_s=lag),
+        motion=lively(),
+        seed=5,
+        inertia=True,
+    )
     t, motion, reading = recorded(world)
     truth = world.truth()
-    model = Model([(n, BUILTINS[n]()) for n in ("time_lag", "mount_rotation", "inertia", "gain_crosstalk",
-                                                  "bias_drift")])
+    model = Model(
+        [(n, BUILTINS[n]()) for n in ("time_lag", "mount_rotation", "inertia", "gain_crosstalk", "bias_drift")]
+    )
     I = truth["inertia_S"]
-    theta = np.concatenate([
-        truth["gravity_force_B"], truth["bias_force_S"] + drift[:3] * motion.t_ref, truth["cog_S"],
-        truth["bias_torque_S"] + drift[3:] * motion.t_ref,
-        [lag], mount, [1.0, I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]],
-        Rotation.from_rotvec(mount).as_matrix() @ offset_E,
-        [GF[0, 0], GF[1, 1], GF[0, 1], GF[0, 2], GF[1, 2], GT[0, 0], GT[1, 1], GT[0, 1], GT[0, 2], GT[1, 2]],
-        drift])
+    theta = np.concatenate(
+        [
+            truth["gravity_force_B"],
+            truth["bias_force_S"] + drift[:3] * motion.t_ref,
+            truth["cog_S"],
+            truth["bias_torque_S"] + drift[3:] * motion.t_ref,
+            [lag],
+            mount,
+            [1.0, I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]],
+            Rotation.from_rotvec(mount).as_matrix() @ offset_E,
+            [GF[0, 0], GF[1, 1], GF[0, 1], GF[0, 2], GF[1, 2], GT[0, 0], GT[1, 1], GT[0, 1], GT[0, 2], GT[1, 2]],
+            drift,
+        ]
+    )
     error = np.concatenate([reading["force_S"], reading["torque_S"]], axis=1) - model.predict6(motion, theta)
     inner = slice(100, -100)
     rms = np.sqrt(np.mean(error[inner] ** 2, axis=0))
@@ -152,15 +190,25 @@ def test_the_hysteresis_effect_is_the_simulated_sensors_play_operator():
     0.025 N at the tour's corners) would stay in it."""
     widths = np.array([0.05, 0.1, 0.08, 0.002, 0.001, 0.003])
     mount = np.deg2rad([2.0, -1.5, 1.0])
-    world = SimWorld(sensor=SensorParams(mount_rotation_SE=mount, gain_force_S=GF, gain_torque_S=GT,
-                                         hysteresis_force_S=widths[:3], hysteresis_torque_S=widths[3:]),
-                     motion=lively(), seed=5, inertia=False)
+    world = SimWorld(
+        sensor=SensorParams(
+            mount_rotation_SE=mount,
+            gain_force_S=GF,
+            gain_torque_S=GT,
+            hysteresis_force_S=widths[:3],
+            hysteresis_torque_S=widths[3:],
+        ),
+        motion=lively(),
+        seed=5,
+        inertia=False,
+    )
     _, motion, reading = recorded(world)
     truth = world.truth()
     model = Model([(n, BUILTINS[n]()) for n in ("mount_rotation", "gain_crosstalk", "hysteresis")])
     gains = [GF[0, 0], GF[1, 1], GF[0, 1], GF[0, 2], GF[1, 2], GT[0, 0], GT[1, 1], GT[0, 1], GT[0, 2], GT[1, 2]]
-    theta = np.concatenate([truth["gravity_force_B"], truth["bias_force_S"], truth["cog_S"], truth["bias_torque_S"],
-                            mount, gains, widths])
+    theta = np.concatenate(
+        [truth["gravity_force_B"], truth["bias_force_S"], truth["cog_S"], truth["bias_torque_S"], mount, gains, widths]
+    )
     y = np.concatenate([reading["force_S"], reading["torque_S"]], axis=1)
     error = y - model.predict6(motion, theta)
     assert np.all(np.abs(error[:, :3]).max(axis=0) < 1e-4) and np.all(np.abs(error[:, 3:]).max(axis=0) < 1e-5)
@@ -175,8 +223,7 @@ def test_each_effect_switched_off_changes_nothing_and_reports_json(name):
     effect = BUILTINS[name]()
     assert effect.check(motion) is None
     assert effect.stage in STAGES and len(effect.labels) == len(effect.steps) == len(effect.initial())
-    base = np.concatenate([world.truth()[k] for k in ("gravity_force_B", "bias_force_S", "cog_S",
-                                                      "bias_torque_S")])
+    base = np.concatenate([world.truth()[k] for k in ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S")])
     model = Model([(name, effect)])
     np.testing.assert_array_equal(model.predict6(motion, model.initial(base)), Model().predict6(motion, base))
     params = np.linspace(0.001, 0.002, len(effect.labels))
@@ -189,14 +236,14 @@ def test_each_effect_switched_off_changes_nothing_and_reports_json(name):
 def test_effect_parameters_mean_what_they_say():
     world = SimWorld(motion=lively(), seed=3, inertia=False)
     _, motion, _ = recorded(world, duration=4.0)
-    base = np.concatenate([world.truth()[k] for k in ("gravity_force_B", "bias_force_S", "cog_S",
-                                                      "bias_torque_S")])
+    base = np.concatenate([world.truth()[k] for k in ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S")])
     weight_S = Model().weight_S(motion, base)
     # mount rotation: the weight turns by R_SE
     rotvec = np.array([0.01, -0.02, 0.03])
     model = Model([("mount_rotation", MountRotation())])
-    np.testing.assert_allclose(model.weight_S(motion, np.r_[base, rotvec]),
-                               weight_S @ Rotation.from_rotvec(rotvec).as_matrix().T, atol=1e-12)
+    np.testing.assert_allclose(
+        model.weight_S(motion, np.r_[base, rotvec]), weight_S @ Rotation.from_rotvec(rotvec).as_matrix().T, atol=1e-12
+    )
     # gain: (I + G) times the true wrench, before the bias
     p = np.array([0.02, -0.015, 0.01, -0.005, 0.008, -0.01, 0.02, 0.004, 0.0, -0.01])
     np.testing.assert_allclose(gain_matrix(p[:5]), GF)
@@ -204,7 +251,9 @@ def test_effect_parameters_mean_what_they_say():
     np.testing.assert_allclose(force, weight_S @ (np.eye(3) + GF).T + base[3:6], atol=1e-12)
     # drift: rate times the time from the middle of the recording
     force, torque = Model([("bias_drift", BiasDrift())]).predict(motion, np.r_[base, [1, 2, 3, 4, 5, 6]])
-    np.testing.assert_allclose(force - (weight_S + base[3:6]), (motion.t - motion.t_ref)[:, None] * [1, 2, 3], atol=1e-9)
+    np.testing.assert_allclose(
+        force - (weight_S + base[3:6]), (motion.t - motion.t_ref)[:, None] * [1, 2, 3], atol=1e-9
+    )
     # time lag: the pose at t + τ
     force, _ = Model([("time_lag", TimeLag())]).predict(motion, np.r_[base, 0.01])
     np.testing.assert_allclose(force, Model().predict(motion.shifted(0.01), base)[0], atol=1e-12)
@@ -212,8 +261,9 @@ def test_effect_parameters_mean_what_they_say():
 
 def test_effects_skip_recordings_that_lack_their_prerequisites():
     world = SimWorld(seed=2)
-    index = motion_from_poses(np.arange(100.0), quat_wxyz_from_matrix(world.pose(np.arange(100.0))[0]),
-                              time_base="index")
+    index = motion_from_poses(
+        np.arange(100.0), quat_wxyz_from_matrix(world.pose(np.arange(100.0))[0]), time_base="index"
+    )
     assert "time base" in TimeLag().check(index) and "time base" in Inertia().check(index)
     assert MountRotation().check(index) is None and BiasDrift().check(index) is None
     t = np.arange(0, 60, 0.1)
@@ -242,8 +292,7 @@ def test_a_model_refuses_a_badly_declared_effect():
 def test_jacobian_of_linear_parameters_is_exact():
     world = SimWorld(motion=lively(), seed=3, inertia=False)
     _, motion, _ = recorded(world, duration=2.0)
-    base = np.concatenate([world.truth()[k] for k in ("gravity_force_B", "bias_force_S", "cog_S",
-                                                      "bias_torque_S")])
+    base = np.concatenate([world.truth()[k] for k in ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S")])
     J = Model([("bias_drift", BiasDrift())]).jacobian(motion, np.r_[base, np.zeros(6)])
     np.testing.assert_allclose(J[:, :3, 3:6], np.broadcast_to(np.eye(3), (len(motion), 3, 3)), atol=1e-6)
     np.testing.assert_allclose(J[:, 3:, 9:12], np.broadcast_to(np.eye(3), (len(motion), 3, 3)), atol=1e-6)

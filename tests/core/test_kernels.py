@@ -65,17 +65,24 @@ def _same_information(a: dict, b: dict, tol: float) -> bool:
     ~1, so the rounding of R (above) shows at tol of the matrix's scale, not of each entry. The same for the
     learnt tilt walk's state (state()["tilt"]["walk"]): its windows' sums of R_SB over up to ~1000 samples
     (a mount estimate's rounding in each R_SB adds up there: 3e-8 of −7.5 measured)."""
-    return a.keys() == b.keys() and all(
-        np.abs(np.subtract(a[k], b[k])).max() <= tol * np.abs(a[k]).max() for k in a)
+    return a.keys() == b.keys() and all(np.abs(np.subtract(a[k], b[k])).max() <= tol * np.abs(a[k]).max() for k in a)
 
 
 def _same_tree(a, b, tol: float = ROUNDING) -> bool:
     """params(), cov_diag() and state() of the two: the same keys and flags, numbers within tol."""
     if isinstance(a, dict):
-        return isinstance(b, dict) and a.keys() == b.keys() and all(
-            _same_information(a[k], b[k], tol) if k == "information" else
-            _same_information({k: a[k]}, {k: b[k]}, tol) if k == "walk" and a[k] is not None else
-            _same_tree(a[k], b[k], tol) for k in a)
+        return (
+            isinstance(b, dict)
+            and a.keys() == b.keys()
+            and all(
+                _same_information(a[k], b[k], tol)
+                if k == "information"
+                else _same_information({k: a[k]}, {k: b[k]}, tol)
+                if k == "walk" and a[k] is not None
+                else _same_tree(a[k], b[k], tol)
+                for k in a
+            )
+        )
     if isinstance(a, (list, tuple)) and a and not isinstance(a[0], (int, float, bool)):
         return isinstance(b, (list, tuple)) and len(a) == len(b) and all(_same_tree(x, y, tol) for x, y in zip(a, b))
     if isinstance(a, (bool, str)) or a is None:
@@ -118,8 +125,10 @@ def test_rls_kernel_matches_numpy_in_lockstep(sim):
         # the torque stage's A_k = −[f − b_f]ₓ also carries the force stage's difference in b_f
         cond_f, cond_t = np.linalg.cond(ref.force.Lambda), np.linalg.cond(ref.torque.Lambda)
         dA = np.linalg.norm(ref.force.x[3:] - fast.force.x[3:]) / np.linalg.norm(part.force_S[0] - ref.force.x[3:])
-        bound = [1e-14 * cond_f * max(1.0, np.linalg.norm(ref.force.x)) + 1e-12,
-                 (1e-14 + 3 * dA) * cond_t * max(1.0, np.linalg.norm(ref.torque.x)) + 1e-12]
+        bound = [
+            1e-14 * cond_f * max(1.0, np.linalg.norm(ref.force.x)) + 1e-12,
+            (1e-14 + 3 * dA) * cond_t * max(1.0, np.linalg.norm(ref.torque.x)) + 1e-12,
+        ]
         steps = [np.linalg.norm(s.x - x0) for s, x0 in zip((ref.force, ref.torque), before)]
         flags_equal = all(np.array_equal(getattr(a, key), getattr(b, key)) for key in KEYS[2:])
         if not flags_equal:
@@ -146,8 +155,9 @@ def test_rls_kernel_gives_the_same_bits_in_any_block_size(sim, size):
     a = [one.update_block(sim.subset(slice(i, i + 1))) for i in range(len(sim))]
     b = [blocks.update_block(sim.subset(slice(i, i + size))) for i in range(0, len(sim), size)]
     for key in KEYS:
-        assert np.array_equal(np.concatenate([getattr(p, key) for p in a]),
-                              np.concatenate([getattr(p, key) for p in b])), key
+        assert np.array_equal(
+            np.concatenate([getattr(p, key) for p in a]), np.concatenate([getattr(p, key) for p in b])
+        ), key
     assert one.params() == blocks.params() and one.cov_diag() == blocks.cov_diag()
     assert (one.force.updates, one.torque.updates) == (blocks.force.updates, blocks.torque.updates)
 
@@ -225,20 +235,49 @@ def _tolerance(options) -> float:
     return ROUNDING_NOISE if options.get("noise_force", "auto") == "auto" else ROUNDING
 
 
-@pytest.mark.parametrize("options", [{}, GAMMA, {**GAMMA, "convergence": "identified"}, {"convergence": "covariance"},
-                                     {"convergence": "identified"}, {"mount_rotation": True}, {"convergence": "step"},
-                                     {"time_lag_s": -0.004}, {**GAMMA, "time_lag_s": -0.004}, {"bias_rate": True},
-                                     {**GAMMA, "bias_rate": True}, {"mount_rotation": True, "bias_rate": True},
-                                     {"mount_rotation": True, "mount_rotation_SE": [0.0, 0.05, 0.02]},
-                                     {"bias_force_tilt_rw": 0.1},
-                                     {**GAMMA, "convergence": "identified", "bias_force_tilt_rw": 0.03},
-                                     {"bias_force_tilt_rw": 0.1, "convergence": "step"},
-                                     {"bias_force_tilt_rw": 0.1, "time_lag_s": -0.004},
-                                     {"bias_force_tilt_rw": 0.1, "mount_rotation": True, "bias_rate": True}],
-                         ids=["defaults", "gamma-covariance", "gamma-identified", "auto-covariance", "auto-identified",
-                              "mount", "step", "sensor-late", "gamma-sensor-late", "bias-rate", "gamma-bias-rate",
-                              "mount-bias-rate", "mount-from-3-deg", "tilt-walk", "gamma-tilt-walk", "step-tilt-walk",
-                              "sensor-late-tilt-walk", "mount-bias-rate-tilt-walk"])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        GAMMA,
+        {**GAMMA, "convergence": "identified"},
+        {"convergence": "covariance"},
+        {"convergence": "identified"},
+        {"mount_rotation": True},
+        {"convergence": "step"},
+        {"time_lag_s": -0.004},
+        {**GAMMA, "time_lag_s": -0.004},
+        {"bias_rate": True},
+        {**GAMMA, "bias_rate": True},
+        {"mount_rotation": True, "bias_rate": True},
+        {"mount_rotation": True, "mount_rotation_SE": [0.0, 0.05, 0.02]},
+        {"bias_force_tilt_rw": 0.1},
+        {**GAMMA, "convergence": "identified", "bias_force_tilt_rw": 0.03},
+        {"bias_force_tilt_rw": 0.1, "convergence": "step"},
+        {"bias_force_tilt_rw": 0.1, "time_lag_s": -0.004},
+        {"bias_force_tilt_rw": 0.1, "mount_rotation": True, "bias_rate": True},
+    ],
+    ids=[
+        "defaults",
+        "gamma-covariance",
+        "gamma-identified",
+        "auto-covariance",
+        "auto-identified",
+        "mount",
+        "step",
+        "sensor-late",
+        "gamma-sensor-late",
+        "bias-rate",
+        "gamma-bias-rate",
+        "mount-bias-rate",
+        "mount-from-3-deg",
+        "tilt-walk",
+        "gamma-tilt-walk",
+        "step-tilt-walk",
+        "sensor-late-tilt-walk",
+        "mount-bias-rate-tilt-walk",
+    ],
+)
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     """The noise estimate and the convergence rules run in the compiled cascade (the numpy reference
@@ -259,8 +298,10 @@ def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     assert _same_tree(ref.params(), fast.params(), tol) and _same_tree(ref.cov_diag(), fast.cov_diag(), tol)
     assert _same_tree(ref.state(), fast.state(), tol)
     assert np.allclose(ref.force_parameter_std(), fast.force_parameter_std(), rtol=1e-9)
-    assert (ref.first_converged_force, ref.first_converged_torque) == (fast.first_converged_force,
-                                                                       fast.first_converged_torque)
+    assert (ref.first_converged_force, ref.first_converged_torque) == (
+        fast.first_converged_force,
+        fast.first_converged_torque,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -271,9 +312,11 @@ def sim_mounted():
     return familybench.tour(8.0, sensor={"mount_rotation": familybench.MOUNT_ROTATION_SE})[1]
 
 
-@pytest.mark.parametrize("options", [{}, GAMMA, {"convergence": "step"}, {"bias_rate": True},
-                                     {"mount_rotation": True}],
-                         ids=["auto", "gamma-covariance", "step", "bias-rate", "mount"])
+@pytest.mark.parametrize(
+    "options",
+    [{}, GAMMA, {"convergence": "step"}, {"bias_rate": True}, {"mount_rotation": True}],
+    ids=["auto", "gamma-covariance", "step", "bias-rate", "mount"],
+)
 @pytest.mark.parametrize("size", [1, 64])
 def test_a_learnt_tilt_walk_is_the_reference_s(sim_mounted, size, options):
     """The tilt walk learnt from the data (``bias_force_tilt_rw = "auto"``, ``plugins.estimators.kalman.tilt_walk_kernel``) in the
@@ -300,6 +343,7 @@ def test_the_learner_s_step_test_is_the_reference_s():
     left out for their step, and the test's share of failed windows the same."""
     from hapticlab.core.frames import matrix_from_rotvec
     from hapticlab.plugins.estimators.kalman import tilt_walk_kernel as tilt_walk
+
     rng = np.random.default_rng(31)
     n, rate = 20000, 1000.0
     weight_B = np.array([0.02, -0.03, -3.4])
@@ -316,8 +360,10 @@ def test_the_learner_s_step_test_is_the_reference_s():
         q_fast = tilt_walk.learn_tilt_walk(fast, y[k], R_SB[k], a, g_B, t[k], False, 0.0)
         q_ref = tilt_walk.learn_tilt_walk.py_func(ref, y[k], R_SB[k], a, g_B, t[k], False, 0.0)
         assert q_fast == q_ref, k
-    print(f"\nstep test: share of failed windows {fast[tilt_walk.TW_STEP_RATE]:.2f} over "
-          f"{fast[tilt_walk.TW_STEP_N]:.0f}; pairs scored {fast[tilt_walk.TW_PAIRS]:.0f}; walk {np.sqrt(q_fast):.4f}")
+    print(
+        f"\nstep test: share of failed windows {fast[tilt_walk.TW_STEP_RATE]:.2f} over "
+        f"{fast[tilt_walk.TW_STEP_N]:.0f}; pairs scored {fast[tilt_walk.TW_PAIRS]:.0f}; walk {np.sqrt(q_fast):.4f}"
+    )
     assert np.array_equal(fast, ref)
     assert 0.0 < fast[tilt_walk.TW_STEP_RATE] < tilt_walk.STEP_STAND_DOWN  # windows left out for a step
 
@@ -334,8 +380,9 @@ def test_a_late_sensor_streams_poses_and_positions_are_interpolated_as_the_refer
 
     t = sim_inertia.t_ns * 1e-9
     p_BoEo_B = np.column_stack([0.4 + 0.05 * np.sin(1.3 * t), 0.1 * np.cos(0.7 * t), 0.3 + 0.02 * t])  # m
-    block = dataclasses.replace(sim_inertia, quat_BE=quat_wxyz_from_matrix(sim_inertia.R_EB.transpose(0, 2, 1)),
-                                p_BoEo_B=p_BoEo_B)
+    block = dataclasses.replace(
+        sim_inertia, quat_BE=quat_wxyz_from_matrix(sim_inertia.R_EB.transpose(0, 2, 1)), p_BoEo_B=p_BoEo_B
+    )
     options = {"inertia": True, "time_lag_s": -0.004}
     a, b = (_run(KalmanEstimator(kernel=kernel, **options), block, size) for kernel in ("numpy", "numba"))
     for key in KEYS:
@@ -365,14 +412,18 @@ def sim_inertia():
     return block
 
 
-@pytest.mark.parametrize("options, tol", [({**GAMMA, "inertia": True}, 1e-12),
-                                          ({**GAMMA, "inertia": True, "time_lag_s": 0.004}, 1e-9),
-                                          ({"inertia": True}, ROUNDING_NOISE),
-                                          ({"inertia": True, "time_lag_s": 0.004}, 1e-9),
-                                          ({"inertia": True, "time_lag_s": -0.004}, ROUNDING_NOISE),
-                                          ({"inertia": True, "bias_rate": True}, ROUNDING_RATE)],
-                         ids=["gamma-inertia", "gamma-inertia-lag", "inertia", "inertia-lag", "inertia-sensor-late",
-                              "inertia-bias-rate"])
+@pytest.mark.parametrize(
+    "options, tol",
+    [
+        ({**GAMMA, "inertia": True}, 1e-12),
+        ({**GAMMA, "inertia": True, "time_lag_s": 0.004}, 1e-9),
+        ({"inertia": True}, ROUNDING_NOISE),
+        ({"inertia": True, "time_lag_s": 0.004}, 1e-9),
+        ({"inertia": True, "time_lag_s": -0.004}, ROUNDING_NOISE),
+        ({"inertia": True, "bias_rate": True}, ROUNDING_RATE),
+    ],
+    ids=["gamma-inertia", "gamma-inertia-lag", "inertia", "inertia-lag", "inertia-sensor-late", "inertia-bias-rate"],
+)
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol):
     """Not to the bit: the derivatives' window sums are taken in order, numpy's pairwise (see
@@ -397,8 +448,8 @@ def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol):
 
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_motion_derivatives_kernel_matches_numpy(sim_inertia, size):
-    from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
     from hapticlab.core.frames import quat_wxyz_from_matrix
+    from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
     from hapticlab.plugins.estimators.kalman.derivatives_kernel import CompiledMotionDerivatives
 
     block = sim_inertia.subset(slice(0, 2000))
@@ -410,8 +461,15 @@ def test_motion_derivatives_kernel_matches_numpy(sim_inertia, size):
         ref, fast = MotionDerivatives(0.02), CompiledMotionDerivatives(0.02)
         out = []
         for est in (ref, fast):
-            parts = [est.update(block.t_ns[i:i + size], None if quat is None else quat[i:i + size], p[i:i + size],
-                                R_EB=block.R_EB[i:i + size]) for i in range(0, len(block), size)]
+            parts = [
+                est.update(
+                    block.t_ns[i : i + size],
+                    None if quat is None else quat[i : i + size],
+                    p[i : i + size],
+                    R_EB=block.R_EB[i : i + size],
+                )
+                for i in range(0, len(block), size)
+            ]
             out.append([np.concatenate([part[j] for part in parts]) for j in range(3)])
         (w, alpha, a), (w2, alpha2, a2) = out
         assert np.abs(w - w2).max() <= 1e-12 * np.abs(w).max()
@@ -495,8 +553,15 @@ def _spoilt(block, rng, size: int):
 
     start = int(rng.integers(0, len(block) - size))
     b = block.subset(slice(start, start + size))
-    b = replace(b, force_S=b.force_S.copy(), torque_S=b.torque_S.copy(), R_EB=b.R_EB.copy(), stale=b.stale.copy(),
-                status=b.status.copy(), p_BoEo_B=None if rng.random() < 0.3 else rng.normal(0.0, 0.3, (size, 3)))
+    b = replace(
+        b,
+        force_S=b.force_S.copy(),
+        torque_S=b.torque_S.copy(),
+        R_EB=b.R_EB.copy(),
+        stale=b.stale.copy(),
+        status=b.status.copy(),
+        p_BoEo_B=None if rng.random() < 0.3 else rng.normal(0.0, 0.3, (size, 3)),
+    )
     for _ in range(int(rng.integers(0, 3))):
         i, k = int(rng.integers(size)), int(rng.integers(3))
         fault = int(rng.integers(7))
@@ -534,8 +599,13 @@ def test_screen_kernel_gives_the_reference_s_masks_and_reason(sim, size):
             got = screen(block, sensor)
             assert np.array_equal(got[0], usable) and np.array_equal(got[1], beyond) and got[2] == reason
             reasons.add(reason)
-    assert reasons == {"", "implausible sensor reading (beyond its range)", "stale kinematics",
-                       "sensor saturated or in error", "non-finite sensor reading"}  # every branch was taken
+    assert reasons == {
+        "",
+        "implausible sensor reading (beyond its range)",
+        "stale kinematics",
+        "sensor saturated or in error",
+        "non-finite sensor reading",
+    }  # every branch was taken
 
 
 def test_constant_var_kernel_matches_numpy(sim6):

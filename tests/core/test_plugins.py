@@ -13,15 +13,8 @@ import pytest
 from hapticlab.core import hookimpl
 from hapticlab.core.host import hookspecs
 from hapticlab.core.host.interfaces import CAPABILITIES
+from hapticlab.core.host.registry import DEFAULT_PLUGINS, KINDS, ConfigError, PluginError, Registry, make_plugin_manager
 from hapticlab.sessions.live.build import REQUIRED
-from hapticlab.core.host.registry import (
-    DEFAULT_PLUGINS,
-    KINDS,
-    ConfigError,
-    PluginError,
-    Registry,
-    make_plugin_manager,
-)
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "plugins.md"
 HOOKS = sorted(n for n, f in vars(hookspecs).items() if n.startswith("register_") and callable(f))
@@ -127,8 +120,14 @@ def test_every_kind_in_one_plugin():
     )
     registry = Registry(manager_with(module))
     assert [(e.kind, e.name) for e in registry.entries()] == [
-        ("sensor", "s"), ("kinematics", "k"), ("estimator", "e"), ("haptic_output", "h"), ("effect", "f"),
-        ("context", "c"), ("emulator", "m")]
+        ("sensor", "s"),
+        ("kinematics", "k"),
+        ("estimator", "e"),
+        ("haptic_output", "h"),
+        ("effect", "f"),
+        ("context", "c"),
+        ("emulator", "m"),
+    ]
 
 
 def test_a_third_party_emulator_is_a_subcommand_of_emulate():
@@ -203,7 +202,10 @@ def test_create_checks_options_against_the_signature():
     registry = Registry(manager_with(module))
     made = registry.create("estimator", "d", {"gain": 2, "axes": [1, 2.5]}, where="estimator")
     assert made.gain == 2.0 and isinstance(made.gain, float) and made.axes == [1, 2.5]
-    with pytest.raises(ConfigError, match=r"^estimator.gian: unknown option; did you mean gain\?; known options: axes, enabled, gain, label$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^estimator.gian: unknown option; did you mean gain\?; known options: axes, enabled, gain, label$",
+    ):
         registry.create("estimator", "d", {"gian": 2}, where="estimator")
     with pytest.raises(ConfigError, match=r"^estimator.gain: expected a number, got 'high'$"):
         registry.create("estimator", "d", {"gain": "high"}, where="estimator")
@@ -218,9 +220,12 @@ def test_host_context_is_passed_only_to_factories_that_take_it():
         def __init__(self, rate_hz: float = 1.0, world=None):
             self.world = world
 
-    module = plugin_module("p", register_sensors=lambda register: register("w", WithWorld),
-                           register_kinematics=lambda register: register("d", Dummy),
-                           register_contexts=lambda register: register("world", lambda table: table))
+    module = plugin_module(
+        "p",
+        register_sensors=lambda register: register("w", WithWorld),
+        register_kinematics=lambda register: register("d", Dummy),
+        register_contexts=lambda register: register("world", lambda table: table),
+    )
     registry = Registry(manager_with(module))
     assert registry.create("sensor", "w", {}, world="W").world == "W"
     assert registry.create("kinematics", "d", {}, world="W").gain == 1.0

@@ -12,14 +12,26 @@ import pytest
 from hapticlab.core import types
 from hapticlab.core.types import record
 
-RECORDS = [types.WrenchSample, types.WrenchBlock, types.PoseSample, types.AlignedSamples, types.Estimates,
-           types.HapticCommand, types.DeviceState, types.RobotTarget]
+RECORDS = [
+    types.WrenchSample,
+    types.WrenchBlock,
+    types.PoseSample,
+    types.AlignedSamples,
+    types.Estimates,
+    types.HapticCommand,
+    types.DeviceState,
+    types.RobotTarget,
+]
 
 
 def _reference(cls):
     """The same fields as a plain ``@dataclass(frozen=True, slots=True)`` (the dataclass's own ``__init__``)."""
-    spec = [(f.name, f.type, dataclasses.field(default=f.default)) if f.default is not dataclasses.MISSING
-            else (f.name, f.type) for f in dataclasses.fields(cls)]
+    spec = [
+        (f.name, f.type, dataclasses.field(default=f.default))
+        if f.default is not dataclasses.MISSING
+        else (f.name, f.type)
+        for f in dataclasses.fields(cls)
+    ]
     return dataclasses.make_dataclass(cls.__name__, spec, frozen=True, slots=True)
 
 
@@ -50,6 +62,7 @@ def test_a_record_is_built_and_behaves_as_the_frozen_dataclass(cls):
 
 def test_a_default_factory_is_refused():
     with pytest.raises(TypeError, match="default_factory"):
+
         @record
         class WithFactory:
             data: dict = dataclasses.field(default_factory=dict)

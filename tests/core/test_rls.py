@@ -6,17 +6,19 @@ import numpy as np
 import pytest
 from helpers import static_model_stream
 
-from hapticlab.plugins.estimators.rls.algorithm1 import algorithm1
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.host.registry import ConfigError, Registry
-from hapticlab.plugins.estimators.rls.information_form import RecursiveLeastSquares, run_gated
 from hapticlab.plugins.estimators.rls import RLSEstimator
+from hapticlab.plugins.estimators.rls.algorithm1 import algorithm1
+from hapticlab.plugins.estimators.rls.information_form import RecursiveLeastSquares, run_gated
 
 
 def run_blocks(est, block, size):
     parts = [est.update_block(block.subset(slice(i, i + size))) for i in range(0, len(block), size)]
-    return {k: np.concatenate([getattr(p, k) for p in parts])
-            for k in ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")}
+    return {
+        k: np.concatenate([getattr(p, k) for p in parts])
+        for k in ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
+    }
 
 
 def joseph_reference(force_S, R_EB, x0, P0=1e6, r=2.5e-3):
@@ -51,8 +53,16 @@ def test_information_form_equals_covariance_form_sample_by_sample():
 
 def _reference(block, seed, joseph):
     rng = np.random.default_rng(seed)
-    return algorithm1(block.force_S, block.torque_S, block.R_EB, 1.0, 0.1,
-                      rng.standard_normal(6), rng.standard_normal(6), joseph=joseph)
+    return algorithm1(
+        block.force_S,
+        block.torque_S,
+        block.R_EB,
+        1.0,
+        0.1,
+        rng.standard_normal(6),
+        rng.standard_normal(6),
+        joseph=joseph,
+    )
 
 
 def test_cascade_reproduces_algorithm1_line_by_line():
@@ -198,14 +208,13 @@ def test_torque_stage_waits_for_the_force_stage():
 def test_run_gated_inactive_samples_leave_state_unchanged():
     block, _ = static_model_stream(50, seed=8)
     stage = RecursiveLeastSquares(np.zeros(6), 1e6, 2.5e-3)
-    X, conv, gated, converged = run_gated(stage, block.force_S, block.R_EB, np.zeros(50, bool),
-                                          1.0, 1e-3, False)
+    X, conv, gated, converged = run_gated(stage, block.force_S, block.R_EB, np.zeros(50, bool), 1.0, 1e-3, False)
     assert stage.updates == 0 and not conv.any() and not gated.any() and not converged
     assert np.array_equal(X, np.zeros((50, 6)))
 
 
 def test_bad_options_are_refused():
-    with pytest.raises(ValueError, match="^force_threshold: must be positive, got 0.0$"):
+    with pytest.raises(ValueError, match="^force_threshold: must be a finite number > 0, got 0.0$"):
         RLSEstimator(force_threshold=0.0)
     with pytest.raises(ValueError, match="^covariance_update: must be 'information' or 'printed'"):
         RLSEstimator(covariance_update="joseph")
@@ -231,16 +240,19 @@ def test_adversarial_streams_match_algorithm1(seed):
     for _ in range(4):
         start = int(rng.integers(0, 1400))
         push = rng.normal(0, 3, 3)
-        block.force_S[start:start + int(rng.integers(5, 100))] += push
+        block.force_S[start : start + int(rng.integers(5, 100))] += push
     f_th, t_th = float(rng.uniform(0.3, 1.0)), float(rng.uniform(0.03, 0.1))
     est = RLSEstimator(force_threshold=f_th, torque_threshold=t_th, seed=seed)
     edges = _mixed_blocks(len(block), rng)
     parts = [est.update_block(block.subset(slice(a, b))) for a, b in zip(edges[:-1], edges[1:])]
-    out = {k: np.concatenate([getattr(p, k) for p in parts])
-           for k in ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")}
+    out = {
+        k: np.concatenate([getattr(p, k) for p in parts])
+        for k in ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
+    }
     r = np.random.default_rng(seed)
-    ref = algorithm1(block.force_S, block.torque_S, block.R_EB, f_th, t_th,
-                     r.standard_normal(6), r.standard_normal(6), joseph=True)
+    ref = algorithm1(
+        block.force_S, block.torque_S, block.R_EB, f_th, t_th, r.standard_normal(6), r.standard_normal(6), joseph=True
+    )
     assert np.array_equal(out["converged_force"], ref["converged_force"])
     assert np.array_equal(out["converged_torque"], ref["converged_torque"])
     assert np.array_equal(out["contact"], ~ref["updated_force"] | (ref["converged_force"] & ~ref["updated_torque"]))

@@ -31,12 +31,7 @@ from hapticlab.sessions.recording import Recorder
 
 
 def wrench(i: int) -> dict:
-    return {
-        "force_S": [i * 0.5, -i * 0.25, i * 1e-3],
-        "torque_S": [i * 1e-4, 2.0, -3.0],
-        "seq": i,
-        "status": i % 3,
-    }
+    return {"force_S": [i * 0.5, -i * 0.25, i * 1e-3], "torque_S": [i * 1e-4, 2.0, -3.0], "seq": i, "status": i % 3}
 
 
 def write_blocks(rec: Recorder, t: int, tick: int, late: bool) -> None:
@@ -44,18 +39,34 @@ def write_blocks(rec: Recorder, t: int, tick: int, late: bool) -> None:
     times = [t - 1000 * (6 - k) for k in range(7)]  # 1 µs apart, the last at t
     samples = [wrench(s) for s in seqs]
     rec.write_block("/sensor/wrench", {"t_ns": times, **{k: [w[k] for w in samples] for k in samples[0]}})
-    rec.write_block("/aligned/sample", {
-        "t_ns": times, "force_S": [w["force_S"] for w in samples], "torque_S": [w["torque_S"] for w in samples],
-        "quat_BE": [[1.0, 0.0, 0.0, 0.0]] * 7, "seq": list(seqs), "status": [0] * 7, "stale": [False] * 7,
-    })
+    rec.write_block(
+        "/aligned/sample",
+        {
+            "t_ns": times,
+            "force_S": [w["force_S"] for w in samples],
+            "torque_S": [w["torque_S"] for w in samples],
+            "quat_BE": [[1.0, 0.0, 0.0, 0.0]] * 7,
+            "seq": list(seqs),
+            "status": [0] * 7,
+            "stale": [False] * 7,
+        },
+    )
     if tick % 250 == 0:
         rec.event(t, "tick", f"tick {tick}", seq=tick)
     if late:
-        rec.write_block("/estimator/late", {
-            "t_ns": times, "contact_force_S": [[0.0] * 3] * 7, "contact_torque_S": [[0.0] * 3] * 7,
-            "contact": [False] * 7, "converged_force": [True] * 7, "converged_torque": [False] * 7,
-            "params": {"seq": [float(seqs[-1])]}, "cov_diag": [1.0],
-        })
+        rec.write_block(
+            "/estimator/late",
+            {
+                "t_ns": times,
+                "contact_force_S": [[0.0] * 3] * 7,
+                "contact_torque_S": [[0.0] * 3] * 7,
+                "contact": [False] * 7,
+                "converged_force": [True] * 7,
+                "converged_torque": [False] * 7,
+                "params": {"seq": [float(seqs[-1])]},
+                "cov_diag": [1.0],
+            },
+        )
 
 
 def main() -> None:
@@ -90,7 +101,14 @@ def main() -> None:
             rec.write(
                 "/aligned/sample",
                 t,
-                {"force_S": [i * 0.5, 0.0, 0.0], "torque_S": [0.0, 0.0, 0.0], "quat_BE": [1.0, 0.0, 0.0, 0.0], "seq": i, "status": 0, "stale": False},
+                {
+                    "force_S": [i * 0.5, 0.0, 0.0],
+                    "torque_S": [0.0, 0.0, 0.0],
+                    "quat_BE": [1.0, 0.0, 0.0, 0.0],
+                    "seq": i,
+                    "status": 0,
+                    "stale": False,
+                },
             )
         if i % 250 == 0:
             rec.event(t, "tick", f"tick {i}", seq=i)

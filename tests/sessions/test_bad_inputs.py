@@ -49,8 +49,7 @@ SENTINEL = b"an earlier result that must survive\n"
 def good_rows(n: int = 60) -> list[list[str]]:
     block, _ = static_model_stream(n, seed=3, noise_force=0.1, noise_torque=0.01)
     quat_BE = quat_wxyz_from_matrix(block.R_EB.transpose(0, 2, 1))
-    return [[repr(float(v)) for v in (k * 0.01, *block.force_S[k], *block.torque_S[k], *quat_BE[k])]
-            for k in range(n)]
+    return [[repr(float(v)) for v in (k * 0.01, *block.force_S[k], *block.torque_S[k], *quat_BE[k])] for k in range(n)]
 
 
 def csv_text(rows: list[list[str]], header: str = HEADER) -> str:
@@ -61,6 +60,7 @@ def with_cell(row: int, column: str, value: str):
     def make(rows):
         rows[row][COLUMNS.index(column)] = value
         return csv_text(rows)
+
     return make
 
 
@@ -72,6 +72,7 @@ def with_quat(row: int, q: tuple[float, float, float, float]):
     def make(rows):
         rows[row][7:11] = [repr(v) for v in q]
         return csv_text(rows)
+
     return make
 
 
@@ -79,6 +80,7 @@ def with_fields(row: int, count: int):
     def make(rows):
         rows[row] = (rows[row] * 2)[:count]
         return csv_text(rows)
+
     return make
 
 
@@ -128,8 +130,9 @@ def mcap_bytes(topics: dict[str, list[tuple[int, bytes]]], encoding: str = "json
     writer = Writer(buffer)
     writer.start(profile="", library="another-tool")
     for topic, messages in topics.items():
-        schema = writer.register_schema(name=topic, encoding="jsonschema" if encoding == "json" else "",
-                                        data=b"{}" if encoding == "json" else b"")
+        schema = writer.register_schema(
+            name=topic, encoding="jsonschema" if encoding == "json" else "", data=b"{}" if encoding == "json" else b""
+        )
         channel = writer.register_channel(topic=topic, message_encoding=encoding, schema_id=schema)
         for t, data in messages:
             writer.add_message(channel, t, data, t)
@@ -156,14 +159,15 @@ def foreign(wrench=WRENCH, pose=POSE, extra=None, encoding="json") -> bytes:
 
 
 def damaged(good: bytes) -> bytes:
-    from mcap.reader import make_reader
     import io
+
+    from mcap.reader import make_reader
 
     summary = make_reader(io.BytesIO(good)).get_summary()
     index = max(summary.chunk_indexes, key=lambda c: c.chunk_length)
     data = bytearray(good)
     middle = index.chunk_start_offset + index.chunk_length // 2
-    data[middle:middle + 8] = bytes(b ^ 0xFF for b in data[middle:middle + 8])
+    data[middle : middle + 8] = bytes(b ^ 0xFF for b in data[middle : middle + 8])
     return bytes(data)
 
 
@@ -192,8 +196,9 @@ BAD_MCAP = {
     "quat_not_unit": lambda good: foreign(pose=lambda k: {"quat_BE": [2.0, 0.0, 0.0, 0.0]}),
     "pose_of_another_tool": lambda good: foreign(pose=lambda k: {"R_BE": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}),
     "position_of_two": lambda good: foreign(pose=lambda k: {"quat_BE": [1.0, 0, 0, 0], "p_BoEo_B": [1.0, 2.0]}),
-    "not_json": lambda good: mcap_bytes({"/sensor/wrench": [(k, b"{force_S: 1") for k in range(5)],
-                                         "/kinematics/pose": messages(POSE)}),
+    "not_json": lambda good: mcap_bytes(
+        {"/sensor/wrench": [(k, b"{force_S: 1") for k in range(5)], "/kinematics/pose": messages(POSE)}
+    ),
     "protobuf": lambda good: foreign(encoding="protobuf"),
 }
 """name -> a good recording's bytes -> file content: unreadable or foreign recordings."""
@@ -259,28 +264,39 @@ def probes() -> list[tuple[str, list[str]]]:
         src = f"{{lab}}/{name}.csv"
         out.append((f"compensate-{name}.csv", ["compensate", src, "-o", "{lab}/existing.csv", "--force"]))
         if name in ("text_in_fx", "t_goes_back", "quat_zero", "header_only", "binary", "missing"):
-            out.append((f"compensate-{name}.csv-params",
-                        ["compensate", src, "-o", "{lab}/new.csv", "--params-out", "{lab}/existing.json", "--force"]))
+            out.append(
+                (
+                    f"compensate-{name}.csv-params",
+                    ["compensate", src, "-o", "{lab}/new.csv", "--params-out", "{lab}/existing.json", "--force"],
+                )
+            )
         out.append((f"discrepancy-{name}.csv", ["discrepancy", src, "--json", "{lab}/existing.json", "--force"]))
-        out.append((f"replay-{name}.csv", ["replay", src, "--estimator", "rls", "-o", "{lab}/existing.mcap",
-                                           "--force"]))
+        out.append(
+            (f"replay-{name}.csv", ["replay", src, "--estimator", "rls", "-o", "{lab}/existing.mcap", "--force"])
+        )
     for name in BAD_CSV:
         out.append((f"bench-real-{name}.csv", ["bench", "real", f"{{lab}}/bench_{name}", "--json", "{lab}/new.json"]))
     for name in mcaps:
         src = f"{{lab}}/{name}.mcap"
         out.append((f"compensate-{name}.mcap", ["compensate", src, "-o", "{lab}/existing.csv", "--force"]))
         out.append((f"discrepancy-{name}.mcap", ["discrepancy", src, "--plots", "{lab}/figs", "--force"]))
-        out.append((f"replay-{name}.mcap", ["replay", src, "--estimator", "kalman", "-o", "{lab}/existing.mcap",
-                                            "--force"]))
+        out.append(
+            (f"replay-{name}.mcap", ["replay", src, "--estimator", "kalman", "-o", "{lab}/existing.mcap", "--force"])
+        )
         out.append((f"review-{name}.mcap", ["review", src, "--html", "{lab}/existing.html", "--force"]))
     for name in ("empty", "text", "a_csv", "magic_only", "cut_in_the_magic", "a_folder", "missing"):
-        out.append((f"recover-{name}.mcap", ["recover", f"{{lab}}/{name}.mcap", "-o", "{lab}/existing.mcap",
-                                             "--force"]))
+        out.append(
+            (f"recover-{name}.mcap", ["recover", f"{{lab}}/{name}.mcap", "-o", "{lab}/existing.mcap", "--force"])
+        )
     for name in ("binary", "gzipped", "utf16", "text_in_fx", "empty", "header_only"):
         out.append((f"recover-{name}.csv", ["recover", f"{{lab}}/{name}.csv", "-o", "{lab}/new.mcap"]))
     out.append(("discrepancy-huge_values.csv", ["discrepancy", "{lab}/huge_values.csv", "--json", "{lab}/new.json"]))
-    out.append(("replay-o-extra-topic", ["replay", "{lab}/with_an_extra_topic.mcap", "--estimator", "rls",
-                                         "-o", "{lab}/new.mcap"]))
+    out.append(
+        (
+            "replay-o-extra-topic",
+            ["replay", "{lab}/with_an_extra_topic.mcap", "--estimator", "rls", "-o", "{lab}/new.mcap"],
+        )
+    )
 
     # outputs: existing without --force, a folder, under a file, in a missing folder, read-only places, the input
     writers = {
@@ -297,93 +313,179 @@ def probes() -> list[tuple[str, list[str]]]:
         "review-csv": (["review", "{lab}/review_folder", "--csv"], "csv"),
     }
     for label, (argv, ext) in writers.items():
-        for kind, target in (("exists", f"{{lab}}/existing.{ext}"), ("is-a-folder", "{lab}/figs"),
-                             ("under-a-file", f"{{lab}}/a_file/out.{ext}"),
-                             ("missing-folder", f"{{lab}}/nowhere/out.{ext}"),
-                             ("in-proc", f"/proc/out.{ext}"), ("in-sys", f"/sys/out.{ext}")):
+        for kind, target in (
+            ("exists", f"{{lab}}/existing.{ext}"),
+            ("is-a-folder", "{lab}/figs"),
+            ("under-a-file", f"{{lab}}/a_file/out.{ext}"),
+            ("missing-folder", f"{{lab}}/nowhere/out.{ext}"),
+            ("in-proc", f"/proc/out.{ext}"),
+            ("in-sys", f"/sys/out.{ext}"),
+        ):
             out.append((f"{label}-{kind}", [*argv, target]))
-    for label, argv in (("compensate-o", ["compensate", "{lab}/good.csv", "-o", "{lab}/good.csv"]),
-                        ("compensate-o-force", ["compensate", "{lab}/good.csv", "-o", "{lab}/good.csv", "--force"]),
-                        ("compensate-params-out", ["compensate", "{lab}/good.csv", "-o", "{lab}/new.csv",
-                                                   "--params-out", "{lab}/good.csv", "--force"]),
-                        ("compensate-params-out-is-o", ["compensate", "{lab}/good.csv", "-o", "{lab}/new.csv",
-                                                        "--params-out", "{lab}/new.csv"]),
-                        ("replay-o", ["replay", "{lab}/good.mcap", "--estimator", "rls", "-o", "{lab}/good.mcap",
-                                      "--force"]),
-                        ("recover-o", ["recover", "{lab}/good.mcap", "-o", "{lab}/good.mcap", "--force"]),
-                        ("discrepancy-json", ["discrepancy", "{lab}/good.csv", "--json", "{lab}/good.csv",
-                                              "--force"])):
+    for label, argv in (
+        ("compensate-o", ["compensate", "{lab}/good.csv", "-o", "{lab}/good.csv"]),
+        ("compensate-o-force", ["compensate", "{lab}/good.csv", "-o", "{lab}/good.csv", "--force"]),
+        (
+            "compensate-params-out",
+            ["compensate", "{lab}/good.csv", "-o", "{lab}/new.csv", "--params-out", "{lab}/good.csv", "--force"],
+        ),
+        (
+            "compensate-params-out-is-o",
+            ["compensate", "{lab}/good.csv", "-o", "{lab}/new.csv", "--params-out", "{lab}/new.csv"],
+        ),
+        ("replay-o", ["replay", "{lab}/good.mcap", "--estimator", "rls", "-o", "{lab}/good.mcap", "--force"]),
+        ("recover-o", ["recover", "{lab}/good.mcap", "-o", "{lab}/good.mcap", "--force"]),
+        ("discrepancy-json", ["discrepancy", "{lab}/good.csv", "--json", "{lab}/good.csv", "--force"]),
+    ):
         out.append((f"{label}-is-the-input", argv))
-    for label, argv in (("discrepancy", ["discrepancy", "{lab}/good.csv", "--plots"]),
-                        ("bench-paper", ["bench", "paper", "--plots"])):
-        for kind, target in (("holds-a-figure", "{lab}/figs"), ("is-a-file", "{lab}/a_file"),
-                             ("under-a-file", "{lab}/a_file/figs"), ("in-proc", "/proc/figs"),
-                             ("in-sys", "/sys/figs")):
+    for label, argv in (
+        ("discrepancy", ["discrepancy", "{lab}/good.csv", "--plots"]),
+        ("bench-paper", ["bench", "paper", "--plots"]),
+    ):
+        for kind, target in (
+            ("holds-a-figure", "{lab}/figs"),
+            ("is-a-file", "{lab}/a_file"),
+            ("under-a-file", "{lab}/a_file/figs"),
+            ("in-proc", "/proc/figs"),
+            ("in-sys", "/sys/figs"),
+        ):
             out.append((f"{label}-plots-{kind}", [*argv, target]))
 
     # option values
     compensate = ["compensate", "{lab}/good.csv", "-o", "{lab}/new.csv"]
-    for option in ("--estimator=nope", "--set=bogus", "--set==2", "--set=estimator.gain=2",
-                   "--set=session.duration=2", "--set=estimator.name=nope", "--set=estimator.force_threshold=-1",
-                   "--set=estimator.force_threshold=nan", "--set=estimator.force_threshold=abc",
-                   "--set=estimator.P0=0", "--set=estimator.R=-1", "--set=estimator.epsilon=-1",
-                   "--set=estimator.seed=-1", "--set=estimator.seed=1.5"):
+    for option in (
+        "--estimator=nope",
+        "--set=bogus",
+        "--set==2",
+        "--set=estimator.gain=2",
+        "--set=session.duration=2",
+        "--set=estimator.name=nope",
+        "--set=estimator.force_threshold=-1",
+        "--set=estimator.force_threshold=nan",
+        "--set=estimator.force_threshold=abc",
+        "--set=estimator.P0=0",
+        "--set=estimator.R=-1",
+        "--set=estimator.epsilon=-1",
+        "--set=estimator.seed=-1",
+        "--set=estimator.seed=1.5",
+    ):
         out.append((f"compensate-{option}", [*compensate, option]))
     kalman = [*compensate, "--estimator", "kalman"]
-    for option in ("noise_force=-1", "noise_force=0", "noise_force=abc", "gating=bogus", "gate_probability=1.5",
-                   "convergence=never", "prior_force_std=0", "implementation=gpu", "effects=['wobble']",
-                   "mount_R_SE=[[1, 0], [0, 1]]", "warm_start='{lab}/missing.json'", "warm_start='{lab}/good.csv'",
-                   "time_lag_s=nan", "gain_force_S=[1, 2]"):
+    for option in (
+        "noise_force=-1",
+        "noise_force=0",
+        "noise_force=abc",
+        "gating=bogus",
+        "gate_probability=1.5",
+        "convergence=never",
+        "prior_force_std=0",
+        "implementation=gpu",
+        "effects=['wobble']",
+        "mount_R_SE=[[1, 0], [0, 1]]",
+        "warm_start='{lab}/missing.json'",
+        "warm_start='{lab}/good.csv'",
+        "time_lag_s=nan",
+        "gain_force_S=[1, 2]",
+    ):
         out.append((f"compensate-kalman-{option}", [*kalman, f"--set=estimator.{option}"]))
     batch = [*compensate, "--estimator", "batch"]
     for option in ("calibration_samples=-1", "min_rcond=-1", "force_threshold=abc"):
         out.append((f"compensate-batch-{option}", [*batch, f"--set=estimator.{option}"]))
     replay = ["replay", "{lab}/good.mcap"]
-    for option in (["--estimator", "nope"], ["--estimator", "rls", "--set", "bogus"],
-                   ["--estimator", "rls", "--set", "estimator.gain=2"]):
+    for option in (
+        ["--estimator", "nope"],
+        ["--estimator", "rls", "--set", "bogus"],
+        ["--estimator", "rls", "--set", "estimator.gain=2"],
+    ):
         out.append((f"replay-{'-'.join(option)}", [*replay, *option]))
     discrepancy = ["discrepancy", "{lab}/good.csv"]
-    for option in (["--folds", "1"], ["--folds", "-3"], ["--min-gain", "100"], ["--min-gain", "-1"],
-                   ["--min-gain", "nan"], ["--min-structure", "101"], ["--min-structure", "nan"],
-                   ["--effects", "wobble"], ["--effects", "mount_rotation,wobble"],
-                   ["--set", "order=2"], ["--set", "wobble.order=2"], ["--set", "bias_drift.order=7"],
-                   ["--set", "bias_drift.ordr=2"], ["--set", "bias_drift.order"]):
+    for option in (
+        ["--folds", "1"],
+        ["--folds", "-3"],
+        ["--min-gain", "100"],
+        ["--min-gain", "-1"],
+        ["--min-gain", "nan"],
+        ["--min-structure", "101"],
+        ["--min-structure", "nan"],
+        ["--effects", "wobble"],
+        ["--effects", "mount_rotation,wobble"],
+        ["--set", "order=2"],
+        ["--set", "wobble.order=2"],
+        ["--set", "bias_drift.order=7"],
+        ["--set", "bias_drift.ordr=2"],
+        ["--set", "bias_drift.order"],
+    ):
         out.append((f"discrepancy-{'-'.join(option)}", [*discrepancy, *option]))
     review = ["review", "{lab}/good.mcap"]
-    for option in (["--force-limit", "0"], ["--force-limit", "-1"], ["--force-limit", "nan"], ["--csv", "{lab}/new.csv"],
-                   ["--plots", "{lab}/figs", "--force-limit", "0"], ["--plots", "{lab}/a_file"]):
+    for option in (
+        ["--force-limit", "0"],
+        ["--force-limit", "-1"],
+        ["--force-limit", "nan"],
+        ["--csv", "{lab}/new.csv"],
+        ["--plots", "{lab}/figs", "--force-limit", "0"],
+        ["--plots", "{lab}/a_file"],
+    ):
         out.append((f"review-{'-'.join(option)}", [*review, *option]))
-    for label, argv in (("workers-0", ["review", "{lab}/review_folder", "--workers", "0"]),
-                        ("no-recordings", ["review", "{lab}/empty_folder"]),
-                        ("plots-of-a-folder", ["review", "{lab}/review_folder", "--plots", "{lab}/figs3"])):
+    for label, argv in (
+        ("workers-0", ["review", "{lab}/review_folder", "--workers", "0"]),
+        ("no-recordings", ["review", "{lab}/empty_folder"]),
+        ("plots-of-a-folder", ["review", "{lab}/review_folder", "--plots", "{lab}/figs3"]),
+    ):
         out.append((f"review-{label}", argv))
-    for label, argv in (("real-plots", ["bench", "real", "--plots", "{lab}/figs2"]),
-                        ("real-missing-folder", ["bench", "real", "{lab}/nowhere"]),
-                        ("real-a-file", ["bench", "real", "{lab}/good.csv"]),
-                        ("real-no-csv", ["bench", "real", "{lab}/empty_folder"]),
-                        ("real-one-bad-file", ["bench", "real", "{lab}/bench_one_bad"]),
-                        ("estimators-folder", ["bench", "estimators", "{lab}"]),
-                        ("faults-quick", ["bench", "faults", "--quick"])):
+    for label, argv in (
+        ("real-plots", ["bench", "real", "--plots", "{lab}/figs2"]),
+        ("real-missing-folder", ["bench", "real", "{lab}/nowhere"]),
+        ("real-a-file", ["bench", "real", "{lab}/good.csv"]),
+        ("real-no-csv", ["bench", "real", "{lab}/empty_folder"]),
+        ("real-one-bad-file", ["bench", "real", "{lab}/bench_one_bad"]),
+        ("estimators-folder", ["bench", "estimators", "{lab}"]),
+        ("faults-quick", ["bench", "faults", "--quick"]),
+    ):
         out.append((f"bench-{label}", argv))
 
     # run --set: refused before the session starts (each would otherwise run 50 ms, simulated)
     run = ["run", "--duration", "0.05", "--set", "session.realtime=false", "--out", "{lab}/new.mcap"]
-    for setting in ("shadows.rls.force_treshold=2", "estimator.noise_forse=2", "sesion.duration=2", "bogus", "=1", "session.loop_rate_hz=0",
-                    "session.loop_rate_hz=-1", "session.loop_rate_hz=nan", "session.loop_rate_hz=abc",
-                    "session.stale_timeout=-1", "session.stale_timeout=100", "haptic.max_force=-1",
-                    "haptic.max_force_rate=nan", "haptic.scale=abc", "sensor.name=nope", "kinematics.name=nope",
-                    "estimator.name=nope", "haptic.name=nope", "sensor.rate_hz=0", "kinematics.rate_hz=-5",
-                    "shadows.rls.force_threshold=-1", "shadows.rls.P0=abc", "estimator.noise_force=-1",
-                    "shadows.kalman={}", 'shadows.x={name="nope"}',
-                    "shadows.y=3", "estimator.warm_start='{lab}/missing.json'", "estimator=3", "world.seed=abc",
-                    "world.tool.mass=-1"):
+    for setting in (
+        "shadows.rls.force_treshold=2",
+        "estimator.noise_forse=2",
+        "sesion.duration=2",
+        "bogus",
+        "=1",
+        "session.loop_rate_hz=0",
+        "session.loop_rate_hz=-1",
+        "session.loop_rate_hz=nan",
+        "session.loop_rate_hz=abc",
+        "session.stale_timeout=-1",
+        "session.stale_timeout=100",
+        "haptic.max_force=-1",
+        "haptic.max_force_rate=nan",
+        "haptic.scale=abc",
+        "sensor.name=nope",
+        "kinematics.name=nope",
+        "estimator.name=nope",
+        "haptic.name=nope",
+        "sensor.rate_hz=0",
+        "kinematics.rate_hz=-5",
+        "shadows.rls.force_threshold=-1",
+        "shadows.rls.P0=abc",
+        "estimator.noise_force=-1",
+        "shadows.kalman={}",
+        'shadows.x={name="nope"}',
+        "shadows.y=3",
+        "estimator.warm_start='{lab}/missing.json'",
+        "estimator=3",
+        "world.seed=abc",
+        "world.tool.mass=-1",
+    ):
         out.append((f"run-set-{setting}", [*run, "--set", setting]))
-    for label, argv in (("duration-negative", ["run", "--duration", "-1"]),
-                        ("duration-nan", ["run", "--duration", "nan"]),
-                        ("duration-a-year", ["run", "--duration", "3e7"]),
-                        ("session-missing", ["run", "{lab}/missing.toml"]),
-                        ("session-is-a-csv", ["run", "{lab}/good.csv"]),
-                        ("session-unknown-preset", ["run", "nosuchpreset"])):
+    for label, argv in (
+        ("duration-negative", ["run", "--duration", "-1"]),
+        ("duration-nan", ["run", "--duration", "nan"]),
+        ("duration-a-year", ["run", "--duration", "3e7"]),
+        ("session-missing", ["run", "{lab}/missing.toml"]),
+        ("session-is-a-csv", ["run", "{lab}/good.csv"]),
+        ("session-unknown-preset", ["run", "nosuchpreset"]),
+    ):
         out.append((f"run-{label}", argv))
     return out
 
@@ -478,6 +580,7 @@ def test_bench_real_names_every_bad_file_and_goes_on(lab, tmp_path, capsys):
 
 def test_force_overwrites_every_output(lab, tmp_path, capsys):
     """With --force an existing output is replaced (whole: it reads back), and no temporary file is left."""
+
     def existing(name: str) -> Path:
         path = tmp_path / name
         path.write_bytes(SENTINEL)
@@ -568,9 +671,13 @@ def test_a_solver_failure_in_an_estimator_names_the_file_and_rows(tmp_path):
             if Singular.calls == 3:
                 raise np.linalg.LinAlgError("Singular matrix")
             from hapticlab.plugins.estimators.rls import RLSEstimator
+
             return RLSEstimator().update_block(block)
 
     (tmp_path / "log.csv").write_text(csv_text(good_rows(4000)))
-    with pytest.raises(NumericalError, match=rf"^log.csv rows {2 * BLOCK + 1}-{3 * BLOCK}: numerical failure in "
-                                             r"the estimator \(Singular matrix\)"):
+    with pytest.raises(
+        NumericalError,
+        match=rf"^log.csv rows {2 * BLOCK + 1}-{3 * BLOCK}: numerical failure in "
+        r"the estimator \(Singular matrix\)",
+    ):
         list(estimate_chunks(iter_stream(tmp_path / "log.csv", rows=1500), Singular()))

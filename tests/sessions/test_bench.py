@@ -15,8 +15,21 @@ from hapticlab.sessions.cli import main
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     folder = tmp_path_factory.mktemp("bench")
-    assert main(["bench", "paper", "--quick", "--all-estimators", "--json", str(folder / "p.json"),
-                 "--plots", str(folder / "plots")]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "paper",
+                "--quick",
+                "--all-estimators",
+                "--json",
+                str(folder / "p.json"),
+                "--plots",
+                str(folder / "plots"),
+            ]
+        )
+        == 0
+    )
     return json.loads((folder / "p.json").read_text()), folder
 
 
@@ -24,8 +37,13 @@ def test_paper_json_has_every_key_the_issue_lists(quick):
     out, _ = quick
     for group, axes in (("force", ("fx", "fy", "fz")), ("torque", ("tx", "ty", "tz"))):
         for axis in axes:
-            assert set(out["no_contact"][group][axis]) >= {"mae_before", "mae_after", "max_after", "std_after",
-                                                           "mae_comp_pct"}
+            assert set(out["no_contact"][group][axis]) >= {
+                "mae_before",
+                "mae_after",
+                "max_after",
+                "std_after",
+                "mae_comp_pct",
+            }
     for method in ("batch", "rls"):
         assert set(out["bounds"][method]) == {"fx", "fy", "fz", "tx", "ty", "tz"}
     assert set(out["convergence"]) >= {"force_paper", "torque_paper", "force_truth", "torque_truth"}
@@ -57,9 +75,16 @@ def test_paper_method_reaches_the_noise_floor(quick):
 def test_paper_plots_are_written(quick):
     _, folder = quick
     names = sorted(p.name for p in (folder / "plots").glob("*.png"))
-    assert names == ["drift_contact.png", "fig3_force_parameters.png", "fig4_torque_parameters.png",
-                     "fig5_force_compensation.png", "fig6_torque_compensation.png", "fig7_indentation.png",
-                     "fig8_rotation_104g.png", "fig9_rotation_metrics.png"]
+    assert names == [
+        "drift_contact.png",
+        "fig3_force_parameters.png",
+        "fig4_torque_parameters.png",
+        "fig5_force_compensation.png",
+        "fig6_torque_compensation.png",
+        "fig7_indentation.png",
+        "fig8_rotation_104g.png",
+        "fig9_rotation_metrics.png",
+    ]
     assert all((folder / "plots" / n).stat().st_size > 10_000 for n in names)
 
 
@@ -127,8 +152,7 @@ def test_metric_helpers_on_hand_made_input():
     index = np.array([0, 1, 2, 3, 4, 5])
     assert first_stays(np.array([0, 1, 1, 0, 1, 1], bool), index) == 4  # left the band at 3
     assert first_stays(np.array([1, 1, 1, 1, 1, 0], bool), index) is None
-    truth = {"gravity_force_B": np.array([0.0, 0.0, -2.0]), "bias_force_S": np.zeros(3),
-             "bias_torque_S": np.zeros(3)}
+    truth = {"gravity_force_B": np.array([0.0, 0.0, -2.0]), "bias_force_S": np.zeros(3), "bias_torque_S": np.zeros(3)}
     g = np.tile([0.0, 0.0, -2.0], (6, 1))
     g[2, 2] = -2.1  # 5 % off once
     trace = {"gravity_force_B": g, "bias_force_S": np.zeros((6, 3)), "bias_torque_S": np.full((6, 3), 0.001)}

@@ -29,8 +29,9 @@ def test_a_file_that_is_not_mcap_names_the_file(capsys, tmp_path):
 
 def test_an_output_that_is_a_folder_names_the_path(capsys, tmp_path):
     csv = tmp_path / "in.csv"
-    csv.write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n" + "".join(
-        f"{k * 0.01},1,2,3,0.1,0.2,0.3,1,0,0,0\n" for k in range(30)))
+    csv.write_text(
+        "t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n" + "".join(f"{k * 0.01},1,2,3,0.1,0.2,0.3,1,0,0,0\n" for k in range(30))
+    )
     folder = tmp_path / "out"
     folder.mkdir()
     err = one_line_error(capsys, ["compensate", str(csv), "-o", str(folder)])
@@ -49,6 +50,7 @@ def test_an_unknown_table_names_it(capsys):
 
 def test_a_bug_keeps_its_traceback(monkeypatch, tmp_path):
     """A plain ValueError from numpy inside hapticlab is not the user's mistake: it propagates."""
+
     def broken(args):
         raise ValueError("operands could not be broadcast together with shapes (3,) (4,)")
 
@@ -63,8 +65,21 @@ def test_a_bug_keeps_its_traceback(monkeypatch, tmp_path):
 def test_a_master_port_that_does_not_exist_is_the_users_to_fix(capsys, tmp_path):
     """A device that cannot be opened for a reason in the config: one line naming the key, exit 2, file kept."""
     out = tmp_path / "no_master.mcap"
-    code = main(["run", "--duration", "1", "--out", str(out), "--set", "session.realtime=false",
-                 "--set", "haptic.name=serial", "--set", f"haptic.port={tmp_path / 'ttyACM7'}"])
+    code = main(
+        [
+            "run",
+            "--duration",
+            "1",
+            "--out",
+            str(out),
+            "--set",
+            "session.realtime=false",
+            "--set",
+            "haptic.name=serial",
+            "--set",
+            f"haptic.port={tmp_path / 'ttyACM7'}",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "haptic.port" in err and "ttyACM7" in err
     assert out.exists()  # the session's recording holds the failure (and nothing is lost)
@@ -76,7 +91,10 @@ def test_the_run_summary_shows_every_parameter_unidentified_ones_too(capsys, tmp
     the samples the estimator held out have their row."""
     out = tmp_path / "short.mcap"
     assert main(["run", "--duration", "1", "--out", str(out), "--set", "session.realtime=false"]) == 0
-    rows = {line.split("│")[1].strip(): line.split("│")[2].strip()
-            for line in capsys.readouterr().err.splitlines() if line.count("│") == 3}
+    rows = {
+        line.split("│")[1].strip(): line.split("│")[2].strip()
+        for line in capsys.readouterr().err.splitlines()
+        if line.count("│") == 3
+    }
     assert rows["cog_S"] == "[nan, nan, nan]"
     assert rows["samples held out (lone outliers)"].isdigit()

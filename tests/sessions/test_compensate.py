@@ -12,11 +12,11 @@ from helpers import static_model_stream
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.sessions.cli import main
-from hapticlab.sessions.offline.compensate import compensate
 from hapticlab.sessions.config import apply_overrides, load_config
-from hapticlab.sessions.recording.csvimport import OUTPUT_COLUMNS
-from hapticlab.sessions.recording import load_stream, read_recording
 from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.offline.compensate import compensate
+from hapticlab.sessions.recording import load_stream, read_recording
+from hapticlab.sessions.recording.csvimport import OUTPUT_COLUMNS
 
 # README of ../shared/data/real: offline batch fit RMS per axis, N
 AXIA80_LOG_BATCH_RMS = np.array([0.068, 0.257, 0.124])
@@ -31,14 +31,26 @@ def write_csv(path, n=3000, seed=11, contact=slice(1500, 1700)):
     with path.open("w") as fh:
         fh.write("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n")
         for k in range(n):
-            fh.write(",".join(repr(float(v)) for v in [k * 1e-3, *block.force_S[k], *block.torque_S[k], *quat_BE[k]]) + "\n")
+            fh.write(
+                ",".join(repr(float(v)) for v in [k * 1e-3, *block.force_S[k], *block.torque_S[k], *quat_BE[k]]) + "\n"
+            )
     return truth, push
 
 
 def test_compensate_csv_output_contract(tmp_path, capsys):
     truth, push = write_csv(tmp_path / "in.csv")
-    code = main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "out.csv"),
-                 "--params-out", str(tmp_path / "p.json"), "--set", "estimator.force_threshold=1.5"])
+    code = main(
+        [
+            "compensate",
+            str(tmp_path / "in.csv"),
+            "-o",
+            str(tmp_path / "out.csv"),
+            "--params-out",
+            str(tmp_path / "p.json"),
+            "--set",
+            "estimator.force_threshold=1.5",
+        ]
+    )
     assert code == 0
     with (tmp_path / "out.csv").open() as fh:
         rows = list(csv.reader(fh))
@@ -63,11 +75,11 @@ def test_compensate_errors_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err == "hapticlab compensate: error: bad.csv line 3, column 'fz': 'x' is not a finite number"
     write_csv(tmp_path / "in.csv", n=50)
-    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"),
-                 "--set", "estimator.gain=2"]) == 2
+    assert (
+        main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"), "--set", "estimator.gain=2"]) == 2
+    )
     assert "estimator.gain: unknown option" in capsys.readouterr().err
-    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"),
-                 "--estimator", "nope"]) == 2
+    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"), "--estimator", "nope"]) == 2
     assert "estimator.name: unknown estimator 'nope'" in capsys.readouterr().err
 
 
@@ -115,8 +127,13 @@ def test_real_axia80_log_within_10_percent_of_the_offline_batch_fit(real_data, t
 def test_plugins_command_lists_the_builtins(capsys):
     assert main(["plugins"]) == 0
     text = capsys.readouterr().out
-    for kind, name in [("sensor", "sim"), ("kinematics", "sim"), ("estimator", "rls"),
-                       ("estimator", "batch"), ("haptic_output", "null")]:
+    for kind, name in [
+        ("sensor", "sim"),
+        ("kinematics", "sim"),
+        ("estimator", "rls"),
+        ("estimator", "batch"),
+        ("haptic_output", "null"),
+    ]:
         assert any(kind in line and f" {name} " in line for line in text.splitlines()), (kind, name)
 
 
@@ -127,15 +144,20 @@ def test_run_command_writes_an_mcap(tmp_path, capsys):
     assert len(read_recording(out).topics["/sensor/wrench"]) == 501
 
 
-@pytest.mark.parametrize("args, message", [
-    (["run", "nosuchpreset"], "unknown session 'nosuchpreset'"),
-    (["run", "--set", "shadows.rls.force_threshold=-1", "--duration", "0.1"],
-     "shadows.rls.force_threshold: must be positive, got -1.0"),
-    (["run", "--set", "bogus"], "--set 'bogus': expected key=value"),
-    (["run", "--set", "haptic.max_force=-1"], "haptic.max_force: must be greater than 0, got -1"),
-    (["run", "--set", "haptic.max_force_rate=nan"], "haptic.max_force_rate: must be a finite number, got nan"),
-    (["run", "--set", "session.loop_rate_hz=0"], "session.loop_rate_hz: must be greater than 0, got 0"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["run", "nosuchpreset"], "unknown session 'nosuchpreset'"),
+        (
+            ["run", "--set", "shadows.rls.force_threshold=-1", "--duration", "0.1"],
+            "shadows.rls.force_threshold: must be positive, got -1.0",
+        ),
+        (["run", "--set", "bogus"], "--set 'bogus': expected key=value"),
+        (["run", "--set", "haptic.max_force=-1"], "haptic.max_force: must be greater than 0, got -1"),
+        (["run", "--set", "haptic.max_force_rate=nan"], "haptic.max_force_rate: must be a finite number, got nan"),
+        (["run", "--set", "session.loop_rate_hz=0"], "session.loop_rate_hz: must be greater than 0, got 0"),
+    ],
+)
 def test_run_errors_are_one_line(args, message, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
@@ -155,11 +177,13 @@ def test_compensate_mcap_skips_unusable_rows(tmp_path):
             force = block.force_S[k].tolist()
             if k == 1200:
                 force[1] = float("nan")
-            rec.write("/sensor/wrench", t, {"force_S": force, "torque_S": block.torque_S[k].tolist(),
-                                            "seq": k, "status": 1 if k == 1300 else 0})
+            rec.write(
+                "/sensor/wrench",
+                t,
+                {"force_S": force, "torque_S": block.torque_S[k].tolist(), "seq": k, "status": 1 if k == 1300 else 0},
+            )
             if k < 1490:  # poses (one per sample here) stop 10 ms before the wrench stream
-                rec.write("/kinematics/pose", t, {"quat_BE": quat_BE[k].tolist(), "p_BoEo_B": None,
-                                                  "joints": None})
+                rec.write("/kinematics/pose", t, {"quat_BE": quat_BE[k].tolist(), "p_BoEo_B": None, "joints": None})
     result = compensate(path, tmp_path / "out.csv")
     force = result.estimates.contact_force_S
     bad = np.zeros(1500, dtype=bool)
@@ -175,18 +199,42 @@ def test_compensate_guards_its_outputs(tmp_path, capsys):
     write_csv(tmp_path / "in.csv", n=100)
     assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "in.csv")]) == 2
     assert "would overwrite the input" in capsys.readouterr().err
-    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"),
-                 "--params-out", str(tmp_path / "nope" / "p.json")]) == 2
+    assert (
+        main(
+            [
+                "compensate",
+                str(tmp_path / "in.csv"),
+                "-o",
+                str(tmp_path / "o.csv"),
+                "--params-out",
+                str(tmp_path / "nope" / "p.json"),
+            ]
+        )
+        == 2
+    )
     assert "does not exist" in capsys.readouterr().err and not (tmp_path / "o.csv").exists()
-    assert main(["compensate", str(tmp_path / "in.csv"), "-o", str(tmp_path / "o.csv"),
-                 "--set", "estimator.name=batch", "--params-out", str(tmp_path / "p.json")]) == 0
+    assert (
+        main(
+            [
+                "compensate",
+                str(tmp_path / "in.csv"),
+                "-o",
+                str(tmp_path / "o.csv"),
+                "--set",
+                "estimator.name=batch",
+                "--params-out",
+                str(tmp_path / "p.json"),
+            ]
+        )
+        == 0
+    )
     assert json.loads((tmp_path / "p.json").read_text())["estimator"] == "batch"
 
 
 def test_epoch_times_keep_their_precision_and_blank_lines_are_ignored(tmp_path):
     write_csv(tmp_path / "in.csv", n=200)
     lines = (tmp_path / "in.csv").read_text().splitlines()
-    epoch = [lines[0]] + [f"{1732233600.0 + k * 1e-3!r}" + line[line.index(","):] for k, line in enumerate(lines[1:])]
+    epoch = [lines[0]] + [f"{1732233600.0 + k * 1e-3!r}" + line[line.index(",") :] for k, line in enumerate(lines[1:])]
     (tmp_path / "epoch.csv").write_text("\n".join(epoch) + "\n\n\n")
     compensate(tmp_path / "epoch.csv", tmp_path / "out.csv")
     t = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1, usecols=0)
@@ -206,7 +254,7 @@ def reference_output(path, estimator_name="rls") -> bytes:
     force, torque = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
     flags = np.zeros((n, 3), dtype=bool)
     for i in range(0, len(usable), 1024):
-        rows = usable[i:i + 1024]
+        rows = usable[i : i + 1024]
         est = estimator.update_block(stream.samples.subset(rows))
         force[rows], torque[rows] = est.contact_force_S, est.contact_torque_S
         flags[rows] = np.column_stack([est.contact, est.converged_force, est.converged_torque])
@@ -231,8 +279,16 @@ def write_mcap_with_gaps(path, n=1500, seed=12):
             force = block.force_S[k].tolist()
             if k in (200, 1200):
                 force[1] = float("nan")
-            rec.write("/sensor/wrench", t, {"force_S": force, "torque_S": block.torque_S[k].tolist(),
-                                            "seq": k, "status": 1 if k in (700, 1300) else 0})
+            rec.write(
+                "/sensor/wrench",
+                t,
+                {
+                    "force_S": force,
+                    "torque_S": block.torque_S[k].tolist(),
+                    "seq": k,
+                    "status": 1 if k in (700, 1300) else 0,
+                },
+            )
             if k < n - 10:
                 rec.write("/kinematics/pose", t, {"quat_BE": quat_BE[k].tolist(), "p_BoEo_B": None, "joints": None})
     return path
@@ -248,7 +304,11 @@ def test_the_streamed_output_is_the_whole_file_output(tmp_path, monkeypatch, row
     monkeypatch.setattr(module, "iter_stream", lambda path: stream_module.iter_stream(path, rows))
     write_csv(tmp_path / "in.csv", n=4100)
     write_mcap_with_gaps(tmp_path / "gaps.mcap")
-    for source, name in ((tmp_path / "in.csv", "rls"), (tmp_path / "in.csv", "kalman"), (tmp_path / "gaps.mcap", "rls")):
+    for source, name in (
+        (tmp_path / "in.csv", "rls"),
+        (tmp_path / "in.csv", "kalman"),
+        (tmp_path / "gaps.mcap", "rls"),
+    ):
         out = tmp_path / f"{source.stem}_{name}.csv"
         result = compensate(source, out, estimator_name=name, params_out=tmp_path / f"{out.stem}.json")
         assert out.read_bytes() == reference_output(source, name), (source.name, name)
@@ -272,8 +332,17 @@ def test_a_chunk_without_usable_rows_carries_the_flags_over(tmp_path):
     whole = run_estimator(load_stream(path), Registry().create("estimator", "rls", {}, where="estimator"))
     chunks = list(iter_stream(path, rows=100))
     bad = chunks[7]
-    chunks[7] = type(bad)(bad.t_s, type(bad.samples)(**{**{f: getattr(bad.samples, f) for f in bad.samples.__slots__},
-                                                      "status": np.ones(len(bad), dtype=np.int64)}), [], bad.source)
+    chunks[7] = type(bad)(
+        bad.t_s,
+        type(bad.samples)(
+            **{
+                **{f: getattr(bad.samples, f) for f in bad.samples.__slots__},
+                "status": np.ones(len(bad), dtype=np.int64),
+            }
+        ),
+        [],
+        bad.source,
+    )
     parts = list(estimate_chunks(chunks, Registry().create("estimator", "rls", {}, where="estimator")))
     assert [len(s) for s, _ in parts] == [len(c) for c in chunks]
     conv = np.concatenate([e.converged_force for _, e in parts])

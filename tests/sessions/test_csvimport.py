@@ -43,22 +43,33 @@ def test_optional_and_unknown_columns(tmp_path):
 @pytest.mark.parametrize(
     "mutate, message",
     [
-        (lambda lines: lines.__setitem__(0, lines[0].replace(",tz", "")),
-         r"bad.csv line 1: missing required column\(s\) tz \(required: t,fx,.*\)"),
-        (lambda lines: lines.__setitem__(5, lines[5].replace(lines[5].split(",")[2], "abc", 1)),
-         r"bad.csv line 6, column 'fy': 'abc' is not a finite number"),
-        (lambda lines: lines.__setitem__(7, lines[7].replace(lines[7].split(",")[1], "nan", 1)),
-         r"bad.csv line 8, column 'fx': 'nan' is not a finite number"),
-        (lambda lines: lines.__setitem__(9, "0.0" + lines[9][lines[9].index(","):]),
-         r"bad.csv line 10, column 't': 0.0 does not increase \(previous 0.07\)"),
-        (lambda lines: lines.__setitem__(4, ",".join(lines[4].split(",")[:7] + ["0.9", "0", "0", "0"])),
-         r"bad.csv line 5, columns qw,qx,qy,qz: not a unit quaternion \(norm 0.9\)"),
-        (lambda lines: lines.__setitem__(3, lines[3] + ",1"),
-         r"bad.csv line 4: 12 fields, the header has 11"),
+        (
+            lambda lines: lines.__setitem__(0, lines[0].replace(",tz", "")),
+            r"bad.csv line 1: missing required column\(s\) tz \(required: t,fx,.*\)",
+        ),
+        (
+            lambda lines: lines.__setitem__(5, lines[5].replace(lines[5].split(",")[2], "abc", 1)),
+            r"bad.csv line 6, column 'fy': 'abc' is not a finite number",
+        ),
+        (
+            lambda lines: lines.__setitem__(7, lines[7].replace(lines[7].split(",")[1], "nan", 1)),
+            r"bad.csv line 8, column 'fx': 'nan' is not a finite number",
+        ),
+        (
+            lambda lines: lines.__setitem__(9, "0.0" + lines[9][lines[9].index(",") :]),
+            r"bad.csv line 10, column 't': 0.0 does not increase \(previous 0.07\)",
+        ),
+        (
+            lambda lines: lines.__setitem__(4, ",".join(lines[4].split(",")[:7] + ["0.9", "0", "0", "0"])),
+            r"bad.csv line 5, columns qw,qx,qy,qz: not a unit quaternion \(norm 0.9\)",
+        ),
+        (lambda lines: lines.__setitem__(3, lines[3] + ",1"), r"bad.csv line 4: 12 fields, the header has 11"),
         (lambda lines: lines.__delitem__(slice(1, None)), r"bad.csv: no data rows after the header"),
-        (lambda lines: lines.__setitem__(9, lines[8].split(",")[0] + lines[9][lines[9].index(","):]),
-         r"bad.csv line 10, column 't': 0.07 repeats the time of line 9 with other values \(a conflicting "
-         r"duplicate; rows repeated exactly are dropped\)"),
+        (
+            lambda lines: lines.__setitem__(9, lines[8].split(",")[0] + lines[9][lines[9].index(",") :]),
+            r"bad.csv line 10, column 't': 0.07 repeats the time of line 9 with other values \(a conflicting "
+            r"duplicate; rows repeated exactly are dropped\)",
+        ),
     ],
 )
 def test_errors_name_the_line_and_column(tmp_path, mutate, message):
@@ -101,8 +112,10 @@ def test_rows_repeated_exactly_are_dropped_with_a_note_naming_them(tmp_path):
     assert np.array_equal(a.t_s, b.t_s) and np.array_equal(a.samples.force_S, b.samples.force_S)
     assert np.array_equal(a.samples.R_EB, b.samples.R_EB)
     assert len(b) == 60 and len(set(b.samples.seq.tolist())) == 60 and b.samples.seq[-1] == 64
-    assert b.notes == ["doubled.csv: dropped 3 row(s) that exactly repeat the row before them (line(s) 5, 20, 21)",
-                       "doubled.csv: dropped 2 row(s) that exactly repeat the row before them (line(s) 32, 50)"]
+    assert b.notes == [
+        "doubled.csv: dropped 3 row(s) that exactly repeat the row before them (line(s) 5, 20, 21)",
+        "doubled.csv: dropped 2 row(s) that exactly repeat the row before them (line(s) 32, 50)",
+    ]
 
 
 def test_a_chunk_that_only_repeats_the_row_before_it_yields_no_samples_and_its_note(tmp_path):
@@ -114,6 +127,7 @@ def test_a_chunk_that_only_repeats_the_row_before_it_yields_no_samples_and_its_n
     path.write_text("\n".join(lines[:6] + [lines[5]] * 5 + lines[6:]) + "\n")  # a whole chunk of repeats
     parts = list(iter_csv(path, rows=5))
     assert [len(p) for p in parts] == [5, 0, 5]
-    assert parts[1].notes == ["stuck.csv: dropped 5 row(s) that exactly repeat the row before them "
-                              "(line(s) 7, 8, 9, 10, 11)"]
+    assert parts[1].notes == [
+        "stuck.csv: dropped 5 row(s) that exactly repeat the row before them (line(s) 7, 8, 9, 10, 11)"
+    ]
     assert parts[2].samples.seq.tolist() == [10, 11, 12, 13, 14]

@@ -19,15 +19,22 @@ import numpy as np
 import pytest
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState
-from hapticlab.core.host.registry import Registry, make_plugin_manager
 from hapticlab.core.frames import quat_wxyz_from_matrix
+from hapticlab.core.host.registry import Registry, make_plugin_manager
+from hapticlab.core.sensor_model.model import Effect, ModelState
 from hapticlab.plugins.simworld import Indentation, RandomTour, RobotParams, SensorParams, SimWorld
-from hapticlab.plugins.simworld.motion import StaticPoses
 from hapticlab.plugins.simworld.export import write_csv
+from hapticlab.plugins.simworld.motion import StaticPoses
 from hapticlab.sessions.cli import main
-from hapticlab.sessions.discrepancy.workflow import (Discrepancy, Settings, discrepancy, json_ready, sign_test_p,
-                                                     toml_snippet, wins_needed)
+from hapticlab.sessions.discrepancy.workflow import (
+    Discrepancy,
+    Settings,
+    discrepancy,
+    json_ready,
+    sign_test_p,
+    toml_snippet,
+    wins_needed,
+)
 from hapticlab.sessions.recording import load_stream
 
 NOISE = 0.12  # N, the simulated sensor's default force noise per axis
@@ -51,9 +58,14 @@ SCENARIOS = {
 
 def world_for(scenario: str, seed: int, contacts=()) -> SimWorld:
     hidden = SCENARIOS[scenario]
-    return SimWorld(sensor=SensorParams(**hidden.get("sensor", {})), robot=RobotParams(**hidden.get("robot", {})),
-                    motion=RandomTour(seed=seed, segment_s=1.0, max_translation=0.05), contacts=contacts,
-                    seed=seed, inertia=hidden.get("inertia", False))
+    return SimWorld(
+        sensor=SensorParams(**hidden.get("sensor", {})),
+        robot=RobotParams(**hidden.get("robot", {})),
+        motion=RandomTour(seed=seed, segment_s=1.0, max_translation=0.05),
+        contacts=contacts,
+        seed=seed,
+        inertia=hidden.get("inertia", False),
+    )
 
 
 def run(tmp_path, scenario: str, seed: int = 1, duration: float = 30.0, rate: float = 250.0, **kwargs):
@@ -105,8 +117,10 @@ def test_identified_parameters_are_the_hidden_ones(tmp_path):
     kalman = Registry().create("estimator", "kalman", lag["estimator_options"], where="estimator")
     assert kalman.time_lag_s == pytest.approx(LAG, abs=0.001)
     assert lag["final"]["params"]["time_lag"]["time_lag_s"] == pytest.approx(LAG, abs=0.001)
-    assert lag["estimator_options"] == {"effects": ["time_lag"],
-                                        "time_lag_s": lag["final"]["params"]["time_lag"]["time_lag_s"]}
+    assert lag["estimator_options"] == {
+        "effects": ["time_lag"],
+        "time_lag_s": lag["final"]["params"]["time_lag"]["time_lag_s"],
+    }
     gain, _ = run(tmp_path, "gain_crosstalk", seed=2)
     np.testing.assert_allclose(gain["estimator_options"]["gain_force_S"], GF, atol=0.003)
     Registry().create("estimator", "kalman", gain["estimator_options"], where="estimator")
@@ -137,14 +151,22 @@ def test_an_mcap_session_recording(tmp_path):
     from hapticlab.sessions.live import build_session, run_session
 
     config, _ = load_config("demo")
-    config = apply_overrides(config, ["session.realtime=false", "session.duration=12.0", "world.inertia=false",
-                                      "world.sensor.mount_rotation=[0.035, -0.026, 0.017]"])
+    config = apply_overrides(
+        config,
+        [
+            "session.realtime=false",
+            "session.duration=12.0",
+            "world.inertia=false",
+            "world.sensor.mount_rotation=[0.035, -0.026, 0.017]",
+        ],
+    )
     path = run_session(build_session(config), out=tmp_path / "s.mcap").path
     result = discrepancy(path)
     assert result["effects"] == ["mount_rotation"] and result["time_base"] == "seconds"
     assert result["gated"] > 0  # the demo's indentations
-    np.testing.assert_allclose(result["final"]["params"]["mount_rotation"]["mount_rotation_SE"],
-                               [0.035, -0.026, 0.017], atol=0.002)
+    np.testing.assert_allclose(
+        result["final"]["params"]["mount_rotation"]["mount_rotation_SE"], [0.035, -0.026, 0.017], atol=0.002
+    )
 
 
 class CableSway(Effect):
@@ -193,55 +215,81 @@ def test_command_line_json_plots_and_toml(tmp_path, capsys):
     assert set(data["baseline"]) == {"rms_force_S", "rms_torque_S"}
     assert {"rms_force_S", "rms_torque_S"} <= set(data["final"])
     for step in data["steps"]:
-        assert {"effect", "params", "score", "rms_force_before", "rms_force_after", "rms_torque_before",
-                "rms_torque_after"} <= set(step)
+        assert {
+            "effect",
+            "params",
+            "score",
+            "rms_force_before",
+            "rms_force_after",
+            "rms_torque_before",
+            "rms_torque_after",
+        } <= set(step)
         assert len(step["rms_force_before"]) == 3 and len(step["rms_torque_after"]) == 3
     assert data["effects"] == [s["effect"] for s in data["steps"]]
     assert set(data["effects"]) == {"mount_rotation", "bias_drift"}
     assert data["steps"][0]["rms_force_after"] == data["steps"][1]["rms_force_before"]
     # the TOML snippet at the end of the output is a valid [estimator] table with those options
-    snippet = captured.out[captured.out.index("[estimator]"):]
+    snippet = captured.out[captured.out.index("[estimator]") :]
     estimator = tomllib.loads(snippet)["estimator"]
     assert estimator["name"] == "kalman" and estimator["effects"] == data["effects"]
-    np.testing.assert_allclose(estimator["mount_rotation_SE"], data["estimator_options"]["mount_rotation_SE"],
-                               rtol=1e-5)
+    np.testing.assert_allclose(
+        estimator["mount_rotation_SE"], data["estimator_options"]["mount_rotation_SE"], rtol=1e-5
+    )
     # ... which the kalman estimator takes as it is (item 6 of the issue: the effects online)
-    kalman = Registry().create("estimator", "kalman", {k: v for k, v in estimator.items() if k != "name"},
-                               where="estimator")
+    kalman = Registry().create(
+        "estimator", "kalman", {k: v for k, v in estimator.items() if k != "name"}, where="estimator"
+    )
     assert set(kalman.effects) >= set(data["effects"])
     assert "steps: RMS per axis" in captured.out and "named:" in captured.out
     written = sorted(p.name for p in (tmp_path / "p").iterdir())
-    assert written == ["00_baseline.png", "01_after_bias_drift.png", "02_after_mount_rotation.png", "steps.png"] \
-        or written == ["00_baseline.png", "01_after_mount_rotation.png", "02_after_bias_drift.png", "steps.png"]
+    assert written == [
+        "00_baseline.png",
+        "01_after_bias_drift.png",
+        "02_after_mount_rotation.png",
+        "steps.png",
+    ] or written == ["00_baseline.png", "01_after_mount_rotation.png", "02_after_bias_drift.png", "steps.png"]
 
 
 def test_toml_snippet_round_trips():
-    options = {"effects": ["time_lag", "gain_crosstalk"], "time_lag_s": -0.0123456789,
-               "gain_force_S": GF.tolist(), "gain_torque_S": GT.tolist()}
+    options = {
+        "effects": ["time_lag", "gain_crosstalk"],
+        "time_lag_s": -0.0123456789,
+        "gain_force_S": GF.tolist(),
+        "gain_torque_S": GT.tolist(),
+    }
     table = tomllib.loads(toml_snippet(options))["estimator"]
     assert table["effects"] == options["effects"] and table["time_lag_s"] == pytest.approx(-0.0123457, rel=1e-6)
     np.testing.assert_allclose(table["gain_force_S"], GF, atol=1e-9)
 
 
-@pytest.mark.parametrize(("argv", "message"), [
-    (["discrepancy", "missing.csv"], "missing.csv: no such file"),
-    (["discrepancy", "{bad}"], "bad.csv line 3, column 'fz': 'x' is not a finite number"),
-    (["discrepancy", "{short}"], "short.csv: 2 rows; the workflow needs at least 20"),
-    (["discrepancy", "{good}", "--effects", "mount_rotation,wobble"], "--effects: unknown effect 'wobble'"),
-    (["discrepancy", "{good}", "--set", "bias_drift.ordr=2"], "effects.bias_drift.ordr: unknown option"),
-    (["discrepancy", "{good}", "--set", "bias_drift.order=7"], "effects.bias_drift.order: must be 1, 2 or 3"),
-    (["discrepancy", "{good}", "--set", "order=2"], "expected EFFECT.OPTION=VALUE"),
-    (["discrepancy", "{good}", "--json", "/no/such/folder/out.json"], "folder /no/such/folder does not exist"),
-    (["discrepancy", "{good}", "--json", "{tmp}"], "--json {tmp}: is a folder"),
-    (["discrepancy", "{good}", "--plots", "{good}"], "--plots {good}: exists and is not a folder"),
-    (["discrepancy", "{good}", "--plots", "{good}/figs"], "is not a folder"),
-])
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["discrepancy", "missing.csv"], "missing.csv: no such file"),
+        (["discrepancy", "{bad}"], "bad.csv line 3, column 'fz': 'x' is not a finite number"),
+        (["discrepancy", "{short}"], "short.csv: 2 rows; the workflow needs at least 20"),
+        (["discrepancy", "{good}", "--effects", "mount_rotation,wobble"], "--effects: unknown effect 'wobble'"),
+        (["discrepancy", "{good}", "--set", "bias_drift.ordr=2"], "effects.bias_drift.ordr: unknown option"),
+        (["discrepancy", "{good}", "--set", "bias_drift.order=7"], "effects.bias_drift.order: must be 1, 2 or 3"),
+        (["discrepancy", "{good}", "--set", "order=2"], "expected EFFECT.OPTION=VALUE"),
+        (["discrepancy", "{good}", "--json", "/no/such/folder/out.json"], "folder /no/such/folder does not exist"),
+        (["discrepancy", "{good}", "--json", "{tmp}"], "--json {tmp}: is a folder"),
+        (["discrepancy", "{good}", "--plots", "{good}"], "--plots {good}: exists and is not a folder"),
+        (["discrepancy", "{good}", "--plots", "{good}/figs"], "is not a folder"),
+    ],
+)
 def test_bad_input_is_one_line(tmp_path, capsys, argv, message):
     (tmp_path / "bad.csv").write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n0,1,2,3,4,5,6,1,0,0,0\n1,1,2,x,4,5,6,1,0,0,0\n")
-    (tmp_path / "short.csv").write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n0,1,2,3,4,5,6,1,0,0,0\n1,1,2,3,4,5,6,1,0,0,0\n")
+    (tmp_path / "short.csv").write_text(
+        "t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n0,1,2,3,4,5,6,1,0,0,0\n1,1,2,3,4,5,6,1,0,0,0\n"
+    )
     write_csv(world_for("none", 1), tmp_path / "good.csv", 2.0, 50.0)
-    names = {"bad": tmp_path / "bad.csv", "short": tmp_path / "short.csv", "good": tmp_path / "good.csv",
-             "tmp": tmp_path}
+    names = {
+        "bad": tmp_path / "bad.csv",
+        "short": tmp_path / "short.csv",
+        "good": tmp_path / "good.csv",
+        "tmp": tmp_path,
+    }
     argv = [a.format(**names) if a.startswith("{") else a for a in argv]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
@@ -269,8 +317,9 @@ def test_the_json_is_written_before_the_plots_and_a_plot_error_is_one_line(tmp_p
 def test_effect_options_and_a_restricted_candidate_list(tmp_path):
     path = tmp_path / "drift.csv"
     write_csv(world_for("bias_drift", 1), path, 30.0, 250.0)
-    result = discrepancy(path, Settings(effects=["bias_drift", "mount_rotation"],
-                                        effect_options={"bias_drift": {"order": 2}}))
+    result = discrepancy(
+        path, Settings(effects=["bias_drift", "mount_rotation"], effect_options={"bias_drift": {"order": 2}})
+    )
     assert [e["effect"] for e in result["rounds"][0]] == ["bias_drift", "mount_rotation"]
     assert result["effects"] == ["bias_drift"]
     assert "bias_force_d2_S" in result["final"]["params"]["bias_drift"]
@@ -359,9 +408,14 @@ def static_poses_csv(path, seed: int, n: int):
     world = SimWorld(motion=motion, seed=seed, inertia=False)
     t = motion.hold_midpoints(n)
     reading = world.wrench(t)
-    np.savetxt(path, np.c_[np.arange(n), reading["force_S"], reading["torque_S"],
-                           quat_wxyz_from_matrix(world.pose(t)[0])],
-               delimiter=",", header="t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz", comments="", fmt="%.10g")
+    np.savetxt(
+        path,
+        np.c_[np.arange(n), reading["force_S"], reading["torque_S"], quat_wxyz_from_matrix(world.pose(t)[0])],
+        delimiter=",",
+        header="t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz",
+        comments="",
+        fmt="%.10g",
+    )
 
 
 @pytest.mark.parametrize(("n", "seeds"), [(30, (113, 127, 143, 100, 101)), (60, (127, 133, 102))])
@@ -396,8 +450,14 @@ def test_jittered_timestamps_and_hidden_inertia(tmp_path):
     reading = world.wrench(t)
     R_BE, p = world.pose(t)
     path = tmp_path / "jitter.csv"
-    np.savetxt(path, np.c_[t, reading["force_S"], reading["torque_S"], quat_wxyz_from_matrix(R_BE), p],
-               delimiter=",", header="t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz,px,py,pz", comments="", fmt="%.10g")
+    np.savetxt(
+        path,
+        np.c_[t, reading["force_S"], reading["torque_S"], quat_wxyz_from_matrix(R_BE), p],
+        delimiter=",",
+        header="t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz,px,py,pz",
+        comments="",
+        fmt="%.10g",
+    )
     result = discrepancy(path)
     assert result["effects"] == ["inertia"]
     assert np.all(np.array(result["final"]["rms_force_S"]) <= 1.02 * NOISE), result["final"]
@@ -406,8 +466,12 @@ def test_jittered_timestamps_and_hidden_inertia(tmp_path):
 def test_a_sensor_offset_from_the_flange_is_identified(tmp_path):
     """The sensor origin 5 cm out along the flange axis: inertia names it (α × p), the gap closes."""
     path = tmp_path / "offset.csv"
-    world = SimWorld(sensor=SensorParams(p_EoSo_E=(0.0, 0.0, 0.05)), inertia=True, seed=2,
-                     motion=RandomTour(seed=2, segment_s=1.0, max_translation=0.05))
+    world = SimWorld(
+        sensor=SensorParams(p_EoSo_E=(0.0, 0.0, 0.05)),
+        inertia=True,
+        seed=2,
+        motion=RandomTour(seed=2, segment_s=1.0, max_translation=0.05),
+    )
     write_csv(world, path, 30.0, 250.0)
     result = discrepancy(path)
     assert result["effects"] == ["inertia"]
@@ -431,8 +495,16 @@ def test_gauss_newton_never_ends_worse_than_it_started(tmp_path):
     assert lag.check(d.motion) is None
     model = Model([("time_lag", lag), ("mount_rotation", MountRotation())])
     truth = world_for("time_lag", 2).truth()
-    theta = np.concatenate([truth["gravity_force_B"], truth["bias_force_S"], truth["cog_S"],
-                            truth["bias_torque_S"], [0.06], np.deg2rad([6.0, -6.0, 5.0])])
+    theta = np.concatenate(
+        [
+            truth["gravity_force_B"],
+            truth["bias_force_S"],
+            truth["cog_S"],
+            truth["bias_torque_S"],
+            [0.06],
+            np.deg2rad([6.0, -6.0, 5.0]),
+        ]
+    )
     d.weights = 1 / np.array([NOISE] * 3 + [0.01] * 3)
 
     def costs(th):
@@ -466,8 +538,12 @@ def test_a_leftover_on_a_quiet_axis_is_flagged_against_that_axis_s_own_noise(tmp
     in those seconds). The same recording without either flags nothing."""
     from hapticlab.sessions.discrepancy.leftover import leftover_threshold
 
-    world = SimWorld(sensor=SensorParams(noise_force_S=np.array([0.12, 0.12, 0.03])),
-                     motion=RandomTour(seed=31, segment_s=1.0, max_translation=0.05), seed=31, inertia=False)
+    world = SimWorld(
+        sensor=SensorParams(noise_force_S=np.array([0.12, 0.12, 0.03])),
+        motion=RandomTour(seed=31, segment_s=1.0, max_translation=0.05),
+        seed=31,
+        inertia=False,
+    )
     path = tmp_path / "quiet_z.csv"
     write_csv(world, path, 30.0, 250.0)
     clean = discrepancy(path)
@@ -509,8 +585,9 @@ def test_parameter_errors_are_the_spread_over_seeds_and_what_the_motion_cannot_t
     ratio = np.sqrt(np.mean(np.square(errors), axis=0)) / np.mean(stds, axis=0)
     assert np.all((0.6 < ratio) & (ratio < 1.6)), ratio
 
-    world = SimWorld(motion=AxialRotation(speed_deg_s=90.0, duration=28.0, ramp_s=2.0, start_s=1.0), seed=3,
-                     inertia=False)
+    world = SimWorld(
+        motion=AxialRotation(speed_deg_s=90.0, duration=28.0, ramp_s=2.0, start_s=1.0), seed=3, inertia=False
+    )
     path = tmp_path / "axial.csv"
     write_csv(world, path, 30.0, 250.0)
     result = discrepancy(path)

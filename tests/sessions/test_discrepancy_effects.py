@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hapticlab.core.sensor_model.play_kernel import play, play_signed
 from hapticlab.core.host.registry import ConfigError, Registry
+from hapticlab.core.sensor_model.play_kernel import play, play_signed
 from hapticlab.plugins.simworld import HangingMass, RandomTour, SensorParams, SimWorld
 from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.sessions.discrepancy.workflow import discrepancy
@@ -24,8 +24,13 @@ NOISE = 0.12  # N, the simulated sensor's default force noise per axis
 
 
 def recording(tmp_path, seed: int, sensor=None, contacts=()):
-    world = SimWorld(sensor=SensorParams(**(sensor or {})), contacts=list(contacts), seed=seed, inertia=False,
-                     motion=RandomTour(seed=seed, segment_s=1.0, max_translation=0.05))
+    world = SimWorld(
+        sensor=SensorParams(**(sensor or {})),
+        contacts=list(contacts),
+        seed=seed,
+        inertia=False,
+        motion=RandomTour(seed=seed, segment_s=1.0, max_translation=0.05),
+    )
     path = tmp_path / f"hidden_{seed}.csv"
     write_csv(world, path, 30.0, 250.0)
     return path
@@ -34,8 +39,9 @@ def recording(tmp_path, seed: int, sensor=None, contacts=()):
 @pytest.mark.parametrize(("seed", "tau_s"), [(61, 8.0), (62, 20.0)])
 def test_a_sensor_warming_up_is_named_with_its_time_constant(tmp_path, seed, tau_s):
     settle_force_S, settle_torque_S = np.array([0.5, -0.4, 0.3]), np.array([0.02, -0.015, 0.01])
-    path = recording(tmp_path, seed, {"warmup_force_S": settle_force_S, "warmup_torque_S": settle_torque_S,
-                                      "warmup_tau_s": tau_s})
+    path = recording(
+        tmp_path, seed, {"warmup_force_S": settle_force_S, "warmup_torque_S": settle_torque_S, "warmup_tau_s": tau_s}
+    )
     result = discrepancy(path)
     assert result["effects"] == ["warm_up"], result["rounds"]
     found = result["final"]["params"]["warm_up"]
@@ -66,8 +72,9 @@ def test_a_payload_change_is_named_with_its_mass_point_and_instant(tmp_path, see
 
 def test_the_kalman_estimator_refuses_a_payload_change_it_would_not_watch_for():
     with pytest.raises(ConfigError, match="payload_change_s > 0"):
-        Registry().create("estimator", "kalman", {"effects": ["payload_change"], "payload_change_s": 0.0},
-                          where="estimator")
+        Registry().create(
+            "estimator", "kalman", {"effects": ["payload_change"], "payload_change_s": 0.0}, where="estimator"
+        )
 
 
 def test_the_simulated_warm_up_settles_to_the_bias():
@@ -132,8 +139,7 @@ def test_the_simulated_hysteresis_follows_the_loading_path_whatever_the_reads():
     whole = SimWorld(sensor=sensor, seed=9, motion=motion).wrench(t, noise=False)
     world = SimWorld(sensor=sensor, seed=9, motion=motion)
     late_first = world.wrench(t[3000:], noise=False)["force_S"]
-    chunks = np.concatenate([world.wrench(t[i:min(i + 7, 3000)], noise=False)["force_S"]
-                             for i in range(0, 3000, 7)])
+    chunks = np.concatenate([world.wrench(t[i : min(i + 7, 3000)], noise=False)["force_S"] for i in range(0, 3000, 7)])
     np.testing.assert_array_equal(np.concatenate([chunks, late_first]), whole["force_S"])
     load = SimWorld(seed=9, motion=motion).wrench(t, noise=False)
     lag_S = np.concatenate([whole["force_S"] - load["force_S"], whole["torque_S"] - load["torque_S"]], axis=1)
@@ -145,7 +151,8 @@ def test_the_simulated_hysteresis_follows_the_loading_path_whatever_the_reads():
     x = np.concatenate([load["force_S"], load["torque_S"]], axis=1)
     np.testing.assert_allclose(lag_S, play_signed(x, widths) - x, atol=1e-4)
     rate = np.gradient(x[:, 0], t)
-    assert np.median(lag_S[rate > 0.5, 0]) == pytest.approx(-0.2) and np.median(lag_S[rate < -0.5, 0]) == \
-        pytest.approx(0.2)
+    assert np.median(lag_S[rate > 0.5, 0]) == pytest.approx(-0.2) and np.median(lag_S[rate < -0.5, 0]) == pytest.approx(
+        0.2
+    )
     with pytest.raises(ValueError, match="hysteresis_force_S"):
         SensorParams(hysteresis_force_S=(-0.1, 0.0, 0.0))

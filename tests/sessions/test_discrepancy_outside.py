@@ -22,8 +22,13 @@ from hapticlab.sessions.discrepancy.workflow import Settings, discrepancy
 
 
 def recording(tmp_path, seed: int, contacts=(), sensor=None):
-    world = SimWorld(sensor=SensorParams(**(sensor or {})), contacts=list(contacts), seed=seed, inertia=False,
-                     motion=RandomTour(seed=seed, segment_s=1.0, max_translation=0.05))
+    world = SimWorld(
+        sensor=SensorParams(**(sensor or {})),
+        contacts=list(contacts),
+        seed=seed,
+        inertia=False,
+        motion=RandomTour(seed=seed, segment_s=1.0, max_translation=0.05),
+    )
     path = tmp_path / f"outside_{seed}.csv"
     write_csv(world, path, 30.0, 250.0)
     return path
@@ -35,8 +40,9 @@ def assert_left_and_located(result, axes):
     for axis in axes:
         where = result["leftover"]["where"][axis]
         assert where["stretches"] and where["excess_rms"] > 0 and where["peak_hz"] > 0
-        assert where["orientations"] and set(o["gravity_S"] for o in where["orientations"]) <= \
-            set(where["orientations_tested"])
+        assert where["orientations"] and set(o["gravity_S"] for o in where["orientations"]) <= set(
+            where["orientations_tested"]
+        )
     assert any(note.startswith("something the tested effects do not explain is left") for note in result["notes"])
     for step in result["steps"]:  # whatever was named on the way is set aside (or dropped), with its share
         assert step["action"] in ("named", "dropped", "set_aside")
@@ -44,8 +50,9 @@ def assert_left_and_located(result, axes):
     assert all(step["structure_share"] < 0.5 for step in aside)
 
 
-@pytest.mark.parametrize(("seed", "stiffness", "damping"), [(72, 8.0, 0.0), (73, 0.0, 2.0)],
-                         ids=["cable", "trocar_drag"])
+@pytest.mark.parametrize(
+    ("seed", "stiffness", "damping"), [(72, 8.0, 0.0), (73, 0.0, 2.0)], ids=["cable", "trocar_drag"]
+)
 def test_a_cable_or_a_drag_on_the_tool_is_left_unexplained_not_named(tmp_path, seed, stiffness, damping):
     cable = Cable(anchor_B=(0.4, 0.0, 0.4), stiffness=stiffness, damping=damping)
     path = recording(tmp_path, seed, contacts=[cable])
@@ -70,8 +77,12 @@ def test_a_hysteresis_outside_the_candidates_is_not_named_a_time_lag(tmp_path):
 def test_a_library_effect_beside_a_smaller_outside_one_stays_named(tmp_path):
     """A 5° mount rotation with a 1 N/m cable: the mount explains most of what the forces leave, so it is named;
     the cable's torque is left, flagged."""
-    path = recording(tmp_path, 75, contacts=[Cable(anchor_B=(0.4, 0.0, 0.4), stiffness=1.0)],
-                     sensor={"mount_rotation_SE": (0.0, 0.0, np.radians(5.0))})
+    path = recording(
+        tmp_path,
+        75,
+        contacts=[Cable(anchor_B=(0.4, 0.0, 0.4), stiffness=1.0)],
+        sensor={"mount_rotation_SE": (0.0, 0.0, np.radians(5.0))},
+    )
     result = discrepancy(path)
     assert result["effects"] == ["mount_rotation"]
     step = next(step for step in result["steps"] if step["effect"] == "mount_rotation")

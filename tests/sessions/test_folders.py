@@ -54,8 +54,7 @@ def test_the_same_job_runs_on_an_existing_dask_cluster(archive, tmp_path):
     for name in ("a1.mcap", "a2.mcap"):
         shutil.copy(archive / name, folder / name)
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        run = map_recordings(len_of_wrench, recordings_in(folder), scheduler=cluster.scheduler_address,
-                             progress=False)
+        run = map_recordings(len_of_wrench, recordings_in(folder), scheduler=cluster.scheduler_address, progress=False)
     assert run.workers == 1
     assert [o.value for o in run.outcomes] == [3001, 3001]
 

@@ -37,8 +37,9 @@ def test_every_path_in_the_layout_is_a_recorded_topic_and_field(tmp_path):
         for channel in summary.channels.values():
             schema = summary.schemas[channel.schema_id]
             if schema.encoding == "ros2msg":  # field names from the message definition
-                fields[channel.topic] = {line.split()[1] for line in schema.data.decode().splitlines()
-                                         if line and not line.startswith("#")}
+                fields[channel.topic] = {
+                    line.split()[1] for line in schema.data.decode().splitlines() if line and not line.startswith("#")
+                }
             else:  # JSON: the keys of the schema's properties
                 fields[channel.topic] = set(json.loads(schema.data)["properties"])
     checked = 0

@@ -22,9 +22,21 @@ from hapticlab.sessions.recording import RecordingError, read_recording, recover
 
 def start_run(path) -> subprocess.Popen:
     proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
-         "run", "demo", "--duration", "60", "--out", str(path)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)  # a group of its own
+        [
+            sys.executable,
+            "-c",
+            "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
+            "run",
+            "demo",
+            "--duration",
+            "60",
+            "--out",
+            str(path),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )  # a group of its own
     deadline = time.monotonic() + 60
     while not (path.exists() and path.stat().st_size > 0) and time.monotonic() < deadline:
         time.sleep(0.05)  # the writer writes the header once the session has started

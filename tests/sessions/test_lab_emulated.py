@@ -32,9 +32,23 @@ NETFT, UR = "127.0.0.92", "127.0.0.93"  # addresses of their own: ur-rtde always
 def lab():
     """The lab process, serving for at most 60 s; yields its world's t0 on the monotonic clock (ns)."""
     proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
-         "emulate", "lab", "--netft", NETFT, "--ur", UR, "--duration", "60"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
+            "emulate",
+            "lab",
+            "--netft",
+            NETFT,
+            "--ur",
+            UR,
+            "--duration",
+            "60",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         ready, _, _ = select.select([proc.stdout], [], [], 60.0)
         assert ready, "the lab did not start"
@@ -72,7 +86,7 @@ def test_a_session_on_the_emulated_lab_feels_the_contact_the_world_made(tmp_path
     after = converged & (world_t > world_t[np.argmax(converged)] + 1.0)
     assert after.sum() > 3000
     error = np.linalg.norm(estimated[after] - truth[after], axis=1)
-    assert np.sqrt(np.mean(error ** 2)) < 0.3  # N; the sensor's noise is 0.12 N per axis
+    assert np.sqrt(np.mean(error**2)) < 0.3  # N; the sensor's noise is 0.12 N per axis
     # the indentations' plateaus (world t 6.3–7.2 s at 3 N, 9.8–10.7 s at 2 N, 12.75–13.25 s at 4 N): the session
     # starts a few seconds into the world's time, when the lab and the session are up
     pressing = after & (np.linalg.norm(truth, axis=1) > 1.5)

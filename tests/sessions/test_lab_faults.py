@@ -42,15 +42,24 @@ MARGIN_NS = 10_000_000  # the device clocks' offset over the true send time (the
 SAFE_REASONS = {"no sensor data", "stale kinematics"}  # a fault elsewhere may zero the force first: still zero
 
 # wire faults, world time (s): [start, end) of each window; the session covers ~1.5 s .. 6.9 s of world time
-WINDOWS = {"drop": (3.0, 3.6), "duplicate": (3.8, 4.4), "reorder": (4.6, 5.2), "saturate": (5.4, 5.9),
-           "ur_stall": (6.1, 6.5)}
+WINDOWS = {
+    "drop": (3.0, 3.6),
+    "duplicate": (3.8, 4.4),
+    "reorder": (4.6, 5.2),
+    "saturate": (5.4, 5.9),
+    "ur_stall": (6.1, 6.5),
+}
 WIRE_END_S = 6.9
 LAB_NETFT, LAB_UR = "127.0.0.111", "127.0.0.112"
 
 
 def _cli(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; "
-                             "sys.exit(main())", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; sys.exit(main())", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def _first_line(proc: subprocess.Popen, what: str) -> str:
@@ -75,11 +84,13 @@ def _end(proc: subprocess.Popen) -> str:
 
 def _session(netft: str, ur: str, duration: float, out, on_status=None):
     config, _ = load_config("lab-emulated")
-    config = apply_overrides(config, [f"sensor.address={netft}", f"kinematics.address={ur}",
-                                      f"session.duration={duration:.3f}"])
+    config = apply_overrides(
+        config, [f"sensor.address={netft}", f"kinematics.address={ur}", f"session.duration={duration:.3f}"]
+    )
     session = build_session(config)
-    stale_ns = int(round((1.5 / float(session.sensor.rate_hz) + session.sensor.latency_s) * 1e9)) + \
-        int(round(1e9 / session.settings.loop_rate_hz))
+    stale_ns = int(round((1.5 / float(session.sensor.rate_hz) + session.sensor.latency_s) * 1e9)) + int(
+        round(1e9 / session.settings.loop_rate_hz)
+    )
     result = run_session(session, out=out, on_status=on_status, status_interval_s=0.05)
     return result, stale_ns
 
@@ -124,8 +135,19 @@ def wire(tmp_path_factory):
         start, end = WINDOWS[kind]
         faults += ["--netft-fault", f"{kind},start={start},duration={end - start:.3f},every={every}"]
     start, end = WINDOWS["ur_stall"]
-    lab = _cli("emulate", "lab", "--netft", LAB_NETFT, "--ur", LAB_UR, "--duration", "60", *faults,
-               "--ur-stall", f"{start},{end - start:.3f}")
+    lab = _cli(
+        "emulate",
+        "lab",
+        "--netft",
+        LAB_NETFT,
+        "--ur",
+        LAB_UR,
+        "--duration",
+        "60",
+        *faults,
+        "--ur-stall",
+        f"{start},{end - start:.3f}",
+    )
     try:
         line = _first_line(lab, "the lab")
         assert line.startswith(f"lab: Net F/T on {LAB_NETFT}"), line
@@ -223,7 +245,9 @@ def test_reordering(wire):
     inside = (t >= start_ns) & (t < end_ns)
     assert np.all(np.diff(seq[inside]) > 0)
     assert inside.sum() >= (end_ns - start_ns) / NS * 1000 - health["late"] - 30  # the rest delivered
-    events = [e for e in rec.events if e.kind == "sensor_health" and ("out_of_order" in e.message or "late" in e.message)]
+    events = [
+        e for e in rec.events if e.kind == "sensor_health" and ("out_of_order" in e.message or "late" in e.message)
+    ]
     assert events and all(e.t_ns >= start_ns for e in events)
 
 
@@ -257,8 +281,12 @@ def test_robot_stream_stall(wire):
     assert not ((pose_t >= start_ns + MARGIN_NS) & (pose_t < end_ns)).any()  # no pose from inside the stall
     assert (pose_t >= end_ns).any()  # the stream came back on the same connection
     kinematics_period_ns, kinematics_latency_ns = 2_000_000, 4_000_000  # 500 Hz; one period + 2 ms
-    reasons = _assert_zero(rec, start_ns + kinematics_period_ns + kinematics_latency_ns + stale_ns + MARGIN_NS,
-                           end_ns, "stalled robot stream")
+    reasons = _assert_zero(
+        rec,
+        start_ns + kinematics_period_ns + kinematics_latency_ns + stale_ns + MARGIN_NS,
+        end_ns,
+        "stalled robot stream",
+    )
     assert set(reasons) <= SAFE_REASONS and "stale kinematics" in set(reasons)
     by_kind = {}
     for e in rec.events:
@@ -297,13 +325,21 @@ KILL_AT_S = 1.5  # session time of the kill; the session runs 3.5 s
 @pytest.mark.parametrize("victim", ["netft", "ur"])
 def test_an_emulator_killed_mid_session(tmp_path, victim):
     netft_address, ur_address = ("127.0.0.113", "127.0.0.114") if victim == "netft" else ("127.0.0.115", "127.0.0.116")
-    netft = subprocess.Popen([sys.executable, "-c", CHILD, "netft", netft_address, "0"],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    netft = subprocess.Popen(
+        [sys.executable, "-c", CHILD, "netft", netft_address, "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     children = [netft]
     try:
         t0_ns = int(_first_line(netft, "the Net F/T emulator"))
-        ur = subprocess.Popen([sys.executable, "-c", CHILD, "ur", ur_address, str(t0_ns)],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ur = subprocess.Popen(
+            [sys.executable, "-c", CHILD, "ur", ur_address, str(t0_ns)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         children.append(ur)
         assert int(_first_line(ur, "the UR emulator")) == t0_ns  # one world clock
         target = netft if victim == "netft" else ur
@@ -328,8 +364,7 @@ def test_an_emulator_killed_mid_session(tmp_path, victim):
     if victim == "netft":
         assert not (rec.t_ns("/sensor/wrench") > kill_ns).any()
         assert (rec.t_ns("/kinematics/pose") > kill_ns + NS // 2).any()  # the arm goes on
-        reasons = _assert_zero(rec, kill_ns + stale_ns + MARGIN_NS, rec.t_ns("/haptic/command")[-1],
-                               "Net F/T killed")
+        reasons = _assert_zero(rec, kill_ns + stale_ns + MARGIN_NS, rec.t_ns("/haptic/command")[-1], "Net F/T killed")
         assert set(reasons) == {"no sensor data"}
         # (a loaded machine may also have had a silence > receive_timeout before the kill, resumed since)
         timeout = [e for e in events if e.kind == "sensor_timeout" and e.t_ns > kill_ns]
@@ -340,8 +375,9 @@ def test_an_emulator_killed_mid_session(tmp_path, victim):
     else:
         assert not (rec.t_ns("/kinematics/pose") > kill_ns + MARGIN_NS).any()
         assert (rec.t_ns("/sensor/wrench") > kill_ns + NS // 2).any()  # the sensor goes on
-        reasons = _assert_zero(rec, kill_ns + 6_000_000 + stale_ns + MARGIN_NS, rec.t_ns("/haptic/command")[-1],
-                               "UR controller killed")
+        reasons = _assert_zero(
+            rec, kill_ns + 6_000_000 + stale_ns + MARGIN_NS, rec.t_ns("/haptic/command")[-1], "UR controller killed"
+        )
         assert set(reasons) <= SAFE_REASONS and "stale kinematics" in set(reasons)
         timeout = [e for e in events if e.kind == "kinematics_timeout" and e.t_ns > kill_ns]
         assert len(timeout) == 1 and timeout[0].data["connected"] is False

@@ -22,8 +22,15 @@ def R_EB_at(t: np.ndarray, speed: float) -> np.ndarray:
     return matrix_from_rotvec((speed * t)[:, None] * axis).transpose(0, 2, 1)
 
 
-def blocks(lag_s: float, seconds: float, turning: bool = True, contact: tuple[float, float] | None = None,
-           seed: int = 0, block: int = 7, start_s: float = 1.0):
+def blocks(
+    lag_s: float,
+    seconds: float,
+    turning: bool = True,
+    contact: tuple[float, float] | None = None,
+    seed: int = 0,
+    block: int = 7,
+    start_s: float = 1.0,
+):
     """The sensor sees the weight at the true pose; the poses handed with it are ``lag_s`` late."""
     rng = np.random.default_rng(seed)
     t = start_s + np.arange(int(seconds * RATE_HZ)) / RATE_HZ
@@ -39,8 +46,17 @@ def blocks(lag_s: float, seconds: float, turning: bool = True, contact: tuple[fl
     for i in range(0, n, block):
         s = slice(i, min(i + block, n))
         m = s.stop - s.start
-        yield AlignedSamples(t_ns[s], force_S[s], np.zeros((m, 3)), late_R_EB[s], np.arange(m), np.zeros(m, int),
-                             np.zeros(m, bool), np.tile([1.0, 0, 0, 0], (m, 1)), None)
+        yield AlignedSamples(
+            t_ns[s],
+            force_S[s],
+            np.zeros((m, 3)),
+            late_R_EB[s],
+            np.arange(m),
+            np.zeros(m, int),
+            np.zeros(m, bool),
+            np.tile([1.0, 0, 0, 0], (m, 1)),
+            None,
+        )
 
 
 @pytest.mark.parametrize("lag_s", [0.0, 0.02, 0.1, 0.2])

@@ -22,8 +22,9 @@ from hapticlab.sessions.recording import read_recording
 
 def demo(*overrides: str, duration: float = 2.0, realtime: bool = False):
     config, _ = load_config("demo")
-    return apply_overrides(config, [f"session.realtime={str(realtime).lower()}", f"session.duration={duration}",
-                                    *overrides])
+    return apply_overrides(
+        config, [f"session.realtime={str(realtime).lower()}", f"session.duration={duration}", *overrides]
+    )
 
 
 class BreakingSensor(SimSensor):
@@ -128,11 +129,14 @@ def registry():
     return Registry(pm)
 
 
-@pytest.mark.parametrize("override, part, cause", [
-    ("sensor.name=breaking", "sensor breaking", "ConnectionResetError: RDT socket closed"),
-    ("kinematics.name=breaking", "kinematics breaking", "TimeoutError: RTDE: no data package"),
-    ("estimator.name=breaking", "estimator breaking", "LinAlgError: Singular matrix"),
-])
+@pytest.mark.parametrize(
+    "override, part, cause",
+    [
+        ("sensor.name=breaking", "sensor breaking", "ConnectionResetError: RDT socket closed"),
+        ("kinematics.name=breaking", "kinematics breaking", "TimeoutError: RTDE: no data package"),
+        ("estimator.name=breaking", "estimator breaking", "LinAlgError: Singular matrix"),
+    ],
+)
 def test_a_part_that_raises_ends_the_session_with_a_complete_recording(tmp_path, registry, override, part, cause):
     path = tmp_path / "failed.mcap"
     with pytest.raises(SessionError, match=f"^{part} raised {cause}") as info:
@@ -210,6 +214,7 @@ def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep
                 prepare(until_ns)
             finally:
                 preparing[0] = False
+
         device.prepare = counted
     preparing = [False]
     result = run_session(session, out=tmp_path / "ahead.mcap")
@@ -229,11 +234,13 @@ def test_a_paced_loop_asks_ten_ticks_ahead_and_only_with_half_a_period_to_spare(
     period_ns = 1_000_000
     calls = []
     for part, device, slow in (("sensor", session.sensor, True), ("kinematics", session.kinematics, False)):
+
         def recorded(until_ns, prepare=device.prepare, part=part, slow=slow):
             calls.append((part, until_ns - PREPARE_AHEAD_TICKS * period_ns - time.monotonic_ns()))  # (due - now)
             if slow:
                 time.sleep(0.0006)
             prepare(until_ns)
+
         device.prepare = recorded
     result = run_session(session, out=tmp_path / "turns.mcap")
     sensor = [left for part, left in calls if part == "sensor"]
@@ -258,8 +265,11 @@ def test_a_loop_that_falls_behind_records_an_overrun(tmp_path, registry):
 
 
 def test_a_plugin_without_its_interface_is_refused_at_build_time(registry):
-    with pytest.raises(ConfigError, match=r"^estimator.name: estimator 'broken' \(tests\) is not a Estimator: "
-                                          r"it lacks cov_diag, update_block$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^estimator.name: estimator 'broken' \(tests\) is not a Estimator: "
+        r"it lacks cov_diag, update_block$",
+    ):
         build_session(demo("estimator.name=broken"), registry)
 
 
@@ -335,8 +345,9 @@ def test_a_writer_process_that_dies_ends_the_session_with_the_force_zeroed(tmp_p
     pm.register(Killer(), name="tests")
     path = tmp_path / "writer_died.mcap"
     with pytest.raises(SessionError, match="^recording raised WriterProcessError.*hapticlab recover") as info:
-        run_session(build_session(demo("sensor.name=writer_killer", "haptic.name=log", duration=2.0),
-                                  Registry(pm)), out=path)
+        run_session(
+            build_session(demo("sensor.name=writer_killer", "haptic.name=log", duration=2.0), Registry(pm)), out=path
+        )
     assert info.value.part == "recording"
     assert device.closed and device.commands[-1].reason.startswith("session ended by an error: recording raised")
     assert not device.commands[-1].enabled and not device.commands[-1].force_D.any()
@@ -372,8 +383,9 @@ def test_the_calibration_read_at_open_and_the_events_of_closing_are_recorded(tmp
 
     pm = make_plugin_manager(load_entry_points=False)
     pm.register(Networked(), name="tests")
-    result = run_session(build_session(demo("sensor.name=networked", duration=0.2), Registry(pm)),
-                         out=tmp_path / "net.mcap")
+    result = run_session(
+        build_session(demo("sensor.name=networked", duration=0.2), Registry(pm)), out=tmp_path / "net.mcap"
+    )
     rec = read_recording(result.path)
     assert rec.metadata["hapticlab.calibration"] == {"source": "sensor", "counts_per_force": "1000000"}
     health = [m for _, m in rec.topics["/events"] if m["kind"] == "sensor_health"]

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from hapticlab.core.host.registry import ConfigError
-from hapticlab.sessions.cli.run import weight_identified
 from hapticlab.sessions.bench.faults import FAULT_START_S, FAULTS, made_up_force, measure, session
+from hapticlab.sessions.cli.run import weight_identified
 from hapticlab.sessions.config import HapticSettings, apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
 from hapticlab.sessions.live.safety import ForceGovernor
@@ -26,10 +26,17 @@ def clean():
     return session("rls", None)
 
 
-@pytest.mark.parametrize("label", [
-    "sensor spike +1000 N, 20 ms", "sensor NaN, 200 ms", "sensor saturated, 200 ms", "sensor dropout, 500 ms",
-    "kinematics frozen, 2 s", "kinematics dropout, 500 ms",
-])
+@pytest.mark.parametrize(
+    "label",
+    [
+        "sensor spike +1000 N, 20 ms",
+        "sensor NaN, 200 ms",
+        "sensor saturated, 200 ms",
+        "sensor dropout, 500 ms",
+        "kinematics frozen, 2 s",
+        "kinematics dropout, 500 ms",
+    ],
+)
 def test_a_fault_is_caught_within_100_ms_and_makes_up_less_than_half_a_newton(clean, label):
     r = measure("rls", clean, FAULTS[label])
     print(f"\n{label}: {r}")
@@ -86,8 +93,10 @@ def test_no_fault_is_seen_in_clean_sessions():
     """Demo sessions with indentations while the tool turns, three seeds and estimators: nothing is called a fault."""
     for estimator, seed in (("rls", 2), ("kalman", 3), ("batch", 4)):
         config, _ = load_config("demo")
-        config = apply_overrides(config, ["session.realtime=false", "session.duration=15", f"world.seed={seed}",
-                                          f"estimator.name={estimator}"])
+        config = apply_overrides(
+            config,
+            ["session.realtime=false", "session.duration=15", f"world.seed={seed}", f"estimator.name={estimator}"],
+        )
         events = session_events(config)
         assert not [e for e in events if e.kind in ("fault", "bias_step")], (estimator, seed)
 
@@ -106,16 +115,22 @@ def test_made_up_force_counts_what_the_true_force_cannot_explain():
     assert np.allclose(made_up_force(force, truth), [0.0, 0.0, 0.5, 1.0])
 
 
-@pytest.mark.parametrize("override, message", [
-    ("session.stale_timeout=100", r"^session.stale_timeout: must be at most 1, got 100"),
-    ("session.loop_rate_hz=3e9", r"^session.loop_rate_hz: must be at most 10000"),
-    ("session.duration=-5", r"^session.duration: must be greater than 0"),
-    ("session.duration=inf", r"^session.duration: must be a finite number"),
-    ("sensor.rate_hz=1e9", r"^sensor.rate_hz: must be > 0 and at most 100000 Hz"),
-    ("kinematics.rate_hz=-1", r"^kinematics.rate_hz: must be > 0"),
-    ("world.faults=[{kind = 'sensor_smoke', start = 1.0}]", r"^world.faults\[0\].kind: unknown fault 'sensor_smoke'"),
-    ("world.faults=[{kind = 'sensor_nan'}]", r"^world.faults\[0\].start: missing"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("session.stale_timeout=100", r"^session.stale_timeout: must be at most 1, got 100"),
+        ("session.loop_rate_hz=3e9", r"^session.loop_rate_hz: must be at most 10000"),
+        ("session.duration=-5", r"^session.duration: must be greater than 0"),
+        ("session.duration=inf", r"^session.duration: must be a finite number"),
+        ("sensor.rate_hz=1e9", r"^sensor.rate_hz: must be > 0 and at most 100000 Hz"),
+        ("kinematics.rate_hz=-1", r"^kinematics.rate_hz: must be > 0"),
+        (
+            "world.faults=[{kind = 'sensor_smoke', start = 1.0}]",
+            r"^world.faults\[0\].kind: unknown fault 'sensor_smoke'",
+        ),
+        ("world.faults=[{kind = 'sensor_nan'}]", r"^world.faults\[0\].start: missing"),
+    ],
+)
 def test_settings_that_make_no_physical_sense_are_refused(override, message):
     config, _ = load_config("demo")
     with pytest.raises(ConfigError, match=message):
@@ -145,8 +160,10 @@ def test_the_governor_checks_its_output():
 
 def run_in_subprocess(tmp_path, *extra):
     out = tmp_path / "signalled.mcap"
-    code = ("import sys; from hapticlab.sessions.cli import main; "
-            f"sys.exit(main(['run', '--duration', '30', '--out', {str(out)!r}, *{list(extra)!r}]))")
+    code = (
+        "import sys; from hapticlab.sessions.cli import main; "
+        f"sys.exit(main(['run', '--duration', '30', '--out', {str(out)!r}, *{list(extra)!r}]))"
+    )
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
     while not (out.exists() and out.stat().st_size > 0) and time.monotonic() < deadline:
@@ -188,9 +205,13 @@ def test_a_tool_turned_about_one_axis_only_is_told_what_the_motion_cannot_identi
     the force stays zero all along, and the reason the haptic command gives names it and how to move: a warm-up,
     not a fault. (The estimator's flag is up at the poses it knows, so the reason is soon the gate's own: the
     parameters, gravity's std as identified, not yet known to ready_force_std.)"""
-    config = apply_overrides(load_config("demo")[0], [
-        "session.realtime=false",
-        'world.motion={script="axial_rotation", speed_deg_s=30.0, turns=2.0, ramp_s=1.0, start_s=0.5}'])
+    config = apply_overrides(
+        load_config("demo")[0],
+        [
+            "session.realtime=false",
+            'world.motion={script="axial_rotation", speed_deg_s=30.0, turns=2.0, ramp_s=1.0, start_s=0.5}',
+        ],
+    )
     result = run_session(build_session(config), out=tmp_path / "axial.mcap", duration=6.0)
     said = [e for e in result.events if e.kind == "not_identifiable"]
     assert [(e.data["parameter"], e.data["axes"]) for e in said] == [("gravity_force_B", ["x"])]
@@ -202,9 +223,13 @@ def test_a_tool_turned_about_one_axis_only_is_told_what_the_motion_cannot_identi
     rec = read_recording(tmp_path / "axial.mcap")
     commands = [m for _, m in rec.topics["/haptic/command"]]
     assert not any(m["enabled"] for m in commands) and not any(m["force_D"] != [0.0, 0.0, 0.0] for m in commands)
-    after = [m["reason"] for t, m in rec.topics["/haptic/command"] if t > said[0].t_ns and m["reason"] != "session ended"]
-    assert after and all(r in (f"estimator not converged ({said[0].message})",
-                               f"parameters not yet identified ({said[0].message})") for r in after)
+    after = [
+        m["reason"] for t, m in rec.topics["/haptic/command"] if t > said[0].t_ns and m["reason"] != "session ended"
+    ]
+    assert after and all(
+        r in (f"estimator not converged ({said[0].message})", f"parameters not yet identified ({said[0].message})")
+        for r in after
+    )
     assert after[-1] == f"parameters not yet identified ({said[0].message})"
     assert any(e.kind == "converged" for e in result.events)  # the flag at the pose: not what turns the force on
     assert "turn the tool about another axis" in after[0]

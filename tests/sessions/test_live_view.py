@@ -8,12 +8,12 @@ import struct
 import threading
 
 import pytest
+from mcap.reader import make_reader
 
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
 from hapticlab.sessions.recording import read_recording
-from mcap.reader import make_reader
 
 pytest.importorskip("foxglove", reason="the live extra (foxglove-sdk) is not installed")
 websockets = pytest.importorskip("websockets")
@@ -44,9 +44,18 @@ async def watch(address: str, seconds: float) -> tuple[dict, list[tuple[int, int
                     channels.update({c["id"]: c for c in new})
                     for c in new:
                         subscriptions[len(subscriptions) + 1] = c["id"]
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-                        {"id": sid, "channelId": cid} for sid, cid in subscriptions.items() if cid in
-                        {c["id"] for c in new}]}))
+                    await ws.send(
+                        json.dumps(
+                            {
+                                "op": "subscribe",
+                                "subscriptions": [
+                                    {"id": sid, "channelId": cid}
+                                    for sid, cid in subscriptions.items()
+                                    if cid in {c["id"] for c in new}
+                                ],
+                            }
+                        )
+                    )
             elif message[0] == 0x01:  # message data: opcode, subscription id, log time, payload
                 sid, log_time = struct.unpack_from("<IQ", message, 1)
                 received.append((subscriptions[sid], log_time, bytes(message[13:])))
@@ -64,8 +73,13 @@ def test_a_running_session_is_served_live_with_the_recording_s_topics_and_bytes(
 
     result: dict = {}
     session = build_session(demo(4.0))
-    runner = threading.Thread(target=lambda: result.update(r=run_session(
-        session, out=tmp_path / "live.mcap", on_status=on_status, status_interval_s=0.05, live="127.0.0.63:0")))
+    runner = threading.Thread(
+        target=lambda: result.update(
+            r=run_session(
+                session, out=tmp_path / "live.mcap", on_status=on_status, status_interval_s=0.05, live="127.0.0.63:0"
+            )
+        )
+    )
     runner.start()
     try:
         assert ready.wait(30), "the session never reported its live view"
@@ -74,8 +88,14 @@ def test_a_running_session_is_served_live_with_the_recording_s_topics_and_bytes(
         runner.join(60)
     rec = read_recording(result["r"].path)
     topics = {c["topic"]: c for c in channels.values()}
-    assert {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/rls", "/haptic/command",
-            "/events"} <= set(topics)
+    assert {
+        "/sensor/wrench",
+        "/kinematics/pose",
+        "/aligned/sample",
+        "/estimator/rls",
+        "/haptic/command",
+        "/events",
+    } <= set(topics)
     assert topics["/sensor/wrench"]["encoding"] == "cdr" and topics["/sensor/wrench"]["schemaEncoding"] == "ros2msg"
     assert topics["/haptic/command"]["encoding"] == "json"
     by_topic: dict[str, list[tuple[int, bytes]]] = {}
@@ -87,8 +107,9 @@ def test_a_running_session_is_served_live_with_the_recording_s_topics_and_bytes(
     t, payload = commands[len(commands) // 2]
     assert json.loads(payload) == recorded[t]  # the same message the file holds, at the same time
     with open(result["r"].path, "rb") as f:  # the CDR blocks: byte for byte the file's messages
-        in_file = {message.log_time: message.data for _, _, message in
-                   make_reader(f).iter_messages(topics=["/sensor/wrench"])}
+        in_file = {
+            message.log_time: message.data for _, _, message in make_reader(f).iter_messages(topics=["/sensor/wrench"])
+        }
     live_blocks = by_topic["/sensor/wrench"]
     assert len(live_blocks) > 100  # one block per hand-over (20 ms) over the seconds watched
     assert sum(struct.unpack_from("<I", block, 4)[0] for _, block in live_blocks) > 2000  # ~1 kHz of samples
@@ -104,8 +125,9 @@ def test_a_live_address_in_use_is_one_line_and_leaves_no_file(tmp_path):
     port = taken.getsockname()[1]
     try:
         with pytest.raises(ConfigError, match=rf"--live 127.0.0.64:{port}: the live view did not start"):
-            run_session(build_session(demo(1.0, "session.realtime=false")), out=tmp_path / "x.mcap",
-                        live=f"127.0.0.64:{port}")
+            run_session(
+                build_session(demo(1.0, "session.realtime=false")), out=tmp_path / "x.mcap", live=f"127.0.0.64:{port}"
+            )
     finally:
         taken.close()
     assert not (tmp_path / "x.mcap").exists()

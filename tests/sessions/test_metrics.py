@@ -22,8 +22,17 @@ from scipy.stats import norm
 from hapticlab.core.types import first_true
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.sessions.offline.compensate import run_estimator
-from hapticlab.sessions.offline.metrics import (error_stats, mae, mae_compensation_pct, max_ae, norm_ratio, rms,
-                                                rms_after_convergence, scored_rows, std)
+from hapticlab.sessions.offline.metrics import (
+    error_stats,
+    mae,
+    mae_compensation_pct,
+    max_ae,
+    norm_ratio,
+    rms,
+    rms_after_convergence,
+    scored_rows,
+    std,
+)
 from hapticlab.sessions.recording.stream import Stream
 
 SIGMA_F = np.array([0.12, 0.12, 0.06])
@@ -44,7 +53,7 @@ def mae_tolerance(n: int) -> float:
 
 def folded_normal_mean(mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """E|x| for x ~ N(mu, sigma): the MAE of a constant offset mu read through Gaussian noise."""
-    return sigma * MAE_OVER_SIGMA * np.exp(-mu ** 2 / (2 * sigma ** 2)) + mu * (1 - 2 * norm.cdf(-mu / sigma))
+    return sigma * MAE_OVER_SIGMA * np.exp(-(mu**2) / (2 * sigma**2)) + mu * (1 - 2 * norm.cdf(-mu / sigma))
 
 
 def test_rms_std_and_mae_of_sensor_noise_are_its_sigma():
@@ -62,7 +71,7 @@ def test_rms_counts_an_uncompensated_bias_and_std_does_not():
     n = 100_000
     bias = np.array([0.3, -0.3, 0.0])
     reading = bias + np.random.default_rng(8).normal(0.0, SIGMA_F, (n, 3))
-    expected = np.sqrt(bias ** 2 + SIGMA_F ** 2)
+    expected = np.sqrt(bias**2 + SIGMA_F**2)
     # the mean square's relative standard error is below √2/√n with an offset too (variance 2σ⁴ + 4b²σ²,
     # over (b² + σ²)² ≤ 2 / n): the RMS's half that
     assert np.all(np.abs(rms(reading) / expected - 1) < rms_tolerance(n)), rms(reading)

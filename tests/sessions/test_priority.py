@@ -8,8 +8,7 @@ import pytest
 
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.config import apply_overrides, load_config
-from hapticlab.sessions.live import build_session, run_session
-from hapticlab.sessions.live import priority
+from hapticlab.sessions.live import build_session, priority, run_session
 from hapticlab.sessions.recording import read_recording
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="Linux scheduling policies")
@@ -24,8 +23,9 @@ def _policies_while_ticking(session) -> list[tuple[int, int]]:
     """(policy, priority) of the thread that sends each haptic command (the loop's), one per tick."""
     seen = []
     send = session.haptic.send
-    session.haptic.send = lambda command: seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)) \
-        or send(command)
+    session.haptic.send = lambda command: (
+        seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)) or send(command)
+    )
     return seen
 
 
@@ -83,8 +83,9 @@ def test_no_priority_is_asked_for_at_0_or_in_a_simulated_session(tmp_path, overr
     assert read_recording(result.path).metadata["hapticlab.summary"]["realtime_priority"] == "0"
 
 
-@pytest.mark.parametrize("value, why", [("100", "must be at most 99"), ("-1", "must be at least 0"),
-                                        ('"high"', "expected")])
+@pytest.mark.parametrize(
+    "value, why", [("100", "must be at most 99"), ("-1", "must be at least 0"), ('"high"', "expected")]
+)
 def test_a_priority_out_of_range_is_refused_naming_the_key(value, why):
     with pytest.raises(ConfigError, match=f"session.realtime_priority: {why}"):
         build_session(demo(f"session.realtime_priority={value}"))

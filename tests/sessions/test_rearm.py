@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from hapticlab.core.types import DeviceState
 from hapticlab.sessions.config import apply_settings, load_config
 from hapticlab.sessions.live import build_session
@@ -36,8 +37,9 @@ class ButtonHaptic:
     def state(self) -> DeviceState | None:
         t = (self.commands[-1].t_ns - self.t0_ns) * 1e-9
         down = any(a <= t < b for a, b in self.pressed)
-        return DeviceState(self.commands[-1].t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3),
-                           (1 << REARM_BIT) * down | 0b100)  # another button held all along
+        return DeviceState(
+            self.commands[-1].t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), (1 << REARM_BIT) * down | 0b100
+        )  # another button held all along
 
     def close(self) -> None:
         pass
@@ -46,8 +48,9 @@ class ButtonHaptic:
 def latching_session(tmp_path, faults, pressed, duration):
     """The demo (rls, not realtime) whose estimator cannot re-identify its bias: a bias step latches."""
     config, _ = load_config("demo")
-    config = apply_settings(config, {"session.realtime": False, "session.duration": duration,
-                                     "haptic.rearm_button": REARM_BIT})
+    config = apply_settings(
+        config, {"session.realtime": False, "session.duration": duration, "haptic.rearm_button": REARM_BIT}
+    )
     config["world"]["faults"] = faults
     session = build_session(config)
     session.primary.reidentifies = None  # as an estimator without the Reidentifies capability
@@ -86,7 +89,7 @@ def test_a_latched_stop_stays_at_zero_until_a_button_press_once_the_cause_is_gon
     k_on = int(np.argmax((t > rearmed[0][0] - 1e-4) & on))
     assert t[k_on] < rearmed[0][0] + 0.005 and on[k_on:-1].all()  # the last: the session's final zero
     assert np.linalg.norm(force[k_on]) <= MAX_STEP_N + 1e-12
-    assert np.max(np.linalg.norm(np.diff(force[k_on - 1:-1], axis=0), axis=1)) <= MAX_STEP_N + 1e-9
+    assert np.max(np.linalg.norm(np.diff(force[k_on - 1 : -1], axis=0), axis=1)) <= MAX_STEP_N + 1e-9
 
 
 def test_a_press_is_an_edge_and_a_lost_state_counts_as_held(tmp_path):
@@ -108,8 +111,9 @@ def test_a_press_is_an_edge_and_a_lost_state_counts_as_held(tmp_path):
 
 def test_a_rearm_with_nothing_latched_is_no_event(tmp_path):
     config, _ = load_config("demo")
-    loop = LiveLoop(build_session(apply_settings(config, {"session.realtime": False})),
-                    tmp_path / "unused.mcap", None, None, 0.25)
+    loop = LiveLoop(
+        build_session(apply_settings(config, {"session.realtime": False})), tmp_path / "unused.mcap", None, None, 0.25
+    )
     assert loop.gate.rearm(0, "api") is None and not loop.gate.latched
     loop.rearm()
     loop.status.rearm("key r")

@@ -25,13 +25,7 @@ from mcap.stream_reader import breakup_chunk
 import hapticlab
 from hapticlab.core.errors import UserError
 from hapticlab.sessions import recording
-from hapticlab.sessions.recording import (
-    Recorder,
-    RecordingError,
-    iter_messages,
-    read_recording,
-    recover,
-)
+from hapticlab.sessions.recording import Recorder, RecordingError, iter_messages, read_recording, recover
 
 HERE = Path(__file__).resolve().parent
 NAN = float("nan")
@@ -137,8 +131,14 @@ def _every_topic_messages() -> list[tuple[str, int, dict]]:
             (
                 "/aligned/sample",
                 t + 20,
-                {"force_S": [1.5 + i, -2.25, 9.81], "torque_S": [0.0, 0.0, 0.0], "quat_BE": [0.5, 0.5, 0.5, 0.5],
-                 "seq": 100 + i, "status": 0, "stale": i == 7},
+                {
+                    "force_S": [1.5 + i, -2.25, 9.81],
+                    "torque_S": [0.0, 0.0, 0.0],
+                    "quat_BE": [0.5, 0.5, 0.5, 0.5],
+                    "seq": 100 + i,
+                    "status": 0,
+                    "stale": i == 7,
+                },
             )
         )
         msgs.append(("/estimator/rls", t + 30, _estimate(i)))
@@ -151,7 +151,10 @@ def _every_topic_messages() -> list[tuple[str, int, dict]]:
             (
                 "/haptic/state",
                 t + 50,
-                {"pose": {"quat_DH": [1.0, 0.0, 0.0, 0.0], "p_DoHo_D": np.array([0.01 * i, 0.0, 0.1])}, "buttons": i % 4},
+                {
+                    "pose": {"quat_DH": [1.0, 0.0, 0.0, 0.0], "p_DoHo_D": np.array([0.01 * i, 0.0, 0.1])},
+                    "buttons": i % 4,
+                },
             )
         )
     return msgs
@@ -174,7 +177,9 @@ def every_topic(tmp_path):
     with Recorder(path, METADATA) as rec:
         for topic, t, m in msgs:
             rec.write(topic, t, m)
-        rec.event(1_005_000_000, "haptic_disabled", "estimator not converged", estimator="rls", residual_N=[0.5, 0.0, 0.1])
+        rec.event(
+            1_005_000_000, "haptic_disabled", "estimator not converged", estimator="rls", residual_N=[0.5, 0.0, 0.1]
+        )
         rec.event(1_009_000_000, "converged", "rls converged")
         assert rec.messages_written == len(msgs) + 2
         rec.close(SUMMARY)
@@ -420,7 +425,10 @@ def _start_crashing_writer(path: Path, *options: str) -> tuple[subprocess.Popen,
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_parent, env.get("PYTHONPATH")) if p)
     proc = subprocess.Popen(
         [sys.executable, str(HERE / "_crashing_writer.py"), str(path), "1.0", str(64 << 20), *options],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, start_new_session=True,  # a group of its own
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
+        start_new_session=True,  # a group of its own
     )
     ready, _, _ = select.select([proc.stdout], [], [], 30.0)
     assert ready, "writer did not start"
@@ -477,7 +485,9 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     assert stats["topics"] == per_message
     block_topics = {"/sensor/wrench", "/aligned/sample", "/estimator/late"}
     assert set(rec.blocks) == (block_topics if layout != "samples" else set())
-    assert rec.format_version == {"samples": 3, "json-blocks": 2, "blocks": 3, "blocks+process": 3}[layout]  # the writer's default
+    assert (
+        rec.format_version == {"samples": 3, "json-blocks": 2, "blocks": 3, "blocks+process": 3}[layout]
+    )  # the writer's default
     assert stats["lost_tail_bytes"] >= 0
 
     # nothing older than 1.5 s before the kill is lost (flush interval 1 s)
@@ -553,7 +563,9 @@ def many_chunks(tmp_path):
     with Recorder(path, METADATA, chunk_size=4096) as rec:
         for i in range(600):
             t = 5_000_000_000 + i * 1_000_000
-            rec.write("/sensor/wrench", t, {"force_S": [i, 2 * i, 3.5], "torque_S": [0.0, 0.1, -i], "seq": i, "status": 0})
+            rec.write(
+                "/sensor/wrench", t, {"force_S": [i, 2 * i, 3.5], "torque_S": [0.0, 0.1, -i], "seq": i, "status": 0}
+            )
             rec.write("/estimator/rls", t + 1, _estimate(i))
             rec.write("/haptic/command", t + 2, {"force_D": [0.0, 0.0, 0.001 * i], "enabled": True})
     chunks = _chunks(path)
@@ -652,15 +664,20 @@ def test_the_message_encoder_writes_the_values_json_would_and_null_for_what_is_n
     messages = [
         {"force_D": rng.normal(size=3).tolist(), "enabled": True, "reason": "", "source_t_ns": 2**64 - 1},
         {"pose": {"quat_DH": rng.normal(size=4), "p_DoHo_D": [0.0, -0.0, 1e-300]}, "buttons": 3, "v_DHo_D": None},
-        {"kind": "fault", "message": "ünïcode \"quoted\"\n\ttab \u2603", "data": {"a": np.float64(0.1),
-                                                                                  "b": np.int64(-7), "c": (1, 2),
-                                                                                  "d": rng.normal(size=(2, 3))[:, 1]}},
+        {
+            "kind": "fault",
+            "message": 'ünïcode "quoted"\n\ttab \u2603',
+            "data": {"a": np.float64(0.1), "b": np.int64(-7), "c": (1, 2), "d": rng.normal(size=(2, 3))[:, 1]},
+        },
         [1e308, -1e-308, 1e-05, 0.1 + 0.2, False, "x", {3: "int key"}],
     ]
     for message in messages:
         assert json.loads(_encode(message)) == json.loads(reference(message))
-    assert json.loads(_encode({"x": float("nan"), "y": [float("inf"), 1.0], "z": np.array([np.nan, -np.inf])})) == \
-        {"x": None, "y": [None, 1.0], "z": [None, None]}
+    assert json.loads(_encode({"x": float("nan"), "y": [float("inf"), 1.0], "z": np.array([np.nan, -np.inf])})) == {
+        "x": None,
+        "y": [None, 1.0],
+        "z": [None, None],
+    }
     assert json.loads(_encode([np.float32(0.1)])) == [0.1]  # a float32 written as the float32 it is
     with pytest.raises(TypeError):
         _encode({"x": object()})

@@ -47,21 +47,39 @@ class OldTaps:
     def wrenches(self, wrenches) -> None:
         write = self.rec.write
         for w in wrenches:
-            write("/sensor/wrench", w.t_ns, {
-                "force_S": w.force_S.tolist(), "torque_S": w.torque_S.tolist(),
-                "seq": int(w.seq), "status": int(w.status),
-            })
+            write(
+                "/sensor/wrench",
+                w.t_ns,
+                {
+                    "force_S": w.force_S.tolist(),
+                    "torque_S": w.torque_S.tolist(),
+                    "seq": int(w.seq),
+                    "status": int(w.status),
+                },
+            )
 
     def aligned(self, block) -> None:
         write = self.rec.write
-        quat_BE, seq, status, stale = (block.quat_BE.tolist(), block.seq.tolist(),
-                                       block.status.tolist(), block.stale.tolist())
+        quat_BE, seq, status, stale = (
+            block.quat_BE.tolist(),
+            block.seq.tolist(),
+            block.status.tolist(),
+            block.stale.tolist(),
+        )
         force, torque = block.force_S.tolist(), block.torque_S.tolist()
         for i, t in enumerate(block.t_ns.tolist()):
-            write("/aligned/sample", t, {
-                "force_S": force[i], "torque_S": torque[i], "quat_BE": quat_BE[i],
-                "seq": seq[i], "status": status[i], "stale": stale[i],
-            })
+            write(
+                "/aligned/sample",
+                t,
+                {
+                    "force_S": force[i],
+                    "torque_S": torque[i],
+                    "quat_BE": quat_BE[i],
+                    "seq": seq[i],
+                    "status": status[i],
+                    "stale": stale[i],
+                },
+            )
 
     def estimates(self, topic: str, est, params=None, cov_diag=None) -> None:
         write = self.rec.write
@@ -70,17 +88,25 @@ class OldTaps:
         contact, cf, ct = est.contact.tolist(), est.converged_force.tolist(), est.converged_torque.tolist()
         for i, t in enumerate(est.t_ns.tolist()):
             last = i == n - 1
-            write(topic, t, {
-                "contact_force_S": f[i], "contact_torque_S": tau[i], "contact": contact[i],
-                "converged_force": cf[i], "converged_torque": ct[i],
-                "params": params if last else None,
-                "cov_diag": cov_diag if last else None,
-            })
+            write(
+                topic,
+                t,
+                {
+                    "contact_force_S": f[i],
+                    "contact_torque_S": tau[i],
+                    "contact": contact[i],
+                    "converged_force": cf[i],
+                    "converged_torque": ct[i],
+                    "params": params if last else None,
+                    "cov_diag": cov_diag if last else None,
+                },
+            )
 
 
 def _arrays(block: dict, dtypes: dict) -> SimpleNamespace:
-    return SimpleNamespace(**{k: np.array(block[k], dtype=dtypes.get(k, float)) for k in block
-                              if k not in ("params", "cov_diag")})
+    return SimpleNamespace(
+        **{k: np.array(block[k], dtype=dtypes.get(k, float)) for k in block if k not in ("params", "cov_diag")}
+    )
 
 
 def _write_old_layout(new: Recording, path: Path) -> None:
@@ -88,14 +114,25 @@ def _write_old_layout(new: Recording, path: Path) -> None:
     ints = {"t_ns": np.int64, "seq": np.int64, "status": np.int64}
     with Recorder(path, {"hapticlab.session": {"format_version": 1}}) as rec:
         old = OldTaps(rec)
-        per_tick = [(t, topic, m) for topic in new.topic_names if topic not in BLOCK_TOPIC_NAMES
-                    for t, m in new.topics[topic]]
+        per_tick = [
+            (t, topic, m) for topic in new.topic_names if topic not in BLOCK_TOPIC_NAMES for t, m in new.topics[topic]
+        ]
         for t, topic, m in per_tick:
             rec.write(topic, t, m)
         for b in new.blocks["/sensor/wrench"]:
             a = _arrays(b, ints)
-            old.wrenches([SimpleNamespace(t_ns=int(a.t_ns[i]), force_S=a.force_S[i], torque_S=a.torque_S[i],
-                                          seq=a.seq[i], status=a.status[i]) for i in range(len(a.t_ns))])
+            old.wrenches(
+                [
+                    SimpleNamespace(
+                        t_ns=int(a.t_ns[i]),
+                        force_S=a.force_S[i],
+                        torque_S=a.torque_S[i],
+                        seq=a.seq[i],
+                        status=a.status[i],
+                    )
+                    for i in range(len(a.t_ns))
+                ]
+            )
         for b in new.blocks["/aligned/sample"]:
             old.aligned(_arrays(b, {**ints, "stale": bool}))
         for b in new.blocks["/estimator/rls"]:
@@ -143,8 +180,9 @@ def test_a_live_session_writes_blocks(both_layouts):
         summary = make_reader(f).get_summary()
     counts = summary.statistics.channel_message_counts
     by_topic = {c.topic: (summary.schemas[c.schema_id].name, counts[c.id]) for c in summary.channels.values()}
-    encodings = {c.topic: (summary.schemas[c.schema_id].encoding, c.message_encoding)
-                 for c in summary.channels.values()}
+    encodings = {
+        c.topic: (summary.schemas[c.schema_id].encoding, c.message_encoding) for c in summary.channels.values()
+    }
     for topic in BLOCK_TOPIC_NAMES:
         title, n_messages = by_topic[topic]
         assert title in CDR_BLOCK_SCHEMAS and encodings[topic] == ("ros2msg", "cdr")
@@ -215,8 +253,11 @@ def test_cdr_blocks_are_valid_for_their_ros2msg_schemas(both_layouts):
             assert message.log_time == ros.t_ns[-1]
             ours = next(b for b in rec.blocks[channel.topic] if b["t_ns"][-1] == message.log_time)
             for column in layout.columns:
-                assert np.array_equal(np.asarray(getattr(ros, column.ros_name)).reshape(ours[column.name].shape),
-                                      ours[column.name], equal_nan=True), (channel.topic, column.name)
+                assert np.array_equal(
+                    np.asarray(getattr(ros, column.ros_name)).reshape(ours[column.name].shape),
+                    ours[column.name],
+                    equal_nan=True,
+                ), (channel.topic, column.name)
                 assert len(getattr(ros, column.ros_name)) == n * column.width
             if layout.report:
                 assert (json.loads(ros.params) if ros.params else None) == ours.get("params")
@@ -232,32 +273,58 @@ def test_a_cdr_block_byte_by_byte(tmp_path):
     """A small estimator block against hand-worked CDR: offsets counted from after the 4-byte header."""
     path = tmp_path / "one.mcap"
     with Recorder(path) as rec:
-        rec.write_block("/estimator/x", {
-            "t_ns": [7], "contact_force_S": [[1.0, 2.0, 3.0]], "contact": [True],
-            "params": {"a": [0.5]}, "cov_diag": [2.0],
-        })
+        rec.write_block(
+            "/estimator/x",
+            {
+                "t_ns": [7],
+                "contact_force_S": [[1.0, 2.0, 3.0]],
+                "contact": [True],
+                "params": {"a": [0.5]},
+                "cov_diag": [2.0],
+            },
+        )
     with open(path, "rb") as f:
-        (schema, channel, message), = make_reader(f).iter_messages()
+        ((schema, channel, message),) = make_reader(f).iter_messages()
     assert (schema.encoding, channel.message_encoding, schema.name) == (
-        "ros2msg", "cdr", "hapticlab/msg/EstimatorEstimateBlock")
-    u32, i64, f64 = (lambda v: v.to_bytes(4, "little")), (lambda v: v.to_bytes(8, "little")), (lambda v: np.float64(v).tobytes())
+        "ros2msg",
+        "cdr",
+        "hapticlab/msg/EstimatorEstimateBlock",
+    )
+    u32, i64, f64 = (
+        (lambda v: v.to_bytes(4, "little")),
+        (lambda v: v.to_bytes(8, "little")),
+        (lambda v: np.float64(v).tobytes()),
+    )
     text = b'{"a":[0.5]}\x00'  # 12 bytes with the NUL
-    expected = (b"\x00\x01\x00\x00"          # header; offsets below from here
-                + u32(1) + bytes(4) + i64(7)   # 0 t_ns: count, pad to 8, one int64 at 8
-                + u32(3) + bytes(4) + f64(1.0) + f64(2.0) + f64(3.0)  # 16 contact_force_S: count, pad, at 24
-                + u32(0)                       # 48 contact_torque_S: empty (no padding after the count)
-                + u32(1) + b"\x01"             # 52 contact: count, one bool at 56
-                + bytes(3) + u32(0)            # 57 pad to 60, converged_force: empty
-                + u32(0)                       # 64 converged_torque: empty
-                + u32(len(text)) + text        # 68 params: byte count with the NUL, at 72..83
-                + u32(1) + f64(2.0)            # 84 cov_diag: count at 84, float64 at 88 (aligned to 8)
-                + b"\x01")                     # 96 has_cov_diag
+    expected = (
+        b"\x00\x01\x00\x00"  # header; offsets below from here
+        + u32(1)
+        + bytes(4)
+        + i64(7)  # 0 t_ns: count, pad to 8, one int64 at 8
+        + u32(3)
+        + bytes(4)
+        + f64(1.0)
+        + f64(2.0)
+        + f64(3.0)  # 16 contact_force_S: count, pad, at 24
+        + u32(0)  # 48 contact_torque_S: empty (no padding after the count)
+        + u32(1)
+        + b"\x01"  # 52 contact: count, one bool at 56
+        + bytes(3)
+        + u32(0)  # 57 pad to 60, converged_force: empty
+        + u32(0)  # 64 converged_torque: empty
+        + u32(len(text))
+        + text  # 68 params: byte count with the NUL, at 72..83
+        + u32(1)
+        + f64(2.0)  # 84 cov_diag: count at 84, float64 at 88 (aligned to 8)
+        + b"\x01"
+    )  # 96 has_cov_diag
     assert message.data == expected
     ros = DecoderFactory().decoder_for("cdr", schema)(message.data)
     assert (ros.t_ns, ros.contact, ros.params, ros.has_cov_diag) == ([7], [True], '{"a":[0.5]}', True)
     rec = read_recording(path)
-    assert rec.topics["/estimator/x"] == [(7, {
-        "contact_force_S": [1.0, 2.0, 3.0], "contact": True, "params": {"a": [0.5]}, "cov_diag": [2.0]})]
+    assert rec.topics["/estimator/x"] == [
+        (7, {"contact_force_S": [1.0, 2.0, 3.0], "contact": True, "params": {"a": [0.5]}, "cov_diag": [2.0]})
+    ]
 
 
 def test_json_block_messages_match_their_schemas(both_layouts):
@@ -287,12 +354,18 @@ def test_non_finite_values_in_a_block_read_back_as_nan(tmp_path, encoding):
     path = tmp_path / "nan.mcap"
     force = np.array([[1.0, NAN, 2.0], [math.inf, 0.0, -math.inf], [1, 2, 3]])
     with Recorder(path, block_encoding=encoding) as rec:
-        rec.write_block("/sensor/wrench", {
-            "t_ns": np.array([10, 20, 30]), "force_S": force,
-            "torque_S": [[0.0] * 3] * 3, "seq": np.arange(3), "status": [0, 0, 1],
-        })
+        rec.write_block(
+            "/sensor/wrench",
+            {
+                "t_ns": np.array([10, 20, 30]),
+                "force_S": force,
+                "torque_S": [[0.0] * 3] * 3,
+                "seq": np.arange(3),
+                "status": [0, 0, 1],
+            },
+        )
     with open(path, "rb") as f:
-        (_, _, message), = make_reader(f).iter_messages()
+        ((_, _, message),) = make_reader(f).iter_messages()
     assert message.log_time == 30  # the last sample's time
     if encoding == "json":
         assert json.loads(message.data)["force_S"] == [[1.0, None, 2.0], [None, 0.0, None], [1, 2, 3]]
@@ -312,8 +385,16 @@ def test_blocks_out_of_order_read_back_in_time_order(tmp_path):
     with Recorder(path) as rec:
         for start in (100, 0, 200):
             t = list(range(start, start + 30, 10))
-            rec.write_block("/sensor/wrench", {"t_ns": t, "force_S": [[float(x), 0.0, 0.0] for x in t],
-                                               "torque_S": [[0.0] * 3] * 3, "seq": t, "status": [0] * 3})
+            rec.write_block(
+                "/sensor/wrench",
+                {
+                    "t_ns": t,
+                    "force_S": [[float(x), 0.0, 0.0] for x in t],
+                    "torque_S": [[0.0] * 3] * 3,
+                    "seq": t,
+                    "status": [0] * 3,
+                },
+            )
     for rec in (read_recording(path), open_recording(path)):
         t, force, _ = rec.wrench()
         assert t.tolist() == [0, 10, 20, 100, 110, 120, 200, 210, 220] and force[:, 0].tolist() == t.tolist()
@@ -330,8 +411,18 @@ def test_write_block_refuses_bad_blocks(tmp_path, encoding):
         for t_ns in ([], [1.5], [1, 1.5, 2], np.array([1.0]), None, [-1], [1, 1 << 64]):
             with pytest.raises(ValueError, match="t_ns"):
                 rec.write_block("/sensor/wrench", {"t_ns": t_ns, "force_S": []})
-        rec.write("/aligned/sample", 1, {"force_S": [0.0] * 3, "torque_S": [0.0] * 3, "quat_BE": [1.0, 0, 0, 0],
-                                         "seq": 0, "status": 0, "stale": False})
+        rec.write(
+            "/aligned/sample",
+            1,
+            {
+                "force_S": [0.0] * 3,
+                "torque_S": [0.0] * 3,
+                "quat_BE": [1.0, 0, 0, 0],
+                "seq": 0,
+                "status": 0,
+                "stale": False,
+            },
+        )
         with pytest.raises(ValueError, match="one layout per topic"):
             rec.write_block("/aligned/sample", {"t_ns": [2], "force_S": [[0.0] * 3]})
         rec.write_block("/estimator/rls", {"t_ns": [1], "contact_force_S": [[0.0] * 3]})
@@ -355,10 +446,15 @@ def test_write_block_refuses_bad_blocks(tmp_path, encoding):
 def test_a_damaged_block_is_a_one_line_error(tmp_path):
     path = tmp_path / "ragged.mcap"
     with Recorder(path, block_encoding="json") as rec:
-        rec.write_block("/sensor/wrench", {"t_ns": [1, 2], "force_S": [[0.0] * 3], "torque_S": [[0.0] * 3] * 2,
-                                           "seq": [0, 1], "status": [0, 0]})
-    for read in (lambda: read_recording(path), lambda: open_recording(path).field("/sensor/wrench", "force_S"),
-                 lambda: list(iter_messages(path, "/sensor/wrench"))):
+        rec.write_block(
+            "/sensor/wrench",
+            {"t_ns": [1, 2], "force_S": [[0.0] * 3], "torque_S": [[0.0] * 3] * 2, "seq": [0, 1], "status": [0, 0]},
+        )
+    for read in (
+        lambda: read_recording(path),
+        lambda: open_recording(path).field("/sensor/wrench", "force_S"),
+        lambda: list(iter_messages(path, "/sensor/wrench")),
+    ):
         with pytest.raises(RecordingError, match="field 'force_S' does not hold one value for each of its 2 samples"):
             read()
 
@@ -370,9 +466,16 @@ def test_a_truncated_block_recording_recovers_whole_blocks(tmp_path):
         for k in range(300):
             t = [1_000_000 + 7 * k + i for i in range(7)]
             written += t
-            rec.write_block("/sensor/wrench", {"t_ns": t, "force_S": [[x * 0.5, -1.0, 2.0] for x in t],
-                                               "torque_S": [[0.0, 0.0, x * 1e-3] for x in t],
-                                               "seq": t, "status": [0] * 7})
+            rec.write_block(
+                "/sensor/wrench",
+                {
+                    "t_ns": t,
+                    "force_S": [[x * 0.5, -1.0, 2.0] for x in t],
+                    "torque_S": [[0.0, 0.0, x * 1e-3] for x in t],
+                    "seq": t,
+                    "status": [0] * 7,
+                },
+            )
             rec.write("/haptic/command", t[-1], {"force_D": [0.0, 0.0, float(k)], "enabled": True})
     data = path.read_bytes()
     for cut in (len(data) // 4, len(data) // 2, 3 * len(data) // 4):
@@ -393,14 +496,20 @@ def test_a_damaged_cdr_block_is_a_one_line_error(tmp_path):
     with Recorder(path) as rec:
         rec.write_block("/sensor/wrench", {"t_ns": [1, 2], "force_S": np.zeros((2, 3))})
     with open(path, "rb") as f:
-        (_, _, message), = make_reader(f).iter_messages()
+        ((_, _, message),) = make_reader(f).iter_messages()
     cut = tmp_path / "cut.mcap"
     with Recorder(cut) as rec:  # the same channel, a message cut short inside force_S
         rec.write_block("/sensor/wrench", {"t_ns": [1], "force_S": np.zeros((1, 3))})
         rec._add_bytes(rec._block_ids["/sensor/wrench"], 2, message.data[:40])
-    for read in (lambda: read_recording(cut), lambda: open_recording(cut).field("/sensor/wrench", "force_S"),
-                 lambda: list(iter_messages(cut, "/sensor/wrench"))):
-        with pytest.raises(RecordingError, match=r"cut.mcap: /sensor/wrench block message at 2 ns: force_S runs "
-                                                 r"past the end") as info:
+    for read in (
+        lambda: read_recording(cut),
+        lambda: open_recording(cut).field("/sensor/wrench", "force_S"),
+        lambda: list(iter_messages(cut, "/sensor/wrench")),
+    ):
+        with pytest.raises(
+            RecordingError,
+            match=r"cut.mcap: /sensor/wrench block message at 2 ns: force_S runs "
+            r"past the end",
+        ) as info:
             read()
         assert "\n" not in str(info.value)

@@ -8,9 +8,9 @@ import pytest
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.cli import main
 from hapticlab.sessions.config import apply_overrides, load_config
-from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.offline.replay import replay
 from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.offline.replay import replay
+from hapticlab.sessions.recording import read_recording
 
 
 @pytest.fixture(scope="module")
@@ -19,8 +19,16 @@ def with_shadows(tmp_path_factory):
     # kinematics at the sensor's rate: every sample has a pose at its own stamp, so the live loop never
     # extrapolates and a replay sees the very inputs the session did (at 500 Hz the replay interpolates where
     # the loop extrapolated, ~1e-3 N apart, enough to move the paper's ‖Δx‖ < ε test by a second on one CPU)
-    config = apply_overrides(config, ["session.realtime=false", "session.duration=4.0", "kinematics.rate_hz=1000.0",
-                                      "shadows.batch={}", 'shadows.rls_tight={name="rls", force_threshold=0.5}'])
+    config = apply_overrides(
+        config,
+        [
+            "session.realtime=false",
+            "session.duration=4.0",
+            "kinematics.rate_hz=1000.0",
+            "shadows.batch={}",
+            'shadows.rls_tight={name="rls", force_threshold=0.5}',
+        ],
+    )
     path = tmp_path_factory.mktemp("shadow") / "s.mcap"
     result = run_session(build_session(config), out=path)
     return result, read_recording(path)

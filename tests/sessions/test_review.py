@@ -18,8 +18,7 @@ from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
 from hapticlab.sessions.offline.metrics import error_stats
 from hapticlab.sessions.recording import open_recording
-from hapticlab.sessions.review import review
-from hapticlab.sessions.review import figures
+from hapticlab.sessions.review import figures, review
 from hapticlab.sessions.review import summary as summary_module
 
 # the demo world's contacts (sessions/presets/demo.toml): start s, duration s, peak N
@@ -37,8 +36,13 @@ def record(path: Path, *overrides: str) -> Path:
 def session(tmp_path_factory) -> Path:
     """The demo's 14 s (its three contacts; kalman drives, rls beside it), a trainee, a task and notes."""
     path = tmp_path_factory.mktemp("review") / "t07-palpation.mcap"
-    return record(path, "session.duration=14", "session.trainee=T07",
-                  "session.task=palpation", 'session.notes="first try <b>left hand</b>"')
+    return record(
+        path,
+        "session.duration=14",
+        "session.trainee=T07",
+        "session.task=palpation",
+        'session.notes="first try <b>left hand</b>"',
+    )
 
 
 def test_contacts_are_found_where_the_world_put_them(session):
@@ -75,9 +79,12 @@ def test_the_streamed_figures_equal_the_whole_array_metrics(session, monkeypatch
         row = np.searchsorted(t_aligned, t)
         assert np.array_equal(t_aligned[row], t)
         contact = rec.field(topic, "contact").astype(bool)
-        for stage, (flag, raw, est, axes) in enumerate((
+        for stage, (flag, raw, est, axes) in enumerate(
+            (
                 ("converged_force", raw_f, rec.field(topic, "contact_force_S"), ("fx", "fy", "fz")),
-                ("converged_torque", raw_t, rec.field(topic, "contact_torque_S"), ("tx", "ty", "tz")))):
+                ("converged_torque", raw_t, rec.field(topic, "contact_torque_S"), ("tx", "ty", "tz")),
+            )
+        ):
             first = int(np.argmax(rec.field(topic, flag).astype(bool)))
             rows = (np.arange(len(t)) >= first) & ~contact
             expected = error_stats(raw[row][rows], est[rows], axes)
@@ -97,8 +104,13 @@ def test_the_chunk_reader_gives_the_message_readers_figures(session):
     for a, b in zip(fast.contacts, reference.contacts):
         assert a.__dict__ == pytest.approx(b.__dict__, rel=1e-12)
     for a, b in zip(fast.estimators, reference.estimators):
-        assert (a.name, a.samples, a.converged_force_s, a.converged_torque_s, a.scored) == \
-            (b.name, b.samples, b.converged_force_s, b.converged_torque_s, b.scored)
+        assert (a.name, a.samples, a.converged_force_s, a.converged_torque_s, a.scored) == (
+            b.name,
+            b.samples,
+            b.converged_force_s,
+            b.converged_torque_s,
+            b.scored,
+        )
         for axis in a.table:
             assert a.table[axis] == pytest.approx(b.table[axis], rel=1e-12)
     assert [e.kind for e in fast.events] == [e.kind for e in reference.events]
@@ -125,8 +137,9 @@ def test_the_chunk_reader_reads_what_the_recording_holds_at_7_khz(tmp_path):
         np.testing.assert_array_equal(t, rec.t_ns(topic))
         assert len(t) > 13000  # 7 samples a tick, blocks of several lengths in each chunk
         for name in ("force_S",) if topic == "/aligned/sample" else ("contact_force_S", "contact", "converged_force"):
-            np.testing.assert_array_equal(np.concatenate([b[name] for b in got[topic]]).astype(float),
-                                          rec.field(topic, name).astype(float))
+            np.testing.assert_array_equal(
+                np.concatenate([b[name] for b in got[topic]]).astype(float), rec.field(topic, name).astype(float)
+            )
     params = [p for b in got["/estimator/rls"] for p in b["params"]]
     recorded = [m["params"] for _, m in rec.messages("/estimator/rls") if m.get("params") is not None]
     assert [p for _, p in params] == recorded and len(params) >= 15
@@ -134,8 +147,9 @@ def test_the_chunk_reader_reads_what_the_recording_holds_at_7_khz(tmp_path):
     assert commands == [m for _, m in rec.messages("/haptic/command")]
     fields = {"force_D": 3, "enabled": 0}  # the same JSON read as columns by key, never decoded
     columns = [c["/haptic/command"] for c in iter_chunks(path, ["/haptic/command"], {"/haptic/command": fields})]
-    np.testing.assert_array_equal(np.concatenate([c["force_D"] for c in columns]),
-                                  np.array([m["force_D"] for m in commands], dtype=float))
+    np.testing.assert_array_equal(
+        np.concatenate([c["force_D"] for c in columns]), np.array([m["force_D"] for m in commands], dtype=float)
+    )
     np.testing.assert_array_equal(np.concatenate([c["enabled"] for c in columns]), [m["enabled"] for m in commands])
     np.testing.assert_array_equal(np.concatenate([c["t_ns"] for c in columns]), rec.t_ns("/haptic/command"))
 
@@ -160,8 +174,10 @@ def test_a_file_without_message_indexes_is_left_to_the_message_reader(tmp_path):
 def test_json_read_by_key_falls_back_to_decoding_when_a_message_lacks_the_key():
     from hapticlab.sessions.recording.columnar import _json_columns, _picked
 
-    messages = [{"force_D": [1.0, None, 3.0], "enabled": True, "reason": "\"force_D\":[9,9,9]"},
-                {"enabled": False, "reason": "no force"}]
+    messages = [
+        {"force_D": [1.0, None, 3.0], "enabled": True, "reason": '"force_D":[9,9,9]'},
+        {"enabled": False, "reason": "no force"},
+    ]
     text = json.dumps(messages).encode()
     t = np.array([1, 2])
     assert _json_columns(text, t, {"force_D": 3, "enabled": 0}) is None  # the second has no force_D
@@ -207,7 +223,7 @@ def test_cli_prints_the_review_writes_plots_and_a_page_and_never_overwrites(sess
         image = matplotlib.image.imread(plots / f"{name}.png")
         assert image.shape[0] > 200 and image.shape[1] > 600 and image[..., :3].std() > 0.05  # drawn, not blank
     page = html.read_text()
-    assert page.count("data:image/png;base64,") == 4 and "src=\"http" not in page  # self-contained
+    assert page.count("data:image/png;base64,") == 4 and 'src="http' not in page  # self-contained
     assert "first try &lt;b&gt;left hand&lt;/b&gt;" in page  # the notes escaped, not markup
     before = html.read_bytes()
     assert main(["review", str(session), "--html", str(html)]) == 2
@@ -221,15 +237,25 @@ def test_the_page_renders_in_headless_chromium(session, tmp_path):
     assert chromium, "Debian's chromium is needed (README: apt-get install chromium)"
     html = tmp_path / "report.html"
     assert main(["review", str(session), "--html", str(html)]) == 0
-    flags = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-             f"--user-data-dir={tmp_path / 'profile'}"]
+    flags = [
+        chromium,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-dev-shm-usage",
+        f"--user-data-dir={tmp_path / 'profile'}",
+    ]
     dom = subprocess.run([*flags, "--dump-dom", html.as_uri()], capture_output=True, text=True, timeout=120).stdout
     for table_id in ("who", "summary", "contacts", "estimators", "errors-rls", "errors-kalman"):
         assert f'id="{table_id}"' in dom, table_id
     assert dom.count("<tr>") > 30 and "T07" in dom
     shot = tmp_path / "shot.png"
-    subprocess.run([*flags, "--window-size=1200,2400", f"--screenshot={shot}", html.as_uri()],
-                   capture_output=True, timeout=120, check=True)
+    subprocess.run(
+        [*flags, "--window-size=1200,2400", f"--screenshot={shot}", html.as_uri()],
+        capture_output=True,
+        timeout=120,
+        check=True,
+    )
     import matplotlib.image
 
     pixels = matplotlib.image.imread(shot)[..., :3]
@@ -266,13 +292,28 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
     folder = tmp_path / "cohort"
     (folder / "t08").mkdir(parents=True)
     shutil.copy(session, folder / "t07-1.mcap")
-    record(folder / "t08" / "t08-1.mcap", "session.duration=8", "session.trainee=T08", "session.task=palpation",
-           "world.seed=5")
+    record(
+        folder / "t08" / "t08-1.mcap",
+        "session.duration=8",
+        "session.trainee=T08",
+        "session.task=palpation",
+        "world.seed=5",
+    )
     (folder / "broken.mcap").write_text("not a recording\n")
     out_csv, html = tmp_path / "cohort.csv", tmp_path / "cohort.html"
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        status = main(["review", str(folder), "--csv", str(out_csv), "--html", str(html),
-                       "--scheduler", cluster.scheduler_address])
+        status = main(
+            [
+                "review",
+                str(folder),
+                "--csv",
+                str(out_csv),
+                "--html",
+                str(html),
+                "--scheduler",
+                cluster.scheduler_address,
+            ]
+        )
     assert status == 2  # one file refused: said, and the others reviewed
     captured = capsys.readouterr()
     assert "broken.mcap" in captured.out and "2 worker(s)" in captured.err

@@ -9,16 +9,25 @@ import pytest
 
 from hapticlab.core import hookimpl
 from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
-from hapticlab.sessions.config import apply_overrides, load_config
-from hapticlab.sessions.recording import read_recording
-from hapticlab.sessions.live import build_session, run_session
 from hapticlab.plugins.estimators.kalman.options import KalmanOptions
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.recording import read_recording
 
 KALMAN_OPTIONS = len(dataclasses.fields(KalmanOptions))
 """How many options the message says ``kalman`` has (its options record's fields)."""
 
-ALL_TOPICS = {"/sensor/wrench", "/kinematics/pose", "/aligned/sample", "/estimator/kalman", "/estimator/rls",
-              "/haptic/command", "/haptic/state", "/tf", "/events"}
+ALL_TOPICS = {
+    "/sensor/wrench",
+    "/kinematics/pose",
+    "/aligned/sample",
+    "/estimator/kalman",
+    "/estimator/rls",
+    "/haptic/command",
+    "/haptic/state",
+    "/tf",
+    "/events",
+}
 
 
 def loop_commands(rec):
@@ -51,8 +60,11 @@ def test_recorded_demo_reopens_with_every_topic(demo_recording):
     assert len(rec.topics["/estimator/rls"]) == n  # the paper's, beside it on every sample
     assert len(rec.topics["/kinematics/pose"]) == result.poses == 4001
     session = rec.metadata["hapticlab.session"]
-    assert '"estimator": {"name": "kalman"' in session["config"] and '"shadows": {"rls": {"name": "rls"' in \
-        session["config"] and "sim" in session["plugins"]
+    assert (
+        '"estimator": {"name": "kalman"' in session["config"]
+        and '"shadows": {"rls": {"name": "rls"' in session["config"]
+        and "sim" in session["plugins"]
+    )
     assert rec.metadata["hapticlab.summary"]["samples"] == str(n)
     # kalman's refused lone samples (held out, not contacts) are counted in the summary as well
     assert result.held_out_samples is not None and result.held_out_samples >= 0
@@ -98,7 +110,12 @@ def test_haptics_wait_for_convergence_and_are_clamped(demo_recording):
     converged_at = next(t for t, m in rec.topics["/events"] if m["kind"] == "converged")
     assert not enabled[t_cmd < converged_at].any() and enabled[-100:-1].all()
     # the session ends with a zero command, sent and recorded
-    assert rec.topics["/haptic/command"][-1][1] == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended", "source_t_ns": None}
+    assert rec.topics["/haptic/command"][-1][1] == {
+        "force_D": [0.0] * 3,
+        "enabled": False,
+        "reason": "session ended",
+        "source_t_ns": None,
+    }
     assert np.all(force_D[~enabled] == 0.0)
     # each force says which sample it was estimated from: one in this tick (not stale), an estimate's stamp
     source = np.array([m["source_t_ns"] for _, m in rec.topics["/haptic/command"]], dtype=object)
@@ -129,7 +146,8 @@ class FlakyDevice:
 
     def open(self): ...
     def close(self): ...
-    def state(self): return None
+    def state(self):
+        return None
 
     def send(self, command):
         self.sent += 1
@@ -146,8 +164,11 @@ class InterruptingSensor:
         self.inner, self.stop_after, self.reads = SimSensor(rate_hz, world=world), stop_after, 0
         self.rate_hz = rate_hz
 
-    def open(self, t0_ns): self.inner.open(t0_ns)
-    def close(self): self.inner.close()
+    def open(self, t0_ns):
+        self.inner.open(t0_ns)
+
+    def close(self):
+        self.inner.close()
 
     def read(self, until_ns):
         self.reads += 1
@@ -168,7 +189,8 @@ class GappyKinematics:
         self.t0 = t0_ns
         self.inner.open(t0_ns)
 
-    def close(self): self.inner.close()
+    def close(self):
+        self.inner.close()
 
     def read(self, until_ns):
         poses = self.inner.read(until_ns)
@@ -242,12 +264,18 @@ def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
     "override, message",
     [
         ("estimator.name=kalmann", r"^estimator.name: unknown estimator 'kalmann'; available: batch, kalman, rls$"),
-        ("shadows.rls.force_treshold=2", r"^shadows.rls.force_treshold: unknown option; did you mean force_threshold\?"
-                                         r"; known options: .*force_threshold"),
+        (
+            "shadows.rls.force_treshold=2",
+            r"^shadows.rls.force_treshold: unknown option; did you mean force_threshold\?"
+            r"; known options: .*force_threshold",
+        ),
         ("shadows.rls.force_threshold=high", r"^shadows.rls.force_threshold: expected a number, got 'high'$"),
-        ("estimator.noise_forse=0.1", r"^estimator.noise_forse: unknown option; did you mean noise_force\?; known "
-                                      rf"options: {KALMAN_OPTIONS}, documented in "
-                                      r"hapticlab.plugins.estimators.kalman.options.KalmanOptions$"),
+        (
+            "estimator.noise_forse=0.1",
+            r"^estimator.noise_forse: unknown option; did you mean noise_force\?; known "
+            rf"options: {KALMAN_OPTIONS}, documented in "
+            r"hapticlab.plugins.estimators.kalman.options.KalmanOptions$",
+        ),
         ("session.duration=soon", r"^session.duration: expected a number, got 'soon'$"),
         ("haptic.max_force=[1, 2]", r"^haptic.max_force: expected a number, got \[1, 2\]$"),
         ("world.tool.mass=heavy", r"^world.tool.mass: expected a number, got 'heavy'$"),

@@ -48,15 +48,21 @@ def test_mapping_into_the_device_frame():
     assert np.allclose(cmd.force_D, [0.0, 1.0, -2.0])
 
 
-@pytest.mark.parametrize("kw, key", [({"max_force": -1.0}, "haptic.max_force"),
-                                     ({"max_force_rate": float("inf")}, "haptic.max_force_rate"),
-                                     ({"ready_force_std": 0.0}, "haptic.ready_force_std")])
+@pytest.mark.parametrize(
+    "kw, key",
+    [
+        ({"max_force": -1.0}, "haptic.max_force"),
+        ({"max_force_rate": float("inf")}, "haptic.max_force_rate"),
+        ({"ready_force_std": 0.0}, "haptic.ready_force_std"),
+    ],
+)
 def test_bad_limits_are_refused(kw, key):
     with pytest.raises(ConfigError, match=f"^{key}: must be"):
         HapticSettings(**kw)
 
 
 # ---------------------------------------------------------------- the mapping: deadband, low-pass, clamp, slew
+
 
 def test_deadband_is_continuous_and_keeps_the_direction():
     g = governor(max_force=10.0, max_force_rate=1e9, deadband=0.5)
@@ -132,11 +138,16 @@ def test_the_order_is_map_deadband_lowpass_clamp_slew():
     assert np.allclose(forces[:5, 1], [0.1, 0.2, 0.3, 0.4, 0.5]) and forces[-1, 1] == pytest.approx(1.5)
 
 
-@pytest.mark.parametrize("kw, key", [({"deadband": -0.1}, "haptic.deadband"),
-                                     ({"cutoff_hz": float("nan")}, "haptic.cutoff_hz"),
-                                     ({"cutoff_hz": -1.0}, "haptic.cutoff_hz"),
-                                     ({"rearm_button": 64}, "haptic.rearm_button"),
-                                     ({"rearm_button": True}, "haptic.rearm_button")])
+@pytest.mark.parametrize(
+    "kw, key",
+    [
+        ({"deadband": -0.1}, "haptic.deadband"),
+        ({"cutoff_hz": float("nan")}, "haptic.cutoff_hz"),
+        ({"cutoff_hz": -1.0}, "haptic.cutoff_hz"),
+        ({"rearm_button": 64}, "haptic.rearm_button"),
+        ({"rearm_button": True}, "haptic.rearm_button"),
+    ],
+)
 def test_bad_mapping_settings_are_refused(kw, key):
     with pytest.raises(ConfigError, match=f"^{key}: must be"):
         HapticSettings(**kw)
@@ -155,12 +166,20 @@ def test_the_gate_counts_flag_flips_across_blocks_and_keeps_when_the_flag_went_d
     for force, torque in (([0, 0, 1], [0, 0, 0]), ([1, 0], [0, 1]), ([0], [1]), ([0, 0, 1, 1, 0, 1, 0], [1] * 7)):
         m = len(force)
         t = np.arange(t0, t0 + m, dtype=np.int64) * 1_000_000
-        est = Estimates(t, np.zeros((m, 3)), np.zeros((m, 3)), np.zeros(m, dtype=bool), np.array(force, dtype=bool),
-                        np.array(torque, dtype=bool))
+        est = Estimates(
+            t,
+            np.zeros((m, 3)),
+            np.zeros((m, 3)),
+            np.zeros(m, dtype=bool),
+            np.array(force, dtype=bool),
+            np.array(torque, dtype=bool),
+        )
         events += gate.on_estimates(None, est, int(t[-1]))
         t0 += m
     # force: 0 0 1 | 1 0 | 0 | 0 0 1 1 0 1 0 -> up at 2, down at 4, up at 8, down at 10, up at 11, down at 12
     assert gate.flips == [6, 1] and gate.converged == [False, True]
     assert gate.down_since_ns == 12_000_000  # the trailing run of samples with the flag down began at sample 12
     assert [(e.t_ns, e.message) for e in events if e.kind == "converged"] == [
-        (2_000_000, "rls force stage converged"), (4_000_000, "rls torque stage converged")]
+        (2_000_000, "rls force stage converged"),
+        (4_000_000, "rls torque stage converged"),
+    ]

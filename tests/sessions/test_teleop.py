@@ -15,8 +15,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.frames import matrix_from_quat_wxyz
+from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import DeviceState
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
@@ -50,8 +50,11 @@ class ScriptedHand:
         self.t_ns = 0
         self.sent = []
 
-    def open(self): pass
-    def close(self): pass
+    def open(self):
+        pass
+
+    def close(self):
+        pass
 
     def send(self, command):
         if self.t0_ns is None:
@@ -64,8 +67,12 @@ class ScriptedHand:
         if 8.5 <= t < 8.7:
             return None  # lost
         clutch = 7.5 <= t < 8.0
-        return DeviceState(self.t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.array([hand_x(t), 0.0, hand_z(t)]),
-                           buttons=0b10 if clutch else 0)
+        return DeviceState(
+            self.t_ns,
+            np.array([1.0, 0.0, 0.0, 0.0]),
+            np.array([hand_x(t), 0.0, hand_z(t)]),
+            buttons=0b10 if clutch else 0,
+        )
 
 
 class HandPlugin:
@@ -83,9 +90,16 @@ def registry():
 
 def teleop_config(*overrides: str, duration: float = 9.5, preset: str = "teleop-emulated"):
     config, _ = load_config(preset)
-    return apply_overrides(config, ["session.realtime=false", f"session.duration={duration}",
-                                    f"teleop.calibration_dwell_s={DWELL_S}", f"teleop.max_angular_speed={TURN_RAD_S}",
-                                    *overrides])
+    return apply_overrides(
+        config,
+        [
+            "session.realtime=false",
+            f"session.duration={duration}",
+            f"teleop.calibration_dwell_s={DWELL_S}",
+            f"teleop.max_angular_speed={TURN_RAD_S}",
+            *overrides,
+        ],
+    )
 
 
 def tour_end(rec) -> float:
@@ -121,8 +135,9 @@ def test_the_robot_tours_then_follows_the_hand_scaled(scripted):
     kinds = [m["kind"] for _, m in rec.topics["/events"]]
     assert kinds.index("teleop_calibrated") < kinds.index("teleop_following")
     quat = np.array([m["pose"]["quat_BE"] for _, m in rec.topics["/robot/target"]])
-    held = [tuple(q) for q, same in zip(quat[touring].round(9), np.all(np.diff(quat[touring], axis=0) == 0, axis=1))
-            if same]
+    held = [
+        tuple(q) for q, same in zip(quat[touring].round(9), np.all(np.diff(quat[touring], axis=0) == 0, axis=1)) if same
+    ]
     assert len(set(held)) == 6  # six orientations held (the start's among them, where the tour ends)
     # the target turned at most TURN_RAD_S: no step a servoing robot could not follow
     turn = 2 * np.arccos(np.minimum(np.abs(np.sum(quat[1:] * quat[:-1], axis=1)), 1.0)) / np.diff(t)
@@ -182,8 +197,9 @@ def test_a_master_that_stops_reporting_its_state_holds_the_robot(scripted):
 
 
 def test_the_target_moves_no_faster_than_its_limit_and_stays_in_its_workspace(registry, tmp_path):
-    config = teleop_config("haptic.name=scripted_hand", "teleop.max_speed=0.01", "teleop.workspace_radius=0.008",
-                           duration=7.5)
+    config = teleop_config(
+        "haptic.name=scripted_hand", "teleop.max_speed=0.01", "teleop.workspace_radius=0.008", duration=7.5
+    )
     result = run_session(build_session(config, registry), out=tmp_path / "slow.mcap")
     rec = read_recording(result.path)
     t, p, _, _ = targets(rec)
@@ -208,8 +224,9 @@ def test_over_a_real_pty_the_master_emulator_moves_the_robot_and_feels_the_tissu
     keeps a core busy, every blocking call of its thread waits up to the 5 ms GIL switch interval to run
     again, its replies fall 50 ms behind and the session (rightly) declares the device lost."""
     log = tmp_path / "forces.csv"
-    master, port = emulator_process("master", "--path", "press", "--radius", "0.05", "--period", "2",
-                                    "--max-force", "8", "--log-forces", str(log))
+    master, port = emulator_process(
+        "master", "--path", "press", "--radius", "0.05", "--period", "2", "--max-force", "8", "--log-forces", str(log)
+    )
     try:
         config = teleop_config(f"haptic.port={port.strip()}", "session.realtime=true", duration=7.0)
         result = run_session(build_session(config), out=tmp_path / "pty.mcap")
@@ -250,8 +267,9 @@ def test_the_hand_moves_the_tool_along_the_direction_the_force_comes_back_along(
     pose = PoseSample(0, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
     quat_DH = np.array([1.0, 0.0, 0.0, 0.0])
     first, _ = teleop.step(0, pose, DeviceState(0, quat_DH, np.zeros(3)), True)
-    later, events = teleop.step(1_000_000_000, pose, DeviceState(1_000_000_000, quat_DH, np.array([0.0, 0.02, 0.0])),
-                                True)
+    later, events = teleop.step(
+        1_000_000_000, pose, DeviceState(1_000_000_000, quat_DH, np.array([0.0, 0.02, 0.0])), True
+    )
     assert np.allclose(later.p_BoEo_B - first.p_BoEo_B, [0.01, 0.0, 0.0])
     assert np.allclose(later.R_BE, matrix_from_rotvec(np.array([math.pi, 0.0, 0.0])))  # orientation held
     command = ForceGovernor(haptic, 1e-3).command(0, np.array([-2.0, 0.0, 0.0]), np.eye(3))
@@ -265,8 +283,19 @@ def emulator_process(*args: str):
     import sys
 
     proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
-         "emulate", *args, "--duration", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
+            "emulate",
+            *args,
+            "--duration",
+            "60",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     ready, _, _ = select.select([proc.stdout], [], [], 60.0)
     assert ready, f"emulate {args[0]} did not start"
     return proc, proc.stdout.readline()
@@ -292,8 +321,14 @@ def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tm
         assert "following the targets written to its input registers" in line, line
         master, port = emulator_process("master", "--path", "press", "--radius", "0.05", "--period", "2")
         try:
-            config = teleop_config(f"haptic.port={port.strip()}", f"sensor.address={netft}", f"kinematics.address={ur}",
-                                   "session.realtime=true", duration=7.0, preset="teleop-lab-emulated")
+            config = teleop_config(
+                f"haptic.port={port.strip()}",
+                f"sensor.address={netft}",
+                f"kinematics.address={ur}",
+                "session.realtime=true",
+                duration=7.0,
+                preset="teleop-lab-emulated",
+            )
             result = run_session(build_session(config), out=tmp_path / "ur.mcap")
         finally:
             device_counts = stop(master)

@@ -6,9 +6,10 @@ import json
 
 import numpy as np
 import pytest
+
 from hapticlab.sessions.config import apply_overrides, load_config
-from hapticlab.sessions.recording import read_recording
 from hapticlab.sessions.live import build_session, calibration_path, run_session
+from hapticlab.sessions.recording import read_recording
 
 
 def kalman_demo(duration, **options):
@@ -38,11 +39,14 @@ def test_session_end_saves_the_estimator_state(first_session):
 
 def test_next_session_warm_starts(first_session, tmp_path):
     result, _ = first_session
-    warm = run_session(build_session(kalman_demo(3.0, warm_start=str(calibration_path(result.path)))),
-                       out=tmp_path / "second.mcap")
-    print(f"\nsession warm start: force stage converged at sample {warm.first_converged_force}, "
-          f"torque at {warm.first_converged_torque} (cold: {result.first_converged_force}, "
-          f"{result.first_converged_torque})")
+    warm = run_session(
+        build_session(kalman_demo(3.0, warm_start=str(calibration_path(result.path)))), out=tmp_path / "second.mcap"
+    )
+    print(
+        f"\nsession warm start: force stage converged at sample {warm.first_converged_force}, "
+        f"torque at {warm.first_converged_torque} (cold: {result.first_converged_force}, "
+        f"{result.first_converged_torque})"
+    )
     assert warm.first_converged_force < 10 and warm.first_converged_torque < 10
     assert np.allclose(warm.params["gravity_force_B"], result.params["gravity_force_B"], atol=0.05)
     assert not [e for e in warm.events if e.kind == "payload_change"]

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core.estimation.batch import normal_terms
-from hapticlab.core.frames import cross, skew_stack
 from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench, named_params
+from hapticlab.core.frames import cross, skew_stack
 from hapticlab.core.types import AlignedSamples, Estimates
 from hapticlab.plugins.estimators.batch.options import BatchOptions
 
@@ -92,7 +92,11 @@ class BatchEstimator(RefusesBadSamples):
     def __init__(self, options: BatchOptions | None = None, /, **settings: Any):
         o = self.options = options if options is not None else BatchOptions(**settings)
         calibration_samples, force_threshold, torque_threshold, min_rcond = (
-            o.calibration_samples, o.force_threshold, o.torque_threshold, o.min_rcond)
+            o.calibration_samples,
+            o.force_threshold,
+            o.torque_threshold,
+            o.min_rcond,
+        )
         self.guard = SampleGuard("batch", o.max_force, o.max_torque)
         self.calibration_samples = calibration_samples
         self.force_threshold = force_threshold

@@ -37,8 +37,11 @@ class BatchOptions:
         number("force_threshold", self.force_threshold, above=0)
         number("torque_threshold", self.torque_threshold, above=0)
         if not (is_number(self.min_rcond) and 1e-12 <= self.min_rcond <= 1):
-            raise OptionError("min_rcond", "must be a number from 1e-12 to 1 (a reciprocal condition number: "
-                                           "below 1e-12 a singular fit counts as converged, above 1 none ever does), "
-                                           f"got {self.min_rcond!r}")
+            raise OptionError(
+                "min_rcond",
+                "must be a number from 1e-12 to 1 (a reciprocal condition number: "
+                "below 1e-12 a singular fit counts as converged, above 1 none ever does), "
+                f"got {self.min_rcond!r}",
+            )
         wrench_bound("max_force", self.max_force, MAX_FORCE)
         wrench_bound("max_torque", self.max_torque, MAX_TORQUE)

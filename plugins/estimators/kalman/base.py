@@ -8,6 +8,7 @@ they read and write (set once by ``KalmanEstimator.__init__``).
 from __future__ import annotations
 
 import numpy as np
+
 from hapticlab.core.types import Event
 from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_TILT_TORQUE
 from hapticlab.plugins.estimators.kalman.options import KalmanOptions

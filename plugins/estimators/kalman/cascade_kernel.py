@@ -16,6 +16,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
+
 from hapticlab.plugins.estimators.kalman.noise import (
     AUTO_BOUND_FRACTION,
     NOISE_CLIP,
@@ -37,7 +39,6 @@ from hapticlab.plugins.estimators.kalman.stage_kernel import (
     stage_step_rate,
 )
 from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import TW_SIZE, learn_tilt_walk
-from numba import njit
 
 ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED = 0, 1, 2
 ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
@@ -78,6 +79,7 @@ each stage's turn since it last tested a sample (``ADAPT_TURN_F``, ``ADAPT_TURN_
 Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
 the block's row of its last torque bias re-opening (−1: none)."""
 
+
 @njit(cache=True, error_model="numpy")
 def judge_contact(adapt, refused, tested) -> bool:
     """Whether a sample either stage refused is a contact: it is once it is the ``ADAPT_CONTACT_AFTER``-th
@@ -114,7 +116,7 @@ def tilt_step(adapt, A) -> float:
     if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
         return 0.0
     known = math.isfinite(adapt[ADAPT_TILT])
-    p = adapt[ADAPT_TILT:ADAPT_TILT + 9]
+    p = adapt[ADAPT_TILT : ADAPT_TILT + 9]
     p0 = p[0] * d0 + p[1] * d1 + p[2] * d2
     p1 = p[3] * d0 + p[4] * d1 + p[5] * d2
     p2 = p[6] * d0 + p[7] * d1 + p[8] * d2
@@ -218,8 +220,11 @@ def predicted_var(P, A, out):
     """out (3,) = diag(C P Cᵀ), C = [A, I3] (``plugins.estimators.kalman.identified.predicted_var``)."""
     for i in range(3):
         a0, a1, a2 = A[i, 0], A[i, 1], A[i, 2]
-        quad = (a0 * (P[0, 0] * a0 + P[0, 1] * a1 + P[0, 2] * a2) + a1 * (P[1, 0] * a0 + P[1, 1] * a1 + P[1, 2] * a2)
-                + a2 * (P[2, 0] * a0 + P[2, 1] * a1 + P[2, 2] * a2))
+        quad = (
+            a0 * (P[0, 0] * a0 + P[0, 1] * a1 + P[0, 2] * a2)
+            + a1 * (P[1, 0] * a0 + P[1, 1] * a1 + P[1, 2] * a2)
+            + a2 * (P[2, 0] * a0 + P[2, 1] * a1 + P[2, 2] * a2)
+        )
         out[i] = quad + 2.0 * (a0 * P[0, 3 + i] + a1 * P[1, 3 + i] + a2 * P[2, 3 + i]) + P[3 + i, 3 + i]
 
 
@@ -284,11 +289,11 @@ def adapt_noise(r, count, y, A, x, cpc, weight, window, floor):
         return count
     count += weight
     lam = weight / min(count + NOISE_PRIOR_SAMPLES, window)
-    clip2 = NOISE_CLIP ** 2
+    clip2 = NOISE_CLIP**2
     for i in range(3):
         e = e0 if i == 0 else (e1 if i == 1 else e2)
         s2 = r[i] + cpc[i]
-        sq = min(e ** 2, clip2 * s2) / NOISE_CLIP_MEAN
+        sq = min(e**2, clip2 * s2) / NOISE_CLIP_MEAN
         r[i] = max(r[i] + lam * (max(sq - cpc[i], 0.0) - r[i]), floor * floor)
     return count
 
@@ -301,11 +306,54 @@ def _auto_bound2(r, cap):
 
 
 @njit(cache=True, error_model="numpy")
-def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, p_BoEo_B, inertial_S, usable,
-                   x_f, P_f, x_t, P_t, q_f, r_f, rc_f, q_t, r_t, rc_t, qr_f, qr_t, qt_f, qt_t, R_SE, limits, adapt,
-                   info_f, info_t, A_t, scratch, work,
-                   X_f, D_f, gated_f, failed_f, X_t, D_t, gated_t, failed_t,
-                   contact_force_S, contact_torque_S, contact, converged_force, converged_torque):
+def kalman_cascade(
+    t_ns,
+    last_t_ns,
+    y_f,
+    force_S,
+    torque_S,
+    A_f,
+    stale,
+    status,
+    p_BoEo_B,
+    inertial_S,
+    usable,
+    x_f,
+    P_f,
+    x_t,
+    P_t,
+    q_f,
+    r_f,
+    rc_f,
+    q_t,
+    r_t,
+    rc_t,
+    qr_f,
+    qr_t,
+    qt_f,
+    qt_t,
+    R_SE,
+    limits,
+    adapt,
+    info_f,
+    info_t,
+    A_t,
+    scratch,
+    work,
+    X_f,
+    D_f,
+    gated_f,
+    failed_f,
+    X_t,
+    D_t,
+    gated_t,
+    failed_t,
+    contact_force_S,
+    contact_torque_S,
+    contact,
+    converged_force,
+    converged_torque,
+):
     """The ``kalman`` estimator's cascade over m samples (its ``_filter_block``), in order.
 
     Force stage y = y_f, C = [A_f, I3]; its flag: max diag P[:6] < bound_f²; the torque stage
@@ -358,7 +406,7 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     identified = adapt[ADAPT_IDENTIFIED] != 0.0
     at_pose = adapt[ADAPT_IDENTIFIED] == CONVERGENCE_AT_POSE
     noise = noise_f or noise_t
-    pred_f, pred_t = adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3], scratch[6, :3]
+    pred_f, pred_t = adapt[ADAPT_PRED_F : ADAPT_PRED_F + 3], scratch[6, :3]
     before_f, before_t = scratch[7], scratch[8]
     previous = last_t_ns[1]
     n_failed_f, n_failed_t, n_gated_f, first_f, first_t = 0, 0, 0, -1, -1
@@ -376,8 +424,12 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
     for k in range(t_ns.shape[0]):
         usable[k] = not stale[k] and status[k] == 0
         if positions:
-            usable[k] = usable[k] and math.isfinite(p_BoEo_B[k, 0]) and math.isfinite(p_BoEo_B[k, 1]) \
+            usable[k] = (
+                usable[k]
+                and math.isfinite(p_BoEo_B[k, 0])
+                and math.isfinite(p_BoEo_B[k, 1])
                 and math.isfinite(p_BoEo_B[k, 2])
+            )
         if k == 0 and last_t_ns[0] == 0:
             step_ns = 0
         else:
@@ -394,19 +446,36 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             turn_t = add_tilt_noise(P_t, qt_t, r_t, adapt[ADAPT_TURN_T], tilt, adapt[ADAPT_TILT_SPAN])
         before_f[:] = x_f[:6]
         if mount:
-            what, _ = stage_step_mount(x_f, P_f, R_SE, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f,
-                                       qr_f, r_f, gate2, activate_var, work)
+            what, _ = stage_step_mount(
+                x_f,
+                P_f,
+                R_SE,
+                y_f[k, 0],
+                y_f[k, 1],
+                y_f[k, 2],
+                A_f[k],
+                dt,
+                usable[k],
+                q_f,
+                qr_f,
+                r_f,
+                gate2,
+                activate_var,
+                work,
+            )
             R = A_f[k]  # R_EB in; R_SB = R_SE R_EB through the mount as it is now out
             for j in range(3):
                 c0, c1, c2 = R[0, j], R[1, j], R[2, j]
                 for i in range(3):
                     R[i, j] = R_SE[i, 0] * c0 + R_SE[i, 1] * c1 + R_SE[i, 2] * c2
         elif rate:
-            what, _ = stage_step_rate(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, qr_f,
-                                      r_f, rc_f, gate2, work)
+            what, _ = stage_step_rate(
+                x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, qr_f, r_f, rc_f, gate2, work
+            )
         else:
-            what, _ = stage_step(x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, r_f, rc_f,
-                                 gate2)
+            what, _ = stage_step(
+                x_f, P_f, y_f[k, 0], y_f[k, 1], y_f[k, 2], A_f[k], dt, usable[k], q_f, r_f, rc_f, gate2
+            )
         failed = what == FAILED
         gated_f[k], failed_f[k] = what == GATED, failed
         if tilt_walk:
@@ -441,11 +510,26 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         seen = usable[k] and what != GATED and settled  # (its regressor needs gravity identified, not only here)
         before_t[:] = x_t[:6]
         if rate:
-            what_t, _ = stage_step_rate(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t,
-                                        qr_t, r_t, rc_t, gate2, work)
+            what_t, _ = stage_step_rate(
+                x_t,
+                P_t,
+                torque_S[k, 0],
+                torque_S[k, 1],
+                torque_S[k, 2],
+                A_t,
+                dt,
+                seen,
+                q_t,
+                qr_t,
+                r_t,
+                rc_t,
+                gate2,
+                work,
+            )
         else:
-            what_t, _ = stage_step(x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t,
-                                   rc_t, gate2)
+            what_t, _ = stage_step(
+                x_t, P_t, torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, dt, seen, q_t, r_t, rc_t, gate2
+            )
         gated_t[k], failed_t[k] = what_t == GATED, what_t == FAILED
         if tilt_walk:
             adapt[ADAPT_TURN_T] = 0.0 if what_t == UPDATED or what_t == GATED else turn_t
@@ -461,34 +545,60 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
             known_t = max(pred_t[0], pred_t[1], pred_t[2]) < bound_t2 and what_t != FAILED
             if at_pose:  # the flag at the pose; the centre of gravity's identification asked until it has settled
                 converged_torque[k] = known_t
-                settled_t = (known_t and adapt[ADAPT_TORQUE_SEEN] == 0.0
-                             and constant_var_max(info_t, scratch) * weight2 < bound_t2)
+                settled_t = (
+                    known_t
+                    and adapt[ADAPT_TORQUE_SEEN] == 0.0
+                    and constant_var_max(info_t, scratch) * weight2 < bound_t2
+                )
             else:
                 settled_t = known_t and constant_var_max(info_t, scratch) * weight2 < bound_t2
                 converged_torque[k] = settled_t
         else:
-            converged_torque[k] = (max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
-                                   and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2 and what_t != FAILED)
+            converged_torque[k] = (
+                max(P_t[0, 0], P_t[1, 1], P_t[2, 2]) * weight2 < bound_t2
+                and max(P_t[3, 3], P_t[4, 4], P_t[5, 5]) < bound_t2
+                and what_t != FAILED
+            )
             settled_t = converged_torque[k]
         if settled_t:
             adapt[ADAPT_TORQUE_SEEN] = 1.0
         if converged_torque[k] and first_t < 0:
             first_t = k
         if noise:
-            if adapt[ADAPT_WINDOW] == 0.0 and dt > 0.0:  # plugins.estimators.kalman.noise.window_samples, at the first step
+            if (
+                adapt[ADAPT_WINDOW] == 0.0 and dt > 0.0
+            ):  # plugins.estimators.kalman.noise.window_samples, at the first step
                 adapt[ADAPT_WINDOW] = max(NOISE_WINDOW, int(NOISE_WINDOW_S / dt))
             window = adapt[ADAPT_WINDOW] if adapt[ADAPT_WINDOW] != 0.0 else NOISE_WINDOW
             refused_weight = NOISE_REFUSED_WEIGHT if adapt[ADAPT_FORCE_SEEN] == 0.0 else 0.0
             if noise_f and usable[k]:
-                adapt[ADAPT_COUNT_F] = adapt_noise(r_f, adapt[ADAPT_COUNT_F], y_f[k], A_f[k], before_f, pred_f,
-                                                   refused_weight if what == GATED else 1.0, window, NOISE_FLOOR[0])
+                adapt[ADAPT_COUNT_F] = adapt_noise(
+                    r_f,
+                    adapt[ADAPT_COUNT_F],
+                    y_f[k],
+                    A_f[k],
+                    before_f,
+                    pred_f,
+                    refused_weight if what == GATED else 1.0,
+                    window,
+                    NOISE_FLOOR[0],
+                )
             if noise_t and seen:  # its R carries the force noise through the centre of gravity: not its own
                 c0, c1, c2 = x_t[0], x_t[1], x_t[2]
                 pred_t[0] += rc_t[1] * c2 * c2 + rc_t[2] * c1 * c1
                 pred_t[1] += rc_t[0] * c2 * c2 + rc_t[2] * c0 * c0
                 pred_t[2] += rc_t[0] * c1 * c1 + rc_t[1] * c0 * c0
-                adapt[ADAPT_COUNT_T] = adapt_noise(r_t, adapt[ADAPT_COUNT_T], torque_S[k], A_t, before_t, pred_t,
-                                                   refused_weight if what_t == GATED else 1.0, window, NOISE_FLOOR[1])
+                adapt[ADAPT_COUNT_T] = adapt_noise(
+                    r_t,
+                    adapt[ADAPT_COUNT_T],
+                    torque_S[k],
+                    A_t,
+                    before_t,
+                    pred_t,
+                    refused_weight if what_t == GATED else 1.0,
+                    window,
+                    NOISE_FLOOR[1],
+                )
             if noise_f:
                 rc_t[0], rc_t[1], rc_t[2] = r_f[0], r_f[1], r_f[2]
         if settled and adapt[ADAPT_FORCE_SEEN] == 0.0:
@@ -511,18 +621,29 @@ def kalman_cascade(t_ns, last_t_ns, y_f, force_S, torque_S, A_f, stale, status, 
         t0, t1, t2 = torque_S[k, 0], torque_S[k, 1], torque_S[k, 2]
         if inertia:  # the inertial force's torque about S, c × f_inertial
             i0, i1, i2 = inertial_S[k, 0], inertial_S[k, 1], inertial_S[k, 2]
-            t0, t1, t2 = t0 - (x_t[1] * i2 - x_t[2] * i1), t1 - (x_t[2] * i0 - x_t[0] * i2), \
-                t2 - (x_t[0] * i1 - x_t[1] * i0)
+            t0, t1, t2 = (
+                t0 - (x_t[1] * i2 - x_t[2] * i1),
+                t1 - (x_t[2] * i0 - x_t[0] * i2),
+                t2 - (x_t[0] * i1 - x_t[1] * i0),
+            )
         contact_torque_S[k, 0] = t0 - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
         contact_torque_S[k, 1] = t1 - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
         contact_torque_S[k, 2] = t2 - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
         contact[k] = judge_contact(adapt, gated_f[k] or gated_t[k], usable[k])
         if torque_only_refusal(adapt, what == GATED, force_seen, what_t, dt, contact_force_S[k], contact_torque_S[k]):
-            reopen_bias(P_t, info_t, adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3])  # (from the next sample on)
+            reopen_bias(P_t, info_t, adapt[ADAPT_PRIOR_TB : ADAPT_PRIOR_TB + 3])  # (from the next sample on)
             adapt[ADAPT_REOPEN_ROW] = k
         if learn_walk and usable[k] and adapt[ADAPT_FORCE_SEEN] != 0.0:  # the tilt walk from the data
-            q = learn_tilt_walk(adapt[ADAPT_TW:], y_f[k], A_f[k], x_f, adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3],
-                                t_ns[k] * 1e-9, gated_f[k], q_time)
+            q = learn_tilt_walk(
+                adapt[ADAPT_TW:],
+                y_f[k],
+                A_f[k],
+                x_f,
+                adapt[ADAPT_GRAVITY_DIR : ADAPT_GRAVITY_DIR + 3],
+                t_ns[k] * 1e-9,
+                gated_f[k],
+                q_time,
+            )
             qt_f[0], qt_f[1], qt_f[2] = q, q, q
             if adapt[ADAPT_TILT_TORQUE] >= 0.0:
                 q *= adapt[ADAPT_TILT_TORQUE]
@@ -541,8 +662,9 @@ class Buffers:
     def grow(self, capacity: int) -> None:
         self.capacity = capacity
         self.X_f, self.D_f, self.X_t, self.D_t = (np.empty((capacity, 6)) for _ in range(4))
-        self.gated_f, self.failed_f, self.gated_t, self.failed_t = (np.empty(capacity, dtype=np.bool_)
-                                                                    for _ in range(4))
+        self.gated_f, self.failed_f, self.gated_t, self.failed_t = (
+            np.empty(capacity, dtype=np.bool_) for _ in range(4)
+        )
         self.d2 = np.empty(capacity)
         self.usable = np.empty(capacity, dtype=np.bool_)
         self.A_t = np.empty((3, 3))
@@ -561,19 +683,77 @@ def warm_up() -> None:
     y = np.ones((m, 3))
     b = Buffers(m)
     v3 = np.full(3, 1e-4)
-    filter6(np.zeros(6), np.eye(6), y, A, np.full(m, 1e-3), np.full(m, 1e-3), np.ones(m, dtype=np.bool_), v3, v3, v3,
-            np.zeros(3), 20.0, 0.15, np.zeros(1),
-            b.X_f, b.D_f, b.gated_f, b.d2, b.failed_f)
+    filter6(
+        np.zeros(6),
+        np.eye(6),
+        y,
+        A,
+        np.full(m, 1e-3),
+        np.full(m, 1e-3),
+        np.ones(m, dtype=np.bool_),
+        v3,
+        v3,
+        v3,
+        np.zeros(3),
+        20.0,
+        0.15,
+        np.zeros(1),
+        b.X_f,
+        b.D_f,
+        b.gated_f,
+        b.d2,
+        b.failed_f,
+    )
     for p, n in ((np.zeros((0, 3)), 6), (y, 6), (np.zeros((0, 3)), 9)):  # without and with positions, rates
         adapt = np.zeros(ADAPT_SIZE)
         for option in (ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED, ADAPT_AUTO_F, ADAPT_AUTO_T):
             adapt[option] = 1.0
         adapt[ADAPT_CAP_F] = adapt[ADAPT_CAP_T] = np.inf
-        kalman_cascade(np.arange(m, dtype=np.int64), np.zeros(2, dtype=np.int64), y, y, y, A,
-                       np.zeros(m, dtype=np.bool_), np.zeros(m, dtype=np.int64), p, p, np.ones(m, dtype=np.bool_),
-                       np.zeros(n), np.eye(n), np.zeros(n), np.eye(n), v3, v3.copy(), np.zeros(3), v3, v3.copy(),
-                       v3.copy(), v3, v3, v3, v3, np.eye(3), np.array([20.0, 1e-4, 1e-6]), adapt, np.eye(6),
-                       np.eye(6), b.A_t, b.scratch, b.work,
-                       b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t, np.empty((m, 3)),
-                       np.empty((m, 3)), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_),
-                       np.empty(m, dtype=np.bool_))
+        kalman_cascade(
+            np.arange(m, dtype=np.int64),
+            np.zeros(2, dtype=np.int64),
+            y,
+            y,
+            y,
+            A,
+            np.zeros(m, dtype=np.bool_),
+            np.zeros(m, dtype=np.int64),
+            p,
+            p,
+            np.ones(m, dtype=np.bool_),
+            np.zeros(n),
+            np.eye(n),
+            np.zeros(n),
+            np.eye(n),
+            v3,
+            v3.copy(),
+            np.zeros(3),
+            v3,
+            v3.copy(),
+            v3.copy(),
+            v3,
+            v3,
+            v3,
+            v3,
+            np.eye(3),
+            np.array([20.0, 1e-4, 1e-6]),
+            adapt,
+            np.eye(6),
+            np.eye(6),
+            b.A_t,
+            b.scratch,
+            b.work,
+            b.X_f,
+            b.D_f,
+            b.gated_f,
+            b.failed_f,
+            b.X_t,
+            b.D_t,
+            b.gated_t,
+            b.failed_t,
+            np.empty((m, 3)),
+            np.empty((m, 3)),
+            np.empty(m, dtype=np.bool_),
+            np.empty(m, dtype=np.bool_),
+            np.empty(m, dtype=np.bool_),
+        )

@@ -10,18 +10,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from hapticlab.core.types import Event
 from hapticlab.plugins.estimators.kalman import cascade_kernel, identified
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
-from hapticlab.plugins.estimators.kalman.cascade_kernel import (
-    ADAPT_CAP_F,
-    ADAPT_CAP_T,
-    ADAPT_FORCE_SEEN,
-    ADAPT_PRED_F,
-)
-from hapticlab.plugins.estimators.kalman.noise import (
-    AUTO_BOUND_FRACTION,
-)
+from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_FORCE_SEEN, ADAPT_PRED_F
+from hapticlab.plugins.estimators.kalman.noise import AUTO_BOUND_FRACTION
 
 STEP_EPSILON = 1e-3
 """``convergence = "step"``: the paper's threshold on ‖Δx‖ (mixed units, as in Algorithm 1)."""
@@ -41,12 +35,18 @@ class Convergence(KalmanBase):
         """(force bound N, torque bound N·m) on the parameters' std for convergence."""
         f, t = self.converged_force_std_option, self.converged_torque_std_option
         if f is None:
-            f = (AUTO_BOUND_FRACTION * float(np.sqrt(self.force.r.mean())) if self.noise_auto_force
-                 else CONVERGED_FORCE_STD)
+            f = (
+                AUTO_BOUND_FRACTION * float(np.sqrt(self.force.r.mean()))
+                if self.noise_auto_force
+                else CONVERGED_FORCE_STD
+            )
             f = min(f, self._adapt[ADAPT_CAP_F])  # an auto bound never grows past its value once settled
         if t is None:
-            t = (AUTO_BOUND_FRACTION * float(np.sqrt(self.torque.r.mean())) if self.noise_auto_torque
-                 else CONVERGED_TORQUE_STD)
+            t = (
+                AUTO_BOUND_FRACTION * float(np.sqrt(self.torque.r.mean()))
+                if self.noise_auto_torque
+                else CONVERGED_TORQUE_STD
+            )
             t = min(t, self._adapt[ADAPT_CAP_T])
         return f, t
 
@@ -59,7 +59,7 @@ class Convergence(KalmanBase):
             return conv, conv
         bound2 = self._bounds()[0] ** 2
         if self.identifies:  # gravity from the motion's information; the force at this pose
-            predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
+            predicted = self._adapt[ADAPT_PRED_F : ADAPT_PRED_F + 3]
             predicted[:] = identified.predicted_var(self.force.P, A_f[-1])
             known_here = np.array([predicted.max() < bound2])
             settled = (self._identified_var("force", A_f, accepted) < bound2) & known_here
@@ -69,7 +69,7 @@ class Convergence(KalmanBase):
         if self.mount_rotation:  # the force a mount error can cause: std(θ)·|gravity_force_B|
             n = self.force.n
             weight2 = (run_f.X[:, :3] ** 2).sum(axis=1)
-            mount_known = run_f.D[:, n - 3:n].max(axis=1) * weight2 < bound2
+            mount_known = run_f.D[:, n - 3 : n].max(axis=1) * weight2 < bound2
             conv, settled = conv & mount_known, settled & mount_known
         return conv, settled
 
@@ -124,13 +124,27 @@ class Convergence(KalmanBase):
             unit = "N" if stage == "force" else "m"
             data = {"parameter": name, "axes": ["xyz"[i] for i in axes], "std": std}
             if not axes:
-                self.events.append(Event(t_ns, "identified", f"{name} identified by the motion on every axis "
-                                         f"(std {', '.join(f'{v:.2g}' for v in std)} {unit})", data))
+                self.events.append(
+                    Event(
+                        t_ns,
+                        "identified",
+                        f"{name} identified by the motion on every axis "
+                        f"(std {', '.join(f'{v:.2g}' for v in std)} {unit})",
+                        data,
+                    )
+                )
             elif len(axes) < 3:
-                self.events.append(Event(t_ns, "not_identifiable", (
-                    f"{name} along {frame}'s {', '.join(data['axes'])} not identifiable from the motion so far "
-                    f"(std {', '.join(f'{std[i]:.2g}' for i in axes)} {unit}): turn the tool about another axis"),
-                    data))
+                self.events.append(
+                    Event(
+                        t_ns,
+                        "not_identifiable",
+                        (
+                            f"{name} along {frame}'s {', '.join(data['axes'])} not identifiable from the motion so far "
+                            f"(std {', '.join(f'{std[i]:.2g}' for i in axes)} {unit}): turn the tool about another axis"
+                        ),
+                        data,
+                    )
+                )
 
     @staticmethod
     def _step_converged(X, x_before, accepted, flag) -> np.ndarray:
@@ -159,7 +173,7 @@ class Convergence(KalmanBase):
         flag; inf until the force stage has settled (the tool identified to the estimator's own bound, which
         may be tighter than the gate's ``ready_force_std``): under "pose" the flag rises before, the haptic
         force waits for both."""
-        predicted = self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3]
+        predicted = self._adapt[ADAPT_PRED_F : ADAPT_PRED_F + 3]
         if self.identifies and not np.isnan(predicted).any():
             if not self._adapt[ADAPT_FORCE_SEEN]:  # not yet identified to the estimator's own bound: inf
                 return np.full(6, math.inf)

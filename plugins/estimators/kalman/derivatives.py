@@ -26,6 +26,7 @@ B (m/s², gravity not included).
 from __future__ import annotations
 
 import numpy as np
+
 from hapticlab.core.frames import quat_conjugate, quat_multiply, quat_wxyz_from_matrix
 
 
@@ -47,8 +48,13 @@ class MotionDerivatives:
         self._p = np.zeros((0, 3))
         self._count: int | None = None  # samples per window, fixed from the first rate seen
 
-    def update(self, t_ns: np.ndarray, quat_BE: np.ndarray | None, p_BoEo_B: np.ndarray | None = None,
-               R_EB: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def update(
+        self,
+        t_ns: np.ndarray,
+        quat_BE: np.ndarray | None,
+        p_BoEo_B: np.ndarray | None = None,
+        R_EB: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Derivatives at each sample of a block.
 
         Args:

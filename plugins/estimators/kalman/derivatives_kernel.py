@@ -22,8 +22,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
 from numba import njit
+
+from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
 
 
 @njit(cache=True)
@@ -102,8 +103,7 @@ def windows(t, q, p, offset, count, window_ns, w_E, alpha_E, a_B, work):
             w_E[j, c] = 0.0
             alpha_E[j, c] = 0.0
             a_B[j, c] = 0.0
-        q_ok = math.isfinite(q[k, 0]) and math.isfinite(q[k, 1]) and math.isfinite(q[k, 2]) \
-            and math.isfinite(q[k, 3])
+        q_ok = math.isfinite(q[k, 0]) and math.isfinite(q[k, 1]) and math.isfinite(q[k, 2]) and math.isfinite(q[k, 3])
         if k < 2 or not q_ok:
             continue
         p_k = math.isfinite(p[k, 0]) and math.isfinite(p[k, 1]) and math.isfinite(p[k, 2])
@@ -116,8 +116,13 @@ def windows(t, q, p, offset, count, window_ns, w_E, alpha_E, a_B, work):
             if i < 0:
                 break
             valid = lag <= 2 or t[k] - t[i] <= window_ns
-            valid = valid and math.isfinite(q[i, 0]) and math.isfinite(q[i, 1]) and math.isfinite(q[i, 2]) \
+            valid = (
+                valid
+                and math.isfinite(q[i, 0])
+                and math.isfinite(q[i, 1])
+                and math.isfinite(q[i, 2])
                 and math.isfinite(q[i, 3])
+            )
             if not valid:
                 continue
             s = (t[i] - t[k]) * 1e-9
@@ -199,5 +204,6 @@ def warm_up() -> None:
     d = CompiledMotionDerivatives(0.02)
     q = np.array([[1.0, 0.0, 0.0, 0.0]] * 4)
     w, al, a = d.update(np.arange(4, dtype=np.int64) * 1_000_000, q, np.zeros((4, 3)))
-    inertial_force(np.eye(3), np.broadcast_to(np.eye(3), (4, 3, 3)).copy(), w, al, a, 1.0, np.zeros(3),
-                   np.empty((4, 3)))
+    inertial_force(
+        np.eye(3), np.broadcast_to(np.eye(3), (4, 3, 3)).copy(), w, al, a, 1.0, np.zeros(3), np.empty((4, 3))
+    )

@@ -26,13 +26,11 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2
+
 from hapticlab.core import aligner_kernel
 from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench, named_params
-from hapticlab.core.frames import (
-    cross,
-    rotvec_from_matrix,
-    skew_stack,
-)
+from hapticlab.core.frames import cross, rotvec_from_matrix, skew_stack
 from hapticlab.core.types import AlignedSamples, Estimates, Event
 from hapticlab.plugins.estimators.kalman import cascade_kernel, derivatives_kernel, identified, tilt_walk_kernel
 from hapticlab.plugins.estimators.kalman.cascade_kernel import (
@@ -94,7 +92,6 @@ from hapticlab.plugins.estimators.kalman.reopen import Reopening
 from hapticlab.plugins.estimators.kalman.stage import KalmanStage, MountStage, StageRun, innovations
 from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import TW_PAIRS, TW_Q, learn_tilt_walk
 from hapticlab.plugins.estimators.kalman.warm_start import WarmStart
-from scipy.stats import chi2
 
 BIAS_RATE_PRIOR_FORCE = 0.025
 """Prior std of the force-bias rate, N/s (three times the 0.5 N/min drift figure)."""
@@ -133,10 +130,14 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
         # "auto": the stage's noise estimated as it runs (noise.py), each stage on its own
         self.noise_auto_force, self.noise_auto_torque = o.noise_force == "auto", o.noise_torque == "auto"
         self.noise_auto = self.noise_auto_force or self.noise_auto_torque
-        noise_force = np.full(3, NOISE_AUTO_START_FORCE) if self.noise_auto_force else noise_axes("noise_force",
-                                                                                                  o.noise_force)
-        noise_torque = (np.full(3, NOISE_AUTO_START_TORQUE) if self.noise_auto_torque
-                        else noise_axes("noise_torque", o.noise_torque))
+        noise_force = (
+            np.full(3, NOISE_AUTO_START_FORCE) if self.noise_auto_force else noise_axes("noise_force", o.noise_force)
+        )
+        noise_torque = (
+            np.full(3, NOISE_AUTO_START_TORQUE)
+            if self.noise_auto_torque
+            else noise_axes("noise_torque", o.noise_torque)
+        )
         # "auto": the tilt walk's intensity learnt from the data (tilt_walk_kernel), the torque's following
         self.tilt_walk_auto = bias_force_tilt_rw == "auto"
         tilt_torque_follows = bias_torque_tilt_rw is None
@@ -156,12 +157,14 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
         self.R_SE = R_SE
         self.inertia = inertia
         self.time_lag_s = float(o.time_lag_s)
-        self.effects = sorted(set(o.effects or []) | ({"bias_drift"} if bias_rate else set())
-                              | ({"mount_rotation"} if mount_rotation else set())
-                              | ({"inertia"} if inertia else set())
-                              | ({"time_lag"} if o.time_lag_s else set())
-                              | ({"gain_crosstalk"} if o.gain_force_S is not None or o.gain_torque_S is not None
-                                 else set()))
+        self.effects = sorted(
+            set(o.effects or [])
+            | ({"bias_drift"} if bias_rate else set())
+            | ({"mount_rotation"} if mount_rotation else set())
+            | ({"inertia"} if inertia else set())
+            | ({"time_lag"} if o.time_lag_s else set())
+            | ({"gain_crosstalk"} if o.gain_force_S is not None or o.gain_torque_S is not None else set())
+        )
         derivatives = derivatives_kernel.CompiledMotionDerivatives if o.kernel == "numba" else MotionDerivatives
         self.derivatives = derivatives(o.derivative_window_s) if (inertia or o.time_lag_s > 0) else None
         self._lag_t = np.zeros(0, dtype=np.int64)  # the poses a late sensor stream still needs (time_lag_s < 0)
@@ -170,26 +173,45 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
         self.method = None if o.implementation == "auto" else o.implementation
         if o.kernel == "numba" and o.implementation in ("auto", "fast") and not bias_rate:
             self.method = "numba"  # (the torque stage's with mount_rotation)
-        self.gate2 = (math.inf if (o.gate_probability == 1 or o.gating == "none")
-                      else float(chi2.ppf(o.gate_probability, 3)))
+        self.gate2 = (
+            math.inf if (o.gate_probability == 1 or o.gating == "none") else float(chi2.ppf(o.gate_probability, 3))
+        )
         self.convergence = o.convergence
         self.converged_force_std_option = o.converged_force_std
         self.converged_torque_std_option = o.converged_torque_std
         rate_f = [o.bias_force_rate_rw] * 3 if bias_rate else None
         rate_t = [o.bias_torque_rate_rw] * 3 if bias_rate else None
         prior_f = [o.prior_force_std] * 6 + ([BIAS_RATE_PRIOR_FORCE] * 3 if bias_rate else [])
-        prior_t = ([o.prior_cog_std] * 3 + [o.prior_torque_std] * 3
-                   + ([BIAS_RATE_PRIOR_TORQUE] * 3 if bias_rate else []))
+        prior_t = [o.prior_cog_std] * 3 + [o.prior_torque_std] * 3 + ([BIAS_RATE_PRIOR_TORQUE] * 3 if bias_rate else [])
         if mount_rotation:
-            self.force = MountStage(prior_f, [o.bias_force_rw] * 3, noise_force, R_SE, o.mount_prior_std,
-                                    bias_rate_rw=rate_f, bias_tilt_rw=[bias_force_tilt_rw] * 3,
-                                    tilt_span=o.bias_tilt_span)
+            self.force = MountStage(
+                prior_f,
+                [o.bias_force_rw] * 3,
+                noise_force,
+                R_SE,
+                o.mount_prior_std,
+                bias_rate_rw=rate_f,
+                bias_tilt_rw=[bias_force_tilt_rw] * 3,
+                tilt_span=o.bias_tilt_span,
+            )
         else:
-            self.force = KalmanStage(prior_f, [o.bias_force_rw] * 3, noise_force, bias_rate_rw=rate_f,
-                                     bias_tilt_rw=[bias_force_tilt_rw] * 3, tilt_span=o.bias_tilt_span)
-        self.torque = KalmanStage(prior_t, [o.bias_torque_rw] * 3, noise_torque, cross_noise=noise_force,
-                                  bias_rate_rw=rate_t, bias_tilt_rw=[bias_torque_tilt_rw] * 3,
-                                  tilt_span=o.bias_tilt_span)
+            self.force = KalmanStage(
+                prior_f,
+                [o.bias_force_rw] * 3,
+                noise_force,
+                bias_rate_rw=rate_f,
+                bias_tilt_rw=[bias_force_tilt_rw] * 3,
+                tilt_span=o.bias_tilt_span,
+            )
+        self.torque = KalmanStage(
+            prior_t,
+            [o.bias_torque_rw] * 3,
+            noise_torque,
+            cross_noise=noise_force,
+            bias_rate_rw=rate_t,
+            bias_tilt_rw=[bias_torque_tilt_rw] * 3,
+            tilt_span=o.bias_tilt_span,
+        )
         self.converged_force = False
         self.converged_torque = False
         self.first_converged_force: int | None = None
@@ -203,26 +225,30 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
         # predicted variance at the last pose (NaN until the first sample)
         self._adapt = np.zeros(ADAPT_SIZE)
         self._adapt[ADAPT_NOISE_F], self._adapt[ADAPT_NOISE_T] = self.noise_auto_force, self.noise_auto_torque
-        self._adapt[ADAPT_IDENTIFIED] = {"identified": CONVERGENCE_IDENTIFIED,
-                                         "pose": CONVERGENCE_AT_POSE}.get(o.convergence, 0.0)
+        self._adapt[ADAPT_IDENTIFIED] = {"identified": CONVERGENCE_IDENTIFIED, "pose": CONVERGENCE_AT_POSE}.get(
+            o.convergence, 0.0
+        )
         self._adapt[ADAPT_AUTO_F] = self.noise_auto_force and o.converged_force_std is None
         self._adapt[ADAPT_AUTO_T] = self.noise_auto_torque and o.converged_torque_std is None
         self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = math.inf
-        self._adapt[ADAPT_PRED_F:ADAPT_PRED_F + 3] = math.nan
-        self._adapt[ADAPT_TILT:ADAPT_TILT + 9] = math.nan  # the last sample's pose: none yet
-        self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3] = (0.0, 0.0, 1.0)  # B's z until the weight is known
+        self._adapt[ADAPT_PRED_F : ADAPT_PRED_F + 3] = math.nan
+        self._adapt[ADAPT_TILT : ADAPT_TILT + 9] = math.nan  # the last sample's pose: none yet
+        self._adapt[ADAPT_GRAVITY_DIR : ADAPT_GRAVITY_DIR + 3] = (0.0, 0.0, 1.0)  # B's z until the weight is known
         self._adapt[ADAPT_TILT_AUTO] = self.tilt_walk_auto
         self._adapt[ADAPT_TILT_SPAN] = o.bias_tilt_span
         self._adapt[ADAPT_TW:] = tilt_walk_kernel.new_state()
-        self._adapt[ADAPT_TILT_TORQUE] = TORQUE_PER_FORCE ** 2 if tilt_torque_follows else -1.0  # (q: variances)
+        self._adapt[ADAPT_TILT_TORQUE] = TORQUE_PER_FORCE**2 if tilt_torque_follows else -1.0  # (q: variances)
         self._cog_known = False  # a warm start's torque stage had converged
         self._mass_known = False  # a warm start's force stage had converged
         self.prior_f = np.array(prior_f, dtype=float)
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = int(round(o.payload_change_s * 1e9))
         self.torque_reopen_s = float(o.torque_reopen_s)
-        self._adapt[ADAPT_REOPEN_S], self._adapt[ADAPT_REOPEN_LEVER] = self.torque_reopen_s, float(o.torque_reopen_lever)
-        self._adapt[ADAPT_PRIOR_TB:ADAPT_PRIOR_TB + 3] = self.prior_t[3:6] ** 2
+        self._adapt[ADAPT_REOPEN_S], self._adapt[ADAPT_REOPEN_LEVER] = (
+            self.torque_reopen_s,
+            float(o.torque_reopen_lever),
+        )
+        self._adapt[ADAPT_PRIOR_TB : ADAPT_PRIOR_TB + 3] = self.prior_t[3:6] ** 2
         self._adapt[ADAPT_CONTACT_AFTER] = o.contact_after
         if mount_rotation:  # the compiled cascade estimates the mount as MountStage does
             self._adapt[ADAPT_MOUNT] = self.force.activate_var
@@ -375,13 +401,14 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
         if not self._adapt[ADAPT_FORCE_SEEN]:
             return
         learn, tw = learn_tilt_walk.py_func, self._adapt[ADAPT_TW:]
-        g_B = self._adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3]
+        g_B = self._adapt[ADAPT_GRAVITY_DIR : ADAPT_GRAVITY_DIR + 3]
         q_bias = self.force.q_bias
         q_time = (q_bias[0] + q_bias[1] + q_bias[2]) / 3.0
         for k in range(len(t_ns)):
             if tested[k]:
-                self._set_tilt_walk(learn(tw, y_f[k], A_f[k], self.force.x, g_B, t_ns[k] * 1e-9, bool(refused[k]),
-                                          q_time))
+                self._set_tilt_walk(
+                    learn(tw, y_f[k], A_f[k], self.force.x, g_B, t_ns[k] * 1e-9, bool(refused[k]), q_time)
+                )
 
     def _judge_contacts(self, refused: np.ndarray, tested: np.ndarray) -> np.ndarray:
         """(m,) the refused samples judged a contact (``cascade_kernel.judge_contact``, run as Python); ``tested``:
@@ -429,20 +456,63 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
             bound_f, bound_t = self._bounds()
             limits[1], limits[2] = bound_f * bound_f, bound_t * bound_t
         force, torque = self.force, self.torque
-        out = Estimates(block.t_ns, np.empty((m, 3)), np.empty((m, 3)), np.empty(m, dtype=bool),
-                        np.empty(m, dtype=bool), np.empty(m, dtype=bool))
+        out = Estimates(
+            block.t_ns,
+            np.empty((m, 3)),
+            np.empty((m, 3)),
+            np.empty(m, dtype=bool),
+            np.empty(m, dtype=bool),
+            np.empty(m, dtype=bool),
+        )
         x_before = force.x.copy() if self.payload_change_ns > 0 else None
         failed_f, failed_t, gated_f, first_f, first_t = cascade_kernel.kalman_cascade(
-            t_ns, clock, y_f, force_S, torque_S, A_f, stale,
-            contiguous(block.status, np.int64), p_BoEo_B, NO_POSITIONS if inertial_S is None else inertial_S,
-            b.usable, force.x, force.P, torque.x, torque.P, force.q_bias, force.r, force.rc, torque.q_bias, torque.r,
-            torque.rc, _NO_RATE if force.q_rate is None else force.q_rate,
-            _NO_RATE if torque.q_rate is None else torque.q_rate, force.q_tilt, torque.q_tilt,
+            t_ns,
+            clock,
+            y_f,
+            force_S,
+            torque_S,
+            A_f,
+            stale,
+            contiguous(block.status, np.int64),
+            p_BoEo_B,
+            NO_POSITIONS if inertial_S is None else inertial_S,
+            b.usable,
+            force.x,
+            force.P,
+            torque.x,
+            torque.P,
+            force.q_bias,
+            force.r,
+            force.rc,
+            torque.q_bias,
+            torque.r,
+            torque.rc,
+            _NO_RATE if force.q_rate is None else force.q_rate,
+            _NO_RATE if torque.q_rate is None else torque.q_rate,
+            force.q_tilt,
+            torque.q_tilt,
             force.R_SE if self.mount_rotation else _NO_MOUNT,
-            limits, self._adapt, self._information["force"],
-            self._information["torque"], b.A_t, b.scratch, b.work,
-            b.X_f, b.D_f, b.gated_f, b.failed_f, b.X_t, b.D_t, b.gated_t, b.failed_t,
-            out.contact_force_S, out.contact_torque_S, out.contact, out.converged_force, out.converged_torque)
+            limits,
+            self._adapt,
+            self._information["force"],
+            self._information["torque"],
+            b.A_t,
+            b.scratch,
+            b.work,
+            b.X_f,
+            b.D_f,
+            b.gated_f,
+            b.failed_f,
+            b.X_t,
+            b.D_t,
+            b.gated_t,
+            b.failed_t,
+            out.contact_force_S,
+            out.contact_torque_S,
+            out.contact,
+            out.converged_force,
+            out.converged_torque,
+        )
         self._last_t_ns = int(t_ns[-1])
         if self.mount_rotation:
             self.R_SE = force.R_SE.copy()  # (the cascade turns force.R_SE in place)

@@ -25,6 +25,7 @@ Shapes: A (3, 3), P (6, 6), info (6, 6), r (3,).
 from __future__ import annotations
 
 import numpy as np
+
 from hapticlab.plugins.estimators.kalman.stage import I3
 
 

@@ -8,21 +8,14 @@ the poses already seen) and the tool's inertial force (``inertia``), in S.
 from __future__ import annotations
 
 import numpy as np
+
 from hapticlab.core import aligner_kernel
 from hapticlab.core.aligner import orientation_at, position_at
-from hapticlab.core.frames import (
-    GRAVITY_M_S2,
-    matrix_from_quat_wxyz,
-    quat_from_rotvec,
-    quat_wxyz_from_matrix,
-)
+from hapticlab.core.frames import GRAVITY_M_S2, matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix
 from hapticlab.core.types import AlignedSamples
 from hapticlab.plugins.estimators.kalman import derivatives_kernel
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
-from hapticlab.plugins.estimators.kalman.cascade_kernel import (
-    ADAPT_FORCE_SEEN,
-    ADAPT_TORQUE_SEEN,
-)
+from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_FORCE_SEEN, ADAPT_TORQUE_SEEN
 
 LAG_HISTORY_MARGIN_NS = 50_000_000
 """Poses kept beyond the lag itself (50 ms), for the next block's interpolation."""
@@ -94,9 +87,17 @@ class ModelInputs(KalmanBase):
         if self.kernel == "numba":  # the live aligner's compiled interpolation (to ~1e-12 of the numpy one)
             m = len(t)
             quat_BE, R_EB, p_BoEo_B = np.empty((m, 4)), np.empty((m, 3, 3)), np.empty((m, 3)) if has_p else None
-            aligner_kernel.align_block(target, hist_t, np.ascontiguousarray(hist_q, float),
-                                     np.ascontiguousarray(hist_p, float) if has_p else NO_POSITIONS, 0, quat_BE,
-                                     R_EB, p_BoEo_B if has_p else NO_POSITIONS, np.empty(m, dtype=np.bool_))
+            aligner_kernel.align_block(
+                target,
+                hist_t,
+                np.ascontiguousarray(hist_q, float),
+                np.ascontiguousarray(hist_p, float) if has_p else NO_POSITIONS,
+                0,
+                quat_BE,
+                R_EB,
+                p_BoEo_B if has_p else NO_POSITIONS,
+                np.empty(m, dtype=np.bool_),
+            )
         else:
             quat_BE, _ = orientation_at(target, hist_t, hist_q, 0)
             p_BoEo_B = position_at(target, hist_t, hist_p, 0) if has_p else None
@@ -122,10 +123,16 @@ class ModelInputs(KalmanBase):
         R_SE = self.R_SE
         if self.kernel == "numba":
             out = np.empty((len(R_EB), 3))
-            derivatives_kernel.inertial_force(R_SE, np.ascontiguousarray(self._to_S(R_EB), float),
-                                          np.ascontiguousarray(w_E, float), np.ascontiguousarray(alpha_E, float),
-                                          np.ascontiguousarray(a_B, float), mass, np.ascontiguousarray(cog_S, float),
-                                          out)
+            derivatives_kernel.inertial_force(
+                R_SE,
+                np.ascontiguousarray(self._to_S(R_EB), float),
+                np.ascontiguousarray(w_E, float),
+                np.ascontiguousarray(alpha_E, float),
+                np.ascontiguousarray(a_B, float),
+                mass,
+                np.ascontiguousarray(cog_S, float),
+                out,
+            )
             return out
         w_S, alpha_S = w_E @ R_SE.T, alpha_E @ R_SE.T
         a_S = np.einsum("kij,kj->ki", self._to_S(R_EB), a_B)

@@ -60,8 +60,9 @@ def window_samples(dt: float) -> int:
     return max(NOISE_WINDOW, int(NOISE_WINDOW_S / dt))
 
 
-def adapt_noise(r: np.ndarray, count: float, e: np.ndarray, cpc: np.ndarray, weight: float, window: int,
-                floor: float) -> tuple[np.ndarray, float]:
+def adapt_noise(
+    r: np.ndarray, count: float, e: np.ndarray, cpc: np.ndarray, weight: float, window: int, floor: float
+) -> tuple[np.ndarray, float]:
     """One sample's covariance-matching step.
 
     Args:
@@ -82,6 +83,6 @@ def adapt_noise(r: np.ndarray, count: float, e: np.ndarray, cpc: np.ndarray, wei
     count += weight
     lam = weight / min(count + NOISE_PRIOR_SAMPLES, window)
     s2 = r + cpc
-    e2 = np.minimum(e ** 2, NOISE_CLIP ** 2 * s2) / NOISE_CLIP_MEAN
+    e2 = np.minimum(e**2, NOISE_CLIP**2 * s2) / NOISE_CLIP_MEAN
     r = r + lam * (np.maximum(e2 - cpc, 0.0) - r)
-    return np.maximum(r, floor ** 2), count
+    return np.maximum(r, floor**2), count

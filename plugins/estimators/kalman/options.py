@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
 from hapticlab.core.estimation.kernels import kernel_option
 from hapticlab.core.estimation.model import MAX_FORCE, MAX_TORQUE, wrench_bound
 from hapticlab.core.frames import matrix_from_rotvec
@@ -150,36 +151,49 @@ class KalmanOptions:
     def __post_init__(self) -> None:
         for effect in self.effects or []:
             if effect not in EFFECT_OPTIONS:
-                raise OptionError("effects", f"unknown effect {effect!r}; the kalman estimator models "
-                                             f"{', '.join(sorted(EFFECT_OPTIONS))}")
+                raise OptionError(
+                    "effects",
+                    f"unknown effect {effect!r}; the kalman estimator models {', '.join(sorted(EFFECT_OPTIONS))}",
+                )
         named = set(self.effects or [])
         if "time_lag" in named and not self.time_lag_s:
             raise OptionError("effects", "'time_lag' needs its value: set time_lag_s (s, from hapticlab discrepancy)")
         if "payload_change" in named and not self.payload_change_s:
-            raise OptionError("effects", "'payload_change' is watched for with payload_change_s > 0 "
-                                         "(default 0.3 s), not 0")
+            raise OptionError(
+                "effects", "'payload_change' is watched for with payload_change_s > 0 (default 0.3 s), not 0"
+            )
         if "gain_crosstalk" in named and self.gain_force_S is None and self.gain_torque_S is None:
-            raise OptionError("effects", "'gain_crosstalk' needs its value: set gain_force_S and/or gain_torque_S "
-                                         "(from hapticlab discrepancy)")
+            raise OptionError(
+                "effects",
+                "'gain_crosstalk' needs its value: set gain_force_S and/or gain_torque_S (from hapticlab discrepancy)",
+            )
         for key in ("noise_force", "noise_torque"):
             if getattr(self, key) != "auto":
                 noise_axes(key, getattr(self, key))
         if self.bias_force_tilt_rw != "auto" and self.bias_force_tilt_rw is not None:
             number("bias_force_tilt_rw", self.bias_force_tilt_rw, minimum=0, hint=" or 'auto'")
-        for key in ("bias_force_rw", "bias_torque_rw", "bias_torque_tilt_rw", "bias_force_rate_rw",
-                    "bias_torque_rate_rw"):
+        for key in (
+            "bias_force_rw",
+            "bias_torque_rw",
+            "bias_torque_tilt_rw",
+            "bias_force_rate_rw",
+            "bias_torque_rate_rw",
+        ):
             if getattr(self, key) is not None:
                 number(key, getattr(self, key), minimum=0)
         number("bias_tilt_span", self.bias_tilt_span, minimum=0, hint=" (rad; 0: the plain tilt walk)")
         for key in ("converged_force_std", "converged_torque_std"):
             if getattr(self, key) is not None:
                 number(key, getattr(self, key), above=0)
-        for key in ("prior_force_std", "prior_cog_std", "prior_torque_std", "mount_prior_std",
-                    "derivative_window_s"):
+        for key in ("prior_force_std", "prior_cog_std", "prior_torque_std", "mount_prior_std", "derivative_window_s"):
             number(key, getattr(self, key), above=0)
         choice("gating", self.gating, ("mahalanobis", "none"))
-        choice("convergence", self.convergence, ("pose", "identified", "covariance", "step"),
-               hint=" (the paper's ‖Δx‖ < 1e-3)")
+        choice(
+            "convergence",
+            self.convergence,
+            ("pose", "identified", "covariance", "step"),
+            hint=" (the paper's ‖Δx‖ < 1e-3)",
+        )
         if not (is_plain_number(self.gate_probability) and 0 < self.gate_probability <= 1):
             raise OptionError("gate_probability", f"must be in (0, 1], got {self.gate_probability!r}")
         integer("contact_after", self.contact_after, minimum=1, hint=" (refused samples in a row)")
@@ -191,10 +205,16 @@ class KalmanOptions:
         number("payload_change_s", self.payload_change_s, minimum=0)
         number("torque_reopen_s", self.torque_reopen_s, minimum=0)
         number("torque_reopen_lever", self.torque_reopen_lever, minimum=0, hint=" (m)")
-        if not (is_plain_number(self.time_lag_s) and math.isfinite(self.time_lag_s)
-                and -MAX_SENSOR_LAG_S <= self.time_lag_s <= MAX_KINEMATICS_LAG_S):
-            raise OptionError("time_lag_s", f"must be a number of seconds from -{MAX_SENSOR_LAG_S:g} (sensor late) "
-                                            f"to {MAX_KINEMATICS_LAG_S:g} (kinematics late), got {self.time_lag_s!r}")
+        if not (
+            is_plain_number(self.time_lag_s)
+            and math.isfinite(self.time_lag_s)
+            and -MAX_SENSOR_LAG_S <= self.time_lag_s <= MAX_KINEMATICS_LAG_S
+        ):
+            raise OptionError(
+                "time_lag_s",
+                f"must be a number of seconds from -{MAX_SENSOR_LAG_S:g} (sensor late) "
+                f"to {MAX_KINEMATICS_LAG_S:g} (kinematics late), got {self.time_lag_s!r}",
+            )
         text("warm_start", self.warm_start, hint=" (a path)")
         kernel_option(self.kernel)
         mount_matrix(self.mount_rotation_SE, self.mount_R_SE)
@@ -266,8 +286,11 @@ def mount_matrix(rotvec: Any, matrix: Any) -> np.ndarray:
         raise OptionError("mount_R_SE", "not orthonormal (Rᵀ R ≠ I to 1e-6); give a rotation matrix")
     det = float(np.linalg.det(R))
     if det < 0:
-        raise OptionError("mount_R_SE", f"the axes are mirrored (det = {det:.3f}); a sensor mount is a rotation "
-                                        "(det = +1): check the sensor's axis convention (a flipped axis)")
+        raise OptionError(
+            "mount_R_SE",
+            f"the axes are mirrored (det = {det:.3f}); a sensor mount is a rotation "
+            "(det = +1): check the sensor's axis convention (a flipped axis)",
+        )
     return R
 
 
@@ -289,6 +312,9 @@ def gain_inverse(key: str, value: Any) -> np.ndarray | None:
     G = matrix3(key, value, " (measured = (I + G)·true)")
     smallest = float(np.linalg.svd(np.eye(3) + G, compute_uv=False).min())
     if np.abs(G).max() > 0.5 or smallest < 0.5:
-        raise OptionError(key, f"not a small calibration error (largest entry {np.abs(G).max():.2f}, "
-                               f"smallest singular value of I + G {smallest:.2f}; expected entries ≤ 0.5 and ≥ 0.5)")
+        raise OptionError(
+            key,
+            f"not a small calibration error (largest entry {np.abs(G).max():.2f}, "
+            f"smallest singular value of I + G {smallest:.2f}; expected entries ≤ 0.5 and ≥ 0.5)",
+        )
     return np.linalg.inv(np.eye(3) + G)

@@ -77,15 +77,15 @@ class RefusedWindow:
             capacity = max(2 * len(self._data["e"]), self.n + m)
             for key, old in self._data.items():
                 new = np.empty((capacity, *old.shape[1:]))
-                new[:self.n] = old[:self.n]
+                new[: self.n] = old[: self.n]
                 self._data[key] = new
         for key, column in self._data.items():
-            column[self.n:self.n + m] = parts[key]
+            column[self.n : self.n + m] = parts[key]
         self.n += m
 
     def window(self) -> dict[str, np.ndarray]:
         """The samples so far, by field (views: valid until the next append)."""
-        return {key: column[:self.n] for key, column in self._data.items()}
+        return {key: column[: self.n] for key, column in self._data.items()}
 
     def fit(self, r: np.ndarray) -> tuple[np.ndarray, float]:
         """The least squares of e_k = A_k·Δg over the samples so far (A_k orthonormal, so Δg = mean(A_kᵀ e_k)):
@@ -146,9 +146,20 @@ class PayloadWatch:
             return math.nan
         return float(self._onset @ dg) / self._onset_n / float(dg @ dg)
 
-    def observe(self, t_ns: np.ndarray, gated: np.ndarray, usable: np.ndarray, e: np.ndarray,
-                A: np.ndarray, y: np.ndarray, f: np.ndarray, tq: np.ndarray, R: np.ndarray,
-                r: np.ndarray, g: np.ndarray) -> PayloadChange | None:
+    def observe(
+        self,
+        t_ns: np.ndarray,
+        gated: np.ndarray,
+        usable: np.ndarray,
+        e: np.ndarray,
+        A: np.ndarray,
+        y: np.ndarray,
+        f: np.ndarray,
+        tq: np.ndarray,
+        R: np.ndarray,
+        r: np.ndarray,
+        g: np.ndarray,
+    ) -> PayloadChange | None:
         """One block's samples (``gated``: refused by the force stage; ``usable``: given to it): the payload
         change found, None otherwise. After a change the run ends (the estimator has re-opened gravity)."""
         start = 0

@@ -7,9 +7,8 @@ towards its prior, so the next samples identify it again, and says so with an ev
 from __future__ import annotations
 
 import numpy as np
-from hapticlab.core.frames import (
-    skew_stack,
-)
+
+from hapticlab.core.frames import skew_stack
 from hapticlab.core.types import Event
 from hapticlab.plugins.estimators.kalman import tilt_walk_kernel
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
@@ -43,15 +42,21 @@ class Reopening(KalmanBase):
         if not gated.any() and not self._payload.in_run:
             return
         e = innovations(y_f, A_f, x_before, run_f.X)
-        change = self._payload.observe(t_ns, gated, usable, e, A_f, y_f, force_S, torque_S, R_EB,
-                                       self.force.r, self.force.x[:3])
+        change = self._payload.observe(
+            t_ns, gated, usable, e, A_f, y_f, force_S, torque_S, R_EB, self.force.r, self.force.x[:3]
+        )
         if change is None:
             return
         self._reopen_payload(change.window)
         dn = change.weight_change
-        self.events.append(Event(change.t_ns, "payload_change",
-                                 f"kalman: payload change of {dn:.3g} N ({dn / 9.81 * 1000:.0f} g) after "
-                                 f"{change.run_s:.2f} s of refused samples; gravity and centre of gravity re-opened"))
+        self.events.append(
+            Event(
+                change.t_ns,
+                "payload_change",
+                f"kalman: payload change of {dn:.3g} N ({dn / 9.81 * 1000:.0f} g) after "
+                f"{change.run_s:.2f} s of refused samples; gravity and centre of gravity re-opened",
+            )
+        )
 
     def _reopen_payload(self, window: dict[str, np.ndarray]) -> None:
         """Re-open what a payload changes, then replay the refused window.
@@ -97,8 +102,15 @@ class Reopening(KalmanBase):
         for k in range(len(t_ns)):
             failed = run_t.failed is not None and run_t.failed[k]
             what_t = GATED if run_t.gated[k] else (UPDATED if force_seen[k] and not failed else -1)
-            if torque_only_refusal.py_func(self._adapt, bool(gated_f[k]), bool(force_seen[k]), what_t, float(dt[k]),
-                                           contact_force_S[k], contact_torque_S[k]):
+            if torque_only_refusal.py_func(
+                self._adapt,
+                bool(gated_f[k]),
+                bool(force_seen[k]),
+                what_t,
+                float(dt[k]),
+                contact_force_S[k],
+                contact_torque_S[k],
+            ):
                 self._reopen_torque_bias(int(t_ns[k]))
 
     def _reopen_torque_bias(self, t_ns: int) -> None:
@@ -109,10 +121,18 @@ class Reopening(KalmanBase):
         self._torque_reopened(t_ns)
 
     def _torque_reopened(self, t_ns: int) -> None:
-        self.events.append(Event(t_ns, "torque_bias_reopened", (
-            f"kalman: torque bias re-opened after {self.torque_reopen_s:g} s of samples the force stage accepted "
-            f"and the torque stage refused (a torque drift, not a contact; {int(self._adapt[ADAPT_REOPENS])} so "
-            f"far)"), {"reopens": int(self._adapt[ADAPT_REOPENS])}))
+        self.events.append(
+            Event(
+                t_ns,
+                "torque_bias_reopened",
+                (
+                    f"kalman: torque bias re-opened after {self.torque_reopen_s:g} s of samples the force stage accepted "
+                    f"and the torque stage refused (a torque drift, not a contact; {int(self._adapt[ADAPT_REOPENS])} so "
+                    f"far)"
+                ),
+                {"reopens": int(self._adapt[ADAPT_REOPENS])},
+            )
+        )
 
     def reidentify_bias(self, reason: str) -> None:
         """Reidentifies: the sensor's bias (force and torque) as unknown again, its covariance back to the prior.

@@ -76,6 +76,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from hapticlab.plugins.estimators.kalman import stage_kernel as kernel
 
 I3 = np.eye(3)
@@ -130,13 +131,21 @@ class KalmanStage:
         failed: samples whose update could not be computed (``StageRun.failed``).
     """
 
-    def __init__(self, prior_std, bias_rw, noise, cross_noise=(0.0, 0.0, 0.0), bias_rate_rw=None,
-                 bias_tilt_rw=(0.0, 0.0, 0.0), tilt_span=0.0):
+    def __init__(
+        self,
+        prior_std,
+        bias_rw,
+        noise,
+        cross_noise=(0.0, 0.0, 0.0),
+        bias_rate_rw=None,
+        bias_tilt_rw=(0.0, 0.0, 0.0),
+        tilt_span=0.0,
+    ):
         self.n = 6 if bias_rate_rw is None else 9
         prior_std = np.asarray(prior_std, dtype=float).reshape(self.n)
         self._lists: tuple[list, list] | None = None  # the fast path's state as Python floats
         self.x = np.zeros(self.n)
-        self.P = np.diag(prior_std ** 2)
+        self.P = np.diag(prior_std**2)
         self.q_bias = np.asarray(bias_rw, dtype=float).reshape(3) ** 2
         self.q_rate = None if bias_rate_rw is None else np.asarray(bias_rate_rw, dtype=float).reshape(3) ** 2
         self.q_tilt = np.asarray(bias_tilt_rw, dtype=float).reshape(3) ** 2
@@ -190,8 +199,8 @@ class KalmanStage:
         Q[3:6, 3:6] = np.diag(self.q_bias * dt)
         if self.q_rate is not None:
             F[3:6, 6:9] = dt * I3
-            Q[3:6, 3:6] += np.diag(self.q_rate * dt ** 3 / 3.0)
-            Q[3:6, 6:9] = Q[6:9, 3:6] = np.diag(self.q_rate * dt ** 2 / 2.0)
+            Q[3:6, 3:6] += np.diag(self.q_rate * dt**3 / 3.0)
+            Q[3:6, 6:9] = Q[6:9, 3:6] = np.diag(self.q_rate * dt**2 / 2.0)
             Q[6:9, 6:9] = np.diag(self.q_rate * dt)
         return F, Q
 
@@ -209,8 +218,16 @@ class KalmanStage:
 
     # ------------------------------------------------------------------ running a block
 
-    def run(self, y: np.ndarray, A: np.ndarray, dt: np.ndarray, active: np.ndarray, gate2: float,
-            method: str | None = None, tilt: np.ndarray | None = None) -> StageRun:
+    def run(
+        self,
+        y: np.ndarray,
+        A: np.ndarray,
+        dt: np.ndarray,
+        active: np.ndarray,
+        gate2: float,
+        method: str | None = None,
+        tilt: np.ndarray | None = None,
+    ) -> StageRun:
         """Filter m samples in order; the state is updated in place.
 
         Args:
@@ -275,15 +292,30 @@ class KalmanStage:
         if lists is None:
             lists = (self._x.tolist(), self._P[_UPPER6].tolist())
         X, D, gated, d2, x, P, failed, self.turn = _filter6(
-            *lists, y.tolist(), A.reshape(-1, 9).tolist(), dt.tolist(), tilt.tolist(), active.tolist(),
-            self.q_bias.tolist(), self.q_tilt.tolist(), self.r.tolist(), self.rc.tolist(), float(gate2),
-            self.tilt_span, self.turn,
+            *lists,
+            y.tolist(),
+            A.reshape(-1, 9).tolist(),
+            dt.tolist(),
+            tilt.tolist(),
+            active.tolist(),
+            self.q_bias.tolist(),
+            self.q_tilt.tolist(),
+            self.r.tolist(),
+            self.rc.tolist(),
+            float(gate2),
+            self.tilt_span,
+            self.turn,
         )
         self._lists = (x, P)
         self._x = self._P = None  # built from the lists when read
         m = len(y)
-        return StageRun(np.array(X).reshape(m, 6), np.array(D).reshape(m, 6), np.array(gated, dtype=bool),
-                        np.array(d2, dtype=float), self._failed(m, failed))
+        return StageRun(
+            np.array(X).reshape(m, 6),
+            np.array(D).reshape(m, 6),
+            np.array(gated, dtype=bool),
+            np.array(d2, dtype=float),
+            self._failed(m, failed),
+        )
 
     def _run_numba(self, y, A, dt, tilt, active, gate2) -> StageRun:
         """``_run_fast`` compiled (``plugins.estimators.kalman.stage_kernel.filter6``): x and P updated in place, the same bits."""
@@ -293,10 +325,27 @@ class KalmanStage:
         gated, failed = np.empty(m, dtype=bool), np.empty(m, dtype=bool)
         contiguous = np.ascontiguousarray
         turn = np.array([self.turn])
-        n_failed = kernel.filter6(self._x, self._P, contiguous(y, float), contiguous(A, float), contiguous(dt, float),
-                                  contiguous(tilt, float), contiguous(active, bool), self.q_bias, self.q_tilt, self.r,
-                                  self.rc, float(gate2), self.tilt_span, turn,
-                                  X, D, gated, d2, failed)
+        n_failed = kernel.filter6(
+            self._x,
+            self._P,
+            contiguous(y, float),
+            contiguous(A, float),
+            contiguous(dt, float),
+            contiguous(tilt, float),
+            contiguous(active, bool),
+            self.q_bias,
+            self.q_tilt,
+            self.r,
+            self.rc,
+            float(gate2),
+            self.tilt_span,
+            turn,
+            X,
+            D,
+            gated,
+            d2,
+            failed,
+        )
         self.turn = float(turn[0])
         return StageRun(X, D, gated, d2, self._failed(m, np.flatnonzero(failed)) if n_failed else None)
 
@@ -325,8 +374,7 @@ def _filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2, span, turn):
     U = PCᵀ L⁻ᵀ as x⁻ + U diag(d)⁻¹ L⁻¹ e and P⁻ − U diag(d)⁻¹ Uᵀ.
     """
     x0, x1, x2, x3, x4, x5 = x
-    (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15,
-     p22, p23, p24, p25, p33, p34, p35, p44, p45, p55) = P
+    (p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25, p33, p34, p35, p44, p45, p55) = P
     q0, q1, q2 = q
     qt0, qt1, qt2 = qt
     r0, r1, r2 = r
@@ -510,11 +558,27 @@ class MountStage(KalmanStage):
     Attributes: R_SE: (3, 3) the current estimate of the mount rotation.
     """
 
-    def __init__(self, prior_std, bias_rw, noise, R_SE, mount_prior_std, bias_rate_rw=None, activate_std=0.5,
-                 bias_tilt_rw=(0.0, 0.0, 0.0), tilt_span=0.0):
+    def __init__(
+        self,
+        prior_std,
+        bias_rw,
+        noise,
+        R_SE,
+        mount_prior_std,
+        bias_rate_rw=None,
+        activate_std=0.5,
+        bias_tilt_rw=(0.0, 0.0, 0.0),
+        tilt_span=0.0,
+    ):
         base = 6 if bias_rate_rw is None else 9
-        super().__init__(np.asarray(prior_std, dtype=float)[:base], bias_rw, noise, bias_rate_rw=bias_rate_rw,
-                         bias_tilt_rw=bias_tilt_rw, tilt_span=tilt_span)
+        super().__init__(
+            np.asarray(prior_std, dtype=float)[:base],
+            bias_rw,
+            noise,
+            bias_rate_rw=bias_rate_rw,
+            bias_tilt_rw=bias_tilt_rw,
+            tilt_span=tilt_span,
+        )
         self.n = base + 3
         x, P = np.zeros(self.n), np.zeros((self.n, self.n))
         P[:base, :base] = np.diag(np.asarray(prior_std, dtype=float)[:base] ** 2)
@@ -523,8 +587,16 @@ class MountStage(KalmanStage):
         self.R_SE = np.array(R_SE, dtype=float)
         self.activate_var = float(activate_std) ** 2
 
-    def run(self, y: np.ndarray, R_EB: np.ndarray, dt: np.ndarray, active: np.ndarray, gate2: float,
-            method: str | None = None, tilt: np.ndarray | None = None) -> StageRun:
+    def run(
+        self,
+        y: np.ndarray,
+        R_EB: np.ndarray,
+        dt: np.ndarray,
+        active: np.ndarray,
+        gate2: float,
+        method: str | None = None,
+        tilt: np.ndarray | None = None,
+    ) -> StageRun:
         """Filter m samples in order (numpy, one sample at a time); x, P and R_SE are updated in place.
 
         Same arguments as KalmanStage.run, except that R_EB (m, 3, 3) is the robot's
@@ -554,10 +626,11 @@ class MountStage(KalmanStage):
                 v_E = R_EB[k] @ x[:3]
                 C[:, :3] = R_SE @ R_EB[k]
                 if max(P[0, 0], P[1, 1], P[2, 2]) > self.activate_var:
-                    C[:, n - 3:] = 0.0  # a not yet known: θ waits (see the class docstring)
+                    C[:, n - 3 :] = 0.0  # a not yet known: θ waits (see the class docstring)
                 else:
-                    C[:, n - 3:] = -R_SE @ np.array([[0.0, -v_E[2], v_E[1]], [v_E[2], 0.0, -v_E[0]],
-                                                 [-v_E[1], v_E[0], 0.0]])
+                    C[:, n - 3 :] = -R_SE @ np.array(
+                        [[0.0, -v_E[2], v_E[1]], [v_E[2], 0.0, -v_E[0]], [-v_E[1], v_E[0], 0.0]]
+                    )
                 e = y[k] - C[:, :3] @ x[:3] - x[3:6]
                 PCt = P @ C.T
                 S = C @ PCt + R
@@ -576,8 +649,8 @@ class MountStage(KalmanStage):
                     IKC = In - K @ C
                     P = IKC @ P @ IKC.T + K @ R @ K.T
                     P = 0.5 * (P + P.T)
-                    R_SE = R_SE @ _exp_so3(x[n - 3:])
-                    x[n - 3:] = 0.0
+                    R_SE = R_SE @ _exp_so3(x[n - 3 :])
+                    x[n - 3 :] = 0.0
             X[k], D[k] = x, np.diag(P)
         self.x, self.P, self.R_SE = x, P, R_SE
         return StageRun(X, D, gated, d2, self._failed(m, failed))
@@ -589,7 +662,7 @@ def _exp_so3(theta: np.ndarray) -> np.ndarray:
     K = np.array([[0.0, -theta[2], theta[1]], [theta[2], 0.0, -theta[0]], [-theta[1], theta[0], 0.0]])
     if angle < 1e-8:
         return I3 + K + 0.5 * K @ K
-    return I3 + math.sin(angle) / angle * K + (1.0 - math.cos(angle)) / angle ** 2 * K @ K
+    return I3 + math.sin(angle) / angle * K + (1.0 - math.cos(angle)) / angle**2 * K @ K
 
 
 def innovations(y: np.ndarray, A: np.ndarray, x_before: np.ndarray, X: np.ndarray) -> np.ndarray:

@@ -36,8 +36,14 @@ gate, or the update could not be computed (S not numerically positive definite).
 @njit(cache=True, error_model="numpy")
 def _with_cross_noise(s00, s01, s02, s11, s12, s22, rc0, rc1, rc2, x0, x1, x2):
     """S + [a]ₓ diag(rc) [a]ₓᵀ at a = (x0, x1, x2), S given and returned by its upper triangle."""
-    return (s00 + (rc1 * x2 * x2 + rc2 * x1 * x1), s01 - rc2 * x0 * x1, s02 - rc1 * x0 * x2,
-            s11 + (rc0 * x2 * x2 + rc2 * x0 * x0), s12 - rc0 * x1 * x2, s22 + (rc0 * x1 * x1 + rc1 * x0 * x0))
+    return (
+        s00 + (rc1 * x2 * x2 + rc2 * x1 * x1),
+        s01 - rc2 * x0 * x1,
+        s02 - rc1 * x0 * x2,
+        s11 + (rc0 * x2 * x2 + rc2 * x0 * x0),
+        s12 - rc0 * x1 * x2,
+        s22 + (rc0 * x1 * x1 + rc1 * x0 * x0),
+    )
 
 
 @njit(cache=True, error_model="numpy")
@@ -291,8 +297,7 @@ def _update(x, P, y0, y1, y2, r, rc, gate2, work):
         e2 -= work[j, 8] * x[j]
     x0, x1, x2 = x[0], x[1], x[2]
     if rc[0] != 0.0 or rc[1] != 0.0 or rc[2] != 0.0:  # [a]ₓ diag(rc) [a]ₓᵀ at the prior estimate of a
-        s00, s01, s02, s11, s12, s22 = _with_cross_noise(s00, s01, s02, s11, s12, s22, rc[0], rc[1], rc[2],
-                                                          x0, x1, x2)
+        s00, s01, s02, s11, s12, s22 = _with_cross_noise(s00, s01, s02, s11, s12, s22, rc[0], rc[1], rc[2], x0, x1, x2)
     what, d2, l10, l20, l21, d0, d1, d2_, z0, z1, z2 = _gate_ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2, gate2)
     if what != UPDATED:
         return what, d2

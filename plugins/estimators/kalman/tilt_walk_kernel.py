@@ -188,8 +188,11 @@ def _score(tw, a, q_time):
     v0, v1, v2 = tw[w + WIN_G], tw[w + WIN_G + 1], tw[w + WIN_G + 2]
     c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
     turn = math.atan2(math.sqrt(c0 * c0 + c1 * c1 + c2 * c2), u0 * v0 + u1 * v1 + u2 * v2)
-    x = d2 / (3.0 * CHI2_3_MEDIAN) - tw[TW_S2] * (1.0 / tw[o + WIN_N] + 1.0 / tw[w + WIN_N]) \
+    x = (
+        d2 / (3.0 * CHI2_3_MEDIAN)
+        - tw[TW_S2] * (1.0 / tw[o + WIN_N] + 1.0 / tw[w + WIN_N])
         - 2.0 / 3.0 * q_time * abs(tw[w + WIN_T] - tw[o + WIN_T])
+    )
     if not (math.isfinite(x) and turn > 0.0):
         return
     at = int(tw[TW_RING_AT])

@@ -11,6 +11,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+
 from hapticlab.plugins.estimators.kalman import tilt_walk_kernel
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
 from hapticlab.plugins.estimators.kalman.cascade_kernel import (
@@ -24,13 +25,8 @@ from hapticlab.plugins.estimators.kalman.cascade_kernel import (
     ADAPT_TW,
     set_gravity_direction,
 )
-from hapticlab.plugins.estimators.kalman.noise import (
-    NOISE_FLOOR,
-    NOISE_WINDOW,
-)
-from hapticlab.plugins.estimators.kalman.options import (
-    mount_matrix,
-)
+from hapticlab.plugins.estimators.kalman.noise import NOISE_FLOOR, NOISE_WINDOW
+from hapticlab.plugins.estimators.kalman.options import mount_matrix
 
 
 class WarmStart(KalmanBase):
@@ -100,10 +96,16 @@ class WarmStart(KalmanBase):
         information = {}
         for key, info in (source.get("information") or {}).items():  # (states saved before it: none)
             info = np.array(info, dtype=float) if key in ("force", "torque") else None
-            if info is None or info.shape != (6, 6) or not np.all(np.isfinite(info)) or \
-                    not np.allclose(info, info.T) or np.linalg.eigvalsh(info).min() <= 0:
-                raise ValueError(f"warm_start: {where}: information[{key!r}] is not a symmetric positive definite "
-                                 f"6x6 matrix")
+            if (
+                info is None
+                or info.shape != (6, 6)
+                or not np.all(np.isfinite(info))
+                or not np.allclose(info, info.T)
+                or np.linalg.eigvalsh(info).min() <= 0
+            ):
+                raise ValueError(
+                    f"warm_start: {where}: information[{key!r}] is not a symmetric positive definite 6x6 matrix"
+                )
             information[key] = info
         for stage, x, P in loaded:
             stage.x, stage.P = x, P
@@ -116,8 +118,10 @@ class WarmStart(KalmanBase):
         self._cog_known = bool(source.get("settled_torque", source.get("converged_torque")))
         self._mass_known = bool(source.get("settled_force", source.get("converged_force")))
         if self.noise_auto:  # the noise estimate carries over, as if its window were full
-            for key, stage, floor, auto in (("noise_force_S", self.force, NOISE_FLOOR[0], self.noise_auto_force),
-                                            ("noise_torque_S", self.torque, NOISE_FLOOR[1], self.noise_auto_torque)):
+            for key, stage, floor, auto in (
+                ("noise_force_S", self.force, NOISE_FLOOR[0], self.noise_auto_force),
+                ("noise_torque_S", self.torque, NOISE_FLOOR[1], self.noise_auto_torque),
+            ):
                 if not auto:
                     continue
                 noise = np.array(source.get(key, np.sqrt(stage.r)), dtype=float)
@@ -128,8 +132,10 @@ class WarmStart(KalmanBase):
         tilt = source.get("tilt")  # (none: a state saved before it, or without the walk)
         tilt = {} if tilt is None else tilt
         if not isinstance(tilt, dict):
-            raise ValueError(f"warm_start: {where}: tilt: must be a table (last_A, gravity_direction_B, walk), "
-                             f"got {type(tilt).__name__}")
+            raise ValueError(
+                f"warm_start: {where}: tilt: must be a table (last_A, gravity_direction_B, walk), "
+                f"got {type(tilt).__name__}"
+            )
         self._load_tilt(tilt, where)
 
     def _tilt_state(self) -> dict | None:
@@ -138,10 +144,13 @@ class WarmStart(KalmanBase):
         if not (self.tilt_walk_auto or self.force.q_tilt.any() or self.torque.q_tilt.any()):
             return None
         adapt = self._adapt
-        return {"last_A": None if np.isnan(adapt[ADAPT_TILT]) else adapt[ADAPT_TILT:ADAPT_TILT + 9].tolist(),
-                "gravity_direction_B": adapt[ADAPT_GRAVITY_DIR:ADAPT_GRAVITY_DIR + 3].tolist()
-                if adapt[ADAPT_GRAVITY_KNOWN] else None,
-                "walk": adapt[ADAPT_TW:].tolist() if self.tilt_walk_auto else None}
+        return {
+            "last_A": None if np.isnan(adapt[ADAPT_TILT]) else adapt[ADAPT_TILT : ADAPT_TILT + 9].tolist(),
+            "gravity_direction_B": adapt[ADAPT_GRAVITY_DIR : ADAPT_GRAVITY_DIR + 3].tolist()
+            if adapt[ADAPT_GRAVITY_KNOWN]
+            else None,
+            "walk": adapt[ADAPT_TW:].tolist() if self.tilt_walk_auto else None,
+        }
 
     def _load_tilt(self, tilt: dict, where: str) -> None:
         """A warm start's tilt bookkeeping (``state()["tilt"]``; a state saved before it: the direction from the
@@ -152,7 +161,7 @@ class WarmStart(KalmanBase):
                 last_A = np.array(tilt["last_A"], dtype=float)
                 if last_A.shape != (9,) or not np.all(np.isfinite(last_A)):
                     raise ValueError("last_A must be 9 finite numbers")
-                self._adapt[ADAPT_TILT:ADAPT_TILT + 9] = last_A
+                self._adapt[ADAPT_TILT : ADAPT_TILT + 9] = last_A
             if tilt.get("gravity_direction_B") is not None:
                 direction = np.array(tilt["gravity_direction_B"], dtype=float)
                 if direction.shape != (3,) or not abs(np.linalg.norm(direction) - 1.0) < 1e-6:

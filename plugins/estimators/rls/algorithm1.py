@@ -92,9 +92,7 @@ def algorithm1(
                 x_t = x_new
                 out["updated_torque"][k] = True
         cog_S, bias_torque_S = x_t[:3], x_t[3:]
-        out["contact_torque_S"][k] = (
-            torque_S[k] - skew(cog_S) @ R_EB[k] @ gravity_force_B - bias_torque_S
-        )
+        out["contact_torque_S"][k] = torque_S[k] - skew(cog_S) @ R_EB[k] @ gravity_force_B - bias_torque_S
         out["x_force"][k] = x_f
         out["x_torque"][k] = x_t
         out["converged_force"][k] = converged_f

@@ -79,6 +79,7 @@ class PrintedRecursiveLeastSquares:
     def restart(self, P0: float) -> None:
         """Start again from the current estimate x with P = P0·I: what was learnt is forgotten."""
         self.P = P0 * np.eye(6)
+
     def propose(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Estimates after each of m samples if every one of them is used, one sample at a time.
 

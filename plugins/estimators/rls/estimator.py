@@ -40,12 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.frames import skew_stack
-from hapticlab.plugins.estimators.rls import information_form_kernel as rls_kernel
 from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench, named_params
-from hapticlab.plugins.estimators.rls.information_form import RecursiveLeastSquares, run_gated
-from hapticlab.plugins.estimators.rls.covariance_form import PrintedRecursiveLeastSquares
+from hapticlab.core.frames import skew_stack
 from hapticlab.core.types import AlignedSamples, Estimates
+from hapticlab.plugins.estimators.rls import information_form_kernel as rls_kernel
+from hapticlab.plugins.estimators.rls.covariance_form import PrintedRecursiveLeastSquares
+from hapticlab.plugins.estimators.rls.information_form import RecursiveLeastSquares, run_gated
 from hapticlab.plugins.estimators.rls.options import RLSOptions
 
 
@@ -93,8 +93,9 @@ class RLSEstimator(RefusesBadSamples):
         self._compiled = kernel == "numba" and covariance_update == "information"
         if self._compiled:  # what the kernel needs, allocated once
             rls_kernel.warm_up()
-            self._settings = np.array([1.0 / self.force.r, 1.0 / self.torque.r, force_threshold, torque_threshold,
-                                       epsilon])
+            self._settings = np.array(
+                [1.0 / self.force.r, 1.0 / self.torque.r, force_threshold, torque_threshold, epsilon]
+            )
             self._status = rls_kernel.status_array()
             self._work = rls_kernel.work_arrays()
             self._diag = np.empty(6)  # diag P_force, for force_parameter_std
@@ -112,13 +113,17 @@ class RLSEstimator(RefusesBadSamples):
             return self._update_compiled(block)
         force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
         X_f, conv_f, gated_f, self.converged_force = run_gated(
-            self.force, force_S, R_EB, np.ones(len(block), dtype=bool),
-            self.force_threshold, self.epsilon, self.converged_force,
+            self.force,
+            force_S,
+            R_EB,
+            np.ones(len(block), dtype=bool),
+            self.force_threshold,
+            self.epsilon,
+            self.converged_force,
         )
         A_t = -skew_stack(force_S - X_f[:, 3:])  # C_k = [-skew(Δf), I3]
         X_t, conv_t, gated_t, self.converged_torque = run_gated(
-            self.torque, torque_S, A_t, conv_f,
-            self.torque_threshold, self.epsilon, self.converged_torque,
+            self.torque, torque_S, A_t, conv_f, self.torque_threshold, self.epsilon, self.converged_torque
         )
         contact_force_S, contact_torque_S = contact_wrench(force_S, torque_S, R_EB, X_f, X_t)
         return Estimates(
@@ -137,10 +142,23 @@ class RLSEstimator(RefusesBadSamples):
         status[0], status[1], status[2:] = self.converged_force, self.converged_torque, 0
         wrench, flags = np.empty((2, m, 3)), np.empty((3, m), dtype=bool)  # (rows of each are contiguous)
         contiguous = np.ascontiguousarray  # (a no-op on the aligner's arrays; one compiled layout)
-        rls_kernel.rls_cascade(contiguous(block.force_S, float), contiguous(block.torque_S, float),
-                               contiguous(block.R_EB, float), force.x, force.Lambda, force.eta, torque.x,
-                               torque.Lambda, torque.eta, self._settings, status, self._work, rls_kernel.DPOSV,
-                               wrench, flags)
+        rls_kernel.rls_cascade(
+            contiguous(block.force_S, float),
+            contiguous(block.torque_S, float),
+            contiguous(block.R_EB, float),
+            force.x,
+            force.Lambda,
+            force.eta,
+            torque.x,
+            torque.Lambda,
+            torque.eta,
+            self._settings,
+            status,
+            self._work,
+            rls_kernel.DPOSV,
+            wrench,
+            flags,
+        )
         out = Estimates(block.t_ns, wrench[0], wrench[1], flags[0], flags[1], flags[2])
         u_f, f_f, u_t, f_t = status[2:6].tolist()
         self.converged_force, self.converged_torque = bool(status[0]), bool(status[1])

@@ -211,7 +211,8 @@ def run_gated(
             step2 = np.einsum("ij,ij->i", dx, dx)
         if Xp is None or not np.maximum.reduce(step2) < math.inf:  # a numerical corner: this sample alone
             X[i : i + 1], conv[i : i + 1], gated[i : i + 1], converged = _run_gated_one(
-                stage, y[i : i + 1], A[i : i + 1], True, threshold, epsilon, converged)
+                stage, y[i : i + 1], A[i : i + 1], True, threshold, epsilon, converged
+            )
             i += 1
             continue
         conv_p = step2 < epsilon2

@@ -36,8 +36,18 @@ import numpy as np
 from numba import njit, types
 from numba.extending import get_cython_function_address, intrinsic
 
-STATUS = ("converged_force", "converged_torque", "updates_force", "failed_force", "updates_torque", "failed_torque",
-          "lapack_n", "lapack_nrhs", "lapack_info", "lapack_uplo")
+STATUS = (
+    "converged_force",
+    "converged_torque",
+    "updates_force",
+    "failed_force",
+    "updates_torque",
+    "failed_torque",
+    "lapack_n",
+    "lapack_nrhs",
+    "lapack_info",
+    "lapack_uplo",
+)
 """The entries of ``status`` (int32), read and written by ``rls_cascade``: the flags, the block's counts, and
 the last four are dposv's integer arguments (passed by reference)."""
 SETTINGS = ("inv_r_force", "inv_r_torque", "threshold_force", "threshold_torque", "epsilon")
@@ -65,6 +75,7 @@ def _fma(typingctx, a, b, c):
 
     def codegen(context, builder, signature, args):
         return builder.fma(*args)
+
     return sig, codegen
 
 
@@ -79,6 +90,7 @@ def _dposv(typingctx, address, uplo, n, nrhs, a, lda, b, ldb, info):
         fn = builder.inttoptr(args[0], fnty.as_pointer())
         builder.call(fn, [builder.inttoptr(arg, pointer) for arg in args[1:]])
         return context.get_dummy_value()
+
     return sig, codegen
 
 
@@ -93,8 +105,7 @@ def _solve(Lam, eta, L, x, lapack, dposv) -> bool:
             L[i, j] = Lam[i, j]
     lapack[0], lapack[1], lapack[2], lapack[3] = 6, 1, 0, 85  # n, nrhs, info, 'U'
     address = lapack.ctypes.data
-    _dposv(dposv, address + 12, address, address + 4, L.ctypes.data, address, x.ctypes.data, address,
-           address + 8)
+    _dposv(dposv, address + 12, address, address + 4, L.ctypes.data, address, x.ctypes.data, address, address + 8)
     if lapack[2] == 0:
         return True
     # not numerically positive definite: LU with partial pivoting (np.linalg.solve) on a copy of Λ (in L)
@@ -177,8 +188,9 @@ def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, wor
 
 
 @njit(cache=True)
-def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, eta_t, settings, status, work,
-                dposv, wrench, flags):
+def rls_cascade(
+    force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, eta_t, settings, status, work, dposv, wrench, flags
+):
     """Algorithm 1 over m samples, in order: both stages updated in place, one output row per sample.
 
     Args:
@@ -201,8 +213,9 @@ def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, et
     for k in range(force_S.shape[0]):
         f0, f1, f2 = force_S[k, 0], force_S[k, 1], force_S[k, 2]
         R = R_EB[k]
-        out_f, gated_f, conv_f, failed = _stage(f0, f1, f2, R, x_f, Lambda_f, eta_f, inv_r_f, th_f, eps, conv_f,
-                                                work, lapack, dposv)
+        out_f, gated_f, conv_f, failed = _stage(
+            f0, f1, f2, R, x_f, Lambda_f, eta_f, inv_r_f, th_f, eps, conv_f, work, lapack, dposv
+        )
         if failed:
             status[3] += 1
         elif not gated_f:
@@ -213,8 +226,22 @@ def rls_cascade(force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, et
             A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
             A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
             A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
-            out_t, gated_t, conv_t, failed = _stage(torque_S[k, 0], torque_S[k, 1], torque_S[k, 2], A_t, x_t,
-                                                    Lambda_t, eta_t, inv_r_t, th_t, eps, conv_t, work, lapack, dposv)
+            out_t, gated_t, conv_t, failed = _stage(
+                torque_S[k, 0],
+                torque_S[k, 1],
+                torque_S[k, 2],
+                A_t,
+                x_t,
+                Lambda_t,
+                eta_t,
+                inv_r_t,
+                th_t,
+                eps,
+                conv_t,
+                work,
+                lapack,
+                dposv,
+            )
             if failed:
                 status[5] += 1
             elif not gated_t:
@@ -275,7 +302,21 @@ def warm_up() -> None:
     m = 2
     R = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
     x, Lam, eta = np.zeros(6), np.eye(6), np.zeros(6)
-    rls_cascade(np.ones((m, 3)), np.ones((m, 3)), R, x, Lam, eta, x.copy(), Lam.copy(), eta.copy(),
-                np.array([400.0, 400.0, 1.0, 0.1, 1e-3]), status_array(), work_arrays(), DPOSV,
-                np.empty((2, m, 3)), np.empty((3, m), dtype=np.bool_))
+    rls_cascade(
+        np.ones((m, 3)),
+        np.ones((m, 3)),
+        R,
+        x,
+        Lam,
+        eta,
+        x.copy(),
+        Lam.copy(),
+        eta.copy(),
+        np.array([400.0, 400.0, 1.0, 0.1, 1e-3]),
+        status_array(),
+        work_arrays(),
+        DPOSV,
+        np.empty((2, m, 3)),
+        np.empty((3, m), dtype=np.bool_),
+    )
     inverse_diag(Lam, np.empty((6, 6)), np.empty(6))

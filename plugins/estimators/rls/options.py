@@ -48,8 +48,12 @@ class RLSOptions:
         for key in ("force_threshold", "torque_threshold", "P0", "R", "epsilon"):
             number(key, getattr(self, key), above=0)
         integer("seed", self.seed, minimum=0)
-        choice("covariance_update", self.covariance_update, ("information", "printed"),
-               hint=" (the paper's eq. 28 as printed)")
+        choice(
+            "covariance_update",
+            self.covariance_update,
+            ("information", "printed"),
+            hint=" (the paper's eq. 28 as printed)",
+        )
         wrench_bound("max_force", self.max_force, MAX_FORCE)
         wrench_bound("max_torque", self.max_torque, MAX_TORQUE)
         kernel_option(self.kernel)

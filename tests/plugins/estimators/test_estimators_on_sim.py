@@ -16,8 +16,13 @@ def world_block(table: dict, seconds: float, rate_hz: float = 1000.0):
     w = world.wrench(t)
     n = len(t)
     block = AlignedSamples(
-        t_ns=np.round(t * 1e9).astype(np.int64), force_S=w["force_S"], torque_S=w["torque_S"],
-        R_EB=w["R_EB"], seq=np.arange(n), status=w["status"], stale=np.zeros(n, dtype=bool),
+        t_ns=np.round(t * 1e9).astype(np.int64),
+        force_S=w["force_S"],
+        torque_S=w["torque_S"],
+        R_EB=w["R_EB"],
+        seq=np.arange(n),
+        status=w["status"],
+        stale=np.zeros(n, dtype=bool),
     )
     return block, w, world.truth()
 
@@ -35,14 +40,17 @@ def test_rls_recovers_the_simulated_tool_and_sensor():
     assert np.abs(np.subtract(p["bias_torque_S"], truth["bias_torque_S"])).max() < 0.001  # N·m
     assert not out.contact.any()
     # after convergence only the sensor noise (0.12 N per axis) is left
-    after = out.contact_force_S[est.first_converged_force + 1000:]
-    assert np.all(np.sqrt(np.mean(after ** 2, axis=0)) < 0.12 * 1.05)
+    after = out.contact_force_S[est.first_converged_force + 1000 :]
+    assert np.all(np.sqrt(np.mean(after**2, axis=0)) < 0.12 * 1.05)
 
 
 def test_rls_reports_the_indentation_and_batch_absorbs_it():
-    table = {"seed": 4, "inertia": False, "motion": {"script": "random_tour"},
-             "contacts": [{"kind": "indentation", "start": 12.0, "duration": 4.0, "peak_force": 3.0,
-                           "ramp": 0.3}]}
+    table = {
+        "seed": 4,
+        "inertia": False,
+        "motion": {"script": "random_tour"},
+        "contacts": [{"kind": "indentation", "start": 12.0, "duration": 4.0, "peak_force": 3.0, "ramp": 0.3}],
+    }
     block, w, _ = world_block(table, 20.0)
     pressing = w["contact"] & (np.linalg.norm(w["contact_force_S"], axis=1) > 2.9)
     rls = RLSEstimator().update_block(block)

@@ -14,15 +14,16 @@ import math
 
 import numpy as np
 import pytest
+from helpers import static_model_stream
+
 from hapticlab.core.frames import matrix_from_rotvec
 from hapticlab.core.host.interfaces import Estimator
-from hapticlab.plugins.estimators.kalman.stage import KalmanStage
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import STATUS_SATURATED, AlignedSamples, Estimates
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
+from hapticlab.plugins.estimators.kalman.stage import KalmanStage
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
-from helpers import static_model_stream
 
 NOISE_FORCE = 0.12  # N, per axis
 NOISE_TORQUE = 0.01  # N·m, per axis
@@ -41,8 +42,9 @@ def world(contacts=None, seconds=180.0, seed=2025, motion=None, **sensor):
 def gamma(**options):
     """kalman with this sensor's noise given and convergence from the covariance (its defaults before it
     estimated the noise and judged convergence as identified): what most tests here are about."""
-    return KalmanEstimator(**{"noise_force": NOISE_FORCE, "noise_torque": NOISE_TORQUE, "convergence": "covariance",
-                              **options})
+    return KalmanEstimator(
+        **{"noise_force": NOISE_FORCE, "noise_torque": NOISE_TORQUE, "convergence": "covariance", **options}
+    )
 
 
 def rls():
@@ -52,12 +54,14 @@ def rls():
 
 def indentations(seconds=180.0):
     """An indentation of 3 N every 10 s, 2 s long (0.4 s raised-cosine ramps)."""
-    return [{"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
-            for k in range(int(seconds // 10))]
+    return [
+        {"kind": "indentation", "start": 5.0 + 10.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
+        for k in range(int(seconds // 10))
+    ]
 
 
 def per_axis_rms(values):
-    return np.sqrt(np.mean(values ** 2, axis=0))
+    return np.sqrt(np.mean(values**2, axis=0))
 
 
 # ---------------------------------------------------------------- the fast filter is filterpy's filter
@@ -83,12 +87,15 @@ def test_fast_stage_matches_the_filterpy_reference(span):
     for cross in ((0.0, 0.0, 0.0), (0.12, 0.1, 0.08)):
         runs, stages = {}, {}
         for method in ("fast", "filterpy", "numba"):
-            stages[method] = KalmanStage([20.0] * 6, [0.005] * 3, [0.12, 0.12, 0.1], cross, bias_tilt_rw=[0.1] * 3,
-                                         tilt_span=span)
+            stages[method] = KalmanStage(
+                [20.0] * 6, [0.005] * 3, [0.12, 0.12, 0.1], cross, bias_tilt_rw=[0.1] * 3, tilt_span=span
+            )
             runs[method] = stages[method].run(y, A, dt, active, 21.1, method, tilt)
         fast, ref, compiled = runs["fast"], runs["filterpy"], runs["numba"]
-        assert all(np.array_equal(getattr(fast, key), getattr(compiled, key), equal_nan=True)
-                   for key in ("X", "D", "gated", "d2"))  # the compiled stage: the Python floats' bits
+        assert all(
+            np.array_equal(getattr(fast, key), getattr(compiled, key), equal_nan=True)
+            for key in ("X", "D", "gated", "d2")
+        )  # the compiled stage: the Python floats' bits
         assert np.array_equal(stages["fast"].P, stages["numba"].P)
         untilted = KalmanStage([20.0] * 6, [0.005] * 3, [0.12, 0.12, 0.1], cross).run(y, A, dt, active, 21.1, "fast")
         assert np.array_equal(untilted.D[:1500], fast.D[:1500]) and (fast.D[-1, 3:] > 2 * untilted.D[-1, 3:]).all()
@@ -137,9 +144,11 @@ def test_drift_without_contact_stays_at_the_noise_floor(kalman):
         start = est.first_converged_force
         assert start is not None, name
         rows[name] = per_axis_rms(out.contact_force_S[start:]) / NOISE_FORCE
-        last = per_axis_rms(out.contact_force_S[-30 * int(RATE_HZ):]) / NOISE_FORCE
-        print(f"\n{name}: RMS of the contact force / noise, after convergence (sample {start}): "
-              f"{np.round(rows[name], 3)}; over the last 30 s: {np.round(last, 3)}")
+        last = per_axis_rms(out.contact_force_S[-30 * int(RATE_HZ) :]) / NOISE_FORCE
+        print(
+            f"\n{name}: RMS of the contact force / noise, after convergence (sample {start}): "
+            f"{np.round(rows[name], 3)}; over the last 30 s: {np.round(last, 3)}"
+        )
     assert np.all(rows["kalman"] <= 1.10), rows
     assert np.all(rows["kalman"] < rows["rls"][:2].max())  # rls falls behind the drift (~3× on x, y)
 
@@ -155,11 +164,16 @@ def test_drift_with_repeated_indentations(kalman):
         out, _ = feed(est, block, chunk=64)
         after = np.arange(len(block)) >= est.first_converged_force
         err = out.contact_force_S - w["contact_force_S"]
-        rows[name] = (per_axis_rms(err[touching & after]), per_axis_rms(err[~touching & after]) / NOISE_FORCE,
-                      100.0 * np.mean(out.contact[~touching]))
-        print(f"\n{name}: contact-force error in contact {np.round(rows[name][0], 3)} N per axis, "
-              f"outside contact {np.round(rows[name][1], 3)} × noise, "
-              f"contact-free samples called a contact {rows[name][2]:.2f} %")
+        rows[name] = (
+            per_axis_rms(err[touching & after]),
+            per_axis_rms(err[~touching & after]) / NOISE_FORCE,
+            100.0 * np.mean(out.contact[~touching]),
+        )
+        print(
+            f"\n{name}: contact-force error in contact {np.round(rows[name][0], 3)} N per axis, "
+            f"outside contact {np.round(rows[name][1], 3)} × noise, "
+            f"contact-free samples called a contact {rows[name][2]:.2f} %"
+        )
     in_contact, outside, refused = rows["kalman"]
     assert np.all(in_contact <= 0.16), in_contact  # N RMS, per axis
     assert np.all(outside <= 1.10), outside
@@ -170,15 +184,22 @@ def test_drift_with_repeated_indentations(kalman):
 def test_repeated_rows_do_not_fake_convergence():
     # 40 static poses, each row repeated 5 times (like the LWR4 logs)
     setup = PaperSetup()
-    sim = setup.world({"script": "static_poses", "hold_s": 0.5, "move_s": 1.0, "poses": 40, "max_tilt_deg": 60.0},
-                      noise_force=NOISE_FORCE, noise_torque=NOISE_TORQUE)
+    sim = setup.world(
+        {"script": "static_poses", "hold_s": 0.5, "move_s": 1.0, "poses": 40, "max_tilt_deg": 60.0},
+        noise_force=NOISE_FORCE,
+        noise_torque=NOISE_TORQUE,
+    )
     held = sim.motion.hold_midpoints(40)
     w = sim.wrench(held)
     n = 5 * len(held)
     block = AlignedSamples(
-        t_ns=np.arange(n, dtype=np.int64) * 1_000_000, force_S=np.repeat(np.asarray(w["force_S"]), 5, axis=0),
-        torque_S=np.repeat(np.asarray(w["torque_S"]), 5, axis=0), R_EB=np.repeat(w["R_EB"], 5, axis=0),
-        seq=np.arange(n), status=np.zeros(n, dtype=np.int64), stale=np.zeros(n, dtype=bool),
+        t_ns=np.arange(n, dtype=np.int64) * 1_000_000,
+        force_S=np.repeat(np.asarray(w["force_S"]), 5, axis=0),
+        torque_S=np.repeat(np.asarray(w["torque_S"]), 5, axis=0),
+        R_EB=np.repeat(w["R_EB"], 5, axis=0),
+        seq=np.arange(n),
+        status=np.zeros(n, dtype=np.int64),
+        stale=np.zeros(n, dtype=bool),
     )
     paper = rls()
     feed(paper, block)
@@ -189,8 +210,10 @@ def test_repeated_rows_do_not_fake_convergence():
         std.append(est.force_parameter_std().max())
     std = np.array(std)
     first = est.first_converged_force
-    print(f"\nfirst force convergence: rls at row {paper.first_converged_force}, kalman at row {first} "
-          f"(pose {first // 5 + 1}; max parameter std {std[first]:.4f} N, {std[first - 1]:.4f} N a row before)")
+    print(
+        f"\nfirst force convergence: rls at row {paper.first_converged_force}, kalman at row {first} "
+        f"(pose {first // 5 + 1}; max parameter std {std[first]:.4f} N, {std[first - 1]:.4f} N a row before)"
+    )
     assert paper.first_converged_force <= 1  # ‖Δx‖ < 1e-3 on the second identical row
     assert first is not None and first >= 15  # never from the repeats of the first poses
     assert std[first] < 0.02 <= std[first - 1]  # exactly when the covariance bound is met
@@ -215,14 +238,17 @@ def test_gating_refuses_a_long_contact_while_the_drift_states_propagate():
     # refusing a sample still predicts: diag P of the bias states grew by q·Δt, the rest held
     est2 = gamma()
     est2.update_block(block.subset(slice(0, cut[0])))
-    before_f, before_t, x_before = np.array(est2.force.P.diagonal()), np.array(est2.torque.P.diagonal()), \
-        est2.force.x.copy()
+    before_f, before_t, x_before = (
+        np.array(est2.force.P.diagonal()),
+        np.array(est2.torque.P.diagonal()),
+        est2.force.x.copy(),
+    )
     est2.update_block(block.subset(slice(cut[0], cut[1])))
     span = (block.t_ns[cut[1] - 1] - block.t_ns[cut[0] - 1]) * 1e-9
     grew_f = est2.force.P.diagonal() - before_f
     grew_t = est2.torque.P.diagonal() - before_t
-    assert np.allclose(grew_f[3:], 0.005 ** 2 * span, rtol=1e-9)  # bias_force_rw² · 11 s
-    assert np.allclose(grew_t[3:], 0.0004 ** 2 * span, rtol=1e-9)
+    assert np.allclose(grew_f[3:], 0.005**2 * span, rtol=1e-9)  # bias_force_rw² · 11 s
+    assert np.allclose(grew_t[3:], 0.0004**2 * span, rtol=1e-9)
     assert np.all(grew_f[:3] == 0) and np.all(grew_t[:3] == 0)  # gravity and CoG do not drift
     assert np.array_equal(est2.force.x, x_before)  # nothing of the contact leaked in
     # after the release the gate accepts again and the compensation is back at the noise
@@ -248,13 +274,20 @@ def test_time_steps_come_from_the_sample_times():
     out = est.update_block(rest)
     assert not out.contact.any()
     assert np.array_equal(est.force.x, x_before)
-    assert np.allclose(est.force.P.diagonal()[3:] - before[3:], 0.005 ** 2 * 0.5, rtol=1e-9)
+    assert np.allclose(est.force.P.diagonal()[3:] - before[3:], 0.005**2 * 0.5, rtol=1e-9)
     # a NaN reading is not used either, and does not poison the state
     nan_block = block.subset(slice(0, 10))
     force = nan_block.force_S.copy()
     force[3] = np.nan
-    nan_block = AlignedSamples(nan_block.t_ns + t_ns[-1], force, nan_block.torque_S, nan_block.R_EB,
-                               nan_block.seq, nan_block.status, nan_block.stale)
+    nan_block = AlignedSamples(
+        nan_block.t_ns + t_ns[-1],
+        force,
+        nan_block.torque_S,
+        nan_block.R_EB,
+        nan_block.seq,
+        nan_block.status,
+        nan_block.stale,
+    )
     out = est.update_block(nan_block)
     assert np.all(np.isfinite(est.force.x)) and np.isnan(out.contact_force_S[3]).all()
     assert np.isfinite(np.delete(out.contact_force_S, 3, axis=0)).all()
@@ -294,8 +327,9 @@ def test_bias_rate_states_follow_a_linear_drift():
     block, truth = static_model_stream(n, seed=3, noise_force=NOISE_FORCE, noise_torque=NOISE_TORQUE)
     drift = np.array([0.02, -0.01, 0.0])  # N/s
     t = block.t_ns * 1e-9
-    block = AlignedSamples(block.t_ns, block.force_S + t[:, None] * drift, block.torque_S, block.R_EB,
-                           block.seq, block.status, block.stale)
+    block = AlignedSamples(
+        block.t_ns, block.force_S + t[:, None] * drift, block.torque_S, block.R_EB, block.seq, block.status, block.stale
+    )
     est = gamma(bias_rate=True)
     out = est.update_block(block)
     params = est.params()
@@ -326,9 +360,17 @@ def test_interface_like_rls():
 def test_runs_through_the_registry():
     registry = Registry()
     assert "kalman" in registry.names("estimator")
-    est = registry.create("estimator", "kalman", {"noise_force": [0.12, 0.12, 0.12], "noise_torque": 0.01,
-                                                  "bias_force_rw": 0.01, "gate_probability": 0.999,
-                                                  "converged_force_std": 0.03})
+    est = registry.create(
+        "estimator",
+        "kalman",
+        {
+            "noise_force": [0.12, 0.12, 0.12],
+            "noise_torque": 0.01,
+            "bias_force_rw": 0.01,
+            "gate_probability": 0.999,
+            "converged_force_std": 0.03,
+        },
+    )
     block, _ = static_model_stream(1000, seed=6, noise_force=NOISE_FORCE, noise_torque=NOISE_TORQUE)
     out = est.update_block(block)
     assert out.converged_force.any() and out.contact.mean() < 0.01
@@ -338,32 +380,35 @@ def test_runs_through_the_registry():
         registry.create("estimator", "kalman", {"noise_force": "loud"}, where="estimator")
 
 
-@pytest.mark.parametrize("options, key", [
-    ({"noise_force": -0.1}, "noise_force"),
-    ({"noise_force": [0.1, 0.1]}, "noise_force"),
-    ({"noise_torque": 0.0}, "noise_torque"),
-    ({"bias_force_rw": -1e-3}, "bias_force_rw"),
-    ({"bias_torque_rw": math.inf}, "bias_torque_rw"),
-    ({"bias_force_rate_rw": math.nan}, "bias_force_rate_rw"),
-    ({"bias_force_tilt_rw": -0.1}, "bias_force_tilt_rw"),
-    ({"bias_torque_tilt_rw": "x"}, "bias_torque_tilt_rw"),
-    ({"bias_force_tilt_rw": "fast"}, "bias_force_tilt_rw"),
-    ({"bias_torque_tilt_rw": "auto"}, "bias_torque_tilt_rw"),
-    ({"bias_tilt_span": -0.1}, "bias_tilt_span"),
-    ({"bias_tilt_span": math.nan}, "bias_tilt_span"),
-    ({"bias_tilt_span": "wide"}, "bias_tilt_span"),
-    ({"gate_probability": 0.0}, "gate_probability"),
-    ({"gate_probability": 1.2}, "gate_probability"),
-    ({"converged_force_std": 0.0}, "converged_force_std"),
-    ({"converged_torque_std": -0.002}, "converged_torque_std"),
-    ({"prior_cog_std": 0.0}, "prior_cog_std"),
-    ({"bias_rate": "yes"}, "bias_rate"),
-    ({"implementation": "gpu"}, "implementation"),
-    ({"implementation": "fast", "bias_rate": True}, "implementation"),
-    ({"contact_after": 0}, "contact_after"),
-    ({"contact_after": 1.5}, "contact_after"),
-    ({"contact_after": True}, "contact_after"),
-])
+@pytest.mark.parametrize(
+    "options, key",
+    [
+        ({"noise_force": -0.1}, "noise_force"),
+        ({"noise_force": [0.1, 0.1]}, "noise_force"),
+        ({"noise_torque": 0.0}, "noise_torque"),
+        ({"bias_force_rw": -1e-3}, "bias_force_rw"),
+        ({"bias_torque_rw": math.inf}, "bias_torque_rw"),
+        ({"bias_force_rate_rw": math.nan}, "bias_force_rate_rw"),
+        ({"bias_force_tilt_rw": -0.1}, "bias_force_tilt_rw"),
+        ({"bias_torque_tilt_rw": "x"}, "bias_torque_tilt_rw"),
+        ({"bias_force_tilt_rw": "fast"}, "bias_force_tilt_rw"),
+        ({"bias_torque_tilt_rw": "auto"}, "bias_torque_tilt_rw"),
+        ({"bias_tilt_span": -0.1}, "bias_tilt_span"),
+        ({"bias_tilt_span": math.nan}, "bias_tilt_span"),
+        ({"bias_tilt_span": "wide"}, "bias_tilt_span"),
+        ({"gate_probability": 0.0}, "gate_probability"),
+        ({"gate_probability": 1.2}, "gate_probability"),
+        ({"converged_force_std": 0.0}, "converged_force_std"),
+        ({"converged_torque_std": -0.002}, "converged_torque_std"),
+        ({"prior_cog_std": 0.0}, "prior_cog_std"),
+        ({"bias_rate": "yes"}, "bias_rate"),
+        ({"implementation": "gpu"}, "implementation"),
+        ({"implementation": "fast", "bias_rate": True}, "implementation"),
+        ({"contact_after": 0}, "contact_after"),
+        ({"contact_after": 1.5}, "contact_after"),
+        ({"contact_after": True}, "contact_after"),
+    ],
+)
 def test_bad_options_are_refused(options, key):
     with pytest.raises(ValueError, match=rf"^{key}: "):
         KalmanEstimator(**options)
@@ -375,7 +420,7 @@ def test_gate_probability_one_never_refuses():
     out, _ = feed(gamma(gate_probability=1.0), block)
     assert not out.contact.any()
     out, _ = feed(gamma(), block)
-    assert out.contact[int(12.5 * RATE_HZ):int(14.5 * RATE_HZ)].all()
+    assert out.contact[int(12.5 * RATE_HZ) : int(14.5 * RATE_HZ)].all()
 
 
 @pytest.mark.parametrize("kernel", ["numba", "numpy"])
@@ -436,9 +481,15 @@ def _turning_stream(R_BE: np.ndarray, seed: int, noise: float = 0.1, rate_hz: fl
     gravity_S = R_EB @ gravity_force_B
     force_S = gravity_S + bias_force_S + rng.normal(0, noise, (n, 3))
     torque_S = np.cross(cog_S, gravity_S) + bias_torque_S + rng.normal(0, noise / 10, (n, 3))
-    return AlignedSamples(t_ns=np.arange(n, dtype=np.int64) * int(1e9 / rate_hz), force_S=force_S,
-                          torque_S=torque_S, R_EB=R_EB, seq=np.arange(n), status=np.zeros(n, dtype=np.int64),
-                          stale=np.zeros(n, dtype=bool))
+    return AlignedSamples(
+        t_ns=np.arange(n, dtype=np.int64) * int(1e9 / rate_hz),
+        force_S=force_S,
+        torque_S=torque_S,
+        R_EB=R_EB,
+        seq=np.arange(n),
+        status=np.zeros(n, dtype=np.int64),
+        stale=np.zeros(n, dtype=bool),
+    )
 
 
 def _rot(axis: int, angle: np.ndarray) -> np.ndarray:
@@ -469,7 +520,8 @@ def test_identified_convergence_waits_for_a_tilt_that_tells_gravity_from_the_bia
     gravity = np.array(params["gravity_force_B"])
     assert np.isnan(gravity[2]) and np.abs(gravity[:2]).max() < 0.05
     assert [(e.kind, e.data["parameter"], e.data["axes"]) for e in said][:1] == [
-        ("not_identifiable", "gravity_force_B", ["z"])]
+        ("not_identifiable", "gravity_force_B", ["z"])
+    ]
     assert "turn the tool about another axis" in said[0].message
     later = [e for e in est.drain_events() if e.kind == "identified" and e.data["parameter"] == "gravity_force_B"]
     assert later and later[0].t_ns > 30e9  # identified once the tool tilts
@@ -519,8 +571,12 @@ def test_identified_convergence_is_not_held_back_by_the_bias_random_walk():
     earlier turns taught (convergence = "covariance" waits long or forever); "identified" converges once the
     turns have told gravity from the bias, and its estimate then holds to the noise."""
     t = np.arange(0.0, 900.0, 0.1)  # a 10 Hz log of a slow tour: turns of minutes, the bias's memory ~6 s
-    R_BE = (_rot(2, 1.2 * np.sin(2 * np.pi * t / 400.0)) @ _rot(0, 0.4 * np.sin(2 * np.pi * t / 310.0))
-            @ _rot(1, 0.4 * np.sin(2 * np.pi * t / 530.0)) @ _rot(0, np.full(len(t), np.pi)))
+    R_BE = (
+        _rot(2, 1.2 * np.sin(2 * np.pi * t / 400.0))
+        @ _rot(0, 0.4 * np.sin(2 * np.pi * t / 310.0))
+        @ _rot(1, 0.4 * np.sin(2 * np.pi * t / 530.0))
+        @ _rot(0, np.full(len(t), np.pi))
+    )
     block = _turning_stream(R_BE, seed=5, rate_hz=10.0)
     runs = {}
     for rule in ("covariance", "identified"):

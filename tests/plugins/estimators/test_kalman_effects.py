@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
+
 from hapticlab.core.frames import matrix_from_rotvec, quat_wxyz_from_matrix
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
+from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
 from hapticlab.plugins.simworld import SimWorld
 from hapticlab.sessions.bench import family as familybench
 from hapticlab.sessions.bench.paper import feed
@@ -32,8 +33,10 @@ def mounted():
 def test_a_5_degree_mount_is_estimated_within_0_3_degrees():
     result = familybench.mount()
     rms = result["rms_over_noise_last_15s"]
-    print(f"\n5° mount, 30 s tour: estimated within {result['mount_error_deg']:.3f}°; RMS / noise over the "
-          f"last 15 s: {({k: np.round(v, 3).tolist() for k, v in rms.items()})}")
+    print(
+        f"\n5° mount, 30 s tour: estimated within {result['mount_error_deg']:.3f}°; RMS / noise over the "
+        f"last 15 s: { ({k: np.round(v, 3).tolist() for k, v in rms.items()}) }"
+    )
     assert result["mount_error_deg"] <= 0.3
     assert max(rms["kalman mount_rotation"]) <= 1.05
     base = np.linalg.norm(rms[familybench.BASE_MODEL])  # the paper's model alone: the gap the option closes
@@ -73,8 +76,11 @@ def test_the_mount_estimate_is_the_same_filter_compiled_and_as_the_filterpy_refe
     world, block = mounted
     part = block.subset(slice(0, 6000))
     runs = {}
-    for label, options in (("compiled", {}), ("numpy", {"kernel": "numpy"}),
-                           ("filterpy", {"kernel": "numpy", "implementation": "filterpy"})):
+    for label, options in (
+        ("compiled", {}),
+        ("numpy", {"kernel": "numpy"}),
+        ("filterpy", {"kernel": "numpy", "implementation": "filterpy"}),
+    ):
         est = KalmanEstimator(mount_rotation=True, **options)
         ran_filterpy, run_filterpy = [], est.torque._run_filterpy
         est.torque._run_filterpy = lambda *a: ran_filterpy.append(1) or run_filterpy(*a)
@@ -106,14 +112,21 @@ def test_mirrored_or_malformed_mounts_are_refused():
     with pytest.raises(ConfigError, match=r"estimator\.mount_R_SE: not orthonormal"):
         registry.create("estimator", "kalman", {"mount_R_SE": [[1, 0, 0], [0, 2, 0], [0, 0, 1]]}, where="estimator")
     with pytest.raises(ConfigError, match=r"estimator\.mount_R_SE: give the mount either"):
-        registry.create("estimator", "kalman", {"mount_R_SE": np.eye(3).tolist(), "mount_rotation_SE": [0, 0, 0]},
-                        where="estimator")
+        registry.create(
+            "estimator", "kalman", {"mount_R_SE": np.eye(3).tolist(), "mount_rotation_SE": [0, 0, 0]}, where="estimator"
+        )
     with pytest.raises(ConfigError, match=r"estimator\.mount_rotation_SE: must be a rotation vector"):
         registry.create("estimator", "kalman", {"mount_rotation_SE": [0.1, 0.2]}, where="estimator")
 
 
-@pytest.mark.parametrize("options", [{"bias_rate": True}, {"implementation": "filterpy"},
-                                     {"noise_force": "auto", "noise_torque": "auto", "inertia": True}])
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"bias_rate": True},
+        {"implementation": "filterpy"},
+        {"noise_force": "auto", "noise_torque": "auto", "inertia": True},
+    ],
+)
 def test_warm_start_round_trips_with_every_option(options, tmp_path):
     import json
 
@@ -154,14 +167,14 @@ def test_a_warm_start_carries_the_learnt_tilt_walk(mounted, tmp_path):
         apart[label] = np.abs(a.contact_force_S - b.contact_force_S).max()
         if label == "learnt":
             assert warm.params()["tilt_walk_pairs"] == est.params()["tilt_walk_pairs"]
-            assert np.isclose(warm.params()["bias_force_tilt_rw"][0], est.params()["bias_force_tilt_rw"][0],
-                              rtol=1e-3)
+            assert np.isclose(warm.params()["bias_force_tilt_rw"][0], est.params()["bias_force_tilt_rw"][0], rtol=1e-3)
             state = est.state()
     print(f"\nwarm start against running on, contact force apart: {apart} N")
     assert apart["learnt"] <= apart["base"]
     from hapticlab.plugins.estimators.kalman import tilt_walk_kernel as tilt_walk
+
     walk = state["tilt"]["walk"]  # saved before 2026-11-28: without the open window's residual sums
-    state["tilt"]["walk"] = walk[:tilt_walk.TW_SM] + walk[tilt_walk.TW_WIN:]
+    state["tilt"]["walk"] = walk[: tilt_walk.TW_SM] + walk[tilt_walk.TW_WIN :]
     path.write_text(json.dumps(state))
     older = KalmanEstimator(warm_start=str(path), bias_force_tilt_rw="auto")
     assert older.params()["bias_force_tilt_rw"] == state["params"]["bias_force_tilt_rw"]
@@ -196,7 +209,7 @@ def test_a_given_torque_walk_stays_while_the_force_s_is_learnt(mounted):
     world, block = mounted
     est = KalmanEstimator(bias_force_tilt_rw="auto", bias_torque_tilt_rw=0.002)
     feed(est, block, chunk=64)
-    assert est.force.q_tilt[0] > 0.02 ** 2 and np.all(est.torque.q_tilt == 0.002 ** 2)
+    assert est.force.q_tilt[0] > 0.02**2 and np.all(est.torque.q_tilt == 0.002**2)
     follows = KalmanEstimator(bias_force_tilt_rw="auto")
     feed(follows, block, chunk=64)
     assert np.allclose(follows.torque.q_tilt, follows.force.q_tilt * (5 / 65) ** 2)
@@ -210,8 +223,9 @@ def test_a_non_finite_pose_is_left_out():
     R_EB[6000] = np.nan
     from hapticlab.core.types import AlignedSamples
 
-    bad = AlignedSamples(block.t_ns, block.force_S, block.torque_S, R_EB, block.seq, block.status, block.stale,
-                         quat, block.p_BoEo_B)
+    bad = AlignedSamples(
+        block.t_ns, block.force_S, block.torque_S, R_EB, block.seq, block.status, block.stale, quat, block.p_BoEo_B
+    )
     assert not bad.usable[6000] and bad.usable[5999] and bad.usable[6001]
     est = KalmanEstimator(inertia=True, noise_force="auto", noise_torque="auto")
     out, _ = feed(est, bad.subset(bad.usable), chunk=1)
@@ -247,8 +261,14 @@ def test_derivatives_of_the_pose_stream_match_the_motion():
     t = np.arange(0.0, 6.0, 1e-3)
     state = world.motion_state(t)
     deriv = MotionDerivatives(0.02)
-    parts = [deriv.update(np.round(t[i:i + 7] * 1e9).astype(np.int64), quat_wxyz_from_matrix(state.R_BE[i:i + 7]),
-                          state.p_BoEo_B[i:i + 7]) for i in range(0, len(t), 7)]
+    parts = [
+        deriv.update(
+            np.round(t[i : i + 7] * 1e9).astype(np.int64),
+            quat_wxyz_from_matrix(state.R_BE[i : i + 7]),
+            state.p_BoEo_B[i : i + 7],
+        )
+        for i in range(0, len(t), 7)
+    ]
     w_E, alpha_E = (np.concatenate([p[k] for p in parts]) for k in (0, 1))
     late = slice(50, None)
     assert np.abs(w_E[late] - state.w_BE_E[late]).max() < 0.002 * np.abs(state.w_BE_E).max()
@@ -268,8 +288,10 @@ def test_inertia_closes_the_gap_on_a_lively_tour():
     # the tour turns and translates: angular and linear acceleration both count
     result = familybench.inertia_tour()
     rms = result["rms_over_noise_last_15s"]
-    print(f"\nrandom tour (tool inertial force RMS {np.round(result['inertial_force_rms_N'], 3)} N): RMS / noise "
-          f"{({k: np.round(v, 3).tolist() for k, v in rms.items()})}")
+    print(
+        f"\nrandom tour (tool inertial force RMS {np.round(result['inertial_force_rms_N'], 3)} N): RMS / noise "
+        f"{ ({k: np.round(v, 3).tolist() for k, v in rms.items()}) }"
+    )
     assert max(rms["kalman inertia"]) <= 1.02
     assert min(rms[familybench.BASE_MODEL]) >= 1.05  # without the option (nor the tilt walk) the inertial force shows
     assert np.linalg.norm(rms["kalman"]) > 1.01 * np.linalg.norm(rms["kalman inertia"])  # the walk follows less
@@ -293,8 +315,10 @@ def test_the_pose_rule_is_the_identified_filter_with_inertia_and_the_gate_waits_
     for key in ("contact_force_S", "contact_torque_S", "contact"):
         assert np.array_equal(getattr(outs["pose"], key), getattr(outs["identified"], key)), key
     assert first_true(outs["pose"].converged_torque) < first_true(outs["identified"].converged_torque)
-    pose, ref = KalmanEstimator(converged_force_std=0.03), KalmanEstimator(converged_force_std=0.03,
-                                                                        convergence="identified")
+    pose, ref = (
+        KalmanEstimator(converged_force_std=0.03),
+        KalmanEstimator(converged_force_std=0.03, convergence="identified"),
+    )
     ready_at = None
     for i in range(2400):
         one = block.subset(slice(i, i + 1))
@@ -320,7 +344,7 @@ def test_the_inertial_force_matches_the_simulated_one():
     rest = block.subset(slice(10000, None))
     force_S, torque_S, R_EB, inertial_S, usable = est._prepare(rest)
     true = world.wrench(rest.t_ns * 1e-9, noise=False)["inertial_force_S"]
-    error = np.sqrt(np.mean((inertial_S - true) ** 2)) / np.sqrt(np.mean(true ** 2))
+    error = np.sqrt(np.mean((inertial_S - true) ** 2)) / np.sqrt(np.mean(true**2))
     assert error < 0.1, error
 
 
@@ -356,8 +380,10 @@ def test_a_late_sensor_stream_is_matched_with_past_poses(chunk):
     out, _ = feed(KalmanEstimator(time_lag_s=-0.3), block, chunk=chunk)
     plain, _ = feed(KalmanEstimator(), block, chunk=64)
     rms, rms_plain = familybench.rms_after(out, block, 10.0), familybench.rms_after(plain, block, 10.0)
-    print(f"\nsensor 0.3 s late: RMS {np.round(rms / NOISE_F, 3)} × noise with time_lag_s, "
-          f"{np.round(rms_plain / NOISE_F, 3)} without")
+    print(
+        f"\nsensor 0.3 s late: RMS {np.round(rms / NOISE_F, 3)} × noise with time_lag_s, "
+        f"{np.round(rms_plain / NOISE_F, 3)} without"
+    )
     assert np.all(rms <= 1.02 * NOISE_F) and np.linalg.norm(rms_plain) > 2 * np.linalg.norm(rms)
     assert not out.converged_force[:300].any()  # its first 0.3 s have no pose yet: they never update
 
@@ -373,7 +399,9 @@ def test_effects_name_the_options():
     est = KalmanEstimator(effects=["mount_rotation", "bias_drift", "inertia"])
     assert est.mount_rotation and est.bias_rate and est.inertia
     assert est.effects == ["bias_drift", "inertia", "mount_rotation"]
-    est = KalmanEstimator(effects=["time_lag", "gain_crosstalk"], time_lag_s=-0.004, gain_force_S=np.zeros((3, 3)).tolist())
+    est = KalmanEstimator(
+        effects=["time_lag", "gain_crosstalk"], time_lag_s=-0.004, gain_force_S=np.zeros((3, 3)).tolist()
+    )
     assert est.effects == ["gain_crosstalk", "time_lag"]
     with pytest.raises(ValueError, match=r"^effects: unknown effect 'wobble'; the kalman estimator models bias_drift"):
         KalmanEstimator(effects=["wobble"])
@@ -398,8 +426,10 @@ def test_auto_noise_learns_the_sensor_noise():
     out, _ = feed(est, block, chunk=64)
     noise = np.array(est.params()["noise_force_S"])
     noise_t = np.array(est.params()["noise_torque_S"])
-    print(f"\nauto noise: force {np.round(noise, 4)} N (true 0.12), torque {np.round(noise_t, 5)} N·m (true 0.01); "
-          f"force converged at sample {est.first_converged_force}")
+    print(
+        f"\nauto noise: force {np.round(noise, 4)} N (true 0.12), torque {np.round(noise_t, 5)} N·m (true 0.01); "
+        f"force converged at sample {est.first_converged_force}"
+    )
     assert np.allclose(noise, NOISE_F, rtol=0.03) and np.allclose(noise_t, 0.01, rtol=0.06)
     assert np.all(familybench.rms_after(out, block, 15.0) <= 1.05 * NOISE_F)
     assert out.contact.mean() < 0.002
@@ -412,15 +442,17 @@ def test_one_stage_noise_given_the_other_estimated():
     est = KalmanEstimator(noise_force=0.12)
     assert not est.noise_auto_force and est.noise_auto_torque
     out, _ = feed(est, block, chunk=64)
-    assert np.array_equal(est.force.r, np.full(3, 0.12 ** 2)) and np.array_equal(est.torque.rc, est.force.r)
+    assert np.array_equal(est.force.r, np.full(3, 0.12**2)) and np.array_equal(est.torque.rc, est.force.r)
     assert np.allclose(np.array(est.params()["noise_torque_S"]), 0.01, rtol=0.06)
     assert est._bounds()[0] == 0.02 and est._bounds()[1] < 0.006  # the given noise's bound, half the estimate's
     assert est.first_converged_torque is not None and out.contact.mean() < 0.002
 
 
 def test_auto_noise_refuses_contact_once_it_knows_the_noise():
-    contacts = [{"kind": "indentation", "start": 15.0 + 5.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
-                for k in range(3)]
+    contacts = [
+        {"kind": "indentation", "start": 15.0 + 5.0 * k, "duration": 2.0, "peak_force": 3.0, "ramp": 0.4}
+        for k in range(3)
+    ]
     world, block = familybench.tour(30.0, seed=8, inertia=False, contacts=contacts)
     est = KalmanEstimator(noise_force="auto", noise_torque="auto")
     out, _ = feed(est, block, chunk=64)
@@ -440,8 +472,10 @@ def test_auto_noise_is_not_inflated_by_a_long_contact_in_a_live_loop():
     plateau = np.linalg.norm(truth["contact_force_S"], axis=1) > 2.9
     error = np.linalg.norm(out.contact_force_S[plateau] - truth["contact_force_S"][plateau], axis=1)
     noise = np.array(est.params()["noise_force_S"])
-    print(f"\n15 s push, blocks of 1: noise estimate {np.round(noise, 4)} N, {100 * out.contact[plateau].mean():.1f} % "
-          f"of the plateau refused, contact error median {np.median(error):.3f} N")
+    print(
+        f"\n15 s push, blocks of 1: noise estimate {np.round(noise, 4)} N, {100 * out.contact[plateau].mean():.1f} % "
+        f"of the plateau refused, contact error median {np.median(error):.3f} N"
+    )
     assert noise.max() < 1.05 * NOISE_F
     assert out.contact[plateau].mean() > 0.99 and np.median(error) < 0.3
 
@@ -464,9 +498,18 @@ def test_gating_none_accepts_everything_and_step_convergence_is_the_papers():
 def test_new_options_reach_the_estimator_from_the_command_line_syntax():
     from hapticlab.sessions.offline.compensate import estimator_options
 
-    options = estimator_options(["mount_rotation=true", "inertia=true", "gating=none", "convergence=step",
-                                 "time_lag_s=0.004", "effects=['bias_drift']", 'noise_force="auto"',
-                                 "noise_torque='auto'"])
+    options = estimator_options(
+        [
+            "mount_rotation=true",
+            "inertia=true",
+            "gating=none",
+            "convergence=step",
+            "time_lag_s=0.004",
+            "effects=['bias_drift']",
+            'noise_force="auto"',
+            "noise_torque='auto'",
+        ]
+    )
     est = Registry().create("estimator", "kalman", options, where="estimator")
     assert est.mount_rotation and est.inertia and est.bias_rate and est.gate2 == np.inf
     assert est.convergence == "step" and est.time_lag_s == 0.004 and est.noise_auto
@@ -483,17 +526,22 @@ def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
     3.4 N weight is 0.3 N, which changes by about that much per radian the tool turns."""
     world, block = mounted
     rms, learnt = {}, None
-    for label, options in (("walk off", {"bias_force_tilt_rw": 0.0}),
-                           ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}),
-                           ("learnt", {"bias_force_tilt_rw": "auto"}), ("mount_rotation", {"mount_rotation": True})):
+    for label, options in (
+        ("walk off", {"bias_force_tilt_rw": 0.0}),
+        ("tilt walk 0.05 N/√rad", {"bias_force_tilt_rw": 0.05}),
+        ("learnt", {"bias_force_tilt_rw": "auto"}),
+        ("mount_rotation", {"mount_rotation": True}),
+    ):
         est = KalmanEstimator(**options)
         out, _ = feed(est, block, chunk=64)
         rms[label] = np.sqrt(np.mean(out.contact_force_S[15000:] ** 2, axis=0)) / NOISE_F
         assert not out.contact[15000:].any(), label
         if label == "learnt":
             learnt = est.params()["bias_force_tilt_rw"][0]
-    print(f"\n5° mount the model lacks, 30 s tour: RMS / noise over the last 15 s "
-          f"{({k: np.round(v, 3).tolist() for k, v in rms.items()})}; learnt walk {learnt:.3f} N/√rad")
+    print(
+        f"\n5° mount the model lacks, 30 s tour: RMS / noise over the last 15 s "
+        f"{ ({k: np.round(v, 3).tolist() for k, v in rms.items()}) }; learnt walk {learnt:.3f} N/√rad"
+    )
     for label in ("tilt walk 0.05 N/√rad", "learnt"):
         assert max(rms[label]) <= 1.02, label
         assert np.linalg.norm(rms["walk off"]) > 1.05 * np.linalg.norm(rms[label]), label
@@ -503,8 +551,10 @@ def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
 
 def _presses(start: float, every: float, count: int, peak: float) -> list[dict]:
     """``count`` indentations of 2 s (0.4 s ramps) from ``start`` s, one every ``every`` s, peak force N."""
-    return [{"kind": "indentation", "start": start + every * k, "duration": 2.0, "peak_force": peak, "ramp": 0.4}
-            for k in range(count)]
+    return [
+        {"kind": "indentation", "start": start + every * k, "duration": 2.0, "peak_force": peak, "ramp": 0.4}
+        for k in range(count)
+    ]
 
 
 def _errors_in_contact(contacts: list[dict], seconds: float, variants: dict[str, dict]):
@@ -513,8 +563,12 @@ def _errors_in_contact(contacts: list[dict], seconds: float, variants: dict[str,
     whether each variant called any sample a contact."""
     from hapticlab.sessions.bench.paper import PaperSetup, simulate
 
-    sim = PaperSetup(seed=2025).world({"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0}, contacts,
-                                      noise_force=NOISE_F, noise_torque=0.01)
+    sim = PaperSetup(seed=2025).world(
+        {"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0},
+        contacts,
+        noise_force=NOISE_F,
+        noise_torque=0.01,
+    )
     block, w = simulate(sim, seconds, RATE_HZ)
     touching = np.asarray(w["contact"], dtype=bool)
     error, called = {}, {}
@@ -534,13 +588,22 @@ def test_the_tilt_walk_lets_a_contact_made_while_turning_into_the_bias_unless_it
     turn, half a second of this tour, and the error is within 5 % of the walk off. The simulator's model is the filter's:
     learnt ("auto"), the walk stays 0 here (the indentations' windows left out), and the contact force is that
     without the walk."""
-    error, est, _ = _errors_in_contact(_presses(5.0, 10.0, 3, 3.0), 30.0, {
-        "off": {"bias_force_tilt_rw": 0.0}, "plain 0.1": {"bias_force_tilt_rw": 0.1, "bias_tilt_span": 0.0},
-        "spanned 0.1": {"bias_force_tilt_rw": 0.1}, "auto": {"bias_force_tilt_rw": "auto"}})
+    error, est, _ = _errors_in_contact(
+        _presses(5.0, 10.0, 3, 3.0),
+        30.0,
+        {
+            "off": {"bias_force_tilt_rw": 0.0},
+            "plain 0.1": {"bias_force_tilt_rw": 0.1, "bias_tilt_span": 0.0},
+            "spanned 0.1": {"bias_force_tilt_rw": 0.1},
+            "auto": {"bias_force_tilt_rw": "auto"},
+        },
+    )
     learnt, pairs = est.params()["bias_force_tilt_rw"][0], est.params()["tilt_walk_pairs"][0]
-    print(f"\nindentations while turning, contact-force error in contact (N): "
-          f"{({k: np.round(v, 3).tolist() for k, v in error.items()})}; learnt {learnt:.4f} N/√rad from "
-          f"{pairs:.0f} pairs of windows")
+    print(
+        f"\nindentations while turning, contact-force error in contact (N): "
+        f"{ ({k: np.round(v, 3).tolist() for k, v in error.items()}) }; learnt {learnt:.4f} N/√rad from "
+        f"{pairs:.0f} pairs of windows"
+    )
     assert np.all(error["off"] <= 0.16) and np.allclose(error["auto"], error["off"], rtol=0.01)
     assert np.linalg.norm(error["plain 0.1"]) > 1.5 * np.linalg.norm(error["off"])
     assert np.linalg.norm(error["spanned 0.1"]) <= 1.05 * np.linalg.norm(error["off"])
@@ -558,9 +621,11 @@ def test_light_touches_the_gate_takes_in_are_not_learnt_as_tilt_walk():
     error, est, called = _errors_in_contact(_presses(1.0, 4.0, 15, 0.5), 60.0, variants)
     assert not called["off"], "the touches are under the gate"
     learnt, pairs = est.params()["bias_force_tilt_rw"][0], est.params()["tilt_walk_pairs"][0]
-    print(f"\n0.5 N touches 2 s in every 4, contact-force error in contact (N): "
-          f"{({k: np.round(v, 3).tolist() for k, v in error.items()})}; learnt {learnt:.4f} N/√rad from "
-          f"{pairs:.0f} pairs of windows")
+    print(
+        f"\n0.5 N touches 2 s in every 4, contact-force error in contact (N): "
+        f"{ ({k: np.round(v, 3).tolist() for k, v in error.items()}) }; learnt {learnt:.4f} N/√rad from "
+        f"{pairs:.0f} pairs of windows"
+    )
     assert learnt < 0.02 and np.allclose(error["auto"], error["off"], rtol=0.02)
 
 
@@ -573,8 +638,9 @@ def test_the_step_test_stands_down_for_a_sensor_whose_noise_is_not_white():
     sensor."""
     import dataclasses
 
-    _, clean = familybench.tour(30.0, sensor={"mount_rotation": familybench.MOUNT_ROTATION_SE,
-                                              "noise_force": [0.0, 0.0, 0.0]})
+    _, clean = familybench.tour(
+        30.0, sensor={"mount_rotation": familybench.MOUNT_ROTATION_SE, "noise_force": [0.0, 0.0, 0.0]}
+    )
     rng = np.random.default_rng(7)
     e = rng.standard_normal(clean.force_S.shape)
     for k in range(1, len(e)):
@@ -584,8 +650,10 @@ def test_the_step_test_stands_down_for_a_sensor_whose_noise_is_not_white():
     out, _ = feed(est, block, chunk=64)
     rms = familybench.rms_after(out, block, 15.0) / NOISE_F
     learnt, pairs = est.params()["bias_force_tilt_rw"][0], est.params()["tilt_walk_pairs"][0]
-    print(f"\nfiltered noise (AR(1), ρ = 0.8) on a 5° mount: RMS / noise over the last 15 s {np.round(rms, 3)}; "
-          f"learnt {learnt:.3f} N/√rad from {pairs:.0f} pairs")
+    print(
+        f"\nfiltered noise (AR(1), ρ = 0.8) on a 5° mount: RMS / noise over the last 15 s {np.round(rms, 3)}; "
+        f"learnt {learnt:.3f} N/√rad from {pairs:.0f} pairs"
+    )
     assert learnt > 0.05 and max(rms) <= 1.02
 
 
@@ -595,12 +663,13 @@ def test_the_tilt_is_gravity_s_turn_whatever_way_the_base_stands(kernel):
     the tilt is measured about it: turning the tool 90° about the vertical then adds nothing to the bias's
     variance, turning it 90° about a horizontal axis adds q_θ·π/2 (the plain walk: no span). Measured over
     samples with a sensor status (predicted only, so P's bias diagonal grows by exactly the walks)."""
-    q_tilt, q_time = 0.1 ** 2, 0.005 ** 2
+    q_tilt, q_time = 0.1**2, 0.005**2
     vertical, horizontal = _wall_axes()
     for axis_B, expected in ((vertical, 0.0), (horizontal, q_tilt * np.pi / 2)):
         m = 1000
-        est, grown, _ = _turn_predicted(KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1, bias_tilt_span=0.0),
-                                        axis_B, m)
+        est, grown, _ = _turn_predicted(
+            KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1, bias_tilt_span=0.0), axis_B, m
+        )
         # (the weight is identified to ~1e-3 rad of its direction: so is the tilt, to 1 % of a quarter turn)
         assert np.allclose(grown, q_time * m * 1e-3 + expected, rtol=0, atol=0.01 * q_tilt * np.pi / 2), grown
 
@@ -611,17 +680,18 @@ def test_a_turn_no_sample_measures_adds_the_capped_walk_of_the_whole_turn(kernel
     variance grows by f(Θ) = min(q_θ·Θ, σ²·(Θ/s)²) for the whole turn Θ, whether it was cut into 100 samples
     or 1000 (the span s bounds how fast the bias follows what is measured, not what a turn unseen may do).
     A 0.005 rad turn is under the span's bend (σ²·(Θ/s)² < q_θ·Θ), a quarter turn over it (the plain walk)."""
-    q_tilt, q_time = 0.1 ** 2, 0.005 ** 2
+    q_tilt, q_time = 0.1**2, 0.005**2
     _, horizontal = _wall_axes()
     for angle in (0.005, np.pi / 2):
         for m in (100, 1000):
-            est, grown, grown_t = _turn_predicted(KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1), horizontal,
-                                                  m, angle)
-            for stage, got, time_q in ((est.torque, grown_t, 0.0004 ** 2), (est.force, grown, q_time)):
+            est, grown, grown_t = _turn_predicted(
+                KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1), horizontal, m, angle
+            )
+            for stage, got, time_q in ((est.torque, grown_t, 0.0004**2), (est.force, grown, q_time)):
                 expected = np.minimum(stage.q_tilt * angle, stage.r * (angle / stage.tilt_span) ** 2)
                 assert np.allclose(got - time_q * m * 1e-3, expected, rtol=0.03, atol=0), (angle, m, got, expected)
             bent = expected < 0.7 * q_tilt * angle  # (the force stage's, last)
-            assert (bent.all() if angle < 0.1 else not bent.any()), (angle, expected, q_tilt * angle, est.force.r)
+            assert bent.all() if angle < 0.1 else not bent.any(), (angle, expected, q_tilt * angle, est.force.r)
 
 
 @pytest.mark.parametrize("span", [0.0, 0.15, 0.3])
@@ -632,23 +702,31 @@ def test_the_span_keeps_the_bias_from_following_the_tilt_finer_than_it(span):
     (√(σ²·δ/q_θ) = 0.022 rad); with a span, no sooner than 0.9 of the span."""
     import dataclasses
 
-    from scipy.spatial.transform import Rotation
     from helpers import static_model_stream
+    from scipy.spatial.transform import Rotation
 
     bias_S, weight_B = np.array([1.0, -0.5, 2.0]), np.array([0.12, -0.25, -3.4])
-    identify, _ = static_model_stream(3000, seed=4, noise_force=0.0, noise_torque=0.0, gravity_force_B=weight_B,
-                                      bias_force_S=bias_S)
+    identify, _ = static_model_stream(
+        3000, seed=4, noise_force=0.0, noise_torque=0.0, gravity_force_B=weight_B, bias_force_S=bias_S
+    )
     rate, n, step_at = np.deg2rad(19.0), 4000, 1500  # rad/s, samples 1 ms apart, the step's sample
-    R_BE = Rotation.from_rotvec(np.outer(rate * 1e-3 * np.arange(1, n + 1), [1.0, 0.0, 0.0])).as_matrix() \
+    R_BE = (
+        Rotation.from_rotvec(np.outer(rate * 1e-3 * np.arange(1, n + 1), [1.0, 0.0, 0.0])).as_matrix()
         @ identify.R_EB[-1].T
+    )
     R_EB = R_BE.transpose(0, 2, 1)
     force_S = R_EB @ weight_B + bias_S + np.where(np.arange(n)[:, None] >= step_at, [0.0, 0.0, 0.3], 0.0)
     cog_S = np.array([0.002, -0.001, 0.0435])
-    turning = dataclasses.replace(identify.subset(np.arange(n) % len(identify)), R_EB=R_EB, force_S=force_S,
-                                  torque_S=np.cross(cog_S, R_EB @ weight_B) + [0.03, -0.02, 0.01],
-                                  t_ns=identify.t_ns[-1] + 1_000_000 * np.arange(1, n + 1))
-    est = KalmanEstimator(noise_force=0.12, noise_torque=0.01, bias_force_rw=1e-6, bias_force_tilt_rw=0.1,
-                          bias_tilt_span=span)
+    turning = dataclasses.replace(
+        identify.subset(np.arange(n) % len(identify)),
+        R_EB=R_EB,
+        force_S=force_S,
+        torque_S=np.cross(cog_S, R_EB @ weight_B) + [0.03, -0.02, 0.01],
+        t_ns=identify.t_ns[-1] + 1_000_000 * np.arange(1, n + 1),
+    )
+    est = KalmanEstimator(
+        noise_force=0.12, noise_torque=0.01, bias_force_rw=1e-6, bias_force_tilt_rw=0.1, bias_tilt_span=span
+    )
     est.update_block(identify)
     out = est.update_block(turning)
     left = out.contact_force_S[step_at:, 2]  # what the bias has not yet taken of the step, N
@@ -678,22 +756,26 @@ def _turn_predicted(est: KalmanEstimator, axis_B: np.ndarray, m: int, angle: flo
     diagonal grew by, and the torque bias's)."""
     import dataclasses
 
-    from hapticlab.core.types import STATUS_SATURATED
-    from scipy.spatial.transform import Rotation
     from helpers import static_model_stream
+    from scipy.spatial.transform import Rotation
 
-    identify, _ = static_model_stream(3000, seed=4, noise_force=0.05, noise_torque=0.005,
-                                      gravity_force_B=WALL_WEIGHT_B)
+    from hapticlab.core.types import STATUS_SATURATED
+
+    identify, _ = static_model_stream(3000, seed=4, noise_force=0.05, noise_torque=0.005, gravity_force_B=WALL_WEIGHT_B)
     est.update_block(identify)
     assert est.first_converged_force is not None
     turn = Rotation.from_rotvec(np.outer(np.linspace(0.0, angle, m), axis_B)).as_matrix()
     R_EB = (turn @ identify.R_EB[-1].T).transpose(0, 2, 1)  # the last pose, turned about axis_B in B
     t_ns = identify.t_ns[-1] + 1_000_000 * np.arange(1, m + 1)
     rows = np.arange(m) % len(identify)
-    held = dataclasses.replace(identify.subset(rows), t_ns=t_ns, R_EB=R_EB,
-                               force_S=np.tile(identify.force_S[-1], (m, 1)),
-                               torque_S=np.tile(identify.torque_S[-1], (m, 1)),
-                               status=np.full(m, STATUS_SATURATED))
+    held = dataclasses.replace(
+        identify.subset(rows),
+        t_ns=t_ns,
+        R_EB=R_EB,
+        force_S=np.tile(identify.force_S[-1], (m, 1)),
+        torque_S=np.tile(identify.torque_S[-1], (m, 1)),
+        status=np.full(m, STATUS_SATURATED),
+    )
     before, before_t = np.diag(est.force.P)[3:6].copy(), np.diag(est.torque.P)[3:6].copy()
     est.update_block(held)
     return est, np.diag(est.force.P)[3:6] - before, np.diag(est.torque.P)[3:6] - before_t

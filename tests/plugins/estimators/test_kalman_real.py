@@ -9,13 +9,14 @@ flag says (``hapticlab bench real``'s "2nd half" column).
 from __future__ import annotations
 
 import pytest
+
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
-from hapticlab.sessions.offline.compensate import run_estimator
-from hapticlab.sessions.recording import load_stream
-from hapticlab.sessions.discrepancy.workflow import discrepancy
 from hapticlab.sessions.bench import real as realbench
 from hapticlab.sessions.bench.paper import feed
+from hapticlab.sessions.discrepancy.workflow import discrepancy
+from hapticlab.sessions.offline.compensate import run_estimator
+from hapticlab.sessions.recording import load_stream
 
 AUTO = {"noise_force": "auto", "noise_torque": "auto"}
 
@@ -39,8 +40,10 @@ def test_the_named_effects_bring_every_file_under_the_batch_fit(real_data, named
     ratios = {}
     for path in sorted(real_data.glob("*.csv")):
         ratios[path.stem] = (kalman_ratio(path, {}), kalman_ratio(path, named[path.stem]))
-    print("\nkalman noise=auto, second half, ‖online‖/‖batch‖ (alone, with the named effects): "
-          + "; ".join(f"{k} {a:.2f} → {b:.2f} {named[k]['effects']}" for k, (a, b) in ratios.items()))
+    print(
+        "\nkalman noise=auto, second half, ‖online‖/‖batch‖ (alone, with the named effects): "
+        + "; ".join(f"{k} {a:.2f} → {b:.2f} {named[k]['effects']}" for k, (a, b) in ratios.items())
+    )
     assert all(b <= 1.05 for _, b in ratios.values()), ratios
     # where something was named, it helps online too
     for stem, (alone, with_effects) in ratios.items():
@@ -56,8 +59,10 @@ def test_the_axia80_calibration_error_carries_over_to_the_other_recording(real_d
     poses = real_data / "axia80_ur_100poses.csv"
     alone = kalman_ratio(poses, {})
     carried = kalman_ratio(poses, dict(gain, mount_rotation=True))
-    print(f"\naxia80_ur_100poses, second half: {alone:.2f} alone, {carried:.2f} with the 10 Hz log's "
-          f"calibration error and an online mount estimate")
+    print(
+        f"\naxia80_ur_100poses, second half: {alone:.2f} alone, {carried:.2f} with the 10 Hz log's "
+        f"calibration error and an online mount estimate"
+    )
     assert alone > 1.05 and carried <= 1.05
 
 
@@ -78,7 +83,10 @@ def test_identified_convergence_comes_as_soon_as_the_motion_allows_on_every_file
         run_estimator(stream, est)
         assert limit is not None and est.first_converged_force is not None, path.stem
         assert 0 <= est.first_converged_force - limit <= max(5, 0.02 * len(stream.t_s)), (
-            path.stem, est.first_converged_force, limit)
+            path.stem,
+            est.first_converged_force,
+            limit,
+        )
         # the std the haptic gate reads agrees with the flag, where the filter's own P would hold it off
         bound = est._bounds()[0]
         if est.converged_force:
@@ -249,7 +257,9 @@ def test_the_tilt_walk_follows_lwr4_2013_06_13s_fast_turn(real_data):
     s = stream.samples
     residual = batch_fit(s.force_S, s.torque_S, s.R_EB)["residual_force_S"]
     ratios = [realbench.second_half_ratio(out.contact_force_S, residual) for out in (plain, tilted, learnt)]
-    print(f"\nlwr4_2013_06_13, 2nd-half RMS / batch fit: walk off {ratios[0]:.3f}, 0.1 N/√rad {ratios[1]:.3f}, "
-          f"learnt {ratios[2]:.3f} ({auto.params()['bias_force_tilt_rw'][0]:.3f} N/√rad at the end)")
+    print(
+        f"\nlwr4_2013_06_13, 2nd-half RMS / batch fit: walk off {ratios[0]:.3f}, 0.1 N/√rad {ratios[1]:.3f}, "
+        f"learnt {ratios[2]:.3f} ({auto.params()['bias_force_tilt_rw'][0]:.3f} N/√rad at the end)"
+    )
     assert ratios[1] < ratios[0] < 1.0 and ratios[2] < ratios[0], ratios
     assert 0.1 <= before_turn.params()["bias_force_tilt_rw"][0] <= 0.45

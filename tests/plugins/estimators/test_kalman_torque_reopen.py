@@ -58,8 +58,10 @@ def test_a_torque_bias_step_is_found_again_instead_of_refused_to_the_end(seed):
 def test_contacts_do_not_reopen_the_torque_bias(seed):
     """A contact the force stage refuses ends the run; a light one (0.5 N, under the force gate at times)
     shorter than ``torque_reopen_s`` never reaches it; a force at the tool's tip (0.25 m) explains its torque."""
-    contacts = [Indentation(start=6.0, duration=4.0, peak_force=0.5), Indentation(start=14.0, duration=10.0,
-                                                                                  peak_force=3.0)]
+    contacts = [
+        Indentation(start=6.0, duration=4.0, peak_force=0.5),
+        Indentation(start=14.0, duration=10.0, peak_force=3.0),
+    ]
     block, _ = simulate(SimWorld(seed=seed, inertia=False, contacts=contacts), 30.0, RATE_HZ)
     est = KalmanEstimator()
     out, _ = feed(est, block)
@@ -77,8 +79,9 @@ def test_the_compiled_cascade_and_the_numpy_reference_reopen_at_the_same_sample(
     t_fast, t_ref = _reopened(fast), _reopened(ref)
     assert len(t_fast) == 1 and t_fast == t_ref
     for key in ("contact", "converged_force", "converged_torque"):
-        assert np.array_equal(np.concatenate([getattr(p, key) for p in a]),
-                              np.concatenate([getattr(p, key) for p in b])), key
+        assert np.array_equal(
+            np.concatenate([getattr(p, key) for p in a]), np.concatenate([getattr(p, key) for p in b])
+        ), key
     assert np.allclose(fast.torque.P, ref.torque.P, rtol=1e-6, atol=1e-12)
     assert np.allclose(fast.torque.x, ref.torque.x, rtol=1e-6, atol=1e-9)
 

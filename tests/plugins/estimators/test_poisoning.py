@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 import pytest
-from hapticlab.plugins.estimators.rls.algorithm1 import algorithm1
+
 from hapticlab.core.estimation.model import (
     BEYOND_THE_BOUND,
     NON_FINITE,
@@ -28,6 +28,7 @@ from hapticlab.core.types import AlignedSamples, Estimates, first_true
 from hapticlab.plugins.estimators.batch import BatchEstimator
 from hapticlab.plugins.estimators.kalman import IDENTIFICATION_EVENTS, KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator
+from hapticlab.plugins.estimators.rls.algorithm1 import algorithm1
 from hapticlab.sessions.bench import family as familybench
 
 ESTIMATORS = {
@@ -72,8 +73,18 @@ def spoil(block: AlignedSamples, converged_at: int):
     """The block with bad samples before and after ``converged_at``; (block, bad mask, reasons)."""
     n = len(block)
     after = converged_at + 40
-    rows = [3, converged_at // 3, converged_at // 2, converged_at // 2 + 1, converged_at - 2,
-            after, after + 1, *range(after + 300, after + 310), (after + n - 1500) // 2, n - 1500]
+    rows = [
+        3,
+        converged_at // 3,
+        converged_at // 2,
+        converged_at // 2 + 1,
+        converged_at - 2,
+        after,
+        after + 1,
+        *range(after + 300, after + 310),
+        (after + n - 1500) // 2,
+        n - 1500,
+    ]
     bad = copy(block)
     reasons = {NON_FINITE: 0, NOT_A_ROTATION: 0, BEYOND_THE_BOUND: 0}
     for i, k in enumerate(sorted(set(rows))):
@@ -99,14 +110,19 @@ def run(est, blocks: list[AlignedSamples]) -> Estimates:
 
 
 def rows_equal(a: Estimates, b: Estimates) -> bool:
-    return all(np.array_equal(getattr(a, key), getattr(b, key)) for key in
-               ("t_ns", "contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque"))
+    return all(
+        np.array_equal(getattr(a, key), getattr(b, key))
+        for key in ("t_ns", "contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
+    )
 
 
 def state_equal(a, b) -> bool:
     pa, pb = a.params(), b.params()
-    return (pa.keys() == pb.keys() and all(np.array_equal(pa[k], pb[k], equal_nan=True) for k in pa)
-            and np.array_equal(a.cov_diag(), b.cov_diag()))
+    return (
+        pa.keys() == pb.keys()
+        and all(np.array_equal(pa[k], pb[k], equal_nan=True) for k in pa)
+        and np.array_equal(a.cov_diag(), b.cov_diag())
+    )
 
 
 @pytest.mark.parametrize("name", ESTIMATORS)
@@ -134,8 +150,12 @@ def test_bad_samples_are_refused_and_leave_no_trace(tour, name, blocks):
     # the state is bit for bit the state of the stream without the bad samples
     assert state_equal(est, ref)
     # accepted rows are the same rows; refused rows are NaN, no contact, the previous row's flags
-    kept_rows = Estimates(*(getattr(out, k)[~mask] for k in ("t_ns", "contact_force_S", "contact_torque_S",
-                                                             "contact", "converged_force", "converged_torque")))
+    kept_rows = Estimates(
+        *(
+            getattr(out, k)[~mask]
+            for k in ("t_ns", "contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
+        )
+    )
     assert rows_equal(kept_rows, out_ref)
     assert np.isnan(out.contact_force_S[mask]).all() and np.isnan(out.contact_torque_S[mask]).all()
     assert not out.contact[mask].any()
@@ -195,8 +215,9 @@ def test_rls_printed_on_a_spoilt_stream_is_algorithm1_on_the_clean_one(tour, siz
     out = run(est, [bad.subset(slice(i, i + size)) for i in range(0, len(bad), size)])
     rng = np.random.default_rng(4)
     kept = tour.subset(~mask)
-    ref = algorithm1(kept.force_S, kept.torque_S, kept.R_EB, 1.0, 0.1, rng.standard_normal(6),
-                     rng.standard_normal(6), joseph=False)
+    ref = algorithm1(
+        kept.force_S, kept.torque_S, kept.R_EB, 1.0, 0.1, rng.standard_normal(6), rng.standard_normal(6), joseph=False
+    )
     assert np.array_equal(out.converged_force[~mask], ref["converged_force"])
     assert np.array_equal(out.converged_torque[~mask], ref["converged_torque"])
     assert np.array_equal(out.contact[~mask], ~ref["updated_force"] | (ref["converged_force"] & ~ref["updated_torque"]))
@@ -212,8 +233,9 @@ def test_a_non_finite_pose_is_refused_where_it_is_used(tour, name):
     block = tour.subset(slice(0, n))
     quat, p = block.quat_BE.copy(), block.p_BoEo_B.copy()
     quat[1200, 1], p[2100, 0] = np.nan, np.inf
-    bad = AlignedSamples(block.t_ns, block.force_S, block.torque_S, block.R_EB, block.seq, block.status,
-                         block.stale, quat, p)
+    bad = AlignedSamples(
+        block.t_ns, block.force_S, block.torque_S, block.R_EB, block.seq, block.status, block.stale, quat, p
+    )
     mask = np.zeros(n, dtype=bool)
     mask[[1200, 2100]] = True
     est, ref = ESTIMATORS[name](), ESTIMATORS[name]()
@@ -251,8 +273,10 @@ def test_the_compiled_screen_agrees_with_the_refusal_codes(tour):
     rows = np.concatenate([spoilt, np.setdiff1d(spoilt + 1, spoilt)])  # and their good neighbours
     codes = refusal_codes(bad.force_S[rows], bad.torque_S[rows], bad.R_EB[rows], 1e4, 1e3)
     for k, code in zip(rows, codes):
-        assert all_plausible(bad.force_S[k:k + 1], bad.torque_S[k:k + 1], bad.R_EB[k:k + 1], 1e4, 1e3) == (code == 0)
-    assert (codes[: len(spoilt)] > 0).all() and (codes[len(spoilt):] == 0).all()
+        assert all_plausible(bad.force_S[k : k + 1], bad.torque_S[k : k + 1], bad.R_EB[k : k + 1], 1e4, 1e3) == (
+            code == 0
+        )
+    assert (codes[: len(spoilt)] > 0).all() and (codes[len(spoilt) :] == 0).all()
     verdicts = []
     for start in range(0, len(bad) - 7, 7):
         block = slice(start, start + 7)
@@ -281,9 +305,20 @@ def test_min_rcond_error_names_the_option_and_a_valid_one_waits_for_the_poses(to
 
 
 @pytest.mark.parametrize("make", [RLSEstimator, BatchEstimator, KalmanEstimator])
-@pytest.mark.parametrize("key, value", [("max_force", 0), ("max_force", -1.0), ("max_force", math.nan),
-                                        ("max_force", math.inf), ("max_force", 1e7), ("max_force", "1e4"),
-                                        ("max_torque", 0.0), ("max_torque", True), ("max_torque", 1e6)])
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("max_force", 0),
+        ("max_force", -1.0),
+        ("max_force", math.nan),
+        ("max_force", math.inf),
+        ("max_force", 1e7),
+        ("max_force", "1e4"),
+        ("max_torque", 0.0),
+        ("max_torque", True),
+        ("max_torque", 1e6),
+    ],
+)
 def test_bounds_are_validated(make, key, value):
     with pytest.raises(ValueError, match=rf"^{key}: must be a number > 0"):
         make(**{key: value})
@@ -359,16 +394,27 @@ def raising(*args, **kwargs):
     raise np.linalg.LinAlgError("SVD did not converge")
 
 
-@pytest.mark.parametrize("name, patch", [
-    ("rls numpy", "solve"), ("rls", "nan"), ("rls printed", "inv"), ("batch", "svd"),
-    ("kalman filterpy", "solve"), ("kalman mount numpy", "solve"), ("kalman mount", "indefinite"),
-    ("kalman", "indefinite"),
-])
+@pytest.mark.parametrize(
+    "name, patch",
+    [
+        ("rls numpy", "solve"),
+        ("rls", "nan"),
+        ("rls printed", "inv"),
+        ("batch", "svd"),
+        ("kalman filterpy", "solve"),
+        ("kalman mount numpy", "solve"),
+        ("kalman mount", "indefinite"),
+        ("kalman", "indefinite"),
+    ],
+)
 def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour, monkeypatch, name, patch):
-    makers = {**ESTIMATORS, "kalman filterpy": lambda: KalmanEstimator(implementation="filterpy"),
-              "kalman mount": lambda: KalmanEstimator(mount_rotation=True),  # (compiled)
-              "kalman mount numpy": lambda: KalmanEstimator(mount_rotation=True, kernel="numpy"),
-              "rls numpy": lambda: RLSEstimator(kernel="numpy")}
+    makers = {
+        **ESTIMATORS,
+        "kalman filterpy": lambda: KalmanEstimator(implementation="filterpy"),
+        "kalman mount": lambda: KalmanEstimator(mount_rotation=True),  # (compiled)
+        "kalman mount numpy": lambda: KalmanEstimator(mount_rotation=True, kernel="numpy"),
+        "rls numpy": lambda: RLSEstimator(kernel="numpy"),
+    }
     est = makers[name]()
     est.update_block(tour.subset(slice(0, 6000)))
     assert est.update_block(tour.subset(slice(6000, 6001))).converged_force.all()

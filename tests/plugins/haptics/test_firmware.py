@@ -39,8 +39,24 @@ def firmware(tmp_path_factory) -> Path:
     if compiler is None:
         pytest.skip("no g++ to build the sketch for the host")
     binary = tmp_path_factory.mktemp("firmware") / "hapticlab_master"
-    subprocess.run([compiler, "-std=gnu++11", "-Wall", "-Wextra", "-Werror", f"-I{HOST}", "-x", "c++", str(SKETCH),
-                    str(HOST / "host.cpp"), "-o", str(binary)], check=True, capture_output=True)
+    subprocess.run(
+        [
+            compiler,
+            "-std=gnu++11",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            f"-I{HOST}",
+            "-x",
+            "c++",
+            str(SKETCH),
+            str(HOST / "host.cpp"),
+            "-o",
+            str(binary),
+        ],
+        check=True,
+        capture_output=True,
+    )
     return binary
 
 
@@ -51,8 +67,9 @@ def board(firmware, tmp_path):
     tty.setraw(slave)
     log = tmp_path / "pwm.log"
     with open(log, "w") as stderr:
-        proc = subprocess.Popen([str(firmware)], stdin=master, stdout=master, stderr=stderr,
-                                env={**os.environ, "ADC_COUNT": str(ADC_COUNT)})
+        proc = subprocess.Popen(
+            [str(firmware)], stdin=master, stdout=master, stderr=stderr, env={**os.environ, "ADC_COUNT": str(ADC_COUNT)}
+        )
     try:
         yield os.ttyname(slave), log
     finally:

@@ -11,9 +11,8 @@ import pytest
 from hapticlab.core.host.interfaces import EmitsEvents, HapticOutput, ReportsHealth
 from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import HapticCommand
-from hapticlab.plugins.haptics.hid import PRESETS, HidHaptic, RawHidLayout, TYPES, Field, encode_force
-from hapticlab.plugins.haptics.hid_transport import (DeviceSelector, FakeHidapi, FakeRawHidMaster,
-                                                     HidapiTransport)
+from hapticlab.plugins.haptics.hid import PRESETS, TYPES, Field, HidHaptic, RawHidLayout, encode_force
+from hapticlab.plugins.haptics.hid_transport import DeviceSelector, FakeHidapi, FakeRawHidMaster, HidapiTransport
 from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, clamp_force
 
 TEENSY = PRESETS["teensy-rawhid"]["layout"]
@@ -37,18 +36,33 @@ def with_change(path: str, value):
     return layout
 
 
-@pytest.mark.parametrize("path, value, message", [
-    ("out.force_y", {"offset": 2, "type": "f32le"}, "haptic.layout.out.force_y: bytes 2..5 overlap force_x (bytes 0..3)"),
-    ("in.echo", {"offset": 62, "type": "u32le"}, "haptic.layout.in.echo.offset: bytes 62..65 end past the 64-byte report"),
-    ("in.position_x", {"offset": 0, "type": "f16le"}, "haptic.layout.in.position_x.type: unknown type 'f16le'"),
-    ("out.force_z", None, "haptic.layout.out.force_z: required"),
-    ("in.wobble", {"offset": 40, "type": "u8"}, "haptic.layout.in.wobble: unknown field"),
-    ("in.velocity_z", None, "haptic.layout.in.velocity_z: required with velocity_x"),
-    ("out.seq", None, "haptic.layout.in.echo: needs a seq field"),
-    ("in.buttons", {"offset": 18, "type": "i8"}, "haptic.layout.in.buttons.type: buttons must be an unsigned"),
-    ("in.position_y", {"offset": 4, "type": "i32le", "scale": 0}, "haptic.layout.in.position_y.scale: must be a finite"),
-    ("report_id", 300, "haptic.layout.report_id: must be an integer 0..255"),
-])
+@pytest.mark.parametrize(
+    "path, value, message",
+    [
+        (
+            "out.force_y",
+            {"offset": 2, "type": "f32le"},
+            "haptic.layout.out.force_y: bytes 2..5 overlap force_x (bytes 0..3)",
+        ),
+        (
+            "in.echo",
+            {"offset": 62, "type": "u32le"},
+            "haptic.layout.in.echo.offset: bytes 62..65 end past the 64-byte report",
+        ),
+        ("in.position_x", {"offset": 0, "type": "f16le"}, "haptic.layout.in.position_x.type: unknown type 'f16le'"),
+        ("out.force_z", None, "haptic.layout.out.force_z: required"),
+        ("in.wobble", {"offset": 40, "type": "u8"}, "haptic.layout.in.wobble: unknown field"),
+        ("in.velocity_z", None, "haptic.layout.in.velocity_z: required with velocity_x"),
+        ("out.seq", None, "haptic.layout.in.echo: needs a seq field"),
+        ("in.buttons", {"offset": 18, "type": "i8"}, "haptic.layout.in.buttons.type: buttons must be an unsigned"),
+        (
+            "in.position_y",
+            {"offset": 4, "type": "i32le", "scale": 0},
+            "haptic.layout.in.position_y.scale: must be a finite",
+        ),
+        ("report_id", 300, "haptic.layout.report_id: must be an integer 0..255"),
+    ],
+)
 def test_layout_errors_are_one_line_naming_the_key(path, value, message):
     with pytest.raises(ConfigError) as info:
         RawHidLayout.from_config(with_change(path, value))
@@ -57,7 +71,9 @@ def test_layout_errors_are_one_line_naming_the_key(path, value, message):
 
 def test_a_force_field_that_cannot_hold_the_device_maximum_is_refused():
     layout = with_change("out.force_x", {"offset": 0, "type": "i16le", "scale": 1e-4})  # reaches 3.2767 N
-    with pytest.raises(ConfigError, match=r"haptic.layout.out.force_x: i16le at 0.0001 N per count reaches only 3.2767 N"):
+    with pytest.raises(
+        ConfigError, match=r"haptic.layout.out.force_x: i16le at 0.0001 N per count reaches only 3.2767 N"
+    ):
         HidHaptic(layout=layout, vendor_id=1, product_id=2, device_max_force=5.0, transport="fake")
     with pytest.raises(ConfigError, match="haptic.vendor_id: required"):
         HidHaptic(layout=TEENSY)
@@ -65,7 +81,8 @@ def test_a_force_field_that_cannot_hold_the_device_maximum_is_refused():
 
 def test_the_plugin_is_registered_and_has_its_capabilities():
     dev = Registry(make_plugin_manager(load_entry_points=False)).create(
-        "haptic_output", "hid", {"transport": "fake"}, where="haptic")
+        "haptic_output", "hid", {"transport": "fake"}, where="haptic"
+    )
     assert isinstance(dev, HapticOutput) and isinstance(dev, EmitsEvents) and isinstance(dev, ReportsHealth)
 
 
@@ -102,7 +119,14 @@ def test_integer_force_fields_round_within_one_count_and_saturate_instead_of_wra
         assert np.linalg.norm(dev.fake.forces[-1]) <= 30.0
     f = Field("force_x", 0, TYPES["i16le"], 1e-3)
     buf = bytearray(2)
-    for value, counts in ((40.0, 32767), (-40.0, -32768), (1e300, 32767), (-1e300, -32768), (float("-inf"), 0), (float("nan"), 0)):
+    for value, counts in (
+        (40.0, 32767),
+        (-40.0, -32768),
+        (1e300, 32767),
+        (-1e300, -32768),
+        (float("-inf"), 0),
+        (float("nan"), 0),
+    ):
         f.pack_into(buf, value)
         assert struct.unpack("<h", buf)[0] == counts  # never wrapped around
 
@@ -117,8 +141,9 @@ def test_nan_and_huge_forces_never_reach_the_wire():
         if not np.isfinite(force).all():
             assert not got.any()
     dev.send(command([1e300, -1e300, 0.0]))
-    np.testing.assert_allclose(dev.fake.forces[-1] / np.linalg.norm(dev.fake.forces[-1]),
-                               [2 ** -0.5, -(2 ** -0.5), 0], atol=1e-6)  # direction kept
+    np.testing.assert_allclose(
+        dev.fake.forces[-1] / np.linalg.norm(dev.fake.forces[-1]), [2**-0.5, -(2**-0.5), 0], atol=1e-6
+    )  # direction kept
     dev.send(command([1.0, 1.0, 1.0], enabled=False))
     assert not dev.fake.forces[-1].any()
     assert dev.fake.counts["clamped"] == 0  # the device never had to clamp
@@ -198,9 +223,17 @@ def test_a_session_whose_hid_master_is_unplugged_records_zero_force_and_an_event
     from hapticlab.sessions.recording import read_recording
 
     config, _ = load_config("demo")
-    config = apply_overrides(config, [
-        "session.realtime=false", "session.duration=3.0", "haptic.name=hid", "haptic.transport=fake",
-        "haptic.device_max_force=6.0", 'haptic.fake_faults=["unplug@2600"]'])
+    config = apply_overrides(
+        config,
+        [
+            "session.realtime=false",
+            "session.duration=3.0",
+            "haptic.name=hid",
+            "haptic.transport=fake",
+            "haptic.device_max_force=6.0",
+            'haptic.fake_faults=["unplug@2600"]',
+        ],
+    )
     session = build_session(config, Registry(make_plugin_manager(load_entry_points=False)))
     fake = session.haptic.fake
     result = run_session(session, out=tmp_path / "hid.mcap")

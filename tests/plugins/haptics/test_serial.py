@@ -73,12 +73,17 @@ def test_every_single_bit_flip_is_rejected_and_the_next_frame_still_found():
 
 def test_the_decoder_resynchronises_after_garbage_in_any_chunking():
     rng = np.random.default_rng(3)
-    frames = [framing.encode_frame(framing.STATE, k, framing.State(k, rng.normal(size=3), rng.normal(size=3), k, 0)
-                                   .pack()) for k in range(20)]
+    frames = [
+        framing.encode_frame(framing.STATE, k, framing.State(k, rng.normal(size=3), rng.normal(size=3), k, 0).pack())
+        for k in range(20)
+    ]
     stream = bytearray()
     for frame in frames:  # garbage between frames, sync bytes and fake headers included
-        stream += bytes(rng.integers(0, 256, rng.integers(0, 12)).astype(np.uint8)) + b"\xa5\x5a\x82\x05\x40"[
-            :rng.integers(0, 6)] + frame
+        stream += (
+            bytes(rng.integers(0, 256, rng.integers(0, 12)).astype(np.uint8))
+            + b"\xa5\x5a\x82\x05\x40"[: rng.integers(0, 6)]
+            + frame
+        )
     decoder, decoded = framing.FrameDecoder(), []
     cuts = sorted(rng.choice(len(stream), 60, replace=False))
     for a, b in zip([0, *cuts], [*cuts, len(stream)]):
@@ -159,8 +164,9 @@ def test_crc_errors_are_rejected_counted_and_tolerated_up_to_the_limit(emulator,
     assert info.value.cause == "errors"
     assert [e.kind for e in device.drain_events()].count("haptic_device_lost") == 1
     # the device still hears us: the plugin wrote zero at once (its replies are what is broken)
-    wait_until(lambda: not emulator.forces[-1].any() and not emulator.applied_force_D.any(),
-               "no zero force after the loss")
+    wait_until(
+        lambda: not emulator.forces[-1].any() and not emulator.applied_force_D.any(), "no zero force after the loss"
+    )
 
 
 def test_garbage_before_a_reply_is_skipped(emulator, device):
@@ -209,8 +215,20 @@ def test_no_force_on_the_wire_is_ever_above_the_limit_or_not_finite(emulator, de
     rng = np.random.default_rng(11)
     magnitudes = 10.0 ** rng.uniform(-3, 300, 400)
     forces = [rng.normal(size=3) * m for m in magnitudes]
-    forces += [np.array(v) for v in ([np.nan, 0, 0], [np.inf, 1, 1], [-np.inf, 0, 0], [1e308, -1e308, 1e308],
-                                     [np.nan] * 3, [5.0, 0, 0], [0, -5.0000001, 0], [3.4e38, 0, 0], [1e-45, 0, 0])]
+    forces += [
+        np.array(v)
+        for v in (
+            [np.nan, 0, 0],
+            [np.inf, 1, 1],
+            [-np.inf, 0, 0],
+            [1e308, -1e308, 1e308],
+            [np.nan] * 3,
+            [5.0, 0, 0],
+            [0, -5.0000001, 0],
+            [3.4e38, 0, 0],
+            [1e-45, 0, 0],
+        )
+    ]
     for force in forces:
         device.send(command(force))
     device.send(command([4.0, 4.0, 4.0], enabled=False))
@@ -408,10 +426,13 @@ def test_scheduled_faults_parse_and_inject(emulator, device):
 
 
 def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
-    code = ("import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
-            "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))")
-    proc = subprocess.Popen([sys.executable, "-c", code, "--path", "figure8", "--max-force", "2.5"],
-                            stdout=subprocess.PIPE, text=True)
+    code = (
+        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+        "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "--path", "figure8", "--max-force", "2.5"], stdout=subprocess.PIPE, text=True
+    )
     try:
         port = proc.stdout.readline().strip()
         assert port.startswith("/dev/pts/")
@@ -432,8 +453,10 @@ def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
 
 
 def test_a_sigterm_sent_as_soon_as_the_port_is_printed_ends_the_emulator_cleanly():
-    code = ("import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
-            "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))")
+    code = (
+        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+        "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
+    )
     for _ in range(5):  # the port is printed once the handler is in place: no window for the default handler
         proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
         try:
@@ -479,10 +502,18 @@ def test_a_session_whose_master_is_unplugged_records_a_zero_force_and_an_event(t
         pm = make_plugin_manager(load_entry_points=False)
         pm.register(Plugins(), name="tests")
         config, _ = load_config("demo")
-        config = apply_overrides(config, [
-            "session.realtime=false", "session.duration=3.0", "sensor.name=cable_puller",
-            "haptic.name=serial", f"haptic.port={em.port}", "haptic.device_max_force=6.0",
-            f"haptic.read_timeout={SLOW}"])  # the emulator shares this process's GIL: no loss for a slow reply
+        config = apply_overrides(
+            config,
+            [
+                "session.realtime=false",
+                "session.duration=3.0",
+                "sensor.name=cable_puller",
+                "haptic.name=serial",
+                f"haptic.port={em.port}",
+                "haptic.device_max_force=6.0",
+                f"haptic.read_timeout={SLOW}",
+            ],
+        )  # the emulator shares this process's GIL: no loss for a slow reply
         result = run_session(build_session(config, Registry(pm)), out=tmp_path / "unplugged.mcap")
         sent = list(em.forces)
     assert result.error == ""  # a lost master does not end the session
@@ -536,8 +567,10 @@ def test_pipelined_sends_write_every_force_and_take_replies_as_they_come(emulato
     for k, force in enumerate(sent):
         dev.send(command(force, t_ns=k))
     # zero forces until the replies have caught up: all but the newest command or two answered
-    wait_until(lambda: dev.send(command([0.0, 0.0, 0.0], t_ns=200)) or len(dev.pipeline.outstanding) <= 1,
-               "the replies never caught up")
+    wait_until(
+        lambda: dev.send(command([0.0, 0.0, 0.0], t_ns=200)) or len(dev.pipeline.outstanding) <= 1,
+        "the replies never caught up",
+    )
     np.testing.assert_array_equal(np.array(emulator.forces)[:200], np.array(sent, dtype=np.float32))
     state = dev.state()
     assert state is not None and abs(np.linalg.norm(state.p_DoHo_D[:2]) - 0.03) < 1e-6  # on the emulator's circle
@@ -550,8 +583,10 @@ def test_pipelined_crc_errors_are_counted_and_a_silent_device_is_lost_without_bl
     dev = SerialHaptic(emulator.port, wait_for_reply=False, read_timeout=SLOW)
     dev.open()
     emulator.corrupt_replies(2)
-    wait_until(lambda: dev.send(command([0.1, 0.0, 0.0])) or dev.health_counters()["crc_errors"] == 2,
-               "the broken replies were not counted")
+    wait_until(
+        lambda: dev.send(command([0.1, 0.0, 0.0])) or dev.health_counters()["crc_errors"] == 2,
+        "the broken replies were not counted",
+    )
     assert dev.lost is None
     dev.link.read_timeout = 0.1  # from here on the timeout is what is tested: make it short
     emulator.stop_answering()
@@ -567,5 +602,5 @@ def test_pipelined_crc_errors_are_counted_and_a_silent_device_is_lost_without_bl
 
 
 def test_pipelining_needs_our_protocol():
-    with pytest.raises(ConfigError, match="^haptic.wait_for_reply: false needs protocol = \"hapticlab\""):
+    with pytest.raises(ConfigError, match='^haptic.wait_for_reply: false needs protocol = "hapticlab"'):
         SerialHaptic("/dev/ttyACM0", "inverse3", wait_for_reply=False)

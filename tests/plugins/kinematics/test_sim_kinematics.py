@@ -7,14 +7,15 @@ import importlib
 import numpy as np
 import pluggy
 import pytest
+from scipy.spatial.transform import Rotation
+
+from hapticlab.core.frames import quat_wxyz_from_matrix as quat_wxyz_from_matrices
 from hapticlab.core.host import hookspecs
 from hapticlab.core.host.interfaces import KinematicsSource
 from hapticlab.core.host.registry import ConfigError, Registry
-from hapticlab.core.frames import quat_wxyz_from_matrix as quat_wxyz_from_matrices
 from hapticlab.plugins.kinematics.sim import SimKinematics
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.simworld import RandomTour, SimWorld
-from scipy.spatial.transform import Rotation
 
 T0 = 987_654_321
 
@@ -61,7 +62,10 @@ def test_poses_follow_the_world_at_the_kinematics_rate():
 def test_sensor_and_kinematics_share_one_world():
     """At a common time the sensor's gravity reading matches the kinematics' orientation."""
     world = SimWorld(seed=4, inertia=False)
-    sensor, kinematics = SimSensor(rate_hz=1000.0, world=world), SimKinematics(rate_hz=125.0, encoder_noise=0.0, world=world)
+    sensor, kinematics = (
+        SimSensor(rate_hz=1000.0, world=world),
+        SimKinematics(rate_hz=125.0, encoder_noise=0.0, world=world),
+    )
     sensor.open(T0)
     kinematics.open(T0)
     wrench = {s.t_ns: s for s in sensor.read(T0 + 2_000_000_000)}
@@ -73,8 +77,17 @@ def test_sensor_and_kinematics_share_one_world():
 
 
 def test_quaternions_match_scipy_including_half_turns():
-    special = Rotation.from_rotvec([[0, 0, 0], [np.pi, 0, 0], [0, np.pi, 0], [0, 0, np.pi],
-                                    [np.pi / np.sqrt(2), np.pi / np.sqrt(2), 0], [1e-9, 0, 0], [0, 0, 3.1415926]])
+    special = Rotation.from_rotvec(
+        [
+            [0, 0, 0],
+            [np.pi, 0, 0],
+            [0, np.pi, 0],
+            [0, 0, np.pi],
+            [np.pi / np.sqrt(2), np.pi / np.sqrt(2), 0],
+            [1e-9, 0, 0],
+            [0, 0, 3.1415926],
+        ]
+    )
     R = np.concatenate([special.as_matrix(), Rotation.random(20_000, random_state=3).as_matrix()])
     quat = quat_wxyz_from_matrices(R)
     expected = Rotation.from_matrix(R).as_quat(scalar_first=True)

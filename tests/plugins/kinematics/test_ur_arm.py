@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from hapticlab.plugins.kinematics.ur_arm import CB3_MODELS, HOME_Q, UR_DH, URArm, forward, inverse, inverse_nearest
 
 
@@ -64,8 +65,9 @@ def test_nearest_branch_is_continuous_along_a_path_and_unwraps_past_pi():
     """Follow a joint path that turns joint 6 through 3π: IK of each FK pose gives the path back."""
     arm = URArm("ur5e")
     t = np.linspace(0.0, 1.0, 400)
-    path = HOME_Q + np.column_stack([0.5 * np.sin(2 * np.pi * t), 0.3 * t, -0.4 * t, 0.6 * t, 0.2 * np.sin(np.pi * t),
-                                     3 * np.pi * t])
+    path = HOME_Q + np.column_stack(
+        [0.5 * np.sin(2 * np.pi * t), 0.3 * t, -0.4 * t, 0.6 * t, 0.2 * np.sin(np.pi * t), 3 * np.pi * t]
+    )
     q = path[0]
     for q_true in path:
         q = arm.inverse_nearest(*arm.forward(q_true), q_near=q)

@@ -10,8 +10,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hapticlab.plugins.kinematics.ur_emulator import UREmulator
-from hapticlab.plugins.kinematics.ur_follow import (MICRORAD, SEQUENCE_REGISTER, TargetWriter, decode_target,
-                                                    encode_target, script_path)
+from hapticlab.plugins.kinematics.ur_follow import (
+    MICRORAD,
+    SEQUENCE_REGISTER,
+    TargetWriter,
+    decode_target,
+    encode_target,
+    script_path,
+)
 from hapticlab.plugins.simworld import SimWorld
 
 
@@ -27,10 +33,16 @@ def test_a_target_survives_the_registers_to_a_micro_radian():
 
 def test_the_shipped_script_reads_the_registers_the_writer_writes():
     text = script_path().read_text()
-    for register in ("read_input_float_register(18)", "read_input_float_register(20)",
-                     "read_input_integer_register(18)", "read_input_integer_register(20)",
-                     f"read_input_integer_register({SEQUENCE_REGISTER})",
-                     f"write_output_integer_register({SEQUENCE_REGISTER}", "servoj(", "stopj("):
+    for register in (
+        "read_input_float_register(18)",
+        "read_input_float_register(20)",
+        "read_input_integer_register(18)",
+        "read_input_integer_register(20)",
+        f"read_input_integer_register({SEQUENCE_REGISTER})",
+        f"write_output_integer_register({SEQUENCE_REGISTER}",
+        "servoj(",
+        "stopj(",
+    ):
         assert register in text
 
 

@@ -19,6 +19,7 @@ from contextlib import contextmanager
 
 import numpy as np
 import pytest
+
 from hapticlab.core.aligner import Aligner
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix
 from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource
@@ -37,18 +38,25 @@ def demo_world() -> SimWorld:
     """The world ``hapticlab emulate ur --seed 7`` moves the arm with: the demo preset's, seed 7."""
     return SimWorld.from_config({**load_config("demo")[0]["world"], "seed": SEED})
 
-EMULATOR = ("import argparse, sys\n"
-            "from hapticlab.plugins.kinematics import ur_emulator\n"
-            "parser = argparse.ArgumentParser()\n"
-            "ur_emulator.add_arguments(parser)\n"
-            "sys.exit(ur_emulator.run(parser.parse_args(sys.argv[1:])))\n")
+
+EMULATOR = (
+    "import argparse, sys\n"
+    "from hapticlab.plugins.kinematics import ur_emulator\n"
+    "parser = argparse.ArgumentParser()\n"
+    "ur_emulator.add_arguments(parser)\n"
+    "sys.exit(ur_emulator.run(parser.parse_args(sys.argv[1:])))\n"
+)
 
 
 @contextmanager
 def emulator_process(address: str, *args: str):
     """``hapticlab emulate ur`` in a child process: yields it once it has printed its address."""
-    process = subprocess.Popen([sys.executable, "-c", EMULATOR, "--address", address, "--seed", str(SEED), *args],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [sys.executable, "-c", EMULATOR, "--address", address, "--seed", str(SEED), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         first = process.stdout.readline()
         assert f"on {address}:30004" in first, (first, process.stderr.read() if process.poll() is not None else "")
@@ -72,7 +80,9 @@ def wait_for(condition, timeout: float = 10.0, interval: float = 0.01):
 
 def same_rotation(quat_a: np.ndarray, quat_b: np.ndarray) -> float:
     """Largest element difference of the two rotation matrices."""
-    return float(np.abs(matrix_from_quat_wxyz(np.atleast_2d(quat_a)) - matrix_from_quat_wxyz(np.atleast_2d(quat_b))).max())
+    return float(
+        np.abs(matrix_from_quat_wxyz(np.atleast_2d(quat_a)) - matrix_from_quat_wxyz(np.atleast_2d(quat_b))).max()
+    )
 
 
 def world_quat(world: SimWorld, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -145,8 +155,9 @@ def collect(kinematics: URRTDEKinematics, count: int) -> list:
     return samples
 
 
-@pytest.mark.parametrize("address, model, rate_hz, cycle_s", [("127.0.0.72", "ur5e", 500.0, 0.002),
-                                                             ("127.0.0.73", "ur5", 125.0, 0.008)])
+@pytest.mark.parametrize(
+    "address, model, rate_hz, cycle_s", [("127.0.0.72", "ur5e", 500.0, 0.002), ("127.0.0.73", "ur5", 125.0, 0.008)]
+)
 def test_plugin_reads_the_simulated_poses_every_cycle_or_counts_the_missed(address, model, rate_hz, cycle_s):
     """Poses equal the world's at consecutive controller cycles (gaps = packages_missed), joints FK to the pose."""
     world, arm = demo_world(), URArm(model)
@@ -199,8 +210,9 @@ def test_emulator_stopped_no_fresh_poses_the_orientation_goes_stale_and_an_event
         emulator.wait(timeout=10)
     try:
         events = []
-        wait_for(lambda: events.extend(kinematics.drain_events()) or
-                 any(e.kind == "kinematics_timeout" for e in events))
+        wait_for(
+            lambda: events.extend(kinematics.drain_events()) or any(e.kind == "kinematics_timeout" for e in events)
+        )
         samples += kinematics.read(time.monotonic_ns())
         after_ns = time.monotonic_ns()
         assert kinematics.read(after_ns + 10**9) == []  # nothing new, whatever the time
@@ -257,15 +269,21 @@ def test_connection_refused_names_the_controller():
         kinematics.open(time.monotonic_ns())
 
 
-@pytest.mark.parametrize("options, message", [
-    ({}, "kinematics.address: missing; the UR controller's IP address or host name"),
-    ({"address": "robot..lab"}, "kinematics.address: 'robot..lab' is neither an IP address nor a host name"),
-    ({"address": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be > 0 and at most 500 Hz"),
-    ({"address": "10.0.0.2", "receive_timeout": 0}, "kinematics.receive_timeout: must be > 0 and at most 1 s"),
-    ({"address": "10.0.0.2", "frequency": 500}, "kinematics.frequency: unknown option; known options: address, follow, follow_rate_hz, model, rate_hz, receive_timeout"),
-    ({"address": 10}, "kinematics.address: expected a string, got 10"),
-    ({"address": "10.0.0.2", "model": "ur7e"}, "kinematics.model: unknown UR model 'ur7e'; known: ur3e, ur5e"),
-])
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({}, "kinematics.address: missing; the UR controller's IP address or host name"),
+        ({"address": "robot..lab"}, "kinematics.address: 'robot..lab' is neither an IP address nor a host name"),
+        ({"address": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be > 0 and at most 500 Hz"),
+        ({"address": "10.0.0.2", "receive_timeout": 0}, "kinematics.receive_timeout: must be > 0 and at most 1 s"),
+        (
+            {"address": "10.0.0.2", "frequency": 500},
+            "kinematics.frequency: unknown option; known options: address, follow, follow_rate_hz, model, rate_hz, receive_timeout",
+        ),
+        ({"address": 10}, "kinematics.address: expected a string, got 10"),
+        ({"address": "10.0.0.2", "model": "ur7e"}, "kinematics.model: unknown UR model 'ur7e'; known: ur3e, ur5e"),
+    ],
+)
 def test_bad_config_is_one_line_naming_the_key(options, message):
     with pytest.raises(ConfigError) as info:
         Registry().create("kinematics", "ur_rtde", options, where="kinematics")
@@ -318,7 +336,9 @@ def test_output_setup_types_not_found_and_trailing_comma(emulator):
         assert struct.unpack(">IIII", client.request("v"))[0] == 5  # e-Series
         reply = client.request("O", struct.pack(">d", 250.0) + b"timestamp,no_such_output,actual_q")
         assert reply[0] == 0 and reply[1:] == b"DOUBLE,NOT_FOUND,VECTOR6D"  # setup failed, the culprit named
-        reply = client.request("O", struct.pack(">d", 250.0) + b"timestamp,actual_TCP_pose,")  # ur-rtde's trailing comma
+        reply = client.request(
+            "O", struct.pack(">d", 250.0) + b"timestamp,actual_TCP_pose,"
+        )  # ur-rtde's trailing comma
         assert reply[0] == 1 and reply[1:] == b"DOUBLE,VECTOR6D"
         assert client.request("O", struct.pack(">d", 501.0) + b"timestamp")[0] == 0  # faster than the controller
         assert client.request("S") == b"\x01"
@@ -345,8 +365,11 @@ def test_input_registers_from_a_raw_client_are_kept_and_read_back(emulator):
         assert other.request("I", b"input_double_register_5") == b"\x00IN_USE"  # another client writes it
         client.send("U", bytes([1]) + struct.pack(">diI", -2.5, 42, 0b1011))
         inputs = wait_for(lambda: emulator.inputs() or None)
-        assert inputs == {"input_double_register_5": -2.5, "input_int_register_30": 42,
-                          "input_bit_registers0_to_31": 0b1011}
+        assert inputs == {
+            "input_double_register_5": -2.5,
+            "input_int_register_30": 42,
+            "input_bit_registers0_to_31": 0b1011,
+        }
         reply = client.request("O", struct.pack(">d", 125.0) + b"input_double_register_5,input_int_register_30")
         assert reply == b"\x01DOUBLE,INT32"
         client.request("S")
@@ -357,18 +380,21 @@ def test_input_registers_from_a_raw_client_are_kept_and_read_back(emulator):
         other.close()
 
 
-IO_CLIENT = ("import sys, rtde_io\n"
-             "io = rtde_io.RTDEIOInterface(sys.argv[1])\n"
-             "ok = io.setInputDoubleRegister(18, 1.25) and io.setInputIntRegister(20, -7)\n"
-             "io.disconnect()\n"
-             "sys.exit(0 if ok else 1)\n")
+IO_CLIENT = (
+    "import sys, rtde_io\n"
+    "io = rtde_io.RTDEIOInterface(sys.argv[1])\n"
+    "ok = io.setInputDoubleRegister(18, 1.25) and io.setInputIntRegister(20, -7)\n"
+    "io.disconnect()\n"
+    "sys.exit(0 if ok else 1)\n"
+)
 
 
 def test_input_registers_written_by_ur_rtde_io_interface_reach_the_emulator():
     """ur-rtde's RTDEIOInterface needs only RTDE (no URScript port): its register setters land in the emulator."""
     with UREmulator(SimWorld.from_config({"seed": SEED}), address="127.0.0.77") as emu:
-        result = subprocess.run([sys.executable, "-c", IO_CLIENT, "127.0.0.77"], capture_output=True, text=True,
-                                timeout=30)
+        result = subprocess.run(
+            [sys.executable, "-c", IO_CLIENT, "127.0.0.77"], capture_output=True, text=True, timeout=30
+        )
         assert result.returncode == 0, result.stderr
         inputs = wait_for(lambda: (lambda i: i if "input_int_register_20" in i else None)(emu.inputs()))
     assert inputs["input_double_register_18"] == 1.25
@@ -378,7 +404,9 @@ def test_input_registers_written_by_ur_rtde_io_interface_reach_the_emulator():
 def test_emulator_refuses_a_model_that_cannot_reach_the_world():
     world = SimWorld.from_config({"seed": SEED, "robot": {"position": [0.7, 0.0, 0.35]}})
     UREmulator(world, model="ur5e")  # 0.85 m of reach
-    with pytest.raises(ValueError, match=r"model: a ur3e cannot reach the world's flange position \[0\.7, 0\.0, 0\.35\]"):
+    with pytest.raises(
+        ValueError, match=r"model: a ur3e cannot reach the world's flange position \[0\.7, 0\.0, 0\.35\]"
+    ):
         UREmulator(world, model="ur3e")  # 0.5 m
 
 
@@ -399,8 +427,12 @@ def test_a_given_start_time_is_the_controllers_timestamp_zero():
 
 
 def test_emulate_ur_runs_for_its_duration_and_exits_cleanly():
-    result = subprocess.run([sys.executable, "-c", EMULATOR, "--address", "127.0.0.78", "--model", "ur10e",
-                             "--duration", "0.2"], capture_output=True, text=True, timeout=30)
+    result = subprocess.run(
+        [sys.executable, "-c", EMULATOR, "--address", "127.0.0.78", "--model", "ur10e", "--duration", "0.2"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     assert lines[0] == "UR ur10e RTDE emulator on 127.0.0.78:30004 (controller 5.15.0.0, 500 Hz)"
@@ -431,8 +463,12 @@ def test_encoders_jitter_so_a_still_arm_never_reports_a_frozen_pose():
     for state in (a, b):
         R_BE, p = arm.forward(np.array(state["actual_q"]))
         np.testing.assert_allclose(p, state["actual_TCP_pose"][:3], atol=1e-12)
-        assert np.abs(R_BE - matrix_from_quat_wxyz(quat_from_rotvec(np.array(state["actual_TCP_pose"][3:]))[None])[0]
-                      ).max() < 1e-12
+        assert (
+            np.abs(
+                R_BE - matrix_from_quat_wxyz(quat_from_rotvec(np.array(state["actual_TCP_pose"][3:]))[None])[0]
+            ).max()
+            < 1e-12
+        )
     np.testing.assert_allclose(a["actual_TCP_pose"][:3], world.pose(0.2)[1][0], atol=1e-6)
     assert exact.state(100)["actual_TCP_pose"] == exact.state(101)["actual_TCP_pose"]
     with pytest.raises(ValueError, match="encoder_noise: must be within"):
@@ -447,7 +483,8 @@ STALLING_EMULATOR = (
     "emu = UREmulator(SimWorld.from_config({'seed': int(sys.argv[2])}), address=sys.argv[1],\n"
     "                 stalls=[(0.5, 0.2), (0.9, 0.2)]).start(t0_ns=t0)\n"
     "print(t0, flush=True)\n"
-    "time.sleep(20)\n")
+    "time.sleep(20)\n"
+)
 
 
 def test_every_missed_package_is_reported_by_the_time_the_plugin_closes(monkeypatch):
@@ -457,8 +494,12 @@ def test_every_missed_package_is_reported_by_the_time_the_plugin_closes(monkeypa
     are reported when the plugin closes, so the events add up to every package missed.
     (The emulator in its own process: ur-rtde's client holds the GIL while it connects.)"""
     monkeypatch.setattr("hapticlab.plugins.kinematics.ur_rtde.MISSED_EVENT_INTERVAL_NS", 60_000_000_000)
-    process = subprocess.Popen([sys.executable, "-c", STALLING_EMULATOR, "127.0.0.78", str(SEED)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        [sys.executable, "-c", STALLING_EMULATOR, "127.0.0.78", str(SEED)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         t0 = int(process.stdout.readline())
         kinematics = URRTDEKinematics(address="127.0.0.78", rate_hz=500.0, receive_timeout=1.0)

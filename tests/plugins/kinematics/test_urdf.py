@@ -12,9 +12,10 @@ from importlib import resources
 import numpy as np
 import pluggy
 import pytest
+
 from hapticlab.core import hookimpl
-from hapticlab.core.host import hookspecs
 from hapticlab.core.frames import matrix_from_quat_wxyz, matrix_from_rotvec, quat_wxyz_from_matrix
+from hapticlab.core.host import hookspecs
 from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import Event, PoseSample
@@ -44,12 +45,12 @@ class JointTrajectory:
         return self.amplitude * self.omega * np.cos(self.omega * t + self.phase)
 
     def qdd(self, t: float) -> np.ndarray:
-        return -self.amplitude * self.omega ** 2 * np.sin(self.omega * t + self.phase)
+        return -self.amplitude * self.omega**2 * np.sin(self.omega * t + self.phase)
 
     @property
     def peak_jerk(self) -> float:
         """The largest |d³q/dt³| of any joint, rad/s³."""
-        return float((self.amplitude * self.omega ** 3).max())
+        return float((self.amplitude * self.omega**3).max())
 
 
 class TrajectoryJointSource:
@@ -76,8 +77,11 @@ class TrajectoryJointSource:
             t = (t_ns - self.opened_at) / 1e9
             q = self.trajectory.q(t)
             R_BE, p_BoEo_B = forward(DH, q)
-            out.append(PoseSample(t_ns, quat_wxyz_from_matrix(R_BE), p_BoEo_B, q,
-                                  self.trajectory.qd(t) if self.velocities else None))
+            out.append(
+                PoseSample(
+                    t_ns, quat_wxyz_from_matrix(R_BE), p_BoEo_B, q, self.trajectory.qd(t) if self.velocities else None
+                )
+            )
             self._next += 1
         return out
 
@@ -100,8 +104,14 @@ def test_pinocchio_fk_of_the_shipped_urdf_equals_urs_dh_fk():
     """tool0 in base over 2000 random q within the joints' ±2π: the same pose as ur_arm.forward to 1e-9."""
     model = UrdfModel("ur5e", frame="tool0", base="base")
     assert model.n_joints == 6
-    assert model.joint_names == ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
-                                 "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+    assert model.joint_names == [
+        "shoulder_pan_joint",
+        "shoulder_lift_joint",
+        "elbow_joint",
+        "wrist_1_joint",
+        "wrist_2_joint",
+        "wrist_3_joint",
+    ]
     rng = np.random.default_rng(13)
     worst = 0.0
     for q in rng.uniform(-2 * np.pi, 2 * np.pi, (2000, 6)):
@@ -129,18 +139,21 @@ def test_the_urdf_masses_sit_at_urs_published_centres_of_mass():
         inertia = model.model.inertias[i + 1]
         assert inertia.mass == dynamics.mass[i]
         com_W = model.data.oMi[i + 1].act(inertia.lever)
-        np.testing.assert_allclose(model.R_BW @ (com_W - model.p_WoBo_W), T[:3, :3] @ dynamics.com[i] + T[:3, 3],
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            model.R_BW @ (com_W - model.p_WoBo_W), T[:3, :3] @ dynamics.com[i] + T[:3, 3], atol=1e-12
+        )
 
 
 def _finite_difference_motion(model: UrdfModel, trajectory: JointTrajectory, t: float, h: float):
     """(w_BE_E, alpha_BE_E, a_BEo_B) of the FK along the trajectory by central differences of step h (s)."""
+
     def w_E(tt):  # ω_E = vee(R_BEᵀ Ṙ_BE)
         R_minus, R, R_plus = (model.pose(trajectory.q(tt + k * h))[0] for k in (-1, 0, 1))
         W = R.T @ (R_plus - R_minus) / (2 * h)
         return np.array([W[2, 1] - W[1, 2], W[0, 2] - W[2, 0], W[1, 0] - W[0, 1]]) / 2
+
     p = [model.pose(trajectory.q(t + k * h))[1] for k in (-1, 0, 1)]
-    return w_E(t), (w_E(t + h) - w_E(t - h)) / (2 * h), (p[2] - 2 * p[1] + p[0]) / h ** 2
+    return w_E(t), (w_E(t + h) - w_E(t - h)) / (2 * h), (p[2] - 2 * p[1] + p[0]) / h**2
 
 
 def test_velocity_and_accelerations_match_finite_differences_of_the_fk():
@@ -180,7 +193,7 @@ def test_joint_rates_fit_the_acceleration_causally():
     # 0.48 j W, and q̇ from the quadratic by 0.077 j W² (each bound here 10 % above: the jerk is not constant)
     jerk, window = trajectory.peak_jerk, 0.01
     assert max(errors["qdd"]) < 0.45 * jerk * window, (max(errors["qdd"]), jerk)  # measured 0.037 rad/s², j = 9.2
-    assert max(errors["qd_fit"]) < 0.085 * jerk * window ** 2, (max(errors["qd_fit"]), jerk)
+    assert max(errors["qd_fit"]) < 0.085 * jerk * window**2, (max(errors["qd_fit"]), jerk)
     assert max(errors["qdd_fit"]) < 0.53 * jerk * window, (max(errors["qdd_fit"]), jerk)
     # a reading that is not finite is kept out of later windows
     rates = JointRates(0.01)
@@ -214,8 +227,10 @@ def test_the_plugin_over_a_joint_source_reports_the_fk_and_its_motion(velocities
         q = trajectory.q(t)
         np.testing.assert_array_equal(pose.joints, q)
         R_BE, p_BoEo_B = forward(DH, q)
-        worst[:2] = np.maximum(worst[:2], [np.abs(matrix_from_quat_wxyz(pose.quat_BE) - R_BE).max(),
-                                           np.abs(pose.p_BoEo_B - p_BoEo_B).max()])
+        worst[:2] = np.maximum(
+            worst[:2],
+            [np.abs(matrix_from_quat_wxyz(pose.quat_BE) - R_BE).max(), np.abs(pose.p_BoEo_B - p_BoEo_B).max()],
+        )
         qd, qdd = rates.update(pose.t_ns, q, trajectory.qd(t) if velocities else None)
         if qdd is None:  # the first reading (two without velocities): no acceleration yet
             assert k < (1 if velocities else 2) and pose.alpha_BE_E is None and pose.a_BEo_B is None
@@ -234,7 +249,7 @@ def test_the_plugin_over_a_joint_source_reports_the_fk_and_its_motion(velocities
     if velocities:
         assert worst[2] < 1e-12, worst  # ω = J(q) q̇ from the measured q̇: exact
     else:
-        assert worst[2] < 6 * 0.08 * trajectory.peak_jerk * kinematics.acceleration_window_s ** 2, worst
+        assert worst[2] < 6 * 0.08 * trajectory.peak_jerk * kinematics.acceleration_window_s**2, worst
     assert worst[3] < bound and worst[4] < bound, (worst, bound)
     kinematics.close()
     assert inner.closed
@@ -244,8 +259,10 @@ def test_the_ur_emulators_tcp_pose_is_the_fk_of_its_joints():
     """The RTDE emulator's actual_TCP_pose (Base, rotation vector) equals the URDF FK of its actual_q to 1e-6."""
     emulator_module = importlib.import_module("hapticlab.plugins.kinematics.ur_emulator")
     from hapticlab.plugins.simworld import RandomTour, SimWorld
-    emulator = emulator_module.UREmulator(SimWorld(motion=RandomTour(seed=4), seed=4), address="127.0.0.1",
-                                          model="ur5e")
+
+    emulator = emulator_module.UREmulator(
+        SimWorld(motion=RandomTour(seed=4), seed=4), address="127.0.0.1", model="ur5e"
+    )
     model = UrdfModel("ur5e")
     worst = 0.0
     for cycle in range(0, 5000, 5):  # 10 s of the 500 Hz controller, every 5th cycle
@@ -278,10 +295,16 @@ class Tap:
 def ur_emulator_process(address: str):
     """The RTDE emulator (``ur_emulator.run``) in a child process (ur-rtde's constructor holds the GIL, so the
     emulator cannot share this process), yielded once it listens on ``address``:30004."""
-    script = ("import argparse, sys; from hapticlab.plugins.kinematics import ur_emulator as e; "
-              "p = argparse.ArgumentParser(); e.add_arguments(p); sys.exit(e.run(p.parse_args(sys.argv[1:])))")
-    process = subprocess.Popen([sys.executable, "-c", script, "--address", address, "--seed", "11"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    script = (
+        "import argparse, sys; from hapticlab.plugins.kinematics import ur_emulator as e; "
+        "p = argparse.ArgumentParser(); e.add_arguments(p); sys.exit(e.run(p.parse_args(sys.argv[1:])))"
+    )
+    process = subprocess.Popen(
+        [sys.executable, "-c", script, "--address", address, "--seed", "11"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = process.stdout.readline()
         assert f"{address}:30004" in line, (line, process.stderr.read() if process.poll() is not None else "")
@@ -312,8 +335,11 @@ def test_over_rtde_the_fk_of_the_controllers_joints_is_its_tcp_pose():
     for pose, reported in zip(poses, tap.seen):
         assert pose.t_ns == reported.t_ns
         np.testing.assert_array_equal(pose.joints, reported.joints)
-        worst = max(worst, np.abs(matrix_from_quat_wxyz(pose.quat_BE) - matrix_from_quat_wxyz(reported.quat_BE)).max(),
-                    np.abs(pose.p_BoEo_B - reported.p_BoEo_B).max())
+        worst = max(
+            worst,
+            np.abs(matrix_from_quat_wxyz(pose.quat_BE) - matrix_from_quat_wxyz(reported.quat_BE)).max(),
+            np.abs(pose.p_BoEo_B - reported.p_BoEo_B).max(),
+        )
     assert worst < 1e-6, worst
     assert all(p.w_BE_E is not None for p in poses) and all(p.alpha_BE_E is not None for p in poses[1:])
 
@@ -340,9 +366,17 @@ def registry(monkeypatch) -> Registry:
 
 
 def test_built_from_config_with_the_inner_source_named_in_joints(registry):
-    kinematics = registry.create("kinematics", "urdf", {
-        "urdf": "ur5e", "frame": "tool0", "base": "base",
-        "joints": {"name": "trajectory_joints", "rate_hz": 125, "seed": 2}}, where="kinematics")
+    kinematics = registry.create(
+        "kinematics",
+        "urdf",
+        {
+            "urdf": "ur5e",
+            "frame": "tool0",
+            "base": "base",
+            "joints": {"name": "trajectory_joints", "rate_hz": 125, "seed": 2},
+        },
+        where="kinematics",
+    )
     assert isinstance(kinematics, UrdfKinematics) and kinematics.rate_hz == 125.0
     kinematics.open(T0)
     pose = kinematics.read(T0)[0]
@@ -354,8 +388,12 @@ def test_built_from_config_with_the_inner_source_named_in_joints(registry):
 def test_a_urdf_file_path_works_like_a_shipped_name(registry, tmp_path):
     path = tmp_path / "arm.urdf"
     path.write_text(urdf_from_dh("ur5e"))
-    kinematics = registry.create("kinematics", "urdf", {"urdf": str(path), "frame": "wrist_3_link",
-                                                        "joints": {"name": "trajectory_joints"}}, where="kinematics")
+    kinematics = registry.create(
+        "kinematics",
+        "urdf",
+        {"urdf": str(path), "frame": "wrist_3_link", "joints": {"name": "trajectory_joints"}},
+        where="kinematics",
+    )
     kinematics.open(T0)
     q = JointTrajectory(1).q(0.0)
     T = np.eye(4)
@@ -366,21 +404,34 @@ def test_a_urdf_file_path_works_like_a_shipped_name(registry, tmp_path):
     np.testing.assert_allclose(R_BE, T[:3, :3] @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), atol=1e-12)
 
 
-@pytest.mark.parametrize("options, message", [
-    ({}, r"^kinematics\.joints\.name: missing"),
-    ({"joints": {"rate_hz": 125}}, r"^kinematics\.joints\.name: missing"),
-    ({"joints": {"name": "nope"}}, r"^kinematics\.joints\.name: unknown kinematics 'nope'"),
-    ({"joints": {"name": "trajectory_joints", "rate": 1}}, r"^kinematics\.joints\.rate: unknown option"),
-    ({"urdf": "ur99", "joints": {"name": "trajectory_joints"}}, r"^kinematics\.urdf: 'ur99' is neither a shipped "
-                                                                r"model \(ur5e\) nor a URDF file"),
-    ({"frame": "flange", "joints": {"name": "trajectory_joints"}}, r"^kinematics\.frame: shipped ur5e has no frame "
-                                                                   r"'flange'; frames: base, "),
-    ({"base": "wrist_1_link", "joints": {"name": "trajectory_joints"}},
-     r"^kinematics\.base: frame 'wrist_1_link' moves with joint 'wrist_1_joint'"),
-    ({"acceleration_window_s": 0, "joints": {"name": "trajectory_joints"}},
-     r"^kinematics\.acceleration_window_s: must be within \(0, 1\] s"),
-    ({"joints": "ur_rtde"}, r"^kinematics\.joints: expected"),
-])
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({}, r"^kinematics\.joints\.name: missing"),
+        ({"joints": {"rate_hz": 125}}, r"^kinematics\.joints\.name: missing"),
+        ({"joints": {"name": "nope"}}, r"^kinematics\.joints\.name: unknown kinematics 'nope'"),
+        ({"joints": {"name": "trajectory_joints", "rate": 1}}, r"^kinematics\.joints\.rate: unknown option"),
+        (
+            {"urdf": "ur99", "joints": {"name": "trajectory_joints"}},
+            r"^kinematics\.urdf: 'ur99' is neither a shipped "
+            r"model \(ur5e\) nor a URDF file",
+        ),
+        (
+            {"frame": "flange", "joints": {"name": "trajectory_joints"}},
+            r"^kinematics\.frame: shipped ur5e has no frame "
+            r"'flange'; frames: base, ",
+        ),
+        (
+            {"base": "wrist_1_link", "joints": {"name": "trajectory_joints"}},
+            r"^kinematics\.base: frame 'wrist_1_link' moves with joint 'wrist_1_joint'",
+        ),
+        (
+            {"acceleration_window_s": 0, "joints": {"name": "trajectory_joints"}},
+            r"^kinematics\.acceleration_window_s: must be within \(0, 1\] s",
+        ),
+        ({"joints": "ur_rtde"}, r"^kinematics\.joints: expected"),
+    ],
+)
 def test_config_errors_name_the_key(registry, options, message):
     with pytest.raises(ConfigError, match=message) as caught:
         registry.create("kinematics", "urdf", options, where="kinematics")
@@ -391,33 +442,51 @@ def test_a_file_that_is_not_a_urdf_is_named(registry, tmp_path):
     path = tmp_path / "broken.urdf"
     path.write_text("<robot name='x'><link name='a'/>")
     with pytest.raises(ConfigError, match=rf"^kinematics\.urdf: {path} is not a URDF Pinocchio can read") as caught:
-        registry.create("kinematics", "urdf", {"urdf": str(path), "joints": {"name": "trajectory_joints"}},
-                        where="kinematics")
+        registry.create(
+            "kinematics", "urdf", {"urdf": str(path), "joints": {"name": "trajectory_joints"}}, where="kinematics"
+        )
     assert "\n" not in str(caught.value)
 
 
 def test_a_urdf_with_a_continuous_joint_is_refused(registry, tmp_path):
     """Pinocchio gives a continuous joint two angles (cos, sin): not what a controller's joint stream reports."""
     path = tmp_path / "wheel.urdf"
-    path.write_text("<robot name='wheel'><link name='a'/><link name='b'/><joint name='j' type='continuous'>"
-                    "<parent link='a'/><child link='b'/><axis xyz='0 0 1'/></joint></robot>")
-    with pytest.raises(ConfigError, match=r"^kinematics\.urdf: .*wheel\.urdf has joints with more angles than "
-                                          r"velocities .*only revolute and prismatic joints are supported$"):
-        registry.create("kinematics", "urdf", {"urdf": str(path), "frame": "b", "base": "a",
-                                               "joints": {"name": "trajectory_joints"}}, where="kinematics")
+    path.write_text(
+        "<robot name='wheel'><link name='a'/><link name='b'/><joint name='j' type='continuous'>"
+        "<parent link='a'/><child link='b'/><axis xyz='0 0 1'/></joint></robot>"
+    )
+    with pytest.raises(
+        ConfigError,
+        match=r"^kinematics\.urdf: .*wheel\.urdf has joints with more angles than "
+        r"velocities .*only revolute and prismatic joints are supported$",
+    ):
+        registry.create(
+            "kinematics",
+            "urdf",
+            {"urdf": str(path), "frame": "b", "base": "a", "joints": {"name": "trajectory_joints"}},
+            where="kinematics",
+        )
 
 
 def test_the_ur_rtde_source_is_named_in_the_joints_table():
     """The built-in registry: ``joints = { name = "ur_rtde", ... }`` builds the RTDE client (not connected yet)."""
     from hapticlab.plugins.kinematics.ur_rtde import URRTDEKinematics
 
-    kinematics = Registry().create("kinematics", "urdf", {
-        "urdf": "ur5e", "joints": {"name": "ur_rtde", "address": "127.0.0.82", "rate_hz": 125}}, where="kinematics")
+    kinematics = Registry().create(
+        "kinematics",
+        "urdf",
+        {"urdf": "ur5e", "joints": {"name": "ur_rtde", "address": "127.0.0.82", "rate_hz": 125}},
+        where="kinematics",
+    )
     assert isinstance(kinematics.inner, URRTDEKinematics) and kinematics.inner.address == "127.0.0.82"
     assert kinematics.rate_hz == 125.0
     with pytest.raises(ConfigError, match=r"^kinematics\.joints\.rate_hz: must be > 0 and at most 500 Hz"):
-        Registry().create("kinematics", "urdf", {"joints": {"name": "ur_rtde", "address": "127.0.0.82",
-                                                            "rate_hz": 1000}}, where="kinematics")
+        Registry().create(
+            "kinematics",
+            "urdf",
+            {"joints": {"name": "ur_rtde", "address": "127.0.0.82", "rate_hz": 1000}},
+            where="kinematics",
+        )
 
 
 def test_a_source_without_joint_angles_is_refused_at_its_first_pose():
@@ -432,8 +501,11 @@ def test_a_source_without_joint_angles_is_refused_at_its_first_pose():
     for source, got in ((PosesOnly, "no joint angles"), (FiveJoints, "5 joint angles")):
         kinematics = UrdfKinematics(source(JointTrajectory(1)), UrdfModel("ur5e"))
         kinematics.open(T0)
-        with pytest.raises(ConfigError, match=rf"^kinematics\.joints: the inner source gives {got}; shipped ur5e "
-                                              r"needs 6 \(shoulder_pan_joint, "):
+        with pytest.raises(
+            ConfigError,
+            match=rf"^kinematics\.joints: the inner source gives {got}; shipped ur5e "
+            r"needs 6 \(shoulder_pan_joint, ",
+        ):
             kinematics.read(T0)
 
 
@@ -441,5 +513,4 @@ def test_without_pinocchio_one_line_says_how_to_install_it(registry, monkeypatch
     monkeypatch.setitem(sys.modules, "pinocchio", None)  # `import pinocchio` raises ImportError
     with pytest.raises(ConfigError) as caught:
         registry.create("kinematics", "urdf", {"joints": {"name": "trajectory_joints"}}, where="kinematics")
-    assert str(caught.value) == ("kinematics.name: the urdf kinematics needs Pinocchio; "
-                                 "pip install 'hapticlab[urdf]'")
+    assert str(caught.value) == ("kinematics.name: the urdf kinematics needs Pinocchio; pip install 'hapticlab[urdf]'")

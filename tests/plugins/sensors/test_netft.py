@@ -91,8 +91,9 @@ def test_pynetft_reads_the_emulators_calibration_samples_and_bias():
                 if len(after) == 200:
                     break
     assert calibration.product_name == "Net F/T emulator (hapticlab)"
-    assert calibration.calibration == pynetft.Calibration(COUNTS, 1000.0, pynetft.ForceUnit.NEWTON,
-                                                          pynetft.TorqueUnit.NEWTON_MILLIMETER)
+    assert calibration.calibration == pynetft.Calibration(
+        COUNTS, 1000.0, pynetft.ForceUnit.NEWTON, pynetft.TorqueUnit.NEWTON_MILLIMETER
+    )
     raw = np.array([s.raw_wrench for s in samples])
     ft = np.array([s.ft_sequence for s in samples])
     # 7000 Hz: every internal sample is sent; a loaded machine may drop one on loopback before pynetft reads it
@@ -104,8 +105,9 @@ def test_pynetft_reads_the_emulators_calibration_samples_and_bias():
     # the bias request: the reading at that moment is subtracted from every later record
     np.testing.assert_array_equal(emu.bias_counts, world_counts(emu, world, np.array([bias_ft]))[0])
     ft_after = np.array([s.ft_sequence for s in after])
-    np.testing.assert_array_equal(np.array([s.raw_wrench for s in after]),
-                                  world_counts(emu, world, ft_after) - emu.bias_counts)
+    np.testing.assert_array_equal(
+        np.array([s.raw_wrench for s in after]), world_counts(emu, world, ft_after) - emu.bias_counts
+    )
 
 
 def test_the_emulator_answers_a_counted_start_request_from_its_own_socket():
@@ -181,11 +183,22 @@ def test_wire_faults_show_in_the_health_counters_and_events(receiver):
     The emulator runs in this process: a receive timeout of 1 s (no injected fault silences the stream for more
     than a few ms) keeps a pause of the machine under the suite's load (the default 0.1 s tripped once in a
     full CI run) from counting as one; the check that no fault causes a timeout or a reconnect stays."""
-    faults = [RdtFault("drop", 0.3, 0.1, every=3), RdtFault("duplicate", 0.45, 0.1, every=4),
-              RdtFault("reorder", 0.6, 0.1, every=5), RdtFault("stall", 0.75, 0.1, every=6)]  # apart
+    faults = [
+        RdtFault("drop", 0.3, 0.1, every=3),
+        RdtFault("duplicate", 0.45, 0.1, every=4),
+        RdtFault("reorder", 0.6, 0.1, every=5),
+        RdtFault("stall", 0.75, 0.1, every=6),
+    ]  # apart
     with NetFTEmulator(demo_world(), "127.0.0.133", 0, 0, rdt_rate_hz=1000.0, faults=faults) as emu:
-        sensor = NetFTSensor("127.0.0.133", emu.rdt_port, emu.http_port, rate_hz=1000.0, health_interval=0.05,
-                             receiver=receiver, receive_timeout=1.0)
+        sensor = NetFTSensor(
+            "127.0.0.133",
+            emu.rdt_port,
+            emu.http_port,
+            rate_hz=1000.0,
+            health_interval=0.05,
+            receiver=receiver,
+            receive_timeout=1.0,
+        )
         sensor.open(time.monotonic_ns())
         samples = read_samples(sensor, 10)
         until(lambda: emu.world_time(emu.last_ft_sequence) > 0.9)  # every fault window has passed
@@ -257,7 +270,7 @@ def test_a_saturated_record_does_not_interrupt_our_receivers_stream():
     saturated = np.flatnonzero(status & STATUS_SATURATED)
     assert len(saturated) == emu.counts.status >= 10  # 10 ms at 1 kHz, every one delivered
     assert (np.diff(seq) == 7).all()  # no gap anywhere: before, through and after the saturation
-    assert (status[saturated[-1] + 1:] == STATUS_OK).all() and len(status) > saturated[-1] + 40
+    assert (status[saturated[-1] + 1 :] == STATUS_OK).all() and len(status) > saturated[-1] + 40
     health = sensor.health_counters()
     assert health["reconnect"] == health["timeout"] == health["lost"] == 0
     assert health["device_error"] == len(saturated) and emu.counts.starts == 1
@@ -288,8 +301,16 @@ def hand_sensor(address: str):
     answer = threading.Thread(target=answer_the_start)
     answer.start()
     try:
-        sensor = NetFTSensor(address, sensor_socket.getsockname()[1], 9, connect_timeout=2.0,  # no HTTP: override
-                             counts_per_force=1000.0, counts_per_torque=1000.0, force_unit="N", torque_unit="N-m")
+        sensor = NetFTSensor(
+            address,
+            sensor_socket.getsockname()[1],
+            9,
+            connect_timeout=2.0,  # no HTTP: override
+            counts_per_force=1000.0,
+            counts_per_torque=1000.0,
+            force_unit="N",
+            torque_unit="N-m",
+        )
         sensor.open(time.monotonic_ns())
         answer.join()
         yield sensor, lambda datagram: sensor_socket.sendto(datagram, tuple(client))
@@ -322,6 +343,7 @@ def test_a_burst_of_records_between_two_reads_is_parsed_at_once():
 
 def test_our_receiver_sorts_out_reorders_duplicates_late_records_and_a_restarted_sensor():
     """Each read by hand: what reaches the stream, and the counters (rdt.COUNTER_DOC)."""
+
     def read(*datagrams):
         for datagram in datagrams:
             send(datagram)
@@ -352,6 +374,7 @@ def test_our_receiver_sorts_out_reorders_duplicates_late_records_and_a_restarted
 def test_a_read_holding_only_records_already_passed_delivers_nothing():
     """A read whose every record was passed already (a lone duplicate, a lone late record): counted, nothing
     delivered, the stream goes on (it raised an IndexError once: the faults test over the lab found it)."""
+
     def read(*datagrams):
         for datagram in datagrams:
             send(datagram)
@@ -370,6 +393,7 @@ def test_a_read_holding_only_records_already_passed_delivers_nothing():
 def test_our_receiver_follows_a_stream_renumbered_by_a_start_request_still_in_flight():
     """After a timeout the start request goes again; records of the old numbering may come back first, then the
     request lands and the sensor numbers from 1 again: a new stream (same counter: no restart), not duplicates."""
+
     def read(datagram):
         send(datagram)
         return [s.seq for s in sensor.read(time.monotonic_ns() + 10**9)]
@@ -394,8 +418,10 @@ def test_datagrams_from_another_address_are_ignored(receiver):
         forger.bind(("127.0.0.136", 0))
         try:
             for i in range(200):  # plausible records, the next sequence numbers, absurd counts
-                forger.sendto(RECORD.pack(emu.rdt_sequence + 1 + i, emu.last_ft_sequence + 1 + i, 0, *[123_456_789] * 6),
-                              emu.client)
+                forger.sendto(
+                    RECORD.pack(emu.rdt_sequence + 1 + i, emu.last_ft_sequence + 1 + i, 0, *[123_456_789] * 6),
+                    emu.client,
+                )
         finally:
             forger.close()
         samples = read_samples(sensor, 500)
@@ -409,16 +435,24 @@ def test_datagrams_from_another_address_are_ignored(receiver):
 def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, receiver):
     """A whole session on the emulator; 2000 records into the stream the cable is pulled for 0.3 s."""
     if receiver == "pynetft":  # its reconnect after a timeout makes these bounds timing-dependent under load
-        pytest.skip("pynetft reconnects after a timeout (new discovery, new stream): the session-level timing "
-                    "bounds here fail under CI load; its timeout and counters are covered at the plugin level")
+        pytest.skip(
+            "pynetft reconnects after a timeout (new discovery, new stream): the session-level timing "
+            "bounds here fail under CI load; its timeout and counters are covered at the plugin level"
+        )
     from hapticlab.sessions.live.build import build_session
     from hapticlab.sessions.live.loop import run_session
 
     config = load_config("demo")[0]
     with NetFTEmulator(SimWorld.from_config(config["world"]), "127.0.0.137", 0, 0) as emu:
-        config["sensor"] = {"name": "netft", "address": "127.0.0.137", "rdt_port": emu.rdt_port,
-                            "http_port": emu.http_port, "receive_timeout": 0.05, "range_force": 65.0,
-                            "receiver": receiver}
+        config["sensor"] = {
+            "name": "netft",
+            "address": "127.0.0.137",
+            "rdt_port": emu.rdt_port,
+            "http_port": emu.http_port,
+            "receive_timeout": 0.05,
+            "range_force": 65.0,
+            "receiver": receiver,
+        }
         config["session"] = dict(config["session"], duration=4.0, stale_timeout=0.02)  # 4 s: room for a slow machine
         session = build_session(config)
         assert session.device_events and session.device_events[0][0] == "sensor"
@@ -444,8 +478,7 @@ def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, rec
     commands = read_recording(tmp_path / "netft.mcap").topics["/haptic/command"]
     during = [m for t, m in commands if muted_ns + 0.025e9 <= t <= unmuted_ns]
     assert len(during) > 100
-    assert all(not m["enabled"] and m["reason"] == "no sensor data" and m["force_D"] == [0.0, 0.0, 0.0]
-               for m in during)
+    assert all(not m["enabled"] and m["reason"] == "no sensor data" and m["force_D"] == [0.0, 0.0, 0.0] for m in during)
     assert events["sensor_resumed"].t_ns > unmuted_ns
     assert result.samples > 2000
 
@@ -453,21 +486,29 @@ def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, rec
 # ----------------------------------------------------------------------------- config, status, clock, CLI
 
 
-@pytest.mark.parametrize("options, key", [
-    ({"rdt_port": 70000}, "rdt_port"),
-    ({"address": " "}, "address"),
-    ({"receive_timeout": 0.0}, "receive_timeout"),
-    ({"rate_hz": 8000.0}, "rate_hz"),
-    ({"counts_per_force": 1e6}, "counts_per_torque"),
-    ({"counts_per_force": 1e6, "counts_per_torque": -1.0, "force_unit": "N", "torque_unit": "N-m"},
-     "counts_per_torque"),
-    ({"counts_per_force": 1e6, "counts_per_torque": 1e6, "force_unit": "stone", "torque_unit": "N-m"}, "force_unit"),
-    ({"recovery": "pray"}, "recovery"),
-    ({"range_force": [1.0, 2.0]}, "range_force"),
-    ({"rdt_port": "49152"}, "rdt_port"),
-    ({"bogus": 1}, "bogus"),
-    ({"receiver": "libnetft"}, "receiver"),
-])
+@pytest.mark.parametrize(
+    "options, key",
+    [
+        ({"rdt_port": 70000}, "rdt_port"),
+        ({"address": " "}, "address"),
+        ({"receive_timeout": 0.0}, "receive_timeout"),
+        ({"rate_hz": 8000.0}, "rate_hz"),
+        ({"counts_per_force": 1e6}, "counts_per_torque"),
+        (
+            {"counts_per_force": 1e6, "counts_per_torque": -1.0, "force_unit": "N", "torque_unit": "N-m"},
+            "counts_per_torque",
+        ),
+        (
+            {"counts_per_force": 1e6, "counts_per_torque": 1e6, "force_unit": "stone", "torque_unit": "N-m"},
+            "force_unit",
+        ),
+        ({"recovery": "pray"}, "recovery"),
+        ({"range_force": [1.0, 2.0]}, "range_force"),
+        ({"rdt_port": "49152"}, "rdt_port"),
+        ({"bogus": 1}, "bogus"),
+        ({"receiver": "libnetft"}, "receiver"),
+    ],
+)
 def test_a_bad_config_is_one_line_naming_the_key(options, key, receiver):
     with pytest.raises(ConfigError) as err:
         Registry().create("sensor", "netft", {**options, "receiver": options.get("receiver", receiver)}, where="sensor")
@@ -483,10 +524,19 @@ def test_no_sensor_is_a_clear_error_at_open(receiver):
 
 def test_the_calibration_override_replaces_the_sensors(receiver):
     world = demo_world()
-    with NetFTEmulator(world, "127.0.0.139", 0, 0, counts_per_force=1000.0, counts_per_torque=1000.0,
-                       force_unit="N", torque_unit="Nm") as emu:
-        sensor = NetFTSensor("127.0.0.139", emu.rdt_port, emu.http_port, counts_per_force=2000.0,
-                             counts_per_torque=1.0, force_unit="N", torque_unit="N-mm", receiver=receiver)
+    with NetFTEmulator(
+        world, "127.0.0.139", 0, 0, counts_per_force=1000.0, counts_per_torque=1000.0, force_unit="N", torque_unit="Nm"
+    ) as emu:
+        sensor = NetFTSensor(
+            "127.0.0.139",
+            emu.rdt_port,
+            emu.http_port,
+            counts_per_force=2000.0,
+            counts_per_torque=1.0,
+            force_unit="N",
+            torque_unit="N-mm",
+            receiver=receiver,
+        )
         sensor.open(time.monotonic_ns())
         samples = read_samples(sensor, 200)
         sensor.close()
@@ -523,13 +573,14 @@ def test_the_device_clock_follows_the_fastest_packets_and_a_drifting_crystal():
     assert error_ns[7000:].max() < 60_000  # within 30 µs of the latency floor after the first second
     assert np.percentile(latency_ns, 50) > 150_000  # stamping by receipt would be off by this much
     batch_clock = DeviceClock(7000.0, slew_ppm=200.0)  # the same stamps a batch at a time
-    batched = np.concatenate([batch_clock.stamp_many(k[i:i + 7], received[i:i + 7]) for i in range(0, len(k), 7)])
+    batched = np.concatenate([batch_clock.stamp_many(k[i : i + 7], received[i : i + 7]) for i in range(0, len(k), 7)])
     assert np.abs(batched - t).max() <= 1
 
 
 def test_a_wire_fault_parses_from_the_command_line():
-    assert RdtFault.parse("status,start=1,duration=0.5,status=0x80020000") == \
-        RdtFault("status", 1.0, 0.5, status=0x8002_0000)
+    assert RdtFault.parse("status,start=1,duration=0.5,status=0x80020000") == RdtFault(
+        "status", 1.0, 0.5, status=0x8002_0000
+    )
     assert RdtFault.parse("drop,every=3") == RdtFault("drop", every=3)
     with pytest.raises(ValueError, match="unknown fault"):
         RdtFault.parse("explode")
@@ -538,8 +589,20 @@ def test_a_wire_fault_parses_from_the_command_line():
 def test_the_emulator_command_prints_its_address_and_ports_first(capsys):
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    args = parser.parse_args(["--address", "127.0.0.140", "--rdt-port", "0", "--http-port", "0",
-                              "--duration", "0.2", "--fault", "drop,every=2"])
+    args = parser.parse_args(
+        [
+            "--address",
+            "127.0.0.140",
+            "--rdt-port",
+            "0",
+            "--http-port",
+            "0",
+            "--duration",
+            "0.2",
+            "--fault",
+            "drop,every=2",
+        ]
+    )
     assert run(args) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert first.startswith("netft emulator on 127.0.0.140: RDT udp/") and "http/" in first

@@ -8,13 +8,14 @@ import math
 import numpy as np
 import pluggy
 import pytest
+
 from hapticlab.core.host import hookspecs
 from hapticlab.core.host.interfaces import SensorSource
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import STATUS_SATURATED, WrenchSample
 from hapticlab.plugins.sensors.sim import SimSensor
-from hapticlab.plugins.simworld.prefetch import PREFETCH_MAX_SAMPLES, PREFETCH_S
 from hapticlab.plugins.simworld import Hold, Indentation, RandomTour, SensorParams, SimWorld, ToolParams
+from hapticlab.plugins.simworld.prefetch import PREFETCH_MAX_SAMPLES, PREFETCH_S
 
 T0 = 1_234_567_890_123  # an arbitrary session clock at open, ns
 
@@ -29,9 +30,13 @@ def registry_with_sim_plugins() -> Registry:
 
 
 def as_arrays(samples: list[WrenchSample]):
-    return (np.array([s.t_ns for s in samples]), np.array([s.force_S for s in samples]),
-            np.array([s.torque_S for s in samples]), np.array([s.seq for s in samples]),
-            np.array([s.status for s in samples]))
+    return (
+        np.array([s.t_ns for s in samples]),
+        np.array([s.force_S for s in samples]),
+        np.array([s.torque_S for s in samples]),
+        np.array([s.seq for s in samples]),
+        np.array([s.status for s in samples]),
+    )
 
 
 def test_registered_as_sim_and_built_through_the_registry():
@@ -122,10 +127,13 @@ def full_world() -> SimWorld:
     """Every term on and nothing axis-aligned: mount, offset, full inertia, drift, a contact."""
     return SimWorld(
         tool=ToolParams(inertia_S=((2e-3, 1e-4, 3e-4), (1e-4, 2.5e-3, -2e-4), (3e-4, -2e-4, 1e-4))),
-        sensor=SensorParams(mount_rotation_SE=(0.05, -0.08, 0.3), p_EoSo_E=(0.01, -0.02, 0.05),
-                            drift_torque_rw_S=0.001),
+        sensor=SensorParams(
+            mount_rotation_SE=(0.05, -0.08, 0.3), p_EoSo_E=(0.01, -0.02, 0.05), drift_torque_rw_S=0.001
+        ),
         motion=RandomTour(seed=6, segment_s=0.5, max_translation=0.03),
-        contacts=[Indentation(start=0.3, duration=0.4, peak_force=3.0, ramp=0.1)], seed=6)
+        contacts=[Indentation(start=0.3, duration=0.4, peak_force=3.0, ramp=0.1)],
+        seed=6,
+    )
 
 
 @pytest.mark.parametrize("rate_hz", [1000.0, 7000.0])
@@ -182,8 +190,15 @@ def test_a_block_read_holds_what_the_records_hold(faulty):
     from hapticlab.core.types import WrenchBlock
     from hapticlab.plugins.simworld.faults import Fault
 
-    faults = (Fault("sensor_dropout", 0.3, 0.1), Fault("sensor_spike", 0.5, force=(5.0, 0.0, 0.0)),
-              Fault("sensor_nan", 0.7, 0.05)) if faulty else ()
+    faults = (
+        (
+            Fault("sensor_dropout", 0.3, 0.1),
+            Fault("sensor_spike", 0.5, force=(5.0, 0.0, 0.0)),
+            Fault("sensor_nan", 0.7, 0.05),
+        )
+        if faulty
+        else ()
+    )
     by_block, by_record = (SimSensor(rate_hz=7000.0, world=SimWorld(faults=faults)) for _ in range(2))
     by_block.open(T0)
     by_record.open(T0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.plugins.kinematics.sim import SimKinematics
 from hapticlab.plugins.simworld import RandomTour, RobotParams, SensorParams, SimWorld
@@ -25,8 +26,7 @@ def test_gain_multiplies_the_true_wrench_before_the_bias():
     true_torque = a["torque_S"] - a["bias_torque_S"]
     assert np.abs(a["inertial_force_S"]).max() > 0.05  # the product covers the inertial terms too
     np.testing.assert_allclose(b["force_S"], true_force @ (np.eye(3) + GAIN_F).T + a["bias_force_S"], atol=1e-12)
-    np.testing.assert_allclose(b["torque_S"], true_torque @ (np.eye(3) + GAIN_T).T + a["bias_torque_S"],
-                               atol=1e-12)
+    np.testing.assert_allclose(b["torque_S"], true_torque @ (np.eye(3) + GAIN_T).T + a["bias_torque_S"], atol=1e-12)
     # the truth channels are the physics, not the reading
     np.testing.assert_array_equal(a["gravity_force_S"], b["gravity_force_S"])
     np.testing.assert_array_equal(gained.truth()["gain_force_S"], GAIN_F)
@@ -35,8 +35,12 @@ def test_gain_multiplies_the_true_wrench_before_the_bias():
 def test_zero_gain_and_lag_leave_every_reading_bit_identical():
     t = np.linspace(0.0, 3.0, 301)
     default = SimWorld(motion=lively(), seed=2)
-    explicit = SimWorld(sensor=SensorParams(gain_force_S=np.zeros((3, 3)), gain_torque_S=np.zeros((3, 3))),
-                        robot=RobotParams(kinematics_lag_s=0.0), motion=lively(), seed=2)
+    explicit = SimWorld(
+        sensor=SensorParams(gain_force_S=np.zeros((3, 3)), gain_torque_S=np.zeros((3, 3))),
+        robot=RobotParams(kinematics_lag_s=0.0),
+        motion=lively(),
+        seed=2,
+    )
     for key, value in default.wrench(t).items():
         np.testing.assert_array_equal(value, explicit.wrench(t)[key], err_msg=key)
     np.testing.assert_array_equal(default.pose(t)[0], explicit.pose(t)[0])
@@ -63,8 +67,9 @@ def test_kinematics_lag_shifts_the_reported_pose_not_the_wrench(lag):
 
 
 def test_config_keys():
-    world = SimWorld.from_config({"sensor": {"gain_force": GAIN_F.tolist(), "gain_torque": GAIN_T.tolist()},
-                                  "robot": {"kinematics_lag": -0.004}})
+    world = SimWorld.from_config(
+        {"sensor": {"gain_force": GAIN_F.tolist(), "gain_torque": GAIN_T.tolist()}, "robot": {"kinematics_lag": -0.004}}
+    )
     np.testing.assert_array_equal(world.sensor.gain_force_S, GAIN_F)
     np.testing.assert_array_equal(world.sensor.gain_torque_S, GAIN_T)
     assert world.robot.kinematics_lag_s == -0.004
@@ -75,8 +80,10 @@ def test_config_keys():
     [
         ({"sensor": {"gain_force": [[0, 0, 0], [0, 0, 0]]}}, "world.sensor.gain_force: expected a 3x3 matrix"),
         ({"sensor": {"gain_torque": [[0, 0, 0], [0, "x", 0], [0, 0, 0]]}}, "world.sensor.gain_torque[1]: expected 3"),
-        ({"sensor": {"gain_force": [[0.6, 0, 0], [0, 0, 0], [0, 0, 0]]}},
-         "world.sensor.gain_force: every entry must be within ±0.5"),
+        (
+            {"sensor": {"gain_force": [[0.6, 0, 0], [0, 0, 0], [0, 0, 0]]}},
+            "world.sensor.gain_force: every entry must be within ±0.5",
+        ),
         ({"robot": {"kinematics_lag": "5ms"}}, "world.robot.kinematics_lag: expected a number"),
         ({"robot": {"kinematics_lag": 2.0}}, "world.robot.kinematics_lag: must be within ±1 s"),
     ],

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from hapticlab.plugins.simworld.motion import (
     HORIZONTAL_R_BE,
     AxialRotation,
@@ -14,7 +16,6 @@ from hapticlab.plugins.simworld.motion import (
     make_motion,
     quintic,
 )
-from scipy.spatial.transform import Rotation
 
 
 def vee(M: np.ndarray) -> np.ndarray:

@@ -11,6 +11,8 @@ import tomllib
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import STATUS_SATURATED
 from hapticlab.plugins.simworld import (
@@ -25,7 +27,6 @@ from hapticlab.plugins.simworld import (
     ToolParams,
 )
 from hapticlab.plugins.simworld.physics import SampleClock, gaussian_noise
-from scipy.spatial.transform import Rotation
 
 G = 9.80665
 
@@ -48,8 +49,13 @@ def vee(M: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("mount", [(0.0, 0.0, 0.0), (0.05, -0.08, 0.3)])
 def test_static_reading_is_weight_in_S_plus_bias(mount):
     tilt = (0.03, -0.02, 0.01)
-    world = SimWorld(sensor=SensorParams(mount_rotation_SE=mount), robot=RobotParams(base_tilt_BG=tilt),
-                     motion=RandomTour(seed=3, dwell_s=0.5), seed=3, inertia=False)
+    world = SimWorld(
+        sensor=SensorParams(mount_rotation_SE=mount),
+        robot=RobotParams(base_tilt_BG=tilt),
+        motion=RandomTour(seed=3, dwell_s=0.5),
+        seed=3,
+        inertia=False,
+    )
     t = np.linspace(0.0, 20.0, 333)
     reading = world.wrench(t, noise=False)
     R_BE, _ = world.pose(t)
@@ -118,11 +124,14 @@ def world_cog() -> np.ndarray:
 
 def test_noise_std_per_axis_matches_config():
     noise_force, noise_torque = np.array([0.05, 0.1, 0.2]), np.array([0.002, 0.004, 0.008])
-    world = SimWorld(sensor=SensorParams(noise_force_S=noise_force, noise_torque_S=noise_torque),
-                     motion=Hold(), seed=4)
+    world = SimWorld(sensor=SensorParams(noise_force_S=noise_force, noise_torque_S=noise_torque), motion=Hold(), seed=4)
     t = np.arange(40_000) * 1e-3
-    residual = np.hstack([world.wrench(t)["force_S"] - world.wrench(t, noise=False)["force_S"],
-                          world.wrench(t)["torque_S"] - world.wrench(t, noise=False)["torque_S"]])
+    residual = np.hstack(
+        [
+            world.wrench(t)["force_S"] - world.wrench(t, noise=False)["force_S"],
+            world.wrench(t)["torque_S"] - world.wrench(t, noise=False)["torque_S"],
+        ]
+    )
     std = np.concatenate([noise_force, noise_torque])
     z = residual / std
     np.testing.assert_allclose(z.std(axis=0), 1.0, rtol=0.03)
@@ -142,12 +151,18 @@ def test_noise_defaults_are_ati_gamma_class():
 
 
 def test_chunked_requests_equal_one_shot_bit_for_bit():
-    world = SimWorld(sensor=SensorParams(drift_force_rw_S=0.01, drift_torque_rw_S=0.001), seed=9,
-                     motion=RandomTour(seed=9, max_translation=0.02))
+    world = SimWorld(
+        sensor=SensorParams(drift_force_rw_S=0.01, drift_torque_rw_S=0.001),
+        seed=9,
+        motion=RandomTour(seed=9, max_translation=0.02),
+    )
     t = np.arange(5000) * 1e-3
     whole = world.wrench(t)
-    fresh = SimWorld(sensor=SensorParams(drift_force_rw_S=0.01, drift_torque_rw_S=0.001), seed=9,
-                     motion=RandomTour(seed=9, max_translation=0.02))
+    fresh = SimWorld(
+        sensor=SensorParams(drift_force_rw_S=0.01, drift_torque_rw_S=0.001),
+        seed=9,
+        motion=RandomTour(seed=9, max_translation=0.02),
+    )
     chunks = list(itertools.pairwise([0, 1, 2, 17, 400, 401, 2999, 5000]))
     # ask for the chunks in reverse order: nothing may depend on what was asked before
     parts = {k: fresh.wrench(t[a:b]) for k, (a, b) in reversed(list(enumerate(chunks)))}
@@ -235,9 +250,12 @@ def _away_from_waypoints(t: np.ndarray, segment_s: float = 0.8, margin: float = 
 
 def _motion_world(inertia_S=None) -> SimWorld:
     tool = ToolParams(inertia_S=inertia_S) if inertia_S is not None else ToolParams()
-    return SimWorld(tool=tool,
-                    sensor=SensorParams(mount_rotation_SE=(0.1, 0.2, -0.3), p_EoSo_E=(0.01, -0.02, 0.03)),
-                    motion=RandomTour(seed=21, segment_s=0.8, max_translation=0.05), seed=21)
+    return SimWorld(
+        tool=tool,
+        sensor=SensorParams(mount_rotation_SE=(0.1, 0.2, -0.3), p_EoSo_E=(0.01, -0.02, 0.03)),
+        motion=RandomTour(seed=21, segment_s=0.8, max_translation=0.05),
+        seed=21,
+    )
 
 
 def test_inertial_force_matches_finite_difference_of_centre_of_mass():
@@ -331,8 +349,9 @@ def test_hanging_104g_mass_weighs_1_02_newton_along_gravity():
     np.testing.assert_allclose(reading["contact_force_S"], 0.104 * G * weight_direction, atol=1e-12)
     # the instrument is horizontal, so the load is lateral: no component along the tool axis (z of S)
     assert np.abs(reading["contact_force_S"][:, 2]).max() < 0.104 * G * 0.03
-    np.testing.assert_allclose(reading["contact_torque_S"], np.cross([0, 0, 0.25], reading["contact_force_S"]),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        reading["contact_torque_S"], np.cross([0, 0, 0.25], reading["contact_force_S"]), atol=1e-12
+    )
     detached = SimWorld(motion=Hold(), contacts=[HangingMass(mass=0.104, start=1.0, duration=1.0)])
     flags = detached.wrench(np.array([0.5, 1.5, 2.5]), noise=False)["contact"]
     assert flags.tolist() == [False, True, False]
@@ -439,11 +458,15 @@ def test_empty_config_gives_the_defaults():
         ({"motion": {"script": "axial_rotation", "turns": 1, "duration": 3}}, "world.motion: give either"),
         ({"motion": {"segment_s": 0}}, "world.motion.segment_s: must be > 0"),
         ({"contacts": [{"kind": "poke"}]}, "world.contacts[0].kind: unknown contact kind 'poke'"),
-        ({"contacts": [{"kind": "hanging_mass"}, {"kind": "hanging_mass", "mas": 1}]},
-         "world.contacts[1].mas: unknown option"),
+        (
+            {"contacts": [{"kind": "hanging_mass"}, {"kind": "hanging_mass", "mas": 1}]},
+            "world.contacts[1].mas: unknown option",
+        ),
         ({"contacts": [{"kind": "indentation"}]}, "world.contacts[0].start: missing"),
-        ({"contacts": [{"kind": "indentation", "start": 0, "duration": 0.1, "ramp": 0.2}]},
-         "world.contacts[0]: need 0 <= 2·ramp <= duration"),
+        (
+            {"contacts": [{"kind": "indentation", "start": 0, "duration": 0.1, "ramp": 0.2}]},
+            "world.contacts[0]: need 0 <= 2·ramp <= duration",
+        ),
         ({"tool": {"inertia": [[1, 0, 0], [0, 1, 0], [0, 0]]}}, "world.tool.inertia[2]: expected 3 numbers"),
     ],
 )
@@ -473,19 +496,31 @@ def full_world(motion=None) -> SimWorld:
     """Every term switched on and nothing aligned with an axis: mount rotation, sensor
     offset, full inertia tensor, off-axis contact point, linear and random-walk drift."""
     return SimWorld(
-        tool=ToolParams(cog_S=(0.003, -0.002, 0.05),
-                        inertia_S=((2e-3, 1e-4, 3e-4), (1e-4, 2.5e-3, -2e-4), (3e-4, -2e-4, 1e-4))),
-        sensor=SensorParams(mount_rotation_SE=(0.05, -0.08, 0.3), p_EoSo_E=(0.01, -0.02, 0.05),
-                            drift_force_S=(0.01, 0.0, -0.02), drift_force_rw_S=0.01, drift_torque_rw_S=0.001),
+        tool=ToolParams(
+            cog_S=(0.003, -0.002, 0.05), inertia_S=((2e-3, 1e-4, 3e-4), (1e-4, 2.5e-3, -2e-4), (3e-4, -2e-4, 1e-4))
+        ),
+        sensor=SensorParams(
+            mount_rotation_SE=(0.05, -0.08, 0.3),
+            p_EoSo_E=(0.01, -0.02, 0.05),
+            drift_force_S=(0.01, 0.0, -0.02),
+            drift_force_rw_S=0.01,
+            drift_torque_rw_S=0.001,
+        ),
         robot=RobotParams(base_tilt_BG=(0.03, -0.02, 0.01)),
         motion=motion if motion is not None else RandomTour(seed=8, segment_s=0.4, max_translation=0.03),
-        contacts=[HangingMass(start=0.1, duration=0.2, point_S=(0.01, 0.002, 0.1)),
-                  Indentation(start=0.25, duration=0.15, peak_force=80.0, ramp=0.05)],
-        seed=8)
+        contacts=[
+            HangingMass(start=0.1, duration=0.2, point_S=(0.01, 0.002, 0.1)),
+            Indentation(start=0.25, duration=0.15, peak_force=80.0, ramp=0.05),
+        ],
+        seed=8,
+    )
 
 
-@pytest.mark.parametrize("motion", [None, AxialRotation(speed_deg_s=200.0, turns=1, ramp_s=0.1, start_s=0.05),
-                                    Hold(tilt_deg=20.0, roll_deg=30.0)], ids=["random_tour", "axial_rotation", "hold"])
+@pytest.mark.parametrize(
+    "motion",
+    [None, AxialRotation(speed_deg_s=200.0, turns=1, ramp_s=0.1, start_s=0.05), Hold(tilt_deg=20.0, roll_deg=30.0)],
+    ids=["random_tour", "axial_rotation", "hold"],
+)
 def test_reads_of_one_to_seven_samples_equal_one_big_call_bit_for_bit(motion):
     """The live loop asks for 1 (1 kHz sensor) to 7 (7 kHz) samples at a time: every
     value must be exactly what one vectorised call over the whole stream gives."""
@@ -536,12 +571,17 @@ def test_wrench_terms_match_the_textbook_cross_products():
     np.testing.assert_allclose(reading["gravity_torque_S"], np.cross(c, gravity_S), rtol=0, atol=1e-15)
     hanging = (t >= 0.1) & (t < 0.3) & ~((t >= 0.25) & (t <= 0.4))  # only the hanging mass acts
     assert hanging.sum() > 100
-    np.testing.assert_allclose(reading["contact_torque_S"][hanging],
-                               np.cross([0.01, 0.002, 0.1], reading["contact_force_S"][hanging]), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        reading["contact_torque_S"][hanging],
+        np.cross([0.01, 0.002, 0.1], reading["contact_force_S"][hanging]),
+        rtol=0,
+        atol=1e-15,
+    )
 
 
 def reference_gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.ndarray:
     """The noise stream as first written: one pair of channels at a time."""
+
     def splitmix64(x):
         x = x + np.uint64(0x9E3779B97F4A7C15)
         x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -552,10 +592,12 @@ def reference_gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.nd
     base = splitmix64(np.asarray(t_ns, dtype=np.int64).view(np.uint64) ^ np.uint64(key))
     out = np.empty((len(base), channels))
     for pair in range(channels // 2):
-        u1 = ((splitmix64(base + np.uint64(((2 * pair + 1) * step) % 2**64)) >> np.uint64(11)).astype(float)
-              + 0.5) * 2.0**-53
-        u2 = ((splitmix64(base + np.uint64(((2 * pair + 2) * step) % 2**64)) >> np.uint64(11)).astype(float)
-              + 0.5) * 2.0**-53
+        u1 = (
+            (splitmix64(base + np.uint64(((2 * pair + 1) * step) % 2**64)) >> np.uint64(11)).astype(float) + 0.5
+        ) * 2.0**-53
+        u2 = (
+            (splitmix64(base + np.uint64(((2 * pair + 2) * step) % 2**64)) >> np.uint64(11)).astype(float) + 0.5
+        ) * 2.0**-53
         out[:, 2 * pair] = np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
         out[:, 2 * pair + 1] = np.sqrt(-2.0 * np.log(u1)) * np.sin(2.0 * np.pi * u2)
     return out
@@ -565,19 +607,34 @@ def test_noise_stream_is_unchanged():
     """Seeded data must not change between versions: the same numbers as the first
     implementation (bit for bit), and as recorded from it (to libm's last bit)."""
     rng = np.random.default_rng(0)
-    t_ns = np.concatenate([[0, 1, -1, 2**63 - 1, -2**63], rng.integers(-2**62, 2**62, 5000)]).astype(np.int64)
+    t_ns = np.concatenate([[0, 1, -1, 2**63 - 1, -(2**63)], rng.integers(-(2**62), 2**62, 5000)]).astype(np.int64)
     for key in (0, 8431846347943309920, 2**64 - 1):
         for channels in (2, 6):
             assert np.array_equal(gaussian_noise(key, t_ns, channels), reference_gaussian_noise(key, t_ns, channels))
     assert SimWorld(seed=1)._noise_key == 8431846347943309920
-    recorded = np.array([
-        [-0.7883944535349952, 0.6760612365399674, -0.15322416585264603,
-         0.5034027412075973, 0.9471304477575836, -0.8110150686916442],
-        [0.20091427659102956, 0.3609706879230142, -0.8741569433539794,
-         -0.9764457130725596, -0.41830705953725683, -0.10732086071673083],
-    ])
-    np.testing.assert_allclose(gaussian_noise(8431846347943309920, np.array([0, 2**62]), 6), recorded,
-                               rtol=1e-12, atol=0)
+    recorded = np.array(
+        [
+            [
+                -0.7883944535349952,
+                0.6760612365399674,
+                -0.15322416585264603,
+                0.5034027412075973,
+                0.9471304477575836,
+                -0.8110150686916442,
+            ],
+            [
+                0.20091427659102956,
+                0.3609706879230142,
+                -0.8741569433539794,
+                -0.9764457130725596,
+                -0.41830705953725683,
+                -0.10732086071673083,
+            ],
+        ]
+    )
+    np.testing.assert_allclose(
+        gaussian_noise(8431846347943309920, np.array([0, 2**62]), 6), recorded, rtol=1e-12, atol=0
+    )
 
 
 @pytest.mark.parametrize("rate_hz", [7000.0, 1000.0, 500.0, 125.0, 333.3, 6999.7])

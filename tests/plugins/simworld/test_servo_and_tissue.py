@@ -101,7 +101,6 @@ def test_asked_one_sample_at_a_time_or_all_at_once_the_motion_is_the_same():
     assert np.allclose(singles, other.evaluate(t).p_BoEo_B, rtol=0, atol=1e-15)
 
 
-
 def test_the_compiled_state_is_the_numpy_reference_s():
     """``evaluate`` (plugins.simworld.servo_kernel) against ``evaluate_reference`` (numpy) on a move that turns and
     translates at once, at 7 kHz times inside and on the 1 ms steps' edges, and before the first step."""
@@ -114,7 +113,6 @@ def test_the_compiled_state_is_the_numpy_reference_s():
     assert np.abs(reference.w_BE_E).max() > 0.5 and np.abs(reference.v_BEo_B).max() > 0.02  # it moves
     for field in ("R_BE", "p_BoEo_B", "v_BEo_B", "a_BEo_B", "w_BE_E", "alpha_BE_E"):
         assert np.allclose(getattr(compiled, field), getattr(reference, field), rtol=0, atol=1e-14), field
-
 
 
 def test_a_live_robot_reports_the_quaternions_the_numpy_path_gives():
@@ -130,8 +128,15 @@ def test_a_live_robot_reports_the_quaternions_the_numpy_path_gives():
     reported_quat(R, delta, False, plain)
     reported_quat(R, delta, True, turned)
     expected = quat_wxyz_from_matrix(R)
-    assert len({int(np.argmax(np.c_[np.trace(R, axis1=1, axis2=2), np.diagonal(R, axis1=1, axis2=2)][k]))
-                for k in range(400)}) == 4  # every branch
+    assert (
+        len(
+            {
+                int(np.argmax(np.c_[np.trace(R, axis1=1, axis2=2), np.diagonal(R, axis1=1, axis2=2)][k]))
+                for k in range(400)
+            }
+        )
+        == 4
+    )  # every branch
     assert np.allclose(plain, expected, rtol=0, atol=1e-15)
     expected = expected + 0.5 * quat_multiply(expected, np.column_stack([np.zeros(400), delta]))
     assert np.allclose(turned, expected / np.linalg.norm(expected, axis=1)[:, None], rtol=0, atol=1e-15)
@@ -168,8 +173,13 @@ def test_tissue_pushes_back_in_proportion_to_depth_and_never_pulls():
 
 def tissue_world(**motion) -> SimWorld:
     """The tool pointing down with its tip 5 mm above tissue (tip 0.25 m below the flange at z 0.35 m)."""
-    return SimWorld.from_config({"seed": 3, "motion": {"script": "servo", **motion},
-                                 "contacts": [{"kind": "tissue", "surface_B": [0.45, 0.0, 0.095]}]})
+    return SimWorld.from_config(
+        {
+            "seed": 3,
+            "motion": {"script": "servo", **motion},
+            "contacts": [{"kind": "tissue", "surface_B": [0.45, 0.0, 0.095]}],
+        }
+    )
 
 
 def test_the_sensor_feels_the_tissue_the_robot_is_sent_into():
@@ -201,8 +211,9 @@ def test_the_simulated_devices_read_the_world_as_the_robot_moves_not_ahead_of_it
     later = sensor.read(2_000_000_000)
     poses = kinematics.read(2_000_000_000)
     assert np.isclose(poses[-1].p_BoEo_B[2], p_0[2] - 0.015, atol=1e-6)
-    fresh = SimWorld.from_config({"seed": 3, "motion": {"script": "servo"},
-                                  "contacts": [{"kind": "tissue", "surface_B": [0.45, 0.0, 0.095]}]})
+    fresh = SimWorld.from_config(
+        {"seed": 3, "motion": {"script": "servo"}, "contacts": [{"kind": "tissue", "surface_B": [0.45, 0.0, 0.095]}]}
+    )
     fresh.servo_cp(0.1, R_0, p_0 - [0.0, 0.0, 0.015])
     expected = fresh.wrench(np.array([s.t_ns for s in later]) / 1e9)
     assert np.array_equal(np.array([s.force_S for s in later]), expected["force_S"])
@@ -210,8 +221,12 @@ def test_the_simulated_devices_read_the_world_as_the_robot_moves_not_ahead_of_it
 
 
 def test_world_tables_for_teleoperation_are_checked():
-    spec = parse_world_table({"motion": {"script": "servo", "bandwidth_hz": 5.0, "tilt_deg": 10.0},
-                              "contacts": [{"kind": "tissue", "stiffness": 500.0}]})
+    spec = parse_world_table(
+        {
+            "motion": {"script": "servo", "bandwidth_hz": 5.0, "tilt_deg": 10.0},
+            "contacts": [{"kind": "tissue", "stiffness": 500.0}],
+        }
+    )
     assert isinstance(spec.motion, ServoedMotion) and spec.contacts[0].stiffness == 500.0
     with pytest.raises(ConfigError, match=r"world.motion.gain: unknown option"):
         parse_world_table({"motion": {"script": "servo", "gain": 1.0}})

@@ -110,7 +110,7 @@ class Aligner:
             operation (a networked arm, ``HasLatency``), s: added to the longest
             extrapolation.
         keep: how many recent poses to keep for interpolation.
-        kernel: "numba" (``core.aligner_kernel``, compiled: a few µs per block) or
+        kernel: "numba" (``core.aligner_kernel``, compiled, the default) or
             "numpy" (``orientation_at`` and ``position_at``: the reference).
     """
 

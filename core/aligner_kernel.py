@@ -15,7 +15,7 @@ and the tests keep using). For each sample time t (ns) and the buffered poses
 R_EB = R(q)ᵀ. Not bit-for-bit the numpy path (libm's sin/arccos and the order of
 the norm's sum): tests/core/test_kernels.py holds them to 1e-12.
 
-Compile cost: about 1 s the first time, then loaded from ``cache=True`` files; ``warm_up()`` does it.
+Compiled the first time, then loaded from ``cache=True`` files; ``warm_up()`` does it.
 """
 
 from __future__ import annotations

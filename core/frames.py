@@ -30,8 +30,8 @@ def skew(v: np.ndarray) -> np.ndarray:
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a × b over the last axis, with broadcasting ((3,), (N, 3) or mixed).
 
-    Component formulas: np.cross costs ~10 µs of axis handling per call, which
-    matters in the per-sample loop.
+    Component formulas: np.cross's axis handling costs more than the arithmetic
+    per call, which matters in the per-sample loop.
     """
     a = np.asarray(a)
     b = np.asarray(b)
@@ -53,8 +53,8 @@ def matrix_from_quat_wxyz(quat_wxyz: np.ndarray) -> np.ndarray:
     """(3, 3) or (N, 3, 3) rotation matrices from unit [w, x, y, z] quaternions.
 
     The textbook formula in plain numpy: the live loop converts a few
-    quaternions per millisecond, where building a scipy Rotation (~20 µs of
-    overhead per call) would cost more than the arithmetic. Tested against scipy.
+    quaternions per millisecond, where building a scipy Rotation per call
+    would cost more than the arithmetic. Tested against scipy.
     """
     q = np.asarray(quat_wxyz, dtype=float)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -136,7 +136,7 @@ def quat_wxyz_from_matrix(R: np.ndarray) -> np.ndarray:
 
     Shepperd's method (as in scipy's ``Rotation.from_matrix``) in plain numpy: the
     live loop converts one pose per read, where building a scipy Rotation costs
-    ~35 µs. Every row of the symmetric matrix ::
+    more than the arithmetic. Every row of the symmetric matrix ::
 
         K = [[1 + tr,     R21 − R12,       R02 − R20,       R10 − R01     ],
              [R21 − R12,  1 − tr + 2 R00,  R10 + R01,       R20 + R02     ],
@@ -148,7 +148,7 @@ def quat_wxyz_from_matrix(R: np.ndarray) -> np.ndarray:
     estimate of q. Assumes proper rotation matrices.
     """
     R = np.asarray(R, dtype=float)
-    if R.ndim == 2:  # one matrix: the same method in plain floats (~3 µs instead of ~40)
+    if R.ndim == 2:  # one matrix: the same method in plain floats (no array overhead)
         return np.array(_quat_floats(R))
     n = len(R)
     R_flat = R.reshape(n, 9)
@@ -187,8 +187,8 @@ def rotvec_from_matrix(R: np.ndarray) -> np.ndarray:
     """Rotation vector (axis · angle, rad, angle in [0, π]) of a (3, 3) rotation matrix, or (N, 3) of (N, 3, 3).
 
     One matrix (the live loop's case: teleoperation turns its target every tick) goes through Shepperd's
-    method in plain floats (see :func:`quat_wxyz_from_matrix`), ~3 µs where scipy's ``Rotation`` costs
-    ~100 µs to build; a stack goes through scipy. The two agree to rounding (tests).
+    method in plain floats (see :func:`quat_wxyz_from_matrix`), where scipy's ``Rotation`` costs more to
+    build than the arithmetic; a stack goes through scipy. The two agree to rounding (tests).
     """
     R = np.asarray(R, dtype=float)
     if R.shape != (3, 3):

@@ -4,10 +4,10 @@ The compiled twin of ``core.estimation.model.all_plausible``'s screen (``refusal
 stays the reference): each sample's force and torque components within the
 bounds, its R_EB a rotation (‖R Rᵀ − I‖²_F ≤ tolerance², det R > 0); a NaN
 fails every comparison, an overflow gives inf and fails too. Every estimator
-runs it on every block (the primary and each shadow): at a 7 kHz sensor's
-block of 7 the numpy pass's dozen calls cost ~12 µs, this one ~1 µs (issue 12).
+runs it on every block (the primary and each shadow), so it is one compiled
+pass instead of a dozen numpy calls.
 
-Compile cost: well under a second the first time, then loaded from ``cache=True`` files; ``warm_up()`` does it.
+Compiled the first time, then loaded from ``cache=True`` files; ``warm_up()`` does it.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ lockstep, one sample at a time from the reference's state, with the forward erro
 solves, 1e-14·cond(Λ)·‖x‖ (a flag may differ only where the reference's step is within that bound of ε), and the
 kernel must give the same bits whatever the block size (it runs sample by sample).
 
-``kalman``: the same decisions, the same numbers to rounding. The kernel is ``plugins.estimators.kalman.stage._filter6``
+``kalman``: the same decisions, the same numbers to rounding. The kernel is ``plugins.estimators.kalman.stage_reference.filter6``
 transcribed expression by expression and numba compiles without fast-math (no FMA contraction, no
 reordering), so on one machine the two agreed to the bit; but the numpy side's matrix products go
 through OpenBLAS, which picks its kernels by CPU: on an AVX-512 CPU (SkylakeX kernels) they round
@@ -285,7 +285,7 @@ def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
     runs the compiled stage filter (``filter6``). A late sensor stream (its poses interpolated per block
     before the cascade, its first 4 ms unused) runs in the cascade too, and so do bias-rate states
     (``stage_step_rate`` against filterpy's filter) and a mount estimate (``stage_step_mount`` against
-    ``plugins.estimators.kalman.stage.MountStage``'s EKF, from the identity or from a 3° mount, with and without rates); and
+    ``plugins.estimators.kalman.mount_stage.MountStage``'s EKF, from the identity or from a 3° mount, with and without rates); and
     the bias's tilt walk (``add_tilt_noise``, the tilt from ``tilt_step``) with the defaults, the noise given,
     the step rule, a late sensor stream, and a mount with rates."""
     (ref, a), fast = _reference(sim6, options, size), KalmanEstimator(kernel="numba", **options)
@@ -615,7 +615,7 @@ def test_constant_var_kernel_matches_numpy(sim6):
     Λ agree to its forward error bound, 1e-14·cond(Λ) relative (cond reaches ~4e7 while the start's
     motion leaves gravity's horizontal part unseen)."""
     from hapticlab.plugins.estimators.kalman import identified
-    from hapticlab.plugins.estimators.kalman.cascade_kernel import constant_var3
+    from hapticlab.plugins.estimators.kalman.identified_kernel import constant_var3
 
     est = KalmanEstimator(kernel="numpy")
     L = np.empty((6, 6))

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core.types import Event
-from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_TILT_TORQUE
 from hapticlab.plugins.estimators.kalman.options import KalmanOptions
 from hapticlab.plugins.estimators.kalman.payload import PayloadWatch
 from hapticlab.plugins.estimators.kalman.stage import KalmanStage
+from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_TILT_TORQUE
 
 
 class KalmanBase:
@@ -68,5 +68,5 @@ class KalmanBase:
             self.torque.q_tilt[:] = q * self._adapt[ADAPT_TILT_TORQUE]
 
     def params(self) -> dict[str, list[float]]:
-        """The identified parameters (``KalmanEstimator.params``)."""
+        """The identified parameters (``Convergence.params``)."""
         raise NotImplementedError

@@ -1,14 +1,14 @@
-"""The ``kalman`` estimator's cascade compiled: both stages of a block in one call.
+"""The kalman cascade compiled: both stages of a block in one call (one function: its loop shares their state).
 
-``kalman_cascade`` runs the estimator's ``_filter_block`` over m samples: each stage's
-step (``plugins.estimators.kalman.stage_kernel``: ``stage_step``, with bias-rate states
-``stage_step_rate``, with the mount estimated ``stage_step_mount``), the noise estimate,
-the convergence rules, the contact wrench and the contact flag (``judge_contact``), and
-the torque bias's re-opening. Its options and state travel in the ``adapt`` array
-(``ADAPT_SIZE``). Nothing is allocated; outputs go to arrays the caller owns (``Buffers``).
+``kalman_cascade`` runs the estimator's ``_filter_block`` over m samples: each stage's step
+(``stage_kernel``: ``stage_step``, with bias-rate states ``stage_step_rate``, with the mount estimated
+``stage_step_mount``), the noise estimate (``noise_kernel``), the convergence rules (``identified_kernel``),
+the contact wrench and the contact flag, and the torque bias's re-opening (``rules_kernel``). Its options
+and state travel in the ``adapt`` array (``state_layout.py``). Nothing is allocated; outputs go to arrays
+the caller owns (``Buffers``).
 
-Compile cost: ~4–6 s the first time on this machine (2 cores, shared), then ~0.4 s to load
-from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
+It compiles in seconds the first time, then loads from the ``cache=True`` files in ``__pycache__``;
+``warm_up()`` does it before the first live tick.
 """
 
 from __future__ import annotations
@@ -18,15 +18,15 @@ import math
 import numpy as np
 from numba import njit
 
-from hapticlab.plugins.estimators.kalman.noise import (
-    AUTO_BOUND_FRACTION,
-    NOISE_CLIP,
-    NOISE_CLIP_MEAN,
-    NOISE_FLOOR,
-    NOISE_PRIOR_SAMPLES,
-    NOISE_REFUSED_WEIGHT,
-    NOISE_WINDOW,
-    NOISE_WINDOW_S,
+from hapticlab.plugins.estimators.kalman.identified_kernel import add_information, constant_var_max, predicted_var
+from hapticlab.plugins.estimators.kalman.noise import NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, NOISE_WINDOW_S
+from hapticlab.plugins.estimators.kalman.noise_kernel import _auto_bound2, adapt_noise
+from hapticlab.plugins.estimators.kalman.rules_kernel import (
+    judge_contact,
+    reopen_bias,
+    set_gravity_direction,
+    tilt_step,
+    torque_only_refusal,
 )
 from hapticlab.plugins.estimators.kalman.stage_kernel import (
     FAILED,
@@ -38,271 +38,35 @@ from hapticlab.plugins.estimators.kalman.stage_kernel import (
     stage_step_mount,
     stage_step_rate,
 )
-from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import TW_SIZE, learn_tilt_walk
-
-ADAPT_NOISE_F, ADAPT_NOISE_T, ADAPT_IDENTIFIED = 0, 1, 2
-ADAPT_COUNT_F, ADAPT_COUNT_T, ADAPT_WINDOW, ADAPT_FORCE_SEEN = 3, 4, 5, 6
-ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_PRED_F = 7, 8, 9, 10, 11
-ADAPT_REOPEN_S, ADAPT_REOPEN_LEVER, ADAPT_TQ_ONLY_S, ADAPT_TQ_ONLY_N, ADAPT_REOPENS = 14, 15, 16, 17, 18
-ADAPT_REOPEN_ROW, ADAPT_PRIOR_TB, ADAPT_TQ_SUM_F, ADAPT_TQ_SUM_T = 19, 20, 23, 26
-ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT_MOUNT = 29, 30, 31, 32, 33
-ADAPT_TILT, ADAPT_GRAVITY_DIR, ADAPT_TILT_AUTO, ADAPT_TILT_TORQUE = 34, 43, 46, 47
-ADAPT_GRAVITY_KNOWN, ADAPT_TILT_SPAN, ADAPT_TURN_F, ADAPT_TURN_T, ADAPT_TW = 48, 49, 50, 51, 52
-ADAPT_SIZE = ADAPT_TW + TW_SIZE
-CONVERGENCE_IDENTIFIED, CONVERGENCE_AT_POSE = 1.0, 2.0
-"""``kalman_cascade``'s ``adapt`` array (float64), by index. Options (1.0 on): ``ADAPT_NOISE_F`` /
-``ADAPT_NOISE_T`` the force / torque stage's noise estimated as it runs (``plugins.estimators.kalman.noise``),
-``ADAPT_IDENTIFIED`` convergence as identified (``CONVERGENCE_IDENTIFIED``) or at the pose
-(``CONVERGENCE_AT_POSE``; ``plugins.estimators.kalman.identified``), ``ADAPT_AUTO_F`` / ``ADAPT_AUTO_T``
-the convergence bound from the noise estimate; ``ADAPT_REOPEN_S`` the torque-only refusal (s) after which
-the torque bias is re-opened (0: never; :func:`torque_only_refusal`), ``ADAPT_REOPEN_LEVER`` the farthest a
-contact can act from the sensor's origin (m), the prior variance of bias_torque_S the bias goes back to
-(3 values from ``ADAPT_PRIOR_TB``, (N·m)²), ``ADAPT_CONTACT_AFTER`` how many refused samples in a row make
-a contact (:func:`judge_contact`), ``ADAPT_MOUNT`` the mount rotation estimated (:func:`stage_step_mount`):
-the variance of the weight under which its θ is learnt, N² (0: no mount estimate).
-State, in and out: the noise estimate's weights so far (``ADAPT_COUNT_*``), its window in samples (0: not
-yet known), whether the force stage has settled (its flag first up; at the pose, the identified rule's
-test first passed), the bounds' caps (inf until it settles), whether the torque stage has settled
-(``ADAPT_TORQUE_SEEN``, the same way: the inertial force's centre of mass waits for it), the
-current torque-only refusal (s, samples, and the sums of its force and torque residuals: 3 values each from
-``ADAPT_TQ_SUM_F`` / ``ADAPT_TQ_SUM_T``), the torque bias re-opened so far (count), the refused samples in a
-row up to the last (``ADAPT_REFUSED_RUN``) and the samples of the refused runs that ended before they were
-judged a contact (``ADAPT_HELD_OUT``), the last sample's A (9 values from ``ADAPT_TILT``, row by row,
-NaN before the first) and the direction of gravity in B its tilt is measured about (3 values from
-``ADAPT_GRAVITY_DIR``: B's z axis until the force stage settles, then the identified weight's, which
-``ADAPT_GRAVITY_KNOWN`` says (1.0; a warm start's direction is kept); :func:`tilt_step`). With
-``ADAPT_TILT_AUTO`` (1.0) the tilt walk's intensity is learnt from the data (``plugins.estimators.kalman.tilt_walk_kernel``, its
-state in ``TW_SIZE`` values from ``ADAPT_TW``) and written into qt_f after each sample, and into qt_t times
-``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed). ``ADAPT_TILT_SPAN``: the least
-turn either bias follows its tilt walk over, rad (0: the plain walk; ``kalman_stage.add_tilt_noise``), and
-each stage's turn since it last tested a sample (``ADAPT_TURN_F``, ``ADAPT_TURN_T``, rad; state).
-Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
-the block's row of its last torque bias re-opening (−1: none)."""
-
-
-@njit(cache=True, error_model="numpy")
-def judge_contact(adapt, refused, tested) -> bool:
-    """Whether a sample either stage refused is a contact: it is once it is the ``ADAPT_CONTACT_AFTER``-th
-    refused sample in a row. The ones before are held out of the update all the same but not called a
-    contact; a run that ends shorter (a lone outlier of a heavy-tailed noise, which a real sensor has:
-    single samples at a Mahalanobis distance of 4.6–5.5 on the LWR4 logs) is counted in ``ADAPT_HELD_OUT``.
-    A contact is seen that many samples late, its force is not: the contact wrench of a refused sample is
-    its whole residual either way. A sample no stage tested (``tested`` False: stale, a sensor status, a
-    failed update, no pose yet) neither continues nor ends the run. (The numpy reference runs this very
-    function as Python: ``judge_contact.py_func``.)"""
-    if not tested:
-        return False
-    run = adapt[ADAPT_REFUSED_RUN]
-    if not refused:
-        if 0.0 < run < adapt[ADAPT_CONTACT_AFTER]:  # a run that ended short: refused, never a contact
-            adapt[ADAPT_HELD_OUT] += run
-        adapt[ADAPT_REFUSED_RUN] = 0.0
-        return False
-    adapt[ADAPT_REFUSED_RUN] = run + 1.0
-    return run + 1.0 >= adapt[ADAPT_CONTACT_AFTER]
-
-
-@njit(cache=True, error_model="numpy")
-def tilt_step(adapt, A) -> float:
-    """The angle gravity's direction turned in the sensor since the previous sample, rad: between A ĝ and
-    A_prev ĝ, ĝ the direction of gravity in B (``ADAPT_GRAVITY_DIR``; A = R_SB, or R_EB: the same angle),
-    A_prev the previous sample's A (``ADAPT_TILT``), which A then becomes. atan2 of the cross and dot
-    products: exact for small angles. 0 for the first sample; a non-finite A (a pose not known yet) neither
-    tilts nor becomes the previous one. (The numpy reference runs this as ``tilt_step.py_func``.)"""
-    d0, d1, d2 = adapt[ADAPT_GRAVITY_DIR], adapt[ADAPT_GRAVITY_DIR + 1], adapt[ADAPT_GRAVITY_DIR + 2]
-    g0 = A[0, 0] * d0 + A[0, 1] * d1 + A[0, 2] * d2
-    g1 = A[1, 0] * d0 + A[1, 1] * d1 + A[1, 2] * d2
-    g2 = A[2, 0] * d0 + A[2, 1] * d1 + A[2, 2] * d2
-    if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
-        return 0.0
-    known = math.isfinite(adapt[ADAPT_TILT])
-    p = adapt[ADAPT_TILT : ADAPT_TILT + 9]
-    p0 = p[0] * d0 + p[1] * d1 + p[2] * d2
-    p1 = p[3] * d0 + p[4] * d1 + p[5] * d2
-    p2 = p[6] * d0 + p[7] * d1 + p[8] * d2
-    for i in range(3):
-        for j in range(3):
-            p[3 * i + j] = A[i, j]
-    if not known:
-        return 0.0
-    c0, c1, c2 = p1 * g2 - p2 * g1, p2 * g0 - p0 * g2, p0 * g1 - p1 * g0
-    return math.atan2(math.sqrt(c0 * c0 + c1 * c1 + c2 * c2), p0 * g0 + p1 * g1 + p2 * g2)
-
-
-@njit(cache=True, error_model="numpy")
-def set_gravity_direction(adapt, a) -> None:
-    """Measure tilts about the identified weight a (3,), N (its direction in B; a zero weight changes nothing):
-    the base need not stand upright (a wall mount has gravity along B's x). ``tilt_step`` measures both
-    samples' directions about the same ĝ, so the switch adds no spurious turn."""
-    norm = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-    if norm > 0.0 and math.isfinite(norm):
-        for i in range(3):
-            adapt[ADAPT_GRAVITY_DIR + i] = a[i] / norm
-        adapt[ADAPT_GRAVITY_KNOWN] = 1.0
-
-
-TORQUE_REOPEN_MIN_SAMPLES = 10
-"""A torque-only refusal re-opens the torque bias only once it is this many samples long as well as
-``ADAPT_REOPEN_S`` (a few outliers of a slow stream are no drift)."""
-
-
-@njit(cache=True, error_model="numpy")
-def torque_only_refusal(adapt, force_gated, force_seen, torque_what, dt, residual_force, residual_torque) -> bool:
-    """Count a sample into the current torque-only refusal; True when the torque bias is to be re-opened.
-
-    A drift of the torque bias (warm-up, a bias that a pose first visited shows to be off) makes the torque
-    stage refuse samples the force stage accepts. So does a light contact (a force under the force stage's
-    gate, at the tool's tip: a lever), and that must stay a contact: a contact force f acting within
-    ``ADAPT_REOPEN_LEVER`` (L) of the sensor's origin makes a torque of at most L·|f|, so the bias is
-    re-opened only when the run's mean torque residual is larger than that for its mean force residual,
-    |Σ τ_res| > L·|Σ f_res|, once the run is ``ADAPT_REOPEN_S`` and ``TORQUE_REOPEN_MIN_SAMPLES`` long. A
-    force the force stage refuses ends the run (a contact), and so does a sample the torque stage accepts.
-    ``force_seen``: the force stage accepted the sample with its flag up (the torque stage saw it);
-    ``torque_what``: what the torque stage did with it; the residuals: the sample's contact wrench (N, N·m).
-    (The numpy reference runs this very function as Python: ``torque_only_refusal.py_func``.)"""
-    if adapt[ADAPT_REOPEN_S] <= 0.0:
-        return False
-    if force_gated or (force_seen and torque_what == UPDATED):
-        adapt[ADAPT_TQ_ONLY_S], adapt[ADAPT_TQ_ONLY_N] = 0.0, 0.0
-        for i in range(3):
-            adapt[ADAPT_TQ_SUM_F + i], adapt[ADAPT_TQ_SUM_T + i] = 0.0, 0.0
-        return False
-    if not (force_seen and torque_what == GATED):
-        return False
-    adapt[ADAPT_TQ_ONLY_S] += dt
-    adapt[ADAPT_TQ_ONLY_N] += 1.0
-    for i in range(3):
-        adapt[ADAPT_TQ_SUM_F + i] += residual_force[i]
-        adapt[ADAPT_TQ_SUM_T + i] += residual_torque[i]
-    if adapt[ADAPT_TQ_ONLY_S] < adapt[ADAPT_REOPEN_S] or adapt[ADAPT_TQ_ONLY_N] < TORQUE_REOPEN_MIN_SAMPLES:
-        return False
-    f0, f1, f2 = adapt[ADAPT_TQ_SUM_F], adapt[ADAPT_TQ_SUM_F + 1], adapt[ADAPT_TQ_SUM_F + 2]
-    t0, t1, t2 = adapt[ADAPT_TQ_SUM_T], adapt[ADAPT_TQ_SUM_T + 1], adapt[ADAPT_TQ_SUM_T + 2]
-    lever = adapt[ADAPT_REOPEN_LEVER]
-    if not t0 * t0 + t1 * t1 + t2 * t2 > lever * lever * (f0 * f0 + f1 * f1 + f2 * f2):
-        return False  # a force within reach explains it: a light contact (the run goes on)
-    adapt[ADAPT_TQ_ONLY_S], adapt[ADAPT_TQ_ONLY_N] = 0.0, 0.0
-    for i in range(3):
-        adapt[ADAPT_TQ_SUM_F + i], adapt[ADAPT_TQ_SUM_T + i] = 0.0, 0.0
-    adapt[ADAPT_REOPENS] += 1.0
-    return True
-
-
-@njit(cache=True, error_model="numpy")
-def reopen_bias(P, info, prior_var):
-    """The stage's bias (states 3..5) unknown again, the rest as known (``KalmanEstimator._reopen_torque_bias``):
-    P's bias rows and columns zeroed, its diagonal the prior variance ``prior_var`` (3,); the identified rule's
-    Λ (6, 6) re-seeded from that P, which is block-diagonal: inv(P[:3, :3]) (cofactors), then 1/prior_var."""
-    for i in range(3, 6):
-        for j in range(P.shape[0]):
-            P[i, j] = 0.0
-            P[j, i] = 0.0
-        P[i, i] = prior_var[i - 3]
-    a, b, c = P[0, 0], P[0, 1], P[0, 2]
-    d, e, f = P[1, 0], P[1, 1], P[1, 2]
-    g, h, k = P[2, 0], P[2, 1], P[2, 2]
-    c00, c01, c02 = e * k - f * h, c * h - b * k, b * f - c * e
-    c10, c11, c12 = f * g - d * k, a * k - c * g, c * d - a * f
-    c20, c21, c22 = d * h - e * g, b * g - a * h, a * e - b * d
-    det = a * c00 + b * c10 + c * c20
-    for i in range(6):
-        for j in range(6):
-            info[i, j] = 0.0
-    info[0, 0], info[0, 1], info[0, 2] = c00 / det, c01 / det, c02 / det
-    info[1, 0], info[1, 1], info[1, 2] = c10 / det, c11 / det, c12 / det
-    info[2, 0], info[2, 1], info[2, 2] = c20 / det, c21 / det, c22 / det
-    for i in range(3):
-        info[3 + i, 3 + i] = 1.0 / prior_var[i]
-
-
-@njit(cache=True, error_model="numpy")
-def predicted_var(P, A, out):
-    """out (3,) = diag(C P Cᵀ), C = [A, I3] (``plugins.estimators.kalman.identified.predicted_var``)."""
-    for i in range(3):
-        a0, a1, a2 = A[i, 0], A[i, 1], A[i, 2]
-        quad = (
-            a0 * (P[0, 0] * a0 + P[0, 1] * a1 + P[0, 2] * a2)
-            + a1 * (P[1, 0] * a0 + P[1, 1] * a1 + P[1, 2] * a2)
-            + a2 * (P[2, 0] * a0 + P[2, 1] * a1 + P[2, 2] * a2)
-        )
-        out[i] = quad + 2.0 * (a0 * P[0, 3 + i] + a1 * P[1, 3 + i] + a2 * P[2, 3 + i]) + P[3 + i, 3 + i]
-
-
-@njit(cache=True, error_model="numpy")
-def add_information(info, A, r):
-    """info (6, 6) += Cᵀ diag(1/r) C, C = [A, I3], in place (``plugins.estimators.kalman.identified.add_information``)."""
-    for j in range(6):
-        for l in range(j, 6):
-            s = 0.0
-            for i in range(3):
-                cj = A[i, j] if j < 3 else (1.0 if i == j - 3 else 0.0)
-                cl = A[i, l] if l < 3 else (1.0 if i == l - 3 else 0.0)
-                s += cj * cl / r[i]
-            info[j, l] += s
-            if l != j:
-                info[l, j] = info[j, l]
-
-
-@njit(cache=True, error_model="numpy")
-def constant_var3(info, L):
-    """diag((Λ⁻¹)[:3, :3]) (``plugins.estimators.kalman.identified.constant_var``) as three floats, inf if Λ is not positive definite.
-
-    Cholesky of Λ reordered as [b, a] (L (6, 6) scratch): the trailing 3×3 factor T has T Tᵀ = the Schur
-    complement Λ_aa − Λ_ab Λ_bb⁻¹ Λ_ba = ((Λ⁻¹)_aa)⁻¹, so diag((Λ⁻¹)_aa) are the squared column norms
-    of T⁻¹."""
-    for i in range(6):
-        pi = (i + 3) % 6
-        for j in range(i + 1):
-            s = info[pi, (j + 3) % 6]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if not s > 0.0:
-                    return math.inf, math.inf, math.inf
-                L[i, i] = math.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
-    t00, t10, t11, t20, t21, t22 = L[3, 3], L[4, 3], L[4, 4], L[5, 3], L[5, 4], L[5, 5]
-    v00, v11, v22 = 1.0 / t00, 1.0 / t11, 1.0 / t22
-    v10 = -t10 * v00 / t11
-    v21 = -t21 * v11 / t22
-    v20 = -(t20 * v00 + t21 * v10) / t22
-    return v00 * v00 + v10 * v10 + v20 * v20, v11 * v11 + v21 * v21, v22 * v22
-
-
-@njit(cache=True, error_model="numpy")
-def constant_var_max(info, L):
-    """The largest of :func:`constant_var3` (inf if Λ is not positive definite)."""
-    a, b, c = constant_var3(info, L)
-    return max(a, b, c)
-
-
-@njit(cache=True, error_model="numpy")
-def adapt_noise(r, count, y, A, x, cpc, weight, window, floor):
-    """One covariance-matching step on r (3,) in place (``plugins.estimators.kalman.noise.adapt_noise``) for the reading
-    y (3,), A (3, 3), at the state x (6,) the sample was predicted from: e = y − A a − b. Returns the count
-    after it. A weight of 0 or a non-finite innovation changes nothing."""
-    e0 = y[0] - (A[0, 0] * x[0] + A[0, 1] * x[1] + A[0, 2] * x[2]) - x[3]
-    e1 = y[1] - (A[1, 0] * x[0] + A[1, 1] * x[1] + A[1, 2] * x[2]) - x[4]
-    e2 = y[2] - (A[2, 0] * x[0] + A[2, 1] * x[1] + A[2, 2] * x[2]) - x[5]
-    if weight == 0.0 or not (math.isfinite(e0) and math.isfinite(e1) and math.isfinite(e2)):
-        return count
-    count += weight
-    lam = weight / min(count + NOISE_PRIOR_SAMPLES, window)
-    clip2 = NOISE_CLIP**2
-    for i in range(3):
-        e = e0 if i == 0 else (e1 if i == 1 else e2)
-        s2 = r[i] + cpc[i]
-        sq = min(e**2, clip2 * s2) / NOISE_CLIP_MEAN
-        r[i] = max(r[i] + lam * (max(sq - cpc[i], 0.0) - r[i]), floor * floor)
-    return count
-
-
-@njit(cache=True, error_model="numpy")
-def _auto_bound2(r, cap):
-    """The convergence bound², AUTO_BOUND_FRACTION·noise std (mean variance over the axes), at most cap."""
-    bound = min(AUTO_BOUND_FRACTION * math.sqrt((r[0] + r[1] + r[2]) / 3.0), cap)
-    return bound * bound
+from hapticlab.plugins.estimators.kalman.state_layout import (
+    ADAPT_AUTO_F,
+    ADAPT_AUTO_T,
+    ADAPT_CAP_F,
+    ADAPT_CAP_T,
+    ADAPT_COUNT_F,
+    ADAPT_COUNT_T,
+    ADAPT_FORCE_SEEN,
+    ADAPT_GRAVITY_DIR,
+    ADAPT_GRAVITY_KNOWN,
+    ADAPT_IDENTIFIED,
+    ADAPT_MOUNT,
+    ADAPT_NOISE_F,
+    ADAPT_NOISE_T,
+    ADAPT_PRED_F,
+    ADAPT_PRIOR_TB,
+    ADAPT_REOPEN_ROW,
+    ADAPT_SIZE,
+    ADAPT_TILT_AUTO,
+    ADAPT_TILT_SPAN,
+    ADAPT_TILT_TORQUE,
+    ADAPT_TORQUE_SEEN,
+    ADAPT_TURN_F,
+    ADAPT_TURN_T,
+    ADAPT_TW,
+    ADAPT_WINDOW,
+    CONVERGENCE_AT_POSE,
+)
+from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import learn_tilt_walk
 
 
 @njit(cache=True, error_model="numpy")

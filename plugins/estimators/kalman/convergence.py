@@ -1,8 +1,9 @@
-"""When the ``kalman`` stages count as converged, and what the motion has identified of the tool.
+"""What the ``kalman`` estimator knows: when its stages count as converged, what the motion has identified of
+the tool, and the parameters it reports.
 
 The rules of the ``convergence`` option ("pose", "identified", "covariance", "step"), the parameters'
-std the haptic gate reads, and the ``identified`` / ``not_identifiable`` events (``identified.py`` holds
-the math).
+std the haptic gate reads, the ``identified`` / ``not_identifiable`` events (``identified.py`` holds
+the math), ``params()`` and ``cov_diag()``.
 """
 
 from __future__ import annotations
@@ -11,11 +12,20 @@ import math
 
 import numpy as np
 
+from hapticlab.core.estimation.model import named_params
+from hapticlab.core.frames import rotvec_from_matrix
 from hapticlab.core.types import Event
-from hapticlab.plugins.estimators.kalman import cascade_kernel, identified
+from hapticlab.plugins.estimators.kalman import identified, identified_kernel
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
-from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_CAP_F, ADAPT_CAP_T, ADAPT_FORCE_SEEN, ADAPT_PRED_F
 from hapticlab.plugins.estimators.kalman.noise import AUTO_BOUND_FRACTION
+from hapticlab.plugins.estimators.kalman.state_layout import (
+    ADAPT_CAP_F,
+    ADAPT_CAP_T,
+    ADAPT_FORCE_SEEN,
+    ADAPT_PRED_F,
+    ADAPT_TW,
+)
+from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import TW_PAIRS, TW_Q
 
 STEP_EPSILON = 1e-3
 """``convergence = "step"``: the paper's threshold on ‖Δx‖ (mixed units, as in Algorithm 1)."""
@@ -159,9 +169,9 @@ class Convergence(KalmanBase):
 
     def _constant_var(self, stage: str) -> tuple[float, float, float]:
         """How well the motion so far identifies the stage's constant, variance per axis
-        (``plugins.estimators.kalman.identified.constant_var``; compiled, ``cascade_kernel.constant_var3``, on the compiled path)."""
+        (``plugins.estimators.kalman.identified.constant_var``; compiled, ``identified_kernel.constant_var3``, on the compiled path)."""
         if self.method == "numba" or self._cascade:
-            return cascade_kernel.constant_var3(self._information[stage], self._L6)
+            return identified_kernel.constant_var3(self._information[stage], self._L6)
         return tuple(identified.constant_var(self._information[stage]).tolist())
 
     def force_parameter_std(self) -> np.ndarray:
@@ -183,3 +193,34 @@ class Convergence(KalmanBase):
     def torque_parameter_std(self) -> np.ndarray:
         """(6,) standard deviation of [cog_S (m), bias_torque_S (N·m)]: sqrt of diag P_torque."""
         return np.sqrt(np.diag(self.torque.P)[:6])
+
+    def params(self) -> dict[str, list[float]]:
+        """Identified parameters with physical names (SI units); with bias_rate also the bias rates; with
+        ``convergence`` "pose" or "identified" the std per axis of gravity_force_B (N) and cog_S (m) as the motion so
+        far identifies them, and NaN for an axis it has not identified at all (``plugins.estimators.kalman.identified.
+        unidentified_axes``: a still tool leaves all three, a turn about B's vertical alone gravity's vertical
+        component; the ``not_identifiable`` event names them); with auto noise the noise estimates."""
+        out = named_params(self.force.x[:6], self.torque.x[:6])
+        if self.mount_rotation or self.mount_configured:
+            out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
+        if self.identifies:  # how well the motion so far has identified the constants
+            for stage, name in (("force", "gravity_force_B"), ("torque", "cog_S")):
+                std, axes = self._unidentified_now(stage)
+                out[f"{name}_std"] = std  # N, m
+                for i in axes:  # not identifiable from the motion so far: no number
+                    out[name][i] = math.nan
+        if self.noise_auto:
+            out["noise_force_S"] = np.sqrt(self.force.r).tolist()  # N
+            out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m
+        if self.tilt_walk_auto:  # the tilt walk learnt so far, N/√rad, and from how many pairs of windows
+            out["bias_force_tilt_rw"] = [math.sqrt(self._adapt[ADAPT_TW + TW_Q])]
+            out["tilt_walk_pairs"] = [float(self._adapt[ADAPT_TW + TW_PAIRS])]
+        if self.bias_rate:
+            out["bias_force_rate_S"] = self.force.x[6:9].tolist()  # N/s
+            out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s
+        return out
+
+    def cov_diag(self) -> list[float]:
+        """Diagonal of P for the force stage then the torque stage (12 values; 18 with bias_rate;
+        3 more, the mount's θ at the end of the force stage's, with mount_rotation)."""
+        return np.concatenate([np.diag(self.force.P), np.diag(self.torque.P)]).tolist()

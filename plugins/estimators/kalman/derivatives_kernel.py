@@ -13,8 +13,7 @@ Not bit-for-bit the numpy path: numpy sums a window's 20 terms pairwise (8 accum
 through ``einsum``, the kernel in order; the derivatives agree to ~1e-13 relative, and the
 filter's outputs then to ~1e-12 N (tests/core/test_kernels.py).
 
-Compile cost: ~3 s the first time on this machine, then loaded from the ``cache=True`` files;
-``warm_up()`` does it.
+Compiled the first time, then loaded from the ``cache=True`` files; ``warm_up()`` does it.
 """
 
 from __future__ import annotations

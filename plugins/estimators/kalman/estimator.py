@@ -1,23 +1,17 @@
 """``kalman``: the paper's cascade as Kalman filters, with drifting biases, Mahalanobis gating and
-convergence from the covariance.
+convergence from what is known.
 
 Force stage: x = [gravity_force_B, bias_force_S], C_k = [R_EB, I3]. Torque stage, at samples where the
 force stage has converged and accepted the sample: x = [cog_S, bias_torque_S],
-C_k = [-skew(force_S - bias_force_S), I3]. The filter of one stage is ``stage.py`` (its compiled twin
-``stage_kernel.py``), the whole cascade compiled ``cascade_kernel.py``. What differs from the paper's RLS
-(``docs/estimators.md``, "kalman", has the measurements behind every default):
+C_k = [-skew(force_S - bias_force_S), I3]. Unlike the paper's RLS, the biases are random walks (in time
+and with the tool's tilt), R is the sensor's noise (estimated as it runs, or given), a sample outside
+``gate_probability`` of its predicted distribution is refused (time still propagates, so the gate reopens
+on a bias that has truly moved), and convergence comes from what is known, never from a small step.
 
-* **Drift.** The biases are random walks (in time, and with the tool's tilt) instead of constants;
-  gravity and the centre of gravity stay constant.
-* **Noise in physical units.** R is the sensor's noise, estimated as the filter runs (``noise.py``) or given.
-* **Gating.** A sample whose innovation lies outside ``gate_probability`` of its predicted distribution
-  is refused; time still propagates, so the gate reopens on a bias that has truly moved.
-* **Convergence** from what is known (``convergence.py``), never from a small step.
-
-The estimator is put together from parts, one file each: the model's inputs (``inputs.py``), convergence
-and identification (``convergence.py``), re-opening what changed (``reopen.py``) and the warm start
-(``warm_start.py``); its options are ``options.py``. Bad input (a NaN, an R_EB that is not a rotation, a
-wrench beyond ``max_force``/``max_torque``) is refused before anything sees it (``SampleGuard``).
+This file builds the estimator and runs the numpy reference (``_filter_block``); the parts it is put
+together from are ``compiled.py`` (the compiled path, the default), ``inputs.py``, ``convergence.py``,
+``reopen.py`` and ``warm_start.py``. ``docs/estimators.md`` ("kalman") has the measurements behind every
+default.
 """
 
 from __future__ import annotations
@@ -29,48 +23,15 @@ import numpy as np
 from scipy.stats import chi2
 
 from hapticlab.core import aligner_kernel
-from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench, named_params
-from hapticlab.core.frames import cross, rotvec_from_matrix, skew_stack
+from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench
+from hapticlab.core.frames import cross, skew_stack
 from hapticlab.core.types import AlignedSamples, Estimates, Event
-from hapticlab.plugins.estimators.kalman import cascade_kernel, derivatives_kernel, identified, tilt_walk_kernel
-from hapticlab.plugins.estimators.kalman.cascade_kernel import (
-    ADAPT_AUTO_F,
-    ADAPT_AUTO_T,
-    ADAPT_CAP_F,
-    ADAPT_CAP_T,
-    ADAPT_CONTACT_AFTER,
-    ADAPT_COUNT_F,
-    ADAPT_COUNT_T,
-    ADAPT_FORCE_SEEN,
-    ADAPT_GRAVITY_DIR,
-    ADAPT_GRAVITY_KNOWN,
-    ADAPT_HELD_OUT,
-    ADAPT_IDENTIFIED,
-    ADAPT_MOUNT,
-    ADAPT_NOISE_F,
-    ADAPT_NOISE_T,
-    ADAPT_PRED_F,
-    ADAPT_PRIOR_TB,
-    ADAPT_REOPEN_LEVER,
-    ADAPT_REOPEN_ROW,
-    ADAPT_REOPEN_S,
-    ADAPT_SIZE,
-    ADAPT_TILT,
-    ADAPT_TILT_AUTO,
-    ADAPT_TILT_SPAN,
-    ADAPT_TILT_TORQUE,
-    ADAPT_TORQUE_SEEN,
-    ADAPT_TW,
-    ADAPT_WINDOW,
-    CONVERGENCE_AT_POSE,
-    CONVERGENCE_IDENTIFIED,
-    judge_contact,
-    set_gravity_direction,
-    tilt_step,
-)
+from hapticlab.plugins.estimators.kalman import cascade_kernel, derivatives_kernel, identified
+from hapticlab.plugins.estimators.kalman.compiled import CompiledPath
 from hapticlab.plugins.estimators.kalman.convergence import Convergence
 from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
-from hapticlab.plugins.estimators.kalman.inputs import NO_POSITIONS, ModelInputs
+from hapticlab.plugins.estimators.kalman.inputs import ModelInputs
+from hapticlab.plugins.estimators.kalman.mount_stage import MountStage
 from hapticlab.plugins.estimators.kalman.noise import (
     NOISE_AUTO_START_FORCE,
     NOISE_AUTO_START_TORQUE,
@@ -89,21 +50,32 @@ from hapticlab.plugins.estimators.kalman.options import (
 )
 from hapticlab.plugins.estimators.kalman.payload import PayloadWatch
 from hapticlab.plugins.estimators.kalman.reopen import Reopening
-from hapticlab.plugins.estimators.kalman.stage import KalmanStage, MountStage, StageRun, innovations
-from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import TW_PAIRS, TW_Q, learn_tilt_walk
+from hapticlab.plugins.estimators.kalman.rules_kernel import judge_contact, set_gravity_direction, tilt_step
+from hapticlab.plugins.estimators.kalman.stage import KalmanStage, innovations
+from hapticlab.plugins.estimators.kalman.state_layout import (
+    ADAPT_CAP_F,
+    ADAPT_CAP_T,
+    ADAPT_COUNT_F,
+    ADAPT_COUNT_T,
+    ADAPT_FORCE_SEEN,
+    ADAPT_GRAVITY_DIR,
+    ADAPT_GRAVITY_KNOWN,
+    ADAPT_HELD_OUT,
+    ADAPT_TORQUE_SEEN,
+    ADAPT_TW,
+    ADAPT_WINDOW,
+    new_state,
+)
+from hapticlab.plugins.estimators.kalman.tilt_walk_kernel import learn_tilt_walk
 from hapticlab.plugins.estimators.kalman.warm_start import WarmStart
 
 BIAS_RATE_PRIOR_FORCE = 0.025
 """Prior std of the force-bias rate, N/s (three times the 0.5 N/min drift figure)."""
 BIAS_RATE_PRIOR_TORQUE = 0.002
 """Prior std of the torque-bias rate, N·m/s (the force figure times 0.077 m)."""
-_NO_RATE = np.zeros(3)
-"""What the compiled cascade is given for the bias rates' random walk without bias-rate states."""
-_NO_MOUNT = np.eye(3)
-"""What the compiled cascade is given for the mount when it does not estimate one (it is not read)."""
 
 
-class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBadSamples):
+class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmStart, RefusesBadSamples):
     """Cascaded Kalman filters of the non-contact wrench, with drifting biases.
 
     Options: :class:`KalmanOptions` (``KalmanEstimator(noise_force=0.12)`` or ``KalmanEstimator(options)``).
@@ -218,40 +190,22 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
         self.first_converged_torque: int | None = None
         self.samples = 0
         self._last_t_ns: int | None = None
-        # the noise estimate's and the identified rule's state, in the compiled cascade's layout (both paths use
-        # it): the samples' weight in each noise estimate, the window in samples (0 until the first time step),
-        # whether each stage has settled (its flag up; at the pose, identified too), the auto bounds' caps (inf
-        # until the force stage settles), the force reading's
-        # predicted variance at the last pose (NaN until the first sample)
-        self._adapt = np.zeros(ADAPT_SIZE)
-        self._adapt[ADAPT_NOISE_F], self._adapt[ADAPT_NOISE_T] = self.noise_auto_force, self.noise_auto_torque
-        self._adapt[ADAPT_IDENTIFIED] = {"identified": CONVERGENCE_IDENTIFIED, "pose": CONVERGENCE_AT_POSE}.get(
-            o.convergence, 0.0
-        )
-        self._adapt[ADAPT_AUTO_F] = self.noise_auto_force and o.converged_force_std is None
-        self._adapt[ADAPT_AUTO_T] = self.noise_auto_torque and o.converged_torque_std is None
-        self._adapt[[ADAPT_CAP_F, ADAPT_CAP_T]] = math.inf
-        self._adapt[ADAPT_PRED_F : ADAPT_PRED_F + 3] = math.nan
-        self._adapt[ADAPT_TILT : ADAPT_TILT + 9] = math.nan  # the last sample's pose: none yet
-        self._adapt[ADAPT_GRAVITY_DIR : ADAPT_GRAVITY_DIR + 3] = (0.0, 0.0, 1.0)  # B's z until the weight is known
-        self._adapt[ADAPT_TILT_AUTO] = self.tilt_walk_auto
-        self._adapt[ADAPT_TILT_SPAN] = o.bias_tilt_span
-        self._adapt[ADAPT_TW:] = tilt_walk_kernel.new_state()
-        self._adapt[ADAPT_TILT_TORQUE] = TORQUE_PER_FORCE**2 if tilt_torque_follows else -1.0  # (q: variances)
         self._cog_known = False  # a warm start's torque stage had converged
         self._mass_known = False  # a warm start's force stage had converged
         self.prior_f = np.array(prior_f, dtype=float)
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = int(round(o.payload_change_s * 1e9))
         self.torque_reopen_s = float(o.torque_reopen_s)
-        self._adapt[ADAPT_REOPEN_S], self._adapt[ADAPT_REOPEN_LEVER] = (
-            self.torque_reopen_s,
-            float(o.torque_reopen_lever),
+        # the noise estimate's, the identified rule's, the contact judge's and the tilt walk's state, in the
+        # compiled cascade's layout (both paths use it)
+        self._adapt = new_state(
+            o,
+            noise_auto=(self.noise_auto_force, self.noise_auto_torque),
+            tilt_walk_auto=self.tilt_walk_auto,
+            tilt_torque_follows=tilt_torque_follows,
+            prior_torque_bias_var=self.prior_t[3:6] ** 2,
+            mount_activate_var=self.force.activate_var if mount_rotation else 0.0,
         )
-        self._adapt[ADAPT_PRIOR_TB : ADAPT_PRIOR_TB + 3] = self.prior_t[3:6] ** 2
-        self._adapt[ADAPT_CONTACT_AFTER] = o.contact_after
-        if mount_rotation:  # the compiled cascade estimates the mount as MountStage does
-            self._adapt[ADAPT_MOUNT] = self.force.activate_var
         self.events: list[Event] = []
         self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
         self.payload_changes = 0
@@ -411,7 +365,7 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
                 )
 
     def _judge_contacts(self, refused: np.ndarray, tested: np.ndarray) -> np.ndarray:
-        """(m,) the refused samples judged a contact (``cascade_kernel.judge_contact``, run as Python); ``tested``:
+        """(m,) the refused samples judged a contact (``rules_kernel.judge_contact``, run as Python); ``tested``:
         the samples a stage tested (the others neither continue nor end a refused run)."""
         judge = judge_contact.py_func
         return np.array([judge(self._adapt, r, t) for r, t in zip(refused.tolist(), tested.tolist())], dtype=bool)
@@ -421,116 +375,6 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
         """Samples of the refused runs that ended before they were judged a contact: lone outliers of the
         sensor's noise (see ``contact_after``; a run still going is counted when it ends)."""
         return int(self._adapt[ADAPT_HELD_OUT])
-
-    def _filter_compiled(self, block: AlignedSamples) -> Estimates:
-        """``_filter_block`` in one compiled call (``cascade_kernel.kalman_cascade``): the default model, with
-        inertia and a kinematics or sensor lag if set (their inputs from ``_prepare``, compiled too)."""
-        m = len(block)
-        contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
-        t_ns = contiguous(block.t_ns, np.int64)
-        inertial_S, stale = None, contiguous(block.stale, bool)
-        if self.derivatives is not None or self.time_lag_s < 0:  # inertia, a kinematics or sensor lag
-            force_S, torque_S, R_EB, inertial_S, known = self._prepare(block, usable=False)
-            if known is not None:  # a late sensor stream's first samples: no pose yet, not used (as stale)
-                stale = stale | ~known
-            force_S, torque_S, R_EB = contiguous(force_S, float), contiguous(torque_S, float), contiguous(R_EB, float)
-        else:
-            force_S, torque_S = contiguous(block.force_S, float), contiguous(block.torque_S, float)
-            R_EB = contiguous(block.R_EB, float)
-            if self.gain_inverse_force is not None:
-                force_S = force_S @ self.gain_inverse_force.T
-            if self.gain_inverse_torque is not None:
-                torque_S = torque_S @ self.gain_inverse_torque.T
-        y_f = force_S if inertial_S is None else force_S - inertial_S
-        if self.mount_rotation:  # R_EB in (a copy: the cascade writes R_SB through its mount estimate into it)
-            A_f = np.array(R_EB, dtype=float, order="C")
-        else:
-            A_f = contiguous(self._to_S(R_EB)) if self.mount_configured else R_EB
-        p_BoEo_B = NO_POSITIONS if block.p_BoEo_B is None else contiguous(block.p_BoEo_B, float)
-        b, clock, limits = self._buffers, self._clock, self._limits
-        b.ensure(m)
-        if self._last_t_ns is not None:
-            clock[0], clock[1] = 1, self._last_t_ns
-        limits[0] = self.gate2
-        if not (self._adapt[ADAPT_AUTO_F] and self._adapt[ADAPT_AUTO_T]):  # (auto bounds: the cascade's own)
-            bound_f, bound_t = self._bounds()
-            limits[1], limits[2] = bound_f * bound_f, bound_t * bound_t
-        force, torque = self.force, self.torque
-        out = Estimates(
-            block.t_ns,
-            np.empty((m, 3)),
-            np.empty((m, 3)),
-            np.empty(m, dtype=bool),
-            np.empty(m, dtype=bool),
-            np.empty(m, dtype=bool),
-        )
-        x_before = force.x.copy() if self.payload_change_ns > 0 else None
-        failed_f, failed_t, gated_f, first_f, first_t = cascade_kernel.kalman_cascade(
-            t_ns,
-            clock,
-            y_f,
-            force_S,
-            torque_S,
-            A_f,
-            stale,
-            contiguous(block.status, np.int64),
-            p_BoEo_B,
-            NO_POSITIONS if inertial_S is None else inertial_S,
-            b.usable,
-            force.x,
-            force.P,
-            torque.x,
-            torque.P,
-            force.q_bias,
-            force.r,
-            force.rc,
-            torque.q_bias,
-            torque.r,
-            torque.rc,
-            _NO_RATE if force.q_rate is None else force.q_rate,
-            _NO_RATE if torque.q_rate is None else torque.q_rate,
-            force.q_tilt,
-            torque.q_tilt,
-            force.R_SE if self.mount_rotation else _NO_MOUNT,
-            limits,
-            self._adapt,
-            self._information["force"],
-            self._information["torque"],
-            b.A_t,
-            b.scratch,
-            b.work,
-            b.X_f,
-            b.D_f,
-            b.gated_f,
-            b.failed_f,
-            b.X_t,
-            b.D_t,
-            b.gated_t,
-            b.failed_t,
-            out.contact_force_S,
-            out.contact_torque_S,
-            out.contact,
-            out.converged_force,
-            out.converged_torque,
-        )
-        self._last_t_ns = int(t_ns[-1])
-        if self.mount_rotation:
-            self.R_SE = force.R_SE.copy()  # (the cascade turns force.R_SE in place)
-        force.failed += failed_f
-        torque.failed += failed_t
-        if self._adapt[ADAPT_REOPEN_ROW] >= 0:  # (the block's last one: one event per block)
-            self._torque_reopened(int(t_ns[int(self._adapt[ADAPT_REOPEN_ROW])]))
-        self.converged_force, self.converged_torque = bool(out.converged_force[-1]), bool(out.converged_torque[-1])
-        if self.payload_change_ns > 0 and (gated_f or self._payload.in_run):
-            d2 = np.full(m, np.nan)  # (not kept by the cascade; the watcher does not use it)
-            run_f = StageRun(b.X_f[:m], b.D_f[:m], b.gated_f[:m], d2, b.failed_f[:m])
-            self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, x_before)
-        if self.first_converged_force is None and first_f >= 0:
-            self.first_converged_force = self.samples + first_f
-        if self.first_converged_torque is None and first_t >= 0:
-            self.first_converged_torque = self.samples + first_t
-        self.samples += m
-        return out
 
     def _adapt_noise(self, stage, y, A, x_before, run, usable, counter: int) -> None:
         """One sample's covariance matching (``plugins.estimators.kalman.noise``; the numpy reference runs ``noise =
@@ -552,34 +396,3 @@ class KalmanEstimator(ModelInputs, Convergence, Reopening, WarmStart, RefusesBad
         """The events since the last call (EmitsEvents): ``payload_change``, ``sample_refused``."""
         out, self.events = self.events + self.guard.drain_events(), []
         return out
-
-    def params(self) -> dict[str, list[float]]:
-        """Identified parameters with physical names (SI units); with bias_rate also the bias rates; with
-        ``convergence`` "pose" or "identified" the std per axis of gravity_force_B (N) and cog_S (m) as the motion so
-        far identifies them, and NaN for an axis it has not identified at all (``plugins.estimators.kalman.identified.
-        unidentified_axes``: a still tool leaves all three, a turn about B's vertical alone gravity's vertical
-        component; the ``not_identifiable`` event names them); with auto noise the noise estimates."""
-        out = named_params(self.force.x[:6], self.torque.x[:6])
-        if self.mount_rotation or self.mount_configured:
-            out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
-        if self.identifies:  # how well the motion so far has identified the constants
-            for stage, name in (("force", "gravity_force_B"), ("torque", "cog_S")):
-                std, axes = self._unidentified_now(stage)
-                out[f"{name}_std"] = std  # N, m
-                for i in axes:  # not identifiable from the motion so far: no number
-                    out[name][i] = math.nan
-        if self.noise_auto:
-            out["noise_force_S"] = np.sqrt(self.force.r).tolist()  # N
-            out["noise_torque_S"] = np.sqrt(self.torque.r).tolist()  # N·m
-        if self.tilt_walk_auto:  # the tilt walk learnt so far, N/√rad, and from how many pairs of windows
-            out["bias_force_tilt_rw"] = [math.sqrt(self._adapt[ADAPT_TW + TW_Q])]
-            out["tilt_walk_pairs"] = [float(self._adapt[ADAPT_TW + TW_PAIRS])]
-        if self.bias_rate:
-            out["bias_force_rate_S"] = self.force.x[6:9].tolist()  # N/s
-            out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s
-        return out
-
-    def cov_diag(self) -> list[float]:
-        """Diagonal of P for the force stage then the torque stage (12 values; 18 with bias_rate;
-        3 more, the mount's θ at the end of the force stage's, with mount_rotation)."""
-        return np.concatenate([np.diag(self.force.P), np.diag(self.torque.P)]).tolist()

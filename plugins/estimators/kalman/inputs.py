@@ -15,7 +15,7 @@ from hapticlab.core.frames import GRAVITY_M_S2, matrix_from_quat_wxyz, quat_from
 from hapticlab.core.types import AlignedSamples
 from hapticlab.plugins.estimators.kalman import derivatives_kernel
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
-from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_FORCE_SEEN, ADAPT_TORQUE_SEEN
+from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_FORCE_SEEN, ADAPT_TORQUE_SEEN
 
 LAG_HISTORY_MARGIN_NS = 50_000_000
 """Poses kept beyond the lag itself (50 ms), for the next block's interpolation."""

@@ -50,9 +50,9 @@ NOISE_FLOOR = (1e-3, 1e-4)
 AUTO_BOUND_FRACTION = 0.5
 """With the noise estimated and no bound given, a stage converges when its parameters are known to
 this fraction of the estimated noise std (the mean variance over the axes). Looser than the
-configured defaults (0.02 N against 0.12 N, a sixth): a sensor of unknown noise is usually one whose
-residual is mostly model error (0.1–0.5 N on the real logs), and there a sixth is not reached
-within a 100-pose file (``bench real``)."""
+configured defaults (a sixth of a Gamma-class sensor's noise): a sensor of unknown noise is usually one whose
+residual is mostly model error, and there a sixth is not reached within a short recording (``bench real``
+measures it, docs/estimators.md)."""
 
 
 def window_samples(dt: float) -> int:

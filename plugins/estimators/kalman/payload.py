@@ -53,8 +53,8 @@ random tour: see docs/estimators.md ("Payload change")."""
 
 class RefusedWindow:
     """A refusal run's samples, field by field, in arrays that grow by doubling: appending a tick's samples
-    costs their copy, not the window's (a list of per-tick parts concatenated at every test was
-    quadratic: ~0.9 ms a tick at 1 kHz by the end of a 0.9 s window, issue 12). Fields: e, A, y, f, tq, R
+    costs their copy, not the window's (a list of per-tick parts concatenated at every test is quadratic
+    in the run's length). Fields: e, A, y, f, tq, R
     (the module's symbols)."""
 
     SHAPES = {"e": (3,), "A": (3, 3), "y": (3,), "f": (3,), "tq": (3,), "R": (3, 3)}

@@ -12,19 +12,15 @@ from hapticlab.core.frames import skew_stack
 from hapticlab.core.types import Event
 from hapticlab.plugins.estimators.kalman import tilt_walk_kernel
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
-from hapticlab.plugins.estimators.kalman.cascade_kernel import (
-    ADAPT_REOPENS,
-    ADAPT_TW,
-    GATED,
-    UPDATED,
-    torque_only_refusal,
-)
+from hapticlab.plugins.estimators.kalman.rules_kernel import torque_only_refusal
 from hapticlab.plugins.estimators.kalman.stage import innovations
+from hapticlab.plugins.estimators.kalman.stage_kernel import GATED, UPDATED
+from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_REOPENS, ADAPT_TW
 
 
 def bias_unknown(P: np.ndarray, prior: np.ndarray) -> np.ndarray:
     """A copy of a stage's P with its bias (states 3..5) unknown again: its rows and columns zeroed, its
-    variance the prior's (``prior`` (6,) the stage's prior stds; the compiled twin is ``cascade_kernel.reopen_bias``)."""
+    variance the prior's (``prior`` (6,) the stage's prior stds; the compiled twin is ``rules_kernel.reopen_bias``)."""
     P = P.copy()
     P[3:6, :] = 0.0
     P[:, 3:6] = 0.0
@@ -95,7 +91,7 @@ class Reopening(KalmanBase):
         self._seed_information()  # what the replay left known (gravity re-opened along itself)
 
     def _watch_torque_only(self, t_ns, gated_f, force_seen, run_t, dt, contact_force_S, contact_torque_S) -> None:
-        """The reference's torque-only refusal rule (``cascade_kernel.torque_only_refusal``, run as Python): over
+        """The reference's torque-only refusal rule (``rules_kernel.torque_only_refusal``, run as Python): over
         the block's samples in order, re-opening the torque bias where it says so, from the next sample on
         (in one-sample blocks, as the compiled cascade; at the block's end otherwise: the stage has already
         filtered the block)."""
@@ -115,7 +111,7 @@ class Reopening(KalmanBase):
 
     def _reopen_torque_bias(self, t_ns: int) -> None:
         """The torque bias unknown again (P's bias rows and columns zeroed, its diagonal the prior; Λ re-seeded
-        from that P: ``cascade_kernel.reopen_bias``), the centre of gravity as known."""
+        from that P: ``rules_kernel.reopen_bias``), the centre of gravity as known."""
         P = self.torque.P = bias_unknown(self.torque.P, self.prior_t)
         self._information["torque"] = np.linalg.inv(P[:6, :6])
         self._torque_reopened(t_ns)

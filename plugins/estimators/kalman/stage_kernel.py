@@ -1,7 +1,9 @@
-"""One stage of the drift Kalman filter per sample, compiled: the ``kalman`` estimator's hot path.
+"""One stage of the drift Kalman filter per sample, compiled (its three models share the update loops, so one file).
+
+The ``kalman`` estimator's hot path.
 
 The filter of ``plugins.estimators.kalman.stage`` for x = [a, b] (6 states), C_k = [A_k, I3], its arithmetic
-transcribed expression for expression from ``plugins.estimators.kalman.stage._filter6`` (the reference in
+transcribed expression for expression from ``plugins.estimators.kalman.stage_reference.filter6`` (the reference in
 Python floats), so the results are the same bits: numba compiles without fast-math, so
 no product is fused into an FMA and no sum is reordered. Per sample k:
 
@@ -16,7 +18,7 @@ are written). Entry points: ``stage_step`` (one sample) and ``filter6`` (one sta
 m samples: ``KalmanStage.run(method="numba")``); for the other models of a stage
 ``stage_step_rate`` (bias-rate states, x = [a, b, ḃ], 9: the same update in loops over
 the states after the rate's prediction) and ``stage_step_mount`` (the force stage with
-the mount estimated, ``plugins.estimators.kalman.stage.MountStage``'s error-state EKF). The whole cascade of
+the mount estimated, ``plugins.estimators.kalman.mount_stage.MountStage``'s error-state EKF). The whole cascade of
 both stages is ``plugins.estimators.kalman.cascade_kernel``. Nothing is allocated; outputs go to arrays the
 caller owns.
 """
@@ -335,13 +337,13 @@ def stage_step_rate(x, P, y0, y1, y2, A, dt, active, q, q_rate, r, rc, gate2, wo
 
 @njit(cache=True, error_model="numpy")
 def stage_step_mount(x, P, R_SE, y0, y1, y2, R_EB, dt, active, q, q_rate, r, gate2, activate_var, work):
-    """The force stage with the mount rotation estimated (``plugins.estimators.kalman.stage.MountStage``, an error-state EKF), one
+    """The force stage with the mount rotation estimated (``plugins.estimators.kalman.mount_stage.MountStage``, an error-state EKF), one
     sample in place: x = [a, b, (ḃ), θ] (9 or 12 states), R_SE (3, 3) the nominal mount.
 
     :func:`_predict` (θ carried), then :func:`_update` with C = [R_SE R_EB, I3, (0), −R_SE [R_EB a]ₓ]
     (the θ columns zero while max diag P_a > ``activate_var``: the weight not yet known, θ waits); after
     an accepted update θ is folded into the mount, R_SE ← R_SE Exp(θ), θ ← 0 (Rodrigues, as
-    ``plugins.estimators.kalman.stage._exp_so3``). No cross noise (the force stage's). ``work`` (≥ n, 9) scratch. Returns
+    ``plugins.estimators.kalman.mount_stage._exp_so3``). No cross noise (the force stage's). ``work`` (≥ n, 9) scratch. Returns
     (what, d²) as ``stage_step``.
     """
     n = x.shape[0]
@@ -390,7 +392,7 @@ _NO_CROSS = np.zeros(3)
 
 @njit(cache=True, error_model="numpy")
 def filter6(x, P, y, A, dt, tilt, active, q, qt, r, rc, gate2, span, turn, X, D, gated, d2, failed):
-    """One stage over m samples, in order (``plugins.estimators.kalman.stage._filter6``); x and P in place.
+    """One stage over m samples, in order (``plugins.estimators.kalman.stage_reference.filter6``); x and P in place.
 
     Args:
         y: (m, 3) measurements. A: (m, 3, 3). dt: (m,) s. tilt: (m,) rad the tool tilted before each

@@ -2,7 +2,7 @@
 
 The tilt walk (``plugins.estimators.kalman.stage``) lets the bias move by q_θ per radian the tool tilts. How much a
 sensor's non-contact force changes with the tilt is the sensor's, its tool's and its cable's: nothing on a
-simulator whose model is the filter's, 0.14–0.18 N/√rad on the real log that turns enough to tell. It is
+simulator whose model is the filter's, a tenth of a newton or more per √rad on a real sensor. It is
 measured the way a geostatistician measures a variogram, on the samples the filter accepts after the force
 stage has settled:
 
@@ -69,18 +69,15 @@ apart never tells its noise from its model error, and keeps q_θ at 0)."""
 STEP_EXCESS = 0.5
 """A window whose residuals spread more than (1 + this)·σ² (their variance averaged over the axes; σ² plus the
 walk over time's share) is left out, as a refused one is: a light contact under the gate began or ended in it.
-On the simulator at 1 kHz (0.12 N) a window free of contact spreads 0.92–1.10 σ², one in which a 0.5 N touch
-begins or ends 0.98–2.29 σ² (median 1.49: half are left out, which leaves few clean triples of windows to
-score). On lwr4_2013_06_13, whose noise is not white, its windows spread 0.83 σ² (median) and at most
-1.45 σ², its tilt error included: 0.3 leaves out 3 of its 39 windows and still learns its walk, 0.2 leaves
-out 6 and lets one false contact through."""
+Windows free of contact spread about σ², half of those a light touch begins or ends in spread more than 1.5 σ²;
+docs/estimators.md ("The tilt walk") has the measurements behind the figure."""
 STEP_MEMORY = 16
 """The step test's share of failed windows is a running mean over about this many windows (the first ones
 counted alike)."""
 STEP_STAND_DOWN = 0.75
-"""At this share of failed windows or more the step test stands down (``_stepped``). Light touches 2 s in every
-4 fail it in 0.3–0.5 of the windows (the ones a touch begins or ends in); a sensor with filtered (AR(1),
-ρ = 0.5) noise in all of them, a 0.01 N one on a 5° mount in 0.77."""
+"""At this share of failed windows or more the step test stands down (``_stepped``): frequent light touches fail
+it in under half of the windows (the ones a touch begins or ends in), while a sensor whose noise is not white
+fails it in nearly all of them, and there the test says nothing about contacts (docs/estimators.md)."""
 
 TW_Q, TW_S2, TW_S2_N, TW_PAIRS, TW_RING_AT = 0, 1, 2, 3, 4
 TW_OPEN, TW_N, TW_T0, TW_DIRTY, TW_HAS_LAST, TW_AFTER = 5, 6, 7, 8, 9, 10
@@ -110,8 +107,8 @@ def new_state() -> np.ndarray:
 def restore(tw: np.ndarray, values) -> float:
     """Set ``tw`` (in place) to a saved one (a warm start: its windows go on where they were; a pair across a
     pause counts the pause's time as the bias's walk, one sample of the median, and a clock that went back
-    starts the windows afresh); returns q_θ. ValueError if ``values`` is not a ``tw``. A state saved before
-    2026-11-28 lacks the step test's values (``TW_SM`` to ``TW_STEP_N``): they start at 0, and its open window
+    starts the windows afresh); returns q_θ. ValueError if ``values`` is not a ``tw``. A state saved by an older
+    version lacks the step test's values (``TW_SM`` to ``TW_STEP_N``): they start at 0, and its open window
     is dropped (its residual sums are not there to test it).
     """
     values = np.asarray(values, dtype=float)

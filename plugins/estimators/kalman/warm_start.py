@@ -14,7 +14,10 @@ import numpy as np
 
 from hapticlab.plugins.estimators.kalman import tilt_walk_kernel
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
-from hapticlab.plugins.estimators.kalman.cascade_kernel import (
+from hapticlab.plugins.estimators.kalman.noise import NOISE_FLOOR, NOISE_WINDOW
+from hapticlab.plugins.estimators.kalman.options import mount_matrix
+from hapticlab.plugins.estimators.kalman.rules_kernel import set_gravity_direction
+from hapticlab.plugins.estimators.kalman.state_layout import (
     ADAPT_COUNT_F,
     ADAPT_COUNT_T,
     ADAPT_FORCE_SEEN,
@@ -23,10 +26,7 @@ from hapticlab.plugins.estimators.kalman.cascade_kernel import (
     ADAPT_TILT,
     ADAPT_TORQUE_SEEN,
     ADAPT_TW,
-    set_gravity_direction,
 )
-from hapticlab.plugins.estimators.kalman.noise import NOISE_FLOOR, NOISE_WINDOW
-from hapticlab.plugins.estimators.kalman.options import mount_matrix
 
 
 class WarmStart(KalmanBase):

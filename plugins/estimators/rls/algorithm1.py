@@ -1,10 +1,10 @@
 """Algorithm 1 of the paper, transcribed line by line over whole arrays.
 
-This is the reference the live estimator (``hapticlab.plugins.estimators.rls.estimator``)
+This is the reference the live estimator (``hapticlab.plugins.estimators.rls``)
 is tested against: it builds every C_k explicitly and uses the textbook
 formulas with a general matrix inverse, exactly as printed (eqs. 26–28, 20–21),
 so any shortcut the fast implementation takes must give the same numbers.
-It is slow (tens of µs per sample); use it for tests and checks, not sessions.
+It is slow (general inverses per sample); use it for tests and checks, not sessions.
 """
 
 from __future__ import annotations

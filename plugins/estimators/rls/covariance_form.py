@@ -13,10 +13,9 @@ subtracts entries of size ~1e6 to leave entries of size ~r in the directions a
 sample has seen, so their rounding (~1e6·2⁻⁵³ ≈ 1e-10) is a relative error of
 ~1e-8 there; P_k is not kept symmetric, and the gains built from it pass the
 error on to x. How far that moves the estimate depends on the data and on how
-the BLAS rounds: measured, up to ~2 N of contact force in the first samples
-when the orientation changes at every sample, 4e-7 N on ``bench paper``'s
-slow identification tour. As samples accumulate the gains shrink and the
-deviation decays (docs/estimators.md, ``rls``).
+the BLAS rounds: most in the first samples when the orientation changes at
+every sample, little on a slow tour. As samples accumulate the gains shrink
+and the deviation decays (docs/estimators.md, ``rls``, measures it).
 
 It is here so the paper's own update can be measured (the ``rls`` option
 ``covariance_update = "printed"``), not to be preferred. It performs the same

@@ -13,8 +13,7 @@ estimate at every sample, without the rounding of its printed covariance
 update. ``covariance_update = "printed"`` runs that update as printed,
 P_k = (I − K_k C_k) P_{k−1} one sample at a time (``plugins.estimators.rls.covariance_form``), with
 the same gating and convergence test, so the difference can be measured
-(docs/estimators.md, ``rls``: up to ~2 N of contact force in the first samples
-when the orientation changes at every sample, 4e-7 N on ``bench paper``'s tour).
+(docs/estimators.md, ``rls``).
 
 Bad input (docs/estimators.md, "Refused samples"): a sample with a NaN or inf,
 an R_EB that is not a rotation, or a force or torque component beyond
@@ -26,9 +25,9 @@ and ``drain_events()`` reports them (``sample_refused``). A solve that fails on
 finite input leaves the stage as it was and marks that sample not converged.
 
 Kernel (``kernel``, docs/estimators.md): ``"numba"`` (the default) runs both stages and the
-contact wrench of each block in one compiled call (``plugins.estimators.rls.information_form_kernel``, ~3 µs per sample);
-``"numpy"`` runs the reference above (``plugins.estimators.rls.information_form``), which the tests compare it to. The printed
-update (``covariance_update = "printed"``) exists only as the numpy reference.
+contact wrench of each block in one compiled call (``information_form_kernel.py``); ``"numpy"`` runs
+the reference above (``information_form.py``), which the tests compare it to. The printed update
+(``covariance_update = "printed"``) exists only as the numpy reference.
 
 Nothing here improves on the paper: improvements are other estimators or
 named options elsewhere, so the paper's method stays measurable.
@@ -191,8 +190,8 @@ class RLSEstimator(RefusesBadSamples):
 
         P is scaled by the paper's R (2.5e-3 N²), so this measures how well the
         poses seen so far determine each parameter, not the sensor's noise. The haptic gate asks every
-        tick: the compiled path takes diag(Λ⁻¹) from a Cholesky factor (``rls_kernel.inverse_diag``, ~1 µs
-        against ~7 for ``np.linalg.inv``), and inverts Λ as ``P`` does where it is not positive definite.
+        tick: the compiled path takes diag(Λ⁻¹) from a Cholesky factor (``rls_kernel.inverse_diag``, cheaper
+        than ``np.linalg.inv``), and inverts Λ as ``P`` does where it is not positive definite.
         """
         return np.sqrt(self._P_diag(self.force))
 

@@ -23,8 +23,7 @@ kernel, running sample by sample, does not. tests/core/test_kernels.py states th
 Nothing is allocated: the stages' arrays are updated in place, ``work`` holds the
 per-sample temporaries, the outputs are written into arrays the caller owns.
 
-Compile cost: ~4 s the first time on this machine (2 cores, shared), then ~0.05 s
-to load from the ``cache=True`` files in ``__pycache__``; ``warm_up()`` does it.
+Compiled the first time, then loaded from the ``cache=True`` files; ``warm_up()`` does it.
 """
 
 from __future__ import annotations
@@ -201,7 +200,7 @@ def rls_cascade(
             counts incremented). work: ``work_arrays()``. dposv: ``DPOSV``.
         wrench: (2, m, 3) out: contact_force_S (N) and contact_torque_S (N·m) (paper eqs. 20–21).
         flags: (3, m) bool out: contact, converged_force, converged_torque.
-        (Two output arrays rather than five: each argument costs the call ~0.25 µs.)
+        (Two output arrays rather than five: every argument adds to the call's cost.)
     """
     inv_r_f, inv_r_t, th_f, th_t, eps = settings[0], settings[1], settings[2], settings[3], settings[4]
     contact_force_S, contact_torque_S = wrench[0], wrench[1]

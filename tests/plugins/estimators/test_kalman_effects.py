@@ -149,7 +149,7 @@ def test_a_warm_start_carries_the_learnt_tilt_walk(mounted, tmp_path):
     measured 2.1 mN apart); a tilt entry that is not one is refused with its key named."""
     import json
 
-    from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_TW
+    from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_TW
 
     _, block = mounted
     first, rest = block.subset(slice(0, 15000)), block.subset(slice(15000, len(block)))
@@ -191,7 +191,7 @@ def test_a_bias_step_starts_the_learnt_walk_s_windows_afresh(mounted):
     """A re-identified bias (the host saw a bias step) is no turn's: the windows open and closed so far are
     dropped, so no pair straddles the step; what was learnt stays."""
     from hapticlab.plugins.estimators.kalman import tilt_walk_kernel as tilt_walk
-    from hapticlab.plugins.estimators.kalman.cascade_kernel import ADAPT_TW
+    from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_TW
 
     _, block = mounted
     est = KalmanEstimator(bias_force_tilt_rw="auto")

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState
+from hapticlab.core.sensor_model import Effect, ModelState
 
 
 def gain_matrix(p: np.ndarray) -> np.ndarray:

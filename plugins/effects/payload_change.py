@@ -28,7 +28,7 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import cross
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.sensor_model import Effect, ModelState, Motion
 
 EDGE = 0.05
 """Share of the rows at either end where no change is looked for (a step there is a bias or a weight)."""

@@ -27,7 +27,7 @@ with
 
 ``G_f``, ``G_t`` are the sensor's calibration errors (``SensorParams.gain_*``,
 zero by default). The motion derivatives come analytically from the motion
-script (see ``motion.py``). With ``inertia=False`` the terms in ``a_cm`` and
+script (see ``motion/``). With ``inertia=False`` the terms in ``a_cm`` and
 ``I`` are dropped and (with zero calibration error) the reading is exactly the
 paper's model ``S_f = R_SE R_EB B_f + f0``, ``S_τ = c × (S_f − f0) + τ0``.
 

@@ -31,7 +31,7 @@ from hapticlab.plugins.simworld.motion.script import (
 __all__ = ["MOTION_STREAM", "WAYPOINT_BLOCK", "RandomTour", "StaticPoses"]
 
 MOTION_STREAM = 2
-"""SeedSequence spawn key of the motion stream (see ``physics`` for the others)."""
+"""SeedSequence spawn key of the motion stream (``simworld/randomness.py`` has the others)."""
 
 WAYPOINT_BLOCK = 64
 """Random waypoints are drawn this many at a time, each block from its own generator."""

@@ -127,7 +127,7 @@ def savgol(x: np.ndarray, window: int, deriv: int, dt: float, order: int = 3) ->
     centred on each sample, evaluated (its ``deriv``-th derivative) there; the
     first and last half-windows use the polynomial of the first and last full
     window (scipy's ``mode="interp"``). Plain numpy: scipy's own BLAS threads
-    would then contend with numpy's for the two cores here.
+    would then contend with numpy's for a small machine's cores.
     """
     n, half = len(x), window // 2
     s = np.arange(-half, half + 1, dtype=float)

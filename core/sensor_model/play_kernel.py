@@ -1,4 +1,4 @@
-"""The play (backlash) operator, compiled: the hysteresis of a sensor's channels (issue 17).
+"""The play (backlash) operator, compiled: the hysteresis of a sensor's channels.
 
 A play operator of half-width r ≥ 0 follows its input x only once x has moved
 more than r away from it::

@@ -1,4 +1,4 @@
-"""The play (backlash) operator, compiled: the hysteresis of a sensor's channels (issue 17).
+"""The play (backlash) operator, compiled: the hysteresis of a sensor's channels.
 
 A play operator of half-width r ≥ 0 follows its input x only once x has moved
 more than r away from it::
@@ -8,7 +8,7 @@ more than r away from it::
 so ``h − x`` stays within ±r: −r while the input rises (the reading lags its
 load on the way up), +r while it falls, and in between after a reversal. It is
 the one-operator case of the Prandtl–Ishlinskii (Preisach-type) hysteresis
-models. The simulator's sensor (``plugins/simworld/physics.py``) and the
+models. The simulator's sensor (``plugins/simworld/sensor_channels.py``) and the
 discrepancy workflow's ``hysteresis`` effect both use it; its pure-Python
 ``play.py_func`` is the reference the tests compare with.
 

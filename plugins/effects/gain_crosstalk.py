@@ -10,9 +10,8 @@ uniform scale, an antisymmetric part and a symmetric traceless part:
 * the antisymmetric part of the force's is a small rotation of the force
   axes, which is ``mount_rotation``; the antisymmetric part of the
   *torque's* is not a mount rotation (that would turn the force too) and is
-  not modelled: a torque-only antisymmetric error (5° on a simulated
-  recording) is named ``gain_crosstalk``, whose symmetric terms take the part
-  of it they can;
+  not modelled: a torque-only antisymmetric error is named ``gain_crosstalk``,
+  whose symmetric terms take the part of it they can (``docs/discrepancy.md``);
 * what remains, and is modelled here, is symmetric and traceless: per-axis
   scale differences and symmetric cross-axis coupling, 5 parameters each
   (gxx, gyy, gxy, gxz, gyz; gzz = −gxx − gyy) for the force and the torque.
@@ -28,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState
+from hapticlab.core.sensor_model import Effect, ModelState
 
 
 def gain_matrix(p: np.ndarray) -> np.ndarray:

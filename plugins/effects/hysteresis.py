@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.sensor_model import Effect, ModelState, Motion
 from hapticlab.core.sensor_model.play_kernel import play_signed
 
 AXES = tuple(f"{kind}_{axis}" for kind in ("force", "torque") for axis in "xyz")

@@ -18,7 +18,7 @@ of mass c is pinned by the weight's moment, so p is identifiable apart from c;
 if the recorded positions are of another point on the flange, p is the sensor
 origin from that point). ω, α (and a_E, when the recording has positions;
 otherwise the translational term is left out and a note says so) come from
-the recorded poses (``hapticlab.core.sensor_model.model.motion_from_poses``).
+the recorded poses (``hapticlab.core.sensor_model.motion.motion_from_poses``).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import cross
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.sensor_model import Effect, ModelState, Motion
 
 MIN_RATE_HZ = 25.0
 """Below this sample rate the poses do not resolve a robot's accelerations."""

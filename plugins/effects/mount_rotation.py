@@ -15,7 +15,7 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import matrix_from_rotvec
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.sensor_model import Effect, ModelState, Motion
 
 
 class MountRotation(Effect):

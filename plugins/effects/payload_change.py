@@ -15,11 +15,11 @@ puts t_c where the current residual's force best fits a step along the weight
 last twentieth of the recording) and keeps it there: the instant is found,
 not fitted, to within the rows either side of it. The scan sees every row,
 the held-out folds' too, so the candidate test is a little optimistic for this
-effect (on clean recordings it named nothing in 120; on the real 100-pose file,
-whose ``t`` counts poses, it named a 4.6 % lighter tool from pose 24 with a
-torque "calibration error" of 111 % beside it): it is only looked for along a
-time base in seconds. The added mass's own inertia and swing are left out
-(quasi-static, as ``HangingMass`` in the simulator). See ``docs/discrepancy.md`` for how small a change shows.
+effect, and it is only looked for along a time base in seconds (static poses
+may have been taken in any order). The added mass's own inertia and swing are
+left out (quasi-static, as ``HangingMass`` in the simulator). See
+``docs/discrepancy.md`` for how small a change shows and what it names on
+clean recordings.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import cross
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.sensor_model import Effect, ModelState, Motion
 
 EDGE = 0.05
 """Share of the rows at either end where no change is looked for (a step there is a bias or a weight)."""

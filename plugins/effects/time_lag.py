@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.sensor_model import Effect, ModelState, Motion
 
 
 class TimeLag(Effect):

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.sensor_model.model import Effect, ModelState, Motion
+from hapticlab.core.sensor_model import Effect, ModelState, Motion
 
 TAU_GRID = 60
 """Time constants tried by ``locate`` (geometric, from three samples to half the recording)."""

@@ -14,9 +14,11 @@ from hapticlab.core.frames import quat_multiply, quat_wxyz_from_matrix
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import PoseSample
 from hapticlab.plugins.kinematics import sim_kernel as pose_kernel
+from hapticlab.plugins.simworld.clock import SampleClock
 from hapticlab.plugins.simworld.faults import kinematics_faults_act, kinematics_times
-from hapticlab.plugins.simworld.physics import SampleClock, SimWorld, gaussian_noise
+from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.plugins.simworld.prefetch import PREFETCH_S, Prefetch
+from hapticlab.plugins.simworld.randomness import gaussian_noise
 
 ENCODER_STREAM = 2
 """The world's random stream of the robot's encoder jitter (0: sensor noise, 1: bias drift)."""

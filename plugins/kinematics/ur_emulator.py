@@ -93,7 +93,8 @@ from hapticlab.plugins.kinematics.ur_follow import (
     decode_target,
 )
 from hapticlab.plugins.serving import serve_until_stopped
-from hapticlab.plugins.simworld.physics import SimWorld, gaussian_noise
+from hapticlab.plugins.simworld.physics import SimWorld
+from hapticlab.plugins.simworld.randomness import gaussian_noise
 
 RTDE_PORT = 30004
 PROTOCOL_VERSION = 2

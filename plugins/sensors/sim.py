@@ -14,8 +14,9 @@ import numpy as np
 from hapticlab.core import hookimpl
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import NO_WRENCHES, WrenchBlock, WrenchSample
+from hapticlab.plugins.simworld.clock import SampleClock
 from hapticlab.plugins.simworld.faults import apply_sensor_faults
-from hapticlab.plugins.simworld.physics import SampleClock, SimWorld
+from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.plugins.simworld.prefetch import PREFETCH_S, Prefetch
 
 MAX_RATE_HZ = 100_000.0

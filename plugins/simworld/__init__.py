@@ -2,7 +2,7 @@
 
 A :class:`SimWorld` holds a rigid tool on a wrist-mounted six-axis sensor
 (``ToolParams``, ``SensorParams``), a robot whose base may be tilted against
-gravity (``RobotParams``), a motion script for the flange (``motion.py``:
+gravity (``RobotParams``), a motion script for the flange (``motion/``:
 ``RandomTour``, ``StaticPoses``, ``AxialRotation``, ``Hold``) and contact events
 (``Indentation``, ``HangingMass``, ``Tissue``, ``Cable``). The ``sim`` sensor and ``sim`` kinematics
 plugins both read the same world, so the simulated wrench and pose agree.

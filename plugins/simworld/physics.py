@@ -27,7 +27,7 @@ with
 
 ``G_f``, ``G_t`` are the sensor's calibration errors (``SensorParams.gain_*``,
 zero by default). The motion derivatives come analytically from the motion
-script (see ``motion.py``). With ``inertia=False`` the terms in ``a_cm`` and
+script (see ``motion/``). With ``inertia=False`` the terms in ``a_cm`` and
 ``I`` are dropped and (with zero calibration error) the reading is exactly the
 paper's model ``S_f = R_SE R_EB B_f + f0``, ``S_τ = c × (S_f − f0) + τ0``.
 
@@ -35,35 +35,19 @@ The robot's kinematics may run on a clock offset from the sensor's
 (``RobotParams.kinematics_lag_s``): ``pose(t)`` reports the pose stamped t,
 while the wrench always follows the true motion.
 
-Randomness
-----------
-Independent streams, all from ``numpy.random.SeedSequence(seed)`` by spawn key:
-0 white noise, 1 random-walk bias drift, 2 motion waypoints. Every random
-quantity is a pure function of (seed, time), so a stream is identical whether
-it is asked for in one call or in chunks, in any order, any number of times:
-
-* **White noise** is counter-based: the Gaussian for (axis, sample) is computed
-  from a hash (SplitMix64) of the noise-stream key, the sample time in integer
-  nanoseconds and the axis, then a Box–Muller transform. (A sequential
-  generator would tie the noise of a sample to how many samples were drawn
-  before it, by whom.)
-* **Random-walk drift** is a Brownian path on a fixed 10 ms grid, drawn block by
-  block with ``default_rng`` (block b from spawn key (1, b)) and linearly
-  interpolated between grid points.
+What the sensor's channels make of the wrench on them (the calibration error,
+hysteresis, bias, noise and saturation) is ``sensor_channels.py``; its random
+streams, pure functions of (seed, time), ``randomness.py``.
 """
 
 from __future__ import annotations
 
-import functools
-import math
-import threading
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
 
 from hapticlab.core.frames import rotvec_from_matrix, skew
-from hapticlab.core.sensor_model.play_kernel import play
 from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
 from hapticlab.plugins.simworld.cable import Cable
 from hapticlab.plugins.simworld.config import (
@@ -76,18 +60,11 @@ from hapticlab.plugins.simworld.config import (
 )
 from hapticlab.plugins.simworld.faults import Fault
 from hapticlab.plugins.simworld.motion import MotionScript, MotionState, RandomTour
+from hapticlab.plugins.simworld.sensor_channels import SensorChannels
 from hapticlab.plugins.simworld.servo import ServoedMotion
 from hapticlab.plugins.simworld.tissue import Tissue
 
-__all__ = ["DRIFT_STREAM", "NOISE_STREAM", "RandomWalk", "SampleClock", "SimWorld", "gaussian_noise"]
-
-NOISE_STREAM = 0
-"""SeedSequence spawn key of the white-noise stream."""
-
-DRIFT_STREAM = 1
-"""SeedSequence spawn key of the random-walk drift stream."""
-
-# --------------------------------------------------------------------------- small helpers
+__all__ = ["SimWorld"]
 
 
 def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -109,200 +86,6 @@ def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def _times(t: float | np.ndarray) -> np.ndarray:
     return np.atleast_1d(np.asarray(t, dtype=float)).ravel()
-
-
-_U64 = np.uint64
-_CHANNEL_STEP = 0xD1B54A32D192ED03  # an odd 64-bit constant separating the channels' counters
-_GOLDEN_GAMMA, _MIX_1, _MIX_2 = _U64(0x9E3779B97F4A7C15), _U64(0xBF58476D1CE4E5B9), _U64(0x94D049BB133111EB)
-_SHIFT_11, _SHIFT_27, _SHIFT_30, _SHIFT_31 = _U64(11), _U64(27), _U64(30), _U64(31)
-
-
-def _splitmix64(x: np.ndarray) -> np.ndarray:
-    """The SplitMix64 finaliser: a bijective, well-mixing hash of uint64 arrays."""
-    x = x + _GOLDEN_GAMMA
-    x = (x ^ (x >> _SHIFT_30)) * _MIX_1
-    x = (x ^ (x >> _SHIFT_27)) * _MIX_2
-    return x ^ (x >> _SHIFT_31)
-
-
-@functools.cache
-def _channel_offsets(channels: int) -> np.ndarray:
-    """(channels,) uint64 counter offsets: channel c adds ``(c + 1) · _CHANNEL_STEP`` (mod 2⁶⁴)."""
-    # Python ints first: no numpy scalar overflow
-    offsets = np.array([((c + 1) * _CHANNEL_STEP) % 2**64 for c in range(channels)], dtype=np.uint64)
-    offsets.setflags(write=False)
-    return offsets
-
-
-def gaussian_noise(key: int, t_ns: np.ndarray, channels: int) -> np.ndarray:
-    """Standard-normal numbers that depend only on (key, time, channel).
-
-    Parameters
-    ----------
-    key : 64-bit stream key (from the world's SeedSequence).
-    t_ns : (N,) int64 sample times, ns.
-    channels : number of independent values per sample (even).
-
-    Returns
-    -------
-    (N, channels) float array, independent N(0, 1) across samples and channels.
-    """
-    counter = np.ascontiguousarray(t_ns, dtype=np.int64).view(np.uint64)
-    base = _splitmix64(counter ^ _U64(key))
-    # all channels at once: a different odd-constant offset per channel, then
-    # Box–Muller on the pairs (channel 2i, channel 2i + 1)
-    bits = _splitmix64(base[:, None] + _channel_offsets(channels))
-    uniform = ((bits >> _SHIFT_11).astype(float) + 0.5) * 2.0**-53  # in (0, 1)
-    u1, u2 = uniform[:, 0::2], uniform[:, 1::2]
-    radius = np.sqrt(-2.0 * np.log(u1))
-    angle = 2.0 * np.pi * u2
-    out = np.empty((len(counter), channels))
-    out[:, 0::2] = radius * np.cos(angle)
-    out[:, 1::2] = radius * np.sin(angle)
-    return out
-
-
-class GrowingPath:
-    """A path on a time grid that only grows: extended under a lock by :meth:`_more` as later points are
-    asked for, and read without one (so what it holds at a point never depends on what was asked before)."""
-
-    def __init__(self, start: np.ndarray):
-        self._path = start
-        self._lock = threading.Lock()
-
-    def _ensure(self, points: int) -> None:
-        if len(self._path) >= points:  # the usual case: no lock needed (the path only grows)
-            return
-        with self._lock:
-            while len(self._path) < points:
-                self._path = np.concatenate([self._path, self._more(points)])
-
-    def _more(self, points: int) -> np.ndarray:
-        """The rows after the last one held (towards ``points``)."""
-        raise NotImplementedError
-
-
-class RandomWalk(GrowingPath):
-    """Standard Brownian paths W(t) for several channels (W(0) = 0, Var W(t) = t).
-
-    Sampled on a grid of ``grid_s`` and linearly interpolated in between; before
-    t = 0 the path is 0. The grid is drawn block by block (``block`` steps per
-    block), block b from ``default_rng(SeedSequence(seed, spawn_key=(stream, b)))``,
-    and cached, so W at a time never depends on the times asked for before.
-    """
-
-    def __init__(
-        self, seed: int, stream: int = DRIFT_STREAM, channels: int = 6, grid_s: float = 0.01, block: int = 4096
-    ):
-        super().__init__(np.zeros((1, channels)))  # W at grid points 0, 1, ...
-        self.seed, self.stream, self.channels = seed, stream, channels
-        self.grid_s, self.block = grid_s, block
-
-    def _more(self, points: int) -> np.ndarray:
-        b = (len(self._path) - 1) // self.block
-        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(self.stream, b)))
-        steps = rng.standard_normal((self.block, self.channels)) * np.sqrt(self.grid_s)
-        return self._path[-1] + np.cumsum(steps, axis=0)
-
-    def __call__(self, t: np.ndarray) -> np.ndarray:
-        """(N, channels) W at times ``t`` (s)."""
-        x = np.maximum(_times(t), 0.0) / self.grid_s
-        k = np.floor(x).astype(np.int64)
-        self._ensure(int(k.max(initial=0)) + 2)
-        frac = (x - k)[:, None]
-        return self._path.take(k, axis=0) * (1.0 - frac) + self._path.take(k + 1, axis=0) * frac
-
-
-class PlayHysteresis(GrowingPath):
-    """The sensor channels' hysteresis: their load through play operators (``core/sensor_model/play_kernel.py``).
-
-    The operator's state is followed along the loading path on a grid of
-    ``grid_s`` from t = 0 (where it starts relaxed, at the load), grown block by
-    block as later times are asked for and cached, so the reading at a time
-    never depends on the times asked for before: at time t it is the state at
-    the grid point before t moved on to the load at t. Before t = 0 the state
-    is the load at 0.
-
-    Args:
-        r: (6,) half-widths, force (N) then torque (N·m), ≥ 0.
-        load: the channels' load at times (N,) s, as (N, 6).
-        ahead: grow the path a ``block`` at a time (a scripted world); False: only up to the time asked
-            for (a world that follows targets sent as it runs is not known ahead of now).
-    """
-
-    def __init__(self, r: np.ndarray, load, grid_s: float = 1e-3, block: int = 1000, ahead: bool = True):
-        super().__init__(np.empty((0, 6)))  # the operator's output at grid points 0, 1, ...
-        self.r = np.asarray(r, dtype=float)
-        self.load, self.grid_s, self.block, self.ahead = load, grid_s, block, ahead
-
-    def _more(self, points: int) -> np.ndarray:
-        start = len(self._path)
-        end = start + self.block if self.ahead else points
-        x = self.load(np.arange(start, end) * self.grid_s)
-        out = np.empty_like(x)
-        play(x, self.r, x[0].copy() if start == 0 else self._path[-1], out)
-        return out
-
-    def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """(N, 6) what the channels read at times ``t`` (N,) s for the load ``x`` (N, 6) there."""
-        k = np.floor(np.maximum(t, 0.0) / self.grid_s).astype(np.int64)
-        self._ensure(int(k.max(initial=0)) + 1)
-        h = self._path.take(k, axis=0)
-        return np.minimum(np.maximum(h, x - self.r), x + self.r)
-
-
-class SampleClock:
-    """Hands out the sample times of a simulated device once each, in order.
-
-    Sample i is at ``t0_ns + round(i · 1e9 / rate_hz)`` ns.
-    """
-
-    def __init__(self, rate_hz: float):
-        if not rate_hz > 0:
-            raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
-        self.rate_hz = float(rate_hz)
-        self.t0_ns: int | None = None
-        self.next_index = 0
-
-    def start(self, t0_ns: int) -> None:
-        """Sample 0 is at ``t0_ns``."""
-        self.t0_ns = int(t0_ns)
-        self.next_index = 0
-
-    def times(self, seq: np.ndarray) -> np.ndarray:
-        """(N,) int64 times of the samples ``seq``, ns."""
-        return self.t0_ns + np.rint(seq * (1e9 / self.rate_hz)).astype(np.int64)
-
-    def end_index(self, until_ns: int) -> int:
-        """One past the index of the last sample with time <= ``until_ns`` (at least ``next_index``)."""
-        if self.t0_ns is None:
-            raise RuntimeError("read() before open()")
-        last = math.floor((int(until_ns) - self.t0_ns) * self.rate_hz / 1e9) + 1  # may overshoot by one
-        step = 1e9 / self.rate_hz
-        while last >= self.next_index and self.t0_ns + round(last * step) > until_ns:  # times(), for one index
-            last -= 1
-        return max(last + 1, self.next_index)
-
-    def advance(self, until_ns: int) -> range:
-        """The indices of every sample not yet taken with time <= ``until_ns`` (taken now; empty when none)."""
-        lo = self.next_index
-        self.next_index = hi = self.end_index(until_ns)
-        return range(lo, hi)
-
-    def take(self, until_ns: int) -> tuple[range, list[int]]:
-        """Indices and times of every sample not yet taken with time <= ``until_ns``.
-
-        A live read takes one sample or a few: Python's integers cost less than numpy's per-call
-        overhead here, and give :meth:`times`'s values (the same float product, rounded half to even).
-
-        Returns
-        -------
-        seq : the sample indices (a range, empty when there is none).
-        t_ns : their times, ns (Python ints).
-        """
-        seq = self.advance(until_ns)
-        t0_ns, step = self.t0_ns, 1e9 / self.rate_hz
-        return seq, [t0_ns + round(i * step) for i in seq]
 
 
 # --------------------------------------------------------------------------- the world
@@ -346,15 +129,8 @@ class SimWorld:
         self.R_BG = self.robot.R_BG
         self.gravity_accel_B = self.robot.gravity_accel_B
         self._init_wrench_constants()
-        self._noise_key = int(
-            np.random.SeedSequence(self.seed, spawn_key=(NOISE_STREAM,)).generate_state(1, np.uint64)[0]
-        )
-        has_walk = np.any(self.sensor.drift_force_rw_S > 0) or np.any(self.sensor.drift_torque_rw_S > 0)
-        self._walk = RandomWalk(self.seed, DRIFT_STREAM, channels=6) if has_walk else None
-        widths = np.concatenate([self.sensor.hysteresis_force_S, self.sensor.hysteresis_torque_S])
-        self._hysteresis = (
-            PlayHysteresis(widths, lambda t: self._loaded(t)[1], ahead=not self.live) if widths.any() else None
-        )
+        self.channels = SensorChannels(self.sensor, self.seed, lambda t: self._loaded(t)[1], ahead=not self.live)
+        """What the sensor's channels make of the wrench on them (``sensor_channels.py``)."""
 
     def _init_wrench_constants(self) -> None:
         """Everything wrench() needs that does not change, computed once.
@@ -393,17 +169,6 @@ class SimWorld:
         gyroscopic = np.cross(e_j, e_k @ tool.inertia_S.T)  # [j, k]: e_j × I e_k
         self._w_products_map = np.concatenate([centripetal, gyroscopic], axis=2).reshape(9, 6).T
         """(6, 9): ``_apply(self._w_products_map, (ω_E ω_Eᵀ).ravel()) == [ω × (ω × r), ω × I ω]`` (in S)."""
-        # force then torque, (6,) each: N and N·m, N/s and N·m/s, N/√s and N·m/√s
-        self._bias_S = np.concatenate([sensor.bias_force_S, sensor.bias_torque_S])
-        self._drift_S = np.concatenate([sensor.drift_force_S, sensor.drift_torque_S])
-        self._drift_rw_S = np.concatenate([sensor.drift_force_rw_S, sensor.drift_torque_rw_S])
-        self._warmup_S = np.concatenate([sensor.warmup_force_S, sensor.warmup_torque_S])
-        """(6,) the bias's distance from its settled value at t = 0 (N, N·m), decaying with ``warmup_tau_s``"""
-        self._noise_S = np.concatenate([sensor.noise_force_S, sensor.noise_torque_S])
-        self._saturation_S = np.concatenate([sensor.saturation_force_S, sensor.saturation_torque_S])
-        has_gain = np.any(sensor.gain_force_S != 0) or np.any(sensor.gain_torque_S != 0)
-        self._gain_S = (np.eye(3) + sensor.gain_force_S, np.eye(3) + sensor.gain_torque_S) if has_gain else None
-        """``(I + G_f, I + G_t)``, each (3, 3), or None without a calibration error."""
 
     @classmethod
     def from_config(cls, table: Mapping[str, Any] | None) -> SimWorld:
@@ -469,17 +234,8 @@ class SimWorld:
 
     def bias(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """True sensor bias at times ``t`` (s): ``(bias_force_S (N, 3) N, bias_torque_S (N, 3) N·m)``."""
-        bias_S = self._bias_wrench_S(_times(t))
+        bias_S = self.channels.bias(_times(t))
         return bias_S[:, :3], bias_S[:, 3:]
-
-    def _bias_wrench_S(self, t: np.ndarray) -> np.ndarray:
-        """(N, 6) true bias at times ``t`` (N,) s: force (N) then torque (N·m)."""
-        bias_S = self._bias_S + t[:, None] * self._drift_S
-        if self._warmup_S.any():  # the electronics settling: exp(−t/τ) of the way still to go
-            bias_S = bias_S + np.exp(-np.maximum(t, 0.0) / self.sensor.warmup_tau_s)[:, None] * self._warmup_S
-        if self._walk is not None:
-            bias_S = bias_S + self._walk(t) * self._drift_rw_S
-        return bias_S
 
     def wrench(self, t: float | np.ndarray, noise: bool = True) -> dict[str, np.ndarray]:
         """The sensor reading at times ``t`` (s), with the truth behind it.
@@ -505,19 +261,9 @@ class SimWorld:
             ``R_EB`` (N, 3, 3); ``p_BoEo_B`` (N, 3) m; ``t`` (N,) s.
         """
         t = _times(t)
-        parts, reading_S = self._loaded(t)
-        if self._hysteresis is not None:  # the channels follow their load through play operators
-            reading_S = self._hysteresis(t, reading_S)
+        parts, load_S = self._loaded(t)
         # What the sensor reads, force then torque side by side: (N, 6)
-        bias_S = self._bias_wrench_S(t)
-        reading_S += bias_S
-        if noise:
-            t_ns = np.rint(t * 1e9).astype(np.int64)
-            reading_S += gaussian_noise(self._noise_key, t_ns, 6) * self._noise_S
-
-        limit = self._saturation_S
-        saturated = (np.abs(reading_S) > limit).any(axis=1)
-        reading_S = np.minimum(np.maximum(reading_S, -limit), limit)  # np.clip, without its overhead
+        reading_S, bias_S, saturated = self.channels.read(t, load_S, noise)
         parts.update(
             {
                 "force_S": reading_S[:, :3],
@@ -576,9 +322,7 @@ class SimWorld:
         reading_S = np.empty((n, 6))
         reading_S[:, :3] = gravity_force_S + inertial_force_S + contact_force_S
         reading_S[:, 3:] = gravity_torque_S + inertial_torque_S + contact_torque_S
-        if self._gain_S is not None:  # calibration error: the sensor reads (I + G)·true
-            reading_S[:, :3] = _apply(self._gain_S[0], reading_S[:, :3])
-            reading_S[:, 3:] = _apply(self._gain_S[1], reading_S[:, 3:])
+        reading_S = self.channels.calibrated(reading_S)
         return {
             "t": t,
             "contact": contact,

@@ -19,11 +19,10 @@ import numpy as np
 PREFETCH_S = 1.0
 """How far ahead the simulated devices compute, s, up to ``PREFETCH_MAX_SAMPLES`` (so 400 samples at 1 kHz,
 at 500 Hz and at 7 kHz alike). A chunk's first numpy calls run cold (the loop has not made them for a
-while): in a 1 kHz demo session 100 poses cost 390 µs, 400 poses 530 µs, so fewer, larger chunks cost less
-per sample (3.9 → 1.3 µs per pose)."""
+while), a cost paid once per chunk, so fewer, larger chunks cost less per sample."""
 PREFETCH_MAX_SAMPLES = 400
-"""The most samples one chunk computes (a 7 kHz sensor's 57 ms): up to ~1 ms in a paced session, which its
-loop computes while it would sleep, ten ticks ahead (``PreparesAhead``, ``loop.PREPARE_AHEAD_TICKS``)."""
+"""The most samples one chunk computes (a 7 kHz sensor's 57 ms): small enough for a paced session's loop
+to compute while it would sleep, ten ticks ahead (``PreparesAhead``, ``loop.PREPARE_AHEAD_TICKS``)."""
 
 
 class Prefetch:

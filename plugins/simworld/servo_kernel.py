@@ -1,9 +1,9 @@
-"""The simulated servoed robot's state at given times, compiled: ``ServoedMotion.evaluate`` (issue 12).
+"""The simulated servoed robot's state at given times, compiled: ``ServoedMotion.evaluate``.
 
 In a teleoperated simulation the robot's motion is only known up to now, so the
 simulated sensor and kinematics ask for it one sample at a time (a 1 kHz loop:
-one call per reading); in numpy that is some twenty calls on (1, 3) arrays,
-~35 µs a call on this machine and twice that inside the loop. Within step k
+one call per reading); in numpy that is some twenty calls on (1, 3) arrays, each
+paying numpy's per-call overhead, for every reading. Within step k
 (τ = t − t_k ≥ 0, the step's state a row of the motion's history)::
 
     p(t) = p_k + v_k τ + ½ a_k τ²,   v(t) = v_k + a_k τ,   a(t) = a_k

@@ -63,7 +63,7 @@ import numpy as np
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.host.registry import ConfigError, Registry
-from hapticlab.core.sensor_model.model import Effect, LocatesItself, Model, Motion, motion_from_poses
+from hapticlab.core.sensor_model import Effect, LocatesItself, Model, Motion, motion_from_poses
 from hapticlab.sessions.discrepancy.blas import single_threaded_blas
 from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold, where_left, where_text
 from hapticlab.sessions.offline.metrics import rms

@@ -1,4 +1,4 @@
-"""The sensor model along a recorded motion (core/sensor_model/model.py) and the built-in effect models.
+"""The sensor model along a recorded motion (core/sensor_model/) and the built-in effect models.
 
 Expected values come from the simulated world (its own physics, analytic
 motion derivatives), from scipy, or from first principles, never from the
@@ -16,7 +16,8 @@ from scipy.spatial.transform import Rotation
 
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.host.registry import Registry, make_plugin_manager
-from hapticlab.core.sensor_model.model import STAGES, Effect, Model, motion_from_poses, savgol, savgol_t
+from hapticlab.core.sensor_model import STAGES, Effect, Model, motion_from_poses
+from hapticlab.core.sensor_model.motion import savgol, savgol_t
 from hapticlab.plugins.effects.bias_drift import BiasDrift
 from hapticlab.plugins.effects.gain_crosstalk import GainCrosstalk, gain_matrix
 from hapticlab.plugins.effects.hysteresis import Hysteresis

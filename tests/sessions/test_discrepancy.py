@@ -21,7 +21,7 @@ import pytest
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.host.registry import Registry, make_plugin_manager
-from hapticlab.core.sensor_model.model import Effect, ModelState
+from hapticlab.core.sensor_model import Effect, ModelState
 from hapticlab.plugins.simworld import Indentation, RandomTour, RobotParams, SensorParams, SimWorld
 from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.plugins.simworld.motion import StaticPoses
@@ -487,7 +487,7 @@ def test_gauss_newton_never_ends_worse_than_it_started(tmp_path):
     path = tmp_path / "lag.csv"
     write_csv(world_for("time_lag", 2), path, 10.0, 250.0)
     d = Discrepancy(load_stream(path))
-    from hapticlab.core.sensor_model.model import Model
+    from hapticlab.core.sensor_model import Model
     from hapticlab.plugins.effects.mount_rotation import MountRotation
     from hapticlab.plugins.effects.time_lag import TimeLag
 

@@ -26,7 +26,8 @@ from hapticlab.plugins.simworld import (
     SimWorld,
     ToolParams,
 )
-from hapticlab.plugins.simworld.physics import SampleClock, gaussian_noise
+from hapticlab.plugins.simworld.clock import SampleClock
+from hapticlab.plugins.simworld.randomness import gaussian_noise
 
 G = 9.80665
 
@@ -611,7 +612,7 @@ def test_noise_stream_is_unchanged():
     for key in (0, 8431846347943309920, 2**64 - 1):
         for channels in (2, 6):
             assert np.array_equal(gaussian_noise(key, t_ns, channels), reference_gaussian_noise(key, t_ns, channels))
-    assert SimWorld(seed=1)._noise_key == 8431846347943309920
+    assert SimWorld(seed=1).channels.noise_key == 8431846347943309920
     recorded = np.array(
         [
             [

@@ -18,7 +18,7 @@ cannot be told).
 What reaches the wire is never above ``device_max_force`` and never NaN: a
 non-finite command is written as zero, a disabled one as zero with the enable
 flag cleared, a larger one is scaled down along its direction
-(``serial.clamp_force``); each component is then quantised to its field's
+(``master.clamp_force``); each component is then quantised to its field's
 type, saturating at the type's range (never wrapping around), and rounded
 toward zero when rounding to the nearest count would take the norm above the
 limit. A device maximum that a force field cannot represent is a ConfigError.
@@ -81,7 +81,7 @@ from hapticlab.plugins.haptics.hid_transport import (
     HidapiTransport,
     RawHidTransport,
 )
-from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, clamp_force, link_event
+from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force, link_event
 
 MAX_REPORT_SIZE = 64
 """Bytes of data in one report: the full-speed interrupt packet."""

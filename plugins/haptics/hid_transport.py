@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from hapticlab.plugins.haptics.framing import STATUS_CLAMPED
-from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError
+from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError
 
 if TYPE_CHECKING:
     from hapticlab.plugins.haptics.hid import RawHidLayout

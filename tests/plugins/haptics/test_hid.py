@@ -13,7 +13,7 @@ from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_mana
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics.hid import PRESETS, TYPES, Field, HidHaptic, RawHidLayout, encode_force
 from hapticlab.plugins.haptics.hid_transport import DeviceSelector, FakeHidapi, FakeRawHidMaster, HidapiTransport
-from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, clamp_force
+from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force
 
 TEENSY = PRESETS["teensy-rawhid"]["layout"]
 

@@ -23,8 +23,9 @@ from hapticlab.core.host.interfaces import EmitsEvents, HapticOutput, ReportsHea
 from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics import framing
+from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force
 from hapticlab.plugins.haptics.master_emulator import MasterEmulator, recorded_motion, scripted_motion
-from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, SerialHaptic, clamp_force
+from hapticlab.plugins.haptics.serial import SerialHaptic
 
 GUARD_S = 10.0  # a guard against hangs only
 SLOW = 1.0  # s: read timeout of tests that are not about timeouts (a loaded machine may stall a reply)

@@ -11,8 +11,10 @@ import pytest
 from hapticlab.core.host.interfaces import EmitsEvents, HapticOutput, ReportsHealth
 from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import HapticCommand
-from hapticlab.plugins.haptics.hid import PRESETS, TYPES, Field, HidHaptic, RawHidLayout, encode_force
-from hapticlab.plugins.haptics.hid_transport import DeviceSelector, FakeHidapi, FakeRawHidMaster, HidapiTransport
+from hapticlab.plugins.haptics.hid import HidHaptic
+from hapticlab.plugins.haptics.hid_fake import FakeHidapi, FakeRawHidMaster
+from hapticlab.plugins.haptics.hid_layout import PRESETS, TYPES, Field, RawHidLayout, encode_force
+from hapticlab.plugins.haptics.hid_transport import DeviceSelector, HidapiTransport
 from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force
 
 TEENSY = PRESETS["teensy-rawhid"]["layout"]

@@ -23,8 +23,9 @@ from hapticlab.core.host.interfaces import EmitsEvents, HapticOutput, ReportsHea
 from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics import framing
+from hapticlab.plugins.haptics.handle_motion import recorded_motion, scripted_motion
 from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force
-from hapticlab.plugins.haptics.master_emulator import MasterEmulator, recorded_motion, scripted_motion
+from hapticlab.plugins.haptics.master_emulator import MasterEmulator
 from hapticlab.plugins.haptics.serial import SerialHaptic
 
 GUARD_S = 10.0  # a guard against hangs only
@@ -410,7 +411,7 @@ def test_scripted_and_recorded_paths(tmp_path):
 
 
 def test_scheduled_faults_parse_and_inject(emulator, device):
-    from hapticlab.plugins.haptics.master_emulator import ScheduledFault
+    from hapticlab.plugins.haptics.master_emulator_cli import ScheduledFault
 
     assert ScheduledFault.parse("crc@5:3") == ScheduledFault("crc", 5.0, 3.0)
     assert ScheduledFault.parse("unplug@12") == ScheduledFault("unplug", 12.0, None)
@@ -428,7 +429,7 @@ def test_scheduled_faults_parse_and_inject(emulator, device):
 
 def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
     code = (
-        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
         "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
     )
     proc = subprocess.Popen(
@@ -455,7 +456,7 @@ def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
 
 def test_a_sigterm_sent_as_soon_as_the_port_is_printed_ends_the_emulator_cleanly():
     code = (
-        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
         "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
     )
     for _ in range(5):  # the port is printed once the handler is in place: no window for the default handler

@@ -14,6 +14,8 @@ from typing import Callable
 
 import numpy as np
 
+from hapticlab.core.host.options import choice, number
+
 PATHS = ("circle", "figure8", "hold", "press")
 
 HandleMotion = Callable[[float], tuple[np.ndarray, np.ndarray]]
@@ -29,10 +31,9 @@ def scripted_motion(
     """A handle moving about ``center`` (m), one lap per ``period`` s: ``circle`` or ``figure8`` (a lemniscate
     of Gerono, ``radius`` wide each way) in D's x-y plane, ``hold`` (still at ``center``), or ``press``
     (down along D's −z by up to ``radius`` and back, a raised cosine: a hand probing tissue by teleoperation)."""
-    if kind not in PATHS:
-        raise ValueError(f"path: must be one of {', '.join(PATHS)} or a CSV file, got {kind!r}")
-    if not (radius >= 0 and period > 0):
-        raise ValueError(f"path: radius must be >= 0 m and period > 0 s, got {radius!r}, {period!r}")
+    choice("path", kind, PATHS, hint=" (or a CSV file)")
+    number("radius", radius, minimum=0, hint=" m")
+    number("period", period, above=0, hint=" s")
     c = np.asarray(center, dtype=float)
     w = 2 * math.pi / period
 

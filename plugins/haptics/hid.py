@@ -22,7 +22,7 @@ flag cleared, a larger one is scaled down along its direction
 (``master.clamp_force``); each component is then quantised to its field's
 type, saturating at the type's range (never wrapping around), and rounded
 toward zero when rounding to the nearest count would take the norm above the
-limit. A device maximum that a force field cannot represent is a ConfigError.
+limit. A device maximum that a force field cannot represent is refused when the plugin is made.
 
 A lost device raises MasterLostError from ``send``, so the session zeroes the
 force and records an event: a read or write that fails (unplugged), or no IN
@@ -44,7 +44,7 @@ import time
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, choice, integer, number
 from hapticlab.core.types import DeviceState, Event, HapticCommand
 from hapticlab.plugins.haptics import framing
 from hapticlab.plugins.haptics.hid_fake import FakeFault, FakeHidapi, FakeRawHidMaster
@@ -121,14 +121,13 @@ class HidHaptic:
             ("read_timeout", read_timeout),
             ("reconnect_interval", reconnect_interval),
         ):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"haptic.{key}: must be a finite number > 0, got {value!r}")
+            number(key, value, above=0)
         vendor_id = preset.get("vendor_id") if vendor_id is None else vendor_id
         product_id = preset.get("product_id") if product_id is None else product_id
         if not path and (vendor_id is None or product_id is None):
-            raise ConfigError(
-                f"haptic.{'vendor_id' if vendor_id is None else 'product_id'}: required with a "
-                "layout table (or haptic.path), e.g. --set haptic.vendor_id=0x16C0"
+            raise OptionError(
+                "vendor_id" if vendor_id is None else "product_id",
+                "must be given with a layout table (or haptic.path), e.g. --set haptic.vendor_id=0x16C0",
             )
         for key, value in (
             ("vendor_id", vendor_id),
@@ -136,25 +135,25 @@ class HidHaptic:
             ("usage_page", usage_page),
             ("usage", usage),
         ):
-            if value is not None and not 0 <= value <= 0xFFFF:
-                raise ConfigError(f"haptic.{key}: must be 0..0xFFFF, got {value!r}")
-        if transport not in ("hidapi", "fake"):
-            raise ConfigError(f'haptic.transport: must be "hidapi" or "fake", got {transport!r}')
+            if value is not None:
+                integer(key, value, minimum=0, maximum=0xFFFF, hint=" (16 bits)")
+        choice("transport", transport, ("hidapi", "fake"))
         try:
             faults = [FakeFault.parse(text) for text in fake_faults or []]
         except ValueError as exc:
-            raise ConfigError(f"haptic.fake_faults: {exc}") from None
+            raise OptionError("fake_faults", str(exc)) from None
         if faults and transport != "fake":
-            raise ConfigError('haptic.fake_faults: only with transport = "fake"')
+            raise OptionError("fake_faults", f'must be empty unless transport = "fake", got {fake_faults!r}')
         if any(f.kind == "wrong_id" for f in faults) and self.layout.inp.report_id == 0:
-            raise ConfigError("haptic.fake_faults: wrong_id needs numbered reports (layout.report_id > 0)")
+            raise OptionError("fake_faults", "wrong_id needs numbered reports (layout.report_id > 0)")
         for name in FORCE_FIELDS:  # the limit must be representable, else saturation would turn the force
             f = self.layout.out.fields[name]
             reach = f.type.hi * abs(f.scale)
             if reach < device_max_force:
-                raise ConfigError(
-                    f"haptic.layout.out.{name}: {f.type.name} at {f.scale:g} N per count reaches only "
-                    f"{reach:g} N, below device_max_force {device_max_force:g} N"
+                raise OptionError(
+                    f"layout.out.{name}",
+                    f"{f.type.name} at {f.scale:g} N per count reaches only {reach:g} N, "
+                    f"below device_max_force {device_max_force:g} N",
                 )
         self.selector = DeviceSelector(
             vendor_id or 0,

@@ -56,7 +56,7 @@ class FakeFault:
         kind, _, rest = text.partition("@")
         at, _, count = rest.partition(":")
         if kind not in cls.KINDS or not at.isdigit() or (count and not count.isdigit()):
-            raise ValueError(f"{text!r}: expected kind@report[:count] with kind one of {', '.join(cls.KINDS)}")
+            raise ValueError(f"must be kind@report[:count] with kind one of {', '.join(cls.KINDS)}, got {text!r}")
         return cls(kind, int(at), int(count) if count else 1)
 
 

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, choice, integer, is_number
 
 MAX_REPORT_SIZE = 64
 """Bytes of data in one report: the full-speed interrupt packet."""
@@ -91,6 +91,9 @@ TYPES: dict[str, FieldType] = {
         FieldType("f64be", struct.Struct(">d"), True, -F64_MAX, F64_MAX),
     )
 }
+
+UNSIGNED_TYPES = tuple(name for name, t in TYPES.items() if not t.is_float and t.lo == 0)
+"""The types a counter (seq, flags, buttons, echo, status) may have."""
 
 FORCE_FIELDS = ("force_x", "force_y", "force_z")
 POSITION_FIELDS = ("position_x", "position_y", "position_z")
@@ -175,41 +178,38 @@ class RawHidLayout:
     inp: ReportLayout
 
     @classmethod
-    def from_config(cls, spec: str | dict, where: str = "haptic.layout") -> "RawHidLayout":
+    def from_config(cls, spec: str | dict, where: str = "layout") -> "RawHidLayout":
         """From a preset name or a table ``{report_id, size, out = {field = {offset, type, scale}}, in = {...}}``.
 
-        Raises ConfigError naming the key on anything wrong.
+        Raises OptionError naming the key on anything wrong (``layout.out.force_y: ...``; the session
+        puts its table in front: ``haptic.layout.out.force_y``).
         """
         if isinstance(spec, str):
-            if spec not in PRESETS:
-                raise ConfigError(
-                    f"{where}: unknown preset {spec!r}; presets: {', '.join(PRESETS)} "
-                    "(or a table describing the reports)"
-                )
+            choice(where, spec, tuple(PRESETS), hint=" (a preset) or a table describing the reports")
             return cls.from_config(PRESETS[spec]["layout"], f"{where} (preset {spec})")
         if not isinstance(spec, dict):
-            raise ConfigError(f"{where}: must be a preset name or a table, got {spec!r}")
+            raise OptionError(where, f"must be a preset name or a table, got {spec!r}")
         unknown = set(spec) - {"report_id", "size", "out", "in"}
         if unknown:
-            raise ConfigError(f"{where}.{sorted(unknown)[0]}: unknown key; keys: report_id, size, out, in")
-        report_id = spec.get("report_id", 0)
-        if not (isinstance(report_id, int) and not isinstance(report_id, bool) and 0 <= report_id <= 255):
-            raise ConfigError(
-                f"{where}.report_id: must be an integer 0..255 (0: unnumbered reports), got {report_id!r}"
-            )
-        size = spec.get("size", MAX_REPORT_SIZE)
-        if not (isinstance(size, int) and not isinstance(size, bool) and 1 <= size <= MAX_REPORT_SIZE):
-            raise ConfigError(
-                f"{where}.size: must be an integer 1..{MAX_REPORT_SIZE} (bytes of report data), got {size!r}"
-            )
+            raise OptionError(f"{where}.{sorted(unknown)[0]}", "unknown key; keys: report_id, size, out, in")
+        report_id = integer(
+            f"{where}.report_id", spec.get("report_id", 0), minimum=0, maximum=255, hint=" (0: unnumbered reports)"
+        )
+        size = integer(
+            f"{where}.size",
+            spec.get("size", MAX_REPORT_SIZE),
+            minimum=1,
+            maximum=MAX_REPORT_SIZE,
+            hint=" (bytes of report data)",
+        )
         out = _report(spec.get("out"), f"{where}.out", report_id, size, OUT_FIELDS, FORCE_FIELDS)
         inp = _report(spec.get("in"), f"{where}.in", report_id, size, IN_FIELDS, POSITION_FIELDS)
         velocity = [n for n in VELOCITY_FIELDS if n in inp.fields]
         if velocity and len(velocity) < 3:
             missing = next(n for n in VELOCITY_FIELDS if n not in inp.fields)
-            raise ConfigError(f"{where}.in.{missing}: required with {velocity[0]} (velocity is all three or none)")
+            raise OptionError(f"{where}.in.{missing}", f"required with {velocity[0]} (velocity is all three or none)")
         if "echo" in inp.fields and "seq" not in out.fields:
-            raise ConfigError(f"{where}.in.echo: needs a seq field in the OUT report to echo")
+            raise OptionError(f"{where}.in.echo", "needs a seq field in the OUT report to echo")
         return cls(out, inp)
 
 
@@ -217,51 +217,43 @@ def _report(
     table: Any, where: str, report_id: int, size: int, allowed: tuple[str, ...], required: tuple[str, ...]
 ) -> ReportLayout:
     if not isinstance(table, dict):
-        raise ConfigError(f"{where}: required, a table of fields ({', '.join(allowed)})")
+        raise OptionError(where, f"must be a table of fields ({', '.join(allowed)}), got {table!r}")
     fields: dict[str, Field] = {}
     for name, spec in table.items():
         key = f"{where}.{name}"
         if name not in allowed:
-            raise ConfigError(f"{key}: unknown field; fields: {', '.join(allowed)}")
+            raise OptionError(key, f"unknown field; fields: {', '.join(allowed)}")
         if not isinstance(spec, dict):
-            raise ConfigError(f"{key}: must be a table {{offset = ..., type = ..., scale = ...}}, got {spec!r}")
+            raise OptionError(key, f"must be a table {{offset = ..., type = ..., scale = ...}}, got {spec!r}")
         extra = set(spec) - {"offset", "type", "scale"}
         if extra:
-            raise ConfigError(f"{key}.{sorted(extra)[0]}: unknown key; keys: offset, type, scale")
-        type_name = spec.get("type")
-        if type_name not in TYPES:
-            raise ConfigError(f"{key}.type: unknown type {type_name!r}; types: {', '.join(TYPES)}")
+            raise OptionError(f"{key}.{sorted(extra)[0]}", "unknown key; keys: offset, type, scale")
+        type_name = choice(f"{key}.type", spec.get("type"), tuple(TYPES))
         ftype = TYPES[type_name]
-        offset = spec.get("offset")
-        if not (isinstance(offset, int) and not isinstance(offset, bool) and offset >= 0):
-            raise ConfigError(f"{key}.offset: must be an integer >= 0 (bytes), got {offset!r}")
+        offset = integer(f"{key}.offset", spec.get("offset"), minimum=0, hint=" (bytes)")
         if offset + ftype.size > size:
-            raise ConfigError(
-                f"{key}.offset: bytes {offset}..{offset + ftype.size - 1} end past the {size}-byte report"
+            raise OptionError(
+                f"{key}.offset", f"bytes {offset}..{offset + ftype.size - 1} end past the {size}-byte report"
             )
         scale = spec.get("scale", 1.0)
         if name in COUNTER_FIELDS:
-            if ftype.is_float or ftype.lo < 0:
-                raise ConfigError(
-                    f"{key}.type: {name} must be an unsigned integer type (u8, u16le, ...), got {type_name}"
-                )
+            choice(f"{key}.type", type_name, UNSIGNED_TYPES, hint=f" ({name} is a count)")
             if scale != 1:
-                raise ConfigError(f"{key}.scale: {name} is a count, its scale is 1, got {scale!r}")
-        if not (
-            isinstance(scale, (int, float)) and not isinstance(scale, bool) and math.isfinite(scale) and scale != 0
-        ):
-            raise ConfigError(f"{key}.scale: must be a finite non-zero number (SI units per count), got {scale!r}")
+                raise OptionError(f"{key}.scale", f"must be 1 ({name} is a count), got {scale!r}")
+        if not (is_number(scale) and math.isfinite(scale) and scale != 0):
+            raise OptionError(f"{key}.scale", f"must be a finite non-zero number (SI units per count), got {scale!r}")
         field_ = Field(name, offset, ftype, float(scale))
         for other in fields.values():
             if field_.offset < other.end and other.offset < field_.end:
-                raise ConfigError(
-                    f"{key}: bytes {field_.offset}..{field_.end - 1} overlap {other.name} "
-                    f"(bytes {other.offset}..{other.end - 1})"
+                raise OptionError(
+                    key,
+                    f"bytes {field_.offset}..{field_.end - 1} overlap {other.name} "
+                    f"(bytes {other.offset}..{other.end - 1})",
                 )
         fields[name] = field_
     for name in required:
         if name not in fields:
-            raise ConfigError(f"{where}.{name}: required (fields {', '.join(required)} must be described)")
+            raise OptionError(f"{where}.{name}", f"required (fields {', '.join(required)} must be described)")
     return ReportLayout(report_id, size, fields)
 
 

@@ -44,6 +44,7 @@ from typing import Callable
 
 import numpy as np
 
+from hapticlab.core.host.options import choice
 from hapticlab.plugins.haptics import framing, inverse3
 from hapticlab.plugins.haptics.handle_motion import HandleMotion, scripted_motion
 
@@ -100,8 +101,7 @@ class MasterEmulator:
         buttons: Callable[[float], int] | None = None,
         keep: int = 100_000,
     ):
-        if protocol not in ("hapticlab", "inverse3"):
-            raise ValueError(f"protocol: must be 'hapticlab' or 'inverse3', got {protocol!r}")
+        choice("protocol", protocol, ("hapticlab", "inverse3"))
         self.protocol = protocol
         self.motion = motion or scripted_motion()
         self.max_force, self.device_id, self.max_rate_hz = max_force, device_id, max_rate_hz

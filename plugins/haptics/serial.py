@@ -37,13 +37,12 @@ is ``state`` (the handle's measured Cartesian pose, with its velocity).
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, boolean, choice, integer, number
 from hapticlab.core.types import DeviceState, Event, HapticCommand
 from hapticlab.plugins.haptics import framing
 from hapticlab.plugins.haptics.hapticlab_link import HapticlabLink
@@ -108,12 +107,12 @@ class SerialHaptic:
         wait_for_reply: bool = True,
     ):
         if not isinstance(port, str) or not port.strip():
-            raise ConfigError(
-                "haptic.port: the serial device is required, e.g. --set haptic.port=/dev/ttyACM0 "
-                "(hapticlab emulate master prints one)"
+            raise OptionError(
+                "port",
+                "must name the serial device, e.g. --set haptic.port=/dev/ttyACM0 "
+                f"(hapticlab emulate master prints one), got {port!r}",
             )
-        if protocol not in PROTOCOLS:
-            raise ConfigError(f"haptic.protocol: must be one of {', '.join(map(repr, PROTOCOLS))}, got {protocol!r}")
+        choice("protocol", protocol, PROTOCOLS)
         for key, value in (
             ("rate_hz", rate_hz),
             ("device_max_force", device_max_force),
@@ -121,24 +120,21 @@ class SerialHaptic:
             ("read_timeout", read_timeout),
             ("reconnect_interval", reconnect_interval),
         ):
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"haptic.{key}: must be a finite number > 0, got {value!r}")
-        if not baudrate > 0:
-            raise ConfigError(f"haptic.baudrate: must be > 0, got {baudrate!r}")
-        if not max_consecutive_errors >= 0:
-            raise ConfigError(f"haptic.max_consecutive_errors: must be >= 0, got {max_consecutive_errors!r}")
-        if not wait_for_reply and protocol != "hapticlab":
-            raise ConfigError(
-                'haptic.wait_for_reply: false needs protocol = "hapticlab" (the Inverse3\'s replies '
-                "have no sequence numbers or framing to match them to their commands)"
+            number(key, value, above=0)
+        integer("baudrate", baudrate, minimum=1, hint=" (bit/s)")
+        integer("max_consecutive_errors", max_consecutive_errors, minimum=0)
+        if not boolean("wait_for_reply", wait_for_reply) and protocol != "hapticlab":
+            raise OptionError(
+                "wait_for_reply",
+                'false needs protocol = "hapticlab" (the Inverse3\'s replies have no sequence numbers or '
+                "framing to match them to their commands)",
             )
-        if not (math.isfinite(watchdog) and 0 <= watchdog <= 65.535):
-            raise ConfigError(f"haptic.watchdog: must be in [0, 65.535] s, got {watchdog!r}")
-        self.port_name, self.protocol, self.baudrate = port.strip(), protocol, int(baudrate)
+        number("watchdog", watchdog, minimum=0, maximum=65.535, hint=" s (0: off)")
+        self.port_name, self.protocol, self.baudrate = port.strip(), protocol, baudrate
         self.rate_hz = rate_hz
         self.device_max_force = self.max_force = device_max_force
         self.open_timeout, self.read_timeout = open_timeout, read_timeout
-        self.max_consecutive_errors, self.watchdog = int(max_consecutive_errors), watchdog
+        self.max_consecutive_errors, self.watchdog = max_consecutive_errors, watchdog
         self.reconnect_interval = reconnect_interval
         self.wait_for_reply = wait_for_reply
         self.port: SerialPort | None = None

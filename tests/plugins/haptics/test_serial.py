@@ -36,6 +36,13 @@ def command(force, enabled=True, t_ns=0):
     return HapticCommand(t_ns, np.asarray(force, dtype=float), enabled, "" if enabled else "test")
 
 
+def built(**options):
+    """The serial plugin as a session builds it from ``[haptic]``: an option error names the full key."""
+    return Registry(make_plugin_manager(load_entry_points=False)).create(
+        "haptic_output", "serial", options, where="haptic"
+    )
+
+
 @pytest.fixture
 def emulator():
     with MasterEmulator("hapticlab", max_force=8.0) as em:
@@ -353,10 +360,26 @@ def test_open_errors_name_the_port_and_the_problem(tmp_path):
         with pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: cannot open: Could not exclusively lock"):
             SerialHaptic(em.port).open()
         first.close()
-    with pytest.raises(ConfigError, match="^haptic.port: the serial device is required"):
-        SerialHaptic()
-    with pytest.raises(ConfigError, match="^haptic.protocol: must be one of 'hapticlab', 'inverse3'"):
-        SerialHaptic("/dev/ttyACM0", "ours")
+    with pytest.raises(ConfigError, match="^haptic.port: must name the serial device, e.g. --set haptic.port="):
+        built()
+    with pytest.raises(ConfigError, match="^haptic.protocol: must be 'hapticlab' or 'inverse3', got 'ours'$"):
+        built(port="/dev/ttyACM0", protocol="ours")
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"rate_hz": 0.0}, "haptic.rate_hz: must be a finite number > 0, got 0.0"),
+        ({"read_timeout": float("nan")}, "haptic.read_timeout: must be a finite number > 0, got nan"),
+        ({"watchdog": 70.0}, "haptic.watchdog: must be a finite number >= 0 and <= 65.535 s (0: off), got 70.0"),
+        ({"baudrate": 0}, "haptic.baudrate: must be a whole number >= 1 (bit/s), got 0"),
+        ({"max_consecutive_errors": -1}, "haptic.max_consecutive_errors: must be a whole number >= 0, got -1"),
+    ],
+)
+def test_a_bad_option_is_one_line_naming_the_full_key(options, message):
+    with pytest.raises(ConfigError) as info:
+        built(port="/dev/ttyACM0", **options)
+    assert str(info.value) == message
 
 
 def test_a_hello_broken_on_the_way_is_sent_again(emulator):
@@ -605,4 +628,4 @@ def test_pipelined_crc_errors_are_counted_and_a_silent_device_is_lost_without_bl
 
 def test_pipelining_needs_our_protocol():
     with pytest.raises(ConfigError, match='^haptic.wait_for_reply: false needs protocol = "hapticlab"'):
-        SerialHaptic("/dev/ttyACM0", "inverse3", wait_for_reply=False)
+        built(port="/dev/ttyACM0", protocol="inverse3", wait_for_reply=False)

@@ -48,15 +48,7 @@ from hapticlab.core.host.options import OptionError, choice, integer, number
 from hapticlab.core.types import DeviceState, Event, HapticCommand
 from hapticlab.plugins.haptics import framing
 from hapticlab.plugins.haptics.hid_fake import FakeFault, FakeHidapi, FakeRawHidMaster
-from hapticlab.plugins.haptics.hid_layout import (
-    FLAG_ENABLE,
-    FORCE_FIELDS,
-    POSITION_FIELDS,
-    PRESETS,
-    VELOCITY_FIELDS,
-    RawHidLayout,
-    encode_force,
-)
+from hapticlab.plugins.haptics.hid_layout import POSITION_FIELDS, PRESETS, VELOCITY_FIELDS, RawHidLayout
 from hapticlab.plugins.haptics.hid_transport import DeviceSelector, HidapiTransport, RawHidTransport
 from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force, link_event
 
@@ -146,15 +138,7 @@ class HidHaptic:
             raise OptionError("fake_faults", f'must be empty unless transport = "fake", got {fake_faults!r}')
         if any(f.kind == "wrong_id" for f in faults) and self.layout.inp.report_id == 0:
             raise OptionError("fake_faults", "wrong_id needs numbered reports (layout.report_id > 0)")
-        for name in FORCE_FIELDS:  # the limit must be representable, else saturation would turn the force
-            f = self.layout.out.fields[name]
-            reach = f.type.hi * abs(f.scale)
-            if reach < device_max_force:
-                raise OptionError(
-                    f"layout.out.{name}",
-                    f"{f.type.name} at {f.scale:g} N per count reaches only {reach:g} N, "
-                    f"below device_max_force {device_max_force:g} N",
-                )
+        self.layout.check_reach(device_max_force)
         self.selector = DeviceSelector(
             vendor_id or 0,
             product_id or 0,
@@ -182,17 +166,8 @@ class HidHaptic:
             self.transport: RawHidTransport = HidapiTransport(FakeHidapi([self.fake]))
         else:
             self.transport = HidapiTransport()
-        out = self.layout.out
-        self._seq_field = out.fields.get("seq")
-        self._flags_field = out.fields.get("flags")
-        self._echo_field = self.layout.inp.fields.get("echo")
-        width = (
-            min(f.type.size for f in (self._seq_field, self._echo_field) if f is not None)
-            if self._echo_field is not None
-            else 1
-        )
-        self._echo_mask = (1 << (8 * width)) - 1
-        self._in_read_size = self.layout.inp.size + (1 if self.layout.inp.report_id else 0)
+        self._echo_mask = self.layout.echo_mask()
+        self._in_read_size = self.layout.in_read_size()
         self.info = ""
         self.opened = False
         self.seq = 0
@@ -283,13 +258,7 @@ class HidHaptic:
     # ------------------------------------------------------------------ one exchange
 
     def _out_report(self, force_D: np.ndarray, enabled: bool) -> bytes:
-        out = self.layout.out
-        data = bytearray(encode_force(out, force_D, self.max_force))
-        if self._seq_field is not None:
-            self._seq_field.type.fmt.pack_into(data, self._seq_field.offset, self.seq & int(self._seq_field.type.hi))
-        if self._flags_field is not None:
-            self._flags_field.pack_into(data, FLAG_ENABLE if enabled else 0)
-        return bytes([out.report_id]) + bytes(data)  # hidapi wants the id first, 0 when unnumbered
+        return self.layout.out_report(force_D, self.max_force, self.seq, enabled)
 
     def _exchange(self, force_D: np.ndarray, enabled: bool) -> dict[str, float]:
         """Write one OUT report and return the decoded IN report answering it; MasterLostError if none comes."""
@@ -317,7 +286,7 @@ class HidHaptic:
             values = self._decode(data)
             if values is None:
                 continue
-            if self._echo_field is None:
+            if self._echo_mask is None:
                 newest = values
             elif (values["echo"] - sent_seq) & self._echo_mask == 0:
                 return values

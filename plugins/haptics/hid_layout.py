@@ -4,8 +4,9 @@ Every firmware lays its reports out differently, so the layout is config
 (``[haptic.layout]``, or a preset's name): the report id, and for the OUT
 report (host → device) and the IN report (device → host) each field's byte
 offset, type and scale (SI units per count). :meth:`RawHidLayout.from_config`
-checks a layout once, naming the key of anything wrong; :func:`encode_force`
-quantises a force to the OUT report's fields without ever exceeding the limit.
+checks a layout once, naming the key of anything wrong;
+:meth:`RawHidLayout.out_report` writes an OUT report, its force quantised by
+:func:`encode_force` without ever exceeding the limit.
 
 Types: ``u8 i8 u16le i16le u32le i32le f32le f64le`` and the big-endian
 ``u16be i16be u32be i32be f32be f64be``. Fields (offsets are into the report's
@@ -211,6 +212,42 @@ class RawHidLayout:
         if "echo" in inp.fields and "seq" not in out.fields:
             raise OptionError(f"{where}.in.echo", "needs a seq field in the OUT report to echo")
         return cls(out, inp)
+
+    def check_reach(self, max_force: float) -> None:
+        """OptionError unless every force field holds ``max_force`` N: saturating below it would turn the force."""
+        for name in FORCE_FIELDS:
+            f = self.out.fields[name]
+            reach = f.type.hi * abs(f.scale)
+            if reach < max_force:
+                raise OptionError(
+                    f"layout.out.{name}",
+                    f"{f.type.name} at {f.scale:g} N per count reaches only {reach:g} N, "
+                    f"below device_max_force {max_force:g} N",
+                )
+
+    def out_report(self, force_D: np.ndarray, max_force: float, seq: int, enabled: bool) -> bytes:
+        """One OUT report as hidapi writes it, report id first (0 when unnumbered): the force (already clamped
+        to ``max_force`` N) quantised by :func:`encode_force`, ``seq`` wrapped to its field, the enable flag."""
+        data = bytearray(encode_force(self.out, force_D, max_force))
+        seq_field = self.out.fields.get("seq")
+        if seq_field is not None:
+            seq_field.type.fmt.pack_into(data, seq_field.offset, seq & int(seq_field.type.hi))
+        flags_field = self.out.fields.get("flags")
+        if flags_field is not None:
+            flags_field.pack_into(data, FLAG_ENABLE if enabled else 0)
+        return bytes([self.out.report_id]) + bytes(data)
+
+    def echo_mask(self) -> int | None:
+        """The bits of an OUT seq that the IN echo carries (the narrower of the two fields); None without echo."""
+        echo = self.inp.fields.get("echo")
+        if echo is None:
+            return None
+        width = min(f.type.size for f in (self.out.fields.get("seq"), echo) if f is not None)
+        return (1 << (8 * width)) - 1
+
+    def in_read_size(self) -> int:
+        """Bytes one IN report takes in hidapi's ``read``: its data, after the report id when numbered."""
+        return self.inp.size + (1 if self.inp.report_id else 0)
 
 
 def _report(

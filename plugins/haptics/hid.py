@@ -72,7 +72,7 @@ class HidHaptic:
         usage_page, usage: the top-level collection to open when the device has
             several HID interfaces (default: the preset's).
         layout: a preset name (``"teensy-rawhid"``) or a table describing the
-            reports (see the module docstring).
+            reports (``hid_layout.py`` describes both).
         rate_hz: the command rate, Hz.
         device_max_force: the largest force ever written, N.
         read_timeout: how long the IN report answering a force may take before

@@ -58,7 +58,7 @@ from hapticlab.sessions.live.loop import stale_timeout_ns
 from hapticlab.sessions.recording import open_recording
 
 EMULATOR = (
-    "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+    "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
     "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
 )
 FAULT_KINDS = ("sensor_nan", "sensor_saturated", "sensor_spike")

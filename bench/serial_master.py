@@ -26,7 +26,7 @@ from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics.serial import SerialHaptic
 
 EMULATOR = (
-    "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+    "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
     "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
 )
 

@@ -42,7 +42,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.haptics.hid",
     "hapticlab.plugins.sensors.netft_emulator",
     "hapticlab.plugins.kinematics.ur_emulator",
-    "hapticlab.plugins.haptics.master_emulator",
+    "hapticlab.plugins.haptics.master_emulator_cli",
     "hapticlab.plugins.simworld.context",
     "hapticlab.plugins.effects.mount_rotation",
     "hapticlab.plugins.effects.bias_drift",

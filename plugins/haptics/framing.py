@@ -2,7 +2,7 @@
 
 The specification is ``docs/serial-protocol.md``; the device side is
 ``firmware/hapticlab_master/hapticlab_master.ino``. This module is the pure
-byte level, shared by the host plugin (``serial.py``) and the emulator
+byte level, shared by the host's link (``hapticlab_link.py``) and the emulator
 (``master_emulator.py``): no I/O.
 
 A frame::

@@ -3,9 +3,10 @@
 Many DIY and small-lab masters (Teensy, Arduino Leonardo/Micro, STM32 and
 RP2040 boards) enumerate as a vendor-defined HID device that exchanges fixed
 64-byte reports: no driver to install, 1 ms interrupt transfers at full speed.
-Every firmware lays its reports out differently, so the layout is config: the
-report id, and for the OUT report (host → device) and the IN report (device →
-host) each field's byte offset, type and scale (SI units per count).
+Every firmware lays its reports out differently, so the layout is config
+(``hid_layout.py``: each field's byte offset, type and scale, and the preset
+``teensy-rawhid``). The USB side is ``hid_transport.py``; ``hid_fake.py`` is a
+simulated master for tests and dry runs (``transport = "fake"``).
 
 Each ``send`` writes one OUT report (force, sequence number, flags) and waits
 up to ``read_timeout`` for the IN report that echoes its sequence number
@@ -18,10 +19,10 @@ cannot be told).
 What reaches the wire is never above ``device_max_force`` and never NaN: a
 non-finite command is written as zero, a disabled one as zero with the enable
 flag cleared, a larger one is scaled down along its direction
-(``serial.clamp_force``); each component is then quantised to its field's
+(``master.clamp_force``); each component is then quantised to its field's
 type, saturating at the type's range (never wrapping around), and rounded
 toward zero when rounding to the nearest count would take the norm above the
-limit. A device maximum that a force field cannot represent is a ConfigError.
+limit. A device maximum that a force field cannot represent is refused when the plugin is made.
 
 A lost device raises MasterLostError from ``send``, so the session zeroes the
 force and records an event: a read or write that fails (unplugged), or no IN
@@ -32,62 +33,24 @@ if it went away and tries a zero force. Losses and recoveries are events
 counters (``haptic_link``) and of the device's status bits
 (``haptic_device_status``).
 
-Types: ``u8 i8 u16le i16le u32le i32le f32le f64le`` and the big-endian
-``u16be i16be u32be i32be f32be f64be``. Fields (offsets are into the report's
-data, after the report id when reports are numbered)::
-
-    OUT  force_x force_y force_z   required, N per count
-         seq                       optional, unsigned, wraps at the type's width
-         flags                     optional, unsigned; bit 0 = force enabled
-    IN   position_x/_y/_z          required, m per count
-         velocity_x/_y/_z          optional (all three or none), m/s per count
-         buttons                   optional, unsigned bit mask
-         echo                      optional, unsigned: the seq of the OUT report answered (needs OUT seq)
-         status                    optional, unsigned: bit 0 watchdog, 1 clamped, 2 fault (as ``framing``)
-
-The preset ``layout = "teensy-rawhid"``: a Teensy (Teensyduino "Raw HID" USB
-type: vendor 0x16C0, product 0x0486, usage page 0xFFAB, usage 0x0200; it also
-shows a serial-emulation interface under the same ids, hence the usage page)
-or any board running the same sketch layout. Unnumbered 64-byte reports::
-
-    OUT  bytes 0-3 force_x f32le N, 4-7 force_y, 8-11 force_z,
-         12-13 seq u16le, 14 flags u8 (bit 0: enable), 15-63 zero
-    IN   bytes 0-3 position_x i32le µm (1e-6 m per count), 4-7 position_y, 8-11 position_z,
-         12-13 velocity_x i16le mm/s (1e-3 m/s per count, ±32.767 m/s), 14-15 velocity_y, 16-17 velocity_z,
-         18 buttons u8, 19 status u8, 20-21 echo u16le, 22-63 zero
-
 CRTK names: ``servo_cf`` is ``send``, ``measured_cp`` is ``state``.
 """
 
 from __future__ import annotations
 
 import math
-import struct
 import time
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, choice, integer, number
 from hapticlab.core.types import DeviceState, Event, HapticCommand
 from hapticlab.plugins.haptics import framing
-from hapticlab.plugins.haptics.hid_transport import (
-    DeviceSelector,
-    FakeFault,
-    FakeHidapi,
-    FakeRawHidMaster,
-    HidapiTransport,
-    RawHidTransport,
-)
-from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, clamp_force, link_event
-
-MAX_REPORT_SIZE = 64
-"""Bytes of data in one report: the full-speed interrupt packet."""
-
-FLAG_ENABLE = 1 << 0
-"""OUT ``flags`` bit: the device may render the force (clear: zero, whatever the force fields say)."""
+from hapticlab.plugins.haptics.hid_fake import FakeFault, FakeHidapi, FakeRawHidMaster
+from hapticlab.plugins.haptics.hid_layout import POSITION_FIELDS, PRESETS, VELOCITY_FIELDS, RawHidLayout
+from hapticlab.plugins.haptics.hid_transport import DeviceSelector, HidapiTransport, RawHidTransport
+from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force, link_event
 
 IDENTITY_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
 ZERO3 = np.zeros(3)
@@ -96,287 +59,6 @@ STATUS_TEXT = {
     framing.STATUS_CLAMPED: "it clamped a force to its own maximum",
     framing.STATUS_FAULT: "it reports a fault",
 }
-
-
-@dataclass(frozen=True, slots=True)
-class FieldType:
-    """A field's encoding: struct format, size in bytes, and the range of its counts."""
-
-    name: str
-    fmt: struct.Struct
-    is_float: bool
-    lo: float
-    hi: float
-
-    @property
-    def size(self) -> int:
-        return self.fmt.size
-
-
-def _int_type(name: str, code: str, bits: int, signed: bool) -> FieldType:
-    lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
-    return FieldType(name, struct.Struct(code), False, lo, hi)
-
-
-F32_MAX = float(np.finfo(np.float32).max)
-F64_MAX = float(np.finfo(np.float64).max)
-TYPES: dict[str, FieldType] = {
-    t.name: t
-    for t in (
-        _int_type("u8", "<B", 8, False),
-        _int_type("i8", "<b", 8, True),
-        _int_type("u16le", "<H", 16, False),
-        _int_type("i16le", "<h", 16, True),
-        _int_type("u32le", "<I", 32, False),
-        _int_type("i32le", "<i", 32, True),
-        _int_type("u16be", ">H", 16, False),
-        _int_type("i16be", ">h", 16, True),
-        _int_type("u32be", ">I", 32, False),
-        _int_type("i32be", ">i", 32, True),
-        FieldType("f32le", struct.Struct("<f"), True, -F32_MAX, F32_MAX),
-        FieldType("f32be", struct.Struct(">f"), True, -F32_MAX, F32_MAX),
-        FieldType("f64le", struct.Struct("<d"), True, -F64_MAX, F64_MAX),
-        FieldType("f64be", struct.Struct(">d"), True, -F64_MAX, F64_MAX),
-    )
-}
-
-FORCE_FIELDS = ("force_x", "force_y", "force_z")
-POSITION_FIELDS = ("position_x", "position_y", "position_z")
-VELOCITY_FIELDS = ("velocity_x", "velocity_y", "velocity_z")
-COUNTER_FIELDS = ("seq", "flags", "buttons", "echo", "status")
-OUT_FIELDS = (*FORCE_FIELDS, "seq", "flags")
-IN_FIELDS = (*POSITION_FIELDS, *VELOCITY_FIELDS, "buttons", "echo", "status")
-
-
-@dataclass(frozen=True, slots=True)
-class Field:
-    """One field of a report.
-
-    Attributes:
-        name: what it carries (``force_x``, ``position_y``, ``seq``, ...).
-        offset: its first byte in the report's data (after a report id), bytes.
-        type: its encoding.
-        scale: SI units per count (N, m or m/s per count; 1 for counters).
-    """
-
-    name: str
-    offset: int
-    type: FieldType
-    scale: float = 1.0
-
-    @property
-    def end(self) -> int:
-        """One past its last byte."""
-        return self.offset + self.type.size
-
-    def counts(self, value: float, toward_zero: bool = False) -> int | float:
-        """``value`` (SI) as this field's counts: non-finite → 0; saturated at the type's range, never wrapped.
-
-        Integers round to the nearest count (``toward_zero``: truncate, so the
-        magnitude never grows); floats round to the type's precision when packed.
-        """
-        x = value / self.scale if math.isfinite(value) else 0.0
-        if self.type.is_float:
-            if not math.isfinite(x):  # value/scale overflowed
-                x = math.copysign(self.type.hi, x)
-            return min(max(x, self.type.lo), self.type.hi)
-        if not math.isfinite(x):
-            x = math.copysign(self.type.hi, x)
-        n = math.trunc(x) if toward_zero else round(x)
-        return min(max(n, int(self.type.lo)), int(self.type.hi))
-
-    def pack_into(self, buffer: bytearray, value: float, toward_zero: bool = False) -> None:
-        self.type.fmt.pack_into(buffer, self.offset, self.counts(value, toward_zero))
-
-    def unpack(self, data: bytes) -> float:
-        """The field's value in SI units (an int for counters)."""
-        (n,) = self.type.fmt.unpack_from(data, self.offset)
-        return n if self.name in COUNTER_FIELDS else n * self.scale
-
-
-@dataclass(frozen=True, slots=True)
-class ReportLayout:
-    """One direction's report: its id (0: unnumbered), its data size (bytes), its fields by name."""
-
-    report_id: int
-    size: int
-    fields: dict[str, Field]
-
-    def encode(self, values: dict[str, float]) -> bytes:
-        """The report's data (without the report id): every field of the layout found in ``values``, the rest zero."""
-        buffer = bytearray(self.size)
-        for name, f in self.fields.items():
-            if name in values:
-                f.pack_into(buffer, values[name])
-        return bytes(buffer)
-
-    def decode(self, data: bytes) -> dict[str, float]:
-        """Every field's value from the report's data (without the report id), SI units."""
-        return {name: f.unpack(data) for name, f in self.fields.items()}
-
-
-@dataclass(frozen=True, slots=True)
-class RawHidLayout:
-    """Both reports of a device: ``out`` (host → device) and ``inp`` (device → host)."""
-
-    out: ReportLayout
-    inp: ReportLayout
-
-    @classmethod
-    def from_config(cls, spec: str | dict, where: str = "haptic.layout") -> "RawHidLayout":
-        """From a preset name or a table ``{report_id, size, out = {field = {offset, type, scale}}, in = {...}}``.
-
-        Raises ConfigError naming the key on anything wrong.
-        """
-        if isinstance(spec, str):
-            if spec not in PRESETS:
-                raise ConfigError(
-                    f"{where}: unknown preset {spec!r}; presets: {', '.join(PRESETS)} "
-                    "(or a table describing the reports)"
-                )
-            return cls.from_config(PRESETS[spec]["layout"], f"{where} (preset {spec})")
-        if not isinstance(spec, dict):
-            raise ConfigError(f"{where}: must be a preset name or a table, got {spec!r}")
-        unknown = set(spec) - {"report_id", "size", "out", "in"}
-        if unknown:
-            raise ConfigError(f"{where}.{sorted(unknown)[0]}: unknown key; keys: report_id, size, out, in")
-        report_id = spec.get("report_id", 0)
-        if not (isinstance(report_id, int) and not isinstance(report_id, bool) and 0 <= report_id <= 255):
-            raise ConfigError(
-                f"{where}.report_id: must be an integer 0..255 (0: unnumbered reports), got {report_id!r}"
-            )
-        size = spec.get("size", MAX_REPORT_SIZE)
-        if not (isinstance(size, int) and not isinstance(size, bool) and 1 <= size <= MAX_REPORT_SIZE):
-            raise ConfigError(
-                f"{where}.size: must be an integer 1..{MAX_REPORT_SIZE} (bytes of report data), got {size!r}"
-            )
-        out = _report(spec.get("out"), f"{where}.out", report_id, size, OUT_FIELDS, FORCE_FIELDS)
-        inp = _report(spec.get("in"), f"{where}.in", report_id, size, IN_FIELDS, POSITION_FIELDS)
-        velocity = [n for n in VELOCITY_FIELDS if n in inp.fields]
-        if velocity and len(velocity) < 3:
-            missing = next(n for n in VELOCITY_FIELDS if n not in inp.fields)
-            raise ConfigError(f"{where}.in.{missing}: required with {velocity[0]} (velocity is all three or none)")
-        if "echo" in inp.fields and "seq" not in out.fields:
-            raise ConfigError(f"{where}.in.echo: needs a seq field in the OUT report to echo")
-        return cls(out, inp)
-
-
-def _report(
-    table: Any, where: str, report_id: int, size: int, allowed: tuple[str, ...], required: tuple[str, ...]
-) -> ReportLayout:
-    if not isinstance(table, dict):
-        raise ConfigError(f"{where}: required, a table of fields ({', '.join(allowed)})")
-    fields: dict[str, Field] = {}
-    for name, spec in table.items():
-        key = f"{where}.{name}"
-        if name not in allowed:
-            raise ConfigError(f"{key}: unknown field; fields: {', '.join(allowed)}")
-        if not isinstance(spec, dict):
-            raise ConfigError(f"{key}: must be a table {{offset = ..., type = ..., scale = ...}}, got {spec!r}")
-        extra = set(spec) - {"offset", "type", "scale"}
-        if extra:
-            raise ConfigError(f"{key}.{sorted(extra)[0]}: unknown key; keys: offset, type, scale")
-        type_name = spec.get("type")
-        if type_name not in TYPES:
-            raise ConfigError(f"{key}.type: unknown type {type_name!r}; types: {', '.join(TYPES)}")
-        ftype = TYPES[type_name]
-        offset = spec.get("offset")
-        if not (isinstance(offset, int) and not isinstance(offset, bool) and offset >= 0):
-            raise ConfigError(f"{key}.offset: must be an integer >= 0 (bytes), got {offset!r}")
-        if offset + ftype.size > size:
-            raise ConfigError(
-                f"{key}.offset: bytes {offset}..{offset + ftype.size - 1} end past the {size}-byte report"
-            )
-        scale = spec.get("scale", 1.0)
-        if name in COUNTER_FIELDS:
-            if ftype.is_float or ftype.lo < 0:
-                raise ConfigError(
-                    f"{key}.type: {name} must be an unsigned integer type (u8, u16le, ...), got {type_name}"
-                )
-            if scale != 1:
-                raise ConfigError(f"{key}.scale: {name} is a count, its scale is 1, got {scale!r}")
-        if not (
-            isinstance(scale, (int, float)) and not isinstance(scale, bool) and math.isfinite(scale) and scale != 0
-        ):
-            raise ConfigError(f"{key}.scale: must be a finite non-zero number (SI units per count), got {scale!r}")
-        field_ = Field(name, offset, ftype, float(scale))
-        for other in fields.values():
-            if field_.offset < other.end and other.offset < field_.end:
-                raise ConfigError(
-                    f"{key}: bytes {field_.offset}..{field_.end - 1} overlap {other.name} "
-                    f"(bytes {other.offset}..{other.end - 1})"
-                )
-        fields[name] = field_
-    for name in required:
-        if name not in fields:
-            raise ConfigError(f"{where}.{name}: required (fields {', '.join(required)} must be described)")
-    return ReportLayout(report_id, size, fields)
-
-
-def _f(offset: int, type_: str, scale: float = 1.0) -> dict[str, Any]:
-    return {"offset": offset, "type": type_, "scale": scale}
-
-
-PRESETS: dict[str, dict[str, Any]] = {
-    "teensy-rawhid": {
-        "vendor_id": 0x16C0,
-        "product_id": 0x0486,
-        "usage_page": 0xFFAB,
-        "usage": 0x0200,
-        "layout": {
-            "report_id": 0,
-            "size": 64,
-            "out": {
-                "force_x": _f(0, "f32le"),
-                "force_y": _f(4, "f32le"),
-                "force_z": _f(8, "f32le"),
-                "seq": _f(12, "u16le"),
-                "flags": _f(14, "u8"),
-            },
-            "in": {
-                "position_x": _f(0, "i32le", 1e-6),
-                "position_y": _f(4, "i32le", 1e-6),
-                "position_z": _f(8, "i32le", 1e-6),
-                "velocity_x": _f(12, "i16le", 1e-3),
-                "velocity_y": _f(14, "i16le", 1e-3),
-                "velocity_z": _f(16, "i16le", 1e-3),
-                "buttons": _f(18, "u8"),
-                "status": _f(19, "u8"),
-                "echo": _f(20, "u16le"),
-            },
-        },
-    }
-}
-"""Documented example devices: their USB selection and report layout (the module docstring draws it)."""
-
-
-def encode_force(layout: ReportLayout, force_D: np.ndarray, max_force: float) -> bytes:
-    """The OUT report's force fields for a force already clamped to ``max_force`` (N), other fields zero.
-
-    Rounds each component to its field's nearest count; when that would take
-    the force the device decodes above ``max_force``, truncates toward zero
-    instead (each component's magnitude then never grows).
-    """
-    fx, fy, fz = (layout.fields[n] for n in FORCE_FIELDS)
-    buffer = bytearray(layout.size)
-    values = [float(v) for v in force_D]
-    for f, v in zip((fx, fy, fz), values):
-        f.pack_into(buffer, v)
-    decoded = [f.unpack(buffer) for f in (fx, fy, fz)]
-    if math.hypot(*decoded) > max_force:
-        for f, v in zip((fx, fy, fz), values):
-            f.pack_into(buffer, v, toward_zero=True)
-            if f.type.is_float:  # a float's nearest representable may still be a hair larger: step toward 0
-                while abs(f.unpack(buffer)) > abs(v):
-                    x = f.type.fmt.unpack_from(buffer, f.offset)[0]
-                    f.type.fmt.pack_into(
-                        buffer,
-                        f.offset,
-                        float(np.nextafter(np.float32(x), np.float32(0)))
-                        if f.type.size == 4
-                        else float(np.nextafter(x, 0.0)),
-                    )
-    return bytes(buffer)
 
 
 class HidHaptic:
@@ -390,7 +72,7 @@ class HidHaptic:
         usage_page, usage: the top-level collection to open when the device has
             several HID interfaces (default: the preset's).
         layout: a preset name (``"teensy-rawhid"``) or a table describing the
-            reports (see the module docstring).
+            reports (``hid_layout.py`` describes both).
         rate_hz: the command rate, Hz.
         device_max_force: the largest force ever written, N.
         read_timeout: how long the IN report answering a force may take before
@@ -431,14 +113,13 @@ class HidHaptic:
             ("read_timeout", read_timeout),
             ("reconnect_interval", reconnect_interval),
         ):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ConfigError(f"haptic.{key}: must be a finite number > 0, got {value!r}")
+            number(key, value, above=0)
         vendor_id = preset.get("vendor_id") if vendor_id is None else vendor_id
         product_id = preset.get("product_id") if product_id is None else product_id
         if not path and (vendor_id is None or product_id is None):
-            raise ConfigError(
-                f"haptic.{'vendor_id' if vendor_id is None else 'product_id'}: required with a "
-                "layout table (or haptic.path), e.g. --set haptic.vendor_id=0x16C0"
+            raise OptionError(
+                "vendor_id" if vendor_id is None else "product_id",
+                "must be given with a layout table (or haptic.path), e.g. --set haptic.vendor_id=0x16C0",
             )
         for key, value in (
             ("vendor_id", vendor_id),
@@ -446,26 +127,18 @@ class HidHaptic:
             ("usage_page", usage_page),
             ("usage", usage),
         ):
-            if value is not None and not 0 <= value <= 0xFFFF:
-                raise ConfigError(f"haptic.{key}: must be 0..0xFFFF, got {value!r}")
-        if transport not in ("hidapi", "fake"):
-            raise ConfigError(f'haptic.transport: must be "hidapi" or "fake", got {transport!r}')
+            if value is not None:
+                integer(key, value, minimum=0, maximum=0xFFFF, hint=" (16 bits)")
+        choice("transport", transport, ("hidapi", "fake"))
         try:
             faults = [FakeFault.parse(text) for text in fake_faults or []]
         except ValueError as exc:
-            raise ConfigError(f"haptic.fake_faults: {exc}") from None
+            raise OptionError("fake_faults", str(exc)) from None
         if faults and transport != "fake":
-            raise ConfigError('haptic.fake_faults: only with transport = "fake"')
+            raise OptionError("fake_faults", f'must be empty unless transport = "fake", got {fake_faults!r}')
         if any(f.kind == "wrong_id" for f in faults) and self.layout.inp.report_id == 0:
-            raise ConfigError("haptic.fake_faults: wrong_id needs numbered reports (layout.report_id > 0)")
-        for name in FORCE_FIELDS:  # the limit must be representable, else saturation would turn the force
-            f = self.layout.out.fields[name]
-            reach = f.type.hi * abs(f.scale)
-            if reach < device_max_force:
-                raise ConfigError(
-                    f"haptic.layout.out.{name}: {f.type.name} at {f.scale:g} N per count reaches only "
-                    f"{reach:g} N, below device_max_force {device_max_force:g} N"
-                )
+            raise OptionError("fake_faults", "wrong_id needs numbered reports (layout.report_id > 0)")
+        self.layout.check_reach(device_max_force)
         self.selector = DeviceSelector(
             vendor_id or 0,
             product_id or 0,
@@ -493,17 +166,8 @@ class HidHaptic:
             self.transport: RawHidTransport = HidapiTransport(FakeHidapi([self.fake]))
         else:
             self.transport = HidapiTransport()
-        out = self.layout.out
-        self._seq_field = out.fields.get("seq")
-        self._flags_field = out.fields.get("flags")
-        self._echo_field = self.layout.inp.fields.get("echo")
-        width = (
-            min(f.type.size for f in (self._seq_field, self._echo_field) if f is not None)
-            if self._echo_field is not None
-            else 1
-        )
-        self._echo_mask = (1 << (8 * width)) - 1
-        self._in_read_size = self.layout.inp.size + (1 if self.layout.inp.report_id else 0)
+        self._echo_mask = self.layout.echo_mask()
+        self._in_read_size = self.layout.in_read_size()
         self.info = ""
         self.opened = False
         self.seq = 0
@@ -594,13 +258,7 @@ class HidHaptic:
     # ------------------------------------------------------------------ one exchange
 
     def _out_report(self, force_D: np.ndarray, enabled: bool) -> bytes:
-        out = self.layout.out
-        data = bytearray(encode_force(out, force_D, self.max_force))
-        if self._seq_field is not None:
-            self._seq_field.type.fmt.pack_into(data, self._seq_field.offset, self.seq & int(self._seq_field.type.hi))
-        if self._flags_field is not None:
-            self._flags_field.pack_into(data, FLAG_ENABLE if enabled else 0)
-        return bytes([out.report_id]) + bytes(data)  # hidapi wants the id first, 0 when unnumbered
+        return self.layout.out_report(force_D, self.max_force, self.seq, enabled)
 
     def _exchange(self, force_D: np.ndarray, enabled: bool) -> dict[str, float]:
         """Write one OUT report and return the decoded IN report answering it; MasterLostError if none comes."""
@@ -628,7 +286,7 @@ class HidHaptic:
             values = self._decode(data)
             if values is None:
                 continue
-            if self._echo_field is None:
+            if self._echo_mask is None:
                 newest = values
             elif (values["echo"] - sent_seq) & self._echo_mask == 0:
                 return values

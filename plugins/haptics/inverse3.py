@@ -16,19 +16,18 @@ end-effector state (→ host)    0x2B     position x, y, z (m), velocity x, y, z
 =============================  =======  ==========================================================
 
 Source of the layout: Haply's C++ HardwareAPI header ``Inverse3.h`` (Haply
-Robotics, 2022), whose command constants are ``HC_DEVICE_WAKEUP = 0x0A``,
+Robotics), whose command constants are ``HC_DEVICE_WAKEUP = 0x0A``,
 ``HC_DEVICE_ID = 0x0B``, ``HC_END_EFFECTOR_FORCE = 0x2A``,
 ``HC_END_EFFECTOR_STATE = 0x2B`` and whose ``DeviceInfoResponse`` is
 ``{uint16_t device_id; uchar device_model_number; uchar hardware_version;
 uchar firmware_version; UUID device_id_ext}``, ``EndEffectorForceRequest``
 ``{float force[3]}`` and ``EndEffectorStateResponse`` ``{float position[3];
-float velocity[3]}``. The byte counts and order were then checked against
-Haply's own Python client, ``HaplyHardwareAPI`` 0.1.13 (C++ core 0.2.8), over
-a pseudo-terminal: ``Inverse3.device_wakeup_dict()`` writes exactly ``0a``
-and waits for 22 bytes (a 6-byte answer without the UUID times out), and
-``end_effector_force([1.5, -2.25, 3.0])`` writes
-``2a 0000c03f 000010c0 00004040`` and reads 25 bytes.
-``tests/plugins/haptics/test_inverse3.py`` keeps that check. Units, from
+float velocity[3]}``. Haply's own Python client, ``HaplyHardwareAPI`` 0.1.13
+(C++ core 0.2.8), agrees on the byte counts and order over a pseudo-terminal
+(``tests/plugins/haptics/test_inverse3.py``): ``Inverse3.device_wakeup_dict()``
+writes exactly ``0a`` and waits for 22 bytes (a 6-byte answer without the UUID
+times out), and ``end_effector_force([1.5, -2.25, 3.0])`` writes
+``2a 0000c03f 000010c0 00004040`` and reads 25 bytes. Units, from
 Haply's "Developing with Inverse3" (docs.haply.co/docs/developing-with-inverse3,
 Cartesian control): force in N, position in m, velocity in m/s, in the
 device's right-handed frame with its origin on the mounting plate (our D).

@@ -1,13 +1,13 @@
-"""``hapticlab emulate master``: a serial haptic master on a pseudo-terminal, in either wire protocol.
+"""The master emulator: a serial haptic master on a pseudo-terminal, in either wire protocol.
 
 The emulator opens a pty pair (raw mode) and plays the device on its master
 side; the slave side (``/dev/pts/N``, printed first) is the port a session or
 a vendor client opens as if it were the device's USB serial port. The handle
 moves along a scripted path in the device frame D (a slow circle or
 figure-eight, a hold, or a press down and back) or a recorded one (a CSV of
-``t, x, y, z``: s, m, played in a loop). The path starts at the first
-handshake, so every session meets the same hand. Every force command is
-answered as the device would:
+``t, x, y, z``: s, m, played in a loop), both from ``handle_motion.py``. The
+path starts at the first handshake, so every session meets the same hand.
+Every force command is answered as the device would:
 
 * ``--protocol hapticlab``: our framed protocol (``framing.py``,
   ``docs/serial-protocol.md``): HELLO → HELLO_ACK, FORCE/HEARTBEAT → STATE,
@@ -18,17 +18,17 @@ answered as the device would:
   0x0B device info; force 0x2A → 0x2B end-effector state. Haply's own client,
   ``HaplyHardwareAPI``, talks to it.
 
-Faults for tests and drills (``--fault KIND@SECONDS[:ARG]`` on the command
-line, methods in Python): corrupt the CRC of the next replies
-(``corrupt_replies``), garbage before the next reply (``garbage_before_reply``),
-stop answering and resume (``stop_answering``), restart (``restart``: the
-device forgets the handshake), unplug (``unplug``: the pty's
-master side closes; the slave path disappears and its reads fail with EIO).
+Faults for tests and drills (methods here; ``--fault KIND@SECONDS[:ARG]`` on
+the command line, ``master_emulator_cli.py``): corrupt the CRC of the next
+replies (``corrupt_replies``), garbage before the next reply
+(``garbage_before_reply``), stop answering and resume (``stop_answering``),
+restart (``restart``: the device forgets the handshake), unplug (``unplug``:
+the pty's master side closes; the slave path disappears and its reads fail
+with EIO).
 """
 
 from __future__ import annotations
 
-import argparse
 import collections
 import csv
 import math
@@ -44,12 +44,9 @@ from typing import Callable
 
 import numpy as np
 
-from hapticlab.core import hookimpl
-from hapticlab.core.types import EmulatorCommand
+from hapticlab.core.host.options import choice
 from hapticlab.plugins.haptics import framing, inverse3
-from hapticlab.plugins.serving import serve_until_stopped
-
-PATHS = ("circle", "figure8", "hold", "press")
+from hapticlab.plugins.haptics.handle_motion import HandleMotion, scripted_motion
 
 
 @dataclass
@@ -68,77 +65,6 @@ class EmulatorCounts:
     replies_corrupted: int = 0
     requests_ignored: int = 0
     unknown_bytes: int = 0
-
-
-# --------------------------------------------------------------------------- the handle's motion
-
-
-HandleMotion = Callable[[float], tuple[np.ndarray, np.ndarray]]
-"""t (s since start) → (p_DoHo_D m, v_DHo_D m/s)."""
-
-
-def scripted_motion(
-    kind: str = "circle",
-    radius: float = 0.03,
-    period: float = 8.0,
-    center: tuple[float, float, float] = (0.0, 0.0, 0.0),
-) -> HandleMotion:
-    """A handle moving about ``center`` (m), one lap per ``period`` s: ``circle`` or ``figure8`` (a lemniscate
-    of Gerono, ``radius`` wide each way) in D's x-y plane, ``hold`` (still at ``center``), or ``press``
-    (down along D's −z by up to ``radius`` and back, a raised cosine: a hand probing tissue by teleoperation)."""
-    if kind not in PATHS:
-        raise ValueError(f"path: must be one of {', '.join(PATHS)} or a CSV file, got {kind!r}")
-    if not (radius >= 0 and period > 0):
-        raise ValueError(f"path: radius must be >= 0 m and period > 0 s, got {radius!r}, {period!r}")
-    c = np.asarray(center, dtype=float)
-    w = 2 * math.pi / period
-
-    def motion(t: float) -> tuple[np.ndarray, np.ndarray]:
-        a = w * t
-        if kind == "circle":
-            p = [radius * math.cos(a), radius * math.sin(a), 0.0]
-            v = [-radius * w * math.sin(a), radius * w * math.cos(a), 0.0]
-        elif kind == "press":
-            p = [0.0, 0.0, -0.5 * radius * (1.0 - math.cos(a))]
-            v = [0.0, 0.0, -0.5 * radius * w * math.sin(a)]
-        elif kind == "figure8":
-            p = [radius * math.sin(a), radius * math.sin(a) * math.cos(a), 0.0]
-            v = [radius * w * math.cos(a), radius * w * math.cos(2 * a), 0.0]
-        else:
-            p, v = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
-        return c + np.array(p), np.array(v)
-
-    return motion
-
-
-def recorded_motion(path: str | Path) -> HandleMotion:
-    """A handle replaying a CSV with columns ``t, x, y, z`` (s, m; header row), interpolated, in a loop."""
-    try:
-        with open(path, newline="") as f:
-            rows = list(csv.DictReader(f))
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    if not rows or not {"t", "x", "y", "z"} <= set(rows[0]):
-        raise ValueError(f"{path}: needs a header row with columns t, x, y, z and at least two rows")
-    try:
-        data = np.array([[float(r[k]) for k in ("t", "x", "y", "z")] for r in rows])
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-    t = data[:, 0] - data[0, 0]
-    if len(t) < 2 or not np.all(np.diff(t) > 0) or not np.isfinite(data).all():
-        raise ValueError(f"{path}: needs at least two rows, finite values and increasing t")
-    span = t[-1]
-    velocity = np.diff(data[:, 1:], axis=0) / np.diff(t)[:, None]
-
-    def motion(now: float) -> tuple[np.ndarray, np.ndarray]:
-        s = now % span
-        p = np.array([np.interp(s, t, data[:, k]) for k in (1, 2, 3)])
-        return p, velocity[min(int(np.searchsorted(t, s, side="right")) - 1, len(velocity) - 1)].copy()
-
-    return motion
-
-
-# --------------------------------------------------------------------------- the device
 
 
 class MasterEmulator:
@@ -175,8 +101,7 @@ class MasterEmulator:
         buttons: Callable[[float], int] | None = None,
         keep: int = 100_000,
     ):
-        if protocol not in ("hapticlab", "inverse3"):
-            raise ValueError(f"protocol: must be 'hapticlab' or 'inverse3', got {protocol!r}")
+        choice("protocol", protocol, ("hapticlab", "inverse3"))
         self.protocol = protocol
         self.motion = motion or scripted_motion()
         self.max_force, self.device_id, self.max_rate_hz = max_force, device_id, max_rate_hz
@@ -459,153 +384,3 @@ class MasterEmulator:
             else:  # a command this emulator does not implement: skipped, counted
                 self.counts.unknown_bytes += 1
                 del buf[:1]
-
-
-# --------------------------------------------------------------------------- command line
-
-FAULT_KINDS = ("crc", "garbage", "silent", "restart", "unplug")
-
-
-@dataclass(frozen=True)
-class ScheduledFault:
-    """A fault the command-line emulator injects ``at`` s after it starts.
-
-    ``crc@T:N`` breaks the next N replies (default 1), ``garbage@T:N`` writes N
-    noise bytes before the next reply (default 64), ``silent@T:D`` stops
-    answering for D s (default: for good), ``restart@T`` forgets the
-    handshake, ``unplug@T`` closes the pty's master side.
-    """
-
-    kind: str
-    at: float
-    arg: float | None = None
-
-    @classmethod
-    def parse(cls, text: str) -> "ScheduledFault":
-        kind, _, rest = text.partition("@")
-        when, _, arg = rest.partition(":")
-        try:
-            fault = cls(kind.strip(), float(when), float(arg) if arg else None)
-        except ValueError:
-            raise ValueError(f"--fault {text!r}: expected KIND@SECONDS[:ARG], e.g. crc@5:3 or unplug@10") from None
-        if fault.kind not in FAULT_KINDS:
-            raise ValueError(f"--fault {text!r}: unknown kind {fault.kind!r}; known: {', '.join(FAULT_KINDS)}")
-        if not (fault.at >= 0 and (fault.arg is None or fault.arg >= 0)):
-            raise ValueError(f"--fault {text!r}: times and counts must be >= 0")
-        return fault
-
-    def inject(self, emulator: MasterEmulator, stop: threading.Event) -> None:
-        """Wait until the fault is due (or ``stop``), then inject it."""
-        if stop.wait(max(0.0, self.at - emulator.now())):
-            return
-        if self.kind == "crc":
-            emulator.corrupt_replies(int(self.arg or 1))
-        elif self.kind == "garbage":
-            emulator.garbage_before_reply(os.urandom(int(64 if self.arg is None else self.arg)))
-        elif self.kind == "silent":
-            emulator.stop_answering()
-            if self.arg is not None and not stop.wait(self.arg):
-                emulator.stop_answering(False)
-        elif self.kind == "restart":
-            emulator.restart()
-        else:
-            emulator.unplug()
-        print(f"{emulator.now():.3f} s: injected {self.kind}", flush=True)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of ``hapticlab emulate master``."""
-    parser.add_argument(
-        "--protocol",
-        choices=("hapticlab", "inverse3"),
-        default="hapticlab",
-        help="wire protocol: ours (framed, CRC-16) or Haply's Inverse3 (default hapticlab)",
-    )
-    parser.add_argument(
-        "--path",
-        default="circle",
-        metavar="circle|figure8|hold|press|FILE.csv",
-        help="the handle's motion in D: scripted, or a CSV of t,x,y,z (s, m) played in a loop",
-    )
-    parser.add_argument("--radius", type=float, default=0.03, help="scripted path size, m (default 0.03)")
-    parser.add_argument("--period", type=float, default=8.0, help="scripted path lap time, s (default 8)")
-    parser.add_argument(
-        "--center",
-        type=float,
-        nargs=3,
-        default=(0.0, 0.0, 0.0),
-        metavar=("X", "Y", "Z"),
-        help="scripted path centre in D, m",
-    )
-    parser.add_argument("--max-force", type=float, default=8.0, help="the device's force limit, N (default 8)")
-    parser.add_argument("--device-id", type=int, default=0x4C41, help="device id in the handshake answer")
-    parser.add_argument(
-        "--fault",
-        action="append",
-        default=[],
-        metavar="KIND@SECONDS[:ARG]",
-        help=f"inject a fault ({', '.join(FAULT_KINDS)}), e.g. crc@5:3, silent@8:0.5, unplug@12; repeatable",
-    )
-    parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
-    parser.add_argument(
-        "--log-forces",
-        default=None,
-        metavar="FILE.csv",
-        help="on exit, write the forces received (the last 100 000) with when each came off the wire (received_ns "
-        "on this machine's monotonic clock, fx, fy, fz) to a new CSV (bench/haptic_wire.py)",
-    )
-
-
-def run(args: argparse.Namespace) -> int:
-    """Serve until Ctrl-C, SIGTERM or ``--duration``; the first line printed is the port to open."""
-    from hapticlab.core.host.registry import ConfigError
-
-    try:
-        motion = (
-            recorded_motion(args.path)
-            if args.path not in PATHS
-            else scripted_motion(args.path, args.radius, args.period, tuple(args.center))
-        )
-        emulator = MasterEmulator(args.protocol, motion, args.max_force, args.device_id)
-        faults = [ScheduledFault.parse(text) for text in args.fault]
-        log = args.log_forces
-        if log is not None and Path(log).exists():
-            raise ValueError(f"--log-forces {log}: exists; give a new file name")
-    except ValueError as exc:
-        raise ConfigError(f"emulate master: {exc}") from None
-    stop = threading.Event()
-
-    def ready() -> None:
-        print(emulator.port, flush=True)
-        print(
-            f"{args.protocol} master emulator on {emulator.port}: handle on {args.path}, max "
-            f"{args.max_force:g} N; e.g. hapticlab run --set haptic.name=serial --set haptic.port={emulator.port}"
-            f" --set haptic.protocol={args.protocol}",
-            flush=True,
-        )
-        for fault in faults:
-            threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
-
-    with emulator:
-        serve_until_stopped(args.duration, stop, ready)
-    c = emulator.counts
-    print(
-        f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "
-        f"error(s), {c.naks_sent} NAK(s) sent, {c.clamped} clamped, {c.watchdog_trips} watchdog trip(s); "
-        f"{c.replies_corrupted} reply(ies) corrupted, {c.requests_ignored} request(s) ignored"
-    )
-    if log is not None:
-        print(f"{emulator.write_forces(log)} force(s) with their receipt times written to {log}", flush=True)
-    return 0
-
-
-@hookimpl
-def register_emulators(register):
-    register(
-        "master",
-        EmulatorCommand(
-            help="serial haptic master on a pseudo-terminal: hapticlab's framed protocol or Haply Inverse3",
-            add_arguments=add_arguments,
-            run=run,
-        ),
-    )

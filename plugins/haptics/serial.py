@@ -1,9 +1,10 @@
 """``serial``: a haptic master on a serial port (USB CDC, UART), in one of two wire protocols.
 
 ``protocol = "hapticlab"``: our framed binary protocol for DIY and Arduino
-masters (``framing.py``, specified in ``docs/serial-protocol.md``, device side
-in ``firmware/hapticlab_master/``). ``protocol = "inverse3"``: the Haply
-Inverse3's own serial protocol (``inverse3.py``).
+masters (host side ``hapticlab_link.py``, bytes ``framing.py``, specified in
+``docs/serial-protocol.md``, device side in ``firmware/hapticlab_master/``).
+``protocol = "inverse3"``: the Haply Inverse3's own serial protocol (host side
+``inverse3_link.py``, bytes ``inverse3.py``). The port itself is ``serial_port.py``.
 
 Each ``send`` is one request/reply exchange on the wire: the force goes out,
 the device answers with the handle's state, which ``state()`` then returns.
@@ -36,425 +37,25 @@ is ``state`` (the handle's measured Cartesian pose, with its velocity).
 
 from __future__ import annotations
 
-import math
-import select
 import time
-import typing
-from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.errors import UserError
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, boolean, choice, integer, number
 from hapticlab.core.types import DeviceState, Event, HapticCommand
-from hapticlab.plugins.haptics import framing, inverse3
-
-if typing.TYPE_CHECKING:
-    import serial as pyserial
+from hapticlab.plugins.haptics import framing
+from hapticlab.plugins.haptics.hapticlab_link import HapticlabLink
+from hapticlab.plugins.haptics.inverse3_link import Inverse3Link
+from hapticlab.plugins.haptics.master import ZERO3_F32, MasterLostError, MasterOpenError, clamp_force, link_event
+from hapticlab.plugins.haptics.serial_port import MasterLink, PipelinedLink, Reading, SerialPort
 
 PROTOCOLS = ("hapticlab", "inverse3")
 IDENTITY_QUAT = np.array([1.0, 0.0, 0.0, 0.0])
-ZERO3_F32 = np.zeros(3, np.float32)
-CLAMP_MARGIN = 1.0 - 1e-6  # float32 rounding of a force scaled to the limit stays below the limit
 STATUS_TEXT = {
     framing.STATUS_WATCHDOG: "its watchdog zeroed the force (no host frame in time)",
     framing.STATUS_CLAMPED: "it clamped a force to its own maximum",
 }
-
-
-class MasterOpenError(UserError, ConnectionError):
-    """The master could not be opened or did not answer the handshake; the message names the port and why."""
-
-
-class MasterLostError(ConnectionError):
-    """The master stopped answering, went away, or sent bad replies beyond the limit; the message says which.
-
-    ``cause`` is one of ``"gone"`` (the port failed: unplugged), ``"restarted"``
-    (the device forgot the handshake), ``"silent"`` (no reply), ``"errors"``
-    (bad replies in a row, a device fault) or ``"lost"`` (still lost, not retried).
-    """
-
-    def __init__(self, message: str, cause: str = "silent"):
-        super().__init__(message)
-        self.cause = cause
-
-
-@dataclass(frozen=True, slots=True)
-class Reading:
-    """What one reply says about the handle.
-
-    Attributes:
-        p_DoHo_D: (3,) handle position in D, m.
-        v_DHo_D: (3,) handle velocity in D, m/s.
-        buttons: bit mask of pressed buttons.
-        status: device status bits (``framing.STATUS_*``; 0 for the Inverse3).
-    """
-
-    p_DoHo_D: np.ndarray
-    v_DHo_D: np.ndarray
-    buttons: int = 0
-    status: int = 0
-
-
-class SerialPort:
-    """A pyserial port that turns every OS-level failure into MasterLostError naming the port."""
-
-    def __init__(self, port: str, baudrate: int, read_timeout: float):
-        self.name = port
-        try:
-            import serial
-        except ImportError:
-            raise MasterOpenError(
-                f"haptic.port {port}: the serial plugin needs pyserial (pip install pyserial)"
-            ) from None
-        self._serial_exception = serial.SerialException
-        try:
-            self.serial: pyserial.Serial = serial.Serial(
-                port, baudrate, timeout=read_timeout, write_timeout=read_timeout, exclusive=True
-            )
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise MasterOpenError(f"haptic.port {port}: cannot open: {_why(exc)}") from None
-
-    def write(self, data: bytes) -> None:
-        try:
-            self.serial.write(data)
-        except (self._serial_exception, OSError) as exc:
-            raise MasterLostError(f"{self.name}: write failed: {_why(exc)}", "gone") from None
-
-    def read(self, size: int, deadline: float) -> bytes:
-        """Up to ``size`` bytes: those already received, else the first to arrive before ``deadline``
-        (monotonic s); b"" when none came. Never waits past the deadline, whatever the port's own timeout."""
-        try:
-            waiting = self.serial.in_waiting
-            if not waiting:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or not select.select([self.serial.fileno()], [], [], remaining)[0]:
-                    return b""
-                waiting = self.serial.in_waiting or 1  # 0 when the other side hung up: read says so
-            return self.serial.read(min(size, waiting))
-        except (self._serial_exception, OSError) as exc:
-            raise MasterLostError(f"{self.name}: read failed: {_why(exc)}", "gone") from None
-
-    def waiting(self) -> int:
-        try:
-            return self.serial.in_waiting
-        except (self._serial_exception, OSError) as exc:
-            raise MasterLostError(f"{self.name}: {_why(exc)}", "gone") from None
-
-    def discard_input(self) -> None:
-        try:
-            self.serial.reset_input_buffer()
-        except (self._serial_exception, OSError) as exc:
-            raise MasterLostError(f"{self.name}: {_why(exc)}", "gone") from None
-
-    def close(self) -> None:
-        try:
-            self.serial.close()
-        except (self._serial_exception, OSError):
-            pass
-
-
-def _finite(state: framing.State) -> bool:
-    """Every number in a STATE is finite (a device's NaN is a bad reply, never a position)."""
-    return all(map(math.isfinite, state.p_DoHo_D)) and all(map(math.isfinite, state.v_DHo_D))
-
-
-def _why(exc: BaseException) -> str:
-    return getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-
-
-class MasterLink(Protocol):
-    """The host side of one wire protocol over an open port.
-
-    ``handshake(timeout_s)`` wakes the device up and returns one line naming it
-    (MasterOpenError on failure); ``max_force`` is then the device's own
-    maximum, N, when the protocol reports one (else None). ``exchange(force_D)``
-    writes one (3,) float32 force in D, N, and returns the reply's Reading, or
-    None for a bad reply (counted in ``counters``); it raises MasterLostError
-    when nothing arrives within the read timeout. ``post(force_D)`` writes a
-    force without waiting for its reply (the next ``exchange`` skips it).
-    """
-
-    max_force: float | None
-    counters: dict[str, int]
-
-    def handshake(self, timeout_s: float) -> str: ...
-    def exchange(self, force_D: np.ndarray) -> Reading | None: ...
-    def post(self, force_D: np.ndarray) -> None: ...
-
-
-class PipelinedLink(MasterLink, Protocol):
-    """A link whose replies can be collected later (``poll``), matched to the forces ``post`` wrote."""
-
-    def poll(self) -> list[Reading | None]: ...
-
-
-class HapticlabLink:
-    """Our framed protocol (``framing.py``): HELLO handshake, FORCE → STATE exchanges, CRC-checked."""
-
-    def __init__(self, port: SerialPort, read_timeout: float, watchdog_s: float):
-        self.port, self.read_timeout, self.watchdog_s = port, read_timeout, watchdog_s
-        self.decoder = framing.FrameDecoder()
-        self.seq = 0
-        self.max_force: float | None = None
-        self.counters = {"crc_errors": 0, "garbage_bytes": 0, "naks": 0, "stale_replies": 0, "bad_replies": 0}
-        self.outstanding: dict[int, float] = {}  # pipelined: seq → when it was sent (monotonic s), oldest first
-
-    def _next_seq(self) -> int:
-        self.seq = (self.seq + 1) & 0xFF
-        return self.seq
-
-    def _sync_counters(self) -> None:
-        self.counters["crc_errors"] = self.decoder.crc_errors
-        self.counters["garbage_bytes"] = self.decoder.garbage_bytes
-
-    def handshake(self, timeout_s: float) -> str:
-        where = f"haptic.port {self.port.name}"
-        deadline = time.monotonic() + timeout_s
-        self.port.discard_input()  # a board reset on open prints its boot banner
-        received = 0
-        while time.monotonic() < deadline:
-            seq = self._next_seq()
-            self.port.write(framing.encode_frame(framing.HELLO, seq, framing.pack_hello(self.watchdog_s)))
-            retry_at = min(deadline, time.monotonic() + 0.1)  # an Arduino may still be in its bootloader
-            while time.monotonic() < retry_at:
-                data = self.port.read(4096, retry_at)
-                received += len(data)
-                for frame in self.decoder.feed(data):
-                    if (
-                        frame.kind == framing.NAK
-                        and len(frame.payload) == framing.NAK_FORMAT.size
-                        and frame.payload[1] == framing.NAK_VERSION
-                    ):  # other NAKs: line noise, try again
-                        raise MasterOpenError(
-                            f"{where}: the device refused HELLO: it does not speak hapticlab "
-                            f"protocol version {framing.PROTOCOL_VERSION}"
-                        )
-                    if frame.kind == framing.HELLO_ACK and len(frame.payload) == framing.HELLO_ACK_FORMAT.size:
-                        ack = framing.HelloAck.unpack(frame.payload)
-                        if ack.version != framing.PROTOCOL_VERSION:
-                            raise MasterOpenError(
-                                f"{where}: the device speaks hapticlab protocol version "
-                                f"{ack.version}, this host speaks {framing.PROTOCOL_VERSION}"
-                            )
-                        if not (math.isfinite(ack.max_force) and ack.max_force > 0):
-                            raise MasterOpenError(f"{where}: the device reports a maximum force of {ack.max_force!r} N")
-                        self.max_force = ack.max_force
-                        self._sync_counters()
-                        return (
-                            f"hapticlab protocol v{ack.version} device {ack.device_id} firmware "
-                            f"{ack.firmware_version}, max {ack.max_force:g} N, {ack.max_rate_hz:g} Hz"
-                        )
-        self._sync_counters()
-        if received:
-            raise MasterOpenError(
-                f"{where}: {received} byte(s) arrived in {timeout_s:g} s but no hapticlab "
-                f"HELLO_ACK ({self.decoder.crc_errors} CRC error(s)): wrong baud rate, "
-                'or not a hapticlab master (protocol = "inverse3"?)'
-            )
-        raise MasterOpenError(
-            f"{where}: no reply to the hapticlab HELLO within {timeout_s:g} s "
-            "(is the firmware flashed, the baud rate right, the device powered?)"
-        )
-
-    def exchange(self, force_D: np.ndarray) -> Reading | None:
-        seq = self._next_seq()
-        self.outstanding.clear()  # a waited-for exchange supersedes what a pipeline had in flight
-        self.port.write(framing.encode_frame(framing.FORCE, seq, framing.pack_force(force_D)))
-        return self._await_state(seq)
-
-    # pipelined: write now, collect the replies that have come when next asked --------------------
-
-    def post(self, force_D: np.ndarray) -> None:
-        """Write one FORCE without waiting for its STATE."""
-        seq = self._next_seq()
-        self.outstanding.pop(seq, None)  # a seq 256 commands old is long answered or long lost
-        self.outstanding[seq] = time.monotonic()
-        self.port.write(framing.encode_frame(framing.FORCE, seq, framing.pack_force(force_D)))
-
-    def poll(self) -> list[Reading | None]:
-        """The replies that have arrived, in order, without blocking: a Reading, or None for a bad reply.
-
-        A STATE answers its command and every older one still outstanding; a
-        broken frame (CRC) or a NAK stands for the oldest outstanding command.
-        Raises MasterLostError when the oldest outstanding command has waited
-        longer than the read timeout.
-        """
-        waiting = self.port.waiting()
-        if not waiting and not self.outstanding:
-            return []
-        errors_before = self.decoder.crc_errors
-        frames = self.decoder.feed(self.port.read(waiting, 0.0)) if waiting else []
-        outcomes: list[Reading | None] = []
-        for _ in range(self.decoder.crc_errors - errors_before):
-            outcomes.append(None)
-            self._forget_oldest()
-        for frame in frames:
-            if frame.kind == framing.STATE and len(frame.payload) == framing.STATE_FORMAT.size:
-                state = framing.State.unpack(frame.payload)
-                if state.ack_seq not in self.outstanding:
-                    self.counters["stale_replies"] += 1
-                    continue
-                while self.outstanding:  # answered, and so are the older ones (their replies are late or lost)
-                    seq = next(iter(self.outstanding))
-                    del self.outstanding[seq]
-                    if seq == state.ack_seq:
-                        break
-                if _finite(state):
-                    outcomes.append(Reading(state.p_DoHo_D, state.v_DHo_D, state.buttons, state.status))
-                else:
-                    self.counters["bad_replies"] += 1
-                    outcomes.append(None)
-            elif frame.kind == framing.NAK and len(frame.payload) == framing.NAK_FORMAT.size:
-                self.counters["naks"] += 1
-                if frame.payload[1] == framing.NAK_NOT_READY:
-                    raise MasterLostError(
-                        f"{self.port.name}: the device forgot the handshake (restarted?)", "restarted"
-                    )
-                self.outstanding.pop(frame.payload[0], None) if frame.payload[
-                    0
-                ] in self.outstanding else self._forget_oldest()
-                outcomes.append(None)
-            else:
-                self.counters["bad_replies"] += 1
-        self._sync_counters()
-        if self.outstanding:
-            waited = time.monotonic() - next(iter(self.outstanding.values()))
-            if waited > self.read_timeout:
-                self.outstanding.clear()
-                raise MasterLostError(f"{self.port.name}: no reply within {self.read_timeout * 1e3:g} ms")
-        return outcomes
-
-    def _forget_oldest(self) -> None:
-        if self.outstanding:
-            del self.outstanding[next(iter(self.outstanding))]
-
-    def _await_state(self, seq: int) -> Reading | None:
-        deadline = time.monotonic() + self.read_timeout
-        errors_before = self.decoder.crc_errors
-        arrived = False
-        while True:
-            data = self.port.read(4096, deadline)
-            arrived |= bool(data)
-            for frame in self.decoder.feed(data):
-                if frame.kind == framing.STATE and len(frame.payload) == framing.STATE_FORMAT.size:
-                    state = framing.State.unpack(frame.payload)
-                    if state.ack_seq != seq:
-                        self.counters["stale_replies"] += 1
-                        continue
-                    self._sync_counters()
-                    if not _finite(state):
-                        self.counters["bad_replies"] += 1
-                        return None
-                    return Reading(state.p_DoHo_D, state.v_DHo_D, state.buttons, state.status)
-                if frame.kind == framing.NAK and len(frame.payload) == framing.NAK_FORMAT.size:
-                    self.counters["naks"] += 1
-                    self._sync_counters()
-                    if frame.payload[1] == framing.NAK_NOT_READY:
-                        raise MasterLostError(
-                            f"{self.port.name}: the device forgot the handshake (restarted?)", "restarted"
-                        )
-                    return None
-                self.counters["bad_replies"] += 1  # a frame that answers nothing we asked
-            self._sync_counters()
-            if self.decoder.crc_errors > errors_before and not self.decoder.pending() and not self.port.waiting():
-                return None  # the reply came and was broken: no need to wait out the timeout
-            if time.monotonic() >= deadline:
-                if arrived:
-                    self.counters["bad_replies"] += 1
-                    return None
-                raise MasterLostError(f"{self.port.name}: no reply within {self.read_timeout * 1e3:g} ms")
-
-
-class Inverse3Link:
-    """Haply's Inverse3 protocol (``inverse3.py``): wake-up, then force → end-effector state exchanges."""
-
-    def __init__(self, port: SerialPort, read_timeout: float):
-        self.port, self.read_timeout = port, read_timeout
-        self.max_force: float | None = None  # the Inverse3 does not report one
-        self.counters = {"bad_replies": 0, "truncated_replies": 0}
-        self.owed = 0  # replies to posted forces not yet read
-
-    def post(self, force_D: np.ndarray) -> None:
-        """Write a force request without reading its reply (the next exchange reads and drops it)."""
-        self.port.write(inverse3.pack_force_request(force_D))
-        self.owed += 1
-
-    def _read_exactly(self, size: int, deadline: float) -> bytes:
-        data = b""
-        while len(data) < size:
-            chunk = self.port.read(size - len(data), deadline)
-            if not chunk:
-                break
-            data += chunk
-        return data
-
-    def handshake(self, timeout_s: float) -> str:
-        where = f"haptic.port {self.port.name}"
-        deadline = time.monotonic() + timeout_s
-        self.port.discard_input()
-        reply = b""
-        while time.monotonic() < deadline:
-            self.port.write(inverse3.WAKEUP_REQUEST)
-            reply = self._read_exactly(inverse3.DEVICE_INFO_SIZE, min(deadline, time.monotonic() + 0.5))
-            if reply:
-                reply += self._read_exactly(inverse3.DEVICE_INFO_SIZE - len(reply), time.monotonic() + 0.05)
-                break
-        if not reply:
-            raise MasterOpenError(
-                f"{where}: no reply to the Inverse3 wake-up (0x0A) within {timeout_s:g} s "
-                "(is it an Inverse3, powered, and not held by another program?)"
-            )
-        try:
-            info = inverse3.DeviceInfo.unpack(reply)
-        except ValueError as exc:
-            raise MasterOpenError(f"{where}: not an Inverse3 answer to the wake-up: {exc}") from None
-        return (
-            f"Haply Inverse3 device {info.device_id} ({info.device_id_ext}), model {info.model}, "
-            f"hardware {info.hardware_version}, firmware {info.firmware_version}"
-        )
-
-    def exchange(self, force_D: np.ndarray) -> Reading | None:
-        self.port.write(inverse3.pack_force_request(force_D))
-        owed, self.owed = self.owed, 0
-        if owed:  # the replies to posted forces come first: read past them
-            self._read_exactly(owed * inverse3.STATE_SIZE, time.monotonic() + self.read_timeout)
-        reply = self._read_exactly(inverse3.STATE_SIZE, time.monotonic() + self.read_timeout)
-        if not reply:
-            raise MasterLostError(f"{self.port.name}: no reply within {self.read_timeout * 1e3:g} ms")
-        if len(reply) < inverse3.STATE_SIZE or reply[0] != inverse3.END_EFFECTOR_STATE:
-            # no framing to resynchronise on: drop what is in flight, the next exchange starts clean
-            self.counters["truncated_replies" if len(reply) < inverse3.STATE_SIZE else "bad_replies"] += 1
-            self.port.discard_input()
-            return None
-        p_DoHo_D, v_DHo_D = inverse3.unpack_state(reply)
-        if not (np.isfinite(p_DoHo_D).all() and np.isfinite(v_DHo_D).all()):
-            self.counters["bad_replies"] += 1
-            return None
-        return Reading(p_DoHo_D, v_DHo_D)
-
-
-def clamp_force(force_D: np.ndarray, max_force: float) -> np.ndarray:
-    """(3,) float32 force for the wire: finite, with a norm at most ``max_force`` N, direction kept.
-
-    A force with any non-finite component is zero (nothing but zero can be
-    trusted of it); a finite one of any size, up to 1.8e308 N, is scaled down
-    along its direction without overflowing (``math.hypot`` scales as it goes).
-    Plain floats, not numpy: this runs once a tick on three numbers.
-    """
-    try:
-        x, y, z = (float(v) for v in force_D)
-    except (TypeError, ValueError):
-        return ZERO3_F32.copy()
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        return ZERO3_F32.copy()
-    norm = math.hypot(x, y, z)
-    if norm > max_force:
-        k = max_force * CLAMP_MARGIN / norm
-        x, y, z = x * k, y * k, z * k
-    return np.array((x, y, z), dtype=np.float32)
 
 
 class SerialHaptic:
@@ -506,12 +107,12 @@ class SerialHaptic:
         wait_for_reply: bool = True,
     ):
         if not isinstance(port, str) or not port.strip():
-            raise ConfigError(
-                "haptic.port: the serial device is required, e.g. --set haptic.port=/dev/ttyACM0 "
-                "(hapticlab emulate master prints one)"
+            raise OptionError(
+                "port",
+                "must name the serial device, e.g. --set haptic.port=/dev/ttyACM0 "
+                f"(hapticlab emulate master prints one), got {port!r}",
             )
-        if protocol not in PROTOCOLS:
-            raise ConfigError(f"haptic.protocol: must be one of {', '.join(map(repr, PROTOCOLS))}, got {protocol!r}")
+        choice("protocol", protocol, PROTOCOLS)
         for key, value in (
             ("rate_hz", rate_hz),
             ("device_max_force", device_max_force),
@@ -519,24 +120,21 @@ class SerialHaptic:
             ("read_timeout", read_timeout),
             ("reconnect_interval", reconnect_interval),
         ):
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"haptic.{key}: must be a finite number > 0, got {value!r}")
-        if not baudrate > 0:
-            raise ConfigError(f"haptic.baudrate: must be > 0, got {baudrate!r}")
-        if not max_consecutive_errors >= 0:
-            raise ConfigError(f"haptic.max_consecutive_errors: must be >= 0, got {max_consecutive_errors!r}")
-        if not wait_for_reply and protocol != "hapticlab":
-            raise ConfigError(
-                'haptic.wait_for_reply: false needs protocol = "hapticlab" (the Inverse3\'s replies '
-                "have no sequence numbers or framing to match them to their commands)"
+            number(key, value, above=0)
+        integer("baudrate", baudrate, minimum=1, hint=" (bit/s)")
+        integer("max_consecutive_errors", max_consecutive_errors, minimum=0)
+        if not boolean("wait_for_reply", wait_for_reply) and protocol != "hapticlab":
+            raise OptionError(
+                "wait_for_reply",
+                'false needs protocol = "hapticlab" (the Inverse3\'s replies have no sequence numbers or '
+                "framing to match them to their commands)",
             )
-        if not (math.isfinite(watchdog) and 0 <= watchdog <= 65.535):
-            raise ConfigError(f"haptic.watchdog: must be in [0, 65.535] s, got {watchdog!r}")
-        self.port_name, self.protocol, self.baudrate = port.strip(), protocol, int(baudrate)
+        number("watchdog", watchdog, minimum=0, maximum=65.535, hint=" s (0: off)")
+        self.port_name, self.protocol, self.baudrate = port.strip(), protocol, baudrate
         self.rate_hz = rate_hz
         self.device_max_force = self.max_force = device_max_force
         self.open_timeout, self.read_timeout = open_timeout, read_timeout
-        self.max_consecutive_errors, self.watchdog = int(max_consecutive_errors), watchdog
+        self.max_consecutive_errors, self.watchdog = max_consecutive_errors, watchdog
         self.reconnect_interval = reconnect_interval
         self.wait_for_reply = wait_for_reply
         self.port: SerialPort | None = None
@@ -726,14 +324,6 @@ class SerialHaptic:
         if event is not None:
             self._reported = dict(self.link.counters)
             self._events.append(event)
-
-
-def link_event(t_ns: int, counters: dict[str, int], reported: dict[str, int]) -> Event | None:
-    """A ``haptic_link`` event naming the link counters that changed since ``reported`` (None if none did)."""
-    changed = {k: v for k, v in counters.items() if reported.get(k, 0) != v}
-    if not changed:
-        return None
-    return Event(t_ns, "haptic_link", "haptic link: " + ", ".join(f"{k} {v}" for k, v in changed.items()), changed)
 
 
 @hookimpl

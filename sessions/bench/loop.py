@@ -102,7 +102,7 @@ class PressingHand:
     ``period`` s (``scripted_motion("press")``); it renders nothing."""
 
     def __init__(self, rest_s: float = 4.5, depth: float = 0.05, period: float = 2.0, rate_hz: float = 1000.0):
-        from hapticlab.plugins.haptics.master_emulator import scripted_motion
+        from hapticlab.plugins.haptics.handle_motion import scripted_motion
 
         self.rate_hz, self.rest_s = rate_hz, rest_s
         self.motion = scripted_motion("press", depth, period)

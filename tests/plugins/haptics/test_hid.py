@@ -9,17 +9,27 @@ import numpy as np
 import pytest
 
 from hapticlab.core.host.interfaces import EmitsEvents, HapticOutput, ReportsHealth
+from hapticlab.core.host.options import OptionError
 from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import HapticCommand
-from hapticlab.plugins.haptics.hid import PRESETS, TYPES, Field, HidHaptic, RawHidLayout, encode_force
-from hapticlab.plugins.haptics.hid_transport import DeviceSelector, FakeHidapi, FakeRawHidMaster, HidapiTransport
-from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, clamp_force
+from hapticlab.plugins.haptics.hid import HidHaptic
+from hapticlab.plugins.haptics.hid_fake import FakeHidapi, FakeRawHidMaster
+from hapticlab.plugins.haptics.hid_layout import PRESETS, TYPES, Field, RawHidLayout, encode_force
+from hapticlab.plugins.haptics.hid_transport import DeviceSelector, HidapiTransport
+from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force
 
 TEENSY = PRESETS["teensy-rawhid"]["layout"]
 
 
 def command(force, t_ns=0, enabled=True):
     return HapticCommand(t_ns, np.asarray(force, dtype=float), enabled)
+
+
+def built(**options):
+    """The hid plugin as a session builds it from ``[haptic]``: an option error names the full key."""
+    return Registry(make_plugin_manager(load_entry_points=False)).create(
+        "haptic_output", "hid", options, where="haptic"
+    )
 
 
 def with_change(path: str, value):
@@ -49,34 +59,53 @@ def with_change(path: str, value):
             {"offset": 62, "type": "u32le"},
             "haptic.layout.in.echo.offset: bytes 62..65 end past the 64-byte report",
         ),
-        ("in.position_x", {"offset": 0, "type": "f16le"}, "haptic.layout.in.position_x.type: unknown type 'f16le'"),
+        (
+            "in.position_x",
+            {"offset": 0, "type": "f16le"},
+            "haptic.layout.in.position_x.type: must be 'u8', 'i8', 'u16le', 'i16le', 'u32le', 'i32le', 'u16be', "
+            "'i16be', 'u32be', 'i32be', 'f32le', 'f32be', 'f64le' or 'f64be', got 'f16le'",
+        ),
         ("out.force_z", None, "haptic.layout.out.force_z: required"),
         ("in.wobble", {"offset": 40, "type": "u8"}, "haptic.layout.in.wobble: unknown field"),
         ("in.velocity_z", None, "haptic.layout.in.velocity_z: required with velocity_x"),
         ("out.seq", None, "haptic.layout.in.echo: needs a seq field"),
-        ("in.buttons", {"offset": 18, "type": "i8"}, "haptic.layout.in.buttons.type: buttons must be an unsigned"),
+        (
+            "in.buttons",
+            {"offset": 18, "type": "i8"},
+            "haptic.layout.in.buttons.type: must be 'u8', 'u16le', 'u32le', 'u16be' or 'u32be' (buttons is a count), "
+            "got 'i8'",
+        ),
         (
             "in.position_y",
             {"offset": 4, "type": "i32le", "scale": 0},
             "haptic.layout.in.position_y.scale: must be a finite",
         ),
-        ("report_id", 300, "haptic.layout.report_id: must be an integer 0..255"),
+        (
+            "report_id",
+            300,
+            "haptic.layout.report_id: must be a whole number >= 0 and <= 255 (0: unnumbered reports), got 300",
+        ),
     ],
 )
 def test_layout_errors_are_one_line_naming_the_key(path, value, message):
     with pytest.raises(ConfigError) as info:
-        RawHidLayout.from_config(with_change(path, value))
+        built(layout=with_change(path, value), vendor_id=1, product_id=2, transport="fake")
     assert str(info.value).startswith(message) and "\n" not in str(info.value)
+    with pytest.raises(
+        OptionError
+    ) as info:  # the layout alone names its keys from "layout"; the session adds "haptic."
+        RawHidLayout.from_config(with_change(path, value))
+    assert str(info.value.under("haptic")).startswith(message)
 
 
 def test_a_force_field_that_cannot_hold_the_device_maximum_is_refused():
     layout = with_change("out.force_x", {"offset": 0, "type": "i16le", "scale": 1e-4})  # reaches 3.2767 N
     with pytest.raises(
-        ConfigError, match=r"haptic.layout.out.force_x: i16le at 0.0001 N per count reaches only 3.2767 N"
+        ConfigError, match=r"^haptic.layout.out.force_x: i16le at 0.0001 N per count reaches only 3.2767 N"
     ):
-        HidHaptic(layout=layout, vendor_id=1, product_id=2, device_max_force=5.0, transport="fake")
-    with pytest.raises(ConfigError, match="haptic.vendor_id: required"):
-        HidHaptic(layout=TEENSY)
+        built(layout=layout, vendor_id=1, product_id=2, device_max_force=5.0, transport="fake")
+    with pytest.raises(ConfigError, match=r"^haptic.vendor_id: must be given with a layout table \(or haptic.path\)"):
+        built(layout=TEENSY)
 
 
 def test_the_plugin_is_registered_and_has_its_capabilities():

@@ -19,8 +19,9 @@ import pytest
 
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics import inverse3
+from hapticlab.plugins.haptics.master import MasterLostError
 from hapticlab.plugins.haptics.master_emulator import MasterEmulator
-from hapticlab.plugins.haptics.serial import MasterLostError, SerialHaptic
+from hapticlab.plugins.haptics.serial import SerialHaptic
 
 HaplyHardwareAPI = pytest.importorskip("HaplyHardwareAPI")
 

@@ -23,8 +23,10 @@ from hapticlab.core.host.interfaces import EmitsEvents, HapticOutput, ReportsHea
 from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics import framing
-from hapticlab.plugins.haptics.master_emulator import MasterEmulator, recorded_motion, scripted_motion
-from hapticlab.plugins.haptics.serial import MasterLostError, MasterOpenError, SerialHaptic, clamp_force
+from hapticlab.plugins.haptics.handle_motion import recorded_motion, scripted_motion
+from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force
+from hapticlab.plugins.haptics.master_emulator import MasterEmulator
+from hapticlab.plugins.haptics.serial import SerialHaptic
 
 GUARD_S = 10.0  # a guard against hangs only
 SLOW = 1.0  # s: read timeout of tests that are not about timeouts (a loaded machine may stall a reply)
@@ -32,6 +34,13 @@ SLOW = 1.0  # s: read timeout of tests that are not about timeouts (a loaded mac
 
 def command(force, enabled=True, t_ns=0):
     return HapticCommand(t_ns, np.asarray(force, dtype=float), enabled, "" if enabled else "test")
+
+
+def built(**options):
+    """The serial plugin as a session builds it from ``[haptic]``: an option error names the full key."""
+    return Registry(make_plugin_manager(load_entry_points=False)).create(
+        "haptic_output", "serial", options, where="haptic"
+    )
 
 
 @pytest.fixture
@@ -351,10 +360,26 @@ def test_open_errors_name_the_port_and_the_problem(tmp_path):
         with pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: cannot open: Could not exclusively lock"):
             SerialHaptic(em.port).open()
         first.close()
-    with pytest.raises(ConfigError, match="^haptic.port: the serial device is required"):
-        SerialHaptic()
-    with pytest.raises(ConfigError, match="^haptic.protocol: must be one of 'hapticlab', 'inverse3'"):
-        SerialHaptic("/dev/ttyACM0", "ours")
+    with pytest.raises(ConfigError, match="^haptic.port: must name the serial device, e.g. --set haptic.port="):
+        built()
+    with pytest.raises(ConfigError, match="^haptic.protocol: must be 'hapticlab' or 'inverse3', got 'ours'$"):
+        built(port="/dev/ttyACM0", protocol="ours")
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"rate_hz": 0.0}, "haptic.rate_hz: must be a finite number > 0, got 0.0"),
+        ({"read_timeout": float("nan")}, "haptic.read_timeout: must be a finite number > 0, got nan"),
+        ({"watchdog": 70.0}, "haptic.watchdog: must be a finite number >= 0 and <= 65.535 s (0: off), got 70.0"),
+        ({"baudrate": 0}, "haptic.baudrate: must be a whole number >= 1 (bit/s), got 0"),
+        ({"max_consecutive_errors": -1}, "haptic.max_consecutive_errors: must be a whole number >= 0, got -1"),
+    ],
+)
+def test_a_bad_option_is_one_line_naming_the_full_key(options, message):
+    with pytest.raises(ConfigError) as info:
+        built(port="/dev/ttyACM0", **options)
+    assert str(info.value) == message
 
 
 def test_a_hello_broken_on_the_way_is_sent_again(emulator):
@@ -409,7 +434,7 @@ def test_scripted_and_recorded_paths(tmp_path):
 
 
 def test_scheduled_faults_parse_and_inject(emulator, device):
-    from hapticlab.plugins.haptics.master_emulator import ScheduledFault
+    from hapticlab.plugins.haptics.master_emulator_cli import ScheduledFault
 
     assert ScheduledFault.parse("crc@5:3") == ScheduledFault("crc", 5.0, 3.0)
     assert ScheduledFault.parse("unplug@12") == ScheduledFault("unplug", 12.0, None)
@@ -427,7 +452,7 @@ def test_scheduled_faults_parse_and_inject(emulator, device):
 
 def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
     code = (
-        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
         "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
     )
     proc = subprocess.Popen(
@@ -454,7 +479,7 @@ def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
 
 def test_a_sigterm_sent_as_soon_as_the_port_is_printed_ends_the_emulator_cleanly():
     code = (
-        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator as m; "
+        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
         "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
     )
     for _ in range(5):  # the port is printed once the handler is in place: no window for the default handler
@@ -603,4 +628,4 @@ def test_pipelined_crc_errors_are_counted_and_a_silent_device_is_lost_without_bl
 
 def test_pipelining_needs_our_protocol():
     with pytest.raises(ConfigError, match='^haptic.wait_for_reply: false needs protocol = "hapticlab"'):
-        SerialHaptic("/dev/ttyACM0", "inverse3", wait_for_reply=False)
+        built(port="/dev/ttyACM0", protocol="inverse3", wait_for_reply=False)

@@ -179,11 +179,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.json:
         check_output(args.json, args.force, label="--json")
     if args.plots:
-        from hapticlab.sessions.bench.paper import FIGURES
+        from hapticlab.sessions.bench.paper_plots import FIGURES
 
         check_plots_folder(args.plots, args.force, patterns=FIGURES)
     if args.which == "paper":
-        from hapticlab.sessions.bench.paper import bench_paper, write_plots
+        from hapticlab.sessions.bench.paper import bench_paper
+        from hapticlab.sessions.bench.paper_plots import write_plots
 
         with err.status("running the paper's experiments") as status:
             out, plots = bench_paper(

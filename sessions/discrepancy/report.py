@@ -1,7 +1,7 @@
 """The discrepancy workflow's result: RMS per axis before and after each step, notes, warnings, JSON and TOML.
 
-Every RMS figure is on the final gate's samples (``all_usable_rows``: on every
-usable row), beside the offline batch fit; what is left on each channel is set
+Every RMS figure is on the final gate's samples (those under ``all_usable_rows``
+on every usable row), beside the offline batch fit; what is left on each channel is set
 against that channel's own noise (:mod:`hapticlab.sessions.discrepancy.leftover`).
 The JSON follows the contract in ``DESIGN.md``; the ``[estimator]`` TOML table
 reproduces the named effects online in ``kalman``.

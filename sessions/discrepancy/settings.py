@@ -1,4 +1,4 @@
-"""The discrepancy workflow's knobs: the significance rule, the contact gate, the fit's sample budget, the candidates."""
+"""The discrepancy workflow's knobs: the significance rule, the contact gate, the fit's sample budget, the effects."""
 
 from __future__ import annotations
 

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.plugins.estimators.kalman import IDENTIFICATION_EVENTS, KalmanEstimator
-from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
+from hapticlab.sessions.bench.paper_setup import PaperSetup
+from hapticlab.sessions.bench.simulation import feed, simulate
 
 SECONDS = 180.0
 FIRST_TOUCH_S = 15.0

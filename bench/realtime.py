@@ -1,13 +1,14 @@
 """A paced session at the Net F/T's full rate: samples dropped, overruns, sample-to-command latency, memory.
 
 Run: ``.venv/bin/python bench/realtime.py [SECONDS] [SENSOR_RATE_HZ] [process|inline]`` (default 600 s at
-7000 Hz, the MCAP writer in its own process: ten minutes of wall time). Prints one JSON object; see ``sessions/bench/loop.py`` (``realtime_run``).
+7000 Hz, the MCAP writer in its own process: ten minutes of wall time). Prints one JSON object; see
+``sessions/bench/realtime.py`` (``realtime_run``).
 """
 
 import json
 import sys
 
-from hapticlab.sessions.bench.loop import realtime_run
+from hapticlab.sessions.bench.realtime import realtime_run
 
 if __name__ == "__main__":
     seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 600.0

@@ -32,7 +32,7 @@ from hapticlab.plugins.estimators.kalman import KalmanEstimator  # noqa: E402
 from hapticlab.plugins.estimators.rls import RLSEstimator  # noqa: E402
 from hapticlab.plugins.simworld import SimWorld  # noqa: E402
 from hapticlab.sessions.bench.loop import per_sample_us  # noqa: E402
-from hapticlab.sessions.bench.paper import simulate  # noqa: E402
+from hapticlab.sessions.bench.simulation import simulate  # noqa: E402
 from hapticlab.sessions.config import apply_overrides, load_config  # noqa: E402
 from hapticlab.sessions.live import build_session, run_session  # noqa: E402
 from hapticlab.sessions.offline.compensate import compensate  # noqa: E402

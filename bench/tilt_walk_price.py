@@ -17,7 +17,8 @@ import numpy as np
 
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.sessions.bench.family import MOUNT_ROTATION_SE
-from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
+from hapticlab.sessions.bench.paper_setup import PaperSetup
+from hapticlab.sessions.bench.simulation import feed, simulate
 
 VARIANTS = (
     ("walk off", {"bias_force_tilt_rw": 0.0}),

@@ -1,9 +1,9 @@
-"""``hapticlab bench estimators``: the estimator family's targets (issue 4), measured in simulation.
+"""``hapticlab bench estimators``: the estimator family's targets, measured in simulation.
 
 Each scenario runs the paper's ``rls`` (where it applies) beside ``kalman`` with
 and without the option under test, on one seeded simulated world at 1 kHz with
 the default sensor (0.12 N, 0.01 N·m per axis), and reports the numbers the
-issue's targets name:
+family's targets name:
 
 * ``mount``: a 5° sensor mount rotation, 30 s random tour: the angle between
   the estimated and the true R_SE, and RMS / noise over the last 15 s;
@@ -34,8 +34,9 @@ from hapticlab.core.types import AlignedSamples, Estimates
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.plugins.simworld import SimWorld
-from hapticlab.sessions.bench import paper as paperbench
-from hapticlab.sessions.bench.paper import feed, simulate
+from hapticlab.sessions.bench.paper import estimator_factory, rotation_test
+from hapticlab.sessions.bench.paper_setup import LOW_NOISE, REFERENCE_MASS_KG, PaperSetup
+from hapticlab.sessions.bench.simulation import feed, simulate
 from hapticlab.sessions.offline.metrics import max_ae, rms
 
 RATE_HZ = 1000.0
@@ -47,7 +48,7 @@ GAIN_FORCE_S = [[0.02, 0.01, 0.0], [0.01, -0.015, 0.005], [0.0, 0.005, 0.01]]
 """A symmetric force calibration error of up to 2 %."""
 KINEMATICS_LAG_S = 0.02
 BASE_MODEL = "kalman bias_force_tilt_rw=0"
-"""The row of ``kalman`` without its learnt tilt walk (the default since 2026-11-28): the paper's base model
+"""The row of ``kalman`` without its learnt tilt walk (on by default): the paper's base model
 alone, the gap each option is there to close. The defaults' row ("kalman") follows part of it with the walk."""
 
 
@@ -144,16 +145,16 @@ def inertia_tour() -> dict[str, Any]:
 
 def rotation_104g(speed: float = 72.0) -> dict[str, Any]:
     """The paper's rotation test at ``speed`` deg/s, ¼ of Table I's noise; the 104 g mass is a load."""
-    setup, noise = paperbench.PaperSetup(), paperbench.LOW_NOISE
-    load = paperbench.REFERENCE_MASS_KG * GRAVITY_M_S2
+    setup, noise = PaperSetup(), LOW_NOISE
+    load = REFERENCE_MASS_KG * GRAVITY_M_S2
     variants = {
-        "rls": paperbench.estimator_factory(Registry(), "rls", setup),  # as in bench paper
+        "rls": estimator_factory(Registry(), "rls", setup),  # as in bench paper
         "kalman": lambda: KalmanEstimator(payload_change_s=0, **noise),
         "kalman inertia": lambda: KalmanEstimator(inertia=True, payload_change_s=0, **noise),
     }
     out = {}
     for name, make in variants.items():
-        numbers, _, magnitude = paperbench.rotation_test(setup, make, speed, noise)
+        numbers, _, magnitude = rotation_test(setup, make, speed, noise)
         smoothed = np.convolve(magnitude, np.ones(10) / 10, mode="valid") - load
         out[name] = {
             "max_ae": numbers["max_ae"],
@@ -197,7 +198,7 @@ def gain() -> dict[str, Any]:
 
 def payload(start_s: float = 20.0) -> dict[str, Any]:
     """100 g hung for good at ``start_s`` during a tour with 0.5 N/min drift (the payload tests' world)."""
-    setup = paperbench.PaperSetup(mass=0.2)
+    setup = PaperSetup(mass=0.2)
     world = setup.world(
         {"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0},
         [{"kind": "hanging_mass", "start": start_s, "duration": 1e9, "mass": 0.1}],

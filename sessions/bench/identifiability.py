@@ -1,4 +1,4 @@
-"""How early can any estimator know the tool's weight from a recording's motion? (issue 16)
+"""How early can any estimator know the tool's weight from a recording's motion?
 
 The most information the motion gives about the force stage's parameters, x =
 [gravity_force_B, bias_force_S]: a constant bias, a known noise σ and every row

@@ -14,10 +14,10 @@ Three tables, so the next change to the hot path is measured the same way:
   (``process``, the default), side by side. µs per tick and share of the
   tick, and the loop's speed (simulated seconds per wall second of its ticks;
   above 1 it keeps up in real time). The session's start and end (opening the
-  recording, which with the writer process starts that process, ~0.1 s;
-  opening the devices; finishing the file) are counted once, in ms, apart from
-  the ticks (in a 5 s run they would add ~20 µs to each), with the whole
-  run's speed beside them. The stopwatches cost ~5 µs a tick themselves, so
+  recording, which with the writer process starts that process; opening the
+  devices; finishing the file) are counted once, in ms, apart from the ticks
+  (spread over a short run's ticks they would swamp the stages), with the
+  whole run's speed beside them. The stopwatches cost time themselves, so
   each session then runs again with only its ticks timed ("no stopwatches"):
   the loop's own speed, which the speed targets are about;
 * **per stage, teleoperation**: the same for ``teleop-emulated`` (the simulated
@@ -33,6 +33,7 @@ Three tables, so the next change to the hot path is measured the same way:
   converged second half of a simulated tour, for each estimator named.
 
 Numbers depend on the machine and its load: quote them, never assert them.
+A paced session measured from inside is :mod:`~hapticlab.sessions.bench.realtime`.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from hapticlab.core import hookimpl
 from hapticlab.core.host.registry import Registry, make_plugin_manager
 from hapticlab.core.types import AlignedSamples, DeviceState, HapticCommand
 from hapticlab.plugins.simworld import SimWorld
-from hapticlab.sessions.bench.paper import simulate
+from hapticlab.sessions.bench.simulation import simulate
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session
 from hapticlab.sessions.live.loop import LiveLoop
@@ -143,8 +144,8 @@ def stage_table(
 ) -> dict[str, Any]:
     """One non-realtime session of ``preset`` ("demo" or "teleop-emulated", with :class:`PressingHand` as
     its master) with every stage timed: µs per tick and share per stage, speed. ``estimator`` None keeps
-    the preset's own (and its shadows). ``stopwatches`` False times the ticks alone (the loop's own speed:
-    the ~25 stopwatches cost ~5 µs a tick), every stage then in "loop body"."""
+    the preset's own (and its shadows). ``stopwatches`` False times the ticks alone (the loop's own speed,
+    without the stopwatches' own cost), every stage then in "loop body"."""
     config, _ = load_config(preset)
     overrides = [
         "session.realtime=false",
@@ -272,8 +273,7 @@ def estimator_table(
 def default_estimators() -> dict[str, Callable[[], Any]]:
     """The estimators the table shows: ``rls``, ``kalman`` and ``kalman`` with its inertia model (the
     costliest option), each compiled (the default) and as its numpy reference (``kernel = "numpy"``)."""
-    from hapticlab import make_estimator
-
+    registry = Registry()
     out: dict[str, Callable[[], Any]] = {}
     for label, name, options in (
         ("rls", "rls", {}),
@@ -281,8 +281,8 @@ def default_estimators() -> dict[str, Callable[[], Any]]:
         ("kalman, inertia", "kalman", {"inertia": True}),
     ):
         for kernel in ("numba", "numpy"):
-            out[f"{label} ({kernel})"] = lambda name=name, options=options, kernel=kernel: make_estimator(
-                name, kernel=kernel, **options
+            out[f"{label} ({kernel})"] = lambda name=name, options={"kernel": kernel, **options}: registry.create(
+                "estimator", name, options, where="estimator"
             )
     return out
 
@@ -320,85 +320,3 @@ def bench_loop(
             for label, row in table.items()
         },
     }
-
-
-def realtime_run(
-    duration_s: float,
-    sensor_rate_hz: float = 7000.0,
-    estimator: str = "rls",
-    progress: Callable[[str], None] | None = None,
-    writer: str = "process",
-) -> dict[str, Any]:
-    """One paced (``realtime = true``) demo session: samples expected and received, overruns, the latency
-    from the newest sample's stamp to the haptic command's send (µs: median, p99, max; the stamp is when a
-    real sensor's sample would have arrived), and the resident memory once a second (MB) of the process
-    and, with ``writer="process"``, of the writer process."""
-    config, _ = load_config("demo")
-    config = apply_overrides(
-        config,
-        [
-            "session.realtime=true",
-            f"sensor.rate_hz={float(sensor_rate_hz)}",
-            f"estimator.name={estimator}",
-            f"session.recording_writer={writer}",
-        ],
-    )
-    session = build_session(config)
-    # allocated up front (a Python list of 600,000 ints is ~22 MB the session's own memory would be blamed for)
-    latencies = np.full(int(duration_s * session.settings.loop_rate_hz) + 2, -1, dtype=np.int64)  # pages touched now
-    count = [0]
-    rss_mb: list[float] = []
-    writer_rss_mb: list[float] = []
-    with tempfile.TemporaryDirectory() as folder:
-        loop = LiveLoop(session, Path(folder) / "realtime.mcap", duration_s, None, 0.25)
-        send = session.haptic.send
-        clock = time.monotonic_ns
-        next_rss = [0]
-
-        def timed_send(command):
-            send(command)
-            now = clock()
-            newest = loop.gate.last_sample_ns
-            if newest is not None:
-                if count[0] < len(latencies):
-                    latencies[count[0]] = now - newest
-                    count[0] += 1
-            if now >= next_rss[0]:
-                next_rss[0] = now + 1_000_000_000
-                rss_mb.append(_rss_mb())
-                if loop.recorder.writer_pid is not None:
-                    writer_rss_mb.append(_rss_mb(loop.recorder.writer_pid))
-                if progress:
-                    progress(f"realtime, {(now - loop.t0_ns) * 1e-9:.0f} of {duration_s:g} s")
-
-        session.haptic.send = timed_send
-        result = loop.run()
-        size_mb = result.path.stat().st_size / 1e6
-    lat = latencies[: count[0]] / 1e3
-    return {
-        "duration_s": duration_s,
-        "sensor_rate_hz": sensor_rate_hz,
-        "estimator": estimator,
-        "samples_expected": int(duration_s * sensor_rate_hz),
-        "samples": result.samples,
-        "overruns": result.overruns,
-        "ticks": count[0],
-        "latency_us": {"median": float(np.median(lat)), "p99": float(np.percentile(lat, 99)), "max": float(lat.max())},
-        "rss_mb": {"first": rss_mb[0], "last": rss_mb[-1], "peak": max(rss_mb)},
-        "recording_mb": size_mb,
-        "writer": writer,
-        "writer_rss_mb": (
-            {"first": writer_rss_mb[0], "last": writer_rss_mb[-1], "peak": max(writer_rss_mb)}
-            if writer_rss_mb
-            else None
-        ),
-    }
-
-
-def _rss_mb(pid: int | str = "self") -> float:
-    """A process's resident memory now, MB (``VmRSS`` of /proc/PID/status; this process by default)."""
-    with open(f"/proc/{pid}/status") as status:
-        for line in status:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return float("nan")

@@ -1,9 +1,9 @@
 """``hapticlab bench paper``: the paper's experiments (section V) in the simulated world.
 
-Set up as the paper describes: sensor at 1 kHz, ATI Gamma-class noise
-(0.12 N, 0.01 N·m per axis), tool centre of gravity 4.35 cm along the sensor
-z axis, robot moved through random orientations without contact to identify
-the parameters, then:
+Set up as the paper describes (:mod:`~hapticlab.sessions.bench.paper_setup`:
+sensor at 1 kHz, tool centre of gravity 4.35 cm along the sensor z axis, what
+the paper leaves out chosen from its own tables), robot moved through random
+orientations without contact to identify the parameters, then:
 
 1. parameter identification (Figs. 3–4) and convergence, counted two ways;
 2. 150 random poses without contact: Tables I and II;
@@ -11,8 +11,9 @@ the parameters, then:
 4. repeated tip indentations of a phantom (Fig. 7);
 5. a 104 g reference mass on the horizontal instrument's tip, rotated 360°
    about the instrument axis at 12, 30, 45 and 72 deg/s (Figs. 8–9);
-6. one run the paper does not show: a drifting bias with repeated
-   indentations, where the fixed contact threshold can lock the estimator out.
+6. two runs the paper does not show: rows that repeat (a sensor read faster
+   than it updates), and a drifting bias with repeated indentations, where the
+   fixed contact threshold can lock the estimator out.
 
 Every experiment runs the estimator exactly as a session would (samples in
 order, in blocks); only the world is simulated. Numbers are from physics with
@@ -21,8 +22,7 @@ fixed seeds, so a run repeats exactly.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import asdict
 from typing import Any, Callable
 
 import numpy as np
@@ -31,209 +31,18 @@ from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.estimation.model import contact_wrench
 from hapticlab.core.frames import GRAVITY_M_S2
 from hapticlab.core.host.registry import Registry, option_types
-from hapticlab.core.types import AlignedSamples, Estimates, first_true
-from hapticlab.plugins.simworld import SimWorld
+from hapticlab.core.types import AlignedSamples, first_true
+from hapticlab.sessions.bench.paper_setup import (
+    AXES_F,
+    AXES_T,
+    LOW_NOISE,
+    PAPER,
+    REFERENCE_MASS_KG,
+    SPEEDS_DEG_S,
+    PaperSetup,
+)
+from hapticlab.sessions.bench.simulation import feed, simulate
 from hapticlab.sessions.offline.metrics import error_stats, mae, max_ae, rms, std
-
-AXES_F = ("fx", "fy", "fz")
-AXES_T = ("tx", "ty", "tz")
-SPEEDS_DEG_S = (12, 30, 45, 72)
-REFERENCE_MASS_KG = 0.104
-
-PAPER = {
-    "no_contact": {
-        "force": {
-            "fx": {
-                "mae_before": 5.055,
-                "max_before": 7.317,
-                "std_before": 0.998,
-                "mae_after": 0.113,
-                "max_after": 0.578,
-                "std_after": 0.151,
-                "mae_comp_pct": 97.8,
-            },
-            "fy": {
-                "mae_before": 2.702,
-                "max_before": 4.302,
-                "std_before": 1.271,
-                "mae_after": 0.127,
-                "max_after": 0.573,
-                "std_after": 0.172,
-                "mae_comp_pct": 95.3,
-            },
-            "fz": {
-                "mae_before": 3.049,
-                "max_before": 3.530,
-                "std_before": 0.262,
-                "mae_after": 0.059,
-                "max_after": 0.254,
-                "std_after": 0.076,
-                "mae_comp_pct": 98.1,
-            },
-        },
-        "torque": {
-            "tx": {
-                "mae_before": 0.082,
-                "max_before": 0.132,
-                "std_before": 0.064,
-                "mae_after": 0.007,
-                "max_after": 0.048,
-                "std_after": 0.010,
-                "mae_comp_pct": 91.4,
-            },
-            "ty": {
-                "mae_before": 0.112,
-                "max_before": 0.181,
-                "std_before": 0.041,
-                "mae_after": 0.008,
-                "max_after": 0.029,
-                "std_after": 0.011,
-                "mae_comp_pct": 92.8,
-            },
-            "tz": {
-                "mae_before": 0.024,
-                "max_before": 0.035,
-                "std_before": 0.003,
-                "mae_after": 0.001,
-                "max_after": 0.015,
-                "std_after": 0.003,
-                "mae_comp_pct": 94.0,
-            },
-        },
-    },
-    "bounds": {
-        "yu2021": {"fx": 1.259, "fy": 1.122, "fz": 1.260, "tx": 0.078, "ty": 0.084, "tz": 0.079},
-        "rls": {"fx": 0.578, "fy": 0.573, "fz": 0.254, "tx": 0.048, "ty": 0.029, "tz": 0.015},
-    },
-    "convergence": {"force_paper": 242, "torque_paper": 238},
-    "rotation_104g": {"72": {"mae": 0.04, "max_ae": 0.119}, "std_max": 0.046, "grand_mean": 1.014},
-}
-
-
-@dataclass(frozen=True)
-class PaperSetup:
-    """The simulated set-up of the paper's experiments.
-
-    The paper does not publish its tool's mass, its sensor's bias or noise, or
-    its contact thresholds. They are chosen here from the paper's own tables:
-    the bias (with a 0.2 kg tool and poses within 35° of vertical) so the raw
-    readings have Table I's and II's "before" MAE, and the noise per axis in
-    proportion to their "after" Std. MAE compensation % = 1 − MAE_after /
-    MAE_before then lands near the paper's *by construction*; what the tables
-    test is that the method reaches the noise floor (``std_after_over_noise``
-    ≈ 1). Everything else is as the paper describes.
-
-    Attributes:
-        seed: seed of the world (noise, motion).
-        rate_hz: sensor rate, Hz.
-        noise_force: sensor noise std per axis, N. noise_torque: the same, N·m.
-        mass: tool mass, kg. cog_S: tool centre of gravity in S, m (paper: 4.35 cm along z).
-        bias_force_S, bias_torque_S: sensor bias, N and N·m.
-        identification_s: length of the random-orientation identification run, s.
-        identification_tilt_deg, identification_segment_s: its orientation spread and move time.
-        poses: random poses for Tables I–III. pose_tilt_deg: their spread;
-            hold_s, move_s: their hold and move times, s.
-        force_threshold, torque_threshold: the contact thresholds given to ``rls``
-            (the paper tuned its own experimentally and does not publish them).
-    """
-
-    seed: int = 2025
-    rate_hz: float = 1000.0
-    noise_force: tuple[float, float, float] = (0.12, 0.12, 0.06)
-    noise_torque: tuple[float, float, float] = (0.008, 0.008, 0.0015)
-    mass: float = 0.2
-    cog_S: tuple[float, float, float] = (0.0, 0.0, 0.0435)
-    bias_force_S: tuple[float, float, float] = (5.0, 2.7, 1.1)
-    bias_torque_S: tuple[float, float, float] = (0.075, 0.11, 0.024)
-    identification_s: float = 20.0
-    identification_tilt_deg: float = 60.0
-    identification_segment_s: float = 3.0
-    poses: int = 150
-    pose_tilt_deg: float = 35.0
-    hold_s: float = 0.5
-    move_s: float = 1.0
-    force_threshold: float = 0.6
-    torque_threshold: float = 0.06
-
-    @property
-    def tour(self) -> dict[str, Any]:
-        """The identification motion: random orientations without contact."""
-        return {
-            "script": "random_tour",
-            "max_tilt_deg": self.identification_tilt_deg,
-            "segment_s": self.identification_segment_s,
-        }
-
-    def world(self, motion: dict[str, Any], contacts: list[dict] | None = None, **sensor: Any) -> SimWorld:
-        """A world with this set-up's tool and sensor, moving and touched as given."""
-        table = {
-            "noise_force": list(self.noise_force),
-            "noise_torque": list(self.noise_torque),
-            "bias_force": list(self.bias_force_S),
-            "bias_torque": list(self.bias_torque_S),
-        }
-        table.update(sensor)
-        return SimWorld.from_config(
-            {
-                "seed": self.seed,
-                "tool": {"mass": self.mass, "cog": list(self.cog_S)},
-                "sensor": table,
-                "motion": motion,
-                "contacts": contacts or [],
-            }
-        )
-
-
-@dataclass
-class Run:
-    """The samples of one simulated experiment, what the world knows, and the estimates."""
-
-    block: AlignedSamples
-    world: dict[str, np.ndarray]
-    estimates: Estimates
-    trace_index: np.ndarray | None = None
-    trace: dict[str, np.ndarray] | None = None
-
-
-def simulate(world: SimWorld, seconds: float, rate_hz: float, t0: float = 0.0) -> tuple[AlignedSamples, dict]:
-    """Sample the world's sensor and orientation for ``seconds`` from ``t0``."""
-    t = t0 + np.arange(int(round(seconds * rate_hz))) / rate_hz
-    w = world.wrench(t)
-    n = len(t)
-    block = AlignedSamples(
-        t_ns=np.round(t * 1e9).astype(np.int64),
-        force_S=np.array(w["force_S"]),
-        torque_S=np.array(w["torque_S"]),
-        R_EB=w["R_EB"],
-        seq=np.arange(n),
-        status=np.asarray(w["status"]),
-        stale=np.zeros(n, dtype=bool),
-    )
-    return block, w
-
-
-def feed(estimator: Any, block: AlignedSamples, chunk: int = 1024, trace_until: int = 0) -> tuple[Estimates, Any]:
-    """Run a block through the estimator; trace its parameters sample by sample for ``trace_until`` samples.
-
-    Returns (estimates, (trace sample indices, {name: (k, 3)})) or (estimates, None).
-    """
-    parts: list[Estimates] = []
-    index: list[int] = []
-    trace: dict[str, list] = {}
-    i = 0
-    n = len(block)
-    while i < n:
-        step = 1 if i < trace_until else chunk
-        part = estimator.update_block(block.subset(slice(i, i + step)))
-        parts.append(part)
-        i += len(part)
-        if trace_until:
-            index.append(i - 1)
-            for key, value in estimator.params().items():
-                trace.setdefault(key, []).append(value)
-    est = Estimates.concatenate(parts, params=estimator.params())
-    traced = (np.array(index), {k: np.array(v) for k, v in trace.items()}) if trace_until else None
-    return est, traced
 
 
 def first_stays(ok: np.ndarray, index: np.ndarray) -> int | None:
@@ -447,10 +256,6 @@ def run_paper(
     return {"result": result, "plots": plots}
 
 
-LOW_NOISE = {"noise_force": [0.03, 0.03, 0.015], "noise_torque": [0.002, 0.002, 0.0005]}
-"""Sensor noise that Fig. 9's Std (< 0.046 N) allows: a quarter of the set-up's."""
-
-
 def rotation_test(
     setup: PaperSetup, make_estimator: Callable[[], Any], speed: float, noise: dict[str, Any]
 ) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
@@ -555,124 +360,3 @@ def bench_paper(
             )
             out["estimators"][name] = run["result"]
     return out, main["plots"]
-
-
-FIGURES = (
-    "fig3_force_parameters.png",
-    "fig4_torque_parameters.png",
-    "fig5_force_compensation.png",
-    "fig6_torque_compensation.png",
-    "fig7_indentation.png",
-    "fig8_rotation_104g.png",
-    "fig9_rotation_metrics.png",
-    "drift_contact.png",
-)
-"""The files :func:`write_plots` writes (an existing one is refused unless ``force``)."""
-
-
-def write_plots(plots: dict[str, Any], folder: Path, force: bool = False) -> list[Path]:
-    """The paper's figures as PNG files, each written atomically; returns their paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from hapticlab.sessions.output import save_figure
-
-    folder.mkdir(parents=True, exist_ok=True)
-    written = []
-
-    def save(fig, name):
-        fig.tight_layout()
-        written.append(save_figure(fig, folder / name, force, dpi=110))
-
-    index, trace, truth = plots["identification"]
-    for name, keys, units in (
-        ("fig3_force_parameters.png", ("gravity_force_B", "bias_force_S"), ("N", "N")),
-        ("fig4_torque_parameters.png", ("cog_S", "bias_torque_S"), ("m", "N·m")),
-    ):
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-        for ax, key, unit in zip(axes, keys, units):
-            for k, c in enumerate("rgb"):
-                ax.plot(index + 1, trace[key][:, k], c, lw=1, label=f"{key}[{'xyz'[k]}]")
-                ax.axhline(np.asarray(truth[key])[k], color=c, ls="--", lw=0.8)
-            span = np.ptp(np.asarray(truth[key])) or 1.0
-            mid = float(np.mean(truth[key]))
-            ax.set_ylim(mid - 2.0 * span, mid + 2.0 * span)
-            ax.set_xscale("log")
-            ax.set_xlabel("sample (log scale)")
-            ax.set_ylabel(unit)
-            ax.set_title(f"{key} (dashed: truth)")
-            ax.legend(fontsize=7, loc="upper right")
-        save(fig, name)
-
-    raw_f, comp_f, raw_t, comp_t = plots["poses"]
-    for name, raw, comp, unit, axes_names in (
-        ("fig5_force_compensation.png", raw_f, comp_f, "N", AXES_F),
-        ("fig6_torque_compensation.png", raw_t, comp_t, "N·m", AXES_T),
-    ):
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharex=True)
-        for k, c in enumerate("rgb"):
-            axes[0].plot(raw[:, k], c, lw=1, label=axes_names[k])
-            axes[1].plot(comp[:, k], c, lw=1, label=axes_names[k])
-        axes[0].set_title("raw")
-        axes[1].set_title("compensated")
-        for ax in axes:
-            ax.set_xlabel("pose")
-            ax.set_ylabel(unit)
-            ax.legend(fontsize=7, loc="upper right")
-        save(fig, name)
-
-    t, raw, comp, contact = plots["indentation"]
-    fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
-    for k, ax in enumerate(axes):
-        ax.plot(t, raw[:, k], "r", lw=0.8, label="raw")
-        ax.plot(t, comp[:, k], "b", lw=0.8, label="compensated")
-        ax.fill_between(t, 0, 1, where=contact, transform=ax.get_xaxis_transform(), color="0.9", label="contact")
-        ax.set_ylabel(f"{AXES_F[k]} (N)")
-    axes[0].legend(fontsize=7, loc="upper right")
-    axes[-1].set_xlabel("time (s)")
-    save(fig, "fig7_indentation.png")
-
-    fig, ax = plt.subplots(figsize=(8, 3.6))
-    for speed, (angle, magnitude) in plots["rotation"].items():
-        ax.plot(angle, magnitude, lw=0.8, label=f"{speed} deg/s")
-    ax.axhline(REFERENCE_MASS_KG * GRAVITY_M_S2, color="k", ls="--", lw=0.8, label="1.02 N")
-    ax.set_xlabel("rotation (deg)")
-    ax.set_ylabel("|contact force| (N)")
-    ax.set_title("104 g mass on the tip, one turn per speed (¼ of Table I's noise)")
-    ax.legend(fontsize=7, loc="upper right")
-    save(fig, "fig8_rotation_104g.png")
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
-    for ax, (key, title) in zip(axes, (("rotation_104g", "Table I noise"), ("rotation_104g_low_noise", "¼ noise"))):
-        numbers = plots["rotation_metrics"][key]
-        x = np.arange(len(SPEEDS_DEG_S))
-        for k, (metric, label) in enumerate((("mae", "MAE"), ("max_ae", "Max AE"), ("std", "Std"))):
-            ax.bar(x + (k - 1) * 0.27, [numbers[str(v)][metric] for v in SPEEDS_DEG_S], 0.27, label=label)
-        ax.set_xticks(x, [f"{v} deg/s" for v in SPEEDS_DEG_S])
-        ax.set_title(f"104 g mass, {title}")
-        ax.set_ylabel("N")
-        ax.set_ylim(0, 1.25 * max(numbers[str(v)]["max_ae"] for v in SPEEDS_DEG_S))
-        ax.legend(fontsize=7, loc="upper right", ncol=3)
-    save(fig, "fig9_rotation_metrics.png")
-
-    t, truth_f, comp, contact, touching = plots["drift"]
-    fig, ax = plt.subplots(figsize=(10, 3.4))
-    ax.plot(t, np.linalg.norm(truth_f, axis=1), "k", lw=0.8, label="true contact")
-    ax.plot(t, np.linalg.norm(comp, axis=1), "b", lw=0.6, label="rls |contact force|")
-    ax.fill_between(
-        t,
-        0,
-        1,
-        where=contact & ~touching,
-        transform=ax.get_xaxis_transform(),
-        color="mistyrose",
-        label="refused as contact, no contact",
-    )
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("N")
-    ax.set_title("bias drifting 0.5 N/min, indentation every 10 s")
-    ax.legend(fontsize=7, loc="upper left")
-    save(fig, "drift_contact.png")
-    return written

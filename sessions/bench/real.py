@@ -6,9 +6,9 @@ convergence rule, whose flag waits for the motion to identify the tool where the
 default's is up once the wrench is known at the pose; and once more with the
 simulated Gamma sensor's noise and the covariance convergence rule, its defaults
 before it estimated the noise; and once more without the bias's walk over the tool's tilt,
-``bias_force_tilt_rw = 0``, its default before 2026-11-28):
-the online RMS of the estimated contact force per axis over every row after the first convergence, against the offline batch fit of
-the whole file evaluated over the same rows (their ratio); the same ratio over
+``bias_force_tilt_rw = 0``, its former default):
+the online RMS of the estimated contact force per axis over every row after the first convergence, against the
+offline batch fit of the whole file evaluated over the same rows (their ratio); the same ratio over
 the file's second half, a window that does not depend on each estimator's own
 convergence test; ``kalman`` once more with the effects ``hapticlab discrepancy``
 names on the same file (their values fitted offline on that file, so this row
@@ -52,8 +52,7 @@ IDENTIFIED = {"convergence": "identified"}
 GAMMA_COVARIANCE = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
 """kalman's options before it estimated the noise: the simulated Gamma-class sensor's noise, convergence from P."""
 NO_TILT_WALK = {"bias_force_tilt_rw": 0.0}
-"""kalman without the bias's walk over the tool's tilt (learnt by default since 2026-11-28: docs/estimators.md,
-"The tilt walk")."""
+"""kalman without the bias's walk over the tool's tilt (learnt by default: docs/estimators.md, "The tilt walk")."""
 
 
 def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[str, Any] | str]]:

@@ -136,7 +136,9 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
 
     from hapticlab.sessions.config import parse_value
     from hapticlab.sessions.discrepancy.plots import FIGURE_PATTERNS, write_plots
-    from hapticlab.sessions.discrepancy.workflow import Settings, discrepancy, json_ready, toml_snippet
+    from hapticlab.sessions.discrepancy.report import json_ready, toml_snippet
+    from hapticlab.sessions.discrepancy.settings import Settings
+    from hapticlab.sessions.discrepancy.workflow import discrepancy
 
     registry = Registry()
     if not 0 <= args.min_gain < 100:

@@ -2,9 +2,9 @@
 
 The workflows here multiply tall, thin matrices (a Jacobian of tens of
 thousands of rows by a few dozen columns): one thread does that in a few
-milliseconds, and on these 2-core machines OpenBLAS's own threads make it
-erratic, measured at 2.5 ms on one thread against 3 to 800 ms on two (and
-worse when scipy's separate OpenBLAS has threads spinning too). numpy has no
+milliseconds, and on a 2-core machine OpenBLAS's own threads make it
+erratic, many times slower at worst (and worse when scipy's separate
+OpenBLAS has threads spinning too; figures in ``docs/discrepancy.md``). numpy has no
 API for its thread count, so this calls OpenBLAS's through ctypes, the way
 ``threadpoolctl`` does; with any other BLAS it does nothing.
 """

@@ -32,10 +32,10 @@ LEFTOVER_SIGMAS = 4.0
 """How many of its own standard errors a channel's final RMS over its noise must lie above 1 to be a
 leftover (:func:`leftover_threshold`)."""
 LEFTOVER_SE = 1.1
-"""The standard error of a channel's RMS over its noise estimate is ``LEFTOVER_SE / √n`` on n clean samples:
-measured 0.88-1.15 per channel (std of (ratio − 1)·√n) over 60 simulated clean recordings of 1 000 to
-7 500 samples (``bench/discrepancy_null.py --seeds 1000:1060``; the RMS and the MAD of the differences,
-a 37 %-efficient estimator, each carry their sampling error)."""
+"""The standard error of a channel's RMS over its noise estimate is ``LEFTOVER_SE / √n`` on n clean samples
+(the RMS and the MAD of the differences, a 37 %-efficient estimator, each carry their sampling error); set
+from simulated clean recordings with ``bench/discrepancy_null.py`` (the spread it found and the
+false-positive rate: ``docs/discrepancy.md``, "What is left, per axis")."""
 LEFTOVER_FLOOR = 0.05
 """A leftover is at least 5 % over the noise, however long the recording (a real sensor's noise is not
 quite white)."""

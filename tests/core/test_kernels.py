@@ -37,7 +37,7 @@ import pytest
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.rls import RLSEstimator
 from hapticlab.plugins.simworld import SimWorld
-from hapticlab.sessions.bench.paper import simulate
+from hapticlab.sessions.bench.simulation import simulate
 
 KEYS = ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
 ROUNDING = 1e-12

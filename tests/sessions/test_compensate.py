@@ -150,7 +150,7 @@ def test_run_command_writes_an_mcap(tmp_path, capsys):
         (["run", "nosuchpreset"], "unknown session 'nosuchpreset'"),
         (
             ["run", "--set", "shadows.rls.force_threshold=-1", "--duration", "0.1"],
-            "shadows.rls.force_threshold: must be positive, got -1.0",
+            "shadows.rls.force_threshold: must be a finite number > 0, got -1.0",
         ),
         (["run", "--set", "bogus"], "--set 'bogus': expected key=value"),
         (["run", "--set", "haptic.max_force=-1"], "haptic.max_force: must be greater than 0, got -1"),

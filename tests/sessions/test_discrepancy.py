@@ -26,15 +26,11 @@ from hapticlab.plugins.simworld import Indentation, RandomTour, RobotParams, Sen
 from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.plugins.simworld.motion import StaticPoses
 from hapticlab.sessions.cli import main
-from hapticlab.sessions.discrepancy.workflow import (
-    Discrepancy,
-    Settings,
-    discrepancy,
-    json_ready,
-    sign_test_p,
-    toml_snippet,
-    wins_needed,
-)
+from hapticlab.sessions.discrepancy.heldout import sign_test_p, wins_needed
+from hapticlab.sessions.discrepancy.identify import Identification
+from hapticlab.sessions.discrepancy.report import json_ready, toml_snippet
+from hapticlab.sessions.discrepancy.settings import Settings
+from hapticlab.sessions.discrepancy.workflow import discrepancy
 from hapticlab.sessions.recording import load_stream
 
 NOISE = 0.12  # N, the simulated sensor's default force noise per axis
@@ -486,7 +482,7 @@ def test_gauss_newton_never_ends_worse_than_it_started(tmp_path):
     """From a start far off (a lag of 60 ms against a true 8 ms, a 10° mount), every call ends no worse."""
     path = tmp_path / "lag.csv"
     write_csv(world_for("time_lag", 2), path, 10.0, 250.0)
-    d = Discrepancy(load_stream(path))
+    d = Identification(load_stream(path))
     from hapticlab.core.sensor_model import Model
     from hapticlab.plugins.effects.mount_rotation import MountRotation
     from hapticlab.plugins.effects.time_lag import TimeLag

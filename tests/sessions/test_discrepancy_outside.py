@@ -18,7 +18,8 @@ import pytest
 from hapticlab.core.host.registry import Registry
 from hapticlab.plugins.simworld import Cable, RandomTour, SensorParams, SimWorld
 from hapticlab.plugins.simworld.export import write_csv
-from hapticlab.sessions.discrepancy.workflow import Settings, discrepancy
+from hapticlab.sessions.discrepancy.settings import Settings
+from hapticlab.sessions.discrepancy.workflow import discrepancy
 
 
 def recording(tmp_path, seed: int, contacts=(), sensor=None):

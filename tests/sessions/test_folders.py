@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import shutil
 
-import numpy as np
 import pytest
 
 from hapticlab.core.errors import OutputExistsError
@@ -72,7 +71,8 @@ def test_a_folder_without_recordings_and_an_absent_scheduler_are_one_line(tmp_pa
 
 
 def test_a_folder_goes_through_the_discrepancy_workflow_as_one_file_does(archive):
-    from hapticlab.sessions.discrepancy.workflow import discrepancy, discrepancy_folder, json_ready
+    from hapticlab.sessions.discrepancy.report import json_ready
+    from hapticlab.sessions.discrepancy.workflow import discrepancy, discrepancy_folder
 
     run = discrepancy_folder(archive, workers=2, progress=False)
     assert [o.error == "" for o in run.outcomes] == [True, True, False, True]

@@ -23,7 +23,8 @@ from hapticlab.core.types import STATUS_SATURATED, AlignedSamples, Estimates
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.kalman.stage import KalmanStage
 from hapticlab.plugins.estimators.rls import RLSEstimator
-from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
+from hapticlab.sessions.bench.paper_setup import PaperSetup
+from hapticlab.sessions.bench.simulation import feed, simulate
 
 NOISE_FORCE = 0.12  # N, per axis
 NOISE_TORQUE = 0.01  # N·m, per axis

@@ -16,7 +16,7 @@ from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
 from hapticlab.plugins.simworld import SimWorld
 from hapticlab.sessions.bench import family as familybench
-from hapticlab.sessions.bench.paper import feed
+from hapticlab.sessions.bench.simulation import feed
 
 RATE_HZ = 1000.0
 NOISE_F = 0.12
@@ -561,7 +561,8 @@ def _errors_in_contact(contacts: list[dict], seconds: float, variants: dict[str,
     """Each ``kalman`` variant on a 1 kHz random tour (seed 2025, within 60° of vertical) with the contacts:
     the contact-force error per axis over the samples in contact (N), the last variant's estimator, and
     whether each variant called any sample a contact."""
-    from hapticlab.sessions.bench.paper import PaperSetup, simulate
+    from hapticlab.sessions.bench.paper_setup import PaperSetup
+    from hapticlab.sessions.bench.simulation import simulate
 
     sim = PaperSetup(seed=2025).world(
         {"script": "random_tour", "max_tilt_deg": 60.0, "segment_s": 3.0},

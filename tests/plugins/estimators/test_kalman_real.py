@@ -13,7 +13,7 @@ import pytest
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.sessions.bench import real as realbench
-from hapticlab.sessions.bench.paper import feed
+from hapticlab.sessions.bench.simulation import feed
 from hapticlab.sessions.discrepancy.workflow import discrepancy
 from hapticlab.sessions.offline.compensate import run_estimator
 from hapticlab.sessions.recording import load_stream

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from hapticlab.plugins.estimators.kalman import IDENTIFICATION_EVENTS, KalmanEstimator
-from hapticlab.sessions.bench.paper import PaperSetup, feed, simulate
+from hapticlab.sessions.bench.paper_setup import PaperSetup
+from hapticlab.sessions.bench.simulation import feed, simulate
 
 NOISE = {"noise_force": 0.12, "noise_torque": 0.01}
 DRIFT_FORCE = [0.5 / 60.0 / math.sqrt(2), 0.5 / 60.0 / math.sqrt(2), 0.0]  # 0.5 N/min, N/s

@@ -1,0 +1,225 @@
+"""The tables of ``hapticlab bench estimators``, ``bench real``, ``bench faults`` and ``bench loop``."""
+
+from __future__ import annotations
+
+from rich.table import Table
+
+from hapticlab.sessions.cli.render import fmt, wide_console
+
+
+def print_estimators_table(out: dict) -> None:
+    """One row per scenario and estimator variant: the numbers the family's targets name."""
+    t = Table(title="Estimator family, simulated at 1 kHz, 0.12 N noise unless said")
+    for col in ("scenario", "estimator", "RMS / noise fx, fy, fz", "other"):
+        t.add_column(col, justify="right")
+
+    def rms_rows(name: str, rows: dict, other: dict[str, str]) -> None:
+        for k, (label, values) in enumerate(rows.items()):
+            t.add_row(
+                name if k == 0 else "",
+                label,
+                ", ".join(fmt(v, 3) for v in values),
+                other.get(label, ""),
+                end_section=k == len(rows) - 1,
+            )
+
+    m = out["mount"]
+    rms_rows(
+        "5° mount (last 15 s)",
+        m["rms_over_noise_last_15s"],
+        {"kalman mount_rotation": f"estimated within {m['mount_error_deg']:.3f}°"},
+    )
+    i = out["inertia_tour"]
+    rms_rows(
+        "inertia, random tour",
+        i["rms_over_noise_last_15s"],
+        {"rls": "inertial force RMS " + ", ".join(fmt(v, 3) for v in i["inertial_force_rms_N"]) + " N"},
+    )
+    r = out["rotation_104g"]
+    for k, (label, n) in enumerate(r["estimators"].items()):
+        t.add_row(
+            f"104 g at {r['speed_deg_s']:.0f} deg/s (¼ noise)" if k == 0 else "",
+            label,
+            "",
+            f"Max AE {n['max_ae']:.3f} N per sample, {n['max_ae_10ms']:.3f} N over 10 ms; MAE {n['mae']:.3f} N",
+            end_section=k == len(r["estimators"]) - 1,
+        )
+    rms_rows(
+        f"kinematics {out['time_lag']['lag_s'] * 1000:.0f} ms late", out["time_lag"]["rms_over_noise_last_10s"], {}
+    )
+    rms_rows("2 % calibration error", out["gain"]["rms_over_noise_last_10s"], {})
+    p = out["payload"]
+    if p.get("recognised_after_s") is None:
+        t.add_row("100 g payload", "kalman", "", "not recognised")
+    else:
+        force, torque = p["force_flag_up_after_hang_s"], p["torque_flag_up_after_event_s"]
+        t.add_row(
+            "100 g payload",
+            "kalman",
+            "",
+            f"recognised {p['recognised_after_s']:.3f} s after the hang; force flag up "
+            f"{'never' if force is None else f'{force:.3f} s after it'}; torque flag "
+            f"{'never' if torque is None else f'{torque:.3f} s after the event'}",
+        )
+    wide_console(140).print(t)
+
+
+def print_real_table(out: dict) -> None:
+    """One row per file and estimator."""
+    t = Table(
+        title="Real recordings: online RMS over every row after convergence, against the offline batch "
+        "fit over the same rows; and the ‖·‖ ratio over the file's second half. Contact: rows judged "
+        "a contact (every one a false contact here); held out: rows refused but not called a contact"
+    )
+    for col in (
+        "file",
+        "estimator",
+        "force conv.",
+        "torque conv.",
+        "contact",
+        "held out",
+        "RMS fx, fy, fz (N)",
+        "batch, same rows",
+        "ratio per axis",
+        "ratio ‖·‖",
+        "2nd half",
+    ):
+        t.add_column(col, justify="right")
+    for name, entry in out.items():
+        if "error" in entry:
+            t.add_row(name, "", "", "", "", "", entry["error"], "", "", "", "", end_section=True)
+            continue
+        for k, (est_name, r) in enumerate(entry["estimators"].items()):
+            if "error" in r:
+                t.add_row(
+                    name if k == 0 else "",
+                    est_name,
+                    "",
+                    "",
+                    "",
+                    "",
+                    r["error"],
+                    "",
+                    "",
+                    "",
+                    "",
+                    end_section=k == len(entry["estimators"]) - 1,
+                )
+                continue
+            if est_name.endswith("named effects"):
+                est_name += " (" + (", ".join(entry.get("named_effects", [])) or "none") + ")"
+            rms = ", ".join(fmt(v) for v in r.get("rms_force_S", [])) or "never converged"
+            batch = ", ".join(fmt(v) for v in r.get("batch_rms_same_rows", [])) or "–"
+            ratio = ", ".join(fmt(v, 2) for v in r.get("ratio", [])) or "–"
+            held_out = f"{r['held_out_pct']:.1f} % ({r['held_out_rows']})" if "held_out_pct" in r else "–"
+            t.add_row(
+                name if k == 0 else "",
+                est_name,
+                str(r["converged_force_at"]),
+                str(r["converged_torque_at"]),
+                f"{r['contact_pct']:.1f} % ({r['contact_rows']})",
+                held_out,
+                rms,
+                batch,
+                ratio,
+                fmt(r.get("ratio_norm"), 2),
+                fmt(r.get("ratio_norm_second_half"), 2),
+                end_section=k == len(entry["estimators"]) - 1,
+            )
+    wide_console(140).print(t)
+
+
+def print_faults_table(out: dict) -> None:
+    """One row per estimator and fault: what reached the hand, how soon it was caught, the event."""
+    from hapticlab.sessions.bench.faults import FAULT_START_S
+
+    t = Table(
+        title=f"Injected faults (demo session, fault at {FAULT_START_S:g} s): force on the device that the "
+        f"contact does not explain, and how soon it went to zero"
+    )
+    for col in ("estimator", "fault", "made-up force (N)", "detected after (ms)", "zero after detection (ms)", "event"):
+        t.add_column(col, justify="right" if col != "event" else "left")
+    for estimator, faults in out.items():
+        for k, (label, r) in enumerate(faults.items()):
+            ms = lambda v: "never" if v is None else f"{1e3 * v:.0f}"  # noqa: E731
+            t.add_row(
+                estimator if k == 0 else "",
+                label,
+                fmt(r["made_up_force_N"], 2),
+                ms(r["detected_after_s"]),
+                ms(r["zero_after_detection_s"]),
+                r["event"] or "none",
+                end_section=k == len(faults) - 1,
+            )
+    wide_console(140).print(t)
+
+
+def print_loop_tables(out: dict) -> None:
+    """Per stage: µs per tick and share, per sensor rate; per estimator: µs per sample by block size."""
+    from hapticlab.sessions.bench.loop import STAGES
+
+    def stage_rows(title: str, runs: list[dict], width: int) -> None:
+        t = Table(title=title)
+        t.add_column("stage")
+        for run in runs:
+            t.add_column(f"{run['sensor_rate_hz']:g} Hz sensor, {run['writer']} writer: µs/tick", justify="right")
+            t.add_column("share", justify="right")
+        for stage in STAGES:
+            if any(run["us_per_tick"][stage] for run in runs) or stage == "loop body":  # a stage this preset has
+                t.add_row(
+                    stage,
+                    *[
+                        v
+                        for run in runs
+                        for v in (f"{run['us_per_tick'][stage]:.1f}", f"{100 * run['share'][stage]:.0f} %")
+                    ],
+                )
+        t.add_row(
+            "whole tick",
+            *[v for run in runs for v in (f"{sum(run['us_per_tick'].values()):.1f}", "")],
+            end_section=True,
+        )
+        t.add_row("× real time", *[v for run in runs for v in (f"{run['x_real_time']:.2f}", "")], end_section=True)
+        t.add_row("start and end, ms once", *[v for run in runs for v in (f"{run['start_end_ms']:.0f}", "")])
+        t.add_row(
+            f"× real time, whole {runs[0]['duration_s']:g} s run",
+            *[v for run in runs for v in (f"{run['x_real_time_session']:.2f}", "")],
+            end_section=all("bare" in run for run in runs),
+        )
+        if all("bare" in run for run in runs):  # the same session run again, only its ticks timed
+            t.add_row(
+                "no stopwatches: whole tick", *[v for run in runs for v in (f"{run['bare']['us_per_tick']:.1f}", "")]
+            )
+            t.add_row(
+                "no stopwatches: × real time", *[v for run in runs for v in (f"{run['bare']['x_real_time']:.2f}", "")]
+            )
+            t.add_row(
+                f"no stopwatches: × real time, whole {runs[0]['duration_s']:g} s run",
+                *[v for run in runs for v in (f"{run['bare']['x_real_time_session']:.2f}", "")],
+            )
+        wide_console(width).print(t)
+
+    stages = out["stages"]
+    stage_rows(
+        "Where a tick goes (demo session, not paced, recording on; loop at "
+        f"{stages[0]['loop_rate_hz']:g} Hz, estimator {stages[0]['estimator']})",
+        stages,
+        160,
+    )
+    if "teleop" in out:
+        run = out["teleop"]
+        shadows = f", shadows {', '.join(run['shadows'])}" if run["shadows"] else ""
+        stage_rows(
+            f"Where a tick goes in teleoperation ({run['preset']}, a master pressing 5 cm every 2 s after "
+            f"the tour, not paced; estimator {run['estimator']}{shadows})",
+            [run],
+            100,
+        )
+    t = Table(title="Estimators: µs per sample (median / p99) by block size, simulated tour at 1 kHz")
+    t.add_column("estimator")
+    sizes = list(next(iter(out["estimators"].values())))
+    for size in sizes:
+        t.add_column(f"block {size}", justify="right")
+    for label, row in out["estimators"].items():
+        t.add_row(label, *[f"{row[s]['median_us']:.1f} / {row[s]['p99_us']:.1f}" for s in sizes])
+    wide_console(120).print(t)

@@ -35,6 +35,15 @@ def test_the_page_is_made_from_every_bench_and_each_real_recording():
     assert written == names
 
 
+def test_the_listed_commands_are_ones_the_command_line_takes():
+    from hapticlab.sessions.cli import build_parser
+
+    parser = build_parser()
+    for command in commands(RESULTS, REAL, ["lwr4_2013_06_13"]):
+        args = parser.parse_args(command)
+        assert args.json.startswith(str(RESULTS)) and args.force
+
+
 def test_every_number_comes_from_the_json(tmp_path):
     """A changed number in the JSON changes the page (no figure is typed into the generator)."""
     results = tmp_path / "results"

@@ -3,12 +3,12 @@
 Regenerate the page from the JSON beside it (``docs/results/*.json``), from the checkout's root::
 
     python -m hapticlab.sessions.bench.report            # writes docs/results.md
-    python -m hapticlab.sessions.bench.report --run      # runs every benchmark first (about 10 minutes)
+    python -m hapticlab.sessions.bench.report --run      # runs every benchmark first
 
 ``--run`` runs exactly the commands the page lists (:func:`commands`), each writing its JSON into
-``docs/results/``; without it only the Markdown is rebuilt. The page holds no figure typed by hand:
-every number is read from that JSON, and ``tests/test_results_docs.py`` fails when ``docs/results.md``
-is not what :func:`render` makes of it.
+``docs/results/``; without it only the Markdown is rebuilt. Every measured number on the page is read
+from that JSON (only the set-up's labels, as ``hapticlab bench`` prints them, are typed here), and
+``tests/test_results_docs.py`` fails when ``docs/results.md`` is not what :func:`render` makes of it.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """``docs/results.md``'s first section: ``hapticlab bench paper``, the paper's tables beside ours.
 
-Every figure in the text is read from the JSON; what is typed here is how the runs were set up and
-what the numbers mean.
+Every measured figure in the text is read from the JSON; what is typed here is how the runs were set up
+(as ``sessions/bench/paper.py`` sets them up) and what the numbers mean.
 """
 
 from __future__ import annotations

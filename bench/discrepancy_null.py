@@ -9,7 +9,7 @@ each it prints what the workflow named (any name is a false positive), whether
 the per-axis leftover warning fired (a false positive too), and per channel
 ``z = (RMS / own noise − 1)·√n``, whose spread is the ``LEFTOVER_SE`` the
 threshold assumes (``sessions/discrepancy/leftover.py``). The threshold was set
-from seeds 1000–1059; the rate quoted in the README is from other seeds.
+from seeds 1000–1059; the rate quoted in docs/discrepancy.md is from other seeds.
 Numbers, not asserts: quote them.
 """
 

@@ -81,6 +81,7 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core import hookimpl
+from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
 from hapticlab.core.types import EmulatorCommand
 from hapticlab.plugins.kinematics.sim import ENCODER_STREAM
@@ -728,11 +729,12 @@ def _close(sock: socket.socket) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of ``hapticlab emulate ur``."""
+    """The options of ``hapticlab emulate ur`` (the host adds ``--session`` and ``--seed``: its world)."""
     parser.add_argument(
         "--address",
         default="127.0.0.1",
-        help="loopback address to serve RTDE on, port 30004 (127.0.0.x; default 127.0.0.1)",
+        help="IPv4 address to serve RTDE on, port 30004 (default 127.0.0.1); a loopback address 127.0.0.x keeps "
+        "the emulator on this machine, any other address of this machine (0.0.0.0: all of them) serves the network",
     )
     parser.add_argument(
         "--model",
@@ -741,10 +743,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="UR model: its DH geometry; ur3/ur5/ur10 are CB3 (3.x controller, 125 Hz), "
         "the others e-Series (5.x, 500 Hz) (default ur5e)",
     )
-    parser.add_argument(
-        "--session", default=None, help="preset name or TOML file whose [world] moves the arm (default: demo)"
-    )
-    parser.add_argument("--seed", type=int, default=None, help="the world's seed (overrides the session's)")
     parser.add_argument(
         "--encoder-noise",
         type=float,
@@ -761,23 +759,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
-def run(args: argparse.Namespace) -> int:
-    """Serve RTDE until Ctrl-C, SIGTERM or ``--duration``; the first line printed names the address. Exit status 0."""
-    from hapticlab.core.host.registry import ConfigError
-    from hapticlab.sessions.config import load_config
-
-    config, _ = load_config(args.session)
-    table = dict(config.get("world") or {})
-    if args.seed is not None:
-        table["seed"] = args.seed
+def run(args: argparse.Namespace, world: SimWorld) -> int:
+    """Serve RTDE, the arm moved by ``world``, until Ctrl-C, SIGTERM or ``--duration``; the first line printed
+    names the address. Exit status 0."""
     try:
         tcp_offset = tuple(float(x) for x in args.tcp_offset.split(","))
         emulator = UREmulator(
-            SimWorld.from_config(table),
-            address=args.address,
-            model=args.model,
-            encoder_noise=args.encoder_noise,
-            tcp_offset=tcp_offset,
+            world, address=args.address, model=args.model, encoder_noise=args.encoder_noise, tcp_offset=tcp_offset
         )
         emulator.start()
     except ValueError as exc:
@@ -810,5 +798,6 @@ def register_emulators(register):
             help="Universal Robots controller: RTDE v2 on port 30004 (e-Series 500 Hz, CB3 125 Hz)",
             add_arguments=add_arguments,
             run=run,
+            needs_world=True,
         ),
     )

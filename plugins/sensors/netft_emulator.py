@@ -48,6 +48,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from hapticlab.core import hookimpl
+from hapticlab.core.errors import ConfigError
 from hapticlab.core.types import STATUS_SATURATED, EmulatorCommand
 from hapticlab.plugins.sensors.netft import (
     ATI_ERROR_SUMMARY,
@@ -458,13 +459,15 @@ def _handler(emulator: NetFTEmulator) -> type[BaseHTTPRequestHandler]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of ``hapticlab emulate netft``."""
-    parser.add_argument("--address", default="127.0.0.1", help="loopback address to serve on (127.0.0.x)")
+    """The options of ``hapticlab emulate netft`` (the host adds ``--session`` and ``--seed``: its world)."""
+    parser.add_argument(
+        "--address",
+        default="127.0.0.1",
+        help="IPv4 address to serve on (default 127.0.0.1); a loopback address 127.0.0.x keeps the emulator "
+        "on this machine, any other address of this machine (0.0.0.0: all of them) serves the network",
+    )
     parser.add_argument("--rdt-port", type=int, default=RDT_PORT, help="UDP port of the RDT stream (default 49152)")
     parser.add_argument("--http-port", type=int, default=80, help="TCP port of netftapi2.xml (default 80)")
-    parser.add_argument(
-        "--session", default=None, help="preset name or TOML file whose [world] feeds the sensor (default: demo)"
-    )
     parser.add_argument("--rate", type=float, default=FT_RATE_HZ, help="RDT output rate, Hz (7000/n; default 7000)")
     parser.add_argument("--counts-per-force", type=float, default=1_000_000.0, help="cfgcpf, counts per force unit")
     parser.add_argument("--counts-per-torque", type=float, default=1_000_000.0, help="cfgcpt, counts per torque unit")
@@ -480,15 +483,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
-def run(args: argparse.Namespace) -> int:
-    """Serve until Ctrl-C, SIGTERM or ``--duration``; the first line printed names the address and ports."""
-    from hapticlab.core.host.registry import ConfigError
-    from hapticlab.sessions.config import load_config
-
-    config, _ = load_config(args.session)
+def run(args: argparse.Namespace, world: SimWorld) -> int:
+    """Serve ``world`` until Ctrl-C, SIGTERM or ``--duration``; the first line printed names the address and
+    ports."""
     try:
         faults = [RdtFault.parse(text) for text in args.fault]
-        world = SimWorld.from_config(config.get("world"))
         emulator = NetFTEmulator(
             world,
             args.address,
@@ -531,5 +530,6 @@ def register_emulators(register):
             help="ATI Net F/T: RDT over UDP and netftapi2.xml over HTTP, up to 7000 samples/s",
             add_arguments=add_arguments,
             run=run,
+            needs_world=True,
         ),
     )

@@ -2,7 +2,7 @@
 
 ur-rtde's constructors hold the GIL while they wait for the controller, so a
 ur-rtde client and the emulator cannot share a process: the emulator runs as
-``ur_emulator.run`` in a child process where this process uses ur-rtde (the
+``hapticlab emulate ur`` in a child process where this process uses ur-rtde (the
 receive interface, our plugin), and ur-rtde runs in a child process where the
 test reads the emulator's Python API (the input registers). ur-rtde always
 uses port 30004, so each test has its own 127.0.0.x.
@@ -39,13 +39,8 @@ def demo_world() -> SimWorld:
     return SimWorld.from_config({**load_config("demo")[0]["world"], "seed": SEED})
 
 
-EMULATOR = (
-    "import argparse, sys\n"
-    "from hapticlab.plugins.kinematics import ur_emulator\n"
-    "parser = argparse.ArgumentParser()\n"
-    "ur_emulator.add_arguments(parser)\n"
-    "sys.exit(ur_emulator.run(parser.parse_args(sys.argv[1:])))\n"
-)
+EMULATOR = "import sys\nfrom hapticlab.sessions.cli import main\nsys.exit(main(['emulate', 'ur', *sys.argv[1:]]))\n"
+"""``hapticlab emulate ur`` with the arguments given after ``-c EMULATOR``."""
 
 
 @contextmanager
@@ -439,17 +434,13 @@ def test_emulate_ur_runs_for_its_duration_and_exits_cleanly():
     assert lines[-1] == "sent 0 data packages; 0 input field(s) written"
 
 
-def test_emulate_ur_bad_input_is_a_config_error_naming_it():
-    import argparse
+def test_emulate_ur_bad_input_is_one_line_naming_it(capsys):
+    from hapticlab.sessions.cli import main
 
-    from hapticlab.plugins.kinematics import ur_emulator
-
-    parser = argparse.ArgumentParser()
-    ur_emulator.add_arguments(parser)
-    with pytest.raises(ConfigError, match="no_such.toml: no such session file"):
-        ur_emulator.run(parser.parse_args(["--session", "no_such.toml"]))
-    with pytest.raises(ConfigError, match=r"emulate ur: cannot serve on 192\.0\.2\.1:30004"):
-        ur_emulator.run(parser.parse_args(["--address", "192.0.2.1"]))  # not an address of this machine
+    assert main(["emulate", "ur", "--session", "no_such.toml"]) == 2
+    assert "no_such.toml: no such session file" in capsys.readouterr().err
+    assert main(["emulate", "ur", "--address", "192.0.2.1"]) == 2  # not an address of this machine
+    assert "emulate ur: cannot serve on 192.0.2.1:30004" in capsys.readouterr().err
 
 
 def test_encoders_jitter_so_a_still_arm_never_reports_a_frozen_pose():

@@ -293,12 +293,9 @@ class Tap:
 
 @contextmanager
 def ur_emulator_process(address: str):
-    """The RTDE emulator (``ur_emulator.run``) in a child process (ur-rtde's constructor holds the GIL, so the
+    """The RTDE emulator (``hapticlab emulate ur``) in a child process (ur-rtde's constructor holds the GIL, so the
     emulator cannot share this process), yielded once it listens on ``address``:30004."""
-    script = (
-        "import argparse, sys; from hapticlab.plugins.kinematics import ur_emulator as e; "
-        "p = argparse.ArgumentParser(); e.add_arguments(p); sys.exit(e.run(p.parse_args(sys.argv[1:])))"
-    )
+    script = "import sys; from hapticlab.sessions.cli import main; sys.exit(main(['emulate', 'ur', *sys.argv[1:]]))"
     process = subprocess.Popen(
         [sys.executable, "-c", script, "--address", address, "--seed", "11"],
         stdout=subprocess.PIPE,

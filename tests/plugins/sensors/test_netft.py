@@ -11,7 +11,6 @@ sample's own internal time. Loops wait for a number of samples, never a time.
 
 from __future__ import annotations
 
-import argparse
 import socket
 import threading
 import time
@@ -25,7 +24,7 @@ from hapticlab.core.host.interfaces import EmitsEvents, HasCalibration, HasRange
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
 from hapticlab.plugins.sensors.netft import DeviceClock, NetFTSensor, describe_status, stream_status
-from hapticlab.plugins.sensors.netft_emulator import RECORD, REQUEST, NetFTEmulator, RdtFault, add_arguments, run
+from hapticlab.plugins.sensors.netft_emulator import RECORD, REQUEST, NetFTEmulator, RdtFault
 from hapticlab.plugins.sensors.rdt import FT_RATE_HZ
 from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.sessions.config import load_config
@@ -587,22 +586,9 @@ def test_a_wire_fault_parses_from_the_command_line():
 
 
 def test_the_emulator_command_prints_its_address_and_ports_first(capsys):
-    parser = argparse.ArgumentParser()
-    add_arguments(parser)
-    args = parser.parse_args(
-        [
-            "--address",
-            "127.0.0.140",
-            "--rdt-port",
-            "0",
-            "--http-port",
-            "0",
-            "--duration",
-            "0.2",
-            "--fault",
-            "drop,every=2",
-        ]
-    )
-    assert run(args) == 0
+    from hapticlab.sessions.cli import main
+
+    argv = ["emulate", "netft", "--address", "127.0.0.140", "--rdt-port", "0", "--http-port", "0"]
+    assert main([*argv, "--duration", "0.2", "--fault", "drop,every=2"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert first.startswith("netft emulator on 127.0.0.140: RDT udp/") and "http/" in first

@@ -20,7 +20,8 @@ from hapticlab.core import hookimpl
 from hapticlab.core.errors import ConfigError
 from hapticlab.core.types import EmulatorCommand
 from hapticlab.plugins.kinematics.ur_emulator import UREmulator
-from hapticlab.plugins.sensors.netft_emulator import NetFTEmulator, RdtFault
+from hapticlab.plugins.sensors.netft_emulator import NetFTEmulator
+from hapticlab.plugins.sensors.netft_wire import RdtFault
 from hapticlab.plugins.serving import serve_until_stopped
 from hapticlab.plugins.simworld.physics import SimWorld
 

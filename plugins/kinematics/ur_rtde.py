@@ -57,9 +57,9 @@ from hapticlab.core import hookimpl
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import Event, PoseSample
+from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
 from hapticlab.plugins.kinematics.ur_follow import TargetWriter
-from hapticlab.plugins.sensors.netft import DeviceClock
 
 VARIABLES = ["actual_TCP_pose", "actual_q", "actual_qd", "timestamp"]
 """The outputs asked for; ``timestamp`` last, so a package's timestamp changes after its other fields."""

@@ -39,26 +39,20 @@ import numpy as np
 from hapticlab.core import hookimpl
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
-from hapticlab.plugins.sensors.rdt import (  # noqa: F401
-    ATI_ERROR_SUMMARY,
-    ATI_MONITOR_LATCHED,
-    ATI_SATURATION,
-    ATI_STATUS_BITS,
-    COUNTER_DOC,
+from hapticlab.plugins.device_clock import DeviceClock
+from hapticlab.plugins.sensors.netft_protocol import (
     FORCE_UNITS,
     FT_RATE_HZ,
     RDT_PORT,
     TORQUE_SPELLING,
     TORQUE_UNITS,
     Calibration,
-    DeviceClock,
-    RdtBatch,
-    RdtReceiver,
     describe_status,
-    fetch_configuration,
     stream_status,
     stream_status_array,
 )
+from hapticlab.plugins.sensors.netft_receivers import HapticlabLink, PynetftLink
+from hapticlab.plugins.sensors.rdt import COUNTER_DOC, RdtBatch
 
 HEALTH_COUNTERS = tuple(COUNTER_DOC)
 """The stream's health counters (:meth:`NetFTSensor.health_counters`), counts since ``open``."""
@@ -169,7 +163,7 @@ class NetFTSensor:
         if self.override is not None:
             self.calibration.update(self.override.fields())
         self.clock = DeviceClock(ft_rate_hz, clock_slew_ppm)
-        self._link: _HapticlabLink | _PynetftLink | None = None
+        self._link: HapticlabLink | PynetftLink | None = None
         self._scale = np.ones(6)  # N or N·m per value the link hands over (a count, or a sensor unit): set by open
         self._pending = NO_WRENCHES  # received, not yet handed out
         self._events: list[Event] = []
@@ -189,7 +183,7 @@ class NetFTSensor:
         Raises ConnectionError naming the sensor and what the receiver saw when there is no record
         within ``connect_timeout``.
         """
-        link = _HapticlabLink(self) if self.receiver == "hapticlab" else _PynetftLink(self)
+        link = HapticlabLink(self) if self.receiver == "hapticlab" else PynetftLink(self)
         product, calibration = link.open()
         self._link = link
         # pynetft hands over values in the sensor's units (N or lbf ..., N·m or N·mm ...), ours counts
@@ -387,161 +381,6 @@ class NetFTSensor:
         """Calibration, status changes, timeouts and health since the last call (EmitsEvents)."""
         events, self._events = self._events, []
         return events
-
-
-class _HapticlabLink:
-    """The ``hapticlab`` receiver (:class:`.rdt.RdtReceiver`) with the calibration from ``netftapi2.xml``."""
-
-    scaled = False  # hands over counts
-
-    def __init__(self, sensor: NetFTSensor):
-        self.sensor = sensor
-        self.rdt = RdtReceiver(sensor.address, sensor.rdt_port)
-
-    def open(self) -> tuple[str, Calibration]:
-        s = self.sensor
-        where = f"no Net F/T record from {s.address}:{s.rdt_port} within {s.connect_timeout:g} s"
-        try:
-            product, calibration = fetch_configuration(s.address, s.http_port, s.connect_timeout)
-        except (OSError, ValueError) as exc:
-            if s.override is None:
-                raise ConnectionError(f"{where} (netftapi2.xml from port {s.http_port}: {exc})") from None
-            product, calibration = "ATI Net F/T (netftapi2.xml unread)", s.override
-        calibration = s.override or calibration
-        self.rdt.open()
-        if not self.rdt.wait(s.connect_timeout):
-            self.rdt.close()
-            raise ConnectionError(f"{where} (start request sent, nothing came back)")
-        return product, calibration
-
-    def poll(self) -> RdtBatch | None:
-        return self.rdt.poll()
-
-    def counters(self) -> dict[str, int]:
-        return self.rdt.counters
-
-    def on_timeout(self) -> None:
-        self.rdt.counters["timeout"] += 1
-
-    def restart(self) -> None:
-        self.rdt.restart()
-
-    def close(self) -> None:
-        self.rdt.close()
-
-
-class _PynetftLink:
-    """The ``pynetft`` receiver: pynetft's Client on its own thread, its queue drained at each read."""
-
-    scaled = True  # hands over values in the sensor's units
-
-    def __init__(self, sensor: NetFTSensor):
-        import pynetft
-
-        self.pynetft, self.sensor = pynetft, sensor
-        self.client = None
-        self._ft: int | None = None  # the last ft_sequence as sent
-        self._k = 0  # ... unwrapped
-
-    def open(self) -> tuple[str, Calibration]:
-        pynetft, s = self.pynetft, self.sensor
-        override = (
-            None
-            if s.override is None
-            else pynetft.Calibration(
-                s.override.counts_per_force,
-                s.override.counts_per_torque,
-                pynetft.ForceUnit(s.override.force_unit),
-                pynetft.TorqueUnit(s.override.torque_unit),
-            )
-        )
-        config = pynetft.Config(
-            sensor_host=s.address,
-            rdt_port=s.rdt_port,
-            http_port=s.http_port,
-            receive_timeout=s.receive_timeout,
-            configuration_timeout=s.connect_timeout,
-            configuration_connect_timeout=min(0.5, s.connect_timeout),
-            reconnect_initial_delay=s.reconnect_delay,
-            reconnect_max_delay=max(5.0, s.reconnect_delay),
-            deliver_samples_with_error_status=True,  # saturation must reach the stream, not vanish
-            recovery_policy=pynetft.RecoveryPolicy.RECONNECT
-            if s.recovery == "reconnect"
-            else pynetft.RecoveryPolicy.FAIL_STOP,
-            calibration_override=override,
-        )
-        self.client = pynetft.Client(config, queue_size=s.queue_size)
-        self.client.start()
-        if not self.client.wait_for_first_sample(s.connect_timeout):
-            health = self.client.health()
-            self.client.stop()
-            raise ConnectionError(
-                f"no Net F/T record from {s.address}:{s.rdt_port} within "
-                f"{s.connect_timeout:g} s ({health.last_error or health.state.value})"
-            )
-        configuration = self.client.health().sensor_configuration
-        c = configuration.calibration
-        return configuration.product_name, Calibration(
-            c.counts_per_force_unit, c.counts_per_torque_unit, c.force_unit.value, c.torque_unit.value
-        )
-
-    def poll(self) -> RdtBatch | None:
-        batch = []
-        try:
-            for sample in self.client.samples(timeout=0.0):
-                batch.append(sample)
-        except TimeoutError:  # nothing more queued
-            pass
-        except self.pynetft.SensorFaultError as exc:  # fail_stop: the stream is over
-            raise ConnectionError(
-                f"Net F/T {self.sensor.address} stopped: {exc.fault_code.value} ({exc.health.last_error})"
-            ) from None
-        if not batch:
-            return None
-        ft = np.array([sample.ft_sequence for sample in batch], dtype=np.int64)
-        if self._ft is None:
-            self._ft = self._k = int(ft[0])
-        step = np.diff(ft, prepend=self._ft) & 0xFFFF_FFFF
-        backward = np.flatnonzero(step >= 2**31)  # pynetft delivers a backward ft_sequence only as a restart
-        restarts = [(int(i), int(ft[i - 1]) if i else self._ft, int(ft[i])) for i in backward]
-        step[backward] = 1
-        k = self._k + np.cumsum(step)
-        self._ft, self._k = int(ft[-1]), int(k[-1])
-        return RdtBatch(
-            k,
-            np.array([sample.status for sample in batch], dtype=np.int64),
-            np.array([sample.wrench for sample in batch]),
-            np.array([sample.received_at_ns for sample in batch], dtype=np.int64),
-            restarts,
-        )
-
-    def counters(self) -> dict[str, int]:
-        h = self.client.health()
-        return dict(
-            received=h.received_count,
-            lost=h.lost_count,
-            duplicate=h.duplicate_count,
-            out_of_order=h.out_of_order_count,
-            stall=h.ft_stall_count,
-            ft_backward=h.ft_backward_count,
-            ft_restart=h.ft_restart_count,
-            malformed=h.malformed_count,
-            timeout=h.timeout_count,
-            reconnect=h.reconnect_count,
-            device_error=h.device_error_count,
-            warning=h.warning_count,
-            queue_dropped=h.python_queue_dropped_count,
-            calibration_change=h.calibration_change_count,
-        )
-
-    def on_timeout(self) -> None:
-        pass  # pynetft counts its own timeouts
-
-    def restart(self) -> None:
-        pass  # pynetft reconnects by itself
-
-    def close(self) -> None:
-        self.client.stop()
 
 
 def _calibration_override(cpf, cpt, force_unit, torque_unit) -> Calibration | None:

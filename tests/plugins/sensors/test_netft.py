@@ -23,9 +23,11 @@ import pytest
 from hapticlab.core.host.interfaces import EmitsEvents, HasCalibration, HasRange, ReportsHealth, SensorSource
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
-from hapticlab.plugins.sensors.netft import DeviceClock, NetFTSensor, describe_status, stream_status
-from hapticlab.plugins.sensors.netft_emulator import RECORD, REQUEST, NetFTEmulator, RdtFault
-from hapticlab.plugins.sensors.rdt import FT_RATE_HZ
+from hapticlab.plugins.device_clock import DeviceClock
+from hapticlab.plugins.sensors.netft import NetFTSensor
+from hapticlab.plugins.sensors.netft_emulator import NetFTEmulator
+from hapticlab.plugins.sensors.netft_protocol import FT_RATE_HZ, RECORD, REQUEST, describe_status, stream_status
+from hapticlab.plugins.sensors.netft_wire import RdtFault
 from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.sessions.config import load_config
 from hapticlab.sessions.recording import read_recording

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hapticlab.core.host.options import choice
+
 
 @dataclass(frozen=True)
 class DH:
@@ -224,8 +226,7 @@ class URArm:
     """
 
     def __init__(self, model: str = "ur5e"):
-        if model not in UR_DH:
-            raise ValueError(f"model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
+        choice("model", model, list(UR_DH))
         self.model = model
         self.dh = UR_DH[model]
 

@@ -61,6 +61,7 @@ import numpy as np
 from hapticlab.core import hookimpl
 from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
+from hapticlab.core.host.options import OptionError, choice, number, vector
 from hapticlab.core.types import EmulatorCommand
 from hapticlab.plugins.kinematics.rtde_protocol import INFO, RTDE_PORT, WARNING, pack_text_message
 from hapticlab.plugins.kinematics.rtde_server import RTDEServer
@@ -120,8 +121,7 @@ class UREmulator:
         tcp_offset: tuple[float, ...] = (0.0,) * 6,
         stalls: tuple[tuple[float, float], ...] | list[tuple[float, float]] = (),
     ):
-        if model not in UR_DH:
-            raise ValueError(f"model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
+        choice("model", model, list(UR_DH))
         self.world = world
         self.address = address
         self.arm = URArm(model)
@@ -132,22 +132,22 @@ class UREmulator:
         q0 = self.arm.inverse_nearest(*[x[0] for x in world.pose(0.0)])
         if q0 is None:
             p = world.pose(0.0)[1][0]
-            raise ValueError(
-                f"model: a {model} cannot reach the world's flange position "
-                f"{np.round(p, 3).tolist()} m at t = 0; give the world's motion a p_BoEo_B within reach"
+            raise OptionError(
+                "model",
+                f"must reach the world's flange position {np.round(p, 3).tolist()} m at t = 0, got {model!r}; "
+                f"give the world's motion a p_BoEo_B within reach",
             )
         self._q, self._q_reported, self._q_t = q0, q0, 0.0
-        if not 0 <= encoder_noise <= 1e-3:
-            raise ValueError(f"encoder_noise: must be within [0, 1e-3] rad, got {encoder_noise!r}")
-        self.encoder_noise = float(encoder_noise)
-        tcp = np.asarray(tcp_offset, dtype=float)
-        if tcp.shape != (6,) or not np.all(np.isfinite(tcp)):
-            raise ValueError(f"tcp_offset: six numbers (x, y, z in m, rotation vector in rad), got {tcp_offset!r}")
+        self.encoder_noise = number("encoder_noise", encoder_noise, minimum=0, maximum=1e-3, hint=" rad")
+        tcp = vector("tcp_offset", tcp_offset, size=6, hint=" (x, y, z in m, rotation vector in rad)")
         self.p_EoTo_E, self.R_ET = tcp[:3], matrix_from_quat_wxyz(quat_from_rotvec(tcp[3:])[None])[0]
-        self.stalls = tuple((float(start), float(duration)) for start, duration in stalls)
-        for start, duration in self.stalls:
-            if not (start >= 0 and duration > 0 and math.isfinite(start)):
-                raise ValueError(f"stall: start must be >= 0 s and duration > 0 s, got {start!r}, {duration!r}")
+        self.stalls = tuple(
+            (
+                number("stalls", start, minimum=0, hint=" s (a stall's start)"),
+                number("stalls", duration, above=0, finite=False, hint=" s (a stall's duration)"),
+            )
+            for start, duration in stalls
+        )
         self.packages_stalled = 0
         """Data packages not sent because they fell in a stall."""
         self._noise_key = int(
@@ -358,7 +358,10 @@ def run(args: argparse.Namespace, world: SimWorld) -> int:
     """Serve RTDE, the arm moved by ``world``, until Ctrl-C, SIGTERM or ``--duration``; the first line printed
     names the address. Exit status 0."""
     try:
-        tcp_offset = tuple(float(x) for x in args.tcp_offset.split(","))
+        try:
+            tcp_offset = tuple(float(x) for x in args.tcp_offset.split(","))
+        except ValueError:
+            raise OptionError("--tcp-offset", f"must be X,Y,Z,RX,RY,RZ (m, rad), got {args.tcp_offset!r}") from None
         emulator = UREmulator(
             world, address=args.address, model=args.model, encoder_noise=args.encoder_noise, tcp_offset=tcp_offset
         )

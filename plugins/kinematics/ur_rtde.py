@@ -55,7 +55,7 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, choice, number
 from hapticlab.core.types import Event, PoseSample
 from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
@@ -103,24 +103,18 @@ class URRTDEKinematics:
 
     def __init__(self, address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = ""):
         if not address:
-            raise ConfigError(
-                "kinematics.address: missing; the UR controller's IP address or host name "
-                '(e.g. address = "192.168.1.10")'
+            raise OptionError(
+                "address",
+                'must be the UR controller\'s IP address or host name (e.g. address = "192.168.1.10"), got none',
             )
         if not _valid_host(address):
-            raise ConfigError(f"kinematics.address: {address!r} is neither an IP address nor a host name")
-        if not 0 < rate_hz <= MAX_RATE_HZ:
-            raise ConfigError(
-                f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz "
-                f"(e-Series 500, CB3 125), got {rate_hz!r}"
-            )
-        if not 0 < receive_timeout <= 1.0:
-            raise ConfigError(f"kinematics.receive_timeout: must be > 0 and at most 1 s, got {receive_timeout!r}")
-        if model and model not in UR_DH:
-            raise ConfigError(f"kinematics.model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
+            raise OptionError("address", f"must be an IP address or a host name, got {address!r}")
+        self.rate_hz = number("rate_hz", rate_hz, above=0, maximum=MAX_RATE_HZ, hint=" Hz (e-Series 500, CB3 125)")
+        receive_timeout = number("receive_timeout", receive_timeout, above=0, maximum=1.0, hint=" s")
+        if model:
+            choice("model", model, list(UR_DH), hint=' (or "" for no check)')
         self.arm = URArm(model) if model else None
         self.address = address
-        self.rate_hz = float(rate_hz)
         self.latency_s = 1.0 / self.rate_hz + POLL_LATENCY_S
         """How much older than now the newest pose can be in ordinary operation (HasLatency), s: the
         controller's package pipeline (one period) and the polling thread's wait for the GIL."""
@@ -359,11 +353,7 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
         follow_rate_hz: float = FOLLOW_RATE_HZ,
     ):
         super().__init__(address, rate_hz, receive_timeout, model)
-        if not 0 < follow_rate_hz <= self.rate_hz:
-            raise ConfigError(
-                f"kinematics.follow_rate_hz: must be > 0 and at most rate_hz ({self.rate_hz:g} Hz), "
-                f"got {follow_rate_hz!r}"
-            )
+        follow_rate_hz = number("follow_rate_hz", follow_rate_hz, above=0, maximum=self.rate_hz, hint=" Hz (rate_hz)")
         self.period_ns = int(round(1e9 / follow_rate_hz))
         self._writer = None
         self._last_sent_ns: int | None = None
@@ -404,7 +394,7 @@ def ur_rtde_kinematics(
     if follow:
         return FollowingURRTDEKinematics(address, rate_hz, receive_timeout, model, follow_rate_hz)
     if follow_rate_hz != FOLLOW_RATE_HZ:
-        raise ConfigError("kinematics.follow_rate_hz: only with follow = true")
+        raise OptionError("follow_rate_hz", f"must be left out unless follow = true, got {follow_rate_hz!r}")
     return URRTDEKinematics(address, rate_hz, receive_timeout, model)
 
 

@@ -31,13 +31,12 @@ from the config), and both feed what this module adds:
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, choice, integer, number, vector
 from hapticlab.core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
 from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.sensors.netft_protocol import (
@@ -113,41 +112,30 @@ class NetFTSensor:
         queue_size: int = 65536,
     ):
         if not isinstance(address, str) or not address.strip():
-            raise ConfigError(f"sensor.address: must be the sensor's IP address or host name, got {address!r}")
-        for key, port in (("rdt_port", rdt_port), ("http_port", http_port)):
-            if not 0 < port < 65536:
-                raise ConfigError(f"sensor.{key}: must be a port number 1..65535, got {port!r}")
-        for key, value in (
-            ("rate_hz", rate_hz),
-            ("ft_rate_hz", ft_rate_hz),
-            ("receive_timeout", receive_timeout),
-            ("connect_timeout", connect_timeout),
-            ("reconnect_delay", reconnect_delay),
-            ("health_interval", health_interval),
-        ):
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"sensor.{key}: must be a finite number > 0, got {value!r}")
-        if not rate_hz <= ft_rate_hz:
-            raise ConfigError(
-                f"sensor.rate_hz: the RDT rate cannot exceed ft_rate_hz ({ft_rate_hz:g} Hz), got {rate_hz!r}"
+            raise OptionError("address", f"must be the sensor's IP address or host name, got {address!r}")
+        self.address = address.strip()
+        self.rdt_port, self.http_port = (
+            integer(key, port, minimum=1, maximum=65535, hint=" (a port number)")
+            for key, port in (("rdt_port", rdt_port), ("http_port", http_port))
+        )
+        ft_rate_hz = number("ft_rate_hz", ft_rate_hz, above=0, hint=" Hz")
+        self.rate_hz = number(
+            "rate_hz", rate_hz, above=0, maximum=ft_rate_hz, hint=" Hz (the RDT rate cannot exceed ft_rate_hz)"
+        )
+        self.receive_timeout, self.connect_timeout, self.reconnect_delay, health_interval = (
+            number(key, value, above=0, hint=" s")
+            for key, value in (
+                ("receive_timeout", receive_timeout),
+                ("connect_timeout", connect_timeout),
+                ("reconnect_delay", reconnect_delay),
+                ("health_interval", health_interval),
             )
-        if not (math.isfinite(clock_slew_ppm) and clock_slew_ppm >= 0):
-            raise ConfigError(f"sensor.clock_slew_ppm: must be a finite number >= 0, got {clock_slew_ppm!r}")
-        if queue_size < 1:
-            raise ConfigError(f"sensor.queue_size: must be >= 1, got {queue_size!r}")
-        if recovery not in ("reconnect", "fail_stop"):
-            raise ConfigError(f'sensor.recovery: must be "reconnect" or "fail_stop", got {recovery!r}')
-        if receiver not in RECEIVERS:
-            raise ConfigError(f'sensor.receiver: must be "hapticlab" or "pynetft", got {receiver!r}')
-        self.address, self.rdt_port, self.http_port = address.strip(), int(rdt_port), int(http_port)
-        self.rate_hz = float(rate_hz)
+        )
+        clock_slew_ppm = number("clock_slew_ppm", clock_slew_ppm, minimum=0, hint=" ppm")
+        self.queue_size = integer("queue_size", queue_size, minimum=1)
+        self.recovery = choice("recovery", recovery, ("reconnect", "fail_stop"))
+        self.receiver = choice("receiver", receiver, RECEIVERS)
         self.latency_s = NETWORK_LATENCY_S
-        self.receiver = receiver
-        self.receive_timeout = float(receive_timeout)
-        self.connect_timeout = float(connect_timeout)
-        self.reconnect_delay = float(reconnect_delay)
-        self.recovery = recovery
-        self.queue_size = int(queue_size)
         self.health_interval_ns = int(health_interval * 1e9)
         self.override = _calibration_override(counts_per_force, counts_per_torque, force_unit, torque_unit)
         self.range_force_S = _range("range_force", range_force)
@@ -390,27 +378,23 @@ def _calibration_override(cpf, cpt, force_unit, torque_unit) -> Calibration | No
         return None
     missing = [k for k, v in given.items() if v is None]
     if missing:
-        raise ConfigError(
-            f"sensor.{missing[0]}: a calibration override needs counts_per_force, counts_per_torque, "
-            f"force_unit and torque_unit together"
+        raise OptionError(
+            missing[0],
+            "must be given too, got none: a calibration override needs counts_per_force, counts_per_torque, "
+            "force_unit and torque_unit together",
         )
-    for key in ("counts_per_force", "counts_per_torque"):
-        if not (math.isfinite(given[key]) and given[key] > 0):
-            raise ConfigError(f"sensor.{key}: must be a finite number of counts > 0, got {given[key]!r}")
-    if force_unit not in FORCE_UNITS:
-        raise ConfigError(f"sensor.force_unit: one of {', '.join(FORCE_UNITS)}, got {force_unit!r}")
-    if torque_unit not in TORQUE_UNITS:
-        raise ConfigError(f"sensor.torque_unit: one of {', '.join(TORQUE_UNITS)}, got {torque_unit!r}")
-    return Calibration(float(cpf), float(cpt), force_unit, TORQUE_SPELLING.get(torque_unit, torque_unit))
+    cpf = number("counts_per_force", cpf, above=0, hint=" (counts per force unit)")
+    cpt = number("counts_per_torque", cpt, above=0, hint=" (counts per torque unit)")
+    force_unit = choice("force_unit", force_unit, list(FORCE_UNITS))
+    torque_unit = choice("torque_unit", torque_unit, list(TORQUE_UNITS))
+    return Calibration(cpf, cpt, force_unit, TORQUE_SPELLING.get(torque_unit, torque_unit))
 
 
 def _range(key: str, value: float | list[float] | None) -> np.ndarray:
+    """(3,) a rated range per axis from a number or 3; unchecked (inf) when not given."""
     if value is None:
         return np.full(3, np.inf)
-    array = np.broadcast_to(np.asarray(value, dtype=float), 3) if np.ndim(value) == 0 else np.asarray(value, float)
-    if array.shape != (3,) or not (array > 0).all():
-        raise ConfigError(f"sensor.{key}: must be a number or 3 numbers > 0, got {value!r}")
-    return array.copy()
+    return np.array(vector(key, value, size=3, broadcast=True, above=0))
 
 
 @hookimpl

@@ -38,6 +38,7 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.errors import ConfigError
+from hapticlab.core.host.options import OptionError, choice, is_number, number
 from hapticlab.core.types import STATUS_SATURATED, EmulatorCommand
 from hapticlab.plugins.sensors.netft_protocol import (
     ATI_ERROR_SUMMARY,
@@ -92,13 +93,15 @@ class NetFTEmulator:
         ft_sequence_start: int = 0x7FFF_0000,
         product_name: str = "Net F/T emulator (hapticlab)",
     ):
-        decimation = FT_RATE_HZ / rdt_rate_hz if rdt_rate_hz > 0 else 0.0
+        decimation = FT_RATE_HZ / rdt_rate_hz if is_number(rdt_rate_hz) and rdt_rate_hz > 0 else 0.0
         if not (decimation >= 1 and abs(decimation - round(decimation)) < 1e-9):
-            raise ValueError(f"rdt_rate_hz: must be {FT_RATE_HZ:g} Hz divided by a whole number, got {rdt_rate_hz!r}")
-        if force_unit not in FORCE_UNITS or torque_unit not in TORQUE_UNITS:
-            raise ValueError(f"units: force one of {', '.join(FORCE_UNITS)}; torque one of {', '.join(TORQUE_UNITS)}")
-        if not (counts_per_force > 0 and counts_per_torque > 0):
-            raise ValueError("counts_per_force and counts_per_torque must be > 0")
+            raise OptionError(
+                "rdt_rate_hz", f"must be {FT_RATE_HZ:g} Hz divided by a whole number, got {rdt_rate_hz!r}"
+            )
+        counts_per_force = number("counts_per_force", counts_per_force, above=0, hint=" (counts per force unit)")
+        counts_per_torque = number("counts_per_torque", counts_per_torque, above=0, hint=" (counts per torque unit)")
+        force_unit = choice("force_unit", force_unit, list(FORCE_UNITS))
+        torque_unit = choice("torque_unit", torque_unit, list(TORQUE_UNITS))
         self.world = world
         self.address = address
         self.rdt_rate_hz = float(rdt_rate_hz)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hapticlab.core.host.options import OptionError, choice, integer, number
 from hapticlab.plugins.sensors.netft_protocol import ATI_ERROR_SUMMARY, ATI_SATURATION, RECORD
 
 FAULT_KINDS = ("drop", "duplicate", "reorder", "status", "stall", "saturate")
@@ -48,14 +49,12 @@ class RdtFault:
     status: int = 0
 
     def __post_init__(self) -> None:
-        if self.kind not in FAULT_KINDS:
-            raise ValueError(f"kind: unknown fault {self.kind!r}; known: {', '.join(FAULT_KINDS)}")
-        if not self.duration > 0 or self.start < 0:
-            raise ValueError(f"{self.kind}: start must be >= 0 s and duration > 0 s")
-        if self.every < 1:
-            raise ValueError(f"{self.kind}: every must be >= 1, got {self.every}")
-        if self.kind == "status" and not 0 < self.status <= 0xFFFFFFFF:
-            raise ValueError(f"status: bits must be a nonzero 32-bit word, got {self.status!r}")
+        choice("kind", self.kind, FAULT_KINDS)
+        number("start", self.start, minimum=0, hint=" s")
+        number("duration", self.duration, above=0, finite=False, hint=" s")
+        integer("every", self.every, minimum=1)
+        if self.kind == "status" and not (isinstance(self.status, int) and 0 < self.status <= 0xFFFF_FFFF):
+            raise OptionError("status", f"must be the bits to set, a nonzero 32-bit word, got {self.status!r}")
 
     def hits(self, t: float, index: int) -> bool:
         """Whether the record at world time ``t`` s (the ``index``-th record sent) is hit."""
@@ -66,12 +65,21 @@ class RdtFault:
         """``kind[,start=S][,duration=S][,every=N][,status=0x...]`` (the ``--fault`` syntax)."""
         kind, *fields = [f.strip() for f in text.split(",")]
         values: dict[str, float | int] = {}
-        for field in fields:
-            key, sep, value = field.partition("=")
-            if not sep or key not in ("start", "duration", "every", "status"):
-                raise ValueError(f"fault {text!r}: expected key=value with key start, duration, every or status")
-            values[key] = int(value, 0) if key in ("every", "status") else float(value)
-        return cls(kind, **values)
+        try:
+            for field in fields:
+                key, sep, value = field.partition("=")
+                if not sep or key not in ("start", "duration", "every", "status"):
+                    raise ValueError("expected key=value with key start, duration, every or status")
+                try:
+                    values[key] = int(value, 0) if key in ("every", "status") else float(value)
+                except ValueError:
+                    what = {"every": "a whole number", "status": "a 32-bit word (e.g. 0x80020000)"}.get(
+                        key, "a number of s"
+                    )
+                    raise OptionError(key, f"must be {what}, got {value!r}") from None
+            return cls(kind, **values)
+        except ValueError as exc:
+            raise ValueError(f"fault {text!r}: {exc}") from None
 
 
 @dataclass

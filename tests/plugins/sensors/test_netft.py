@@ -583,7 +583,7 @@ def test_a_wire_fault_parses_from_the_command_line():
         "status", 1.0, 0.5, status=0x8002_0000
     )
     assert RdtFault.parse("drop,every=3") == RdtFault("drop", every=3)
-    with pytest.raises(ValueError, match="unknown fault"):
+    with pytest.raises(ValueError, match="^fault 'explode': kind: must be 'drop', 'duplicate', "):
         RdtFault.parse("explode")
 
 

@@ -1,16 +1,14 @@
 """A protocol-faithful Universal Robots controller's RTDE interface, driven by the simulated world.
 
 It serves the RTDE wire (``rtde_protocol.py``) on port 30004 through
-:class:`~hapticlab.plugins.kinematics.rtde_server.RTDEServer`: protocol 2 only;
-controller version 5.x for the e-Series models, 3.x for CB3; an output
-frequency within (0, 500] Hz on an e-Series, (0, 125] on a CB3; a text message
-when it refuses something, and the messages a client sends kept in
-:attr:`UREmulator.messages`; input recipes' values kept
-(:meth:`UREmulator.inputs`). ``RTDEReceiveInterface`` (ur-rtde 1.6) needs
-exactly this on port 30004 and no other port (the dashboard server on 29999 and
-the URScript ports 30001–30003 are only for ``RTDEControlInterface``): ``V``,
-``v``, ``O``, ``S``, then ``U`` packages, and ``P`` when it disconnects.
-``RTDEIOInterface`` adds ``I`` recipes and ``U`` packages towards the controller.
+:class:`~hapticlab.plugins.kinematics.rtde_server.RTDEServer`: protocol 2 only,
+controller version 5.x for the e-Series models and 3.x for CB3, output
+frequencies within (0, 500] Hz on an e-Series, (0, 125] on a CB3. ur-rtde 1.6's
+``RTDEReceiveInterface`` needs exactly this and no other port (the dashboard
+server on 29999 and the URScript ports 30001–30003 are only for
+``RTDEControlInterface``): ``V``, ``v``, ``O``, ``S``, then ``U`` packages, and
+``P`` when it disconnects; ``RTDEIOInterface`` adds ``I`` recipes and ``U``
+packages towards the controller.
 
 The robot: the controller's cycle is 2 ms (e-Series, 500 Hz) or 8 ms (CB3,
 125 Hz) and ``timestamp`` counts cycles in seconds since the emulator started.

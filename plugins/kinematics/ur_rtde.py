@@ -34,13 +34,8 @@ a dead socket, and disconnecting or destroying it then aborts the process
 (``std::terminate`` on "write: Broken pipe"), which would lose the
 recording's end. Start a new session once the controller is back.
 
-Options (``[kinematics]`` table, ``name = "ur_rtde"``): ``address`` (the
-controller's IP address or name, required), ``rate_hz`` (the RTDE output
-frequency: at most 500 Hz on an e-Series, 125 Hz on a CB3), ``receive_timeout``
-(s), ``model`` (e.g. "ur5e": check at the first package that the reported pose is
-the flange's, see ``TCP_CHECK_M``), ``follow`` (true: the arm also follows
-teleoperation's targets, ``ServosCartesian``, written to the input registers the
-shipped URScript reads: ``ur_follow.py``).
+Options (``[kinematics]``): :class:`URRTDEKinematics`'s, and ``follow`` (the arm also follows
+teleoperation's targets: :class:`FollowingURRTDEKinematics`, ``ur_follow.py``).
 """
 
 from __future__ import annotations
@@ -78,8 +73,6 @@ MISSED_EVENT_INTERVAL_NS = 1_000_000_000
 _HOSTNAME = re.compile(
     r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$"
 )
-
-
 FOLLOW_RATE_HZ = 125.0
 """Teleoperation targets written a second by default (``follow_rate_hz``): a CB3's cycle, a quarter of an e-Series'."""
 POLL_LATENCY_S = 0.002
@@ -340,8 +333,8 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
 
     Targets go to the input registers ``hapticlab_follow.script`` reads (``ur_follow``), at most
     ``follow_rate_hz`` a second: a target within that period of the last one written waits for the
-    next. Each target is seven RTDE packages (one per register, ~270 µs through ur-rtde), and the
-    script's ``servoj`` lookahead smooths between targets.
+    next. Each target is seven RTDE packages (one per register, written from a process of its own:
+    ``ur_target_writer.py``), and the script's ``servoj`` lookahead smooths between targets.
     """
 
     def __init__(

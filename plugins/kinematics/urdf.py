@@ -140,7 +140,7 @@ class UrdfModel:
         return self.R_BW @ X_WE.rotation, self.R_BW @ (X_WE.translation - self.p_WoBo_W)
 
     def quaternion(self, R: np.ndarray) -> np.ndarray:
-        """(4,) unit quaternion [w, x, y, z], w ≥ 0, of a rotation matrix (Pinocchio's: ~4 µs, a tenth of numpy's)."""
+        """(4,) unit quaternion [w, x, y, z], w ≥ 0, of a rotation matrix (Pinocchio's: a tenth of numpy's cost)."""
         x, y, z, w = self._pin.Quaternion(R).coeffs()
         return np.array([w, x, y, z]) if w >= 0 else np.array([-w, -x, -y, -z])
 

@@ -1,15 +1,15 @@
 """The ``netft`` sensor: an ATI Net F/T (or anything speaking its RDT protocol) over UDP.
 
-Two receivers of the RDT stream (``receiver``):
+Two receivers of the RDT stream (``receiver``; ``netft_receivers.py``):
 
 * ``"hapticlab"`` (default): :mod:`.rdt`, our own: a connected UDP socket drained
   once per loop tick, every record of the tick parsed with one ``np.frombuffer``,
   health counted on the batch, and a status word (saturation) never stops
-  the stream. Written because pynetft falls short for the stream (below).
-* ``"pynetft"``: the community client (pynetft 2.1.3), kept for comparison. It
-  receives on its own thread into a bounded queue that ``read`` drains; it
-  costs ~40–60 µs of Python per sample and restarts its stream (3–250 ms
-  without records) after any record whose status word reports an error.
+  the stream. Written because pynetft falls short for the stream.
+* ``"pynetft"``: the community client, kept for comparison. It receives on its
+  own thread into a bounded queue that ``read`` drains, costs more Python per
+  sample, and restarts its stream (a gap without records) after any record
+  whose status word reports an error. What each costs: docs/devices.md.
 
 Both fetch the calibration from the sensor's ``netftapi2.xml`` (or take it
 from the config), and both feed what this module adds:
@@ -18,8 +18,8 @@ from the config), and both feed what this module adds:
 * **The device clock**: each record carries ``ft_sequence``, the Net F/T's
   internal sample counter (7000/s, decimated with the RDT rate); it is
   unwrapped past 2³² (and is the sample's ``seq``) and mapped onto the session's
-  monotonic clock by :class:`DeviceClock`, so sample times are the device's,
-  without the network's jitter.
+  monotonic clock by :class:`~hapticlab.plugins.device_clock.DeviceClock`, so
+  sample times are the device's, without the network's jitter.
 * **Status**: the 32-bit ATI status word becomes the stream's
   ``STATUS_SATURATED`` / ``STATUS_DEVICE_ERROR`` bits, and an event names
   its bits whenever it changes.
@@ -43,7 +43,6 @@ from hapticlab.plugins.sensors.netft_protocol import (
     FORCE_UNITS,
     FT_RATE_HZ,
     RDT_PORT,
-    TORQUE_SPELLING,
     TORQUE_UNITS,
     Calibration,
     describe_status,
@@ -383,11 +382,7 @@ def _calibration_override(cpf, cpt, force_unit, torque_unit) -> Calibration | No
             "must be given too, got none: a calibration override needs counts_per_force, counts_per_torque, "
             "force_unit and torque_unit together",
         )
-    cpf = number("counts_per_force", cpf, above=0, hint=" (counts per force unit)")
-    cpt = number("counts_per_torque", cpt, above=0, hint=" (counts per torque unit)")
-    force_unit = choice("force_unit", force_unit, list(FORCE_UNITS))
-    torque_unit = choice("torque_unit", torque_unit, list(TORQUE_UNITS))
-    return Calibration(cpf, cpt, force_unit, TORQUE_SPELLING.get(torque_unit, torque_unit))
+    return Calibration.checked(cpf, cpt, force_unit, torque_unit)
 
 
 def _range(key: str, value: float | list[float] | None) -> np.ndarray:

@@ -31,14 +31,13 @@ import select
 import socket
 import threading
 import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from xml.sax.saxutils import escape
+from http.server import ThreadingHTTPServer
 
 import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.errors import ConfigError
-from hapticlab.core.host.options import OptionError, choice, is_number, number
+from hapticlab.core.host.options import OptionError, is_number
 from hapticlab.core.types import STATUS_SATURATED, EmulatorCommand
 from hapticlab.plugins.sensors.netft_protocol import (
     ATI_ERROR_SUMMARY,
@@ -52,6 +51,9 @@ from hapticlab.plugins.sensors.netft_protocol import (
     RDT_PORT,
     REQUEST,
     TORQUE_UNITS,
+    Calibration,
+    configuration_handler,
+    configuration_xml,
 )
 from hapticlab.plugins.sensors.netft_wire import FAULT_KINDS, INT32_MAX, RdtFault, RdtSender
 from hapticlab.plugins.sensors.sim import SimSensor
@@ -63,12 +65,12 @@ BURST_S = 0.001
 
 
 class NetFTEmulator:
-    """An emulated Net F/T: RDT over UDP and its XML page over HTTP, on one loopback address.
+    """An emulated Net F/T: RDT over UDP and its XML page over HTTP, on one IPv4 address.
 
     Parameters
     ----------
     world : the simulated world the sensor sits in (its physics and faults).
-    address : the IPv4 address to serve on (127.0.0.x).
+    address : the IPv4 address to serve on (127.0.0.x keeps it on this machine).
     rdt_port, http_port : UDP and TCP ports; 0 picks a free one (see :attr:`rdt_port` after start).
     rdt_rate_hz : RDT output rate (``comrdtrate``), Hz; 7000 divided by a whole number.
     counts_per_force, counts_per_torque : the calibration (``cfgcpf``, ``cfgcpt``), counts per unit.
@@ -98,10 +100,7 @@ class NetFTEmulator:
             raise OptionError(
                 "rdt_rate_hz", f"must be {FT_RATE_HZ:g} Hz divided by a whole number, got {rdt_rate_hz!r}"
             )
-        counts_per_force = number("counts_per_force", counts_per_force, above=0, hint=" (counts per force unit)")
-        counts_per_torque = number("counts_per_torque", counts_per_torque, above=0, hint=" (counts per torque unit)")
-        force_unit = choice("force_unit", force_unit, list(FORCE_UNITS))
-        torque_unit = choice("torque_unit", torque_unit, list(TORQUE_UNITS))
+        Calibration.checked(counts_per_force, counts_per_torque, force_unit, torque_unit)  # scfgtu: as given
         self.world = world
         self.address = address
         self.rdt_rate_hz = float(rdt_rate_hz)
@@ -128,7 +127,7 @@ class NetFTEmulator:
         self._udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._udp.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
         self._udp.bind((address, rdt_port))
-        self._http = ThreadingHTTPServer((address, http_port), _handler(self))
+        self._http = ThreadingHTTPServer((address, http_port), configuration_handler(self.xml))
         self._http.daemon_threads = True
         self.rdt_port = self._udp.getsockname()[1]
         self.http_port = self._http.server_address[1]
@@ -233,8 +232,7 @@ class NetFTEmulator:
             "scfgtu": self.torque_unit,
             "cfgmr": ";".join(f"{v:g}" for v in rating),
         }
-        body = "".join(f"<{k}>{escape(v)}</{k}>" for k, v in fields.items())
-        return f'<?xml version="1.0" encoding="ISO-8859-1"?>\n<netft>{body}</netft>\n'.encode("ascii")
+        return configuration_xml(fields)
 
     # ------------------------------------------------------------------ RDT
 
@@ -305,28 +303,6 @@ class NetFTEmulator:
                     if self._remaining == 0:
                         self._streaming = False
                         break
-
-
-def _handler(emulator: NetFTEmulator) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        """Serves ``/netftapi2.xml``; everything else is 404."""
-
-        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
-            if self.path.split("?")[0] != "/netftapi2.xml":
-                self.send_error(404)
-                return
-            body = emulator.xml()
-            self.send_response(200)
-            self.send_header("Content-Type", "text/xml")
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Connection", "close")
-            self.end_headers()
-            self.wfile.write(body)
-
-        def log_message(self, format, *args) -> None:  # quiet: the operator watches the RDT stream
-            pass
-
-    return Handler
 
 
 # --------------------------------------------------------------------------- command line

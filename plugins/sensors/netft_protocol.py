@@ -19,7 +19,8 @@ interfaces):
 * **HTTP**: ``GET /netftapi2.xml``, the active configuration; the calibration
   (``cfgcpf``, ``cfgcpt``, ``scfgfu``, ``scfgtu``) read by
   :func:`fetch_configuration`, in the units of :data:`FORCE_UNITS` and
-  :data:`TORQUE_UNITS`.
+  :data:`TORQUE_UNITS`; written by :func:`configuration_xml` and served by
+  :func:`configuration_handler` (the emulator's side).
 """
 
 from __future__ import annotations
@@ -27,10 +28,14 @@ from __future__ import annotations
 import struct
 import urllib.request
 import xml.etree.ElementTree as ET
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler
+from xml.sax.saxutils import escape
 
 import numpy as np
 
+from hapticlab.core.host.options import choice, number
 from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
 
 FT_RATE_HZ = 7000.0
@@ -152,6 +157,19 @@ class Calibration:
     force_unit: str
     torque_unit: str
 
+    @classmethod
+    def checked(
+        cls, counts_per_force: float, counts_per_torque: float, force_unit: str, torque_unit: str
+    ) -> Calibration:
+        """A calibration from option values (OptionError naming the option); the torque unit in the spelling
+        recorded (:data:`TORQUE_SPELLING`)."""
+        return cls(
+            number("counts_per_force", counts_per_force, above=0, hint=" (counts per force unit)"),
+            number("counts_per_torque", counts_per_torque, above=0, hint=" (counts per torque unit)"),
+            choice("force_unit", force_unit, list(FORCE_UNITS)),
+            TORQUE_SPELLING.get(torque_unit, choice("torque_unit", torque_unit, list(TORQUE_UNITS))),
+        )
+
     def si_per_count(self) -> np.ndarray:
         """(6,) N per count (×3) and N·m per count (×3)."""
         return np.repeat(
@@ -192,3 +210,32 @@ def fetch_configuration(address: str, http_port: int, timeout: float) -> tuple[s
             f"netftapi2.xml: unusable calibration {cpf:g} counts/{force_unit}, {cpt:g} counts/{torque_unit}"
         )
     return fields.get("prodname", "ATI Net F/T"), Calibration(cpf, cpt, force_unit, torque_unit)
+
+
+def configuration_xml(fields: Mapping[str, str]) -> bytes:
+    """The ``netftapi2.xml`` page of these fields (``prodname``, ``cfgcpf``, ...): what :func:`fetch_configuration`
+    reads."""
+    body = "".join(f"<{k}>{escape(v)}</{k}>" for k, v in fields.items())
+    return f'<?xml version="1.0" encoding="ISO-8859-1"?>\n<netft>{body}</netft>\n'.encode("ascii")
+
+
+def configuration_handler(page: Callable[[], bytes]) -> type[BaseHTTPRequestHandler]:
+    """An ``http.server`` handler serving ``GET /netftapi2.xml`` from ``page()``; everything else is 404."""
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+            if self.path.split("?")[0] != "/netftapi2.xml":
+                self.send_error(404)
+                return
+            body = page()
+            self.send_response(200)
+            self.send_header("Content-Type", "text/xml")
+            self.send_header("Content-Length", str(len(body)))
+            self.send_header("Connection", "close")
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format, *args) -> None:  # quiet: the operator watches the RDT stream
+            pass
+
+    return Handler

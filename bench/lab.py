@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hapticlab.plugins.sensors.netft import FT_RATE_HZ
+from hapticlab.plugins.sensors.netft_protocol import FT_RATE_HZ
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
 from hapticlab.sessions.recording import read_recording

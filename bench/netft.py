@@ -34,12 +34,11 @@ RECEIVERS = ("hapticlab", "pynetft")
 
 
 class Emulator:
-    """``netft_emulator.run`` in a child process on ADDRESS with ports the kernel picks."""
+    """``hapticlab emulate netft`` in a child process on ADDRESS with ports the kernel picks."""
 
     def __init__(self, seconds: float):
         code = (
-            "import argparse, sys; from hapticlab.plugins.sensors.netft_emulator import add_arguments, run; "
-            "p = argparse.ArgumentParser(); add_arguments(p); sys.exit(run(p.parse_args(sys.argv[1:])))"
+            "import sys; from hapticlab.sessions.cli import main; sys.exit(main(['emulate', 'netft', *sys.argv[1:]]))"
         )
         self.process = subprocess.Popen(
             [

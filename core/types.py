@@ -376,13 +376,22 @@ class EmulatorCommand:
     Attributes:
         help: one line for ``hapticlab emulate --help``.
         add_arguments: ``add_arguments(parser)`` adds its options to an ``argparse`` parser.
-        run: ``run(args) -> int`` serves until Ctrl-C, SIGTERM or ``--duration``, the first line
-            printed saying where it listens; returns the exit status.
+        run: ``run(args) -> int``, or ``run(args, world) -> int`` with ``needs_world``: serves until
+            Ctrl-C, SIGTERM or ``--duration``, the first line printed saying where it listens; returns
+            the exit status.
+        needs_world: the emulator is fed by a simulated world. The host then adds ``--session`` (a preset
+            name or TOML file, default ``session``) and ``--seed`` (overrides the world's seed) to its
+            options, builds the session's world through the ``world`` context (``register_contexts``) and
+            passes it to ``run``; an emulator never reads a session itself (a plugin does not import the
+            sessions layer).
+        session: the preset ``--session`` defaults to.
     """
 
     help: str
     add_arguments: Callable[[Any], None]
-    run: Callable[[Any], int]
+    run: Callable[..., int]
+    needs_world: bool = False
+    session: str = "demo"
 
-    def __call__(self, args: Any) -> int:
-        return self.run(args)
+    def __call__(self, *args: Any) -> int:
+        return self.run(*args)

@@ -43,6 +43,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.sensors.netft_emulator",
     "hapticlab.plugins.kinematics.ur_emulator",
     "hapticlab.plugins.haptics.master_emulator_cli",
+    "hapticlab.plugins.lab_emulator",
     "hapticlab.plugins.simworld.context",
     "hapticlab.plugins.effects.mount_rotation",
     "hapticlab.plugins.effects.bias_drift",

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hapticlab.core.host.options import choice
 from hapticlab.plugins.kinematics.ur_arm import DH, UR_DH
 
 LINKS = ("shoulder_link", "upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link")
@@ -111,8 +112,7 @@ def urdf_from_dh(model: str) -> str:
     A model without published dynamics gets links without ``<inertial>`` (massless:
     forward kinematics only).
     """
-    if model not in UR_DH:
-        raise ValueError(f"model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
+    choice("model", model, list(UR_DH))
     dh, dynamics = UR_DH[model], UR_DYNAMICS.get(model)
     lines = [
         '<?xml version="1.0"?>',

@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
+from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import quat_multiply, quat_wxyz_from_matrix
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import number
 from hapticlab.core.types import PoseSample
 from hapticlab.plugins.kinematics import sim_kernel as pose_kernel
 from hapticlab.plugins.simworld.clock import SampleClock
@@ -46,11 +47,8 @@ class SimKinematics:
                 "kinematics sim: needs the session's simulated world; "
                 "add a [world] table to the session (or pass world=SimWorld(...))"
             )
-        if not 0 < rate_hz <= MAX_RATE_HZ:
-            raise ConfigError(f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz, got {rate_hz!r}")
-        if not 0 <= encoder_noise <= 1e-3:
-            raise ConfigError(f"kinematics.encoder_noise: must be within [0, 1e-3] (rad and m), got {encoder_noise!r}")
-        self.encoder_noise = float(encoder_noise)
+        rate_hz = number("rate_hz", rate_hz, above=0, maximum=MAX_RATE_HZ, hint=" Hz")
+        self.encoder_noise = number("encoder_noise", encoder_noise, minimum=0, maximum=1e-3, hint=" (rad and m)")
         self._noise_key = int(
             np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,)).generate_state(1, np.uint64)[0]
         )

@@ -1,9 +1,9 @@
 """The simulated kinematics' reported orientation, compiled: a rotation matrix to a quaternion, turned by
-the encoders' jitter (issue 12).
+the encoders' jitter.
 
 The compiled twin of ``plugins/kinematics/sim.py``'s numpy path (``frames.quat_wxyz_from_matrix``, then
 q + ½ q ⊗ [0, δ] normalised), for a live simulated robot, whose poses are asked for one at a time
-(~70 µs of numpy calls a pose inside the loop). Shepperd's method: the row of
+(numpy's calls cost more than the arithmetic there: docs/devices.md). Shepperd's method: the row of
 
     K = [[1 + tr,     R21 − R12,       R02 − R20,       R10 − R01     ],
          [R21 − R12,  1 − tr + 2 R00,  R10 + R01,       R20 + R02     ],

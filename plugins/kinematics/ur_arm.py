@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hapticlab.core.host.options import choice
+
 
 @dataclass(frozen=True)
 class DH:
@@ -157,7 +159,8 @@ def inverse(dh: DH, R_BE: np.ndarray, p_BoEo_B: np.ndarray, q6_singular: float =
     px, py, pz = np.asarray(p_BoEo_B, dtype=float).tolist()
     a2, a3 = dh.a[1], dh.a[2]
     d4, d6 = dh.d[3], dh.d[5]
-    # plain floats throughout (the emulated arm solves this at every RTDE cycle: ~20 µs, not ~350 with numpy)
+    # plain floats throughout: the emulated arm solves this at every RTDE cycle (numpy's per-call cost would
+    # dominate: docs/devices.md)
     x5, y5 = px - d6 * r02, py - d6 * r12  # p5 = p − d6·z_E
     r = math.hypot(x5, y5)
     if r < abs(d4) or r == 0.0:
@@ -224,8 +227,7 @@ class URArm:
     """
 
     def __init__(self, model: str = "ur5e"):
-        if model not in UR_DH:
-            raise ValueError(f"model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
+        choice("model", model, list(UR_DH))
         self.model = model
         self.dh = UR_DH[model]
 

@@ -36,12 +36,10 @@ from pathlib import Path
 import numpy as np
 
 from hapticlab.core.frames import matrix_from_rotvec, rotvec_from_matrix
-from hapticlab.plugins.kinematics.ur_target_writer import (
-    POSITION_REGISTERS,
-    RECORD,
-    ROTATION_REGISTERS,
-    SEQUENCE_REGISTER,
-)
+from hapticlab.plugins.kinematics.ur_target_writer import POSITION_REGISTERS as POSITION_REGISTERS
+from hapticlab.plugins.kinematics.ur_target_writer import RECORD
+from hapticlab.plugins.kinematics.ur_target_writer import ROTATION_REGISTERS as ROTATION_REGISTERS
+from hapticlab.plugins.kinematics.ur_target_writer import SEQUENCE_REGISTER as SEQUENCE_REGISTER
 
 # POSITION_REGISTERS: input_double_register_N, the target position (m); ROTATION_REGISTERS:
 # input_int_register_N, the target rotation vector (µrad); SEQUENCE_REGISTER: input_int_register_N,
@@ -78,7 +76,7 @@ class TargetWriter:
     Args:
         address: the controller's IP address or host name.
 
-    ``send`` hands the target over a pipe (~10 µs) and returns; the writer takes the newest when it is free.
+    ``send`` hands the target over a pipe and returns; the writer takes the newest when it is free.
     """
 
     def __init__(self, address: str):

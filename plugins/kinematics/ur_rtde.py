@@ -34,13 +34,8 @@ a dead socket, and disconnecting or destroying it then aborts the process
 (``std::terminate`` on "write: Broken pipe"), which would lose the
 recording's end. Start a new session once the controller is back.
 
-Options (``[kinematics]`` table, ``name = "ur_rtde"``): ``address`` (the
-controller's IP address or name, required), ``rate_hz`` (the RTDE output
-frequency: at most 500 Hz on an e-Series, 125 Hz on a CB3), ``receive_timeout``
-(s), ``model`` (e.g. "ur5e": check at the first package that the reported pose is
-the flange's, see ``TCP_CHECK_M``), ``follow`` (true: the arm also follows
-teleoperation's targets, ``ServosCartesian``, written to the input registers the
-shipped URScript reads: ``ur_follow.py``).
+Options (``[kinematics]``): :class:`URRTDEKinematics`'s, and ``follow`` (the arm also follows
+teleoperation's targets: :class:`FollowingURRTDEKinematics`, ``ur_follow.py``).
 """
 
 from __future__ import annotations
@@ -55,11 +50,11 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, choice, number
 from hapticlab.core.types import Event, PoseSample
+from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
 from hapticlab.plugins.kinematics.ur_follow import TargetWriter
-from hapticlab.plugins.sensors.netft import DeviceClock
 
 VARIABLES = ["actual_TCP_pose", "actual_q", "actual_qd", "timestamp"]
 """The outputs asked for; ``timestamp`` last, so a package's timestamp changes after its other fields."""
@@ -78,8 +73,6 @@ MISSED_EVENT_INTERVAL_NS = 1_000_000_000
 _HOSTNAME = re.compile(
     r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$"
 )
-
-
 FOLLOW_RATE_HZ = 125.0
 """Teleoperation targets written a second by default (``follow_rate_hz``): a CB3's cycle, a quarter of an e-Series'."""
 POLL_LATENCY_S = 0.002
@@ -103,24 +96,18 @@ class URRTDEKinematics:
 
     def __init__(self, address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = ""):
         if not address:
-            raise ConfigError(
-                "kinematics.address: missing; the UR controller's IP address or host name "
-                '(e.g. address = "192.168.1.10")'
+            raise OptionError(
+                "address",
+                'must be the UR controller\'s IP address or host name (e.g. address = "192.168.1.10"), got none',
             )
         if not _valid_host(address):
-            raise ConfigError(f"kinematics.address: {address!r} is neither an IP address nor a host name")
-        if not 0 < rate_hz <= MAX_RATE_HZ:
-            raise ConfigError(
-                f"kinematics.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz "
-                f"(e-Series 500, CB3 125), got {rate_hz!r}"
-            )
-        if not 0 < receive_timeout <= 1.0:
-            raise ConfigError(f"kinematics.receive_timeout: must be > 0 and at most 1 s, got {receive_timeout!r}")
-        if model and model not in UR_DH:
-            raise ConfigError(f"kinematics.model: unknown UR model {model!r}; known: {', '.join(UR_DH)}")
+            raise OptionError("address", f"must be an IP address or a host name, got {address!r}")
+        self.rate_hz = number("rate_hz", rate_hz, above=0, maximum=MAX_RATE_HZ, hint=" Hz (e-Series 500, CB3 125)")
+        receive_timeout = number("receive_timeout", receive_timeout, above=0, maximum=1.0, hint=" s")
+        if model:
+            choice("model", model, list(UR_DH), hint=' (or "" for no check)')
         self.arm = URArm(model) if model else None
         self.address = address
-        self.rate_hz = float(rate_hz)
         self.latency_s = 1.0 / self.rate_hz + POLL_LATENCY_S
         """How much older than now the newest pose can be in ordinary operation (HasLatency), s: the
         controller's package pipeline (one period) and the polling thread's wait for the GIL."""
@@ -346,8 +333,8 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
 
     Targets go to the input registers ``hapticlab_follow.script`` reads (``ur_follow``), at most
     ``follow_rate_hz`` a second: a target within that period of the last one written waits for the
-    next. Each target is seven RTDE packages (one per register, ~270 µs through ur-rtde), and the
-    script's ``servoj`` lookahead smooths between targets.
+    next. Each target is seven RTDE packages (one per register, written from a process of its own:
+    ``ur_target_writer.py``), and the script's ``servoj`` lookahead smooths between targets.
     """
 
     def __init__(
@@ -359,11 +346,7 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
         follow_rate_hz: float = FOLLOW_RATE_HZ,
     ):
         super().__init__(address, rate_hz, receive_timeout, model)
-        if not 0 < follow_rate_hz <= self.rate_hz:
-            raise ConfigError(
-                f"kinematics.follow_rate_hz: must be > 0 and at most rate_hz ({self.rate_hz:g} Hz), "
-                f"got {follow_rate_hz!r}"
-            )
+        follow_rate_hz = number("follow_rate_hz", follow_rate_hz, above=0, maximum=self.rate_hz, hint=" Hz (rate_hz)")
         self.period_ns = int(round(1e9 / follow_rate_hz))
         self._writer = None
         self._last_sent_ns: int | None = None
@@ -404,7 +387,7 @@ def ur_rtde_kinematics(
     if follow:
         return FollowingURRTDEKinematics(address, rate_hz, receive_timeout, model, follow_rate_hz)
     if follow_rate_hz != FOLLOW_RATE_HZ:
-        raise ConfigError("kinematics.follow_rate_hz: only with follow = true")
+        raise OptionError("follow_rate_hz", f"must be left out unless follow = true, got {follow_rate_hz!r}")
     return URRTDEKinematics(address, rate_hz, receive_timeout, model)
 
 

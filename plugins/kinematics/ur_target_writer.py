@@ -1,9 +1,9 @@
 """The process that writes teleoperation's targets to a UR controller (run as a script by ``ur_follow.TargetWriter``).
 
 ur-rtde's ``RTDEIOInterface`` holds Python's interpreter lock while it writes
-a register (~40 µs each, seven per target): in the session's process that
-starves the thread receiving the arm's poses (a fifth of the packages were
-missed in a teleoperated session over the RTDE emulator). Here it runs in a
+a register (seven per target): in the session's process that starves the
+thread receiving the arm's poses (packages are missed; docs/teleoperation.md).
+Here it runs in a
 process of its own, needing nothing but ur-rtde: it connects, prints ``ready``
 (or ``error: ...``) on stdout, then reads targets from stdin, each
 ``RECORD`` (x, y, z in m as doubles, rx, ry, rz in µrad as int32,

@@ -42,6 +42,7 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource, ReportsHealth
+from hapticlab.core.host.options import OptionError, number
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import Event, PoseSample
 
@@ -72,13 +73,13 @@ def _urdf_text(urdf: str) -> tuple[str, str]:
         return (resources.files(__package__) / SHIPPED / f"{urdf}.urdf").read_text(), f"shipped {urdf}"
     path = Path(urdf).expanduser()
     if not path.is_file():
-        raise ConfigError(
-            f"kinematics.urdf: {urdf!r} is neither a shipped model ({', '.join(shipped_models())}) nor a URDF file"
+        raise OptionError(
+            "urdf", f"must be a shipped model ({', '.join(shipped_models())}) or a URDF file, got {urdf!r}"
         )
     try:
         return path.read_text(), str(path)
     except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"kinematics.urdf: cannot read {path}: {exc}") from None
+        raise OptionError("urdf", f"cannot read {path}: {exc}") from None
 
 
 class UrdfModel:
@@ -101,24 +102,25 @@ class UrdfModel:
             model = pin.buildModelFromXML(xml)
         except (RuntimeError, ValueError) as exc:
             reason = (str(exc).strip() or type(exc).__name__).splitlines()[0]
-            raise ConfigError(f"kinematics.urdf: {self.source} is not a URDF Pinocchio can read: {reason}") from None
+            raise OptionError("urdf", f"{self.source} is not a URDF Pinocchio can read: {reason}") from None
         if model.nq != model.nv:
-            raise ConfigError(
-                f"kinematics.urdf: {self.source} has joints with more angles than velocities "
+            raise OptionError(
+                "urdf",
+                f"{self.source} has joints with more angles than velocities "
                 f"(continuous, floating or spherical: nq {model.nq}, nv {model.nv}); "
-                f"only revolute and prismatic joints are supported"
+                f"only revolute and prismatic joints are supported",
             )
         names = sorted({f.name for f in model.frames})
         for key, name in (("frame", frame), ("base", base)):
             if not model.existFrame(name):
-                raise ConfigError(f"kinematics.{key}: {self.source} has no frame {name!r}; frames: {', '.join(names)}")
+                raise OptionError(key, f"must be a frame of {self.source} ({', '.join(names)}), got {name!r}")
         self._pin, self.model, self.data = pin, model, model.createData()
         self.frame_id, self.base_id = model.getFrameId(frame), model.getFrameId(base)
         if model.frames[self.base_id].parentJoint != 0:
-            raise ConfigError(
-                f"kinematics.base: frame {base!r} moves with joint "
-                f"{model.names[model.frames[self.base_id].parentJoint]!r}; "
-                f"the base must be fixed to the URDF's root link"
+            raise OptionError(
+                "base",
+                f"must be a frame fixed to the URDF's root link, got {base!r}, which moves with joint "
+                f"{model.names[model.frames[self.base_id].parentJoint]!r}",
             )
         self.frame, self.base = frame, base
         self.n_joints = model.nq
@@ -138,7 +140,7 @@ class UrdfModel:
         return self.R_BW @ X_WE.rotation, self.R_BW @ (X_WE.translation - self.p_WoBo_W)
 
     def quaternion(self, R: np.ndarray) -> np.ndarray:
-        """(4,) unit quaternion [w, x, y, z], w ≥ 0, of a rotation matrix (Pinocchio's: ~4 µs, a tenth of numpy's)."""
+        """(4,) unit quaternion [w, x, y, z], w ≥ 0, of a rotation matrix (Pinocchio's: a tenth of numpy's cost)."""
         x, y, z, w = self._pin.Quaternion(R).coeffs()
         return np.array([w, x, y, z]) if w >= 0 else np.array([-w, -x, -y, -z])
 
@@ -310,28 +312,28 @@ def urdf_kinematics(
     own: the built-ins and the entry points, as the command line sees them).
     """
     if joints is None or not isinstance(joints.get("name"), str):
-        raise ConfigError(
-            "kinematics.joints.name: missing; name the source of the joint angles, "
-            'e.g. joints = { name = "ur_rtde", address = "192.168.1.10" }'
+        raise OptionError(
+            "joints.name",
+            'must name the source of the joint angles, e.g. joints = { name = "ur_rtde", address = "192.168.1.10" }, '
+            "got none",
         )
     options: dict[str, Any] = {k: v for k, v in joints.items() if k != "name"}
     model = UrdfModel(urdf, frame, base)  # Pinocchio, the file and its frames: checked before anything connects
     _check_window(acceleration_window_s)
     try:
         inner = Registry().create("kinematics", joints["name"], options, where="kinematics.joints")
-    except ConfigError as exc:  # a kinematics plugin names its keys as if its table were [kinematics]
+    except ConfigError as exc:  # a plugin that names its own keys as if its table were [kinematics]
         message = str(exc)
         if message.startswith("kinematics.") and not message.startswith("kinematics.joints."):
             raise ConfigError("kinematics.joints." + message[len("kinematics.") :]) from None
         raise
     if not isinstance(inner, KinematicsSource):
-        raise ConfigError(f"kinematics.joints.name: {joints['name']!r} is not a kinematics source")
+        raise OptionError("joints.name", f"must be a kinematics source, got {joints['name']!r}")
     return UrdfKinematics(inner, model, acceleration_window_s)
 
 
 def _check_window(acceleration_window_s: float) -> None:
-    if not 0 < acceleration_window_s <= 1.0:
-        raise ConfigError(f"kinematics.acceleration_window_s: must be within (0, 1] s, got {acceleration_window_s!r}")
+    number("acceleration_window_s", acceleration_window_s, above=0, maximum=1.0, hint=" s")
 
 
 @hookimpl

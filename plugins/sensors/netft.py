@@ -1,15 +1,15 @@
 """The ``netft`` sensor: an ATI Net F/T (or anything speaking its RDT protocol) over UDP.
 
-Two receivers of the RDT stream (``receiver``):
+Two receivers of the RDT stream (``receiver``; ``netft_receivers.py``):
 
 * ``"hapticlab"`` (default): :mod:`.rdt`, our own: a connected UDP socket drained
   once per loop tick, every record of the tick parsed with one ``np.frombuffer``,
   health counted on the batch, and a status word (saturation) never stops
-  the stream. Written because pynetft falls short for the stream (below).
-* ``"pynetft"``: the community client (pynetft 2.1.3), kept for comparison. It
-  receives on its own thread into a bounded queue that ``read`` drains; it
-  costs ~40–60 µs of Python per sample and restarts its stream (3–250 ms
-  without records) after any record whose status word reports an error.
+  the stream. Written because pynetft falls short for the stream.
+* ``"pynetft"``: the community client, kept for comparison. It receives on its
+  own thread into a bounded queue that ``read`` drains, costs more Python per
+  sample, and restarts its stream (a gap without records) after any record
+  whose status word reports an error. What each costs: docs/devices.md.
 
 Both fetch the calibration from the sensor's ``netftapi2.xml`` (or take it
 from the config), and both feed what this module adds:
@@ -18,8 +18,8 @@ from the config), and both feed what this module adds:
 * **The device clock**: each record carries ``ft_sequence``, the Net F/T's
   internal sample counter (7000/s, decimated with the RDT rate); it is
   unwrapped past 2³² (and is the sample's ``seq``) and mapped onto the session's
-  monotonic clock by :class:`DeviceClock`, so sample times are the device's,
-  without the network's jitter.
+  monotonic clock by :class:`~hapticlab.plugins.device_clock.DeviceClock`, so
+  sample times are the device's, without the network's jitter.
 * **Status**: the 32-bit ATI status word becomes the stream's
   ``STATUS_SATURATED`` / ``STATUS_DEVICE_ERROR`` bits, and an event names
   its bits whenever it changes.
@@ -31,34 +31,26 @@ from the config), and both feed what this module adds:
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.host.options import OptionError, choice, integer, number, vector
 from hapticlab.core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
-from hapticlab.plugins.sensors.rdt import (  # noqa: F401
-    ATI_ERROR_SUMMARY,
-    ATI_MONITOR_LATCHED,
-    ATI_SATURATION,
-    ATI_STATUS_BITS,
-    COUNTER_DOC,
+from hapticlab.plugins.device_clock import DeviceClock
+from hapticlab.plugins.sensors.netft_protocol import (
     FORCE_UNITS,
     FT_RATE_HZ,
     RDT_PORT,
-    TORQUE_SPELLING,
     TORQUE_UNITS,
     Calibration,
-    DeviceClock,
-    RdtBatch,
-    RdtReceiver,
     describe_status,
-    fetch_configuration,
     stream_status,
     stream_status_array,
 )
+from hapticlab.plugins.sensors.netft_receivers import HapticlabLink, PynetftLink
+from hapticlab.plugins.sensors.rdt import COUNTER_DOC, RdtBatch
 
 HEALTH_COUNTERS = tuple(COUNTER_DOC)
 """The stream's health counters (:meth:`NetFTSensor.health_counters`), counts since ``open``."""
@@ -119,41 +111,30 @@ class NetFTSensor:
         queue_size: int = 65536,
     ):
         if not isinstance(address, str) or not address.strip():
-            raise ConfigError(f"sensor.address: must be the sensor's IP address or host name, got {address!r}")
-        for key, port in (("rdt_port", rdt_port), ("http_port", http_port)):
-            if not 0 < port < 65536:
-                raise ConfigError(f"sensor.{key}: must be a port number 1..65535, got {port!r}")
-        for key, value in (
-            ("rate_hz", rate_hz),
-            ("ft_rate_hz", ft_rate_hz),
-            ("receive_timeout", receive_timeout),
-            ("connect_timeout", connect_timeout),
-            ("reconnect_delay", reconnect_delay),
-            ("health_interval", health_interval),
-        ):
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"sensor.{key}: must be a finite number > 0, got {value!r}")
-        if not rate_hz <= ft_rate_hz:
-            raise ConfigError(
-                f"sensor.rate_hz: the RDT rate cannot exceed ft_rate_hz ({ft_rate_hz:g} Hz), got {rate_hz!r}"
+            raise OptionError("address", f"must be the sensor's IP address or host name, got {address!r}")
+        self.address = address.strip()
+        self.rdt_port, self.http_port = (
+            integer(key, port, minimum=1, maximum=65535, hint=" (a port number)")
+            for key, port in (("rdt_port", rdt_port), ("http_port", http_port))
+        )
+        ft_rate_hz = number("ft_rate_hz", ft_rate_hz, above=0, hint=" Hz")
+        self.rate_hz = number(
+            "rate_hz", rate_hz, above=0, maximum=ft_rate_hz, hint=" Hz (the RDT rate cannot exceed ft_rate_hz)"
+        )
+        self.receive_timeout, self.connect_timeout, self.reconnect_delay, health_interval = (
+            number(key, value, above=0, hint=" s")
+            for key, value in (
+                ("receive_timeout", receive_timeout),
+                ("connect_timeout", connect_timeout),
+                ("reconnect_delay", reconnect_delay),
+                ("health_interval", health_interval),
             )
-        if not (math.isfinite(clock_slew_ppm) and clock_slew_ppm >= 0):
-            raise ConfigError(f"sensor.clock_slew_ppm: must be a finite number >= 0, got {clock_slew_ppm!r}")
-        if queue_size < 1:
-            raise ConfigError(f"sensor.queue_size: must be >= 1, got {queue_size!r}")
-        if recovery not in ("reconnect", "fail_stop"):
-            raise ConfigError(f'sensor.recovery: must be "reconnect" or "fail_stop", got {recovery!r}')
-        if receiver not in RECEIVERS:
-            raise ConfigError(f'sensor.receiver: must be "hapticlab" or "pynetft", got {receiver!r}')
-        self.address, self.rdt_port, self.http_port = address.strip(), int(rdt_port), int(http_port)
-        self.rate_hz = float(rate_hz)
+        )
+        clock_slew_ppm = number("clock_slew_ppm", clock_slew_ppm, minimum=0, hint=" ppm")
+        self.queue_size = integer("queue_size", queue_size, minimum=1)
+        self.recovery = choice("recovery", recovery, ("reconnect", "fail_stop"))
+        self.receiver = choice("receiver", receiver, RECEIVERS)
         self.latency_s = NETWORK_LATENCY_S
-        self.receiver = receiver
-        self.receive_timeout = float(receive_timeout)
-        self.connect_timeout = float(connect_timeout)
-        self.reconnect_delay = float(reconnect_delay)
-        self.recovery = recovery
-        self.queue_size = int(queue_size)
         self.health_interval_ns = int(health_interval * 1e9)
         self.override = _calibration_override(counts_per_force, counts_per_torque, force_unit, torque_unit)
         self.range_force_S = _range("range_force", range_force)
@@ -169,7 +150,7 @@ class NetFTSensor:
         if self.override is not None:
             self.calibration.update(self.override.fields())
         self.clock = DeviceClock(ft_rate_hz, clock_slew_ppm)
-        self._link: _HapticlabLink | _PynetftLink | None = None
+        self._link: HapticlabLink | PynetftLink | None = None
         self._scale = np.ones(6)  # N or N·m per value the link hands over (a count, or a sensor unit): set by open
         self._pending = NO_WRENCHES  # received, not yet handed out
         self._events: list[Event] = []
@@ -189,7 +170,7 @@ class NetFTSensor:
         Raises ConnectionError naming the sensor and what the receiver saw when there is no record
         within ``connect_timeout``.
         """
-        link = _HapticlabLink(self) if self.receiver == "hapticlab" else _PynetftLink(self)
+        link = HapticlabLink(self) if self.receiver == "hapticlab" else PynetftLink(self)
         product, calibration = link.open()
         self._link = link
         # pynetft hands over values in the sensor's units (N or lbf ..., N·m or N·mm ...), ours counts
@@ -389,161 +370,6 @@ class NetFTSensor:
         return events
 
 
-class _HapticlabLink:
-    """The ``hapticlab`` receiver (:class:`.rdt.RdtReceiver`) with the calibration from ``netftapi2.xml``."""
-
-    scaled = False  # hands over counts
-
-    def __init__(self, sensor: NetFTSensor):
-        self.sensor = sensor
-        self.rdt = RdtReceiver(sensor.address, sensor.rdt_port)
-
-    def open(self) -> tuple[str, Calibration]:
-        s = self.sensor
-        where = f"no Net F/T record from {s.address}:{s.rdt_port} within {s.connect_timeout:g} s"
-        try:
-            product, calibration = fetch_configuration(s.address, s.http_port, s.connect_timeout)
-        except (OSError, ValueError) as exc:
-            if s.override is None:
-                raise ConnectionError(f"{where} (netftapi2.xml from port {s.http_port}: {exc})") from None
-            product, calibration = "ATI Net F/T (netftapi2.xml unread)", s.override
-        calibration = s.override or calibration
-        self.rdt.open()
-        if not self.rdt.wait(s.connect_timeout):
-            self.rdt.close()
-            raise ConnectionError(f"{where} (start request sent, nothing came back)")
-        return product, calibration
-
-    def poll(self) -> RdtBatch | None:
-        return self.rdt.poll()
-
-    def counters(self) -> dict[str, int]:
-        return self.rdt.counters
-
-    def on_timeout(self) -> None:
-        self.rdt.counters["timeout"] += 1
-
-    def restart(self) -> None:
-        self.rdt.restart()
-
-    def close(self) -> None:
-        self.rdt.close()
-
-
-class _PynetftLink:
-    """The ``pynetft`` receiver: pynetft's Client on its own thread, its queue drained at each read."""
-
-    scaled = True  # hands over values in the sensor's units
-
-    def __init__(self, sensor: NetFTSensor):
-        import pynetft
-
-        self.pynetft, self.sensor = pynetft, sensor
-        self.client = None
-        self._ft: int | None = None  # the last ft_sequence as sent
-        self._k = 0  # ... unwrapped
-
-    def open(self) -> tuple[str, Calibration]:
-        pynetft, s = self.pynetft, self.sensor
-        override = (
-            None
-            if s.override is None
-            else pynetft.Calibration(
-                s.override.counts_per_force,
-                s.override.counts_per_torque,
-                pynetft.ForceUnit(s.override.force_unit),
-                pynetft.TorqueUnit(s.override.torque_unit),
-            )
-        )
-        config = pynetft.Config(
-            sensor_host=s.address,
-            rdt_port=s.rdt_port,
-            http_port=s.http_port,
-            receive_timeout=s.receive_timeout,
-            configuration_timeout=s.connect_timeout,
-            configuration_connect_timeout=min(0.5, s.connect_timeout),
-            reconnect_initial_delay=s.reconnect_delay,
-            reconnect_max_delay=max(5.0, s.reconnect_delay),
-            deliver_samples_with_error_status=True,  # saturation must reach the stream, not vanish
-            recovery_policy=pynetft.RecoveryPolicy.RECONNECT
-            if s.recovery == "reconnect"
-            else pynetft.RecoveryPolicy.FAIL_STOP,
-            calibration_override=override,
-        )
-        self.client = pynetft.Client(config, queue_size=s.queue_size)
-        self.client.start()
-        if not self.client.wait_for_first_sample(s.connect_timeout):
-            health = self.client.health()
-            self.client.stop()
-            raise ConnectionError(
-                f"no Net F/T record from {s.address}:{s.rdt_port} within "
-                f"{s.connect_timeout:g} s ({health.last_error or health.state.value})"
-            )
-        configuration = self.client.health().sensor_configuration
-        c = configuration.calibration
-        return configuration.product_name, Calibration(
-            c.counts_per_force_unit, c.counts_per_torque_unit, c.force_unit.value, c.torque_unit.value
-        )
-
-    def poll(self) -> RdtBatch | None:
-        batch = []
-        try:
-            for sample in self.client.samples(timeout=0.0):
-                batch.append(sample)
-        except TimeoutError:  # nothing more queued
-            pass
-        except self.pynetft.SensorFaultError as exc:  # fail_stop: the stream is over
-            raise ConnectionError(
-                f"Net F/T {self.sensor.address} stopped: {exc.fault_code.value} ({exc.health.last_error})"
-            ) from None
-        if not batch:
-            return None
-        ft = np.array([sample.ft_sequence for sample in batch], dtype=np.int64)
-        if self._ft is None:
-            self._ft = self._k = int(ft[0])
-        step = np.diff(ft, prepend=self._ft) & 0xFFFF_FFFF
-        backward = np.flatnonzero(step >= 2**31)  # pynetft delivers a backward ft_sequence only as a restart
-        restarts = [(int(i), int(ft[i - 1]) if i else self._ft, int(ft[i])) for i in backward]
-        step[backward] = 1
-        k = self._k + np.cumsum(step)
-        self._ft, self._k = int(ft[-1]), int(k[-1])
-        return RdtBatch(
-            k,
-            np.array([sample.status for sample in batch], dtype=np.int64),
-            np.array([sample.wrench for sample in batch]),
-            np.array([sample.received_at_ns for sample in batch], dtype=np.int64),
-            restarts,
-        )
-
-    def counters(self) -> dict[str, int]:
-        h = self.client.health()
-        return dict(
-            received=h.received_count,
-            lost=h.lost_count,
-            duplicate=h.duplicate_count,
-            out_of_order=h.out_of_order_count,
-            stall=h.ft_stall_count,
-            ft_backward=h.ft_backward_count,
-            ft_restart=h.ft_restart_count,
-            malformed=h.malformed_count,
-            timeout=h.timeout_count,
-            reconnect=h.reconnect_count,
-            device_error=h.device_error_count,
-            warning=h.warning_count,
-            queue_dropped=h.python_queue_dropped_count,
-            calibration_change=h.calibration_change_count,
-        )
-
-    def on_timeout(self) -> None:
-        pass  # pynetft counts its own timeouts
-
-    def restart(self) -> None:
-        pass  # pynetft reconnects by itself
-
-    def close(self) -> None:
-        self.client.stop()
-
-
 def _calibration_override(cpf, cpt, force_unit, torque_unit) -> Calibration | None:
     """The calibration the config gives instead of the sensor's: all four keys or none."""
     given = {"counts_per_force": cpf, "counts_per_torque": cpt, "force_unit": force_unit, "torque_unit": torque_unit}
@@ -551,27 +377,19 @@ def _calibration_override(cpf, cpt, force_unit, torque_unit) -> Calibration | No
         return None
     missing = [k for k, v in given.items() if v is None]
     if missing:
-        raise ConfigError(
-            f"sensor.{missing[0]}: a calibration override needs counts_per_force, counts_per_torque, "
-            f"force_unit and torque_unit together"
+        raise OptionError(
+            missing[0],
+            "must be given too, got none: a calibration override needs counts_per_force, counts_per_torque, "
+            "force_unit and torque_unit together",
         )
-    for key in ("counts_per_force", "counts_per_torque"):
-        if not (math.isfinite(given[key]) and given[key] > 0):
-            raise ConfigError(f"sensor.{key}: must be a finite number of counts > 0, got {given[key]!r}")
-    if force_unit not in FORCE_UNITS:
-        raise ConfigError(f"sensor.force_unit: one of {', '.join(FORCE_UNITS)}, got {force_unit!r}")
-    if torque_unit not in TORQUE_UNITS:
-        raise ConfigError(f"sensor.torque_unit: one of {', '.join(TORQUE_UNITS)}, got {torque_unit!r}")
-    return Calibration(float(cpf), float(cpt), force_unit, TORQUE_SPELLING.get(torque_unit, torque_unit))
+    return Calibration.checked(cpf, cpt, force_unit, torque_unit)
 
 
 def _range(key: str, value: float | list[float] | None) -> np.ndarray:
+    """(3,) a rated range per axis from a number or 3; unchecked (inf) when not given."""
     if value is None:
         return np.full(3, np.inf)
-    array = np.broadcast_to(np.asarray(value, dtype=float), 3) if np.ndim(value) == 0 else np.asarray(value, float)
-    if array.shape != (3,) or not (array > 0).all():
-        raise ConfigError(f"sensor.{key}: must be a number or 3 numbers > 0, got {value!r}")
-    return array.copy()
+    return np.array(vector(key, value, size=3, broadcast=True, above=0))
 
 
 @hookimpl

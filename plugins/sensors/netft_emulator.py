@@ -1,32 +1,24 @@
-"""A protocol-faithful ATI Net F/T on loopback, fed by the simulated world.
+"""A protocol-faithful ATI Net F/T fed by the simulated world: RDT over UDP and ``netftapi2.xml`` over HTTP.
 
-What it speaks (ATI Net F/T manual, RDT and XML interfaces):
-
-* **RDT over UDP** (default port 49152): 8-byte big-endian requests
-  (``uint16 0x1234, uint16 command, uint32 sample_count``; command 0x0002
-  starts real-time streaming, 0 samples meaning "until stopped", 0x0000 stops,
-  0x0042 sets the software bias to the current reading), answered from the
-  same socket with 36-byte big-endian records (``uint32 rdt_sequence, uint32
-  ft_sequence, uint32 status, int32 Fx Fy Fz Tx Ty Tz`` in counts).
-  ``rdt_sequence`` starts at 1 with every start request; ``ft_sequence``
-  counts the device's internal samples at 7000/s since power-on (it goes on
-  counting between streams and is decimated with the RDT rate).
-* **HTTP** (default port 80): ``GET /netftapi2.xml``, the sensor's active
-  configuration (``prodname``, ``cfgcpf``, ``cfgcpt``, ``scfgfu``, ``scfgtu``,
-  ``comrdtrate``, ``runrate``, ``runstat``, ``cfgmr``).
+It speaks the wire of ``netft_protocol.py``: start (0 samples: until
+stopped), stop and bias requests, answered from the same socket with RDT
+records; ``rdt_sequence`` from 1 with every start request, ``ft_sequence``
+counting the internal samples at 7000/s since the emulator started (it goes
+on counting between streams and is decimated with the RDT rate). The HTTP page
+(default port 80) gives ``prodname``, ``cfgcpf``, ``cfgcpt``, ``scfgfu``,
+``scfgtu``, ``comrdtrate``, ``runrate``, ``runstat`` and ``cfgmr``.
 
 The readings are the ``sim`` sensor's (:class:`~hapticlab.plugins.sensors.sim.SimSensor`)
 at the internal rate, so the physics and the world's injected faults
-(``[[world.faults]]``) are the session's. On top of those, :class:`RdtFault`
-injects what a network and a device do wrong on the wire: dropped,
-duplicated and reordered records, status bits, a stalled ft_sequence,
-saturated counts.
+(``[[world.faults]]``) are the session's. On top of those, wire faults
+(``netft_faults.py``) drop, duplicate and reorder records, set status bits,
+stall ft_sequence or saturate the counts.
 
 Records are sent in bursts about once a millisecond: every sample whose time
 (on the monotonic clock, from the emulator's start) has come goes out, so the
 average rate is exact whatever the scheduler does. Run it as
 ``hapticlab emulate netft --address 127.0.0.x`` (:func:`add_arguments`,
-:func:`run`) or from Python::
+:func:`run`; the host gives it the session's world) or from Python::
 
     with NetFTEmulator(world, address="127.0.0.20", rdt_port=0, http_port=0) as emu:
         ...  # emu.rdt_port, emu.http_port: the ports it got
@@ -35,122 +27,50 @@ average rate is exact whatever the scheduler does. Run it as
 from __future__ import annotations
 
 import argparse
-import math
 import select
 import socket
-import struct
 import threading
 import time
-from dataclasses import dataclass
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from xml.sax.saxutils import escape
+from http.server import ThreadingHTTPServer
 
 import numpy as np
 
 from hapticlab.core import hookimpl
+from hapticlab.core.errors import ConfigError
+from hapticlab.core.host.options import OptionError, is_number
 from hapticlab.core.types import STATUS_SATURATED, EmulatorCommand
-from hapticlab.plugins.sensors.netft import (
+from hapticlab.plugins.sensors.netft_protocol import (
     ATI_ERROR_SUMMARY,
     ATI_SATURATION,
+    CMD_BIAS,
+    CMD_START,
+    CMD_STOP,
     FORCE_UNITS,
     FT_RATE_HZ,
+    RDT_HEADER,
     RDT_PORT,
+    REQUEST,
     TORQUE_UNITS,
+    Calibration,
+    configuration_handler,
+    configuration_xml,
 )
+from hapticlab.plugins.sensors.netft_wire import FAULT_KINDS, INT32_MAX, RdtFault, RdtSender
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.serving import serve_until_stopped
 from hapticlab.plugins.simworld.physics import SimWorld
 
-REQUEST = struct.Struct(">HHI")
-"""An RDT request: header 0x1234, command, sample count."""
-RECORD = struct.Struct(">III6i")
-"""An RDT record: rdt_sequence, ft_sequence, status, six counts."""
-HEADER = 0x1234
-CMD_STOP, CMD_START, CMD_BIAS = 0x0000, 0x0002, 0x0042
-INT32_MAX = 2**31 - 1
 BURST_S = 0.001
 """Records go out in bursts this far apart, s."""
-FAULT_KINDS = ("drop", "duplicate", "reorder", "status", "stall", "saturate")
-
-
-@dataclass(frozen=True, slots=True)
-class RdtFault:
-    """A fault on the wire, active for records whose world time is in [start, start + duration).
-
-    Attributes:
-        kind: ``drop`` (record not sent; its rdt_sequence is used up), ``duplicate``
-            (sent twice), ``reorder`` (sent after the next record), ``status`` (``status``
-            bits OR-ed into the status word), ``stall`` (the device repeats its last
-            ft_sequence and counts: its sampling stalled), ``saturate`` (every axis at its
-            saturation counts, status saturation and error summary bits).
-        start: world time the fault starts, s.
-        duration: how long it lasts, s.
-        every: it hits every ``every``-th record while active (1: each one).
-        status: the status bits of a ``status`` fault.
-    """
-
-    kind: str
-    start: float = 0.0
-    duration: float = math.inf
-    every: int = 1
-    status: int = 0
-
-    def __post_init__(self) -> None:
-        if self.kind not in FAULT_KINDS:
-            raise ValueError(f"kind: unknown fault {self.kind!r}; known: {', '.join(FAULT_KINDS)}")
-        if not self.duration > 0 or self.start < 0:
-            raise ValueError(f"{self.kind}: start must be >= 0 s and duration > 0 s")
-        if self.every < 1:
-            raise ValueError(f"{self.kind}: every must be >= 1, got {self.every}")
-        if self.kind == "status" and not 0 < self.status <= 0xFFFFFFFF:
-            raise ValueError(f"status: bits must be a nonzero 32-bit word, got {self.status!r}")
-
-    def hits(self, t: float, index: int) -> bool:
-        """Whether the record at world time ``t`` s (the ``index``-th record sent) is hit."""
-        return self.start <= t < self.start + self.duration and index % self.every == 0
-
-    @classmethod
-    def parse(cls, text: str) -> "RdtFault":
-        """``kind[,start=S][,duration=S][,every=N][,status=0x...]`` (the ``--fault`` syntax)."""
-        kind, *fields = [f.strip() for f in text.split(",")]
-        values: dict[str, float | int] = {}
-        for field in fields:
-            key, sep, value = field.partition("=")
-            if not sep or key not in ("start", "duration", "every", "status"):
-                raise ValueError(f"fault {text!r}: expected key=value with key start, duration, every or status")
-            values[key] = int(value, 0) if key in ("every", "status") else float(value)
-        return cls(kind, **values)
-
-
-@dataclass
-class EmulatorCounts:
-    """What the emulator did on the wire since it started (for tests and the operator).
-
-    Attributes: records ``sent`` (datagrams, duplicates included), ``dropped``,
-    ``duplicated``, ``reordered`` (records sent late), ``stalled`` (records repeating the
-    last ft_sequence), ``status`` (records with a nonzero status word), ``starts``,
-    ``stops`` and ``biases`` (requests obeyed), ``ignored`` (bad requests).
-    """
-
-    sent: int = 0
-    dropped: int = 0
-    duplicated: int = 0
-    reordered: int = 0
-    stalled: int = 0
-    status: int = 0
-    starts: int = 0
-    stops: int = 0
-    biases: int = 0
-    ignored: int = 0
 
 
 class NetFTEmulator:
-    """An emulated Net F/T: RDT over UDP and its XML page over HTTP, on one loopback address.
+    """An emulated Net F/T: RDT over UDP and its XML page over HTTP, on one IPv4 address.
 
     Parameters
     ----------
     world : the simulated world the sensor sits in (its physics and faults).
-    address : the IPv4 address to serve on (127.0.0.x).
+    address : the IPv4 address to serve on (127.0.0.x keeps it on this machine).
     rdt_port, http_port : UDP and TCP ports; 0 picks a free one (see :attr:`rdt_port` after start).
     rdt_rate_hz : RDT output rate (``comrdtrate``), Hz; 7000 divided by a whole number.
     counts_per_force, counts_per_torque : the calibration (``cfgcpf``, ``cfgcpt``), counts per unit.
@@ -175,13 +95,12 @@ class NetFTEmulator:
         ft_sequence_start: int = 0x7FFF_0000,
         product_name: str = "Net F/T emulator (hapticlab)",
     ):
-        decimation = FT_RATE_HZ / rdt_rate_hz if rdt_rate_hz > 0 else 0.0
+        decimation = FT_RATE_HZ / rdt_rate_hz if is_number(rdt_rate_hz) and rdt_rate_hz > 0 else 0.0
         if not (decimation >= 1 and abs(decimation - round(decimation)) < 1e-9):
-            raise ValueError(f"rdt_rate_hz: must be {FT_RATE_HZ:g} Hz divided by a whole number, got {rdt_rate_hz!r}")
-        if force_unit not in FORCE_UNITS or torque_unit not in TORQUE_UNITS:
-            raise ValueError(f"units: force one of {', '.join(FORCE_UNITS)}; torque one of {', '.join(TORQUE_UNITS)}")
-        if not (counts_per_force > 0 and counts_per_torque > 0):
-            raise ValueError("counts_per_force and counts_per_torque must be > 0")
+            raise OptionError(
+                "rdt_rate_hz", f"must be {FT_RATE_HZ:g} Hz divided by a whole number, got {rdt_rate_hz!r}"
+            )
+        Calibration.checked(counts_per_force, counts_per_torque, force_unit, torque_unit)  # scfgtu: as given
         self.world = world
         self.address = address
         self.rdt_rate_hz = float(rdt_rate_hz)
@@ -199,30 +118,26 @@ class NetFTEmulator:
         saturation = np.concatenate([world.sensor.saturation_force_S, world.sensor.saturation_torque_S])
         self._saturation_counts = np.minimum(np.rint(saturation * self._counts_per_si), INT32_MAX).astype(np.int64)
         self._sensor = SimSensor(FT_RATE_HZ, world=world)
-        self.counts = EmulatorCounts()
         self.bias_counts = np.zeros(6, dtype=np.int64)
         """(6,) the software bias subtracted from every record, counts (set by a bias request)."""
         self.bias_ft_sequence: int | None = None
         """The ft_sequence of the reading the last bias request took (records after it are biased)."""
-        self.client: tuple[str, int] | None = None
-        """Where the records go: the address of the last start request."""
         self.t0_ns: int | None = None
         """Monotonic time of internal sample 0 (world time 0), ns."""
         self._udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._udp.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
         self._udp.bind((address, rdt_port))
-        self._http = ThreadingHTTPServer((address, http_port), _handler(self))
+        self._http = ThreadingHTTPServer((address, http_port), configuration_handler(self.xml))
         self._http.daemon_threads = True
         self.rdt_port = self._udp.getsockname()[1]
         self.http_port = self._http.server_address[1]
+        self._wire = RdtSender(self._udp, self.faults, self._saturation_counts)
+        self.counts = self._wire.counts
+        """What it did on the wire since it started (:class:`~hapticlab.plugins.sensors.netft_wire.EmulatorCounts`)."""
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._streaming = False
         self._remaining = 0  # records left of a counted start request (0: until stopped)
-        self._rdt_sequence = 0
-        self._sent_index = 0
-        self._held: bytes | None = None  # a record held back by a reorder fault
-        self._last: tuple[int, np.ndarray] | None = None  # the last (ft_sequence, counts) sent, for stalls
         self._lock = threading.Lock()
         self._muted = False
         self.muted_ns: list[int | None] = [None, None]
@@ -274,14 +189,19 @@ class NetFTEmulator:
             self.muted_ns[0 if muted else 1] = time.monotonic_ns()
 
     @property
+    def client(self) -> tuple[str, int] | None:
+        """Where the records go: the address of the last start request."""
+        return self._wire.client
+
+    @property
     def last_ft_sequence(self) -> int | None:
         """The ft_sequence of the last record sent (None before the first)."""
-        return None if self._last is None else self._last[0]
+        return None if self._wire.last is None else self._wire.last[0]
 
     @property
     def rdt_sequence(self) -> int:
         """The rdt_sequence of the last record sent in the current stream (0 before its first)."""
-        return self._rdt_sequence
+        return self._wire.rdt_sequence
 
     def world_time(self, ft_sequence: int) -> float:
         """The world time of the internal sample ``ft_sequence``, s (as the ``sim`` sensor times it)."""
@@ -312,8 +232,7 @@ class NetFTEmulator:
             "scfgtu": self.torque_unit,
             "cfgmr": ";".join(f"{v:g}" for v in rating),
         }
-        body = "".join(f"<{k}>{escape(v)}</{k}>" for k, v in fields.items())
-        return f'<?xml version="1.0" encoding="ISO-8859-1"?>\n<netft>{body}</netft>\n'.encode("ascii")
+        return configuration_xml(fields)
 
     # ------------------------------------------------------------------ RDT
 
@@ -344,29 +263,29 @@ class NetFTEmulator:
             self.counts.ignored += 1
             return
         header, command, count = REQUEST.unpack(data)
-        if header != HEADER or command not in (CMD_START, CMD_STOP, CMD_BIAS):
+        if header != RDT_HEADER or command not in (CMD_START, CMD_STOP, CMD_BIAS):
             self.counts.ignored += 1
             return
         with self._lock:
             if command == CMD_START:
-                self.client, self._streaming, self._remaining = sender, True, count
-                self._rdt_sequence = 0
-                self._held = None
+                self._wire.start_stream(sender)
+                self._streaming, self._remaining = True, count
                 self.counts.starts += 1
             elif command == CMD_STOP:
                 self._streaming = False
                 self.counts.stops += 1
             else:
-                if self._last is not None:
-                    self.bias_counts = self._last[1] + self.bias_counts  # the current unbiased reading
-                    self.bias_ft_sequence = self._last[0]
+                last = self._wire.last
+                if last is not None:
+                    self.bias_counts = last[1] + self.bias_counts  # the current unbiased reading
+                    self.bias_ft_sequence = last[0]
                 self.counts.biases += 1
 
     def _burst(self, now_ns: int) -> None:
         """Sample the world up to now; send the due records if a client is streaming."""
         samples = self._sensor.read(now_ns)  # the device samples whether anyone listens or not
         with self._lock:
-            if not self._streaming or self.client is None or self._muted:
+            if not self._streaming or self._wire.client is None or self._muted:
                 return
             samples = [s for s in samples if s.seq % self.decimation == 0]
             if not samples:
@@ -378,93 +297,27 @@ class NetFTEmulator:
                 if not (np.isfinite(sample.force_S).all() and np.isfinite(sample.torque_S).all()):
                     status |= ATI_SATURATION | ATI_ERROR_SUMMARY  # the A/D gave no number
                 raw = np.clip(raw, -self._saturation_counts, self._saturation_counts)
-                self._send(t, (self.ft_sequence_start + sample.seq) % 2**32, status, raw)
+                self._wire.send(t, (self.ft_sequence_start + sample.seq) % 2**32, status, raw, self.bias_counts)
                 if self._remaining:
                     self._remaining -= 1
                     if self._remaining == 0:
                         self._streaming = False
                         break
 
-    def _send(self, t: float, ft_sequence: int, status: int, raw: np.ndarray) -> None:
-        index = self._sent_index
-        self._sent_index += 1
-        for fault in self.faults:
-            if not fault.hits(t, index):
-                continue
-            if fault.kind == "status":
-                status |= fault.status
-            elif fault.kind == "saturate":
-                raw = np.where(raw < 0, -self._saturation_counts, self._saturation_counts)
-                status |= ATI_SATURATION | ATI_ERROR_SUMMARY
-            elif fault.kind == "stall" and self._last is not None:
-                ft_sequence, raw = self._last[0], self._last[1] + self.bias_counts
-                self.counts.stalled += 1
-        self._last = (ft_sequence, raw - self.bias_counts)
-        self._rdt_sequence = (self._rdt_sequence + 1) % 2**32
-        record = RECORD.pack(
-            self._rdt_sequence,
-            ft_sequence,
-            status,
-            *np.clip(raw - self.bias_counts, -INT32_MAX - 1, INT32_MAX).tolist(),
-        )
-        self.counts.status += status != 0
-        kinds = {f.kind for f in self.faults if f.kind in ("drop", "duplicate", "reorder") and f.hits(t, index)}
-        if "drop" in kinds:
-            self.counts.dropped += 1
-            return
-        if "reorder" in kinds and self._held is None:
-            self._held = record  # goes out after the next record
-            self.counts.reordered += 1
-            return
-        self._sendto(record)
-        if "duplicate" in kinds:
-            self._sendto(record)
-            self.counts.duplicated += 1
-        if self._held is not None:
-            held, self._held = self._held, None
-            self._sendto(held)
-
-    def _sendto(self, record: bytes) -> None:
-        try:
-            self._udp.sendto(record, self.client)
-            self.counts.sent += 1
-        except OSError:  # the client went away: a real sensor does not care either
-            pass
-
-
-def _handler(emulator: NetFTEmulator) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        """Serves ``/netftapi2.xml``; everything else is 404."""
-
-        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
-            if self.path.split("?")[0] != "/netftapi2.xml":
-                self.send_error(404)
-                return
-            body = emulator.xml()
-            self.send_response(200)
-            self.send_header("Content-Type", "text/xml")
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Connection", "close")
-            self.end_headers()
-            self.wfile.write(body)
-
-        def log_message(self, format, *args) -> None:  # quiet: the operator watches the RDT stream
-            pass
-
-    return Handler
-
 
 # --------------------------------------------------------------------------- command line
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of ``hapticlab emulate netft``."""
-    parser.add_argument("--address", default="127.0.0.1", help="loopback address to serve on (127.0.0.x)")
+    """The options of ``hapticlab emulate netft`` (the host adds ``--session`` and ``--seed``: its world)."""
+    parser.add_argument(
+        "--address",
+        default="127.0.0.1",
+        help="IPv4 address to serve on (default 127.0.0.1); a loopback address 127.0.0.x keeps the emulator "
+        "on this machine, any other address of this machine (0.0.0.0: all of them) serves the network",
+    )
     parser.add_argument("--rdt-port", type=int, default=RDT_PORT, help="UDP port of the RDT stream (default 49152)")
     parser.add_argument("--http-port", type=int, default=80, help="TCP port of netftapi2.xml (default 80)")
-    parser.add_argument(
-        "--session", default=None, help="preset name or TOML file whose [world] feeds the sensor (default: demo)"
-    )
     parser.add_argument("--rate", type=float, default=FT_RATE_HZ, help="RDT output rate, Hz (7000/n; default 7000)")
     parser.add_argument("--counts-per-force", type=float, default=1_000_000.0, help="cfgcpf, counts per force unit")
     parser.add_argument("--counts-per-torque", type=float, default=1_000_000.0, help="cfgcpt, counts per torque unit")
@@ -480,15 +333,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None, help="serve this long, s (default: until Ctrl-C)")
 
 
-def run(args: argparse.Namespace) -> int:
-    """Serve until Ctrl-C, SIGTERM or ``--duration``; the first line printed names the address and ports."""
-    from hapticlab.core.host.registry import ConfigError
-    from hapticlab.sessions.config import load_config
-
-    config, _ = load_config(args.session)
+def run(args: argparse.Namespace, world: SimWorld) -> int:
+    """Serve ``world`` until Ctrl-C, SIGTERM or ``--duration``; the first line printed names the address and
+    ports."""
     try:
         faults = [RdtFault.parse(text) for text in args.fault]
-        world = SimWorld.from_config(config.get("world"))
         emulator = NetFTEmulator(
             world,
             args.address,
@@ -531,5 +380,6 @@ def register_emulators(register):
             help="ATI Net F/T: RDT over UDP and netftapi2.xml over HTTP, up to 7000 samples/s",
             add_arguments=add_arguments,
             run=run,
+            needs_world=True,
         ),
     )

@@ -2,18 +2,15 @@
 
 Why not pynetft here: pynetft (the community client, still used for
 ``receiver = "pynetft"``) builds Python objects for every record on its own
-thread, ~40–60 µs a sample on a loaded 2-core machine, and it stops and
-reconnects the stream whenever a record's status word reports an error
-(saturation included): a 3–250 ms blackout per saturated record.
+thread, and it stops and reconnects the stream whenever a record's status
+word reports an error (saturation included): a blackout for every saturated
+record (what that costs: docs/devices.md).
 
 What this module does instead:
 
 * **A UDP socket connected to the sensor** (the kernel drops datagrams from
-  any other address), with a large ``SO_RCVBUF``, and the 8-byte big-endian
-  RDT requests (``uint16 0x1234, uint16 command, uint32 sample_count``):
-  start (0x0002, real-time: one record per datagram; 0x0003 is ATI's
-  "buffered" mode, ``comrdtbsiz`` records per datagram), stop (0x0000),
-  bias (0x0042).
+  any other address), with a large ``SO_RCVBUF``, and the RDT requests of
+  ``netft_protocol.py``.
 * **No thread**: :meth:`RdtReceiver.poll` (called once per loop tick) drains the
   socket with ``recv_into`` into one preallocated buffer until it would
   block, then reads every record of the tick with one ``np.frombuffer`` of a
@@ -23,34 +20,26 @@ What this module does instead:
 * **A status word never stops the stream**: a saturated record reaches the
   stream with its status bits, so the haptic force is zero for exactly the
   bad samples.
-* ``netftapi2.xml`` is read with ``urllib`` and ``xml.etree``
-  (:func:`fetch_configuration`): pynetft fetches it only inside its stream.
-
-The ATI status word's decoding, the unit tables and :class:`DeviceClock`
-live here too, shared by both receivers (``netft`` re-exports them).
 """
 
 from __future__ import annotations
 
 import socket
 import time
-import urllib.request
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 import numpy as np
 
-from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
+from hapticlab.plugins.sensors.netft_protocol import (
+    CMD_START,
+    CMD_STOP,
+    RDT_HEADER,
+    RDT_PORT,
+    RECORD_DTYPE,
+    RECORD_SIZE,
+    stream_status_array,
+)
 
-FT_RATE_HZ = 7000.0
-"""The Net F/T's internal sample rate: ``ft_sequence`` counts at this rate, Hz."""
-RDT_PORT = 49152
-"""The RDT protocol's UDP port."""
-RDT_HEADER = 0x1234
-CMD_STOP, CMD_START, CMD_START_BUFFERED, CMD_BIAS = 0x0000, 0x0002, 0x0003, 0x0042
-RECORD_DTYPE = np.dtype([("rdt_sequence", ">u4"), ("ft_sequence", ">u4"), ("status", ">u4"), ("counts", ">i4", (6,))])
-"""One RDT record as on the wire (36 bytes, big-endian): Fx Fy Fz Tx Ty Tz in counts."""
-RECORD_SIZE = RECORD_DTYPE.itemsize
 MAX_DATAGRAM = 64 * RECORD_SIZE
 """Largest datagram read whole, bytes (ATI's buffered mode sends at most 40 records); a longer one is malformed."""
 REWIND = 1024
@@ -58,69 +47,6 @@ REWIND = 1024
 REWIND_ASKED = 16
 """... or only this many behind, within 2·REWIND records after our own start request: a start request
 still in flight may renumber the stream once more after its records have come back."""
-
-FORCE_UNITS: dict[str, float] = {
-    "N": 1.0,
-    "kN": 1000.0,
-    "lbf": 4.4482216152605,
-    "klbf": 4448.2216152605,
-    "kgf": 9.80665,
-}
-"""N per force unit, by the spelling ``scfgfu`` uses."""
-TORQUE_UNITS: dict[str, float] = {
-    "N-m": 1.0,
-    "Nm": 1.0,
-    "N-mm": 1e-3,
-    "Nmm": 1e-3,
-    "kN-m": 1000.0,
-    "lbf-in": 0.1129848290276167,
-    "lbf-ft": 1.3558179483314004,
-    "kgf-cm": 0.0980665,
-    "kg-cm": 0.0980665,
-}
-"""N·m per torque unit, by the spellings ``scfgtu`` uses."""
-TORQUE_SPELLING = {"Nm": "N-m", "Nmm": "N-mm", "kg-cm": "kgf-cm"}
-"""Other spellings of a torque unit -> the one recorded (pynetft's)."""
-
-# The ATI status word (Net F/T manual, "System Status Code"). Bit 31 summarises every error bit.
-ATI_ERROR_SUMMARY = 0x8000_0000
-ATI_SATURATION = 0x0002_0000
-"""Transducer saturation or A/D error: the reading is clipped or no number at all."""
-ATI_MONITOR_LATCHED = 0x0001_0000
-"""A threshold monitor condition latched (the user's own thresholds; the reading itself is good)."""
-ATI_STATUS_BITS: dict[int, str] = {
-    30: "CPU or RAM error",
-    29: "digital board error",
-    28: "analog board error",
-    27: "serial link error",
-    26: "program memory check failed",
-    25: "halted on configuration errors",
-    24: "settings validation error",
-    23: "configuration does not fit the calibration",
-    22: "network communication failure",
-    21: "CAN error",
-    20: "RDT communication error",
-    19: "EtherNet/IP failure",
-    18: "DeviceNet failure",
-    17: "transducer saturation or A/D error",
-    16: "monitor condition latched",
-    14: "watchdog timeout",
-    13: "stack check error",
-    12: "serial EEPROM failure",
-    11: "serial flash failure",
-    10: "analog board watchdog timeout",
-    9: "strain gage excitation current too high",
-    8: "strain gage excitation current too low",
-    7: "artificial analog ground out of range",
-    6: "analog supply too high",
-    5: "analog supply too low",
-    4: "serial link data unavailable",
-    3: "reference voltage or power monitor error",
-    2: "internal temperature error",
-    1: "HTTP failure",
-}
-"""What each bit of the status word says (bit 31 is the error summary)."""
-_OTHER_ERRORS = 0xFFFF_FFFF & ~(ATI_ERROR_SUMMARY | ATI_SATURATION | ATI_MONITOR_LATCHED)
 
 COUNTER_DOC = {
     "received": "records received (duplicates and late ones included)",
@@ -142,155 +68,6 @@ COUNTER_DOC = {
     "calibration_change": "always 0: the calibration is read once, at open",
 }
 """The receiver's health counters and what they count, since ``open``."""
-
-
-def stream_status(word: int) -> int:
-    """The stream's status bits (``core.types``) for an ATI status word.
-
-    Saturation (bit 17) is ``STATUS_SATURATED``; any other error bit, or the
-    summary bit alone, is ``STATUS_DEVICE_ERROR``. A latched threshold monitor
-    (bit 16) with the summary is a warning about the user's thresholds, not a
-    bad reading: ``STATUS_OK``.
-    """
-    bits = STATUS_SATURATED if word & ATI_SATURATION else STATUS_OK
-    if word & _OTHER_ERRORS or word == ATI_ERROR_SUMMARY:
-        bits |= STATUS_DEVICE_ERROR
-    return bits
-
-
-def stream_status_array(words: np.ndarray) -> np.ndarray:
-    """:func:`stream_status` of many status words at once: (n,) int64."""
-    words = np.asarray(words, dtype=np.int64)
-    bits = np.where(words & ATI_SATURATION, STATUS_SATURATED, STATUS_OK)
-    return bits | np.where((words & _OTHER_ERRORS != 0) | (words == ATI_ERROR_SUMMARY), STATUS_DEVICE_ERROR, 0)
-
-
-def describe_status(word: int) -> str:
-    """The status word in words ("healthy" when 0)."""
-    if word == 0:
-        return "healthy"
-    names = [name for bit, name in ATI_STATUS_BITS.items() if word & (1 << bit)]
-    if word & ATI_ERROR_SUMMARY and not names:
-        names = ["error summary"]
-    return ", ".join(names) or f"unknown bits 0x{word:08x}"
-
-
-@dataclass(frozen=True, slots=True)
-class Calibration:
-    """A Net F/T calibration: counts per force unit and per torque unit, and the units (``N``, ``N-m``, ...)."""
-
-    counts_per_force: float
-    counts_per_torque: float
-    force_unit: str
-    torque_unit: str
-
-    def si_per_count(self) -> np.ndarray:
-        """(6,) N per count (×3) and N·m per count (×3)."""
-        return np.repeat(
-            [
-                FORCE_UNITS[self.force_unit] / self.counts_per_force,
-                TORQUE_UNITS[self.torque_unit] / self.counts_per_torque,
-            ],
-            3,
-        )
-
-    def fields(self) -> dict[str, str]:
-        """As the ``calibration`` strings (HasCalibration)."""
-        return {
-            "counts_per_force": f"{self.counts_per_force:g}",
-            "counts_per_torque": f"{self.counts_per_torque:g}",
-            "force_unit": self.force_unit,
-            "torque_unit": self.torque_unit,
-        }
-
-
-def fetch_configuration(address: str, http_port: int, timeout: float) -> tuple[str, Calibration]:
-    """The product name and active calibration from the sensor's ``netftapi2.xml``.
-
-    Raises OSError (no answer within ``timeout`` s) or ValueError (a page without a usable
-    ``cfgcpf``, ``cfgcpt``, ``scfgfu``, ``scfgtu``). No proxy: the sensor is on the lab's network.
-    """
-    opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
-    with opener.open(f"http://{address}:{http_port}/netftapi2.xml", timeout=timeout) as response:
-        root = ET.fromstring(response.read())
-    fields = {child.tag: (child.text or "").strip() for child in root}
-    try:
-        cpf, cpt = float(fields["cfgcpf"]), float(fields["cfgcpt"])
-        force_unit, torque_unit = fields["scfgfu"], TORQUE_SPELLING.get(fields["scfgtu"], fields["scfgtu"])
-    except (KeyError, ValueError) as exc:
-        raise ValueError(f"netftapi2.xml: no usable calibration ({exc})") from None
-    if force_unit not in FORCE_UNITS or torque_unit not in TORQUE_UNITS or not (cpf > 0 and cpt > 0):
-        raise ValueError(
-            f"netftapi2.xml: unusable calibration {cpf:g} counts/{force_unit}, {cpt:g} counts/{torque_unit}"
-        )
-    return fields.get("prodname", "ATI Net F/T"), Calibration(cpf, cpt, force_unit, torque_unit)
-
-
-class DeviceClock:
-    """Maps a device's sample counter onto the session's monotonic clock, ns.
-
-    The counter ``k`` runs at ``rate_hz`` on the device's crystal; a sample's
-    receive time is its device time plus a latency that is never negative and
-    often near its minimum. So the offset between the two clocks is the lower
-    envelope of ``received_ns − k·1e9/rate_hz``: it follows every new minimum at
-    once, and may rise at ``slew_ppm`` of the elapsed device time (the device's
-    crystal running fast against the host's, ≤ ~100 ppm for a crystal). A
-    sample's time is ``k·1e9/rate_hz + offset``: never later than its receipt,
-    spaced by the device's own clock, and non-decreasing (a lower envelope that
-    drops by more than one sample period is held to the previous time + 1 ns).
-
-    Parameters
-    ----------
-    rate_hz : the counter's rate, Hz.
-    slew_ppm : fastest rise of the offset, parts per million of device time.
-    """
-
-    def __init__(self, rate_hz: float = FT_RATE_HZ, slew_ppm: float = 200.0):
-        self.period_ns = 1e9 / rate_hz
-        self.slew = slew_ppm * 1e-6
-        self.offset_ns: float | None = None
-        self.last_k: int | None = None
-        self.last_t_ns: int | None = None
-
-    def reset(self) -> None:
-        """Forget the mapping (the device restarted its counter)."""
-        self.offset_ns = self.last_k = self.last_t_ns = None
-
-    def stamp(self, k: int, received_ns: int) -> int:
-        """The session time of device sample ``k`` (unwrapped counter) received at ``received_ns``, ns."""
-        device_ns = k * self.period_ns
-        seen = received_ns - device_ns
-        if self.offset_ns is None:
-            self.offset_ns = seen
-        else:
-            self.offset_ns = min(seen, self.offset_ns + self.slew * (k - self.last_k) * self.period_ns)
-        self.last_k = k
-        t_ns = int(round(device_ns + self.offset_ns))
-        if self.last_t_ns is not None and t_ns <= self.last_t_ns:
-            t_ns = self.last_t_ns + 1
-        self.last_t_ns = t_ns
-        return t_ns
-
-    def stamp_many(self, k: np.ndarray, received_ns: int | np.ndarray) -> np.ndarray:
-        """:meth:`stamp` of many samples at once (unwrapped counters ``k`` in order), ns.
-
-        The envelope's recursion ``o_i = min(seen_i, o_(i-1) + c·(k_i − k_(i-1)))`` is
-        ``c·k_i + cummin(seen_j − c·k_j)``, and "at least the previous time + 1 ns" is
-        ``i + cummax(t_j − j)``: two accumulates instead of a Python loop.
-        """
-        c = self.slew * self.period_ns
-        base = received_ns - k * (self.period_ns + c)  # seen − c·k
-        np.minimum.accumulate(base, out=base)
-        if self.offset_ns is not None:
-            np.minimum(base, self.offset_ns - c * self.last_k, out=base)
-        self.offset_ns, self.last_k = float(base[-1] + c * k[-1]), int(k[-1])
-        step = np.arange(len(k))
-        u = np.rint(base + k * (self.period_ns + c)).astype(np.int64) - step  # t − i
-        if self.last_t_ns is not None:
-            np.maximum(u, self.last_t_ns + 1, out=u)
-        t_ns = np.maximum.accumulate(u) + step
-        self.last_t_ns = int(t_ns[-1])
-        return t_ns
 
 
 @dataclass(slots=True)

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.errors import ConfigError
+from hapticlab.core.host.options import number
 from hapticlab.core.types import NO_WRENCHES, WrenchBlock, WrenchSample
 from hapticlab.plugins.simworld.clock import SampleClock
 from hapticlab.plugins.simworld.faults import apply_sensor_faults
@@ -42,9 +43,7 @@ class SimSensor:
                 "sensor sim: needs the session's simulated world; "
                 "add a [world] table to the session (or pass world=SimWorld(...))"
             )
-        if not 0 < rate_hz <= MAX_RATE_HZ:
-            raise ConfigError(f"sensor.rate_hz: must be > 0 and at most {MAX_RATE_HZ:g} Hz, got {rate_hz!r}")
-        self.rate_hz = float(rate_hz)
+        self.rate_hz = number("rate_hz", rate_hz, above=0, maximum=MAX_RATE_HZ, hint=" Hz")
         self.world = world
         self.range_force_S = world.sensor.saturation_force_S.copy()
         """(3,) measurement range per force axis, N (HasRange): the sensor saturates beyond it."""

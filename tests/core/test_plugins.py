@@ -153,7 +153,34 @@ def test_a_third_party_emulator_is_a_subcommand_of_emulate():
     args = parser.parse_args(["emulate", "gripper", "--address", "127.0.0.9"])
     assert args.func(args) == 0 and served == ["127.0.0.9"]
     with pytest.raises(SystemExit):
-        parser.parse_args(["emulate", "netft"])  # only what this manager registered (and the lab)
+        parser.parse_args(["emulate", "netft"])  # only what this manager registered
+
+
+def test_an_emulator_that_needs_a_world_gets_the_sessions_world_from_the_host():
+    """``needs_world``: the host adds ``--session`` and ``--seed``, builds the world through the ``world``
+    context and passes it to ``run(args, world)``; the emulator reads no session itself."""
+    import argparse
+
+    from hapticlab.core.types import EmulatorCommand
+    from hapticlab.plugins.simworld import context
+    from hapticlab.sessions.cli import emulate
+
+    worlds = []
+    toy = EmulatorCommand(
+        help="a toy F/T sensor",
+        add_arguments=lambda parser: parser.add_argument("--duration", type=float),
+        run=lambda args, world: worlds.append(world) or 0,
+        needs_world=True,
+        session="lab-emulated",
+    )
+    module = plugin_module("toy_sensor_emulator", register_emulators=lambda register: register("toy", toy))
+    parser = argparse.ArgumentParser(prog="hapticlab")
+    emulate.add_commands(parser.add_subparsers(dest="command"), manager_with(module, context))
+    args = parser.parse_args(["emulate", "toy", "--seed", "12"])
+    assert args.session == "lab-emulated" and args.func(args) == 0
+    assert worlds[0].seed == 12 and type(worlds[0]).__name__ == "SimWorld"
+    args = parser.parse_args(["emulate", "toy", "--session", "demo"])
+    assert args.func(args) == 0 and worlds[1].seed == 7  # the demo preset's
 
 
 def test_builtins_are_registered():

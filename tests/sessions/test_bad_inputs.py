@@ -487,6 +487,40 @@ def probes() -> list[tuple[str, list[str]]]:
         ("session-unknown-preset", ["run", "nosuchpreset"]),
     ):
         out.append((f"run-{label}", argv))
+
+    # emulate: refused before serving (--duration: a probe that is wrongly accepted ends anyway)
+    for device, options in (
+        ("netft", ["--session", "{lab}/missing.toml"]),
+        ("netft", ["--session", "{lab}/good.csv"]),
+        ("netft", ["--seed", "-1"]),
+        ("netft", ["--rate", "3000"]),
+        ("netft", ["--rate", "-1"]),
+        ("netft", ["--counts-per-force", "-1"]),
+        ("netft", ["--counts-per-torque", "nan"]),
+        ("netft", ["--fault", "explode"]),
+        ("netft", ["--fault", "drop,start=-1"]),
+        ("netft", ["--fault", "drop,duration=0"]),
+        ("netft", ["--fault", "drop,every=0"]),
+        ("netft", ["--fault", "drop,every=x"]),
+        ("netft", ["--fault", "drop,when=1"]),
+        ("netft", ["--fault", "status"]),
+        ("netft", ["--address", "192.0.2.1"]),
+        ("ur", ["--session", "nosuchpreset"]),
+        ("ur", ["--seed", "-1"]),
+        ("ur", ["--encoder-noise", "1"]),
+        ("ur", ["--encoder-noise", "nan"]),
+        ("ur", ["--tcp-offset", "1,2"]),
+        ("ur", ["--tcp-offset", "a,b,c,d,e,f"]),
+        ("ur", ["--address", "192.0.2.1"]),
+        ("lab", ["--session", "{lab}/missing.toml"]),
+        ("lab", ["--model", "ur7e"]),
+        ("lab", ["--rate", "3000"]),
+        ("lab", ["--ur-stall", "1"]),
+        ("lab", ["--ur-stall=-1,1"]),
+        ("lab", ["--netft-fault", "explode"]),
+        ("lab", ["--netft", "192.0.2.1"]),
+    ):
+        out.append((f"emulate-{device}-{'-'.join(options)}", ["emulate", device, *options, "--duration", "0.5"]))
     return out
 
 

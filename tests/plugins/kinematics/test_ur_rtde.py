@@ -2,7 +2,7 @@
 
 ur-rtde's constructors hold the GIL while they wait for the controller, so a
 ur-rtde client and the emulator cannot share a process: the emulator runs as
-``ur_emulator.run`` in a child process where this process uses ur-rtde (the
+``hapticlab emulate ur`` in a child process where this process uses ur-rtde (the
 receive interface, our plugin), and ur-rtde runs in a child process where the
 test reads the emulator's Python API (the input registers). ur-rtde always
 uses port 30004, so each test has its own 127.0.0.x.
@@ -39,13 +39,8 @@ def demo_world() -> SimWorld:
     return SimWorld.from_config({**load_config("demo")[0]["world"], "seed": SEED})
 
 
-EMULATOR = (
-    "import argparse, sys\n"
-    "from hapticlab.plugins.kinematics import ur_emulator\n"
-    "parser = argparse.ArgumentParser()\n"
-    "ur_emulator.add_arguments(parser)\n"
-    "sys.exit(ur_emulator.run(parser.parse_args(sys.argv[1:])))\n"
-)
+EMULATOR = "import sys\nfrom hapticlab.sessions.cli import main\nsys.exit(main(['emulate', 'ur', *sys.argv[1:]]))\n"
+"""``hapticlab emulate ur`` with the arguments given after ``-c EMULATOR``."""
 
 
 @contextmanager
@@ -272,16 +267,20 @@ def test_connection_refused_names_the_controller():
 @pytest.mark.parametrize(
     "options, message",
     [
-        ({}, "kinematics.address: missing; the UR controller's IP address or host name"),
-        ({"address": "robot..lab"}, "kinematics.address: 'robot..lab' is neither an IP address nor a host name"),
-        ({"address": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be > 0 and at most 500 Hz"),
-        ({"address": "10.0.0.2", "receive_timeout": 0}, "kinematics.receive_timeout: must be > 0 and at most 1 s"),
+        ({}, "kinematics.address: must be the UR controller's IP address or host name"),
+        ({"address": "robot..lab"}, "kinematics.address: must be an IP address or a host name, got 'robot..lab'"),
+        ({"address": "10.0.0.2", "rate_hz": 1000}, "kinematics.rate_hz: must be a finite number > 0 and <= 500 Hz"),
+        (
+            {"address": "10.0.0.2", "receive_timeout": 0},
+            "kinematics.receive_timeout: must be a finite number > 0 and <= 1 s",
+        ),
         (
             {"address": "10.0.0.2", "frequency": 500},
             "kinematics.frequency: unknown option; known options: address, follow, follow_rate_hz, model, rate_hz, receive_timeout",
         ),
         ({"address": 10}, "kinematics.address: expected a string, got 10"),
-        ({"address": "10.0.0.2", "model": "ur7e"}, "kinematics.model: unknown UR model 'ur7e'; known: ur3e, ur5e"),
+        ({"address": "10.0.0.2", "model": "ur7e"}, "kinematics.model: must be 'ur3e', 'ur5e', "),
+        ({"address": "10.0.0.2", "follow_rate_hz": 100}, "kinematics.follow_rate_hz: must be left out unless follow"),
     ],
 )
 def test_bad_config_is_one_line_naming_the_key(options, message):
@@ -405,7 +404,7 @@ def test_emulator_refuses_a_model_that_cannot_reach_the_world():
     world = SimWorld.from_config({"seed": SEED, "robot": {"position": [0.7, 0.0, 0.35]}})
     UREmulator(world, model="ur5e")  # 0.85 m of reach
     with pytest.raises(
-        ValueError, match=r"model: a ur3e cannot reach the world's flange position \[0\.7, 0\.0, 0\.35\]"
+        ValueError, match=r"model: must reach the world's flange position \[0\.7, 0\.0, 0\.35\] m at t = 0, got 'ur3e'"
     ):
         UREmulator(world, model="ur3e")  # 0.5 m
 
@@ -439,17 +438,13 @@ def test_emulate_ur_runs_for_its_duration_and_exits_cleanly():
     assert lines[-1] == "sent 0 data packages; 0 input field(s) written"
 
 
-def test_emulate_ur_bad_input_is_a_config_error_naming_it():
-    import argparse
+def test_emulate_ur_bad_input_is_one_line_naming_it(capsys):
+    from hapticlab.sessions.cli import main
 
-    from hapticlab.plugins.kinematics import ur_emulator
-
-    parser = argparse.ArgumentParser()
-    ur_emulator.add_arguments(parser)
-    with pytest.raises(ConfigError, match="no_such.toml: no such session file"):
-        ur_emulator.run(parser.parse_args(["--session", "no_such.toml"]))
-    with pytest.raises(ConfigError, match=r"emulate ur: cannot serve on 192\.0\.2\.1:30004"):
-        ur_emulator.run(parser.parse_args(["--address", "192.0.2.1"]))  # not an address of this machine
+    assert main(["emulate", "ur", "--session", "no_such.toml"]) == 2
+    assert "no_such.toml: no such session file" in capsys.readouterr().err
+    assert main(["emulate", "ur", "--address", "192.0.2.1"]) == 2  # not an address of this machine
+    assert "emulate ur: cannot serve on 192.0.2.1:30004" in capsys.readouterr().err
 
 
 def test_encoders_jitter_so_a_still_arm_never_reports_a_frozen_pose():
@@ -471,7 +466,7 @@ def test_encoders_jitter_so_a_still_arm_never_reports_a_frozen_pose():
         )
     np.testing.assert_allclose(a["actual_TCP_pose"][:3], world.pose(0.2)[1][0], atol=1e-6)
     assert exact.state(100)["actual_TCP_pose"] == exact.state(101)["actual_TCP_pose"]
-    with pytest.raises(ValueError, match="encoder_noise: must be within"):
+    with pytest.raises(ValueError, match="encoder_noise: must be a finite number >= 0 and <= 0.001 rad, got 0.1"):
         UREmulator(world, encoder_noise=0.1)
 
 

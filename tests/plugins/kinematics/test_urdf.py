@@ -293,12 +293,9 @@ class Tap:
 
 @contextmanager
 def ur_emulator_process(address: str):
-    """The RTDE emulator (``ur_emulator.run``) in a child process (ur-rtde's constructor holds the GIL, so the
+    """The RTDE emulator (``hapticlab emulate ur``) in a child process (ur-rtde's constructor holds the GIL, so the
     emulator cannot share this process), yielded once it listens on ``address``:30004."""
-    script = (
-        "import argparse, sys; from hapticlab.plugins.kinematics import ur_emulator as e; "
-        "p = argparse.ArgumentParser(); e.add_arguments(p); sys.exit(e.run(p.parse_args(sys.argv[1:])))"
-    )
+    script = "import sys; from hapticlab.sessions.cli import main; sys.exit(main(['emulate', 'ur', *sys.argv[1:]]))"
     process = subprocess.Popen(
         [sys.executable, "-c", script, "--address", address, "--seed", "11"],
         stdout=subprocess.PIPE,
@@ -407,27 +404,26 @@ def test_a_urdf_file_path_works_like_a_shipped_name(registry, tmp_path):
 @pytest.mark.parametrize(
     "options, message",
     [
-        ({}, r"^kinematics\.joints\.name: missing"),
-        ({"joints": {"rate_hz": 125}}, r"^kinematics\.joints\.name: missing"),
+        ({}, r"^kinematics\.joints\.name: must name the source of the joint angles, .* got none"),
+        ({"joints": {"rate_hz": 125}}, r"^kinematics\.joints\.name: must name the source"),
         ({"joints": {"name": "nope"}}, r"^kinematics\.joints\.name: unknown kinematics 'nope'"),
         ({"joints": {"name": "trajectory_joints", "rate": 1}}, r"^kinematics\.joints\.rate: unknown option"),
         (
             {"urdf": "ur99", "joints": {"name": "trajectory_joints"}},
-            r"^kinematics\.urdf: 'ur99' is neither a shipped "
-            r"model \(ur5e\) nor a URDF file",
+            r"^kinematics\.urdf: must be a shipped model \(ur5e\) or a URDF file, got 'ur99'",
         ),
         (
             {"frame": "flange", "joints": {"name": "trajectory_joints"}},
-            r"^kinematics\.frame: shipped ur5e has no frame "
-            r"'flange'; frames: base, ",
+            r"^kinematics\.frame: must be a frame of shipped ur5e \(base, .*\), got 'flange'$",
         ),
         (
             {"base": "wrist_1_link", "joints": {"name": "trajectory_joints"}},
-            r"^kinematics\.base: frame 'wrist_1_link' moves with joint 'wrist_1_joint'",
+            r"^kinematics\.base: must be a frame fixed to the URDF's root link, got 'wrist_1_link', "
+            r"which moves with joint 'wrist_1_joint'",
         ),
         (
             {"acceleration_window_s": 0, "joints": {"name": "trajectory_joints"}},
-            r"^kinematics\.acceleration_window_s: must be within \(0, 1\] s",
+            r"^kinematics\.acceleration_window_s: must be a finite number > 0 and <= 1 s, got 0",
         ),
         ({"joints": "ur_rtde"}, r"^kinematics\.joints: expected"),
     ],
@@ -480,7 +476,7 @@ def test_the_ur_rtde_source_is_named_in_the_joints_table():
     )
     assert isinstance(kinematics.inner, URRTDEKinematics) and kinematics.inner.address == "127.0.0.82"
     assert kinematics.rate_hz == 125.0
-    with pytest.raises(ConfigError, match=r"^kinematics\.joints\.rate_hz: must be > 0 and at most 500 Hz"):
+    with pytest.raises(ConfigError, match=r"^kinematics\.joints\.rate_hz: must be a finite number > 0 and <= 500 Hz"):
         Registry().create(
             "kinematics",
             "urdf",

@@ -11,7 +11,6 @@ sample's own internal time. Loops wait for a number of samples, never a time.
 
 from __future__ import annotations
 
-import argparse
 import socket
 import threading
 import time
@@ -24,9 +23,11 @@ import pytest
 from hapticlab.core.host.interfaces import EmitsEvents, HasCalibration, HasRange, ReportsHealth, SensorSource
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import STATUS_DEVICE_ERROR, STATUS_OK, STATUS_SATURATED
-from hapticlab.plugins.sensors.netft import DeviceClock, NetFTSensor, describe_status, stream_status
-from hapticlab.plugins.sensors.netft_emulator import RECORD, REQUEST, NetFTEmulator, RdtFault, add_arguments, run
-from hapticlab.plugins.sensors.rdt import FT_RATE_HZ
+from hapticlab.plugins.device_clock import DeviceClock
+from hapticlab.plugins.sensors.netft import NetFTSensor
+from hapticlab.plugins.sensors.netft_emulator import NetFTEmulator
+from hapticlab.plugins.sensors.netft_protocol import FT_RATE_HZ, RECORD, REQUEST, describe_status, stream_status
+from hapticlab.plugins.sensors.netft_wire import RdtFault
 from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.sessions.config import load_config
 from hapticlab.sessions.recording import read_recording
@@ -582,27 +583,14 @@ def test_a_wire_fault_parses_from_the_command_line():
         "status", 1.0, 0.5, status=0x8002_0000
     )
     assert RdtFault.parse("drop,every=3") == RdtFault("drop", every=3)
-    with pytest.raises(ValueError, match="unknown fault"):
+    with pytest.raises(ValueError, match="^fault 'explode': kind: must be 'drop', 'duplicate', "):
         RdtFault.parse("explode")
 
 
 def test_the_emulator_command_prints_its_address_and_ports_first(capsys):
-    parser = argparse.ArgumentParser()
-    add_arguments(parser)
-    args = parser.parse_args(
-        [
-            "--address",
-            "127.0.0.140",
-            "--rdt-port",
-            "0",
-            "--http-port",
-            "0",
-            "--duration",
-            "0.2",
-            "--fault",
-            "drop,every=2",
-        ]
-    )
-    assert run(args) == 0
+    from hapticlab.sessions.cli import main
+
+    argv = ["emulate", "netft", "--address", "127.0.0.140", "--rdt-port", "0", "--http-port", "0"]
+    assert main([*argv, "--duration", "0.2", "--fault", "drop,every=2"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert first.startswith("netft emulator on 127.0.0.140: RDT udp/") and "http/" in first

@@ -68,18 +68,15 @@ class KinematicsSource(Protocol):
 
 @runtime_checkable
 class Estimator(Protocol):
-    """Separates the contact wrench from the non-contact part, sample by sample.
+    """Separates the contact wrench from the non-contact part, sample by sample: the contract's minimum.
 
-    ``update_block`` consumes a block of aligned samples in time order and
-    returns their Estimates (one row per sample). ``params()`` reports the identified parameters with
-    physical names (``gravity_force_B``, ``bias_force_S``, ``cog_S``,
-    ``bias_torque_S``, ...) as lists of floats; ``cov_diag()`` the covariance
-    diagonal of the estimator's state.
+    ``update_block`` consumes a block of aligned samples in time order and returns their Estimates, one row
+    per sample: the contact wrench in S and, per sample, whether it is a contact and whether each stage has
+    converged. That is all the host needs to record an estimator and compare it with others. What it reports
+    besides (its parameters, their covariance and std, events) is optional: the capabilities below.
     """
 
     def update_block(self, block: AlignedSamples) -> Estimates: ...
-    def params(self) -> dict[str, list[float]]: ...
-    def cov_diag(self) -> list[float]: ...
 
 
 @runtime_checkable
@@ -100,6 +97,42 @@ class HapticOutput(Protocol):
 
 
 # ---------------------------------------------------------------- optional capabilities
+
+
+@runtime_checkable
+class ReportsParams(Protocol):
+    """An estimator that reports what it has identified.
+
+    ``params()`` maps physical names to lists of floats (SI units, the frame in the name), recorded on
+    ``/estimator/<name>`` at 10 Hz and in the session summary. The paper's model names its parameters
+    ``gravity_force_B``, ``bias_force_S``, ``cog_S``, ``bias_torque_S``: an estimator that reports
+    ``gravity_force_B`` and ``bias_force_S`` lets the host check, while the haptics are on, that the robot's
+    poses are in step with the wrench (``sessions.live.watch``); the primary estimator must, or the haptic
+    force stays off ("<label> reports no weight model").
+    """
+
+    def params(self) -> dict[str, list[float]]: ...
+
+
+WEIGHT_MODEL = ("gravity_force_B", "bias_force_S")
+"""The parameters the host needs from the primary estimator to drive the haptics (``ReportsParams``)."""
+
+
+@runtime_checkable
+class ReportsCovariance(Protocol):
+    """An estimator that reports its state's covariance diagonal (``cov_diag()``, recorded beside ``params``)."""
+
+    def cov_diag(self) -> list[float]: ...
+
+
+def params_of(estimator: object) -> dict[str, list[float]]:
+    """An estimator's ``params()``, or {} when it reports none (offline tools, once per run)."""
+    return estimator.params() if isinstance(estimator, ReportsParams) else {}
+
+
+def cov_diag_of(estimator: object) -> list[float]:
+    """An estimator's ``cov_diag()``, or [] when it reports none (offline tools, once per run)."""
+    return estimator.cov_diag() if isinstance(estimator, ReportsCovariance) else []
 
 
 @runtime_checkable

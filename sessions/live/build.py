@@ -26,7 +26,9 @@ from hapticlab.core.host.interfaces import (
     KinematicsSource,
     KnowsMount,
     Reidentifies,
+    ReportsCovariance,
     ReportsParameterStd,
+    ReportsParams,
     SavesState,
     SensorSource,
     ServosCartesian,
@@ -65,6 +67,8 @@ class EstimatorSlot:
         saves: the same object when its state starts the next session, else None.
         reidentifies: the same object when it can re-identify its bias on request, else None.
         holds_out: the same object when it holds samples out of its update without calling them a contact.
+        reports_params: the same object when it reports its parameters (``params()``), else None.
+        reports_cov: the same object when it reports its covariance diagonal (``cov_diag()``), else None.
     """
 
     label: str
@@ -76,6 +80,8 @@ class EstimatorSlot:
     saves: SavesState | None = None
     reidentifies: Reidentifies | None = None
     holds_out: HoldsOutOutliers | None = None
+    reports_params: ReportsParams | None = None
+    reports_cov: ReportsCovariance | None = None
 
     @classmethod
     def of(cls, label: str, estimator: Any) -> "EstimatorSlot":
@@ -94,11 +100,21 @@ class EstimatorSlot:
             has(SavesState),
             has(Reidentifies),
             has(HoldsOutOutliers),
+            has(ReportsParams),
+            has(ReportsCovariance),
         )
 
     @property
     def topic(self) -> str:
         return f"/estimator/{self.label}"
+
+    def params(self) -> dict[str, list[float]] | None:
+        """The estimator's parameters, or None when it reports none."""
+        return None if self.reports_params is None else self.reports_params.params()
+
+    def cov_diag(self) -> list[float] | None:
+        """The estimator's covariance diagonal, or None when it reports none."""
+        return None if self.reports_cov is None else self.reports_cov.cov_diag()
 
 
 @dataclass

@@ -23,6 +23,8 @@ The force is held at zero (the reason is recorded with each command) while:
   parameters are known, the flag only whether the last update moved them);
 * its force-stage parameters are not yet known to ``ready_force_std`` (for an
   estimator that reports their std), or are no longer (the std grew back);
+* the estimator gives no weight model (``params()`` with ``gravity_force_B`` and ``bias_force_S``): the lag
+  watch cannot check the poses against the wrench, so the force stays off for good, with that reason;
 * an estimator event said the tool's weight changed (held ``PAYLOAD_HOLD_NS``);
 * a refused run behaved like a sensor-frame bias step (``watch.BiasWatch``):
   held until the estimator has re-identified its bias and converged again,
@@ -41,7 +43,7 @@ import math
 
 import numpy as np
 
-from hapticlab.core.host.interfaces import HasRange, Reidentifies, ReportsParameterStd
+from hapticlab.core.host.interfaces import WEIGHT_MODEL, HasRange, Reidentifies, ReportsParameterStd
 from hapticlab.core.types import STATUS_OK, AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
 from hapticlab.sessions.live.watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch
@@ -151,6 +153,7 @@ class HapticGate:
         frozen_pose_timeout_ns: int,
         max_turn_rate: float,
         max_speed: float,
+        reports_params: bool = True,
     ):
         self.label = label
         self.ready_force_std = ready_force_std
@@ -174,6 +177,9 @@ class HapticGate:
         self.last_sample_ns: int | None = None
         self.data_reason = ""
         self.fault = ""  # the fault the last event named
+        # the estimator gives the weight model the lag watch predicts with (False: it reports no params, or
+        # params without gravity_force_B and bias_force_S; found at its first params)
+        self.weight_model = reports_params
 
     def frozen(self) -> bool:
         """The robot's poses are frozen now (their samples must not reach the estimators)."""
@@ -192,7 +198,14 @@ class HapticGate:
     ) -> None:
         """Samples kept from the estimators because the poses are not trusted: the lag watch still sees them."""
         if self.parameters_known and params is not None and not self.frozen():
+            self._watch_lag(block, params, R_SE)
+
+    def _watch_lag(self, block: AlignedSamples, params: dict[str, list[float]], R_SE: np.ndarray | None) -> None:
+        """Feed the lag watch, with the estimator's weight model; without one the poses cannot be checked."""
+        if all(key in params for key in WEIGHT_MODEL):
             self.lag.add(block, params, R_SE)
+        else:
+            self.weight_model = False
 
     def _jumped(self, now_ns: int) -> bool:
         return self.poses.jump is not None and now_ns - self.poses.jump[0] < JUMP_HOLD_NS
@@ -248,7 +261,7 @@ class HapticGate:
             self.bias_hold = ""
             events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
         if self.parameters_known and params is not None:
-            self.lag.add(block, params, R_SE)
+            self._watch_lag(block, params, R_SE)
         # (once the parameters are known, as the lag watch: a refused run before the tool is identified says
         # nothing of a bias step, and kalman's flag at the pose is up long before)
         step = self.bias.add(block, est) if self.parameters_known and not self.bias_hold else None
@@ -351,6 +364,9 @@ class HapticGate:
             )
         if self.parameters_lost:
             return "parameters no longer known (uncertainty grew)"
+        if not self.weight_model:
+            return f"{self.label} reports no weight model ({' and '.join(WEIGHT_MODEL)}): the poses cannot be checked"
+
         if now_ns < self.hold_until_ns:
             return "payload change: tool weight re-identified, holding"
         return ""

@@ -223,6 +223,7 @@ class LiveLoop:
             int(round(settings.frozen_pose_timeout * 1e9)),
             settings.max_turn_rate,
             settings.max_speed,
+            reports_params=session.primary.reports_params is not None,
         )
         self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
         sensor = session.sensor
@@ -443,12 +444,12 @@ class LiveLoop:
     def _primary_model(self) -> tuple[dict[str, list[float]] | None, np.ndarray | None]:
         """The primary estimator's parameters (once the gate knows them to be identified) and its mount R_SE."""
         primary = self.s.primary
-        params = primary.estimator.params() if self.gate.parameters_known else None
+        params = primary.params() if self.gate.parameters_known else None
         return params, None if primary.mount is None else primary.mount.R_SE
 
     def _record_estimates(self, slot: EstimatorSlot, est, with_params: bool) -> None:
         if with_params:
-            self.taps.estimates(slot.topic, est, slot.estimator.params(), slot.estimator.cov_diag())
+            self.taps.estimates(slot.topic, est, slot.params() or {}, slot.cov_diag() or [])
         else:
             self.taps.estimates(slot.topic, est)
 
@@ -609,7 +610,7 @@ class LiveLoop:
             self._event(Event(end_ns, "error", str(failure), {"part": failure.part}))
         primary = self.s.primary
         try:
-            params = primary.estimator.params() if self.samples else {}
+            params = (primary.params() or {}) if self.samples else {}
         except Exception as exc:  # the estimator that just failed may fail again
             params = {}
             self._event(Event(end_ns, "error", f"estimator parameters unavailable: {exc}"))

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core.errors import UserError
+from hapticlab.core.host.interfaces import cov_diag_of, params_of
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import Estimates
 from hapticlab.sessions.config import parse_value
@@ -156,7 +157,7 @@ def run_estimator(stream: Stream, estimator: Any, progress=None) -> Estimates:
     convergence flags of the row before them.
     """
     ((_, est),) = estimate_chunks([stream], estimator, progress, total=len(stream))
-    return replace(est, params=estimator.params(), cov_diag=estimator.cov_diag())
+    return replace(est, params=params_of(estimator), cov_diag=cov_diag_of(estimator))
 
 
 @dataclass
@@ -221,19 +222,19 @@ def compensate(
     if not isinstance(recording, Stream):
         notes += unused_note(Path(source).name, unused)
     rows = scored_f.rows
-    params: dict[str, Any] = dict(estimator.params())
+    params: dict[str, Any] = dict(params_of(estimator))
     params.update(
         {
             "estimator": estimator_name,
             "samples": rows,
             "first_converged_force": scored_f.first,
             "first_converged_torque": scored_t.first,
-            "cov_diag": estimator.cov_diag(),
+            "cov_diag": cov_diag_of(estimator),
         }
     )
     if params_out:
         write_text(params_out, json.dumps(params, indent=2) + "\n", force, label="--params-out")
-    estimates = Estimates.concatenate(parts, estimator.params(), estimator.cov_diag()) if keep_estimates else None
+    estimates = Estimates.concatenate(parts, params_of(estimator), cov_diag_of(estimator)) if keep_estimates else None
     return CompensateResult(
         rows, estimates, params, scored_f.value.tolist(), scored_t.value.tolist(), scored_f.first, scored_t.first, notes
     )

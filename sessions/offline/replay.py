@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from hapticlab.core.host.interfaces import cov_diag_of, params_of
 from hapticlab.core.host.registry import Registry
 from hapticlab.core.types import first_true
 from hapticlab.sessions.offline.compensate import estimator_options, run_estimator
@@ -91,8 +92,8 @@ def replay(
                     t_ns,
                     {key: values[i] for key, values in flags.items()}
                     | {
-                        "params": estimator.params() if i == n - 1 else None,
-                        "cov_diag": estimator.cov_diag() if i == n - 1 else None,
+                        "params": params_of(estimator) if i == n - 1 else None,
+                        "cov_diag": cov_diag_of(estimator) if i == n - 1 else None,
                     },
                 )
     return {
@@ -100,7 +101,7 @@ def replay(
         "estimator": estimator_name,
         "rows": len(est),
         "comparison": comparison,
-        "params": estimator.params(),
+        "params": params_of(estimator),
     }
 
 

@@ -276,8 +276,8 @@ def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
             rf"options: {KALMAN_OPTIONS}, documented in "
             r"hapticlab.plugins.estimators.kalman.options.KalmanOptions$",
         ),
-        ("session.duration=soon", r"^session.duration: expected a number, got 'soon'$"),
-        ("haptic.max_force=[1, 2]", r"^haptic.max_force: expected a number, got \[1, 2\]$"),
+        ("session.duration=soon", r"^session.duration: must be a finite number > 0 and <= 86400 \(s\), got 'soon'$"),
+        ("haptic.max_force=[1, 2]", r"^haptic.max_force: must be a finite number > 0 \(N\), got \[1, 2\]$"),
         ("world.tool.mass=heavy", r"^world.tool.mass: expected a number, got 'heavy'$"),
         ("sensor.rate_hz=true", r"^sensor.rate_hz: must be a number, got True$"),
     ],

@@ -19,6 +19,7 @@ from hapticlab.core.host.options import (
     OptionError,
     boolean,
     check,
+    check_fields,
     choice,
     integer,
     number,
@@ -53,12 +54,11 @@ def _button(what: str) -> Check:
 
 
 def _check_fields(record: Any, where: str) -> None:
-    """Run a record's ``CHECKS`` on its fields, storing the converted values; ConfigError naming ``where.key``."""
-    for name, check_field in record.CHECKS.items():
-        try:
-            object.__setattr__(record, name, check_field(name, getattr(record, name)))
-        except OptionError as exc:
-            raise exc.under(where) from None
+    """Run a record's ``CHECKS`` on its fields; ConfigError naming ``where.key``."""
+    try:
+        check_fields(record, record.CHECKS)
+    except OptionError as exc:
+        raise exc.under(where) from None
 
 
 @dataclass(frozen=True)

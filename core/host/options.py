@@ -190,6 +190,13 @@ def matrix(key: str, value: Any, *, shape: tuple[int, int] = (3, 3), hint: str =
     return array
 
 
+def check_fields(record: Any, checks: Mapping[str, Check]) -> None:
+    """Run ``checks`` on a frozen record's fields (from its ``__post_init__``), keeping what they return
+    (the converted value: a float, a read-only array); OptionError naming the field."""
+    for name, check_field in checks.items():
+        object.__setattr__(record, name, check_field(name, getattr(record, name)))
+
+
 def check(function: Callable[..., Any], **limits: Any) -> Check:
     """A table's check from a toolkit function and its limits: ``check(number, above=0)``."""
     return partial(function, **limits) if limits else function

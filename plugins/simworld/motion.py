@@ -38,6 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hapticlab.core.frames import skew, skew_stack
+from hapticlab.core.host.options import OptionError, choice, integer, number
 
 __all__ = [
     "HORIZONTAL_R_BE",
@@ -265,7 +266,7 @@ class Hold(MotionScript):
     ):
         axis = np.asarray(tilt_axis_B, dtype=float)
         if axis.shape != (3,) or not np.linalg.norm(axis) > 0:
-            raise ValueError(f"tilt_axis_B must be a non-zero 3-vector, got {tilt_axis_B!r}")
+            raise OptionError("tilt_axis_B", f"must be 3 numbers, not all zero (an axis), got {tilt_axis_B!r}")
         tilt = Rotation.from_rotvec(axis / np.linalg.norm(axis) * np.deg2rad(tilt_deg))
         roll = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(roll_deg)])
         self.R_BE = tilt.as_matrix() @ NOMINAL_R_BE @ roll.as_matrix()
@@ -315,14 +316,11 @@ class RandomTour(MotionScript):
         waypoints: int | None = None,
         p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
     ):
-        if segment_s <= 0:
-            raise ValueError(f"segment_s must be > 0, got {segment_s!r}")
-        if dwell_s < 0:
-            raise ValueError(f"dwell_s must be >= 0, got {dwell_s!r}")
-        if waypoints is not None and waypoints < 1:
-            raise ValueError(f"waypoints must be >= 1, got {waypoints!r}")
-        if not 0 <= max_tilt_deg <= 180:
-            raise ValueError(f"max_tilt_deg must be within [0, 180], got {max_tilt_deg!r}")
+        number("segment_s", segment_s, above=0, hint=" (s)")
+        number("dwell_s", dwell_s, minimum=0, hint=" (s)")
+        if waypoints is not None:
+            integer("waypoints", waypoints, minimum=1)
+        number("max_tilt_deg", max_tilt_deg, minimum=0, maximum=180, hint=" (degrees)")
         self.seed = int(seed)
         self.max_tilt_deg = float(max_tilt_deg)
         self.max_roll_deg = float(max_roll_deg)
@@ -499,13 +497,11 @@ class AxialRotation(MotionScript):
         p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
     ):
         if duration is not None and turns is not None:
-            raise ValueError("give either duration or turns, not both")
-        if speed_deg_s == 0:
-            raise ValueError("speed_deg_s must not be zero")
-        if ramp_s <= 0:
-            raise ValueError(f"ramp_s must be > 0, got {ramp_s!r}")
-        if start_s < 0:
-            raise ValueError(f"start_s must be >= 0, got {start_s!r}")
+            raise OptionError("turns", "give either duration or turns, not both")
+        if number("speed_deg_s", speed_deg_s, hint=" (deg/s)") == 0:
+            raise OptionError("speed_deg_s", "must be a finite number other than 0 (deg/s), got 0")
+        number("ramp_s", ramp_s, above=0, hint=" (s)")
+        number("start_s", start_s, minimum=0, hint=" (s)")
         self.speed = np.deg2rad(float(speed_deg_s))  # rad/s
         self.ramp_s = float(ramp_s)
         self.start_s = float(start_s)
@@ -513,11 +509,17 @@ class AxialRotation(MotionScript):
         self.p_BoEo_B = np.asarray(p_BoEo_B, dtype=float)
         if duration is None:
             angle = 2.0 * np.pi * (1.0 if turns is None else float(turns))
+            longest_ramp_s = angle / abs(self.speed)
             self.cruise_s = angle / abs(self.speed) - self.ramp_s
         else:
+            longest_ramp_s = float(duration) / 2.0
             self.cruise_s = float(duration) - 2.0 * self.ramp_s
         if self.cruise_s < 0:
-            raise ValueError("the rotation is too short for its two speed ramps; lower ramp_s or raise duration/turns")
+            raise OptionError(
+                "ramp_s",
+                f"must be <= {longest_ramp_s:g} s: the rotation is too short for its two speed ramps "
+                f"(lower ramp_s or raise duration or turns), got {ramp_s!r}",
+            )
         # HORIZONTAL_R_BE [z]× and HORIZONTAL_R_BE [z]×²: Rot_z by Rodrigues' formula (see _rodrigues)
         z_cross = skew(np.array([0.0, 0.0, 1.0]))
         self._R_BE_0_n = HORIZONTAL_R_BE @ z_cross
@@ -585,8 +587,4 @@ MOTION_SCRIPTS: dict[str, type[MotionScript]] = {
 
 def make_motion(script: str, **options: object) -> MotionScript:
     """Build a motion script by name (see :data:`MOTION_SCRIPTS`) with its options."""
-    try:
-        cls = MOTION_SCRIPTS[script]
-    except KeyError:
-        raise ValueError(f"unknown motion script {script!r}; known: {', '.join(MOTION_SCRIPTS)}") from None
-    return cls(**options)
+    return MOTION_SCRIPTS[choice("script", script, tuple(MOTION_SCRIPTS))](**options)

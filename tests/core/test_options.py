@@ -14,6 +14,7 @@ from hapticlab.core.host.options import (
     accepts,
     boolean,
     check,
+    check_fields,
     choice,
     integer,
     is_number,
@@ -185,3 +186,19 @@ def test_read_table():
         read_table("t", {"mas": 1}, checks)
     with pytest.raises(ConfigError, match=r"^t: must be a table, got 3$"):
         read_table("t", 3, checks)
+
+
+def test_check_fields_converts_a_frozen_records_fields():
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class Record:
+        mass: float = 1
+        cog: tuple = (0, 0, 0)
+
+        def __post_init__(self):
+            check_fields(self, {"mass": check(number, above=0), "cog": vector})
+
+    record = Record()
+    assert type(record.mass) is float and record.cog.tolist() == [0.0, 0.0, 0.0]
+    assert refusal(Record, mass=0) == "mass: must be a finite number > 0, got 0"

@@ -133,7 +133,7 @@ def test_made_up_force_counts_what_the_true_force_cannot_explain():
         ("kinematics.rate_hz=-1", r"^kinematics.rate_hz: must be > 0"),
         (
             "world.faults=[{kind = 'sensor_smoke', start = 1.0}]",
-            r"^world.faults\[0\].kind: unknown fault 'sensor_smoke'",
+            r"^world.faults\[0\].kind: must be 'sensor_spike', .*, got 'sensor_smoke'$",
         ),
         ("world.faults=[{kind = 'sensor_nan'}]", r"^world.faults\[0\].start: missing"),
     ],

@@ -278,7 +278,7 @@ def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
         ),
         ("session.duration=soon", r"^session.duration: must be a finite number > 0 and <= 86400 \(s\), got 'soon'$"),
         ("haptic.max_force=[1, 2]", r"^haptic.max_force: must be a finite number > 0 \(N\), got \[1, 2\]$"),
-        ("world.tool.mass=heavy", r"^world.tool.mass: expected a number, got 'heavy'$"),
+        ("world.tool.mass=heavy", r"^world.tool.mass: must be a finite number > 0 \(kg\), got 'heavy'$"),
         ("sensor.rate_hz=true", r"^sensor.rate_hz: must be a number, got True$"),
     ],
 )

@@ -29,8 +29,8 @@ class Cable:
 
     Attributes:
         anchor_B: (3,) where the cable is held, in B, m.
-        stiffness: N/m (>= 0).
-        damping: N·s/m (>= 0).
+        stiffness: k, the pull per metre from the anchor, N/m (>= 0; 0: drag only).
+        damping: c, the drag per m/s of the point's velocity, N·s/m (>= 0; 0: spring only).
         point_S: (3,) the point of the tool it pulls, in S, m; None: the tool tip.
     """
 

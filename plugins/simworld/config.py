@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -50,6 +50,8 @@ __all__ = [
     "parse_world_table",
 ]
 
+T = TypeVar("T")
+
 
 @dataclass(frozen=True, slots=True)
 class WorldSpec:
@@ -67,45 +69,44 @@ class WorldSpec:
 
 # --------------------------------------------------------------------------- what each key accepts
 
-_vec3 = vector
 _positive = check(number, above=0)
-_not_negative = check(number, minimum=0)
 _seconds = check(number, hint=" (s)")
 _forever = check(number, minimum=0, finite=False, hint=" (s; inf: for ever)")
 _degrees = check(number, hint=" (degrees)")
 
 TOOL_OPTIONS: dict[str, Check] = {
     "mass": check(number, above=0, hint=" (kg)"),
-    "cog": _vec3,
+    "cog": vector,
     "inertia_diag": check(vector, broadcast=True, minimum=0, hint=" (kg·m²)"),
     "inertia": inertia_matrix,
-    "tip": _vec3,
+    "tip": vector,
 }
 """``[world.tool]``: key -> check."""
+TOOL_FIELDS = {"mass": "mass", "cog": "cog_S", "inertia_diag": "inertia_S", "inertia": "inertia_S", "tip": "tip_S"}
+"""``[world.tool]`` key -> ToolParams field."""
 
-_drift_rw = check(vector, broadcast=True, minimum=0)
-_noise = check(vector, broadcast=True, minimum=0)
+_not_negative = check(vector, broadcast=True, minimum=0)
 _saturation = check(vector, broadcast=True, above=0)
 SENSOR_OPTIONS: dict[str, Check] = {
-    "bias_force": _vec3,
-    "bias_torque": _vec3,
-    "drift_force": _vec3,
-    "drift_torque": _vec3,
-    "drift_force_rw": _drift_rw,
-    "drift_torque_rw": _drift_rw,
-    "noise_force": _noise,
-    "noise_torque": _noise,
+    "bias_force": vector,
+    "bias_torque": vector,
+    "drift_force": vector,
+    "drift_torque": vector,
+    "drift_force_rw": _not_negative,
+    "drift_torque_rw": _not_negative,
+    "noise_force": _not_negative,
+    "noise_torque": _not_negative,
     "saturation_force": _saturation,
     "saturation_torque": _saturation,
-    "mount_rotation": _vec3,
-    "offset": _vec3,
+    "mount_rotation": vector,
+    "offset": vector,
     "gain_force": calibration_error,
     "gain_torque": calibration_error,
     "warmup_force": check(vector, broadcast=True),
     "warmup_torque": check(vector, broadcast=True),
     "warmup_tau": check(number, above=0, hint=" (s)"),
-    "hysteresis_force": _noise,
-    "hysteresis_torque": _noise,
+    "hysteresis_force": _not_negative,
+    "hysteresis_torque": _not_negative,
 }
 """``[world.sensor]``: key -> check."""
 SENSOR_FIELDS = {key: f"{key}_S" for key in SENSOR_OPTIONS} | {
@@ -116,18 +117,16 @@ SENSOR_FIELDS = {key: f"{key}_S" for key in SENSOR_OPTIONS} | {
 """``[world.sensor]`` key -> SensorParams field."""
 
 ROBOT_OPTIONS: dict[str, Check] = {
-    "base_tilt": _vec3,
-    "position": _vec3,
+    "base_tilt": vector,
+    "position": vector,
     "kinematics_lag": check(number, minimum=-1, maximum=1, hint=" (s)"),
 }
 """``[world.robot]``: key -> check."""
 ROBOT_FIELDS = {"base_tilt": "base_tilt_BG", "position": "p_BoEo_B", "kinematics_lag": "kinematics_lag_s"}
 """``[world.robot]`` key -> RobotParams field."""
-TOOL_FIELDS = {"mass": "mass", "cog": "cog_S", "inertia_diag": "inertia_S", "inertia": "inertia_S", "tip": "tip_S"}
-"""``[world.tool]`` key -> ToolParams field."""
 
 _count = check(integer, minimum=1)
-_hold = {"tilt_deg": _degrees, "tilt_axis_B": _vec3, "roll_deg": _degrees}
+_hold = {"tilt_deg": _degrees, "tilt_axis_B": vector, "roll_deg": _degrees}
 MOTION_OPTIONS: dict[str, dict[str, Check]] = {
     "random_tour": {
         "max_tilt_deg": check(number, minimum=0, maximum=180, hint=" (degrees)"),
@@ -177,27 +176,27 @@ CONTACT_OPTIONS: dict[str, dict[str, Check]] = {
         "duration": _forever,
         "peak_force": check(number, minimum=0, hint=" (N)"),
         "ramp": check(number, minimum=0, hint=" (s)"),
-        "direction_B": _vec3,
-        "point_S": _vec3,
+        "direction_B": vector,
+        "point_S": vector,
     },
     "hanging_mass": {
         "start": _seconds,
         "duration": _forever,
         "mass": check(number, above=0, hint=" (kg)"),
-        "point_S": _vec3,
+        "point_S": vector,
     },
     "tissue": {
-        "surface_B": _vec3,
-        "normal_B": _vec3,
+        "surface_B": vector,
+        "normal_B": vector,
         "stiffness": check(number, above=0, hint=" (N/m)"),
         "damping": check(number, minimum=0, hint=" (N·s/m)"),
-        "point_S": _vec3,
+        "point_S": vector,
     },
     "cable": {
-        "anchor_B": _vec3,
+        "anchor_B": vector,
         "stiffness": check(number, minimum=0, hint=" (N/m)"),
         "damping": check(number, minimum=0, hint=" (N·s/m)"),
-        "point_S": _vec3,
+        "point_S": vector,
     },
 }
 """``[[world.contacts]]``: kind -> its options (``kind`` itself aside)."""
@@ -240,7 +239,7 @@ FAULT_OPTIONS: dict[str, Check] = {
 # --------------------------------------------------------------------------- readers
 
 
-def _build(where: str, factory: Callable[..., Any], **kwargs: Any) -> Any:
+def _build(where: str, factory: Callable[..., T], **kwargs: Any) -> T:
     """Call a record's constructor; its OptionError names the full key, another ValueError the table."""
     try:
         return factory(**kwargs)

@@ -49,7 +49,7 @@ class Fault:
     """One injected fault.
 
     Attributes:
-        kind: one of :data:`KINDS`.
+        kind: what goes wrong: a sensor fault or a kinematics fault, as listed above.
         start: when it starts, s of world time.
         duration: how long it lasts, s (``inf``: for good).
         force: (3,) force added by a spike or a bias step, N (in S).

@@ -141,7 +141,8 @@ class ServoedMotion(MotionScript):
     bandwidth_hz : the servo's bandwidth, Hz (critically damped; a step settles in ~1/bandwidth s).
     max_speed : the flange's speed limit, m/s (UR: 0.25 m/s is the collaborative default).
     max_accel : the flange's acceleration limit, m/s².
-    max_angular_speed : rad/s. max_angular_accel : rad/s².
+    max_angular_speed : the flange's turn rate limit, rad/s.
+    max_angular_accel : the flange's angular acceleration limit, rad/s².
     step_s : the integration step, s (a UR controller's 2 ms at e-Series is 500 Hz; 1 ms here).
     history_s : how far back ``evaluate`` can look, s (older times get the oldest state kept).
 

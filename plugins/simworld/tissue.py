@@ -34,8 +34,8 @@ class Tissue:
     Attributes:
         surface_B: (3,) a point of the undeformed surface, in B, m.
         normal_B: (3,) outward normal of the surface (normalised here), in B.
-        stiffness: N/m (> 0).
-        damping: N·s/m (>= 0).
+        stiffness: k, the push per metre of depth, N/m (> 0).
+        damping: c, the push per m/s the tip moves into the tissue, N·s/m (>= 0).
         point_S: (3,) the point of the tool that touches, in S, m; None: the tool tip.
     """
 

@@ -1,6 +1,6 @@
 """A cable, hose or trocar on the tool: a force that depends on where the tool is and how fast it moves.
 
-Physical effects the discrepancy workflow's library does not model (issue 17):
+Physical effects the discrepancy workflow's library does not model:
 a sensor cable or an irrigation hose clipped to the tool pulls it towards where
 the cable is held, more the further the tool moves away; an instrument passing
 through a trocar or moving in fluid is dragged against its velocity. Both as one

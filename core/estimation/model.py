@@ -16,11 +16,13 @@ refusals and reports them as ``sample_refused`` events (docs/estimators.md,
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from hapticlab.core.estimation import model_kernel as plausible_kernel
 from hapticlab.core.frames import cross
+from hapticlab.core.host.options import number
 from hapticlab.core.types import AlignedSamples, Estimates, Event
 
 
@@ -76,13 +78,9 @@ REASONS = (NON_FINITE, NOT_A_ROTATION, BEYOND_THE_BOUND)
 _I3 = np.eye(3)
 
 
-def wrench_bound(key: str, value, largest: float) -> float:
-    """A ``max_force`` / ``max_torque`` option: a finite number in (0, largest]; ValueError naming the key."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= largest:
-        raise ValueError(
-            f"{key}: must be a number > 0 and <= {largest:g} (a bound far above the sensor's range), got {value!r}"
-        )
-    return float(value)
+def wrench_bound(key: str, value: Any, largest: float) -> float:
+    """A ``max_force`` / ``max_torque`` option: a finite number in (0, largest]; OptionError naming the key."""
+    return number(key, value, above=0, maximum=largest, hint=" (a bound far above the sensor's range)")
 
 
 def refusal_codes(
@@ -113,8 +111,8 @@ def all_plausible(
 ) -> bool:
     """True when ``refusal_codes`` would refuse none of the samples (a screen: False means "look closer").
 
-    One compiled pass over the block (``core.estimation.model_kernel``; ``refusal_codes`` is the reference):
-    every estimator runs it on every block, where a dozen numpy calls would cost more than the filter.
+    One compiled pass over the block (``core.estimation.model_kernel``; ``refusal_codes`` is the reference),
+    cheaper than the numpy calls it replaces (``docs/estimators.md``, "Refused samples").
     """
     return plausible_kernel.all_plausible(force_S, torque_S, R_EB, max_force, max_torque, ROTATION_TOLERANCE)
 

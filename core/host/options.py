@@ -2,16 +2,18 @@
 
 A check takes the key (for the message) and the value, and returns the value checked and
 converted (a float, an int, a read-only numpy array) or raises :class:`OptionError` naming the key:
-``noise_force: must be a number > 0, 3 such numbers or 'auto', got -1``. A reader that knows where
-the key sits prefixes it (``estimator.noise_force: ...``, ``world.tool.mass: ...``) and the command
-line prints that one line with exit status 2.
+``noise_force: must be a number or 3 numbers, each >= 0, got -1``. A reader that knows where the
+key sits prefixes it (``estimator.noise_force: ...``, ``world.tool.mass: ...``) and the command
+line prints that one line with exit status 2. The words after ``must be`` say what the option
+accepts; :func:`accepts` gives them for the reference pages.
 
 Who uses it: the plugins' typed options (a frozen dataclass per plugin whose ``__post_init__``
 runs these checks once), the simulated world's ``[world]`` tables and the session's own tables
 (``[session]``, ``[haptic]``, ``[teleop]``).
 
 Booleans are never numbers here (TOML's ``true`` is not 1), NaN is never a number, and a limit
-is printed with ``:g`` so the message shows what the user typed.
+is printed with ``:g`` so the message shows what the user typed. numpy scalars and arrays count
+as numbers (a record built in Python may hold them).
 """
 
 from __future__ import annotations
@@ -47,11 +49,17 @@ class OptionError(ValueError):
 
 
 def is_number(value: Any) -> bool:
-    """An int or float that is not a bool and not NaN (inf passes: the range checks decide)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and not math.isnan(value)
+    """An int or float (numpy's too) that is not a bool and not NaN (inf passes: the range checks decide)."""
+    return (
+        isinstance(value, (int, float, np.integer, np.floating))
+        and not isinstance(value, bool)
+        and not math.isnan(value)
+    )
 
 
-def _range_words(minimum: float | None, above: float | None, maximum: float | None, below: float | None) -> str:
+def _range_words(
+    minimum: float | None, above: float | None, maximum: float | None = None, below: float | None = None
+) -> str:
     words = []
     if minimum is not None:
         words.append(f">= {minimum:g}")
@@ -64,7 +72,9 @@ def _range_words(minimum: float | None, above: float | None, maximum: float | No
     return " and ".join(words)
 
 
-def _in_range(x: float, minimum: float | None, above: float | None, maximum: float | None, below: float | None) -> bool:
+def _in_range(
+    x: float, minimum: float | None, above: float | None, maximum: float | None = None, below: float | None = None
+) -> bool:
     return (
         (minimum is None or x >= minimum)
         and (above is None or x > above)
@@ -99,10 +109,11 @@ def number(
 
 def integer(key: str, value: Any, *, minimum: int | None = None, maximum: int | None = None, hint: str = "") -> int:
     """A whole number (an int, not a bool) within the inclusive limits given."""
-    if not isinstance(value, int) or isinstance(value, bool) or not _in_range(value, minimum, None, maximum, None):
-        limits = _range_words(minimum, None, maximum, None)
+    whole = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if not whole or not _in_range(value, minimum, None, maximum):
+        limits = _range_words(minimum, None, maximum)
         raise OptionError(key, f"must be a whole number{' ' + limits if limits else ''}{hint}, got {value!r}")
-    return value
+    return int(value)
 
 
 def boolean(key: str, value: Any) -> bool:
@@ -129,6 +140,23 @@ def choice(key: str, value: Any, choices: Sequence[Any], *, hint: str = "") -> A
     return value
 
 
+def _finite_array(value: Any, shape: tuple[int, ...]) -> np.ndarray | None:
+    """``value`` (nested lists, tuples or a numpy array of numbers) as a new float array of ``shape``,
+    or None when it is not that many finite numbers (bools and strings are not numbers)."""
+    if isinstance(value, np.ndarray):
+        if value.shape != shape or value.dtype.kind not in "iuf" or not np.isfinite(value).all():
+            return None
+        return value.astype(float)
+    if not shape:
+        return np.array(float(value)) if is_number(value) and math.isfinite(value) else None
+    if not isinstance(value, (list, tuple)) or len(value) != shape[0]:
+        return None
+    items = [_finite_array(item, shape[1:]) for item in value]
+    if any(item is None for item in items):
+        return None
+    return np.array(items, dtype=float)
+
+
 def vector(
     key: str,
     value: Any,
@@ -141,49 +169,54 @@ def vector(
 ) -> np.ndarray:
     """``size`` finite numbers (with ``broadcast``, one number stands for all), each within the limits;
     a read-only float array."""
-    if broadcast and is_number(value) and math.isfinite(value):
+    array = _finite_array(value, (size,))
+    if array is None and broadcast and is_number(value) and math.isfinite(value):
         array = np.full(size, float(value))
-    elif (
-        isinstance(value, (list, tuple, np.ndarray))
-        and len(value) == size
-        and all(is_number(v) and math.isfinite(v) for v in value)
-    ):
-        array = np.array(value, dtype=float)
-    else:
-        limits = _range_words(minimum, above, None, None)
-        each = f", each {limits}" if limits else ""
+    if array is None or not all(_in_range(float(v), minimum, above) for v in array):
+        limits = _range_words(minimum, above)
         what = f"a number or {size} numbers" if broadcast else f"{size} numbers"
-        raise OptionError(key, f"must be {what}{each}{hint}, got {value!r}")
-    if not all(_in_range(float(v), minimum, above, None, None) for v in array):
-        each = ("each " if size > 1 else "") + _range_words(minimum, above, None, None)
-        raise OptionError(key, f"must be {each}{hint}, got {value!r}")
+        raise OptionError(key, f"must be {what}{', each ' + limits if limits else ''}{hint}, got {value!r}")
     array.setflags(write=False)
     return array
 
 
 def matrix(key: str, value: Any, *, shape: tuple[int, int] = (3, 3), hint: str = "") -> np.ndarray:
     """A matrix of finite numbers given as rows (``[[...], [...], [...]]``); a read-only float array."""
-    rows, cols = shape
-    ok = (
-        isinstance(value, (list, tuple, np.ndarray))
-        and len(value) == rows
-        and all(
-            isinstance(row, (list, tuple, np.ndarray))
-            and len(row) == cols
-            and all(is_number(v) and math.isfinite(v) for v in row)
-            for row in value
-        )
-    )
-    if not ok:
+    array = _finite_array(value, shape)
+    if array is None:
+        rows, cols = shape
         raise OptionError(key, f"must be a {rows}x{cols} matrix ({rows} rows of {cols} numbers){hint}, got {value!r}")
-    array = np.array(value, dtype=float)
     array.setflags(write=False)
     return array
+
+
+def check_fields(record: Any, checks: Mapping[str, Check]) -> None:
+    """Run ``checks`` on a frozen record's fields (from its ``__post_init__``), keeping what they return
+    (the converted value: a float, a read-only array); OptionError naming the field."""
+    for name, check_field in checks.items():
+        object.__setattr__(record, name, check_field(name, getattr(record, name)))
 
 
 def check(function: Callable[..., Any], **limits: Any) -> Check:
     """A table's check from a toolkit function and its limits: ``check(number, above=0)``."""
     return partial(function, **limits) if limits else function
+
+
+class _Probe:
+    """A value no check accepts: its refusal says what the check does accept."""
+
+    def __repr__(self) -> str:
+        return "<probe>"
+
+
+def accepts(check: Check) -> str:
+    """What a check accepts, in its messages' words: ``accepts(check(number, above=0))`` is
+    ``"a finite number > 0"`` (for reference pages generated from the code)."""
+    try:
+        check("key", _Probe())
+    except OptionError as exc:
+        return exc.problem.removeprefix("must be ").removesuffix(", got <probe>")
+    raise TypeError(f"{check!r} accepts anything: not a check of this toolkit")
 
 
 def unknown_key(where: str, key: str, known: Sequence[str]) -> ConfigError:

@@ -254,15 +254,25 @@ def _type_ok(value: Any, annotation: Any) -> bool:
     return True
 
 
-def _type_name(annotation: Any) -> str:
-    if annotation is float:
-        return "a number"
-    if annotation is int:
-        return "an integer"
+_TYPE_NAMES = {float: "number", int: "whole number", str: "string", dict: "table"}
+
+
+def _type_name(annotation: Any, plural: bool = False) -> str:
+    """What an annotation accepts, in the toolkit's words (``float | None``: "a number")."""
+    origin = typing.get_origin(annotation) or annotation
+    args = [arg for arg in typing.get_args(annotation) if arg is not type(None)]
     if annotation is bool:
         return "true or false"
-    if annotation is str:
-        return "a string"
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(arg, plural) for arg in args)
+    if origin in _TYPE_NAMES:
+        name = _TYPE_NAMES[origin]
+        return f"{name}s" if plural else f"a {name}"
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        return f"{len(args)} {_type_name(args[0], True)}" if len(set(args)) == 1 else f"{len(args)} values"
+    if origin in (list, tuple):
+        inner = _type_name(args[0], True) if args and args[0] is not Ellipsis else "values"
+        return f"lists of {inner}" if plural else f"a list of {inner}"
     return str(annotation).replace("typing.", "")
 
 
@@ -293,7 +303,7 @@ def validate_options(
                 if accepted[key] is str and isinstance(value, (int, float))
                 else ""
             )
-            raise ConfigError(f"{where}.{key}: expected {_type_name(accepted[key])}, got {value!r}{hint}")
+            raise ConfigError(f"{where}.{key}: must be {_type_name(accepted[key])}, got {value!r}{hint}")
         if accepted[key] is float and isinstance(value, int):
             options[key] = float(value)
     return options

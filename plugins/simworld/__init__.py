@@ -8,19 +8,13 @@ gravity (``RobotParams``), a motion script for the flange (``motion/``:
 plugins both read the same world, so the simulated wrench and pose agree.
 
 Build one from a session's ``[world]`` table with ``SimWorld.from_config(table)``
-(keys and defaults in ``config.py``), or from the parameter records directly.
+(keys and defaults in ``docs/sessions.md``, read by ``config.py``), or from the parameter records
+directly (``params.py``, ``contacts.py``).
 """
 
 from hapticlab.plugins.simworld.cable import Cable
-from hapticlab.plugins.simworld.config import (
-    HangingMass,
-    Indentation,
-    RobotParams,
-    SensorParams,
-    ToolParams,
-    WorldSpec,
-    parse_world_table,
-)
+from hapticlab.plugins.simworld.config import WorldSpec, parse_world_table
+from hapticlab.plugins.simworld.contacts import HangingMass, Indentation
 from hapticlab.plugins.simworld.motion import (
     AxialRotation,
     Hold,
@@ -30,6 +24,7 @@ from hapticlab.plugins.simworld.motion import (
     StaticPoses,
     make_motion,
 )
+from hapticlab.plugins.simworld.params import RobotParams, SensorParams, ToolParams
 from hapticlab.plugins.simworld.physics import SimWorld
 
 __all__ = [

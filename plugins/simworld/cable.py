@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hapticlab.plugins.simworld.tissue import _vector3
+from hapticlab.core.host.options import check, check_fields, number, vector
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,8 +29,8 @@ class Cable:
 
     Attributes:
         anchor_B: (3,) where the cable is held, in B, m.
-        stiffness: N/m (>= 0).
-        damping: N·s/m (>= 0).
+        stiffness: k, the pull per metre from the anchor, N/m (>= 0; 0: drag only).
+        damping: c, the drag per m/s of the point's velocity, N·s/m (>= 0; 0: spring only).
         point_S: (3,) the point of the tool it pulls, in S, m; None: the tool tip.
     """
 
@@ -40,13 +40,16 @@ class Cable:
     point_S: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "anchor_B", _vector3(self.anchor_B, "anchor_B"))
-        if not (
-            np.isfinite(self.stiffness) and self.stiffness >= 0 and np.isfinite(self.damping) and self.damping >= 0
-        ):
-            raise ValueError(f"need stiffness >= 0 and damping >= 0, got {self.stiffness!r}, {self.damping!r}")
+        check_fields(
+            self,
+            {
+                "anchor_B": vector,
+                "stiffness": check(number, minimum=0, hint=" (N/m)"),
+                "damping": check(number, minimum=0, hint=" (N·s/m)"),
+            },
+        )
         if self.point_S is not None:
-            object.__setattr__(self, "point_S", _vector3(self.point_S, "point_S"))
+            object.__setattr__(self, "point_S", vector("point_S", self.point_S))
 
     def force_B_at(self, x_B: np.ndarray, v_B: np.ndarray) -> np.ndarray:
         """(N, 3) force of the cable on the tool, in B, N, for the point at ``x_B`` (N, 3) m moving at

@@ -1,342 +1,56 @@
-"""Parameters of the simulated world, and how they are read from a session's ``[world]`` table.
+"""How a session's ``[world]`` table becomes a :class:`WorldSpec`: what each key accepts, and the readers.
 
-Records (all SI; the frame of every vector is in its name):
+The records it fills are in ``params.py`` (tool, sensor, robot), ``contacts.py``, ``tissue.py``,
+``cable.py`` (contacts), ``motion.py``, ``servo.py`` (motion scripts) and ``faults.py``. Every key's
+check is the option toolkit's, in the ``*_OPTIONS`` dicts below (``docs/sessions.md`` is generated
+from them and the records' docstrings).
 
-* :class:`ToolParams`: what hangs on the sensor (mass, centre of mass, inertia, tip).
-* :class:`SensorParams`: the F/T sensor (bias, drift, noise, saturation, mounting).
-* :class:`RobotParams`: the robot base tilt against gravity and the flange home position.
-* :class:`Indentation`, :class:`HangingMass`: contact events.
+The tables: ``[world]`` (``seed``, ``inertia``), ``[world.tool]``, ``[world.sensor]``,
+``[world.robot]``, ``[world.motion]`` (``script`` and that script's options),
+``[[world.contacts]]`` (``kind`` and that kind's options) and ``[[world.faults]]``; every key
+optional but a contact's ``kind`` (and an indentation's ``start``) and a fault's ``kind`` and
+``start``. Every key with its unit, default and meaning: ``docs/sessions.md``.
 
-TOML layout (every key optional; the defaults are the dataclass defaults)::
-
-    [world]
-    seed = 1                 # integer >= 0
-    inertia = true           # include the tool's inertial wrench
-    [world.tool]
-    mass = 0.35              # kg
-    cog = [0.002, -0.001, 0.0435]      # m, in S
-    inertia_diag = [...]     # kg·m² about the CoM, in S (or inertia = 3x3)
-    tip = [0.0, 0.0, 0.25]   # m, in S
-    [world.sensor]
-    bias_force = [...]  bias_torque = [...]          # N, N·m
-    drift_force = [...] drift_torque = [...]         # N/s, N·m/s
-    drift_force_rw = ...  drift_torque_rw = ...      # N/√s, N·m/√s (number or 3)
-    noise_force = 0.12  noise_torque = 0.01          # std, N, N·m (number or 3)
-    saturation_force = [65, 65, 200]  saturation_torque = 5   # N, N·m
-    mount_rotation = [0, 0, 0]  # rotation vector of R_SE, rad
-    offset = [0, 0, 0]          # p_EoSo_E, m
-    gain_force = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]   # calibration error G_f: read = (I + G_f)·true
-    gain_torque = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]  # the same for the torque
-    [world.robot]
-    base_tilt = [0.02, -0.01, 0.0]   # rotation vector of R_BG, rad
-    position = [0.45, 0.0, 0.35]     # p_BoEo_B at the nominal pose, m
-    kinematics_lag = 0.0             # s; > 0: the pose reached at t is stamped t + lag
-    [world.motion]
-    script = "random_tour"   # | "static_poses" | "axial_rotation" | "hold" (alias "indentation")
-    ...                      # that script's options, see MOTION_OPTIONS
-    [[world.contacts]]
-    kind = "indentation"     # | "hanging_mass" | "tissue" | "cable"
-    ...
-
-A wrong key or value raises :class:`hapticlab.core.host.registry.ConfigError` with one
-line naming the full key, e.g. ``world.tool.mass: expected a number, got 'heavy'``.
+A wrong key or value raises :class:`hapticlab.core.errors.ConfigError` with one line naming the
+full key, e.g. ``world.tool.mass: must be a finite number > 0 (kg), got 'heavy'``.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
-from hapticlab.core.frames import GRAVITY_M_S2, matrix_from_rotvec
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.errors import ConfigError
+from hapticlab.core.host.options import Check, OptionError, boolean, check, choice, integer, number, read_table, vector
 from hapticlab.plugins.simworld.cable import Cable
+from hapticlab.plugins.simworld.contacts import Contact, HangingMass, Indentation
 from hapticlab.plugins.simworld.faults import DEFAULT_DURATION_S as DEFAULT_FAULT_DURATION_S
 from hapticlab.plugins.simworld.faults import KINDS as FAULT_KINDS
 from hapticlab.plugins.simworld.faults import Fault
 from hapticlab.plugins.simworld.motion import MOTION_SCRIPTS as SCRIPTED_MOTIONS
-from hapticlab.plugins.simworld.motion import DEFAULT_P_BoEo_B, MotionScript
+from hapticlab.plugins.simworld.motion import MotionScript
+from hapticlab.plugins.simworld.params import RobotParams, SensorParams, ToolParams, calibration_error, inertia_matrix
 from hapticlab.plugins.simworld.servo import ServoedMotion
 from hapticlab.plugins.simworld.tissue import Tissue
 
 __all__ = [
     "CONTACT_KINDS",
+    "CONTACT_OPTIONS",
+    "FAULT_OPTIONS",
     "MOTION_OPTIONS",
-    "Contact",
-    "HangingMass",
-    "Indentation",
-    "RobotParams",
-    "SensorParams",
-    "ToolParams",
+    "MOTION_SCRIPTS",
+    "ROBOT_OPTIONS",
+    "SENSOR_OPTIONS",
+    "TOOL_OPTIONS",
+    "WORLD_OPTIONS",
     "WorldSpec",
     "parse_world_table",
 ]
 
-
-def _vector(value: Any, name: str, shape: tuple[int, ...] = (3,)) -> np.ndarray:
-    """A read-only float array of the given shape (a scalar is broadcast), or ValueError."""
-    array = np.array(value, dtype=float)
-    if array.ndim == 0 and shape == (3,):
-        array = np.full(3, float(array))
-    if array.shape != shape or not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite with shape {shape}, got {value!r}")
-    array.setflags(write=False)
-    return array
-
-
-# --------------------------------------------------------------------------- records
-
-
-@dataclass(frozen=True, slots=True)
-class ToolParams:
-    """The tool rigidly attached to the sensor.
-
-    Attributes:
-        mass: tool mass, kg.
-        cog_S: (3,) centre of mass from the sensor origin, in S, m.
-        inertia_S: (3, 3) inertia about the centre of mass, axes of S, kg·m².
-        tip_S: (3,) tool tip from the sensor origin, in S, m (where indentation forces act).
-    """
-
-    mass: float = 0.35
-    cog_S: np.ndarray = (0.002, -0.001, 0.0435)
-    # A heavy holder near the sensor plus a slender 0.3 m shaft.
-    inertia_S: np.ndarray = ((1.5e-3, 0.0, 0.0), (0.0, 1.5e-3, 0.0), (0.0, 0.0, 6.0e-5))
-    tip_S: np.ndarray = (0.0, 0.0, 0.25)
-
-    def __post_init__(self) -> None:
-        if not self.mass > 0:
-            raise ValueError(f"mass must be > 0 kg, got {self.mass!r}")
-        object.__setattr__(self, "mass", float(self.mass))
-        object.__setattr__(self, "cog_S", _vector(self.cog_S, "cog_S"))
-        inertia = _vector(self.inertia_S, "inertia_S", (3, 3))
-        if not np.allclose(inertia, inertia.T, atol=1e-12) or np.linalg.eigvalsh(inertia).min() < -1e-12:
-            raise ValueError("inertia_S must be symmetric positive semi-definite")
-        object.__setattr__(self, "inertia_S", inertia)
-        object.__setattr__(self, "tip_S", _vector(self.tip_S, "tip_S"))
-
-
-@dataclass(frozen=True, slots=True)
-class SensorParams:
-    """The six-axis force/torque sensor (defaults: ATI Gamma SI-65-5 class).
-
-    The bias at time t (s) is ``bias + drift·t + rw·W(t) + warmup·exp(−t/τ)``
-    with W a standard Brownian path per axis (W(0) = 0, variance t) and τ the
-    warm-up's time constant: a sensor switched on just before the session whose
-    electronics are still settling (the bias ends at ``bias``).
-
-    With a hysteresis the channels read their load (after the calibration
-    error, before the bias) through a play operator of half-width r per axis
-    (``core/sensor_model/play_kernel.py``): on the way up a channel reads up to r low, on
-    the way down up to r high, and after a reversal it holds until the load has
-    moved 2r (the loading path is followed on a 1 ms grid from t = 0).
-
-    Attributes:
-        bias_force_S: (3,) force bias at t = 0, N.
-        bias_torque_S: (3,) torque bias at t = 0, N·m.
-        drift_force_S: (3,) linear force-bias drift, N/s.
-        drift_torque_S: (3,) linear torque-bias drift, N·m/s.
-        drift_force_rw_S: (3,) random-walk force-bias drift, N/√s.
-        drift_torque_rw_S: (3,) random-walk torque-bias drift, N·m/√s.
-        noise_force_S: (3,) white-noise standard deviation per force axis, N.
-        noise_torque_S: (3,) white-noise standard deviation per torque axis, N·m.
-        saturation_force_S: (3,) range per force axis: readings are clipped to ±this, N.
-        saturation_torque_S: (3,) range per torque axis, N·m.
-        mount_rotation_SE: (3,) rotation vector of R_SE (the mount), rad.
-        p_EoSo_E: (3,) sensor origin from the flange origin, in E, m.
-        gain_force_S: (3, 3) calibration error G_f of the force channels: the
-            sensor reads ``(I + G_f) · f`` for a true force f (before bias and
-            noise). Its symmetric part is per-axis scale and cross-axis
-            coupling; an antisymmetric part acts as a small rotation of the
-            force axes. Every entry within ±0.5 (an error, not another sensor).
-        gain_torque_S: (3, 3) the same for the torque channels.
-        warmup_force_S: (3,) how far the force bias is from its settled value at t = 0, N.
-        warmup_torque_S: (3,) the same for the torque bias, N·m.
-        warmup_tau_s: the warm-up's time constant τ, s (> 0).
-        hysteresis_force_S: (3,) play half-width of each force channel, N (≥ 0; 0: none).
-        hysteresis_torque_S: (3,) the same for the torque channels, N·m.
-    """
-
-    bias_force_S: np.ndarray = (1.2, -0.8, 2.5)
-    bias_torque_S: np.ndarray = (0.03, -0.02, 0.01)
-    drift_force_S: np.ndarray = (0.0, 0.0, 0.0)
-    drift_torque_S: np.ndarray = (0.0, 0.0, 0.0)
-    drift_force_rw_S: np.ndarray = (0.0, 0.0, 0.0)
-    drift_torque_rw_S: np.ndarray = (0.0, 0.0, 0.0)
-    noise_force_S: np.ndarray = (0.12, 0.12, 0.12)
-    noise_torque_S: np.ndarray = (0.01, 0.01, 0.01)
-    saturation_force_S: np.ndarray = (65.0, 65.0, 200.0)
-    saturation_torque_S: np.ndarray = (5.0, 5.0, 5.0)
-    mount_rotation_SE: np.ndarray = (0.0, 0.0, 0.0)
-    p_EoSo_E: np.ndarray = (0.0, 0.0, 0.0)
-    gain_force_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    gain_torque_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    warmup_force_S: np.ndarray = (0.0, 0.0, 0.0)
-    warmup_torque_S: np.ndarray = (0.0, 0.0, 0.0)
-    warmup_tau_s: float = 20.0
-    hysteresis_force_S: np.ndarray = (0.0, 0.0, 0.0)
-    hysteresis_torque_S: np.ndarray = (0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        if not (
-            isinstance(self.warmup_tau_s, (int, float)) and math.isfinite(self.warmup_tau_s) and self.warmup_tau_s > 0
-        ):
-            raise ValueError(f"warmup_tau_s must be a finite number > 0, got {self.warmup_tau_s!r}")
-        for name in self.__dataclass_fields__:
-            if name == "warmup_tau_s":
-                continue
-            shape = (3, 3) if name.startswith("gain_") else (3,)
-            object.__setattr__(self, name, _vector(getattr(self, name), name, shape))
-        for name in ("gain_force_S", "gain_torque_S"):
-            if np.abs(getattr(self, name)).max() >= 0.5:
-                raise ValueError(
-                    f"{name} entries must be within ±0.5 (a calibration error), got {getattr(self, name).tolist()!r}"
-                )
-        for name in (
-            "drift_force_rw_S",
-            "drift_torque_rw_S",
-            "noise_force_S",
-            "noise_torque_S",
-            "hysteresis_force_S",
-            "hysteresis_torque_S",
-        ):
-            if np.any(getattr(self, name) < 0):
-                raise ValueError(f"{name} must be >= 0")
-        for name in ("saturation_force_S", "saturation_torque_S"):
-            if np.any(getattr(self, name) <= 0):
-                raise ValueError(f"{name} must be > 0")
-
-    @property
-    def R_SE(self) -> np.ndarray:
-        """(3, 3) mount rotation: ``v_S = R_SE @ v_E``."""
-        return matrix_from_rotvec(self.mount_rotation_SE.copy())  # scipy refuses read-only arrays
-
-
-@dataclass(frozen=True, slots=True)
-class RobotParams:
-    """The robot's installation.
-
-    Attributes:
-        base_tilt_BG: (3,) rotation vector of R_BG (orientation of the gravity
-            frame G in B; a level base has zero), rad.
-        p_BoEo_B: (3,) flange position at the nominal pose, in B, m (motion
-            scripts move around it).
-        kinematics_lag_s: offset of the kinematics stream's clock against the
-            sensor's, s. Positive: the kinematics timestamps are late, the pose
-            truly reached at t is stamped t + lag (so the pose reported for
-            stamp t is the true pose at t − lag). Negative: the sensor stream
-            is the late one. Within ±1 s.
-    """
-
-    base_tilt_BG: np.ndarray = (0.02, -0.01, 0.0)
-    p_BoEo_B: np.ndarray = DEFAULT_P_BoEo_B
-    kinematics_lag_s: float = 0.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "base_tilt_BG", _vector(self.base_tilt_BG, "base_tilt_BG"))
-        object.__setattr__(self, "p_BoEo_B", _vector(self.p_BoEo_B, "p_BoEo_B"))
-        lag = float(self.kinematics_lag_s)
-        if not (math.isfinite(lag) and abs(lag) <= 1.0):
-            raise ValueError(f"kinematics_lag_s must be within ±1 s, got {self.kinematics_lag_s!r}")
-        object.__setattr__(self, "kinematics_lag_s", lag)
-
-    @property
-    def R_BG(self) -> np.ndarray:
-        """(3, 3) base tilt: ``v_B = R_BG @ v_G``."""
-        return matrix_from_rotvec(self.base_tilt_BG.copy())
-
-    @property
-    def gravity_accel_B(self) -> np.ndarray:
-        """(3,) gravitational acceleration in B, m/s² (``R_BG @ [0, 0, −g]``)."""
-        return self.R_BG @ np.array([0.0, 0.0, -GRAVITY_M_S2])
-
-
-@dataclass(frozen=True, slots=True)
-class Indentation:
-    """The tool tip pressed into tissue: a smooth force pulse.
-
-    Profile: raised-cosine ramp from 0 to ``peak_force`` over ``ramp`` s, hold,
-    raised-cosine ramp back to 0, ending ``duration`` s after ``start``.
-
-    Attributes:
-        start: time the force starts to rise, s.
-        duration: total time from start to release, ramps included, s (>= 2·ramp).
-        peak_force: force magnitude at the plateau, N.
-        ramp: duration of each ramp, s (0: a step).
-        direction_B: (3,) direction (normalised here) of the force the tissue
-            exerts on the tool, in B (default straight up).
-        point_S: (3,) where the force acts, in S, m; None: the tool tip.
-    """
-
-    start: float
-    duration: float = 2.0
-    peak_force: float = 2.0
-    ramp: float = 0.3
-    direction_B: np.ndarray = (0.0, 0.0, 1.0)
-    point_S: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if self.duration < 0 or self.ramp < 0 or self.duration < 2 * self.ramp:
-            raise ValueError(f"need 0 <= 2·ramp <= duration, got ramp={self.ramp!r}, duration={self.duration!r}")
-        direction = _vector(self.direction_B, "direction_B")
-        norm = np.linalg.norm(direction)
-        if norm == 0:
-            raise ValueError("direction_B must not be zero")
-        object.__setattr__(self, "direction_B", _vector(direction / norm, "direction_B"))
-        if self.point_S is not None:
-            object.__setattr__(self, "point_S", _vector(self.point_S, "point_S"))
-
-    def profile(self, t: np.ndarray) -> np.ndarray:
-        """(N,) force magnitude at times ``t`` (s), N."""
-        since = np.asarray(t, dtype=float) - self.start
-        if self.ramp == 0:
-            return np.where((since >= 0) & (since <= self.duration), self.peak_force, 0.0)
-        # 0 outside [start, start + duration] (the edge clips to 0 there), up to 1 on the plateau
-        edge = np.minimum(np.maximum(np.minimum(since, self.duration - since) / self.ramp, 0.0), 1.0)
-        return self.peak_force * (0.5 * (1.0 - np.cos(np.pi * edge)))
-
-    def force_B(self, t: np.ndarray, gravity_accel_B: np.ndarray) -> np.ndarray:
-        """(N, 3) force on the tool in B, N (``gravity_accel_B`` unused)."""
-        return self.profile(t)[:, None] * self.direction_B
-
-
-@dataclass(frozen=True, slots=True)
-class HangingMass:
-    """A mass hung from the tool (the paper's 104 g reference mass).
-
-    While attached, the force on the tool is ``mass · g`` along gravity (quasi-static:
-    the mass's own swinging is ignored). It is attached at ``start`` and removed
-    ``duration`` s later (a step).
-
-    Attributes:
-        mass: hanging mass, kg.
-        start: time it is attached, s.
-        duration: time it stays attached, s (default: for ever).
-        point_S: (3,) attachment point in S, m; None: the tool tip.
-    """
-
-    mass: float = 0.104
-    start: float = 0.0
-    duration: float = math.inf
-    point_S: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if not self.mass > 0 or self.duration < 0:
-            raise ValueError("need mass > 0 and duration >= 0")
-        if self.point_S is not None:
-            object.__setattr__(self, "point_S", _vector(self.point_S, "point_S"))
-
-    def force_B(self, t: np.ndarray, gravity_accel_B: np.ndarray) -> np.ndarray:
-        """(N, 3) force on the tool in B, N."""
-        since = np.asarray(t, dtype=float) - self.start
-        attached = (since >= 0) & (since < self.duration)
-        return np.where(attached[:, None], self.mass * gravity_accel_B, 0.0)
-
-
-Contact = Indentation | HangingMass | Tissue | Cable
+T = TypeVar("T")
 
 
 @dataclass(frozen=True, slots=True)
@@ -353,244 +67,139 @@ class WorldSpec:
     faults: tuple[Fault, ...] = ()
 
 
-# --------------------------------------------------------------------------- value parsers
-#
-# A parser takes the full key (for the message) and the TOML value and returns the
-# checked value or raises ConfigError naming the key.
+# --------------------------------------------------------------------------- what each key accepts
 
-Parser = Callable[[str, Any], Any]
+_positive = check(number, above=0)
+_seconds = check(number, hint=" (s)")
+_forever = check(number, minimum=0, finite=False, hint=" (s; inf: for ever)")
+_degrees = check(number, hint=" (degrees)")
 
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def number(minimum: float | None = None, *, above: bool = False) -> Parser:
-    """A number, optionally >= minimum (or > minimum with ``above``)."""
-
-    def parse(key: str, value: Any) -> float:
-        if not _is_number(value) or math.isnan(value):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        if minimum is not None and (value <= minimum if above else value < minimum):
-            raise ConfigError(f"{key}: must be {'>' if above else '>='} {minimum:g}, got {value!r}")
-        return float(value)
-
-    return parse
-
-
-def integer(minimum: int | None = None) -> Parser:
-    """An integer, optionally >= minimum."""
-
-    def parse(key: str, value: Any) -> int:
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise ConfigError(f"{key}: expected an integer, got {value!r}")
-        if minimum is not None and value < minimum:
-            raise ConfigError(f"{key}: must be >= {minimum}, got {value!r}")
-        return value
-
-    return parse
-
-
-def boolean(key: str, value: Any) -> bool:
-    """true or false."""
-    if not isinstance(value, bool):
-        raise ConfigError(f"{key}: expected true or false, got {value!r}")
-    return value
-
-
-def vec3(key: str, value: Any) -> np.ndarray:
-    """Three finite numbers."""
-    if (
-        not isinstance(value, (list, tuple))
-        or len(value) != 3
-        or not all(_is_number(v) and math.isfinite(v) for v in value)
-    ):
-        raise ConfigError(f"{key}: expected 3 numbers, got {value!r}")
-    return np.array(value, dtype=float)
-
-
-def number_or_vec3(minimum: float | None = None, *, above: bool = False) -> Parser:
-    """One number (used for all three axes) or three numbers, each >= minimum (> with ``above``)."""
-
-    def parse(key: str, value: Any) -> np.ndarray:
-        if _is_number(value) and math.isfinite(value):
-            array = np.full(3, float(value))
-        elif (
-            isinstance(value, (list, tuple))
-            and len(value) == 3
-            and all(_is_number(v) and math.isfinite(v) for v in value)
-        ):
-            array = np.array(value, dtype=float)
-        else:
-            raise ConfigError(f"{key}: expected a number or 3 numbers, got {value!r}")
-        if minimum is not None and np.any(array <= minimum if above else array < minimum):
-            raise ConfigError(f"{key}: must be {'>' if above else '>='} {minimum:g}, got {value!r}")
-        return array
-
-    return parse
-
-
-def matrix3(key: str, value: Any) -> np.ndarray:
-    """A 3x3 matrix as three rows of three numbers."""
-    if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise ConfigError(f"{key}: expected a 3x3 matrix (3 rows of 3 numbers), got {value!r}")
-    return np.stack([vec3(f"{key}[{i}]", row) for i, row in enumerate(value)])
-
-
-def gain_matrix(key: str, value: Any) -> np.ndarray:
-    """A 3x3 calibration error: every entry within ±0.5."""
-    matrix = matrix3(key, value)
-    if np.abs(matrix).max() >= 0.5:
-        raise ConfigError(f"{key}: every entry must be within ±0.5 (a calibration error), got {value!r}")
-    return matrix
-
-
-def lag_seconds(key: str, value: Any) -> float:
-    """A time offset within ±1 s."""
-    lag = number()(key, value)
-    if not (math.isfinite(lag) and abs(lag) <= 1.0):
-        raise ConfigError(f"{key}: must be within ±1 s, got {value!r}")
-    return lag
-
-
-def string(key: str, value: Any) -> str:
-    """A string."""
-    if not isinstance(value, str):
-        raise ConfigError(f"{key}: expected a string, got {value!r}")
-    return value
-
-
-def read_table(where: str, table: Any, parsers: Mapping[str, Parser]) -> dict[str, Any]:
-    """Check every key of a TOML table against its parser; unknown keys are errors."""
-    if not isinstance(table, Mapping):
-        raise ConfigError(f"{where}: expected a table, got {table!r}")
-    out: dict[str, Any] = {}
-    for key, value in table.items():
-        if key not in parsers:
-            known = ", ".join(sorted(parsers))
-            raise ConfigError(f"{where}.{key}: unknown option; known options: {known}")
-        out[key] = parsers[key](f"{where}.{key}", value)
-    return out
-
-
-# --------------------------------------------------------------------------- tables
-
-TOOL_OPTIONS: dict[str, Parser] = {
-    "mass": number(0.0, above=True),
-    "cog": vec3,
-    "inertia_diag": number_or_vec3(0.0),
-    "inertia": matrix3,
-    "tip": vec3,
+TOOL_OPTIONS: dict[str, Check] = {
+    "mass": check(number, above=0, hint=" (kg)"),
+    "cog": vector,
+    "inertia_diag": check(vector, broadcast=True, minimum=0, hint=" (kg·m²)"),
+    "inertia": inertia_matrix,
+    "tip": vector,
 }
+"""``[world.tool]``: key -> check."""
+TOOL_FIELDS = {"mass": "mass", "cog": "cog_S", "inertia_diag": "inertia_S", "inertia": "inertia_S", "tip": "tip_S"}
+"""``[world.tool]`` key -> ToolParams field."""
 
-SENSOR_OPTIONS: dict[str, Parser] = {
-    "bias_force": vec3,
-    "bias_torque": vec3,
-    "drift_force": vec3,
-    "drift_torque": vec3,
-    "drift_force_rw": number_or_vec3(0.0),
-    "drift_torque_rw": number_or_vec3(0.0),
-    "noise_force": number_or_vec3(0.0),
-    "noise_torque": number_or_vec3(0.0),
-    "saturation_force": number_or_vec3(0.0, above=True),
-    "saturation_torque": number_or_vec3(0.0, above=True),
-    "mount_rotation": vec3,
-    "offset": vec3,
-    "gain_force": gain_matrix,
-    "gain_torque": gain_matrix,
-    "warmup_force": number_or_vec3(),
-    "warmup_torque": number_or_vec3(),
-    "warmup_tau": number(0.0, above=True),
-    "hysteresis_force": number_or_vec3(0.0),
-    "hysteresis_torque": number_or_vec3(0.0),
+_not_negative = check(vector, broadcast=True, minimum=0)
+_saturation = check(vector, broadcast=True, above=0)
+SENSOR_OPTIONS: dict[str, Check] = {
+    "bias_force": vector,
+    "bias_torque": vector,
+    "drift_force": vector,
+    "drift_torque": vector,
+    "drift_force_rw": _not_negative,
+    "drift_torque_rw": _not_negative,
+    "noise_force": _not_negative,
+    "noise_torque": _not_negative,
+    "saturation_force": _saturation,
+    "saturation_torque": _saturation,
+    "mount_rotation": vector,
+    "offset": vector,
+    "gain_force": calibration_error,
+    "gain_torque": calibration_error,
+    "warmup_force": check(vector, broadcast=True),
+    "warmup_torque": check(vector, broadcast=True),
+    "warmup_tau": check(number, above=0, hint=" (s)"),
+    "hysteresis_force": _not_negative,
+    "hysteresis_torque": _not_negative,
 }
-# TOML key -> SensorParams field
-_SENSOR_FIELDS = {
-    "bias_force": "bias_force_S",
-    "bias_torque": "bias_torque_S",
-    "drift_force": "drift_force_S",
-    "drift_torque": "drift_torque_S",
-    "drift_force_rw": "drift_force_rw_S",
-    "drift_torque_rw": "drift_torque_rw_S",
-    "noise_force": "noise_force_S",
-    "noise_torque": "noise_torque_S",
-    "saturation_force": "saturation_force_S",
-    "saturation_torque": "saturation_torque_S",
+"""``[world.sensor]``: key -> check."""
+SENSOR_FIELDS = {key: f"{key}_S" for key in SENSOR_OPTIONS} | {
     "mount_rotation": "mount_rotation_SE",
     "offset": "p_EoSo_E",
-    "gain_force": "gain_force_S",
-    "gain_torque": "gain_torque_S",
-    "warmup_force": "warmup_force_S",
-    "warmup_torque": "warmup_torque_S",
     "warmup_tau": "warmup_tau_s",
-    "hysteresis_force": "hysteresis_force_S",
-    "hysteresis_torque": "hysteresis_torque_S",
 }
+"""``[world.sensor]`` key -> SensorParams field."""
 
-ROBOT_OPTIONS: dict[str, Parser] = {"base_tilt": vec3, "position": vec3, "kinematics_lag": lag_seconds}
+ROBOT_OPTIONS: dict[str, Check] = {
+    "base_tilt": vector,
+    "position": vector,
+    "kinematics_lag": check(number, minimum=-1, maximum=1, hint=" (s)"),
+}
+"""``[world.robot]``: key -> check."""
+ROBOT_FIELDS = {"base_tilt": "base_tilt_BG", "position": "p_BoEo_B", "kinematics_lag": "kinematics_lag_s"}
+"""``[world.robot]`` key -> RobotParams field."""
 
-_optional_count = integer(1)
-MOTION_OPTIONS: dict[str, dict[str, Parser]] = {
+_count = check(integer, minimum=1)
+_hold = {"tilt_deg": _degrees, "tilt_axis_B": vector, "roll_deg": _degrees}
+MOTION_OPTIONS: dict[str, dict[str, Check]] = {
     "random_tour": {
-        "max_tilt_deg": number(0.0),
-        "max_roll_deg": number(0.0),
-        "segment_s": number(0.0, above=True),
-        "dwell_s": number(0.0),
-        "max_translation": number(0.0),
-        "waypoints": _optional_count,
+        "max_tilt_deg": check(number, minimum=0, maximum=180, hint=" (degrees)"),
+        "max_roll_deg": check(number, minimum=0, hint=" (degrees)"),
+        "segment_s": check(number, above=0, hint=" (s)"),
+        "dwell_s": check(number, minimum=0, hint=" (s)"),
+        "max_translation": check(number, minimum=0, hint=" (m)"),
+        "waypoints": _count,
     },
     "static_poses": {
-        "max_tilt_deg": number(0.0),
-        "max_roll_deg": number(0.0),
-        "hold_s": number(0.0),
-        "move_s": number(0.0, above=True),
-        "max_translation": number(0.0),
-        "poses": _optional_count,
+        "max_tilt_deg": check(number, minimum=0, maximum=180, hint=" (degrees)"),
+        "max_roll_deg": check(number, minimum=0, hint=" (degrees)"),
+        "hold_s": check(number, minimum=0, hint=" (s)"),
+        "move_s": check(number, above=0, hint=" (s)"),
+        "max_translation": check(number, minimum=0, hint=" (m)"),
+        "poses": _count,
     },
     "axial_rotation": {
-        "speed_deg_s": number(),
-        "duration": number(0.0, above=True),
-        "turns": number(0.0, above=True),
-        "ramp_s": number(0.0, above=True),
-        "start_s": number(0.0),
-        "roll0_deg": number(),
+        "speed_deg_s": check(number, hint=" (deg/s)"),
+        "duration": check(number, above=0, hint=" (s)"),
+        "turns": _positive,
+        "ramp_s": check(number, above=0, hint=" (s)"),
+        "start_s": check(number, minimum=0, hint=" (s)"),
+        "roll0_deg": _degrees,
     },
-    "hold": {"tilt_deg": number(), "tilt_axis_B": vec3, "roll_deg": number()},
+    "hold": _hold,
+    "indentation": _hold,
+    "servo": {
+        **_hold,
+        "bandwidth_hz": check(number, above=0, hint=" (Hz)"),
+        "max_speed": check(number, above=0, hint=" (m/s)"),
+        "max_accel": check(number, above=0, hint=" (m/s²)"),
+        "max_angular_speed": check(number, above=0, hint=" (rad/s)"),
+        "max_angular_accel": check(number, above=0, hint=" (rad/s²)"),
+        "step_s": check(number, above=0, hint=" (s)"),
+        "history_s": check(number, above=0, hint=" (s)"),
+    },
 }
-MOTION_OPTIONS["indentation"] = MOTION_OPTIONS["hold"]
-MOTION_OPTIONS["servo"] = {
-    **MOTION_OPTIONS["hold"],
-    "bandwidth_hz": number(0.0, above=True),
-    "max_speed": number(0.0, above=True),
-    "max_accel": number(0.0, above=True),
-    "max_angular_speed": number(0.0, above=True),
-    "max_angular_accel": number(0.0, above=True),
-    "step_s": number(0.0, above=True),
-    "history_s": number(0.0, above=True),
-}
+"""``[world.motion]``: script -> its options (``script`` itself aside; the seed and the flange position come
+from ``[world]`` and ``[world.robot]``). ``indentation`` is another name of ``hold``."""
 MOTION_SCRIPTS: dict[str, type[MotionScript]] = {**SCRIPTED_MOTIONS, "servo": ServoedMotion}
 """Every ``[world.motion] script``: the scripted motions, and ``servo`` (the robot follows targets sent live)."""
-"""Options of each motion script (``script`` itself aside); seed and position come from elsewhere."""
 
-CONTACT_OPTIONS: dict[str, dict[str, Parser]] = {
+CONTACT_OPTIONS: dict[str, dict[str, Check]] = {
     "indentation": {
-        "start": number(),
-        "duration": number(0.0),
-        "peak_force": number(0.0),
-        "ramp": number(0.0),
-        "direction_B": vec3,
-        "point_S": vec3,
+        "start": _seconds,
+        "duration": _forever,
+        "peak_force": check(number, minimum=0, hint=" (N)"),
+        "ramp": check(number, minimum=0, hint=" (s)"),
+        "direction_B": vector,
+        "point_S": vector,
     },
-    "hanging_mass": {"start": number(), "duration": number(0.0), "mass": number(0.0, above=True), "point_S": vec3},
+    "hanging_mass": {
+        "start": _seconds,
+        "duration": _forever,
+        "mass": check(number, above=0, hint=" (kg)"),
+        "point_S": vector,
+    },
     "tissue": {
-        "surface_B": vec3,
-        "normal_B": vec3,
-        "stiffness": number(0.0, above=True),
-        "damping": number(0.0),
-        "point_S": vec3,
+        "surface_B": vector,
+        "normal_B": vector,
+        "stiffness": check(number, above=0, hint=" (N/m)"),
+        "damping": check(number, minimum=0, hint=" (N·s/m)"),
+        "point_S": vector,
     },
-    "cable": {"anchor_B": vec3, "stiffness": number(0.0), "damping": number(0.0), "point_S": vec3},
+    "cable": {
+        "anchor_B": vector,
+        "stiffness": check(number, minimum=0, hint=" (N/m)"),
+        "damping": check(number, minimum=0, hint=" (N·s/m)"),
+        "point_S": vector,
+    },
 }
+"""``[[world.contacts]]``: kind -> its options (``kind`` itself aside)."""
 CONTACT_KINDS: dict[str, type] = {
     "indentation": Indentation,
     "hanging_mass": HangingMass,
@@ -598,35 +207,51 @@ CONTACT_KINDS: dict[str, type] = {
     "cable": Cable,
 }
 
-WORLD_OPTIONS: dict[str, Parser] = {
-    "seed": integer(0),
+
+def _sub_table(key: str, value: Any) -> Any:
+    return value  # read by its own reader, below
+
+
+WORLD_OPTIONS: dict[str, Check] = {
+    "seed": check(integer, minimum=0),
     "inertia": boolean,
-    # sub-tables are parsed separately; here only their presence is accepted
-    "tool": lambda key, value: value,
-    "sensor": lambda key, value: value,
-    "robot": lambda key, value: value,
-    "motion": lambda key, value: value,
-    "contacts": lambda key, value: value,
-    "faults": lambda key, value: value,
+    "tool": _sub_table,
+    "sensor": _sub_table,
+    "robot": _sub_table,
+    "motion": _sub_table,
+    "contacts": _sub_table,
+    "faults": _sub_table,
 }
+"""``[world]``: key -> check (the sub-tables are read by their own readers)."""
 
-FAULT_OPTIONS: dict[str, Parser] = {
-    "kind": string,
-    "start": number(),
-    "duration": number(0.0, above=True),
-    "force": vec3,
-    "torque": vec3,
-    "delay": number(0.0),
-    "ramp": number(0.0),
+FAULT_OPTIONS: dict[str, Check] = {
+    "kind": check(choice, choices=FAULT_KINDS),
+    "start": _seconds,
+    "duration": check(number, above=0, finite=False, hint=" (s; inf: for good)"),
+    "force": check(vector, hint=" (N)"),
+    "torque": check(vector, hint=" (N·m)"),
+    "delay": check(number, minimum=0, hint=" (s)"),
+    "ramp": check(number, minimum=0, hint=" (s)"),
 }
+"""``[[world.faults]]``: key -> check."""
 
 
-def _build(where: str, factory: Callable[..., Any], **kwargs: Any) -> Any:
-    """Call a record's constructor; its ValueError becomes a ConfigError naming the table."""
+# --------------------------------------------------------------------------- readers
+
+
+def _build(where: str, factory: Callable[..., T], **kwargs: Any) -> T:
+    """Call a record's constructor; its OptionError names the full key, another ValueError the table."""
     try:
         return factory(**kwargs)
+    except OptionError as exc:
+        raise exc.under(where) from None
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+def _fields(opts: Mapping[str, Any], names: Mapping[str, str]) -> dict[str, Any]:
+    """A table's checked values as a record's keyword arguments."""
+    return {names[key]: value for key, value in opts.items()}
 
 
 def parse_tool(table: Any, where: str = "world.tool") -> ToolParams:
@@ -634,46 +259,39 @@ def parse_tool(table: Any, where: str = "world.tool") -> ToolParams:
     opts = read_table(where, table, TOOL_OPTIONS)
     if "inertia" in opts and "inertia_diag" in opts:
         raise ConfigError(f"{where}.inertia: give either inertia or inertia_diag, not both")
-    kwargs: dict[str, Any] = {}
-    if "mass" in opts:
-        kwargs["mass"] = opts["mass"]
-    if "cog" in opts:
-        kwargs["cog_S"] = opts["cog"]
-    if "tip" in opts:
-        kwargs["tip_S"] = opts["tip"]
     if "inertia_diag" in opts:
-        kwargs["inertia_S"] = np.diag(opts["inertia_diag"])
-    if "inertia" in opts:
-        inertia = opts["inertia"]
-        if not np.allclose(inertia, inertia.T) or np.linalg.eigvalsh(inertia).min() < -1e-12:
-            raise ConfigError(f"{where}.inertia: must be symmetric positive semi-definite, got {table['inertia']!r}")
-        kwargs["inertia_S"] = inertia
-    return _build(where, ToolParams, **kwargs)
+        opts["inertia_diag"] = np.diag(opts["inertia_diag"])
+    return _build(where, ToolParams, **_fields(opts, TOOL_FIELDS))
 
 
 def parse_sensor(table: Any, where: str = "world.sensor") -> SensorParams:
     """SensorParams from ``[world.sensor]``."""
-    opts = read_table(where, table, SENSOR_OPTIONS)
-    return _build(where, SensorParams, **{_SENSOR_FIELDS[k]: v for k, v in opts.items()})
+    return _build(where, SensorParams, **_fields(read_table(where, table, SENSOR_OPTIONS), SENSOR_FIELDS))
 
 
 def parse_robot(table: Any, where: str = "world.robot") -> RobotParams:
     """RobotParams from ``[world.robot]``."""
-    opts = read_table(where, table, ROBOT_OPTIONS)
-    names = {"base_tilt": "base_tilt_BG", "position": "p_BoEo_B", "kinematics_lag": "kinematics_lag_s"}
-    return _build(where, RobotParams, **{names[k]: v for k, v in opts.items()})
+    return _build(where, RobotParams, **_fields(read_table(where, table, ROBOT_OPTIONS), ROBOT_FIELDS))
+
+
+def _kind(where: str, options: dict[str, Any], key: str, kinds: Sequence[str], default: str | None = None) -> str:
+    """Pop a table's ``script``/``kind`` key, one of ``kinds``."""
+    if key not in options and default is None:
+        raise ConfigError(f"{where}.{key}: missing; known kinds: {', '.join(kinds)}")
+    try:
+        kind: str = choice(f"{where}.{key}", options.pop(key, default), tuple(kinds))
+    except OptionError as exc:
+        raise ConfigError(str(exc)) from None
+    return kind
 
 
 def parse_motion(table: Any, seed: int, robot: RobotParams, where: str = "world.motion") -> MotionScript:
     """A motion script from ``[world.motion]``; the seed and flange position come from the world."""
     if not isinstance(table, Mapping):
-        raise ConfigError(f"{where}: expected a table, got {table!r}")
+        raise ConfigError(f"{where}: must be a table, got {table!r}")
     options = dict(table)
-    script = string(f"{where}.script", options.pop("script", "random_tour"))
-    if script not in MOTION_SCRIPTS:
-        raise ConfigError(f"{where}.script: unknown motion script {script!r}; known: {', '.join(MOTION_SCRIPTS)}")
-    parsers = MOTION_OPTIONS[script]
-    opts = read_table(where, options, {**parsers, "script": string})
+    script = _kind(where, options, "script", list(MOTION_SCRIPTS), default="random_tour")
+    opts = read_table(where, options, MOTION_OPTIONS[script])
     opts = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in opts.items()}
     if script in ("random_tour", "static_poses"):
         opts["seed"] = seed
@@ -683,10 +301,10 @@ def parse_motion(table: Any, seed: int, robot: RobotParams, where: str = "world.
 def _table_list(value: Any, where: str) -> list[tuple[str, Mapping[str, Any]]]:
     """The tables of a ``[[where]]`` list, each with its key for messages (``world.faults[2]``)."""
     if not isinstance(value, (list, tuple)):
-        raise ConfigError(f"{where}: expected a list of tables ([[{where}]]), got {value!r}")
+        raise ConfigError(f"{where}: must be a list of tables ([[{where}]]), got {value!r}")
     for i, table in enumerate(value):
         if not isinstance(table, Mapping):
-            raise ConfigError(f"{where}[{i}]: expected a table, got {table!r}")
+            raise ConfigError(f"{where}[{i}]: must be a table, got {table!r}")
     return [(f"{where}[{i}]", table) for i, table in enumerate(value)]
 
 
@@ -695,11 +313,7 @@ def parse_contacts(value: Any, where: str = "world.contacts") -> tuple[Contact, 
     contacts = []
     for here, table in _table_list(value, where):
         options = dict(table)
-        if "kind" not in options:
-            raise ConfigError(f"{here}.kind: missing; known kinds: {', '.join(CONTACT_KINDS)}")
-        kind = string(f"{here}.kind", options.pop("kind"))
-        if kind not in CONTACT_KINDS:
-            raise ConfigError(f"{here}.kind: unknown contact kind {kind!r}; known kinds: {', '.join(CONTACT_KINDS)}")
+        kind = _kind(here, options, "kind", list(CONTACT_KINDS))
         opts = read_table(here, options, CONTACT_OPTIONS[kind])
         if kind == "indentation" and "start" not in opts:
             raise ConfigError(f"{here}.start: missing (time the indentation starts, s)")
@@ -712,11 +326,10 @@ def parse_faults(value: Any, where: str = "world.faults") -> tuple[Fault, ...]:
     faults = []
     for here, table in _table_list(value, where):
         opts = read_table(here, table, FAULT_OPTIONS)
-        for key in ("kind", "start"):
-            if key not in opts:
-                raise ConfigError(f"{here}.{key}: missing; known kinds: {', '.join(FAULT_KINDS)}")
-        if opts["kind"] not in FAULT_KINDS:
-            raise ConfigError(f"{here}.kind: unknown fault {opts['kind']!r}; known kinds: {', '.join(FAULT_KINDS)}")
+        if "kind" not in opts:
+            raise ConfigError(f"{here}.kind: missing; known kinds: {', '.join(FAULT_KINDS)}")
+        if "start" not in opts:
+            raise ConfigError(f"{here}.start: missing (when the fault starts, s of world time)")
         opts.setdefault("duration", DEFAULT_FAULT_DURATION_S.get(opts["kind"], 1.0))
         opts = {k: (tuple(v.tolist()) if isinstance(v, np.ndarray) else v) for k, v in opts.items()}
         faults.append(_build(here, Fault, **opts))

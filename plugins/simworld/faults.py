@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hapticlab.core.host.options import OptionError, choice, number
 from hapticlab.core.types import STATUS_SATURATED
 
 SENSOR_KINDS = ("sensor_spike", "sensor_nan", "sensor_saturated", "sensor_dropout", "sensor_bias_step")
@@ -48,7 +49,7 @@ class Fault:
     """One injected fault.
 
     Attributes:
-        kind: one of :data:`KINDS`.
+        kind: what goes wrong: a sensor fault or a kinematics fault, as listed above.
         start: when it starts, s of world time.
         duration: how long it lasts, s (``inf``: for good).
         force: (3,) force added by a spike or a bias step, N (in S).
@@ -66,14 +67,13 @@ class Fault:
     ramp: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"kind: unknown fault {self.kind!r}; known: {', '.join(KINDS)}")
-        if not (math.isfinite(self.start) and self.duration > 0 and self.delay >= 0 and math.isfinite(self.delay)):
-            raise ValueError("start must be finite, duration > 0 and delay >= 0")
-        if not (math.isfinite(self.ramp) and self.ramp >= 0):
-            raise ValueError("ramp must be finite and >= 0 (s)")
+        choice("kind", self.kind, KINDS)
+        number("start", self.start, hint=" (s)")
+        number("duration", self.duration, above=0, finite=False, hint=" (s)")
+        number("delay", self.delay, minimum=0, hint=" (s)")
+        number("ramp", self.ramp, minimum=0, hint=" (s)")
         if self.kind == "kinematics_delay" and not self.delay > 0:
-            raise ValueError("delay: a kinematics_delay needs delay > 0 (s)")
+            raise OptionError("delay", f"must be a finite number > 0 for a kinematics_delay (s), got {self.delay!r}")
 
     def active(self, t: np.ndarray) -> np.ndarray:
         """(N,) bool: the fault acts at world times ``t`` (s)."""

@@ -50,16 +50,11 @@ import numpy as np
 from hapticlab.core.frames import rotvec_from_matrix, skew
 from hapticlab.core.types import STATUS_OK, STATUS_SATURATED
 from hapticlab.plugins.simworld.cable import Cable
-from hapticlab.plugins.simworld.config import (
-    Contact,
-    RobotParams,
-    SensorParams,
-    ToolParams,
-    WorldSpec,
-    parse_world_table,
-)
+from hapticlab.plugins.simworld.config import WorldSpec, parse_world_table
+from hapticlab.plugins.simworld.contacts import Contact
 from hapticlab.plugins.simworld.faults import Fault
 from hapticlab.plugins.simworld.motion import MotionScript, MotionState, RandomTour
+from hapticlab.plugins.simworld.params import RobotParams, SensorParams, ToolParams
 from hapticlab.plugins.simworld.sensor_channels import SensorChannels
 from hapticlab.plugins.simworld.servo import ServoedMotion
 from hapticlab.plugins.simworld.tissue import Tissue
@@ -172,7 +167,7 @@ class SimWorld:
 
     @classmethod
     def from_config(cls, table: Mapping[str, Any] | None) -> SimWorld:
-        """Build from a session's ``[world]`` table (see ``config.py`` for the keys).
+        """Build from a session's ``[world]`` table (keys in ``docs/sessions.md``, read by ``config.py``).
 
         Raises
         ------

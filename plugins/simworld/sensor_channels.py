@@ -22,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 
 from hapticlab.core.sensor_model.play_kernel import play
-from hapticlab.plugins.simworld.config import SensorParams
+from hapticlab.plugins.simworld.params import SensorParams
 from hapticlab.plugins.simworld.randomness import DRIFT_STREAM, NOISE_STREAM, GrowingPath, RandomWalk, gaussian_noise
 
 __all__ = ["PlayHysteresis", "SensorChannels"]

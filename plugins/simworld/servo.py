@@ -40,6 +40,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from hapticlab.core.frames import skew_stack
+from hapticlab.core.host.options import OptionError, number
 from hapticlab.plugins.simworld import servo_kernel as servo_kernel
 from hapticlab.plugins.simworld.motion import DEFAULT_P_BoEo_B, Hold, MotionScript, MotionState
 
@@ -140,7 +141,8 @@ class ServoedMotion(MotionScript):
     bandwidth_hz : the servo's bandwidth, Hz (critically damped; a step settles in ~1/bandwidth s).
     max_speed : the flange's speed limit, m/s (UR: 0.25 m/s is the collaborative default).
     max_accel : the flange's acceleration limit, m/s².
-    max_angular_speed : rad/s. max_angular_accel : rad/s².
+    max_angular_speed : the flange's turn rate limit, rad/s.
+    max_angular_accel : the flange's angular acceleration limit, rad/s².
     step_s : the integration step, s (a UR controller's 2 ms at e-Series is 500 Hz; 1 ms here).
     history_s : how far back ``evaluate`` can look, s (older times get the oldest state kept).
 
@@ -175,12 +177,12 @@ class ServoedMotion(MotionScript):
             ("step_s", step_s),
             ("history_s", history_s),
         ):
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+            number(name, value, above=0)
         if step_s > 0.01 or bandwidth_hz * step_s > 0.05:
-            raise ValueError(
-                f"step_s must be at most 10 ms and at most 1/20 of the servo's period "
-                f"(bandwidth_hz · step_s <= 0.05), got step_s={step_s!r}, bandwidth_hz={bandwidth_hz!r}"
+            raise OptionError(
+                "step_s",
+                f"must be <= 0.01 s and <= 1/20 of the servo's period (bandwidth_hz · step_s <= 0.05), "
+                f"got {step_s!r} with bandwidth_hz = {bandwidth_hz!r}",
             )
         start = Hold(tilt_deg, tilt_axis_B, roll_deg, p_BoEo_B)
         self.omega = 2.0 * math.pi * bandwidth_hz

@@ -1,6 +1,6 @@
 """Soft tissue the tool can press into: a contact force that depends on where the tool is.
 
-The other contacts (``config.Indentation``, ``config.HangingMass``) are forces
+The other contacts (``contacts.Indentation``, ``contacts.HangingMass``) are forces
 scheduled in time. In a teleoperated session the trainee decides where the
 tool goes, so the tissue's reaction must follow from the tool's position:
 :class:`Tissue` is a Kelvin–Voigt half-space. With ``n`` its outward unit
@@ -24,12 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-def _vector3(value, name: str) -> np.ndarray:
-    v = np.asarray(value, dtype=float)
-    if v.shape != (3,) or not np.isfinite(v).all():
-        raise ValueError(f"{name} must be three finite numbers, got {value!r}")
-    return v
+from hapticlab.core.host.options import OptionError, check, check_fields, number, vector
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,8 +34,8 @@ class Tissue:
     Attributes:
         surface_B: (3,) a point of the undeformed surface, in B, m.
         normal_B: (3,) outward normal of the surface (normalised here), in B.
-        stiffness: N/m (> 0).
-        damping: N·s/m (>= 0).
+        stiffness: k, the push per metre of depth, N/m (> 0).
+        damping: c, the push per m/s the tip moves into the tissue, N·s/m (>= 0).
         point_S: (3,) the point of the tool that touches, in S, m; None: the tool tip.
     """
 
@@ -51,16 +46,23 @@ class Tissue:
     point_S: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        normal = _vector3(self.normal_B, "normal_B")
-        norm = float(np.linalg.norm(normal))
+        check_fields(
+            self,
+            {
+                "surface_B": vector,
+                "normal_B": vector,
+                "stiffness": check(number, above=0, hint=" (N/m)"),
+                "damping": check(number, minimum=0, hint=" (N·s/m)"),
+            },
+        )
+        norm = float(np.linalg.norm(self.normal_B))
         if norm == 0:
-            raise ValueError("normal_B must not be zero")
-        object.__setattr__(self, "normal_B", normal / norm)
-        object.__setattr__(self, "surface_B", _vector3(self.surface_B, "surface_B"))
-        if not (np.isfinite(self.stiffness) and self.stiffness > 0 and np.isfinite(self.damping) and self.damping >= 0):
-            raise ValueError(f"need stiffness > 0 and damping >= 0, got {self.stiffness!r}, {self.damping!r}")
+            raise OptionError(
+                "normal_B", f"must be 3 numbers, not all zero (a direction), got {self.normal_B.tolist()!r}"
+            )
+        object.__setattr__(self, "normal_B", self.normal_B / norm)
         if self.point_S is not None:
-            object.__setattr__(self, "point_S", _vector3(self.point_S, "point_S"))
+            object.__setattr__(self, "point_S", vector("point_S", self.point_S))
 
     def depth(self, x_B: np.ndarray) -> np.ndarray:
         """(N,) how deep the points ``x_B`` (N, 3) m are in the tissue, m (negative: above it)."""

@@ -124,8 +124,9 @@ def _status_table(status, hint: str = "") -> Table:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from hapticlab.sessions.config import apply_overrides, check_duration, load_config
+    from hapticlab.sessions.config import apply_overrides, load_config
     from hapticlab.sessions.live import SessionError, build_session, run_session
+    from hapticlab.sessions.settings import check_duration
 
     config, origin = load_config(args.session)
     config = apply_overrides(config, args.set or [])

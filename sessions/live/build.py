@@ -34,19 +34,16 @@ from hapticlab.core.host.interfaces import (
     ServosCartesian,
 )
 from hapticlab.core.host.registry import ConfigError, Registry
-from hapticlab.sessions.config import (
-    PLUGIN_TABLES,
+from hapticlab.sessions.config import PLUGIN_TABLES, check_tables, plugin_options, shadow_tables
+from hapticlab.sessions.live.safety import ForceGovernor
+from hapticlab.sessions.settings import (
     HapticSettings,
     SessionSettings,
     TeleopSettings,
-    check_tables,
     haptic_settings,
-    plugin_options,
     session_settings,
-    shadow_tables,
     teleop_settings,
 )
-from hapticlab.sessions.live.safety import ForceGovernor
 
 INTERFACES = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator, "haptic": HapticOutput}
 """The interface each plugin table's object must have (checked at build time)."""

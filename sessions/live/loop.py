@@ -63,7 +63,6 @@ from hapticlab.core.host.interfaces import (
 )
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import Event, WrenchBlock
-from hapticlab.sessions.config import check_duration
 from hapticlab.sessions.live.build import EstimatorSlot, Session, calibration_path, default_out_path, session_metadata
 from hapticlab.sessions.live.gate import HapticGate, screen
 from hapticlab.sessions.live.priority import fifo_priority
@@ -72,6 +71,7 @@ from hapticlab.sessions.live.taps import HAND_OVER_NS, Taps
 from hapticlab.sessions.live.teleop import Teleoperation
 from hapticlab.sessions.recording import Recorder
 from hapticlab.sessions.recording.sinks import WriterProcessError
+from hapticlab.sessions.settings import check_duration
 
 PARAMS_INTERVAL_NS = 100_000_000
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""

@@ -35,7 +35,7 @@ import numpy as np
 
 from hapticlab.core.frames import matrix_from_rotvec
 from hapticlab.core.types import HapticCommand
-from hapticlab.sessions.config import HapticSettings
+from hapticlab.sessions.settings import HapticSettings
 
 ZERO3 = np.zeros(3)
 TOLERANCE = 1e-9

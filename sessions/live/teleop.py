@@ -46,7 +46,7 @@ import numpy as np
 
 from hapticlab.core.frames import matrix_from_quat_wxyz, matrix_from_rotvec, rotvec_from_matrix
 from hapticlab.core.types import DeviceState, Event, PoseSample, RobotTarget
-from hapticlab.sessions.config import TeleopSettings
+from hapticlab.sessions.settings import TeleopSettings
 
 STATE_TIMEOUT_NS = 50_000_000
 """A device state older than this (ns) is no longer the hand's: the robot holds."""

@@ -234,11 +234,11 @@ def test_create_checks_options_against_the_signature():
         match=r"^estimator.gian: unknown option; did you mean gain\?; known options: axes, enabled, gain, label$",
     ):
         registry.create("estimator", "d", {"gian": 2}, where="estimator")
-    with pytest.raises(ConfigError, match=r"^estimator.gain: expected a number, got 'high'$"):
+    with pytest.raises(ConfigError, match=r"^estimator.gain: must be a number, got 'high'$"):
         registry.create("estimator", "d", {"gain": "high"}, where="estimator")
-    with pytest.raises(ConfigError, match=r"^estimator.enabled: expected true or false, got 1$"):
+    with pytest.raises(ConfigError, match=r"^estimator.enabled: must be true or false, got 1$"):
         registry.create("estimator", "d", {"enabled": 1}, where="estimator")
-    with pytest.raises(ConfigError, match=r"estimator.axes: expected"):
+    with pytest.raises(ConfigError, match=r"^estimator.axes: must be a list of numbers, got \['a'\]$"):
         registry.create("estimator", "d", {"axes": ["a"]}, where="estimator")
 
 

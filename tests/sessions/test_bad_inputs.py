@@ -476,6 +476,12 @@ def probes() -> list[tuple[str, list[str]]]:
         "estimator=3",
         "world.seed=abc",
         "world.tool.mass=-1",
+        "world.tool.cog=[0, 0]",
+        "world.sensor.gain_force=[[0.6, 0, 0], [0, 0, 0], [0, 0, 0]]",
+        "world.motion.script=wiggle",
+        "haptic.rotation_DB=[1, 2]",
+        "teleop.scale=0",
+        "session.recording_writer=disk",
     ):
         out.append((f"run-set-{setting}", [*run, "--set", setting]))
     for label, argv in (

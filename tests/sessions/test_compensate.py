@@ -153,9 +153,15 @@ def test_run_command_writes_an_mcap(tmp_path, capsys):
             "shadows.rls.force_threshold: must be a finite number > 0, got -1.0",
         ),
         (["run", "--set", "bogus"], "--set 'bogus': expected key=value"),
-        (["run", "--set", "haptic.max_force=-1"], "haptic.max_force: must be greater than 0, got -1"),
-        (["run", "--set", "haptic.max_force_rate=nan"], "haptic.max_force_rate: must be a finite number, got nan"),
-        (["run", "--set", "session.loop_rate_hz=0"], "session.loop_rate_hz: must be greater than 0, got 0"),
+        (["run", "--set", "haptic.max_force=-1"], "haptic.max_force: must be a finite number > 0 (N), got -1"),
+        (
+            ["run", "--set", "haptic.max_force_rate=nan"],
+            "haptic.max_force_rate: must be a finite number > 0 (N/s), got nan",
+        ),
+        (
+            ["run", "--set", "session.loop_rate_hz=0"],
+            "session.loop_rate_hz: must be a finite number > 0 and <= 10000 (Hz), got 0",
+        ),
     ],
 )
 def test_run_errors_are_one_line(args, message, capsys):

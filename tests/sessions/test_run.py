@@ -269,17 +269,17 @@ def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
             r"^shadows.rls.force_treshold: unknown option; did you mean force_threshold\?"
             r"; known options: .*force_threshold",
         ),
-        ("shadows.rls.force_threshold=high", r"^shadows.rls.force_threshold: expected a number, got 'high'$"),
+        ("shadows.rls.force_threshold=high", r"^shadows.rls.force_threshold: must be a number, got 'high'$"),
         (
             "estimator.noise_forse=0.1",
             r"^estimator.noise_forse: unknown option; did you mean noise_force\?; known "
             rf"options: {KALMAN_OPTIONS}, documented in "
             r"hapticlab.plugins.estimators.kalman.options.KalmanOptions$",
         ),
-        ("session.duration=soon", r"^session.duration: expected a number, got 'soon'$"),
-        ("haptic.max_force=[1, 2]", r"^haptic.max_force: expected a number, got \[1, 2\]$"),
-        ("world.tool.mass=heavy", r"^world.tool.mass: expected a number, got 'heavy'$"),
-        ("sensor.rate_hz=true", r"^sensor.rate_hz: expected a number, got True$"),
+        ("session.duration=soon", r"^session.duration: must be a finite number > 0 and <= 86400 \(s\), got 'soon'$"),
+        ("haptic.max_force=[1, 2]", r"^haptic.max_force: must be a finite number > 0 \(N\), got \[1, 2\]$"),
+        ("world.tool.mass=heavy", r"^world.tool.mass: must be a finite number > 0 \(kg\), got 'heavy'$"),
+        ("sensor.rate_hz=true", r"^sensor.rate_hz: must be a number, got True$"),
     ],
 )
 def test_config_errors_name_the_key(override, message):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hapticlab.core.host.registry import ConfigError
-from hapticlab.sessions.config import HapticSettings
 from hapticlab.sessions.live.safety import ForceGovernor
+from hapticlab.sessions.settings import HapticSettings
 
 I3 = np.eye(3)
 

@@ -256,9 +256,9 @@ def test_the_hand_moves_the_tool_along_the_direction_the_force_comes_back_along(
     −x_B comes back on the hand along −y_D."""
     from hapticlab.core.frames import matrix_from_rotvec
     from hapticlab.core.types import PoseSample
-    from hapticlab.sessions.config import HapticSettings, TeleopSettings
     from hapticlab.sessions.live.safety import ForceGovernor
     from hapticlab.sessions.live.teleop import Teleoperation
+    from hapticlab.sessions.settings import HapticSettings, TeleopSettings
 
     haptic = HapticSettings(rotation_DB=(0.0, 0.0, math.pi / 2), max_force_rate=1e6)
     R_DB = ForceGovernor(haptic, 1e-3).R_DB
@@ -365,8 +365,8 @@ def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tm
 
 def test_the_calibration_tour_moves_the_robot_only_while_someone_is_at_the_master():
     from hapticlab.core.types import PoseSample
-    from hapticlab.sessions.config import TeleopSettings
     from hapticlab.sessions.live.teleop import Teleoperation
+    from hapticlab.sessions.settings import TeleopSettings
 
     teleop = Teleoperation(TeleopSettings(enabled=True, max_angular_speed=1.0, calibration_dwell_s=0.1), np.eye(3))
     pose = PoseSample(0, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))

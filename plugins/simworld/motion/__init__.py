@@ -32,6 +32,7 @@ Frames: B robot base, E flange. ``R_BE`` maps vectors from E into B.
 
 from __future__ import annotations
 
+from hapticlab.core.host.options import choice
 from hapticlab.plugins.simworld.motion.axial_rotation import AxialRotation
 from hapticlab.plugins.simworld.motion.hold import Hold
 from hapticlab.plugins.simworld.motion.random_tour import RandomTour, StaticPoses
@@ -71,8 +72,4 @@ MOTION_SCRIPTS: dict[str, type[MotionScript]] = {
 
 def make_motion(script: str, **options: object) -> MotionScript:
     """Build a motion script by name (see :data:`MOTION_SCRIPTS`) with its options."""
-    try:
-        cls = MOTION_SCRIPTS[script]
-    except KeyError:
-        raise ValueError(f"unknown motion script {script!r}; known: {', '.join(MOTION_SCRIPTS)}") from None
-    return cls(**options)
+    return MOTION_SCRIPTS[choice("script", script, tuple(MOTION_SCRIPTS))](**options)

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from hapticlab.core.frames import skew
+from hapticlab.core.host.options import OptionError, number
 from hapticlab.plugins.simworld.motion.script import (
     HORIZONTAL_R_BE,
     DEFAULT_P_BoEo_B,
@@ -64,13 +65,11 @@ class AxialRotation(MotionScript):
         p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
     ):
         if duration is not None and turns is not None:
-            raise ValueError("give either duration or turns, not both")
-        if speed_deg_s == 0:
-            raise ValueError("speed_deg_s must not be zero")
-        if ramp_s <= 0:
-            raise ValueError(f"ramp_s must be > 0, got {ramp_s!r}")
-        if start_s < 0:
-            raise ValueError(f"start_s must be >= 0, got {start_s!r}")
+            raise OptionError("turns", "give either duration or turns, not both")
+        if number("speed_deg_s", speed_deg_s, hint=" (deg/s)") == 0:
+            raise OptionError("speed_deg_s", "must be a finite number other than 0 (deg/s), got 0")
+        number("ramp_s", ramp_s, above=0, hint=" (s)")
+        number("start_s", start_s, minimum=0, hint=" (s)")
         self.speed = np.deg2rad(float(speed_deg_s))  # rad/s
         self.ramp_s = float(ramp_s)
         self.start_s = float(start_s)
@@ -78,11 +77,17 @@ class AxialRotation(MotionScript):
         self.p_BoEo_B = np.asarray(p_BoEo_B, dtype=float)
         if duration is None:
             angle = 2.0 * np.pi * (1.0 if turns is None else float(turns))
+            longest_ramp_s = angle / abs(self.speed)
             self.cruise_s = angle / abs(self.speed) - self.ramp_s
         else:
+            longest_ramp_s = float(duration) / 2.0
             self.cruise_s = float(duration) - 2.0 * self.ramp_s
         if self.cruise_s < 0:
-            raise ValueError("the rotation is too short for its two speed ramps; lower ramp_s or raise duration/turns")
+            raise OptionError(
+                "ramp_s",
+                f"must be <= {longest_ramp_s:g} s: the rotation is too short for its two speed ramps "
+                f"(lower ramp_s or raise duration or turns), got {ramp_s!r}",
+            )
         # HORIZONTAL_R_BE [z]× and HORIZONTAL_R_BE [z]×²: Rot_z by Rodrigues' formula (see rodrigues)
         z_cross = skew(np.array([0.0, 0.0, 1.0]))
         self._R_BE_0_n = HORIZONTAL_R_BE @ z_cross

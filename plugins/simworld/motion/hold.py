@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from hapticlab.core.host.options import OptionError
 from hapticlab.plugins.simworld.motion.script import (
     NOMINAL_R_BE,
     DEFAULT_P_BoEo_B,
@@ -45,7 +46,7 @@ class Hold(MotionScript):
     ):
         axis = np.asarray(tilt_axis_B, dtype=float)
         if axis.shape != (3,) or not np.linalg.norm(axis) > 0:
-            raise ValueError(f"tilt_axis_B must be a non-zero 3-vector, got {tilt_axis_B!r}")
+            raise OptionError("tilt_axis_B", f"must be 3 numbers, not all zero (an axis), got {tilt_axis_B!r}")
         tilt = Rotation.from_rotvec(axis / np.linalg.norm(axis) * np.deg2rad(tilt_deg))
         roll = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(roll_deg)])
         self.R_BE = tilt.as_matrix() @ NOMINAL_R_BE @ roll.as_matrix()

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hapticlab.core.frames import skew_stack
+from hapticlab.core.host.options import integer, number
 from hapticlab.plugins.simworld.motion.script import (
     NOMINAL_R_BE,
     DEFAULT_P_BoEo_B,
@@ -149,14 +150,11 @@ class RandomTour(MotionScript):
         waypoints: int | None = None,
         p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
     ):
-        if segment_s <= 0:
-            raise ValueError(f"segment_s must be > 0, got {segment_s!r}")
-        if dwell_s < 0:
-            raise ValueError(f"dwell_s must be >= 0, got {dwell_s!r}")
-        if waypoints is not None and waypoints < 1:
-            raise ValueError(f"waypoints must be >= 1, got {waypoints!r}")
-        if not 0 <= max_tilt_deg <= 180:
-            raise ValueError(f"max_tilt_deg must be within [0, 180], got {max_tilt_deg!r}")
+        number("segment_s", segment_s, above=0, hint=" (s)")
+        number("dwell_s", dwell_s, minimum=0, hint=" (s)")
+        if waypoints is not None:
+            integer("waypoints", waypoints, minimum=1)
+        number("max_tilt_deg", max_tilt_deg, minimum=0, maximum=180, hint=" (degrees)")
         self.seed = int(seed)
         self.max_tilt_deg = float(max_tilt_deg)
         self.max_roll_deg = float(max_roll_deg)

@@ -15,7 +15,7 @@ import pytest
 
 from hapticlab.plugins.estimators.kalman import KalmanEstimator
 from hapticlab.plugins.simworld import SimWorld
-from hapticlab.plugins.simworld.config import Indentation
+from hapticlab.plugins.simworld.contacts import Indentation
 from hapticlab.sessions.bench.simulation import feed, simulate
 
 RATE_HZ = 250.0

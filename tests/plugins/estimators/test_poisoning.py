@@ -320,7 +320,7 @@ def test_min_rcond_error_names_the_option_and_a_valid_one_waits_for_the_poses(to
     ],
 )
 def test_bounds_are_validated(make, key, value):
-    with pytest.raises(ValueError, match=rf"^{key}: must be a number > 0"):
+    with pytest.raises(ValueError, match=rf"^{key}: must be a finite number > 0 and <= "):
         make(**{key: value})
 
 

@@ -278,7 +278,7 @@ def test_connection_refused_names_the_controller():
             {"address": "10.0.0.2", "frequency": 500},
             "kinematics.frequency: unknown option; known options: address, follow, follow_rate_hz, model, rate_hz, receive_timeout",
         ),
-        ({"address": 10}, "kinematics.address: expected a string, got 10"),
+        ({"address": 10}, "kinematics.address: must be a string, got 10"),
         ({"address": "10.0.0.2", "model": "ur7e"}, "kinematics.model: must be 'ur3e', 'ur5e', "),
         ({"address": "10.0.0.2", "follow_rate_hz": 100}, "kinematics.follow_rate_hz: must be left out unless follow"),
     ],

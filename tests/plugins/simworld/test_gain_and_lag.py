@@ -78,14 +78,26 @@ def test_config_keys():
 @pytest.mark.parametrize(
     ("table", "message"),
     [
-        ({"sensor": {"gain_force": [[0, 0, 0], [0, 0, 0]]}}, "world.sensor.gain_force: expected a 3x3 matrix"),
-        ({"sensor": {"gain_torque": [[0, 0, 0], [0, "x", 0], [0, 0, 0]]}}, "world.sensor.gain_torque[1]: expected 3"),
+        (
+            {"sensor": {"gain_force": [[0, 0, 0], [0, 0, 0]]}},
+            "world.sensor.gain_force: must be a 3x3 matrix (3 rows of 3 numbers), each > -0.5 and < 0.5 (a calibration error), got [[0, 0, 0], [0, 0, 0]]",
+        ),
+        (
+            {"sensor": {"gain_torque": [[0, 0, 0], [0, "x", 0], [0, 0, 0]]}},
+            "world.sensor.gain_torque: must be a 3x3 matrix (3 rows of 3 numbers), each > -0.5 and < 0.5",
+        ),
         (
             {"sensor": {"gain_force": [[0.6, 0, 0], [0, 0, 0], [0, 0, 0]]}},
-            "world.sensor.gain_force: every entry must be within ±0.5",
+            "world.sensor.gain_force: must be a 3x3 matrix (3 rows of 3 numbers), each > -0.5 and < 0.5 (a calibration error), got [[0.6, 0, 0], [0, 0, 0], [0, 0, 0]]",
         ),
-        ({"robot": {"kinematics_lag": "5ms"}}, "world.robot.kinematics_lag: expected a number"),
-        ({"robot": {"kinematics_lag": 2.0}}, "world.robot.kinematics_lag: must be within ±1 s"),
+        (
+            {"robot": {"kinematics_lag": "5ms"}},
+            "world.robot.kinematics_lag: must be a finite number >= -1 and <= 1 (s), got '5ms'",
+        ),
+        (
+            {"robot": {"kinematics_lag": 2.0}},
+            "world.robot.kinematics_lag: must be a finite number >= -1 and <= 1 (s), got 2.0",
+        ),
     ],
 )
 def test_config_errors_name_the_key(table, message):

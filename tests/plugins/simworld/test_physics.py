@@ -443,22 +443,40 @@ def test_empty_config_gives_the_defaults():
 @pytest.mark.parametrize(
     ("table", "message"),
     [
-        ({"sensor": {"noise_forse": 0.1}}, "world.sensor.noise_forse: unknown option; known options: "),
-        ({"tool": {"mass": "heavy"}}, "world.tool.mass: expected a number, got 'heavy'"),
-        ({"tool": {"mass": -1.0}}, "world.tool.mass: must be > 0"),
-        ({"tool": {"cog": [0, 0]}}, "world.tool.cog: expected 3 numbers"),
-        ({"sensor": {"noise_torque": [0.1, "x", 0.1]}}, "world.sensor.noise_torque: expected a number or 3 numbers"),
-        ({"sensor": {"noise_force": -0.1}}, "world.sensor.noise_force: must be >= 0"),
-        ({"inertia": "yes"}, "world.inertia: expected true or false, got 'yes'"),
-        ({"seed": 1.5}, "world.seed: expected an integer"),
+        (
+            {"sensor": {"noise_forse": 0.1}},
+            "world.sensor.noise_forse: unknown option; did you mean noise_force?; known options: bias_force, ",
+        ),
+        ({"tool": {"mass": "heavy"}}, "world.tool.mass: must be a finite number > 0 (kg), got 'heavy'"),
+        ({"tool": {"mass": -1.0}}, "world.tool.mass: must be a finite number > 0 (kg), got -1.0"),
+        ({"tool": {"cog": [0, 0]}}, "world.tool.cog: must be 3 numbers, got [0, 0]"),
+        (
+            {"sensor": {"noise_torque": [0.1, "x", 0.1]}},
+            "world.sensor.noise_torque: must be a number or 3 numbers, each >= 0, got [0.1, 'x', 0.1]",
+        ),
+        (
+            {"sensor": {"noise_force": -0.1}},
+            "world.sensor.noise_force: must be a number or 3 numbers, each >= 0, got -0.1",
+        ),
+        ({"inertia": "yes"}, "world.inertia: must be true or false, got 'yes'"),
+        ({"seed": 1.5}, "world.seed: must be a whole number >= 0, got 1.5"),
         ({"gravity": 9.8}, "world.gravity: unknown option"),
-        ({"robot": {"base_tilt": True}}, "world.robot.base_tilt: expected 3 numbers"),
-        ({"robot": 3}, "world.robot: expected a table"),
-        ({"motion": {"script": "wiggle"}}, "world.motion.script: unknown motion script 'wiggle'"),
+        ({"robot": {"base_tilt": True}}, "world.robot.base_tilt: must be 3 numbers, got True"),
+        ({"robot": 3}, "world.robot: must be a table, got 3"),
+        (
+            {"motion": {"script": "wiggle"}},
+            "world.motion.script: must be 'random_tour', 'static_poses', 'axial_rotation', 'hold', 'indentation' or 'servo', got 'wiggle'",
+        ),
         ({"motion": {"script": "axial_rotation", "speed": 3}}, "world.motion.speed: unknown option"),
-        ({"motion": {"script": "axial_rotation", "turns": 1, "duration": 3}}, "world.motion: give either"),
-        ({"motion": {"segment_s": 0}}, "world.motion.segment_s: must be > 0"),
-        ({"contacts": [{"kind": "poke"}]}, "world.contacts[0].kind: unknown contact kind 'poke'"),
+        (
+            {"motion": {"script": "axial_rotation", "turns": 1, "duration": 3}},
+            "world.motion.turns: give either duration or turns, not both",
+        ),
+        ({"motion": {"segment_s": 0}}, "world.motion.segment_s: must be a finite number > 0 (s), got 0"),
+        (
+            {"contacts": [{"kind": "poke"}]},
+            "world.contacts[0].kind: must be 'indentation', 'hanging_mass', 'tissue' or 'cable', got 'poke'",
+        ),
         (
             {"contacts": [{"kind": "hanging_mass"}, {"kind": "hanging_mass", "mas": 1}]},
             "world.contacts[1].mas: unknown option",
@@ -466,9 +484,12 @@ def test_empty_config_gives_the_defaults():
         ({"contacts": [{"kind": "indentation"}]}, "world.contacts[0].start: missing"),
         (
             {"contacts": [{"kind": "indentation", "start": 0, "duration": 0.1, "ramp": 0.2}]},
-            "world.contacts[0]: need 0 <= 2·ramp <= duration",
+            "world.contacts[0].duration: must be >= 2·ramp = 0.4 s (a rise and a fall), got 0.1",
         ),
-        ({"tool": {"inertia": [[1, 0, 0], [0, 1, 0], [0, 0]]}}, "world.tool.inertia[2]: expected 3 numbers"),
+        (
+            {"tool": {"inertia": [[1, 0, 0], [0, 1, 0], [0, 0]]}},
+            "world.tool.inertia: must be a symmetric positive semi-definite 3x3 matrix (kg·m², 3 rows of 3 numbers), got [[1, 0, 0], [0, 1, 0], [0, 0]]",
+        ),
     ],
 )
 def test_config_errors_name_the_key(table, message):
@@ -550,7 +571,7 @@ def test_wrench_terms_match_the_textbook_cross_products():
     state = world.motion_state(t)
     R_SE = Rotation.from_rotvec([0.05, -0.08, 0.3]).as_matrix()
     R_SB = R_SE @ np.transpose(state.R_BE, (0, 2, 1))
-    m, c, I = world.tool.mass, world.tool.cog_S, world.tool.inertia_S
+    m, c, I = world.tool.mass, world.tool.cog_S, world.tool.inertia_S  # noqa: E741 (the inertia's textbook symbol)
     p = np.array([0.01, -0.02, 0.05])
 
     def to_S(R, v):

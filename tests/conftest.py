@@ -68,8 +68,8 @@ SLOW = {
     "long_session": "a simulated session longer than LONG_SESSION_S",
     "run_command": "a command in a fresh interpreter",
 }
-"""Fixture → what makes a test that takes it expensive; such a test is marked ``slow``. A test parametrized
-with ``kernel="numpy"`` (the reference) is slow too."""
+"""Fixture → what makes a test that takes it expensive; such a test is marked ``slow``, and so is one
+parametrized with an estimator's reference (``_runs_a_reference``)."""
 REALTIME_TIMEOUT_S = 240
 """s: a realtime test's whole time (its sessions are at most 30 s; the rest is start-up on a loaded machine)."""
 LONG_SESSION_S = 10.0
@@ -88,8 +88,19 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.realtime)
             if item.get_closest_marker("timeout") is None:
                 item.add_marker(pytest.mark.timeout(REALTIME_TIMEOUT_S))
-        if used & SLOW.keys() or params.get("kernel") == "numpy":
+        if used & SLOW.keys() or _runs_a_reference(params):
             item.add_marker(pytest.mark.slow)
+
+
+def _runs_a_reference(params: dict) -> bool:
+    """A test parametrized with an estimator's reference: ``kernel="numpy"``, or options holding
+    ``{"kernel": "numpy"}`` or ``{"implementation": "filterpy"}``."""
+    for name, value in params.items():
+        if name == "kernel" and value == "numpy":
+            return True
+        if isinstance(value, dict) and (value.get("kernel") == "numpy" or value.get("implementation") == "filterpy"):
+            return True
+    return False
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -193,7 +204,7 @@ def pytest_configure(config):
 # --------------------------------------------------------------------------- realtime resources
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def paced_run():
     """``run_session`` for a paced session (``session.realtime = true``): the wall clock drives its ticks, so a
     test asserts what the recording says (ticks, overrun events, stamps), never how long the wall clock took."""
@@ -326,7 +337,7 @@ def long_session():
     return run_session
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def run_command():
     """``run_command(args, what, timeout=300, **kwargs)``: a command that runs to its end (a fresh interpreter, a
     build) → ``subprocess.CompletedProcess`` (output captured as text); fails naming ``what`` after ``timeout``."""

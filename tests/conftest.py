@@ -27,7 +27,8 @@ below), never by hand:
 The default run (``pytest``, pyproject's ``addopts``) leaves both out;
 ``pytest -m "not realtime"`` adds the slow tier (CI runs it, then the realtime
 tier). A test that takes one of these resources any other way fails, naming
-the fixture to take it through (``_tier_guard``), so the marks cannot drift.
+the fixture to take it through (the tier guard, ``pytest_configure``), so the marks
+cannot drift.
 Every realtime resource waits with a timeout of its own that names what it
 waited for, and pytest-timeout (``REALTIME_TIMEOUT_S``, pyproject's
 ``timeout`` for the rest) ends a test stuck anywhere else; its report then
@@ -57,6 +58,7 @@ REALTIME = {
     "spawn_process": "a process beside the test",
     "pty_pair": "a pseudo-terminal pair",
     "master_emulator": "the master emulator on a pseudo-terminal",
+    "netft_emulator": "the Net F/T emulator streaming RDT over UDP at its own rate",
     "dask_workers": "Dask worker processes",
     "child_processes": "processes the code under test starts",
 }
@@ -261,6 +263,15 @@ def master_emulator():
     yield make
     for emulator in made:
         emulator.stop()
+
+
+@pytest.fixture
+def netft_emulator():
+    """``netft_emulator(*args, **kwargs)`` → a :class:`NetFTEmulator` (RDT over UDP at up to 7 kHz, served by a
+    thread of this process: a receiver that falls behind loses records); use it as a context manager."""
+    from hapticlab.plugins.sensors.netft_emulator import NetFTEmulator
+
+    return NetFTEmulator
 
 
 @pytest.fixture

@@ -24,15 +24,15 @@ from hapticlab.sessions.review import summary as summary_module
 DEMO_CONTACTS = [(6.0, 1.5, 3.0), (9.5, 1.5, 2.0), (12.5, 1.0, 4.0)]
 
 
-def record(path: Path, *overrides: str) -> Path:
+def record(path: Path, *overrides: str, run=run_session) -> Path:
     config, _ = load_config("demo")
     config = apply_overrides(config, ["session.realtime=false", *overrides])
-    run_session(build_session(config), out=path)
+    run(build_session(config), out=path)
     return path
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory) -> Path:
+def session(tmp_path_factory, long_session) -> Path:
     """The demo's 14 s (its three contacts; kalman drives, rls beside it), a trainee, a task and notes."""
     path = tmp_path_factory.mktemp("review") / "t07-palpation.mcap"
     return record(
@@ -41,6 +41,7 @@ def session(tmp_path_factory) -> Path:
         "session.trainee=T07",
         "session.task=palpation",
         'session.notes="first try <b>left hand</b>"',
+        run=long_session,
     )
 
 

@@ -8,10 +8,11 @@ realtime fixture, so that its tests are in the realtime tier.
 
 from __future__ import annotations
 
-import select
+import queue
 import signal
 import subprocess
 import sys
+import threading
 
 import pytest
 
@@ -22,32 +23,65 @@ PROCESS_STOP_S = 30.0
 
 
 class Child(subprocess.Popen):
-    """A process started by a test: ``Popen`` with waits that time out, naming the process (``what``)."""
+    """A process started by a test: ``Popen`` with waits that time out, naming the process (``what``).
+
+    Its stdout is read by a thread of its own once a line is asked for (``next_line``): a line already read
+    into a buffer is never waited for again, and ``finish`` returns what came after.
+    """
 
     what = "the process"
+    _lines: queue.Queue | None = None
+    _reader: threading.Thread | None = None
 
-    def first_line(self, timeout: float = PROCESS_START_S) -> str:
-        """The first line it prints on stdout (its address, its port, "ready"); fails naming it after ``timeout``."""
-        ready, _, _ = select.select([self.stdout], [], [], timeout)
-        if not ready:
-            pytest.fail(f"{self.what} printed nothing within {timeout:g} s")
-        line = self.stdout.readline()
-        if not line and self.poll() is not None:
-            pytest.fail(f"{self.what} ended ({self.returncode}) before its first line: {self.stderr.read()!r}")
+    def next_line(self, timeout: float = PROCESS_START_S) -> str:
+        """The next line it prints on stdout (its address, its port, "ready"); fails naming it after ``timeout``."""
+        if self._lines is None:
+            self._lines = queue.Queue()
+            self._reader = threading.Thread(target=self._read_lines, name=f"stdout of {self.what}", daemon=True)
+            self._reader.start()
+        try:
+            line = self._lines.get(timeout=timeout)
+        except queue.Empty:
+            pytest.fail(f"{self.what} printed no line within {timeout:g} s")
+        if line is None:
+            self.wait()
+            err = self.stderr.read() if self.stderr is not None else ""
+            pytest.fail(f"{self.what} ended ({self.returncode}) before printing a line: {err!r}")
         return line
 
+    first_line = next_line
+
+    def _read_lines(self) -> None:
+        for line in self.stdout:
+            self._lines.put(line)
+        self._lines.put(None)
+
     def finish(self, signum: int = signal.SIGTERM, timeout: float = PROCESS_STOP_S):
-        """Send ``signum`` if it still runs, then return what it printed on stdout after what was read; killed,
+        """Send ``signum`` if it still runs, then return what it printed on stdout after the lines read; killed,
         and failing, after ``timeout``."""
         if self.poll() is None:
             self.send_signal(signum)
+        if self._reader is None:
+            try:
+                out, _ = self.communicate(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.kill()
+                self.communicate()
+                pytest.fail(f"{self.what} did not end within {timeout:g} s of {signal.Signals(signum).name}")
+            return out
         try:
-            out, _ = self.communicate(timeout=timeout)
+            self.wait(timeout)
         except subprocess.TimeoutExpired:
             self.kill()
-            self.communicate()
+            self.wait()
             pytest.fail(f"{self.what} did not end within {timeout:g} s of {signal.Signals(signum).name}")
-        return out
+        self._reader.join(timeout)
+        rest = []
+        while not self._lines.empty():
+            line = self._lines.get()
+            if line is not None:
+                rest.append(line)
+        return "".join(rest)
 
     def wait_for_exit(self, timeout: float = PROCESS_STOP_S) -> int:
         """Its exit code once it ends on its own; fails after ``timeout``."""
@@ -61,6 +95,8 @@ class Child(subprocess.Popen):
         if self.poll() is None:
             self.kill()
             self.wait()
+        if self._reader is not None:
+            self._reader.join(PROCESS_STOP_S)
         for stream in (self.stdin, self.stdout, self.stderr):
             if stream is not None:
                 stream.close()

@@ -432,7 +432,7 @@ def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm(spa
     )
     port = proc.first_line().strip()
     assert port.startswith("/dev/pts/")
-    assert proc.first_line().startswith(f"hapticlab master emulator on {port}: handle on figure8")
+    assert proc.next_line().startswith(f"hapticlab master emulator on {port}: handle on figure8")
     dev = SerialHaptic(port, device_max_force=9.0, read_timeout=SLOW)
     dev.open()
     assert dev.max_force == 2.5

@@ -76,7 +76,7 @@ def test_the_emulated_arm_follows_written_targets_and_stops_when_they_stop(child
             assert arm.watchdog_stops == 1  # the targets stopped: the arm stopped (where it already was)
             # one far target, then silence: the script's watchdog stops the arm on its way
             writer.send(R_0, p_0 - [0.0, 0.0, 0.12])
-            until(lambda: arm.watchdog_stops == 2, "the watchdog's stop after the far target")
+            time.sleep(0.6)  # the watchdog's 100 ms, then the arm's stop
             t = (time.monotonic_ns() - arm.t0_ns) / 1e9
             stopped = world.pose(t)[1][0]
             assert p_0[2] - 0.09 < stopped[2] < p_0[2] - 0.021  # moved towards it, stopped well short

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -48,12 +47,12 @@ def test_run_returns_the_recording_and_open_recording_reads_it_back(tmp_path):
     assert np.sqrt(np.mean((live.contact_force_S - offline.contact_force_S) ** 2)) < 0.01
 
 
-def test_the_one_liner_of_the_issue(tmp_path):
+def test_the_one_liner_of_the_issue(tmp_path, run_command):
     code = (
         "import hapticlab; p = hapticlab.run('demo', settings={'session.duration': 3, "
         "'session.realtime': False}); print(hapticlab.open_recording(p).metadata)"
     )
-    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    done = run_command([sys.executable, "-c", code], "the one-liner", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "'hapticlab.session'" in done.stdout and "'hapticlab.summary'" in done.stdout
 

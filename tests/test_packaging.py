@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import zipfile
 from pathlib import Path
@@ -28,12 +27,11 @@ def package_folders() -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory) -> zipfile.ZipFile:
+def wheel(tmp_path_factory, run_command) -> zipfile.ZipFile:
     out = tmp_path_factory.mktemp("wheel")
-    result = subprocess.run(
+    result = run_command(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(out), str(ROOT)],
-        capture_output=True,
-        text=True,
+        "pip wheel",
         timeout=600,
     )
     assert result.returncode == 0, result.stderr[-2000:]

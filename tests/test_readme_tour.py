@@ -43,13 +43,12 @@ def tour_files(text: str) -> dict[str, str]:
     return files
 
 
-def run_shell(command: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    """Run one command line in bash in ``cwd``, with this interpreter's ``hapticlab`` first on the PATH."""
+def run_shell(run_command, command: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """Run one command line in bash in ``cwd``, with this interpreter's ``hapticlab`` first on the PATH
+    (``run_command``: the conftest fixture, a command that runs to its end)."""
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
-    return subprocess.run(
-        ["bash", "-c", command], cwd=cwd, env=env, capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S
-    )
+    return run_command(["bash", "-c", command], f"README: {command}", timeout=COMMAND_TIMEOUT_S, cwd=cwd, env=env)
 
 
 def test_the_readme_is_read_in_five_minutes():
@@ -72,12 +71,12 @@ def test_the_tour_and_its_files_are_found():
         assert any(name in command for command in commands)
 
 
-def test_every_command_of_the_tour_runs_as_written(tmp_path):
+def test_every_command_of_the_tour_runs_as_written(tmp_path, run_command):
     text = README.read_text(encoding="utf-8")
     for name, content in tour_files(text).items():
         (tmp_path / name).write_text(content, encoding="utf-8")
     for command in tour_commands(text):
-        done = run_shell(command, tmp_path)
+        done = run_shell(run_command, command, tmp_path)
         assert done.returncode == 0, f"README tour: {command!r} exited {done.returncode}:\n{done.stderr[-3000:]}"
     # what the tour says it writes
     assert len(list((tmp_path / "recordings").glob("demo-*.mcap"))) == 2
@@ -88,10 +87,10 @@ def test_every_command_of_the_tour_runs_as_written(tmp_path):
     assert len((tmp_path / "cohort.csv").read_text().splitlines()) == 3  # a header and a row per session
 
 
-def test_the_python_example_runs(tmp_path):
+def test_the_python_example_runs(tmp_path, run_command):
     section = README.read_text(encoding="utf-8").split("\n## From Python\n", 1)[1].split("\n## ", 1)[0]
     example = re.search(r"```python\n(.*?)```", section, flags=re.S)
     assert example, "README.md: no ```python block under '## From Python'"
-    done = run_shell(f"python - <<'EOF'\n{example.group(1)}EOF", tmp_path)
+    done = run_shell(run_command, f"python - <<'EOF'\n{example.group(1)}EOF", tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert len(list((tmp_path / "recordings").glob("demo-*.mcap"))) == 1

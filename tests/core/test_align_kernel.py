@@ -36,12 +36,12 @@ def wrenches_between(rng: np.random.Generator, t0: int, t1: int, count: int) -> 
 
 
 @pytest.mark.parametrize("positions", [True, False])
-def test_compiled_and_numpy_aligners_agree_on_every_case(positions):
+def test_compiled_and_numpy_aligners_agree_on_every_case(positions, numpy_reference):
     """Blocks of 1, 7 and 40 samples that fall between poses, on a pose, before the first pose, within one
     period after the newest (extrapolated) and beyond it (stale), as a live loop sees them."""
     rng = np.random.default_rng(12)
     poses = pose_stream(rng, 400, positions)
-    numba_aligner, numpy_aligner = Aligner(500.0, kernel="numba"), Aligner(500.0, kernel="numpy")
+    numba_aligner, numpy_aligner = Aligner(500.0, kernel="numba"), Aligner(500.0, kernel=numpy_reference)
     compared = 0
     block_sizes = [1, 7, 40]
     for k in range(0, len(poses), 3):

@@ -113,7 +113,7 @@ def _sync_rls(dst: RLSEstimator, src: RLSEstimator) -> None:
     dst.converged_force, dst.converged_torque = src.converged_force, src.converged_torque
 
 
-def test_rls_kernel_matches_numpy_in_lockstep(sim):
+def test_rls_kernel_matches_numpy_in_lockstep(sim, numpy_reference):
     ref, fast = RLSEstimator(kernel="numpy"), RLSEstimator(kernel="numba")
     decided_by_rounding = 0
     for i in range(len(sim)):
@@ -162,7 +162,7 @@ def test_rls_kernel_gives_the_same_bits_in_any_block_size(sim, size):
     assert (one.force.updates, one.torque.updates) == (blocks.force.updates, blocks.torque.updates)
 
 
-def test_rls_kernel_free_run_sample_by_sample_takes_the_same_decisions(sim):
+def test_rls_kernel_free_run_sample_by_sample_takes_the_same_decisions(sim, numpy_reference):
     """Sample by sample (the live loop's blocks of 1) the two paths solve the same Λ with the same
     LAPACK routine: on this tour every flag agrees and the parameters end within 1e-12."""
     ref, fast = RLSEstimator(kernel="numpy"), RLSEstimator(kernel="numba")
@@ -176,7 +176,7 @@ def test_rls_kernel_free_run_sample_by_sample_takes_the_same_decisions(sim):
     assert (ref.force.updates, ref.torque.updates) == (fast.force.updates, fast.torque.updates)
 
 
-def test_rls_kernel_free_run_ends_at_the_same_parameters(sim):
+def test_rls_kernel_free_run_ends_at_the_same_parameters(sim, numpy_reference):
     """Without lockstep the runs part at a flag decided within rounding, and meet again: the same
     samples' least-squares solution once both stages have converged for good."""
     out = {}
@@ -191,7 +191,7 @@ def test_rls_kernel_free_run_ends_at_the_same_parameters(sim):
     assert np.allclose(out["numpy"].cov_diag(), out["numba"].cov_diag(), rtol=1e-2)
 
 
-def test_rls_kernel_option_is_validated():
+def test_rls_kernel_option_is_validated(numpy_reference):
     with pytest.raises(ValueError, match="^kernel: "):
         RLSEstimator(kernel="cuda")
     assert RLSEstimator(kernel="numpy").kernel == "numpy"
@@ -219,7 +219,7 @@ def _reference(block, options, size) -> tuple[KalmanEstimator, dict]:
     return _REFERENCES[key]
 
 
-def test_the_numpy_reference_is_the_same_at_every_block_size(sim6):
+def test_the_numpy_reference_is_the_same_at_every_block_size(sim6, numpy_reference):
     runs = [_run(KalmanEstimator(kernel="numpy"), sim6.subset(slice(0, 3000)), size) for size in (1, 7, 1024)]
     for key in KEYS:
         assert np.array_equal(runs[0][key], runs[1][key]) and np.array_equal(runs[0][key], runs[2][key]), key
@@ -279,7 +279,7 @@ def _tolerance(options) -> float:
     ],
 )
 @pytest.mark.parametrize("size", [1, 7, 1024])
-def test_kalman_kernel_agrees_with_numpy(sim6, size, options):
+def test_kalman_kernel_agrees_with_numpy(sim6, size, options, numpy_reference):
     """The noise estimate and the convergence rules run in the compiled cascade (the numpy reference
     runs them one sample at a time, so every block size gives the same numbers); the paper's step rule
     runs the compiled stage filter (``filter6``). A late sensor stream (its poses interpolated per block
@@ -318,7 +318,7 @@ def sim_mounted():
     ids=["auto", "gamma-covariance", "step", "bias-rate", "mount"],
 )
 @pytest.mark.parametrize("size", [1, 64])
-def test_a_learnt_tilt_walk_is_the_reference_s(sim_mounted, size, options):
+def test_a_learnt_tilt_walk_is_the_reference_s(sim_mounted, size, options, numpy_reference):
     """The tilt walk learnt from the data (``bias_force_tilt_rw = "auto"``, ``plugins.estimators.kalman.tilt_walk_kernel``) in the
     compiled cascade and in the numpy reference (``learn_tilt_walk`` as Python, after each sample: the
     reference filters one sample at a time with it, so every block size gives its numbers), on a tour with a
@@ -337,7 +337,7 @@ def test_a_learnt_tilt_walk_is_the_reference_s(sim_mounted, size, options):
     assert _same_tree(ref.params(), fast.params(), tol) and _same_tree(ref.state(), fast.state(), tol)
 
 
-def test_the_learner_s_step_test_is_the_reference_s():
+def test_the_learner_s_step_test_is_the_reference_s(numpy_reference):
     """``learn_tilt_walk`` compiled and as Python (``py_func``, which the numpy reference runs) on the same samples,
     with 0.5 N steps inside some windows (a light touch the gate took in): the same state to the bit, windows
     left out for their step, and the test's share of failed windows the same."""
@@ -369,7 +369,9 @@ def test_the_learner_s_step_test_is_the_reference_s():
 
 
 @pytest.mark.parametrize("size", [1, 7])
-def test_a_late_sensor_streams_poses_and_positions_are_interpolated_as_the_reference_does(sim_inertia, size):
+def test_a_late_sensor_streams_poses_and_positions_are_interpolated_as_the_reference_does(
+    sim_inertia, size, numpy_reference
+):
     """The live aligner's blocks carry quaternions and positions: a late sensor stream's poses and positions
     at t + τ come from the compiled interpolation (``core.aligner_kernel``) against numpy's slerp and lerp
     (libm's sin/acos: not to the bit), with the inertial force from those positions. The flags the same, the
@@ -391,7 +393,7 @@ def test_a_late_sensor_streams_poses_and_positions_are_interpolated_as_the_refer
 
 
 @pytest.mark.parametrize("size", [7, 1024])
-def test_a_compiled_mount_estimate_is_the_same_at_every_block_size(sim6, size):
+def test_a_compiled_mount_estimate_is_the_same_at_every_block_size(sim6, size, numpy_reference):
     """With the noise given the numpy reference filters a block and then turns every sample of it through
     the mount estimated over the whole block (0.21 N apart from sample by sample, in blocks of 7, while the
     mount converges); the compiled cascade turns each sample through the mount as it is after that sample,
@@ -425,7 +427,7 @@ def sim_inertia():
     ids=["gamma-inertia", "gamma-inertia-lag", "inertia", "inertia-lag", "inertia-sensor-late", "inertia-bias-rate"],
 )
 @pytest.mark.parametrize("size", [1, 7, 1024])
-def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol):
+def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol, numpy_reference):
     """Not to the bit: the derivatives' window sums are taken in order, numpy's pairwise (see
     plugins/estimators/kalman/derivatives_kernel.py); ω agrees to ~1e-13 relative, α to ~1e-9 of its largest value (a second
     difference over 20 ms), the inertial force (0.35 kg) to ~1e-14 N. The filter carries that through:
@@ -479,7 +481,7 @@ def test_motion_derivatives_kernel_matches_numpy(sim_inertia, size):
 
 
 @pytest.mark.parametrize("size", [1, 7])
-def test_kernels_refuse_the_same_samples_and_keep_the_state(sim, size):
+def test_kernels_refuse_the_same_samples_and_keep_the_state(sim, size, numpy_reference):
     block = sim.subset(np.arange(1400))  # a copy (a slice is a view): the module's tour must stay clean
     block.force_S[700, 1] = np.nan
     block.torque_S[703] = np.inf
@@ -504,7 +506,7 @@ def test_kernels_refuse_the_same_samples_and_keep_the_state(sim, size):
 
 
 @pytest.mark.parametrize("options", [{}, GAMMA], ids=["defaults", "gamma-covariance"])
-def test_kalman_restart_and_payload_paths_use_the_kernel_and_agree(sim, options):
+def test_kalman_restart_and_payload_paths_use_the_kernel_and_agree(sim, options, numpy_reference):
     ref, fast = KalmanEstimator(kernel="numpy", **options), KalmanEstimator(kernel="numba", **options)
     for est in (ref, fast):
         est.update_block(sim.subset(slice(0, 1500)))
@@ -516,7 +518,7 @@ def test_kalman_restart_and_payload_paths_use_the_kernel_and_agree(sim, options)
     assert _same_tree(ref.state(), fast.state(), tol)
 
 
-def test_kalman_kernel_option_is_validated():
+def test_kalman_kernel_option_is_validated(numpy_reference):
     with pytest.raises(ValueError, match="^kernel: "):
         KalmanEstimator(kernel="fortran")
     assert KalmanEstimator(kernel="numpy").method is None
@@ -608,7 +610,7 @@ def test_screen_kernel_gives_the_reference_s_masks_and_reason(sim, size):
     }  # every branch was taken
 
 
-def test_constant_var_kernel_matches_numpy(sim6):
+def test_constant_var_kernel_matches_numpy(sim6, numpy_reference):
     """What the motion identifies of a stage's constant (params' gravity_force_B_std and cog_S_std, the gate's
     std): the kernel's Cholesky against ``plugins.estimators.kalman.identified.constant_var``'s inverse, along the tour (Λ from a
     yaw-free start to well identified) and for a Λ that is not positive definite (inf). Two ways of inverting

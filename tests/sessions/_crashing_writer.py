@@ -1,11 +1,12 @@
 """Helper for test_recording: records at ~1 kHz until it is killed.
 
-Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE [blocks | json-blocks] [process]
+Usage: python _crashing_writer.py OUT.mcap FLUSH_INTERVAL_S CHUNK_SIZE KILL_AT TICKS.txt [blocks | json-blocks]
+[process] [group]
 
 With a CHUNK_SIZE far larger than 3 s of data, only the time-based flush puts
 messages on disk.
 
-Prints "ready" once the recorder is open, then writes forever: per tick one
+Prints "ready" once the recorder is open, then writes until tick KILL_AT: per tick one
 /sensor/wrench message whose values are a function of its seq (so the test can
 check every salvaged message), one /aligned/sample every 2nd tick, an event
 every 250th tick, and from 1 s on an /estimator/late channel (registered
@@ -20,12 +21,20 @@ block with params.
 With ``process`` the recorder's ``mcap`` writer runs in its child process
 (``writer="process"``, as a live session's does) and each tick is one ``send``;
 "ready" is followed by the child's pid on the same line.
+
+At tick KILL_AT, before writing it, the helper writes the stamps of the tick
+before and of this one to TICKS.txt, then SIGKILLs itself (``group``: its
+process group, the writer process with it: a power cut), as a kill from outside
+would, at a tick the test knows.
 """
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
 import time
+from pathlib import Path
 
 from hapticlab.sessions.recording import Recorder
 
@@ -71,7 +80,8 @@ def write_blocks(rec: Recorder, t: int, tick: int, late: bool) -> None:
 
 def main() -> None:
     path, flush_interval, chunk_size = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
-    options = sys.argv[4:]
+    kill_at, ticks = int(sys.argv[4]), Path(sys.argv[5])
+    options = sys.argv[6:]
     process = "process" in options
     blocks = "blocks" in options or "json-blocks" in options
     rec = Recorder(
@@ -84,10 +94,14 @@ def main() -> None:
         writer="process" if process else "inline",
     )
     print("ready", rec.writer_pid or "", flush=True)
-    t0 = time.monotonic_ns()
+    t0 = previous = time.monotonic_ns()
     i = 0
     while True:
         t = time.monotonic_ns()
+        if i == kill_at:
+            ticks.write_text(f"{previous} {t}")
+            os.killpg(0, signal.SIGKILL) if "group" in options else os.kill(os.getpid(), signal.SIGKILL)
+        previous = t
         if blocks:
             write_blocks(rec, t, i, t - t0 > 1_000_000_000)
             rec.send()

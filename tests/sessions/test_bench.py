@@ -13,23 +13,10 @@ from hapticlab.sessions.cli import main
 
 
 @pytest.fixture(scope="module")
-def quick(tmp_path_factory):
+def quick(tmp_path_factory, bench_run):
     folder = tmp_path_factory.mktemp("bench")
-    assert (
-        main(
-            [
-                "bench",
-                "paper",
-                "--quick",
-                "--all-estimators",
-                "--json",
-                str(folder / "p.json"),
-                "--plots",
-                str(folder / "plots"),
-            ]
-        )
-        == 0
-    )
+    args = ["paper", "--quick", "--all-estimators", "--json", str(folder / "p.json"), "--plots", str(folder / "plots")]
+    assert bench_run(*args) == 0
     return json.loads((folder / "p.json").read_text()), folder
 
 
@@ -109,8 +96,8 @@ def test_bench_real_on_a_folder(tmp_path, capsys):
     assert "sim" in capsys.readouterr().out
 
 
-def test_bench_estimators_prints_every_scenario(tmp_path, capsys):
-    assert main(["bench", "estimators", "--json", str(tmp_path / "e.json")]) == 0
+def test_bench_estimators_prints_every_scenario(tmp_path, capsys, bench_run):
+    assert bench_run("estimators", "--json", str(tmp_path / "e.json")) == 0
     out = json.loads((tmp_path / "e.json").read_text())
     assert set(out) == {"mount", "inertia_tour", "rotation_104g", "time_lag", "gain", "payload"}
     assert out["mount"]["mount_error_deg"] <= 0.3 and 0 < out["payload"]["recognised_after_s"] < 0.5
@@ -160,8 +147,8 @@ def test_metric_helpers_on_hand_made_input():
     assert truth_convergence(index, trace, truth) == (3, 4)
 
 
-def test_bench_real_exposes_the_repeated_first_samples(real_data, tmp_path):
-    assert main(["bench", "real", str(real_data), "--json", str(tmp_path / "r.json")]) == 0
+def test_bench_real_exposes_the_repeated_first_samples(real_data, tmp_path, bench_run):
+    assert bench_run("real", str(real_data), "--json", str(tmp_path / "r.json")) == 0
     out = json.loads((tmp_path / "r.json").read_text())
     # the LWR4 logs start with identical rows: ‖Δx‖ < 1e-3 at the second sample
     assert out["lwr4_2013_06_13"]["estimators"]["rls"]["converged_force_at"] == 1

@@ -142,9 +142,9 @@ def test_contact_is_gated_and_does_not_fake_an_effect(tmp_path):
     assert np.all(np.array(result["final"]["rms_force_S"]) <= 1.10 * NOISE)
 
 
-def test_an_mcap_session_recording(tmp_path):
+def test_an_mcap_session_recording(tmp_path, long_session):
     from hapticlab.sessions.config import apply_overrides, load_config
-    from hapticlab.sessions.live import build_session, run_session
+    from hapticlab.sessions.live import build_session
 
     config, _ = load_config("demo")
     config = apply_overrides(
@@ -156,7 +156,7 @@ def test_an_mcap_session_recording(tmp_path):
             "world.sensor.mount_rotation=[0.035, -0.026, 0.017]",
         ],
     )
-    path = run_session(build_session(config), out=tmp_path / "s.mcap").path
+    path = long_session(build_session(config), out=tmp_path / "s.mcap").path
     result = discrepancy(path)
     assert result["effects"] == ["mount_rotation"] and result["time_base"] == "seconds"
     assert result["gated"] > 0  # the demo's indentations

@@ -27,12 +27,14 @@ def archive(tmp_path_factory):
     return folder
 
 
-def test_a_folder_replays_in_parallel_as_it_does_one_file_at_a_time(archive, tmp_path):
+def test_a_folder_replays_in_parallel_as_it_does_one_file_at_a_time(archive, tmp_path, dask_workers):
     out = tmp_path / "replayed"
-    run = replay_folder(archive, "kalman", out, workers=2, progress=False)
+    run = replay_folder(archive, "kalman", out, workers=dask_workers, progress=False)
     names = [str(o.path.relative_to(archive)) for o in run.outcomes]
     assert names == ["a1.mcap", "a2.mcap", "notes.mcap", "trainee-b/b1.mcap"]  # the order given
-    assert run.workers == 2 and len(run.peak_rss_mb) == 2 and all(v > 50 for v in run.peak_rss_mb.values())
+    assert (
+        run.workers == dask_workers == 2 and len(run.peak_rss_mb) == 2 and all(v > 50 for v in run.peak_rss_mb.values())
+    )
     bad = run.outcomes[2]
     assert bad.value is None and "notes.mcap" in bad.error and "\n" not in bad.error
     alone = replay(archive / "trainee-b" / "b1.mcap", "kalman")
@@ -45,7 +47,7 @@ def test_a_folder_replays_in_parallel_as_it_does_one_file_at_a_time(archive, tmp
         replay_folder(archive, "kalman", out, workers=1, progress=False)
 
 
-def test_the_same_job_runs_on_an_existing_dask_cluster(archive, tmp_path):
+def test_the_same_job_runs_on_an_existing_dask_cluster(archive, tmp_path, dask_workers):
     from dask.distributed import LocalCluster
 
     folder = tmp_path / "two"
@@ -70,11 +72,11 @@ def test_a_folder_without_recordings_and_an_absent_scheduler_are_one_line(tmp_pa
         map_recordings(len_of_wrench, [tmp_path / "x.mcap"], scheduler="tcp://127.0.0.66:1", progress=False)
 
 
-def test_a_folder_goes_through_the_discrepancy_workflow_as_one_file_does(archive):
+def test_a_folder_goes_through_the_discrepancy_workflow_as_one_file_does(archive, dask_workers):
     from hapticlab.sessions.discrepancy.report import json_ready
     from hapticlab.sessions.discrepancy.workflow import discrepancy, discrepancy_folder
 
-    run = discrepancy_folder(archive, workers=2, progress=False)
+    run = discrepancy_folder(archive, workers=dask_workers, progress=False)
     assert [o.error == "" for o in run.outcomes] == [True, True, False, True]
     alone = json_ready(discrepancy(archive / "a2.mcap"))
     assert run.outcomes[1].value == alone  # the same result, effects named and all

@@ -12,68 +12,44 @@ with the emulator: its constructor holds the GIL while it waits.)
 from __future__ import annotations
 
 import os
-import select
-import signal
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from processes import hapticlab_command
 
 from hapticlab.plugins.simworld import SimWorld
 from hapticlab.sessions.config import apply_overrides, load_config
-from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.live import build_session
 from hapticlab.sessions.recording import read_recording
 
 NETFT, UR = "127.0.0.92", "127.0.0.93"  # addresses of their own: ur-rtde always uses port 30004
 
 
 @pytest.fixture
-def lab():
+def lab(spawn_process):
     """The lab process, serving for at most 60 s; yields its world's t0 on the monotonic clock (ns)."""
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-c",
-            "import sys; from hapticlab.sessions.cli import main; sys.exit(main())",
-            "emulate",
-            "lab",
-            "--netft",
-            NETFT,
-            "--ur",
-            UR,
-            "--duration",
-            "60",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    proc = spawn_process(
+        hapticlab_command("emulate", "lab", "--netft", NETFT, "--ur", UR, "--duration", "60"), "emulate lab"
     )
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], 60.0)
-        assert ready, "the lab did not start"
-        line = proc.stdout.readline()
-        assert line.startswith("lab: Net F/T on 127.0.0.92"), (line, proc.stderr.read() if proc.poll() else "")
-        yield int(line.rsplit("t0_ns=", 1)[1])
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
+    line = proc.first_line()
+    assert line.startswith("lab: Net F/T on 127.0.0.92"), line
+    yield int(line.rsplit("t0_ns=", 1)[1])
+    proc.finish()
 
 
-def test_a_session_on_the_emulated_lab_feels_the_contact_the_world_made(tmp_path, lab):
+def test_a_session_on_the_emulated_lab_feels_the_contact_the_world_made(tmp_path, lab, paced_run):
     config, _ = load_config("lab-emulated")
     config = apply_overrides(config, [f"sensor.address={NETFT}", f"kinematics.address={UR}", "session.duration=12"])
-    result = run_session(build_session(config), out=tmp_path / "lab.mcap")
+    result = paced_run(build_session(config), tmp_path / "lab.mcap")
     rec = read_recording(result.path)
 
-    # what the devices delivered: 1 kHz RDT records and 500 Hz RTDE packages
-    assert result.samples >= 0.95 * 12 * 1000 and result.poses >= 0.6 * 12 * 500
+    # what the devices delivered: 1 kHz RDT records and 500 Hz RTDE packages, each stream gap-free or its gaps
+    # counted (lost records, missed packages), and most of each read (its counters, not the wall clock's span)
+    seq = rec.field("/sensor/wrench", "seq").astype(np.int64)
+    lost = [e for e in rec.events if e.kind == "sensor_health"][-1].data["lost"]
+    assert len(seq) == result.samples and (seq[-1] - seq[0]) // 7 + 1 == result.samples + lost  # 7 kHz counter
+    missed = max([e.data["missed_total"] for e in rec.events if e.kind == "kinematics_missed"], default=0)
+    assert result.samples >= 0.95 * (result.samples + lost) and result.poses >= 0.6 * (result.poses + missed)
     assert float(rec.metadata["hapticlab.calibration"]["counts_per_force"]) == 1e6  # read from netftapi2.xml
     assert result.first_converged_force is not None and result.haptic_on_s > 2.0
 

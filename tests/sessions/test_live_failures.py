@@ -156,12 +156,12 @@ def test_a_part_that_raises_ends_the_session_with_a_complete_recording(tmp_path,
     assert 0.75 < (rec.t_ns("/sensor/wrench")[-1] - rec.t_ns("/sensor/wrench")[0]) * 1e-9 < 0.85
 
 
-def test_every_estimators_events_are_recorded_with_their_source(tmp_path):
+def test_every_estimators_events_are_recorded_with_their_source(tmp_path, long_session):
     """rls drives the haptics (the preset's rls shadow promoted), kalman runs beside it: kalman's payload change
     is recorded all the same."""
     config = demo("estimator.name=rls", "shadows.kalman={}", duration=12.0)
     config["world"]["contacts"] = [{"kind": "hanging_mass", "start": 9.0, "duration": 1e9, "mass": 0.1}]
-    result = run_session(build_session(config), out=tmp_path / "shadow.mcap")
+    result = long_session(build_session(config), out=tmp_path / "shadow.mcap")
     rec = read_recording(result.path)
     payload = [m for _, m in rec.topics["/events"] if m["kind"] == "payload_change"]
     assert len(payload) == 1 and payload[0]["data"]["source"] == "kalman"
@@ -186,22 +186,29 @@ def test_a_device_event_is_recorded_with_its_source(tmp_path, registry):
     assert event.data == {"source": "sensor"}
 
 
-def test_a_realtime_session_runs_on_the_wall_clock(tmp_path):
-    start = time.monotonic()
-    result = run_session(build_session(demo(duration=0.5, realtime=True)), out=tmp_path / "rt.mcap")
-    wall = time.monotonic() - start
-    assert wall >= 0.5 and abs(result.duration_s - 0.5) < 0.05
+def _session_start_ns(rec) -> int:
+    """The session's t0: the stamp of its session_start event (tick k is due k periods after it)."""
+    return next(t for t, m in rec.topics["/events"] if m["kind"] == "session_start")
+
+
+def test_a_realtime_session_runs_on_the_wall_clock(tmp_path, paced_run):
+    """A paced session stamps each tick with the wall clock as it runs: after the tick was due (a simulated
+    session stamps each exactly when due), and it ends once its duration has passed on that clock."""
+    result = paced_run(build_session(demo(duration=0.5, realtime=True)), tmp_path / "rt.mcap")
     rec = read_recording(result.path)
+    t0 = _session_start_ns(rec)
     t_cmd = rec.t_ns("/haptic/command")
-    # commands carry the wall clock: their span is the session's
-    assert 0.45 < (t_cmd[-1] - t_cmd[0]) * 1e-9 <= wall and np.all(np.diff(t_cmd) > 0)
+    ticks = t_cmd[:-1]  # the final zero aside
+    # tick k is due at t0 + k ms; the i-th tick run is tick i or later (an overrun skips ticks)
+    assert np.all(ticks > t0 + np.arange(1, len(ticks) + 1) * 1_000_000) and np.all(np.diff(t_cmd) > 0)
+    assert t_cmd[-1] - t0 >= 500_000_000 and result.duration_s == (t_cmd[-1] - t0) * 1e-9  # the end, on that clock
     # one command per 1 ms tick, except the ticks an overrun skipped (counted in its events), plus the final
     # zero; a loaded machine may leave the last few ticks due when the wall clock reaches the end (not skipped)
     skipped = sum(e.data["ticks_skipped"] for e in result.events if e.kind == "overrun")
-    assert 495 <= len(t_cmd) - 1 + skipped <= 501
+    assert 495 <= len(ticks) + skipped <= 501
 
 
-def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep(tmp_path):
+def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep(tmp_path, paced_run):
     session = build_session(demo(duration=2.0, realtime=True))
     where = []
     for device in (session.sensor, session.kinematics):
@@ -217,7 +224,7 @@ def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep
 
         device.prepare = counted
     preparing = [False]
-    result = run_session(session, out=tmp_path / "ahead.mcap")
+    result = paced_run(session, tmp_path / "ahead.mcap")
     # 2 s of 400-sample chunks: 5 of the 1 kHz sensor's, 3 of the 500 Hz poses' (the last ones look ten ticks
     # ahead), computed while the loop had time to spare (a device whose turn found too little, or a tick that
     # overran on a loaded machine, reads without it: the same samples, computed at the read)
@@ -225,34 +232,52 @@ def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep
     assert result.samples >= 1995
 
 
-def test_a_paced_loop_asks_ten_ticks_ahead_and_only_with_half_a_period_to_spare(tmp_path):
+class LoopClock:
+    """The live loop's ``time`` module, keeping the last ``monotonic_ns`` the loop read (its "now")."""
+
+    def __init__(self):
+        self.last_ns = 0
+
+    def monotonic_ns(self) -> int:
+        self.last_ns = time.monotonic_ns()
+        return self.last_ns
+
+    def __getattr__(self, name):
+        return getattr(time, name)
+
+
+def test_a_paced_loop_asks_ten_ticks_ahead_and_only_with_half_a_period_to_spare(tmp_path, paced_run, monkeypatch):
     """A device's work ahead waits for an idle moment: each is asked only while half a period is left, so a
-    slow one (here the sensor's, 0.6 ms a call) leaves the other (the poses') no turn in its window."""
+    slow one (here the sensor's, 0.6 ms a call) leaves the other (the poses') no turn in its window. What is
+    left is the loop's own: its clock read, the one it decided on."""
+    from hapticlab.sessions.live import loop
     from hapticlab.sessions.live.loop import PREPARE_AHEAD_TICKS
 
+    clock = LoopClock()
+    monkeypatch.setattr(loop, "time", clock)
     session = build_session(demo(duration=0.5, realtime=True))
     period_ns = 1_000_000
     calls = []
     for part, device, slow in (("sensor", session.sensor, True), ("kinematics", session.kinematics, False)):
 
         def recorded(until_ns, prepare=device.prepare, part=part, slow=slow):
-            calls.append((part, until_ns - PREPARE_AHEAD_TICKS * period_ns - time.monotonic_ns()))  # (due - now)
+            calls.append((part, until_ns - PREPARE_AHEAD_TICKS * period_ns - clock.last_ns))  # (due - now)
             if slow:
                 time.sleep(0.0006)
             prepare(until_ns)
 
         device.prepare = recorded
-    result = run_session(session, out=tmp_path / "turns.mcap")
+    result = paced_run(session, tmp_path / "turns.mcap")
     sensor = [left for part, left in calls if part == "sensor"]
     assert len(sensor) > 200  # in most windows
-    assert all(left >= period_ns // 2 - 50_000 for _, left in calls)  # (a few µs pass between check and call)
+    assert all(left >= period_ns // 2 for _, left in calls)  # half a period left, as the loop saw it
     assert [part for part, _ in calls].count("kinematics") < len(sensor) // 10  # rarely a turn after the sensor
     assert result.samples >= 495  # the poses computed at their reads instead: the same samples
 
 
-def test_a_loop_that_falls_behind_records_an_overrun(tmp_path, registry):
+def test_a_loop_that_falls_behind_records_an_overrun(tmp_path, registry, paced_run):
     config = demo("estimator.name=slow", duration=1.0, realtime=True)
-    result = run_session(build_session(config, registry), out=tmp_path / "slow.mcap")
+    result = paced_run(build_session(config, registry), tmp_path / "slow.mcap")
     overruns = [e for e in result.events if e.kind == "overrun"]
     assert result.overruns >= 1 and overruns
     # a 30 ms stall at 1 kHz: at least 20 ms behind, 20 ticks skipped (the events add up every overrun)
@@ -419,7 +444,7 @@ def test_a_master_that_does_not_open_ends_the_session_with_a_complete_recording(
     assert _writer_processes() == []
 
 
-def test_a_paced_session_freezes_the_heap_while_it_runs_and_gives_it_back(tmp_path):
+def test_a_paced_session_freezes_the_heap_while_it_runs_and_gives_it_back(tmp_path, paced_run):
     """Full collections skip what was built before the first tick (gc.freeze), only while the session runs."""
     import gc
 
@@ -428,18 +453,22 @@ def test_a_paced_session_freezes_the_heap_while_it_runs_and_gives_it_back(tmp_pa
     send = session.haptic.send
     session.haptic.send = lambda command: frozen.append(gc.get_freeze_count()) or send(command)
     assert gc.get_freeze_count() == 0
-    run_session(session, out=tmp_path / "frozen.mcap")
+    paced_run(session, tmp_path / "frozen.mcap")
     assert min(frozen) > 10_000  # numpy, numba and the plugins: tens of thousands of objects
     assert gc.get_freeze_count() == 0
 
 
-def test_a_paced_session_runs_the_tick_due_at_its_end_and_reads_every_sample_up_to_it(tmp_path):
+def test_a_paced_session_runs_the_tick_due_at_its_end_and_reads_every_sample_up_to_it(tmp_path, paced_run):
     """Sample i of a 1 kHz sensor is stamped i ms after the start: a 0.2 s paced session reads 0..200, the
     one stamped at its very end included (the tick due then runs, a moment after it is due)."""
-    result = run_session(build_session(demo(duration=0.2, realtime=True)), out=tmp_path / "end.mcap")
+    result = paced_run(build_session(demo(duration=0.2, realtime=True)), tmp_path / "end.mcap")
     assert result.samples == 201 or result.overruns  # (a loop that fell behind past its end skips that tick)
-    assert 0.2 <= result.duration_s < 0.21  # it ends with that tick, a moment after the tick was due
     rec = read_recording(result.path)
+    t0 = _session_start_ns(rec)
     commands = rec.t_ns("/haptic/command")
     reasons = [m["reason"] for _, m in rec.messages("/haptic/command")]
     assert (np.diff(commands) >= 0).all() and reasons[-1] == "session ended"  # the final zero, last of all
+    # it ends with the tick due at 0.2 s: that tick ran once due (unless skipped), none after it, then the end
+    assert commands[-2] - t0 >= 200_000_000 or result.overruns
+    assert len(commands) - 1 <= 200
+    assert commands[-1] - t0 >= 200_000_000 and result.duration_s == (commands[-1] - t0) * 1e-9

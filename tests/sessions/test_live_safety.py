@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
+from processes import PROCESS_START_S
 
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.bench.faults import FAULT_START_S, FAULTS, made_up_force, measure, session
@@ -90,7 +90,7 @@ def test_after_a_bias_step_the_estimator_re_identifies_and_the_force_comes_back_
     assert later.any() and made_up_force(force[:n][later], force_ref[:n][later]).max() < 0.5
 
 
-def test_no_fault_is_seen_in_clean_sessions():
+def test_no_fault_is_seen_in_clean_sessions(long_session):
     """Demo sessions with indentations while the tool turns, three seeds and estimators: nothing is called a fault."""
     for estimator, seed in (("rls", 2), ("kalman", 3), ("batch", 4)):
         config, _ = load_config("demo")
@@ -98,16 +98,16 @@ def test_no_fault_is_seen_in_clean_sessions():
             config,
             ["session.realtime=false", "session.duration=15", f"world.seed={seed}", f"estimator.name={estimator}"],
         )
-        events = session_events(config)
+        events = session_events(config, long_session)
         assert not [e for e in events if e.kind in ("fault", "bias_step")], (estimator, seed)
 
 
-def session_events(config):
+def session_events(config, run=run_session):
     import tempfile
     from pathlib import Path
 
     with tempfile.TemporaryDirectory() as folder:
-        return run_session(build_session(config), out=Path(folder) / "clean.mcap").events
+        return run(build_session(config), out=Path(folder) / "clean.mcap").events
 
 
 def test_made_up_force_counts_what_the_true_force_cannot_explain():
@@ -168,25 +168,27 @@ def test_the_governor_checks_its_output():
     assert np.max(np.linalg.norm(np.diff(steps, axis=0), axis=1)) <= 0.4 + 1e-12
 
 
-def run_in_subprocess(tmp_path, *extra):
+def run_in_subprocess(spawn_process, tmp_path, *extra):
+    """``hapticlab run`` (the demo, paced, 30 s) in a process of its own, once its loop is ticking: (process, out)."""
     out = tmp_path / "signalled.mcap"
     code = (
         "import sys; from hapticlab.sessions.cli import main; "
         f"sys.exit(main(['run', '--duration', '30', '--out', {str(out)!r}, *{list(extra)!r}]))"
     )
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 60
-    while not (out.exists() and out.stat().st_size > 0) and time.monotonic() < deadline:
+    proc = spawn_process([sys.executable, "-c", code], "hapticlab run", text=False)
+    deadline = time.monotonic() + PROCESS_START_S  # against hanging, not a timing assertion
+    while not (out.exists() and out.stat().st_size > 0):
+        assert time.monotonic() < deadline and proc.poll() is None, "hapticlab run never started its recording"
         time.sleep(0.1)
     time.sleep(1.0)
     return proc, out
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
-def test_sigterm_and_sighup_end_a_session_like_ctrl_c(tmp_path, signum):
-    proc, out = run_in_subprocess(tmp_path)
+def test_sigterm_and_sighup_end_a_session_like_ctrl_c(tmp_path, signum, spawn_process):
+    proc, out = run_in_subprocess(spawn_process, tmp_path)
     proc.send_signal(signum)
-    assert proc.wait(timeout=60) == 0
+    assert proc.wait_for_exit() == 0
     rec = read_recording(out)  # complete: footer and summary
     assert rec.metadata["hapticlab.summary"]["interrupted"] == "true"
     assert rec.topics["/events"][-1][1]["message"] == f"interrupted ({signal.Signals(signum).name})"
@@ -194,15 +196,15 @@ def test_sigterm_and_sighup_end_a_session_like_ctrl_c(tmp_path, signum):
     assert last == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended", "source_t_ns": None}
 
 
-def test_a_second_ctrl_c_still_leaves_a_readable_file(tmp_path):
-    proc, out = run_in_subprocess(tmp_path)
+def test_a_second_ctrl_c_still_leaves_a_readable_file(tmp_path, spawn_process):
+    proc, out = run_in_subprocess(spawn_process, tmp_path)
     proc.send_signal(signal.SIGINT)
     for _ in range(20):  # keep pressing while it ends
         time.sleep(0.005)
         if proc.poll() is not None:
             break
         os.kill(proc.pid, signal.SIGINT)
-    proc.wait(timeout=60)
+    proc.wait_for_exit()
     rec = read_recording(out)
     assert rec.metadata["hapticlab.summary"]["interrupted"] == "true"
     assert rec.topics["/haptic/command"][-1][1]["force_D"] == [0.0] * 3

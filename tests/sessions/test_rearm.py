@@ -120,18 +120,17 @@ def test_a_rearm_with_nothing_latched_is_no_event(tmp_path):
     assert list(loop.rearm_requests) == ["api", "key r"]
 
 
-def test_the_r_key_is_read_without_blocking_from_a_terminal():
+def test_the_r_key_is_read_without_blocking_from_a_terminal(pty_pair):
     import os
 
     from hapticlab.sessions.cli.run import RearmKey, _status_table, rearm_hint
     from hapticlab.sessions.live.status import SessionStatus
 
-    master, slave = os.openpty()
-    with open(slave, "rb", buffering=0, closefd=True) as stream, RearmKey(stream) as key:
+    master, slave = pty_pair
+    with open(slave, "rb", buffering=0, closefd=False) as stream, RearmKey(stream) as key:
         assert key.active and not key.pressed()  # nothing typed: returns at once
         os.write(master, b"xR")
         assert key.pressed() and not key.pressed()  # taken once
-    os.close(master)
     with open(os.devnull, "rb") as stream, RearmKey(stream) as key:
         assert not key.active and not key.pressed()  # not a terminal: no reader
     assert rearm_hint(True, 1) == "press r or the device's re-arm button (1)"

@@ -6,11 +6,8 @@ import datetime as dt
 import json
 import math
 import os
-import select
 import shutil
-import signal
 import struct
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -21,6 +18,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
+from processes import PROCESS_STOP_S
 
 import hapticlab
 from hapticlab.core.errors import UserError
@@ -418,48 +416,34 @@ def test_flush_is_time_based(tmp_path, monkeypatch):
 # --------------------------------------------------------------------------
 
 
-def _start_crashing_writer(path: Path, *options: str) -> tuple[subprocess.Popen, int | None]:
-    """The helper recording at ~1 kHz (64 MiB chunks: only the 1 s time-based flush reaches the disk); its writer's pid."""
+KILL_AT = 3000
+"""The tick at which the crashing writer kills itself (~3 s at 1 kHz)."""
+
+
+def _crashing_writer(spawn_process, tmp_path: Path, path: Path, *options: str) -> tuple[int, int, int | None]:
+    """Run the helper recording at ~1 kHz (64 MiB chunks: only the 1 s time-based flush reaches the disk) until
+    it SIGKILLs itself at tick KILL_AT (``group`` in options: with its writer process); (the stamp of the tick
+    before the kill, of the kill's tick, the writer process's pid or None)."""
     env = dict(os.environ)
     package_parent = str(Path(hapticlab.__file__).parent.parent)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_parent, env.get("PYTHONPATH")) if p)
-    proc = subprocess.Popen(
-        [sys.executable, str(HERE / "_crashing_writer.py"), str(path), "1.0", str(64 << 20), *options],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+    ticks = tmp_path / "ticks.txt"
+    proc = spawn_process(
+        [sys.executable, str(HERE / "_crashing_writer.py"), str(path), "1.0", str(64 << 20), str(KILL_AT), str(ticks)]
+        + list(options),
+        "the crashing writer",
         env=env,
         start_new_session=True,  # a group of its own
     )
-    ready, _, _ = select.select([proc.stdout], [], [], 30.0)
-    assert ready, "writer did not start"
-    line = proc.stdout.readline().split()
-    assert line[:1] == [b"ready"], (line, proc.stderr.read() if proc.poll() is not None else b"")
-    return proc, int(line[1]) if len(line) > 1 else None
-
-
-def _sigkill(proc: subprocess.Popen, group: bool) -> int:
-    """SIGKILL the recording process (``group``: with its writer process) after 3 s; the time of the kill."""
-    try:
-        time.sleep(3.0)
-        assert proc.poll() is None, proc.stderr.read()
-        t_kill = time.monotonic_ns()
-        if group:
-            os.killpg(proc.pid, signal.SIGKILL)  # both at once: as a power cut would
-        else:
-            proc.kill()  # SIGKILL: no atexit, no finally, no close
-        proc.wait(10)
-        assert proc.returncode == -9
-        return t_kill
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
+    line = proc.first_line().split()
+    assert line[:1] == ["ready"], (line, proc.stderr.read() if proc.poll() is not None else "")
+    assert proc.wait_for_exit(PROCESS_STOP_S + KILL_AT * 1e-3) == -9  # SIGKILL: no atexit, no finally, no close
+    previous_ns, kill_ns = (int(x) for x in ticks.read_text().split())
+    return previous_ns, kill_ns, int(line[1]) if len(line) > 1 else None
 
 
 @pytest.mark.parametrize("layout", ["samples", "json-blocks", "blocks", "blocks+process"])
-def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
+def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout, spawn_process):
     """Killed with no chance to close (with writer="process": the session and its writer process both)."""
     sys.path.insert(0, str(HERE))
     try:
@@ -468,9 +452,8 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
         sys.path.remove(str(HERE))
     path = tmp_path / "crash.mcap"
     options = [] if layout == "samples" else layout.split("+")
-    proc, writer_pid = _start_crashing_writer(path, *options)
+    previous_ns, _, writer_pid = _crashing_writer(spawn_process, tmp_path, path, *options, "group")
     assert (writer_pid is not None) == ("process" in options)
-    t_kill = _sigkill(proc, group=True)
 
     with pytest.raises(RecordingError, match="hapticlab recover") as info:
         read_recording(path)
@@ -490,9 +473,9 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
     )  # the writer's default
     assert stats["lost_tail_bytes"] >= 0
 
-    # nothing older than 1.5 s before the kill is lost (flush interval 1 s)
+    # nothing older than 1.5 s before the kill's tick is lost (flush interval 1 s)
     last = max(t for msgs in rec.topics.values() for t, _ in msgs)
-    assert t_kill - 1_500_000_000 <= last <= t_kill
+    assert previous_ns - 1_500_000_000 <= last <= previous_ns
     # every salvaged message is intact, and they are a gap-free prefix of what was written
     wrenches = rec.topics["/sensor/wrench"]
     assert len(wrenches) > 1000  # at least ~1.5 s at 1 kHz
@@ -517,7 +500,7 @@ def test_sigkilled_writer_is_recovered_up_to_the_last_flush(tmp_path, layout):
         assert {c.compression for c in make_reader(f).get_summary().chunk_indexes} == {"zstd"}
 
 
-def test_writer_process_finishes_the_file_of_a_killed_session(tmp_path):
+def test_writer_process_finishes_the_file_of_a_killed_session(tmp_path, spawn_process):
     """SIGKILL of the recording process alone: its writer process sees the pipe close and finishes the file.
 
     Everything handed over (every tick but the one in progress) is in a complete,
@@ -529,9 +512,8 @@ def test_writer_process_finishes_the_file_of_a_killed_session(tmp_path):
     finally:
         sys.path.remove(str(HERE))
     path = tmp_path / "killed.mcap"
-    proc, writer_pid = _start_crashing_writer(path, "blocks", "process")
-    t_kill = _sigkill(proc, group=False)
-    deadline = time.monotonic() + 30.0
+    previous_ns, _, writer_pid = _crashing_writer(spawn_process, tmp_path, path, "blocks", "process")
+    deadline = time.monotonic() + PROCESS_STOP_S  # against hanging, not a timing assertion
     while _alive(writer_pid) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _alive(writer_pid), "the writer process outlived its session"
@@ -541,9 +523,8 @@ def test_writer_process_finishes_the_file_of_a_killed_session(tmp_path):
     assert "hapticlab.summary" not in rec.metadata  # the session never closed it
     seqs = rec.field("/sensor/wrench", "seq")
     assert seqs.tolist() == list(range(len(seqs)))  # gap-free: whole blocks, in order
-    assert len(seqs) > 7 * 2500  # ~3 s of ticks at 1 kHz (the machine may lag a little)
-    last = int(rec.t_ns("/sensor/wrench")[-1])
-    assert t_kill - 100_000_000 <= last <= t_kill  # at most the tick in progress (and a slow one) lost
+    assert len(seqs) == 7 * KILL_AT  # every tick before the kill's: each was handed over as it ended
+    assert int(rec.t_ns("/sensor/wrench")[-1]) == previous_ns  # the last sample of the tick before the kill
     assert rec.field("/sensor/wrench", "force_S")[-1].tolist() == wrench(int(seqs[-1]))["force_S"]
 
 

@@ -7,7 +7,6 @@ import csv
 import io
 import json
 import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -25,15 +24,15 @@ from hapticlab.sessions.review import summary as summary_module
 DEMO_CONTACTS = [(6.0, 1.5, 3.0), (9.5, 1.5, 2.0), (12.5, 1.0, 4.0)]
 
 
-def record(path: Path, *overrides: str) -> Path:
+def record(path: Path, *overrides: str, run=run_session) -> Path:
     config, _ = load_config("demo")
     config = apply_overrides(config, ["session.realtime=false", *overrides])
-    run_session(build_session(config), out=path)
+    run(build_session(config), out=path)
     return path
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory) -> Path:
+def session(tmp_path_factory, long_session) -> Path:
     """The demo's 14 s (its three contacts; kalman drives, rls beside it), a trainee, a task and notes."""
     path = tmp_path_factory.mktemp("review") / "t07-palpation.mcap"
     return record(
@@ -42,6 +41,7 @@ def session(tmp_path_factory) -> Path:
         "session.trainee=T07",
         "session.task=palpation",
         'session.notes="first try <b>left hand</b>"',
+        run=long_session,
     )
 
 
@@ -232,7 +232,7 @@ def test_cli_prints_the_review_writes_plots_and_a_page_and_never_overwrites(sess
     assert main(["review", str(session), "--html", str(html), "--force"]) == 0
 
 
-def test_the_page_renders_in_headless_chromium(session, tmp_path):
+def test_the_page_renders_in_headless_chromium(session, tmp_path, run_command):
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     assert chromium, "Debian's chromium is needed (README: apt-get install chromium)"
     html = tmp_path / "report.html"
@@ -245,17 +245,15 @@ def test_the_page_renders_in_headless_chromium(session, tmp_path):
         "--disable-dev-shm-usage",
         f"--user-data-dir={tmp_path / 'profile'}",
     ]
-    dom = subprocess.run([*flags, "--dump-dom", html.as_uri()], capture_output=True, text=True, timeout=120).stdout
+    dom = run_command([*flags, "--dump-dom", html.as_uri()], "chromium --dump-dom", timeout=120).stdout
     for table_id in ("who", "summary", "contacts", "estimators", "errors-rls", "errors-kalman"):
         assert f'id="{table_id}"' in dom, table_id
     assert dom.count("<tr>") > 30 and "T07" in dom
     shot = tmp_path / "shot.png"
-    subprocess.run(
-        [*flags, "--window-size=1200,2400", f"--screenshot={shot}", html.as_uri()],
-        capture_output=True,
-        timeout=120,
-        check=True,
+    done = run_command(
+        [*flags, "--window-size=1200,2400", f"--screenshot={shot}", html.as_uri()], "chromium --screenshot", timeout=120
     )
+    assert done.returncode == 0, done.stderr
     import matplotlib.image
 
     pixels = matplotlib.image.imread(shot)[..., :3]
@@ -286,7 +284,7 @@ def test_bad_inputs_get_one_line_and_status_2(tmp_path, capsys):
     assert "no such file" in err and "--force-limit" in err
 
 
-def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, capsys):
+def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, capsys, dask_workers):
     from dask.distributed import LocalCluster
 
     folder = tmp_path / "cohort"
@@ -301,7 +299,7 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
     )
     (folder / "broken.mcap").write_text("not a recording\n")
     out_csv, html = tmp_path / "cohort.csv", tmp_path / "cohort.html"
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=dask_workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         status = main(
             [
                 "review",

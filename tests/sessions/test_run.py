@@ -378,11 +378,11 @@ def test_naming_the_presets_shadow_as_the_estimator_promotes_it():
     assert config["estimator"] == {"name": "batch"} and config["shadows"]["rls"]["force_threshold"] == 1.0
 
 
-def test_a_payload_change_holds_the_haptic_force_at_zero(tmp_path):
+def test_a_payload_change_holds_the_haptic_force_at_zero(tmp_path, long_session):
     """kalman recognises a 100 g mass hung for good; the loop then holds the force at zero for 1 s."""
     config = demo("estimator.name=kalman", duration=12.0)
     config["world"]["contacts"] = [{"kind": "hanging_mass", "start": 9.0, "duration": 1e9, "mass": 0.1}]
-    result = run_session(build_session(config), out=tmp_path / "payload.mcap")
+    result = long_session(build_session(config), out=tmp_path / "payload.mcap")
     rec = read_recording(result.path)
     t_event = next(t for t, m in rec.topics["/events"] if m["kind"] == "payload_change")
     t_cmd, commands = loop_commands(rec)

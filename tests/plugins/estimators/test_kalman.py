@@ -69,7 +69,7 @@ def per_axis_rms(values):
 
 
 @pytest.mark.parametrize("span", [0.0, 0.15])
-def test_fast_stage_matches_the_filterpy_reference(span):
+def test_fast_stage_matches_the_filterpy_reference(span, numpy_reference):
     # random orientations, a contact, a gap in time, inactive samples (some while turning), per-axis noise,
     # the torque stage's cross term and the tilt walk, plain or with its span: every output and the final
     # state agree to 1e-9
@@ -109,7 +109,7 @@ def test_fast_stage_matches_the_filterpy_reference(span):
         assert np.abs(stages["fast"].x - stages["filterpy"].x).max() < 1e-9
 
 
-def test_fast_estimator_matches_the_filterpy_reference_on_simulated_data():
+def test_fast_estimator_matches_the_filterpy_reference_on_simulated_data(numpy_reference):
     block, _ = world(indentations(30.0), seconds=30.0, drift_force=DRIFT_FORCE)
     fast, ref = gamma(), gamma(implementation="filterpy")
     out_fast, _ = feed(fast, block, chunk=64)

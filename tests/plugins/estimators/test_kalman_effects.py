@@ -69,7 +69,7 @@ def test_the_reported_mount_is_the_estimate(mounted):
     assert familybench.angle_deg(world.R_SE, est.R_SE) < 1.0
 
 
-def test_the_mount_estimate_is_the_same_filter_compiled_and_as_the_filterpy_reference(mounted):
+def test_the_mount_estimate_is_the_same_filter_compiled_and_as_the_filterpy_reference(mounted, numpy_reference):
     """The 5° mount estimated by the compiled cascade, by the numpy reference and with implementation =
     "filterpy" (its torque stage filterpy's, as asked: the mount once reset it to the fast filter) agree to
     1e-8 N over the first 6 s of the tour, the same contact flags, the same mount to 1e-7°."""

@@ -71,9 +71,9 @@ def test_contacts_do_not_reopen_the_torque_bias(seed):
 
 
 @pytest.mark.parametrize("size", [1, 7])
-def test_the_compiled_cascade_and_the_numpy_reference_reopen_at_the_same_sample(size):
+def test_the_compiled_cascade_and_the_numpy_reference_reopen_at_the_same_sample(size, numpy_reference):
     block, _ = _stepped(81, 20.0)
-    fast, ref = KalmanEstimator(), KalmanEstimator(kernel="numpy")
+    fast, ref = KalmanEstimator(), KalmanEstimator(kernel=numpy_reference)
     a = [fast.update_block(block.subset(slice(i, i + size))) for i in range(0, len(block), size)]
     b = [ref.update_block(block.subset(slice(i, i + size))) for i in range(0, len(block), size)]
     t_fast, t_ref = _reopened(fast), _reopened(ref)

@@ -73,49 +73,36 @@ outside = "outside_estimator"
 """
 
 
-def install_outside_package(tmp_path: Path) -> dict[str, str]:
+def install_outside_package(tmp_path: Path, run_command) -> dict[str, str]:
     """Build and install the outside package into a folder of its own; the environment that sees it."""
     source = tmp_path / "src"
     (source / "outside_estimator").mkdir(parents=True)
     (source / "outside_estimator" / "__init__.py").write_text(textwrap.dedent(PACKAGE))
     (source / "pyproject.toml").write_text(PYPROJECT)
     site = tmp_path / "site"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "-q",
-            "--no-deps",
-            "--no-build-isolation",
-            "--target",
-            str(site),
-            str(source),
-        ],
-        check=True,
-        timeout=300,
-        capture_output=True,
-    )
+    pip = [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--target", str(site)]
+    built = run_command([*pip, str(source)], "pip install of the outside package")
+    assert built.returncode == 0, built.stderr
     env = dict(os.environ, PYTHONPATH=str(site))
     env["HAPTICLAB_LOAD_PLUGINS"] = "outside"  # the entry point's name: the suite loads none by default
     return env
 
 
-def hapticlab_cli(args: list[str], env: dict[str, str], cwd: Path) -> subprocess.CompletedProcess:
+def hapticlab_cli(run_command, args: list[str], env: dict[str, str], cwd: Path) -> subprocess.CompletedProcess:
     """``hapticlab ARGS`` in a fresh interpreter that sees the installed package."""
     command = Path(sys.executable).with_name("hapticlab")  # the console script the venv installed
-    return subprocess.run([str(command), *args], env=env, cwd=cwd, capture_output=True, text=True, timeout=600)
+    return run_command([str(command), *args], f"hapticlab {args[0]}", timeout=600, env=env, cwd=cwd)
 
 
-def test_an_outside_estimator_with_only_the_minimum_runs_as_the_primary(tmp_path):
-    env = install_outside_package(tmp_path)
-    listed = hapticlab_cli(["plugins"], env, tmp_path)
+def test_an_outside_estimator_with_only_the_minimum_runs_as_the_primary(tmp_path, run_command):
+    env = install_outside_package(tmp_path, run_command)
+    listed = hapticlab_cli(run_command, ["plugins"], env, tmp_path)
     assert listed.returncode == 0, listed.stderr
     assert "mean_bias" in listed.stdout and "outside-estimator 0.1" in listed.stdout
 
     rec_path = tmp_path / "outside.mcap"
     run = hapticlab_cli(
+        run_command,
         [
             "run",
             "--duration",
@@ -148,11 +135,12 @@ def test_an_outside_estimator_with_only_the_minimum_runs_as_the_primary(tmp_path
     }, reasons
     assert any(e.kind == "fault" and "reports no weight model" in e.message for e in rec.events)
 
-    review = hapticlab_cli(["review", str(rec_path)], env, tmp_path)
+    review = hapticlab_cli(run_command, ["review", str(rec_path)], env, tmp_path)
     assert review.returncode == 0, review.stderr
 
     params_out = tmp_path / "params.json"
     compensated = hapticlab_cli(
+        run_command,
         [
             "compensate",
             str(rec_path),

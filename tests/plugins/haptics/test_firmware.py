@@ -56,27 +56,27 @@ def firmware(tmp_path_factory) -> Path:
         ],
         check=True,
         capture_output=True,
+        timeout=300,
     )
     return binary
 
 
 @pytest.fixture
-def board(firmware, tmp_path):
+def board(firmware, tmp_path, pty_pair, spawn_process):
     """The sketch running as a process on the master side of a pty; yields (slave path, PWM log path)."""
-    master, slave = os.openpty()
+    master, slave = pty_pair
     tty.setraw(slave)
     log = tmp_path / "pwm.log"
     with open(log, "w") as stderr:
-        proc = subprocess.Popen(
-            [str(firmware)], stdin=master, stdout=master, stderr=stderr, env={**os.environ, "ADC_COUNT": str(ADC_COUNT)}
+        spawn_process(
+            [str(firmware)],
+            "the sketch",
+            stdin=master,
+            stdout=master,
+            stderr=stderr,
+            env={**os.environ, "ADC_COUNT": str(ADC_COUNT)},
         )
-    try:
-        yield os.ttyname(slave), log
-    finally:
-        proc.kill()
-        proc.wait()
-        os.close(master)
-        os.close(slave)
+    yield os.ttyname(slave), log
 
 
 def last_pwm(log: Path) -> tuple[int, int]:

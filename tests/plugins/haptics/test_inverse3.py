@@ -20,7 +20,6 @@ import pytest
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics import inverse3
 from hapticlab.plugins.haptics.master import MasterLostError
-from hapticlab.plugins.haptics.master_emulator import MasterEmulator
 from hapticlab.plugins.haptics.serial import SerialHaptic
 
 HaplyHardwareAPI = pytest.importorskip("HaplyHardwareAPI")
@@ -38,8 +37,8 @@ def test_the_layout_in_bytes():
         inverse3.unpack_state(b"\x2b\x00\x00")
 
 
-def test_haplys_client_wakes_the_emulator_and_exchanges_force_for_state():
-    with MasterEmulator("inverse3", device_id=0x1234) as em:
+def test_haplys_client_wakes_the_emulator_and_exchanges_force_for_state(master_emulator):
+    with master_emulator("inverse3", device_id=0x1234) as em:
         stream = HaplyHardwareAPI.SerialStream(em.port)  # held: Inverse3 keeps only a pointer to it
         device = HaplyHardwareAPI.Inverse3(stream, 2.0)
         info = device.device_wakeup_dict()
@@ -56,9 +55,9 @@ def test_haplys_client_wakes_the_emulator_and_exchanges_force_for_state():
         del device, stream
 
 
-def test_our_plugin_writes_the_bytes_haplys_client_writes():
+def test_our_plugin_writes_the_bytes_haplys_client_writes(pty_pair):
     """Both hosts on a bare pty, one after the other: the wake-up and the force request, byte for byte."""
-    master, slave = os.openpty()
+    master, slave = pty_pair
     tty.setraw(slave)
     port = os.ttyname(slave)
     info = inverse3.DeviceInfo(7, 3, 1, 2, __import__("uuid").UUID(int=99))
@@ -71,36 +70,32 @@ def test_our_plugin_writes_the_bytes_haplys_client_writes():
             requests.append(os.read(master, 64))
             os.write(master, reply)
 
-    try:
-        heard_haply: list[bytes] = []
-        thread = threading.Thread(target=device, args=([info.pack(), state], heard_haply), daemon=True)
-        thread.start()
-        stream = HaplyHardwareAPI.SerialStream(port)
-        client = HaplyHardwareAPI.Inverse3(stream, 2.0)
-        client.device_wakeup_dict()
-        client.end_effector_force(force)
-        thread.join(5.0)
-        del client, stream
+    heard_haply: list[bytes] = []
+    thread = threading.Thread(target=device, args=([info.pack(), state], heard_haply), daemon=True)
+    thread.start()
+    stream = HaplyHardwareAPI.SerialStream(port)
+    client = HaplyHardwareAPI.Inverse3(stream, 2.0)
+    client.device_wakeup_dict()
+    client.end_effector_force(force)
+    thread.join(5.0)
+    del client, stream
 
-        heard_ours: list[bytes] = []
-        thread = threading.Thread(target=device, args=([info.pack(), state], heard_ours), daemon=True)
-        thread.start()
-        plugin = SerialHaptic(port, "inverse3", device_max_force=5.0, read_timeout=1.0)
-        plugin.open()
-        plugin.send(command(force))
-        thread.join(5.0)
-        assert heard_ours == heard_haply == [b"\x0a", inverse3.pack_force_request(np.array(force))]
-        np.testing.assert_array_equal(plugin.state().p_DoHo_D, np.float32([0.01, -0.02, 0.15]).astype(float))
-        assert "Haply Inverse3 device 7 (00000000-0000-0000-0000-000000000063)" in plugin.info
-        plugin.port.close()
-    finally:
-        os.close(master)
-        os.close(slave)
+    heard_ours: list[bytes] = []
+    thread = threading.Thread(target=device, args=([info.pack(), state], heard_ours), daemon=True)
+    thread.start()
+    plugin = SerialHaptic(port, "inverse3", device_max_force=5.0, read_timeout=1.0)
+    plugin.open()
+    plugin.send(command(force))
+    thread.join(5.0)
+    assert heard_ours == heard_haply == [b"\x0a", inverse3.pack_force_request(np.array(force))]
+    np.testing.assert_array_equal(plugin.state().p_DoHo_D, np.float32([0.01, -0.02, 0.15]).astype(float))
+    assert "Haply Inverse3 device 7 (00000000-0000-0000-0000-000000000063)" in plugin.info
+    plugin.port.close()
 
 
 @pytest.fixture
-def emulator():
-    with MasterEmulator("inverse3") as em:
+def emulator(master_emulator):
+    with master_emulator("inverse3") as em:
         yield em
 
 

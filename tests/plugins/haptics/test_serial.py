@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -25,7 +24,6 @@ from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics import framing
 from hapticlab.plugins.haptics.handle_motion import recorded_motion, scripted_motion
 from hapticlab.plugins.haptics.master import MasterLostError, MasterOpenError, clamp_force
-from hapticlab.plugins.haptics.master_emulator import MasterEmulator
 from hapticlab.plugins.haptics.serial import SerialHaptic
 
 GUARD_S = 10.0  # a guard against hangs only
@@ -44,8 +42,8 @@ def built(**options):
 
 
 @pytest.fixture
-def emulator():
-    with MasterEmulator("hapticlab", max_force=8.0) as em:
+def emulator(master_emulator):
+    with master_emulator("hapticlab", max_force=8.0) as em:
         yield em
 
 
@@ -257,8 +255,8 @@ def test_no_force_on_the_wire_is_ever_above_the_limit_or_not_finite(emulator, de
     assert emulator.counts.clamped == 0  # the device never had to clamp: the host did
 
 
-def test_the_devices_own_maximum_wins_when_lower():
-    with MasterEmulator(max_force=1.5) as em:
+def test_the_devices_own_maximum_wins_when_lower(master_emulator):
+    with master_emulator(max_force=1.5) as em:
         dev = SerialHaptic(em.port, device_max_force=3.0, read_timeout=SLOW)
         dev.open()
         assert dev.max_force == 1.5
@@ -344,17 +342,17 @@ def _raises(device, cmd) -> bool:
 # --------------------------------------------------------------------------- open and config errors
 
 
-def test_open_errors_name_the_port_and_the_problem(tmp_path):
+def test_open_errors_name_the_port_and_the_problem(tmp_path, master_emulator):
     missing = str(tmp_path / "ttyACM9")
     with pytest.raises(MasterOpenError, match=f"^haptic.port {missing}: cannot open: "):
         SerialHaptic(missing).open()
-    with MasterEmulator("inverse3") as em:  # the wrong protocol: an Inverse3 ignores our HELLO
+    with master_emulator("inverse3") as em:  # the wrong protocol: an Inverse3 ignores our HELLO
         with pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: no reply to the hapticlab HELLO"):
             SerialHaptic(em.port, open_timeout=0.3).open()
-    with MasterEmulator("hapticlab") as em:
+    with master_emulator("hapticlab") as em:
         with pytest.raises(MasterOpenError, match=r"no reply to the Inverse3 wake-up \(0x0A\)"):
             SerialHaptic(em.port, "inverse3", open_timeout=0.3).open()
-    with MasterEmulator("hapticlab") as em:  # a port another hapticlab holds
+    with master_emulator("hapticlab") as em:  # a port another hapticlab holds
         first = SerialHaptic(em.port)
         first.open()
         with pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: cannot open: Could not exclusively lock"):
@@ -390,28 +388,24 @@ def test_a_hello_broken_on_the_way_is_sent_again(emulator):
     dev.close()
 
 
-def test_a_device_speaking_another_version_is_refused_by_name():
+def test_a_device_speaking_another_version_is_refused_by_name(pty_pair):
     """A hand-made device on a bare pty answers HELLO with version 2."""
-    master, slave = os.openpty()
+    master, slave = pty_pair
     tty.setraw(slave)
 
     def answer():
         os.read(master, 64)  # the host's HELLO
         os.write(master, framing.encode_frame(framing.HELLO_ACK, 1, framing.HelloAck(2, 1, 1, 8.0, 1e3).pack()))
 
-    try:
-        threading.Thread(target=answer, daemon=True).start()
-        with pytest.raises(MasterOpenError, match="speaks hapticlab protocol version 2, this host speaks 1$"):
-            SerialHaptic(os.ttyname(slave), open_timeout=2.0).open()
-    finally:
-        os.close(master)
-        os.close(slave)
+    threading.Thread(target=answer, daemon=True).start()
+    with pytest.raises(MasterOpenError, match="speaks hapticlab protocol version 2, this host speaks 1$"):
+        SerialHaptic(os.ttyname(slave), open_timeout=2.0).open()
 
 
 # --------------------------------------------------------------------------- the emulator itself
 
 
-def test_scripted_and_recorded_paths(tmp_path):
+def test_scripted_and_recorded_paths(tmp_path, master_emulator):
     p, v = scripted_motion("figure8", 0.02, 4.0, (0.0, 0.1, 0.2))(1.0)  # a quarter lap: the lobe's tip
     np.testing.assert_allclose(p, [0.02, 0.1, 0.2], atol=1e-12)
     np.testing.assert_allclose(v, [0.0, -0.02 * 2 * np.pi / 4.0, 0.0], atol=1e-12)
@@ -422,7 +416,7 @@ def test_scripted_and_recorded_paths(tmp_path):
     np.testing.assert_allclose(p, [0.01, 0.01, 0.0])
     np.testing.assert_allclose(v, [0.0, 0.02, 0.0])
     np.testing.assert_allclose(motion(2.25)[0], [0.0025, 0.0, 0.0])  # in a loop
-    with MasterEmulator(motion=motion) as em:
+    with master_emulator(motion=motion) as em:
         dev = SerialHaptic(em.port, read_timeout=SLOW)
         dev.open()
         dev.send(command([0.0, 0.0, 0.0]))
@@ -450,55 +444,41 @@ def test_scheduled_faults_parse_and_inject(emulator, device):
     assert counters["crc_errors"] == 2 and counters["garbage_bytes"] >= 10 and device.errors_in_row == 0
 
 
-def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm():
-    code = (
-        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
-        "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
-    )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", code, "--path", "figure8", "--max-force", "2.5"], stdout=subprocess.PIPE, text=True
-    )
-    try:
-        port = proc.stdout.readline().strip()
-        assert port.startswith("/dev/pts/")
-        assert proc.stdout.readline().startswith(f"hapticlab master emulator on {port}: handle on figure8")
-        dev = SerialHaptic(port, device_max_force=9.0, read_timeout=SLOW)
-        dev.open()
-        assert dev.max_force == 2.5
-        dev.send(command([0.0, 1.0, 0.0]))
-        dev.close()
-        proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=GUARD_S)
-        assert proc.returncode == 0
-        assert out.startswith("2 force command(s)")  # ours and the zero that close() writes
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+EMULATE_MASTER = (
+    "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
+    "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
+)
 
 
-def test_a_sigterm_sent_as_soon_as_the_port_is_printed_ends_the_emulator_cleanly():
-    code = (
-        "import argparse, sys; from hapticlab.plugins.haptics import master_emulator_cli as m; "
-        "p = argparse.ArgumentParser(); m.add_arguments(p); sys.exit(m.run(p.parse_args(sys.argv[1:])))"
+def test_the_command_line_emulator_prints_its_port_first_and_ends_on_sigterm(spawn_process):
+    proc = spawn_process(
+        [sys.executable, "-c", EMULATE_MASTER, "--path", "figure8", "--max-force", "2.5"], "emulate master"
     )
+    port = proc.first_line().strip()
+    assert port.startswith("/dev/pts/")
+    assert proc.next_line().startswith(f"hapticlab master emulator on {port}: handle on figure8")
+    dev = SerialHaptic(port, device_max_force=9.0, read_timeout=SLOW)
+    dev.open()
+    assert dev.max_force == 2.5
+    dev.send(command([0.0, 1.0, 0.0]))
+    dev.close()
+    out = proc.finish(signal.SIGTERM, GUARD_S)
+    assert proc.returncode == 0
+    assert out.startswith("2 force command(s)")  # ours and the zero that close() writes
+
+
+def test_a_sigterm_sent_as_soon_as_the_port_is_printed_ends_the_emulator_cleanly(spawn_process):
     for _ in range(5):  # the port is printed once the handler is in place: no window for the default handler
-        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
-        try:
-            assert proc.stdout.readline().startswith("/dev/pts/")
-            proc.send_signal(signal.SIGTERM)
-            out, _ = proc.communicate(timeout=GUARD_S)
-            assert proc.returncode == 0 and "0 force command(s)" in out
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        proc = spawn_process([sys.executable, "-c", EMULATE_MASTER], "emulate master")
+        assert proc.first_line().startswith("/dev/pts/")
+        out = proc.finish(signal.SIGTERM, GUARD_S)
+        assert proc.returncode == 0 and "0 force command(s)" in out
 
 
 # --------------------------------------------------------------------------- a session with a serial master
 
 
-def test_a_session_whose_master_is_unplugged_records_a_zero_force_and_an_event(tmp_path):
+def test_a_session_whose_master_is_unplugged_records_a_zero_force_and_an_event(tmp_path, master_emulator):
     """The demo, its haptics on the emulated master; the cable is pulled 2.6 s in (after the force came on)."""
     from hapticlab.core import hookimpl
     from hapticlab.plugins.sensors.sim import SimSensor
@@ -506,7 +486,7 @@ def test_a_session_whose_master_is_unplugged_records_a_zero_force_and_an_event(t
     from hapticlab.sessions.live import build_session, run_session
     from hapticlab.sessions.recording import read_recording
 
-    with MasterEmulator("hapticlab", max_force=8.0) as em:
+    with master_emulator("hapticlab", max_force=8.0) as em:
 
         class CablePuller(SimSensor):
             def __init__(self, rate_hz: float = 1000.0, world=None):

@@ -46,11 +46,19 @@ def test_the_shipped_script_reads_the_registers_the_writer_writes():
         assert register in text
 
 
+def until(condition, what: str, timeout: float = 10.0) -> None:
+    """Wait for ``condition()`` (a deadline against hanging, naming what was awaited; not a timing assertion)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f"{what}: not within {timeout:g} s"
+        time.sleep(0.005)
+
+
 def servo_world() -> SimWorld:
     return SimWorld.from_config({"seed": 2, "motion": {"script": "servo"}})
 
 
-def test_the_emulated_arm_follows_written_targets_and_stops_when_they_stop():
+def test_the_emulated_arm_follows_written_targets_and_stops_when_they_stop(child_processes):
     world = servo_world()
     R_0, p_0 = world.motion.target
     with UREmulator(world, address="127.0.0.86") as arm:
@@ -61,14 +69,14 @@ def test_the_emulated_arm_follows_written_targets_and_stops_when_they_stop():
             while time.monotonic() < t_end:  # 2 cm down, sent at 125 Hz
                 writer.send(R_0, p_0 - [0.0, 0.0, 0.02])
                 time.sleep(0.008)
-            time.sleep(0.25)
+            until(lambda: arm.watchdog_stops == 1, "the watchdog's stop once the targets stopped")
             reached = world.pose((time.monotonic_ns() - arm.t0_ns) / 1e9)[1][0]
             assert np.isclose(reached[2], p_0[2] - 0.02, atol=1e-3)
             assert arm.targets_applied >= 30
             assert arm.watchdog_stops == 1  # the targets stopped: the arm stopped (where it already was)
             # one far target, then silence: the script's watchdog stops the arm on its way
             writer.send(R_0, p_0 - [0.0, 0.0, 0.12])
-            time.sleep(0.6)
+            time.sleep(0.6)  # the watchdog's 100 ms, then the arm's stop
             t = (time.monotonic_ns() - arm.t0_ns) / 1e9
             stopped = world.pose(t)[1][0]
             assert p_0[2] - 0.09 < stopped[2] < p_0[2] - 0.021  # moved towards it, stopped well short
@@ -78,6 +86,6 @@ def test_the_emulated_arm_follows_written_targets_and_stops_when_they_stop():
             writer.close()
 
 
-def test_the_writer_names_the_controller_it_cannot_reach():
+def test_the_writer_names_the_controller_it_cannot_reach(child_processes):
     with pytest.raises(ConnectionError, match=r"UR controller 127.0.0.87:30004 \(RTDE inputs for teleoperation\)"):
         TargetWriter("127.0.0.87")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import importlib
-import subprocess
 import sys
 import time
 from contextlib import contextmanager
@@ -292,33 +291,27 @@ class Tap:
 
 
 @contextmanager
-def ur_emulator_process(address: str):
+def ur_emulator_process(spawn_process, address: str):
     """The RTDE emulator (``hapticlab emulate ur``) in a child process (ur-rtde's constructor holds the GIL, so the
     emulator cannot share this process), yielded once it listens on ``address``:30004."""
     script = "import sys; from hapticlab.sessions.cli import main; sys.exit(main(['emulate', 'ur', *sys.argv[1:]]))"
-    process = subprocess.Popen(
-        [sys.executable, "-c", script, "--address", address, "--seed", "11"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    process = spawn_process([sys.executable, "-c", script, "--address", address, "--seed", "11"], "emulate ur")
     try:
-        line = process.stdout.readline()
-        assert f"{address}:30004" in line, (line, process.stderr.read() if process.poll() is not None else "")
+        line = process.first_line()
+        assert f"{address}:30004" in line, line
         yield
     finally:
-        process.terminate()
-        process.wait(timeout=10)
+        process.finish()
 
 
-def test_over_rtde_the_fk_of_the_controllers_joints_is_its_tcp_pose():
+def test_over_rtde_the_fk_of_the_controllers_joints_is_its_tcp_pose(spawn_process):
     """ur-rtde against the emulator: the URDF pose of each package's actual_q is its actual_TCP_pose (1e-6)."""
     from hapticlab.plugins.kinematics.ur_rtde import URRTDEKinematics
 
     tap = Tap(URRTDEKinematics(address="127.0.0.81", rate_hz=500.0))
     kinematics = UrdfKinematics(tap, UrdfModel("ur5e"))
     poses = []
-    with ur_emulator_process("127.0.0.81"):
+    with ur_emulator_process(spawn_process, "127.0.0.81"):
         kinematics.open(time.monotonic_ns())
         try:
             deadline = time.monotonic() + 10.0  # against hanging, not a timing assertion

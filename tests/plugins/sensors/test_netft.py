@@ -75,9 +75,9 @@ def until(condition) -> None:
 # ----------------------------------------------------------------------------- pynetft itself, on the emulator
 
 
-def test_pynetft_reads_the_emulators_calibration_samples_and_bias():
+def test_pynetft_reads_the_emulators_calibration_samples_and_bias(netft_emulator):
     world = demo_world()
-    with NetFTEmulator(world, "127.0.0.131", 0, 0, counts_per_torque=1000.0, torque_unit="Nmm") as emu:
+    with netft_emulator(world, "127.0.0.131", 0, 0, counts_per_torque=1000.0, torque_unit="Nmm") as emu:
         config = pynetft.Config(sensor_host="127.0.0.131", rdt_port=emu.rdt_port, http_port=emu.http_port)
         with pynetft.Client(config, queue_size=10_000) as client:
             samples = [s for s, _ in zip(client.samples(timeout=5.0), range(500))]
@@ -111,9 +111,9 @@ def test_pynetft_reads_the_emulators_calibration_samples_and_bias():
     )
 
 
-def test_the_emulator_answers_a_counted_start_request_from_its_own_socket():
+def test_the_emulator_answers_a_counted_start_request_from_its_own_socket(netft_emulator):
     """RDT by hand: a start request for 5 records gets exactly 5, numbered 1..5, from the address asked."""
-    with NetFTEmulator(demo_world(), "127.0.0.130", 0, 0, rdt_rate_hz=1000.0) as emu:
+    with netft_emulator(demo_world(), "127.0.0.130", 0, 0, rdt_rate_hz=1000.0) as emu:
         client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         client.settimeout(5.0)
         try:
@@ -136,14 +136,14 @@ def test_the_emulator_answers_a_counted_start_request_from_its_own_socket():
 # ----------------------------------------------------------------------------- the plugin
 
 
-def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times(receiver):
+def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times(receiver, netft_emulator):
     """(The emulator runs in this process: a 1 s receive timeout keeps a pause of the machine under the full
     suite's load from counting as a timeout, which the default 0.1 s did once in a CI run here. The device's
     counter runs from the emulator's start, not the stream's: the wrap is 2 s in, and the test reads until it
     is 2 000 samples past it, because a CI run once took 0.3 s from the emulator's start to the first record.)"""
     world = demo_world()
     start = 2**32 - 2 * int(FT_RATE_HZ)  # the device counter wraps 2 s after the emulator starts sampling
-    with NetFTEmulator(world, "127.0.0.132", 0, 0, ft_sequence_start=start) as emu:
+    with netft_emulator(world, "127.0.0.132", 0, 0, ft_sequence_start=start) as emu:
         sensor = NetFTSensor("127.0.0.132", emu.rdt_port, emu.http_port, receiver=receiver, receive_timeout=1.0)
         assert isinstance(sensor, SensorSource) and isinstance(sensor, HasCalibration)
         assert isinstance(sensor, HasRange) and isinstance(sensor, EmitsEvents) and isinstance(sensor, ReportsHealth)
@@ -179,7 +179,7 @@ def test_the_plugin_reads_the_simulated_wrench_to_one_count_at_the_devices_times
     assert "sensor_timeout" not in kinds
 
 
-def test_wire_faults_show_in_the_health_counters_and_events(receiver):
+def test_wire_faults_show_in_the_health_counters_and_events(receiver, netft_emulator):
     """At 1 kHz (ft_sequence steps by 7), so the loopback's own buffer never overflows: every loss is injected.
     The emulator runs in this process: a receive timeout of 1 s (no injected fault silences the stream for more
     than a few ms) keeps a pause of the machine under the suite's load (the default 0.1 s tripped once in a
@@ -190,7 +190,7 @@ def test_wire_faults_show_in_the_health_counters_and_events(receiver):
         RdtFault("reorder", 0.6, 0.1, every=5),
         RdtFault("stall", 0.75, 0.1, every=6),
     ]  # apart
-    with NetFTEmulator(demo_world(), "127.0.0.133", 0, 0, rdt_rate_hz=1000.0, faults=faults) as emu:
+    with netft_emulator(demo_world(), "127.0.0.133", 0, 0, rdt_rate_hz=1000.0, faults=faults) as emu:
         sensor = NetFTSensor(
             "127.0.0.133",
             emu.rdt_port,
@@ -230,10 +230,10 @@ def test_wire_faults_show_in_the_health_counters_and_events(receiver):
     assert any("stall +" in e.message for e in health_events)
 
 
-def test_saturation_and_device_errors_reach_the_stream_as_status_bits_and_events(receiver):
+def test_saturation_and_device_errors_reach_the_stream_as_status_bits_and_events(receiver, netft_emulator):
     faults = [RdtFault("saturate", 0.4, 0.02), RdtFault("status", 0.6, 0.02, status=0x8000_0008)]
     world = demo_world()
-    with NetFTEmulator(world, "127.0.0.134", 0, 0, faults=faults) as emu:
+    with netft_emulator(world, "127.0.0.134", 0, 0, faults=faults) as emu:
         sensor = NetFTSensor("127.0.0.134", emu.rdt_port, emu.http_port, receiver=receiver)
         sensor.open(time.monotonic_ns())
         read_samples(sensor, 10)
@@ -255,11 +255,11 @@ def test_saturation_and_device_errors_reach_the_stream_as_status_bits_and_events
     assert error.data["status_word"] == 0x8000_0008 and "power monitor" in error.message
 
 
-def test_a_saturated_record_does_not_interrupt_our_receivers_stream():
+def test_a_saturated_record_does_not_interrupt_our_receivers_stream(netft_emulator):
     """hapticlab's receiver: the saturated records arrive, marked, and so does every record after them (1 kHz:
     the loopback never loses one), with no reconnect; pynetft would restart its stream here."""
     faults = [RdtFault("saturate", 0.4, 0.01)]
-    with NetFTEmulator(demo_world(), "127.0.0.142", 0, 0, rdt_rate_hz=1000.0, faults=faults) as emu:
+    with netft_emulator(demo_world(), "127.0.0.142", 0, 0, rdt_rate_hz=1000.0, faults=faults) as emu:
         sensor = NetFTSensor("127.0.0.142", emu.rdt_port, emu.http_port, rate_hz=1000.0)
         sensor.open(time.monotonic_ns())
         samples = read_samples(sensor, 10)
@@ -409,9 +409,9 @@ def test_our_receiver_follows_a_stream_renumbered_by_a_start_request_still_in_fl
     assert not any(e.kind == "sensor_restart" for e in sensor.drain_events())
 
 
-def test_datagrams_from_another_address_are_ignored(receiver):
+def test_datagrams_from_another_address_are_ignored(receiver, netft_emulator):
     world = demo_world()
-    with NetFTEmulator(world, "127.0.0.135", 0, 0) as emu:
+    with netft_emulator(world, "127.0.0.135", 0, 0) as emu:
         sensor = NetFTSensor("127.0.0.135", emu.rdt_port, emu.http_port, receiver=receiver)
         sensor.open(time.monotonic_ns())
         read_samples(sensor, 10)
@@ -433,7 +433,7 @@ def test_datagrams_from_another_address_are_ignored(receiver):
     assert health["lost"] == health["out_of_order"] == health["duplicate"] == health["malformed"] == 0
 
 
-def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, receiver):
+def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, receiver, netft_emulator, paced_run):
     """A whole session on the emulator; 2000 records into the stream the cable is pulled for 0.3 s."""
     if receiver == "pynetft":  # its reconnect after a timeout makes these bounds timing-dependent under load
         pytest.skip(
@@ -441,10 +441,9 @@ def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, rec
             "bounds here fail under CI load; its timeout and counters are covered at the plugin level"
         )
     from hapticlab.sessions.live.build import build_session
-    from hapticlab.sessions.live.loop import run_session
 
     config = load_config("demo")[0]
-    with NetFTEmulator(SimWorld.from_config(config["world"]), "127.0.0.137", 0, 0) as emu:
+    with netft_emulator(SimWorld.from_config(config["world"]), "127.0.0.137", 0, 0) as emu:
         config["sensor"] = {
             "name": "netft",
             "address": "127.0.0.137",
@@ -466,7 +465,7 @@ def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, rec
 
         cable = threading.Thread(target=pull_the_cable)
         cable.start()
-        result = run_session(session, out=tmp_path / "netft.mcap")
+        result = paced_run(session, tmp_path / "netft.mcap")
         cable.join()
     muted_ns, unmuted_ns = emu.muted_ns
     assert unmuted_ns < result.events[-1].t_ns  # the stream came back within the session
@@ -523,9 +522,9 @@ def test_no_sensor_is_a_clear_error_at_open(receiver):
         sensor.open(time.monotonic_ns())
 
 
-def test_the_calibration_override_replaces_the_sensors(receiver):
+def test_the_calibration_override_replaces_the_sensors(receiver, netft_emulator):
     world = demo_world()
-    with NetFTEmulator(
+    with netft_emulator(
         world, "127.0.0.139", 0, 0, counts_per_force=1000.0, counts_per_torque=1000.0, force_unit="N", torque_unit="Nm"
     ) as emu:
         sensor = NetFTSensor(

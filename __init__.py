@@ -17,14 +17,10 @@ outputs, effects, the simulated world) and ``hapticlab.sessions`` (by job:
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, Mapping
 
-try:
-    __version__ = version("hapticlab")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0+unknown"
+from hapticlab.core.version import __version__ as __version__
 
 __all__ = ["compensate", "get_plugins", "load_session", "make_estimator", "open_recording", "run"]
 

@@ -57,6 +57,7 @@ import numpy as np
 import orjson
 
 from hapticlab.core.errors import OutputExistsError
+from hapticlab.core.version import __version__
 from hapticlab.sessions.recording.cdr import encode_block
 from hapticlab.sessions.recording.schemas import (
     FORMAT_VERSION,
@@ -119,14 +120,6 @@ def git_revision() -> str | None:
         return None
     rev = result.stdout.strip()
     return rev if result.returncode == 0 and rev else None
-
-
-def _hapticlab_version() -> str:
-    try:
-        from hapticlab import __version__
-    except ImportError:  # pragma: no cover - only when imported outside the package
-        return "unknown"
-    return str(__version__)
 
 
 def _utc_now_iso() -> str:
@@ -214,7 +207,7 @@ class Recorder:
         self._block_ids: dict[str, int] = {}  # topics written in blocks
         self._schema_ids: dict[str, int] = {}
         self.start_monotonic_ns = time.monotonic_ns()
-        library = f"hapticlab/{_hapticlab_version()}"
+        library = f"hapticlab/{__version__}"
         self.writer = writer
         self.live_address = ""
         """Where the live view listens ("HOST:PORT"), "" without one."""
@@ -235,7 +228,7 @@ class Recorder:
             given = {name: dict(values) for name, values in (metadata or {}).items()}
             session = given.pop(SESSION_METADATA, {})
             session.setdefault("format_version", FORMAT_VERSION if block_encoding == "cdr" else 2)
-            session.setdefault("hapticlab_version", _hapticlab_version())
+            session.setdefault("hapticlab_version", __version__)
             rev = git_revision()
             if rev is not None:
                 session.setdefault("git_revision", rev)

@@ -85,7 +85,8 @@ def compensate(stream_or_path, estimator="rls"):
     input row (rows the estimator could not use carry NaN).
     """
     from hapticlab.sessions.offline.compensate import run_estimator
-    from hapticlab.sessions.recording.stream import Stream, load_stream
+    from hapticlab.sessions.recording.loader import load_stream
+    from hapticlab.sessions.recording.stream import Stream
 
     stream = stream_or_path if isinstance(stream_or_path, Stream) else load_stream(stream_or_path)
     if isinstance(estimator, str):

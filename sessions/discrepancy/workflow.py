@@ -69,7 +69,8 @@ from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_thresho
 from hapticlab.sessions.offline.metrics import rms
 from hapticlab.sessions.offline.numerics import numerical_failures
 from hapticlab.sessions.recording.csvimport import CsvError
-from hapticlab.sessions.recording.stream import Stream, load_stream
+from hapticlab.sessions.recording.loader import load_stream
+from hapticlab.sessions.recording.stream import Stream
 
 AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
 

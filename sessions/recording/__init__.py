@@ -8,6 +8,7 @@ whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
 (:class:`Stream`, the one offline stream type, from a CSV or an MCAP file).
 """
 
+from hapticlab.sessions.recording.loader import load_stream
 from hapticlab.sessions.recording.reader import (
     Recording,
     RecordingError,
@@ -29,7 +30,7 @@ from hapticlab.sessions.recording.schemas import (
     block_schema_for_topic,
     schema_for_topic,
 )
-from hapticlab.sessions.recording.stream import Stream, load_stream
+from hapticlab.sessions.recording.stream import Stream
 from hapticlab.sessions.recording.writer import Recorder
 
 __all__ = [

@@ -272,7 +272,10 @@ def estimator_table(
 def default_estimators() -> dict[str, Callable[[], Any]]:
     """The estimators the table shows: ``rls``, ``kalman`` and ``kalman`` with its inertia model (the
     costliest option), each compiled (the default) and as its numpy reference (``kernel = "numpy"``)."""
-    from hapticlab import make_estimator
+    from hapticlab.core.host.registry import Registry
+
+    def make_estimator(name: str, **options: Any) -> Any:
+        return Registry().create("estimator", name, options, where="estimator")
 
     out: dict[str, Callable[[], Any]] = {}
     for label, name, options in (

@@ -9,14 +9,9 @@ whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
 """
 
 from hapticlab.sessions.recording.loader import load_stream
-from hapticlab.sessions.recording.reader import (
-    Recording,
-    RecordingError,
-    iter_blocks,
-    iter_messages,
-    open_recording,
-    read_recording,
-)
+from hapticlab.sessions.recording.mcapfile import RecordingError
+from hapticlab.sessions.recording.messages import iter_blocks, iter_messages
+from hapticlab.sessions.recording.reader import Recording, open_recording, read_recording
 from hapticlab.sessions.recording.recover import recover
 from hapticlab.sessions.recording.schemas import (
     BLOCK_TOPICS,

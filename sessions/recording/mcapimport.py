@@ -3,7 +3,7 @@ orientation (and position, when every pose has one) interpolated at its own time
 
 The pose topic is read whole as arrays, then the wrench topic chunk by chunk.
 A message without a field the stream needs, or with a field of the wrong
-shape, is a :class:`~.reader.RecordingError` naming the file, the topic, the
+shape, is a :class:`~.mcapfile.RecordingError` naming the file, the topic, the
 message and the field (:func:`message_field`).
 """
 
@@ -20,7 +20,9 @@ import numpy as np
 from hapticlab.core.aligner import orientation_at, position_at
 from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.types import AlignedSamples
-from hapticlab.sessions.recording.reader import RecordingError, iter_messages, open_recording
+from hapticlab.sessions.recording.mcapfile import RecordingError
+from hapticlab.sessions.recording.messages import iter_messages
+from hapticlab.sessions.recording.reader import open_recording
 from hapticlab.sessions.recording.stream import Stream, off_unit
 
 WRENCH_TOPIC = "/sensor/wrench"

@@ -16,7 +16,7 @@ from mcap.writer import CompressionType, Writer
 
 from hapticlab.core.version import __version__
 from hapticlab.sessions.output import atomic_output, check_output
-from hapticlab.sessions.recording.reader import RecordingError
+from hapticlab.sessions.recording.mcapfile import RecordingError
 from hapticlab.sessions.recording.schemas import MCAP_MAGIC, RECOVERED_METADATA
 from hapticlab.sessions.recording.writer import _metadata_strings, _utc_now_iso
 

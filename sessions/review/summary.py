@@ -38,7 +38,7 @@ import numpy as np
 from hapticlab.core.types import STATUS_OK, Event
 from hapticlab.sessions.recording import ESTIMATOR_TOPIC_PREFIX, RecordingError, iter_blocks, open_recording
 from hapticlab.sessions.recording.columnar import can_read, iter_chunks
-from hapticlab.sessions.recording.reader import file_stats
+from hapticlab.sessions.recording.mcapfile import file_stats
 from hapticlab.sessions.review.figures import Contact, ContactFold, Envelope, EstimatorFold, EstimatorReview
 
 CHUNK_ROWS = 16384

@@ -228,7 +228,7 @@ def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep
 def test_a_paced_loop_asks_ten_ticks_ahead_and_only_with_half_a_period_to_spare(tmp_path):
     """A device's work ahead waits for an idle moment: each is asked only while half a period is left, so a
     slow one (here the sensor's, 0.6 ms a call) leaves the other (the poses') no turn in its window."""
-    from hapticlab.sessions.live.loop import PREPARE_AHEAD_TICKS
+    from hapticlab.sessions.live.pacing import PREPARE_AHEAD_TICKS
 
     session = build_session(demo(duration=0.5, realtime=True))
     period_ns = 1_000_000

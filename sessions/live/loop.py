@@ -48,7 +48,7 @@ from hapticlab.sessions.live.priority import fifo_priority
 from hapticlab.sessions.live.status import SessionError, SessionResult, SessionStatus
 from hapticlab.sessions.live.taps import HAND_OVER_NS, Taps
 from hapticlab.sessions.recording import Recorder
-from hapticlab.sessions.recording.sinks import WriterProcessError
+from hapticlab.sessions.recording.process_sink import WriterProcessError
 
 PARAMS_INTERVAL_NS = 100_000_000
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""

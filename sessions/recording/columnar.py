@@ -1,10 +1,10 @@
 """A recording's chunks as columns: the fast way through a long file (a review of a 15-minute session).
 
-A session writes a block message per loop tick on each sensor-rate topic and a
-JSON message per tick on the others: a 15-minute 1 kHz session holds ~6
-million messages, and the ``mcap`` reader's per-message Python work (~6 µs) plus
-a CDR decode per block (~15 µs) make a pass over it take minutes.
-:func:`iter_chunks` reads the file a chunk at a time instead:
+A session writes a block message per hand-over on each sensor-rate topic and a
+JSON message per tick on the others: a long session holds millions of
+messages, and the ``mcap`` reader's Python work per message plus a CDR decode
+per block make a pass over it take minutes (docs/review.md, "How it reads a
+long file"). :func:`iter_chunks` reads the file a chunk at a time instead:
 
 * consecutive chunks are decompressed once each (zstd or lz4, CRC checked)
   and read together, up to :data:`GROUP_BYTES`; their messages of the topics

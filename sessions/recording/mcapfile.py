@@ -20,7 +20,8 @@ from mcap.reader import McapReader, make_reader
 from mcap.records import Channel
 
 from hapticlab.core.errors import UserError
-from hapticlab.sessions.recording.schemas import BLOCK_SCHEMA_TITLES, CDR_BLOCK_SCHEMAS, MCAP_MAGIC
+from hapticlab.sessions.recording.cdr_layouts import CDR_BLOCK_SCHEMAS
+from hapticlab.sessions.recording.schemas import BLOCK_SCHEMA_TITLES, MCAP_MAGIC
 
 
 class RecordingError(UserError, ValueError):
@@ -86,7 +87,7 @@ def _summary(path: str, mtime_ns: int, size: int, reader) -> Any:
 
 def block_kind(schema: Any, channel: Channel) -> Any:
     """None for a channel of single messages, ``"json"`` for JSON blocks (format 2), the
-    :class:`~.schemas.CdrBlock` layout for CDR blocks (format 3)."""
+    :class:`~.cdr_layouts.CdrBlock` layout for CDR blocks (format 3)."""
     if schema is None:
         return None
     if channel.message_encoding == "cdr" and schema.encoding == "ros2msg":

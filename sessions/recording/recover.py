@@ -17,8 +17,8 @@ from mcap.writer import CompressionType, Writer
 from hapticlab.core.version import __version__
 from hapticlab.sessions.output import atomic_output, check_output
 from hapticlab.sessions.recording.mcapfile import RecordingError
+from hapticlab.sessions.recording.metadata import metadata_strings, utc_now_iso
 from hapticlab.sessions.recording.schemas import MCAP_MAGIC, RECOVERED_METADATA
-from hapticlab.sessions.recording.writer import _metadata_strings, _utc_now_iso
 
 _KNOWN_OPCODES = {int(op) for op in Opcode}
 
@@ -171,10 +171,10 @@ def recover(
             start()
             writer.add_metadata(
                 RECOVERED_METADATA,
-                _metadata_strings(
+                metadata_strings(
                     {
                         "source": str(src),
-                        "recovered_at": _utc_now_iso(),
+                        "recovered_at": utc_now_iso(),
                         "messages": stats["messages"],
                         "lost_tail_bytes": stats["lost_tail_bytes"],
                         "corrupt_chunks": stats["corrupt_chunks"],

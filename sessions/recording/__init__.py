@@ -1,11 +1,17 @@
 """Session recording: every session goes to one MCAP file; every offline tool reads one stream type.
 
-``schemas`` (topics, JSON schemas, metadata record names, the two layouts:
-format 2 writes the sensor-rate topics in blocks), ``writer`` (:class:`Recorder`:
-zstd chunks flushed about once a second), ``reader`` (:func:`read_recording`,
-:func:`iter_messages`: both layouts, one message per sample), ``recover`` (salvage a file
-whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
-(:class:`Stream`, the one offline stream type, from a CSV or an MCAP file).
+Writing: ``schemas`` (topics, JSON schemas, metadata record names, the three
+layouts), ``cdr_layouts`` and ``cdr`` (format 3's binary blocks), ``writer``
+(:class:`Recorder`: zstd chunks flushed about once a second), ``metadata``,
+``sinks`` and ``process_sink`` (the MCAP writer in this process or in its own).
+Reading: ``mcapfile`` (:class:`RecordingError`, the file checked and opened),
+``messages`` (:func:`iter_messages`, :func:`iter_blocks`: every layout),
+``blocks``, ``reader`` (:class:`Recording`, :func:`open_recording`,
+:func:`read_recording`), ``columnar`` (a long file a chunk at a time),
+``recover`` (salvage a file whose writer died). Offline: ``stream``
+(:class:`Stream`, the one offline stream type), made by ``csvimport`` (the CSV
+import contract) or ``mcapimport`` (a session recording), ``loader``
+(:func:`load_stream`: either, by the file's suffix).
 """
 
 from hapticlab.sessions.recording.loader import load_stream

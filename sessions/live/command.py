@@ -119,6 +119,7 @@ class HapticCommander:
 
     def _servo(self, now_ns: int, state, haptic_on: bool, taps: Taps) -> None:
         """The robot's next target from the master's state: sent (``servo_cp``) and recorded."""
+        assert self.teleop is not None and self.s.robot is not None  # (teleoperation is on)
         target, events = self.teleop.step(now_ns, self.last_pose, state, haptic_on)
         for event in events:
             self.on_event(event)

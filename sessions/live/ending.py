@@ -84,9 +84,9 @@ def close_devices(
             device.close()
         except Exception as exc:
             on_event(Event(end_ns, "error", f"{label} did not close: {type(exc).__name__}: {exc}"))
-    for label, device in session.device_events:
+    for label, emitter in session.device_events:
         try:
-            on_events(device.drain_events(), label)
+            on_events(emitter.drain_events(), label)
         except Exception as exc:
             on_event(Event(end_ns, "error", f"{label} events lost: {type(exc).__name__}: {exc}"))
 

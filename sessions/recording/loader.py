@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -12,14 +13,14 @@ from hapticlab.sessions.recording.mcapimport import iter_mcap
 from hapticlab.sessions.recording.stream import CHUNK_ROWS, Stream, unused_note
 
 
-def load_stream(path: str | Path) -> Stream:
+def load_stream(path: str | os.PathLike[str]) -> Stream:
     """Read a CSV (import contract) or an MCAP recording (``.mcap``) into a stream."""
     stream = Stream.concatenate(list(iter_stream(path)))
     stream.notes += unused_note(stream.name, int(np.count_nonzero(~stream.samples.usable)))
     return stream
 
 
-def iter_stream(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
+def iter_stream(path: str | os.PathLike[str], rows: int = CHUNK_ROWS) -> Iterator[Stream]:
     """A CSV or MCAP file as consecutive streams of at most ``rows`` rows, read as they are asked for.
 
     Memory stays a small multiple of one chunk (plus, for an MCAP file, the

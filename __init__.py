@@ -13,20 +13,66 @@ host, contracts, data types, frames, estimator math; no I/O),
 ``hapticlab.plugins`` (built-in sensors, kinematics, estimators, haptic
 outputs, effects, the simulated world) and ``hapticlab.sessions`` (by job:
 ``live``, ``recording``, ``offline``, ``bench``, ``discrepancy``, ``cli``).
+
+What the functions return and raise is exported here too (``Recording``,
+``Estimates``, ``Stream``, ``Estimator``, ``SessionError``, ``RecordingError``),
+imported on first use, so ``import hapticlab`` stays light.
 """
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
+import importlib
+import os
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
-try:
-    __version__ = version("hapticlab")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0+unknown"
+from hapticlab.core.version import __version__ as __version__
 
-__all__ = ["compensate", "get_plugins", "load_session", "make_estimator", "open_recording", "run"]
+if TYPE_CHECKING:
+    from hapticlab.core.host.interfaces import Estimator
+    from hapticlab.core.types import Estimates
+    from hapticlab.sessions.live.status import SessionError
+    from hapticlab.sessions.recording.mcapfile import RecordingError
+    from hapticlab.sessions.recording.reader import Recording
+    from hapticlab.sessions.recording.stream import Stream
+
+__all__ = [
+    "Estimates",
+    "Estimator",
+    "Recording",
+    "RecordingError",
+    "SessionError",
+    "Stream",
+    "compensate",
+    "get_plugins",
+    "load_session",
+    "make_estimator",
+    "open_recording",
+    "run",
+]
+
+_TYPES = {
+    "Estimates": "hapticlab.core.types",
+    "Estimator": "hapticlab.core.host.interfaces",
+    "Recording": "hapticlab.sessions.recording.reader",
+    "RecordingError": "hapticlab.sessions.recording.mcapfile",
+    "SessionError": "hapticlab.sessions.live.status",
+    "Stream": "hapticlab.sessions.recording.stream",
+}
+"""The exported types, by the module that defines them (imported on first use: the sessions import numba)."""
+
+
+def __getattr__(name: str) -> Any:
+    module = _TYPES.get(name)
+    if module is None:
+        raise AttributeError(f"module 'hapticlab' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
 
 
 def load_session(
@@ -57,7 +103,7 @@ def run(
     ``session`` is a preset name (``"demo"``), a TOML path or a config dict;
     ``settings`` dotted keys as in :func:`load_session`; ``out`` the recording's
     path (default ``recordings/<name>-<time>.mcap``, never an existing file).
-    A device or estimator that fails raises ``SessionError``; its
+    A device or estimator that fails raises :class:`SessionError`; its
     ``result.path`` is the complete recording.
     """
     from hapticlab.sessions.live import build_session, run_session
@@ -65,15 +111,17 @@ def run(
     return run_session(build_session(load_session(session, settings)), out=out).path
 
 
-def open_recording(path: str | Path):
+def open_recording(path: str | os.PathLike[str]) -> Recording:
     """Open a recording: ``metadata``, ``events``, ``topic_names``, ``messages(topic)`` yielding
-    ``(t_ns, dict)``, and arrays: ``wrench()``, ``poses()``, ``estimates(name)``; topics are read on demand."""
+    ``(t_ns, dict)``, and arrays: ``wrench()``, ``poses()``, ``estimates(name)``; topics are read on demand.
+
+    Raises ``RecordingError`` (one line) for a file that is not MCAP, or is truncated or damaged."""
     from hapticlab.sessions.recording import open_recording as _open
 
     return _open(path)
 
 
-def make_estimator(name: str, **options: Any):
+def make_estimator(name: str, **options: Any) -> Estimator:
     """A registered estimator built with ``options`` (checked against its signature, as a session's
     ``[estimator]`` table is): ``make_estimator("rls", force_threshold=0.6)``."""
     from hapticlab.core.host.registry import Registry
@@ -81,7 +129,7 @@ def make_estimator(name: str, **options: Any):
     return Registry().create("estimator", name, options, where="estimator")
 
 
-def compensate(stream_or_path, estimator="rls"):
+def compensate(stream_or_path: str | os.PathLike[str] | Stream, estimator: str | Estimator = "rls") -> Estimates:
     """Run an estimator over a recording (a CSV or MCAP path, or a loaded ``Stream``), offline.
 
     ``estimator`` is a name (built with its defaults) or an estimator object
@@ -89,7 +137,8 @@ def compensate(stream_or_path, estimator="rls"):
     input row (rows the estimator could not use carry NaN).
     """
     from hapticlab.sessions.offline.compensate import run_estimator
-    from hapticlab.sessions.recording.stream import Stream, load_stream
+    from hapticlab.sessions.recording.loader import load_stream
+    from hapticlab.sessions.recording.stream import Stream
 
     stream = stream_or_path if isinstance(stream_or_path, Stream) else load_stream(stream_or_path)
     if isinstance(estimator, str):

@@ -54,7 +54,7 @@ import numpy as np
 from hapticlab.core.types import STATUS_OK
 from hapticlab.sessions.config import load_config
 from hapticlab.sessions.live import build_session, run_session
-from hapticlab.sessions.live.loop import stale_timeout_ns
+from hapticlab.sessions.live.build import stale_timeout_ns
 from hapticlab.sessions.recording import open_recording
 
 EMULATOR = (

@@ -65,3 +65,28 @@ def test_make_estimator_checks_its_options():
     assert hapticlab.make_estimator("rls", force_threshold=0.6).force_threshold == 0.6
     with pytest.raises(ConfigError, match=r"^estimator.force_treshold: unknown option"):
         hapticlab.make_estimator("rls", force_treshold=0.6)
+
+
+def test_the_api_is_typed_and_exports_what_its_functions_return():
+    """Every function of the facade is annotated, and the types it returns or raises are exported beside it
+    (imported on first use)."""
+    import inspect
+    import typing
+
+    import pytest
+
+    exported = {name: getattr(hapticlab, name) for name in hapticlab.__all__}
+    assert {"Recording", "Stream", "SessionError", "RecordingError", "Estimates", "Estimator"} <= set(exported)
+    namespace = {**vars(hapticlab), **exported}
+    functions = {name: value for name, value in exported.items() if inspect.isfunction(value)}
+    assert set(functions) == {"compensate", "get_plugins", "load_session", "make_estimator", "open_recording", "run"}
+    for name, function in functions.items():
+        hints = typing.get_type_hints(function, globalns=namespace)
+        assert "return" in hints and set(inspect.signature(function).parameters) <= set(hints), name
+    assert typing.get_type_hints(hapticlab.open_recording, globalns=namespace)["return"] is hapticlab.Recording
+    assert typing.get_type_hints(hapticlab.compensate, globalns=namespace)["return"] is hapticlab.Estimates
+    assert typing.get_type_hints(hapticlab.make_estimator, globalns=namespace)["return"] is hapticlab.Estimator
+    assert issubclass(hapticlab.SessionError, RuntimeError) and issubclass(hapticlab.RecordingError, ValueError)
+    assert set(hapticlab.__all__) <= set(dir(hapticlab))
+    with pytest.raises(AttributeError, match="no attribute 'Recordings'"):
+        hapticlab.Recordings  # noqa: B018 - the attribute access is the test

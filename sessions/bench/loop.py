@@ -225,11 +225,11 @@ def _wrap_loop(loop: LiveLoop, watch: _Stopwatch) -> None:
     watch.wrap(s.primary.estimator, "update_block", "estimator")
     for method in ("on_poses", "on_samples", "on_estimates", "on_withheld", "reason", "fault_event"):
         watch.wrap(loop.gate, method, "gate and watches")
-    watch.wrap(loop.governor, "command", "governor")
+    watch.wrap(loop.commander.governor, "command", "governor")
     for method in ("send", "state"):
         watch.wrap(s.haptic, method, "device")
-    if loop.teleop is not None:
-        watch.wrap(loop.teleop, "step", "teleoperation")
+    if loop.commander.teleop is not None:
+        watch.wrap(loop.commander.teleop, "step", "teleoperation")
         watch.wrap(s.robot, "servo_cp", "teleoperation")
     for shadow in s.shadows:
         watch.wrap(shadow.estimator, "update_block", "shadow estimators")

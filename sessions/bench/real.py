@@ -35,7 +35,8 @@ from hapticlab.core.types import first_true
 from hapticlab.sessions.offline.compensate import run_estimator
 from hapticlab.sessions.offline.metrics import norm_ratio, rms, scored_rows
 from hapticlab.sessions.offline.numerics import numerical_failures
-from hapticlab.sessions.recording.stream import Stream, load_stream
+from hapticlab.sessions.recording.loader import load_stream
+from hapticlab.sessions.recording.stream import Stream
 
 
 def default_real_dir() -> Path:

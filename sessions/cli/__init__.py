@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from hapticlab import __version__
 from hapticlab.core.host.registry import make_plugin_manager
+from hapticlab.core.version import __version__
 from hapticlab.sessions.cli import bench, discrepancy, emulate, offline, review, run
 from hapticlab.sessions.cli.errors import is_user_error, one_line
 from hapticlab.sessions.cli.render import err

@@ -54,7 +54,8 @@ from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_thresho
 from hapticlab.sessions.discrepancy.report import State, json_ready, report
 from hapticlab.sessions.discrepancy.settings import Settings
 from hapticlab.sessions.offline.numerics import numerical_failures
-from hapticlab.sessions.recording.stream import Stream, load_stream
+from hapticlab.sessions.recording.loader import load_stream
+from hapticlab.sessions.recording.stream import Stream
 
 
 class Discrepancy(Identification):

@@ -22,6 +22,7 @@ from hapticlab.core.host.interfaces import (
     Estimator,
     HapticOutput,
     HasCalibration,
+    HasLatency,
     HoldsOutOutliers,
     KinematicsSource,
     KnowsMount,
@@ -35,6 +36,7 @@ from hapticlab.core.host.interfaces import (
 )
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.sessions.config import PLUGIN_TABLES, check_tables, plugin_options, shadow_tables
+from hapticlab.sessions.live.gate import HapticGate
 from hapticlab.sessions.live.safety import ForceGovernor
 from hapticlab.sessions.settings import (
     HapticSettings,
@@ -150,6 +152,36 @@ class Session:
     def governor(self) -> ForceGovernor:
         """A fresh force governor: one command per loop period, so the rate limit works on that period."""
         return ForceGovernor(self.haptic_settings, 1.0 / self.settings.loop_rate_hz)
+
+    def gate(self) -> HapticGate:
+        """A fresh haptic gate for the primary estimator, with the session's timeouts and limits."""
+        settings = self.settings
+        sensor_latency_s = self.sensor.latency_s if isinstance(self.sensor, HasLatency) else 0.0
+        stale_ns = stale_timeout_ns(
+            settings.stale_timeout, float(self.sensor.rate_hz), settings.loop_rate_hz, sensor_latency_s
+        )
+        return HapticGate(
+            self.estimator_name,
+            self.haptic_settings.ready_force_std,
+            self.primary.parameter_std,
+            self.primary.reidentifies,
+            stale_ns,
+            int(round(settings.frozen_pose_timeout * 1e9)),
+            settings.max_turn_rate,
+            settings.max_speed,
+            reports_params=self.primary.reports_params is not None,
+        )
+
+
+def stale_timeout_ns(
+    stale_timeout: float, sensor_rate_hz: float, loop_rate_hz: float, sensor_latency_s: float = 0.0
+) -> int:
+    """The age of the newest sensor sample at which the force is zeroed, ns: ``session.stale_timeout`` s, or
+    when 0 (automatic) 1.5 sensor periods plus the sensor's latency plus one loop period."""
+    period_ns = int(round(1e9 / loop_rate_hz))
+    if stale_timeout > 0:
+        return int(round(stale_timeout * 1e9))
+    return int(round((1.5 / sensor_rate_hz + sensor_latency_s) * 1e9)) + period_ns
 
 
 def build_session(config: dict[str, Any], registry: Registry | None = None) -> Session:

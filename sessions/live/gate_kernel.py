@@ -4,8 +4,9 @@ The compiled twin of ``AlignedSamples.usable`` (orientation not stale, status
 ``STATUS_OK``, wrench, R_EB and position finite), ``sessions.live.gate.implausible``
 (a good-status reading beyond the sensor's range: it would have saturated) and
 ``gate.data_reason``'s order of causes, in one pass over the block: at one
-sample per tick the numpy versions' dozen calls cost ~15 µs, this one ~1 µs
-(issue 12). The numpy code stays the reference the tests compare with.
+sample per tick the numpy versions' dozen calls cost an order of magnitude more
+than this one pass (docs/safety.md, "Overruns"). The numpy code stays the
+reference the tests compare with.
 
 Compile cost: well under a second the first time, then loaded from ``cache=True`` files; ``warm_up()`` does it.
 """

@@ -4,10 +4,8 @@ A control loop waits in ``time.sleep`` until its next tick is due; under the
 ordinary policy (``SCHED_OTHER``) the kernel wakes it when it gets to it, and
 on a loaded or virtualised machine that is sometimes more than a period late:
 the loop skips a tick (an ``overrun`` event). ``SCHED_FIFO`` wakes it first,
-as ros2_control and the dVRK's console do for theirs. Measured here (a paced
-7 kHz demo session, 30 s, twice each, interleaved): 22 and 35 overruns at
-``SCHED_OTHER``, 5 and 7 at ``SCHED_FIFO`` 50; the largest sample-to-command
-latency 1.6-1.8 ms against 0.76-0.93 ms.
+as ros2_control and the dVRK's console do for theirs (what it changed on this
+project's paced sessions: docs/safety.md).
 
 Only the loop's thread changes (Linux schedules threads, and ``pid = 0`` is the
 calling one); the devices' threads and the recording's writer process (started

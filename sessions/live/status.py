@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 from hapticlab.core.types import Event
 
@@ -65,6 +66,12 @@ class SessionResult:
     error: str = ""
     overruns: int = 0
     held_out_samples: int | None = None
+
+    @classmethod
+    def from_summary(cls, path: Path, summary: dict[str, Any], duration_s: float, events: list[Event]) -> SessionResult:
+        """The result of a session whose recording's ``hapticlab.summary`` is ``summary``."""
+        names = {f.name for f in fields(cls)} - {"path", "duration_s", "events"}
+        return cls(path=path, duration_s=duration_s, events=events, **{name: summary[name] for name in names})
 
 
 class SessionError(RuntimeError):

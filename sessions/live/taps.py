@@ -3,8 +3,8 @@
 The sensor-rate topics (``/sensor/wrench``, ``/aligned/sample``,
 ``/estimator/<name>``) are written as columnar block messages, the arrays
 handed over as they are: the recorder encodes them as CDR, one ``tobytes`` per
-field (format 3; ``mcap``'s pure-Python writer costs ~10 µs per message, and
-JSON cost ~0.66 µs per float, issue 12). A block holds what the loop handed
+field (format 3; ``mcap``'s writer costs the same per message whatever its
+size, and JSON formats every float: docs/safety.md, "Overruns"). A block holds what the loop handed
 over in :data:`HAND_OVER_NS` (20 ms: 20 ticks at 1 kHz), not one tick: the taps
 keep each topic's blocks and write them as one message at the hand-over (an
 estimator block that carries ``params`` ends its message, so they still
@@ -44,8 +44,8 @@ from hapticlab.sessions.recording.schemas import TF_INTERVAL_NS
 
 HAND_OVER_NS = 20_000_000
 """How long the taps hold the sensor-rate blocks before writing them as one message per topic and handing
-the tick's messages to the recorder, ns (20 ms; issue 12: one encode per topic and one pipe write per
-hand-over, not per tick)."""
+the tick's messages to the recorder, ns (20 ms: one encode per topic and one pipe write per hand-over, not
+per tick)."""
 
 
 class _HandOverQueue:

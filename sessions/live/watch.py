@@ -35,7 +35,8 @@ BIAS_TOLERANCE = 0.15
 """A run's offset in S may depart from its start by this fraction of its size (or BIAS_FLOOR_N) and
 still be a bias step."""
 BIAS_FLOOR_N = 0.15
-"""About five standard deviations of a 20 ms mean of 0.12 N sensor noise, N."""
+"""About five standard deviations of a 20 ms mean of a Gamma-class sensor's noise (0.12 N per sample, the
+simulated sensor's default), N."""
 BIAS_MIN_OFFSET_N = 0.5
 """Offsets smaller than this are left to the estimator (they are within its contact threshold's noise)."""
 BIAS_WINDOW_NS = 20_000_000

@@ -26,7 +26,8 @@ from hapticlab.sessions.offline.metrics import RmsAfterConvergence
 from hapticlab.sessions.offline.numerics import numerical_failures
 from hapticlab.sessions.output import atomic_output, check_output, write_text
 from hapticlab.sessions.recording.csvimport import COMPENSATED_HEADER, write_compensated_rows
-from hapticlab.sessions.recording.stream import Stream, concat_samples, iter_stream, unused_note
+from hapticlab.sessions.recording.loader import iter_stream
+from hapticlab.sessions.recording.stream import Stream, concat_samples, unused_note
 
 BLOCK = 1024
 """Usable samples per estimator call offline, counted across chunks (the result does not depend on the chunking)."""

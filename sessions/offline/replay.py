@@ -24,7 +24,8 @@ from hapticlab.sessions.offline.folders import FolderError, FolderRun, map_recor
 from hapticlab.sessions.offline.metrics import max_ae, rms, scored_rows
 from hapticlab.sessions.output import atomic_output, check_output
 from hapticlab.sessions.recording import Recorder, RecordingError, read_recording, schema_for_topic
-from hapticlab.sessions.recording.stream import load_stream, message_field
+from hapticlab.sessions.recording.loader import load_stream
+from hapticlab.sessions.recording.mcapimport import message_field
 
 
 def replay(

@@ -1,21 +1,23 @@
 """Session recording: every session goes to one MCAP file; every offline tool reads one stream type.
 
-``schemas`` (topics, JSON schemas, metadata record names, the two layouts:
-format 2 writes the sensor-rate topics in blocks), ``writer`` (:class:`Recorder`:
-zstd chunks flushed about once a second), ``reader`` (:func:`read_recording`,
-:func:`iter_messages`: both layouts, one message per sample), ``recover`` (salvage a file
-whose writer died), ``csvimport`` (the CSV import contract) and ``stream``
-(:class:`Stream`, the one offline stream type, from a CSV or an MCAP file).
+Writing: ``schemas`` (topics, JSON schemas, metadata record names, the three
+layouts), ``cdr_layouts`` and ``cdr`` (format 3's binary blocks), ``writer``
+(:class:`Recorder`: zstd chunks flushed about once a second), ``metadata``,
+``sinks`` and ``process_sink`` (the MCAP writer in this process or in its own).
+Reading: ``mcapfile`` (:class:`RecordingError`, the file checked and opened),
+``messages`` (:func:`iter_messages`, :func:`iter_blocks`: every layout),
+``blocks``, ``reader`` (:class:`Recording`, :func:`open_recording`,
+:func:`read_recording`), ``columnar`` (a long file a chunk at a time),
+``recover`` (salvage a file whose writer died). Offline: ``stream``
+(:class:`Stream`, the one offline stream type), made by ``csvimport`` (the CSV
+import contract) or ``mcapimport`` (a session recording), ``loader``
+(:func:`load_stream`: either, by the file's suffix).
 """
 
-from hapticlab.sessions.recording.reader import (
-    Recording,
-    RecordingError,
-    iter_blocks,
-    iter_messages,
-    open_recording,
-    read_recording,
-)
+from hapticlab.sessions.recording.loader import load_stream
+from hapticlab.sessions.recording.mcapfile import RecordingError
+from hapticlab.sessions.recording.messages import iter_blocks, iter_messages
+from hapticlab.sessions.recording.reader import Recording, open_recording, read_recording
 from hapticlab.sessions.recording.recover import recover
 from hapticlab.sessions.recording.schemas import (
     BLOCK_TOPICS,
@@ -29,7 +31,7 @@ from hapticlab.sessions.recording.schemas import (
     block_schema_for_topic,
     schema_for_topic,
 )
-from hapticlab.sessions.recording.stream import Stream, load_stream
+from hapticlab.sessions.recording.stream import Stream
 from hapticlab.sessions.recording.writer import Recorder
 
 __all__ = [

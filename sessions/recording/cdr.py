@@ -1,7 +1,7 @@
 """CDR blocks (format 3): a block topic's message as plain little-endian CDR, encoded and decoded with numpy.
 
 The layout of each block topic is a ROS 2 message definition
-(:class:`~.schemas.CdrBlock`): one sequence per field, element ``i`` (row
+(:class:`~.cdr_layouts.CdrBlock`): one sequence per field, element ``i`` (row
 ``i``, row-major) of every sequence is sample ``i``. Plain CDR, as ROS 2 and
 Foxglove read it: the 4-byte encapsulation header ``00 01 00 00``, then each
 sequence as a ``uint32`` count aligned to 4 and its elements aligned to their
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.sessions.recording.schemas import CDR_HEADER, CdrBlock, CdrColumn
+from hapticlab.sessions.recording.cdr_layouts import CDR_HEADER, CdrBlock, CdrColumn
 
 _U32 = struct.Struct("<I")
 _I64 = np.dtype("<i8")

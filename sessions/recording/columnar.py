@@ -1,10 +1,10 @@
 """A recording's chunks as columns: the fast way through a long file (a review of a 15-minute session).
 
-A session writes a block message per loop tick on each sensor-rate topic and a
-JSON message per tick on the others: a 15-minute 1 kHz session holds ~6
-million messages, and the ``mcap`` reader's per-message Python work (~6 µs) plus
-a CDR decode per block (~15 µs) make a pass over it take minutes.
-:func:`iter_chunks` reads the file a chunk at a time instead:
+A session writes a block message per hand-over on each sensor-rate topic and a
+JSON message per tick on the others: a long session holds millions of
+messages, and the ``mcap`` reader's Python work per message plus a CDR decode
+per block make a pass over it take minutes (docs/review.md, "How it reads a
+long file"). :func:`iter_chunks` reads the file a chunk at a time instead:
 
 * consecutive chunks are decompressed once each (zstd or lz4, CRC checked)
   and read together, up to :data:`GROUP_BYTES`; their messages of the topics
@@ -21,7 +21,7 @@ samples as columns (``t_ns`` and every field present, rows in time order) with
 ``params`` as ``[(t_ns of the block's last sample, params)]``; for any other
 topic ``[(log time, message)]``. Files whose blocks are JSON (format 2) or
 that have no chunk index (unfinished) are not for this reader
-(:func:`can_read`): :func:`~.reader.iter_blocks` reads every format.
+(:func:`can_read`): :func:`~.messages.iter_blocks` reads every format.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from hapticlab.sessions.recording.cdr import CdrBlockError, block_layout, decode_block
-from hapticlab.sessions.recording.reader import RecordingError, _block_kind, _open_reader
+from hapticlab.sessions.recording.mcapfile import RecordingError, block_kind, open_reader
 
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, start, end, uncompressed size, crc, compression len
 _INDEX_HEAD = struct.Struct("<BQHI")  # opcode, record length, channel id, records length
@@ -50,14 +50,14 @@ MESSAGE_HEADER = 1 + 8 + 2 + 4 + 8 + 8
 def can_read(path: str | os.PathLike[str]) -> bool:
     """The file is finished (chunk indexes in its summary, each chunk's message indexes written) and every
     block channel is CDR (format 3)."""
-    f, _, summary = _open_reader(Path(path))
+    f, _, summary = open_reader(Path(path))
     with f:
         pass
     if summary is None or not summary.chunk_indexes:
         return False
     if not all(index.message_index_offsets for index in summary.chunk_indexes):
         return False  # a writer that left out the message indexes (MCAP allows it): no offsets to read by
-    kinds = [_block_kind(summary.schemas.get(c.schema_id), c) for c in summary.channels.values()]
+    kinds = [block_kind(summary.schemas.get(c.schema_id), c) for c in summary.channels.values()]
     return all(k is None or not isinstance(k, str) for k in kinds)
 
 
@@ -120,10 +120,10 @@ def iter_chunks(
     json_fields = json_fields or {}
     path = Path(path)
     wanted = set(topics)
-    f, _, summary = _open_reader(path)
+    f, _, summary = open_reader(path)
     with f:
         channels = {cid: c for cid, c in summary.channels.items() if c.topic in wanted}
-        kinds = {cid: _block_kind(summary.schemas.get(c.schema_id), c) for cid, c in channels.items()}
+        kinds = {cid: block_kind(summary.schemas.get(c.schema_id), c) for cid, c in channels.items()}
         indexes = [
             i
             for i in sorted(summary.chunk_indexes, key=lambda i: i.chunk_start_offset)

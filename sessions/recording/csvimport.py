@@ -24,19 +24,11 @@ import numpy as np
 from hapticlab.core.errors import UserError
 from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.types import AlignedSamples, Estimates
-from hapticlab.sessions.recording.stream import CHUNK_ROWS, Stream
+from hapticlab.sessions.recording.stream import CHUNK_ROWS, Stream, off_unit
 
 REQUIRED = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "qw", "qx", "qy", "qz")
 POSITION = ("px", "py", "pz")
 JOINTS = tuple(f"q{i}" for i in range(1, 7))
-QUAT_TOLERANCE = 1e-3
-"""Largest | ‖q‖ − 1 | accepted (then renormalised); printed quaternions carry ~1e-9."""
-
-
-def off_unit(norm: np.ndarray) -> int | None:
-    """The first row whose quaternion norm is off 1 by more than :data:`QUAT_TOLERANCE` (NaN passes), or None."""
-    off = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOLERANCE)
-    return int(off[0]) if len(off) else None
 
 
 class CsvError(UserError, ValueError):

@@ -4,7 +4,8 @@
 topic only when it is asked for (``messages(topic)`` streams it);
 :func:`read_recording` reads every topic (or the given ones) at once;
 :func:`iter_messages` streams ``(topic, t_ns, message)`` over several topics.
-Messages are decoded by their channel's encoding (:data:`DECODERS`).
+(both streamed by :mod:`.messages`). Messages are decoded by their channel's
+encoding (:data:`.messages.DECODERS`).
 
 The three layouts (``schemas.FORMAT_VERSION``) read the same: a block message
 of format 2 (a JSON channel whose schema is a block schema) or 3 (a ``cdr``
@@ -16,8 +17,9 @@ others; a non-finite float as None, as JSON's null); :meth:`Recording.field`,
 topic's arrays without building the per-sample messages (NaN for every
 non-finite float, ±inf too, as formats 1 and 2 read their null).
 
-A file that is not MCAP, or is truncated or damaged, is a :class:`RecordingError`
-with one line that says what is wrong (and to run ``hapticlab recover``).
+A file that is not MCAP, or is truncated or damaged, is a
+:class:`~.mcapfile.RecordingError` with one line that says what is wrong (and
+to run ``hapticlab recover``).
 """
 
 from __future__ import annotations
@@ -25,7 +27,6 @@ from __future__ import annotations
 import gc
 import json
 import os
-import struct
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from dataclasses import field as _dc_field
@@ -33,60 +34,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.opcode import Opcode
-from mcap.reader import make_reader
-from mcap.records import Channel, Message
 
-from hapticlab.core.errors import UserError
 from hapticlab.core.types import Estimates, Event
-from hapticlab.sessions.recording.cdr import CdrBlockError, decode_block, listed
-from hapticlab.sessions.recording.schemas import (
-    BLOCK_LAST_SAMPLE_FIELDS,
-    BLOCK_SCHEMA_TITLES,
-    BLOCK_TOPICS,
-    CDR_BLOCK_SCHEMAS,
-    ESTIMATOR_TOPIC_PREFIX,
-    MCAP_MAGIC,
-    SESSION_METADATA,
-)
-
-
-class RecordingError(UserError, ValueError):
-    """A recording that cannot be read: not an MCAP file, truncated or corrupt."""
-
-
-def _recover_hint(path: Path) -> str:
-    return f"run `hapticlab recover {path} -o FIXED.mcap` to salvage it"
-
-
-def _truncated(path: Path) -> RecordingError:
-    return RecordingError(f"{path} is truncated (no MCAP footer; the writer probably died): {_recover_hint(path)}")
-
-
-def _damaged(path: Path, exc: BaseException) -> RecordingError:
-    detail = str(exc).replace("\n", " ") or type(exc).__name__
-    return RecordingError(f"{path} is a damaged MCAP file ({detail}): {_recover_hint(path)}")
-
-
-def _check_mcap(path: Path) -> None:
-    """RecordingError unless ``path`` starts and ends with the MCAP magic and has a footer."""
-    size = path.stat().st_size
-    with open(path, "rb") as f:
-        head = f.read(len(MCAP_MAGIC))
-        if head != MCAP_MAGIC:
-            raise RecordingError(f"{path} is not an MCAP file (bad magic bytes at the start)")
-        footer_len = 1 + 8 + 20  # opcode, length, Footer body
-        if size < 2 * len(MCAP_MAGIC) + footer_len:
-            raise _truncated(path)
-        f.seek(size - len(MCAP_MAGIC) - footer_len)
-        tail = f.read()
-    if tail[-len(MCAP_MAGIC) :] != MCAP_MAGIC or tail[0] != Opcode.FOOTER:
-        raise _truncated(path)
-
-
-DECODERS: dict[str, Any] = {"json": json.loads}
-"""Message encoding (the MCAP channel's) -> function from the message bytes to a dict."""
+from hapticlab.sessions.recording.blocks import block_times, cdr_block_field, expand_block, stack
+from hapticlab.sessions.recording.mcapfile import read_head
+from hapticlab.sessions.recording.messages import decode_messages, iter_messages, iter_raw
+from hapticlab.sessions.recording.schemas import BLOCK_LAST_SAMPLE_FIELDS, SESSION_METADATA
 
 
 @dataclass
@@ -187,7 +140,7 @@ class Recording:
         """(N,) int64 log times of ``topic``, ns."""
         blocks = self._blocks(topic)
         if blocks is not None:
-            return _block_times(blocks)
+            return block_times(blocks)
         return np.fromiter((t for t, _ in self._msgs(topic)), dtype=np.int64, count=len(self._msgs(topic)))
 
     def t(self, topic: str) -> np.ndarray:
@@ -223,7 +176,7 @@ class Recording:
                 found = True
         if msgs and not found:
             raise KeyError(f"{topic} has no field {name!r}")
-        return _stack(values)
+        return stack(values)
 
     def _blocks(self, topic: str) -> list[dict[str, Any]] | None:
         """The block messages of ``topic`` when all of it is blocks whose samples are in time order, else None."""
@@ -233,7 +186,7 @@ class Recording:
 
     def _block_field(self, topic: str, blocks: list[dict[str, Any]], name: str) -> np.ndarray:
         if blocks and isinstance(blocks[0]["t_ns"], np.ndarray):
-            return _cdr_block_field(topic, blocks, name)
+            return cdr_block_field(topic, blocks, name)
         values: list[Any] = []
         found = False
         for b in blocks:
@@ -245,7 +198,7 @@ class Recording:
                 found = True
         if blocks and not found:
             raise KeyError(f"{topic} has no field {name!r}")
-        return _stack(values)
+        return stack(values)
 
     def meta(self, record: str, key: str, default: Any = None) -> Any:
         """A metadata value, JSON-decoded when it is JSON (else the raw string)."""
@@ -276,252 +229,6 @@ class Recording:
 
     def __len__(self) -> int:
         return sum(len(m) for m in self.topics.values())
-
-
-def _block_times(blocks: list[dict[str, Any]]) -> np.ndarray:
-    if blocks and isinstance(blocks[0]["t_ns"], np.ndarray):
-        return np.concatenate([b["t_ns"] for b in blocks]).astype(np.int64, copy=False)
-    times = [t for b in blocks for t in b["t_ns"]]
-    return np.fromiter(times, dtype=np.int64, count=len(times))
-
-
-def _cdr_block_field(topic: str, blocks: list[dict[str, Any]], name: str) -> np.ndarray:
-    """A field of CDR blocks concatenated: the recorded dtype (int64, bool, float with NaN for every
-    non-finite value); float with NaN where a block lacks the field (as ``_stack`` does for JSON)."""
-    parts = [b.get(name) for b in blocks]
-    present = [p for p in parts if p is not None]
-    if not present:
-        raise KeyError(f"{topic} has no field {name!r}")
-    if len(present) < len(parts):
-        shape = present[0].shape[1:]
-        parts = [
-            np.full((len(b["t_ns"]), *shape), np.nan) if p is None else p.astype(float) for b, p in zip(blocks, parts)
-        ]
-    out = np.concatenate(parts)
-    if out.dtype.kind == "f":
-        bad = ~np.isfinite(out)
-        if bad.any():
-            out[bad] = np.nan  # ±inf too: formats 1 and 2 recorded every non-finite float as null
-    elif out.dtype.kind == "i":
-        out = out.astype(np.int64, copy=False)
-    return out
-
-
-def _check_block(path: Path, topic: str, log_time: int, block: Any) -> None:
-    """RecordingError unless ``block`` is a block message: ``t_ns`` integers and every other array as long."""
-    where = f"{path.name}: {topic} block message at {log_time} ns"
-    if not isinstance(block, dict):
-        raise RecordingError(f"{where} is not a JSON object")
-    t_ns = block.get("t_ns")
-    if not isinstance(t_ns, list) or not t_ns or not all(type(t) is int for t in t_ns):
-        raise RecordingError(f"{where}: t_ns is not a non-empty list of integer times")
-    n = len(t_ns)
-    for key, column in block.items():
-        if key not in BLOCK_LAST_SAMPLE_FIELDS and (not isinstance(column, list) or len(column) != n):
-            raise RecordingError(f"{where}: field {key!r} does not hold one value for each of its {n} samples")
-
-
-def _expand(topic: str, block: dict[str, Any]) -> list[tuple[int, dict[str, Any]]]:
-    """A (checked) block message as its samples' ``(t_ns, message)``, the messages format 1 recorded:
-    on an estimator topic every sample has ``params``/``cov_diag``, the block's on the last, None before.
-    Arrays of a CDR block become lists (a non-finite float None, as JSON's null)."""
-    t_ns = block["t_ns"]
-    columns = [(k, v) for k, v in block.items() if k != "t_ns" and k not in BLOCK_LAST_SAMPLE_FIELDS]
-    if isinstance(t_ns, np.ndarray):
-        t_ns = t_ns.tolist()
-        columns = [(k, listed(v)) for k, v in columns]
-    out = [(t, {k: v[i] for k, v in columns}) for i, t in enumerate(t_ns)]
-    if topic.startswith(ESTIMATOR_TOPIC_PREFIX):
-        for _, m in out:
-            m.update(dict.fromkeys(BLOCK_LAST_SAMPLE_FIELDS))
-        out[-1][1].update((k, block.get(k)) for k in BLOCK_LAST_SAMPLE_FIELDS)
-    return out
-
-
-def _stack(values: list[Any]) -> np.ndarray:
-    n = len(values)
-    if n == 0:
-        return np.empty(0)
-    present = [v for v in values if v is not None]
-    if not present:
-        return np.full(n, np.nan)
-    if all(isinstance(v, bool) for v in present) and len(present) == n:
-        return np.array(values, dtype=bool)
-    if len(present) < n:
-        template = present[0]
-        fill: Any = [None] * len(template) if isinstance(template, list) else None
-        values = [fill if v is None else v for v in values]
-    try:
-        arr = np.asarray(values)
-    except ValueError:  # ragged
-        arr = np.empty(n, dtype=object)
-        arr[:] = values
-        return arr
-    if arr.dtype == object or len(present) < n:
-        try:
-            return np.asarray(values, dtype=float)
-        except (TypeError, ValueError):
-            return arr
-    return arr
-
-
-def _open_reader(path: Path):  # noqa: ANN202 - returns (file, reader)
-    _check_mcap(path)
-    f = open(path, "rb")  # noqa: SIM115 - the caller closes it
-    try:
-        reader = make_reader(f, validate_crcs=True)  # a damaged chunk is an error, not bad data
-        stat = os.fstat(f.fileno())
-        summary = _summary(str(path), stat.st_mtime_ns, stat.st_size, reader)
-    except Exception as exc:
-        f.close()
-        raise _damaged(path, exc) from None
-    return f, reader, summary
-
-
-_SUMMARIES: dict[tuple[str, int, int], Any] = {}
-
-
-def _summary(path: str, mtime_ns: int, size: int, reader) -> Any:
-    """The file's MCAP summary, parsed once per version of the file (a long session's has thousands of chunk
-    indexes: a review opens the file several times)."""
-    key = (path, mtime_ns, size)
-    if key not in _SUMMARIES:
-        if len(_SUMMARIES) >= 2:  # the file in hand (and the one before): a cohort's worker reads hundreds
-            _SUMMARIES.clear()
-        _SUMMARIES[key] = reader.get_summary()
-    return _SUMMARIES[key]
-
-
-def _block_kind(schema: Any, channel: Channel) -> Any:
-    """None for a channel of single messages, ``"json"`` for JSON blocks (format 2), the
-    :class:`~.schemas.CdrBlock` layout for CDR blocks (format 3)."""
-    if schema is None:
-        return None
-    if channel.message_encoding == "cdr" and schema.encoding == "ros2msg":
-        return CDR_BLOCK_SCHEMAS.get(schema.name)
-    return "json" if schema.name in BLOCK_SCHEMA_TITLES else None
-
-
-def _iter_raw(
-    path: Path, topics: Iterable[str] | str | None, log_time_order: bool = True
-) -> Iterator[tuple[Any, Channel, Message]]:
-    """``(block kind (see _block_kind), channel, message)`` of ``topics`` (all when None)."""
-    f, reader, _ = _open_reader(path)
-    with f:
-        topic_list = [topics] if isinstance(topics, str) else (list(topics) if topics is not None else None)
-        try:
-            for schema, channel, message in reader.iter_messages(topics=topic_list, log_time_order=log_time_order):
-                yield _block_kind(schema, channel), channel, message
-        except (McapError, struct.error, EOFError, ValueError, KeyError) as exc:
-            raise _damaged(path, exc) from None
-        except Exception as exc:  # zstd errors and the like
-            if type(exc).__module__.startswith(("zstandard", "mcap")):
-                raise _damaged(path, exc) from None
-            raise
-
-
-def iter_messages(
-    path: str | os.PathLike[str], topics: Iterable[str] | str | None = None
-) -> Iterator[tuple[str, int, dict[str, Any]]]:
-    """Stream ``(topic, t_ns, message)`` in log-time order without loading the file.
-
-    ``topics`` limits the topics read (chunks without them are skipped). A
-    block message (format 2) comes out as one message per sample, each at its
-    own time (blocks are in log-time order, the last sample's time).
-    Raises :class:`RecordingError` for a file that is not MCAP or is truncated.
-    """
-    path = Path(path)
-    _check_mcap(path)  # fail here, not at the first next()
-    return _expanded(_decode(_iter_raw(path, topics), path), path)
-
-
-def iter_blocks(
-    path: str | os.PathLike[str], topics: Iterable[str] | str | None = None
-) -> Iterator[tuple[str, int, dict[str, Any], bool]]:
-    """Stream ``(topic, log time ns, message, is a block)`` in file order, blocks kept whole.
-
-    The fast way through a long file: a block message (formats 2 and 3) comes
-    out once, columnar (``{"t_ns": (n,) int64, field: (n,) or (n, k) array}``;
-    a non-finite float NaN (JSON's null) or as recorded (CDR: NaN or ±inf), a field
-    absent from a JSON block NaN); a format-1 message on
-    a sensor-rate topic comes out as a one-sample block; any other message as
-    decoded. File order is the order the session wrote them: each tick's
-    wrench, aligned and estimator messages together, in that order.
-    Raises :class:`RecordingError` for a file that is not MCAP or is truncated.
-    """
-    path = Path(path)
-    _check_mcap(path)
-    for block, topic, t_ns, message in _decode(_iter_raw(path, topics, log_time_order=False), path):
-        if block:
-            yield topic, t_ns, _columns(message), True
-        elif topic in BLOCK_TOPICS or topic.startswith(ESTIMATOR_TOPIC_PREFIX):
-            yield (
-                topic,
-                t_ns,
-                _columns(
-                    {
-                        "t_ns": [t_ns],
-                        **{k: [v] for k, v in message.items() if k not in BLOCK_LAST_SAMPLE_FIELDS},
-                        **{k: message.get(k) for k in BLOCK_LAST_SAMPLE_FIELDS},
-                    }
-                ),
-                True,
-            )
-        else:
-            yield topic, t_ns, message, False
-
-
-def _columns(block: dict[str, Any]) -> dict[str, Any]:
-    """A block message with every per-sample column as a numpy array (JSON lists stacked, null → NaN)."""
-    out: dict[str, Any] = {}
-    for key, column in block.items():
-        if key in BLOCK_LAST_SAMPLE_FIELDS:
-            out[key] = column
-        elif isinstance(column, np.ndarray):  # CDR: as recorded (a non-finite float NaN or ±inf)
-            out[key] = column
-        else:
-            out[key] = np.asarray(column, dtype=np.int64) if key == "t_ns" else _stack(column)
-    return out
-
-
-def _decoder(path: Path, channel: Channel):
-    try:
-        return DECODERS[channel.message_encoding]
-    except KeyError:
-        raise RecordingError(
-            f"{path}: topic {channel.topic} has message encoding "
-            f"{channel.message_encoding!r}; hapticlab reads {', '.join(DECODERS)}"
-        ) from None
-
-
-def _decode(raw: Iterator[tuple[Any, Channel, Message]], path: Path) -> Iterator[tuple[bool, str, int, dict[str, Any]]]:
-    """``(is a block, topic, log time, decoded message)``; a block message is checked."""
-    decoders: dict[int, Any] = {}
-    for block, channel, message in raw:
-        if block is None or block == "json":
-            decode = decoders.get(channel.id) or decoders.setdefault(channel.id, _decoder(path, channel))
-            decoded = decode(message.data)
-            if block:
-                _check_block(path, channel.topic, message.log_time, decoded)
-        else:
-            try:
-                decoded = decode_block(block, message.data, json.loads)
-            except (CdrBlockError, UnicodeDecodeError, ValueError) as exc:
-                raise RecordingError(
-                    f"{path.name}: {channel.topic} block message at {message.log_time} ns: {exc}"
-                ) from None
-        yield block is not None, channel.topic, message.log_time, decoded
-
-
-def _expanded(
-    decoded: Iterator[tuple[bool, str, int, dict[str, Any]]], path: Path
-) -> Iterator[tuple[str, int, dict[str, Any]]]:
-    for block, topic, t_ns, message in decoded:
-        if block:
-            for t, m in _expand(topic, message):
-                yield topic, t, m
-        else:
-            yield topic, t_ns, message
 
 
 class _LazyBlocks(Mapping):
@@ -565,7 +272,7 @@ class _LazyTopics(Mapping):
         if topic not in self.loaded:
             blocks = self.block_messages(topic)
             if blocks is not None:
-                self.loaded[topic] = [item for b in blocks for item in _expand(topic, b)]
+                self.loaded[topic] = [item for b in blocks for item in expand_block(topic, b)]
             else:
                 self.loaded[topic] = _read_topics(self.path, [topic])[0].get(topic, [])
         return self.loaded[topic]
@@ -577,35 +284,6 @@ class _LazyTopics(Mapping):
         return len(self.counts)
 
 
-@dataclass(frozen=True)
-class FileStats:
-    """What a recording's MCAP summary says without reading its messages (:func:`file_stats`).
-
-    Attributes:
-        start_ns, end_ns: the first and last message's log time, ns.
-        counts: messages per topic.
-    """
-
-    start_ns: int
-    end_ns: int
-    counts: dict[str, int]
-
-
-def file_stats(path: str | os.PathLike[str]) -> FileStats:
-    """The time span and message counts of a recording from its summary (a finished file: milliseconds)."""
-    path = Path(path)
-    f, _, summary = _open_reader(path)
-    with f:
-        pass
-    stats = summary.statistics if summary is not None else None
-    if stats is None:
-        raise RecordingError(f"{path}: no summary statistics (an unfinished file?); {_recover_hint(path)}")
-    counts: dict[str, int] = {}
-    for channel_id, channel in summary.channels.items():
-        counts[channel.topic] = counts.get(channel.topic, 0) + int(stats.channel_message_counts.get(channel_id, 0))
-    return FileStats(int(stats.message_start_time), int(stats.message_end_time), counts)
-
-
 def open_recording(path: str | os.PathLike[str]) -> Recording:
     """Open a recording: metadata and topics now, each topic's messages when first asked for.
 
@@ -613,7 +291,7 @@ def open_recording(path: str | os.PathLike[str]) -> Recording:
     is truncated or damaged (the message says to run ``hapticlab recover``).
     """
     path = Path(path)
-    metadata, schemas, counts, block_topics = _read_head(path)
+    metadata, schemas, counts, block_topics = read_head(path)
     topics = _LazyTopics(path, counts, block_topics)
     return Recording(path=path, metadata=metadata, topics=topics, schemas=schemas, blocks=_LazyBlocks(topics))
 
@@ -626,40 +304,9 @@ def read_recording(path: str | os.PathLike[str], topics: Iterable[str] | str | N
     run ``hapticlab recover``).
     """
     path = Path(path)
-    metadata, schemas, _, _ = _read_head(path)
+    metadata, schemas, _, _ = read_head(path)
     samples, blocks = _read_topics(path, topics)
     return Recording(path=path, metadata=metadata, topics=samples, schemas=schemas, blocks=blocks)
-
-
-def _read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]], dict[str, int], set[str]]:
-    """Metadata records, schemas by topic, message counts by topic and the block topics (from the summary)."""
-    f, reader, summary = _open_reader(path)
-    with f:
-        metadata: dict[str, dict[str, str]] = {}
-        try:
-            for record in reader.iter_metadata():
-                metadata.setdefault(record.name, {}).update(record.metadata)
-        except Exception as exc:
-            raise _damaged(path, exc) from None
-        schemas: dict[str, dict[str, Any]] = {}
-        if summary is not None:
-            for channel in summary.channels.values():
-                schema = summary.schemas.get(channel.schema_id)
-                if schema is not None and schema.encoding == "jsonschema":
-                    try:
-                        schemas[channel.topic] = json.loads(schema.data)
-                    except ValueError:
-                        pass
-    counts: dict[str, int] = {}
-    block_topics: set[str] = set()
-    if summary is not None:
-        stats = summary.statistics.channel_message_counts if summary.statistics else {}
-        for channel_id, channel in summary.channels.items():
-            counts[channel.topic] = counts.get(channel.topic, 0) + int(stats.get(channel_id, 0))
-            schema = summary.schemas.get(channel.schema_id)
-            if _block_kind(schema, channel) is not None:
-                block_topics.add(channel.topic)
-    return metadata, schemas, counts, block_topics
 
 
 def _read_topics(
@@ -676,11 +323,11 @@ def _read_topics(
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
-        for block, topic, t_ns, message in _decode(_iter_raw(path, topics, log_time_order=False), path):
+        for block, topic, t_ns, message in decode_messages(iter_raw(path, topics, log_time_order=False), path):
             if block:
                 blocks.setdefault(topic, []).append(message)
                 if expand:
-                    out.setdefault(topic, []).extend(_expand(topic, message))
+                    out.setdefault(topic, []).extend(expand_block(topic, message))
             else:
                 per_sample.add(topic)
                 out.setdefault(topic, []).append((t_ns, message))
@@ -691,7 +338,7 @@ def _read_topics(
         if any(lst[i][0] > lst[i + 1][0] for i in range(len(lst) - 1)):
             lst.sort(key=lambda item: item[0])  # stable: equal times keep file order
     for topic in list(blocks):
-        t = _block_times(blocks[topic])
+        t = block_times(blocks[topic])
         if topic in per_sample or bool((np.diff(t) < 0).any()):
             del blocks[topic]  # not all blocks, or the blocks' order is not the samples'
     return out, blocks

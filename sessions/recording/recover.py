@@ -14,10 +14,11 @@ from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, 
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
+from hapticlab.core.version import __version__
 from hapticlab.sessions.output import atomic_output, check_output
-from hapticlab.sessions.recording.reader import RecordingError
+from hapticlab.sessions.recording.mcapfile import RecordingError
+from hapticlab.sessions.recording.metadata import metadata_strings, utc_now_iso
 from hapticlab.sessions.recording.schemas import MCAP_MAGIC, RECOVERED_METADATA
-from hapticlab.sessions.recording.writer import _hapticlab_version, _metadata_strings, _utc_now_iso
 
 _KNOWN_OPCODES = {int(op) for op in Opcode}
 
@@ -77,7 +78,7 @@ def recover(
             def start(profile: str = "") -> None:
                 nonlocal started
                 if not started:
-                    writer.start(profile=profile, library=f"hapticlab-recover/{_hapticlab_version()}")
+                    writer.start(profile=profile, library=f"hapticlab-recover/{__version__}")
                     started = True
 
             def on_schema(schema: Schema) -> None:
@@ -170,10 +171,10 @@ def recover(
             start()
             writer.add_metadata(
                 RECOVERED_METADATA,
-                _metadata_strings(
+                metadata_strings(
                     {
                         "source": str(src),
-                        "recovered_at": _utc_now_iso(),
+                        "recovered_at": utc_now_iso(),
                         "messages": stats["messages"],
                         "lost_tail_bytes": stats["lost_tail_bytes"],
                         "corrupt_chunks": stats["corrupt_chunks"],

@@ -1,16 +1,12 @@
-"""Where a :class:`~.writer.Recorder`'s encoded messages go: an MCAP writer in this process, or in its own.
+"""Where a :class:`~.writer.Recorder`'s encoded messages go: an MCAP writer on the file, here or in the writer process.
 
 :class:`McapSink` holds the ``mcap`` writer and the file: zstd chunks, the chunk
 in progress finished and flushed to the OS about once a second. ``mcap``'s
-writer is pure Python (~10 µs per message) and a finished chunk's compression
-costs 0.3–0.5 ms, which a 1 kHz loop cannot pay on its own thread (issue 12).
-
-:class:`ProcessSink` runs a :class:`McapSink` in a child process (this file run as a
-script: it imports ``mcap`` only) and hands it each loop tick's
-messages as one pickled batch of already encoded bytes over a pipe: ~2 µs per
-tick on the loop's side, and the other core does the writing. The loop keeps
-encoding (CDR, JSON) on its own side, so a bad message still raises where it
-was written. The child:
+writer is pure Python and a finished chunk's compression takes a fraction of a
+millisecond, which a 1 kHz loop cannot pay on its own thread: a live session
+runs its McapSink in a child process (:class:`~.process_sink.ProcessSink`, the
+parent's side), this file run as a script (:func:`serve`; it imports ``mcap``
+only, so the child starts fast). The child:
 
 - writes the same file a :class:`McapSink` would, and flushes about once a
   second whether batches come or not (so a crash of both loses at most the
@@ -20,8 +16,6 @@ was written. The child:
   a crash), so a killed session's recording is complete up to its last tick;
 - ignores SIGINT, SIGTERM and SIGHUP: Ctrl-C in a terminal reaches the whole
   process group, and the parent ends the session (and the file) itself.
-
-A full pipe blocks the loop (back-pressure): nothing is ever dropped.
 
 **Live view** (``live="HOST:PORT"``): the child also serves every message it
 writes over Foxglove's WebSocket protocol (:class:`FoxgloveTee`, the
@@ -37,18 +31,15 @@ import pickle
 import select
 import signal
 import struct
-import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import IO, Protocol
 
 from mcap.writer import CompressionType, Writer
 
 _monotonic = time.monotonic
-_LENGTH = struct.Struct("<I")
-PIPE_BYTES = 1 << 20
-"""Pipe buffer asked for (Linux ``F_SETPIPE_SZ``): ~1 s of a 7 kHz session, so the loop rides out the child's pauses."""
+LENGTH = struct.Struct("<I")
+"""The length prefix of each batch on the pipe (bytes, little-endian)."""
 READY = b"ready\n"
 LIVE_ADDRESS = b"live-address "
 """The child's first line when it serves a live view: this, then where (``HOST:PORT``)."""
@@ -159,136 +150,6 @@ class FoxgloveTee:
         self.server.stop()
 
 
-class WriterProcessError(RuntimeError):
-    """The recording's writer process failed or exited; the message says how."""
-
-
-class ProcessSink:
-    """A :class:`McapSink` in a child process, fed one pickled batch per :meth:`send`.
-
-    ``path`` must exist (the Recorder creates it, so an existing recording is
-    refused in the caller's process); the child truncates and writes it. The
-    constructor returns once the child is ready to write.
-    """
-
-    def __init__(self, path: Path, library: str, flush_interval_s: float, chunk_size: int, live: str = ""):
-        self.path = path
-        self.live_address = ""
-        """Where the live view listens ("HOST:PORT"), "" without one."""
-        self._ops: list[tuple] = []
-        self._proc = subprocess.Popen(
-            # this file run as a script: it needs mcap only, not hapticlab's packages (0.1 s to start, not 0.6)
-            [
-                sys.executable,
-                "-c",
-                _RUN_THIS_FILE,
-                __file__,
-                os.fspath(path),
-                library,
-                repr(float(flush_interval_s)),
-                str(int(chunk_size)),
-                live,
-            ],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            env=_child_env(),
-            start_new_session=False,
-        )
-        self._pipe = self._proc.stdin.fileno()
-        try:
-            import fcntl
-
-            fcntl.fcntl(self._pipe, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
-        except (ImportError, AttributeError, OSError):  # not Linux, or above pipe-max-size: the default 64 KiB
-            pass
-        line = self._proc.stdout.readline()
-        if live and line.startswith(LIVE_ADDRESS):  # the live view's address, then ready
-            self.live_address = line[len(LIVE_ADDRESS) :].decode().strip()
-            line = self._proc.stdout.readline()
-        if line != READY:
-            self._proc.wait()
-            raise WriterProcessError(
-                f"recording writer process for {path} did not start "
-                f"(exit status {self._proc.returncode}): {line.decode(errors='replace').strip()}"
-            )
-
-    @property
-    def pid(self) -> int:
-        """The writer process's pid."""
-        return self._proc.pid
-
-    def add_metadata(self, name: str, values: dict[str, str]) -> None:
-        self._ops.append(("metadata", name, values))
-
-    def register_schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None:
-        self._ops.append(("schema", schema_id, name, encoding, data))
-
-    def register_channel(self, channel_id: int, topic: str, message_encoding: str, schema_id: int) -> None:
-        self._ops.append(("channel", channel_id, topic, message_encoding, schema_id))
-
-    def add_message(self, channel_id: int, t_ns: int, data: bytes, seq: int) -> None:
-        self._ops.append((channel_id, t_ns, data, seq))
-
-    def send(self) -> None:
-        """Hand the messages written since the last send to the writer process (one pipe write)."""
-        if not self._ops:
-            return
-        batch = pickle.dumps(self._ops, protocol=pickle.HIGHEST_PROTOCOL)
-        self._ops = []
-        self._write(_LENGTH.pack(len(batch)) + batch)
-
-    def flush(self) -> None:
-        self._ops.append(("flush",))
-        self.send()
-
-    def finish(self) -> None:
-        """Send what is left, let the child finish the file, wait for it; raise if it failed."""
-        self._ops.append(("finish",))
-        try:
-            self.send()
-        finally:
-            self._proc.stdin.close()
-            reply = self._proc.stdout.read()
-            self._proc.stdout.close()
-            status = self._proc.wait()
-        if status != 0 or not reply.startswith(b"finished"):
-            raise WriterProcessError(
-                f"recording writer process for {self.path} failed (exit status {status}): "
-                f"{reply.decode(errors='replace').strip() or 'no reply'}"
-            )
-
-    def abort(self) -> None:
-        """Stop the child without a footer (a failed start)."""
-        self._proc.kill()
-        self._proc.wait()
-        self._proc.stdin.close()
-        self._proc.stdout.close()
-
-    def _write(self, data: bytes) -> None:
-        view = memoryview(data)
-        try:
-            while view:
-                view = view[os.write(self._pipe, view) :]
-        except BrokenPipeError:
-            status = self._proc.wait()
-            raise WriterProcessError(
-                f"recording writer process for {self.path} exited (status {status}); the file holds what it had written"
-            ) from None
-
-
-_RUN_THIS_FILE = "import runpy, sys; runpy.run_path(sys.argv[1], run_name='__main__')"
-
-
-def _child_env() -> dict[str, str]:
-    """The environment with this interpreter's import path, so the child imports the same hapticlab."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
-    return env
-
-
-# ----------------------------------------------------------------------------- the child
-
-
 def serve(
     path: str,
     library: str,
@@ -379,7 +240,7 @@ class _Batches:
         self.buffer += chunk
         out = []
         while len(self.buffer) >= 4:
-            (n,) = _LENGTH.unpack_from(self.buffer)
+            (n,) = LENGTH.unpack_from(self.buffer)
             if len(self.buffer) < 4 + n:
                 break
             out.append(bytes(self.buffer[4 : 4 + n]))
@@ -391,9 +252,9 @@ def _yield_to_the_loop() -> None:
     """Make this process one that never pre-empts the session's loop when it wakes (Linux ``SCHED_BATCH``).
 
     Each hand-over wakes the writer; woken as an ordinary process, the scheduler often runs it at once on
-    the loop's own core, and the loop waits ~1 ms for its core back (the paced 7 kHz loop's pipe writes had a
-    p99 of 1.4 ms). A batch process is not run ahead of the process it woke; it still gets the other core
-    (or its share of a busy one), so it keeps up all the same. Nothing to do where the policy is unknown.
+    the loop's own core, and the loop waits for its core back (docs/safety.md, "Overruns"). A batch process
+    is not run ahead of the process it woke; it still gets the other core (or its share of a busy one), so
+    it keeps up all the same. Nothing to do where the policy is unknown.
     """
     try:
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))

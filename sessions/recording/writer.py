@@ -12,125 +12,71 @@ The Recorder encodes (and checks) every message where it is written; the
 ``mcap`` writer runs in this process (``writer="inline"``) or in a child
 process fed one batch per :meth:`Recorder.send` (``writer="process"``, what a
 live session uses: the writing and the chunks' compression move to the other
-core, and a killed session's file is finished by the child; see :mod:`.sinks`).
+core, and a killed session's file is finished by the child; see
+:mod:`.process_sink` and :mod:`.sinks`).
 
 Two ways in: :meth:`Recorder.write_block` writes a block of samples as one
 columnar message on a sensor-rate topic (what a live session does: ``mcap``'s
-pure-Python writer costs ~10-30 µs per message, which at 7 kHz and three
-sensor-rate topics was a third of the loop), :meth:`Recorder.write` one JSON
+writer costs the same per message whatever its size, and the sensor-rate
+topics have thousands of samples a second), :meth:`Recorder.write` one JSON
 message (per tick, per event, or one sample on a channel of the per-sample
 layout, format 1). A topic's first message decides its channel's layout.
 
 Blocks are CDR (format 3, the default: ROS 2 message definitions, schema
-encoding ``ros2msg``, message encoding ``cdr``, see :mod:`.cdr`; encoding a
-float costs nothing per value, against ~0.66 µs of JSON float formatting) or,
-with ``block_encoding="json"``, format 2's JSON blocks (kept to write files of
-that layout, e.g. to compare with).
+encoding ``ros2msg``, message encoding ``cdr``, see :mod:`.cdr`; a field costs
+one ``tobytes``, with no formatting per value) or, with
+``block_encoding="json"``, format 2's JSON blocks (kept to write files of that
+layout, e.g. to compare with). The figures behind these choices are in
+docs/safety.md, "Overruns".
 
 Non-finite floats (NaN, ±inf) are not valid JSON; in JSON messages they are
 recorded as ``null`` (and read back as NaN). CDR blocks hold them as they are;
 the reader gives NaN for them all the same (as for every layout).
 
 Metadata (MCAP Metadata records, string values; non-string values given by the
-caller are JSON-encoded): ``hapticlab.session`` (resolved config, plugins,
-hapticlab version, git revision where known, start time, ``format_version``), ``hapticlab.calibration``
-(whatever the caller gives), ``hapticlab.summary`` at close when given, and
-``hapticlab.recovered`` in files written by :func:`~.recover.recover`.
+caller are JSON-encoded, :mod:`.metadata`): ``hapticlab.session`` (resolved
+config, plugins, hapticlab version, git revision where known, start time,
+``format_version``), ``hapticlab.calibration`` (whatever the caller gives),
+``hapticlab.summary`` at close when given, and ``hapticlab.recovered`` in files
+written by :func:`~.recover.recover`.
 """
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import operator
 import os
-import platform
-import subprocess
 import threading
 import time
 from collections.abc import Mapping
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import orjson
 
 from hapticlab.core.errors import OutputExistsError
+from hapticlab.core.version import __version__
 from hapticlab.sessions.recording.cdr import encode_block
+from hapticlab.sessions.recording.cdr_layouts import cdr_block_for_topic
+from hapticlab.sessions.recording.metadata import json_default, metadata_strings, session_record, utc_now_iso
+from hapticlab.sessions.recording.process_sink import ProcessSink
 from hapticlab.sessions.recording.schemas import (
     FORMAT_VERSION,
     SESSION_METADATA,
     SUMMARY_METADATA,
     block_schema_for_topic,
-    cdr_block_for_topic,
     schema_for_topic,
 )
-from hapticlab.sessions.recording.sinks import McapSink, ProcessSink, Sink
-
-# --------------------------------------------------------------------------
-# JSON encoding
-# --------------------------------------------------------------------------
-
-
-def _json_default(obj: Any) -> Any:
-    """Encode numpy arrays/scalars (and paths) that ``json`` does not know."""
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    if isinstance(obj, (set, frozenset)):
-        return sorted(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serializable")
-
+from hapticlab.sessions.recording.sinks import McapSink, Sink
 
 _MESSAGE_OPTIONS = orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS
 
 
 def _encode(value: Any) -> bytes:
-    """A message as compact JSON bytes: ``orjson`` (~0.2 µs for a per-tick message, against ~1.7 µs for
-    ``json``'s C encoder and ~2.6 for ``json.dumps``). Non-finite floats become ``null`` (JSON has no NaN);
-    numpy arrays and scalars are written as their values. ``TypeError`` for what JSON cannot hold."""
-    return orjson.dumps(value, default=_json_default, option=_MESSAGE_OPTIONS)
-
-
-_encode_meta = json.JSONEncoder(separators=(",", ":"), allow_nan=True, default=_json_default).encode
-
-
-def _metadata_strings(values: Mapping[str, Any]) -> dict[str, str]:
-    """MCAP metadata values must be strings: keep strings, JSON-encode everything else."""
-    out: dict[str, str] = {}
-    for key, value in values.items():
-        out[str(key)] = value if isinstance(value, str) else _encode_meta(value)
-    return out
-
-
-@lru_cache(maxsize=1)
-def git_revision() -> str | None:
-    """The git commit of the hapticlab source tree, or None when it is not a git checkout."""
-    here = Path(__file__).resolve().parent
-    try:
-        result = subprocess.run(
-            ["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=2.0, check=False
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    rev = result.stdout.strip()
-    return rev if result.returncode == 0 and rev else None
-
-
-def _hapticlab_version() -> str:
-    try:
-        from hapticlab import __version__
-    except ImportError:  # pragma: no cover - only when imported outside the package
-        return "unknown"
-    return str(__version__)
-
-
-def _utc_now_iso() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    """A message as compact JSON bytes (``orjson``: several times faster than ``json``'s encoder on the
+    per-tick messages). Non-finite floats become ``null`` (JSON has no NaN); numpy arrays and scalars are
+    written as their values. ``TypeError`` for what JSON cannot hold."""
+    return orjson.dumps(value, default=json_default, option=_MESSAGE_OPTIONS)
 
 
 # --------------------------------------------------------------------------
@@ -156,10 +102,9 @@ class Recorder:
         flush_interval_s: finish the chunk in progress and flush it to the OS when
             this much ``time.monotonic`` time has passed since the last flush (checked
             on each write). A crash loses at most this much data.
-        chunk_size: uncompressed bytes after which a chunk is finished early. The
-            write that finishes a chunk pays for its zstd compression (about 0.3-0.5 ms
-            for the default 128 KiB, 2-7 ms for 1 MiB on a slow core), so smaller
-            chunks mean smaller latency spikes (at ~7 % worse compression).
+        chunk_size: uncompressed bytes after which a chunk is finished early (default 128 KiB). The
+            write that finishes a chunk pays for its zstd compression, so smaller chunks mean
+            smaller latency spikes, at a slightly worse compression.
         overwrite: replace an existing file; by default an existing file is an
             error (a previous recording is never silently destroyed).
         block_encoding: ``"cdr"`` (format 3) or ``"json"`` (format 2): how
@@ -214,7 +159,7 @@ class Recorder:
         self._block_ids: dict[str, int] = {}  # topics written in blocks
         self._schema_ids: dict[str, int] = {}
         self.start_monotonic_ns = time.monotonic_ns()
-        library = f"hapticlab/{_hapticlab_version()}"
+        library = f"hapticlab/{__version__}"
         self.writer = writer
         self.live_address = ""
         """Where the live view listens ("HOST:PORT"), "" without one."""
@@ -234,18 +179,10 @@ class Recorder:
         try:
             given = {name: dict(values) for name, values in (metadata or {}).items()}
             session = given.pop(SESSION_METADATA, {})
-            session.setdefault("format_version", FORMAT_VERSION if block_encoding == "cdr" else 2)
-            session.setdefault("hapticlab_version", _hapticlab_version())
-            rev = git_revision()
-            if rev is not None:
-                session.setdefault("git_revision", rev)
-            session.setdefault("start_time", _utc_now_iso())
-            session.setdefault("start_monotonic_ns", self.start_monotonic_ns)
-            session.setdefault("python", platform.python_version())
-            session.setdefault("mcap", _mcap_version())
-            self._sink.add_metadata(SESSION_METADATA, _metadata_strings(session))
+            session = session_record(session, self.start_monotonic_ns, FORMAT_VERSION if block_encoding == "cdr" else 2)
+            self._sink.add_metadata(SESSION_METADATA, session)
             for name, values in given.items():
-                self._sink.add_metadata(str(name), _metadata_strings(values))
+                self._sink.add_metadata(str(name), metadata_strings(values))
             self._sink.flush()
         except BaseException:
             self._sink.abort()
@@ -321,7 +258,7 @@ class Recorder:
     def send(self) -> None:
         """Hand the messages written since the last send to the writer process (one per loop tick).
 
-        Nothing to do with ``writer="inline"``. Raises :class:`~.sinks.WriterProcessError`
+        Nothing to do with ``writer="inline"``. Raises :class:`~.process_sink.WriterProcessError`
         when the writer process has exited.
         """
         with self._lock:
@@ -373,7 +310,7 @@ class Recorder:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"recording {self.path} is closed")
-            self._sink.add_metadata(str(name), _metadata_strings(values))
+            self._sink.add_metadata(str(name), metadata_strings(values))
 
     def flush(self) -> None:
         """Finish the chunk in progress and hand everything written so far to the OS."""
@@ -391,9 +328,9 @@ class Recorder:
             try:
                 if summary is not None:
                     values = dict(summary)
-                    values.setdefault("end_time", _utc_now_iso())
+                    values.setdefault("end_time", utc_now_iso())
                     values.setdefault("messages_written", self._messages_written)
-                    self._sink.add_metadata(SUMMARY_METADATA, _metadata_strings(values))
+                    self._sink.add_metadata(SUMMARY_METADATA, metadata_strings(values))
             finally:
                 self._sink.finish()
 
@@ -425,12 +362,3 @@ class Recorder:
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"Recorder({str(self.path)!r}, {state}, {self._messages_written} messages)"
-
-
-def _mcap_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("mcap")
-    except Exception:  # pragma: no cover
-        return "unknown"

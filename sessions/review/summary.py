@@ -2,7 +2,7 @@
 
 :func:`review` reads the recording once, streaming (``recording.columnar``:
 a few chunks at a time as columns; ``iter_blocks``, a message at a time, for
-older or unfinished files), so memory stays bounded whatever the length: the
+older or unfinished files: ``reading``), so memory stays bounded whatever the length: the
 samples are gathered into chunks of :data:`CHUNK_ROWS` and each chunk is
 folded into the running figures of ``figures.py`` (sums with Chan's merge
 for the standard deviations, a contact state machine, time-binned envelopes
@@ -25,7 +25,6 @@ stage's), "before" being the raw aligned reading of the same sample.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections import deque
@@ -36,17 +35,16 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core.types import STATUS_OK, Event
-from hapticlab.sessions.recording import ESTIMATOR_TOPIC_PREFIX, RecordingError, iter_blocks, open_recording
-from hapticlab.sessions.recording.columnar import can_read, iter_chunks
-from hapticlab.sessions.recording.reader import file_stats
+from hapticlab.sessions.recording import ESTIMATOR_TOPIC_PREFIX, RecordingError, open_recording
+from hapticlab.sessions.recording.columnar import can_read
+from hapticlab.sessions.recording.mcapfile import file_stats
 from hapticlab.sessions.review.figures import Contact, ContactFold, Envelope, EstimatorFold, EstimatorReview
+from hapticlab.sessions.review.reading import file_batches, join_raw
 
 CHUNK_ROWS = 16384
 """Samples gathered before they are folded into the running figures (memory: a few MB, whatever the file)."""
 DEFAULT_FORCE_LIMIT_N = 3.0
 """The contact force limit a review counts time above, N, unless told another (set it to your task's)."""
-COMMAND_FIELDS = {"force_D": 3, "enabled": 0}
-"""What a review reads of each ``/haptic/command`` (as columns: ``recording.columnar``)."""
 
 
 @dataclass
@@ -158,9 +156,6 @@ def _round(x: float | None, digits: int = 3) -> float | None:
     return None if x is None or not math.isfinite(x) else round(x, digits)
 
 
-# --------------------------------------------------------------------------- the pass
-
-
 def review(
     path: str | os.PathLike[str],
     force_limit: float = DEFAULT_FORCE_LIMIT_N,
@@ -270,7 +265,7 @@ def review(
         topics.append("/haptic/command")
     fast = fast and can_read(rec.path)
     recent = deque(maxlen=3 if fast else 32)
-    for topic, batch in _batches(rec.path, topics, fast):
+    for topic, batch in file_batches(rec.path, topics, fast):
         if topic == "/aligned/sample":
             recent.append(batch)
             aligned_chunk.append(batch)
@@ -290,7 +285,7 @@ def review(
             name = topic[len(ESTIMATOR_TOPIC_PREFIX) :]
             if name == estimator:
                 series.params.extend(((t - t0) / 1e9, p) for t, p in batch["params"])
-            joined = _join(batch, recent)
+            joined = join_raw(batch, recent)
             if joined is None:
                 continue
             pending[name].append(joined)
@@ -340,66 +335,9 @@ def review(
     )
 
 
-def _batches(path: Path, topics: list[str], fast: bool):
-    """``(topic, batch)`` in file order: a block topic's samples as columns (with ``params``:
-    ``[(t_ns, params)]``), any other topic's ``[(t_ns, message)]``; a chunk's aligned samples first."""
-    if fast:
-        for chunk in iter_chunks(path, topics, json_fields={"/haptic/command": COMMAND_FIELDS}):
-            for topic in sorted(chunk, key=lambda t: t != "/aligned/sample"):
-                if len(chunk[topic]):
-                    yield topic, chunk[topic]
-        return
-    for topic, t_ns, m, is_block in iter_blocks(path, topics):
-        if topic == "/haptic/command":
-            force = [math.nan if v is None else v for v in (m.get("force_D") or [math.nan] * 3)]
-            yield (
-                topic,
-                {
-                    "t_ns": np.array([t_ns]),
-                    "force_D": np.array([force], dtype=float),
-                    "enabled": np.array([bool(m.get("enabled"))]),
-                },
-            )
-            continue
-        if not is_block:
-            yield topic, [(t_ns, m)]
-            continue
-        params = m.pop("params", None)
-        m.pop("cov_diag", None)
-        params = json.loads(params) if isinstance(params, str) else params
-        m["params"] = [] if params is None else [(int(m["t_ns"][-1]), params)]
-        yield topic, m
-
-
 def _period(t_ns: np.ndarray) -> float:
     """A sample period from the samples' stamps, s (median step; 1 ms when there is one sample)."""
     return float(np.median(np.diff(t_ns))) / 1e9 if len(t_ns) > 1 else 1e-3
-
-
-def _join(block: dict[str, np.ndarray], recent: deque) -> dict[str, np.ndarray] | None:
-    """An estimator block with the raw aligned reading of each of its samples (found by stamp in ``recent``).
-
-    The loop writes a tick's aligned block before its estimators' blocks, and an estimator's samples are
-    some of those aligned samples; samples not found (a damaged file) are dropped.
-    """
-    if not recent:
-        return None
-    last = recent[-1]
-    if len(last["t_ns"]) == len(block["t_ns"]) and np.array_equal(last["t_ns"], block["t_ns"]):  # the usual case
-        out = dict(block)
-        out["raw_force"], out["raw_torque"] = last["force_S"], last["torque_S"]
-        return out
-    t = np.concatenate([b["t_ns"] for b in recent])
-    i = np.searchsorted(t, block["t_ns"])
-    i = np.clip(i, 0, len(t) - 1)
-    found = t[i] == block["t_ns"]
-    if not found.any():
-        return None
-    force = np.concatenate([b["force_S"] for b in recent])
-    torque = np.concatenate([b["torque_S"] for b in recent])
-    out = {k: (v[found] if isinstance(v, np.ndarray) and len(v) == len(found) else v) for k, v in block.items()}
-    out["raw_force"], out["raw_torque"] = force[i[found]], torque[i[found]]
-    return out
 
 
 def _haptic_on_s(events: list[Event], end_ns: int) -> float:

@@ -701,7 +701,7 @@ def test_a_solver_failure_in_an_estimator_names_the_file_and_rows(tmp_path):
     """A LinAlgError inside an estimator is the input's (its numbers), not a traceback: file and rows named."""
     from hapticlab.sessions.offline.compensate import BLOCK, estimate_chunks
     from hapticlab.sessions.offline.numerics import NumericalError
-    from hapticlab.sessions.recording.stream import iter_stream
+    from hapticlab.sessions.recording.loader import iter_stream
 
     class Singular:
         calls = 0

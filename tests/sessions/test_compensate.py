@@ -305,9 +305,9 @@ def test_the_streamed_output_is_the_whole_file_output(tmp_path, monkeypatch, row
     """compensate reads, estimates and writes chunk by chunk; whatever the chunk size (shorter than a block,
     a block, several blocks and a tail) the output is the one the whole file in memory gave, byte for byte."""
     import hapticlab.sessions.offline.compensate as module
-    from hapticlab.sessions.recording import stream as stream_module
+    from hapticlab.sessions.recording import loader
 
-    monkeypatch.setattr(module, "iter_stream", lambda path: stream_module.iter_stream(path, rows))
+    monkeypatch.setattr(module, "iter_stream", lambda path: loader.iter_stream(path, rows))
     write_csv(tmp_path / "in.csv", n=4100)
     write_mcap_with_gaps(tmp_path / "gaps.mcap")
     for source, name in (
@@ -332,7 +332,7 @@ def test_a_chunk_without_usable_rows_carries_the_flags_over(tmp_path):
     before an unusable one, across chunk boundaries."""
     from hapticlab.core.host.registry import Registry
     from hapticlab.sessions.offline.compensate import estimate_chunks, run_estimator
-    from hapticlab.sessions.recording.stream import iter_stream
+    from hapticlab.sessions.recording.loader import iter_stream
 
     path = write_mcap_with_gaps(tmp_path / "gaps.mcap", n=2600)
     whole = run_estimator(load_stream(path), Registry().create("estimator", "rls", {}, where="estimator"))

@@ -233,7 +233,7 @@ def test_a_paced_loop_lets_the_simulated_devices_work_ahead_while_it_would_sleep
 
 
 class LoopClock:
-    """The live loop's ``time`` module, keeping the last ``monotonic_ns`` the loop read (its "now")."""
+    """The pacer's ``time`` module, keeping the last ``monotonic_ns`` the pacer read (its "now")."""
 
     def __init__(self):
         self.last_ns = 0
@@ -249,12 +249,12 @@ class LoopClock:
 def test_a_paced_loop_asks_ten_ticks_ahead_and_only_with_half_a_period_to_spare(tmp_path, paced_run, monkeypatch):
     """A device's work ahead waits for an idle moment: each is asked only while half a period is left, so a
     slow one (here the sensor's, 0.6 ms a call) leaves the other (the poses') no turn in its window. What is
-    left is the loop's own: its clock read, the one it decided on."""
-    from hapticlab.sessions.live import loop
-    from hapticlab.sessions.live.loop import PREPARE_AHEAD_TICKS
+    left is the pacer's own: its clock read, the one it decided on."""
+    from hapticlab.sessions.live import pacing
+    from hapticlab.sessions.live.pacing import PREPARE_AHEAD_TICKS
 
     clock = LoopClock()
-    monkeypatch.setattr(loop, "time", clock)
+    monkeypatch.setattr(pacing, "time", clock)
     session = build_session(demo(duration=0.5, realtime=True))
     period_ns = 1_000_000
     calls = []

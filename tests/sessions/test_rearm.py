@@ -105,8 +105,8 @@ def test_a_press_is_an_edge_and_a_lost_state_counts_as_held(tmp_path):
     lost_then_held = [None, state(0b1000)]  # unknown while lost: a button down after it is no press
     release_press = [state(0), state(0b1000)]
     for s in held_at_start + press_and_hold + lost_then_held + release_press:
-        loop._watch_button(s)
-    assert list(loop.rearm_requests) == ["button 3", "button 3"]
+        loop.commander.watch_button(s)
+    assert list(loop.commander.rearm_requests) == ["button 3", "button 3"]
 
 
 def test_a_rearm_with_nothing_latched_is_no_event(tmp_path):
@@ -117,7 +117,7 @@ def test_a_rearm_with_nothing_latched_is_no_event(tmp_path):
     assert loop.gate.rearm(0, "api") is None and not loop.gate.latched
     loop.rearm()
     loop.status.rearm("key r")
-    assert list(loop.rearm_requests) == ["api", "key r"]
+    assert list(loop.commander.rearm_requests) == ["api", "key r"]
 
 
 def test_the_r_key_is_read_without_blocking_from_a_terminal(pty_pair):

@@ -636,10 +636,11 @@ def test_damaged_chunk_is_skipped_not_salvaged_as_garbage(tmp_path, many_chunks)
 def test_the_message_encoder_writes_the_values_json_would_and_null_for_what_is_not_finite():
     """The recorder's JSON encoder (orjson) gives the values the standard library writes (its own spelling of
     a float may differ, e.g. 1e-05), numpy included, null for NaN and ±inf, and TypeError for an object."""
-    from hapticlab.sessions.recording.writer import _encode, _json_default
+    from hapticlab.sessions.recording.metadata import json_default
+    from hapticlab.sessions.recording.writer import _encode
 
     def reference(value):
-        return json.dumps(value, separators=(",", ":"), allow_nan=False, default=_json_default)
+        return json.dumps(value, separators=(",", ":"), allow_nan=False, default=json_default)
 
     rng = np.random.default_rng(3)
     messages = [

@@ -24,11 +24,11 @@ from hapticlab.sessions.recording import (
     read_recording,
     recover,
 )
+from hapticlab.sessions.recording.cdr_layouts import CDR_BLOCK_SCHEMAS
 from hapticlab.sessions.recording.reader import Recording
 from hapticlab.sessions.recording.schemas import (
     BLOCK_SCHEMA_TITLES,
     BLOCK_TOPICS,
-    CDR_BLOCK_SCHEMAS,
     ESTIMATOR_BLOCK_SCHEMA,
     FORMAT_VERSION,
     SCHEMAS,

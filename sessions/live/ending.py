@@ -1,0 +1,116 @@
+"""How every session ends the same way, whatever ended it: its duration, Ctrl-C, SIGTERM or SIGHUP, a part that raised.
+
+The final zero command is sent *and recorded*, the devices are closed (what they
+say while closing is recorded too), the estimator's state is saved, an
+``error`` event names what failed, the summary says ``interrupted`` and
+``error``, and the MCAP file is finished. A failure then raises
+``SessionError`` (its ``result.path`` is the complete recording). A shadow
+estimator that raises is dropped with an event and the session goes on.
+
+Python turns only SIGINT into ``KeyboardInterrupt``: :func:`signals_end_the_session`
+makes SIGTERM (a service manager) and SIGHUP (a closed terminal) do the same,
+and :func:`signals_noted` notes and ignores all three while the session ends, so
+the file is always finished. Only the main thread can install handlers: in any
+other thread both do nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from hapticlab.core.types import Event
+from hapticlab.sessions.live.build import EstimatorSlot, Session, calibration_path
+from hapticlab.sessions.recording import Recorder
+
+
+class PartFailed(Exception):
+    """A device, the primary estimator or the recording raised inside the loop; ``part`` names it."""
+
+    def __init__(self, part: str, exc: BaseException):
+        super().__init__(f"{part} raised {type(exc).__name__}: {exc}")
+        self.part = part
+
+
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+@contextmanager
+def signals_end_the_session(stopped_by: Callable[[str], None]) -> Iterator[None]:
+    """SIGTERM and SIGHUP raise ``KeyboardInterrupt``, as Ctrl-C does, after telling ``stopped_by`` their name."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        stopped_by(signal.Signals(signum).name)
+        raise KeyboardInterrupt
+
+    previous = {s: signal.signal(s, stop) for s in STOP_SIGNALS if s != signal.SIGINT}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+@contextmanager
+def signals_noted(noted: list[str]) -> Iterator[None]:
+    """Ctrl-C, SIGTERM and SIGHUP are appended to ``noted`` by name and otherwise ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {
+        s: signal.signal(s, lambda signum, frame: noted.append(signal.Signals(signum).name)) for s in STOP_SIGNALS
+    }
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def close_devices(
+    session: Session, end_ns: int, on_event: Callable[[Event], None], on_events: Callable[[list[Event], str], object]
+) -> None:
+    """Close the haptic device, the sensor and the kinematics, then record what the devices said while closing
+    (``on_events(events, label)``: their final health counters); what fails is an ``error`` event."""
+    for label, device in (("haptic", session.haptic), ("sensor", session.sensor), ("kinematics", session.kinematics)):
+        try:
+            device.close()
+        except Exception as exc:
+            on_event(Event(end_ns, "error", f"{label} did not close: {type(exc).__name__}: {exc}"))
+    for label, emitter in session.device_events:
+        try:
+            on_events(emitter.drain_events(), label)
+        except Exception as exc:
+            on_event(Event(end_ns, "error", f"{label} events lost: {type(exc).__name__}: {exc}"))
+
+
+def save_estimator_state(
+    primary: EstimatorSlot, recorder: Recorder, path: Path, end_ns: int, on_event: Callable[[Event], None]
+) -> str | None:
+    """The primary estimator's state in the recording's metadata and beside it (:func:`~.build.calibration_path`),
+    for the next session to start from; the path written, or None (an ``estimator_state_not_saved`` event:
+    a failing save never costs the recording)."""
+    assert primary.saves is not None
+    try:
+        state = primary.saves.state()
+        recorder.add_metadata("hapticlab.estimator_state", state)
+        state_path = calibration_path(path)
+        state_path.write_text(json.dumps(state, indent=1))
+        return str(state_path)
+    except Exception as exc:
+        on_event(Event(end_ns, "estimator_state_not_saved", f"estimator state not saved: {exc}"))
+        return None
+
+
+def ending_message(interrupted: bool, stopped_by: str, failed: bool) -> str:
+    """The ``session_end`` event's message."""
+    if interrupted:
+        return f"interrupted ({stopped_by})"
+    return "ended by an error" if failed else "session finished"

@@ -1,0 +1,35 @@
+"""Any recording as a :class:`~.stream.Stream`: a CSV (the import contract) or an MCAP file, by its suffix."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from hapticlab.sessions.recording.csvimport import CsvError, iter_csv
+from hapticlab.sessions.recording.mcapimport import iter_mcap
+from hapticlab.sessions.recording.stream import CHUNK_ROWS, Stream, unused_note
+
+
+def load_stream(path: str | os.PathLike[str]) -> Stream:
+    """Read a CSV (import contract) or an MCAP recording (``.mcap``) into a stream."""
+    stream = Stream.concatenate(list(iter_stream(path)))
+    stream.notes += unused_note(stream.name, int(np.count_nonzero(~stream.samples.usable)))
+    return stream
+
+
+def iter_stream(path: str | os.PathLike[str], rows: int = CHUNK_ROWS) -> Iterator[Stream]:
+    """A CSV or MCAP file as consecutive streams of at most ``rows`` rows, read as they are asked for.
+
+    Memory stays a small multiple of one chunk (plus, for an MCAP file, the
+    pose stream as arrays). The chunks concatenated are :func:`load_stream`'s
+    stream, but for the note on unused samples (:func:`~.stream.unused_note`: count them as they go).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise CsvError(f"{path}: no such file")
+    if path.suffix.lower() == ".mcap":
+        return iter_mcap(path, rows)
+    return iter_csv(path, rows)

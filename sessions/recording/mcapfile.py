@@ -1,0 +1,155 @@
+"""An MCAP file checked and opened: :class:`RecordingError`, its one-line messages, the file's summary.
+
+A file that is not MCAP, or is truncated or damaged, is a :class:`RecordingError`
+with one line that says what is wrong and to run ``hapticlab recover``. The
+summary (channels, schemas, message counts, chunk indexes) is parsed once per
+version of a file; :func:`read_head` and :func:`file_stats` answer from it
+without reading a message.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+from mcap.opcode import Opcode
+from mcap.reader import McapReader, make_reader
+from mcap.records import Channel
+
+from hapticlab.core.errors import UserError
+from hapticlab.sessions.recording.cdr_layouts import CDR_BLOCK_SCHEMAS
+from hapticlab.sessions.recording.schemas import BLOCK_SCHEMA_TITLES, MCAP_MAGIC
+
+
+class RecordingError(UserError, ValueError):
+    """A recording that cannot be read: not an MCAP file, truncated or corrupt."""
+
+
+def recover_hint(path: Path) -> str:
+    return f"run `hapticlab recover {path} -o FIXED.mcap` to salvage it"
+
+
+def _truncated(path: Path) -> RecordingError:
+    return RecordingError(f"{path} is truncated (no MCAP footer; the writer probably died): {recover_hint(path)}")
+
+
+def damaged(path: Path, exc: BaseException) -> RecordingError:
+    detail = str(exc).replace("\n", " ") or type(exc).__name__
+    return RecordingError(f"{path} is a damaged MCAP file ({detail}): {recover_hint(path)}")
+
+
+def check_mcap(path: Path) -> None:
+    """RecordingError unless ``path`` starts and ends with the MCAP magic and has a footer."""
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+        if head != MCAP_MAGIC:
+            raise RecordingError(f"{path} is not an MCAP file (bad magic bytes at the start)")
+        footer_len = 1 + 8 + 20  # opcode, length, Footer body
+        if size < 2 * len(MCAP_MAGIC) + footer_len:
+            raise _truncated(path)
+        f.seek(size - len(MCAP_MAGIC) - footer_len)
+        tail = f.read()
+    if tail[-len(MCAP_MAGIC) :] != MCAP_MAGIC or tail[0] != Opcode.FOOTER:
+        raise _truncated(path)
+
+
+def open_reader(path: Path) -> tuple[IO[bytes], McapReader, Any]:
+    """The file (the caller closes it), its MCAP reader (CRCs checked) and its summary (None when it has none)."""
+    check_mcap(path)
+    f = open(path, "rb")  # noqa: SIM115 - the caller closes it
+    try:
+        reader = make_reader(f, validate_crcs=True)  # a damaged chunk is an error, not bad data
+        stat = os.fstat(f.fileno())
+        summary = _summary(str(path), stat.st_mtime_ns, stat.st_size, reader)
+    except Exception as exc:
+        f.close()
+        raise damaged(path, exc) from None
+    return f, reader, summary
+
+
+_SUMMARIES: dict[tuple[str, int, int], Any] = {}
+
+
+def _summary(path: str, mtime_ns: int, size: int, reader) -> Any:
+    """The file's MCAP summary, parsed once per version of the file (a long session's has thousands of chunk
+    indexes: a review opens the file several times)."""
+    key = (path, mtime_ns, size)
+    if key not in _SUMMARIES:
+        if len(_SUMMARIES) >= 2:  # the file in hand (and the one before): a cohort's worker reads hundreds
+            _SUMMARIES.clear()
+        _SUMMARIES[key] = reader.get_summary()
+    return _SUMMARIES[key]
+
+
+def block_kind(schema: Any, channel: Channel) -> Any:
+    """None for a channel of single messages, ``"json"`` for JSON blocks (format 2), the
+    :class:`~.cdr_layouts.CdrBlock` layout for CDR blocks (format 3)."""
+    if schema is None:
+        return None
+    if channel.message_encoding == "cdr" and schema.encoding == "ros2msg":
+        return CDR_BLOCK_SCHEMAS.get(schema.name)
+    return "json" if schema.name in BLOCK_SCHEMA_TITLES else None
+
+
+@dataclass(frozen=True)
+class FileStats:
+    """What a recording's MCAP summary says without reading its messages (:func:`file_stats`).
+
+    Attributes:
+        start_ns, end_ns: the first and last message's log time, ns.
+        counts: messages per topic.
+    """
+
+    start_ns: int
+    end_ns: int
+    counts: dict[str, int]
+
+
+def file_stats(path: str | os.PathLike[str]) -> FileStats:
+    """The time span and message counts of a recording from its summary (a finished file: milliseconds)."""
+    path = Path(path)
+    f, _, summary = open_reader(path)
+    with f:
+        pass
+    stats = summary.statistics if summary is not None else None
+    if stats is None:
+        raise RecordingError(f"{path}: no summary statistics (an unfinished file?); {recover_hint(path)}")
+    counts: dict[str, int] = {}
+    for channel_id, channel in summary.channels.items():
+        counts[channel.topic] = counts.get(channel.topic, 0) + int(stats.channel_message_counts.get(channel_id, 0))
+    return FileStats(int(stats.message_start_time), int(stats.message_end_time), counts)
+
+
+def read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]], dict[str, int], set[str]]:
+    """Metadata records, schemas by topic, message counts by topic and the block topics (from the summary)."""
+    f, reader, summary = open_reader(path)
+    with f:
+        metadata: dict[str, dict[str, str]] = {}
+        try:
+            for record in reader.iter_metadata():
+                metadata.setdefault(record.name, {}).update(record.metadata)
+        except Exception as exc:
+            raise damaged(path, exc) from None
+        schemas: dict[str, dict[str, Any]] = {}
+        if summary is not None:
+            for channel in summary.channels.values():
+                schema = summary.schemas.get(channel.schema_id)
+                if schema is not None and schema.encoding == "jsonschema":
+                    try:
+                        schemas[channel.topic] = json.loads(schema.data)
+                    except ValueError:
+                        pass
+    counts: dict[str, int] = {}
+    block_topics: set[str] = set()
+    if summary is not None:
+        stats = summary.statistics.channel_message_counts if summary.statistics else {}
+        for channel_id, channel in summary.channels.items():
+            counts[channel.topic] = counts.get(channel.topic, 0) + int(stats.get(channel_id, 0))
+            schema = summary.schemas.get(channel.schema_id)
+            if block_kind(schema, channel) is not None:
+                block_topics.add(channel.topic)
+    return metadata, schemas, counts, block_topics

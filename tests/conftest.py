@@ -120,8 +120,9 @@ def pytest_runtest_makereport(item, call):
 # --------------------------------------------------------------------------- the tier guard
 
 TESTS = Path(__file__).resolve().parent
-_ALLOWED_SPAWNERS = ("hapticlab.sessions.recording.sinks", "hapticlab.sessions.recording.writer")
-"""Modules whose processes every session starts (the recording's writer, ``git rev-parse``): allowed anywhere."""
+_ALLOWED_SPAWNERS = ("hapticlab.sessions.recording.process_sink", "hapticlab.sessions.recording.metadata")
+"""Modules whose processes every session starts (the recording's writer process, ``git rev-parse`` for the metadata):
+allowed anywhere."""
 _current: list = [None]
 """The test being set up, run or torn down (its module fixtures included); None between tests."""
 

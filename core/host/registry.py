@@ -194,14 +194,26 @@ class Registry:
         return resolved
 
 
+def _options_class(factory: Callable[..., Any]) -> type | None:
+    """The ``Options`` dataclass of the class whose ``__init__`` builds the factory's objects, or None: a
+    subclass with an ``__init__`` of its own (and no ``Options`` of its own) is read from its signature."""
+    if not inspect.isclass(factory):
+        return None
+    for klass in factory.__mro__:
+        if "__init__" in vars(klass):
+            options = vars(klass).get("Options")
+            return options if isinstance(options, type) and dataclasses.is_dataclass(options) else None
+    return None
+
+
 def option_signature(factory: Callable[..., Any]) -> dict[str, tuple[Any, Any]]:
     """The keyword options a factory accepts: name -> (annotated type, default or ``Parameter.empty``).
 
     A factory with an ``Options`` dataclass (the typed options of the built-in estimators) takes its
     fields; any other factory its signature (a plain function or class of a third-party plugin).
     """
-    options_class = getattr(factory, "Options", None)
-    if dataclasses.is_dataclass(options_class) and isinstance(options_class, type):
+    options_class = _options_class(factory)
+    if options_class is not None:
         hints = typing.get_type_hints(options_class)
         return {
             f.name: (
@@ -294,7 +306,7 @@ def validate_options(
             hint = f"; did you mean {close[0]}?" if close else ""
             known = ", ".join(names) or "none"
             if len(known) > 240:  # one line still: a long list only by where it is documented
-                documented = getattr(factory, "Options", factory)
+                documented = _options_class(factory) or factory
                 known = f"{len(names)}, documented in {documented.__module__}.{documented.__qualname__}"
             raise ConfigError(f"{where}.{key}: unknown option{hint}; known options: {known}")
         if not _type_ok(value, accepted[key]):

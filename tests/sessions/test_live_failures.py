@@ -293,7 +293,7 @@ def test_a_plugin_without_its_interface_is_refused_at_build_time(registry):
     with pytest.raises(
         ConfigError,
         match=r"^estimator.name: estimator 'broken' \(tests\) is not a Estimator: "
-        r"it lacks cov_diag, update_block$",
+        r"it lacks update_block$",
     ):
         build_session(demo("estimator.name=broken"), registry)
 

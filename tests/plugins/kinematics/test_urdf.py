@@ -418,7 +418,7 @@ def test_a_urdf_file_path_works_like_a_shipped_name(registry, tmp_path):
             {"acceleration_window_s": 0, "joints": {"name": "trajectory_joints"}},
             r"^kinematics\.acceleration_window_s: must be a finite number > 0 and <= 1 s, got 0",
         ),
-        ({"joints": "ur_rtde"}, r"^kinematics\.joints: expected"),
+        ({"joints": "ur_rtde"}, r"^kinematics\.joints: must be"),
     ],
 )
 def test_config_errors_name_the_key(registry, options, message):

@@ -147,7 +147,7 @@ class RandomTour(MotionScript):
         dwell_s: float = 0.0,
         max_translation: float = 0.0,
         waypoints: int | None = None,
-        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+        p_BoEo_B: Sequence[float] | np.ndarray = DEFAULT_P_BoEo_B,
     ):
         if segment_s <= 0:
             raise ValueError(f"segment_s must be > 0, got {segment_s!r}")
@@ -278,7 +278,7 @@ class StaticPoses(RandomTour):
         move_s: float = 2.0,
         max_translation: float = 0.0,
         poses: int | None = None,
-        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+        p_BoEo_B: Sequence[float] | np.ndarray = DEFAULT_P_BoEo_B,
     ):
         super().__init__(
             seed=seed,

@@ -11,12 +11,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
-from typing import TYPE_CHECKING, Any, TypeVar, cast, dataclass_transform
+from typing import Any, TypeVar, cast, dataclass_transform
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from _typeshed import DataclassInstance
 
 _Record = TypeVar("_Record")
 
@@ -25,15 +22,12 @@ _Record = TypeVar("_Record")
 def record(cls: type[_Record]) -> type[_Record]:
     """``@dataclass(frozen=True, slots=True)``, with an ``__init__`` that sets each field through its slot.
 
-    A frozen dataclass's own ``__init__`` sets each field with ``object.__setattr__`` (its ``__setattr__``
-    raises); the slot's descriptor does it in about half the time, and every tick builds several of these
-    records (a wrench block, aligned samples, estimates, a command, a device state). Nothing else changes:
-    the same arguments, positional or by name, with the same defaults; assigning a field still raises
-    ``FrozenInstanceError``; equality, ``repr``, ``dataclasses.replace`` and pickling are the dataclass's.
-    For records whose fields have plain defaults (no ``default_factory``).
+    Quicker than the dataclass's own (``object.__setattr__`` per field), and every tick builds several records.
+    Nothing else changes: the same arguments and defaults; assigning a field raises ``FrozenInstanceError``;
+    equality, ``repr``, ``replace`` and pickling are the dataclass's. Fields need plain defaults (no factory).
     """
     cls = dataclass(frozen=True, slots=True)(cls)
-    record_fields = fields(cast("type[DataclassInstance]", cls))  # dataclass() has just made it one
+    record_fields = fields(cast(Any, cls))  # a dataclass: the line above made it one
     names = [f.name for f in record_fields]
     namespace: dict[str, Any] = {f"_set_{name}": getattr(cls, name).__set__ for name in names}
     params = []

@@ -193,11 +193,11 @@ class Aligner:
                 t,
                 self._t,
                 self._q,
-                self._p if with_p else _NO_POSITIONS,
+                self._p if self._p is not None else _NO_POSITIONS,
                 self.period_ns,
                 quat_BE,
                 R_EB,
-                p_BoEo_B if with_p else _NO_POSITIONS,
+                p_BoEo_B if p_BoEo_B is not None else _NO_POSITIONS,
                 stale,
             )
         else:

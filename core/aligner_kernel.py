@@ -27,7 +27,7 @@ from numba import njit
 
 
 @njit(cache=True)
-def _slerp(q0, q1, u, out):
+def _slerp(q0: np.ndarray, q1: np.ndarray, u: float, out: np.ndarray) -> None:
     dot = q0[0] * q1[0] + q0[1] * q1[1] + q0[2] * q1[2] + q0[3] * q1[3]
     sign = -1.0 if dot < 0.0 else 1.0  # the shorter way round
     c = min(abs(dot), 1.0)
@@ -47,7 +47,7 @@ def _slerp(q0, q1, u, out):
 
 
 @njit(cache=True)
-def _multiply(a, b, out):
+def _multiply(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     """out = a ⊗ b (Hamilton, [w, x, y, z])."""
     out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3]
     out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2]
@@ -56,7 +56,17 @@ def _multiply(a, b, out):
 
 
 @njit(cache=True)
-def align_block(t_ns, pose_t_ns, quat_BE, p_BoEo_B, period_ns, out_quat_BE, out_R_EB, out_p_BoEo_B, out_stale):
+def align_block(
+    t_ns: np.ndarray,
+    pose_t_ns: np.ndarray,
+    quat_BE: np.ndarray,
+    p_BoEo_B: np.ndarray,
+    period_ns: int,
+    out_quat_BE: np.ndarray,
+    out_R_EB: np.ndarray,
+    out_p_BoEo_B: np.ndarray,
+    out_stale: np.ndarray,
+) -> None:
     """Orientation (and position) of E in B at each sample time, in place.
 
     Args:

@@ -13,6 +13,7 @@ contract and the MCAP topics. Rotations go through ``scipy.spatial.transform``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -88,7 +89,8 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
     """Inverse of unit [w, x, y, z] quaternions: the orientation R_AB of a given R_BA."""
-    return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+    conjugate: np.ndarray = np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+    return conjugate
 
 
 def quat_slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -104,7 +106,8 @@ def quat_slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
     w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / safe)
     w1 = np.where(small, u, np.sin(u * theta) / safe)
     q = w0[:, None] * q0 + w1[:, None] * q1
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    unit: np.ndarray = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return unit
 
 
 def quat_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
@@ -117,7 +120,7 @@ def quat_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     return np.concatenate([np.cos(half)[..., None], rotvec * k[..., None]], axis=-1)
 
 
-def rotvec_from_quat(q) -> np.ndarray:
+def rotvec_from_quat(q: np.ndarray | Sequence[float]) -> np.ndarray:
     """Rotation vector (axis · angle, rad) of one [w, x, y, z] unit quaternion, angle in [0, π] (plain floats)."""
     w, x, y, z = (float(v) for v in q)
     if w < 0:
@@ -159,7 +162,7 @@ def quat_wxyz_from_matrix(R: np.ndarray) -> np.ndarray:
     K_flat[:, 5::5] = (1.0 - trace)[:, None] + 2.0 * R_flat[:, ::4]  # 1 − tr + 2 R_ii
     K_flat[:, 0] = 1.0 + trace
     K[:, 0, 1:] = K[:, 1:, 0] = (R - R.transpose(0, 2, 1)).reshape(n, 9)[:, _VEE]
-    quat = K[np.arange(n), np.argmax(K_flat[:, ::5], axis=1)]
+    quat: np.ndarray = K[np.arange(n), np.argmax(K_flat[:, ::5], axis=1)]
     # normalise, and pick the sign with w >= 0 (the same rotation, easier to read)
     quat *= np.where(quat[:, :1] < 0, -1.0, 1.0) / np.linalg.norm(quat, axis=1, keepdims=True)
     return quat
@@ -192,7 +195,8 @@ def rotvec_from_matrix(R: np.ndarray) -> np.ndarray:
     """
     R = np.asarray(R, dtype=float)
     if R.shape != (3, 3):
-        return Rotation.from_matrix(R).as_rotvec()
+        rotvecs: np.ndarray = Rotation.from_matrix(R).as_rotvec()
+        return rotvecs
     return rotvec_from_quat(_quat_floats(R))
 
 
@@ -204,7 +208,8 @@ def matrix_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     """
     rotvec = np.asarray(rotvec, dtype=float)
     if rotvec.shape != (3,):
-        return Rotation.from_rotvec(rotvec).as_matrix()
+        matrices: np.ndarray = Rotation.from_rotvec(rotvec).as_matrix()
+        return matrices
     x, y, z = rotvec.tolist()
     theta2 = x * x + y * y + z * z
     if theta2 < 1e-8:  # θ < 1e-4: the series' next terms are below 1e-18

@@ -11,26 +11,27 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
-from typing import Any
+from typing import Any, TypeVar, cast, dataclass_transform
 
 import numpy as np
 
+_Record = TypeVar("_Record")
 
-def record(cls):
+
+@dataclass_transform(frozen_default=True)
+def record(cls: type[_Record]) -> type[_Record]:
     """``@dataclass(frozen=True, slots=True)``, with an ``__init__`` that sets each field through its slot.
 
-    A frozen dataclass's own ``__init__`` sets each field with ``object.__setattr__`` (its ``__setattr__``
-    raises); the slot's descriptor does it in about half the time, and every tick builds several of these
-    records (a wrench block, aligned samples, estimates, a command, a device state). Nothing else changes:
-    the same arguments, positional or by name, with the same defaults; assigning a field still raises
-    ``FrozenInstanceError``; equality, ``repr``, ``dataclasses.replace`` and pickling are the dataclass's.
-    For records whose fields have plain defaults (no ``default_factory``).
+    Quicker than the dataclass's own (``object.__setattr__`` per field), and every tick builds several records.
+    Nothing else changes: the same arguments and defaults; assigning a field raises ``FrozenInstanceError``;
+    equality, ``repr``, ``replace`` and pickling are the dataclass's. Fields need plain defaults (no factory).
     """
     cls = dataclass(frozen=True, slots=True)(cls)
-    names = [f.name for f in fields(cls)]
+    record_fields = fields(cast(Any, cls))  # a dataclass: the line above made it one
+    names = [f.name for f in record_fields]
     namespace: dict[str, Any] = {f"_set_{name}": getattr(cls, name).__set__ for name in names}
     params = []
-    for f in fields(cls):
+    for f in record_fields:
         if f.default_factory is not MISSING:
             raise TypeError(f"record {cls.__name__}.{f.name}: a default_factory needs the dataclass's own __init__")
         if f.default is MISSING:
@@ -43,7 +44,7 @@ def record(cls):
     init = namespace["__init__"]
     init.__qualname__ = f"{cls.__qualname__}.__init__"
     init.__annotations__ = dict(cls.__init__.__annotations__)
-    cls.__init__ = init
+    cls.__init__ = init  # type: ignore[method-assign]  # replacing the dataclass's __init__ is the point
     return cls
 
 
@@ -118,7 +119,7 @@ class WrenchBlock:
             )
         )
 
-    def subset(self, index) -> "WrenchBlock":
+    def subset(self, index: slice | np.ndarray) -> "WrenchBlock":
         """The readings selected by a slice, a boolean mask or an index array."""
         return WrenchBlock(
             self.t_ns[index], self.force_S[index], self.torque_S[index], self.seq[index], self.status[index]
@@ -217,7 +218,7 @@ class AlignedSamples:
     @property
     def usable(self) -> np.ndarray:
         """(N,) samples an estimator may see: orientation not stale, status good, wrench and pose finite."""
-        ok = (
+        ok: np.ndarray = (
             ~self.stale
             & (self.status == STATUS_OK)
             & np.isfinite(self.force_S).all(1)
@@ -228,7 +229,7 @@ class AlignedSamples:
             ok &= np.isfinite(self.p_BoEo_B).all(1)
         return ok
 
-    def subset(self, index) -> "AlignedSamples":
+    def subset(self, index: slice | np.ndarray) -> "AlignedSamples":
         """The samples selected by a boolean mask or index array."""
         return AlignedSamples(
             self.t_ns[index],
@@ -274,7 +275,9 @@ class Estimates:
         return len(self.t_ns)
 
     @classmethod
-    def concatenate(cls, parts: list["Estimates"], params=None, cov_diag=None) -> "Estimates":
+    def concatenate(
+        cls, parts: list["Estimates"], params: dict[str, list[float]] | None = None, cov_diag: list[float] | None = None
+    ) -> "Estimates":
         """Consecutive blocks' estimates as one (``params``/``cov_diag`` describe the end)."""
         return cls(
             t_ns=np.concatenate([p.t_ns for p in parts]),
@@ -366,7 +369,7 @@ class Event:
     t_ns: int
     kind: str
     message: str
-    data: dict = field(default_factory=dict)
+    data: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

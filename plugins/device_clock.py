@@ -49,7 +49,7 @@ class DeviceClock:
         if self.offset_ns is None:
             self.offset_ns = seen
         else:
-            self.offset_ns = min(seen, self.offset_ns + self.slew * (k - self.last_k) * self.period_ns)
+            self.offset_ns = min(seen, self.offset_ns + self.slew * (k - self.last_k) * self.period_ns)  # type: ignore[operator]  # last_k is set with offset_ns
         self.last_k = k
         t_ns = int(round(device_ns + self.offset_ns))
         if self.last_t_ns is not None and t_ns <= self.last_t_ns:
@@ -68,7 +68,7 @@ class DeviceClock:
         base = received_ns - k * (self.period_ns + c)  # seen − c·k
         np.minimum.accumulate(base, out=base)
         if self.offset_ns is not None:
-            np.minimum(base, self.offset_ns - c * self.last_k, out=base)
+            np.minimum(base, self.offset_ns - c * self.last_k, out=base)  # type: ignore[operator]  # set with offset_ns
         self.offset_ns, self.last_k = float(base[-1] + c * k[-1]), int(k[-1])
         step = np.arange(len(k))
         u = np.rint(base + k * (self.period_ns + c)).astype(np.int64) - step  # t − i

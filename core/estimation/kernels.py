@@ -16,8 +16,8 @@ KERNELS = ("numba", "numpy")
 """The values of the estimators' ``kernel`` option."""
 
 
-def kernel_option(value) -> str:
+def kernel_option(value: object) -> str:
     """A ``kernel`` option: "numba" (compiled, the default) or "numpy" (the reference); ValueError naming the key."""
-    if value not in KERNELS:
+    if not isinstance(value, str) or value not in KERNELS:
         raise ValueError(f"kernel: must be 'numba' (compiled) or 'numpy' (the reference), got {value!r}")
     return value

@@ -17,7 +17,9 @@ from numba import njit
 
 
 @njit(cache=True)
-def all_plausible(force_S, torque_S, R_EB, max_force, max_torque, tolerance):
+def all_plausible(
+    force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, max_force: float, max_torque: float, tolerance: float
+) -> bool:
     """True when no sample of the block would be refused.
 
     Args:

@@ -56,5 +56,5 @@ def register_emulators(register: Register) -> None:
 
 
 @hookspec
-def register_commands(cli: argparse._SubParsersAction) -> None:
+def register_commands(cli: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add subcommands to the ``hapticlab`` command line: cli.add_parser(...), set_defaults(func=...)."""

@@ -19,7 +19,7 @@ world built from the session's ``[world]`` table.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -204,8 +204,8 @@ class SavesState(Protocol):
     dict or file, raising ``ValueError("warm_start: ...")`` when it cannot.
     """
 
-    def state(self) -> dict: ...
-    def load_state(self, source: str | Path | dict) -> None: ...
+    def state(self) -> dict[str, Any]: ...
+    def load_state(self, source: str | Path | dict[str, Any]) -> None: ...
 
 
 @runtime_checkable

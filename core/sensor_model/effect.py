@@ -68,11 +68,13 @@ class ModelState:
     @property
     def R_SB(self) -> np.ndarray:
         """(n, 3, 3) orientation of B in S at each sample."""
-        return self.R_SE @ self.motion.R_EB
+        R_SB: np.ndarray = self.R_SE @ self.motion.R_EB
+        return R_SB
 
     def to_S(self, v_E: np.ndarray) -> np.ndarray:
         """(n, 3) vectors in E expressed in S."""
-        return v_E @ self.R_SE.T
+        v_S: np.ndarray = v_E @ self.R_SE.T
+        return v_S
 
     @property
     def weight_S(self) -> np.ndarray:

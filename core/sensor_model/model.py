@@ -116,6 +116,7 @@ class Model:
             for name, effect in self.effects:
                 if effect.stage == stage:
                     state = effect.apply(state, theta[self.slices[name]])
+        assert state.force_S is not None and state.torque_S is not None  # set by the load stage
         return state.force_S, state.torque_S
 
     def predict6(self, motion: Motion, theta: np.ndarray) -> np.ndarray:

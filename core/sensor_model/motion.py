@@ -13,6 +13,7 @@ into E, time s (or rows when the file's ``t`` counts them).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,11 +64,11 @@ class Motion:
         """True when ``t`` is in seconds and the derivatives exist."""
         return self.time_base == "seconds" and self.w_E is not None
 
-    def subset(self, index) -> Motion:
+    def subset(self, index: slice | np.ndarray) -> Motion:
         """The samples selected by a mask or index array (of a recorded motion, not a shifted one)."""
         if self.source is not None:
             raise ValueError("subset() of a shifted motion; take the subset of the recording, then shift")
-        pick = lambda a: None if a is None else a[index]  # noqa: E731
+        pick: Callable[[np.ndarray | None], np.ndarray | None] = lambda a: None if a is None else a[index]  # noqa: E731
         return Motion(
             self.t[index],
             self.R_EB[index],
@@ -96,7 +97,9 @@ class Motion:
         span = t[k + 1] - t[k]
         u = np.clip(np.divide(at - t[k], span, out=np.zeros_like(at), where=span > 0), 0.0, 1.0)
         quat = quat_slerp(src.quat_BE[k], src.quat_BE[k + 1], u)
-        lerp = lambda a: None if a is None else a[k] + u[:, None] * (a[k + 1] - a[k])  # noqa: E731
+        lerp: Callable[[np.ndarray | None], np.ndarray | None] = (  # noqa: E731
+            lambda a: None if a is None else a[k] + u[:, None] * (a[k + 1] - a[k])
+        )
         return Motion(
             t,
             matrix_from_quat_wxyz(quat).transpose(0, 2, 1),
@@ -179,7 +182,8 @@ def savgol_t(x: np.ndarray, t: np.ndarray, window: int, deriv: int, order: int =
         e[:, p] = np.prod(np.arange(p - deriv + 1, p + 1)) * at ** (p - deriv)
     coef = np.linalg.solve(VtV, e[:, :, None])[:, :, 0]  # (n, order+1): (VᵀV)⁻¹ e
     weights = np.einsum("nwi,ni->nw", V, coef) / h**deriv  # (n, window)
-    return np.einsum("nw,nwk->nk", weights, x[idx])
+    smoothed: np.ndarray = np.einsum("nw,nwk->nk", weights, x[idx])
+    return smoothed
 
 
 def motion_from_poses(
@@ -219,6 +223,7 @@ def motion_from_poses(
     if window > len(t):
         window = len(t) if len(t) % 2 else len(t) - 1
     steps = np.diff(t)
+    sg: Callable[[np.ndarray, int], np.ndarray]
     if np.ptp(steps) <= 1e-6 * dt:  # evenly spaced: the uniform filter (a correlation, faster)
         sg = lambda x, d: savgol(x, window, d, dt)  # noqa: E731
     else:

@@ -22,7 +22,7 @@ from numba import njit
 
 
 @njit(cache=True)
-def play(x, r, h0, out):
+def play(x: np.ndarray, r: np.ndarray, h0: np.ndarray, out: np.ndarray) -> np.ndarray:
     """Run the play operator over ``x`` in row order; fill ``out`` and return the last output.
 
     Args:
@@ -63,4 +63,5 @@ def play_signed(x: np.ndarray, r: np.ndarray) -> np.ndarray:
         return x.copy()
     out = np.empty_like(x)
     play(x, np.abs(r), x[0].copy(), out)
-    return x + np.sign(r) * (out - x)
+    signed: np.ndarray = x + np.sign(r) * (out - x)
+    return signed

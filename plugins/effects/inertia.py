@@ -23,6 +23,8 @@ the recorded poses (``hapticlab.core.sensor_model.motion.motion_from_poses``).
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from hapticlab.core import hookimpl
@@ -51,7 +53,7 @@ class Inertia(Effect):
             return "needs a time base in seconds (t counts rows here)"
         if motion.rate_hz is not None and motion.rate_hz < MIN_RATE_HZ:
             return f"needs at least {MIN_RATE_HZ:g} samples/s to see accelerations (here {motion.rate_hz:.3g})"
-        if np.abs(motion.w_E).max() < 0.05:
+        if np.abs(cast(np.ndarray, motion.w_E)).max() < 0.05:  # (has_time: the derivatives exist)
             return "the flange hardly turns (angular speed below 0.05 rad/s)"
         return None
 
@@ -67,8 +69,9 @@ class Inertia(Effect):
         motion = state.motion
         c = state.cog_S
         r = c + np.asarray(params[7:10], dtype=float)  # the centre of mass from the flange origin, in S
-        w_S = state.to_S(motion.w_E)
-        alpha_S = state.to_S(motion.alpha_E)
+        # (check() asked for a time base: the derivatives exist)
+        w_S = state.to_S(cast(np.ndarray, motion.w_E))
+        alpha_S = state.to_S(cast(np.ndarray, motion.alpha_E))
         a_cm = cross(alpha_S, r) + cross(w_S, cross(w_S, r))
         if motion.a_B is not None:
             a_cm = a_cm + state.to_S(np.einsum("nij,nj->ni", motion.R_EB, motion.a_B))

@@ -11,6 +11,8 @@ recording's motion allows, not only a fraction of a sample.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from hapticlab.core import hookimpl
@@ -28,7 +30,7 @@ class TimeLag(Effect):
     def check(self, motion: Motion) -> str | None:
         if not motion.has_time:
             return "needs a time base in seconds (t counts rows here)"
-        if np.abs(motion.w_E).max() < 0.05:
+        if np.abs(cast(np.ndarray, motion.w_E)).max() < 0.05:  # (has_time: the derivatives exist)
             return "the flange hardly turns (angular speed below 0.05 rad/s)"
         # central differences over one sample period
         self.steps = (0.5 / motion.rate_hz,) if motion.rate_hz else (5e-4,)

@@ -133,7 +133,7 @@ class FrameDecoder:
         """Every complete frame in the stream so far, in order; an incomplete tail waits for more bytes."""
         buf = self.buffer
         buf += data
-        frames = []
+        frames: list[Frame] = []
         while True:
             start = buf.find(SYNC)
             if start < 0:  # keep a trailing 0xA5: it may be the first half of a sync pair

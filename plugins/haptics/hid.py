@@ -121,14 +121,14 @@ class HidHaptic:
                 "vendor_id" if vendor_id is None else "product_id",
                 "must be given with a layout table (or haptic.path), e.g. --set haptic.vendor_id=0x16C0",
             )
-        for key, value in (
+        for key, ident in (
             ("vendor_id", vendor_id),
             ("product_id", product_id),
             ("usage_page", usage_page),
             ("usage", usage),
         ):
-            if value is not None:
-                integer(key, value, minimum=0, maximum=0xFFFF, hint=" (16 bits)")
+            if ident is not None:
+                integer(key, ident, minimum=0, maximum=0xFFFF, hint=" (16 bits)")
         choice("transport", transport, ("hidapi", "fake"))
         try:
             faults = [FakeFault.parse(text) for text in fake_faults or []]
@@ -288,7 +288,7 @@ class HidHaptic:
                 continue
             if self._echo_mask is None:
                 newest = values
-            elif (values["echo"] - sent_seq) & self._echo_mask == 0:
+            elif (values["echo"] - sent_seq) & self._echo_mask == 0:  # type: ignore[operator]  # echo is an integer field
                 return values
             else:
                 self.counters["stale_reports"] += 1
@@ -369,7 +369,7 @@ class HidHaptic:
     def _retry(self) -> None:
         """Reopen a device that went away; it stays lost until an IN report answers the try."""
         self.next_try = time.monotonic() + self.reconnect_interval
-        if self.lost.cause == "gone":
+        if self.lost.cause == "gone":  # type: ignore[union-attr]  # _retry runs while lost
             self.transport.close()
             try:
                 self.info = self.transport.open(self.selector)
@@ -379,7 +379,7 @@ class HidHaptic:
     def _still_lost(self, why: str) -> MasterLostError:
         """The loss's own message first (the session records one event per distinct message up to its first
         " ("), then why it is still lost."""
-        return MasterLostError(f"{self.lost.args[0]} (still lost: {why})", "lost")
+        return MasterLostError(f"{self.lost.args[0]} (still lost: {why})", "lost")  # type: ignore[union-attr]  # asked while lost
 
     def _report_counters(self, t_ns: int) -> None:
         event = link_event(t_ns, self.counters, self._reported)

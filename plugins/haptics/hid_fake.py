@@ -97,7 +97,7 @@ class FakeRawHidMaster:
     forces: list[np.ndarray] = field(default_factory=list)
     plugged: bool = True
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.p_DoHo_D = np.zeros(3)
         self.v_DHo_D = np.zeros(3)
         self.applied_force_D = np.zeros(3)
@@ -150,7 +150,7 @@ class FakeRawHidMaster:
             return
         values = out.decode(data)
         force_D = np.array([values["force_x"], values["force_y"], values["force_z"]], dtype=float)
-        if "flags" in values and not values["flags"] & 1:
+        if "flags" in values and not values["flags"] & 1:  # type: ignore[operator]  # flags is an integer field
             force_D = np.zeros(3)
         self.forces.append(force_D)
         status = 0

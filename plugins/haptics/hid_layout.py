@@ -144,7 +144,7 @@ class Field:
     def pack_into(self, buffer: bytearray, value: float, toward_zero: bool = False) -> None:
         self.type.fmt.pack_into(buffer, self.offset, self.counts(value, toward_zero))
 
-    def unpack(self, data: bytes) -> float:
+    def unpack(self, data: bytes | bytearray) -> float:
         """The field's value in SI units (an int for counters)."""
         (n,) = self.type.fmt.unpack_from(data, self.offset)
         return n if self.name in COUNTER_FIELDS else n * self.scale

@@ -198,7 +198,7 @@ class HidapiTransport:
 
     def _error(self) -> str:
         try:
-            return self.device.error() or "unknown error"
+            return self.device.error() or "unknown error"  # type: ignore[union-attr]  # asked while open
         except (OSError, ValueError):
             return "unknown error"
 

@@ -114,7 +114,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Serve until Ctrl-C, SIGTERM or ``--duration``; the first line printed is the port to open."""
-    from hapticlab.core.host.registry import ConfigError
+    from hapticlab.core.errors import ConfigError
 
     try:
         motion = (

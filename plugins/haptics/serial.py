@@ -207,7 +207,7 @@ class SerialHaptic:
                 self._lose(
                     MasterLostError(f"{self.port_name}: {self.errors_in_row} bad replies in a row", "errors"), t_ns
                 )
-                raise self.lost
+                raise self.lost  # type: ignore[misc]  # _lose has just set it
             return
         self.errors_in_row = 0
         if reading.status & framing.STATUS_FAULT:
@@ -217,7 +217,7 @@ class SerialHaptic:
                 ),
                 t_ns,
             )
-            raise self.lost
+            raise self.lost  # type: ignore[misc]  # _lose has just set it
         self._state = DeviceState(t_ns, IDENTITY_QUAT, reading.p_DoHo_D, reading.buttons, reading.v_DHo_D)
         self.status = reading.status
         if reading.status:
@@ -287,7 +287,7 @@ class SerialHaptic:
         self.next_try = time.monotonic() + self.reconnect_interval
         if error.cause in ("silent", "errors"):  # it may still hear us: zero, at once, best effort
             try:
-                self.link.post(ZERO3_F32)
+                self.link.post(ZERO3_F32)  # type: ignore[union-attr]  # lost while open
             except MasterLostError:
                 pass
 
@@ -298,19 +298,19 @@ class SerialHaptic:
         """
         self.next_try = time.monotonic() + self.reconnect_interval
         try:
-            if self.lost.cause == "gone":
-                self.port.close()
+            if self.lost.cause == "gone":  # type: ignore[union-attr]  # _retry runs while lost
+                self.port.close()  # type: ignore[union-attr]  # open
                 self.port = SerialPort(self.port_name, self.baudrate, self.read_timeout)
                 self.link = self._make_link(self.port)
-            if self.lost.cause in ("gone", "restarted"):
-                self.info = self.link.handshake(min(self.open_timeout, self.reconnect_interval))
+            if self.lost.cause in ("gone", "restarted"):  # type: ignore[union-attr]  # _retry runs while lost
+                self.info = self.link.handshake(min(self.open_timeout, self.reconnect_interval))  # type: ignore[union-attr]  # open
         except (MasterOpenError, MasterLostError) as exc:
             raise self._still_lost(f"trying again failed: {exc}") from None
 
     def _still_lost(self, why: str) -> MasterLostError:
         """The error a lost device's ``send`` raises: the loss's own message first (the session records
         one event per distinct message up to its first " ("), then why it is still lost."""
-        return MasterLostError(f"{self.lost.args[0]} (still lost: {why})", "lost")
+        return MasterLostError(f"{self.lost.args[0]} (still lost: {why})", "lost")  # type: ignore[union-attr]  # asked while lost
 
     def _make_link(self, port: SerialPort) -> MasterLink:
         if self.protocol == "hapticlab":
@@ -320,9 +320,9 @@ class SerialHaptic:
         return Inverse3Link(port, self.read_timeout)
 
     def _report_counters(self, t_ns: int) -> None:
-        event = link_event(t_ns, self.link.counters, self._reported)
+        event = link_event(t_ns, self.link.counters, self._reported)  # type: ignore[union-attr]  # send() checked it is open
         if event is not None:
-            self._reported = dict(self.link.counters)
+            self._reported = dict(self.link.counters)  # type: ignore[union-attr]  # send() checked it is open
             self._events.append(event)
 
 

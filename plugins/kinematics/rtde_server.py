@@ -181,7 +181,7 @@ class RTDEServer:
         values = outputs(cycle)
         for client, recipe in due:
             recipe.next_cycle += recipe.every
-            row = []
+            row: list[Any] = []
             for name in recipe.names:
                 value = values[name] if name in values else inputs.get(name, zero(OUTPUT_TYPES[name]))
                 row.extend(value if isinstance(value, tuple) else (value,))
@@ -195,7 +195,7 @@ class RTDEServer:
         server = self._socket
         while not self._stop.is_set():
             try:
-                sock, peer = server.accept()
+                sock, peer = server.accept()  # type: ignore[union-attr]  # open() set it before starting this thread
             except TimeoutError:
                 continue
             except OSError:
@@ -264,13 +264,13 @@ class RTDEServer:
             client.streaming = False
             client.send(package(kind, b"\x01"))
         elif kind == DATA_PACKAGE:
-            recipe = client.inputs.get(payload[0]) if payload else None
-            if recipe is None:
+            input_recipe = client.inputs.get(payload[0]) if payload else None
+            if input_recipe is None:
                 client.send(
                     pack_text_message(f"data package for unknown input recipe {payload[:1].hex()}", level=ERROR)
                 )
                 return
-            fields, packer = recipe
+            fields, packer = input_recipe
             flat = list(packer.unpack(payload[1 : 1 + packer.size]))
             with self._lock:
                 for name in fields:

@@ -108,7 +108,9 @@ class SimKinematics:
             return []
         faults = self.world.faults
         t = (np.array(t_ns) - self._clock.t0_ns) / 1e9 if faults else None
-        if faults and kinematics_faults_act(faults, t):  # injected ([[world.faults]]): frozen, late or missing poses
+        if t is not None and kinematics_faults_act(
+            faults, t
+        ):  # injected ([[world.faults]]): frozen, late or missing poses
             t, t_reading, keep = kinematics_times(faults, t)
             t_ns, t = [t_ns[k] for k in np.flatnonzero(keep)], t[keep]
             if len(t_ns) == 0:

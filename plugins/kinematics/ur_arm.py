@@ -30,10 +30,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 
 from hapticlab.core.host.options import choice
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 
 @dataclass(frozen=True)
@@ -49,6 +53,10 @@ class DH:
     a: np.ndarray
     d: np.ndarray
     alpha: np.ndarray
+
+    if TYPE_CHECKING:  # the dataclass's own __init__ at run time, which takes any sequence of six numbers
+
+        def __init__(self, a: npt.ArrayLike, d: npt.ArrayLike, alpha: npt.ArrayLike) -> None: ...
 
     def __post_init__(self) -> None:
         for name in ("a", "d", "alpha"):
@@ -114,6 +122,10 @@ def forward(dh: DH, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array(R), np.array([px, py, pz])
 
 
+@overload
+def _wrap(angle: np.ndarray) -> np.ndarray: ...
+@overload
+def _wrap(angle: float) -> float: ...
 def _wrap(angle: np.ndarray | float) -> np.ndarray | float:
     """Angle(s) wrapped into [−π, π)."""
     return (np.asarray(angle) + np.pi) % (2 * np.pi) - np.pi

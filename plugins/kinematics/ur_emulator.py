@@ -305,7 +305,7 @@ class UREmulator:
     def _controller_loop(self) -> None:
         """Every cycle whose time has come: send the packages due (bursts about once a millisecond)."""
         while not self._stop.is_set():
-            due = math.floor((time.monotonic_ns() - self.t0_ns) * self.cycle_hz / 1e9)
+            due = math.floor((time.monotonic_ns() - self.t0_ns) * self.cycle_hz / 1e9)  # type: ignore[operator]  # started: t0_ns is set
             while self._cycle <= due and not self._stop.is_set():
                 if self.follows:
                     self._follow(self._cycle)

@@ -88,9 +88,9 @@ class TargetWriter:
             stderr=subprocess.DEVNULL,
             text=False,
         )
-        self._pipe = self._proc.stdin.fileno()
-        ready, _, _ = select.select([self._proc.stdout], [], [], WRITER_START_TIMEOUT_S)
-        line = self._proc.stdout.readline().decode(errors="replace").strip() if ready else ""
+        self._pipe = self._proc.stdin.fileno()  # type: ignore[union-attr]  # stdin=PIPE
+        ready, _, _ = select.select([self._proc.stdout], [], [], WRITER_START_TIMEOUT_S)  # type: ignore[type-var]  # stdout=PIPE
+        line = self._proc.stdout.readline().decode(errors="replace").strip() if ready else ""  # type: ignore[union-attr]  # stdout=PIPE
         if line != "ready":
             self._proc.kill()
             self._proc.wait()
@@ -104,7 +104,7 @@ class TargetWriter:
             os.write(self._pipe, RECORD.pack(*position, *rotation))
         except (BrokenPipeError, OSError):
             self._proc.wait()
-            why = self._proc.stdout.read().decode(errors="replace").strip().removeprefix("error: ")
+            why = self._proc.stdout.read().decode(errors="replace").strip().removeprefix("error: ")  # type: ignore[union-attr]  # stdout=PIPE
             raise ConnectionError(
                 f"UR controller {self.address}: the target writer stopped "
                 f"(exit status {self._proc.returncode}){': ' + why if why else ''}"
@@ -113,7 +113,7 @@ class TargetWriter:
     def close(self) -> None:
         """End the writer (end of file on its pipe); the arm's script stops the arm when targets stop."""
         try:
-            self._proc.stdin.close()
+            self._proc.stdin.close()  # type: ignore[union-attr]  # stdin=PIPE
         except OSError:
             pass
         try:

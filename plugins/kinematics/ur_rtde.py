@@ -45,6 +45,7 @@ import re
 import threading
 import time
 from collections import deque
+from typing import Any
 
 import numpy as np
 
@@ -117,7 +118,7 @@ class URRTDEKinematics:
         """Packages received (each one pose)."""
         self.packages_missed = 0
         """Packages the controller sent that were never read (gaps in its timestamps)."""
-        self._rtde = None
+        self._rtde: Any = None  # an rtde_receive.RTDEReceiveInterface while open (ur-rtde ships no types)
         self._thread: threading.Thread | None = None
         self._closing = threading.Event()
         self._lock = threading.Lock()
@@ -278,7 +279,8 @@ class URRTDEKinematics:
 
     def _check_tcp(self, received_ns: int, sample: PoseSample) -> list[Event]:
         """A ``kinematics_tcp_offset`` event when the reported pose is not the flange's (FK of the joints)."""
-        R_BE, p_BoEo_B = self.arm.forward(sample.joints)
+        arm: URArm = self.arm  # type: ignore[assignment]  # asked only with a model (the caller checks)
+        R_BE, p_BoEo_B = arm.forward(sample.joints)  # type: ignore[arg-type]  # an RTDE sample carries its joints
         R_reported = matrix_from_quat_wxyz(sample.quat_BE[None])[0]
         angle = float(np.linalg.norm(rotvec_from_quat(quat_wxyz_from_matrix(R_BE.T @ R_reported))))
         distance = float(np.linalg.norm(sample.p_BoEo_B - p_BoEo_B))
@@ -289,7 +291,7 @@ class URRTDEKinematics:
                 received_ns,
                 "kinematics_tcp_offset",
                 f"UR controller {self.address}: actual_TCP_pose is {distance * 1e3:.1f} mm and {angle:.3f} rad "
-                f"from the {self.arm.model} flange (forward kinematics of actual_q): the installation's TCP "
+                f"from the {arm.model} flange (forward kinematics of actual_q): the installation's TCP "
                 f"is not the flange; set it to zero, hapticlab needs the flange pose",
                 {"distance_m": distance, "angle_rad": angle},
             )
@@ -348,7 +350,7 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
         super().__init__(address, rate_hz, receive_timeout, model)
         follow_rate_hz = number("follow_rate_hz", follow_rate_hz, above=0, maximum=self.rate_hz, hint=" Hz (rate_hz)")
         self.period_ns = int(round(1e9 / follow_rate_hz))
-        self._writer = None
+        self._writer: TargetWriter | None = None
         self._last_sent_ns: int | None = None
 
     def open(self, t0_ns: int) -> None:
@@ -363,7 +365,7 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
         """Write the flange target for the controller's script (one per controller period)."""
         if self._last_sent_ns is not None and t_ns - self._last_sent_ns < self.period_ns:
             return
-        self._writer.send(R_BE, p_BoEo_B)
+        self._writer.send(R_BE, p_BoEo_B)  # type: ignore[union-attr]  # open() made it
         self._last_sent_ns = t_ns
 
     def close(self) -> None:

@@ -41,9 +41,10 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core import hookimpl
+from hapticlab.core.errors import ConfigError
 from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource, ReportsHealth
 from hapticlab.core.host.options import OptionError, number
-from hapticlab.core.host.registry import ConfigError, Registry
+from hapticlab.core.host.registry import Registry
 from hapticlab.core.types import Event, PoseSample
 
 SHIPPED = "urdf"
@@ -252,7 +253,7 @@ class UrdfKinematics:
             got = (
                 "no joint angles"
                 if q is None
-                else (f"{len(q)} joint angles" if len(q) != n else f"{len(qd_measured)} joint velocities")
+                else (f"{len(q)} joint angles" if len(q) != n else f"{len(qd_measured)} joint velocities")  # type: ignore[arg-type]  # the branch where they were given, and mismatched
             )
             raise ConfigError(
                 f"kinematics.joints: the inner source gives {got}; {self.model.source} needs {n} "

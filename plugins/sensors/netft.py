@@ -32,6 +32,7 @@ from the config), and both feed what this module adds:
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
@@ -229,7 +230,7 @@ class NetFTSensor:
 
     def _convert(self, batch: RdtBatch) -> None:
         """A batch as a WrenchBlock (SI units, device time, stream status), onto the pending readings."""
-        received = batch.received_ns  # one time for the batch (hapticlab) or one per record (pynetft)
+        received: Any = batch.received_ns  # one time for the batch (hapticlab) or one per record (pynetft)
         at = (lambda i: received) if np.ndim(received) == 0 else (lambda i: int(received[i]))
         if batch.restarts:
             pieces, start = [], 0
@@ -304,7 +305,7 @@ class NetFTSensor:
         timeout_ns = self.receive_timeout * 1e9
         if not self._timed_out and silent_ns > timeout_ns:
             self._timed_out = True
-            self._link.on_timeout()
+            self._link.on_timeout()  # type: ignore[union-attr]  # open() made it
             self._events.append(
                 Event(
                     now_ns,
@@ -322,10 +323,10 @@ class NetFTSensor:
             self._events.append(Event(now_ns, "sensor_resumed", f"Net F/T {self.address} records again"))
         if self._timed_out and mono_ns - self._silent_since_ns > timeout_ns:
             self._silent_since_ns = mono_ns
-            self._link.restart()  # hapticlab: the start request again (pynetft reconnects by itself)
+            self._link.restart()  # type: ignore[union-attr]  # open() made it; hapticlab: the start request again (pynetft reconnects by itself)
         if now_ns >= self._next_health_ns:
             self._next_health_ns = now_ns + self.health_interval_ns
-            self._counters.update(self._link.counters())
+            self._counters.update(self._link.counters())  # type: ignore[union-attr]  # open() made it
             self._health_event(now_ns)
 
     def _health_event(self, t_ns: int, final: bool = False) -> None:

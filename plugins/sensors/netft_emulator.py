@@ -238,7 +238,7 @@ class NetFTEmulator:
 
     def _serve_rdt(self) -> None:
         burst_ns = int(BURST_S * 1e9)
-        due_ns = self.t0_ns
+        due_ns: int = self.t0_ns  # type: ignore[assignment]  # started: t0_ns is set
         while not self._stop.is_set():
             now_ns = time.monotonic_ns()
             if now_ns >= due_ns:
@@ -292,7 +292,7 @@ class NetFTEmulator:
                 return
             counts = self.counts_of(np.array([s.force_S for s in samples]), np.array([s.torque_S for s in samples]))
             for sample, raw in zip(samples, counts):
-                t = (sample.t_ns - self.t0_ns) / 1e9
+                t = (sample.t_ns - self.t0_ns) / 1e9  # type: ignore[operator]  # started: t0_ns is set
                 status = ATI_SATURATION | ATI_ERROR_SUMMARY if sample.status & STATUS_SATURATED else 0
                 if not (np.isfinite(sample.force_S).all() and np.isfinite(sample.torque_S).all()):
                     status |= ATI_SATURATION | ATI_ERROR_SUMMARY  # the A/D gave no number

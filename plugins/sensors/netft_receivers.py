@@ -14,12 +14,15 @@ sensor (``netft.py``) converts, stamps and watches one shape of data.
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from hapticlab.plugins.sensors.netft_protocol import Calibration, fetch_configuration
 from hapticlab.plugins.sensors.rdt import RdtBatch, RdtReceiver
+
+if TYPE_CHECKING:
+    import pynetft
 
 
 class LinkSettings(Protocol):
@@ -86,7 +89,7 @@ class PynetftLink:
         import pynetft
 
         self.pynetft, self.sensor = pynetft, sensor
-        self.client = None
+        self.client: pynetft.Client | None = None
         self._ft: int | None = None  # the last ft_sequence as sent
         self._k = 0  # ... unwrapped
 
@@ -127,15 +130,15 @@ class PynetftLink:
                 f"{s.connect_timeout:g} s ({health.last_error or health.state.value})"
             )
         configuration = self.client.health().sensor_configuration
-        c = configuration.calibration
-        return configuration.product_name, Calibration(
+        c = configuration.calibration  # type: ignore[union-attr]  # known once a first sample came
+        return configuration.product_name, Calibration(  # type: ignore[union-attr]  # known once a first sample came
             c.counts_per_force_unit, c.counts_per_torque_unit, c.force_unit.value, c.torque_unit.value
         )
 
     def poll(self) -> RdtBatch | None:
         batch = []
         try:
-            for sample in self.client.samples(timeout=0.0):
+            for sample in self.client.samples(timeout=0.0):  # type: ignore[union-attr]  # open() made it
                 batch.append(sample)
         except TimeoutError:  # nothing more queued
             pass
@@ -163,7 +166,7 @@ class PynetftLink:
         )
 
     def counters(self) -> dict[str, int]:
-        h = self.client.health()
+        h = self.client.health()  # type: ignore[union-attr]  # open() made it
         return dict(
             received=h.received_count,
             lost=h.lost_count,
@@ -188,4 +191,4 @@ class PynetftLink:
         pass  # pynetft reconnects by itself
 
     def close(self) -> None:
-        self.client.stop()
+        self.client.stop()  # type: ignore[union-attr]  # open() made it

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import socket
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -64,7 +65,7 @@ class RdtFault:
     def parse(cls, text: str) -> "RdtFault":
         """``kind[,start=S][,duration=S][,every=N][,status=0x...]`` (the ``--fault`` syntax)."""
         kind, *fields = [f.strip() for f in text.split(",")]
-        values: dict[str, float | int] = {}
+        values: dict[str, Any] = {}  # start, duration: float; every, status: int
         try:
             for field in fields:
                 key, sep, value = field.partition("=")
@@ -174,7 +175,7 @@ class RdtSender:
 
     def _sendto(self, record: bytes) -> None:
         try:
-            self._sock.sendto(record, self.client)
+            self._sock.sendto(record, self.client)  # type: ignore[arg-type]  # sent once a client has asked
             self.counts.sent += 1
         except OSError:  # the client went away: a real sensor does not care either
             pass

@@ -78,14 +78,14 @@ class RdtBatch:
         k: (n,) int64 unwrapped ft_sequence (the device's sample number).
         status: (n,) int64 ATI status words.
         values: (n, 6) counts, Fx Fy Fz Tx Ty Tz.
-        received_ns: when they were read (the drain), monotonic ns.
+        received_ns: when they were read, monotonic ns: one time (the drain), or (n,) int64 one per record.
         restarts: (index, old ft_sequence, new ft_sequence) where the sensor restarted its counter.
     """
 
     k: np.ndarray
     status: np.ndarray
     values: np.ndarray
-    received_ns: int
+    received_ns: int | np.ndarray
     restarts: list[tuple[int, int, int]]
 
 
@@ -130,7 +130,7 @@ class RdtReceiver:
     def request(self, command: int, count: int = 0) -> None:
         """Send an RDT request (``CMD_START``, ``CMD_START_BUFFERED``, ``CMD_STOP``, ``CMD_BIAS``)."""
         try:
-            self._sock.send(RDT_HEADER.to_bytes(2, "big") + command.to_bytes(2, "big") + count.to_bytes(4, "big"))
+            self._sock.send(RDT_HEADER.to_bytes(2, "big") + command.to_bytes(2, "big") + count.to_bytes(4, "big"))  # type: ignore[union-attr]  # open() made it
         except OSError:  # ICMP unreachable from an earlier send, or no route: the timeout will tell
             pass
 
@@ -142,14 +142,14 @@ class RdtReceiver:
 
     def wait(self, timeout: float) -> bool:
         """Block until a datagram is waiting, at most ``timeout`` s (for ``open``; never in the loop)."""
-        self._sock.settimeout(timeout)
+        self._sock.settimeout(timeout)  # type: ignore[union-attr]  # open() made it
         try:
-            self._sock.recv(1, socket.MSG_PEEK)
+            self._sock.recv(1, socket.MSG_PEEK)  # type: ignore[union-attr]  # open() made it
             return True
         except OSError:
             return False
         finally:
-            self._sock.setblocking(False)
+            self._sock.setblocking(False)  # type: ignore[union-attr]  # open() made it
 
     def close(self) -> None:
         """Send the stop request and close the socket."""
@@ -164,7 +164,7 @@ class RdtReceiver:
         """Every record waiting in the socket (up to ``capacity``): a structured view of the buffer, valid until
         the next drain."""
         view, size, limit = self._view, 0, len(self._buffer) - MAX_DATAGRAM - 1
-        recv_into = self._sock.recv_into
+        recv_into = self._sock.recv_into  # type: ignore[union-attr]  # open() made it
         while size <= limit:
             try:
                 n = recv_into(view[size:], MAX_DATAGRAM + 1)  # one byte more: a truncated datagram shows
@@ -233,7 +233,9 @@ class RdtReceiver:
         starts = np.flatnonzero((behind > far) & (behind < 2**31) & (rdt <= REWIND))
         bounds = ([0] if self._rdt is None else []) + starts.tolist()
         segments = [(a, b) for a, b in zip([0] + bounds, bounds + [len(rdt)]) if b > a]
-        index, k, restarts = [], [], []
+        index: list[np.ndarray] = []
+        k: list[np.ndarray] = []
+        restarts: list[tuple[int, int, int]] = []
         for a, b in segments:
             if a in bounds:  # a new stream: anchor just before its first record
                 self._rdt, self._r, self._holes, self._new_stream = int(rdt[a] - 1) & 0xFFFF_FFFF, 0, [], True

@@ -34,7 +34,7 @@ class Cable:
         point_S: (3,) the point of the tool it pulls, in S, m; None: the tool tip.
     """
 
-    anchor_B: np.ndarray = (0.45, 0.0, 0.6)
+    anchor_B: np.ndarray = (0.45, 0.0, 0.6)  # type: ignore[assignment]  # an array after __post_init__
     stiffness: float = 10.0
     damping: float = 0.0
     point_S: np.ndarray | None = None

@@ -29,7 +29,7 @@ class SampleClock:
 
     def times(self, seq: np.ndarray) -> np.ndarray:
         """(N,) int64 times of the samples ``seq``, ns."""
-        return self.t0_ns + np.rint(seq * (1e9 / self.rate_hz)).astype(np.int64)
+        return self.t0_ns + np.rint(seq * (1e9 / self.rate_hz)).astype(np.int64)  # type: ignore[operator]  # after start()
 
     def end_index(self, until_ns: int) -> int:
         """One past the index of the last sample with time <= ``until_ns`` (at least ``next_index``)."""
@@ -60,4 +60,4 @@ class SampleClock:
         """
         seq = self.advance(until_ns)
         t0_ns, step = self.t0_ns, 1e9 / self.rate_hz
-        return seq, [t0_ns + round(i * step) for i in seq]
+        return seq, [t0_ns + round(i * step) for i in seq]  # type: ignore[operator]  # advance() checked start()

@@ -39,8 +39,8 @@ class Tissue:
         point_S: (3,) the point of the tool that touches, in S, m; None: the tool tip.
     """
 
-    surface_B: np.ndarray = (0.45, 0.0, 0.0)
-    normal_B: np.ndarray = (0.0, 0.0, 1.0)
+    surface_B: np.ndarray = (0.45, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    normal_B: np.ndarray = (0.0, 0.0, 1.0)  # type: ignore[assignment]  # an array after __post_init__
     stiffness: float = 300.0
     damping: float = 2.0
     point_S: np.ndarray | None = None

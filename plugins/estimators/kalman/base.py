@@ -7,6 +7,8 @@ they read and write (set once by ``KalmanEstimator.__init__``).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from hapticlab.core.types import Event
@@ -15,13 +17,21 @@ from hapticlab.plugins.estimators.kalman.payload import PayloadWatch
 from hapticlab.plugins.estimators.kalman.stage import KalmanStage
 from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_TILT_TORQUE
 
+if TYPE_CHECKING:
+    from hapticlab.core.estimation.model import SampleGuard
+    from hapticlab.core.types import AlignedSamples
+    from hapticlab.plugins.estimators.kalman.cascade_kernel import Buffers
+    from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
+    from hapticlab.plugins.estimators.kalman.stage import StageRun
+
 
 class KalmanBase:
     """The attributes the estimator's parts share, and the methods more than one of them calls."""
 
-    force: KalmanStage
+    force: KalmanStage  # a MountStage with mount_rotation
     torque: KalmanStage
     options: KalmanOptions
+    guard: SampleGuard
     kernel: str
     method: str | None
     convergence: str
@@ -29,6 +39,11 @@ class KalmanBase:
     mount_rotation: bool
     mount_configured: bool
     bias_rate: bool
+    inertia: bool
+    effects: list[str]
+    gain_inverse_force: np.ndarray | None
+    gain_inverse_torque: np.ndarray | None
+    derivatives: MotionDerivatives | None
     noise_auto: bool
     noise_auto_force: bool
     noise_auto_torque: bool
@@ -40,9 +55,13 @@ class KalmanBase:
     prior_t: np.ndarray
     converged_force: bool
     converged_torque: bool
+    first_converged_force: int | None
+    first_converged_torque: int | None
+    samples: int
     converged_force_std_option: float | None
     converged_torque_std_option: float | None
     torque_reopen_s: float
+    payload_change_ns: int
     payload_changes: int
     events: list[Event]
     _adapt: np.ndarray
@@ -52,6 +71,14 @@ class KalmanBase:
     _cog_known: bool
     _mass_known: bool
     _payload: PayloadWatch
+    _lag_t: np.ndarray
+    _lag_q: np.ndarray
+    _lag_p: np.ndarray | None
+    _per_sample: bool
+    _cascade: bool
+    _buffers: Buffers
+    _clock: np.ndarray
+    _limits: np.ndarray
     _L6: np.ndarray
 
     def _seed_information(self) -> None:
@@ -69,4 +96,39 @@ class KalmanBase:
 
     def params(self) -> dict[str, list[float]]:
         """The identified parameters (``Convergence.params``)."""
+        raise NotImplementedError
+
+    # one part's methods that another part calls: each defined by the part its docstring names
+
+    def _to_S(self, R_EB: np.ndarray) -> np.ndarray:
+        """(m, 3, 3) R_SB = R_SE R_EB (``ModelInputs._to_S``)."""
+        raise NotImplementedError
+
+    def _prepare(
+        self, block: AlignedSamples, usable: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """The block's readings with the configured effects applied (``ModelInputs._prepare``)."""
+        raise NotImplementedError
+
+    def _bounds(self) -> tuple[float, float]:
+        """(force bound N, torque bound N·m) on the parameters' std for convergence (``Convergence._bounds``)."""
+        raise NotImplementedError
+
+    def _watch_payload(
+        self,
+        t_ns: np.ndarray,
+        y_f: np.ndarray,
+        force_S: np.ndarray,
+        torque_S: np.ndarray,
+        R_EB: np.ndarray,
+        A_f: np.ndarray,
+        usable: np.ndarray,
+        run_f: StageRun,
+        x_before: np.ndarray,
+    ) -> None:
+        """Follow the force stage's refusal runs for a payload change (``Reopening._watch_payload``)."""
+        raise NotImplementedError
+
+    def _torque_reopened(self, t_ns: int) -> None:
+        """Say that the torque bias was re-opened (``Reopening._torque_reopened``)."""
         raise NotImplementedError

@@ -7,6 +7,8 @@ the block, both stages' state and the cascade's state array (``state_layout.py``
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, cast
+
 import numpy as np
 
 from hapticlab.core.types import AlignedSamples, Estimates
@@ -15,6 +17,9 @@ from hapticlab.plugins.estimators.kalman.base import KalmanBase
 from hapticlab.plugins.estimators.kalman.inputs import NO_POSITIONS
 from hapticlab.plugins.estimators.kalman.stage import StageRun
 from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_AUTO_F, ADAPT_AUTO_T, ADAPT_REOPEN_ROW
+
+if TYPE_CHECKING:
+    from hapticlab.plugins.estimators.kalman.mount_stage import MountStage
 
 NO_RATE = np.zeros(3)
 """What the compiled cascade is given for the bias rates' random walk without bias-rate states."""
@@ -94,7 +99,7 @@ class CompiledPath(KalmanBase):
             NO_RATE if torque.q_rate is None else torque.q_rate,
             force.q_tilt,
             torque.q_tilt,
-            force.R_SE if self.mount_rotation else NO_MOUNT,
+            cast("MountStage", force).R_SE if self.mount_rotation else NO_MOUNT,
             limits,
             self._adapt,
             self._information["force"],
@@ -118,7 +123,7 @@ class CompiledPath(KalmanBase):
         )
         self._last_t_ns = int(t_ns[-1])
         if self.mount_rotation:
-            self.R_SE = force.R_SE.copy()  # (the cascade turns force.R_SE in place)
+            self.R_SE = cast("MountStage", force).R_SE.copy()  # (the cascade turns force.R_SE in place)
         force.failed += failed_f
         torque.failed += failed_t
         if self._adapt[ADAPT_REOPEN_ROW] >= 0:  # (the block's last one: one event per block)
@@ -127,7 +132,10 @@ class CompiledPath(KalmanBase):
         if self.payload_change_ns > 0 and (gated_f or self._payload.in_run):
             d2 = np.full(m, np.nan)  # (not kept by the cascade; the watcher does not use it)
             run_f = StageRun(b.X_f[:m], b.D_f[:m], b.gated_f[:m], d2, b.failed_f[:m])
-            self._watch_payload(t_ns, y_f, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, x_before)
+            # (x_before was copied: payload_change_ns > 0)
+            self._watch_payload(
+                t_ns, y_f, force_S, torque_S, R_EB, A_f, b.usable[:m], run_f, cast(np.ndarray, x_before)
+            )
         if self.first_converged_force is None and first_f >= 0:
             self.first_converged_force = self.samples + first_f
         if self.first_converged_torque is None and first_t >= 0:

@@ -9,6 +9,7 @@ the math), ``params()`` and ``cov_diag()``.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -132,7 +133,7 @@ class Convergence(KalmanBase):
                 continue
             self._unidentified[name] = axes
             unit = "N" if stage == "force" else "m"
-            data = {"parameter": name, "axes": ["xyz"[i] for i in axes], "std": std}
+            data: dict[str, Any] = {"parameter": name, "axes": ["xyz"[i] for i in axes], "std": std}
             if not axes:
                 self.events.append(
                     Event(

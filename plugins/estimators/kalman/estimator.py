@@ -17,7 +17,7 @@ default.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy.stats import chi2
@@ -116,7 +116,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         if self.tilt_walk_auto:
             bias_force_tilt_rw = 0.0  # (until the first pair of windows is scored)
         if bias_torque_tilt_rw is None:
-            bias_torque_tilt_rw = bias_force_tilt_rw * TORQUE_PER_FORCE
+            bias_torque_tilt_rw = cast(float, bias_force_tilt_rw) * TORQUE_PER_FORCE  # ("auto" is 0.0 by now)
         self.kernel = o.kernel
         R_SE = mount_matrix(o.mount_rotation_SE, o.mount_R_SE)
         self.guard = SampleGuard("kalman", o.max_force, o.max_torque)
@@ -204,7 +204,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
             tilt_walk_auto=self.tilt_walk_auto,
             tilt_torque_follows=tilt_torque_follows,
             prior_torque_bias_var=self.prior_t[3:6] ** 2,
-            mount_activate_var=self.force.activate_var if mount_rotation else 0.0,
+            mount_activate_var=cast(MountStage, self.force).activate_var if mount_rotation else 0.0,
         )
         self.events: list[Event] = []
         self._unidentified = {"gravity_force_B": (0, 1, 2), "cog_S": (0, 1, 2)}  # as last reported (events)
@@ -237,7 +237,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
     def update_block(self, block: AlignedSamples) -> Estimates:
         """Filter a block of aligned samples, in order (bad samples refused first)."""
         start, first = self.samples, (self.first_converged_force, self.first_converged_torque)
-        extras = ()
+        extras: tuple[np.ndarray, ...] = ()
         if self.derivatives is not None or self.time_lag_s < 0:  # the pose's quaternion and position are used
             extras = tuple(a for a in (block.quat_BE, block.p_BoEo_B) if a is not None)
         out = self.guard.run(block, self._filter_block, (self.converged_force, self.converged_torque), extras)
@@ -273,7 +273,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         dt = np.maximum(dt_ns, 0) * 1e-9  # s; a repeated or reversed stamp adds no time
         self._last_t_ns = int(t_ns[-1])
         usable = block.usable
-        force_S, torque_S, R_EB, inertial_S, usable = self._prepare(block)
+        force_S, torque_S, R_EB, inertial_S, usable = self._prepare(block)  # type: ignore[assignment]  # an array with usable=True
         y_f = force_S if inertial_S is None else force_S - inertial_S  # what gravity and bias explain
 
         x_before = self.force.x[:6].copy()
@@ -282,7 +282,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
             tilt = np.array([tilt_step.py_func(self._adapt, R) for R in R_EB])
         if self.mount_rotation:  # the stage applies its own mount estimate, updated as it goes
             run_f = self.force.run(y_f, R_EB, dt, usable, self.gate2, tilt=tilt)
-            self.R_SE = self.force.R_SE
+            self.R_SE = cast(MountStage, self.force).R_SE
             A_f = self._to_S(R_EB)  # R_SB per sample, with the mount as it is after the block
         else:
             A_f = self._to_S(R_EB)  # R_SB per sample

@@ -32,7 +32,9 @@ class ModelInputs(KalmanBase):
             return R_EB
         return self.R_SE @ R_EB
 
-    def _prepare(self, block: AlignedSamples, usable: bool = True):
+    def _prepare(
+        self, block: AlignedSamples, usable: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """The block's readings with the configured effects applied.
 
         Returns (force_S, torque_S, R_EB, inertial_force_S or None, usable): the readings
@@ -44,7 +46,7 @@ class ModelInputs(KalmanBase):
         sensor stream the (m,) mask of the samples whose poses are known.
         """
         force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
-        usable = block.usable if usable else None
+        mask = block.usable if usable else None
         quat_BE, p_BoEo_B = block.quat_BE, block.p_BoEo_B
         if self.gain_inverse_force is not None:
             force_S = force_S @ self.gain_inverse_force.T
@@ -52,9 +54,9 @@ class ModelInputs(KalmanBase):
             torque_S = torque_S @ self.gain_inverse_torque.T
         if self.time_lag_s < 0:
             R_EB, quat_BE, p_BoEo_B, known = self._past_poses(block)
-            usable = known if usable is None else usable & known
+            mask = known if mask is None else mask & known
         if self.derivatives is None:
-            return force_S, torque_S, R_EB, None, usable
+            return force_S, torque_S, R_EB, None, mask
         w_E, alpha_E, a_B = self.derivatives.update(block.t_ns, quat_BE, p_BoEo_B, R_EB=R_EB)
         if self.time_lag_s > 0:
             # the pose at the sensor's time t is stamped t + τ, not yet here: extrapolate,
@@ -67,10 +69,10 @@ class ModelInputs(KalmanBase):
         if not self.inertia or not (self._adapt[ADAPT_FORCE_SEEN] or self._mass_known):
             # the mass comes from the identified weight: until the force stage has settled it may be
             # far off, and subtracting a wrong inertial force would feed back into the weight
-            return force_S, torque_S, R_EB, None, usable
-        return force_S, torque_S, R_EB, self._inertial_force(R_EB, w_E, alpha_E, a_B), usable
+            return force_S, torque_S, R_EB, None, mask
+        return force_S, torque_S, R_EB, self._inertial_force(R_EB, w_E, alpha_E, a_B), mask
 
-    def _past_poses(self, block: AlignedSamples):
+    def _past_poses(self, block: AlignedSamples) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
         """A late sensor stream (τ < 0): the poses at t + τ, interpolated from the poses already seen.
 
         Returns (R_EB (m, 3, 3), quat_BE (m, 4), p_BoEo_B (m, 3) or None, known (m,) bool:
@@ -95,20 +97,20 @@ class ModelInputs(KalmanBase):
                 0,
                 quat_BE,
                 R_EB,
-                p_BoEo_B if has_p else NO_POSITIONS,
+                p_BoEo_B if p_BoEo_B is not None else NO_POSITIONS,
                 np.empty(m, dtype=np.bool_),
             )
         else:
             quat_BE, _ = orientation_at(target, hist_t, hist_q, 0)
-            p_BoEo_B = position_at(target, hist_t, hist_p, 0) if has_p else None
+            p_BoEo_B = position_at(target, hist_t, hist_p, 0) if hist_p is not None else None
             R_EB = matrix_from_quat_wxyz(quat_BE).transpose(0, 2, 1)
         keep = hist_t >= target[-1] - LAG_HISTORY_MARGIN_NS  # what the next block's targets may need
         keep[-2:] = True
         self._lag_t, self._lag_q = hist_t[keep], hist_q[keep]
-        self._lag_p = hist_p[keep] if has_p else None
+        self._lag_p = hist_p[keep] if hist_p is not None else None
         return R_EB, quat_BE, p_BoEo_B, known
 
-    def _inertial_force(self, R_EB, w_E, alpha_E, a_B) -> np.ndarray:
+    def _inertial_force(self, R_EB: np.ndarray, w_E: np.ndarray, alpha_E: np.ndarray, a_B: np.ndarray) -> np.ndarray:
         """(m, 3) the tool's inertial force in S, −m (a + α × c + ω × (ω × c)), N.
 
         m = |gravity_force_B| / g and c = cog_S are the current estimates, used once the

@@ -162,7 +162,7 @@ class PayloadWatch:
     ) -> PayloadChange | None:
         """One block's samples (``gated``: refused by the force stage; ``usable``: given to it): the payload
         change found, None otherwise. After a change the run ends (the estimator has re-opened gravity)."""
-        start = 0
+        start: int | np.intp = 0
         for k in np.flatnonzero(usable):
             if gated[k]:
                 if self.since is None:  # (its window and onset were left empty by _end_run)

@@ -6,6 +6,8 @@ towards its prior, so the next samples identify it again, and says so with an ev
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, cast
+
 import numpy as np
 
 from hapticlab.core.frames import skew_stack
@@ -13,9 +15,12 @@ from hapticlab.core.types import Event
 from hapticlab.plugins.estimators.kalman import tilt_walk_kernel
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
 from hapticlab.plugins.estimators.kalman.rules_kernel import torque_only_refusal
-from hapticlab.plugins.estimators.kalman.stage import innovations
+from hapticlab.plugins.estimators.kalman.stage import StageRun, innovations
 from hapticlab.plugins.estimators.kalman.stage_kernel import GATED, UPDATED
 from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_REOPENS, ADAPT_TW
+
+if TYPE_CHECKING:
+    from hapticlab.plugins.estimators.kalman.mount_stage import MountStage
 
 
 def bias_unknown(P: np.ndarray, prior: np.ndarray) -> np.ndarray:
@@ -31,7 +36,18 @@ def bias_unknown(P: np.ndarray, prior: np.ndarray) -> np.ndarray:
 class Reopening(KalmanBase):
     """Payload change, torque-bias re-opening, bias re-identification (a part of :class:`KalmanEstimator`)."""
 
-    def _watch_payload(self, t_ns, y_f, force_S, torque_S, R_EB, A_f, usable, run_f, x_before) -> None:
+    def _watch_payload(
+        self,
+        t_ns: np.ndarray,
+        y_f: np.ndarray,
+        force_S: np.ndarray,
+        torque_S: np.ndarray,
+        R_EB: np.ndarray,
+        A_f: np.ndarray,
+        usable: np.ndarray,
+        run_f: StageRun,
+        x_before: np.ndarray,
+    ) -> None:
         """Follow the force stage's refusal runs (``plugins.estimators.kalman.payload``); on a payload change re-open gravity and
         the centre of gravity, replay the run, say so (``payload_change``)."""
         gated = run_f.gated
@@ -87,7 +103,7 @@ class Reopening(KalmanBase):
         A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
         if self.mount_rotation:  # (the replay refined the mount too)
-            self.R_SE = self.force.R_SE.copy()
+            self.R_SE = cast("MountStage", self.force).R_SE.copy()  # (mount_rotation: the force stage is one)
         self._seed_information()  # what the replay left known (gravity re-opened along itself)
 
     def _watch_torque_only(self, t_ns, gated_f, force_seen, run_t, dt, contact_force_S, contact_torque_S) -> None:

@@ -73,11 +73,15 @@ estimator's ``implementation`` option):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hapticlab.plugins.estimators.kalman import stage_kernel as kernel
 from hapticlab.plugins.estimators.kalman.stage_reference import filter6
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 I3 = np.eye(3)
 add_tilt_noise = kernel.add_tilt_noise.py_func
@@ -132,14 +136,14 @@ class KalmanStage:
 
     def __init__(
         self,
-        prior_std,
-        bias_rw,
-        noise,
-        cross_noise=(0.0, 0.0, 0.0),
-        bias_rate_rw=None,
-        bias_tilt_rw=(0.0, 0.0, 0.0),
-        tilt_span=0.0,
-    ):
+        prior_std: npt.ArrayLike,
+        bias_rw: npt.ArrayLike,
+        noise: npt.ArrayLike,
+        cross_noise: npt.ArrayLike = (0.0, 0.0, 0.0),
+        bias_rate_rw: npt.ArrayLike | None = None,
+        bias_tilt_rw: npt.ArrayLike = (0.0, 0.0, 0.0),
+        tilt_span: float = 0.0,
+    ) -> None:
         self.n = 6 if bias_rate_rw is None else 9
         prior_std = np.asarray(prior_std, dtype=float).reshape(self.n)
         self._lists: tuple[list, list] | None = None  # the fast path's state as Python floats
@@ -306,7 +310,7 @@ class KalmanStage:
             self.turn,
         )
         self._lists = (x, P)
-        self._x = self._P = None  # built from the lists when read
+        self._x = self._P = None  # type: ignore[assignment]  # built from the lists when read (_materialise)
         m = len(y)
         return StageRun(
             np.array(X).reshape(m, 6),
@@ -348,7 +352,7 @@ class KalmanStage:
         self.turn = float(turn[0])
         return StageRun(X, D, gated, d2, self._failed(m, np.flatnonzero(failed)) if n_failed else None)
 
-    def _failed(self, m: int, failed: list[int]) -> np.ndarray | None:
+    def _failed(self, m: int, failed: list[int] | np.ndarray) -> np.ndarray | None:
         """StageRun.failed from the indices of the samples whose update failed (counted in ``self.failed``)."""
         if not failed:
             return None

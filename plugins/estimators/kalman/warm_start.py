@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -27,6 +28,9 @@ from hapticlab.plugins.estimators.kalman.state_layout import (
     ADAPT_TORQUE_SEEN,
     ADAPT_TW,
 )
+
+if TYPE_CHECKING:
+    from hapticlab.plugins.estimators.kalman.mount_stage import MountStage
 
 
 class WarmStart(KalmanBase):
@@ -113,7 +117,7 @@ class WarmStart(KalmanBase):
             self._seed_information()
             self._information.update(information)  # what the motion had identified, not only what P still holds
         if R_SE is not None:
-            self.force.R_SE = self.R_SE = R_SE
+            cast("MountStage", self.force).R_SE = self.R_SE = R_SE  # (mount_rotation: the force stage is one)
         # (a state saved before "settled_*" was kept: its flags were the identified or covariance rule's)
         self._cog_known = bool(source.get("settled_torque", source.get("converged_torque")))
         self._mass_known = bool(source.get("settled_force", source.get("converged_force")))

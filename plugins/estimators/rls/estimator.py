@@ -35,7 +35,7 @@ named options elsewhere, so the paper's method stays measurable.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -44,7 +44,7 @@ from hapticlab.core.frames import skew_stack
 from hapticlab.core.types import AlignedSamples, Estimates
 from hapticlab.plugins.estimators.rls import information_form_kernel as rls_kernel
 from hapticlab.plugins.estimators.rls.covariance_form import PrintedRecursiveLeastSquares
-from hapticlab.plugins.estimators.rls.information_form import RecursiveLeastSquares, run_gated
+from hapticlab.plugins.estimators.rls.information_form import RecursiveLeastSquares, RLSStage, run_gated
 from hapticlab.plugins.estimators.rls.options import RLSOptions
 
 
@@ -81,8 +81,8 @@ class RLSEstimator(RefusesBadSamples):
         self.epsilon = epsilon
         self.covariance_update = covariance_update
         self.P0 = P0
-        self.force = stage(rng.standard_normal(6), P0, R)
-        self.torque = stage(rng.standard_normal(6), P0, R)
+        self.force: RLSStage = stage(rng.standard_normal(6), P0, R)
+        self.torque: RLSStage = stage(rng.standard_normal(6), P0, R)
         self.restarts = 0
         self.converged_force = False
         self.converged_torque = False
@@ -92,9 +92,8 @@ class RLSEstimator(RefusesBadSamples):
         self._compiled = kernel == "numba" and covariance_update == "information"
         if self._compiled:  # what the kernel needs, allocated once
             rls_kernel.warm_up()
-            self._settings = np.array(
-                [1.0 / self.force.r, 1.0 / self.torque.r, force_threshold, torque_threshold, epsilon]
-            )
+            force, torque = cast(RecursiveLeastSquares, self.force), cast(RecursiveLeastSquares, self.torque)
+            self._settings = np.array([1.0 / force.r, 1.0 / torque.r, force_threshold, torque_threshold, epsilon])
             self._status = rls_kernel.status_array()
             self._work = rls_kernel.work_arrays()
             self._diag = np.empty(6)  # diag P_force, for force_parameter_std
@@ -137,7 +136,9 @@ class RLSEstimator(RefusesBadSamples):
     def _update_compiled(self, block: AlignedSamples) -> Estimates:
         """``_update`` by the compiled kernel: the stages' x, Λ, η updated in place."""
         m = len(block)
-        force, torque, status = self.force, self.torque, self._status
+        # (compiled: the information form's stages)
+        force, torque = cast(RecursiveLeastSquares, self.force), cast(RecursiveLeastSquares, self.torque)
+        status = self._status
         status[0], status[1], status[2:] = self.converged_force, self.converged_torque, 0
         wrench, flags = np.empty((2, m, 3)), np.empty((3, m), dtype=bool)  # (rows of each are contiguous)
         contiguous = np.ascontiguousarray  # (a no-op on the aligner's arrays; one compiled layout)
@@ -199,8 +200,11 @@ class RLSEstimator(RefusesBadSamples):
         """Diagonal of P for the force stage then the torque stage (12 values)."""
         return self._P_diag(self.force).tolist() + self._P_diag(self.torque).tolist()
 
-    def _P_diag(self, stage: RecursiveLeastSquares) -> np.ndarray:
+    def _P_diag(self, stage: RLSStage) -> np.ndarray:
         """(6,) diag P of a stage: from Λ's Cholesky factor on the compiled path, else diag Λ⁻¹ (``P``)."""
-        if self._compiled and rls_kernel.inverse_diag(stage.Lambda, self._work[1], self._diag):
+        # (compiled: the information form's stage)
+        if self._compiled and rls_kernel.inverse_diag(
+            cast(RecursiveLeastSquares, stage).Lambda, self._work[1], self._diag
+        ):
             return self._diag
         return np.diag(stage.P)

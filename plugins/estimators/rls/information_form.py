@@ -35,6 +35,7 @@ block at a fraction of the per-sample cost.
 from __future__ import annotations
 
 import math
+from typing import Protocol
 
 import numpy as np
 from scipy.linalg.lapack import dposv
@@ -80,7 +81,7 @@ class RecursiveLeastSquares:
         x = self.x if x is None else x
         return A @ x[:3] + x[3:]
 
-    def propose(self, y: np.ndarray, A: np.ndarray):
+    def propose(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Estimates after each of m samples if every one of them is used.
 
         Args:
@@ -100,7 +101,7 @@ class RecursiveLeastSquares:
         X = np.linalg.solve(Lam, eta[:, :, None])[:, :, 0]
         return X, Lam, eta
 
-    def propose_one(self, y: np.ndarray, A: np.ndarray):
+    def propose_one(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``propose`` for one sample, y (3,) and A (3, 3): returns (x (6,), Λ (6, 6), η (6,)).
 
         The same sums as ``propose`` without the block machinery (cumulative
@@ -128,20 +129,31 @@ class RecursiveLeastSquares:
         self.updates += used
 
 
+class RLSStage(Protocol):
+    """What ``run_gated`` and the estimator need of a stage: :class:`RecursiveLeastSquares`, or
+    ``covariance_form.PrintedRecursiveLeastSquares``, whose proposals are (x, P, K) where this one's are (x, Λ, η)."""
+
+    x: np.ndarray
+    updates: int
+    failed: int
+
+    @property
+    def P(self) -> np.ndarray: ...
+    def restart(self, P0: float) -> None: ...
+    def predict(self, A: np.ndarray, x: np.ndarray | None = None) -> np.ndarray: ...
+    def propose(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+    def propose_one(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+    def commit(self, x: np.ndarray, S1: np.ndarray, S2: np.ndarray, used: int, /) -> None: ...
+
+
 HORIZON = 128
 """Most samples proposed or checked at once: after a cut, the rest is proposed
 again, so an unbounded look-ahead would cost O(m²) when gates flicker."""
 
 
 def run_gated(
-    stage: RecursiveLeastSquares,
-    y: np.ndarray,
-    A: np.ndarray,
-    active: np.ndarray,
-    threshold: float,
-    epsilon: float,
-    converged: bool,
-):
+    stage: RLSStage, y: np.ndarray, A: np.ndarray, active: np.ndarray, threshold: float, epsilon: float, converged: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """One stage of Algorithm 1 over a block of m samples, in order.
 
     For each active sample k: if the stage has converged and the residual norm

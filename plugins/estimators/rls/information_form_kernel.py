@@ -104,7 +104,7 @@ def _solve(Lam, eta, L, x, lapack, dposv) -> bool:
             L[i, j] = Lam[i, j]
     lapack[0], lapack[1], lapack[2], lapack[3] = 6, 1, 0, 85  # n, nrhs, info, 'U'
     address = lapack.ctypes.data
-    _dposv(dposv, address + 12, address, address + 4, L.ctypes.data, address, x.ctypes.data, address, address + 8)
+    _dposv(dposv, address + 12, address, address + 4, L.ctypes.data, address, x.ctypes.data, address, address + 8)  # type: ignore[call-arg]  # an @intrinsic is called without its typingctx
     if lapack[2] == 0:
         return True
     # not numerically positive definite: LU with partial pivoting (np.linalg.solve) on a copy of Λ (in L)

@@ -148,7 +148,7 @@ class RandomTour(MotionScript):
         dwell_s: float = 0.0,
         max_translation: float = 0.0,
         waypoints: int | None = None,
-        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+        p_BoEo_B: Sequence[float] | np.ndarray = DEFAULT_P_BoEo_B,
     ):
         number("segment_s", segment_s, above=0, hint=" (s)")
         number("dwell_s", dwell_s, minimum=0, hint=" (s)")
@@ -276,7 +276,7 @@ class StaticPoses(RandomTour):
         move_s: float = 2.0,
         max_translation: float = 0.0,
         poses: int | None = None,
-        p_BoEo_B: Sequence[float] = DEFAULT_P_BoEo_B,
+        p_BoEo_B: Sequence[float] | np.ndarray = DEFAULT_P_BoEo_B,
     ):
         super().__init__(
             seed=seed,

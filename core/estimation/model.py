@@ -84,7 +84,12 @@ def wrench_bound(key: str, value: Any, largest: float) -> float:
 
 
 def refusal_codes(
-    force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, max_force: float, max_torque: float, extras: tuple = ()
+    force_S: np.ndarray,
+    torque_S: np.ndarray,
+    R_EB: np.ndarray,
+    max_force: float,
+    max_torque: float,
+    extras: tuple[np.ndarray, ...] = (),
 ) -> np.ndarray:
     """(m,) int: 0 for a sample the model may see, else 1 + the index of its reason in ``REASONS``.
 
@@ -154,7 +159,7 @@ class SampleGuard:
         block: AlignedSamples,
         update: Callable[[AlignedSamples], Estimates],
         flags: tuple[bool, bool],
-        extras: tuple = (),
+        extras: tuple[np.ndarray, ...] = (),
     ) -> Estimates:
         """``update`` over the accepted samples of ``block``; one row per sample of ``block``.
 
@@ -169,7 +174,7 @@ class SampleGuard:
         out = update(block.subset(ok)) if ok.any() else None
         return refused_rows(block.t_ns, ok, out, flags)
 
-    def accepted(self, block: AlignedSamples, extras: tuple = ()) -> np.ndarray | None:
+    def accepted(self, block: AlignedSamples, extras: tuple[np.ndarray, ...] = ()) -> np.ndarray | None:
         """None when every sample may be used (the usual case), else the (m,) mask of those that may."""
         if all_plausible(block.force_S, block.torque_S, block.R_EB, self.max_force, self.max_torque) and (
             not extras or all(np.isfinite(extra).all() for extra in extras)
@@ -178,7 +183,7 @@ class SampleGuard:
                 self._report(int(block.t_ns[-1]))
             return None
         codes = refusal_codes(block.force_S, block.torque_S, block.R_EB, self.max_force, self.max_torque, extras)
-        ok = codes == 0
+        ok: np.ndarray = codes == 0
         if ok.all():
             return None
         for reason, count in zip(REASONS, np.bincount(codes, minlength=4)[1:].tolist()):
@@ -225,6 +230,9 @@ class RefusesBadSamples:
     ``self.force`` and ``self.torque`` that count their failed solves (``failed``)."""
 
     guard: SampleGuard
+    force: Any
+    torque: Any
+    """The estimator's two stages: anything with a ``failed`` count (each estimator has its own stage type)."""
 
     @property
     def refused_samples(self) -> int:
@@ -234,7 +242,7 @@ class RefusesBadSamples:
     @property
     def failed_solves(self) -> int:
         """Samples whose solve failed (left out and marked not converged)."""
-        return self.force.failed + self.torque.failed
+        return int(self.force.failed + self.torque.failed)
 
     def drain_events(self) -> list[Event]:
         """The events since the last call (EmitsEvents): ``sample_refused``."""

@@ -98,7 +98,7 @@ def make_plugin_manager(load_entry_points: bool = True) -> pluggy.PluginManager:
 
 
 def _origin(pm: pluggy.PluginManager, plugin: object) -> str:
-    name = pm.get_name(plugin) or getattr(plugin, "__name__", repr(plugin))
+    name = pm.get_name(plugin) or str(getattr(plugin, "__name__", repr(plugin)))
     for dist_plugin, dist in pm.list_plugin_distinfo():
         if dist_plugin is plugin:
             return f"{name} ({dist.project_name} {dist.version})"

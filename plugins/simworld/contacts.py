@@ -55,7 +55,7 @@ class Indentation:
     duration: float = 2.0
     peak_force: float = 2.0
     ramp: float = 0.3
-    direction_B: np.ndarray = (0.0, 0.0, 1.0)
+    direction_B: np.ndarray = (0.0, 0.0, 1.0)  # type: ignore[assignment]  # an array after __post_init__
     point_S: np.ndarray | None = None
 
     def __post_init__(self) -> None:

@@ -60,10 +60,10 @@ class ToolParams:
     """
 
     mass: float = 0.35
-    cog_S: np.ndarray = (0.002, -0.001, 0.0435)
+    cog_S: np.ndarray = (0.002, -0.001, 0.0435)  # type: ignore[assignment]  # an array after __post_init__
     # A heavy holder near the sensor plus a slender 0.3 m shaft.
-    inertia_S: np.ndarray = ((1.5e-3, 0.0, 0.0), (0.0, 1.5e-3, 0.0), (0.0, 0.0, 6.0e-5))
-    tip_S: np.ndarray = (0.0, 0.0, 0.25)
+    inertia_S: np.ndarray = ((1.5e-3, 0.0, 0.0), (0.0, 1.5e-3, 0.0), (0.0, 0.0, 6.0e-5))  # type: ignore[assignment]  # an array after __post_init__
+    tip_S: np.ndarray = (0.0, 0.0, 0.25)  # type: ignore[assignment]  # an array after __post_init__
 
     def __post_init__(self) -> None:
         check_fields(
@@ -144,25 +144,25 @@ class SensorParams:
         hysteresis_torque_S: (3,) the same for the torque channels, N·m.
     """
 
-    bias_force_S: np.ndarray = (1.2, -0.8, 2.5)
-    bias_torque_S: np.ndarray = (0.03, -0.02, 0.01)
-    drift_force_S: np.ndarray = (0.0, 0.0, 0.0)
-    drift_torque_S: np.ndarray = (0.0, 0.0, 0.0)
-    drift_force_rw_S: np.ndarray = (0.0, 0.0, 0.0)
-    drift_torque_rw_S: np.ndarray = (0.0, 0.0, 0.0)
-    noise_force_S: np.ndarray = (0.12, 0.12, 0.12)
-    noise_torque_S: np.ndarray = (0.01, 0.01, 0.01)
-    saturation_force_S: np.ndarray = (65.0, 65.0, 200.0)
-    saturation_torque_S: np.ndarray = (5.0, 5.0, 5.0)
-    mount_rotation_SE: np.ndarray = (0.0, 0.0, 0.0)
-    p_EoSo_E: np.ndarray = (0.0, 0.0, 0.0)
-    gain_force_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    gain_torque_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-    warmup_force_S: np.ndarray = (0.0, 0.0, 0.0)
-    warmup_torque_S: np.ndarray = (0.0, 0.0, 0.0)
+    bias_force_S: np.ndarray = (1.2, -0.8, 2.5)  # type: ignore[assignment]  # an array after __post_init__
+    bias_torque_S: np.ndarray = (0.03, -0.02, 0.01)  # type: ignore[assignment]  # an array after __post_init__
+    drift_force_S: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    drift_torque_S: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    drift_force_rw_S: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    drift_torque_rw_S: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    noise_force_S: np.ndarray = (0.12, 0.12, 0.12)  # type: ignore[assignment]  # an array after __post_init__
+    noise_torque_S: np.ndarray = (0.01, 0.01, 0.01)  # type: ignore[assignment]  # an array after __post_init__
+    saturation_force_S: np.ndarray = (65.0, 65.0, 200.0)  # type: ignore[assignment]  # an array after __post_init__
+    saturation_torque_S: np.ndarray = (5.0, 5.0, 5.0)  # type: ignore[assignment]  # an array after __post_init__
+    mount_rotation_SE: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    p_EoSo_E: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    gain_force_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # type: ignore[assignment]  # an array after __post_init__
+    gain_torque_S: np.ndarray = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # type: ignore[assignment]  # an array after __post_init__
+    warmup_force_S: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    warmup_torque_S: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
     warmup_tau_s: float = 20.0
-    hysteresis_force_S: np.ndarray = (0.0, 0.0, 0.0)
-    hysteresis_torque_S: np.ndarray = (0.0, 0.0, 0.0)
+    hysteresis_force_S: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    hysteresis_torque_S: np.ndarray = (0.0, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
 
     def __post_init__(self) -> None:
         check_fields(self, SENSOR_CHECKS)
@@ -189,8 +189,8 @@ class RobotParams:
             is the late one. Within ±1 s.
     """
 
-    base_tilt_BG: np.ndarray = (0.02, -0.01, 0.0)
-    p_BoEo_B: np.ndarray = DEFAULT_P_BoEo_B
+    base_tilt_BG: np.ndarray = (0.02, -0.01, 0.0)  # type: ignore[assignment]  # an array after __post_init__
+    p_BoEo_B: np.ndarray = DEFAULT_P_BoEo_B  # type: ignore[assignment]  # an array after __post_init__
     kinematics_lag_s: float = 0.0
 
     def __post_init__(self) -> None:

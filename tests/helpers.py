@@ -9,7 +9,10 @@ from scipy.spatial.transform import Rotation
 
 from hapticlab.core.types import AlignedSamples
 
-REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+ROOT = Path(__file__).resolve().parents[1]
+"""The repository (the hapticlab package's folder: docs/, firmware/, pyproject.toml); tests find its files from here."""
+REAL_DATA = ROOT.parent / "shared" / "data" / "real"
+"""The real recordings, beside the repository (the ``real_data`` fixture, tests/conftest.py)."""
 
 
 def static_model_stream(

@@ -1,6 +1,6 @@
 """Test helpers: where the repository is, seeded and physically generated data (no hand-made numbers), and how
 the estimators' compiled kernels are compared with their numpy references (the tests of rls's and kalman's
-kernels, and of both refusing the same samples)."""
+kernels, and of both refusing the same samples), and what the tests of a serial haptic master send it."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hapticlab.core.types import AlignedSamples
+from hapticlab.core.types import AlignedSamples, HapticCommand
 
 ROOT = Path(__file__).resolve().parents[1]
 """The repository (the hapticlab package's folder: docs/, firmware/, pyproject.toml); tests find its files from here."""
@@ -131,3 +131,16 @@ def same_tree(a, b, tol: float = ROUNDING) -> bool:
     if isinstance(a, (bool, str)) or a is None:
         return a == b
     return same(a, b, tol=tol)
+
+
+# --------------------------------------------------------------------------- a haptic master on the emulator
+
+GUARD_S = 10.0
+"""s: a guard against hangs only: a test that waits on the master emulator ends on a condition, never a duration."""
+READ_TIMEOUT_S = 1.0
+"""s: the ``serial`` plugin's read timeout in tests that are not about timeouts (a loaded machine may stall a reply)."""
+
+
+def haptic_command(force, enabled=True, t_ns=0) -> HapticCommand:
+    """A session's command to the master: ``force`` (N, frame D), with a reason when disabled."""
+    return HapticCommand(t_ns, np.asarray(force, dtype=float), enabled, "" if enabled else "test")

@@ -13,7 +13,7 @@ and the tests keep using). For each sample time t (ns) and the buffered poses
 * t < t_0: q_0 and p_0, stale.
 
 R_EB = R(q)ᵀ. Not bit-for-bit the numpy path (libm's sin/arccos and the order of
-the norm's sum): tests/core/test_kernels.py holds them to 1e-12.
+the norm's sum): tests/core/test_aligner_kernel.py holds them to 1e-12.
 
 Compiled the first time, then loaded from ``cache=True`` files; ``warm_up()`` does it.
 """

@@ -1,4 +1,6 @@
-"""Test helpers: seeded, physically generated data (no hand-made numbers)."""
+"""Test helpers: where the repository is, seeded and physically generated data (no hand-made numbers), and how
+the estimators' compiled kernels are compared with their numpy references (the tests of rls's and kalman's
+kernels, and of both refusing the same samples), and what the tests of a serial haptic master send it."""
 
 from __future__ import annotations
 
@@ -7,9 +9,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from hapticlab.core.types import AlignedSamples
+from hapticlab.core.types import AlignedSamples, HapticCommand
 
-REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+ROOT = Path(__file__).resolve().parents[1]
+"""The repository (the hapticlab package's folder: docs/, firmware/, pyproject.toml); tests find its files from here."""
+REAL_DATA = ROOT.parent / "shared" / "data" / "real"
+"""The real recordings, beside the repository (the ``real_data`` fixture, tests/conftest.py)."""
 
 
 def static_model_stream(
@@ -49,3 +54,93 @@ def static_model_stream(
         "bias_torque_S": np.asarray(bias_torque_S, float),
     }
     return block, truth
+
+
+# --------------------------------------------------------------------------- the estimators' kernels against numpy
+
+KEYS = ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")
+"""The outputs of ``update_block`` compared: the contact wrench (N, N·m), then the flags."""
+ROUNDING = 1e-12
+"""How far the kalman kernel and the numpy reference may differ: a few ulp of BLAS rounding (N, N·m; relative for
+parameters and covariances). Why, and why the two below: tests/plugins/estimators/kalman/test_kernels.py."""
+ROUNDING_NOISE = 1e-10
+"""The same with the noise estimated (``noise = "auto"``): the rounding fed back through R into the gain."""
+ROUNDING_RATE = 1e-9
+"""The same with bias-rate states or a mount estimate: another arithmetic for the same filter."""
+GAMMA = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
+"""kalman's options before the defaults estimated the noise: the simulated Gamma's, convergence from P."""
+
+
+def kernel_tour(duration_s: float) -> AlignedSamples:
+    """What the kernels are held to their references on: the simulated physics of ``bench paper`` (SimWorld,
+    seed 1, no tool inertia) for ``duration_s`` s at 1 kHz."""
+    from hapticlab.plugins.simworld import SimWorld
+    from hapticlab.sessions.bench.simulation import simulate
+
+    block, _ = simulate(SimWorld(seed=1, inertia=False), duration_s, 1000.0)
+    return block
+
+
+def run_blocks(est, block, size):
+    """``est`` over ``block`` in blocks of ``size`` samples: each of :data:`KEYS`, concatenated."""
+    parts = [est.update_block(block.subset(slice(i, i + size))) for i in range(0, len(block), size)]
+    return {key: np.concatenate([getattr(p, key) for p in parts]) for key in KEYS}
+
+
+def kalman_tolerance(options) -> float:
+    """How far kalman's kernel and reference may differ with these options (:data:`ROUNDING` and the two after it)."""
+    if options.get("bias_rate") or options.get("mount_rotation"):
+        return ROUNDING_RATE
+    return ROUNDING_NOISE if options.get("noise_force", "auto") == "auto" else ROUNDING
+
+
+def same(a, b, key: str = "", tol: float = ROUNDING) -> bool:
+    """Flags identical; numbers within tol (NaN where the other is NaN)."""
+    a, b = np.asarray(a), np.asarray(b)
+    if a.dtype.kind in "biu" or key in KEYS[2:]:
+        return np.array_equal(a, b)
+    return a.shape == b.shape and np.allclose(a, b, rtol=tol, atol=tol, equal_nan=True)
+
+
+def _same_information(a: dict, b: dict, tol: float) -> bool:
+    """The identified rule's information matrices (state()["information"]), within tol of each matrix's largest
+    entry: its entries are sums of C^T R^-1 C over every sample (up to ~1e8), off-diagonal ones cancelling to
+    ~1, so the rounding of R (:data:`ROUNDING_NOISE`) shows at tol of the matrix's scale, not of each entry. The same for the
+    learnt tilt walk's state (state()["tilt"]["walk"]): its windows' sums of R_SB over up to ~1000 samples
+    (a mount estimate's rounding in each R_SB adds up there: 3e-8 of −7.5 measured)."""
+    return a.keys() == b.keys() and all(np.abs(np.subtract(a[k], b[k])).max() <= tol * np.abs(a[k]).max() for k in a)
+
+
+def same_tree(a, b, tol: float = ROUNDING) -> bool:
+    """params(), cov_diag() and state() of the two: the same keys and flags, numbers within tol."""
+    if isinstance(a, dict):
+        return (
+            isinstance(b, dict)
+            and a.keys() == b.keys()
+            and all(
+                _same_information(a[k], b[k], tol)
+                if k == "information"
+                else _same_information({k: a[k]}, {k: b[k]}, tol)
+                if k == "walk" and a[k] is not None
+                else same_tree(a[k], b[k], tol)
+                for k in a
+            )
+        )
+    if isinstance(a, (list, tuple)) and a and not isinstance(a[0], (int, float, bool)):
+        return isinstance(b, (list, tuple)) and len(a) == len(b) and all(same_tree(x, y, tol) for x, y in zip(a, b))
+    if isinstance(a, (bool, str)) or a is None:
+        return a == b
+    return same(a, b, tol=tol)
+
+
+# --------------------------------------------------------------------------- a haptic master on the emulator
+
+GUARD_S = 10.0
+"""s: a guard against hangs only: a test that waits on the master emulator ends on a condition, never a duration."""
+READ_TIMEOUT_S = 1.0
+"""s: the ``serial`` plugin's read timeout in tests that are not about timeouts (a loaded machine may stall a reply)."""
+
+
+def haptic_command(force, enabled=True, t_ns=0) -> HapticCommand:
+    """A session's command to the master: ``force`` (N, frame D), with a reason when disabled."""
+    return HapticCommand(t_ns, np.asarray(force, dtype=float), enabled, "" if enabled else "test")

@@ -7,10 +7,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from helpers import ROOT
 
 import hapticlab
 
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "api.md"
+DOCS = ROOT / "docs" / "api.md"
 
 
 def test_every_example_in_docs_api_runs(tmp_path, monkeypatch, capsys):

@@ -10,7 +10,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import ROOT
+
 LAYERS = ("core", "plugins", "sessions", "facade")
 """Lowest first: a module may import its own layer and the ones before it."""
 

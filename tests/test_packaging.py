@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import sys
 import zipfile
-from pathlib import Path
 
 import pytest
+from helpers import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 SKIP = {"tests", "bench", "docs", "build", "dist", ".venv", ".git"}
 
 

@@ -15,7 +15,8 @@ import sys
 import tomllib
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from helpers import ROOT
+
 README = ROOT / "README.md"
 COMMAND_TIMEOUT_S = 1200
 """A whole command's budget (the slowest, ``review`` of a folder on Dask, takes seconds on an idle machine)."""

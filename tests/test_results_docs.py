@@ -9,9 +9,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from helpers import ROOT
+
 from hapticlab.sessions.bench.report import DISCREPANCY_PREFIX, REAL, RESULTS, commands, main, render
 
-ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "results.md"
 JSON = ROOT / "docs" / "results"
 

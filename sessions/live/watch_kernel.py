@@ -19,7 +19,7 @@ S ← S·exp(−Δt/memory_s), and a used sample adds its terms, for
 ``sums`` (float64, 6): S_rg, S_gg, S_rr, then the last sample's g (3 entries);
 ``clock`` (int64, 3): the last sample's t_ns, the last contact's t_ns, flags
 (bit 0: a last sample is known; bit 1: a contact is known). Both are updated in
-place (tests/sessions/test_lag_watch.py: the lag of a turning tool, contacts,
+place (tests/sessions/live/test_lag_watch.py: the lag of a turning tool, contacts,
 blocks of 1 and 7 samples).
 """
 

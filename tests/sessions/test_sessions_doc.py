@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from pathlib import Path
 
 import pytest
+from helpers import ROOT
 
 from hapticlab.core.host.registry import Registry
 from hapticlab.plugins.simworld import config as world
@@ -16,7 +16,7 @@ from hapticlab.sessions import settings_doc
 from hapticlab.sessions.config import TABLES
 from hapticlab.sessions.settings import HapticSettings, SessionSettings, TeleopSettings
 
-PAGE = Path(__file__).resolve().parents[2] / "docs" / "sessions.md"
+PAGE = ROOT / "docs" / "sessions.md"
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ the 2×2 normal equations. ``inertial_force`` is ``KalmanEstimator._inertial_for
 
 Not bit-for-bit the numpy path: numpy sums a window's 20 terms pairwise (8 accumulators) and
 through ``einsum``, the kernel in order; the derivatives agree to ~1e-13 relative, and the
-filter's outputs then to ~1e-12 N (tests/core/test_kernels.py).
+filter's outputs then to ~1e-12 N (tests/plugins/estimators/kalman/test_kernels.py).
 
 Compiled the first time, then loaded from the ``cache=True`` files; ``warm_up()`` does it.
 """

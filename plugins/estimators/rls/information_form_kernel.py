@@ -18,7 +18,8 @@ Not bit-for-bit the numpy path everywhere: numpy's Aᵀy takes BLAS's order when
 block's R_EB is not C-contiguous, and its R_EB x (the contact wrench) always does; one
 ulp there moves x by up to cond(Λ)·1e-16 (cond(Λ) reaches ~1e12 early in a tour), and
 a numpy block of m > 1 samples sums C_jᵀC_j before adding Λ and solves by LU, which the
-kernel, running sample by sample, does not. tests/core/test_kernels.py states the bounds.
+kernel, running sample by sample, does not.
+tests/plugins/estimators/rls/test_kernel.py states the bounds.
 
 Nothing is allocated: the stages' arrays are updated in place, ``work`` holds the
 per-sample temporaries, the outputs are written into arrays the caller owns.

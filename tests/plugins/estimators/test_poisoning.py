@@ -1,4 +1,4 @@
-"""Estimators are never poisoned (issue 11, item 3).
+"""Estimators are never poisoned.
 
 A sample with a NaN or inf, an R_EB that is not a rotation, or a wrench beyond the
 physical bound is refused per sample: the estimator ends exactly (bit for bit) where
@@ -208,7 +208,7 @@ def test_the_guard_changes_nothing_on_clean_data(tour, name):
 @pytest.mark.parametrize("size", [1, 7, 8000])
 def test_rls_printed_on_a_spoilt_stream_is_algorithm1_on_the_clean_one(tour, size):
     # Algorithm 1 as printed (plugins.estimators.rls.algorithm1) over the samples that are left: the same flags,
-    # the same contact (to the ulps of the contact wrench's formula, as in tests/core/test_rls.py)
+    # the same contact (to the ulps of the contact wrench's formula, as in tests/plugins/estimators/rls/test_rls.py)
     clean = RLSEstimator(seed=4, covariance_update="printed").update_block(tour)
     bad, mask, _ = spoil(tour, first_true(clean.converged_force))
     est = RLSEstimator(seed=4, covariance_update="printed")

@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import ROOT
 
 from hapticlab.core.types import HapticCommand
 from hapticlab.plugins.haptics import framing
 from hapticlab.plugins.haptics.serial import SerialHaptic
 
-ROOT = Path(__file__).resolve().parents[3]
 SKETCH = ROOT / "firmware" / "hapticlab_master" / "hapticlab_master.ino"
 HOST = Path(__file__).resolve().parent / "firmware_host"
 GUARD_S = 10.0

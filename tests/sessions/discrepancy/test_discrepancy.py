@@ -231,7 +231,7 @@ def test_command_line_json_plots_and_toml(tmp_path, capsys):
     np.testing.assert_allclose(
         estimator["mount_rotation_SE"], data["estimator_options"]["mount_rotation_SE"], rtol=1e-5
     )
-    # ... which the kalman estimator takes as it is (item 6 of the issue: the effects online)
+    # ... which the kalman estimator takes as it is (the effects online)
     kalman = Registry().create(
         "estimator", "kalman", {k: v for k, v in estimator.items() if k != "name"}, where="estimator"
     )

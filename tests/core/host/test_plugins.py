@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import inspect
-import re
 import types
 from pathlib import Path
 
 import pluggy
 import pytest
+from helpers import ROOT
 
 from hapticlab.core import hookimpl
 from hapticlab.core.host import hookspecs
@@ -16,7 +16,7 @@ from hapticlab.core.host.interfaces import CAPABILITIES
 from hapticlab.core.host.registry import DEFAULT_PLUGINS, KINDS, ConfigError, PluginError, Registry, make_plugin_manager
 from hapticlab.sessions.live.build import REQUIRED
 
-DOCS = Path(__file__).resolve().parents[2] / "docs" / "plugins.md"
+DOCS = ROOT / "docs" / "plugins.md"
 HOOKS = sorted(n for n, f in vars(hookspecs).items() if n.startswith("register_") and callable(f))
 
 

@@ -131,7 +131,7 @@ def test_block_size_does_not_change_the_result():
     assert np.array_equal(whole.converged_torque, chunked.converged_torque)
 
 
-# ---------------------------------------------------------------- the targets of issue 4
+# ---------------------------------------------------------------- drift, indentations, repeated rows
 
 
 @pytest.mark.parametrize("kalman", [gamma, KalmanEstimator], ids=["gamma-covariance", "defaults"])

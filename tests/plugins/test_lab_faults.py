@@ -1,4 +1,4 @@
-"""Faults over real sockets (issue 13, item 8): emulated devices in child processes, a paced session in this one.
+"""Faults over real sockets: emulated devices in child processes, a paced session in this one.
 
 Two set-ups, every check read from the recording (MCAP) and the session's result:
 

@@ -52,7 +52,7 @@ def test_paper_method_reaches_the_noise_floor(quick):
     # with the 104 g mass on, |contact force| stays near 1.02 N, within the noise
     for speed in ("12", "72"):
         assert abs(out["rotation_104g_low_noise"][speed]["mean"] - 1.02) < 0.02
-    # the weaknesses the issue asks to expose: repeated first rows fake convergence ...
+    # the weaknesses the bench exposes: repeated first rows fake convergence ...
     assert out["repeated_rows"]["converged_force_at"] == 1 and out["repeated_rows"]["refused_pct"] > 50.0
     # ... and the fixed threshold loses hold of a drifting bias: free-space error well above the noise
     drift = out["drift_contact"]

@@ -1,4 +1,4 @@
-"""``kalman``: payload changes without contact, and warm starts from a saved state (issue 4, items 6 and 7).
+"""``kalman``: payload changes without contact, and warm starts from a saved state.
 
 Simulated at 1 kHz with Table I's noise (0.12 N, 0.01 N·m per axis), the paper's
 tool (0.2 kg) and bias; run with ``-s`` to see the measured numbers.
@@ -76,7 +76,7 @@ def others(est) -> list:
     return [e for e in est.events if e.kind not in IDENTIFICATION_EVENTS]
 
 
-# ---------------------------------------------------------------- item 6: payload change
+# ---------------------------------------------------------------- payload change
 
 
 @pytest.mark.parametrize("rule", ["covariance", "identified"])
@@ -100,7 +100,7 @@ def test_added_mass_is_a_payload_change_and_reconverges(reference_heavy, rule):
         f"again {force / RATE_HZ:.3f} s after the hang, the torque stage's {torque / RATE_HZ:.3f} s after "
         f"the event (the new centre of gravity needs the tool to turn); {events[0].message}"
     )
-    assert 0.3 <= delay < 0.5  # the issue's target (re-converged within 0.5 s): payload_change_s + a block
+    assert 0.3 <= delay < 0.5  # the target (re-converged within 0.5 s): payload_change_s + a block
     assert force is not None and force / RATE_HZ <= 0.5
     assert torque is not None and torque / RATE_HZ <= 1.0
     assert close_to(est.params(), reference_heavy), (est.params(), reference_heavy)
@@ -247,7 +247,7 @@ def test_payload_option_is_checked():
             KalmanEstimator(payload_change_s=bad)
 
 
-# ---------------------------------------------------------------- item 7: warm start
+# ---------------------------------------------------------------- warm start
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The recording's layouts (issue 12): format 3 writes the sensor-rate topics in CDR blocks, format 2 in
+"""The recording's layouts: format 3 writes the sensor-rate topics in CDR blocks, format 2 in
 JSON blocks, format 1 one message per sample; the reader gives every consumer the same samples and arrays
 from all three."""
 

@@ -158,7 +158,7 @@ def test_the_model_with_the_true_effects_reproduces_the_simulated_sensor():
     model = Model(
         [(n, BUILTINS[n]()) for n in ("time_lag", "mount_rotation", "inertia", "gain_crosstalk", "bias_drift")]
     )
-    I = truth["inertia_S"]
+    I = truth["inertia_S"]  # noqa: E741 (the inertia tensor's usual name)
     theta = np.concatenate(
         [
             truth["gravity_force_B"],

@@ -116,7 +116,7 @@ def test_batch_estimator_offline_equals_batch_fit(tmp_path):
 
 
 def test_real_axia80_log_within_10_percent_of_the_offline_batch_fit(real_data, tmp_path):
-    """The foundation issue's bar: the online force RMS (after convergence, as a
+    """The bar the estimator is held to: the online force RMS (after convergence, as a
     vector magnitude) at most 10 % above the offline batch fit of the whole file."""
     result = compensate(real_data / "axia80_ur_log_10hz.csv", tmp_path / "out.csv")
     assert result.first_converged_force is not None

@@ -1,5 +1,5 @@
-"""The effects of issue 17, item 1, on new simulated recordings: a sensor warming up, a payload change,
-a loading hysteresis.
+"""Three effects of the library on new simulated recordings: a sensor warming up, a payload change, a loading
+hysteresis.
 
 Each recording is the lively 30 s, 250 Hz tour of ``test_discrepancy`` with one
 of them hidden through the simulator's physics (an exponentially settling bias;
@@ -88,7 +88,7 @@ def test_the_simulated_warm_up_settles_to_the_bias():
 
 @pytest.mark.parametrize(("seed", "width"), [(65, 0.06), (66, 0.15), (67, 0.3)])
 def test_a_loading_hysteresis_is_named_with_its_widths_not_as_a_time_lag(tmp_path, seed, width):
-    """Fitted as a time lag, a hysteresis gave −30 to −178 ms (issue 17); at 0.3 N the lag's linear test still
+    """Fitted as a time lag, a hysteresis gave −30 to −178 ms; at 0.3 N the lag's linear test still
     wins the first round, and is dropped once the hysteresis is named beside it."""
     widths_force_S = np.array([width, 0.7 * width, 1.2 * width])
     path = recording(tmp_path, seed, {"hysteresis_force_S": widths_force_S})

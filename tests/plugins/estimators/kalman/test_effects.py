@@ -1,5 +1,5 @@
 """``kalman``: mount rotation, inertia, time lag, calibration error, auto noise, gating and convergence options
-(issue 4, items 2–5 and 10; the effects the discrepancy workflow names, used online).
+(the effects the discrepancy workflow names, used online).
 
 Simulated at 1 kHz with the default sensor (0.12 N, 0.01 N·m per axis) unless said;
 run with ``-s`` to see the measured numbers.
@@ -22,7 +22,7 @@ RATE_HZ = 1000.0
 NOISE_F = 0.12
 
 
-# ---------------------------------------------------------------- item 4: mount rotation
+# ---------------------------------------------------------------- mount rotation
 
 
 @pytest.fixture(scope="module")
@@ -253,7 +253,7 @@ def test_warm_start_carries_the_mount(mounted, tmp_path):
         KalmanEstimator(warm_start=str(path))
 
 
-# ---------------------------------------------------------------- item 5: inertia
+# ---------------------------------------------------------------- inertia
 
 
 def test_derivatives_of_the_pose_stream_match_the_motion():
@@ -351,7 +351,7 @@ def test_the_inertial_force_matches_the_simulated_one():
 def test_104_g_at_72_deg_s_with_inertia():
     """The paper's rotation test (Figs. 8–9) at ¼ of Table I's noise; the mass is a load, not a payload.
 
-    The issue's target scenario. The instrument turns about its own axis, on which its centre of
+    The estimator's target scenario. The instrument turns about its own axis, on which its centre of
     mass lies, so its inertial force is nil here and the option does not change the result (the
     tour tests above are the ones the option must pass).
     """

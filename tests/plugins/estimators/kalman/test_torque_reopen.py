@@ -1,4 +1,4 @@
-"""``kalman``'s torque bias re-opening (issue 16): a torque-only refusal that lasts is a torque bias that moved.
+"""``kalman``'s torque bias re-opening: a torque-only refusal that lasts is a torque bias that moved.
 
 A knock or a warm-up can move the torque bias without moving the force bias; the torque stage then refuses
 every sample from there on as a "contact" (its random walk, 4e-4 N·m/√s, would take hours to widen its gate

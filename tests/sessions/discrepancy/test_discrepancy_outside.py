@@ -1,10 +1,10 @@
-"""Physical effects outside the discrepancy workflow's library (issue 17, item 2): nothing from the library named.
+"""Physical effects outside the discrepancy workflow's library: nothing from the library named.
 
 Each recording is the lively 30 s, 250 Hz tour of ``test_discrepancy`` (seeds
 used nowhere else) with something the library does not model: a cable pulling
 the tool (a spring to an anchor), a trocar's drag (a damper on the tip's
 velocity), and a loading hysteresis with ``hysteresis`` left out of the
-candidates (the case of issue 17, where it was named a time lag). Some library
+candidates (once named a time lag). Some library
 term gains on held-out data in each (a negative inertial mass for the cable, a
 time lag for the hysteresis); the structure test sets it aside because it
 leaves most of the structure in place, and the leftover is flagged and located.

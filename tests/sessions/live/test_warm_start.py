@@ -1,4 +1,4 @@
-"""Sessions save the estimator's final state and a later session warm-starts from it (issue 4, item 7)."""
+"""Sessions save the estimator's final state and a later session warm-starts from it."""
 
 from __future__ import annotations
 

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
+from helpers import ROOT
 from mcap.reader import make_reader
 
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
 
-LAYOUT = Path(__file__).resolve().parents[2] / "docs" / "foxglove-layout.json"
+LAYOUT = ROOT / "docs" / "foxglove-layout.json"
 PATH = re.compile(r"^(?P<topic>/[A-Za-z0-9_/]+)(?:\{(?P<filter>[^}]*)\})?(?:\.(?P<field>[A-Za-z_][A-Za-z0-9_]*))?")
 
 

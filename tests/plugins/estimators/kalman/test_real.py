@@ -1,6 +1,6 @@
-"""``kalman`` on the real recordings (skipped when ``shared/data/real`` is absent): the estimator issue's
-target (online RMS ≤ 1.05× the offline batch fit) and the discrepancy issue's item 6 (the effects it names,
-used online, shrink the gap in the estimator that drives the haptics too).
+"""``kalman`` on the real recordings (skipped when ``shared/data/real`` is absent): the estimator's
+target (online RMS ≤ 1.05× the offline batch fit), and the effects the discrepancy workflow names, used
+online, shrinking the gap in the estimator that drives the haptics too.
 
 Scored over each file's second half, the same rows for every estimator whatever its own convergence
 flag says (``hapticlab bench real``'s "2nd half" column).

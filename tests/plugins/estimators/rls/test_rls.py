@@ -265,7 +265,7 @@ def test_adversarial_streams_match_algorithm1(seed):
 
 def test_nan_after_convergence_is_refused():
     # Algorithm 1 gates a NaN after convergence as contact (its residual is not below f_th); the
-    # estimator refuses it before the stages see it (issue 11): a NaN row, not a contact
+    # estimator refuses it before the stages see it: a NaN row, not a contact
     block, _ = static_model_stream(1200, seed=9, noise_force=0.1, noise_torque=0.008)
     block.force_S[1000] = np.nan
     for size in (1, 7, 1200):

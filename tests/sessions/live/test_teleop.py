@@ -371,7 +371,11 @@ def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tm
     tool_axis_B = np.array([matrix_from_quat_wxyz(q)[:, 2] for q in quat])
     tilt = np.degrees(np.arccos(np.clip(tool_axis_B @ tool_axis_B[0], -1.0, 1.0)))
     assert 20 < tilt[t_pose < t_cal].max() < 30  # the 25° calibration tour, on the arm (a servo overshoots a little)
-    assert 0.015 < np.ptp(p_pose[t_pose > t_cal + 0.5, 2]) < 0.027
+    # then went where the targets sent it (its servo within 3 mm), never further down than the hand's 5 cm press
+    # scaled by half: how far the press got while the robot followed is the machine's pace, not the program's
+    sent_z, arm_z = p[t > t_cal + 0.5, 2], p_pose[t_pose > t_cal + 0.5, 2]
+    assert np.ptp(sent_z) <= 0.025 + 1e-9
+    assert abs(np.ptp(arm_z) - np.ptp(sent_z)) < 0.003, (np.ptp(arm_z), np.ptp(sent_z))
     # the Net F/T felt the tissue and the hand was pushed back up, never above the limit
     force_D = rec.field("/haptic/command", "force_D")
     assert force_D[:, 2].max() > 1.0 and np.linalg.norm(force_D, axis=1).max() <= 4.0 + 1e-9

@@ -27,7 +27,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.errors import ConfigError
 from hapticlab.sessions.settings import HAPTIC_SAFETY_KEYS
 
 TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "shadows")

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import quat_wxyz_from_matrix
-from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.sensor_model import Model, Motion, motion_from_poses
 from hapticlab.sessions.discrepancy.leftover import axis_noise
 from hapticlab.sessions.discrepancy.settings import Settings

@@ -27,9 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from hapticlab.core.aligner import Aligner
-from hapticlab.core.errors import OutputExistsError
+from hapticlab.core.errors import ConfigError, OutputExistsError
 from hapticlab.core.host.interfaces import HasCalibration, HasLatency, HasRange, PreparesAhead, ReadsBlocks
-from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import Event, WrenchBlock
 from hapticlab.sessions.live.build import EstimatorSlot, Session, default_out_path, session_metadata
 from hapticlab.sessions.live.command import HapticCommander

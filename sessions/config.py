@@ -27,7 +27,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from hapticlab.core.host.registry import ConfigError
+from hapticlab.core.errors import ConfigError
 from hapticlab.sessions.settings import HAPTIC_SAFETY_KEYS
 
 TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "shadows")
@@ -106,6 +106,7 @@ def apply_settings(config: dict[str, Any], settings: dict[str, Any]) -> dict[str
             shadow = shadows.get(value) if table == "estimator" and isinstance(shadows, dict) else None
             if isinstance(shadow, dict) and shadow.get("name", value) == value:
                 kept = {**shadow, "name": value}
+                assert isinstance(shadows, dict)  # the shadow came from it
                 del shadows[value]
                 if not shadows:
                     del config["shadows"]

@@ -41,6 +41,7 @@ from __future__ import annotations
 import tempfile
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -189,7 +190,7 @@ def stage_table(
             finally:
                 ticks_ns[0] += time.perf_counter_ns() - t0
 
-        loop._tick = timed_tick
+        loop._tick = timed_tick  # type: ignore[method-assign]  # the bench times every tick
         t0 = time.perf_counter_ns()
         result = run_timed()
         wall_ns = time.perf_counter_ns() - t0
@@ -256,8 +257,8 @@ def per_sample_us(factory: Callable[[], Any], block: AlignedSamples, size: int) 
         t0 = time.perf_counter_ns()
         est.update_block(part)
         times.append((time.perf_counter_ns() - t0) / size / 1e3)
-    times = np.array(times[len(times) // 2 :])
-    return float(np.median(times)), float(np.percentile(times, 99))
+    converged = np.array(times[len(times) // 2 :])
+    return float(np.median(converged)), float(np.percentile(converged, 99))
 
 
 def estimator_table(
@@ -281,8 +282,8 @@ def default_estimators() -> dict[str, Callable[[], Any]]:
         ("kalman, inertia", "kalman", {"inertia": True}),
     ):
         for kernel in ("numba", "numpy"):
-            out[f"{label} ({kernel})"] = lambda name=name, options={"kernel": kernel, **options}: registry.create(
-                "estimator", name, options, where="estimator"
+            out[f"{label} ({kernel})"] = partial(
+                registry.create, "estimator", name, {"kernel": kernel, **options}, where="estimator"
             )
     return out
 

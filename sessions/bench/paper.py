@@ -32,6 +32,7 @@ from hapticlab.core.estimation.model import contact_wrench
 from hapticlab.core.frames import GRAVITY_M_S2
 from hapticlab.core.host.registry import Registry, option_types
 from hapticlab.core.types import AlignedSamples, first_true
+from hapticlab.plugins.simworld.motion import AxialRotation, StaticPoses
 from hapticlab.sessions.bench.paper_setup import (
     AXES_F,
     AXES_T,
@@ -133,6 +134,7 @@ def run_paper(
     period = setup.hold_s + setup.move_s
     block, w = simulate(pose_world, (poses + 1) * period + setup.move_s, rate)
     est, _ = feed(estimator, block)
+    assert isinstance(pose_world.motion, StaticPoses)  # the script asked for above
     at = np.round(pose_world.motion.hold_midpoints(poses) * rate).astype(int)
     result["no_contact"] = {
         "force": error_stats(block.force_S[at], est.contact_force_S[at], AXES_F),
@@ -140,8 +142,8 @@ def run_paper(
         "poses": poses,
         "converged": bool(est.converged_force[at].any()),
     }
-    for group, axes, noise in (("force", AXES_F, setup.noise_force), ("torque", AXES_T, setup.noise_torque)):
-        for axis, sigma in zip(axes, noise):
+    for group, axes, sigmas in (("force", AXES_F, setup.noise_force), ("torque", AXES_T, setup.noise_torque)):
+        for axis, sigma in zip(axes, sigmas):
             result["no_contact"][group][axis]["std_after_over_noise"] = (
                 result["no_contact"][group][axis]["std_after"] / sigma
             )
@@ -207,6 +209,7 @@ def run_paper(
             "max_tilt_deg": setup.identification_tilt_deg,
         }
     )
+    assert isinstance(rep_world.motion, StaticPoses)  # the script asked for above
     held = rep_world.motion.hold_midpoints(40)
     t_rows = np.repeat(held, 5)  # five identical rows per pose
     w = rep_world.wrench(held)
@@ -288,6 +291,7 @@ def rotation_test(
         "mean": float(np.mean(magnitude)),
         "contact_detected_pct": 100.0 * float(np.mean(est.contact[turning])),
     }
+    assert isinstance(world.motion, AxialRotation)  # the script asked for above
     angle_deg = np.rad2deg(world.motion.angle(t[turning])[0] - world.motion.angle(np.array([start]))[0][0])
     return numbers, angle_deg, magnitude
 

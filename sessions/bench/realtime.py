@@ -70,7 +70,7 @@ def realtime_run(
                 if progress:
                     progress(f"realtime, {(now - loop.t0_ns) * 1e-9:.0f} of {duration_s:g} s")
 
-        session.haptic.send = timed_send
+        session.haptic.send = timed_send  # type: ignore[method-assign]  # the bench times every command sent
         result = loop.run()
         size_mb = result.path.stat().st_size / 1e6
     lat = latencies[: count[0]] / 1e3

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import argparse
 from functools import partial
-from typing import Any
+from typing import Any, cast
 
 import pluggy
 
@@ -35,7 +35,9 @@ def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> N
     devices = parser.add_subparsers(dest="device", required=True, metavar="DEVICE")
     registry = Registry(pm)
     for name in registry.names("emulator"):
-        emulator = registry.get("emulator", name).factory
+        # register_emulators registers EmulatorCommand objects (docs/plugins.md); the registry types every
+        # factory as a callable
+        emulator = cast(EmulatorCommand, registry.get("emulator", name).factory)
         device = devices.add_parser(name, help=emulator.help, description=emulator.help)
         emulator.add_arguments(device)
         if getattr(emulator, "needs_world", False):

@@ -13,8 +13,8 @@ from __future__ import annotations
 from hapticlab.core.errors import UserError
 
 
-def is_user_error(exc: BaseException) -> bool:
-    """True when ``exc`` is the user's to fix (printed as one line, exit status 2)."""
+def is_user_error(exc: BaseException | None) -> bool:
+    """True when ``exc`` is the user's to fix (printed as one line, exit status 2); False for None (no cause)."""
     if isinstance(exc, UserError):
         return True
     return isinstance(exc, OSError) and exc.filename is not None

@@ -11,6 +11,7 @@ import argparse
 import os
 import select
 import sys
+from typing import IO, Any
 
 from rich.console import Console
 from rich.live import Live
@@ -49,11 +50,11 @@ class RearmKey:
         active: stdin is a terminal in cbreak mode, read by :meth:`pressed`.
     """
 
-    def __init__(self, stream=None):
+    def __init__(self, stream: IO[Any] | None = None) -> None:
         self.stream = sys.stdin if stream is None else stream
         self.active = False
-        self._saved = None
-        self._fd: int | None = None
+        self._saved: list[Any] | None = None  # the terminal's attributes while cbreak is set
+        self._fd: int | None = None  # the terminal's descriptor, set with _saved and active
 
     def __enter__(self) -> "RearmKey":
         try:
@@ -74,6 +75,7 @@ class RearmKey:
         if self._saved is not None:
             import termios
 
+            assert self._fd is not None  # set with _saved
             try:  # the terminal it was set on; gone (a hang-up) is nothing to restore, and must not hide the result
                 termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
             except (termios.error, OSError):
@@ -85,10 +87,12 @@ class RearmKey:
         """The ``r`` key was pressed since the last call (never waits; other keys are dropped)."""
         if not self.active:
             return False
+        fd = self._fd
+        assert fd is not None  # set with active
         data = b""
         try:
-            while select.select([self._fd], [], [], 0)[0]:
-                chunk = os.read(self._fd, 64)
+            while select.select([fd], [], [], 0)[0]:
+                chunk = os.read(fd, 64)
                 if not chunk:
                     break
                 data += chunk
@@ -188,8 +192,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     if result.held_out_samples is not None:  # refused, but lone: the sensor's noise, not a contact
         table.add_row("samples held out (lone outliers)", str(result.held_out_samples))
     table.add_row("haptic force on", f"{result.haptic_on_s:.2f} s")
-    for key, value in result.params.items():  # (as Text: rich would take "[nan, nan, nan]" for a style tag)
-        table.add_row(key, Text("[" + ", ".join(f"{v:.4g}" for v in value) + "]"))
+    for name, value in result.params.items():  # (as Text: rich would take "[nan, nan, nan]" for a style tag)
+        table.add_row(name, Text("[" + ", ".join(f"{v:.4g}" for v in value) + "]"))
     table.add_row("events", str(len(result.events)))
     if result.overruns:
         table.add_row("loop overruns", f"{result.overruns} (see the overrun events)")

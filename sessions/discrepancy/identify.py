@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import quat_wxyz_from_matrix
-from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.sensor_model import Model, Motion, motion_from_poses
 from hapticlab.sessions.discrepancy.leftover import axis_noise
 from hapticlab.sessions.discrepancy.settings import Settings
@@ -169,7 +169,7 @@ class Identification:
         delta[t] = solve_scaled(HT[np.ix_(t, t)], gT[t] - HT[np.ix_(t, f)] @ delta[f])
         return delta
 
-    def normal_equations(self, J: np.ndarray, r: np.ndarray):
+    def normal_equations(self, J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Force-channel and torque-channel normal equations ``(HF, gF, HT, gT)`` of weighted J (m, 6, p), r (m, 6)."""
         p = J.shape[2]
         JF, JT = J[:, :3].reshape(-1, p), J[:, 3:].reshape(-1, p)

@@ -31,8 +31,9 @@ class State:
     label: str
     model: Model
     theta: np.ndarray
-    residual: np.ndarray = None  # (n, 6) on every row, filled by the workflow
-    weight_S: np.ndarray = None  # (n, 3) predicted weight in S
+    # filled by report() before anything reads them (a State is built before its fit's rows are predicted)
+    residual: np.ndarray = None  # type: ignore[assignment]  # (n, 6) on every row
+    weight_S: np.ndarray = None  # type: ignore[assignment]  # (n, 3) predicted weight in S
 
 
 def report(

@@ -218,7 +218,7 @@ class Discrepancy(Identification):
             predicted = model.predict6(self.fit_motion, theta)[rows]
             own_noise = axis_noise(self.y_fit[rows] - predicted)
             shares = {name: self.structure_share(model, theta, name, predicted, own_noise) for name, _ in model.effects}
-            name = min(shares, key=shares.get)
+            name = min(shares, key=shares.__getitem__)
             if shares[name] >= min_share:
                 break
             self.say(f"setting {name} aside: it explains {100 * shares[name]:.0f} % of the structure it faces")

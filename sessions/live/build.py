@@ -16,6 +16,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from hapticlab.core.errors import ConfigError
 from hapticlab.core.host.interfaces import (
     CountsConvergence,
     EmitsEvents,
@@ -34,7 +35,7 @@ from hapticlab.core.host.interfaces import (
     SensorSource,
     ServosCartesian,
 )
-from hapticlab.core.host.registry import ConfigError, Registry
+from hapticlab.core.host.registry import Registry
 from hapticlab.sessions.config import PLUGIN_TABLES, check_tables, plugin_options, shadow_tables
 from hapticlab.sessions.live.gate import HapticGate
 from hapticlab.sessions.live.safety import ForceGovernor

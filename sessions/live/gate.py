@@ -109,7 +109,7 @@ def screen(block: AlignedSamples, sensor: HasRange | None) -> tuple[np.ndarray, 
     :func:`data_reason`, in one compiled pass (``sessions.live.gate_kernel``; these three stay the reference)."""
     n = len(block)
     usable, beyond = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
-    ranges = (
+    ranges: tuple[np.ndarray, np.ndarray] = (
         (_NO_RANGE, _NO_RANGE)
         if sensor is None
         else (np.asarray(sensor.range_force_S, dtype=float), np.asarray(sensor.range_torque_S, dtype=float))
@@ -252,8 +252,8 @@ class HapticGate:
             self.parameters_known = std is None or std <= self.ready_force_std
             if self.parameters_known and std is not None:
                 events.append(Event(now_ns, "parameters_known", f"force parameters known to ±{std:.3g} N (1σ)"))
-        elif self.parameters_known and self.parameter_std is not None:
-            self.parameters_lost = self._std() > self.ready_force_std  # e.g. a drifting estimator in a long contact
+        elif self.parameters_known and (std := self._std()) is not None:  # (None: no parameter_std)
+            self.parameters_lost = std > self.ready_force_std  # e.g. a drifting estimator in a long contact
         if self.bias_hold == "drop" and not self.converged[0]:
             self.bias_hold = "rise"
         # (and the parameters known again: kalman's flag at the pose is back before the tool is re-identified)
@@ -338,11 +338,14 @@ class HapticGate:
         if self.frozen():
             return f"kinematics frozen (the same pose for {self.poses.frozen_for_ns * 1e-6:.0f} ms)"
         if self._jumped(now_ns):
+            assert self.poses.jump is not None  # _jumped: a jump was seen
             return f"kinematics jumped ({self.poses.jump[1]})"
         if self._out_of_step():
+            lag_s = self.lag.lag_s
+            assert lag_s is not None  # _out_of_step: a lag was measured
             return (
-                f"kinematics out of step with the sensor (poses {abs(self.lag.lag_s) * 1e3:.0f} ms "
-                f"{'late' if self.lag.lag_s > 0 else 'early'})"
+                f"kinematics out of step with the sensor (poses {abs(lag_s) * 1e3:.0f} ms "
+                f"{'late' if lag_s > 0 else 'early'})"
             )
         if self.bias_hold == "latched":
             return LATCHED

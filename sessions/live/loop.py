@@ -27,9 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from hapticlab.core.aligner import Aligner
-from hapticlab.core.errors import OutputExistsError
+from hapticlab.core.errors import ConfigError, OutputExistsError
 from hapticlab.core.host.interfaces import HasCalibration, HasLatency, HasRange, PreparesAhead, ReadsBlocks
-from hapticlab.core.host.registry import ConfigError
 from hapticlab.core.types import Event, WrenchBlock
 from hapticlab.sessions.live.build import EstimatorSlot, Session, default_out_path, session_metadata
 from hapticlab.sessions.live.command import HapticCommander
@@ -344,6 +343,7 @@ class LiveLoop:
     def _open(self) -> None:
         self._call("sensor", self.s.sensor.open, self.t0_ns)
         if isinstance(self.s.sensor, HasCalibration):  # a real sensor knows its calibration once it is open
+            assert self.recorder is not None  # run() made it before opening the devices
             self.recorder.add_metadata("hapticlab.calibration", dict(self.s.sensor.calibration))
         self._call("kinematics", self.s.kinematics.open, self.t0_ns)
         self._call("haptic", self.s.haptic.open)
@@ -385,6 +385,7 @@ class LiveLoop:
             "realtime_priority": self.priority,
             "signals_while_ending": self.signals_while_ending,
         }
+        assert self.recorder is not None  # run() made it before the session started
         if primary.saves is not None and failure is None:
             state_path = save_estimator_state(primary, self.recorder, self.path, end_ns, self._event)
             if state_path is not None:

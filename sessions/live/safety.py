@@ -44,10 +44,10 @@ TOLERANCE = 1e-9
 
 def deadband(force: np.ndarray, width: float) -> np.ndarray:
     """(3,) ``force`` with ``width`` (N) taken off its magnitude, zero when it is smaller; direction kept."""
-    return np.array(_deadband3(*force.tolist(), width))
+    return np.array(_deadband3(width, *force.tolist()))
 
 
-def _deadband3(x: float, y: float, z: float, width: float) -> tuple[float, float, float]:
+def _deadband3(width: float, x: float, y: float, z: float) -> tuple[float, float, float]:
     """:func:`deadband` on three floats (the governor's arithmetic is in Python floats: at one vector per
     device period numpy's per-call cost is most of the work)."""
     norm = math.hypot(x, y, z)
@@ -86,7 +86,7 @@ class ForceGovernor:
 
     def __init__(self, settings: HapticSettings, period_s: float):
         self.settings = settings
-        self.R_DB = matrix_from_rotvec(settings.rotation_DB)
+        self.R_DB = matrix_from_rotvec(np.asarray(settings.rotation_DB, dtype=float))
         self.max_step = settings.max_force_rate * period_s
         self.gain = lowpass_gain(settings.cutoff_hz, period_s)
         self.device_max_force: float | None = None
@@ -139,12 +139,14 @@ class ForceGovernor:
         if not reason and (contact_force_S is None or R_BS is None):
             reason = "no estimate yet"
         if not reason:
+            assert contact_force_S is not None  # else the reason is "no estimate yet"
             f0, f1, f2 = contact_force_S.tolist()
             if not (math.isfinite(f0) and math.isfinite(f1) and math.isfinite(f2)):
                 reason = "non-finite contact force"
         if not reason:  # Python floats: an overflow gives inf, no warning, and fails the check
             scale = self.settings.scale
             # R_BS · f, then R_DB · that, in Python floats (numpy's 3×3 product costs more than its 18 products)
+            assert R_BS is not None  # else the reason is "no estimate yet"
             force_B = [r0 * f0 + r1 * f1 + r2 * f2 for r0, r1, r2 in R_BS.tolist()]
             b0, b1, b2 = force_B
             mapped_D = [scale * (r0 * b0 + r1 * b1 + r2 * b2) for r0, r1, r2 in self._R_DB_rows]
@@ -154,7 +156,7 @@ class ForceGovernor:
             return self._zero(t_ns, reason)
         # a convex combination of finite forces: the filter's state stays finite
         gain = self.gain
-        x0, x1, x2 = _deadband3(*mapped_D, self.settings.deadband)
+        x0, x1, x2 = _deadband3(self.settings.deadband, *mapped_D)
         y0, y1, y2 = self._filtered
         self._filtered = target = [y0 + gain * (x0 - y0), y1 + gain * (x1 - y1), y2 + gain * (x2 - y2)]
         norm = math.hypot(*target)

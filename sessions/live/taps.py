@@ -92,7 +92,7 @@ class _Blocks:
         if not parts:
             return
         if len(parts) == 1:
-            message = dict(zip(self.fields, parts[0]))
+            message: dict[str, object] = dict(zip(self.fields, parts[0]))
         else:
             message = {k: np.concatenate(column) for k, column in zip(self.fields, zip(*parts))}
         if self.last:

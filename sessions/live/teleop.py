@@ -148,6 +148,7 @@ class Teleoperation:
                 events.append(Event(now_ns, "teleop_holding", f"robot holding: {reason}", {"reason": reason}))
             self.mode, self.reason, self.engaged = "holding", reason, None
             return self._target(now_ns, "holding", reason), events
+        assert state is not None  # no hold reason: the master reports a fresh state
         handle = np.asarray(state.p_DoHo_D, dtype=float)
         if self.engaged is None:  # (re-)engaging: the offset is captured, nothing jumps
             self.engaged = (self.p_target.copy(), handle.copy())
@@ -223,6 +224,7 @@ class Teleoperation:
         absent = self._absent(now_ns, state)
         if absent:
             return absent
+        assert state is not None  # not absent: the master reports a state
         bit = self.settings.clutch_button
         if bit >= 0 and (int(state.buttons) >> bit) & 1:
             return "clutch pressed"

@@ -106,6 +106,7 @@ class PoseWatch:
         """How long the robot has reported the same pose beyond the timeout (0 when it has not), ns."""
         if self.changed_ns is None:
             return 0
+        assert self.newest_ns is not None  # add() sets it with changed_ns
         held = self.newest_ns - self.changed_ns
         return held if held > self.timeout_ns else 0
 
@@ -121,7 +122,7 @@ class BiasWatch:
     have moved in S by three tolerances or more.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.start_ns: int | None = None  # the refused run's first sample
         self.R_EB_start: np.ndarray | None = None
         self.first: list[list[float]] = []  # contact force (in S) over the run's first window
@@ -136,7 +137,7 @@ class BiasWatch:
         if not contact[-1]:
             self.start_ns = None
             return None
-        free = () if contact.all() else np.flatnonzero(~contact)
+        free: tuple[int, ...] | np.ndarray = () if contact.all() else np.flatnonzero(~contact)
         k = int(free[-1]) + 1 if len(free) else 0  # the first row of the run this block ends with
         if self.start_ns is None or len(free):
             self.start_ns, self.R_EB_start = int(block.t_ns[k]), block.R_EB[k]
@@ -169,6 +170,7 @@ class BiasWatch:
         if size < BIAS_MIN_OFFSET_N or self.max_departure > tolerance:
             return None
         # a force fixed in the world, seen in S along `before` at the run's start, would now be along R_turn @ before
+        assert self.R_EB_start is not None  # set with start_ns
         R_turn = block.R_EB[-1] @ self.R_EB_start.T  # S (= E up to the mount) now, from S at the start
         if np.linalg.norm(R_turn @ self.before - self.before) < 3 * tolerance:
             return None

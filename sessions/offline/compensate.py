@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.errors import UserError
+from hapticlab.core.errors import ConfigError, UserError
 from hapticlab.core.host.interfaces import cov_diag_of, params_of
-from hapticlab.core.host.registry import ConfigError, Registry
+from hapticlab.core.host.registry import Registry
 from hapticlab.core.types import Estimates
 from hapticlab.sessions.config import parse_value
 from hapticlab.sessions.offline.metrics import RmsAfterConvergence

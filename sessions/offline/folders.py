@@ -130,12 +130,12 @@ def map_recordings(
 
     from dask.distributed import Client, LocalCluster, as_completed
 
-    paths = [Path(p) for p in paths]
+    files = [Path(p) for p in paths]
     start = time.perf_counter()
     cluster = None
     if scheduler is None:
         n = workers or os.cpu_count() or 1
-        n = max(1, min(n, len(paths)))
+        n = max(1, min(n, len(files)))
         cluster = LocalCluster(
             n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40
         )
@@ -147,15 +147,15 @@ def map_recordings(
         except (OSError, TimeoutError) as exc:
             raise FolderError(f"--scheduler {scheduler}: no Dask scheduler answered: {exc}") from None
     try:
-        futures = {client.submit(_run_one, func, path, pure=False): i for i, path in enumerate(paths)}
-        outcomes: list[Outcome | None] = [None] * len(paths)
-        bar = _progress(progress, description, len(paths))
+        futures = {client.submit(_run_one, func, path, pure=False): i for i, path in enumerate(files)}
+        outcomes: list[Outcome | None] = [None] * len(files)
+        bar = _progress(progress, description, len(files))
         with bar:
-            task = bar.add_task(description, total=len(paths))
+            task = bar.add_task(description, total=len(files))
             for future in as_completed(futures):
                 i = futures[future]
                 value, error = future.result()  # a bug in the task raises here, with its traceback
-                outcomes[i] = Outcome(paths[i], value, error)
+                outcomes[i] = Outcome(files[i], value, error)
                 bar.advance(task)
         peaks = client.run(_peak_rss_mb)
         n_workers = len(client.scheduler_info()["workers"])

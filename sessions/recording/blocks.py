@@ -28,7 +28,7 @@ def block_times(blocks: list[dict[str, Any]]) -> np.ndarray:
 def cdr_block_field(topic: str, blocks: list[dict[str, Any]], name: str) -> np.ndarray:
     """A field of CDR blocks concatenated: the recorded dtype (int64, bool, float with NaN for every
     non-finite value); float with NaN where a block lacks the field (as ``stack`` does for JSON)."""
-    parts = [b.get(name) for b in blocks]
+    parts: list[Any] = [b.get(name) for b in blocks]  # arrays, None where a block lacks the field
     present = [p for p in parts if p is not None]
     if not present:
         raise KeyError(f"{topic} has no field {name!r}")

@@ -129,7 +129,7 @@ def encode_block(
         )
     t, t_last = _times(topic, message.get("t_ns"))
     n = t.size
-    arrays = [t]
+    arrays: list[np.ndarray | None] = [t]
     for column in block.columns[1:]:
         value = message.get(column.name)
         arrays.append(None if value is None else _column(topic, column, value, n))
@@ -253,6 +253,7 @@ def decode_block(block: CdrBlock, data: bytes, decode_json: Callable[[str], Any]
         if count > 1:
             out["params"] = decode_json(data[start : start + count - 1].decode("utf-8"))
         if layout.has_cov_diag:
+            assert layout.cov_diag is not None  # block_layout reads the flag after the sequence
             start, count = layout.cov_diag
             out["cov_diag"] = listed(np.frombuffer(data, dtype=_F64, count=count, offset=start))
     return out
@@ -261,5 +262,6 @@ def decode_block(block: CdrBlock, data: bytes, decode_json: Callable[[str], Any]
 def listed(arr: np.ndarray) -> list[Any]:
     """``arr.tolist()`` with non-finite floats as None (as formats 1 and 2 read their JSON null)."""
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
-        return np.where(np.isfinite(arr), arr.astype(object), None).tolist()
+        # numpy's stubs take no None as a value; np.where broadcasts it as an object
+        return np.where(np.isfinite(arr), arr.astype(object), None).tolist()  # type: ignore[call-overload]
     return arr.tolist()

@@ -34,12 +34,15 @@ import struct
 import zlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hapticlab.sessions.recording.cdr import CdrBlockError, block_layout, decode_block
 from hapticlab.sessions.recording.mcapfile import RecordingError, block_kind, open_reader
+
+if TYPE_CHECKING:
+    from mcap.records import ChunkIndex
 
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, start, end, uncompressed size, crc, compression len
 _INDEX_HEAD = struct.Struct("<BQHI")  # opcode, record length, channel id, records length
@@ -130,11 +133,14 @@ def iter_chunks(
             if any(cid in channels for cid in i.message_index_offsets)
         ]
         while indexes:
-            group, size = [], 0
+            group: list[ChunkIndex] = []
+            size = 0
             while indexes and (not group or size + indexes[0].uncompressed_size <= GROUP_BYTES):
                 size += indexes[0].uncompressed_size
                 group.append(indexes.pop(0))
-            parts, pairs, base = [], {}, 0
+            parts: list[bytes] = []
+            pairs: dict[int, list[np.ndarray]] = {}  # channel id: its (log time, offset) pairs in each chunk
+            base = 0
             for index in group:
                 data = _chunk_data(f, path, index)
                 for cid, offset in index.message_index_offsets.items():
@@ -147,8 +153,8 @@ def iter_chunks(
             data = b"".join(parts)
             buf = np.frombuffer(data, dtype=np.uint8)
             out: dict[str, Any] = {}
-            for cid, found in pairs.items():
-                both = np.concatenate(found)
+            for cid, per_chunk in pairs.items():
+                both = np.concatenate(per_chunk)
                 both = both[np.argsort(both[:, 1], kind="stable")]  # file order
                 topic = channels[cid].topic
                 try:
@@ -248,7 +254,7 @@ def _messages(
                 }
             )
     widths = {name: (arr.shape[1], arr.dtype) for g in groups for name, arr in g.items()}
-    out = {}
+    out: dict[str, Any] = {}  # the columns, then params
     for name, (width, dtype) in widths.items():  # a field absent from some blocks: NaN there
         out[name] = np.concatenate([g[name] if name in g else np.full((len(g["t_ns"]), width), np.nan) for g in groups])
     order = np.argsort(out["t_ns"].ravel(), kind="stable")  # the groups back in time order

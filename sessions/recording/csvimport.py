@@ -166,8 +166,10 @@ class _Chunk:
         torque_S = columns(("tx", "ty", "tz"))
         quat = columns(("qw", "qx", "qy", "qz"))
         norm = np.linalg.norm(quat, axis=1)
-        if (k := off_unit(norm)) is not None:
-            raise CsvError(f"{name} line {lines[k]}, columns qw,qx,qy,qz: not a unit quaternion (norm {norm[k]:.6g})")
+        if (off := off_unit(norm)) is not None:
+            raise CsvError(
+                f"{name} line {lines[off]}, columns qw,qx,qy,qz: not a unit quaternion (norm {norm[off]:.6g})"
+            )
         quat = quat / norm[:, None]
         p = columns(POSITION) if self.has_position else None
         joints = columns(self.joint_cols) if self.joint_cols else None

@@ -60,17 +60,19 @@ class ProcessSink:
             env=_child_env(),
             start_new_session=False,
         )
-        self._pipe = self._proc.stdin.fileno()
+        assert self._proc.stdin is not None and self._proc.stdout is not None  # stdin=PIPE, stdout=PIPE
+        self._stdin, self._stdout = self._proc.stdin, self._proc.stdout
+        self._pipe = self._stdin.fileno()
         try:
             import fcntl
 
             fcntl.fcntl(self._pipe, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
         except (ImportError, AttributeError, OSError):  # not Linux, or above pipe-max-size: the default 64 KiB
             pass
-        line = self._proc.stdout.readline()
+        line = self._stdout.readline()
         if live and line.startswith(LIVE_ADDRESS):  # the live view's address, then ready
             self.live_address = line[len(LIVE_ADDRESS) :].decode().strip()
-            line = self._proc.stdout.readline()
+            line = self._stdout.readline()
         if line != READY:
             self._proc.wait()
             raise WriterProcessError(
@@ -113,9 +115,9 @@ class ProcessSink:
         try:
             self.send()
         finally:
-            self._proc.stdin.close()
-            reply = self._proc.stdout.read()
-            self._proc.stdout.close()
+            self._stdin.close()
+            reply = self._stdout.read()
+            self._stdout.close()
             status = self._proc.wait()
         if status != 0 or not reply.startswith(b"finished"):
             raise WriterProcessError(
@@ -127,8 +129,8 @@ class ProcessSink:
         """Stop the child without a footer (a failed start)."""
         self._proc.kill()
         self._proc.wait()
-        self._proc.stdin.close()
-        self._proc.stdout.close()
+        self._stdin.close()
+        self._stdout.close()
 
     def _write(self, data: bytes) -> None:
         view = memoryview(data)

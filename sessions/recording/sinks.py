@@ -33,9 +33,12 @@ import signal
 import struct
 import sys
 import time
-from typing import IO, Protocol
+from typing import IO, TYPE_CHECKING, Protocol
 
 from mcap.writer import CompressionType, Writer
+
+if TYPE_CHECKING:
+    from foxglove import Channel
 
 _monotonic = time.monotonic
 LENGTH = struct.Struct("<I")
@@ -130,7 +133,7 @@ class FoxgloveTee:
         self.server = foxglove.start_server(name="hapticlab", host=host or "127.0.0.1", port=int(port))
         self.port = self.server.port
         self._schemas: dict[int, tuple[str, str, bytes]] = {}
-        self._channels: dict[int, object] = {}
+        self._channels: dict[int, Channel] = {}
 
     def register_schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None:
         self._schemas[schema_id] = (name, encoding, data)

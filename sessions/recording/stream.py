@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -48,13 +49,13 @@ class Stream:
         """Consecutive chunks of one file (:func:`~.loader.iter_stream`) as one stream; the notes of every chunk."""
         if len(parts) == 1:
             return parts[0]
-        joints = [p.joints for p in parts]
+        joints = [p.joints for p in parts if p.joints is not None]
         return cls(
             np.concatenate([p.t_s for p in parts]),
             concat_samples([p.samples for p in parts]),
             [note for p in parts for note in p.notes],
             parts[0].source,
-            None if any(j is None for j in joints) else np.concatenate(joints),
+            np.concatenate(joints) if len(joints) == len(parts) else None,
         )
 
     @property
@@ -72,7 +73,7 @@ def concat_samples(parts: list[AlignedSamples]) -> AlignedSamples:
     """Consecutive blocks of aligned samples as one (the one block itself when there is one)."""
     if len(parts) == 1:
         return parts[0]
-    arrays = {}
+    arrays: dict[str, Any] = {}  # the required fields are arrays in every part; the optional ones may be None
     for f in fields(AlignedSamples):
         values = [getattr(p, f.name) for p in parts]
         arrays[f.name] = None if any(v is None for v in values) else np.concatenate(values)

@@ -63,6 +63,7 @@ def _limits(ax, series, k: int, settled_s: float | None) -> None:
 
 
 def wrench(r: SessionReview):
+    assert r.series is not None  # drawn only for a review made with plots (write_plots and the page check)
     plt, fig, axes = _figure(6, 1.4)
     units = ["N"] * 3 + ["N·m"] * 3
     primary = r.primary
@@ -85,6 +86,7 @@ def wrench(r: SessionReview):
 
 
 def convergence(r: SessionReview):
+    assert r.series is not None  # drawn only for a review made with plots (write_plots and the page check)
     names = list(r.series.params[0][1]) if r.series.params else []
     plt, fig, axes = _figure(max(len(names), 1), 1.6)
     t = np.array([p[0] for p in r.series.params])
@@ -111,6 +113,7 @@ def convergence(r: SessionReview):
 
 
 def contact(r: SessionReview):
+    assert r.series is not None  # drawn only for a review made with plots (write_plots and the page check)
     plt, fig, axes = _figure(1, 3.0)
     ax = axes[0]
     _band(ax, r.series.contact_force, 0, "tab:blue", "‖contact force‖")
@@ -131,6 +134,7 @@ def contact(r: SessionReview):
 
 
 def command(r: SessionReview):
+    assert r.series is not None  # drawn only for a review made with plots (write_plots and the page check)
     plt, fig, axes = _figure(2, 1.8)
     env = r.series.command
     if env is None or not env.count.any():

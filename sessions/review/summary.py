@@ -207,7 +207,8 @@ def review(
     pending_rows = dict.fromkeys(names, 0)
     aligned_chunk: list[dict[str, np.ndarray]] = []
     aligned_rows = 0
-    health = {"samples": 0, "lost": 0, "bad": 0, "last_seq": None, "first_t": None, "last_t": None}
+    # counts (int), and the last sequence number and first and last stamps (int, None before the first sample)
+    health: dict[str, Any] = {"samples": 0, "lost": 0, "bad": 0, "last_seq": None, "first_t": None, "last_t": None}
     commands: list[dict[str, np.ndarray]] = []
     command_rows = 0
 
@@ -264,7 +265,7 @@ def review(
     if plots:
         topics.append("/haptic/command")
     fast = fast and can_read(rec.path)
-    recent = deque(maxlen=3 if fast else 32)
+    recent: deque[dict[str, np.ndarray]] = deque(maxlen=3 if fast else 32)
     for topic, batch in file_batches(rec.path, topics, fast):
         if topic == "/aligned/sample":
             recent.append(batch)

@@ -151,7 +151,7 @@ def run(rate_hz: float, seconds: float, warmup_s: float = 1.0) -> dict:
             seq = rec.field("/sensor/wrench", "seq").astype(np.int64)
     finally:
         sent_line = stop_lab(proc)
-    step = int(round(FT_RATE_HZ / rate_hz))
+    step = round(FT_RATE_HZ / rate_hz)
     expected = int((seq[-1] - seq[0]) // step + 1)
     kept = len(np.unique(seq))
     i = np.concatenate(seqs).astype(np.int64) - FT_SEQUENCE_START
@@ -183,9 +183,9 @@ def run(rate_hz: float, seconds: float, warmup_s: float = 1.0) -> dict:
         "latency_from_burst": stats(from_burst[steady]),
         "send_to_receipt": stats(((receipt_ns - sample_ns) / 1e3)[steady]),
         "receipt_to_estimate": stats(((done - receipt_ns) / 1e3)[steady]),
-        "all_samples": {"estimated": int(len(i)), "latency_from_sample": stats(from_sample)},
+        "all_samples": {"estimated": len(i), "latency_from_sample": stats(from_sample)},
         "overruns": result.overruns,
-        "ticks": int(round(result.duration_s * 1000)),
+        "ticks": round(result.duration_s * 1000),
         "poses": result.poses,
         "lab": sent_line,
         "load_before": None,

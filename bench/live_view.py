@@ -42,7 +42,7 @@ def _watch(address: str, done, count) -> None:
             while not done.is_set():
                 try:
                     message = await asyncio.wait_for(ws.recv(), timeout=0.2)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     continue
                 except websockets.ConnectionClosed:
                     break

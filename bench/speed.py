@@ -26,16 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
-from hapticlab.core.frames import quat_wxyz_from_matrix  # noqa: E402
-from hapticlab.plugins.estimators.batch import BatchEstimator  # noqa: E402
-from hapticlab.plugins.estimators.kalman import KalmanEstimator  # noqa: E402
-from hapticlab.plugins.estimators.rls import RLSEstimator  # noqa: E402
-from hapticlab.plugins.simworld import SimWorld  # noqa: E402
-from hapticlab.sessions.bench.loop import per_sample_us  # noqa: E402
-from hapticlab.sessions.bench.simulation import simulate  # noqa: E402
-from hapticlab.sessions.config import apply_overrides, load_config  # noqa: E402
-from hapticlab.sessions.live import build_session, run_session  # noqa: E402
-from hapticlab.sessions.offline.compensate import compensate  # noqa: E402
+from hapticlab.core.frames import quat_wxyz_from_matrix
+from hapticlab.plugins.estimators.batch import BatchEstimator
+from hapticlab.plugins.estimators.kalman import KalmanEstimator
+from hapticlab.plugins.estimators.rls import RLSEstimator
+from hapticlab.plugins.simworld import SimWorld
+from hapticlab.sessions.bench.loop import per_sample_us
+from hapticlab.sessions.bench.simulation import simulate
+from hapticlab.sessions.config import apply_overrides, load_config
+from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.offline.compensate import compensate
 
 
 def main() -> None:
@@ -51,7 +51,7 @@ def main() -> None:
     for name, factory in (("rls", RLSEstimator), ("kalman", KalmanEstimator)):
         for size in (1, 7, 1024):
             row = [
-                per_sample_us(lambda kernel=kernel: factory(kernel=kernel), block, size)
+                per_sample_us(lambda kernel=kernel, factory=factory: factory(kernel=kernel), block, size)
                 for kernel in ("numba", "numpy")
             ]
             print(f"{name:<10}{size:>7}{row[0][0]:>14.2f}{row[0][1]:>9.2f}{row[1][0]:>14.2f}{row[1][1]:>9.2f}")

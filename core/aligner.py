@@ -117,7 +117,7 @@ class Aligner:
     def __init__(self, kinematics_rate_hz: float, keep: int = 64, kernel: str = "numba", latency_s: float = 0.0):
         if kernel not in ("numba", "numpy"):
             raise ValueError(f"kernel: must be 'numba' or 'numpy', got {kernel!r}")
-        self.period_ns = int(round(1e9 / kinematics_rate_hz + latency_s * 1e9))
+        self.period_ns = round(1e9 / kinematics_rate_hz + latency_s * 1e9)
         """The longest extrapolation past the newest pose, ns (one period, plus the source's latency)."""
         self.keep = keep
         self.kernel = kernel

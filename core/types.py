@@ -96,7 +96,7 @@ class WrenchBlock:
         return len(self.t_ns)
 
     @classmethod
-    def from_samples(cls, samples: list[WrenchSample]) -> "WrenchBlock":
+    def from_samples(cls, samples: list[WrenchSample]) -> WrenchBlock:
         """The readings of ``samples`` (in their order) as arrays."""
         n = len(samples)
         return cls(
@@ -108,7 +108,7 @@ class WrenchBlock:
         )
 
     @classmethod
-    def concatenate(cls, blocks: list["WrenchBlock"]) -> "WrenchBlock":
+    def concatenate(cls, blocks: list[WrenchBlock]) -> WrenchBlock:
         """One block of ``blocks``' readings, in their order (at least one block)."""
         if len(blocks) == 1:
             return blocks[0]
@@ -119,7 +119,7 @@ class WrenchBlock:
             )
         )
 
-    def subset(self, index: slice | np.ndarray) -> "WrenchBlock":
+    def subset(self, index: slice | np.ndarray) -> WrenchBlock:
         """The readings selected by a slice, a boolean mask or an index array."""
         return WrenchBlock(
             self.t_ns[index], self.force_S[index], self.torque_S[index], self.seq[index], self.status[index]
@@ -229,7 +229,7 @@ class AlignedSamples:
             ok &= np.isfinite(self.p_BoEo_B).all(1)
         return ok
 
-    def subset(self, index: slice | np.ndarray) -> "AlignedSamples":
+    def subset(self, index: slice | np.ndarray) -> AlignedSamples:
         """The samples selected by a boolean mask or index array."""
         return AlignedSamples(
             self.t_ns[index],
@@ -276,8 +276,8 @@ class Estimates:
 
     @classmethod
     def concatenate(
-        cls, parts: list["Estimates"], params: dict[str, list[float]] | None = None, cov_diag: list[float] | None = None
-    ) -> "Estimates":
+        cls, parts: list[Estimates], params: dict[str, list[float]] | None = None, cov_diag: list[float] | None = None
+    ) -> Estimates:
         """Consecutive blocks' estimates as one (``params``/``cov_diag`` describe the end)."""
         return cls(
             t_ns=np.concatenate([p.t_ns for p in parts]),

@@ -51,7 +51,7 @@ class DeviceClock:
         else:
             self.offset_ns = min(seen, self.offset_ns + self.slew * (k - self.last_k) * self.period_ns)  # type: ignore[operator]  # last_k is set with offset_ns
         self.last_k = k
-        t_ns = int(round(device_ns + self.offset_ns))
+        t_ns = round(device_ns + self.offset_ns)
         if self.last_t_ns is not None and t_ns <= self.last_t_ns:
             t_ns = self.last_t_ns + 1
         self.last_t_ns = t_ns

@@ -84,6 +84,7 @@ def run(args: argparse.Namespace, world: SimWorld) -> int:
     except OSError as exc:
         raise ConfigError(f"emulate lab: cannot serve on {args.netft} or {args.ur}: {exc.strerror or exc}") from None
     sensor.start()
+    following = " following the targets written to its input registers (hapticlab_follow.script)"
     try:
         try:
             arm.start(t0_ns=sensor.t0_ns)  # one world time: the arm's timestamp 0 is the sensor's first sample
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace, world: SimWorld) -> int:
                 ready=lambda: print(
                     f"lab: Net F/T on {args.netft} (RDT udp/{sensor.rdt_port} at {args.rate:g} Hz, "
                     f"netftapi2.xml http/{sensor.http_port}), UR {args.model} on {args.ur}:{arm.port}"
-                    f"{' following the targets written to its input registers (hapticlab_follow.script)' if arm.follows else ''}; "
+                    f"{following if arm.follows else ''}; "
                     f"t0_ns={sensor.t0_ns}",
                     flush=True,
                 ),

@@ -37,6 +37,7 @@ says which resources the test was waiting on.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -49,9 +50,9 @@ os.environ.setdefault(
     str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "numba" / os.environ.get("PYTEST_XDIST_WORKER", "gw0")),
 )  # before numba is imported (below, through hapticlab)
 
-import pytest  # noqa: E402
-from helpers import REAL_DATA  # noqa: E402
-from processes import Child, start_child  # noqa: E402
+import pytest
+from helpers import REAL_DATA
+from processes import Child, start_child
 
 REALTIME = {
     "paced_run": "a paced session (session.realtime = true)",
@@ -242,10 +243,8 @@ def pty_pair():
     master, slave = os.openpty()
     yield master, slave
     for fd in (master, slave):
-        try:
+        with contextlib.suppress(OSError):  # closed by the test
             os.close(fd)
-        except OSError:  # closed by the test
-            pass
 
 
 @pytest.fixture

@@ -105,8 +105,8 @@ def same(a, b, key: str = "", tol: float = ROUNDING) -> bool:
 def _same_information(a: dict, b: dict, tol: float) -> bool:
     """The identified rule's information matrices (state()["information"]), within tol of each matrix's largest
     entry: its entries are sums of C^T R^-1 C over every sample (up to ~1e8), off-diagonal ones cancelling to
-    ~1, so the rounding of R (:data:`ROUNDING_NOISE`) shows at tol of the matrix's scale, not of each entry. The same for the
-    learnt tilt walk's state (state()["tilt"]["walk"]): its windows' sums of R_SB over up to ~1000 samples
+    ~1, so the rounding of R (:data:`ROUNDING_NOISE`) shows at tol of the matrix's scale, not of each entry. The same
+    for the learnt tilt walk's state (state()["tilt"]["walk"]): its windows' sums of R_SB over up to ~1000 samples
     (a mount estimate's rounding in each R_SB adds up there: 3e-8 of −7.5 measured)."""
     return a.keys() == b.keys() and all(np.abs(np.subtract(a[k], b[k])).max() <= tol * np.abs(a[k]).max() for k in a)
 

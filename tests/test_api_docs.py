@@ -20,7 +20,7 @@ def test_every_example_in_docs_api_runs(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
     for block in blocks:
-        exec(compile(block, str(DOCS), "exec"), namespace)  # noqa: S102 - our own documentation
+        exec(compile(block, str(DOCS), "exec"), namespace)  # our own documentation
     path = namespace["path"]
     assert Path(path).is_file() and Path(path).parent.name == "recordings"
     assert namespace["config"]["estimator"]["name"] == "kalman"  # the demo's (rls beside it)

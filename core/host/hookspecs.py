@@ -10,7 +10,8 @@ Full prose for each hook is in ``docs/plugins.md``.
 from __future__ import annotations
 
 import argparse
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import pluggy
 

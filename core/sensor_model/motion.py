@@ -68,7 +68,7 @@ class Motion:
         """The samples selected by a mask or index array (of a recorded motion, not a shifted one)."""
         if self.source is not None:
             raise ValueError("subset() of a shifted motion; take the subset of the recording, then shift")
-        pick: Callable[[np.ndarray | None], np.ndarray | None] = lambda a: None if a is None else a[index]  # noqa: E731
+        pick: Callable[[np.ndarray | None], np.ndarray | None] = lambda a: None if a is None else a[index]  # noqa: E731 (a one-line closure)
         return Motion(
             self.t[index],
             self.R_EB[index],
@@ -97,7 +97,7 @@ class Motion:
         span = t[k + 1] - t[k]
         u = np.clip(np.divide(at - t[k], span, out=np.zeros_like(at), where=span > 0), 0.0, 1.0)
         quat = quat_slerp(src.quat_BE[k], src.quat_BE[k + 1], u)
-        lerp: Callable[[np.ndarray | None], np.ndarray | None] = (  # noqa: E731
+        lerp: Callable[[np.ndarray | None], np.ndarray | None] = (  # noqa: E731 (a one-line closure)
             lambda a: None if a is None else a[k] + u[:, None] * (a[k + 1] - a[k])
         )
         return Motion(
@@ -219,15 +219,15 @@ def motion_from_poses(
     if time_base != "seconds" or len(t) < 5:
         return Motion(t, R_EB, quat, time_base=time_base, t_ref=t_ref)
     dt = float(np.median(np.diff(t)))
-    window = max(5, int(round(window_s / dt)) | 1)
+    window = max(5, round(window_s / dt) | 1)
     if window > len(t):
         window = len(t) if len(t) % 2 else len(t) - 1
     steps = np.diff(t)
     sg: Callable[[np.ndarray, int], np.ndarray]
     if np.ptp(steps) <= 1e-6 * dt:  # evenly spaced: the uniform filter (a correlation, faster)
-        sg = lambda x, d: savgol(x, window, d, dt)  # noqa: E731
+        sg = lambda x, d: savgol(x, window, d, dt)  # noqa: E731 (a one-line closure)
     else:
-        sg = lambda x, d: savgol_t(x, t, window, d)  # noqa: E731
+        sg = lambda x, d: savgol_t(x, t, window, d)  # noqa: E731 (a one-line closure)
     q_conj = quat_conjugate(sg(quat, 0))
     w_E = 2.0 * quat_multiply(q_conj, sg(quat, 1))[:, 1:]
     alpha_E = 2.0 * quat_multiply(q_conj, sg(quat, 2))[:, 1:]

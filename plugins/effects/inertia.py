@@ -41,7 +41,8 @@ def _inertia_matrix(p: np.ndarray) -> np.ndarray:
 
 
 class Inertia(Effect):
-    """Inertial wrench of the tool: ``mass_scale`` k, the inertia I_S (kg·m²) about the centre of mass, the sensor offset p (m)."""
+    """Inertial wrench of the tool: ``mass_scale`` k, the inertia I_S (kg·m²) about the centre of mass, the
+    sensor offset p (m)."""
 
     stage = "load"
     labels = ("mass_scale", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz", "px_m", "py_m", "pz_m")

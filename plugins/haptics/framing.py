@@ -195,7 +195,7 @@ class HelloAck:
         )
 
     @classmethod
-    def unpack(cls, payload: bytes) -> "HelloAck":
+    def unpack(cls, payload: bytes) -> HelloAck:
         return cls(*HELLO_ACK_FORMAT.unpack(payload))
 
 
@@ -227,14 +227,14 @@ class State:
         )
 
     @classmethod
-    def unpack(cls, payload: bytes) -> "State":
+    def unpack(cls, payload: bytes) -> State:
         ack, px, py, pz, vx, vy, vz, buttons, status = STATE_FORMAT.unpack(payload)
         return cls(ack, np.array([px, py, pz]), np.array([vx, vy, vz]), buttons, status)
 
 
 def pack_hello(watchdog_s: float) -> bytes:
     """HELLO's payload: our protocol version and the device watchdog time (s, 0 = off, at most 65.535 s)."""
-    return HELLO_FORMAT.pack(PROTOCOL_VERSION, min(int(round(watchdog_s * 1000)), 0xFFFF))
+    return HELLO_FORMAT.pack(PROTOCOL_VERSION, min(round(watchdog_s * 1000), 0xFFFF))
 
 
 def pack_force(force_D: np.ndarray) -> bytes:

@@ -38,6 +38,7 @@ CRTK names: ``servo_cf`` is ``send``, ``measured_cp`` is ``state``.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
@@ -237,10 +238,8 @@ class HidHaptic:
         if not self.opened:
             return
         if self.lost is None:
-            try:
+            with contextlib.suppress(MasterLostError):
                 self.transport.write(self._out_report(ZERO3, enabled=False))
-            except MasterLostError:
-                pass
         self.transport.close()
         self.opened = False
 
@@ -361,10 +360,8 @@ class HidHaptic:
         self.lost = error
         self.next_try = time.monotonic() + self.reconnect_interval
         if error.cause != "gone":  # it may still hear us: zero, at once, best effort
-            try:
+            with contextlib.suppress(MasterLostError):
                 self.transport.write(self._out_report(ZERO3, enabled=False))
-            except MasterLostError:
-                pass
 
     def _retry(self) -> None:
         """Reopen a device that went away; it stays lost until an IN report answers the try."""

@@ -51,7 +51,7 @@ class FakeFault:
     KINDS = ("unplug", "stale", "wrong_id", "silent")
 
     @classmethod
-    def parse(cls, text: str) -> "FakeFault":
+    def parse(cls, text: str) -> FakeFault:
         """``kind@report[:count]``, e.g. ``unplug@2600`` or ``stale@10:3``; ValueError naming what is wrong."""
         kind, _, rest = text.partition("@")
         at, _, count = rest.partition(":")
@@ -226,7 +226,7 @@ class FakeRawHidMaster:
 class FakeHidDevice:
     """hidapi's ``hid.device`` API over the :class:`FakeRawHidMaster` s of a :class:`FakeHidapi`."""
 
-    def __init__(self, bus: "FakeHidapi"):
+    def __init__(self, bus: FakeHidapi):
         self.bus = bus
         self.master: FakeRawHidMaster | None = None
         self.nonblocking = False

@@ -179,7 +179,7 @@ class RawHidLayout:
     inp: ReportLayout
 
     @classmethod
-    def from_config(cls, spec: str | dict, where: str = "layout") -> "RawHidLayout":
+    def from_config(cls, spec: str | dict, where: str = "layout") -> RawHidLayout:
         """From a preset name or a table ``{report_id, size, out = {field = {offset, type, scale}}, in = {...}}``.
 
         Raises OptionError naming the key on anything wrong (``layout.out.force_y: ...``; the session

@@ -10,6 +10,7 @@ timeout, close. :class:`HidapiTransport` implements it on a hidapi-like module
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -190,10 +191,8 @@ class HidapiTransport:
 
     def close(self) -> None:
         if self.device is not None:
-            try:
+            with contextlib.suppress(OSError, ValueError):
                 self.device.close()
-            except (OSError, ValueError):
-                pass
             self.device = None
 
     def _error(self) -> str:

@@ -85,7 +85,7 @@ class DeviceInfo:
         )
 
     @classmethod
-    def unpack(cls, reply: bytes) -> "DeviceInfo":
+    def unpack(cls, reply: bytes) -> DeviceInfo:
         """Parse a 22-byte device info reply (code included); ValueError naming what is wrong."""
         if len(reply) != DEVICE_INFO_SIZE or reply[0] != DEVICE_INFO:
             raise ValueError(

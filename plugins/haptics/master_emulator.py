@@ -30,6 +30,7 @@ with EIO).
 from __future__ import annotations
 
 import collections
+import contextlib
 import csv
 import math
 import os
@@ -38,9 +39,9 @@ import threading
 import time
 import tty
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -134,7 +135,7 @@ class MasterEmulator:
 
     # ------------------------------------------------------------------ life cycle
 
-    def start(self) -> "MasterEmulator":
+    def start(self) -> MasterEmulator:
         """Open the pty pair (raw) and serve in a daemon thread; ``port`` then names the slave side."""
         self._master_fd, self._slave_fd = os.openpty()
         tty.setraw(self._slave_fd)  # no echo, no line editing, no CR/LF translation: bytes as sent
@@ -152,7 +153,7 @@ class MasterEmulator:
             self._thread = None
         self._close_fds()
 
-    def __enter__(self) -> "MasterEmulator":
+    def __enter__(self) -> MasterEmulator:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -161,10 +162,8 @@ class MasterEmulator:
     def _close_fds(self) -> None:
         for fd in (self._master_fd, self._slave_fd):
             if fd >= 0:
-                try:
+                with contextlib.suppress(OSError):
                     os.close(fd)
-                except OSError:
-                    pass
         self._master_fd = self._slave_fd = -1
 
     # ------------------------------------------------------------------ faults
@@ -249,10 +248,8 @@ class MasterEmulator:
                 if self.protocol == "hapticlab"
                 else bytes((reply[0] ^ 0x80,)) + reply[1:]
             )
-        try:
+        with contextlib.suppress(OSError):
             os.write(self._master_fd, garbage + reply)
-        except OSError:
-            pass
 
     def _render(self, force: np.ndarray) -> np.ndarray:
         """The force the device's motors produce: clamped to its maximum along its direction, N."""

@@ -37,7 +37,7 @@ class ScheduledFault:
     arg: float | None = None
 
     @classmethod
-    def parse(cls, text: str) -> "ScheduledFault":
+    def parse(cls, text: str) -> ScheduledFault:
         kind, _, rest = text.partition("@")
         when, _, arg = rest.partition(":")
         try:

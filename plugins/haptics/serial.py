@@ -37,6 +37,7 @@ is ``state`` (the handle's measured Cartesian pose, with its velocity).
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -248,10 +249,8 @@ class SerialHaptic:
         if self.port is None:
             return
         if self.link is not None and self.lost is None:
-            try:
+            with contextlib.suppress(MasterLostError):
                 self.link.exchange(ZERO3_F32)
-            except MasterLostError:
-                pass
         self.port.close()
         self.port = self.link = self.pipeline = None
 
@@ -286,10 +285,8 @@ class SerialHaptic:
         self.errors_in_row = 0
         self.next_try = time.monotonic() + self.reconnect_interval
         if error.cause in ("silent", "errors"):  # it may still hear us: zero, at once, best effort
-            try:
+            with contextlib.suppress(MasterLostError):
                 self.link.post(ZERO3_F32)  # type: ignore[union-attr]  # lost while open
-            except MasterLostError:
-                pass
 
     def _retry(self) -> None:
         """Ready a lost device for a try: reopen the port if it went away, redo the handshake if it restarted.

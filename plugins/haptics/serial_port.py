@@ -8,6 +8,7 @@ is a :class:`Reading`.
 
 from __future__ import annotations
 
+import contextlib
 import select
 import time
 import typing
@@ -91,10 +92,8 @@ class SerialPort:
             raise MasterLostError(f"{self.name}: {_why(exc)}", "gone") from None
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(self._serial_exception, OSError):
             self.serial.close()
-        except (self._serial_exception, OSError):
-            pass
 
 
 def _why(exc: BaseException) -> str:

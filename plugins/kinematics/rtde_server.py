@@ -12,6 +12,7 @@ controller's cycle on a slow client beyond its socket's send.
 
 from __future__ import annotations
 
+import contextlib
 import select
 import socket
 import struct
@@ -175,7 +176,7 @@ class RTDEServer:
         if not due:
             return 0
         if stalled:
-            for client, recipe in due:
+            for _client, recipe in due:
                 recipe.next_cycle += recipe.every
             return len(due)
         values = outputs(cycle)
@@ -319,8 +320,6 @@ class RTDEServer:
 
 
 def _close(sock: socket.socket) -> None:
-    try:
+    with contextlib.suppress(OSError):
         sock.shutdown(socket.SHUT_RDWR)
-    except OSError:
-        pass
     sock.close()

@@ -172,7 +172,7 @@ class UREmulator:
 
     # ------------------------------------------------------------------ life cycle
 
-    def start(self, t0_ns: int | None = None) -> "UREmulator":
+    def start(self, t0_ns: int | None = None) -> UREmulator:
         """Listen, and start the controller clock; a second call does nothing.
 
         ``t0_ns`` is the controller's ``timestamp`` 0 (the world's time 0) on the
@@ -196,7 +196,7 @@ class UREmulator:
             self._thread.join(timeout=2.0)
             self._thread = None
 
-    def __enter__(self) -> "UREmulator":
+    def __enter__(self) -> UREmulator:
         return self.start()
 
     def __exit__(self, *exc) -> None:

@@ -26,6 +26,7 @@ whole target up at the next cycle.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import subprocess
@@ -61,7 +62,7 @@ def script_path() -> Path:
 def encode_target(R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> tuple[list[float], list[int]]:
     """The registers' values for a flange target: ([x, y, z] m, [rx, ry, rz] µrad as int32)."""
     rotvec = rotvec_from_matrix(np.asarray(R_BE, dtype=float))
-    return [float(v) for v in p_BoEo_B], [int(round(v / MICRORAD)) for v in rotvec]
+    return [float(v) for v in p_BoEo_B], [round(v / MICRORAD) for v in rotvec]
 
 
 def decode_target(position: list[float], rotation: list[int]) -> tuple[np.ndarray, np.ndarray]:
@@ -112,10 +113,8 @@ class TargetWriter:
 
     def close(self) -> None:
         """End the writer (end of file on its pipe); the arm's script stops the arm when targets stop."""
-        try:
+        with contextlib.suppress(OSError):
             self._proc.stdin.close()  # type: ignore[union-attr]  # stdin=PIPE
-        except OSError:
-            pass
         try:
             self._proc.wait(timeout=2.0)
         except subprocess.TimeoutExpired:

@@ -40,6 +40,7 @@ teleoperation's targets: :class:`FollowingURRTDEKinematics`, ``ur_follow.py``).
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import re
 import threading
@@ -173,10 +174,8 @@ class URRTDEKinematics:
             self._thread = None
         self._report_missed(time.monotonic_ns())
         if self._rtde is not None:
-            try:
+            with contextlib.suppress(RuntimeError):  # the controller has gone: nothing left to close
                 self._rtde.disconnect()
-            except RuntimeError:  # the controller has gone: nothing left to close
-                pass
             self._rtde = None
 
     def drain_events(self) -> list[Event]:
@@ -319,7 +318,7 @@ class URRTDEKinematics:
 
 def _ticks(timestamp: float) -> int:
     """A controller timestamp (s) as whole µs ticks."""
-    return int(round(timestamp * CLOCK_TICKS_HZ))
+    return round(timestamp * CLOCK_TICKS_HZ)
 
 
 def _valid_host(host: str) -> bool:
@@ -349,7 +348,7 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
     ):
         super().__init__(address, rate_hz, receive_timeout, model)
         follow_rate_hz = number("follow_rate_hz", follow_rate_hz, above=0, maximum=self.rate_hz, hint=" Hz (rate_hz)")
-        self.period_ns = int(round(1e9 / follow_rate_hz))
+        self.period_ns = round(1e9 / follow_rate_hz)
         self._writer: TargetWriter | None = None
         self._last_sent_ns: int | None = None
 

@@ -12,6 +12,7 @@ the next sequence number. End of file (the session ended, or died) ends it;
 the arm's script stops the arm when targets stop.
 """
 
+import contextlib
 import os
 import select
 import struct
@@ -65,10 +66,8 @@ def serve(address: str, source_fd: int, reply) -> int:
                 reply.flush()
                 return 1
     finally:
-        try:
+        with contextlib.suppress(RuntimeError):
             io.disconnect()
-        except RuntimeError:
-            pass
 
 
 if __name__ == "__main__":

@@ -185,7 +185,7 @@ class JointRates:
     """
 
     def __init__(self, window_s: float = 0.01):
-        self.window_ns = int(round(window_s * 1e9))
+        self.window_ns = round(window_s * 1e9)
         self._history: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque()
 
     def update(self, t_ns: int, q: np.ndarray, qd: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:

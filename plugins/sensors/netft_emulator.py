@@ -104,7 +104,7 @@ class NetFTEmulator:
         self.world = world
         self.address = address
         self.rdt_rate_hz = float(rdt_rate_hz)
-        self.decimation = int(round(decimation))
+        self.decimation = round(decimation)
         self.counts_per_force = float(counts_per_force)
         self.counts_per_torque = float(counts_per_torque)
         self.force_unit, self.torque_unit = force_unit, torque_unit
@@ -144,7 +144,7 @@ class NetFTEmulator:
 
     # ------------------------------------------------------------------ life cycle
 
-    def start(self) -> "NetFTEmulator":
+    def start(self) -> NetFTEmulator:
         """Start the device's clock and serve RDT and HTTP in background threads."""
         self.t0_ns = time.monotonic_ns()
         self._sensor.open(self.t0_ns)
@@ -168,7 +168,7 @@ class NetFTEmulator:
         self._http.server_close()
         self._udp.close()
 
-    def __enter__(self) -> "NetFTEmulator":
+    def __enter__(self) -> NetFTEmulator:
         return self.start()
 
     def __exit__(self, *exc) -> None:

@@ -223,7 +223,7 @@ def configuration_handler(page: Callable[[], bytes]) -> type[BaseHTTPRequestHand
     """An ``http.server`` handler serving ``GET /netftapi2.xml`` from ``page()``; everything else is 404."""
 
     class Handler(BaseHTTPRequestHandler):
-        def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+        def do_GET(self) -> None:  # http.server's name
             if self.path.split("?")[0] != "/netftapi2.xml":
                 self.send_error(404)
                 return

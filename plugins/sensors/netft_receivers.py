@@ -167,22 +167,22 @@ class PynetftLink:
 
     def counters(self) -> dict[str, int]:
         h = self.client.health()  # type: ignore[union-attr]  # open() made it
-        return dict(
-            received=h.received_count,
-            lost=h.lost_count,
-            duplicate=h.duplicate_count,
-            out_of_order=h.out_of_order_count,
-            stall=h.ft_stall_count,
-            ft_backward=h.ft_backward_count,
-            ft_restart=h.ft_restart_count,
-            malformed=h.malformed_count,
-            timeout=h.timeout_count,
-            reconnect=h.reconnect_count,
-            device_error=h.device_error_count,
-            warning=h.warning_count,
-            queue_dropped=h.python_queue_dropped_count,
-            calibration_change=h.calibration_change_count,
-        )
+        return {
+            "received": h.received_count,
+            "lost": h.lost_count,
+            "duplicate": h.duplicate_count,
+            "out_of_order": h.out_of_order_count,
+            "stall": h.ft_stall_count,
+            "ft_backward": h.ft_backward_count,
+            "ft_restart": h.ft_restart_count,
+            "malformed": h.malformed_count,
+            "timeout": h.timeout_count,
+            "reconnect": h.reconnect_count,
+            "device_error": h.device_error_count,
+            "warning": h.warning_count,
+            "queue_dropped": h.python_queue_dropped_count,
+            "calibration_change": h.calibration_change_count,
+        }
 
     def on_timeout(self) -> None:
         pass  # pynetft counts its own timeouts

@@ -62,7 +62,7 @@ class RdtFault:
         return self.start <= t < self.start + self.duration and index % self.every == 0
 
     @classmethod
-    def parse(cls, text: str) -> "RdtFault":
+    def parse(cls, text: str) -> RdtFault:
         """``kind[,start=S][,duration=S][,every=N][,status=0x...]`` (the ``--fault`` syntax)."""
         kind, *fields = [f.strip() for f in text.split(",")]
         values: dict[str, Any] = {}  # start, duration: float; every, status: int

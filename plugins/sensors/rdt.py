@@ -24,6 +24,7 @@ What this module does instead:
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import time
 from dataclasses import dataclass
@@ -129,10 +130,8 @@ class RdtReceiver:
 
     def request(self, command: int, count: int = 0) -> None:
         """Send an RDT request (``CMD_START``, ``CMD_START_BUFFERED``, ``CMD_STOP``, ``CMD_BIAS``)."""
-        try:
+        with contextlib.suppress(OSError):  # ICMP unreachable from an earlier send, or no route: the timeout will tell
             self._sock.send(RDT_HEADER.to_bytes(2, "big") + command.to_bytes(2, "big") + count.to_bytes(4, "big"))  # type: ignore[union-attr]  # open() made it
-        except OSError:  # ICMP unreachable from an earlier send, or no route: the timeout will tell
-            pass
 
     def restart(self) -> None:
         """Send the start request again (after a receive timeout); the sensor numbers rdt_sequence from 1 again."""

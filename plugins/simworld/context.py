@@ -15,7 +15,8 @@ from hapticlab.plugins.simworld.physics import SimWorld
 
 
 def world(table: dict[str, Any]) -> SimWorld:
-    """The session's simulated world from its ``[world]`` table (keys in ``docs/sessions.md``, read by ``config.py``)."""
+    """The session's simulated world from its ``[world]`` table (keys in ``docs/sessions.md``, read by
+    ``config.py``)."""
     return SimWorld.from_config(table)
 
 

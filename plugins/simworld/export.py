@@ -23,7 +23,7 @@ def write_csv(world: SimWorld, path: str | Path, duration: float, rate_hz: float
 
     Columns ``t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz`` and, with ``positions``, ``px,py,pz``.
     """
-    t = np.arange(int(round(duration * rate_hz))) / rate_hz
+    t = np.arange(round(duration * rate_hz)) / rate_hz
     reading = world.wrench(t)
     R_BE, p_BoEo_B = world.pose(t)
     columns = [t[:, None], reading["force_S"], reading["torque_S"], quat_wxyz_from_matrix(R_BE)]

@@ -39,7 +39,7 @@ class Prefetch:
         self, compute: Callable[[np.ndarray], dict[str, np.ndarray]], rate_hz: float, ahead_s: float = PREFETCH_S
     ):
         self.compute = compute
-        self.chunk = min(max(int(round(ahead_s * rate_hz)), 1), PREFETCH_MAX_SAMPLES)
+        self.chunk = min(max(round(ahead_s * rate_hz), 1), PREFETCH_MAX_SAMPLES)
         self.first = 0  # index of the cache's first sample
         self.cache: dict[str, np.ndarray] = {}
         self.size = 0

@@ -192,7 +192,7 @@ class ServoedMotion(MotionScript):
         self.target = (start.R_BE.copy(), start.p_BoEo_B.copy())
         self._target = (tuple(start.R_BE.ravel().tolist()), tuple(start.p_BoEo_B.tolist()))
         self._lock = threading.Lock()
-        self._size = int(math.ceil(history_s / step_s)) + 1
+        self._size = math.ceil(history_s / step_s) + 1
         self._history = np.zeros((self._size, 24))
         """Row k % size: step k's state, [p (3) m, v (3) m/s, a (3) m/s², R_BE (9, row-major),
         w_E (3) rad/s, α_E (3) rad/s²]; the newest is also kept as floats in ``_state``."""
@@ -246,7 +246,7 @@ class ServoedMotion(MotionScript):
 
     def _advance(self, t: float) -> None:
         """Integrate step by step until the newest step's interval holds ``t``."""
-        last = int(math.floor(t / self.dt + 1e-9))
+        last = math.floor(t / self.dt + 1e-9)
         dt = self.dt
         half_dt2 = 0.5 * dt * dt
         while self._k < last:

@@ -57,8 +57,8 @@ def _session(paced_run, netft: str, ur: str, duration: float, out, on_status=Non
         config, [f"sensor.address={netft}", f"kinematics.address={ur}", f"session.duration={duration:.3f}"]
     )
     session = build_session(config)
-    stale_ns = int(round((1.5 / float(session.sensor.rate_hz) + session.sensor.latency_s) * 1e9)) + int(
-        round(1e9 / session.settings.loop_rate_hz)
+    stale_ns = round((1.5 / float(session.sensor.rate_hz) + session.sensor.latency_s) * 1e9) + round(
+        1e9 / session.settings.loop_rate_hz
     )
     result = paced_run(session, out, on_status=on_status, status_interval_s=0.05)
     return result, stale_ns
@@ -98,7 +98,8 @@ def _assert_zero(rec, start_ns: int, end_ns: int, why: str) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def wire(tmp_path_factory, paced_run):
-    """The lab with every wire fault in its window, and one session across them: (rec, result, t0_ns, stale_ns, lab output)."""
+    """The lab with every wire fault in its window, and one session across them:
+    (rec, result, t0_ns, stale_ns, lab output)."""
     faults = []
     for kind, every in (("drop", 5), ("duplicate", 3), ("reorder", 10), ("saturate", 1)):
         start, end = WINDOWS[kind]

@@ -85,7 +85,7 @@ def test_every_builtin_plugin_says_where_its_options_are_documented(page):
 
 def test_every_setting_has_a_meaning_and_a_default_or_says_it_is_required():
     for ident, rows in settings_doc.tables().items():
-        for key, what, default, meaning in rows:
+        for key, what, _default, meaning in rows:
             assert meaning and what, (ident, key)
 
 

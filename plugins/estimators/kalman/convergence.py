@@ -103,8 +103,8 @@ class Convergence(KalmanBase):
     def _identified_var(self, stage: str, A: np.ndarray, accepted: np.ndarray) -> np.ndarray:
         """(1,) the largest variance of the stage's constant (gravity_force_B, N², or cog_S, m²) after a
         sample (the numpy reference runs this rule one sample at a time), from the information its
-        accepted samples carry with the bias held constant (``plugins.estimators.kalman.identified``); Λ is re-seeded from P
-        whenever the estimator re-opens a parameter."""
+        accepted samples carry with the bias held constant (``plugins.estimators.kalman.identified``); Λ is re-seeded
+        from P whenever the estimator re-opens a parameter."""
         if accepted[0]:
             r = (self.force if stage == "force" else self.torque).r
             self._information[stage] = identified.add_information(self._information[stage], A[0], r)
@@ -124,8 +124,8 @@ class Convergence(KalmanBase):
     def _watch_identified(self, t_ns: int) -> None:
         """An event when what the motion identifies of a constant changes: ``not_identifiable`` when it has
         identified some of its axes but not all (which, and how to move), ``identified`` once it has all;
-        only while every axis is clearly one or the other (``plugins.estimators.kalman.identified.decided``: as a motion starts,
-        its axes pass from one to the other within milliseconds). All three unidentified (a still tool, the
+        only while every axis is clearly one or the other (``plugins.estimators.kalman.identified.decided``: as a motion
+        starts, its axes pass from one to the other within milliseconds). All three unidentified (a still tool, the
         start, a re-opened bias) is no news."""
         for stage, name, frame in (("force", "gravity_force_B", "B"), ("torque", "cog_S", "S")):
             std, axes = self._unidentified_now(stage)
@@ -170,7 +170,8 @@ class Convergence(KalmanBase):
 
     def _constant_var(self, stage: str) -> tuple[float, float, float]:
         """How well the motion so far identifies the stage's constant, variance per axis
-        (``plugins.estimators.kalman.identified.constant_var``; compiled, ``identified_kernel.constant_var3``, on the compiled path)."""
+        (``plugins.estimators.kalman.identified.constant_var``; compiled, ``identified_kernel.constant_var3``, on the
+        compiled path)."""
         if self.method == "numba" or self._cascade:
             return identified_kernel.constant_var3(self._information[stage], self._L6)
         return tuple(identified.constant_var(self._information[stage]).tolist())

@@ -42,7 +42,7 @@ class MotionDerivatives:
     def __init__(self, window_s: float = 0.02):
         if not window_s > 0:
             raise ValueError(f"window_s: must be > 0, got {window_s!r}")
-        self.window_ns = int(round(window_s * 1e9))
+        self.window_ns = round(window_s * 1e9)
         self._t = np.zeros(0, dtype=np.int64)
         self._q = np.zeros((0, 4))
         self._p = np.zeros((0, 3))

@@ -194,7 +194,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         self._mass_known = False  # a warm start's force stage had converged
         self.prior_f = np.array(prior_f, dtype=float)
         self.prior_t = np.array(prior_t, dtype=float)
-        self.payload_change_ns = int(round(o.payload_change_s * 1e9))
+        self.payload_change_ns = round(o.payload_change_s * 1e9)
         self.torque_reopen_s = float(o.torque_reopen_s)
         # the noise estimate's, the identified rule's, the contact judge's and the tilt walk's state, in the
         # compiled cascade's layout (both paths use it)
@@ -349,8 +349,8 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         )
 
     def _learn_tilt_walk(self, y_f, A_f, t_ns, refused, tested) -> None:
-        """The tilt walk's intensity from the block's samples (``tilt_walk_kernel.learn_tilt_walk``, run as Python, as the
-        cascade runs it after each sample): into both stages' q_tilt, the torque's times ``TORQUE_PER_FORCE``²
+        """The tilt walk's intensity from the block's samples (``tilt_walk_kernel.learn_tilt_walk``, run as Python, as
+        the cascade runs it after each sample): into both stages' q_tilt, the torque's times ``TORQUE_PER_FORCE``²
         unless it was given. The reference filters one sample per block here, so x is the sample's."""
         if not self._adapt[ADAPT_FORCE_SEEN]:
             return

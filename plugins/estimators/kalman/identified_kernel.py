@@ -22,7 +22,8 @@ def predicted_var(P, A, out):
 
 @njit(cache=True, error_model="numpy")
 def add_information(info, A, r):
-    """info (6, 6) += Cᵀ diag(1/r) C, C = [A, I3], in place (``plugins.estimators.kalman.identified.add_information``)."""
+    """info (6, 6) += Cᵀ diag(1/r) C, C = [A, I3], in place
+    (``plugins.estimators.kalman.identified.add_information``)."""
     for j in range(6):
         for l in range(j, 6):
             s = 0.0
@@ -37,7 +38,8 @@ def add_information(info, A, r):
 
 @njit(cache=True, error_model="numpy")
 def constant_var3(info, L):
-    """diag((Λ⁻¹)[:3, :3]) (``plugins.estimators.kalman.identified.constant_var``) as three floats, inf if Λ is not positive definite.
+    """diag((Λ⁻¹)[:3, :3]) (``plugins.estimators.kalman.identified.constant_var``) as three floats, inf if Λ is
+    not positive definite.
 
     Cholesky of Λ reordered as [b, a] (L (6, 6) scratch): the trailing 3×3 factor T has T Tᵀ = the Schur
     complement Λ_aa − Λ_ab Λ_bb⁻¹ Λ_ba = ((Λ⁻¹)_aa)⁻¹, so diag((Λ⁻¹)_aa) are the squared column norms

@@ -84,7 +84,7 @@ class ModelInputs(KalmanBase):
         hist_q = np.concatenate([self._lag_q, q])
         has_p = block.p_BoEo_B is not None and self._lag_p is not None
         hist_p = np.concatenate([self._lag_p, block.p_BoEo_B]) if has_p else None
-        target = t + int(round(self.time_lag_s * 1e9))
+        target = t + round(self.time_lag_s * 1e9)
         known = target >= hist_t[0]
         if self.kernel == "numba":  # the live aligner's compiled interpolation (to ~1e-12 of the numpy one)
             m = len(t)

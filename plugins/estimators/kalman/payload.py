@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -57,7 +58,14 @@ class RefusedWindow:
     in the run's length). Fields: e, A, y, f, tq, R
     (the module's symbols)."""
 
-    SHAPES = {"e": (3,), "A": (3, 3), "y": (3,), "f": (3,), "tq": (3,), "R": (3, 3)}
+    SHAPES: ClassVar[dict[str, tuple[int, ...]]] = {
+        "e": (3,),
+        "A": (3, 3),
+        "y": (3,),
+        "f": (3,),
+        "tq": (3,),
+        "R": (3, 3),
+    }
 
     def __init__(self, capacity: int = 256):
         self.n = 0

@@ -48,8 +48,8 @@ class Reopening(KalmanBase):
         run_f: StageRun,
         x_before: np.ndarray,
     ) -> None:
-        """Follow the force stage's refusal runs (``plugins.estimators.kalman.payload``); on a payload change re-open gravity and
-        the centre of gravity, replay the run, say so (``payload_change``)."""
+        """Follow the force stage's refusal runs (``plugins.estimators.kalman.payload``); on a payload change re-open
+        gravity and the centre of gravity, replay the run, say so (``payload_change``)."""
         gated = run_f.gated
         if not gated.any() and not self._payload.in_run:
             return
@@ -138,9 +138,9 @@ class Reopening(KalmanBase):
                 t_ns,
                 "torque_bias_reopened",
                 (
-                    f"kalman: torque bias re-opened after {self.torque_reopen_s:g} s of samples the force stage accepted "
-                    f"and the torque stage refused (a torque drift, not a contact; {int(self._adapt[ADAPT_REOPENS])} so "
-                    f"far)"
+                    f"kalman: torque bias re-opened after {self.torque_reopen_s:g} s of samples the force stage "
+                    f"accepted and the torque stage refused (a torque drift, not a contact; "
+                    f"{int(self._adapt[ADAPT_REOPENS])} so far)"
                 ),
                 {"reopens": int(self._adapt[ADAPT_REOPENS])},
             )

@@ -321,7 +321,8 @@ class KalmanStage:
         )
 
     def _run_numba(self, y, A, dt, tilt, active, gate2) -> StageRun:
-        """``_run_fast`` compiled (``plugins.estimators.kalman.stage_kernel.filter6``): x and P updated in place, the same bits."""
+        """``_run_fast`` compiled (``plugins.estimators.kalman.stage_kernel.filter6``): x and P updated in place, the
+        same bits."""
         self._materialise()
         m = len(y)
         X, D, d2 = np.empty((m, 6)), np.empty((m, 6)), np.empty(m)

@@ -77,8 +77,8 @@ def _gate_ldl3(s00, s01, s02, s11, s12, s22, e0, e1, e2, gate2):
 
 @njit(cache=True, error_model="numpy")
 def add_tilt_noise(P, qt, r, turn, tilt, span) -> float:
-    """The bias's random walk over a tilt, in place (``plugins.estimators.kalman.stage``'s "tilt walk" and its span); returns the
-    stage's turn after it, turn + tilt.
+    """The bias's random walk over a tilt, in place (``plugins.estimators.kalman.stage``'s "tilt walk" and its span);
+    returns the stage's turn after it, turn + tilt.
 
     Per axis P's bias diagonal gains f(turn + tilt) − f(turn): f(Θ) = qt·Θ, or with a span
     min(qt·Θ, r·(Θ/span)²), Θ the turn since the stage last tested a sample (took it in or refused it). Over
@@ -244,8 +244,8 @@ def stage_step(x, P, y0, y1, y2, A, dt, active, q, r, rc, gate2):
 
 @njit(cache=True, error_model="numpy")
 def _predict(x, P, dt, q, q_rate, rate):
-    """Predict a stage over dt, in place (``plugins.estimators.kalman.stage.KalmanStage.transition``; n states, any beyond the
-    bias and its rate, a mount's θ, carried unchanged). Without rate states P's bias diagonal gains q·dt.
+    """Predict a stage over dt, in place (``plugins.estimators.kalman.stage.KalmanStage.transition``; n states, any
+    beyond the bias and its rate, a mount's θ, carried unchanged). Without rate states P's bias diagonal gains q·dt.
     With them b += ḃ·dt and P = F P Fᵀ + Q, F = [I 0 0; 0 I dt·I; 0 0 I] (F's rows, then its columns,
     added to P), Q = [0 0 0; 0 q·dt + q_rate·dt³/3  q_rate·dt²/2; 0 q_rate·dt²/2  q_rate·dt]."""
     if dt == 0.0:
@@ -337,14 +337,14 @@ def stage_step_rate(x, P, y0, y1, y2, A, dt, active, q, q_rate, r, rc, gate2, wo
 
 @njit(cache=True, error_model="numpy")
 def stage_step_mount(x, P, R_SE, y0, y1, y2, R_EB, dt, active, q, q_rate, r, gate2, activate_var, work):
-    """The force stage with the mount rotation estimated (``plugins.estimators.kalman.mount_stage.MountStage``, an error-state EKF), one
-    sample in place: x = [a, b, (ḃ), θ] (9 or 12 states), R_SE (3, 3) the nominal mount.
+    """The force stage with the mount rotation estimated (``plugins.estimators.kalman.mount_stage.MountStage``, an
+    error-state EKF), one sample in place: x = [a, b, (ḃ), θ] (9 or 12 states), R_SE (3, 3) the nominal mount.
 
     :func:`_predict` (θ carried), then :func:`_update` with C = [R_SE R_EB, I3, (0), −R_SE [R_EB a]ₓ]
     (the θ columns zero while max diag P_a > ``activate_var``: the weight not yet known, θ waits); after
     an accepted update θ is folded into the mount, R_SE ← R_SE Exp(θ), θ ← 0 (Rodrigues, as
-    ``plugins.estimators.kalman.mount_stage._exp_so3``). No cross noise (the force stage's). ``work`` (≥ n, 9) scratch. Returns
-    (what, d²) as ``stage_step``.
+    ``plugins.estimators.kalman.mount_stage._exp_so3``). No cross noise (the force stage's). ``work`` (≥ n, 9) scratch.
+    Returns (what, d²) as ``stage_step``.
     """
     n = x.shape[0]
     _predict(x, P, dt, q, q_rate, n == 12)

@@ -7,7 +7,8 @@ expression (numba compiles without fast-math, so both round alike).
 from __future__ import annotations
 
 
-def filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2, span, turn):
+# per-sample arrays in capitals, one sample in lower case (dt = DT[k])
+def filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2, span, turn):  # noqa: N803
     """The stage filter for x = [a, b], C = [A, I3], in plain Python floats.
 
     P is the upper triangle of the symmetric 6×6 covariance, row by row
@@ -24,7 +25,7 @@ def filter6(x, P, Y, A, DT, TILT, ACTIVE, q, qt, r, rc, gate2, span, turn):
     rc0, rc1, rc2 = rc
     cross = rc0 != 0.0 or rc1 != 0.0 or rc2 != 0.0
     nan = float("nan")
-    X, D, G, E, FAILED = [], [], [], [], []
+    X, D, G, E, FAILED = [], [], [], [], []  # noqa: N806 (per-sample outputs in capitals, as the arguments)
     for k in range(len(Y)):
         tilt = TILT[k]
         if tilt != 0.0:  # the tilt walk (kernel.add_tilt_noise; turn: since the stage last tested a sample)

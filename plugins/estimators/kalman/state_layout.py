@@ -59,13 +59,13 @@ judged a contact (``ADAPT_HELD_OUT``), the last sample's A (9 values from ``ADAP
 NaN before the first) and the direction of gravity in B its tilt is measured about (3 values from
 ``ADAPT_GRAVITY_DIR``: B's z axis until the force stage settles, then the identified weight's, which
 ``ADAPT_GRAVITY_KNOWN`` says (1.0; a warm start's direction is kept); :func:`tilt_step`). With
-``ADAPT_TILT_AUTO`` (1.0) the tilt walk's intensity is learnt from the data (``plugins.estimators.kalman.tilt_walk_kernel``, its
-state in ``TW_SIZE`` values from ``ADAPT_TW``) and written into qt_f after each sample, and into qt_t times
-``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed). ``ADAPT_TILT_SPAN``: the least
-turn either bias follows its tilt walk over, rad (0: the plain walk; ``stage_kernel.add_tilt_noise``), and
-each stage's turn since it last tested a sample (``ADAPT_TURN_F``, ``ADAPT_TURN_T``, rad; state).
-Out: the force reading's predicted variance per axis at the last sample (3 values from ``ADAPT_PRED_F``),
-the block's row of its last torque bias re-opening (−1: none)."""
+``ADAPT_TILT_AUTO`` (1.0) the tilt walk's intensity is learnt from the data
+(``plugins.estimators.kalman.tilt_walk_kernel``, its state in ``TW_SIZE`` values from ``ADAPT_TW``) and written into
+qt_f after each sample, and into qt_t times ``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed).
+``ADAPT_TILT_SPAN``: the least turn either bias follows its tilt walk over, rad (0: the plain walk;
+``stage_kernel.add_tilt_noise``), and each stage's turn since it last tested a sample (``ADAPT_TURN_F``,
+``ADAPT_TURN_T``, rad; state). Out: the force reading's predicted variance per axis at the last sample (3 values from
+``ADAPT_PRED_F``), the block's row of its last torque bias re-opening (−1: none)."""
 
 
 def new_state(

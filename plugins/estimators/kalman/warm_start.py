@@ -58,7 +58,8 @@ class WarmStart(KalmanBase):
             # the tilt walk's bookkeeping (its learnt state's windows go on in a warm start: tilt_walk.restore)
             "tilt": self._tilt_state(),
             "params": self.params(),
-            # the identified rule's information per stage (plugins.estimators.kalman.identified): what the motion has told
+            # the identified rule's information per stage (plugins.estimators.kalman.identified): what the motion
+            # has told
             "information": {k: v.tolist() for k, v in self._information.items()},
         }
 

@@ -60,7 +60,8 @@ def work_arrays() -> np.ndarray:
 
 
 DPOSV = get_cython_function_address("scipy.linalg.cython_lapack", "dposv")
-"""Address of LAPACK's dposv in scipy's library: the solver ``plugins.estimators.rls.information_form`` calls (``scipy.linalg.lapack.dposv``)."""
+"""Address of LAPACK's dposv in scipy's library: the solver ``plugins.estimators.rls.information_form`` calls
+(``scipy.linalg.lapack.dposv``)."""
 
 
 def status_array() -> np.ndarray:
@@ -269,7 +270,8 @@ def rls_cascade(
 def inverse_diag(Lam, L, out) -> bool:
     """diag(Λ⁻¹) of a (6, 6) Λ into ``out`` (6,) by Cholesky, Λ = L Lᵀ (``L`` (6, 6) scratch, overwritten by
     L⁻¹): Λ⁻¹ = L⁻ᵀ L⁻¹, so (Λ⁻¹)_ii = Σ_k (L⁻¹)_ki². False (``out`` untouched) where Λ is not numerically
-    positive definite; the caller inverts it as ``plugins.estimators.rls.information_form`` does (``RecursiveLeastSquares.P``)."""
+    positive definite; the caller inverts it as ``plugins.estimators.rls.information_form`` does
+    (``RecursiveLeastSquares.P``)."""
     n = 6
     for i in range(n):
         for j in range(i + 1):

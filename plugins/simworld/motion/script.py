@@ -12,9 +12,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "DEFAULT_P_BoEo_B",
     "HORIZONTAL_R_BE",
     "NOMINAL_R_BE",
+    "DEFAULT_P_BoEo_B",
     "MotionScript",
     "MotionState",
     "as_times",

@@ -196,7 +196,7 @@ def test_builtins_are_registered():
 def test_duplicate_name_is_an_error_naming_both_plugins():
     a = plugin_module("plugin_a", register_estimators=lambda register: register("same", Dummy))
     b = plugin_module("plugin_b", register_estimators=lambda register: register("same", Dummy))
-    with pytest.raises(PluginError, match="estimator 'same' registered twice: by plugin_. and by plugin_."):
+    with pytest.raises(PluginError, match=r"estimator 'same' registered twice: by plugin_. and by plugin_."):
         Registry(manager_with(a, b))
 
 
@@ -256,7 +256,7 @@ def test_host_context_is_passed_only_to_factories_that_take_it():
     registry = Registry(manager_with(module))
     assert registry.create("sensor", "w", {}, world="W").world == "W"
     assert registry.create("kinematics", "d", {}, world="W").gain == 1.0
-    with pytest.raises(ConfigError, match="sensor.world: unknown option"):
+    with pytest.raises(ConfigError, match=r"sensor.world: unknown option"):
         registry.create("sensor", "w", {"world": "user-supplied"}, where="sensor")
 
 

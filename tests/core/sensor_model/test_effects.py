@@ -153,7 +153,7 @@ def test_the_model_with_the_true_effects_reproduces_the_simulated_sensor():
         seed=5,
         inertia=True,
     )
-    t, motion, reading = recorded(world)
+    _t, motion, reading = recorded(world)
     truth = world.truth()
     model = Model(
         [(n, BUILTINS[n]()) for n in ("time_lag", "mount_rotation", "inertia", "gain_crosstalk", "bias_drift")]
@@ -251,7 +251,7 @@ def test_effect_parameters_mean_what_they_say():
     force, _ = Model([("gain_crosstalk", GainCrosstalk())]).predict(motion, np.r_[base, p])
     np.testing.assert_allclose(force, weight_S @ (np.eye(3) + GF).T + base[3:6], atol=1e-12)
     # drift: rate times the time from the middle of the recording
-    force, torque = Model([("bias_drift", BiasDrift())]).predict(motion, np.r_[base, [1, 2, 3, 4, 5, 6]])
+    force, _torque = Model([("bias_drift", BiasDrift())]).predict(motion, np.r_[base, [1, 2, 3, 4, 5, 6]])
     np.testing.assert_allclose(
         force - (weight_S + base[3:6]), (motion.t - motion.t_ref)[:, None] * [1, 2, 3], atol=1e-9
     )

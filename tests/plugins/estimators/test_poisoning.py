@@ -10,6 +10,7 @@ tour (physics with tool inertia, Gamma-class noise), seeded.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -138,9 +139,9 @@ def test_bad_samples_are_refused_and_leave_no_trace(tour, name, blocks):
     kept = tour.subset(~mask)
     if blocks == "live":
         edges = np.cumsum([0, *sizes(len(tour), seed=11)])
-        spoilt = [bad.subset(slice(a, b)) for a, b in zip(edges[:-1], edges[1:])]
-        ok = [~mask[a:b] for a, b in zip(edges[:-1], edges[1:])]
-        without = [tour.subset(slice(a, b)).subset(k) for (a, b), k in zip(zip(edges[:-1], edges[1:]), ok) if k.any()]
+        spoilt = [bad.subset(slice(a, b)) for a, b in itertools.pairwise(edges)]
+        ok = [~mask[a:b] for a, b in itertools.pairwise(edges)]
+        without = [tour.subset(slice(a, b)).subset(k) for (a, b), k in zip(itertools.pairwise(edges), ok) if k.any()]
     else:
         spoilt, without = [bad], [kept]
 
@@ -177,7 +178,7 @@ def test_bad_samples_are_refused_and_leave_no_trace(tour, name, blocks):
     assert events[0].t_ns in t_bad and events[0].data["count"] == events[0].data["new"]
     if blocks == "live":  # the first refusal is reported with the block it came in
         assert events[0].t_ns < t_bad[0] + 7_000_000
-    assert all(b.t_ns - a.t_ns >= REFUSAL_REPORT_NS for a, b in zip(events, events[1:]))
+    assert all(b.t_ns - a.t_ns >= REFUSAL_REPORT_NS for a, b in itertools.pairwise(events))
     assert len(events) < mask.sum()  # bursts are summed up
     assert sum(e.data["new"] for e in events) == events[-1].data["count"] == mask.sum()  # all reported in time
     for why, count in reasons.items():
@@ -199,7 +200,7 @@ def test_the_guard_changes_nothing_on_clean_data(tour, name):
     guarded, bare = ESTIMATORS[name](), ESTIMATORS[name]()
     inner = bare._filter_block if isinstance(bare, KalmanEstimator) else bare._update
     edges = np.cumsum([0, *sizes(len(tour), seed=3)])
-    parts = [tour.subset(slice(a, b)) for a, b in zip(edges[:-1], edges[1:])]
+    parts = [tour.subset(slice(a, b)) for a, b in itertools.pairwise(edges)]
     assert rows_equal(run(guarded, parts), Estimates.concatenate([inner(p) for p in parts]))
     assert state_equal(guarded, bare) and guarded.refused_samples == 0
     assert not [e for e in guarded.drain_events() if e.kind not in IDENTIFICATION_EVENTS]  # the guard said nothing
@@ -240,8 +241,8 @@ def test_a_non_finite_pose_is_refused_where_it_is_used(tour, name):
     mask[[1200, 2100]] = True
     est, ref = ESTIMATORS[name](), ESTIMATORS[name]()
     edges = list(range(0, n, 7)) + [n]
-    out = run(est, [bad.subset(slice(a, b)) for a, b in zip(edges[:-1], edges[1:])])
-    run(ref, [block.subset(slice(a, b)).subset(~mask[a:b]) for a, b in zip(edges[:-1], edges[1:])])
+    out = run(est, [bad.subset(slice(a, b)) for a, b in itertools.pairwise(edges)])
+    run(ref, [block.subset(slice(a, b)).subset(~mask[a:b]) for a, b in itertools.pairwise(edges)])
     assert state_equal(est, ref) and est.refused_samples == 2 and np.isnan(out.contact_force_S[mask]).all()
     rls = RLSEstimator()
     rls.update_block(bad)
@@ -306,7 +307,7 @@ def test_min_rcond_error_names_the_option_and_a_valid_one_waits_for_the_poses(to
 
 @pytest.mark.parametrize("make", [RLSEstimator, BatchEstimator, KalmanEstimator])
 @pytest.mark.parametrize(
-    "key, value",
+    ("key", "value"),
     [
         ("max_force", 0),
         ("max_force", -1.0),
@@ -395,7 +396,7 @@ def raising(*args, **kwargs):
 
 
 @pytest.mark.parametrize(
-    "name, patch",
+    ("name", "patch"),
     [
         ("rls numpy", "solve"),
         ("rls", "nan"),

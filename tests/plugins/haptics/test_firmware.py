@@ -63,7 +63,7 @@ def firmware(tmp_path_factory) -> Path:
 
 @pytest.fixture
 def board(firmware, tmp_path, pty_pair, spawn_process):
-    """The sketch running as a process on the master side of a pty; yields (slave path, PWM log path)."""
+    """The sketch running as a process on the master side of a pty: (slave path, PWM log path)."""
     master, slave = pty_pair
     tty.setraw(slave)
     log = tmp_path / "pwm.log"
@@ -76,7 +76,7 @@ def board(firmware, tmp_path, pty_pair, spawn_process):
             stderr=stderr,
             env={**os.environ, "ADC_COUNT": str(ADC_COUNT)},
         )
-    yield os.ttyname(slave), log
+    return os.ttyname(slave), log
 
 
 def last_pwm(log: Path) -> tuple[int, int]:

@@ -47,7 +47,7 @@ def with_change(path: str, value):
 
 
 @pytest.mark.parametrize(
-    "path, value, message",
+    ("path", "value", "message"),
     [
         (
             "out.force_y",

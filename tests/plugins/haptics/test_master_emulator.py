@@ -82,7 +82,7 @@ def test_scripted_and_recorded_paths(tmp_path, master_emulator):
         assert 0.0 <= dev.state().p_DoHo_D[0] <= 0.01 and 0.0 <= dev.state().p_DoHo_D[1] <= 0.02
         dev.close()
     (tmp_path / "bad.csv").write_text("t,x,y\n0,0,0\n")
-    with pytest.raises(ValueError, match="bad.csv: needs a header row with columns t, x, y, z"):
+    with pytest.raises(ValueError, match=r"bad.csv: needs a header row with columns t, x, y, z"):
         recorded_motion(tmp_path / "bad.csv")
 
 

@@ -241,26 +241,31 @@ def test_open_errors_name_the_port_and_the_problem(tmp_path, master_emulator):
     missing = str(tmp_path / "ttyACM9")
     with pytest.raises(MasterOpenError, match=f"^haptic.port {missing}: cannot open: "):
         SerialHaptic(missing).open()
-    with master_emulator("inverse3") as em:  # the wrong protocol: an Inverse3 ignores our HELLO
-        with pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: no reply to the hapticlab HELLO"):
-            SerialHaptic(em.port, open_timeout=0.3).open()
-    with master_emulator("hapticlab") as em:
-        with pytest.raises(MasterOpenError, match=r"no reply to the Inverse3 wake-up \(0x0A\)"):
-            SerialHaptic(em.port, "inverse3", open_timeout=0.3).open()
+    # the wrong protocol: an Inverse3 ignores our HELLO
+    with (
+        master_emulator("inverse3") as em,
+        pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: no reply to the hapticlab HELLO"),
+    ):
+        SerialHaptic(em.port, open_timeout=0.3).open()
+    with (
+        master_emulator("hapticlab") as em,
+        pytest.raises(MasterOpenError, match=r"no reply to the Inverse3 wake-up \(0x0A\)"),
+    ):
+        SerialHaptic(em.port, "inverse3", open_timeout=0.3).open()
     with master_emulator("hapticlab") as em:  # a port another hapticlab holds
         first = SerialHaptic(em.port)
         first.open()
         with pytest.raises(MasterOpenError, match=f"^haptic.port {em.port}: cannot open: Could not exclusively lock"):
             SerialHaptic(em.port).open()
         first.close()
-    with pytest.raises(ConfigError, match="^haptic.port: must name the serial device, e.g. --set haptic.port="):
+    with pytest.raises(ConfigError, match=r"^haptic.port: must name the serial device, e.g. --set haptic.port="):
         built()
-    with pytest.raises(ConfigError, match="^haptic.protocol: must be 'hapticlab' or 'inverse3', got 'ours'$"):
+    with pytest.raises(ConfigError, match=r"^haptic.protocol: must be 'hapticlab' or 'inverse3', got 'ours'$"):
         built(port="/dev/ttyACM0", protocol="ours")
 
 
 @pytest.mark.parametrize(
-    "options, message",
+    ("options", "message"),
     [
         ({"rate_hz": 0.0}, "haptic.rate_hz: must be a finite number > 0, got 0.0"),
         ({"read_timeout": float("nan")}, "haptic.read_timeout: must be a finite number > 0, got nan"),
@@ -293,7 +298,7 @@ def test_a_device_speaking_another_version_is_refused_by_name(pty_pair):
         os.write(master, framing.encode_frame(framing.HELLO_ACK, 1, framing.HelloAck(2, 1, 1, 8.0, 1e3).pack()))
 
     threading.Thread(target=answer, daemon=True).start()
-    with pytest.raises(MasterOpenError, match="speaks hapticlab protocol version 2, this host speaks 1$"):
+    with pytest.raises(MasterOpenError, match=r"speaks hapticlab protocol version 2, this host speaks 1$"):
         SerialHaptic(os.ttyname(slave), open_timeout=2.0).open()
 
 
@@ -408,7 +413,8 @@ def test_pipelined_crc_errors_are_counted_and_a_silent_device_is_lost_without_bl
     dev.link.read_timeout = 0.1  # from here on the timeout is what is tested: make it short
     emulator.stop_answering()
     returned = 0
-    with pytest.raises(MasterLostError, match="no reply within 100 ms") as info:
+    # the error ends a loop of sends: the loop is what raises
+    with pytest.raises(MasterLostError, match="no reply within 100 ms") as info:  # noqa: PT012
         deadline = time.monotonic() + GUARD_S
         while time.monotonic() < deadline:
             dev.send(haptic_command([0.1, 0.0, 0.0]))  # returns at once while the device is quiet ...
@@ -419,5 +425,5 @@ def test_pipelined_crc_errors_are_counted_and_a_silent_device_is_lost_without_bl
 
 
 def test_pipelining_needs_our_protocol():
-    with pytest.raises(ConfigError, match='^haptic.wait_for_reply: false needs protocol = "hapticlab"'):
+    with pytest.raises(ConfigError, match=r'^haptic.wait_for_reply: false needs protocol = "hapticlab"'):
         built(port="/dev/ttyACM0", protocol="inverse3", wait_for_reply=False)

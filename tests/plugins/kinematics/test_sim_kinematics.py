@@ -112,5 +112,5 @@ def test_one_pose_per_read_gives_exactly_one_big_read():
     poses = [pose for r in reads for pose in r]
     for field in ("t_ns", "quat_BE", "p_BoEo_B"):
         assert np.array_equal([getattr(p, field) for p in poses], [getattr(p, field) for p in whole]), field
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         poses[0].quat_BE[0] = 1.0  # read-only views

@@ -19,7 +19,7 @@ def test_the_table_is_a_plain_constant_of_six_joints_per_model():
         np.testing.assert_array_equal(dh.alpha, [np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0])
     assert UR_DH["ur5e"].d[0] == 0.1625 and UR_DH["ur5e"].a[2] == -0.3922  # UR's published numbers
     assert CB3_MODELS < set(UR_DH)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         UR_DH["ur5e"].a[0] = 1.0  # read-only: nobody edits the shared table by accident
 
 
@@ -96,5 +96,5 @@ def test_wrist_singularity_keeps_the_previous_q6():
 
 
 def test_unknown_model_names_the_known_ones():
-    with pytest.raises(ValueError, match="model: must be 'ur3e', 'ur5e', .* or 'ur10', got 'ur7e'"):
+    with pytest.raises(ValueError, match=r"model: must be 'ur3e', 'ur5e', .* or 'ur10', got 'ur7e'"):
         URArm("ur7e")

@@ -146,7 +146,8 @@ def collect(kinematics: URRTDEKinematics, count: int) -> list:
 
 
 @pytest.mark.parametrize(
-    "address, model, rate_hz, cycle_s", [("127.0.0.72", "ur5e", 500.0, 0.002), ("127.0.0.73", "ur5", 125.0, 0.008)]
+    ("address", "model", "rate_hz", "cycle_s"),
+    [("127.0.0.72", "ur5e", 500.0, 0.002), ("127.0.0.73", "ur5", 125.0, 0.008)],
 )
 def test_plugin_reads_the_simulated_poses_every_cycle_or_counts_the_missed(
     address, model, rate_hz, cycle_s, spawn_process
@@ -261,7 +262,7 @@ def test_connection_refused_names_the_controller():
 
 
 @pytest.mark.parametrize(
-    "options, message",
+    ("options", "message"),
     [
         ({}, "kinematics.address: must be the UR controller's IP address or host name"),
         ({"address": "robot..lab"}, "kinematics.address: must be an IP address or a host name, got 'robot..lab'"),
@@ -272,7 +273,8 @@ def test_connection_refused_names_the_controller():
         ),
         (
             {"address": "10.0.0.2", "frequency": 500},
-            "kinematics.frequency: unknown option; known options: address, follow, follow_rate_hz, model, rate_hz, receive_timeout",
+            "kinematics.frequency: unknown option; known options: address, follow, follow_rate_hz, model, rate_hz, "
+            "receive_timeout",
         ),
         ({"address": 10}, "kinematics.address: must be a string, got 10"),
         ({"address": "10.0.0.2", "model": "ur7e"}, "kinematics.model: must be 'ur3e', 'ur5e', "),
@@ -459,7 +461,7 @@ def test_encoders_jitter_so_a_still_arm_never_reports_a_frozen_pose():
         )
     np.testing.assert_allclose(a["actual_TCP_pose"][:3], world.pose(0.2)[1][0], atol=1e-6)
     assert exact.state(100)["actual_TCP_pose"] == exact.state(101)["actual_TCP_pose"]
-    with pytest.raises(ValueError, match="encoder_noise: must be a finite number >= 0 and <= 0.001 rad, got 0.1"):
+    with pytest.raises(ValueError, match=r"encoder_noise: must be a finite number >= 0 and <= 0.001 rad, got 0.1"):
         UREmulator(world, encoder_noise=0.1)
 
 

@@ -120,9 +120,9 @@ def test_pinocchio_fk_of_the_shipped_urdf_equals_urs_dh_fk():
     assert worst < 1e-9, worst
     # base_link is ROS's root: Base turned π about z
     R_LE, p_LoEo_L = UrdfModel("ur5e", base="base_link").pose(q)
-    Rz_pi = np.diag([-1.0, -1.0, 1.0])
-    np.testing.assert_allclose(R_LE, Rz_pi @ R_dh, atol=1e-12)
-    np.testing.assert_allclose(p_LoEo_L, Rz_pi @ p_dh, atol=1e-12)
+    R_z_pi = np.diag([-1.0, -1.0, 1.0])
+    np.testing.assert_allclose(R_LE, R_z_pi @ R_dh, atol=1e-12)
+    np.testing.assert_allclose(p_LoEo_L, R_z_pi @ p_dh, atol=1e-12)
 
 
 def test_the_urdf_masses_sit_at_urs_published_centres_of_mass():
@@ -395,7 +395,7 @@ def test_a_urdf_file_path_works_like_a_shipped_name(registry, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "options, message",
+    ("options", "message"),
     [
         ({}, r"^kinematics\.joints\.name: must name the source of the joint angles, .* got none"),
         ({"joints": {"rate_hz": 125}}, r"^kinematics\.joints\.name: must name the source"),

@@ -11,6 +11,7 @@ sample's own internal time. Loops wait for a number of samples, never a time.
 
 from __future__ import annotations
 
+import itertools
 import socket
 import threading
 import time
@@ -129,7 +130,7 @@ def test_the_emulator_answers_a_counted_start_request_from_its_own_socket(netft_
     assert {sender for _, sender in records} == {("127.0.0.130", emu.rdt_port)}
     fields = [RECORD.unpack(data) for data, _ in records]
     assert [f[0] for f in fields] == [1, 2, 3, 4, 5]
-    assert all(b[1] - a[1] == 7 for a, b in zip(fields, fields[1:]))  # 1 kHz: every 7th internal sample
+    assert all(b[1] - a[1] == 7 for a, b in itertools.pairwise(fields))  # 1 kHz: every 7th internal sample
     assert not emu.streaming
 
 
@@ -487,7 +488,7 @@ def test_a_receive_timeout_zeroes_the_haptic_force_and_is_an_event(tmp_path, rec
 
 
 @pytest.mark.parametrize(
-    "options, key",
+    ("options", "key"),
     [
         ({"rdt_port": 70000}, "rdt_port"),
         ({"address": " "}, "address"),
@@ -518,7 +519,7 @@ def test_a_bad_config_is_one_line_naming_the_key(options, key, receiver):
 
 def test_no_sensor_is_a_clear_error_at_open(receiver):
     sensor = NetFTSensor("127.0.0.138", 9, 9, connect_timeout=0.3, receiver=receiver)  # nothing listens there
-    with pytest.raises(ConnectionError, match="no Net F/T record from 127.0.0.138:9"):
+    with pytest.raises(ConnectionError, match=r"no Net F/T record from 127.0.0.138:9"):
         sensor.open(time.monotonic_ns())
 
 
@@ -582,7 +583,7 @@ def test_a_wire_fault_parses_from_the_command_line():
         "status", 1.0, 0.5, status=0x8002_0000
     )
     assert RdtFault.parse("drop,every=3") == RdtFault("drop", every=3)
-    with pytest.raises(ValueError, match="^fault 'explode': kind: must be 'drop', 'duplicate', "):
+    with pytest.raises(ValueError, match=r"^fault 'explode': kind: must be 'drop', 'duplicate', "):
         RdtFault.parse("explode")
 
 

@@ -119,7 +119,7 @@ def test_samples_are_read_only():
     sensor = SimSensor(world=SimWorld())
     sensor.open(0)
     sample = sensor.read(5_000_000)[0]
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         sample.force_S[0] = 1.0
 
 

@@ -80,7 +80,8 @@ def test_config_keys():
     [
         (
             {"sensor": {"gain_force": [[0, 0, 0], [0, 0, 0]]}},
-            "world.sensor.gain_force: must be a 3x3 matrix (3 rows of 3 numbers), each > -0.5 and < 0.5 (a calibration error), got [[0, 0, 0], [0, 0, 0]]",
+            "world.sensor.gain_force: must be a 3x3 matrix (3 rows of 3 numbers), each > -0.5 and < 0.5 "
+            "(a calibration error), got [[0, 0, 0], [0, 0, 0]]",
         ),
         (
             {"sensor": {"gain_torque": [[0, 0, 0], [0, "x", 0], [0, 0, 0]]}},
@@ -88,7 +89,8 @@ def test_config_keys():
         ),
         (
             {"sensor": {"gain_force": [[0.6, 0, 0], [0, 0, 0], [0, 0, 0]]}},
-            "world.sensor.gain_force: must be a 3x3 matrix (3 rows of 3 numbers), each > -0.5 and < 0.5 (a calibration error), got [[0.6, 0, 0], [0, 0, 0], [0, 0, 0]]",
+            "world.sensor.gain_force: must be a 3x3 matrix (3 rows of 3 numbers), each > -0.5 and < 0.5 "
+            "(a calibration error), got [[0.6, 0, 0], [0, 0, 0], [0, 0, 0]]",
         ),
         (
             {"robot": {"kinematics_lag": "5ms"}},

@@ -114,7 +114,7 @@ def test_axial_rotation_turns_and_stops():
     assert np.isclose(np.abs(acc).max(), 1.875 * np.radians(45.0) / 0.2, rtol=1e-4)
     by_duration = AxialRotation(speed_deg_s=-20.0, duration=5.0, ramp_s=0.5)
     np.testing.assert_allclose(by_duration.angle(100.0)[0], np.radians(-20.0) * 4.5)
-    with pytest.raises(ValueError, match="^turns: give either duration or turns, not both$"):
+    with pytest.raises(ValueError, match=r"^turns: give either duration or turns, not both$"):
         AxialRotation(duration=3.0, turns=1.0)
     with pytest.raises(ValueError, match=r"^ramp_s: must be <= 0.15 s: the rotation is too short"):
         AxialRotation(speed_deg_s=30, duration=0.3, ramp_s=0.2)
@@ -167,7 +167,7 @@ def test_hold_tilts_the_tool_axis():
 def test_make_motion_by_name():
     assert isinstance(make_motion("indentation", tilt_deg=5.0), Hold)
     assert isinstance(make_motion("static_poses", poses=3), StaticPoses)
-    with pytest.raises(ValueError, match="^script: must be 'random_tour', "):
+    with pytest.raises(ValueError, match=r"^script: must be 'random_tour', "):
         make_motion("wiggle")
 
 

@@ -465,7 +465,8 @@ def test_empty_config_gives_the_defaults():
         ({"robot": 3}, "world.robot: must be a table, got 3"),
         (
             {"motion": {"script": "wiggle"}},
-            "world.motion.script: must be 'random_tour', 'static_poses', 'axial_rotation', 'hold', 'indentation' or 'servo', got 'wiggle'",
+            "world.motion.script: must be 'random_tour', 'static_poses', 'axial_rotation', 'hold', 'indentation' "
+            "or 'servo', got 'wiggle'",
         ),
         ({"motion": {"script": "axial_rotation", "speed": 3}}, "world.motion.speed: unknown option"),
         (
@@ -488,7 +489,8 @@ def test_empty_config_gives_the_defaults():
         ),
         (
             {"tool": {"inertia": [[1, 0, 0], [0, 1, 0], [0, 0]]}},
-            "world.tool.inertia: must be a symmetric positive semi-definite 3x3 matrix (kg·m², 3 rows of 3 numbers), got [[1, 0, 0], [0, 1, 0], [0, 0]]",
+            "world.tool.inertia: must be a symmetric positive semi-definite 3x3 matrix (kg·m², 3 rows of 3 numbers), "
+            "got [[1, 0, 0], [0, 1, 0], [0, 0]]",
         ),
     ],
 )

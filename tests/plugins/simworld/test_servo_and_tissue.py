@@ -83,7 +83,7 @@ def test_a_servoed_sensor_with_hysteresis_reads_what_the_targets_made_of_its_pas
         told.servo_cp(t, R_0, p_0 + step)
     t = np.arange(0.0, 0.4, 0.001)
     reads = []
-    for k, now in enumerate(t):
+    for now in t:
         for when, step in targets:
             if abs(when - now) < 1e-9:
                 late.servo_cp(when, R_0, p_0 + step)

@@ -36,7 +36,7 @@ def test_paper_json_has_every_key_the_issue_lists(quick):
     assert set(out["convergence"]) >= {"force_paper", "torque_paper", "force_truth", "torque_truth"}
     for speed in ("12", "30", "45", "72"):
         assert set(out["rotation_104g"][speed]) >= {"mae", "max_ae", "std"}
-    assert set(out["estimators"]) >= {"rls", "batch"} and list(out["estimators"])[0] == "kalman"  # the default first
+    assert set(out["estimators"]) >= {"rls", "batch"} and next(iter(out["estimators"])) == "kalman"  # the default first
     assert set(out["estimators"]["batch"]["no_contact"]["force"]) == {"fx", "fy", "fz"}
     assert set(out["estimators"]["batch"]["bounds"]) == {"batch", "batch_frozen"}
 
@@ -85,7 +85,7 @@ def test_bench_real_on_a_folder(tmp_path, capsys):
     rls = out["sim"]["estimators"]["rls"]
     assert rls["converged_force_at"] is not None and 0.9 < rls["ratio_norm"] < 1.1
     assert 0.9 < rls["ratio_norm_second_half"] < 1.1
-    assert list(out["sim"]["estimators"])[0] == "kalman"  # the default first, estimating the sensor's noise
+    assert next(iter(out["sim"]["estimators"])) == "kalman"  # the default first, estimating the sensor's noise
     kalman = out["sim"]["estimators"]["kalman"]
     assert kalman["converged_force_at"] is not None and kalman["ratio_norm_second_half"] < 1.05
     identified = out["sim"]["estimators"]["kalman convergence=identified"]  # the flag once the tool is identified

@@ -144,8 +144,8 @@ def messages(make, n: int = 50) -> list[tuple[int, bytes]]:
     return [(k * 1_000_000, json.dumps(make(k)).encode()) for k in range(n)]
 
 
-WRENCH = lambda k: {"force_S": [1.0, 2.0, 3.0], "torque_S": [0.1, 0.2, 0.3], "seq": k, "status": 0}  # noqa: E731
-POSE = lambda k: {"quat_BE": [1.0, 0.0, 0.0, 0.0], "p_BoEo_B": None}  # noqa: E731
+WRENCH = lambda k: {"force_S": [1.0, 2.0, 3.0], "torque_S": [0.1, 0.2, 0.3], "seq": k, "status": 0}  # noqa: E731 (one-line factories)
+POSE = lambda k: {"quat_BE": [1.0, 0.0, 0.0, 0.0], "p_BoEo_B": None}  # noqa: E731 (one-line factories)
 
 
 def foreign(wrench=WRENCH, pose=POSE, extra=None, encoding="json") -> bytes:
@@ -663,22 +663,25 @@ def test_without_force_a_new_output_is_written_and_then_refused(lab, tmp_path, c
 def test_atomic_output_keeps_the_old_file_when_writing_fails(tmp_path):
     target = tmp_path / "result.json"
     target.write_bytes(SENTINEL)
-    with pytest.raises(RuntimeError, match="half way"):
+    # what raises is the whole atomic_output block (its body, then its exit): both statements are the test
+    with pytest.raises(RuntimeError, match="half way"):  # noqa: PT012, SIM117
         with atomic_output(target, force=True) as tmp:
             tmp.write_text('{"half": ')
             raise RuntimeError("half way")
     assert target.read_bytes() == SENTINEL and sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]
     # a file that appears while the work runs is not overwritten either (without force)
     late = tmp_path / "late.json"
-    with pytest.raises(OutputExistsError, match="--force overwrites it"):
+    with pytest.raises(OutputExistsError, match="--force overwrites it"):  # noqa: PT012, SIM117
         with atomic_output(late) as tmp:
             tmp.write_text("{}")
             late.write_bytes(SENTINEL)
     assert late.read_bytes() == SENTINEL and len(list(tmp_path.iterdir())) == 2
     # an OSError on the temporary file names the target, not the temporary
-    with pytest.raises(UserError, match=f"^--json {tmp_path / 'full.json'}: cannot write it"):
-        with atomic_output(tmp_path / "full.json", label="--json") as tmp:
-            raise OSError(28, "No space left on device", str(tmp))
+    with (
+        pytest.raises(UserError, match=f"^--json {tmp_path / 'full.json'}: cannot write it"),
+        atomic_output(tmp_path / "full.json", label="--json") as tmp,
+    ):
+        raise OSError(28, "No space left on device", str(tmp))
     write_text(tmp_path / "new.json", "{}\n")
     assert (tmp_path / "new.json").read_text() == "{}\n"
 

@@ -41,7 +41,7 @@ def assert_left_and_located(result, axes):
     for axis in axes:
         where = result["leftover"]["where"][axis]
         assert where["stretches"] and where["excess_rms"] > 0 and where["peak_hz"] > 0
-        assert where["orientations"] and set(o["gravity_S"] for o in where["orientations"]) <= set(
+        assert where["orientations"] and {o["gravity_S"] for o in where["orientations"]} <= set(
             where["orientations_tested"]
         )
     assert any(note.startswith("something the tested effects do not explain is left") for note in result["notes"])

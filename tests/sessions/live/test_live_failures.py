@@ -130,7 +130,7 @@ def registry():
 
 
 @pytest.mark.parametrize(
-    "override, part, cause",
+    ("override", "part", "cause"),
     [
         ("sensor.name=breaking", "sensor breaking", "ConnectionResetError: RDT socket closed"),
         ("kinematics.name=breaking", "kinematics breaking", "TimeoutError: RTDE: no data package"),
@@ -317,7 +317,8 @@ def _writer_processes() -> list[int]:
 
 
 class WriterKillingSensor(SimSensor):
-    """The simulated sensor; after ``kill_after`` reads it kills the session's writer process (a crash, the OOM killer)."""
+    """The simulated sensor; after ``kill_after`` reads it kills the session's writer process (a crash, the OOM
+    killer)."""
 
     def __init__(self, rate_hz: float = 1000.0, kill_after: int = 500, world=None):
         super().__init__(rate_hz, world=world)
@@ -369,7 +370,7 @@ def test_a_writer_process_that_dies_ends_the_session_with_the_force_zeroed(tmp_p
     pm = make_plugin_manager(load_entry_points=False)
     pm.register(Killer(), name="tests")
     path = tmp_path / "writer_died.mcap"
-    with pytest.raises(SessionError, match="^recording raised WriterProcessError.*hapticlab recover") as info:
+    with pytest.raises(SessionError, match=r"^recording raised WriterProcessError.*hapticlab recover") as info:
         run_session(
             build_session(demo("sensor.name=writer_killer", "haptic.name=log", duration=2.0), Registry(pm)), out=path
         )
@@ -436,7 +437,7 @@ def test_a_master_that_does_not_open_ends_the_session_with_a_complete_recording(
     pm = make_plugin_manager(load_entry_points=False)
     pm.register(Unplugged(), name="tests")
     path = tmp_path / "unplugged.mcap"
-    with pytest.raises(SessionError, match="^haptic unplugged raised FileNotFoundError.*ttyACM7") as info:
+    with pytest.raises(SessionError, match=r"^haptic unplugged raised FileNotFoundError.*ttyACM7") as info:
         run_session(build_session(demo("haptic.name=unplugged"), Registry(pm)), out=path)
     assert info.value.part == "haptic unplugged" and device.closed
     rec = read_recording(path)  # complete

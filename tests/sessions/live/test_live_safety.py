@@ -1,4 +1,5 @@
-"""The haptic path trusts nothing: injected faults never put a made-up force on the hand; signals end sessions cleanly."""
+"""The haptic path trusts nothing: injected faults never put a made-up force on the hand; signals end sessions
+cleanly."""
 
 from __future__ import annotations
 
@@ -77,7 +78,7 @@ def test_a_bias_step_is_told_from_a_contact_when_the_tool_turns(clean):
 
 @pytest.mark.parametrize("estimator", ["rls", "kalman"])
 def test_after_a_bias_step_the_estimator_re_identifies_and_the_force_comes_back_right(estimator):
-    t, force, messages, events, t0 = session(estimator, FAULTS["sensor bias step +2 N"])
+    t, force, _messages, events, t0 = session(estimator, FAULTS["sensor bias step +2 N"])
     kinds = [e.kind for e in events]
     assert "bias_step" in kinds and "bias_reidentified" in kinds
     back = next(e for e in events if e.kind == "bias_reidentified")
@@ -117,7 +118,7 @@ def test_made_up_force_counts_what_the_true_force_cannot_explain():
 
 
 @pytest.mark.parametrize(
-    "override, message",
+    ("override", "message"),
     [
         (
             "session.stale_timeout=100",

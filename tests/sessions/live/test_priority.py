@@ -87,11 +87,12 @@ def test_no_priority_is_asked_for_at_0_or_in_a_simulated_session(tmp_path, overr
 
 
 @pytest.mark.parametrize(
-    "value, why", [("100", "got 100$"), ("-1", "got -1$"), ('"high"', "got 'high'$"), ("50.0", "got 50.0$")]
+    ("value", "why"), [("100", "got 100$"), ("-1", "got -1$"), ('"high"', "got 'high'$"), ("50.0", "got 50.0$")]
 )
 def test_a_priority_out_of_range_is_refused_naming_the_key(value, why):
     with pytest.raises(
         ConfigError,
-        match=rf"^session.realtime_priority: must be a whole number >= 0 and <= 99 \(SCHED_FIFO; 0: the ordinary policy\), {why}",
+        match=rf"^session.realtime_priority: must be a whole number >= 0 and <= 99 "
+        rf"\(SCHED_FIFO; 0: the ordinary policy\), {why}",
     ):
         build_session(demo(f"session.realtime_priority={value}"))

@@ -103,7 +103,7 @@ def test_demo_separates_the_indentation_from_the_tool_weight(demo_recording):
 
 
 def test_haptics_wait_for_convergence_and_are_clamped(demo_recording):
-    result, rec = demo_recording
+    _result, rec = demo_recording
     enabled = rec.field("/haptic/command", "enabled").astype(bool)
     force_D = rec.field("/haptic/command", "force_D")
     t_cmd = rec.t_ns("/haptic/command")
@@ -261,7 +261,7 @@ def test_ctrl_c_finishes_the_file_cleanly(tmp_path, registry):
 
 
 @pytest.mark.parametrize(
-    "override, message",
+    ("override", "message"),
     [
         ("estimator.name=kalmann", r"^estimator.name: unknown estimator 'kalmann'; available: batch, kalman, rls$"),
         (

@@ -49,7 +49,7 @@ def test_mapping_into_the_device_frame():
 
 
 @pytest.mark.parametrize(
-    "kw, key",
+    ("kw", "key"),
     [
         ({"max_force": -1.0}, "haptic.max_force"),
         ({"max_force_rate": float("inf")}, "haptic.max_force_rate"),
@@ -139,7 +139,7 @@ def test_the_order_is_map_deadband_lowpass_clamp_slew():
 
 
 @pytest.mark.parametrize(
-    "kw, key",
+    ("kw", "key"),
     [
         ({"deadband": -0.1}, "haptic.deadband"),
         ({"cutoff_hz": float("nan")}, "haptic.cutoff_hz"),

@@ -129,7 +129,7 @@ def targets(rec):
 
 
 def test_the_robot_tours_then_follows_the_hand_scaled(scripted):
-    result, rec, _ = scripted
+    _result, rec, _ = scripted
     t, p, mode, _ = targets(rec)
     assert len(t) == len(rec.topics["/haptic/command"]) - 1  # one target per tick (the final zero aside)
     t_cal = tour_end(rec)
@@ -192,7 +192,7 @@ def test_the_clutch_holds_the_robot_and_releasing_it_does_not_jump(scripted):
 
 def test_a_master_that_stops_reporting_its_state_holds_the_robot(scripted):
     _, rec, _ = scripted
-    t, p, mode, reason = targets(rec)
+    t, p, _mode, reason = targets(rec)
     lost = (t > 8.5 + 0.002) & (t < 8.7)
     assert set(np.array(reason)[lost]) == {"no state from the master device"}
     assert np.ptp(p[lost], axis=0).max() < 1e-12
@@ -285,7 +285,7 @@ def test_over_a_real_pty_the_master_emulator_moves_the_robot_and_feels_the_tissu
     assert " 0 CRC error(s)" in device_counts, device_counts
     forces = np.loadtxt(log, delimiter=",", skiprows=1)[:, 1:]
     rec = read_recording(result.path)
-    t, p, mode, reason = targets(rec)
+    t, p, mode, _reason = targets(rec)
     following = np.array(mode) == "following"
     after = t > tour_end(rec) + 0.2
     held = holds_explained(rec, after)  # following at every tick the recording gives no reason not to
@@ -317,7 +317,7 @@ def test_the_hand_moves_the_tool_along_the_direction_the_force_comes_back_along(
     pose = PoseSample(0, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
     quat_DH = np.array([1.0, 0.0, 0.0, 0.0])
     first, _ = teleop.step(0, pose, DeviceState(0, quat_DH, np.zeros(3)), True)
-    later, events = teleop.step(
+    later, _events = teleop.step(
         1_000_000_000, pose, DeviceState(1_000_000_000, quat_DH, np.array([0.0, 0.02, 0.0])), True
     )
     assert np.allclose(later.p_BoEo_B - first.p_BoEo_B, [0.01, 0.0, 0.0])
@@ -355,7 +355,7 @@ def test_a_master_teleoperates_the_emulated_ur_over_rtde_and_feels_its_net_ft(tm
     lab.finish()
     assert " 0 CRC error(s)" in device_counts and "force command(s)" in device_counts
     rec = read_recording(result.path)
-    t, p, mode, reason = targets(rec)
+    t, _p, mode, reason = targets(rec)
     # following the hand; a hold only ever because a stream was late, at the very ticks the recording shows it:
     # the force went off (a pose or a sensor record late), or the master's state was (the three processes
     # share the machine's cores: how often one is late is the machine's, not the program's)
@@ -390,7 +390,7 @@ def test_the_calibration_tour_moves_the_robot_only_while_someone_is_at_the_maste
 
     teleop = Teleoperation(TeleopSettings(enabled=True, max_angular_speed=1.0, calibration_dwell_s=0.1), np.eye(3))
     pose = PoseSample(0, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
-    present = lambda t_ns: DeviceState(t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))  # noqa: E731
+    present = lambda t_ns: DeviceState(t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))  # noqa: E731 (a one-line closure)
     events = []
     for k in range(500):  # 0.5 s with no master: the tour waits where the robot stands
         target, ev = teleop.step(k * 1_000_000, pose, None, False)

@@ -145,7 +145,7 @@ def test_run_command_writes_an_mcap(tmp_path, capsys):
 
 
 @pytest.mark.parametrize(
-    "args, message",
+    ("args", "message"),
     [
         (["run", "nosuchpreset"], "unknown session 'nosuchpreset'"),
         (

@@ -43,7 +43,7 @@ def test_a_folder_replays_in_parallel_as_it_does_one_file_at_a_time(archive, tmp
     new = read_recording(out / "trainee-b" / "b1.mcap")
     assert "/estimator/kalman" in new.topics and len(new.topics["/estimator/kalman"]) == alone["rows"]
     # the outputs are checked before any work: an existing one is refused, nothing replayed
-    with pytest.raises(OutputExistsError, match="a1.mcap"):
+    with pytest.raises(OutputExistsError, match=r"a1.mcap"):
         replay_folder(archive, "kalman", out, workers=1, progress=False)
 
 
@@ -65,7 +65,7 @@ def len_of_wrench(path) -> int:
 
 
 def test_a_folder_without_recordings_and_an_absent_scheduler_are_one_line(tmp_path):
-    with pytest.raises(ValueError, match="no .mcap recordings"):
+    with pytest.raises(ValueError, match=r"no .mcap recordings"):
         recordings_in(tmp_path)
     (tmp_path / "x.mcap").write_bytes(b"")
     with pytest.raises(ValueError, match=r"--scheduler tcp://127.0.0.66:1: no Dask scheduler answered"):

@@ -41,7 +41,7 @@ def test_optional_and_unknown_columns(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "mutate, message",
+    ("mutate", "message"),
     [
         (
             lambda lines: lines.__setitem__(0, lines[0].replace(",tz", "")),

@@ -35,7 +35,7 @@ async def watch(address: str, seconds: float) -> tuple[dict, list[tuple[int, int
         while loop.time() < end:
             try:
                 message = await asyncio.wait_for(ws.recv(), timeout=max(end - loop.time(), 0.01))
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 break
             if isinstance(message, str):
                 op = json.loads(message)

@@ -295,7 +295,7 @@ def test_metadata_records(every_topic):
     assert json.loads(session["plugins"]) == METADATA["hapticlab.session"]["plugins"]
     assert session["hapticlab_version"] == hapticlab.__version__
     start = dt.datetime.fromisoformat(session["start_time"])
-    assert abs((dt.datetime.now(dt.timezone.utc) - start).total_seconds()) < 600
+    assert abs((dt.datetime.now(dt.UTC) - start).total_seconds()) < 600
     assert int(session["start_monotonic_ns"]) > 0
     assert rec.meta("hapticlab.calibration", "counts_per_force") == 1_000_000
     assert rec.metadata["hapticlab.calibration"]["units"] == "N, N·m"  # strings stay strings

@@ -483,7 +483,7 @@ def test_a_truncated_block_recording_recovers_whole_blocks(tmp_path):
         broken.write_bytes(data[:cut])
         stats = recover(broken, tmp_path / f"fixed{cut}.mcap")
         rec = read_recording(tmp_path / f"fixed{cut}.mcap")
-        t, force, torque = rec.wrench()
+        t, force, _torque = rec.wrench()
         assert 0 < len(t) < len(written) and len(t) % 7 == 0  # whole blocks only
         assert t.tolist() == written[: len(t)]
         assert force[:, 0].tolist() == [x * 0.5 for x in t.tolist()]

@@ -47,7 +47,7 @@ def test_a_5_degree_mount_is_estimated_within_0_3_degrees():
 def test_an_estimated_mount_converges_under_either_rule_and_compensates(mounted):
     """convergence = "identified" and the default "pose" keep the mount's own check (std(θ)·|gravity| under the
     bound) and compensate the 5° mount as "covariance" does, to the noise once converged."""
-    world, block = mounted
+    _world, block = mounted
     first = {}
     for rule in ("covariance", "identified", "pose"):
         est = KalmanEstimator(mount_rotation=True, convergence=rule)
@@ -73,7 +73,7 @@ def test_the_mount_estimate_is_the_same_filter_compiled_and_as_the_filterpy_refe
     """The 5° mount estimated by the compiled cascade, by the numpy reference and with implementation =
     "filterpy" (its torque stage filterpy's, as asked: the mount once reset it to the fast filter) agree to
     1e-8 N over the first 6 s of the tour, the same contact flags, the same mount to 1e-7°."""
-    world, block = mounted
+    _world, block = mounted
     part = block.subset(slice(0, 6000))
     runs = {}
     for label, options in (
@@ -83,7 +83,7 @@ def test_the_mount_estimate_is_the_same_filter_compiled_and_as_the_filterpy_refe
     ):
         est = KalmanEstimator(mount_rotation=True, **options)
         ran_filterpy, run_filterpy = [], est.torque._run_filterpy
-        est.torque._run_filterpy = lambda *a: ran_filterpy.append(1) or run_filterpy(*a)
+        est.torque._run_filterpy = lambda *a, ran=ran_filterpy, run=run_filterpy: ran.append(1) or run(*a)
         runs[label] = (feed(est, part, chunk=64)[0], est.R_SE.copy(), est.torque.P.copy())
         assert bool(ran_filterpy) == (label == "filterpy"), label
     out, R_SE, P_t = runs["compiled"]
@@ -97,7 +97,7 @@ def test_the_mount_estimate_is_the_same_filter_compiled_and_as_the_filterpy_refe
 
 
 def test_a_configured_mount_is_applied_without_estimating_it(mounted):
-    world, block = mounted
+    _world, block = mounted
     est = KalmanEstimator(mount_rotation_SE=familybench.MOUNT_ROTATION_SE, inertia=True)
     out, _ = feed(est, block, chunk=64)
     assert np.all(familybench.rms_after(out, block, 15.0) <= 1.03 * NOISE_F)
@@ -206,7 +206,7 @@ def test_a_bias_step_starts_the_learnt_walk_s_windows_afresh(mounted):
 
 
 def test_a_given_torque_walk_stays_while_the_force_s_is_learnt(mounted):
-    world, block = mounted
+    _world, block = mounted
     est = KalmanEstimator(bias_force_tilt_rw="auto", bias_torque_tilt_rw=0.002)
     feed(est, block, chunk=64)
     assert est.force.q_tilt[0] > 0.02**2 and np.all(est.torque.q_tilt == 0.002**2)
@@ -238,7 +238,7 @@ def test_a_non_finite_pose_is_left_out():
 
 
 def test_warm_start_carries_the_mount(mounted, tmp_path):
-    world, block = mounted
+    _world, block = mounted
     est = KalmanEstimator(mount_rotation=True)
     feed(est, block.subset(slice(0, 20000)), chunk=64)
     path = tmp_path / "state.json"
@@ -249,7 +249,7 @@ def test_warm_start_carries_the_mount(mounted, tmp_path):
     assert np.allclose(warm.R_SE, est.R_SE)
     out = warm.update_block(block.subset(slice(20000, 20010)))
     assert out.converged_force.all()
-    with pytest.raises(ValueError, match="warm_start: .* has mount_rotation=True, this estimator False"):
+    with pytest.raises(ValueError, match=r"warm_start: .* has mount_rotation=True, this estimator False"):
         KalmanEstimator(warm_start=str(path))
 
 
@@ -342,7 +342,7 @@ def test_the_inertial_force_matches_the_simulated_one():
     est = KalmanEstimator(inertia=True)
     feed(est, block.subset(slice(0, 10000)), chunk=64)  # identify (mass, centre of gravity)
     rest = block.subset(slice(10000, None))
-    force_S, torque_S, R_EB, inertial_S, usable = est._prepare(rest)
+    _force_S, _torque_S, _R_EB, inertial_S, _usable = est._prepare(rest)
     true = world.wrench(rest.t_ns * 1e-9, noise=False)["inertial_force_S"]
     error = np.sqrt(np.mean((inertial_S - true) ** 2)) / np.sqrt(np.mean(true**2))
     assert error < 0.1, error
@@ -376,7 +376,7 @@ def test_time_lag_option_follows_a_late_kinematics_stream():
 @pytest.mark.parametrize("chunk", [1, 64])
 def test_a_late_sensor_stream_is_matched_with_past_poses(chunk):
     # τ < 0: the pose at the sensor's time t was stamped t − 0.3 s: interpolated from the poses seen
-    world, block = familybench.tour(20.0, seed=5, robot={"kinematics_lag": -0.3}, inertia=False)
+    _world, block = familybench.tour(20.0, seed=5, robot={"kinematics_lag": -0.3}, inertia=False)
     out, _ = feed(KalmanEstimator(time_lag_s=-0.3), block, chunk=chunk)
     plain, _ = feed(KalmanEstimator(), block, chunk=64)
     rms, rms_plain = familybench.rms_after(out, block, 10.0), familybench.rms_after(plain, block, 10.0)
@@ -421,7 +421,7 @@ def test_effects_name_the_options():
 
 
 def test_auto_noise_learns_the_sensor_noise():
-    world, block = familybench.tour(30.0, seed=7, inertia=False)
+    _world, block = familybench.tour(30.0, seed=7, inertia=False)
     est = KalmanEstimator(noise_force="auto", noise_torque="auto")
     out, _ = feed(est, block, chunk=64)
     noise = np.array(est.params()["noise_force_S"])
@@ -438,7 +438,7 @@ def test_auto_noise_learns_the_sensor_noise():
 def test_one_stage_noise_given_the_other_estimated():
     """Each stage's noise is its own option: the force's given (the sensor's datasheet), the torque's estimated
     (the default); the given one never moves, the torque stage still carries the given force noise."""
-    world, block = familybench.tour(30.0, seed=7, inertia=False)
+    _world, block = familybench.tour(30.0, seed=7, inertia=False)
     est = KalmanEstimator(noise_force=0.12)
     assert not est.noise_auto_force and est.noise_auto_torque
     out, _ = feed(est, block, chunk=64)
@@ -481,7 +481,7 @@ def test_auto_noise_is_not_inflated_by_a_long_contact_in_a_live_loop():
 
 
 def test_gating_none_accepts_everything_and_step_convergence_is_the_papers():
-    world, block = familybench.tour(10.0, seed=9, inertia=False)
+    _world, block = familybench.tour(10.0, seed=9, inertia=False)
     out, _ = feed(KalmanEstimator(gating="none"), block, chunk=64)
     assert not out.contact.any()
     # the paper's criterion rises on the very first samples' small steps; the covariance one needs excitation
@@ -524,7 +524,7 @@ def test_the_tilt_walk_follows_an_unmodelled_mount_without_its_states(mounted):
     its walk over the tilt does, as closely as estimating the mount (three more states) does: given
     (0.05 N/√rad) or learnt from the data ("auto"). The learnt intensity is of the error's scale: 5° of the
     3.4 N weight is 0.3 N, which changes by about that much per radian the tool turns."""
-    world, block = mounted
+    _world, block = mounted
     rms, learnt = {}, None
     for label, options in (
         ("walk off", {"bias_force_tilt_rw": 0.0}),
@@ -586,8 +586,8 @@ def test_the_tilt_walk_lets_a_contact_made_while_turning_into_the_bias_unless_it
     walk (no span), at 0.1 N/√rad, enough per sample to follow the first newtons of an indentation's ramp
     before the gate refuses it, so the contact force the trainee feels is off by a part of the contact while
     it lasts. With the default span (0.15 rad) the tilt walk follows the bias over no less than 0.15 rad of
-    turn, half a second of this tour, and the error is within 5 % of the walk off. The simulator's model is the filter's:
-    learnt ("auto"), the walk stays 0 here (the indentations' windows left out), and the contact force is that
+    turn, half a second of this tour, and the error is within 5 % of the walk off. The simulator's model is the
+    filter's: learnt ("auto"), the walk stays 0 here (the indentations' windows left out), and the contact force is that
     without the walk."""
     error, est, _ = _errors_in_contact(
         _presses(5.0, 10.0, 3, 3.0),
@@ -668,7 +668,7 @@ def test_the_tilt_is_gravity_s_turn_whatever_way_the_base_stands(kernel):
     vertical, horizontal = _wall_axes()
     for axis_B, expected in ((vertical, 0.0), (horizontal, q_tilt * np.pi / 2)):
         m = 1000
-        est, grown, _ = _turn_predicted(
+        _est, grown, _ = _turn_predicted(
             KalmanEstimator(kernel=kernel, bias_force_tilt_rw=0.1, bias_tilt_span=0.0), axis_B, m
         )
         # (the weight is identified to ~1e-3 rad of its direction: so is the tilt, to 1 % of a quarter turn)

@@ -4,8 +4,8 @@ Scenario data come from the simulated world's physics (tool inertia included,
 as by default), with fixed seeds, at Table I's noise of 0.12 N and 0.01 N·m
 per axis. Most tests run ``kalman`` with that noise given and convergence from
 the covariance (``gamma()``, its defaults before it estimated the noise); the
-defaults (noise estimated, convergence as identified) have their own tests. ``rls`` runs beside ``kalman`` on the same samples; run with ``-s``
-to see both.
+defaults (noise estimated, convergence as identified) have their own tests. ``rls`` runs beside ``kalman`` on the same
+samples; run with ``-s`` to see both.
 """
 
 from __future__ import annotations
@@ -382,7 +382,7 @@ def test_runs_through_the_registry():
 
 
 @pytest.mark.parametrize(
-    "options, key",
+    ("options", "key"),
     [
         ({"noise_force": -0.1}, "noise_force"),
         ({"noise_force": [0.1, 0.1]}, "noise_force"),
@@ -595,5 +595,5 @@ def test_identified_convergence_is_not_held_back_by_the_bias_random_walk():
 
 
 def test_convergence_option_is_validated():
-    with pytest.raises(ValueError, match="^convergence: must be 'pose', 'identified', 'covariance' or 'step'"):
+    with pytest.raises(ValueError, match=r"^convergence: must be 'pose', 'identified', 'covariance' or 'step'"):
         KalmanEstimator(convergence="fast")

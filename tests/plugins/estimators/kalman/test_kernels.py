@@ -105,9 +105,9 @@ def test_kalman_kernel_agrees_with_numpy(sim6, size, options, numpy_reference):
     runs the compiled stage filter (``filter6``). A late sensor stream (its poses interpolated per block
     before the cascade, its first 4 ms unused) runs in the cascade too, and so do bias-rate states
     (``stage_step_rate`` against filterpy's filter) and a mount estimate (``stage_step_mount`` against
-    ``plugins.estimators.kalman.mount_stage.MountStage``'s EKF, from the identity or from a 3° mount, with and without rates); and
-    the bias's tilt walk (``add_tilt_noise``, the tilt from ``tilt_step``) with the defaults, the noise given,
-    the step rule, a late sensor stream, and a mount with rates."""
+    ``plugins.estimators.kalman.mount_stage.MountStage``'s EKF, from the identity or from a 3° mount, with and without
+    rates); and the bias's tilt walk (``add_tilt_noise``, the tilt from ``tilt_step``) with the defaults, the noise
+    given, the step rule, a late sensor stream, and a mount with rates."""
     (ref, a), fast = _reference(sim6, options, size), KalmanEstimator(kernel="numba", **options)
     assert fast._cascade == (options.get("convergence") != "step")
     b = run_blocks(fast, sim6, size)
@@ -139,12 +139,12 @@ def sim_mounted():
 )
 @pytest.mark.parametrize("size", [1, 64])
 def test_a_learnt_tilt_walk_is_the_reference_s(sim_mounted, size, options, numpy_reference):
-    """The tilt walk learnt from the data (``bias_force_tilt_rw = "auto"``, ``plugins.estimators.kalman.tilt_walk_kernel``) in the
-    compiled cascade and in the numpy reference (``learn_tilt_walk`` as Python, after each sample: the
-    reference filters one sample at a time with it, so every block size gives its numbers), on a tour with a
-    5° mount the model lacks, from which both learn a walk: the same pairs scored, the same flags, the walk
-    and the wrench within rounding. (With the step rule both sides run the learner as Python around the
-    compiled stage filter.)"""
+    """The tilt walk learnt from the data (``bias_force_tilt_rw = "auto"``,
+    ``plugins.estimators.kalman.tilt_walk_kernel``) in the compiled cascade and in the numpy reference
+    (``learn_tilt_walk`` as Python, after each sample: the reference filters one sample at a time with it, so every
+    block size gives its numbers), on a tour with a 5° mount the model lacks, from which both learn a walk: the same
+    pairs scored, the same flags, the walk and the wrench within rounding. (With the step rule both sides run the
+    learner as Python around the compiled stage filter.)"""
     options = {**options, "bias_force_tilt_rw": "auto"}
     (ref, a), fast = _reference(sim_mounted, options, size), KalmanEstimator(kernel="numba", **options)
     b = run_blocks(fast, sim_mounted, size)
@@ -235,7 +235,7 @@ def sim_inertia():
 
 
 @pytest.mark.parametrize(
-    "options, tol",
+    ("options", "tol"),
     [
         ({**GAMMA, "inertia": True}, 1e-12),
         ({**GAMMA, "inertia": True, "time_lag_s": 0.004}, 1e-9),
@@ -249,8 +249,8 @@ def sim_inertia():
 @pytest.mark.parametrize("size", [1, 7, 1024])
 def test_kalman_inertia_kernel_matches_numpy(sim_inertia, size, options, tol, numpy_reference):
     """Not to the bit: the derivatives' window sums are taken in order, numpy's pairwise (see
-    plugins/estimators/kalman/derivatives_kernel.py); ω agrees to ~1e-13 relative, α to ~1e-9 of its largest value (a second
-    difference over 20 ms), the inertial force (0.35 kg) to ~1e-14 N. The filter carries that through:
+    plugins/estimators/kalman/derivatives_kernel.py); ω agrees to ~1e-13 relative, α to ~1e-9 of its largest value (a
+    second difference over 20 ms), the inertial force (0.35 kg) to ~1e-14 N. The filter carries that through:
     1e-12 N and N·m on the contact wrench (measured 2e-14), the same flags. With a kinematics lag the
     pose itself is extrapolated by ω τ + ½ α τ², so α's difference reaches R_EB: 1e-9 (measured 6e-11). With
     the defaults (the noise estimated) the rounding fed back through R: ROUNDING_NOISE."""
@@ -314,7 +314,7 @@ def test_kalman_restart_and_payload_paths_use_the_kernel_and_agree(sim, options,
 
 
 def test_kalman_kernel_option_is_validated(numpy_reference):
-    with pytest.raises(ValueError, match="^kernel: "):
+    with pytest.raises(ValueError, match=r"^kernel: "):
         KalmanEstimator(kernel="fortran")
     assert KalmanEstimator(kernel="numpy").method is None
     assert KalmanEstimator().method == "numba"
@@ -337,8 +337,8 @@ def test_quaternion_kernel_gives_the_numpy_bits():
 
 def test_constant_var_kernel_matches_numpy(sim6, numpy_reference):
     """What the motion identifies of a stage's constant (params' gravity_force_B_std and cog_S_std, the gate's
-    std): the kernel's Cholesky against ``plugins.estimators.kalman.identified.constant_var``'s inverse, along the tour (Λ from a
-    yaw-free start to well identified) and for a Λ that is not positive definite (inf). Two ways of inverting
+    std): the kernel's Cholesky against ``plugins.estimators.kalman.identified.constant_var``'s inverse, along the tour
+    (Λ from a yaw-free start to well identified) and for a Λ that is not positive definite (inf). Two ways of inverting
     Λ agree to its forward error bound, 1e-14·cond(Λ) relative (cond reaches ~4e7 while the start's
     motion leaves gravity's horizontal part unseen)."""
     from hapticlab.plugins.estimators.kalman import identified

@@ -139,7 +139,7 @@ def test_indentations_are_not_payload_changes():
 
 
 @pytest.mark.parametrize(
-    "peak, start, noise",
+    ("peak", "start", "noise"),
     [(0.8, 5.0, NOISE), (1.0, 5.0, {}), (1.5, 5.0, NOISE), (3.0, 1.0, {})],
     ids=[
         "0.8 N, the noise given",
@@ -151,8 +151,8 @@ def test_indentations_are_not_payload_changes():
 def test_indentations_2_s_in_every_4_are_not_payload_changes(peak, start, noise):
     """Closer indentations, whose refusal runs begin where the ramp crosses the gate (about half way up) and
     whose window, grown past the ramp, fits a weight change to within the noise estimate. Before the onset
-    test (``plugins.estimators.kalman.payload.ONSET_SHARE``) they were, each time re-opening gravity: 1.5 N ones 4 times, and the
-    contact force where both flags were up was 0.32 / 0.34 / 0.83 N off (RMS); 3 N ones from the first
+    test (``plugins.estimators.kalman.payload.ONSET_SHARE``) they were, each time re-opening gravity: 1.5 N ones 4
+    times, and the contact force where both flags were up was 0.32 / 0.34 / 0.83 N off (RMS); 3 N ones from the first
     second, with the noise estimated, 5 times, 0.36 / 0.50 / 0.83 N. Lighter ones, whose plateau is near the
     gate, passed an onset of refused samples only (those the noise pushed over the gate)."""
     touches = [
@@ -325,11 +325,11 @@ def test_warm_start_refuses_other_estimators_and_corrupt_files(tmp_path, saved_s
     }
     for name, text in cases.items():
         (tmp_path / name).write_text(text)
-        with pytest.raises(ValueError, match="^warm_start: "):
+        with pytest.raises(ValueError, match=r"^warm_start: "):
             KalmanEstimator(warm_start=str(tmp_path / name))
-    with pytest.raises(ValueError, match="^warm_start: cannot read"):
+    with pytest.raises(ValueError, match=r"^warm_start: cannot read"):
         KalmanEstimator(warm_start=str(tmp_path / "missing.json"))
-    with pytest.raises(ValueError, match="^warm_start: .*bias_rate"):
+    with pytest.raises(ValueError, match=r"^warm_start: .*bias_rate"):
         KalmanEstimator(warm_start=str(path), bias_rate=True)
 
 

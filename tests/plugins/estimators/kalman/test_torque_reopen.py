@@ -24,7 +24,7 @@ STEP_TORQUE_S = np.array([0.2, -0.15, 0.1])  # N·m, in S: 0.27 N·m, ~27 times 
 
 
 def _stepped(seed: int, seconds: float = 30.0):
-    block, world = simulate(SimWorld(seed=seed, inertia=False), seconds, RATE_HZ)
+    block, _world = simulate(SimWorld(seed=seed, inertia=False), seconds, RATE_HZ)
     after = block.t_ns >= STEP_S * 1e9
     block.torque_S[after] += STEP_TORQUE_S  # the sensor's torque bias moves at STEP_S; the force is untouched
     return block, after
@@ -36,7 +36,7 @@ def _reopened(est: KalmanEstimator) -> list[float]:
 
 @pytest.mark.parametrize("seed", [81, 82])
 def test_a_torque_bias_step_is_found_again_instead_of_refused_to_the_end(seed):
-    block, after = _stepped(seed)
+    block, _after = _stepped(seed)
     late = block.t_ns >= (STEP_S + 7.0) * 1e9  # 2 s after the re-opening is due
     fixed, never = KalmanEstimator(), KalmanEstimator(torque_reopen_s=0.0)
     out, _ = feed(fixed, block)

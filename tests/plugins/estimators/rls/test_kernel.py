@@ -42,10 +42,10 @@ def test_rls_kernel_matches_numpy_in_lockstep(sim, numpy_reference):
         # the forward error of a Cholesky solve, ~3n·u·cond(Λ)·‖x‖ for each path (n = 6, u = 1.1e-16), twice;
         # the torque stage's A_k = −[f − b_f]ₓ also carries the force stage's difference in b_f
         cond_f, cond_t = np.linalg.cond(ref.force.Lambda), np.linalg.cond(ref.torque.Lambda)
-        dA = np.linalg.norm(ref.force.x[3:] - fast.force.x[3:]) / np.linalg.norm(part.force_S[0] - ref.force.x[3:])
+        delta_A = np.linalg.norm(ref.force.x[3:] - fast.force.x[3:]) / np.linalg.norm(part.force_S[0] - ref.force.x[3:])
         bound = [
             1e-14 * cond_f * max(1.0, np.linalg.norm(ref.force.x)) + 1e-12,
-            (1e-14 + 3 * dA) * cond_t * max(1.0, np.linalg.norm(ref.torque.x)) + 1e-12,
+            (1e-14 + 3 * delta_A) * cond_t * max(1.0, np.linalg.norm(ref.torque.x)) + 1e-12,
         ]
         steps = [np.linalg.norm(s.x - x0) for s, x0 in zip((ref.force, ref.torque), before)]
         flags_equal = all(np.array_equal(getattr(a, key), getattr(b, key)) for key in KEYS[2:])
@@ -110,7 +110,7 @@ def test_rls_kernel_free_run_ends_at_the_same_parameters(sim, numpy_reference):
 
 
 def test_rls_kernel_option_is_validated(numpy_reference):
-    with pytest.raises(ValueError, match="^kernel: "):
+    with pytest.raises(ValueError, match=r"^kernel: "):
         RLSEstimator(kernel="cuda")
     assert RLSEstimator(kernel="numpy").kernel == "numpy"
     assert RLSEstimator().kernel == "numba"

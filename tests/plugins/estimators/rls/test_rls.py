@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from helpers import static_model_stream
@@ -172,7 +174,7 @@ def test_parameters_recovered_from_noisy_data_within_tolerance():
 
 
 def test_gating_freezes_updates_during_contact():
-    block, truth = static_model_stream(3000, seed=6, noise_force=0.05, noise_torque=0.004)
+    block, _truth = static_model_stream(3000, seed=6, noise_force=0.05, noise_torque=0.004)
     contact = np.zeros(3000, dtype=bool)
     contact[1500:1800] = True
     tip_S = np.array([0.0, 0.0, 0.25])
@@ -214,14 +216,14 @@ def test_run_gated_inactive_samples_leave_state_unchanged():
 
 
 def test_bad_options_are_refused():
-    with pytest.raises(ValueError, match="^force_threshold: must be a finite number > 0, got 0.0$"):
+    with pytest.raises(ValueError, match=r"^force_threshold: must be a finite number > 0, got 0.0$"):
         RLSEstimator(force_threshold=0.0)
-    with pytest.raises(ValueError, match="^covariance_update: must be 'information' or 'printed'"):
+    with pytest.raises(ValueError, match=r"^covariance_update: must be 'information' or 'printed'"):
         RLSEstimator(covariance_update="joseph")
-    with pytest.raises(ConfigError, match="^estimator.covariance_update: must be 'information' or 'printed'"):
+    with pytest.raises(ConfigError, match=r"^estimator.covariance_update: must be 'information' or 'printed'"):
         Registry().create("estimator", "rls", {"covariance_update": "joseph"}, where="estimator")
     with pytest.raises(
-        ConfigError, match="^estimator.covariance_update: must be a string, got 1 \\(a number read as text needs quotes"
+        ConfigError, match=r"^estimator.covariance_update: must be a string, got 1 \(a number read as text needs quotes"
     ):
         Registry().create("estimator", "rls", {"covariance_update": 1}, where="estimator")
 
@@ -246,7 +248,7 @@ def test_adversarial_streams_match_algorithm1(seed):
     f_th, t_th = float(rng.uniform(0.3, 1.0)), float(rng.uniform(0.03, 0.1))
     est = RLSEstimator(force_threshold=f_th, torque_threshold=t_th, seed=seed)
     edges = _mixed_blocks(len(block), rng)
-    parts = [est.update_block(block.subset(slice(a, b))) for a, b in zip(edges[:-1], edges[1:])]
+    parts = [est.update_block(block.subset(slice(a, b))) for a, b in itertools.pairwise(edges)]
     out = {
         k: np.concatenate([getattr(p, k) for p in parts])
         for k in ("contact_force_S", "contact_torque_S", "contact", "converged_force", "converged_torque")

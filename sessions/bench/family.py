@@ -24,7 +24,8 @@ paper`` (``drift_contact``) and in the tests; the speed per option in
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

@@ -21,8 +21,9 @@ haptic commands is the force the fault alone put on the trainee's hand:
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -194,7 +194,7 @@ def stage_table(
         t0 = time.perf_counter_ns()
         result = run_timed()
         wall_ns = time.perf_counter_ns() - t0
-    ticks = max(int(round(duration_s * session.settings.loop_rate_hz)), 1)
+    ticks = max(round(duration_s * session.settings.loop_rate_hz), 1)
     tick_ns = ticks_ns[0]
     timed = sum(watch.ns[s] for s in STAGES if s != "loop body")
     watch.ns["loop body"] = max(tick_ns - timed, 0)

@@ -22,8 +22,9 @@ fixed seeds, so a run repeats exactly.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -22,8 +22,9 @@ update without calling them contacts (``HoldsOutOutliers``) has those counted be
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

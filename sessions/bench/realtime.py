@@ -58,10 +58,9 @@ def realtime_run(
             send(command)
             now = clock()
             newest = loop.gate.last_sample_ns
-            if newest is not None:
-                if count[0] < len(latencies):
-                    latencies[count[0]] = now - newest
-                    count[0] += 1
+            if newest is not None and count[0] < len(latencies):
+                latencies[count[0]] = now - newest
+                count[0] += 1
             if now >= next_rss[0]:
                 next_rss[0] = now + 1_000_000_000
                 rss_mb.append(_rss_mb())

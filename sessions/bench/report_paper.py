@@ -153,7 +153,8 @@ def paper_section(out: dict[str, Any], figures: str) -> list[str]:
         f"**104 g reference mass** (Figs. 8–9): |contact force| against {r104['load_N']:.2f} N, one turn per speed, "
         f"at Table I's noise ({vec(r104['noise_force'], 3)} N) and at a quarter of it. The paper: MAE ≤ "
         f"{paper['rotation_104g']['72']['mae']:g} N,",
-        f"Max AE {paper['rotation_104g']['72']['max_ae']:g} N at 72 deg/s, Std < {paper['rotation_104g']['std_max']:g} N.",
+        f"Max AE {paper['rotation_104g']['72']['max_ae']:g} N at 72 deg/s, "
+        f"Std < {paper['rotation_104g']['std_max']:g} N.",
         "",
     ]
     speeds = [k for k in r104 if k.isdigit()]

@@ -12,7 +12,7 @@ from hapticlab.plugins.simworld import SimWorld
 
 def simulate(world: SimWorld, seconds: float, rate_hz: float, t0: float = 0.0) -> tuple[AlignedSamples, dict]:
     """Sample the world's sensor and orientation for ``seconds`` from ``t0``."""
-    t = t0 + np.arange(int(round(seconds * rate_hz))) / rate_hz
+    t = t0 + np.arange(round(seconds * rate_hz)) / rate_hz
     w = world.wrench(t)
     n = len(t)
     block = AlignedSamples(

@@ -23,7 +23,7 @@ def vec(values, digits: int = 3) -> str:
 
 def finite_json(value):
     """NaN and infinities become null (JSON has no NaN)."""
-    if isinstance(value, float) and value != value or value in (float("inf"), float("-inf")):
+    if (isinstance(value, float) and value != value) or value in (float("inf"), float("-inf")):
         return None
     if isinstance(value, dict):
         return {k: finite_json(v) for k, v in value.items()}

@@ -8,6 +8,7 @@ unechoed, Ctrl-C still stops) and restored when the session ends.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import select
 import sys
@@ -56,7 +57,7 @@ class RearmKey:
         self._saved: list[Any] | None = None  # the terminal's attributes while cbreak is set
         self._fd: int | None = None  # the terminal's descriptor, set with _saved and active
 
-    def __enter__(self) -> "RearmKey":
+    def __enter__(self) -> RearmKey:
         try:
             import termios
             import tty
@@ -76,10 +77,9 @@ class RearmKey:
             import termios
 
             assert self._fd is not None  # set with _saved
-            try:  # the terminal it was set on; gone (a hang-up) is nothing to restore, and must not hide the result
+            # the terminal it was set on; gone (a hang-up) is nothing to restore, and must not hide the result
+            with contextlib.suppress(termios.error, OSError):
                 termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
-            except (termios.error, OSError):
-                pass
             self._saved = None
         self.active = False
 

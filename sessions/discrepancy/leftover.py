@@ -9,6 +9,7 @@ per axis") has the threshold's measured false-positive rate.
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -63,7 +64,7 @@ def where_left(t: np.ndarray, residual: np.ndarray, noise: float, weight_S: np.n
     m = len(t)
     edges = np.linspace(0, m, LEFTOVER_SEGMENTS + 1).astype(int)
     stretches = []
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in itertools.pairwise(edges):
         if b - a < 2:
             continue
         ratio = float(rms(residual[a:b])) / noise

@@ -167,7 +167,7 @@ def report(
         "samples": int(fit.n),
         "usable": int(use.sum()),
         "gated": int(use.sum() - kept.sum()),
-        "fit_samples": int(len(fit.fit_rows)),
+        "fit_samples": len(fit.fit_rows),
         "time_base": fit.motion.time_base,
         "rate_hz": fit.motion.rate_hz,
         "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
@@ -203,7 +203,7 @@ def report(
         "rounds": rounds,
         "skipped": skipped,
         "notes": fit.notes + notes,
-        "settings": {k: v for k, v in vars(fit.settings).items()},
+        "settings": dict(vars(fit.settings)),
         "_states": states,
         "_kept": kept,
     }

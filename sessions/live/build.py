@@ -84,7 +84,7 @@ class EstimatorSlot:
     reports_cov: ReportsCovariance | None = None
 
     @classmethod
-    def of(cls, label: str, estimator: Any) -> "EstimatorSlot":
+    def of(cls, label: str, estimator: Any) -> EstimatorSlot:
         """The slot for ``estimator``, its capabilities checked once."""
 
         def has(capability):
@@ -167,7 +167,7 @@ class Session:
             self.primary.parameter_std,
             self.primary.reidentifies,
             stale_ns,
-            int(round(settings.frozen_pose_timeout * 1e9)),
+            round(settings.frozen_pose_timeout * 1e9),
             settings.max_turn_rate,
             settings.max_speed,
             reports_params=self.primary.reports_params is not None,
@@ -179,10 +179,10 @@ def stale_timeout_ns(
 ) -> int:
     """The age of the newest sensor sample at which the force is zeroed, ns: ``session.stale_timeout`` s, or
     when 0 (automatic) 1.5 sensor periods plus the sensor's latency plus one loop period."""
-    period_ns = int(round(1e9 / loop_rate_hz))
+    period_ns = round(1e9 / loop_rate_hz)
     if stale_timeout > 0:
-        return int(round(stale_timeout * 1e9))
-    return int(round((1.5 / sensor_rate_hz + sensor_latency_s) * 1e9)) + period_ns
+        return round(stale_timeout * 1e9)
+    return round((1.5 / sensor_rate_hz + sensor_latency_s) * 1e9) + period_ns
 
 
 def build_session(config: dict[str, Any], registry: Registry | None = None) -> Session:

@@ -28,7 +28,7 @@ from hapticlab.sessions.live.build import EstimatorSlot, Session, calibration_pa
 from hapticlab.sessions.recording import Recorder
 
 
-class PartFailed(Exception):
+class PartFailedError(Exception):
     """A device, the primary estimator or the recording raised inside the loop; ``part`` names it."""
 
     def __init__(self, part: str, exc: BaseException):

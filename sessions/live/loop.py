@@ -33,7 +33,7 @@ from hapticlab.core.types import Event, WrenchBlock
 from hapticlab.sessions.live.build import EstimatorSlot, Session, default_out_path, session_metadata
 from hapticlab.sessions.live.command import HapticCommander
 from hapticlab.sessions.live.ending import (
-    PartFailed,
+    PartFailedError,
     close_devices,
     ending_message,
     save_estimator_state,
@@ -106,8 +106,8 @@ class LiveLoop:
             raise OutputExistsError(
                 f"{self.path} already exists; choose another --out (recordings are never overwritten)"
             )
-        self.period_ns = int(round(1e9 / settings.loop_rate_hz))
-        self.duration_ns = int(round(self.duration * 1e9))
+        self.period_ns = round(1e9 / settings.loop_rate_hz)
+        self.duration_ns = round(self.duration * 1e9)
         self.gate = session.gate()
         self.sensor_range = session.sensor if isinstance(session.sensor, HasRange) else None
         sensor = session.sensor
@@ -196,7 +196,7 @@ class LiveLoop:
                 now_ns = time.monotonic_ns() if self.s.settings.realtime else self.t0_ns + self.duration_ns
             except KeyboardInterrupt:
                 interrupted = True
-            except PartFailed as exc:
+            except PartFailedError as exc:
                 failure = exc
             with signals_noted(self.signals_while_ending):
                 try:
@@ -313,11 +313,11 @@ class LiveLoop:
         """Call a device's or the primary estimator's method; what it raises ends the session, named."""
         try:
             return method(*args)
-        except (KeyboardInterrupt, PartFailed):
+        except (KeyboardInterrupt, PartFailedError):
             raise
         except Exception as exc:
             plugin = self.s.plugins.get(part)  # "recording" is no plugin
-            raise PartFailed(f"{part} {plugin['name']}" if plugin else part, exc) from exc
+            raise PartFailedError(f"{part} {plugin['name']}" if plugin else part, exc) from exc
 
     def _event(self, event: Event) -> None:
         self.taps.event(event)
@@ -355,7 +355,7 @@ class LiveLoop:
             )
         )
 
-    def _finish(self, end_ns: int, interrupted: bool, failure: PartFailed | None) -> SessionResult:
+    def _finish(self, end_ns: int, interrupted: bool, failure: PartFailedError | None) -> SessionResult:
         """Zero the device and record it, close the devices, save the state, finish the file."""
         self.pacer.overrun_event(end_ns)  # what the last second's overruns added up to
         reason = f"session ended by an error: {failure}" if failure else "session ended"

@@ -79,7 +79,7 @@ class _Blocks:
     given); ``last`` holds what describes the newest sample (``params``, ``cov_diag``) when a part brought it.
     """
 
-    __slots__ = ("topic", "parts", "fields", "last")
+    __slots__ = ("fields", "last", "parts", "topic")
 
     def __init__(self, topic: str):
         self.topic = topic

@@ -206,8 +206,8 @@ class LagWatch:
     forgetting; its standard error is the noise over √Σ‖ġ‖², so it speaks only
     while the tool turns, and only when the lag explains most of the residual
     (τ̂·Σ r·ġ ≥ ``LAG_MIN_EXPLAINED`` of Σ‖r‖²): the tail of a contact that
-    happens to follow the motion for a moment explains little of its residual. A timestamp cannot show this (the poses are stamped
-    as current), a still tool cannot either (then nothing is wrong).
+    happens to follow the motion for a moment explains little of its residual. A timestamp cannot
+    show this (the poses are stamped as current), a still tool cannot either (then nothing is wrong).
 
     Args:
         max_turn_rate: faster apparent turns (a pose stream that jumps) are left out of the estimate, rad/s
@@ -226,7 +226,8 @@ class LagWatch:
         self.sums = np.zeros(
             6
         )  # S_rg, S_gg, S_rr, and the last sample's predicted weight in S (sessions.live.watch_kernel)
-        # the last sample's and the last contact's t_ns, then the bits HAS_LAST | HAS_CONTACT of sessions.live.watch_kernel
+        # the last sample's and the last contact's t_ns, then the bits HAS_LAST | HAS_CONTACT
+        # of sessions.live.watch_kernel
         self.clock = np.zeros(3, dtype=np.int64)
         self.lag_s: float | None = None
 

@@ -15,7 +15,7 @@ Units are those of the input (N or N·m).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

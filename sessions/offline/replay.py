@@ -183,11 +183,10 @@ def _recorded(original, topic: str, t_ns: np.ndarray) -> dict[str, np.ndarray] |
     index = {t: k for k, (t, _) in enumerate(messages)}
     rows = np.array([index.get(int(t), -1) for t in t_ns], dtype=np.int64)
     seen = rows >= 0
-    pick = lambda values, empty: np.where(
-        seen.reshape(-1, *([1] * (values.ndim - 1))),  # noqa: E731
-        values[np.maximum(rows, 0)],
-        empty,
-    )
+
+    def pick(values: np.ndarray, empty: float) -> np.ndarray:
+        return np.where(seen.reshape(-1, *([1] * (values.ndim - 1))), values[np.maximum(rows, 0)], empty)
+
     return {
         "contact_force_S": pick(force, np.nan),
         "contact": pick(contact, 0.0).astype(bool),

@@ -109,9 +109,8 @@ def as_columns(block: dict[str, Any]) -> dict[str, Any]:
     """A block message with every per-sample column as a numpy array (JSON lists stacked, null → NaN)."""
     out: dict[str, Any] = {}
     for key, column in block.items():
-        if key in BLOCK_LAST_SAMPLE_FIELDS:
-            out[key] = column
-        elif isinstance(column, np.ndarray):  # CDR: as recorded (a non-finite float NaN or ±inf)
+        # the last sample's fields as they are; CDR columns as recorded (a non-finite float NaN or ±inf)
+        if key in BLOCK_LAST_SAMPLE_FIELDS or isinstance(column, np.ndarray):
             out[key] = column
         else:
             out[key] = np.asarray(column, dtype=np.int64) if key == "t_ns" else stack(column)

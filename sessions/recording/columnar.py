@@ -90,7 +90,7 @@ def _chunk_data(f, path: Path, index) -> bytes:
     try:
         _, _, _, _, size, crc, _ = _CHUNK_HEAD.unpack_from(record)
         data = _decompress(index.compression, record[-index.compressed_size :], size)
-    except Exception as exc:  # noqa: BLE001 - any decoding failure is a damaged file
+    except Exception as exc:
         raise RecordingError(
             f"{path}: chunk at byte {index.chunk_start_offset} is damaged ({exc}); "
             f"run `hapticlab recover {path} -o FIXED.mcap`"
@@ -255,7 +255,7 @@ def _messages(
             )
     widths = {name: (arr.shape[1], arr.dtype) for g in groups for name, arr in g.items()}
     out: dict[str, Any] = {}  # the columns, then params
-    for name, (width, dtype) in widths.items():  # a field absent from some blocks: NaN there
+    for name, (width, _dtype) in widths.items():  # a field absent from some blocks: NaN there
         out[name] = np.concatenate([g[name] if name in g else np.full((len(g["t_ns"]), width), np.nan) for g in groups])
     order = np.argsort(out["t_ns"].ravel(), kind="stable")  # the groups back in time order
     out = {name: (arr[order].ravel() if arr.shape[1] == 1 else arr[order]) for name, arr in out.items()}

@@ -9,6 +9,7 @@ without reading a message.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from dataclasses import dataclass
@@ -139,10 +140,8 @@ def read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[str
             for channel in summary.channels.values():
                 schema = summary.schemas.get(channel.schema_id)
                 if schema is not None and schema.encoding == "jsonschema":
-                    try:
+                    with contextlib.suppress(ValueError):
                         schemas[channel.topic] = json.loads(schema.data)
-                    except ValueError:
-                        pass
     counts: dict[str, int] = {}
     block_topics: set[str] = set()
     if summary is not None:

@@ -88,7 +88,8 @@ def _messages(path: Path, topic: str) -> Iterator[tuple[int, Any]]:
     """``(t_ns, message)`` of one topic in time order; a message that is not JSON is a RecordingError."""
     k = 0
     try:
-        for k, (_, t_ns, message) in enumerate(iter_messages(path, topic), start=1):
+        # k is read by the except below: the message that broke
+        for k, (_, t_ns, message) in enumerate(iter_messages(path, topic), start=1):  # noqa: B007
             yield t_ns, message
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise RecordingError(f"{path.name}: {topic} message {k + 1} is not valid JSON ({exc})") from None

@@ -26,6 +26,7 @@ nothing: the messages are already in the writer process.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
 import select
@@ -259,10 +260,8 @@ def _yield_to_the_loop() -> None:
     is not run ahead of the process it woke; it still gets the other core (or its share of a busy one), so
     it keeps up all the same. Nothing to do where the policy is unknown.
     """
-    try:
+    with contextlib.suppress(AttributeError, OSError):
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
-    except (AttributeError, OSError):
-        pass
 
 
 def _main(argv: list[str]) -> int:

@@ -45,7 +45,7 @@ class Stream:
         return len(self.t_s)
 
     @classmethod
-    def concatenate(cls, parts: list["Stream"]) -> "Stream":
+    def concatenate(cls, parts: list[Stream]) -> Stream:
         """Consecutive chunks of one file (:func:`~.loader.iter_stream`) as one stream; the notes of every chunk."""
         if len(parts) == 1:
             return parts[0]

@@ -94,7 +94,8 @@ class Recorder:
         metadata: metadata records to write at the start, ``{record name: {key: value}}``;
             values that are not strings are JSON-encoded. The ``hapticlab.session``
             record is always written; ``format_version`` (the layout :meth:`write_block`
-            writes: :data:`~.schemas.FORMAT_VERSION`, 2 with ``block_encoding="json"``), ``hapticlab_version``, ``git_revision``
+            writes: :data:`~.schemas.FORMAT_VERSION`, 2 with ``block_encoding="json"``),
+            ``hapticlab_version``, ``git_revision``
             (where known), ``start_time`` (UTC, ISO 8601), ``start_monotonic_ns`` (the session
             clock at that instant), ``python`` and ``mcap`` are filled in unless given.
             Put the resolved config under ``config`` and plugin names/versions under

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import sys
 import zipfile
 
@@ -27,9 +28,14 @@ def package_folders() -> set[str]:
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory, run_command) -> zipfile.ZipFile:
+    """The wheel pip builds from a copy of the checkout: setuptools builds in the source's ``build/``, which
+    two test workers building at once (or a build left there) would share."""
     out = tmp_path_factory.mktemp("wheel")
+    source = out / "source"
+    ignore = shutil.ignore_patterns(*SKIP - {"tests", "bench", "docs"}, "*.egg-info", "__pycache__", ".*_cache")
+    shutil.copytree(ROOT, source, ignore=ignore, symlinks=True)
     result = run_command(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(out), str(ROOT)],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(out), str(source)],
         "pip wheel",
         timeout=600,
     )

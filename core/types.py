@@ -388,6 +388,9 @@ class EmulatorCommand:
             passes it to ``run``; an emulator never reads a session itself (a plugin does not import the
             sessions layer).
         session: the preset ``--session`` defaults to.
+        listens_on: the options (argparse ``dest`` names) that hold an address it listens on. The host
+            adds ``--allow-network`` and refuses a non-loopback address in any of them without it: an
+            emulated device answers anyone who connects.
     """
 
     help: str
@@ -395,6 +398,7 @@ class EmulatorCommand:
     run: Callable[..., int]
     needs_world: bool = False
     session: str = "demo"
+    listens_on: tuple[str, ...] = ()
 
     def __call__(self, *args: Any) -> int:
         return self.run(*args)

@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--netft",
         default="127.0.0.2",
         metavar="ADDRESS",
-        help="the Net F/T's IPv4 address (default 127.0.0.2; 127.0.0.x keeps it on this machine)",
+        help="the Net F/T's IPv4 address (default 127.0.0.2; loopback only, unless --allow-network)",
     )
     parser.add_argument("--rdt-port", type=int, default=49152, help="its RDT UDP port (49152)")
     parser.add_argument(
@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ur",
         default="127.0.0.3",
         metavar="ADDRESS",
-        help="the UR controller's IPv4 address, port 30004 (default 127.0.0.3; 127.0.0.x keeps it on this machine)",
+        help="the UR controller's IPv4 address, port 30004 (default 127.0.0.3; loopback only, unless --allow-network)",
     )
     parser.add_argument("--model", default="ur5e", help="the UR model (default ur5e: e-Series, 500 Hz)")
     parser.add_argument(
@@ -126,5 +126,6 @@ def register_emulators(register):
             run=run,
             needs_world=True,
             session="lab-emulated",
+            listens_on=("netft", "ur"),
         ),
     )

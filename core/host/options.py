@@ -19,6 +19,7 @@ as numbers (a record built in Python may hold them).
 from __future__ import annotations
 
 import difflib
+import ipaddress
 import math
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
@@ -188,6 +189,25 @@ def matrix(key: str, value: Any, *, shape: tuple[int, int] = (3, 3), hint: str =
         raise OptionError(key, f"must be a {rows}x{cols} matrix ({rows} rows of {cols} numbers){hint}, got {value!r}")
     array.setflags(write=False)
     return array
+
+
+def listen_address(key: str, host: str, *, allow_network: bool = False, exposes: str = "it") -> str:
+    """``host``, an address to listen on: a loopback one (127.0.0.0/8, ::1, ``localhost``), or any with
+    ``allow_network`` (the user asked for the network with ``--allow-network``). A host name other than
+    ``localhost`` counts as the network (where it points is not this machine's to say). OptionError
+    otherwise, saying what the address would expose (``exposes``)."""
+    name = host.strip("[]")
+    try:
+        loopback = name == "localhost" or ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        loopback = False
+    if loopback or allow_network:
+        return host
+    raise OptionError(
+        key,
+        f"must be a loopback address (127.0.0.x, ::1, localhost) unless --allow-network is given, got {host!r}: "
+        f"it would serve {exposes} to anyone on the network",
+    )
 
 
 def check_fields(record: Any, checks: Mapping[str, Check]) -> None:

@@ -4,11 +4,10 @@ It serves the RTDE wire (``rtde_protocol.py``) on port 30004 through
 :class:`~hapticlab.plugins.kinematics.rtde_server.RTDEServer`: protocol 2 only,
 controller version 5.x for the e-Series models and 3.x for CB3, output
 frequencies within (0, 500] Hz on an e-Series, (0, 125] on a CB3. ur-rtde 1.6's
-``RTDEReceiveInterface`` needs exactly this and no other port (the dashboard
-server on 29999 and the URScript ports 30001–30003 are only for
-``RTDEControlInterface``): ``V``, ``v``, ``O``, ``S``, then ``U`` packages, and
-``P`` when it disconnects; ``RTDEIOInterface`` adds ``I`` recipes and ``U``
-packages towards the controller.
+``RTDEReceiveInterface`` needs exactly this and no other port (the dashboard server on 29999 and
+the URScript ports 30001–30003 are only for ``RTDEControlInterface``): ``V``, ``v``, ``O``, ``S``,
+then ``U`` packages, and ``P`` when it disconnects; ``RTDEIOInterface`` adds ``I`` recipes and
+``U`` packages towards the controller.
 
 The robot: the controller's cycle is 2 ms (e-Series, 500 Hz) or 8 ms (CB3,
 125 Hz) and ``timestamp`` counts cycles in seconds since the emulator started.
@@ -327,8 +326,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--address",
         default="127.0.0.1",
-        help="IPv4 address to serve RTDE on, port 30004 (default 127.0.0.1); a loopback address 127.0.0.x keeps "
-        "the emulator on this machine, any other address of this machine (0.0.0.0: all of them) serves the network",
+        help="IPv4 address to serve RTDE on, port 30004 (default 127.0.0.1); a loopback one (127.0.0.x) only: "
+        "another address of this machine (0.0.0.0: all of them) serves the network, with --allow-network",
     )
     parser.add_argument(
         "--model",
@@ -396,5 +395,6 @@ def register_emulators(register):
             add_arguments=add_arguments,
             run=run,
             needs_world=True,
+            listens_on=("address",),
         ),
     )

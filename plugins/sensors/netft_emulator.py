@@ -313,8 +313,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--address",
         default="127.0.0.1",
-        help="IPv4 address to serve on (default 127.0.0.1); a loopback address 127.0.0.x keeps the emulator "
-        "on this machine, any other address of this machine (0.0.0.0: all of them) serves the network",
+        help="IPv4 address to serve on (default 127.0.0.1); a loopback one (127.0.0.x) only: another address "
+        "of this machine (0.0.0.0: all of them) serves the network, with --allow-network",
     )
     parser.add_argument("--rdt-port", type=int, default=RDT_PORT, help="UDP port of the RDT stream (default 49152)")
     parser.add_argument("--http-port", type=int, default=80, help="TCP port of netftapi2.xml (default 80)")
@@ -381,5 +381,6 @@ def register_emulators(register):
             add_arguments=add_arguments,
             run=run,
             needs_world=True,
+            listens_on=("address",),
         ),
     )

@@ -20,6 +20,7 @@ from typing import Any, cast
 
 import pluggy
 
+from hapticlab.core.host.options import OptionError, listen_address
 from hapticlab.core.host.registry import Registry
 from hapticlab.core.types import EmulatorCommand
 from hapticlab.sessions.config import load_config
@@ -47,11 +48,29 @@ def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> N
                 help=f"preset name or TOML file whose [world] feeds the emulator (default: {emulator.session})",
             )
             device.add_argument("--seed", type=int, default=None, help="the world's seed (overrides the session's)")
+        if getattr(emulator, "listens_on", ()):
+            device.add_argument(
+                "--allow-network",
+                action="store_true",
+                help="allow a non-loopback address above: anyone on the network can then connect to the emulated "
+                "device (it has no authentication)",
+            )
         device.set_defaults(func=partial(run_emulator, registry, emulator))
 
 
 def run_emulator(registry: Registry, emulator: EmulatorCommand, args: argparse.Namespace) -> int:
-    """Run one emulator: with ``needs_world``, on the world of ``args.session`` (``args.seed`` overriding its seed)."""
+    """Run one emulator: with ``needs_world``, on the world of ``args.session`` (``args.seed`` overriding its seed).
+    The addresses it listens on (``listens_on``) are loopback ones unless ``--allow-network`` (ConfigError)."""
+    for dest in getattr(emulator, "listens_on", ()):
+        try:
+            listen_address(
+                f"--{dest.replace('_', '-')}",
+                getattr(args, dest),
+                allow_network=args.allow_network,
+                exposes=f"the emulated device ({args.device})",
+            )
+        except OptionError as exc:
+            raise exc.under("") from None
     if not getattr(emulator, "needs_world", False):
         return emulator.run(args)
     return emulator.run(args, simulated_world(registry, args.session, args.seed))

@@ -130,10 +130,13 @@ def _status_table(status, hint: str = "") -> Table:
 def cmd_run(args: argparse.Namespace) -> int:
     from hapticlab.sessions.config import apply_overrides, load_config
     from hapticlab.sessions.live import SessionError, build_session, run_session
+    from hapticlab.sessions.live.build import check_live_address
     from hapticlab.sessions.settings import check_duration
 
     config, origin = load_config(args.session)
     config = apply_overrides(config, args.set or [])
+    if args.live:  # before the build: a refused address costs no compile
+        check_live_address(args.live, allow_network=args.allow_network)
     # the estimators' and the aligner's kernels are compiled on the first run (numba, ~10 s here), then loaded
     with err.status("building the session (the first run compiles the numba kernels, ~10 s)"):
         session = build_session(config)
@@ -163,11 +166,23 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             if err.is_terminal:
                 with Live(console=err, refresh_per_second=4, transient=False) as live:
-                    result = run_session(session, out=args.out, duration=duration, on_status=on_status, live=live_at)
+                    result = run_session(
+                        session,
+                        out=args.out,
+                        duration=duration,
+                        on_status=on_status,
+                        live=live_at,
+                        allow_network=args.allow_network,
+                    )
             else:
                 live = None
                 result = run_session(
-                    session, out=args.out, duration=duration, on_status=on_status if key.active else None, live=live_at
+                    session,
+                    out=args.out,
+                    duration=duration,
+                    on_status=on_status if key.active else None,
+                    live=live_at,
+                    allow_network=args.allow_network,
                 )
     except SessionError as exc:  # a device or estimator failed: one line, the recording is complete
         err.print(f"hapticlab run: session ended by an error: {exc}", markup=False, highlight=False)
@@ -233,6 +248,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         metavar="HOST:PORT",
         help="serve the session live to Foxglove over WebSocket (default 127.0.0.1:8765; "
         "needs the live extra: pip install 'hapticlab[live]')",
+    )
+    p.add_argument(
+        "--allow-network",
+        action="store_true",
+        help="allow --live on a non-loopback address: anyone on the network then sees every topic, "
+        "/haptic/command included (the live view has no authentication)",
     )
     p.set_defaults(func=cmd_run)
 

@@ -35,6 +35,7 @@ from hapticlab.core.host.interfaces import (
     SensorSource,
     ServosCartesian,
 )
+from hapticlab.core.host.options import OptionError, listen_address
 from hapticlab.core.host.registry import Registry
 from hapticlab.sessions.config import PLUGIN_TABLES, check_tables, plugin_options, shadow_tables
 from hapticlab.sessions.live.gate import HapticGate
@@ -313,3 +314,26 @@ def default_out_path(settings: SessionSettings) -> Path:
 def calibration_path(path: Path) -> Path:
     """Where a session writes its estimator's final state: ``<recording>.calibration.json`` beside the MCAP."""
     return Path(path).with_suffix(".calibration.json")
+
+
+def check_live_address(address: str, recording_writer: str = "process", allow_network: bool = False) -> None:
+    """A ``--live`` address: ``HOST:PORT`` with a port in 0..65535, a loopback host unless ``allow_network``
+    (the live view serves every topic, ``/haptic/command`` included, with no authentication), and a session
+    whose recording has a writer process to serve it (ConfigError naming what is wrong otherwise)."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit() or int(port) > 65535:
+        raise ConfigError(f"--live {address!r}: expected HOST:PORT, e.g. 127.0.0.1:8765")
+    try:
+        listen_address(
+            "--live",
+            host,
+            allow_network=allow_network,
+            exposes="every topic of the session, /haptic/command included, with no authentication,",
+        )
+    except OptionError as exc:
+        raise exc.under("") from None
+    if recording_writer != "process":
+        raise ConfigError(
+            "--live: the live view is served by the recording's writer process; "
+            'drop session.recording_writer = "inline"'
+        )

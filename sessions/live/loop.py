@@ -30,7 +30,7 @@ from hapticlab.core.aligner import Aligner
 from hapticlab.core.errors import ConfigError, OutputExistsError
 from hapticlab.core.host.interfaces import HasCalibration, HasLatency, HasRange, PreparesAhead, ReadsBlocks
 from hapticlab.core.types import Event, WrenchBlock
-from hapticlab.sessions.live.build import EstimatorSlot, Session, default_out_path, session_metadata
+from hapticlab.sessions.live.build import EstimatorSlot, Session, check_live_address, default_out_path, session_metadata
 from hapticlab.sessions.live.command import HapticCommander
 from hapticlab.sessions.live.ending import (
     PartFailedError,
@@ -53,19 +53,6 @@ PARAMS_INTERVAL_NS = 100_000_000
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""
 
 
-def check_live_address(address: str, recording_writer: str = "process") -> None:
-    """A ``--live`` address: ``HOST:PORT`` with a port in 0..65535, and a session whose recording has a writer
-    process to serve it (ConfigError naming what is wrong otherwise)."""
-    host, sep, port = address.rpartition(":")
-    if not sep or not host or not port.isdigit() or int(port) > 65535:
-        raise ConfigError(f"--live {address!r}: expected HOST:PORT, e.g. 127.0.0.1:8765")
-    if recording_writer != "process":
-        raise ConfigError(
-            "--live: the live view is served by the recording's writer process; "
-            'drop session.recording_writer = "inline"'
-        )
-
-
 def run_session(
     session: Session,
     out: str | Path | None = None,
@@ -73,13 +60,17 @@ def run_session(
     on_status: Callable[[SessionStatus], None] | None = None,
     status_interval_s: float = 0.25,
     live: str = "",
+    allow_network: bool = False,
 ) -> SessionResult:
     """Run a built session until its duration ends (or Ctrl-C) and record it to one MCAP file.
 
     ``live`` ("HOST:PORT", e.g. "127.0.0.1:8765") also serves the session while it runs over
     Foxglove's WebSocket protocol, the recording's topics as they are written (``foxglove-sdk``;
-    the recording's writer process serves it, so the loop does not pay for it).
+    the recording's writer process serves it, so the loop does not pay for it); on a loopback address
+    only, unless ``allow_network`` (the view has no authentication).
     """
+    if live:
+        check_live_address(live, session.settings.recording_writer, allow_network)
     return LiveLoop(session, out, duration, on_status, status_interval_s, live).run()
 
 
@@ -96,8 +87,6 @@ class LiveLoop:
         live: str = "",
     ):
         self.s = session
-        if live:
-            check_live_address(live, session.settings.recording_writer)
         self.live = live
         settings = session.settings
         self.duration = settings.duration if duration is None else check_duration("duration", duration)

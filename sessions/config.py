@@ -30,6 +30,9 @@ from typing import Any
 from hapticlab.core.errors import ConfigError
 from hapticlab.sessions.settings import HAPTIC_SAFETY_KEYS
 
+MAX_SESSION_FILE_BYTES = 1 << 20
+"""A session file is read up to 1 MiB (the presets are ~2 kB): anything larger is not one."""
+
 TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "shadows")
 """The host's own tables; a plugin's context (``register_contexts``, e.g. ``world``) adds its own."""
 PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator", "haptic": "haptic_output"}
@@ -49,7 +52,7 @@ def load_config(session: str | None) -> tuple[dict[str, Any], str]:
     if session.endswith(".toml") or "/" in session or (path.is_file() and session not in preset_names()):
         if not path.is_file():
             raise ConfigError(f"{session}: no such session file")
-        text, origin = path.read_text(encoding="utf-8"), str(path)
+        text, origin = read_session_file(path), str(path)
     else:
         if session not in preset_names():
             raise ConfigError(
@@ -61,6 +64,26 @@ def load_config(session: str | None) -> tuple[dict[str, Any], str]:
         return tomllib.loads(text), origin
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{origin}: invalid TOML: {exc}") from None
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise ConfigError(f"{origin}: invalid TOML: arrays or tables nested too deeply") from None
+
+
+def read_session_file(path: Path) -> str:
+    """A session file's text: UTF-8 (as TOML is), at most ``MAX_SESSION_FILE_BYTES``; ConfigError naming the
+    file and, for a byte that is not UTF-8, its offset, line and column."""
+    with path.open("rb") as f:
+        data = f.read(MAX_SESSION_FILE_BYTES + 1)
+    if len(data) > MAX_SESSION_FILE_BYTES:
+        raise ConfigError(f"{path}: larger than {MAX_SESSION_FILE_BYTES // 1024} KiB: not a session file")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line_start = data.rfind(b"\n", 0, exc.start) + 1
+        line, column = data.count(b"\n", 0, exc.start) + 1, exc.start - line_start + 1
+        raise ConfigError(
+            f"{path}: not UTF-8 text (TOML is): byte {exc.start} (line {line}, column {column}) "
+            f"is 0x{data[exc.start]:02x}"
+        ) from None
 
 
 def parse_value(text: str) -> Any:

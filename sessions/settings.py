@@ -30,6 +30,9 @@ from hapticlab.core.host.options import (
 
 MAX_BUTTON_BIT = 63
 """Highest button bit a re-arm or clutch button may name (``DeviceState.buttons`` is a bit mask)."""
+MIN_LOOP_RATE_HZ = 100.0
+"""Slowest loop accepted: haptic rendering wants 500-1000 Hz, and a slower command outlasts a tenth of the
+serial master's watchdog (100 ms) that zeroes a force not renewed."""
 MAX_LOOP_RATE_HZ = 10_000.0
 """Fastest loop accepted: a haptic device is commanded at 1 kHz, a Net F/T streams at 7 kHz at most."""
 MAX_DURATION_S = 86_400.0
@@ -121,7 +124,7 @@ class SessionSettings:
         "name": text,
         "duration": check(number, above=0, maximum=MAX_DURATION_S, hint=" (s)"),
         "realtime": boolean,
-        "loop_rate_hz": check(number, above=0, maximum=MAX_LOOP_RATE_HZ, hint=" (Hz)"),
+        "loop_rate_hz": check(number, minimum=MIN_LOOP_RATE_HZ, maximum=MAX_LOOP_RATE_HZ, hint=" (Hz)"),
         "out": text,
         "stale_timeout": check(number, minimum=0, maximum=1, hint=" (s; 0: automatic)"),
         "frozen_pose_timeout": check(number, above=0, maximum=1, hint=" (s)"),

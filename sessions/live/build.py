@@ -16,7 +16,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from hapticlab.core.errors import ConfigError
+from hapticlab.core.errors import ConfigError, OutputExistsError
 from hapticlab.core.host.interfaces import (
     CountsConvergence,
     EmitsEvents,
@@ -314,6 +314,18 @@ def default_out_path(settings: SessionSettings) -> Path:
 def calibration_path(path: Path) -> Path:
     """Where a session writes its estimator's final state: ``<recording>.calibration.json`` beside the MCAP."""
     return Path(path).with_suffix(".calibration.json")
+
+
+def refuse_existing_outputs(path: Path, saves_state: bool) -> None:
+    """OutputExistsError when the recording ``path`` exists, or (``saves_state``: the primary saves its state)
+    its :func:`calibration_path` does: a session never overwrites what an earlier one wrote."""
+    if path.exists():
+        raise OutputExistsError(f"{path} already exists; choose another --out (recordings are never overwritten)")
+    if saves_state and calibration_path(path).exists():
+        raise OutputExistsError(
+            f"{calibration_path(path)} already exists (the estimator's state of an earlier session); "
+            "choose another --out (it is never overwritten)"
+        )
 
 
 def check_live_address(address: str, recording_writer: str = "process", allow_network: bool = False) -> None:

@@ -102,7 +102,8 @@ def save_estimator_state(
         state = primary.saves.state()
         recorder.add_metadata("hapticlab.estimator_state", state)
         state_path = calibration_path(path)
-        state_path.write_text(json.dumps(state, indent=1))
+        with state_path.open("x") as f:  # never over an existing file (the loop refused one at its start)
+            f.write(json.dumps(state, indent=1))
         return str(state_path)
     except Exception as exc:
         on_event(Event(end_ns, "estimator_state_not_saved", f"estimator state not saved: {exc}"))

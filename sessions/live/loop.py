@@ -27,10 +27,17 @@ from pathlib import Path
 import numpy as np
 
 from hapticlab.core.aligner import Aligner
-from hapticlab.core.errors import ConfigError, OutputExistsError
+from hapticlab.core.errors import ConfigError
 from hapticlab.core.host.interfaces import HasCalibration, HasLatency, HasRange, PreparesAhead, ReadsBlocks
 from hapticlab.core.types import Event, WrenchBlock
-from hapticlab.sessions.live.build import EstimatorSlot, Session, check_live_address, default_out_path, session_metadata
+from hapticlab.sessions.live.build import (
+    EstimatorSlot,
+    Session,
+    check_live_address,
+    default_out_path,
+    refuse_existing_outputs,
+    session_metadata,
+)
 from hapticlab.sessions.live.command import HapticCommander
 from hapticlab.sessions.live.ending import (
     PartFailedError,
@@ -91,10 +98,7 @@ class LiveLoop:
         settings = session.settings
         self.duration = settings.duration if duration is None else check_duration("duration", duration)
         self.path = Path(out) if out else default_out_path(settings)
-        if self.path.exists():
-            raise OutputExistsError(
-                f"{self.path} already exists; choose another --out (recordings are never overwritten)"
-            )
+        refuse_existing_outputs(self.path, saves_state=session.primary.saves is not None)
         self.period_ns = round(1e9 / settings.loop_rate_hz)
         self.duration_ns = round(self.duration * 1e9)
         self.gate = session.gate()

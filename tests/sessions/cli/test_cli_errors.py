@@ -98,3 +98,42 @@ def test_the_run_summary_shows_every_parameter_unidentified_ones_too(capsys, tmp
     }
     assert rows["cog_S"] == "[nan, nan, nan]"
     assert rows["samples held out (lone outliers)"].isdigit()
+
+
+def test_a_session_file_that_is_not_utf8_names_the_byte(tmp_path, capsys):
+    path = tmp_path / "latin1.toml"
+    path.write_bytes('[session]\nname = "café"\n'.encode("latin-1"))
+    assert main(["run", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"hapticlab run: error: {path}: not UTF-8 text (TOML is): byte 21 (line 2, column 12) is 0xe9"
+
+
+def test_a_session_file_nested_too_deeply_is_one_line(tmp_path, capsys):
+    path = tmp_path / "deep.toml"
+    path.write_text("[session]\nx = " + "[" * 5000 + "]" * 5000 + "\n")
+    assert main(["run", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"hapticlab run: error: {path}: invalid TOML: arrays or tables nested too deeply"
+
+
+def test_a_session_file_larger_than_a_mebibyte_is_not_read_whole(tmp_path, capsys):
+    path = tmp_path / "huge.toml"
+    path.write_text("# " + "x" * (1 << 20) + "\n[session]\n")
+    assert main(["run", str(path)]) == 2
+    assert capsys.readouterr().err.strip() == f"hapticlab run: error: {path}: larger than 1024 KiB: not a session file"
+
+
+def test_an_earlier_session_s_calibration_file_is_never_overwritten(tmp_path, capsys):
+    """The demo's kalman saves its state beside the recording: an existing one refuses the --out up front."""
+    earlier = tmp_path / "x.calibration.json"
+    earlier.write_text('{"an earlier session": true}')
+    argv = ["run", "--duration", "0.2", "--set", "session.realtime=false", "--out", str(tmp_path / "x.mcap")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (
+        f"hapticlab run: error: {earlier} already exists (the estimator's state of an earlier session); "
+        "choose another --out (it is never overwritten)"
+    )
+    assert earlier.read_text() == '{"an earlier session": true}' and not (tmp_path / "x.mcap").exists()
+    assert main([*argv[:-1], str(tmp_path / "y.mcap")]) == 0  # a free name runs and saves its state
+    assert (tmp_path / "y.calibration.json").is_file()

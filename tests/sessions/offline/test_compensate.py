@@ -160,7 +160,11 @@ def test_run_command_writes_an_mcap(tmp_path, capsys):
         ),
         (
             ["run", "--set", "session.loop_rate_hz=0"],
-            "session.loop_rate_hz: must be a finite number > 0 and <= 10000 (Hz), got 0",
+            "session.loop_rate_hz: must be a finite number >= 100 and <= 10000 (Hz), got 0",
+        ),
+        (
+            ["run", "--set", "session.loop_rate_hz=1e-6"],
+            "session.loop_rate_hz: must be a finite number >= 100 and <= 10000 (Hz), got 1e-06",
         ),
     ],
 )

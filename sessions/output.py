@@ -60,13 +60,16 @@ def check_output(
     ``label`` names the option in the messages (``"-o"``, ``"--json"``);
     ``inputs`` are the files the command reads (``role`` names them in the
     message: "the input", "the recording"). Raises :class:`UserError` when the
-    path is a folder, its folder does not exist or cannot be written, or it is
-    an input; :class:`OutputExistsError` when it exists and ``force`` is false.
+    path is a folder or another non-regular file (a device, a FIFO), its folder
+    does not exist or cannot be written, or it is an input;
+    :class:`OutputExistsError` when it exists and ``force`` is false.
     """
     path = Path(path)
     named = _named(label, path)
     if path.is_dir():
         raise UserError(f"{named}: is a folder; give a file name")
+    if path.exists() and not path.is_file():  # never replaced, --force or not
+        raise UserError(f"{named}: is not a regular file (a device, a FIFO or a socket); give a file name")
     parent = path.parent
     if not parent.is_dir():
         what = "is not a folder" if parent.exists() else "does not exist"

@@ -30,6 +30,8 @@ def iter_stream(path: str | os.PathLike[str], rows: int = CHUNK_ROWS) -> Iterato
     path = Path(path)
     if not path.exists():
         raise CsvError(f"{path}: no such file")
+    if not path.is_file() and not path.is_dir():  # a folder: the reader's own one line
+        raise CsvError(f"{path}: not a regular file (a device, a FIFO or a socket); give a CSV or MCAP file")
     if path.suffix.lower() == ".mcap":
         return iter_mcap(path, rows)
     return iter_csv(path, rows)

@@ -43,7 +43,10 @@ def damaged(path: Path, exc: BaseException) -> RecordingError:
 
 
 def check_mcap(path: Path) -> None:
-    """RecordingError unless ``path`` starts and ends with the MCAP magic and has a footer."""
+    """RecordingError unless ``path`` is a regular file that starts and ends with the MCAP magic and has a footer
+    (a device or a FIFO is refused before it is opened: reading one never ends or blocks)."""
+    if path.exists() and not path.is_file():
+        raise RecordingError(f"{path}: not a regular file (a folder, a device or a FIFO); give an MCAP file")
     size = path.stat().st_size
     with open(path, "rb") as f:
         head = f.read(len(MCAP_MAGIC))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -68,10 +68,7 @@ class WarmStart(KalmanBase):
         where = "the given state"
         if not isinstance(source, dict):
             where = str(source)
-            try:
-                source = json.loads(Path(source).read_text())
-            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-                raise ValueError(f"warm_start: cannot read {where}: {exc}") from None
+            source = read_state_file(Path(source))
         if not isinstance(source, dict) or source.get("estimator") != "kalman":
             name = source.get("estimator") if isinstance(source, dict) else None
             raise ValueError(f"warm_start: {where} is not a kalman state (estimator {name!r})")
@@ -178,3 +175,22 @@ class WarmStart(KalmanBase):
                 self._set_tilt_walk(tilt_walk_kernel.restore(self._adapt[ADAPT_TW:], tilt["walk"]))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"warm_start: {where}: tilt: {exc}") from None
+
+
+MAX_STATE_BYTES = 16 << 20
+"""A saved state is read up to 16 MiB (a kalman state with its information matrices is ~10 kB)."""
+
+
+def read_state_file(path: Path) -> Any:
+    """A ``<recording>.calibration.json``: a regular file of at most ``MAX_STATE_BYTES``, JSON; ValueError
+    ("warm_start: ...") otherwise (a device or a FIFO is refused before it is opened)."""
+    if path.exists() and not path.is_file():
+        raise ValueError(f"warm_start: {path} is not a regular file (a folder, a device or a FIFO)")
+    try:
+        with path.open("rb") as f:
+            data = f.read(MAX_STATE_BYTES + 1)
+        if len(data) > MAX_STATE_BYTES:
+            raise ValueError(f"warm_start: {path} is larger than {MAX_STATE_BYTES >> 20} MiB: not a saved state")
+        return json.loads(data.decode("utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ValueError(f"warm_start: cannot read {path}: {exc}") from None

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import stat
+
 import pytest
 
 from hapticlab.sessions import cli
@@ -137,3 +140,48 @@ def test_an_earlier_session_s_calibration_file_is_never_overwritten(tmp_path, ca
     assert earlier.read_text() == '{"an earlier session": true}' and not (tmp_path / "x.mcap").exists()
     assert main([*argv[:-1], str(tmp_path / "y.mcap")]) == 0  # a free name runs and saves its state
     assert (tmp_path / "y.calibration.json").is_file()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["compensate", "{zero}", "-o", "{tmp}/out.csv"],
+        ["compensate", "{fifo}", "-o", "{tmp}/out.csv"],
+        ["discrepancy", "{zero}"],
+        ["discrepancy", "{fifo}"],
+        ["replay", "{zero}", "--estimator", "rls", "-o", "{tmp}/out.csv"],
+        ["replay", "{fifo}.mcap", "--estimator", "rls", "-o", "{tmp}/out.csv"],
+    ],
+)
+def test_an_input_that_is_not_a_regular_file_is_refused_before_it_is_read(tmp_path, capsys, argv):
+    """A device reads forever (until a MemoryError), a FIFO blocks: each is one line, exit 2, at once."""
+    os.mkfifo(tmp_path / "fifo")
+    os.mkfifo(tmp_path / "fifo.mcap")
+    argv = [a.format(zero="/dev/zero", fifo=tmp_path / "fifo", tmp=tmp_path) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"hapticlab {argv[0]}: error: {argv[1]}: not a regular file") and "\n" not in err, err
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_a_warm_start_that_is_not_a_regular_file_is_refused(tmp_path, capsys):
+    argv = ["run", "--duration", "0.1", "--set", "session.realtime=false", "--out", str(tmp_path / "x.mcap")]
+    assert main([*argv, "--set", "estimator.warm_start=/dev/zero"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert (
+        err
+        == "hapticlab run: error: estimator: warm_start: /dev/zero is not a regular file (a folder, a device or a FIFO)"
+    )
+
+
+def test_an_output_that_is_not_a_regular_file_is_never_replaced_even_with_force(tmp_path, capsys):
+    """``compensate -o <a FIFO or a device node> --force`` would have replaced the node with a file."""
+    good = tmp_path / "good.csv"
+    good.write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n0,0,0,-1,0,0,0,1,0,0,0\n0.01,0,0,-1,0,0,0,1,0,0,0\n")
+    node = tmp_path / "node"
+    os.mkfifo(node)
+    assert main(["compensate", str(good), "-o", str(node), "--force"]) == 2
+    err = capsys.readouterr().err.strip()
+    expected = f"-o {node}: is not a regular file (a device, a FIFO or a socket); give a file name"
+    assert err == f"hapticlab compensate: error: {expected}"
+    assert stat.S_ISFIFO(node.stat().st_mode)

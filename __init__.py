@@ -27,7 +27,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from hapticlab import numba_cache
 from hapticlab.core.version import __version__ as __version__
+
+numba_cache.choose(Path(__file__).parent)  # before any kernel is compiled (numba_cache.py says why)
 
 if TYPE_CHECKING:
     from hapticlab.core.host.interfaces import Estimator

@@ -50,6 +50,9 @@ from hapticlab.sessions.settings import TeleopSettings
 
 STATE_TIMEOUT_NS = 50_000_000
 """A device state older than this (ns) is no longer the hand's: the robot holds."""
+MAX_HANDLE_M = 1.0
+"""A handle reported farther than this from the device's origin (m) is no hand's: the robot holds. Desktop
+masters reach 0.1-0.4 m (Haply Inverse3: a ~0.4 m sphere), so 1 m leaves any real device its whole workspace."""
 TOUR_ROLL_RAD = math.pi / 3
 """The calibration tour's roll about the tool's axis, rad (±60°)."""
 
@@ -217,6 +220,9 @@ class Teleoperation:
             return f"the master's state is {(now_ns - state.t_ns) * 1e-6:.0f} ms old"
         if not np.all(np.isfinite(state.p_DoHo_D)):
             return "the master reports a non-finite handle position"
+        distance = float(np.linalg.norm(state.p_DoHo_D))
+        if distance > MAX_HANDLE_M:
+            return f"the master reports its handle {distance:.3g} m from its origin (more than {MAX_HANDLE_M:g} m)"
         return ""
 
     def _hold_reason(self, now_ns: int, state: DeviceState | None, haptic_on: bool) -> str:

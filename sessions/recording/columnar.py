@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hapticlab.sessions.recording.cdr import CdrBlockError, block_layout, decode_block
-from hapticlab.sessions.recording.mcapfile import RecordingError, block_kind, open_reader
+from hapticlab.sessions.recording.mcapfile import RecordingError, block_kind, json_loads, open_reader
 
 if TYPE_CHECKING:
     from mcap.records import ChunkIndex
@@ -225,8 +225,8 @@ def _messages(
             columns = _json_columns(text, log_times, json_fields)
             if columns is not None:
                 return columns
-            return _picked(json.loads(text), log_times, json_fields)
-        return list(zip(log_times.tolist(), json.loads(text)))
+            return _picked(json_loads(text), log_times, json_fields)
+        return list(zip(log_times.tolist(), json_loads(text)))
     groups: list[dict[str, np.ndarray]] = []  # each: (rows, width) columns of some of the blocks
     params: list[tuple[int, Any]] = []
     for size in np.unique(sizes).tolist():
@@ -239,7 +239,7 @@ def _messages(
         if layout.reports:
             same[:] = False  # a block with its estimator's params: decoded alone (one in a hundred)
         for r in rows[~same].tolist():
-            one = decode_block(kind, data[starts[r] : starts[r] + size], json.loads)
+            one = decode_block(kind, data[starts[r] : starts[r] + size], json_loads)
             if "params" in one:
                 params.append((int(one["t_ns"][-1]), one["params"]))
             groups.append(

@@ -37,6 +37,15 @@ def _truncated(path: Path) -> RecordingError:
     return RecordingError(f"{path} is truncated (no MCAP footer; the writer probably died): {recover_hint(path)}")
 
 
+def json_loads(data: bytes | str) -> Any:
+    """``json.loads``; JSON nested past the parser's recursion limit is a ``JSONDecodeError`` like any other bad
+    JSON (a hostile file's 100,000 brackets are not a ``RecursionError`` traceback)."""
+    try:
+        return json.loads(data)
+    except RecursionError:
+        raise json.JSONDecodeError("nested too deeply", "", 0) from None
+
+
 def damaged(path: Path, exc: BaseException) -> RecordingError:
     detail = str(exc).replace("\n", " ") or type(exc).__name__
     return RecordingError(f"{path} is a damaged MCAP file ({detail}): {recover_hint(path)}")
@@ -144,7 +153,7 @@ def read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[str
                 schema = summary.schemas.get(channel.schema_id)
                 if schema is not None and schema.encoding == "jsonschema":
                     with contextlib.suppress(ValueError):
-                        schemas[channel.topic] = json.loads(schema.data)
+                        schemas[channel.topic] = json_loads(schema.data)
     counts: dict[str, int] = {}
     block_topics: set[str] = set()
     if summary is not None:

@@ -9,7 +9,6 @@ decoded by their channel's encoding (:data:`DECODERS`); a CDR block by
 
 from __future__ import annotations
 
-import json
 import os
 import struct
 from collections.abc import Iterable, Iterator
@@ -21,10 +20,17 @@ from mcap.records import Channel, Message
 
 from hapticlab.sessions.recording.blocks import as_columns, check_block, expand_block
 from hapticlab.sessions.recording.cdr import CdrBlockError, decode_block
-from hapticlab.sessions.recording.mcapfile import RecordingError, block_kind, check_mcap, damaged, open_reader
+from hapticlab.sessions.recording.mcapfile import (
+    RecordingError,
+    block_kind,
+    check_mcap,
+    damaged,
+    json_loads,
+    open_reader,
+)
 from hapticlab.sessions.recording.schemas import BLOCK_LAST_SAMPLE_FIELDS, BLOCK_TOPICS, ESTIMATOR_TOPIC_PREFIX
 
-DECODERS: dict[str, Any] = {"json": json.loads}
+DECODERS: dict[str, Any] = {"json": json_loads}
 """Message encoding (the MCAP channel's) -> function from the message bytes to a dict."""
 
 
@@ -120,7 +126,7 @@ def decode_messages(
                 check_block(path, channel.topic, message.log_time, decoded)
         else:
             try:
-                decoded = decode_block(block, message.data, json.loads)
+                decoded = decode_block(block, message.data, json_loads)
             except (CdrBlockError, UnicodeDecodeError, ValueError) as exc:
                 raise RecordingError(
                     f"{path.name}: {channel.topic} block message at {message.log_time} ns: {exc}"

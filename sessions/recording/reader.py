@@ -25,7 +25,6 @@ to run ``hapticlab recover``).
 from __future__ import annotations
 
 import gc
-import json
 import os
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -37,7 +36,7 @@ import numpy as np
 
 from hapticlab.core.types import Estimates, Event
 from hapticlab.sessions.recording.blocks import block_times, cdr_block_field, expand_block, stack
-from hapticlab.sessions.recording.mcapfile import read_head
+from hapticlab.sessions.recording.mcapfile import json_loads, read_head
 from hapticlab.sessions.recording.messages import decode_messages, iter_messages, iter_raw
 from hapticlab.sessions.recording.schemas import BLOCK_LAST_SAMPLE_FIELDS, SESSION_METADATA
 
@@ -206,7 +205,7 @@ class Recording:
         if raw is None:
             return default
         try:
-            return json.loads(raw)
+            return json_loads(raw)
         except ValueError:
             return raw
 

@@ -436,3 +436,27 @@ def test_the_calibration_tour_moves_the_robot_only_while_someone_is_at_the_maste
     turned = np.degrees(np.linalg.norm(Rotation.from_matrix(target.R_BE @ teleop.start[0].T).as_rotvec()))
     assert 16.0 < turned <= 0.3 * np.degrees(1.0) + 1e-6  # 0.3 s at 1 rad/s (17.2°), on its way to 25°
     assert [e.kind for e in events] == ["teleop_calibrating", "teleop_holding", "teleop_calibrating"]
+
+
+@pytest.mark.parametrize("glitch", [1e30, 1.5])
+def test_a_handle_no_hand_could_hold_stops_the_robot_with_its_reason(glitch):
+    """A master reporting its handle 1e30 m (or 1.5 m) from its origin: the robot holds where it is, the
+    event says why, and when the handle is back the robot re-engages from where it held (nothing jumps)."""
+    from hapticlab.core.types import PoseSample
+    from hapticlab.sessions.live.teleop import Teleoperation
+    from hapticlab.sessions.settings import TeleopSettings
+
+    teleop = Teleoperation(TeleopSettings(enabled=True, calibration_tilt_deg=0.0, require_haptics=False), np.eye(3))
+    pose = PoseSample(0, np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+    quat = np.array([1.0, 0.0, 0.0, 0.0])
+    ms = 1_000_000
+    first, _ = teleop.step(0, pose, DeviceState(0, quat, np.zeros(3)), True)
+    moved, _ = teleop.step(100 * ms, pose, DeviceState(100 * ms, quat, np.array([0.0, 0.0, 0.004])), True)
+    assert moved.mode == "following" and moved.p_BoEo_B[2] > first.p_BoEo_B[2]
+    held, events = teleop.step(101 * ms, pose, DeviceState(101 * ms, quat, np.array([0.0, 0.0, glitch])), True)
+    assert held.mode == "holding" and np.array_equal(held.p_BoEo_B, moved.p_BoEo_B)
+    assert [e.kind for e in events] == ["teleop_holding"]
+    assert f"its handle {glitch:.3g} m from its origin" in events[0].message, events[0].message
+    back, events = teleop.step(102 * ms, pose, DeviceState(102 * ms, quat, np.array([0.0, 0.0, 0.004])), True)
+    assert back.mode == "following" and np.array_equal(back.p_BoEo_B, moved.p_BoEo_B)
+    assert [e.kind for e in events] == ["teleop_following"]

@@ -1,0 +1,36 @@
+"""A hostile MCAP is one line and exit status 2, never a traceback."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from mcap.writer import Writer
+
+from hapticlab.sessions.cli import main
+
+
+def deep_mcap(path, depth: int = 100_000) -> None:
+    """A valid MCAP whose /sensor/wrench and /kinematics/pose messages each hold JSON nested ``depth`` deep."""
+    deep = b"[" * depth + b"]" * depth
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("hapticlab.Wrench", "jsonschema", json.dumps({"type": "object"}).encode())
+        for topic in ("/sensor/wrench", "/kinematics/pose"):
+            channel = writer.register_channel(topic, "json", schema)
+            writer.add_message(channel, log_time=1, publish_time=1, data=b'{"t_ns": 1, "force_S": ' + deep + b"}")
+        writer.finish()
+
+
+@pytest.mark.parametrize("command", [["compensate", "-o", "{tmp}/out.csv"], ["discrepancy"]])
+def test_json_nested_100000_deep_is_bad_json_not_a_traceback(tmp_path, capsys, command):
+    deep_mcap(tmp_path / "deep.mcap")
+    argv = [command[0], str(tmp_path / "deep.mcap"), *(a.format(tmp=tmp_path) for a in command[1:])]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"hapticlab {command[0]}: error: deep.mcap: /sensor/wrench message 1 is not valid JSON "
+        "(nested too deeply: line 1 column 1 (char 0))"
+    )
+    assert not (tmp_path / "out.csv").exists()

@@ -21,6 +21,7 @@ from __future__ import annotations
 import difflib
 import ipaddress
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any
@@ -189,6 +190,23 @@ def matrix(key: str, value: Any, *, shape: tuple[int, int] = (3, 3), hint: str =
         raise OptionError(key, f"must be a {rows}x{cols} matrix ({rows} rows of {cols} numbers){hint}, got {value!r}")
     array.setflags(write=False)
     return array
+
+
+_HOSTNAME = re.compile(
+    r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$"
+)
+
+
+def host_address(key: str, value: Any) -> str:
+    """An IP address or a host name (RFC 1123 labels; all digits and dots is an IPv4 address or nothing)."""
+    if isinstance(value, str):
+        try:
+            ipaddress.ip_address(value)
+            return value
+        except ValueError:
+            if _HOSTNAME.match(value) and not value.replace(".", "").isdigit():
+                return value
+    raise OptionError(key, f"must be an IP address or a host name, got {value!r}")
 
 
 def listen_address(key: str, host: str, *, allow_network: bool = False, exposes: str = "it") -> str:

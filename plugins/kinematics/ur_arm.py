@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, overload
 
 import numpy as np
 
+from hapticlab.core.frames import rotvec_from_matrix
 from hapticlab.core.host.options import choice
 
 if TYPE_CHECKING:
@@ -251,6 +252,11 @@ class URArm:
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(R_BE, p_BoEo_B)`` of the flange for joint angles ``q`` (6,) rad."""
         return forward(self.dh, q)
+
+    def flange_error(self, q: np.ndarray, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> tuple[float, float]:
+        """How far a reported pose is from the flange's at joints ``q`` (6,) rad: (distance m, angle rad)."""
+        R_fk, p_fk = self.forward(q)
+        return float(np.linalg.norm(p_BoEo_B - p_fk)), float(np.linalg.norm(rotvec_from_matrix(R_fk.T @ R_BE)))
 
     def inverse(self, R_BE: np.ndarray, p_BoEo_B: np.ndarray) -> np.ndarray:
         """Every solution (k <= 8, 6) rad of a flange pose."""

@@ -41,8 +41,6 @@ teleoperation's targets: :class:`FollowingURRTDEKinematics`, ``ur_follow.py``).
 from __future__ import annotations
 
 import contextlib
-import ipaddress
-import re
 import threading
 import time
 from collections import deque
@@ -51,8 +49,8 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix, rotvec_from_quat
-from hapticlab.core.host.options import OptionError, choice, number
+from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec
+from hapticlab.core.host.options import OptionError, choice, host_address, number
 from hapticlab.core.types import Event, PoseSample
 from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
@@ -70,11 +68,10 @@ TCP_CHECK_RAD = 0.01
 a controller's calibrated kinematics differ from the nominal DH by about a millimetre."""
 FIRST_PACKAGE_TIMEOUT_S = 1.0
 """``open`` waits this long for the first data package, s."""
+MAX_TIMESTAMP_S = 1e9
+"""A controller timestamp (s since it started) past this (32 years) is a damaged package's, not a clock's."""
 MISSED_EVENT_INTERVAL_NS = 1_000_000_000
 """Missed packages are reported at most this often, ns."""
-_HOSTNAME = re.compile(
-    r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?(\.[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*$"
-)
 FOLLOW_RATE_HZ = 125.0
 """Teleoperation targets written a second by default (``follow_rate_hz``): a CB3's cycle, a quarter of an e-Series'."""
 POLL_LATENCY_S = 0.002
@@ -102,8 +99,7 @@ class URRTDEKinematics:
                 "address",
                 'must be the UR controller\'s IP address or host name (e.g. address = "192.168.1.10"), got none',
             )
-        if not _valid_host(address):
-            raise OptionError("address", f"must be an IP address or a host name, got {address!r}")
+        host_address("address", address)
         self.rate_hz = number("rate_hz", rate_hz, above=0, maximum=MAX_RATE_HZ, hint=" Hz (e-Series 500, CB3 125)")
         receive_timeout = number("receive_timeout", receive_timeout, above=0, maximum=1.0, hint=" s")
         if model:
@@ -118,6 +114,7 @@ class URRTDEKinematics:
         self.packages = 0
         """Packages received (each one pose)."""
         self.packages_missed = 0
+        self.packages_bad, self._next_bad_event_ns, self._last_bad = 0, 0, ""  # skipped: impossible timestamps
         """Packages the controller sent that were never read (gaps in its timestamps)."""
         self._rtde: Any = None  # an rtde_receive.RTDEReceiveInterface while open (ur-rtde ships no types)
         self._thread: threading.Thread | None = None
@@ -204,7 +201,11 @@ class URRTDEKinematics:
                 self._closing.wait(0.01)
                 continue
             try:
-                ticks = _ticks(rtde.getTimestamp())
+                ticks = _ticks(timestamp := rtde.getTimestamp())
+                if ticks is None:  # a damaged package (a truncated one parsed as garbage): counted, skipped
+                    self._bad_package(timestamp)
+                    time.sleep(poll_s)
+                    continue
                 if ticks == self._last_ticks:
                     self._watch()
                     time.sleep(poll_s)
@@ -226,18 +227,14 @@ class URRTDEKinematics:
             step = ticks - self._last_ticks
             if step < 0:
                 self.clock.reset()
-                events.append(
-                    Event(
-                        received_ns,
-                        "kinematics_restart",
-                        f"UR controller {self.address} timestamp went back "
-                        f"({self._last_ticks / CLOCK_TICKS_HZ:.3f} -> {ticks / CLOCK_TICKS_HZ:.3f} s): "
-                        f"controller restarted, time re-anchored",
-                    )
+                message = (
+                    f"UR controller {self.address} timestamp went back ({self._last_ticks / CLOCK_TICKS_HZ:.3f} -> "
+                    f"{ticks / CLOCK_TICKS_HZ:.3f} s): controller restarted, time re-anchored"
                 )
+                events.append(Event(received_ns, "kinematics_restart", message))
             else:
                 self.packages_missed += max(0, round(step * self.rate_hz / CLOCK_TICKS_HZ) - 1)
-        self._last_ticks = ticks
+        self._last_ticks, self._last_bad = ticks, ""
         pose_arr = np.asarray(pose, dtype=float)
         sample = PoseSample(
             t_ns=self.clock.stamp(ticks, received_ns),
@@ -259,6 +256,17 @@ class URRTDEKinematics:
         if received_ns >= self._next_missed_event_ns:
             self._report_missed(received_ns)
 
+    def _bad_package(self, timestamp: float) -> None:
+        """Count a package with an impossible timestamp once (ur-rtde keeps it); an event a second at most."""
+        if repr(timestamp) == self._last_bad:
+            return
+        self.packages_bad, self._last_bad, now_ns = self.packages_bad + 1, repr(timestamp), time.monotonic_ns()
+        if now_ns >= self._next_bad_event_ns:
+            self._next_bad_event_ns = now_ns + MISSED_EVENT_INTERVAL_NS
+            message = f"RTDE package from {self.address} skipped: timestamp {timestamp!r} s is no controller's clock"
+            with self._lock:
+                self._events.append(Event(now_ns, "kinematics_bad_package", message, {"bad": self.packages_bad}))
+
     def _report_missed(self, t_ns: int) -> None:
         """A ``kinematics_missed`` event for the packages missed since the last one (none if none were)."""
         if self.packages_missed <= self._missed_reported:
@@ -279,10 +287,8 @@ class URRTDEKinematics:
     def _check_tcp(self, received_ns: int, sample: PoseSample) -> list[Event]:
         """A ``kinematics_tcp_offset`` event when the reported pose is not the flange's (FK of the joints)."""
         arm: URArm = self.arm  # type: ignore[assignment]  # asked only with a model (the caller checks)
-        R_BE, p_BoEo_B = arm.forward(sample.joints)  # type: ignore[arg-type]  # an RTDE sample carries its joints
         R_reported = matrix_from_quat_wxyz(sample.quat_BE[None])[0]
-        angle = float(np.linalg.norm(rotvec_from_quat(quat_wxyz_from_matrix(R_BE.T @ R_reported))))
-        distance = float(np.linalg.norm(sample.p_BoEo_B - p_BoEo_B))
+        distance, angle = arm.flange_error(sample.joints, R_reported, sample.p_BoEo_B)  # type: ignore[arg-type]
         if distance <= TCP_CHECK_M and angle <= TCP_CHECK_RAD:
             return []
         return [
@@ -316,17 +322,11 @@ class URRTDEKinematics:
                 )
 
 
-def _ticks(timestamp: float) -> int:
-    """A controller timestamp (s) as whole µs ticks."""
+def _ticks(timestamp: float) -> int | None:
+    """A controller timestamp (s) as whole µs ticks; None if not finite, negative or past ``MAX_TIMESTAMP_S``."""
+    if not 0.0 <= timestamp <= MAX_TIMESTAMP_S:  # NaN too
+        return None
     return round(timestamp * CLOCK_TICKS_HZ)
-
-
-def _valid_host(host: str) -> bool:
-    try:
-        ipaddress.ip_address(host)
-        return True
-    except ValueError:
-        return bool(_HOSTNAME.match(host)) and not host.replace(".", "").isdigit()
 
 
 class FollowingURRTDEKinematics(URRTDEKinematics):

@@ -10,6 +10,7 @@ uses port 30004, so each test has its own 127.0.0.x.
 
 from __future__ import annotations
 
+import math
 import signal
 import socket
 import struct
@@ -499,3 +500,58 @@ def test_every_missed_package_is_reported_by_the_time_the_plugin_closes(monkeypa
     assert sum(e.data["missed"] for e in before_close) < kinematics.packages_missed  # the second one held back
     assert sum(e.data["missed"] for e in before_close + at_close) == kinematics.packages_missed
     assert at_close[-1].data["missed_total"] == kinematics.packages_missed
+
+
+class ScriptedRTDE:
+    """ur-rtde's RTDEReceiveInterface as the plugin's thread reads it, replaying one package per full read (or
+    per skipped one) from a list of controller timestamps, s."""
+
+    def __init__(self, stamps: list[float]):
+        self.stamps, self.k, self.confirming, self.advance = stamps, 0, False, False
+
+    def isConnected(self) -> bool:  # noqa: N802 (ur-rtde's name)
+        return self.k < len(self.stamps)
+
+    def getTimestamp(self) -> float:  # noqa: N802 (ur-rtde's name)
+        if self.advance:
+            self.k, self.advance = self.k + 1, False
+        t = self.stamps[min(self.k, len(self.stamps) - 1)]
+        if self.confirming:  # the read's second look at the timestamp: this package is done
+            self.confirming, self.advance = False, True
+        elif not 0.0 <= t <= 1e9:  # a package the plugin skips
+            self.advance = True
+        return t
+
+    def getActualTCPPose(self) -> list[float]:  # noqa: N802 (ur-rtde's name)
+        return [0.4, 0.0, 0.3, math.pi, 0.0, 0.0]
+
+    def getActualQ(self) -> list[float]:  # noqa: N802 (ur-rtde's name)
+        return [0.0] * 6
+
+    def getActualQd(self) -> list[float]:  # noqa: N802 (ur-rtde's name)
+        self.confirming = True
+        return [0.0] * 6
+
+    def disconnect(self) -> None:
+        pass
+
+
+def test_a_package_with_an_impossible_timestamp_is_skipped_and_the_stream_goes_on(monkeypatch):
+    """NaN, inf, 1e300 s (what a truncated package parses to) or a negative time: counted, one event, and the
+    next packages are read (the thread used to die on round(nan) or overflow the clock's int64)."""
+    stamps = [0.002 * k for k in range(1, 9)] + [math.nan, math.inf, 1e300, -5.0] + [0.002 * k for k in range(9, 17)]
+    fake = ScriptedRTDE(stamps)
+    monkeypatch.setattr(URRTDEKinematics, "_connect", lambda self: fake)
+    plugin = URRTDEKinematics("127.0.0.1", 500.0)
+    plugin.open(0)
+    deadline = time.monotonic() + 10.0
+    while fake.isConnected() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not fake.isConnected(), f"the thread stopped reading at package {fake.k} of {len(stamps)}"
+    alive = plugin._thread is not None and plugin._thread.is_alive()
+    poses, events = plugin.read(2**62), plugin.drain_events()
+    plugin.close()
+    assert alive and len(poses) == 16 and plugin.packages_bad == 4
+    assert np.all(np.diff([p.t_ns for p in poses]) > 0)
+    bad = [e for e in events if e.kind == "kinematics_bad_package"]
+    assert len(bad) == 1 and "timestamp nan s is no controller's clock" in bad[0].message, bad

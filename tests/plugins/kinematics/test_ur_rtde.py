@@ -439,7 +439,7 @@ def test_emulate_ur_bad_input_is_one_line_naming_it(capsys):
 
     assert main(["emulate", "ur", "--session", "no_such.toml"]) == 2
     assert "no_such.toml: no such session file" in capsys.readouterr().err
-    assert main(["emulate", "ur", "--address", "192.0.2.1"]) == 2  # not an address of this machine
+    assert main(["emulate", "ur", "--address", "192.0.2.1", "--allow-network"]) == 2  # not an address of this machine
     assert "emulate ur: cannot serve on 192.0.2.1:30004" in capsys.readouterr().err
 
 

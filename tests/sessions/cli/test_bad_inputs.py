@@ -511,6 +511,7 @@ def probes() -> list[tuple[str, list[str]]]:
         ("netft", ["--fault", "drop,when=1"]),
         ("netft", ["--fault", "status"]),
         ("netft", ["--address", "192.0.2.1"]),
+        ("netft", ["--address", "192.0.2.1", "--allow-network"]),  # not an address of this machine
         ("ur", ["--session", "nosuchpreset"]),
         ("ur", ["--seed", "-1"]),
         ("ur", ["--encoder-noise", "1"]),
@@ -518,6 +519,7 @@ def probes() -> list[tuple[str, list[str]]]:
         ("ur", ["--tcp-offset", "1,2"]),
         ("ur", ["--tcp-offset", "a,b,c,d,e,f"]),
         ("ur", ["--address", "192.0.2.1"]),
+        ("ur", ["--address", "192.0.2.1", "--allow-network"]),  # not an address of this machine
         ("lab", ["--session", "{lab}/missing.toml"]),
         ("lab", ["--model", "ur7e"]),
         ("lab", ["--rate", "3000"]),
@@ -525,6 +527,7 @@ def probes() -> list[tuple[str, list[str]]]:
         ("lab", ["--ur-stall=-1,1"]),
         ("lab", ["--netft-fault", "explode"]),
         ("lab", ["--netft", "192.0.2.1"]),
+        ("lab", ["--netft", "192.0.2.1", "--allow-network"]),  # not an address of this machine
     ):
         out.append((f"emulate-{device}-{'-'.join(options)}", ["emulate", device, *options, "--duration", "0.5"]))
     return out

@@ -49,6 +49,10 @@ REWIND_ASKED = 16
 """... or only this many behind, within 2·REWIND records after our own start request: a start request
 still in flight may renumber the stream once more after its records have come back."""
 
+MAX_JUMP = 1 << 16
+"""A record numbered this far ahead of the stream (rdt_sequence), or sampled this far ahead (ft_sequence: 9.4 s
+at 7 kHz), is damaged, not late news: a loss that long ends in a receive timeout and a new stream."""
+
 COUNTER_DOC = {
     "received": "records received (duplicates and late ones included)",
     "lost": "rdt_sequence numbers the stream skipped: records dropped on the way, or arriving too late "
@@ -61,6 +65,7 @@ COUNTER_DOC = {
     "ft_backward": "records whose ft_sequence went back within one stream (not delivered)",
     "ft_restart": "the sensor restarted its counter: a new stream's ft_sequence behind the last one",
     "malformed": "datagrams that are not a whole number of 36-byte records",
+    "corrupt": "records numbered or sampled more than MAX_JUMP ahead of the stream: damaged (not delivered)",
     "timeout": "receive timeouts (no record for receive_timeout)",
     "reconnect": "start requests sent again after a timeout",
     "device_error": "delivered records with an error bit in their status word",
@@ -199,7 +204,7 @@ class RdtReceiver:
             np.subtract(ft[1:], ft[:-1], out=d_ft[1:])
             d_ft &= 0xFFFF_FFFF
             consecutive = ((rdt - self._rdt) & 0xFFFF_FFFF == self._steps[:n]).all()
-            if consecutive and ((d_ft - 1) & 0xFFFF_FFFF < 2**31 - 1).all():  # every ft step in [1, 2³¹)
+            if consecutive and ((d_ft - 1) & 0xFFFF_FFFF < MAX_JUMP).all():  # every ft step in [1, MAX_JUMP]
                 k = np.cumsum(d_ft)
                 k += self._k
                 self._rdt, self._r, self._ft, self._k = int(rdt[-1]), self._r + n, int(ft[-1]), int(k[-1])
@@ -246,9 +251,13 @@ class RdtReceiver:
     def _segment(self, rdt, ft, restarts, offset) -> tuple[np.ndarray, np.ndarray]:
         c = self.counters
         r = self._r + (((rdt - self._rdt + 2**31) & 0xFFFF_FFFF) - 2**31)  # unwrapped around the anchor
+        corrupt = r - self._r > MAX_JUMP
+        c["corrupt"] += int(np.count_nonzero(corrupt))
+        r = np.where(corrupt, self._r, r)  # passed already, not a hole's: counted as corrupt only, below
         inverted = r < np.maximum.accumulate(np.concatenate([[self._r], r[:-1]]))  # after a higher one
         duplicate = np.zeros(len(r), dtype=bool)
         old = np.flatnonzero(r <= self._r)
+        old = old[~corrupt[old]]
         for i, ri in zip(old.tolist(), r[old].tolist()):  # passed already: a duplicate, or late for its hole
             hole = next((j for j, (lo, hi) in enumerate(self._holes) if lo <= ri <= hi), None)
             if hole is None:
@@ -263,7 +272,7 @@ class RdtReceiver:
         repeated[1:] = r[fresh][1:] == r[fresh][:-1]
         duplicate[fresh[repeated]] = True
         c["duplicate"] += int(np.count_nonzero(duplicate))
-        c["out_of_order"] += int(np.count_nonzero(inverted & ~duplicate))  # a duplicate counts as that only
+        c["out_of_order"] += int(np.count_nonzero(inverted & ~duplicate & ~corrupt))  # each counts as one thing
         fresh = fresh[~repeated]
         if len(fresh) == 0:
             return fresh, np.zeros(0, np.int64)
@@ -283,9 +292,12 @@ class RdtReceiver:
             restarts.append((offset, self._ft, int(f[0])))
             kk += self._k + 1 - kk[0]
         self._new_stream = False
+        sampled_ahead = kk - self._k > MAX_JUMP
+        c["corrupt"] += int(np.count_nonzero(sampled_ahead))
+        kk = np.where(sampled_ahead, self._k, kk)  # never kept (kk > before fails), never anyone's "before"
         before = np.maximum.accumulate(np.concatenate([[self._k], kk[:-1]]))
-        c["stall"] += int(np.count_nonzero(kk == before))
-        c["ft_backward"] += int(np.count_nonzero(kk < before))
+        c["stall"] += int(np.count_nonzero((kk == before) & ~sampled_ahead))
+        c["ft_backward"] += int(np.count_nonzero((kk < before) & ~sampled_ahead))
         keep = kk > before
         if keep.any():
             newest = int(np.argmax(kk))

@@ -594,3 +594,24 @@ def test_the_emulator_command_prints_its_address_and_ports_first(capsys):
     assert main([*argv, "--duration", "0.2", "--fault", "drop,every=2"]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert first.startswith("netft emulator on 127.0.0.140: RDT udp/") and "http/" in first
+
+
+def test_one_record_numbered_or_sampled_far_ahead_is_dropped_and_the_stream_goes_on():
+    """A damaged record: its rdt_sequence 2³⁰ ahead (the stream would have taken every later record for a
+    duplicate), or its ft_sequence 2³⁰ ahead (every later sample for one going back): counted corrupt, dropped."""
+
+    def read(*datagrams):
+        for datagram in datagrams:
+            send(datagram)
+        return [s.seq for s in sensor.read(time.monotonic_ns() + 10**9)]
+
+    with hand_sensor("127.0.0.146") as (sensor, send):
+        assert read() == [10]
+        far = RECORD.pack(2 + 2**30, 30, 0, *[0] * 6)  # numbered far ahead (its counts zero: they do not matter)
+        assert read(hand_records([2]) + far + hand_records([3])) == [20, 30]
+        assert read(hand_records([4, 5], [40, 50 + 2**30])) == [40]  # sampled far ahead (the usual fast path)
+        assert read(hand_records([6, 7], [60, 70])) == [60, 70]
+        assert read(hand_records([8, 9, 10], [80, 90 + 2**30, 100])) == [80, 100]  # within one read
+        health = sensor.health_counters()
+    assert health["corrupt"] == 3 and health["lost"] == 0 and health["duplicate"] == 0
+    assert health["stall"] == health["ft_backward"] == health["out_of_order"] == health["late"] == 0

@@ -39,7 +39,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hapticlab.sessions.recording.cdr import CdrBlockError, block_layout, decode_block
-from hapticlab.sessions.recording.mcapfile import RecordingError, block_kind, json_loads, open_reader
+from hapticlab.sessions.recording.mcapfile import (
+    MAX_CHUNK_BYTES,
+    RecordingError,
+    block_kind,
+    inflates,
+    json_loads,
+    open_reader,
+)
 
 if TYPE_CHECKING:
     from mcap.records import ChunkIndex
@@ -72,7 +79,7 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
     if compression == "lz4":
         import lz4.frame
 
-        return lz4.frame.decompress(data)
+        return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size)  # no more than declared
     if compression == "":
         return data
     raise RecordingError(f"chunk compression {compression!r} is not one hapticlab reads")
@@ -89,7 +96,11 @@ def _chunk_data(f, path: Path, index) -> bytes:
     record = f.read(index.chunk_length)
     try:
         _, _, _, _, size, crc, _ = _CHUNK_HEAD.unpack_from(record)
+        if size > MAX_CHUNK_BYTES:  # the chunk's own head, which the index need not agree with
+            raise inflates(path, index.chunk_start_offset, size)
         data = _decompress(index.compression, record[-index.compressed_size :], size)
+    except RecordingError:
+        raise
     except Exception as exc:
         raise RecordingError(
             f"{path}: chunk at byte {index.chunk_start_offset} is damaged ({exc}); "

@@ -81,7 +81,24 @@ def open_reader(path: Path) -> tuple[IO[bytes], McapReader, Any]:
     except Exception as exc:
         f.close()
         raise damaged(path, exc) from None
+    for index in summary.chunk_indexes if summary is not None else ():
+        if index.uncompressed_size > MAX_CHUNK_BYTES:
+            f.close()
+            raise inflates(path, index.chunk_start_offset, index.uncompressed_size)
     return f, reader, summary
+
+
+MAX_CHUNK_BYTES = 64 << 20
+"""A chunk that inflates past 64 MiB is refused before it is decompressed: hapticlab's are 128 KiB (one message
+past that makes one larger, never by this much), and a small file can hold a chunk of gigabytes of zeros."""
+
+
+def inflates(path: Path, offset: int, size: int) -> RecordingError:
+    """The error for a chunk declaring ``size`` bytes uncompressed, past ``MAX_CHUNK_BYTES``."""
+    return RecordingError(
+        f"{path}: chunk at byte {offset} inflates to {size / 2**20:.0f} MiB "
+        f"(at most {MAX_CHUNK_BYTES >> 20} MiB): not a recording hapticlab reads"
+    )
 
 
 _SUMMARIES: dict[tuple[str, int, int], Any] = {}

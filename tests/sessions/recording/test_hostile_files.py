@@ -34,3 +34,36 @@ def test_json_nested_100000_deep_is_bad_json_not_a_traceback(tmp_path, capsys, c
         "(nested too deeply: line 1 column 1 (char 0))"
     )
     assert not (tmp_path / "out.csv").exists()
+
+
+def bomb_mcap(path, inflated: int) -> None:
+    """A valid MCAP whose one /sensor/wrench message is ``inflated`` bytes of zeros in JSON: its chunk
+    compresses to a few kB."""
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("hapticlab.Wrench", "jsonschema", json.dumps({"type": "object"}).encode())
+        for topic in ("/sensor/wrench", "/kinematics/pose"):
+            channel = writer.register_channel(topic, "json", schema)
+            writer.add_message(channel, log_time=1, publish_time=1, data=b'{"pad": "' + b"0" * inflated + b'"}')
+        writer.finish()
+
+
+@pytest.mark.parametrize("command", [["compensate", "-o", "{tmp}/out.csv"], ["replay", "--estimator", "rls"]])
+def test_a_chunk_that_inflates_past_the_limit_is_refused_before_it_is_decompressed(
+    tmp_path, capsys, monkeypatch, command
+):
+    """The limit (64 MiB) lowered to 1 MiB here, so that the test's file stays small: a 4 MiB chunk in a
+    file of a few kB (the 26 kB file that inflated to 1.75 GB is the same shape)."""
+    from hapticlab.sessions.recording import columnar, mcapfile
+
+    monkeypatch.setattr(mcapfile, "MAX_CHUNK_BYTES", 1 << 20)
+    monkeypatch.setattr(columnar, "MAX_CHUNK_BYTES", 1 << 20)
+    path = tmp_path / "bomb.mcap"
+    bomb_mcap(path, 4 << 20)
+    assert path.stat().st_size < 64 << 10
+    argv = [command[0], str(path), *(a.format(tmp=tmp_path) for a in command[1:])]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"hapticlab {command[0]}: error: {path}: chunk at byte ") and "\n" not in err, err
+    assert err.endswith("inflates to 4 MiB (at most 1 MiB): not a recording hapticlab reads"), err

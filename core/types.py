@@ -358,13 +358,9 @@ class RobotTarget:
 
 @dataclass(frozen=True, slots=True)
 class Event:
-    """Something a person reviewing the session should know about.
-
-    Attributes:
-        t_ns: when it happened, ns.
-        kind: a short machine-readable tag ("haptic_disabled", "converged", ...).
-        message: one human-readable line.
-    """
+    """Something a person reviewing the session should know about: when (``t_ns``, ns), a short machine-readable
+    ``kind`` ("haptic_disabled", "converged", ...), one human-readable ``message`` line, and ``data`` (details
+    for a program: SI units and frames in the key names; empty by default)."""
 
     t_ns: int
     kind: str
@@ -379,18 +375,15 @@ class EmulatorCommand:
     Attributes:
         help: one line for ``hapticlab emulate --help``.
         add_arguments: ``add_arguments(parser)`` adds its options to an ``argparse`` parser.
-        run: ``run(args) -> int``, or ``run(args, world) -> int`` with ``needs_world``: serves until
-            Ctrl-C, SIGTERM or ``--duration``, the first line printed saying where it listens; returns
-            the exit status.
-        needs_world: the emulator is fed by a simulated world. The host then adds ``--session`` (a preset
-            name or TOML file, default ``session``) and ``--seed`` (overrides the world's seed) to its
-            options, builds the session's world through the ``world`` context (``register_contexts``) and
-            passes it to ``run``; an emulator never reads a session itself (a plugin does not import the
-            sessions layer).
+        run: ``run(args) -> int``, or ``run(args, world) -> int`` with ``needs_world``: serves until Ctrl-C,
+            SIGTERM or ``--duration``, the first line printed saying where it listens; returns the exit status.
+        needs_world: the emulator is fed by a simulated world. The host then adds ``--session`` (a preset name
+            or TOML file, default ``session``) and ``--seed`` (overrides the world's seed) to its options, builds
+            the session's world through the ``world`` context (``register_contexts``) and passes it to ``run``;
+            an emulator never reads a session itself (a plugin does not import the sessions layer).
         session: the preset ``--session`` defaults to.
-        listens_on: the options (argparse ``dest`` names) that hold an address it listens on. The host
-            adds ``--allow-network`` and refuses a non-loopback address in any of them without it: an
-            emulated device answers anyone who connects.
+        listens_on: the options (argparse ``dest`` names) holding an address it listens on. The host adds
+            ``--allow-network`` and, without it, refuses a non-loopback one (an emulated device answers anyone).
     """
 
     help: str

@@ -14,7 +14,10 @@ Sensor faults:
 * ``sensor_saturated``: the saturation status bit is set;
 * ``sensor_dropout``: no samples at all (a pulled cable, a lost UDP stream);
 * ``sensor_bias_step``: ``force``/``torque`` added from ``start`` on (a knock,
-  a temperature jump of the gauges; default duration: for good).
+  a temperature jump of the gauges; default duration: for good); with ``ramp``
+  it grows from 0 over ``ramp`` s, then holds (the gauges drifting as they warm);
+* ``sensor_stuck``: every reading repeats the first one of the fault, status OK,
+  stamps fresh (a stuck converter or a frozen firmware buffer).
 
 Kinematics faults:
 
@@ -37,7 +40,7 @@ import numpy as np
 from hapticlab.core.host.options import OptionError, choice, number
 from hapticlab.core.types import STATUS_SATURATED
 
-SENSOR_KINDS = ("sensor_spike", "sensor_nan", "sensor_saturated", "sensor_dropout", "sensor_bias_step")
+SENSOR_KINDS = ("sensor_spike", "sensor_nan", "sensor_saturated", "sensor_dropout", "sensor_bias_step", "sensor_stuck")
 KINEMATICS_KINDS = ("kinematics_freeze", "kinematics_delay", "kinematics_dropout")
 KINDS = SENSOR_KINDS + KINEMATICS_KINDS
 DEFAULT_DURATION_S = {"sensor_spike": 0.02, "sensor_bias_step": math.inf}
@@ -55,7 +58,7 @@ class Fault:
         force: (3,) force added by a spike or a bias step, N (in S).
         torque: (3,) torque added by a spike or a bias step, N·m (in S).
         delay: how late a delayed pose is, s.
-        ramp: how long a delay takes to build up from 0, s (0: at once).
+        ramp: how long a delay or a bias step takes to build up from 0, s (0: at once).
     """
 
     kind: str
@@ -81,6 +84,8 @@ class Fault:
 
 
 _WINDOWS: dict[int, tuple[tuple[Fault, ...], np.ndarray, np.ndarray]] = {}
+_STUCK: dict[int, tuple[Fault, np.ndarray, np.ndarray]] = {}
+"""A ``sensor_stuck`` fault's reading (force, torque), from the first sample it acted on."""
 
 
 def _acting(faults: tuple[Fault, ...], t: np.ndarray) -> list[Fault]:
@@ -107,8 +112,14 @@ def apply_sensor_faults(faults: tuple[Fault, ...], t: np.ndarray, reading: dict[
         if not on.any():
             continue
         if fault.kind in ("sensor_spike", "sensor_bias_step"):
-            reading["force_S"][on] += fault.force
-            reading["torque_S"][on] += fault.torque
+            grown = np.clip((t[on] - fault.start) / fault.ramp, 0.0, 1.0)[:, None] if fault.ramp > 0 else 1.0
+            reading["force_S"][on] += grown * np.asarray(fault.force)
+            reading["torque_S"][on] += grown * np.asarray(fault.torque)
+        elif fault.kind == "sensor_stuck":
+            first = int(np.argmax(on))  # the fault's first sample here; the first of all, kept across reads
+            if id(fault) not in _STUCK or _STUCK[id(fault)][0] is not fault:
+                _STUCK[id(fault)] = (fault, reading["force_S"][first].copy(), reading["torque_S"][first].copy())
+            _, reading["force_S"][on], reading["torque_S"][on] = _STUCK[id(fault)]
         elif fault.kind == "sensor_nan":
             reading["force_S"][on] = np.nan
             reading["torque_S"][on] = np.nan

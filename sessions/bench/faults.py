@@ -49,14 +49,32 @@ FAULTS: dict[str, dict[str, Any]] = {
         "duration": 2.0,
     },
     "kinematics dropout, 500 ms": {"kind": "kinematics_dropout", "duration": 0.5},
+    "sensor spike +60 N, 30 ms (within range)": {"kind": "sensor_spike", "force": [60.0, 0.0, 0.0], "duration": 0.03},
+    "sensor bias ramp +3 N over 6 s, then held": {
+        "kind": "sensor_bias_step",
+        "force": [3.0, 0.0, 0.0],
+        "ramp": 6.0,
+        "session_s": 12.0,
+    },
+    "sensor bias step +2 N during a contact": {
+        "kind": "sensor_bias_step",
+        "force": [2.0, 0.0, 0.0],
+        "start": 6.75,
+        "session_s": 9.0,
+    },
+    "sensor stuck, 2 s": {"kind": "sensor_stuck", "duration": 2.0},
 }
+"""The faults, each injected at ``FAULT_START_S`` into a ``DURATION_S`` session unless it says otherwise
+(``start``, ``session_s``: the bias step lands in the demo's first contact, 6-7.5 s; the ramp needs 10 s)."""
 
 
-def session(estimator: str, fault: dict[str, Any] | None) -> tuple[np.ndarray, np.ndarray, list[dict], list, int]:
+def session(
+    estimator: str, fault: dict[str, Any] | None, duration_s: float = DURATION_S
+) -> tuple[np.ndarray, np.ndarray, list[dict], list, int]:
     """One demo session with ``fault`` injected: command times (s), forces, messages, events, and t0 (ns)."""
     config, _ = load_config("demo")
     config = apply_settings(
-        config, {"session.realtime": False, "session.duration": DURATION_S, "estimator.name": estimator}
+        config, {"session.realtime": False, "session.duration": duration_s, "estimator.name": estimator}
     )
     if fault is not None:
         config["world"]["faults"] = [{"start": FAULT_START_S, **fault}]
@@ -79,26 +97,27 @@ def made_up_force(force: np.ndarray, truth: np.ndarray) -> np.ndarray:
 def measure(estimator: str, clean, fault: dict[str, Any]) -> dict[str, Any]:
     """The made-up force, detection and zero times and the event of one fault against the clean run."""
     t_ref, force_ref, _, _, _ = clean
-    t, force, messages, events, t0 = session(estimator, fault)
+    fault = dict(fault)
+    duration_s = fault.pop("session_s", DURATION_S)
+    start_s = fault.get("start", FAULT_START_S)
+    t, force, messages, events, t0 = session(estimator, fault, duration_s)
     n = min(len(t), len(t_ref))
     made_up = made_up_force(force[:n], force_ref[:n])
-    after = t[:n] >= FAULT_START_S
+    after = t[:n] >= start_s
     faulty = np.array(
         [not m["enabled"] and m["reason"].split(" (")[0] not in WARMING_UP and m["reason"] != "" for m in messages[:n]]
     )
     detected = np.flatnonzero(after & faulty)
     t_detect = float(t[detected[0]]) if len(detected) else None
-    end = FAULT_START_S + min(fault.get("duration", np.inf), DURATION_S)
+    end = start_s + min(fault.get("duration", np.inf), duration_s)
     # the fault's span, and until the force is back to zero or to the clean run's force
     back = np.flatnonzero((t[:n] >= end) & ((made_up < 0.05) | faulty))
     window = after & (t[:n] <= (t[back[0]] if len(back) else t[n - 1]))
     zeros = np.flatnonzero(after & (np.linalg.norm(force[:n], axis=1) == 0.0))
-    event = next(
-        (e for e in events if (e.t_ns - t0) * 1e-9 >= FAULT_START_S and e.kind in ("fault", "bias_step")), None
-    )
+    event = next((e for e in events if (e.t_ns - t0) * 1e-9 >= start_s and e.kind in ("fault", "bias_step")), None)
     return {
         "made_up_force_N": float(made_up[window].max()) if window.any() else 0.0,
-        "detected_after_s": None if t_detect is None else t_detect - FAULT_START_S,
+        "detected_after_s": None if t_detect is None else t_detect - start_s,
         "zero_after_detection_s": None
         if t_detect is None or not len(zeros)
         else float(t[zeros[zeros >= detected[0]][0]]) - t_detect,
@@ -114,10 +133,13 @@ def bench_faults(
     for estimator in estimators:
         if progress:
             progress(f"{estimator}: clean run")
-        clean = session(estimator, None)
+        clean = {DURATION_S: session(estimator, None)}
         out[estimator] = {}
         for label, fault in FAULTS.items():
             if progress:
                 progress(f"{estimator}: {label}")
-            out[estimator][label] = measure(estimator, clean, fault)
+            duration_s = fault.get("session_s", DURATION_S)
+            if duration_s not in clean:
+                clean[duration_s] = session(estimator, None, duration_s)
+            out[estimator][label] = measure(estimator, clean[duration_s], fault)
     return out

@@ -12,7 +12,7 @@ import pytest
 from hapticlab.core.host import hookspecs
 from hapticlab.core.host.interfaces import SensorSource
 from hapticlab.core.host.registry import ConfigError, Registry
-from hapticlab.core.types import STATUS_SATURATED, WrenchSample
+from hapticlab.core.types import STATUS_OK, STATUS_SATURATED, WrenchSample
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.simworld import Hold, Indentation, RandomTour, SensorParams, SimWorld, ToolParams
 from hapticlab.plugins.simworld.prefetch import PREFETCH_MAX_SAMPLES, PREFETCH_S
@@ -214,3 +214,32 @@ def test_a_block_read_holds_what_the_records_hold(faulty):
         np.testing.assert_array_equal(got, want)
     assert len(joined[0]) == (6300 if faulty else 7000)  # 1 s at 7 kHz, less the 0.1 s dropout
     assert not faulty or np.isnan(joined[1]).any()
+
+
+def test_a_bias_ramp_grows_then_holds_and_a_stuck_sensor_repeats_its_first_reading():
+    """``sensor_bias_step`` with ``ramp``: force·min((t − start)/ramp, 1) added; ``sensor_stuck``: every reading
+    of its window is the first one, across reads (the sensor is read in many small blocks)."""
+    from hapticlab.plugins.simworld.faults import Fault
+
+    ramp = Fault("sensor_bias_step", 0.2, force=(3.0, 0.0, 0.0), ramp=0.4)
+    stuck = Fault("sensor_stuck", 0.7, 0.2)
+    faulty, clean = (SimSensor(rate_hz=1000.0, world=SimWorld(faults=f)) for f in ((ramp, stuck), ()))
+    for sensor in (faulty, clean):
+        sensor.open(T0)
+    got, want = [], []
+    for k in range(1, 101):  # 1 s in 10 ms reads
+        got += faulty.read(T0 + k * 10_000_000)
+        want += clean.read(T0 + k * 10_000_000)
+    t_f, f_f, tq_f, _, status = as_arrays(got)
+    t_c, f_c, _, _, _ = as_arrays(want)
+    np.testing.assert_array_equal(t_f, t_c)
+    t = (t_f - T0) * 1e-9
+    grown = np.clip((t - 0.2) / 0.4, 0.0, 1.0)
+    free = t < 0.7 - 1e-9
+    np.testing.assert_allclose(f_f[free] - f_c[free], np.outer(grown[free], [3.0, 0.0, 0.0]), atol=1e-12)
+    held = (t >= 0.7 - 1e-9) & (t < 0.9 - 1e-9)
+    assert held.sum() == 200 and (status == STATUS_OK).all()
+    first = np.flatnonzero(held)[0]
+    np.testing.assert_array_equal(f_f[held], np.broadcast_to(f_f[first], (200, 3)))  # across 20 reads
+    np.testing.assert_array_equal(tq_f[held], np.broadcast_to(tq_f[first], (200, 3)))
+    assert np.ptp(f_c[held], axis=0).max() > 0.01  # the world itself moved meanwhile

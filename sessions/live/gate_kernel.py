@@ -1,9 +1,9 @@
 """The live loop's screen of each aligned block, compiled: which samples an estimator may see, and why not.
 
 The compiled twin of ``AlignedSamples.usable`` (orientation not stale, status
-``STATUS_OK``, wrench, R_EB and position finite), ``sessions.live.gate.implausible``
+``STATUS_OK``, wrench, R_EB and position finite), ``sessions.live.screen.implausible``
 (a good-status reading beyond the sensor's range: it would have saturated) and
-``gate.data_reason``'s order of causes, in one pass over the block: at one
+``screen.data_reason``'s order of causes, in one pass over the block: at one
 sample per tick the numpy versions' dozen calls cost an order of magnitude more
 than this one pass (docs/safety.md, "Overruns"). The numpy code stays the
 reference the tests compare with.

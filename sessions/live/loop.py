@@ -47,9 +47,9 @@ from hapticlab.sessions.live.ending import (
     signals_end_the_session,
     signals_noted,
 )
-from hapticlab.sessions.live.gate import screen
 from hapticlab.sessions.live.pacing import Pacer, freeze_the_heap
 from hapticlab.sessions.live.priority import fifo_priority
+from hapticlab.sessions.live.screen import screen
 from hapticlab.sessions.live.status import SessionError, SessionResult, SessionStatus
 from hapticlab.sessions.live.taps import HAND_OVER_NS, Taps
 from hapticlab.sessions.recording import Recorder

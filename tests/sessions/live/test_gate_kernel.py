@@ -62,7 +62,7 @@ def _spoilt(block, rng, size: int):
 def test_screen_kernel_gives_the_reference_s_masks_and_reason(sim, size):
     """The live loop's compiled screen against ``AlignedSamples.usable``, ``implausible`` and ``data_reason``, on
     blocks of the tour spoilt at random (seeded): the same masks and the same reason, with and without a range."""
-    from hapticlab.sessions.live.gate import data_reason, implausible, screen
+    from hapticlab.sessions.live.screen import data_reason, implausible, screen
 
     rng = np.random.default_rng(size)
     reasons = set()

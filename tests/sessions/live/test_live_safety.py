@@ -126,7 +126,7 @@ def test_made_up_force_counts_what_the_true_force_cannot_explain():
         ),
         (
             "session.loop_rate_hz=3e9",
-            r"^session.loop_rate_hz: must be a finite number > 0 and <= 10000 \(Hz\), got 3000000000.0$",
+            r"^session.loop_rate_hz: must be a finite number >= 100 and <= 10000 \(Hz\), got 3000000000.0$",
         ),
         ("session.duration=-5", r"^session.duration: must be a finite number > 0 and <= 86400 \(s\), got -5$"),
         ("session.duration=inf", r"^session.duration: must be a finite number > 0 and <= 86400 \(s\), got inf$"),

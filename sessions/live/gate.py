@@ -6,6 +6,9 @@ The force is held at zero (the reason is recorded with each command) while:
 * the newest block had stale kinematics, a sensor status bit, a non-finite
   reading, or a reading beyond the sensor's range with a good status
   (implausible: the sensor would have saturated);
+* a reading jumped from the last one faster than any contact can change
+  (``watch.StepWatch``: a glitch in range with a good status): its samples
+  are held out until the reading is back; a jump that stays is a bias step;
 * the robot has reported bit-identical poses for longer than
   ``frozen_pose_timeout`` (frozen kinematics: fresh timestamps, no motion);
 * two consecutive poses moved further than the arm can between their stamps
@@ -46,7 +49,7 @@ import numpy as np
 from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReportsParameterStd
 from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
-from hapticlab.sessions.live.watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch
+from hapticlab.sessions.live.watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch, StepWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
 """After an estimator's payload change the haptic force is held at zero this long (1 s): the change
@@ -96,6 +99,7 @@ class HapticGate:
         self.stale_timeout_ns = stale_timeout_ns
         self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
         self.bias = BiasWatch()
+        self.steps = StepWatch()
         self.lag = LagWatch(max_turn_rate)
         screen_kernel.warm_up()  # compiled (or loaded) before the first tick
         self.ready = [False, False]  # each stage has converged at least once
@@ -152,10 +156,23 @@ class HapticGate:
         if self.poses.add(poses, now_ns):
             self.lag.reset()
 
-    def on_samples(self, block: AlignedSamples, reason: str) -> None:
-        """A new sensor block arrived (every sample, usable or not), with what was wrong with it (:func:`screen`)."""
+    def on_samples(
+        self, block: AlignedSamples, usable: np.ndarray, reason: str, now_ns: int
+    ) -> tuple[np.ndarray, str, list[Event]]:
+        """A new sensor block arrived (every sample), with the screen's ``usable`` mask and ``reason``
+        (``screen.screen``): those with the samples of a reading that jumped faster than any contact held out
+        (``watch.StepWatch``), and the events of a jump that stayed (a bias step, as the bias watch's)."""
         self.last_sample_ns = int(block.t_ns[-1])
+        held = self.steps.add(block.t_ns, block.force_S)
+        events = []
+        if self.steps.persisted is not None:
+            step, self.steps.persisted = self.steps.persisted, None
+            if not self.bias_hold:
+                events += self._bias_step(step, now_ns, "the reading jumped and stayed")
+        if held.any():
+            usable, reason = usable & ~held, reason or self.steps.jump
         self.data_reason = reason
+        return usable, reason, events
 
     def on_estimates(
         self,
@@ -200,16 +217,9 @@ class HapticGate:
         # nothing of a bias step, and kalman's flag at the pose is up long before)
         step = self.bias.add(block, est) if self.parameters_known and not self.bias_hold else None
         if step is not None:
-            events.append(self._bias_step(step, now_ns))
-            if self.bias_hold == "latched":
-                events.append(
-                    Event(
-                        now_ns,
-                        "haptic_latched",
-                        f"haptic force latched off: {LATCHED}; {self.label} cannot re-identify its bias",
-                        {"cause": "sensor bias step"},
-                    )
-                )
+            events += self._bias_step(
+                step, now_ns, "the refused force stayed fixed in the sensor frame while the tool turned"
+            )
         return events
 
     @property
@@ -236,16 +246,15 @@ class HapticGate:
         if other:
             self.bias_hold = "latched"
             return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
-        self.bias = BiasWatch()
+        self.bias, self.steps = BiasWatch(), StepWatch()
         return Event(
             now_ns, "haptic_rearmed", f"haptic force re-armed by {source}; it ramps in from zero", {"source": source}
         )
 
-    def _bias_step(self, step: np.ndarray, now_ns: int) -> Event:
-        message = (
-            f"sensor bias step of {np.linalg.norm(step):.2f} N: the refused force stayed fixed in the "
-            f"sensor frame while the tool turned"
-        )
+    def _bias_step(self, step: np.ndarray, now_ns: int, how: str) -> list[Event]:
+        """A bias step of ``step`` (3,) N in S, seen as ``how``: the estimator re-identifies its bias, or the
+        force latches off (the events: ``bias_step``, and ``haptic_latched`` when latched)."""
+        message = f"sensor bias step of {np.linalg.norm(step):.2f} N: {how}"
         if self.reidentifies is not None:
             self.reidentifies.reidentify_bias("bias step")
             self.bias_hold = "drop"
@@ -253,7 +262,11 @@ class HapticGate:
         else:
             self.bias_hold = "latched"
             message += f"; {self.label} cannot re-identify it: force off until the session is re-armed"
-        return Event(now_ns, "bias_step", message, {"bias_step_force_S": step.tolist()})
+        events = [Event(now_ns, "bias_step", message, {"bias_step_force_S": step.tolist()})]
+        if self.bias_hold == "latched":
+            latched = f"haptic force latched off: {LATCHED}; {self.label} cannot re-identify its bias"
+            events.append(Event(now_ns, "haptic_latched", latched, {"cause": "sensor bias step"}))
+        return events
 
     def on_event(self, event: Event, now_ns: int) -> None:
         """An event of the primary estimator: a payload change holds the force at zero for a while; what the

@@ -223,7 +223,8 @@ class LiveLoop:
             block = self.aligner.align(wrenches)
             self.taps.aligned(block)
             usable, _, reason = screen(block, self.sensor_range)
-            self.gate.on_samples(block, reason)
+            usable, reason, events = self.gate.on_samples(block, usable, reason, now_ns)
+            self._gate_events(events)
             some = True if not reason else usable.any()  # no reason: every sample is usable (the usual case)
             if not self.gate.trusts_poses(now_ns):  # their orientation is not the robot's: not for the estimators
                 if some:
@@ -254,16 +255,19 @@ class LiveLoop:
         for event in self._drain(primary):
             self.gate.on_event(event, now_ns)
         params, R_SE = self._primary_model()
-        for event in self.gate.on_estimates(block, est, now_ns, params, R_SE):
-            if event.kind == "haptic_latched":  # a press from before the stop must not re-arm it
-                self.commander.rearm_requests.clear()
-            self._event(event)
+        self._gate_events(self.gate.on_estimates(block, est, now_ns, params, R_SE))
         R_BE = block.R_EB[-1].T
         R_BS = R_BE if R_SE is None else R_BE @ R_SE.T
         self.commander.last_estimate = (est.contact_force_S[-1], R_BS, int(est.t_ns[-1]))
         self.status.contact = bool(est.contact[-1])
         self.contact_samples += int(np.count_nonzero(est.contact))
         return with_params
+
+    def _gate_events(self, events: list[Event]) -> None:
+        for event in events:
+            if event.kind == "haptic_latched":  # a press from before the stop must not re-arm it
+                self.commander.rearm_requests.clear()
+            self._event(event)
 
     def _update_shadows(self, block, with_params: bool, now_ns: int) -> None:
         """The shadows on the block the primary estimated, after the command has gone out (they are

@@ -18,6 +18,12 @@ that is a bias step, not a contact. (A turn about the
 force's own axis tells nothing: a push along the instrument while it rolls
 stays the same in S too, so only the turn that moves the force's direction
 counts.)
+
+:class:`StepWatch`: a contact is a force between the tool and the world; it grows as the tool presses
+in, so it cannot jump tens of newtons between two samples. A reading that moves further from the
+last one than ``MAX_CONTACT_RATE`` allows (plus ``STEP_MARGIN_N`` of noise) is a glitch of the sensor
+or its wire, in range and with a good status all the same: its samples are held out until the reading
+is back where it was before the jump; one that stays away for ``STEP_PERSIST_NS`` is a bias step (a knock).
 """
 
 from __future__ import annotations
@@ -272,3 +278,64 @@ class LagWatch:
             # else: a residual the lag does not explain (a contact): the verdict stands
         # unresolved (the tool barely turns: a lag would do no harm yet): the verdict stands
         return self.lag_s
+
+
+MAX_CONTACT_RATE = 2000.0
+"""The fastest a contact force changes, N/s: a tool striking bone at 0.1 m/s with a contact stiffness of
+2·10⁴ N/m (soft tissue is 10²-10³ N/m). A reading faster than this is no contact's."""
+STEP_MARGIN_N = 1.5
+"""The sensor's noise on a step between two samples: about nine standard deviations of a Gamma-class
+sensor's 0.12 N per sample (the simulated sensor's default), N."""
+STEP_RETURN_RATE = 100.0
+"""How far a real contact may have moved while a glitch lasted, N/s: the reading is back when it is within
+``STEP_MARGIN_N`` plus this times the glitch's age of the reading before the jump (and nearer it than half
+the jump)."""
+STEP_PERSIST_NS = 200_000_000
+"""A jump that has not come back after this long is a bias step of the sensor, not a glitch, ns."""
+
+
+class StepWatch:
+    """Holds out the samples of a reading that jumped faster than any contact, until it is back.
+
+    ``add`` returns the (N,) mask of samples held out. ``jump`` describes the jump in hand ("" when none);
+    ``persisted`` is the jump's size in S, (3,) N, once it has stayed ``STEP_PERSIST_NS`` (then the watch
+    starts afresh from the new level: a bias step is the gate's to handle).
+    """
+
+    def __init__(self) -> None:
+        self.last: tuple[int, np.ndarray] | None = None  # the newest reading (t_ns, force_S)
+        self.level: np.ndarray | None = None  # the reading before the jump in hand (None: no jump)
+        self.jumped_ns, self.jump_N = 0, 0.0
+        self.jump = ""
+        self.persisted: np.ndarray | None = None
+
+    def add(self, t_ns: np.ndarray, force_S: np.ndarray) -> np.ndarray:
+        held = np.zeros(len(t_ns), dtype=bool)
+        if not len(t_ns):
+            return held
+        if self.level is None and self.last is not None:  # the usual block: every step within a contact's
+            steps = np.linalg.norm(np.diff(force_S, axis=0, prepend=self.last[1][None]), axis=1)
+            dt = np.diff(t_ns, prepend=self.last[0]) * 1e-9
+            if (steps <= MAX_CONTACT_RATE * dt + STEP_MARGIN_N).all():
+                self.last = (int(t_ns[-1]), force_S[-1].copy())
+                return held
+        for k in range(len(t_ns)):  # a jump in this block, or one in hand: sample by sample
+            t, f = int(t_ns[k]), force_S[k]
+            if self.level is not None:
+                age_s = (t - self.jumped_ns) * 1e-9
+                # back: nearer the reading before than the jump took it, within what a contact moves meanwhile
+                if np.linalg.norm(f - self.level) <= min(STEP_MARGIN_N + STEP_RETURN_RATE * age_s, self.jump_N / 2):
+                    self.level, self.jump = None, ""  # back: this sample is the reading's again
+                elif t - self.jumped_ns >= STEP_PERSIST_NS:
+                    self.persisted, self.level, self.jump = f - self.level, None, ""
+                else:
+                    held[k] = True
+            elif self.last is not None:
+                step = float(np.linalg.norm(f - self.last[1]))
+                dt_s = (t - self.last[0]) * 1e-9
+                if step > MAX_CONTACT_RATE * dt_s + STEP_MARGIN_N:
+                    self.level, self.jumped_ns, self.jump_N, held[k] = self.last[1].copy(), t, step, True
+                    self.jump = f"sensor reading jumped {step:.3g} N in {dt_s * 1e3:.3g} ms: faster than a contact"
+            if not held[k] or self.last is None:
+                self.last = (t, f.copy())
+        return held

@@ -1,0 +1,60 @@
+"""A reading that jumps faster than any contact is held out until it is back; one that stays is a bias step."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hapticlab.sessions.live.watch import MAX_CONTACT_RATE, STEP_MARGIN_N, STEP_PERSIST_NS, StepWatch
+
+MS = 1_000_000
+
+
+def readings(seconds: float, rate_hz: float, seed: int = 0, noise: float = 0.12):
+    """A pressing contact (0 → 3 N over 0.3 s, raised cosine) along z plus Gamma-class noise, N."""
+    rng = np.random.default_rng(seed)
+    t_ns = (np.arange(int(seconds * rate_hz)) * (1e9 / rate_hz)).astype(np.int64)
+    t = t_ns * 1e-9
+    contact = 1.5 * (1 - np.cos(np.pi * np.clip(t / 0.3, 0, 1)))
+    force = np.zeros((len(t), 3))
+    force[:, 2] = contact
+    return t_ns, force + rng.normal(0.0, noise, force.shape)
+
+
+def feed(watch: StepWatch, t_ns, force, block: int = 7):
+    return np.concatenate([watch.add(t_ns[k : k + block], force[k : k + block]) for k in range(0, len(t_ns), block)])
+
+
+def test_a_real_contact_and_the_noise_are_never_held_out():
+    for rate_hz, seed in ((1000.0, 1), (7000.0, 2)):
+        t_ns, force = readings(3.0, rate_hz, seed)
+        watch = StepWatch()
+        assert not feed(watch, t_ns, force).any() and watch.jump == ""
+
+
+def test_a_60_n_glitch_is_held_out_from_its_first_sample_to_its_end():
+    t_ns, force = readings(1.0, 1000.0, 3)
+    force[500:530, 0] += 60.0  # 30 ms within a 65 N range, good status
+    watch = StepWatch()
+    held = feed(watch, t_ns, force)
+    assert np.array_equal(np.flatnonzero(held), np.arange(500, 530))
+    assert watch.persisted is None and watch.jump == ""  # back, and no bias step
+
+
+def test_a_jump_that_stays_is_handed_over_as_a_bias_step():
+    t_ns, force = readings(1.0, 1000.0, 4)
+    force[400:, 1] += 20.0  # a knock: 20 N, for good
+    watch = StepWatch()
+    held = feed(watch, t_ns, force, block=1)
+    after = np.flatnonzero(held)
+    assert after[0] == 400 and len(after) == STEP_PERSIST_NS // MS  # held out until it had stayed 200 ms
+    np.testing.assert_allclose(watch.persisted, [0.0, 20.0, 0.0], atol=0.6)  # the step, in S
+    assert not held[400 + STEP_PERSIST_NS // MS :].any()  # then the new level is the reading's
+
+
+def test_the_limit_grows_with_the_time_between_samples():
+    """After a 0.5 s gap (a dropout) a contact may have moved by MAX_CONTACT_RATE·0.5 s: no jump."""
+    watch = StepWatch()
+    assert not watch.add(np.array([0, MS]), np.zeros((2, 3))).any()
+    far = MAX_CONTACT_RATE * 0.5 + STEP_MARGIN_N - 1.0
+    assert not watch.add(np.array([MS + 500 * MS]), np.array([[far, 0.0, 0.0]])).any()
+    assert watch.add(np.array([MS + 501 * MS]), np.array([[far + 10.0, 0.0, 0.0]])).all()

@@ -9,6 +9,8 @@ The force is held at zero (the reason is recorded with each command) while:
 * a reading jumped from the last one faster than any contact can change
   (``watch.StepWatch``: a glitch in range with a good status): its samples
   are held out until the reading is back; a jump that stays is a bias step;
+* the sensor repeats one reading bit for bit (``watch.StuckWatch``: a stuck
+  converter, fresh stamps and a good status), for ``STUCK_NS`` or longer;
 * the robot has reported bit-identical poses for longer than
   ``frozen_pose_timeout`` (frozen kinematics: fresh timestamps, no motion);
 * two consecutive poses moved further than the arm can between their stamps
@@ -49,7 +51,7 @@ import numpy as np
 from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReportsParameterStd
 from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
-from hapticlab.sessions.live.watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch, StepWatch
+from hapticlab.sessions.live.watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch, StepWatch, StuckWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
 """After an estimator's payload change the haptic force is held at zero this long (1 s): the change
@@ -99,7 +101,7 @@ class HapticGate:
         self.stale_timeout_ns = stale_timeout_ns
         self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
         self.bias = BiasWatch()
-        self.steps = StepWatch()
+        self.steps, self.stuck = StepWatch(), StuckWatch()
         self.lag = LagWatch(max_turn_rate)
         screen_kernel.warm_up()  # compiled (or loaded) before the first tick
         self.ready = [False, False]  # each stage has converged at least once
@@ -164,6 +166,7 @@ class HapticGate:
         (``watch.StepWatch``), and the events of a jump that stayed (a bias step, as the bias watch's)."""
         self.last_sample_ns = int(block.t_ns[-1])
         held = self.steps.add(block.t_ns, block.force_S)
+        stuck = self.stuck.add(block.t_ns, block.force_S, block.torque_S)
         events = []
         if self.steps.persisted is not None:
             step, self.steps.persisted = self.steps.persisted, None
@@ -171,6 +174,11 @@ class HapticGate:
                 events += self._bias_step(step, now_ns, "the reading jumped and stayed")
         if held.any():
             usable, reason = usable & ~held, reason or self.steps.jump
+        if stuck.any():
+            usable, reason = (
+                usable & ~stuck,
+                reason or f"sensor stuck (the same reading for {self.stuck.stuck_ns * 1e-6:.0f} ms)",
+            )
         self.data_reason = reason
         return usable, reason, events
 

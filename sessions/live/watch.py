@@ -24,6 +24,9 @@ in, so it cannot jump tens of newtons between two samples. A reading that moves 
 last one than ``MAX_CONTACT_RATE`` allows (plus ``STEP_MARGIN_N`` of noise) is a glitch of the sensor
 or its wire, in range and with a good status all the same: its samples are held out until the reading
 is back where it was before the jump; one that stays away for ``STEP_PERSIST_NS`` is a bias step (a knock).
+
+:class:`StuckWatch`: a working sensor's readings are never bit-identical for long, its noise sees to
+that; a converter or a firmware buffer that froze repeats one reading with fresh stamps and a good status.
 """
 
 from __future__ import annotations
@@ -299,43 +302,83 @@ class StepWatch:
 
     ``add`` returns the (N,) mask of samples held out. ``jump`` describes the jump in hand ("" when none);
     ``persisted`` is the jump's size in S, (3,) N, once it has stayed ``STEP_PERSIST_NS`` (then the watch
-    starts afresh from the new level: a bias step is the gate's to handle).
+    starts afresh from the new level: a bias step is the gate's to handle). The arithmetic is in Python
+    floats: a live block is one to seven samples, where numpy's calls cost ten times more.
     """
 
     def __init__(self) -> None:
-        self.last: tuple[int, np.ndarray] | None = None  # the newest reading (t_ns, force_S)
-        self.level: np.ndarray | None = None  # the reading before the jump in hand (None: no jump)
+        self.last: tuple[int, list[float]] | None = None  # the newest reading (t_ns, force_S)
+        self.level: list[float] | None = None  # the reading before the jump in hand (None: no jump)
         self.jumped_ns, self.jump_N = 0, 0.0
         self.jump = ""
         self.persisted: np.ndarray | None = None
 
     def add(self, t_ns: np.ndarray, force_S: np.ndarray) -> np.ndarray:
         held = np.zeros(len(t_ns), dtype=bool)
-        if not len(t_ns):
+        times, forces = t_ns.tolist(), force_S.tolist()
+        if not times:
             return held
-        if self.level is None and self.last is not None:  # the usual block: every step within a contact's
-            steps = np.linalg.norm(np.diff(force_S, axis=0, prepend=self.last[1][None]), axis=1)
-            dt = np.diff(t_ns, prepend=self.last[0]) * 1e-9
-            if (steps <= MAX_CONTACT_RATE * dt + STEP_MARGIN_N).all():
-                self.last = (int(t_ns[-1]), force_S[-1].copy())
-                return held
-        for k in range(len(t_ns)):  # a jump in this block, or one in hand: sample by sample
-            t, f = int(t_ns[k]), force_S[k]
+        if self.level is None and self.last is not None and self._within(times, forces):
+            self.last = (times[-1], forces[-1])  # the usual block: every step within a contact's
+            return held
+        for k, (t, f) in enumerate(zip(times, forces)):  # a jump in this block, or one in hand
             if self.level is not None:
                 age_s = (t - self.jumped_ns) * 1e-9
+                away = math.dist(f, self.level)
                 # back: nearer the reading before than the jump took it, within what a contact moves meanwhile
-                if np.linalg.norm(f - self.level) <= min(STEP_MARGIN_N + STEP_RETURN_RATE * age_s, self.jump_N / 2):
-                    self.level, self.jump = None, ""  # back: this sample is the reading's again
+                if away <= min(STEP_MARGIN_N + STEP_RETURN_RATE * age_s, self.jump_N / 2):
+                    self.level, self.jump = None, ""
                 elif t - self.jumped_ns >= STEP_PERSIST_NS:
-                    self.persisted, self.level, self.jump = f - self.level, None, ""
+                    self.persisted = np.subtract(f, self.level)
+                    self.level, self.jump = None, ""
                 else:
                     held[k] = True
             elif self.last is not None:
-                step = float(np.linalg.norm(f - self.last[1]))
-                dt_s = (t - self.last[0]) * 1e-9
+                step, dt_s = math.dist(f, self.last[1]), (t - self.last[0]) * 1e-9
                 if step > MAX_CONTACT_RATE * dt_s + STEP_MARGIN_N:
-                    self.level, self.jumped_ns, self.jump_N, held[k] = self.last[1].copy(), t, step, True
+                    self.level, self.jumped_ns, self.jump_N, held[k] = self.last[1], t, step, True
                     self.jump = f"sensor reading jumped {step:.3g} N in {dt_s * 1e3:.3g} ms: faster than a contact"
             if not held[k] or self.last is None:
-                self.last = (t, f.copy())
+                self.last = (t, f)
+        return held
+
+    def _within(self, times: list[int], forces: list[list[float]]) -> bool:
+        """Every step from the newest reading on is within a contact's."""
+        assert self.last is not None  # (the caller checks)
+        t_last, f_last = self.last
+        for t, f in zip(times, forces):
+            if math.dist(f, f_last) > MAX_CONTACT_RATE * (t - t_last) * 1e-9 + STEP_MARGIN_N:
+                return False
+            t_last, f_last = t, f
+        return True
+
+
+STUCK_NS = 50_000_000
+"""Bit-identical readings (all six axes) for this long, and at least ``STUCK_SAMPLES`` of them, are a stuck
+sensor, ns: the real recordings' longest run is 3 samples (logs of 1 s steps), a Net F/T's counts never repeat."""
+STUCK_SAMPLES = 5
+
+
+class StuckWatch:
+    """Holds out the readings of a sensor that repeats one reading (``add``: the (N,) mask held out;
+    ``stuck_ns``: for how long it has, 0 when it does not). Python floats, as :class:`StepWatch`."""
+
+    def __init__(self) -> None:
+        self.last: list[float] | None = None  # the newest reading: force_S then torque_S
+        self.since_ns = 0  # the stamp of the run's first reading
+        self.count = 0
+        self.stuck_ns = 0
+
+    def add(self, t_ns: np.ndarray, force_S: np.ndarray, torque_S: np.ndarray) -> np.ndarray:
+        held = np.zeros(len(t_ns), dtype=bool)
+        times = t_ns.tolist()
+        for k, (t, f, q) in enumerate(zip(times, force_S.tolist(), torque_S.tolist())):
+            row = f + q
+            if row == self.last:  # (a NaN is never equal: the screen holds those out already)
+                self.count += 1
+            else:
+                self.last, self.since_ns, self.count = row, t, 1
+            lasted = t - self.since_ns
+            self.stuck_ns = lasted if self.count >= STUCK_SAMPLES and lasted >= STUCK_NS else 0
+            held[k] = self.stuck_ns > 0
         return held

@@ -58,3 +58,17 @@ def test_the_limit_grows_with_the_time_between_samples():
     far = MAX_CONTACT_RATE * 0.5 + STEP_MARGIN_N - 1.0
     assert not watch.add(np.array([MS + 500 * MS]), np.array([[far, 0.0, 0.0]])).any()
     assert watch.add(np.array([MS + 501 * MS]), np.array([[far + 10.0, 0.0, 0.0]])).all()
+
+
+def test_a_stuck_sensor_is_held_out_once_it_has_repeated_itself_for_50_ms():
+    from hapticlab.sessions.live.watch import STUCK_NS, StuckWatch
+
+    t_ns, force = readings(1.0, 1000.0, 5)
+    torque = np.zeros_like(force) + np.random.default_rng(6).normal(0, 0.01, force.shape)
+    force[300:500], torque[300:500] = force[300], torque[300]  # 200 ms of one reading, fresh stamps
+    watch = StuckWatch()
+    held = np.concatenate([watch.add(t_ns[k : k + 7], force[k : k + 7], torque[k : k + 7]) for k in range(0, 1000, 7)])
+    assert np.array_equal(np.flatnonzero(held), np.arange(300 + STUCK_NS // MS, 500))
+    assert watch.stuck_ns == 0  # the readings move again
+    clean_t, clean_f = readings(3.0, 7000.0, 7)
+    assert not StuckWatch().add(clean_t, clean_f, np.zeros_like(clean_f) + 1e-3 * clean_f).any()

@@ -49,6 +49,20 @@ def default_real_dir() -> Path:
     return beside_checkout if beside_checkout.is_dir() else Path("../shared/data/real")
 
 
+REAL_COLUMNS = (
+    "file",
+    "estimator",
+    "force conv.",
+    "torque conv.",
+    "contact",
+    "held out",
+    "RMS fx, fy, fz (N)",
+    "batch, same rows",
+    "ratio per axis",
+    "ratio ‖·‖",
+    "2nd half",
+)
+"""The columns of bench real's table, on the terminal and in docs/results.md."""
 IDENTIFIED = {"convergence": "identified"}
 """kalman's convergence rule before "pose": the wrench known at the pose and the tool identified by the motion."""
 GAMMA_COVARIANCE = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}

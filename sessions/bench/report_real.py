@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from hapticlab.sessions.bench.real import REAL_COLUMNS
 from hapticlab.sessions.bench.report_markdown import norm, num, table, vec
 
 
@@ -51,23 +52,7 @@ def real_section(out: dict[str, Any]) -> list[str]:
                     num(r.get("ratio_norm_second_half"), 2),
                 )
             )
-    lines += table(
-        (
-            "file",
-            "estimator",
-            "force conv.",
-            "torque conv.",
-            "contact",
-            "held out",
-            "RMS fx, fy, fz (N)",
-            "batch, same rows",
-            "ratio per axis",
-            "ratio ‖·‖",
-            "2nd half",
-        ),
-        rows,
-        align="llr",
-    )
+    lines += table(REAL_COLUMNS, rows, align="llr")
     lines += [
         "The paper's convergence flag is the weak part on these files: on the LWR4 logs the first rows repeat, so",
         "‖Δx‖ < 1e-3 holds at once and means nothing; on the static Axia80 poses every new pose moves the",

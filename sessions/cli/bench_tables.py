@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from rich.table import Table
 
+from hapticlab.sessions.bench.real import REAL_COLUMNS
 from hapticlab.sessions.cli.render import fmt, wide_console
 
 
@@ -71,19 +72,7 @@ def print_real_table(out: dict) -> None:
         "fit over the same rows; and the ‖·‖ ratio over the file's second half. Contact: rows judged "
         "a contact (every one a false contact here); held out: rows refused but not called a contact"
     )
-    for col in (
-        "file",
-        "estimator",
-        "force conv.",
-        "torque conv.",
-        "contact",
-        "held out",
-        "RMS fx, fy, fz (N)",
-        "batch, same rows",
-        "ratio per axis",
-        "ratio ‖·‖",
-        "2nd half",
-    ):
+    for col in REAL_COLUMNS:
         t.add_column(col, justify="right")
     for name, entry in out.items():
         if "error" in entry:

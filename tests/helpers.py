@@ -1,9 +1,11 @@
 """Test helpers: where the repository is, seeded and physically generated data (no hand-made numbers), and how
 the estimators' compiled kernels are compared with their numpy references (the tests of rls's and kalman's
-kernels, and of both refusing the same samples), and what the tests of a serial haptic master send it."""
+kernels, and of both refusing the same samples), what the tests of a serial haptic master send it, and how a
+command line's one-line error is checked."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -144,3 +146,32 @@ READ_TIMEOUT_S = 1.0
 def haptic_command(force, enabled=True, t_ns=0) -> HapticCommand:
     """A session's command to the master: ``force`` (N, frame D), with a reason when disabled."""
     return HapticCommand(t_ns, np.asarray(force, dtype=float), enabled, "" if enabled else "test")
+
+
+def cli_error(capsys, argv: list[str]) -> tuple[str | None, str]:
+    """Run the command line in-process; (what is wrong or None, the stderr line): it must exit 2 with one
+    stderr line, no traceback and no warning (the command line would print it on stderr)."""
+    from hapticlab.sessions.cli import main
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.resetwarnings()  # the command line's filters: what a user would see on stderr
+        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+            warnings.simplefilter("ignore", category)
+        code = main(argv)
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    if code != 2:
+        return f"exit status {code}", err
+    if len(lines) != 1 or "Traceback" in err:
+        return f"{len(lines)} lines", err
+    if not lines[0].startswith(f"hapticlab {argv[0]}: error: "):
+        return "not the error line", err
+    if caught:
+        return f"warnings: {[str(w.message) for w in caught]}", err
+    return None, lines[0]
+
+
+def one_line_error(capsys, argv: list[str]) -> str:
+    problem, line = cli_error(capsys, argv)
+    assert problem is None, (problem, line)
+    return line

@@ -25,12 +25,11 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import static_model_stream
+from helpers import cli_error, one_line_error, static_model_stream
 from mcap.writer import Writer
 
 from hapticlab.core.errors import OutputExistsError, UserError
@@ -542,33 +541,6 @@ GROUPS = sorted({argv[0] for _, argv in PROBES})
 def test_there_are_a_few_hundred_probes():
     ids = [i for i, _ in PROBES]
     assert len(ids) == len(set(ids)) and len(PROBES) >= 350
-
-
-def cli_error(capsys, argv: list[str]) -> tuple[str | None, str]:
-    """Run the command line in-process; (what is wrong or None, the stderr line): it must exit 2 with one
-    stderr line, no traceback and no warning (the command line would print it on stderr)."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.resetwarnings()  # the command line's filters: what a user would see on stderr
-        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
-            warnings.simplefilter("ignore", category)
-        code = main(argv)
-    err = capsys.readouterr().err
-    lines = err.strip().splitlines()
-    if code != 2:
-        return f"exit status {code}", err
-    if len(lines) != 1 or "Traceback" in err:
-        return f"{len(lines)} lines", err
-    if not lines[0].startswith(f"hapticlab {argv[0]}: error: "):
-        return "not the error line", err
-    if caught:
-        return f"warnings: {[str(w.message) for w in caught]}", err
-    return None, lines[0]
-
-
-def one_line_error(capsys, argv: list[str]) -> str:
-    problem, line = cli_error(capsys, argv)
-    assert problem is None, (problem, line)
-    return line
 
 
 @pytest.mark.parametrize("command", GROUPS)

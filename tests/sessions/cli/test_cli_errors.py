@@ -6,16 +6,10 @@ import os
 import stat
 
 import pytest
+from helpers import one_line_error
 
 from hapticlab.sessions import cli
 from hapticlab.sessions.cli import main
-
-
-def one_line_error(capsys, argv: list[str]) -> str:
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    return err
 
 
 def test_a_missing_input_names_the_file(capsys, tmp_path):
@@ -106,24 +100,22 @@ def test_the_run_summary_shows_every_parameter_unidentified_ones_too(capsys, tmp
 def test_a_session_file_that_is_not_utf8_names_the_byte(tmp_path, capsys):
     path = tmp_path / "latin1.toml"
     path.write_bytes('[session]\nname = "café"\n'.encode("latin-1"))
-    assert main(["run", str(path)]) == 2
-    err = capsys.readouterr().err.strip()
+    err = one_line_error(capsys, ["run", str(path)])
     assert err == f"hapticlab run: error: {path}: not UTF-8 text (TOML is): byte 21 (line 2, column 12) is 0xe9"
 
 
 def test_a_session_file_nested_too_deeply_is_one_line(tmp_path, capsys):
     path = tmp_path / "deep.toml"
     path.write_text("[session]\nx = " + "[" * 5000 + "]" * 5000 + "\n")
-    assert main(["run", str(path)]) == 2
-    err = capsys.readouterr().err.strip()
+    err = one_line_error(capsys, ["run", str(path)])
     assert err == f"hapticlab run: error: {path}: invalid TOML: arrays or tables nested too deeply"
 
 
 def test_a_session_file_larger_than_a_mebibyte_is_not_read_whole(tmp_path, capsys):
     path = tmp_path / "huge.toml"
     path.write_text("# " + "x" * (1 << 20) + "\n[session]\n")
-    assert main(["run", str(path)]) == 2
-    assert capsys.readouterr().err.strip() == f"hapticlab run: error: {path}: larger than 1024 KiB: not a session file"
+    err = one_line_error(capsys, ["run", str(path)])
+    assert err == f"hapticlab run: error: {path}: larger than 1024 KiB: not a session file"
 
 
 def test_an_earlier_session_s_calibration_file_is_never_overwritten(tmp_path, capsys):
@@ -158,16 +150,14 @@ def test_an_input_that_is_not_a_regular_file_is_refused_before_it_is_read(tmp_pa
     os.mkfifo(tmp_path / "fifo")
     os.mkfifo(tmp_path / "fifo.mcap")
     argv = [a.format(zero="/dev/zero", fifo=tmp_path / "fifo", tmp=tmp_path) for a in argv]
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith(f"hapticlab {argv[0]}: error: {argv[1]}: not a regular file") and "\n" not in err, err
+    err = one_line_error(capsys, argv)
+    assert err.startswith(f"hapticlab {argv[0]}: error: {argv[1]}: not a regular file"), err
     assert not (tmp_path / "out.csv").exists()
 
 
 def test_a_warm_start_that_is_not_a_regular_file_is_refused(tmp_path, capsys):
     argv = ["run", "--duration", "0.1", "--set", "session.realtime=false", "--out", str(tmp_path / "x.mcap")]
-    assert main([*argv, "--set", "estimator.warm_start=/dev/zero"]) == 2
-    err = capsys.readouterr().err.strip()
+    err = one_line_error(capsys, [*argv, "--set", "estimator.warm_start=/dev/zero"])
     assert (
         err
         == "hapticlab run: error: estimator: warm_start: /dev/zero is not a regular file (a folder, a device or a FIFO)"
@@ -180,8 +170,7 @@ def test_an_output_that_is_not_a_regular_file_is_never_replaced_even_with_force(
     good.write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n0,0,0,-1,0,0,0,1,0,0,0\n0.01,0,0,-1,0,0,0,1,0,0,0\n")
     node = tmp_path / "node"
     os.mkfifo(node)
-    assert main(["compensate", str(good), "-o", str(node), "--force"]) == 2
-    err = capsys.readouterr().err.strip()
+    err = one_line_error(capsys, ["compensate", str(good), "-o", str(node), "--force"])
     expected = f"-o {node}: is not a regular file (a device, a FIFO or a socket); give a file name"
     assert err == f"hapticlab compensate: error: {expected}"
     assert stat.S_ISFIFO(node.stat().st_mode)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import socket
 
 import pytest
+from helpers import one_line_error
 
 from hapticlab.core.errors import ConfigError
 from hapticlab.core.host.options import OptionError, listen_address
@@ -26,19 +27,9 @@ def test_any_other_address_needs_the_network_asked_for(host):
     assert listen_address("--address", host, allow_network=True) == host
 
 
-def one_error_line(capsys, argv: list[str]) -> str:
-    """``main(argv)`` must exit 2 with one line on stderr, the command's error line; that line."""
-    code = main(argv)
-    err = capsys.readouterr().err
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and "Traceback" not in err, (code, err)
-    assert lines[0].startswith(f"hapticlab {argv[0]}: error: "), err
-    return lines[0]
-
-
 def test_run_live_on_every_interface_is_refused_before_the_session_is_built(capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    line = one_error_line(capsys, ["run", "--live", "0.0.0.0:8765", "--set", "session.realtime=false"])
+    line = one_line_error(capsys, ["run", "--live", "0.0.0.0:8765", "--set", "session.realtime=false"])
     assert "--live: must be a loopback address" in line and "/haptic/command included" in line, line
     assert "--allow-network" in line
     assert list(tmp_path.iterdir()) == []  # no recording started
@@ -62,7 +53,7 @@ def test_the_python_api_refuses_it_too(tmp_path):
     ],
 )
 def test_an_emulator_on_a_network_address_is_refused(capsys, argv, option):
-    line = one_error_line(capsys, [*argv, "--duration", "0.1"])
+    line = one_line_error(capsys, [*argv, "--duration", "0.1"])
     assert f"{option}: must be a loopback address" in line and "the emulated device" in line, line
 
 

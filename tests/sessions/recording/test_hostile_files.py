@@ -5,9 +5,8 @@ from __future__ import annotations
 import json
 
 import pytest
+from helpers import one_line_error
 from mcap.writer import Writer
-
-from hapticlab.sessions.cli import main
 
 
 def deep_mcap(path, depth: int = 100_000) -> None:
@@ -27,8 +26,7 @@ def deep_mcap(path, depth: int = 100_000) -> None:
 def test_json_nested_100000_deep_is_bad_json_not_a_traceback(tmp_path, capsys, command):
     deep_mcap(tmp_path / "deep.mcap")
     argv = [command[0], str(tmp_path / "deep.mcap"), *(a.format(tmp=tmp_path) for a in command[1:])]
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
+    err = one_line_error(capsys, argv)
     assert err == (
         f"hapticlab {command[0]}: error: deep.mcap: /sensor/wrench message 1 is not valid JSON "
         "(nested too deeply: line 1 column 1 (char 0))"
@@ -63,7 +61,6 @@ def test_a_chunk_that_inflates_past_the_limit_is_refused_before_it_is_decompress
     bomb_mcap(path, 4 << 20)
     assert path.stat().st_size < 64 << 10
     argv = [command[0], str(path), *(a.format(tmp=tmp_path) for a in command[1:])]
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith(f"hapticlab {command[0]}: error: {path}: chunk at byte ") and "\n" not in err, err
+    err = one_line_error(capsys, argv)
+    assert err.startswith(f"hapticlab {command[0]}: error: {path}: chunk at byte "), err
     assert err.endswith("inflates to 4 MiB (at most 1 MiB): not a recording hapticlab reads"), err

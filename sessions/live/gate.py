@@ -31,7 +31,13 @@ The force is held at zero (the reason is recorded with each command) while:
 * the estimator gives no weight model (``params()`` with ``gravity_force_B`` and ``bias_force_S``): the lag
   watch cannot check the poses against the wrench, so the force stays off for good, with that reason;
 * an estimator event said the tool's weight changed (held ``PAYLOAD_HOLD_NS``);
-* a refused run behaved like a sensor-frame bias step (``watch.BiasWatch``):
+* a reading stepped faster than soft tissue pushes but slower than a glitch
+  (``watch.StepWatch``'s sudden step: a hard contact, or the sensor's zero
+  moving): held until the motion tells which (``drift.DriftWatch``: the residual
+  turned with the world, a contact; it kept its direction in the sensor, a bias
+  step), or the estimator sees free motion again for ``DOUBT_FREE_NS``;
+* the estimator's residual kept its direction in the sensor frame while the
+  tool turned (``drift.DriftWatch``: a bias step or a drift, in contact or not):
   held until the estimator has re-identified its bias and converged again,
   or, for an estimator that cannot, until the session is re-armed (a latched
   stop, see :meth:`HapticGate.rearm`).
@@ -51,7 +57,8 @@ import numpy as np
 from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReportsParameterStd
 from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
-from hapticlab.sessions.live.watch import LAG_LIMIT_S, BiasWatch, LagWatch, PoseWatch, StepWatch, StuckWatch
+from hapticlab.sessions.live.drift import DriftWatch
+from hapticlab.sessions.live.watch import LAG_LIMIT_S, LagWatch, PoseWatch, StepWatch, StuckWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
 """After an estimator's payload change the haptic force is held at zero this long (1 s): the change
@@ -60,6 +67,8 @@ show as a phantom force until the estimator sees the second change."""
 JUMP_HOLD_NS = 500_000_000
 """After the poses jump the force is held at zero this long (0.5 s): long enough for the lag watch, started
 afresh, to resolve a lag while the tool turns fast enough for the lag to matter."""
+DOUBT_FREE_NS = 100_000_000
+"""A sudden step is over once the estimator has seen free motion this long (0.1 s): the step went away."""
 CONVERGENCE_LOSS_NS = 20_000_000
 """A converged force stage whose flag has been down this long (20 ms of samples) is no longer converged."""
 LATCHED = "sensor bias step: re-arm needed"
@@ -100,7 +109,7 @@ class HapticGate:
         self.reidentifies = reidentifies
         self.stale_timeout_ns = stale_timeout_ns
         self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
-        self.bias = BiasWatch()
+        self.drift = DriftWatch()
         self.steps, self.stuck = StepWatch(), StuckWatch()
         self.lag = LagWatch(max_turn_rate)
         screen_kernel.warm_up()  # compiled (or loaded) before the first tick
@@ -114,6 +123,8 @@ class HapticGate:
         self.unidentified = ""  # the estimator's last not_identifiable message about the weight ("" none)
         self.bias_hold = ""  # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "latched"
         self.contact_now = False  # the estimator's contact flag for the newest sample
+        self.doubt = ""  # the sudden step in hand ("" none)
+        self.free_since_ns: int | None = None  # the estimator has seen free motion since (None: a contact now)
         self.last_sample_ns: int | None = None
         self.data_reason = ""
         self.fault = ""  # the fault the last event named
@@ -163,7 +174,7 @@ class HapticGate:
     ) -> tuple[np.ndarray, str, list[Event]]:
         """A new sensor block arrived (every sample), with the screen's ``usable`` mask and ``reason``
         (``screen.screen``): those with the samples of a reading that jumped faster than any contact held out
-        (``watch.StepWatch``), and the events of a jump that stayed (a bias step, as the bias watch's)."""
+        (``watch.StepWatch``), and the events of a jump that stayed (a bias step, as the drift watch's)."""
         self.last_sample_ns = int(block.t_ns[-1])
         held = self.steps.add(block.t_ns, block.force_S)
         stuck = self.stuck.add(block.t_ns, block.force_S, block.torque_S)
@@ -172,6 +183,10 @@ class HapticGate:
             step, self.steps.persisted = self.steps.persisted, None
             if not self.bias_hold:
                 events += self._bias_step(step, now_ns, "the reading jumped and stayed")
+        if self.steps.sudden:
+            if self.parameters_known and not self.bias_hold and not self.doubt:
+                self.doubt, self.free_since_ns = self.steps.sudden, None
+            self.steps.sudden = ""
         if held.any():
             usable, reason = usable & ~held, reason or self.steps.jump
         if stuck.any():
@@ -221,13 +236,32 @@ class HapticGate:
             events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
         if self.parameters_known and params is not None:
             self._watch_lag(block, params, R_SE)
-        # (once the parameters are known, as the lag watch: a refused run before the tool is identified says
-        # nothing of a bias step, and kalman's flag at the pose is up long before)
-        step = self.bias.add(block, est) if self.parameters_known and not self.bias_hold else None
-        if step is not None:
-            events += self._bias_step(
-                step, now_ns, "the refused force stayed fixed in the sensor frame while the tool turned"
+        # (once the parameters are known, as the lag watch: a residual before the tool is identified says
+        # nothing of the sensor's bias)
+        verdict = (
+            self.drift.add(est.t_ns, est.contact_force_S, block.R_EB, R_SE)
+            if self.parameters_known and not self.bias_hold
+            else ""
+        )
+        if verdict == "sensor":
+            in_S, in_B = self.drift.misfits
+            how = (
+                "the residual force kept its direction in the sensor frame while the tool turned "
+                f"(off it by {in_S:.2f} N RMS in the sensor, {in_B:.2f} N in the world): the sensor's zero moved, "
+                "or the estimator took a contact into its bias"
             )
+            events += self._bias_step(self.drift.offset_S, now_ns, how)
+        elif verdict == "world" and self.doubt:
+            message = f"the sudden step ({self.doubt}) turned with the world: a contact"
+            events.append(Event(now_ns, "contact_confirmed", message))
+            self.doubt = ""
+        if self.doubt:
+            if self.contact_now:
+                self.free_since_ns = None
+            elif self.free_since_ns is None:
+                self.free_since_ns = int(est.t_ns[-1])
+            elif int(est.t_ns[-1]) - self.free_since_ns >= DOUBT_FREE_NS:
+                self.doubt = ""
         return events
 
     @property
@@ -243,7 +277,7 @@ class HapticGate:
         sample as a contact (a bias step that persists is seen as one; so is a
         real contact: free the tool, then re-arm). Refused otherwise
         (``haptic_rearm_refused``, naming why), and the stop stays latched.
-        After a re-arm the bias watch starts afresh: a step that comes back latches again.
+        After a re-arm the drift watch starts afresh: a step that comes back latches again.
         """
         if not self.latched:
             return None
@@ -254,7 +288,8 @@ class HapticGate:
         if other:
             self.bias_hold = "latched"
             return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
-        self.bias, self.steps = BiasWatch(), StepWatch()
+        self.steps, self.doubt = StepWatch(), ""
+        self.drift.reset()
         return Event(
             now_ns, "haptic_rearmed", f"haptic force re-armed by {source}; it ramps in from zero", {"source": source}
         )
@@ -263,6 +298,8 @@ class HapticGate:
         """A bias step of ``step`` (3,) N in S, seen as ``how``: the estimator re-identifies its bias, or the
         force latches off (the events: ``bias_step``, and ``haptic_latched`` when latched)."""
         message = f"sensor bias step of {np.linalg.norm(step):.2f} N: {how}"
+        self.drift.reset()
+        self.doubt = ""
         if self.reidentifies is not None:
             self.reidentifies.reidentify_bias("bias step")
             self.bias_hold = "drop"
@@ -306,6 +343,8 @@ class HapticGate:
             return LATCHED
         if self.bias_hold:
             return "sensor bias step: re-identifying"
+        if self.doubt:
+            return f"sudden force step ({self.doubt}): held until the motion tells a contact from the sensor"
         if not self.ready[0]:
             return f"estimator not converged ({self.unidentified})" if self.unidentified else "estimator not converged"
         if (

@@ -1,4 +1,4 @@
-"""Watches on the live streams that timestamps alone cannot give: frozen poses, a bias step in the sensor.
+"""Watches on the live streams that timestamps alone cannot give: frozen poses, late poses, steps and a stuck sensor.
 
 :class:`PoseWatch`: a real arm's reported pose is never bit-identical from one
 sample to the next (its encoders jitter); a controller whose thread is stuck
@@ -8,22 +8,14 @@ consecutive poses further apart than the arm can move between their stamps
 (``max_turn_rate``, ``max_speed``) are a jump: a stream that fell behind or
 caught up at once, or a glitch.
 
-:class:`BiasWatch`: after a knock or a temperature jump the sensor's zero moves;
-a converged estimator then sees a sustained "contact". A real contact acts on
-the tool from outside, so when the tool turns the contact force turns in the
-sensor frame; a bias step is fixed in the sensor frame. A refused run whose
-force stays the same in S (within ``BIAS_TOLERANCE``) all along while the tool
-turns so that a force fixed in the world would have moved in S by three times
-that is a bias step, not a contact. (A turn about the
-force's own axis tells nothing: a push along the instrument while it rolls
-stays the same in S too, so only the turn that moves the force's direction
-counts.)
-
 :class:`StepWatch`: a contact is a force between the tool and the world; it grows as the tool presses
 in, so it cannot jump tens of newtons between two samples. A reading that moves further from the
 last one than ``MAX_CONTACT_RATE`` allows (plus ``STEP_MARGIN_N`` of noise) is a glitch of the sensor
 or its wire, in range and with a good status all the same: its samples are held out until the reading
 is back where it was before the jump; one that stays away for ``STEP_PERSIST_NS`` is a bias step (a knock).
+A step faster than soft tissue pushes (``SUDDEN_RATE``) but within a contact's is *sudden*: a hard
+contact (bone, another instrument) or the sensor's zero moving; the watch says so (``sudden``) and the
+gate holds the force until the motion tells which (``drift.DriftWatch``).
 
 :class:`StuckWatch`: a working sensor's readings are never bit-identical for long, its noise sees to
 that; a converter or a firmware buffer that froze repeats one reading with fresh stamps and a good status.
@@ -32,24 +24,12 @@ that; a converter or a firmware buffer that froze repeats one reading with fresh
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
 
-from hapticlab.core.types import AlignedSamples, Estimates, PoseSample
+from hapticlab.core.types import AlignedSamples, PoseSample
 from hapticlab.sessions.live.watch_kernel import lag_sums
 from hapticlab.sessions.live.watch_kernel import warm_up as warm_up_lag
-
-BIAS_TOLERANCE = 0.15
-"""A run's offset in S may depart from its start by this fraction of its size (or BIAS_FLOOR_N) and
-still be a bias step."""
-BIAS_FLOOR_N = 0.15
-"""About five standard deviations of a 20 ms mean of a Gamma-class sensor's noise (0.12 N per sample, the
-simulated sensor's default), N."""
-BIAS_MIN_OFFSET_N = 0.5
-"""Offsets smaller than this are left to the estimator (they are within its contact threshold's noise)."""
-BIAS_WINDOW_NS = 20_000_000
-"""The offset is averaged over this long at the run's start and at its end (noise), ns."""
 
 
 class PoseWatch:
@@ -118,73 +98,6 @@ class PoseWatch:
         assert self.newest_ns is not None  # add() sets it with changed_ns
         held = self.newest_ns - self.changed_ns
         return held if held > self.timeout_ns else 0
-
-
-class BiasWatch:
-    """Finds a sensor-frame bias step among the samples an estimator refused as contact.
-
-    Over a run of refused samples it keeps the mean contact force (in S) of the
-    run's first ``BIAS_WINDOW_NS`` and the largest departure of the running
-    mean from it. The run is a bias step when that departure stayed within the
-    tolerance for the whole run (a bias step is constant; a contact rises and
-    falls) while the tool turned enough that a force fixed in the world would
-    have moved in S by three tolerances or more.
-    """
-
-    def __init__(self) -> None:
-        self.start_ns: int | None = None  # the refused run's first sample
-        self.R_EB_start: np.ndarray | None = None
-        self.first: list[list[float]] = []  # contact force (in S) over the run's first window
-        self.before: np.ndarray | None = None  # their mean, once the window is full
-        self.recent: deque[tuple[int, list[float]]] = deque()  # the last BIAS_WINDOW_NS of the run
-        self.recent_sum = [0.0, 0.0, 0.0]  # their sum (a running sum: a mean per tick, not a pass over them)
-        self.max_departure = 0.0
-
-    def add(self, block: AlignedSamples, est: Estimates) -> np.ndarray | None:
-        """A block's estimates; the step (3,) N in S when the refused run it ends is a bias step, else None."""
-        contact = est.contact
-        if not contact[-1]:
-            self.start_ns = None
-            return None
-        free: tuple[int, ...] | np.ndarray = () if contact.all() else np.flatnonzero(~contact)
-        k = int(free[-1]) + 1 if len(free) else 0  # the first row of the run this block ends with
-        if self.start_ns is None or len(free):
-            self.start_ns, self.R_EB_start = int(block.t_ns[k]), block.R_EB[k]
-            self.first, self.before, self.max_departure = [], None, 0.0
-            self.recent, self.recent_sum = deque(), [0.0, 0.0, 0.0]
-        total, recent = self.recent_sum, self.recent
-        for t, f in zip(block.t_ns[k:].tolist(), est.contact_force_S[k:].tolist()):
-            if not all(map(math.isfinite, f)):  # (never expected of a contact row) it would poison the sum
-                continue
-            if self.before is None and t - self.start_ns <= BIAS_WINDOW_NS:
-                self.first.append(f)
-            recent.append((t, f))
-            total[0] += f[0]
-            total[1] += f[1]
-            total[2] += f[2]
-        newest = int(block.t_ns[-1])
-        while recent and newest - recent[0][0] > BIAS_WINDOW_NS:
-            f = recent.popleft()[1]
-            total[0] -= f[0]
-            total[1] -= f[1]
-            total[2] -= f[2]
-        if newest - self.start_ns < 2 * BIAS_WINDOW_NS or not recent or not self.first:
-            return None
-        if self.before is None:
-            self.before = np.mean(self.first, axis=0)
-        now = np.array(total) / len(recent)
-        size = float(np.linalg.norm(self.before))
-        tolerance = max(BIAS_TOLERANCE * size, BIAS_FLOOR_N)
-        self.max_departure = max(self.max_departure, float(np.linalg.norm(now - self.before)))
-        if size < BIAS_MIN_OFFSET_N or self.max_departure > tolerance:
-            return None
-        # a force fixed in the world, seen in S along `before` at the run's start, would now be along R_turn @ before
-        assert self.R_EB_start is not None  # set with start_ns
-        R_turn = block.R_EB[-1] @ self.R_EB_start.T  # S (= E up to the mount) now, from S at the start
-        if np.linalg.norm(R_turn @ self.before - self.before) < 3 * tolerance:
-            return None
-        self.start_ns = None
-        return now
 
 
 _EYE = np.eye(3)
@@ -293,6 +206,9 @@ STEP_RETURN_RATE = 100.0
 """How far a real contact may have moved while a glitch lasted, N/s: the reading is back when it is within
 ``STEP_MARGIN_N`` plus this times the glitch's age of the reading before the jump (and nearer it than half
 the jump)."""
+SUDDEN_RATE = 100.0
+"""The fastest soft tissue pushes, N/s: 10³ N/m at 0.1 m/s. A step beyond this (plus ``STEP_MARGIN_N``)
+between two samples is sudden: a hard contact, or the sensor."""
 STEP_PERSIST_NS = 200_000_000
 """A jump that has not come back after this long is a bias step of the sensor, not a glitch, ns."""
 
@@ -302,8 +218,10 @@ class StepWatch:
 
     ``add`` returns the (N,) mask of samples held out. ``jump`` describes the jump in hand ("" when none);
     ``persisted`` is the jump's size in S, (3,) N, once it has stayed ``STEP_PERSIST_NS`` (then the watch
-    starts afresh from the new level: a bias step is the gate's to handle). The arithmetic is in Python
-    floats: a live block is one to seven samples, where numpy's calls cost ten times more.
+    starts afresh from the new level: a bias step is the gate's to handle). ``sudden`` describes the last
+    sudden step (faster than ``SUDDEN_RATE``, slower than a jump; its samples are not held out) until the
+    gate takes it (sets it to ""). The arithmetic is in Python floats: a live block is one to seven
+    samples, where numpy's calls cost ten times more.
     """
 
     def __init__(self) -> None:
@@ -311,6 +229,7 @@ class StepWatch:
         self.level: list[float] | None = None  # the reading before the jump in hand (None: no jump)
         self.jumped_ns, self.jump_N = 0, 0.0
         self.jump = ""
+        self.sudden = ""
         self.persisted: np.ndarray | None = None
 
     def add(self, t_ns: np.ndarray, force_S: np.ndarray) -> np.ndarray:
@@ -338,16 +257,18 @@ class StepWatch:
                 if step > MAX_CONTACT_RATE * dt_s + STEP_MARGIN_N:
                     self.level, self.jumped_ns, self.jump_N, held[k] = self.last[1], t, step, True
                     self.jump = f"sensor reading jumped {step:.3g} N in {dt_s * 1e3:.3g} ms: faster than a contact"
+                elif step > SUDDEN_RATE * dt_s + STEP_MARGIN_N:
+                    self.sudden = f"{step:.3g} N in {dt_s * 1e3:.3g} ms"
             if not held[k] or self.last is None:
                 self.last = (t, f)
         return held
 
     def _within(self, times: list[int], forces: list[list[float]]) -> bool:
-        """Every step from the newest reading on is within a contact's."""
+        """Every step from the newest reading on is within soft tissue's (so within a contact's too)."""
         assert self.last is not None  # (the caller checks)
         t_last, f_last = self.last
         for t, f in zip(times, forces):
-            if math.dist(f, f_last) > MAX_CONTACT_RATE * (t - t_last) * 1e-9 + STEP_MARGIN_N:
+            if math.dist(f, f_last) > SUDDEN_RATE * (t - t_last) * 1e-9 + STEP_MARGIN_N:
                 return False
             t_last, f_last = t, f
         return True

@@ -69,11 +69,25 @@ def test_a_lag_that_builds_up_is_caught_from_the_motion_and_held_until_it_is_gon
     assert r["event"].startswith("fault: kinematics out of step with the sensor")
 
 
-def test_a_bias_step_is_told_from_a_contact_when_the_tool_turns(clean):
-    r = measure("rls", clean, FAULTS["sensor bias step +2 N"])
-    print(f"\nbias step: {r}")
-    assert r["detected_after_s"] is not None and r["detected_after_s"] <= 1.0  # the demo's tool keeps turning
-    assert r["event"].startswith("bias_step: sensor bias step of 2.0")
+@pytest.mark.parametrize("label", ["sensor bias step +2 N", "sensor bias step +2 N during a contact"])
+def test_a_sudden_step_holds_the_force_until_the_motion_shows_it_is_the_sensor_s(clean, label):
+    """2 N in one sample is faster than soft tissue pushes, slower than a glitch: the force goes off at the
+    step (no contact rendered meanwhile), and once the tool has turned the residual is seen to keep its
+    direction in the sensor frame: a bias step, re-identified. In a contact, that is told once it ends."""
+    fault = dict(FAULTS[label])
+    duration_s = fault.pop("session_s", 7.0)
+    start_s = fault.get("start", FAULT_START_S)
+    t, force, _messages, events, t0 = session("rls", fault, duration_s)
+    first = next(e for e in events if (e.t_ns - t0) * 1e-9 >= start_s and e.kind == "fault")
+    assert first.message.startswith("sudden force step (2.")
+    assert (first.t_ns - t0) * 1e-9 - start_s <= 0.002
+    step = next(e for e in events if e.kind == "bias_step")
+    t_step = (step.t_ns - t0) * 1e-9
+    assert "kept its direction in the sensor frame while the tool turned" in step.message
+    assert t_step - start_s <= (1.0 if label == "sensor bias step +2 N" else 2.0)  # the contact ends 7.5 s
+    held = (t >= start_s + 0.002) & (t <= t_step)
+    assert np.all(np.linalg.norm(force[held], axis=1) == 0.0)
+    assert not [e for e in events if "kinematics" in e.message]  # a sensor fault is never the kinematics'
 
 
 @pytest.mark.parametrize("estimator", ["rls", "kalman"])
@@ -93,7 +107,7 @@ def test_after_a_bias_step_the_estimator_re_identifies_and_the_force_comes_back_
 
 def test_no_fault_is_seen_in_clean_sessions(long_session):
     """Demo sessions with indentations while the tool turns, three seeds and estimators: nothing is called a fault."""
-    for estimator, seed in (("rls", 2), ("kalman", 3), ("batch", 4)):
+    for estimator, seed in (("rls", 2), ("kalman", 3), ("batch", 5)):
         config, _ = load_config("demo")
         config = apply_overrides(
             config,
@@ -101,6 +115,29 @@ def test_no_fault_is_seen_in_clean_sessions(long_session):
         )
         events = session_events(config, long_session)
         assert not [e for e in events if e.kind in ("fault", "bias_step")], (estimator, seed)
+
+
+def test_a_bias_an_estimator_took_from_a_contact_is_caught_once_the_contact_is_gone(long_session, tmp_path):
+    """batch (no bias walk, no re-identification) takes part of the demo's second indentation (9.5-11 s) into its
+    bias: after it, with nothing touching, it renders 0.55-0.8 N (measured before the drift watch). That residual
+    keeps its direction in the sensor frame while the tool turns: caught before the next touch (12.5 s), and
+    batch cannot re-identify, so the force latches off."""
+    config, _ = load_config("demo")
+    config = apply_overrides(
+        config, ["session.realtime=false", "session.duration=15", "world.seed=4", "estimator.name=batch"]
+    )
+    result = long_session(build_session(config), out=tmp_path / "batch.mcap")
+    t0 = result.events[0].t_ns
+    (step,) = [e for e in result.events if e.kind == "bias_step"]
+    t_step = (step.t_ns - t0) * 1e-9
+    assert 11.0 < t_step < 12.5 and "kept its direction in the sensor frame" in step.message
+    rec = read_recording(result.path)
+    t = (rec.t_ns("/haptic/command") - t0) * 1e-9
+    force = np.array([np.linalg.norm(m["force_D"]) for _, m in rec.topics["/haptic/command"]])
+    untouched = (t > 11.2) & (t < t_step)  # the indentation's gone: all of this force was made up
+    assert untouched.any() and force[untouched].mean() > 0.4
+    assert np.all(force[(t > t_step) & (t < 14.9)] == 0.0)
+    assert "haptic_latched" in [e.kind for e in result.events]
 
 
 def session_events(config, run=run_session):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -174,7 +176,8 @@ def test_the_gate_counts_flag_flips_across_blocks_and_keeps_when_the_flag_went_d
             np.array(force, dtype=bool),
             np.array(torque, dtype=bool),
         )
-        events += gate.on_estimates(None, est, int(t[-1]))
+        block = SimpleNamespace(t_ns=t, R_EB=np.repeat(np.eye(3)[None], m, axis=0))  # (the drift watch's part)
+        events += gate.on_estimates(block, est, int(t[-1]))
         t0 += m
     # force: 0 0 1 | 1 0 | 0 | 0 0 1 1 0 1 0 -> up at 2, down at 4, up at 8, down at 10, up at 11, down at 12
     assert gate.flips == [6, 1] and gate.converged == [False, True]

@@ -28,7 +28,7 @@ def test_a_real_contact_and_the_noise_are_never_held_out():
     for rate_hz, seed in ((1000.0, 1), (7000.0, 2)):
         t_ns, force = readings(3.0, rate_hz, seed)
         watch = StepWatch()
-        assert not feed(watch, t_ns, force).any() and watch.jump == ""
+        assert not feed(watch, t_ns, force).any() and watch.jump == "" and watch.sudden == ""
 
 
 def test_a_60_n_glitch_is_held_out_from_its_first_sample_to_its_end():
@@ -49,6 +49,21 @@ def test_a_jump_that_stays_is_handed_over_as_a_bias_step():
     assert after[0] == 400 and len(after) == STEP_PERSIST_NS // MS  # held out until it had stayed 200 ms
     np.testing.assert_allclose(watch.persisted, [0.0, 20.0, 0.0], atol=0.6)  # the step, in S
     assert not held[400 + STEP_PERSIST_NS // MS :].any()  # then the new level is the reading's
+
+
+def test_a_2_n_step_is_sudden_but_not_held_out_and_a_fast_press_is_neither():
+    """2 N in 1 ms is faster than soft tissue pushes (100 N/s) and slower than a glitch (2000 N/s): said, not held
+    (it may be a hard contact); a press of 3 N over 50 ms (~94 N/s at its steepest) is a contact's."""
+    t_ns, force = readings(1.0, 1000.0, 4)
+    force[600:, 1] += 2.0
+    watch = StepWatch()
+    assert not feed(watch, t_ns, force).any()
+    assert watch.sudden.startswith("2.") and watch.sudden.endswith("N in 1 ms") and watch.jump == ""
+    t = t_ns * 1e-9
+    press = np.zeros_like(force)
+    press[:, 0] = 1.5 * (1 - np.cos(np.pi * np.clip((t - 0.5) / 0.05, 0, 1)))
+    watch = StepWatch()
+    assert not feed(watch, t_ns, readings(1.0, 1000.0, 5)[1] + press).any() and watch.sudden == ""
 
 
 def test_the_limit_grows_with_the_time_between_samples():

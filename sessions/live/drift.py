@@ -24,6 +24,7 @@ world: a needle's shaft friction while the tool pivots about the needle. docs/sa
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -56,7 +57,8 @@ class DriftWatch:
     """Tells a residual fixed in the sensor (a bias step or drift) from one fixed in the world (a contact).
 
     ``add`` takes each block the primary estimator refined and returns ``"sensor"``, ``"world"`` or ``""``
-    (see the module); ``offset_S`` is then the newest bin's mean in S, (3,) N. Per sample the work is a
+    (see the module); ``offset_S`` is then the newest bin's mean in S, (3,) N; ``size`` the last full
+    window's residual (RMS along its direction), N, for the gate to see it settle. Per sample the work is a
     running sum in Python floats (a live block is one to seven samples); the fits run once a bin.
     """
 
@@ -71,6 +73,7 @@ class DriftWatch:
         self.means_S: deque[list[float]] = deque(maxlen=WINDOW_BINS)
         self.means_B: deque[list[float]] = deque(maxlen=WINDOW_BINS)
         self.offset_S = np.zeros(3)
+        self.size = math.inf  # the last full window's residual along its direction (RMS), N; inf until one is full
         self.misfits = (0.0, 0.0)  # the last fits' misfits in S and in B, N (for the event's message)
 
     def add(self, t_ns: np.ndarray, contact_force_S: np.ndarray, R_EB: np.ndarray, R_SE: np.ndarray | None) -> str:
@@ -102,7 +105,7 @@ class DriftWatch:
             return ""
         size, in_S = misfit(np.array(self.means_S))
         _, in_B = misfit(np.array(self.means_B))
-        self.misfits = (in_S, in_B)
+        self.size, self.misfits = size, (in_S, in_B)
         if size < MIN_OFFSET_N:
             return ""
         if in_B**2 - in_S**2 >= EXCESS_N**2 and in_S * RATIO <= in_B:

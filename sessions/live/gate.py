@@ -40,7 +40,10 @@ The force is held at zero (the reason is recorded with each command) while:
   tool turned (``drift.DriftWatch``: a bias step or a drift, in contact or not):
   held until the estimator has re-identified its bias and converged again,
   or, for an estimator that cannot, until the session is re-armed (a latched
-  stop, see :meth:`HapticGate.rearm`).
+  stop, see :meth:`HapticGate.rearm`); then until the residual has settled: a
+  full window of the drift watch under ``drift.MIN_OFFSET_N`` (a bias that
+  keeps drifting faster than the estimator follows keeps the force off, and
+  what it did during a contact, where it cannot be seen, shows after it).
 
 Every fault (a reason that is not the estimator's ordinary warming up) is also
 an event naming it, recorded when it starts. A latched stop is the event
@@ -57,7 +60,7 @@ import numpy as np
 from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReportsParameterStd
 from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
-from hapticlab.sessions.live.drift import DriftWatch
+from hapticlab.sessions.live.drift import MIN_OFFSET_N, DriftWatch
 from hapticlab.sessions.live.watch import LAG_LIMIT_S, LagWatch, PoseWatch, StepWatch, StuckWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
@@ -121,7 +124,9 @@ class HapticGate:
         self.parameters_lost = False
         self.hold_until_ns = 0
         self.unidentified = ""  # the estimator's last not_identifiable message about the weight ("" none)
-        self.bias_hold = ""  # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "latched"
+        # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "settle" (the residual to settle) |
+        # "latched"
+        self.bias_hold = ""
         self.contact_now = False  # the estimator's contact flag for the newest sample
         self.doubt = ""  # the sudden step in hand ("" none)
         self.free_since_ns: int | None = None  # the estimator has seen free motion since (None: a contact now)
@@ -181,7 +186,7 @@ class HapticGate:
         events = []
         if self.steps.persisted is not None:
             step, self.steps.persisted = self.steps.persisted, None
-            if not self.bias_hold:
+            if self.bias_hold in ("", "settle"):
                 events += self._bias_step(step, now_ns, "the reading jumped and stayed")
         if self.steps.sudden:
             if self.parameters_known and not self.bias_hold and not self.doubt:
@@ -232,7 +237,8 @@ class HapticGate:
             self.bias_hold = "rise"
         # (and the parameters known again: kalman's flag at the pose is back before the tool is re-identified)
         elif self.bias_hold == "rise" and self.converged[0] and not self.parameters_lost:
-            self.bias_hold = ""
+            self.bias_hold = "settle"
+            self.drift.reset()
             events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
         if self.parameters_known and params is not None:
             self._watch_lag(block, params, R_SE)
@@ -240,9 +246,12 @@ class HapticGate:
         # nothing of the sensor's bias)
         verdict = (
             self.drift.add(est.t_ns, est.contact_force_S, block.R_EB, R_SE)
-            if self.parameters_known and not self.bias_hold
+            if self.parameters_known and self.bias_hold in ("", "settle")
             else ""
         )
+        if self.bias_hold == "settle" and self.drift.size < MIN_OFFSET_N:
+            self.bias_hold = ""
+            events.append(Event(now_ns, "bias_settled", f"the residual settled under {MIN_OFFSET_N:g} N"))
         if verdict == "sensor":
             in_S, in_B = self.drift.misfits
             how = (
@@ -341,6 +350,10 @@ class HapticGate:
             )
         if self.bias_hold == "latched":
             return LATCHED
+        if self.bias_hold == "settle":
+            size = self.drift.size
+            left = f"{size:.2f} N" if math.isfinite(size) else "a window to fill"
+            return f"sensor bias step: re-identifying (re-identified; the residual to settle: {left})"
         if self.bias_hold:
             return "sensor bias step: re-identifying"
         if self.doubt:

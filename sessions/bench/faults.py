@@ -63,9 +63,19 @@ FAULTS: dict[str, dict[str, Any]] = {
         "session_s": 9.0,
     },
     "sensor stuck, 2 s": {"kind": "sensor_stuck", "duration": 2.0},
+    "session started resting on tissue (2 N up), lifted off at 5 s": {
+        "contact": {"kind": "indentation", "start": -1.0, "duration": 6.0, "peak_force": 2.0, "ramp": 0.0},
+        "start": 5.0,
+    },
+    "session started resting on tissue (2 N up), lifted off over 0.1 s at 5 s": {
+        "contact": {"kind": "indentation", "start": -1.1, "duration": 6.2, "peak_force": 2.0, "ramp": 0.1},
+        "start": 5.0,
+    },
 }
 """The faults, each injected at ``FAULT_START_S`` into a ``DURATION_S`` session unless it says otherwise
-(``start``, ``session_s``: the bias step lands in the demo's first contact, 6-7.5 s; the ramp needs 10 s)."""
+(``start``, ``session_s``: the bias step lands in the demo's first contact, 6-7.5 s; the ramp needs 10 s).
+A row with a ``contact`` adds it to the world instead (the session starts with the tool resting on
+tissue, straight up: a lighter tool to any estimator), and is measured from its ``start`` (the lift)."""
 
 
 def session(
@@ -76,7 +86,9 @@ def session(
     config = apply_settings(
         config, {"session.realtime": False, "session.duration": duration_s, "estimator.name": estimator}
     )
-    if fault is not None:
+    if fault is not None and "contact" in fault:
+        config["world"]["contacts"] = [*config["world"].get("contacts", []), fault["contact"]]
+    elif fault is not None:
         config["world"]["faults"] = [{"start": FAULT_START_S, **fault}]
     with tempfile.TemporaryDirectory() as folder:
         result = run_session(build_session(config), out=Path(folder) / "faults.mcap")
@@ -114,7 +126,9 @@ def measure(estimator: str, clean, fault: dict[str, Any]) -> dict[str, Any]:
     back = np.flatnonzero((t[:n] >= end) & ((made_up < 0.05) | faulty))
     window = after & (t[:n] <= (t[back[0]] if len(back) else t[n - 1]))
     zeros = np.flatnonzero(after & (np.linalg.norm(force[:n], axis=1) == 0.0))
-    event = next((e for e in events if (e.t_ns - t0) * 1e-9 >= start_s and e.kind in ("fault", "bias_step")), None)
+    event = next(
+        (e for e in events if (e.t_ns - t0) * 1e-9 >= start_s and e.kind in ("fault", "bias_step", "weight_step")), None
+    )
     return {
         "made_up_force_N": float(made_up[window].max()) if window.any() else 0.0,
         "detected_after_s": None if t_detect is None else t_detect - start_s,

@@ -45,12 +45,20 @@ RATIO = 2.0
 """...and miss by this factor (RMS) more than the frame the residual keeps its direction in."""
 
 
-def misfit(means: np.ndarray) -> tuple[float, float]:
-    """(size, misfit) of (n, 3) means, N: the RMS along their best single direction through the origin
-    (the largest singular value / √n) and the RMS off it (the other two)."""
-    s = np.linalg.svd(means, compute_uv=False)
+def misfit(means: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """(size, misfit, direction) of (n, 3) means: the RMS along their best single direction through the
+    origin (the largest singular value / √n), N; the RMS off it (the other two), N; that direction (3,),
+    its sign that of the means' sum along it."""
+    _, s, Vt = np.linalg.svd(means, full_matrices=False)
     n = len(means)
-    return float(s[0]) / n**0.5, float(np.sqrt((s[1] ** 2 + s[2] ** 2) / n))
+    u = Vt[0] if float(means.sum(axis=0) @ Vt[0]) >= 0 else -Vt[0]
+    return float(s[0]) / n**0.5, float(np.sqrt((s[1] ** 2 + s[2] ** 2) / n)), u
+
+
+def along(u: np.ndarray, v: list[float], angle: float) -> bool:
+    """``u`` (unit) and ``v`` point along the same line, either way, within ``angle`` rad."""
+    norm = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+    return norm > 0 and abs(float(u[0] * v[0] + u[1] * v[1] + u[2] * v[2])) / norm >= math.cos(angle)
 
 
 class DriftWatch:
@@ -58,7 +66,8 @@ class DriftWatch:
 
     ``add`` takes each block the primary estimator refined and returns ``"sensor"``, ``"world"`` or ``""``
     (see the module); ``offset_S`` is then the newest bin's mean in S, (3,) N; ``size`` the last full
-    window's residual (RMS along its direction), N, for the gate to see it settle. Per sample the work is a
+    window's residual (RMS along its direction), N, for the gate to see it settle, and ``direction_B`` that
+    direction in B (a world verdict along gravity is a weight's). Per sample the work is a
     running sum in Python floats (a live block is one to seven samples); the fits run once a bin.
     """
 
@@ -74,6 +83,7 @@ class DriftWatch:
         self.means_B: deque[list[float]] = deque(maxlen=WINDOW_BINS)
         self.offset_S = np.zeros(3)
         self.size = math.inf  # the last full window's residual along its direction (RMS), N; inf until one is full
+        self.direction_B = np.zeros(3)  # the last full window's direction in B (unit; zero until one is full)
         self.misfits = (0.0, 0.0)  # the last fits' misfits in S and in B, N (for the event's message)
 
     def add(self, t_ns: np.ndarray, contact_force_S: np.ndarray, R_EB: np.ndarray, R_SE: np.ndarray | None) -> str:
@@ -103,8 +113,8 @@ class DriftWatch:
         self.offset_S = mean_S
         if len(self.means_S) < WINDOW_BINS:
             return ""
-        size, in_S = misfit(np.array(self.means_S))
-        _, in_B = misfit(np.array(self.means_B))
+        size, in_S, _ = misfit(np.array(self.means_S))
+        _, in_B, self.direction_B = misfit(np.array(self.means_B))
         self.size, self.misfits = size, (in_S, in_B)
         if size < MIN_OFFSET_N:
             return ""

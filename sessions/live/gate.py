@@ -1,54 +1,26 @@
 """The haptic gate: at every tick, may the contact force reach the trainee's hand, and if not, why not.
 
-The force is held at zero (the reason is recorded with each command) while:
+The force is held at zero, the reason recorded with each command, on any doubt (docs/safety.md lists every
+rule with its reason, in the order :meth:`HapticGate.reason` checks them):
 
-* the newest sensor sample is older than the stale timeout ("no sensor data");
-* the newest block had stale kinematics, a sensor status bit, a non-finite
-  reading, or a reading beyond the sensor's range with a good status
-  (implausible: the sensor would have saturated);
-* a reading jumped from the last one faster than any contact can change
-  (``watch.StepWatch``: a glitch in range with a good status): its samples
-  are held out until the reading is back; a jump that stays is a bias step;
-* the sensor repeats one reading bit for bit (``watch.StuckWatch``: a stuck
-  converter, fresh stamps and a good status), for ``STUCK_NS`` or longer;
-* the robot has reported bit-identical poses for longer than
-  ``frozen_pose_timeout`` (frozen kinematics: fresh timestamps, no motion);
-* two consecutive poses moved further than the arm can between their stamps
-  (``max_turn_rate``, ``max_speed``): a stream that fell behind, caught up or
-  glitched; held ``JUMP_HOLD_NS`` while the lag watch starts afresh;
-* the poses are out of step with the wrench by more than ``LAG_LIMIT_S``,
-  estimated from the residual's correlation with the motion
-  (``watch.LagWatch``: late poses stamped as current);
-* the estimator's force stage has not converged yet, or its current state
-  says it no longer is: for an estimator that reports its parameters' std, that
-  std (checked at every block) is above ``ready_force_std`` again; for one
-  that does not, its current flag has been down for ``CONVERGENCE_LOSS_NS``
-  (Algorithm 1 recomputes ‖Δx‖ < ε at every update, so its flag flickers after
-  convergence while the estimate still settles: the std says whether the
-  parameters are known, the flag only whether the last update moved them);
-* its force-stage parameters are not yet known to ``ready_force_std`` (for an
-  estimator that reports their std), or are no longer (the std grew back);
-* the estimator gives no weight model (``params()`` with ``gravity_force_B`` and ``bias_force_S``): the lag
-  watch cannot check the poses against the wrench, so the force stays off for good, with that reason;
-* an estimator event said the tool's weight changed (held ``PAYLOAD_HOLD_NS``);
-* a reading stepped faster than soft tissue pushes but slower than a glitch
-  (``watch.StepWatch``'s sudden step: a hard contact, or the sensor's zero
-  moving): held until the motion tells which (``drift.DriftWatch``: the residual
-  turned with the world, a contact; it kept its direction in the sensor, a bias
-  step), or the estimator sees free motion again for ``DOUBT_FREE_NS``;
-* the estimator's residual kept its direction in the sensor frame while the
-  tool turned (``drift.DriftWatch``: a bias step or a drift, in contact or not):
-  held until the estimator has re-identified its bias and converged again,
-  or, for an estimator that cannot, until the session is re-armed (a latched
-  stop, see :meth:`HapticGate.rearm`); then until the residual has settled: a
-  full window of the drift watch under ``drift.MIN_OFFSET_N`` (a bias that
-  keeps drifting faster than the estimator follows keeps the force off, and
-  what it did during a contact, where it cannot be seen, shows after it).
+* the data: no sensor data within the stale timeout; a status bit, a non-finite reading, one beyond the
+  sensor's range (``screen.py``); a reading that jumped faster than any contact, or stuck
+  (``watch.StepWatch``, ``watch.StuckWatch``);
+* the poses: frozen, jumped, or out of step with the wrench (``watch.PoseWatch``, ``watch.LagWatch``);
+* the estimator: not converged, or no longer (its parameters' std above ``ready_force_std`` again, or,
+  without a std, its flag down for ``CONVERGENCE_LOSS_NS``: Algorithm 1's flag flickers while the estimate
+  still settles); no weight model to check the poses with; its payload change (``PAYLOAD_HOLD_NS``);
+* the frame the residual lives in (``drift.DriftWatch``): a step faster than soft tissue pushes is held
+  until the residual turns with the world (a contact), keeps its direction in the world along gravity (a
+  weight step), keeps it in the sensor (a bias step), or the estimator sees free motion for
+  ``DOUBT_FREE_NS``; a residual that keeps its direction in the sensor while the tool turns (a bias step
+  or drift, in contact or not) is re-identified by the estimator (or latches the force off until a
+  re-arm, :meth:`HapticGate.rearm`), and the force waits for the residual to settle (a full window under
+  ``drift.MIN_OFFSET_N``: a bias still drifting, or one that moved unseen during a contact, stays off).
 
-Every fault (a reason that is not the estimator's ordinary warming up) is also
-an event naming it, recorded when it starts. A latched stop is the event
-``haptic_latched``; a re-arm ``haptic_rearmed``, a refused one ``haptic_rearm_refused``
-naming why.
+Every fault (a reason that is not the estimator's ordinary warming up) is also an event naming it, recorded
+when it starts. A latched stop is the event ``haptic_latched``; a re-arm ``haptic_rearmed``, a refused one
+``haptic_rearm_refused`` naming why.
 """
 
 from __future__ import annotations
@@ -60,7 +32,7 @@ import numpy as np
 from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReportsParameterStd
 from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
-from hapticlab.sessions.live.drift import MIN_OFFSET_N, DriftWatch
+from hapticlab.sessions.live.drift import MIN_OFFSET_N, DriftWatch, along
 from hapticlab.sessions.live.watch import LAG_LIMIT_S, LagWatch, PoseWatch, StepWatch, StuckWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
@@ -70,12 +42,16 @@ show as a phantom force until the estimator sees the second change."""
 JUMP_HOLD_NS = 500_000_000
 """After the poses jump the force is held at zero this long (0.5 s): long enough for the lag watch, started
 afresh, to resolve a lag while the tool turns fast enough for the lag to matter."""
+WEIGHT_TILT = 0.25
+"""A sudden step whose force keeps its direction in the world within this angle of gravity (either way) is
+taken for a weight change, not a contact, rad (``plugins.estimators.kalman.payload.MAX_TILT``)."""
 DOUBT_FREE_NS = 100_000_000
 """A sudden step is over once the estimator has seen free motion this long (0.1 s): the step went away."""
 CONVERGENCE_LOSS_NS = 20_000_000
 """A converged force stage whose flag has been down this long (20 ms of samples) is no longer converged."""
 LATCHED = "sensor bias step: re-arm needed"
-"""The reason of the latched stop (a bias step the estimator cannot re-identify)."""
+"""The reason of the latched stop after a bias step the estimator cannot re-identify (after a weight step:
+"weight step: re-arm needed")."""
 WARMING_UP = ("estimator not converged", "parameters not yet identified")
 """Reasons that are the estimator's ordinary start, not faults (no event of their own)."""
 
@@ -127,6 +103,7 @@ class HapticGate:
         # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "settle" (the residual to settle) |
         # "latched"
         self.bias_hold = ""
+        self.hold_cause = "sensor bias step"  # what the bias hold is for: "sensor bias step" | "weight step"
         self.contact_now = False  # the estimator's contact flag for the newest sample
         self.doubt = ""  # the sudden step in hand ("" none)
         self.free_since_ns: int | None = None  # the estimator has seen free motion since (None: a contact now)
@@ -261,9 +238,18 @@ class HapticGate:
             )
             events += self._bias_step(self.drift.offset_S, now_ns, how)
         elif verdict == "world" and self.doubt:
-            message = f"the sudden step ({self.doubt}) turned with the world: a contact"
-            events.append(Event(now_ns, "contact_confirmed", message))
-            self.doubt = ""
+            gravity = None if params is None else params.get("gravity_force_B")
+            if gravity is not None and along(self.drift.direction_B, gravity, WEIGHT_TILT):
+                how = (
+                    f"the sudden step ({self.doubt}) kept its direction in the world, along gravity: the tool's "
+                    "weight changed (a load hung on it or let go, or the session started with it resting on "
+                    "something), not a contact"
+                )
+                events += self._bias_step(self.drift.size * self.drift.direction_B, now_ns, how, "weight_step")
+            else:
+                message = f"the sudden step ({self.doubt}) turned with the world: a contact"
+                events.append(Event(now_ns, "contact_confirmed", message))
+                self.doubt = ""
         if self.doubt:
             if self.contact_now:
                 self.free_since_ns = None
@@ -303,10 +289,12 @@ class HapticGate:
             now_ns, "haptic_rearmed", f"haptic force re-armed by {source}; it ramps in from zero", {"source": source}
         )
 
-    def _bias_step(self, step: np.ndarray, now_ns: int, how: str) -> list[Event]:
-        """A bias step of ``step`` (3,) N in S, seen as ``how``: the estimator re-identifies its bias, or the
-        force latches off (the events: ``bias_step``, and ``haptic_latched`` when latched)."""
-        message = f"sensor bias step of {np.linalg.norm(step):.2f} N: {how}"
+    def _bias_step(self, step: np.ndarray, now_ns: int, how: str, kind: str = "bias_step") -> list[Event]:
+        """A bias step of ``step`` (3,) N (or, ``kind`` "weight_step", a weight step), seen as ``how``: the
+        estimator re-identifies its bias, or the force latches off (the events: ``kind``, and ``haptic_latched``
+        when latched)."""
+        what = self.hold_cause = "sensor bias step" if kind == "bias_step" else "weight step"
+        message = f"{what} of {np.linalg.norm(step):.2f} N: {how}"
         self.drift.reset()
         self.doubt = ""
         if self.reidentifies is not None:
@@ -316,10 +304,11 @@ class HapticGate:
         else:
             self.bias_hold = "latched"
             message += f"; {self.label} cannot re-identify it: force off until the session is re-armed"
-        events = [Event(now_ns, "bias_step", message, {"bias_step_force_S": step.tolist()})]
+        key = "bias_step_force_S" if kind == "bias_step" else "weight_step_force_B"
+        events = [Event(now_ns, kind, message, {key: step.tolist()})]
         if self.bias_hold == "latched":
-            latched = f"haptic force latched off: {LATCHED}; {self.label} cannot re-identify its bias"
-            events.append(Event(now_ns, "haptic_latched", latched, {"cause": "sensor bias step"}))
+            latched = f"haptic force latched off: {what}: re-arm needed; {self.label} cannot re-identify its bias"
+            events.append(Event(now_ns, "haptic_latched", latched, {"cause": what}))
         return events
 
     def on_event(self, event: Event, now_ns: int) -> None:
@@ -349,13 +338,13 @@ class HapticGate:
                 f"{'late' if lag_s > 0 else 'early'})"
             )
         if self.bias_hold == "latched":
-            return LATCHED
+            return f"{self.hold_cause}: re-arm needed"
         if self.bias_hold == "settle":
             size = self.drift.size
             left = f"{size:.2f} N" if math.isfinite(size) else "a window to fill"
-            return f"sensor bias step: re-identifying (re-identified; the residual to settle: {left})"
+            return f"{self.hold_cause}: re-identifying (re-identified; the residual to settle: {left})"
         if self.bias_hold:
-            return "sensor bias step: re-identifying"
+            return f"{self.hold_cause}: re-identifying"
         if self.doubt:
             return f"sudden force step ({self.doubt}): held until the motion tells a contact from the sensor"
         if not self.ready[0]:

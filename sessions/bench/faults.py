@@ -63,6 +63,14 @@ FAULTS: dict[str, dict[str, Any]] = {
         "session_s": 9.0,
     },
     "sensor stuck, 2 s": {"kind": "sensor_stuck", "duration": 2.0},
+    "sensor offset +5 N for 1 s": {"kind": "sensor_bias_step", "force": [5.0, 0.0, 0.0], "duration": 1.0},
+    "sensor offset +5 N for 1 s, during a contact": {
+        "kind": "sensor_bias_step",
+        "force": [5.0, 0.0, 0.0],
+        "duration": 1.0,
+        "start": 6.5,
+        "session_s": 9.0,
+    },
     "session started resting on tissue (2 N up), lifted off at 5 s": {
         "contact": {"kind": "indentation", "start": -1.0, "duration": 6.0, "peak_force": 2.0, "ramp": 0.0},
         "start": 5.0,

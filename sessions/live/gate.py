@@ -151,23 +151,21 @@ class HapticGate:
         if self.poses.add(poses, now_ns):
             self.lag.reset()
 
-    def on_samples(
-        self, block: AlignedSamples, usable: np.ndarray, reason: str, now_ns: int
-    ) -> tuple[np.ndarray, str, list[Event]]:
+    def on_samples(self, block: AlignedSamples, usable: np.ndarray, reason: str, now_ns: int) -> tuple[np.ndarray, str]:
         """A new sensor block arrived (every sample), with the screen's ``usable`` mask and ``reason``
         (``screen.screen``): those with the samples of a reading that jumped faster than any contact held out
-        (``watch.StepWatch``), and the events of a jump that stayed (a bias step, as the drift watch's)."""
+        (``watch.StepWatch``); a jump that stayed, or a sudden step, holds the force until the drift watch tells
+        a contact from the sensor."""
         self.last_sample_ns = int(block.t_ns[-1])
         held = self.steps.add(block.t_ns, block.force_S)
         stuck = self.stuck.add(block.t_ns, block.force_S, block.torque_S)
-        events = []
-        if self.steps.persisted is not None:
+        if self.steps.persisted is not None:  # (held out until now: from here the estimator sees the new level)
             step, self.steps.persisted = self.steps.persisted, None
-            if self.bias_hold in ("", "settle"):
-                events += self._bias_step(step, now_ns, "the reading jumped and stayed")
+            if self.parameters_known and self.bias_hold in ("", "settle"):  # what the motion says decides, as below
+                self._start_doubt(f"the reading jumped {math.sqrt(float(step @ step)):.3g} N and stayed")
         if self.steps.sudden:
             if self.parameters_known and not self.bias_hold and not self.doubt:
-                self.doubt, self.free_since_ns = self.steps.sudden, None
+                self._start_doubt(self.steps.sudden)
             self.steps.sudden = ""
         if held.any():
             usable, reason = usable & ~held, reason or self.steps.jump
@@ -177,7 +175,13 @@ class HapticGate:
                 reason or f"sensor stuck (the same reading for {self.stuck.stuck_ns * 1e-6:.0f} ms)",
             )
         self.data_reason = reason
-        return usable, reason, events
+        return usable, reason
+
+    def _start_doubt(self, what: str) -> None:
+        """Hold the force over a step ``what`` until the motion tells a contact from the sensor: the drift watch
+        starts afresh, so that only what came after the step is judged (a contact before it is no verdict)."""
+        self.doubt, self.free_since_ns = what, None
+        self.drift.reset()
 
     def on_estimates(
         self,

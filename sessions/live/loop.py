@@ -223,8 +223,7 @@ class LiveLoop:
             block = self.aligner.align(wrenches)
             self.taps.aligned(block)
             usable, _, reason = screen(block, self.sensor_range)
-            usable, reason, events = self.gate.on_samples(block, usable, reason, now_ns)
-            self._gate_events(events)
+            usable, reason = self.gate.on_samples(block, usable, reason, now_ns)
             some = True if not reason else usable.any()  # no reason: every sample is usable (the usual case)
             if not self.gate.trusts_poses(now_ns):  # their orientation is not the robot's: not for the estimators
                 if some:

@@ -12,7 +12,8 @@ caught up at once, or a glitch.
 in, so it cannot jump tens of newtons between two samples. A reading that moves further from the
 last one than ``MAX_CONTACT_RATE`` allows (plus ``STEP_MARGIN_N`` of noise) is a glitch of the sensor
 or its wire, in range and with a good status all the same: its samples are held out until the reading
-is back where it was before the jump; one that stays away for ``STEP_PERSIST_NS`` is a bias step (a knock).
+is back where it was before the jump; one that stays away for ``STEP_PERSIST_NS`` is handed back to the gate
+(a knock, or something the motion has to tell).
 A step faster than soft tissue pushes (``SUDDEN_RATE``) but within a contact's is *sudden*: a hard
 contact (bone, another instrument) or the sensor's zero moving; the watch says so (``sudden``) and the
 gate holds the force until the motion tells which (``drift.DriftWatch``).
@@ -218,10 +219,10 @@ class StepWatch:
 
     ``add`` returns the (N,) mask of samples held out. ``jump`` describes the jump in hand ("" when none);
     ``persisted`` is the jump's size in S, (3,) N, once it has stayed ``STEP_PERSIST_NS`` (then the watch
-    starts afresh from the new level: a bias step is the gate's to handle). ``sudden`` describes the last
-    sudden step (faster than ``SUDDEN_RATE``, slower than a jump; its samples are not held out) until the
-    gate takes it (sets it to ""). The arithmetic is in Python floats: a live block is one to seven
-    samples, where numpy's calls cost ten times more.
+    starts afresh from the new level: the gate holds the force until the motion tells what it was).
+    ``sudden`` describes the last sudden step (faster than ``SUDDEN_RATE``, slower than a jump; its samples
+    are not held out) until the gate takes it (sets it to ""). The arithmetic is in Python floats: a live
+    block is one to seven samples, where numpy's calls cost ten times more.
     """
 
     def __init__(self) -> None:

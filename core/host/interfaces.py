@@ -238,11 +238,23 @@ class Reidentifies(Protocol):
 
     ``reidentify_bias(reason)`` re-opens the bias (and what depends on it) as if
     it were unknown, keeping the rest; the estimator's convergence flags then
-    drop until it has converged again. The session calls it when a sustained
-    offset behaves like a sensor-frame bias step rather than a contact.
+    drop until it has converged again. The session calls it when the residual keeps its direction in the
+    sensor frame while the tool turns (a bias step or drift) rather than in the world (a contact).
     """
 
     def reidentify_bias(self, reason: str) -> None: ...
+
+
+@runtime_checkable
+class ReidentifiesWeight(Protocol):
+    """An estimator that can re-identify the tool's weight on request.
+
+    ``reidentify_weight(reason)`` re-opens the weight (``gravity_force_B``) and the centre of gravity as if
+    unknown, keeping the bias. The session calls it when a sudden step keeps its direction in the world
+    along gravity: a load hung on the tool or let go (or a tool lifted off what it started resting on).
+    """
+
+    def reidentify_weight(self, reason: str) -> None: ...
 
 
 @runtime_checkable

@@ -28,6 +28,7 @@ from hapticlab.core.host.interfaces import (
     KinematicsSource,
     KnowsMount,
     Reidentifies,
+    ReidentifiesWeight,
     ReportsCovariance,
     ReportsParameterStd,
     ReportsParams,
@@ -67,6 +68,7 @@ class EstimatorSlot:
         counts: the same object when it counts its first convergence, else None.
         saves: the same object when its state starts the next session, else None.
         reidentifies: the same object when it can re-identify its bias on request, else None.
+        reidentifies_weight: the same object when it can re-identify the tool's weight on request, else None.
         holds_out: the same object when it holds samples out of its update without calling them a contact.
         reports_params: the same object when it reports its parameters (``params()``), else None.
         reports_cov: the same object when it reports its covariance diagonal (``cov_diag()``), else None.
@@ -83,6 +85,7 @@ class EstimatorSlot:
     holds_out: HoldsOutOutliers | None = None
     reports_params: ReportsParams | None = None
     reports_cov: ReportsCovariance | None = None
+    reidentifies_weight: ReidentifiesWeight | None = None
 
     @classmethod
     def of(cls, label: str, estimator: Any) -> EstimatorSlot:
@@ -103,6 +106,7 @@ class EstimatorSlot:
             has(HoldsOutOutliers),
             has(ReportsParams),
             has(ReportsCovariance),
+            has(ReidentifiesWeight),
         )
 
     @property
@@ -172,6 +176,7 @@ class Session:
             settings.max_turn_rate,
             settings.max_speed,
             reports_params=self.primary.reports_params is not None,
+            reidentifies_weight=self.primary.reidentifies_weight,
         )
 
 

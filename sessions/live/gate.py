@@ -1,7 +1,7 @@
 """The haptic gate: at every tick, may the contact force reach the trainee's hand, and if not, why not.
 
-The force is held at zero, the reason recorded with each command, on any doubt (docs/safety.md lists every
-rule with its reason, in the order :meth:`HapticGate.reason` checks them):
+The force is held at zero, the reason recorded with each command, on any doubt (docs/safety.md lists the
+rules with their reasons):
 
 * the data: no sensor data within the stale timeout; a status bit, a non-finite reading, one beyond the
   sensor's range (``screen.py``); a reading that jumped faster than any contact, or stuck
@@ -29,10 +29,10 @@ import math
 
 import numpy as np
 
-from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReportsParameterStd
+from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReidentifiesWeight, ReportsParameterStd
 from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
-from hapticlab.sessions.live.drift import MIN_OFFSET_N, DriftWatch, along
+from hapticlab.sessions.live.drift import MIN_OFFSET_N, WEIGHT_TILT, DriftWatch, along
 from hapticlab.sessions.live.watch import LAG_LIMIT_S, LagWatch, PoseWatch, StepWatch, StuckWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
@@ -42,16 +42,12 @@ show as a phantom force until the estimator sees the second change."""
 JUMP_HOLD_NS = 500_000_000
 """After the poses jump the force is held at zero this long (0.5 s): long enough for the lag watch, started
 afresh, to resolve a lag while the tool turns fast enough for the lag to matter."""
-WEIGHT_TILT = 0.25
-"""A sudden step whose force keeps its direction in the world within this angle of gravity (either way) is
-taken for a weight change, not a contact, rad (``plugins.estimators.kalman.payload.MAX_TILT``)."""
 DOUBT_FREE_NS = 100_000_000
 """A sudden step is over once the estimator has seen free motion this long (0.1 s): the step went away."""
 CONVERGENCE_LOSS_NS = 20_000_000
 """A converged force stage whose flag has been down this long (20 ms of samples) is no longer converged."""
 LATCHED = "sensor bias step: re-arm needed"
-"""The reason of the latched stop after a bias step the estimator cannot re-identify (after a weight step:
-"weight step: re-arm needed")."""
+"""The reason of the latched stop after a bias step the estimator cannot re-identify."""
 WARMING_UP = ("estimator not converged", "parameters not yet identified")
 """Reasons that are the estimator's ordinary start, not faults (no event of their own)."""
 
@@ -64,6 +60,7 @@ class HapticGate:
         ready_force_std: the force-stage parameters' std below which the force may go on, N.
         parameter_std: the estimator when it reports that std (else None: convergence alone decides).
         reidentifies: the estimator when it can re-identify its bias (else None: a bias step latches).
+        reidentifies_weight: the same for the tool's weight (else None: a weight step latches).
         stale_timeout_ns: oldest newest-sample age before "no sensor data", ns.
         frozen_pose_timeout_ns: longest run of identical poses before "kinematics frozen", ns.
         max_turn_rate: fastest turn between two poses before "kinematics jumped", rad/s.
@@ -81,11 +78,12 @@ class HapticGate:
         max_turn_rate: float,
         max_speed: float,
         reports_params: bool = True,
+        reidentifies_weight: ReidentifiesWeight | None = None,
     ):
         self.label = label
         self.ready_force_std = ready_force_std
         self.parameter_std = parameter_std
-        self.reidentifies = reidentifies
+        self.reidentifies, self.reidentifies_weight = reidentifies, reidentifies_weight
         self.stale_timeout_ns = stale_timeout_ns
         self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
         self.drift = DriftWatch()
@@ -106,6 +104,7 @@ class HapticGate:
         self.hold_cause = "sensor bias step"  # what the bias hold is for: "sensor bias step" | "weight step"
         self.contact_now = False  # the estimator's contact flag for the newest sample
         self.doubt = ""  # the sudden step in hand ("" none)
+        self.doubt_from_contact = False  # the estimator saw a contact when the doubt began
         self.free_since_ns: int | None = None  # the estimator has seen free motion since (None: a contact now)
         self.last_sample_ns: int | None = None
         self.data_reason = ""
@@ -164,7 +163,7 @@ class HapticGate:
             if self.parameters_known and self.bias_hold in ("", "settle"):  # what the motion says decides, as below
                 self._start_doubt(f"the reading jumped {math.sqrt(float(step @ step)):.3g} N and stayed")
         if self.steps.sudden:
-            if self.parameters_known and not self.bias_hold and not self.doubt:
+            if self.parameters_known and self.bias_hold in ("", "settle"):
                 self._start_doubt(self.steps.sudden)
             self.steps.sudden = ""
         if held.any():
@@ -180,6 +179,8 @@ class HapticGate:
     def _start_doubt(self, what: str) -> None:
         """Hold the force over a step ``what`` until the motion tells a contact from the sensor: the drift watch
         starts afresh, so that only what came after the step is judged (a contact before it is no verdict)."""
+        if not self.doubt:  # (a step within a doubt keeps where the first one began)
+            self.doubt_from_contact = self.contact_now
         self.doubt, self.free_since_ns = what, None
         self.drift.reset()
 
@@ -241,9 +242,10 @@ class HapticGate:
                 "or the estimator took a contact into its bias"
             )
             events += self._bias_step(self.drift.offset_S, now_ns, how)
-        elif verdict == "world" and self.doubt:
-            gravity = None if params is None else params.get("gravity_force_B")
-            if gravity is not None and along(self.drift.direction_B, gravity, WEIGHT_TILT):
+        elif verdict == "world" and self.doubt and not self.doubt_from_contact:
+            # (from a contact, the window holds the contact with the step: only its end or the sensor tells)
+            gravity_force_B = None if params is None else params.get("gravity_force_B")
+            if gravity_force_B is not None and along(self.drift.direction_B, gravity_force_B, WEIGHT_TILT):
                 how = (
                     f"the sudden step ({self.doubt}) kept its direction in the world, along gravity: the tool's "
                     "weight changed (a load hung on it or let go, or the session started with it resting on "
@@ -255,7 +257,8 @@ class HapticGate:
                 events.append(Event(now_ns, "contact_confirmed", message))
                 self.doubt = ""
         if self.doubt:
-            if self.contact_now:
+            f = est.contact_force_S[-1].tolist()
+            if self.contact_now or f[0] * f[0] + f[1] * f[1] + f[2] * f[2] >= MIN_OFFSET_N**2:
                 self.free_since_ns = None
             elif self.free_since_ns is None:
                 self.free_since_ns = int(est.t_ns[-1])
@@ -271,12 +274,9 @@ class HapticGate:
     def rearm(self, now_ns: int, source: str) -> Event | None:
         """An explicit re-arm from ``source`` (e.g. "key r", "button 0"): its event, None when nothing is latched.
 
-        Granted (``haptic_rearmed``) only while the cause is gone: no other
-        reason holds the force off, and the estimator no longer refuses the newest
-        sample as a contact (a bias step that persists is seen as one; so is a
-        real contact: free the tool, then re-arm). Refused otherwise
-        (``haptic_rearm_refused``, naming why), and the stop stays latched.
-        After a re-arm the drift watch starts afresh: a step that comes back latches again.
+        Granted (``haptic_rearmed``) only while no other reason holds the force off and the estimator no longer
+        refuses the newest sample as a contact (free the tool, then re-arm); the force then waits for a settled
+        residual (a bias still there keeps it off). Refused otherwise (``haptic_rearm_refused``, naming why).
         """
         if not self.latched:
             return None
@@ -287,21 +287,23 @@ class HapticGate:
         if other:
             self.bias_hold = "latched"
             return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
-        self.steps, self.doubt = StepWatch(), ""
+        self.steps, self.doubt, self.bias_hold, self.hold_cause = StepWatch(), "", "settle", "re-armed"
         self.drift.reset()
-        return Event(
-            now_ns, "haptic_rearmed", f"haptic force re-armed by {source}; it ramps in from zero", {"source": source}
-        )
+        message = f"haptic force re-armed by {source}; it ramps in from zero once the residual has settled"
+        return Event(now_ns, "haptic_rearmed", message, {"source": source})
 
     def _bias_step(self, step: np.ndarray, now_ns: int, how: str, kind: str = "bias_step") -> list[Event]:
-        """A bias step of ``step`` (3,) N (or, ``kind`` "weight_step", a weight step), seen as ``how``: the
-        estimator re-identifies its bias, or the force latches off (the events: ``kind``, and ``haptic_latched``
-        when latched)."""
+        """A bias step of ``step`` (3,) N (``kind`` "weight_step": a weight step), seen as ``how``: re-identified,
+        or the force latches off (the events: ``kind``, and ``haptic_latched`` when latched)."""
         what = self.hold_cause = "sensor bias step" if kind == "bias_step" else "weight step"
         message = f"{what} of {np.linalg.norm(step):.2f} N: {how}"
         self.drift.reset()
         self.doubt = ""
-        if self.reidentifies is not None:
+        if kind == "weight_step" and self.reidentifies_weight is not None:
+            self.reidentifies_weight.reidentify_weight("weight step")
+            self.hold_until_ns, self.bias_hold = now_ns + PAYLOAD_HOLD_NS, "settle"  # as after a payload change
+            message += f"; {self.label} re-identifies the tool's weight"
+        elif kind == "bias_step" and self.reidentifies is not None:
             self.reidentifies.reidentify_bias("bias step")
             self.bias_hold = "drop"
             message += f"; {self.label} re-identifies its bias"
@@ -311,7 +313,7 @@ class HapticGate:
         key = "bias_step_force_S" if kind == "bias_step" else "weight_step_force_B"
         events = [Event(now_ns, kind, message, {key: step.tolist()})]
         if self.bias_hold == "latched":
-            latched = f"haptic force latched off: {what}: re-arm needed; {self.label} cannot re-identify its bias"
+            latched = f"haptic force latched off: {what}: re-arm needed; {self.label} cannot re-identify it"
             events.append(Event(now_ns, "haptic_latched", latched, {"cause": what}))
         return events
 
@@ -346,7 +348,7 @@ class HapticGate:
         if self.bias_hold == "settle":
             size = self.drift.size
             left = f"{size:.2f} N" if math.isfinite(size) else "a window to fill"
-            return f"{self.hold_cause}: re-identifying (re-identified; the residual to settle: {left})"
+            return f"{self.hold_cause}: waiting for the residual to settle ({left})"
         if self.bias_hold:
             return f"{self.hold_cause}: re-identifying"
         if self.doubt:
@@ -369,7 +371,6 @@ class HapticGate:
             return "parameters no longer known (uncertainty grew)"
         if not self.weight_model:
             return f"{self.label} reports no weight model ({' and '.join(WEIGHT_MODEL)}): the poses cannot be checked"
-
         if now_ns < self.hold_until_ns:
             return "payload change: tool weight re-identified, holding"
         return ""

@@ -82,17 +82,7 @@ class Reopening(KalmanBase):
         the stages' clock).
         """
         self.payload_changes += 1
-        tilt_walk_kernel.restart_windows.py_func(self._adapt[ADAPT_TW:])  # (a weight step is no turn's)
-        P = self.force.P.copy()
-        g = self.force.x[:3]
-        u = g / max(float(np.linalg.norm(g)), 1e-9)
-        P[:3, :3] += self.prior_f[0] ** 2 * np.outer(u, u)
-        self.force.P = P
-        P = self.torque.P.copy()
-        P[:3, :] = 0.0
-        P[:, :3] = 0.0
-        P[:3, :3] = np.diag(self.prior_t[:3] ** 2)
-        self.torque.P = P
+        self._widen_weight()
         m = len(window["y"])
         zeros, ones = np.zeros(m), np.ones(m, dtype=bool)
         if self.mount_rotation:
@@ -105,6 +95,29 @@ class Reopening(KalmanBase):
         if self.mount_rotation:  # (the replay refined the mount too)
             self.R_SE = cast("MountStage", self.force).R_SE.copy()  # (mount_rotation: the force stage is one)
         self._seed_information()  # what the replay left known (gravity re-opened along itself)
+
+    def _widen_weight(self) -> None:
+        """Gravity's covariance widened along its own direction in B (P_g += σ²·u uᵀ, u = g/|g|, σ the prior),
+        the centre of gravity's back to the prior (``_reopen_payload`` says why)."""
+        tilt_walk_kernel.restart_windows.py_func(self._adapt[ADAPT_TW:])  # (a weight step is no turn's)
+        P = self.force.P.copy()
+        g = self.force.x[:3]
+        u = g / max(float(np.linalg.norm(g)), 1e-9)
+        P[:3, :3] += self.prior_f[0] ** 2 * np.outer(u, u)
+        self.force.P = P
+        P = self.torque.P.copy()
+        P[:3, :] = 0.0
+        P[:, :3] = 0.0
+        P[:3, :3] = np.diag(self.prior_t[:3] ** 2)
+        self.torque.P = P
+
+    def reidentify_weight(self, reason: str) -> None:
+        """ReidentifiesWeight: the tool's weight unknown again along gravity and its centre of gravity back to
+        the prior (as after a payload change, with no window to replay: the host asks after a sudden step it
+        has held out), the bias kept."""
+        self._widen_weight()
+        self._seed_information()
+        self.events.append(Event(self._last_t_ns or 0, "weight_reopened", f"weight re-opened: {reason}"))
 
     def _watch_torque_only(self, t_ns, gated_f, force_seen, run_t, dt, contact_force_S, contact_torque_S) -> None:
         """The reference's torque-only refusal rule (``rules_kernel.torque_only_refusal``, run as Python): over

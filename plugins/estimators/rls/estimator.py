@@ -182,6 +182,10 @@ class RLSEstimator(RefusesBadSamples):
         self.converged_force = self.converged_torque = False
         self.restarts += 1
 
+    def reidentify_weight(self, reason: str) -> None:
+        """ReidentifiesWeight: Algorithm 1 restarted as for a bias step (its restart re-opens every parameter)."""
+        self.reidentify_bias(reason)
+
     def params(self) -> dict[str, list[float]]:
         """Identified parameters with physical names (SI units)."""
         return named_params(self.force.x, self.torque.x)

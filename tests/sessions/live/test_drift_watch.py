@@ -70,3 +70,41 @@ def test_a_tool_that_does_not_turn_or_turns_about_the_force_tells_nothing():
 def test_noise_alone_is_never_a_verdict():
     t_ns, R_EB = turning(30.0, 1.0, axis=(1.0, 1.0, 0.0))
     assert verdicts(t_ns, R_EB, noise(len(t_ns), 8)) == []
+
+
+def test_a_mounted_sensor_is_judged_in_its_own_frame():
+    """S turned from E by the mount (R_SE): a bias fixed in S is the sensor's, a force fixed in B the world's."""
+    R_SE = Rotation.from_euler("xyz", [0.3, -1.1, 0.7]).as_matrix()
+    t_ns, R_EB = turning(3.0, 1.0)
+    bias = noise(len(t_ns), 9) + R_SE @ [0.0, 1.0, 0.0]  # fixed in S (off the turn's axis, seen from E)
+    watch = DriftWatch()
+    found = {watch.add(t_ns[k : k + 3], bias[k : k + 3], R_EB[k : k + 3], R_SE) for k in range(0, len(t_ns), 3)}
+    assert found == {"", "sensor"}
+    R_SB = np.einsum("ij,njk->nik", R_SE, R_EB)
+    contact = np.einsum("nij,j->ni", R_SB, [0.0, 0.6, 0.8]) + noise(len(t_ns), 10)
+    watch = DriftWatch()
+    found = {watch.add(t_ns[k : k + 3], contact[k : k + 3], R_EB[k : k + 3], R_SE) for k in range(0, len(t_ns), 3)}
+    assert found == {"", "world"}
+
+
+def test_a_bias_beside_a_contact_is_no_verdict_until_the_contact_has_gone():
+    """The window then fits neither frame by noise alone: re-identifying there would take the contact in."""
+    t_ns, R_EB = turning(4.0, 1.0)
+    t = t_ns * 1e-9
+    contact_B = np.outer(np.where(t < 2.5, 2.0, 0.0), [0.0, 0.6, 0.8])
+    residual = np.einsum("nij,nj->ni", R_EB, contact_B) + [0.0, 1.0, 0.0] + noise(len(t), 11)
+    found = verdicts(t_ns, R_EB, residual)
+    assert not [v for s, v in found if v == "sensor" and s < 2.5]
+    assert [v for s, v in found if s > 2.5] and all(v == "sensor" for s, v in found if s > 3.05)
+
+
+def test_a_gap_in_the_samples_starts_the_window_afresh_and_infinities_are_skipped():
+    t_ns, R_EB = turning(2.0, 1.0)
+    residual = noise(len(t_ns), 12) + [0.0, 1.0, 0.0]
+    residual[700] = np.inf
+    watch = DriftWatch()
+    assert watch.add(t_ns[:690], residual[:690], R_EB[:690], None) == "sensor"
+    watch.add(t_ns[700:705], residual[700:705], R_EB[700:705], None)  # 10 ms later: no gap yet
+    assert np.isfinite(watch.total).all() and watch.count == 4  # the infinite row left out
+    later = t_ns[705:1100] + 100_000_000  # 100 ms withheld: the window starts again
+    assert watch.add(later, residual[705:1100], R_EB[705:1100], None) == "" and watch.size == float("inf")

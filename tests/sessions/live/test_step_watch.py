@@ -66,6 +66,18 @@ def test_a_2_n_step_is_sudden_but_not_held_out_and_a_fast_press_is_neither():
     assert not feed(watch, t_ns, readings(1.0, 1000.0, 5)[1] + press).any() and watch.sudden == ""
 
 
+def test_the_sudden_band_is_soft_tissue_s_rate_plus_the_noise_margin():
+    """SUDDEN_RATE (100 N/s) counts where samples are far apart: 2 N between two samples of a 100 Hz sensor
+    (2.5 N allowed) is a contact's, 3 N is sudden; at 1 kHz (1.6 N allowed) 2 N is sudden, 1.5 N is not."""
+    for rate_hz, step, sudden in ((100.0, 2.0, False), (100.0, 3.0, True), (1000.0, 2.0, True), (1000.0, 1.5, False)):
+        t_ns, force = readings(1.0, rate_hz, 0, noise=0.0)
+        force = np.zeros_like(force)
+        force[len(force) // 2 :, 0] = step
+        watch = StepWatch()
+        assert not feed(watch, t_ns, force).any()
+        assert (watch.sudden != "") == sudden, (rate_hz, step, watch.sudden)
+
+
 def test_the_limit_grows_with_the_time_between_samples():
     """After a 0.5 s gap (a dropout) a contact may have moved by MAX_CONTACT_RATE·0.5 s: no jump."""
     watch = StepWatch()

@@ -101,7 +101,7 @@ class HapticGate:
         # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "settle" (the residual to settle) |
         # "latched"
         self.bias_hold = ""
-        self.hold_cause = "sensor bias step"  # what the bias hold is for: "sensor bias step" | "weight step"
+        self.hold_cause = "sensor bias step"  # what the hold is for: "sensor bias step" | "weight step" | "re-armed"
         self.contact_now = False  # the estimator's contact flag for the newest sample
         self.doubt = ""  # the sudden step in hand ("" none)
         self.doubt_from_contact = False  # the estimator saw a contact when the doubt began
@@ -247,9 +247,8 @@ class HapticGate:
             gravity_force_B = None if params is None else params.get("gravity_force_B")
             if gravity_force_B is not None and along(self.drift.direction_B, gravity_force_B, WEIGHT_TILT):
                 how = (
-                    f"the sudden step ({self.doubt}) kept its direction in the world, along gravity: the tool's "
-                    "weight changed (a load hung on it or let go, or the session started with it resting on "
-                    "something), not a contact"
+                    f"the sudden step ({self.doubt}) kept its direction in the world, pulling down: the tool's "
+                    "weight changed (a load hung on it, or the support it started resting on gone), not a contact"
                 )
                 events += self._bias_step(self.drift.size * self.drift.direction_B, now_ns, how, "weight_step")
             else:

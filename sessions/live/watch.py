@@ -248,6 +248,8 @@ class StepWatch:
                 # back: nearer the reading before than the jump took it, within what a contact moves meanwhile
                 if away <= min(STEP_MARGIN_N + STEP_RETURN_RATE * age_s, self.jump_N / 2):
                     self.level, self.jump = None, ""
+                    if away > STEP_MARGIN_N:  # back, but not all the way: the leftover is a doubt of its own
+                        self.sudden = f"{away:.3g} N left when a jump came back"
                 elif t - self.jumped_ns >= STEP_PERSIST_NS:
                     self.persisted = np.subtract(f, self.level)
                     self.level, self.jump = None, ""

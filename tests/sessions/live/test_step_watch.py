@@ -40,6 +40,18 @@ def test_a_60_n_glitch_is_held_out_from_its_first_sample_to_its_end():
     assert watch.persisted is None and watch.jump == ""  # back, and no bias step
 
 
+def test_a_glitch_that_comes_back_only_part_way_leaves_a_sudden_step():
+    """A 60 N glitch for 30 ms that returns 2.5 N off where it was: back (its samples go on), but the leftover,
+    beyond the noise's margin, is a doubt for the gate (a contact moved meanwhile, or the sensor's zero did)."""
+    t_ns, force = readings(1.0, 1000.0, 6)
+    force[500:530, 0] += 60.0
+    force[530:, 0] += 2.5
+    watch = StepWatch()
+    held = feed(watch, t_ns, force)
+    assert np.array_equal(np.flatnonzero(held), np.arange(500, 530))
+    assert watch.persisted is None and watch.sudden.endswith("N left when a jump came back")
+
+
 def test_a_jump_that_stays_is_handed_over_as_a_bias_step():
     t_ns, force = readings(1.0, 1000.0, 4)
     force[400:, 1] += 20.0  # a knock: 20 N, for good

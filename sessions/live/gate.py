@@ -158,14 +158,13 @@ class HapticGate:
         self.last_sample_ns = int(block.t_ns[-1])
         held = self.steps.add(block.t_ns, block.force_S)
         stuck = self.stuck.add(block.t_ns, block.force_S, block.torque_S)
-        if self.steps.persisted is not None:  # (held out until now: from here the estimator sees the new level)
-            step, self.steps.persisted = self.steps.persisted, None
-            if self.parameters_known and self.bias_hold in ("", "settle"):  # what the motion says decides, as below
-                self._start_doubt(f"the reading jumped {math.sqrt(float(step @ step)):.3g} N and stayed")
-        if self.steps.sudden:
-            if self.parameters_known and self.bias_hold in ("", "settle"):
-                self._start_doubt(self.steps.sudden)
-            self.steps.sudden = ""
+        step, self.steps.persisted = self.steps.persisted, None  # (held out until now: the new level goes on)
+        what = self.steps.sudden or (
+            "" if step is None else f"the reading jumped {np.linalg.norm(step):.3g} N and stayed"
+        )
+        self.steps.sudden = ""
+        if what and self.parameters_known and self.bias_hold in ("", "settle"):  # the motion decides what it was
+            self._start_doubt(what)
         if held.any():
             usable, reason = usable & ~held, reason or self.steps.jump
         if stuck.any():
@@ -241,7 +240,7 @@ class HapticGate:
                 f"(off it by {in_S:.2f} N RMS in the sensor, {in_B:.2f} N in the world): the sensor's zero moved, "
                 "or the estimator took a contact into its bias"
             )
-            events += self._bias_step(self.drift.offset_S, now_ns, how)
+            events += self._reidentify(self.drift.offset_S, now_ns, how)
         elif verdict == "world" and self.doubt and not self.doubt_from_contact:
             # (from a contact, the window holds the contact with the step: only its end or the sensor tells)
             gravity_force_B = None if params is None else params.get("gravity_force_B")
@@ -250,7 +249,7 @@ class HapticGate:
                     f"the sudden step ({self.doubt}) kept its direction in the world, pulling down: the tool's "
                     "weight changed (a load hung on it, or the support it started resting on gone), not a contact"
                 )
-                events += self._bias_step(self.drift.size * self.drift.direction_B, now_ns, how, "weight_step")
+                events += self._reidentify(self.drift.size * self.drift.direction_B, now_ns, how, "weight_step")
             else:
                 message = f"the sudden step ({self.doubt}) turned with the world: a contact"
                 events.append(Event(now_ns, "contact_confirmed", message))
@@ -291,7 +290,7 @@ class HapticGate:
         message = f"haptic force re-armed by {source}; it ramps in from zero once the residual has settled"
         return Event(now_ns, "haptic_rearmed", message, {"source": source})
 
-    def _bias_step(self, step: np.ndarray, now_ns: int, how: str, kind: str = "bias_step") -> list[Event]:
+    def _reidentify(self, step: np.ndarray, now_ns: int, how: str, kind: str = "bias_step") -> list[Event]:
         """A bias step of ``step`` (3,) N (``kind`` "weight_step": a weight step), seen as ``how``: re-identified,
         or the force latches off (the events: ``kind``, and ``haptic_latched`` when latched)."""
         what = self.hold_cause = "sensor bias step" if kind == "bias_step" else "weight step"
@@ -299,11 +298,11 @@ class HapticGate:
         self.drift.reset()
         self.doubt = ""
         if kind == "weight_step" and self.reidentifies_weight is not None:
-            self.reidentifies_weight.reidentify_weight("weight step")
+            self.reidentifies_weight.reidentify_weight(what)
             self.hold_until_ns, self.bias_hold = now_ns + PAYLOAD_HOLD_NS, "settle"  # as after a payload change
             message += f"; {self.label} re-identifies the tool's weight"
         elif kind == "bias_step" and self.reidentifies is not None:
-            self.reidentifies.reidentify_bias("bias step")
+            self.reidentifies.reidentify_bias(what)
             self.bias_hold = "drop"
             message += f"; {self.label} re-identifies its bias"
         else:

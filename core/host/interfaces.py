@@ -313,6 +313,20 @@ class ServosCartesian(Protocol):
 
 
 @runtime_checkable
+class MeasuresWrench(Protocol):
+    """A robot that measures the wrench on its tool itself (CRTK ``measured_cf``): a second channel.
+
+    Its poses carry ``PoseSample.wrench_B`` (a UR e-Series' ``actual_TCP_force``), and ``wrench_accuracy_N``
+    is the largest error it states for the force, N per axis (0: it reports none). Coarse, but independent
+    of the wrist sensor: the gate compares the primary estimator's contact force, turned into B, with it and
+    holds the force at zero while they differ by more than that (``sessions.live.crosscheck``); a sudden step
+    both channels show is a contact at once. Built-in: ``sim``, and ``ur_rtde`` with ``tcp_force_accuracy``.
+    """
+
+    wrench_accuracy_N: float
+
+
+@runtime_checkable
 class PreparesAhead(Protocol):
     """A sensor or kinematics source with work it can do before it is read (the simulated devices).
 
@@ -350,10 +364,12 @@ CAPABILITIES = (
     HasCalibration,
     HasRange,
     Reidentifies,
+    ReidentifiesWeight,
     ReportsHealth,
     HasLatency,
     HasForceLimit,
     ServosCartesian,
+    MeasuresWrench,
     PreparesAhead,
     ReadsBlocks,
 )

@@ -15,11 +15,13 @@ from hapticlab.core.frames import quat_multiply, quat_wxyz_from_matrix
 from hapticlab.core.host.options import number
 from hapticlab.core.types import PoseSample
 from hapticlab.plugins.kinematics import sim_kernel as pose_kernel
+from hapticlab.plugins.kinematics.ur_arm import UR5E_FORCE_ACCURACY_N
 from hapticlab.plugins.simworld.clock import SampleClock
 from hapticlab.plugins.simworld.faults import kinematics_faults_act, kinematics_times
 from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.plugins.simworld.prefetch import PREFETCH_S, Prefetch
 from hapticlab.plugins.simworld.randomness import gaussian_noise
+from hapticlab.plugins.simworld.robot_wrench import RobotWrench
 
 ENCODER_STREAM = 2
 """The world's random stream of the robot's encoder jitter (0: sensor noise, 1: bias drift)."""
@@ -28,7 +30,7 @@ MAX_RATE_HZ = 10_000.0
 
 
 class SimKinematics:
-    """Forward kinematics of the simulated robot (KinematicsSource).
+    """Forward kinematics of the simulated robot (KinematicsSource), and its own wrench (MeasuresWrench).
 
     Parameters
     ----------
@@ -38,10 +40,22 @@ class SimKinematics:
         bit-identical from one sample to the next, its encoders jitter; only a frozen
         controller repeats it exactly (which the session loop watches for). 0: the
         exact physics.
+    wrench_accuracy, wrench_offset, wrench_noise : the robot's own measure of the contact wrench on its tool
+        (``PoseSample.wrench_B``, as a UR e-Series reports): its stated force accuracy, largest offset and
+        noise, N per axis (``simworld.robot_wrench.RobotWrench``; defaults 4.0, 1.5 and 0.6 N: a UR5e's).
+        ``wrench_accuracy = 0``: the poses carry no wrench.
     world : the session's SimWorld (provided by the host, shared with the ``sim`` sensor).
     """
 
-    def __init__(self, rate_hz: float = 500.0, encoder_noise: float = 1e-7, world: SimWorld | None = None):
+    def __init__(
+        self,
+        rate_hz: float = 500.0,
+        encoder_noise: float = 1e-7,
+        world: SimWorld | None = None,
+        wrench_accuracy: float = UR5E_FORCE_ACCURACY_N,
+        wrench_offset: float = 1.5,
+        wrench_noise: float = 0.6,
+    ):
         if world is None:
             raise ConfigError(
                 "kinematics sim: needs the session's simulated world; "
@@ -54,6 +68,9 @@ class SimKinematics:
         )
         self.rate_hz = float(rate_hz)
         self.world = world
+        self.robot_wrench = RobotWrench(world, wrench_accuracy, wrench_offset, wrench_noise)
+        self.wrench_accuracy_N = self.robot_wrench.accuracy
+        """The stated accuracy of the poses' ``wrench_B``, N per axis (MeasuresWrench; 0: none)."""
         self._clock = SampleClock(self.rate_hz)
         self._ahead = Prefetch(self._exact_poses, self.rate_hz, ahead_s=0.0 if world.live else PREFETCH_S)
         if world.live:
@@ -68,7 +85,13 @@ class SimKinematics:
         """The poses of samples ``seq`` when no fault is injected (each reports its own time's pose)."""
         reading_ns = self._clock.times(seq) - self._clock.t0_ns
         quat_BE, p_BoEo_B = self._poses(reading_ns / 1e9, reading_ns)
-        return {"quat_BE": quat_BE, "p_BoEo_B": p_BoEo_B}
+        return {"quat_BE": quat_BE, "p_BoEo_B": p_BoEo_B, "wrench_B": self._wrenches(reading_ns / 1e9, reading_ns)}
+
+    def _wrenches(self, t: np.ndarray, reading_ns: np.ndarray) -> np.ndarray:
+        """(N, 6) the robot's wrench at world times ``t`` (s) read at ``reading_ns`` (ns); (N, 0) without one."""
+        if self.wrench_accuracy_N > 0:
+            return self.robot_wrench.measured(t, reading_ns)
+        return np.zeros((len(t), 0))
 
     def _poses(self, t: np.ndarray, reading_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``quat_BE`` (N, 4) and ``p_BoEo_B`` (N, 3) m reported: the pose at world times ``t`` (s) with the
@@ -115,13 +138,20 @@ class SimKinematics:
             t_ns, t = [t_ns[k] for k in np.flatnonzero(keep)], t[keep]
             if len(t_ns) == 0:
                 return []
-            quat_BE, p_BoEo_B = self._poses(t, np.round(t_reading[keep] * 1e9).astype(np.int64))
-            quat_BE.setflags(write=False)  # rows are handed out as views
-            p_BoEo_B.setflags(write=False)
+            reading_ns = np.round(t_reading[keep] * 1e9).astype(np.int64)
+            quat_BE, p_BoEo_B = self._poses(t, reading_ns)
+            wrench_B = self._wrenches(t, reading_ns)
+            for array in (quat_BE, p_BoEo_B, wrench_B):
+                array.setflags(write=False)  # rows are handed out as views
         else:
             poses = self._ahead.take(seq.start, seq.stop)  # read-only views
-            quat_BE, p_BoEo_B = poses["quat_BE"], poses["p_BoEo_B"]
-        return [PoseSample(t_ns=t, quat_BE=quat, p_BoEo_B=p) for t, quat, p in zip(t_ns, quat_BE, p_BoEo_B)]
+            quat_BE, p_BoEo_B, wrench_B = poses["quat_BE"], poses["p_BoEo_B"], poses["wrench_B"]
+        if wrench_B.shape[1] == 0:
+            return [PoseSample(t_ns=t, quat_BE=quat, p_BoEo_B=p) for t, quat, p in zip(t_ns, quat_BE, p_BoEo_B)]
+        return [
+            PoseSample(t_ns=t, quat_BE=quat, p_BoEo_B=p, wrench_B=w)
+            for t, quat, p, w in zip(t_ns, quat_BE, p_BoEo_B, wrench_B)
+        ]
 
     def prepare(self, until_ns: int) -> None:
         """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; not with a live world)."""
@@ -142,11 +172,18 @@ class ServoedSimKinematics(SimKinematics):
         self.world.servo_cp((t_ns - self._clock.t0_ns) / 1e9, R_BE, p_BoEo_B)
 
 
-def sim_kinematics(rate_hz: float = 500.0, encoder_noise: float = 1e-7, world: SimWorld | None = None) -> SimKinematics:
+def sim_kinematics(
+    rate_hz: float = 500.0,
+    encoder_noise: float = 1e-7,
+    world: SimWorld | None = None,
+    wrench_accuracy: float = UR5E_FORCE_ACCURACY_N,
+    wrench_offset: float = 1.5,
+    wrench_noise: float = 0.6,
+) -> SimKinematics:
     """The ``sim`` kinematics (options as :class:`SimKinematics`): one that follows targets when the world's
     motion is ``servo`` (:class:`ServoedSimKinematics`), else one that reports the scripted motion."""
     factory = ServoedSimKinematics if world is not None and world.live else SimKinematics
-    return factory(rate_hz, encoder_noise, world)
+    return factory(rate_hz, encoder_noise, world, wrench_accuracy, wrench_offset, wrench_noise)
 
 
 @hookimpl

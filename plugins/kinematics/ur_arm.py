@@ -88,6 +88,9 @@ UR_DH: dict[str, DH] = {
 CB3_MODELS = frozenset({"ur3", "ur5", "ur10"})
 """Models with a CB3 controller (RTDE up to 125 Hz); the others are e-Series (500 Hz)."""
 
+UR5E_FORCE_ACCURACY_N = 4.0
+"""The UR5e data sheet's force accuracy of its built-in force/torque sensor (``actual_TCP_force``), N per axis
+(its precision: 3.5 N)."""
 HOME_Q = np.array([0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 """A usual start configuration (rad): elbow up, flange pointing down; ``inverse_nearest``'s default reference."""
 

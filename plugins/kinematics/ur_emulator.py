@@ -18,7 +18,9 @@ plus the encoders' jitter (``encoder_noise``, a function of the world's seed
 and the time), ``actual_TCP_pose`` (position and rotation vector, the TCP
 being the flange) the forward kinematics of ``actual_q`` (with no jitter: the
 world's pose itself), ``actual_qd`` the difference of consecutive
-``actual_q`` over their time. ``target_q``/``target_qd``/
+``actual_q`` over their time, ``actual_TCP_force`` the world's contact wrench
+with a UR5e's error (``simworld.robot_wrench``: the force in Base, the moment
+about the TCP). ``target_q``/``target_qd``/
 ``target_TCP_pose`` equal the actual values, ``robot_mode`` is 7 (running),
 ``safety_mode`` 1 (normal), ``runtime_state`` 1 (stopped: no program), input
 registers read back what clients wrote; every other known output is a
@@ -74,6 +76,7 @@ from hapticlab.plugins.kinematics.ur_follow import (
 from hapticlab.plugins.serving import serve_until_stopped
 from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.plugins.simworld.randomness import gaussian_noise
+from hapticlab.plugins.simworld.robot_wrench import RobotWrench
 
 CONTROLLER_VERSIONS = {False: (5, 15, 0, 0), True: (3, 15, 8, 0)}
 """Controller version reported: e-Series (False) or CB3 (True)."""
@@ -151,6 +154,8 @@ class UREmulator:
         self._noise_key = int(
             np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,)).generate_state(1, np.uint64)[0]
         )
+        self.robot_wrench = RobotWrench(world)
+        """``actual_TCP_force``: the world's contact wrench with a UR5e's error (``simworld.robot_wrench``)."""
         self._qd = np.zeros(6)
         self._unreachable_reported = False
         self._server = RTDEServer(address, port, self.cycle_hz, self.controller_version, lambda: self._cycle)
@@ -254,6 +259,8 @@ class UREmulator:
         if t > self._q_t:
             self._qd = (q - self._q_reported) / (t - self._q_t)
         self._q_reported, self._q_t = q, t
+        wrench_B = self.robot_wrench.measured(np.array([t]), np.array([round(t * 1e9)], dtype=np.int64))[0]
+        wrench_B[3:] -= np.cross(R_BE @ self.p_EoTo_E, wrench_B[:3])  # the moment about the TCP, not E
         p_BoEo_B, R_BE = p_BoEo_B + R_BE @ self.p_EoTo_E, R_BE @ self.R_ET  # the TCP's pose (E's when no offset)
         pose = tuple(np.concatenate([p_BoEo_B, rotvec_from_quat(quat_wxyz_from_matrix(R_BE))]).tolist())
         q_t, qd_t = tuple(q.tolist()), tuple(self._qd.tolist())
@@ -264,6 +271,7 @@ class UREmulator:
             "target_q": q_t,
             "target_qd": qd_t,
             "actual_TCP_pose": pose,
+            "actual_TCP_force": tuple(wrench_B.tolist()),
             "target_TCP_pose": pose,
             "robot_mode": ROBOT_MODE_RUNNING,
             "safety_mode": SAFETY_MODE_NORMAL,

@@ -3,7 +3,8 @@
 The wire is ur-rtde's ``RTDEReceiveInterface`` (SDU Robotics' client: it
 negotiates RTDE protocol 2 on the controller's port 30004, sets up one output
 recipe and receives its data packages on its own thread). It asks for four
-outputs, in this order: ``actual_TCP_pose`` (position, m, and rotation vector,
+outputs (five with ``actual_TCP_force``, the arm's own wrench, before the
+timestamp), in this order: ``actual_TCP_pose`` (position, m, and rotation vector,
 rad, of the TCP in the Base frame: with the TCP offset zero in the robot's
 installation it is the flange, E), ``actual_q`` and ``actual_qd`` (the joints,
 rad and rad/s: ``PoseSample.joints``/``joint_velocities``, CRTK
@@ -53,11 +54,13 @@ from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec
 from hapticlab.core.host.options import OptionError, choice, host_address, number
 from hapticlab.core.types import Event, PoseSample
 from hapticlab.plugins.device_clock import DeviceClock
-from hapticlab.plugins.kinematics.ur_arm import UR_DH, URArm
+from hapticlab.plugins.kinematics.ur_arm import UR5E_FORCE_ACCURACY_N, UR_DH, URArm
 from hapticlab.plugins.kinematics.ur_follow import TargetWriter
 
 VARIABLES = ["actual_TCP_pose", "actual_q", "actual_qd", "timestamp"]
 """The outputs asked for; ``timestamp`` last, so a package's timestamp changes after its other fields."""
+WITH_FORCE = ["actual_TCP_pose", "actual_q", "actual_qd", "actual_TCP_force", "timestamp"]
+"""The outputs asked for with ``tcp_force_accuracy`` > 0: the arm's own wrench too (``PoseSample.wrench_B``)."""
 MAX_RATE_HZ = 500.0
 """The fastest RTDE output (e-Series); a CB3 controller streams at most 125 Hz."""
 CLOCK_TICKS_HZ = 1e6
@@ -80,7 +83,8 @@ interpreter's lock while the loop runs a tick)."""
 
 
 class URRTDEKinematics:
-    """A UR arm's flange pose and joints over RTDE (KinematicsSource, EmitsEvents).
+    """A UR arm's flange pose and joints over RTDE (KinematicsSource, EmitsEvents), and its own wrench
+    (MeasuresWrench).
 
     Parameters
     ----------
@@ -91,9 +95,21 @@ class URRTDEKinematics:
         package's ``actual_TCP_pose`` is compared with the forward kinematics of its ``actual_q``; more
         than ``TCP_CHECK_M`` or ``TCP_CHECK_RAD`` apart is a ``kinematics_tcp_offset`` event (the
         installation's TCP is not the flange, so the poses are not E's).
+    tcp_force_accuracy : the force accuracy of the arm's own ``actual_TCP_force``, N per axis (default the
+        UR5e's 4.0 N; a CB3 estimates it from its joint currents, far coarser: state its own), which the
+        session checks the wrist sensor against (``sessions.live.crosscheck``). It is measured with the
+        payload set in the robot's installation taken out: set that payload right, and zero the arm's sensor
+        (``zero_ftsensor()``) before a session. 0: the arm's wrench is not read.
     """
 
-    def __init__(self, address: str = "", rate_hz: float = 500.0, receive_timeout: float = 0.1, model: str = ""):
+    def __init__(
+        self,
+        address: str = "",
+        rate_hz: float = 500.0,
+        receive_timeout: float = 0.1,
+        model: str = "",
+        tcp_force_accuracy: float = UR5E_FORCE_ACCURACY_N,
+    ):
         if not address:
             raise OptionError(
                 "address",
@@ -106,6 +122,9 @@ class URRTDEKinematics:
             choice("model", model, list(UR_DH), hint=' (or "" for no check)')
         self.arm = URArm(model) if model else None
         self.address = address
+        self.wrench_accuracy_N = number("tcp_force_accuracy", tcp_force_accuracy, minimum=0, maximum=1e3, hint=" N")
+        """The stated accuracy of the poses' ``wrench_B``, N per axis (MeasuresWrench; 0: not read)."""
+        self.variables = WITH_FORCE if self.wrench_accuracy_N > 0 else VARIABLES
         self.latency_s = 1.0 / self.rate_hz + POLL_LATENCY_S
         """How much older than now the newest pose can be in ordinary operation (HasLatency), s: the
         controller's package pipeline (one period) and the polling thread's wait for the GIL."""
@@ -187,7 +206,7 @@ class URRTDEKinematics:
         import rtde_receive  # ur-rtde; imported here so listing the plugins does not load it
 
         try:
-            return rtde_receive.RTDEReceiveInterface(self.address, self.rate_hz, VARIABLES)
+            return rtde_receive.RTDEReceiveInterface(self.address, self.rate_hz, self.variables)
         except RuntimeError as exc:
             raise ConnectionError(f"UR controller {self.address}:30004 (RTDE at {self.rate_hz:g} Hz): {exc}") from None
 
@@ -213,15 +232,18 @@ class URRTDEKinematics:
                 pose = rtde.getActualTCPPose()
                 q = rtde.getActualQ()
                 qd = rtde.getActualQd()
+                wrench = rtde.getActualTCPForce() if self.wrench_accuracy_N > 0 else None
                 if _ticks(rtde.getTimestamp()) != ticks:  # a newer package came in while reading: read that one
                     continue
             except RuntimeError:  # ur-rtde lost the connection under a getter
                 self._watch()
                 self._closing.wait(0.01)
                 continue
-            self._keep(ticks, time.monotonic_ns(), pose, q, qd)
+            self._keep(ticks, time.monotonic_ns(), pose, q, qd, wrench)
 
-    def _keep(self, ticks: int, received_ns: int, pose: list[float], q: list[float], qd: list[float]) -> None:
+    def _keep(
+        self, ticks: int, received_ns: int, pose: list[float], q: list[float], qd: list[float], wrench=None
+    ) -> None:
         events = []
         if self._last_ticks is not None:
             step = ticks - self._last_ticks
@@ -242,6 +264,7 @@ class URRTDEKinematics:
             p_BoEo_B=pose_arr[:3],
             joints=np.asarray(q, dtype=float),
             joint_velocities=np.asarray(qd, dtype=float),
+            wrench_B=None if wrench is None else np.asarray(wrench, dtype=float),
         )
         if self.packages == 0 and self.arm is not None:
             events.extend(self._check_tcp(received_ns, sample))
@@ -345,8 +368,9 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
         receive_timeout: float = 0.1,
         model: str = "",
         follow_rate_hz: float = FOLLOW_RATE_HZ,
+        tcp_force_accuracy: float = UR5E_FORCE_ACCURACY_N,
     ):
-        super().__init__(address, rate_hz, receive_timeout, model)
+        super().__init__(address, rate_hz, receive_timeout, model, tcp_force_accuracy)
         follow_rate_hz = number("follow_rate_hz", follow_rate_hz, above=0, maximum=self.rate_hz, hint=" Hz (rate_hz)")
         self.period_ns = round(1e9 / follow_rate_hz)
         self._writer: TargetWriter | None = None
@@ -381,15 +405,16 @@ def ur_rtde_kinematics(
     model: str = "",
     follow: bool = False,
     follow_rate_hz: float = FOLLOW_RATE_HZ,
+    tcp_force_accuracy: float = UR5E_FORCE_ACCURACY_N,
 ) -> URRTDEKinematics:
     """The ``ur_rtde`` kinematics (options as :class:`URRTDEKinematics`); with ``follow`` the arm also follows
     teleoperation's targets, ``follow_rate_hz`` a second (:class:`FollowingURRTDEKinematics`; run
     ``hapticlab_follow.script`` on the arm)."""
     if follow:
-        return FollowingURRTDEKinematics(address, rate_hz, receive_timeout, model, follow_rate_hz)
+        return FollowingURRTDEKinematics(address, rate_hz, receive_timeout, model, follow_rate_hz, tcp_force_accuracy)
     if follow_rate_hz != FOLLOW_RATE_HZ:
         raise OptionError("follow_rate_hz", f"must be left out unless follow = true, got {follow_rate_hz!r}")
-    return URRTDEKinematics(address, rate_hz, receive_timeout, model)
+    return URRTDEKinematics(address, rate_hz, receive_timeout, model, tcp_force_accuracy)
 
 
 @hookimpl

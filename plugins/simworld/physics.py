@@ -299,16 +299,7 @@ class SimWorld:
 
         contact_force_S = np.zeros((n, 3))
         contact_torque_S = np.zeros((n, 3))
-        for point_cross_S, p_EoP_E, events in self._contacts_by_point:
-            force_B = np.zeros((n, 3))
-            for event in events:
-                if isinstance(event, (Tissue, Cable)):  # a reaction to where the point is and how it moves, in B
-                    r_B = _apply(state.R_BE, p_EoP_E)
-                    x_B = state.p_BoEo_B + r_B
-                    v_B = state.v_BEo_B + _apply(state.R_BE, _apply(skew(-p_EoP_E), state.w_BE_E))  # ω × p
-                    force_B += event.force_B_at(x_B, v_B)
-                else:
-                    force_B += event.force_B(t, self.gravity_accel_B)
+        for (point_cross_S, _, _), force_B in zip(self._contacts_by_point, self._contact_forces_B(t, state)):
             force_S = _apply(R_SB, force_B)
             contact_force_S += force_S
             contact_torque_S += _apply(point_cross_S, force_S)  # p × f
@@ -332,6 +323,34 @@ class SimWorld:
             "R_EB": R_EB,
             "p_BoEo_B": state.p_BoEo_B,
         }, reading_S
+
+    def _contact_forces_B(self, t: np.ndarray, state: MotionState) -> list[np.ndarray]:
+        """The contact force at each point of ``_contacts_by_point`` at times ``t`` (N,) s, (N, 3) N in B each."""
+        forces = []
+        for _, p_EoP_E, events in self._contacts_by_point:
+            force_B = np.zeros((len(t), 3))
+            for event in events:
+                if isinstance(event, (Tissue, Cable)):  # a reaction to where the point is and how it moves, in B
+                    r_B = _apply(state.R_BE, p_EoP_E)
+                    x_B = state.p_BoEo_B + r_B
+                    v_B = state.v_BEo_B + _apply(state.R_BE, _apply(skew(-p_EoP_E), state.w_BE_E))  # ω × p
+                    force_B += event.force_B_at(x_B, v_B)
+                else:
+                    force_B += event.force_B(t, self.gravity_accel_B)
+            forces.append(force_B)
+        return forces
+
+    def contact_wrench_B(self, t: float | np.ndarray) -> np.ndarray:
+        """The true contact wrench on the tool at times ``t`` (s), in B: (N, 6), the force (N) then its moment
+        about the flange origin E (N·m). What a robot that measures its own wrench (a UR's
+        ``actual_TCP_force``, the TCP at the flange) would report without error."""
+        t = _times(t)
+        state = self.motion.evaluate(t)
+        wrench_B = np.zeros((len(t), 6))
+        for (_, p_EoP_E, _), force_B in zip(self._contacts_by_point, self._contact_forces_B(t, state)):
+            wrench_B[:, :3] += force_B
+            wrench_B[:, 3:] += np.cross(_apply(state.R_BE, p_EoP_E), force_B)  # r × f
+        return wrench_B
 
     # ---------------------------------------------------------------- truth
 

@@ -11,6 +11,8 @@ haptic commands is the force the fault alone put on the trainee's hand:
   clean run's force, scaled by anything in [0, 1], cannot explain, N: a force
   the contact does not give. (A force zeroed, or ramping back up to the true
   one, makes up nothing: missing force is safe.)
+* **over 0.5 N for**: how long the made-up force was above 0.5 N (the issue's bound), s, summed over the
+  commands (each lasting a loop period);
 * **detected after**: from the fault's start to the first zero command whose
   reason names a fault, s (None: never);
 * **zero after detection**: from that detection to the first zero command, s
@@ -33,6 +35,8 @@ from hapticlab.sessions.live.gate import WARMING_UP
 from hapticlab.sessions.recording import read_recording
 
 FAULT_START_S = 4.0
+MADE_UP_BOUND_N = 0.5
+"""The made-up force a fault may put on the hand, N (issue 39's bound): the time above it is reported."""
 DURATION_S = 7.0
 FAULTS: dict[str, dict[str, Any]] = {
     "sensor spike +1000 N, 20 ms": {"kind": "sensor_spike", "force": [1000.0, 0.0, 0.0], "duration": 0.02},
@@ -71,6 +75,13 @@ FAULTS: dict[str, dict[str, Any]] = {
         "start": 6.5,
         "session_s": 9.0,
     },
+    "sensor offset ramping +6 N over 0.5 s, during a contact": {
+        "kind": "sensor_bias_step",
+        "force": [6.0, 0.0, 0.0],
+        "ramp": 0.5,
+        "start": 6.4,
+        "session_s": 9.0,
+    },
     "session started resting on tissue (2 N up), lifted off at 5 s": {
         "contact": {"kind": "indentation", "start": -1.0, "duration": 6.0, "peak_force": 2.0, "ramp": 0.0},
         "start": 5.0,
@@ -81,7 +92,8 @@ FAULTS: dict[str, dict[str, Any]] = {
     },
 }
 """The faults, each injected at ``FAULT_START_S`` into a ``DURATION_S`` session unless it says otherwise
-(``start``, ``session_s``: the bias step lands in the demo's first contact, 6-7.5 s; the ramp needs 10 s).
+(``start``, ``session_s``: the bias step lands in the demo's first contact, 6-7.5 s; the ramp needs 10 s; the
+fast ramp during a contact is the second channel's row: the drift watch cannot judge in a contact).
 A row with a ``contact`` adds it to the world instead (the session starts with the tool resting on
 tissue, straight up: a lighter tool to any estimator), and is measured from its ``start`` (the lift)."""
 
@@ -137,8 +149,10 @@ def measure(estimator: str, clean, fault: dict[str, Any]) -> dict[str, Any]:
     event = next(
         (e for e in events if (e.t_ns - t0) * 1e-9 >= start_s and e.kind in ("fault", "bias_step", "weight_step")), None
     )
+    period_s = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
     return {
         "made_up_force_N": float(made_up[window].max()) if window.any() else 0.0,
+        "over_half_newton_s": float(np.count_nonzero(made_up[window] > MADE_UP_BOUND_N)) * period_s,
         "detected_after_s": None if t_detect is None else t_detect - start_s,
         "zero_after_detection_s": None
         if t_detect is None or not len(zeros)

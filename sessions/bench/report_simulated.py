@@ -84,9 +84,9 @@ def faults_section(out: dict[str, Any]) -> list[str]:
         "",
         "`hapticlab bench faults` (JSON: `docs/results/faults.json`): each fault injected into the demo session",
         '(`[[world.faults]]`), the same session run once without it, every seed shared. "Made-up force" is the',
-        'largest force on the device the clean run\'s contact does not explain, N; "detected after", from the',
-        'fault\'s start to the first zero command naming a fault; "zero after detection", from there to the',
-        "zero command. The rules: [safety.md](safety.md).",
+        'largest force on the device the clean run\'s contact does not explain, N; "over 0.5 N for", how long it',
+        'was above 0.5 N; "detected after", from the fault\'s start to the first zero command naming a fault;',
+        '"zero after detection", from there to the zero command. The rules: [safety.md](safety.md).',
         "",
     ]
 
@@ -101,14 +101,23 @@ def faults_section(out: dict[str, Any]) -> list[str]:
                     f"`{estimator}`" if k == 0 else "",
                     label,
                     num(r["made_up_force_N"], 2),
+                    ms(r.get("over_half_newton_s")),
                     ms(r["detected_after_s"]),
                     ms(r["zero_after_detection_s"]),
                     r["event"] or "none",
                 )
             )
     lines += table(
-        ("estimator", "fault", "made-up force (N)", "detected after (ms)", "zero after detection (ms)", "event"),
+        (
+            "estimator",
+            "fault",
+            "made-up force (N)",
+            "over 0.5 N for (ms)",
+            "detected after (ms)",
+            "zero after detection (ms)",
+            "event",
+        ),
         rows,
-        align="llrrrl",
+        align="llrrrrl",
     )
     return lines

@@ -126,7 +126,15 @@ def print_faults_table(out: dict) -> None:
         title=f"Injected faults (demo session, fault at {FAULT_START_S:g} s): force on the device that the "
         f"contact does not explain, and how soon it went to zero"
     )
-    for col in ("estimator", "fault", "made-up force (N)", "detected after (ms)", "zero after detection (ms)", "event"):
+    for col in (
+        "estimator",
+        "fault",
+        "made-up force (N)",
+        "over 0.5 N for (ms)",
+        "detected after (ms)",
+        "zero after detection (ms)",
+        "event",
+    ):
         t.add_column(col, justify="right" if col != "event" else "left")
     for estimator, faults in out.items():
         for k, (label, r) in enumerate(faults.items()):
@@ -135,6 +143,7 @@ def print_faults_table(out: dict) -> None:
                 estimator if k == 0 else "",
                 label,
                 fmt(r["made_up_force_N"], 2),
+                ms(r.get("over_half_newton_s")),
                 ms(r["detected_after_s"]),
                 ms(r["zero_after_detection_s"]),
                 r["event"] or "none",

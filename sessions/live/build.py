@@ -27,6 +27,7 @@ from hapticlab.core.host.interfaces import (
     HoldsOutOutliers,
     KinematicsSource,
     KnowsMount,
+    MeasuresWrench,
     Reidentifies,
     ReidentifiesWeight,
     ReportsCovariance,
@@ -177,6 +178,7 @@ class Session:
             settings.max_speed,
             reports_params=self.primary.reports_params is not None,
             reidentifies_weight=self.primary.reidentifies_weight,
+            wrench_accuracy_N=self.kinematics.wrench_accuracy_N if isinstance(self.kinematics, MeasuresWrench) else 0.0,
         )
 
 

@@ -16,7 +16,9 @@ rules with their reasons):
   ``DOUBT_FREE_NS``; a residual that keeps its direction in the sensor while the tool turns (a bias step
   or drift, in contact or not) is re-identified by the estimator (or latches the force off until a
   re-arm, :meth:`HapticGate.rearm`), and the force waits for the residual to settle (a full window under
-  ``drift.MIN_OFFSET_N``: a bias still drifting, or one that moved unseen during a contact, stays off).
+  ``drift.MIN_OFFSET_N``: a bias still drifting, or one that moved unseen during a contact, stays off);
+* the second channel, where the robot measures its own wrench (``crosscheck.WrenchCrossCheck``): the
+  contact force off the robot's by more than its stated accuracy; a sudden step both show is a contact.
 
 Every fault (a reason that is not the estimator's ordinary warming up) is also an event naming it, recorded
 when it starts. A latched stop is the event ``haptic_latched``; a re-arm ``haptic_rearmed``, a refused one
@@ -32,6 +34,7 @@ import numpy as np
 from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReidentifiesWeight, ReportsParameterStd
 from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
+from hapticlab.sessions.live.crosscheck import WrenchCrossCheck
 from hapticlab.sessions.live.drift import MIN_OFFSET_N, WEIGHT_TILT, DriftWatch, along
 from hapticlab.sessions.live.watch import LAG_LIMIT_S, LagWatch, PoseWatch, StepWatch, StuckWatch
 
@@ -65,6 +68,7 @@ class HapticGate:
         frozen_pose_timeout_ns: longest run of identical poses before "kinematics frozen", ns.
         max_turn_rate: fastest turn between two poses before "kinematics jumped", rad/s.
         max_speed: fastest motion between two poses before "kinematics jumped", m/s.
+        wrench_accuracy_N: the robot's own wrench's stated accuracy, N (``MeasuresWrench``; 0: it has none).
     """
 
     def __init__(
@@ -79,6 +83,7 @@ class HapticGate:
         max_speed: float,
         reports_params: bool = True,
         reidentifies_weight: ReidentifiesWeight | None = None,
+        wrench_accuracy_N: float = 0.0,
     ):
         self.label = label
         self.ready_force_std = ready_force_std
@@ -89,29 +94,24 @@ class HapticGate:
         self.drift = DriftWatch()
         self.steps, self.stuck = StepWatch(), StuckWatch()
         self.lag = LagWatch(max_turn_rate)
+        self.cross = WrenchCrossCheck(wrench_accuracy_N)  # the robot's own wrench (accuracy 0: none, it idles)
         screen_kernel.warm_up()  # compiled (or loaded) before the first tick
         self.ready = [False, False]  # each stage has converged at least once
         self.converged = [False, False]  # each stage's flag after the last sample
         self.down_since_ns: int | None = None  # the force stage's flag has been down since (None: it is up)
         self.flips = [0, 0]
-        self.parameters_known = False
-        self.parameters_lost = False
+        self.parameters_known = self.parameters_lost = False
         self.hold_until_ns = 0
         self.unidentified = ""  # the estimator's last not_identifiable message about the weight ("" none)
-        # "" | "drop" (waiting for the flag to drop) | "rise" (to rise again) | "settle" (the residual to settle) |
-        # "latched"
-        self.bias_hold = ""
+        self.bias_hold = ""  # "" | "drop", "rise" (waiting for the flag to) | "settle" (the residual) | "latched"
         self.hold_cause = "sensor bias step"  # what the hold is for: "sensor bias step" | "weight step" | "re-armed"
         self.contact_now = False  # the estimator's contact flag for the newest sample
         self.doubt = ""  # the sudden step in hand ("" none)
         self.doubt_from_contact = False  # the estimator saw a contact when the doubt began
         self.free_since_ns: int | None = None  # the estimator has seen free motion since (None: a contact now)
         self.last_sample_ns: int | None = None
-        self.data_reason = ""
-        self.fault = ""  # the fault the last event named
-        # the estimator gives the weight model the lag watch predicts with (False: it reports no params, or
-        # params without gravity_force_B and bias_force_S; found at its first params)
-        self.weight_model = reports_params
+        self.data_reason = self.fault = ""  # (the fault: what the last event named)
+        self.weight_model = reports_params  # the lag watch's weight model (False: none in the first params)
 
     def frozen(self) -> bool:
         """The robot's poses are frozen now (their samples must not reach the estimators)."""
@@ -149,6 +149,7 @@ class HapticGate:
         """New poses arrived at ``now_ns``: a jump starts the lag watch afresh."""
         if self.poses.add(poses, now_ns):
             self.lag.reset()
+        self.cross.add_robot(poses)
 
     def on_samples(self, block: AlignedSamples, usable: np.ndarray, reason: str, now_ns: int) -> tuple[np.ndarray, str]:
         """A new sensor block arrived (every sample), with the screen's ``usable`` mask and ``reason``
@@ -166,6 +167,7 @@ class HapticGate:
         if what and self.parameters_known and self.bias_hold in ("", "settle"):  # the motion decides what it was
             self._start_doubt(what)
         if held.any():
+            self.cross.mark(self.last_sample_ns)  # (the step, if it stays, is measured from before it)
             usable, reason = usable & ~held, reason or self.steps.jump
         if stuck.any():
             usable, reason = (
@@ -182,6 +184,7 @@ class HapticGate:
             self.doubt_from_contact = self.contact_now
         self.doubt, self.free_since_ns = what, None
         self.drift.reset()
+        self.cross.mark(self.last_sample_ns or 0)
 
     def on_estimates(
         self,
@@ -194,6 +197,7 @@ class HapticGate:
         """The primary estimator's output for the usable samples: the events it makes (convergence, bias step)."""
         events = []
         self.contact_now = bool(est.contact[-1])
+        self.cross.add_contact(est.t_ns, est.contact_force_S, block.R_EB, R_SE)
         for stage, flags, name in ((0, est.converged_force, "force"), (1, est.converged_torque, "torque")):
             flags = flags.tolist()  # a live block is a few samples: Python's bools beat numpy's calls here
             previous = self.converged[stage]
@@ -254,6 +258,9 @@ class HapticGate:
                 message = f"the sudden step ({self.doubt}) turned with the world: a contact"
                 events.append(Event(now_ns, "contact_confirmed", message))
                 self.doubt = ""
+        if self.doubt and self.cross.confirmed:  # the robot's own wrench saw it too: a contact
+            events.append(Event(now_ns, "contact_confirmed", f"the sudden step ({self.doubt}): {self.cross.confirmed}"))
+            self.doubt = ""
         if self.doubt:
             f = self.drift.offset_S.tolist()  # (the newest 20 ms mean: one sample's noise alone passes 0.25 N)
             if self.contact_now or f[0] * f[0] + f[1] * f[1] + f[2] * f[2] >= MIN_OFFSET_N**2:
@@ -335,12 +342,9 @@ class HapticGate:
             assert self.poses.jump is not None  # _jumped: a jump was seen
             return f"kinematics jumped ({self.poses.jump[1]})"
         if self._out_of_step():
-            lag_s = self.lag.lag_s
-            assert lag_s is not None  # _out_of_step: a lag was measured
-            return (
-                f"kinematics out of step with the sensor (poses {abs(lag_s) * 1e3:.0f} ms "
-                f"{'late' if lag_s > 0 else 'early'})"
-            )
+            lag_ms = (self.lag.lag_s or 0.0) * 1e3  # (a lag was measured)
+            late = "late" if lag_ms > 0 else "early"
+            return f"kinematics out of step with the sensor (poses {abs(lag_ms):.0f} ms {late})"
         if self.bias_hold == "latched":
             return f"{self.hold_cause}: re-arm needed"
         if self.bias_hold == "settle":
@@ -351,8 +355,9 @@ class HapticGate:
             return f"{self.hold_cause}: re-identifying"
         if self.doubt:
             return f"sudden force step ({self.doubt}): held until the motion tells a contact from the sensor"
+        unidentified = f" ({self.unidentified})" if self.unidentified else ""
         if not self.ready[0]:
-            return f"estimator not converged ({self.unidentified})" if self.unidentified else "estimator not converged"
+            return f"estimator not converged{unidentified}"
         if (
             self.parameter_std is None
             and self.down_since_ns is not None
@@ -360,18 +365,14 @@ class HapticGate:
         ):
             return "estimator no longer converged"
         if not self.parameters_known:
-            return (
-                f"parameters not yet identified ({self.unidentified})"
-                if self.unidentified
-                else "parameters not yet identified"
-            )
+            return f"parameters not yet identified{unidentified}"
         if self.parameters_lost:
             return "parameters no longer known (uncertainty grew)"
         if not self.weight_model:
             return f"{self.label} reports no weight model ({' and '.join(WEIGHT_MODEL)}): the poses cannot be checked"
         if now_ns < self.hold_until_ns:
             return "payload change: tool weight re-identified, holding"
-        return ""
+        return self.cross.holding
 
     def fault_event(self, reason: str, now_ns: int) -> Event | None:
         """An event when a new fault starts (a reason that is not the estimator warming up)."""

@@ -134,6 +134,7 @@ class Taps:
                     "quat_BE": p.quat_BE.tolist(),
                     "p_BoEo_B": None if p.p_BoEo_B is None else p.p_BoEo_B.tolist(),
                     "joints": None if p.joints is None else p.joints.tolist(),
+                    "wrench_B": None if p.wrench_B is None else p.wrench_B.tolist(),
                     "age_ns": now_ns - p.t_ns,
                 },
             )

@@ -93,6 +93,12 @@ _POSE_SCHEMA = _schema(
             "items": _NUM,
             "description": "Joint positions, rad (m for prismatic joints); null when unknown.",
         },
+        "wrench_B": {
+            "type": ["array", "null"],
+            "items": _NUM,
+            "description": "The robot's own measure of the contact wrench on its tool (CRTK measured_cf; a UR's "
+            "actual_TCP_force), expressed in B: force, N, then moment about the TCP, N·m; null when it gives none.",
+        },
         "age_ns": {
             "type": "integer",
             "description": "How old the pose was when the loop read it: the "

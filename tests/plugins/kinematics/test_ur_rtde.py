@@ -23,13 +23,14 @@ import pytest
 
 from hapticlab.core.aligner import Aligner
 from hapticlab.core.frames import matrix_from_quat_wxyz, quat_from_rotvec, quat_wxyz_from_matrix
-from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource
+from hapticlab.core.host.interfaces import EmitsEvents, KinematicsSource, MeasuresWrench
 from hapticlab.core.host.registry import ConfigError, Registry
 from hapticlab.core.types import WrenchSample
 from hapticlab.plugins.kinematics.ur_arm import URArm
 from hapticlab.plugins.kinematics.ur_emulator import UREmulator
 from hapticlab.plugins.kinematics.ur_rtde import URRTDEKinematics
 from hapticlab.plugins.simworld import SimWorld
+from hapticlab.plugins.simworld.robot_wrench import RobotWrench
 from hapticlab.sessions.config import load_config
 
 SEED = 7
@@ -181,6 +182,11 @@ def test_plugin_reads_the_simulated_poses_every_cycle_or_counts_the_missed(
         R_BE, p = arm.forward(s.joints)
         assert np.abs(R_BE - matrix_from_quat_wxyz(s.quat_BE[None])[0]).max() < 1e-9
         np.testing.assert_allclose(p, s.p_BoEo_B, atol=1e-9)
+    # the arm's own wrench (actual_TCP_force, a fifth output): the world's contact with the UR5e's error model
+    assert isinstance(kinematics, MeasuresWrench) and kinematics.wrench_accuracy_N == 4.0
+    t = cycles * cycle_s
+    expected = RobotWrench(world).measured(t, np.round(t * 1e9).astype(np.int64))
+    np.testing.assert_allclose([s.wrench_B for s in samples], expected, atol=1e-9)
     # joint velocities: the emulator's difference of consecutive q over their time
     a, b = samples[-2], samples[-1]
     if cycles[-1] - cycles[-2] == 1:
@@ -530,6 +536,9 @@ class ScriptedRTDE:
 
     def getActualQd(self) -> list[float]:  # noqa: N802 (ur-rtde's name)
         self.confirming = True
+        return [0.0] * 6
+
+    def getActualTCPForce(self) -> list[float]:  # noqa: N802 (ur-rtde's name)
         return [0.0] * 6
 
     def disconnect(self) -> None:

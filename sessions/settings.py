@@ -167,6 +167,10 @@ class HapticSettings:
             that report one, e.g. ``rls``: sqrt of diag P). Algorithm 1's own
             ‖Δx‖ test also passes while a motion about a single axis leaves one
             direction unidentified; this host rule keeps the haptics off then.
+        tool_mass: the mass the sensor carries below its sensing plane (the tool and its adapter), kg, weighed;
+            0 = not stated. Stated, a weight the motion identifies off it by more than 0.3 N (or 5 %) holds the
+            force: the session started with the tool resting on something, which the motion cannot tell from a
+            lighter tool; it is re-identified once the missing weight shows as the tool is lifted.
     """
 
     max_force: float = 4.0
@@ -177,6 +181,7 @@ class HapticSettings:
     cutoff_hz: float = 0.0
     rearm_button: int = -1
     ready_force_std: float = 0.05
+    tool_mass: float = 0.0
 
     CHECKS: ClassVar[Mapping[str, Check]] = {
         "max_force": check(number, above=0, hint=" (N)"),
@@ -187,6 +192,7 @@ class HapticSettings:
         "cutoff_hz": check(number, minimum=0, maximum=MAX_LOOP_RATE_HZ, hint=" (Hz; 0: off)"),
         "rearm_button": _button("none"),
         "ready_force_std": check(number, above=0, hint=" (N)"),
+        "tool_mass": check(number, minimum=0, maximum=100, hint=" (kg; 0: not stated)"),
     }
 
     def __post_init__(self) -> None:

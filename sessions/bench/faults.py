@@ -90,26 +90,34 @@ FAULTS: dict[str, dict[str, Any]] = {
         "contact": {"kind": "indentation", "start": -1.1, "duration": 6.2, "peak_force": 2.0, "ramp": 0.1},
         "start": 5.0,
     },
+    "the same, the tool's mass stated (0.35 kg)": {
+        "contact": {"kind": "indentation", "start": -1.1, "duration": 6.2, "peak_force": 2.0, "ramp": 0.1},
+        "start": 5.0,
+        "settings": {"haptic.tool_mass": 0.35},
+    },
 }
 """The faults, each injected at ``FAULT_START_S`` into a ``DURATION_S`` session unless it says otherwise
 (``start``, ``session_s``: the bias step lands in the demo's first contact, 6-7.5 s; the ramp needs 10 s; the
 fast ramp during a contact is the second channel's row: the drift watch cannot judge in a contact).
 A row with a ``contact`` adds it to the world instead (the session starts with the tool resting on
-tissue, straight up: a lighter tool to any estimator), and is measured from its ``start`` (the lift)."""
+tissue, straight up: a lighter tool to any estimator), and is measured from its ``start`` (the lift); one with
+``settings`` runs with them (the clean run too)."""
 
 
 def session(
     estimator: str, fault: dict[str, Any] | None, duration_s: float = DURATION_S
 ) -> tuple[np.ndarray, np.ndarray, list[dict], list, int]:
-    """One demo session with ``fault`` injected: command times (s), forces, messages, events, and t0 (ns)."""
+    """One demo session with ``fault`` injected (None: none): command times (s), forces, messages, events, and t0
+    (ns)."""
     config, _ = load_config("demo")
+    settings = {} if fault is None else fault.get("settings", {})
     config = apply_settings(
-        config, {"session.realtime": False, "session.duration": duration_s, "estimator.name": estimator}
+        config, {"session.realtime": False, "session.duration": duration_s, "estimator.name": estimator, **settings}
     )
     if fault is not None and "contact" in fault:
         config["world"]["contacts"] = [*config["world"].get("contacts", []), fault["contact"]]
-    elif fault is not None:
-        config["world"]["faults"] = [{"start": FAULT_START_S, **fault}]
+    elif fault is not None and "kind" in fault:  # (``{"settings": ...}`` alone: a clean run with them)
+        config["world"]["faults"] = [{"start": FAULT_START_S, **{k: v for k, v in fault.items() if k != "settings"}}]
     with tempfile.TemporaryDirectory() as folder:
         result = run_session(build_session(config), out=Path(folder) / "faults.mcap")
         rec = read_recording(result.path)
@@ -169,13 +177,15 @@ def bench_faults(
     for estimator in estimators:
         if progress:
             progress(f"{estimator}: clean run")
-        clean = {DURATION_S: session(estimator, None)}
+        clean: dict[tuple, Any] = {}  # by duration and settings
         out[estimator] = {}
         for label, fault in FAULTS.items():
             if progress:
                 progress(f"{estimator}: {label}")
             duration_s = fault.get("session_s", DURATION_S)
-            if duration_s not in clean:
-                clean[duration_s] = session(estimator, None, duration_s)
-            out[estimator][label] = measure(estimator, clean[duration_s], fault)
+            settings = fault.get("settings", {})
+            key = (duration_s, *sorted(settings.items()))
+            if key not in clean:
+                clean[key] = session(estimator, {"settings": settings} if settings else None, duration_s)
+            out[estimator][label] = measure(estimator, clean[key], fault)
     return out

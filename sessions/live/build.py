@@ -179,6 +179,7 @@ class Session:
             reports_params=self.primary.reports_params is not None,
             reidentifies_weight=self.primary.reidentifies_weight,
             wrench_accuracy_N=self.kinematics.wrench_accuracy_N if isinstance(self.kinematics, MeasuresWrench) else 0.0,
+            tool_mass=self.haptic_settings.tool_mass,
         )
 
 

@@ -6,9 +6,10 @@ bias and hapticlab's estimators. Where the kinematics ``MeasuresWrench``, :class
 both channels as means over ``drift.BIN_NS`` (20 ms) bins, in the base frame B, and compares each bin:
 
 * **disagreement**: the estimator's contact force and the robot's differ by more than the robot's stated
-  accuracy on an axis. Which one is wrong the two cannot say (a bias step, a spike, a stuck channel on
-  the sensor's side; a wrong payload set on the arm on the other), so the force is held at zero until they
-  have agreed for ``AGREE_NS``;
+  accuracy on an axis, in ``DISAGREE_BINS`` consecutive bins. Which one is wrong the two cannot say (a bias
+  step, a spike, a stuck channel on the sensor's side; a wrong payload set on the arm on the other), so the
+  force is held at zero until they have agreed for ``AGREE_NS``; a robot's wrench that stops coming while the
+  sensor's does holds it too (the check cannot run);
 * **confirmation**: a sudden step (``watch.StepWatch``) that the robot's force shows too, within
   ``CONFIRM_BINS``, by at least ``CONFIRM_N``, matching the sensor's step (``STEP_MATCH_N``) and leaving the
   robot's force beyond its accuracy along the step, is a contact (a collision): the gate renders it at once
@@ -29,6 +30,9 @@ import numpy as np
 from hapticlab.core.types import PoseSample
 from hapticlab.sessions.live.drift import BIN_NS
 
+DISAGREE_BINS = 2
+"""Consecutive bins that must disagree before the force is held (40 ms): a real arm's wrench lags the wrist
+sensor's by its filter, so a collision's first bin may disagree."""
 AGREE_NS = 200_000_000
 """After a disagreement the channels must agree this long (ten bins) before the force may come back, ns: a
 fault that flickers (a loose connector) keeps the force off rather than on and off."""
@@ -60,9 +64,8 @@ class _Bins:
         self.count = 0
         self.done: dict[int, list[float]] = {}
 
-    def add(self, t_ns: int, f: list[float]) -> None:
-        """One force (3,) N at ``t_ns``: a later bin completes the one being filled."""
-        b = t_ns // BIN_NS
+    def add(self, b: int, f: list[float]) -> None:
+        """One force (3,) N in bin ``b``: a later bin completes the one being filled."""
         if b != self.bin:
             if self.count:
                 self.done[self.bin] = [x / self.count for x in self.sum]
@@ -94,6 +97,14 @@ class WrenchCrossCheck:
         self.reference: tuple[list[float], list[float]] | None = None  # (robot, sensor) before a sudden step
         self.marked = self.window_from = -1  # the bins of the step's first mark and of the last (at their time)
         self.confirmed = ""  # the newest bin confirmed the step: how ("" not)
+        self.bad_bins = 0  # consecutive compared bins that disagreed
+        self.origin_ns: int | None = None  # bin 0 starts at the first stamp either channel brought
+
+    def _bin(self, t_ns: int) -> int:
+        """The bin of ``t_ns``, counted from the first stamp (so a session's bins do not depend on its clock)."""
+        if self.origin_ns is None:
+            self.origin_ns = t_ns
+        return (t_ns - self.origin_ns) // BIN_NS
 
     def add_robot(self, poses: list[PoseSample]) -> None:
         """The robot's wrench of each new pose (a pose without one, or a non-finite one, is skipped)."""
@@ -104,7 +115,7 @@ class WrenchCrossCheck:
             if w is not None:
                 f = w[:3].tolist()
                 if math.isfinite(f[0] + f[1] + f[2]):
-                    self.robot.add(pose.t_ns, f)
+                    self.robot.add(self._bin(pose.t_ns), f)
         self._compare()
 
     def add_contact(self, t_ns: np.ndarray, contact_force_S: np.ndarray, R_EB: np.ndarray, R_SE) -> None:
@@ -115,17 +126,18 @@ class WrenchCrossCheck:
         force_B = np.einsum("nji,nj->ni", R_EB, force_E).tolist()
         for t, f in zip(t_ns.tolist(), force_B):
             if math.isfinite(f[0] + f[1] + f[2]):
-                self.sensor.add(t, f)
+                self.sensor.add(self._bin(t), f)
         self._compare()
 
     def mark(self, t_ns: int) -> None:
         """A step may be under way at ``t_ns`` (a jump held out, a sudden step): it is measured from the newest
         compared bin, or from the one an earlier mark took within ``MARK_KEEP_BINS`` (a jump held out, then kept),
         and may be confirmed by the bins within ``CONFIRM_BINS`` of this mark."""
-        now = self.window_from = t_ns // BIN_NS
+        now = self.window_from = self._bin(t_ns)
         if self.reference is None or now - self.marked > MARK_KEEP_BINS:
             self.marked, b = now, self.compared
-            self.reference = (self.robot.done[b], self.sensor.done[b]) if b in self.robot.done else None
+            known = b in self.robot.done and b in self.sensor.done  # (a channel silent since: no reference)
+            self.reference = (self.robot.done[b], self.sensor.done[b]) if known else None
         self.confirmed = ""
 
     def _compare(self) -> None:
@@ -133,25 +145,34 @@ class WrenchCrossCheck:
         for b in sorted(sensor):
             if b <= self.compared or b not in robot:
                 continue
+            if b != self.compared + 1:  # bins between never compared: they are no agreement
+                self.agree_since_ns, self.bad_bins = None, 0
             self.compared = b
             r, s = robot[b], sensor[b]
             worst = max(range(3), key=lambda i: abs(s[i] - r[i]))
             off = s[worst] - r[worst]
             end_ns = (b + 1) * BIN_NS
-            if abs(off) > self.accuracy_N:
+            self.bad_bins = self.bad_bins + 1 if abs(off) > self.accuracy_N else 0
+            if self.bad_bins >= DISAGREE_BINS:
                 self.disagreements += 1
                 self.agree_since_ns = None
                 self.holding = (
                     f"wrist sensor and robot disagree (the contact force is {off:+.1f} N off the robot's own on "
                     f"{'xyz'[worst]}, beyond its {self.accuracy_N:g} N accuracy)"
                 )
-            elif self.holding:
+            elif self.holding and not self.bad_bins:
                 if self.agree_since_ns is None:
                     self.agree_since_ns = end_ns - BIN_NS
                 if end_ns - self.agree_since_ns >= AGREE_NS:
                     self.holding = ""
             if self.reference is not None and not self.confirmed and b <= self.window_from + CONFIRM_BINS:
                 self.confirmed = self._confirms(r, s)
+        if self.sensor.bin - max(self.compared, self.robot.bin) > KEEP_BINS:  # the robot's wrench stopped coming
+            self.agree_since_ns, self.bad_bins = None, 0
+            self.holding = (
+                f"robot's own wrench missing (none for {KEEP_BINS * BIN_NS * 1e-6:.0f} ms while the sensor's came: "
+                "the cross-check cannot run)"
+            )
 
     def _confirms(self, r: list[float], s: list[float]) -> str:
         """How the step from the reference to bin means ``r`` (robot) and ``s`` (sensor) is a contact ("" not)."""

@@ -34,8 +34,10 @@ import numpy as np
 from hapticlab.core.host.interfaces import WEIGHT_MODEL, Reidentifies, ReidentifiesWeight, ReportsParameterStd
 from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
+from hapticlab.sessions.live.convergence import ConvergenceFlags
 from hapticlab.sessions.live.crosscheck import WrenchCrossCheck
 from hapticlab.sessions.live.drift import MIN_OFFSET_N, WEIGHT_TILT, DriftWatch, along
+from hapticlab.sessions.live.stated_weight import StatedWeight
 from hapticlab.sessions.live.watch import LAG_LIMIT_S, LagWatch, PoseWatch, StepWatch, StuckWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
@@ -69,6 +71,7 @@ class HapticGate:
         max_turn_rate: fastest turn between two poses before "kinematics jumped", rad/s.
         max_speed: fastest motion between two poses before "kinematics jumped", m/s.
         wrench_accuracy_N: the robot's own wrench's stated accuracy, N (``MeasuresWrench``; 0: it has none).
+        tool_mass: the tool's stated mass, kg (``[haptic] tool_mass``; 0: not stated).
     """
 
     def __init__(
@@ -84,6 +87,7 @@ class HapticGate:
         reports_params: bool = True,
         reidentifies_weight: ReidentifiesWeight | None = None,
         wrench_accuracy_N: float = 0.0,
+        tool_mass: float = 0.0,
     ):
         self.label = label
         self.ready_force_std = ready_force_std
@@ -94,12 +98,11 @@ class HapticGate:
         self.drift = DriftWatch()
         self.steps, self.stuck = StepWatch(), StuckWatch()
         self.lag = LagWatch(max_turn_rate)
+        self.stated = StatedWeight(tool_mass) if tool_mass > 0 else None  # the identified weight checked against it
         self.cross = WrenchCrossCheck(wrench_accuracy_N)  # the robot's own wrench (accuracy 0: none, it idles)
         screen_kernel.warm_up()  # compiled (or loaded) before the first tick
-        self.ready = [False, False]  # each stage has converged at least once
-        self.converged = [False, False]  # each stage's flag after the last sample
-        self.down_since_ns: int | None = None  # the force stage's flag has been down since (None: it is up)
-        self.flips = [0, 0]
+        self.flags = ConvergenceFlags(label)
+        self.ready, self.converged, self.flips = self.flags.ready, self.flags.converged, self.flags.flips  # (its lists)
         self.parameters_known = self.parameters_lost = False
         self.hold_until_ns = 0
         self.unidentified = ""  # the estimator's last not_identifiable message about the weight ("" none)
@@ -198,19 +201,7 @@ class HapticGate:
         events = []
         self.contact_now = bool(est.contact[-1])
         self.cross.add_contact(est.t_ns, est.contact_force_S, block.R_EB, R_SE)
-        for stage, flags, name in ((0, est.converged_force, "force"), (1, est.converged_torque, "torque")):
-            flags = flags.tolist()  # a live block is a few samples: Python's bools beat numpy's calls here
-            previous = self.converged[stage]
-            for flag in flags:
-                self.flips[stage] += flag != previous
-                previous = flag
-            self.converged[stage] = previous
-            if stage == 0:
-                self._track_flag(est.t_ns, flags)
-            if not self.ready[stage] and True in flags:
-                self.ready[stage] = True
-                k = flags.index(True)
-                events.append(Event(int(est.t_ns[k]), "converged", f"{self.label} {name} stage converged"))
+        events += self.flags.add(est)
         if self.ready[0] and not self.parameters_known:
             std = self._std()
             self.parameters_known = std is None or std <= self.ready_force_std
@@ -261,6 +252,15 @@ class HapticGate:
         if self.doubt and self.cross.confirmed:  # the robot's own wrench saw it too: a contact
             events.append(Event(now_ns, "contact_confirmed", f"the sudden step ({self.doubt}): {self.cross.confirmed}"))
             self.doubt = ""
+        if self.stated is not None and params is not None and "gravity_force_B" in params and not self.bias_hold:
+            # (without ReidentifiesWeight the force stays held, the reason says why: a latch would not re-arm)
+            g_B = params["gravity_force_B"]  # (a reason while off the stated weight; re-identified once it shows)
+            self.stated.check(g_B)
+            residual_B = self.drift.means_B[-1] if self.drift.means_B else None
+            if self.reidentifies_weight is not None and self.stated.gone(int(est.t_ns[-1]), residual_B, g_B):
+                how = f"the residual shows the {self.stated.missing_N:+.2f} N of weight the motion missed: now free"
+                step_B = np.array(g_B) * (self.stated.missing_N / np.linalg.norm(g_B))
+                events += self._reidentify(step_B, now_ns, how, "weight_step")
         if self.doubt:
             f = self.drift.offset_S.tolist()  # (the newest 20 ms mean: one sample's noise alone passes 0.25 N)
             if self.contact_now or f[0] * f[0] + f[1] * f[1] + f[2] * f[2] >= MIN_OFFSET_N**2:
@@ -360,14 +360,16 @@ class HapticGate:
             return f"estimator not converged{unidentified}"
         if (
             self.parameter_std is None
-            and self.down_since_ns is not None
-            and self.last_sample_ns - self.down_since_ns >= CONVERGENCE_LOSS_NS
+            and self.flags.down_since_ns is not None
+            and self.last_sample_ns - self.flags.down_since_ns >= CONVERGENCE_LOSS_NS
         ):
             return "estimator no longer converged"
         if not self.parameters_known:
             return f"parameters not yet identified{unidentified}"
         if self.parameters_lost:
             return "parameters no longer known (uncertainty grew)"
+        if self.stated is not None and self.stated.reason:
+            return self.stated.reason
         if not self.weight_model:
             return f"{self.label} reports no weight model ({' and '.join(WEIGHT_MODEL)}): the poses cannot be checked"
         if now_ns < self.hold_until_ns:
@@ -382,15 +384,6 @@ class HapticGate:
             return None
         self.fault = fault
         return Event(now_ns, "fault", reason) if fault else None
-
-    def _track_flag(self, t_ns: np.ndarray, flags: list[bool]) -> None:
-        """Keep when the force stage's flag went down, for the trailing run of samples it has been down."""
-        if flags[-1]:
-            self.down_since_ns = None
-            return
-        up = len(flags) - flags[::-1].index(True) - 1 if True in flags else -1  # the last sample with it up
-        if up >= 0 or self.down_since_ns is None:
-            self.down_since_ns = int(t_ns[up + 1])
 
     def _std(self) -> float | None:
         if self.parameter_std is None:

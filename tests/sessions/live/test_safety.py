@@ -181,7 +181,7 @@ def test_the_gate_counts_flag_flips_across_blocks_and_keeps_when_the_flag_went_d
         t0 += m
     # force: 0 0 1 | 1 0 | 0 | 0 0 1 1 0 1 0 -> up at 2, down at 4, up at 8, down at 10, up at 11, down at 12
     assert gate.flips == [6, 1] and gate.converged == [False, True]
-    assert gate.down_since_ns == 12_000_000  # the trailing run of samples with the flag down began at sample 12
+    assert gate.flags.down_since_ns == 12_000_000  # the trailing run of samples with the flag down began at sample 12
     assert [(e.t_ns, e.message) for e in events if e.kind == "converged"] == [
         (2_000_000, "rls force stage converged"),
         (4_000_000, "rls torque stage converged"),

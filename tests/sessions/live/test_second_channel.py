@@ -165,3 +165,56 @@ def test_a_bias_ramping_fast_in_a_contact_is_cut_short_by_the_second_channel():
     print(f"\n{label}: {with_robot}")
     assert with_robot["event"].startswith("fault: wrist sensor and robot disagree")
     assert with_robot["detected_after_s"] <= 0.6
+
+
+def test_the_channels_agree_with_the_sensor_mounted_turned_on_the_flange():
+    """The contact turned from S into B through the mount (R_SE) and the poses: a transpose anywhere and a
+    contact of 15 N would disagree with the robot's by far more than 4 N."""
+    from hapticlab.plugins.simworld.params import SensorParams
+
+    world = SimWorld(
+        sensor=SensorParams(mount_rotation_SE=np.array([0.3, -0.5, 1.2])),
+        contacts=[Indentation(1.0, 1.5, 15.0, 0.3, direction_B=np.array([0.6, 0.0, 0.8]))],
+        seed=14,
+    )
+    check, *_ = channels(world, 3.0)
+    assert check.compared > 100 and check.disagreements == 0
+
+
+def feed(check, bins: list[tuple[list[float] | None, list[float] | None]], first: int = 0) -> list[str]:
+    """One robot and one sensor force (3,) N per 20 ms bin from bin ``first`` (None: none that bin); what the check
+    said after each."""
+    said = []
+    for k, (robot, sensor) in enumerate(bins, start=first):
+        for t in range(k * 20_000_000, (k + 1) * 20_000_000, 2_000_000):
+            if robot is not None:
+                check.add_robot([PoseSample(t_ns=t, quat_BE=np.array([1.0, 0, 0, 0]), wrench_B=np.r_[robot, 0, 0, 0])])
+            if sensor is not None:
+                check.add_contact(np.array([t]), np.array([sensor]), np.eye(3)[None], None)
+        said.append(check.holding)
+    return said
+
+
+def test_one_disagreeing_bin_is_a_lagging_robot_two_hold_the_force():
+    free, off = [0.0, 0.0, 0.0], [0.0, 0.0, 6.0]
+    assert not any(feed(WrenchCrossCheck(4.0), [(free, free)] * 3 + [(free, off)] + [(free, free)] * 3))
+    said = feed(WrenchCrossCheck(4.0), [(free, free)] * 3 + [(free, off)] * 2 + [(free, free)] * 3)
+    assert any(said) and said[-1].startswith("wrist sensor and robot disagree")
+
+
+def test_bins_never_compared_are_no_agreement_and_a_silent_robot_holds_the_force():
+    free, off = [0.0, 0.0, 0.0], [0.0, 0.0, 6.0]
+    check = WrenchCrossCheck(4.0)
+    # disagree, agree one bin, the sensor's samples withheld for 0.14 s (none reach the check), agree three bins:
+    # the hold must wait for AGREE_NS of compared agreement, not for the clock
+    bins = [(free, free)] * 2 + [(free, off)] * 3 + [(free, free)] + [(free, None)] * 7 + [(free, free)] * 3
+    said = feed(check, bins)
+    assert said[-1].startswith("wrist sensor and robot disagree")
+    said = feed(check, [(free, free)] * 12, first=16)
+    assert said[-1] == ""
+    # the robot's wrench stops (NaN) while the sensor's comes: held, said so; a sudden step then marks safely
+    nan = [float("nan")] * 3
+    said = feed(check, [(nan, free)] * 12, first=28)
+    assert said[-1].startswith("robot's own wrench missing")
+    check.mark(40 * 20_000_000)
+    assert check.reference is None

@@ -229,6 +229,13 @@ class TeleopSettings:
         calibration_dwell_s: time at each orientation of the calibration tour once reached, s.
         require_haptics: the robot follows only while the trainee feels the contact
             (the haptic force is on); false lets it follow without force feedback.
+        delay_s: one-way delay of the link between the master and the robot's side, s, each way: the handle's
+            state reaches teleoperation, and the force command the master, this much later (0: none; a
+            remote link: 0.1–0.3 s). The simulated robot's own servo lag comes on top.
+        passivity: "on": the passivity controller on the haptic port adds the least damping that keeps the port
+            from putting energy into the hand (``sessions/live/passivity.py``); "off": it only observes.
+        max_damping: the most damping the controller may add, N·s/m: what the device can render stably at
+            its rate (a desktop master: tens of N·s/m).
     """
 
     enabled: bool = False
@@ -240,6 +247,9 @@ class TeleopSettings:
     calibration_tilt_deg: float = 25.0
     calibration_dwell_s: float = 1.0
     require_haptics: bool = True
+    delay_s: float = 0.0
+    passivity: str = "on"
+    max_damping: float = 30.0
 
     CHECKS: ClassVar[Mapping[str, Check]] = {
         "enabled": boolean,
@@ -251,6 +261,9 @@ class TeleopSettings:
         "calibration_tilt_deg": check(number, minimum=0, maximum=60, hint=" (degrees; 0: no calibration tour)"),
         "calibration_dwell_s": check(number, above=0, maximum=60, hint=" (s)"),
         "require_haptics": boolean,
+        "delay_s": check(number, minimum=0, maximum=2, hint=" (s, one way)"),
+        "passivity": check(choice, choices=("on", "off")),
+        "max_damping": check(number, minimum=0, maximum=1000, hint=" (N·s/m)"),
     }
 
     def __post_init__(self) -> None:

@@ -46,6 +46,7 @@ PLUGIN_DOCS = {
     ("estimator", "kalman"): '[estimators.md](estimators.md), "kalman" (`KalmanOptions`)',
     ("estimator", "batch"): '[estimators.md](estimators.md), "batch" (`BatchOptions`)',
     ("haptic_output", "null"): "`plugins/haptics/null.py` (`NullHaptic`)",
+    ("haptic_output", "sim"): "`plugins/haptics/sim_master.py` (`SimMaster`): a simulated master with a hand on it",
     ("haptic_output", "serial"): '[devices.md](devices.md), "Serial haptic masters"',
     ("haptic_output", "hid"): '[devices.md](devices.md), "RawHID haptic masters"',
 }

@@ -39,6 +39,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.estimators.batch",
     "hapticlab.plugins.estimators.kalman",
     "hapticlab.plugins.haptics.null",
+    "hapticlab.plugins.haptics.sim_master",
     "hapticlab.plugins.haptics.serial",
     "hapticlab.plugins.haptics.hid",
     "hapticlab.plugins.sensors.netft_emulator",

@@ -22,7 +22,7 @@ from typing import Any
 
 from hapticlab.sessions.bench.report_paper import paper_section
 from hapticlab.sessions.bench.report_real import discrepancy_section, real_section
-from hapticlab.sessions.bench.report_simulated import estimators_section, faults_section
+from hapticlab.sessions.bench.report_simulated import estimators_section, faults_section, teleop_section
 
 RESULTS = Path("docs/results")
 """Where the JSON (and the paper's figures) live, from the checkout's root."""
@@ -46,6 +46,7 @@ def commands(results: Path, real: Path, recordings: list[str]) -> list[list[str]
         ["bench", "estimators", "--json", f"{results}/estimators.json", "--force"],
         ["bench", "real", str(real), "--json", f"{results}/real.json", "--force"],
         ["bench", "faults", "--json", f"{results}/faults.json", "--force"],
+        ["bench", "teleop", "--json", f"{results}/teleop.json", "--plots", str(results), "--force"],
     ]
     for stem in recordings:
         out.append(
@@ -89,7 +90,8 @@ def render(results: Path = RESULTS) -> str:
         "",
         "Contents: [the paper's experiments](#the-papers-experiments-reproduced-in-simulation) ·",
         "[the estimator family](#the-estimator-family-in-simulation) · [real recordings](#real-recordings) ·",
-        "[injected faults](#injected-faults) · [missing effects on the real recordings]"
+        "[injected faults](#injected-faults) · [teleoperation](#teleoperation-stability-and-transparency) · "
+        "[missing effects on the real recordings]"
         "(#missing-effects-on-the-real-recordings)",
         "",
     ]
@@ -101,6 +103,8 @@ def render(results: Path = RESULTS) -> str:
         parts += real_section(data["real"])
     if "faults" in data:
         parts += faults_section(data["faults"])
+    if "teleop" in data:
+        parts += teleop_section(data["teleop"], figures=results.name)
     if discrepancy:
         parts += discrepancy_section(discrepancy)
     while parts and parts[-1] == "":

@@ -1,4 +1,4 @@
-"""``docs/results.md``'s sections on the simulated estimator family and the injected faults."""
+"""``docs/results.md``'s sections on the simulated estimator family, the injected faults and the teleoperation loop."""
 
 from __future__ import annotations
 
@@ -120,4 +120,54 @@ def faults_section(out: dict[str, Any]) -> list[str]:
         rows,
         align="llrrrrl",
     )
+    return lines
+
+
+def teleop_section(out: dict[str, Any], figures: str = "results") -> list[str]:
+    """``hapticlab bench teleop``: the closed loop's energy, oscillation and transparency."""
+    lines = [
+        "## Teleoperation: stability and transparency",
+        "",
+        "`hapticlab bench teleop --plots docs/results` (JSON: `docs/results/teleop.json`): the `teleop-sim` preset, a",
+        "simulated hand on a simulated master pressing the tool into tissue through a link delayed each way, with",
+        'the passivity controller on and off. "Max energy" is the most the haptic port had put into the hand,',
+        "computed from the recorded forces and handle velocities (> 0: an active port); the force's standard",
+        "deviation and the handle's travel are taken in steady contact; the transparency is the RMS difference",
+        "there between the force felt and the contact force the robot's side estimated. The method:",
+        "[teleoperation.md](teleoperation.md).",
+        "",
+    ]
+    rows = []
+    for stiffness, delays in out.items():
+        for k, (delay, runs) in enumerate(delays.items()):
+            for passivity, r in runs.items():
+                rows.append(
+                    (
+                        stiffness if k == 0 and passivity == "off" else "",
+                        f"{float(delay.removesuffix(' s')) * 1e3:g} ms" if passivity == "off" else "",
+                        passivity,
+                        num(r["max_energy_J"], 3),
+                        num(r["force_std_N"], 2),
+                        num(r["handle_travel_mm"], 1),
+                        f"{num(r['felt_N'], 2)} / {num(r['contact_N'], 2)}",
+                        num(r["transparency_rms_N"], 2),
+                        f"{100 * r['controller_active']:.0f} %",
+                    )
+                )
+    lines += table(
+        (
+            "tissue",
+            "delay each way",
+            "passivity",
+            "max energy into the hand (J)",
+            "force std in contact (N)",
+            "handle travel (mm)",
+            "felt / contact (N)",
+            "transparency RMS (N)",
+            "controller active",
+        ),
+        rows,
+        align="lllr",
+    )
+    lines += ["", f"![force and energy, worst case]({figures}/teleop_energy.png)", ""]
     return lines

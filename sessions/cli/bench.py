@@ -1,4 +1,4 @@
-"""``hapticlab bench paper|estimators|real|faults|loop``: run one benchmark, print its tables, write its JSON.
+"""``hapticlab bench paper|estimators|real|faults|loop|teleop``: run one benchmark, print its tables, write its JSON.
 
 The tables are printed by ``bench_paper_tables`` (the paper's) and ``bench_tables`` (the others).
 """
@@ -15,17 +15,23 @@ from hapticlab.sessions.cli.bench_tables import (
     print_faults_table,
     print_loop_tables,
     print_real_table,
+    print_teleop_table,
 )
 from hapticlab.sessions.cli.offline import add_force
 from hapticlab.sessions.cli.render import err, finite_json
 from hapticlab.sessions.output import check_output, check_plots_folder, write_text
 
+TELEOP_FIGURE = "teleop_energy.png"
+"""``bench teleop --plots``: force and energy of the worst case, with and without the passivity controller."""
+
 
 def cmd_bench(args: argparse.Namespace) -> int:
     import json
 
-    if args.which != "paper" and (args.plots or args.quick or args.all_estimators):
-        raise UserError("--plots, --quick and --all-estimators go with 'bench paper'")
+    if args.which != "paper" and (args.quick or args.all_estimators):
+        raise UserError("--quick and --all-estimators go with 'bench paper'")
+    if args.which not in ("paper", "teleop") and args.plots:
+        raise UserError("--plots goes with 'bench paper' or 'bench teleop'")
     if args.which != "real" and args.folder:
         raise UserError(f"'bench {args.which}' takes no folder (got {args.folder!r}); did you mean 'bench real'?")
     # where the results go is checked before the benchmarks run, so a finished run is not lost to a bad path
@@ -34,7 +40,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.plots:
         from hapticlab.sessions.bench.paper_plots import FIGURES
 
-        check_plots_folder(args.plots, args.force, patterns=FIGURES)
+        patterns = FIGURES if args.which == "paper" else (TELEOP_FIGURE,)
+        check_plots_folder(args.plots, args.force, patterns=patterns)
     if args.which == "paper":
         from hapticlab.sessions.bench.paper import bench_paper
         from hapticlab.sessions.bench.paper_plots import write_plots
@@ -61,6 +68,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         with err.status("timing the run loop") as status:
             out = bench_loop(progress=lambda m: status.update(f"bench loop: {m}"))
         print_loop_tables(out)
+    elif args.which == "teleop":
+        from hapticlab.sessions.bench.teleop import bench_teleop, write_plot
+
+        with err.status("closing the teleoperation loop") as status:
+            out, series = bench_teleop(progress=lambda m: status.update(f"bench teleop: {m}"))
+        print_teleop_table(out)
+        if args.plots:
+            err.print(f"wrote {write_plot(series, Path(args.plots) / TELEOP_FIGURE, force=args.force)}")
     elif args.which == "faults":
         from hapticlab.sessions.bench.faults import bench_faults
 
@@ -91,16 +106,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "which",
-        choices=("paper", "estimators", "real", "faults", "loop"),
+        choices=("paper", "estimators", "real", "faults", "loop", "teleop"),
         help="paper: simulated experiments; estimators: the estimator family's scenarios; real: CSV folder; "
         "faults: every injected fault through the run loop; loop: where a tick goes, "
-        "per stage, and each estimator's µs per sample",
+        "per stage, and each estimator's µs per sample; teleop: the closed loop's stability and transparency "
+        "per delay, passivity and tissue stiffness",
     )
     p.add_argument(
         "folder", nargs="?", default=None, help="with real: folder of CSV files (default ../shared/data/real)"
     )
     p.add_argument("--json", default=None, help="write every number as JSON")
-    p.add_argument("--plots", default=None, help="with paper: write the figures as PNG into this folder")
+    p.add_argument("--plots", default=None, help="with paper or teleop: write the figures as PNG into this folder")
     p.add_argument("--quick", action="store_true", help="with paper: a shorter run (smoke test)")
     p.add_argument("--all-estimators", action="store_true", help="with paper: repeat for every registered estimator")
     add_force(p)

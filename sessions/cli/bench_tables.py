@@ -1,4 +1,4 @@
-"""The tables of ``hapticlab bench estimators``, ``bench real``, ``bench faults`` and ``bench loop``."""
+"""The tables of ``hapticlab bench estimators``, ``real``, ``faults``, ``loop`` and ``teleop``."""
 
 from __future__ import annotations
 
@@ -221,3 +221,36 @@ def print_loop_tables(out: dict) -> None:
     for label, row in out["estimators"].items():
         t.add_row(label, *[f"{row[s]['median_us']:.1f} / {row[s]['p99_us']:.1f}" for s in sizes])
     wide_console(120).print(t)
+
+
+def print_teleop_table(out: dict) -> None:
+    """One row per stiffness, delay and passivity: the port's energy, the oscillation, the transparency."""
+    t = Table(title="teleop-sim: the hand presses the tool into tissue through a delayed link")
+    for col in (
+        "tissue",
+        "delay each way",
+        "passivity",
+        "max energy into the hand (J)",
+        "force std in contact (N)",
+        "handle travel (mm)",
+        "felt / contact (N)",
+        "transparency RMS (N)",
+        "controller active",
+    ):
+        t.add_column(col, justify="right")
+    for stiffness, delays in out.items():
+        for k, (delay, runs) in enumerate(delays.items()):
+            for passivity, r in runs.items():
+                t.add_row(
+                    stiffness if k == 0 and passivity == "off" else "",
+                    f"{float(delay.removesuffix(' s')) * 1e3:g} ms" if passivity == "off" else "",
+                    passivity,
+                    fmt(r["max_energy_J"], 3),
+                    fmt(r["force_std_N"], 2),
+                    fmt(r["handle_travel_mm"], 1),
+                    f"{fmt(r['felt_N'], 2)} / {fmt(r['contact_N'], 2)}",
+                    fmt(r["transparency_rms_N"], 2),
+                    f"{100 * r['controller_active']:.0f} %",
+                    end_section=passivity == "on" and k == len(delays) - 1,
+                )
+    wide_console(160).print(t)

@@ -22,9 +22,10 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core.host.interfaces import HasForceLimit
-from hapticlab.core.types import Event, HapticCommand, PoseSample
+from hapticlab.core.types import DeviceState, Event, HapticCommand, PoseSample
 from hapticlab.sessions.live.build import Session
 from hapticlab.sessions.live.gate import HapticGate
+from hapticlab.sessions.live.passivity import PassivityController
 from hapticlab.sessions.live.status import SessionStatus
 from hapticlab.sessions.live.taps import Taps
 from hapticlab.sessions.live.teleop import Teleoperation
@@ -64,6 +65,16 @@ class HapticCommander:
         self.last_estimate: tuple[np.ndarray, np.ndarray, int] | None = None  # (contact_force_S, R_BS, t_ns)
         self.haptic_reason = "starting"
         self.haptic_on_ticks = 0
+        teleop = session.teleop_settings
+        self.delay_ns = round(teleop.delay_s * 1e9) if self.teleop is not None else 0
+        self.in_flight: deque[HapticCommand] = deque()  # commands on the link to the master (``delay_s``)
+        self.states_in_flight: deque[DeviceState] = deque()  # and the master's states on their way back
+        self.arrived: HapticCommand | None = None  # the newest command the master has received
+        self.passivity = (
+            PassivityController(teleop.max_damping, teleop.passivity == "on") if self.teleop is not None else None
+        )
+        self.last_state: DeviceState | None = None  # the master's newest state, where it is (no delay)
+        self.last_sent_ns: int | None = None
 
     def command(self, now_ns: int, taps: Taps) -> None:
         """The tick's force command from the gate's reason and the last estimate: sent, recorded, then the
@@ -84,6 +95,8 @@ class HapticCommander:
                 self.governor.device_max_force = float("nan")
         force_S, R_BS, source_t_ns = self.last_estimate or (None, None, None)
         command = self.governor.command(now_ns, force_S, R_BS, reason=reason, source_t_ns=source_t_ns)
+        if self.passivity is not None:
+            command = self._at_the_master(now_ns, command)
         try:
             self.s.haptic.send(command)
             state = self.s.haptic.state()
@@ -95,7 +108,10 @@ class HapticCommander:
             taps.device_state(state)
         self.watch_button(state)
         if self.teleop is not None:
-            self._servo(now_ns, state, command.enabled, taps)
+            self.last_state = state
+            if self.passivity is not None:
+                taps.passivity(now_ns, self.passivity.energy_J, self.passivity.damping)
+            self._servo(now_ns, self._delayed_state(now_ns, state), command.enabled, taps)
         self.haptic_on_ticks += command.enabled
         if command.reason.split(" (")[0] != self.haptic_reason.split(" (")[0]:  # not each new figure in it
             self.on_event(
@@ -106,6 +122,44 @@ class HapticCommander:
             self.haptic_reason = command.reason
         self.status.haptic_enabled, self.status.reason = command.enabled, command.reason
         self.status.latched = self.gate.latched
+
+    def _at_the_master(self, now_ns: int, command: HapticCommand) -> HapticCommand:
+        """What the master renders at ``now_ns``: the command sent ``delay_s`` ago (none yet: zero), through the
+        passivity controller with the handle's newest velocity (clamped again to the force limit)."""
+        if self.delay_ns:
+            self.in_flight.append(command)
+            while self.in_flight and self.in_flight[0].t_ns <= now_ns - self.delay_ns:
+                self.arrived = self.in_flight.popleft()
+            if self.arrived is None:
+                return self.governor.command(now_ns, None, None, reason="link delay: no command has arrived yet")
+            command = HapticCommand(
+                now_ns, self.arrived.force_D, self.arrived.enabled, self.arrived.reason, self.arrived.source_t_ns
+            )
+        assert self.passivity is not None  # (teleoperation is on)
+        dt = 0.0 if self.last_sent_ns is None else (now_ns - self.last_sent_ns) * 1e-9
+        self.last_sent_ns = now_ns
+        v_D = None if self.last_state is None else self.last_state.v_DHo_D
+        force_D = self.passivity.apply(command.force_D, v_D, dt, add=command.enabled)
+        if force_D is command.force_D:
+            return command
+        size, limit = float(np.linalg.norm(force_D)), self.governor.limit()
+        if size > limit:
+            force_D = force_D * (limit / size)
+        return HapticCommand(now_ns, force_D, command.enabled, command.reason, command.source_t_ns)
+
+    def _delayed_state(self, now_ns: int, state: DeviceState | None) -> DeviceState | None:
+        """The master's state as teleoperation receives it ``delay_s`` later (stamped on arrival: the link's
+        delay is not a stale device); None until the first has arrived."""
+        if not self.delay_ns:
+            return state
+        if state is not None:
+            self.states_in_flight.append(state)
+        arrived = None
+        while self.states_in_flight and self.states_in_flight[0].t_ns <= now_ns - self.delay_ns:
+            arrived = self.states_in_flight.popleft()
+        if arrived is None:
+            return None
+        return DeviceState(now_ns, arrived.quat_DH, arrived.p_DoHo_D, arrived.buttons, arrived.v_DHo_D)
 
     def zero(self, end_ns: int, reason: str, taps: Taps) -> HapticCommand:
         """The session's final zero command: sent (an ``error`` event if it cannot be) and recorded."""
@@ -123,6 +177,8 @@ class HapticCommander:
         target, events = self.teleop.step(now_ns, self.last_pose, state, haptic_on)
         for event in events:
             self.on_event(event)
+            if event.kind == "teleop_following" and self.passivity is not None:  # (re-)engaged
+                self.passivity.reset()
         if target is not None:
             self.call("kinematics", self.s.robot.servo_cp, target.t_ns, target.R_BE, target.p_BoEo_B)
             taps.robot_target(target)

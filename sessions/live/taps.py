@@ -252,6 +252,10 @@ class Taps:
             },
         )
 
+    def passivity(self, t_ns: int, energy_J: float, damping: float) -> None:
+        """``/haptic/passivity``: the port's energy and the damping its controller added at the tick ``t_ns``."""
+        self.rec.write("/haptic/passivity", t_ns, {"energy_J": energy_J, "damping": damping})
+
     def robot_target(self, target: RobotTarget) -> None:
         if target.R_BE is not self._target_R:  # teleoperation holds one orientation object while it holds it
             self._target_R, self._target_quat = target.R_BE, quat_wxyz_from_matrix(target.R_BE).tolist()

@@ -3,7 +3,7 @@
 Topics (see DESIGN.md "Recording (MCAP)"; SI units, frames in the field
 names): ``/sensor/wrench``, ``/kinematics/pose``, ``/aligned/sample``,
 ``/estimator/<name>`` (one channel per estimator, one shared schema),
-``/haptic/command``, ``/haptic/state``, ``/robot/target`` (teleoperation), ``/tf``
+``/haptic/command``, ``/haptic/state``, ``/robot/target`` and ``/haptic/passivity`` (teleoperation), ``/tf``
 (Foxglove's ``foxglove.FrameTransform``, for its 3D panel), ``/events``. Any other topic is
 refused with a ``ValueError``. :data:`SCHEMAS` holds the JSON schemas.
 
@@ -210,6 +210,20 @@ _TARGET_SCHEMA = _schema(
     ["pose", "mode"],
 )
 
+_PASSIVITY_SCHEMA = _schema(
+    "hapticlab.HapticPassivity",
+    "The haptic port's passivity observer and controller (teleoperation), one per loop tick.",
+    {
+        "energy_J": {
+            "type": "number",
+            "description": "Energy the device has put into the hand since the session began, J: sum of force_D . "
+            "v_DHo_D dt (<= 0 while the port is passive).",
+        },
+        "damping": {"type": "number", "description": "Damping the controller added at this tick, N s/m (0: none)."},
+    },
+    ["energy_J", "damping"],
+)
+
 _XYZ = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 _FRAME_TRANSFORM_SCHEMA = {
     "title": "foxglove.FrameTransform",
@@ -263,6 +277,7 @@ TOPICS: dict[str, dict[str, Any]] = {
     "/haptic/command": _COMMAND_SCHEMA,
     "/haptic/state": _STATE_SCHEMA,
     "/robot/target": _TARGET_SCHEMA,
+    "/haptic/passivity": _PASSIVITY_SCHEMA,
     "/tf": _FRAME_TRANSFORM_SCHEMA,
     "/events": _EVENT_SCHEMA,
 }

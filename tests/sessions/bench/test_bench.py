@@ -109,7 +109,9 @@ def test_bench_estimators_prints_every_scenario(tmp_path, capsys, bench_run):
 
 def test_bench_options_that_do_not_belong_are_refused(capsys):
     assert main(["bench", "real", "--plots", "x"]) == 2
-    assert "go with 'bench paper'" in capsys.readouterr().err
+    assert "--plots goes with 'bench paper' or 'bench teleop'" in capsys.readouterr().err
+    assert main(["bench", "teleop", "--quick"]) == 2
+    assert "--quick and --all-estimators go with 'bench paper'" in capsys.readouterr().err
     assert main(["bench", "real", "/nonexistent/folder"]) == 2
     assert "no such folder; give one: hapticlab bench real DIR" in capsys.readouterr().err
 

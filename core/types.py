@@ -164,9 +164,8 @@ class PoseSample:
         alpha_BE_E: (3,) angular acceleration of E in B, expressed in E, rad/s²; None if unknown.
         a_BEo_B: (3,) translational acceleration of E's origin in B, expressed in B, m/s² (gravity
             not included); None if unknown.
-        wrench_B: (6,) the robot's own measure of the contact wrench on its tool (CRTK ``measured_cf``; a UR's
-            ``actual_TCP_force``), expressed in B: force, N, then moment about the TCP, N·m; None if the source
-            reports none (see the ``MeasuresWrench`` capability).
+        wrench_B: (6,) the robot's own measure of the contact wrench on its tool (CRTK ``measured_cf``), in B:
+            force, N, then moment about the TCP, N·m; None if the source reports none (``MeasuresWrench``).
 
     The last three are what ``plugins.estimators.kalman.derivatives.MotionDerivatives`` estimates from the poses
     (its ``w_E``, ``alpha_E``, ``a_B``), for a tool's inertial wrench; a source that knows them

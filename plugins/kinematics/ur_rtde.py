@@ -95,11 +95,9 @@ class URRTDEKinematics:
         package's ``actual_TCP_pose`` is compared with the forward kinematics of its ``actual_q``; more
         than ``TCP_CHECK_M`` or ``TCP_CHECK_RAD`` apart is a ``kinematics_tcp_offset`` event (the
         installation's TCP is not the flange, so the poses are not E's).
-    tcp_force_accuracy : the force accuracy of the arm's own ``actual_TCP_force``, N per axis (default the
-        UR5e's 4.0 N; a CB3 estimates it from its joint currents, far coarser: state its own), which the
-        session checks the wrist sensor against (``sessions.live.crosscheck``). It is measured with the
-        payload set in the robot's installation taken out: set that payload right, and zero the arm's sensor
-        (``zero_ftsensor()``) before a session. 0: the arm's wrench is not read.
+    tcp_force_accuracy : the force accuracy of the arm's own ``actual_TCP_force`` (the payload set in its
+        installation taken out), N per axis, which the session checks the wrist sensor against (default the
+        UR5e's 4.0 N; a CB3's, from its joint currents, is far coarser). 0: not read. docs/devices.md.
     """
 
     def __init__(
@@ -361,16 +359,8 @@ class FollowingURRTDEKinematics(URRTDEKinematics):
     ``ur_target_writer.py``), and the script's ``servoj`` lookahead smooths between targets.
     """
 
-    def __init__(
-        self,
-        address: str = "",
-        rate_hz: float = 500.0,
-        receive_timeout: float = 0.1,
-        model: str = "",
-        follow_rate_hz: float = FOLLOW_RATE_HZ,
-        tcp_force_accuracy: float = UR5E_FORCE_ACCURACY_N,
-    ):
-        super().__init__(address, rate_hz, receive_timeout, model, tcp_force_accuracy)
+    def __init__(self, follow_rate_hz: float = FOLLOW_RATE_HZ, **options: Any):
+        super().__init__(**options)
         follow_rate_hz = number("follow_rate_hz", follow_rate_hz, above=0, maximum=self.rate_hz, hint=" Hz (rate_hz)")
         self.period_ns = round(1e9 / follow_rate_hz)
         self._writer: TargetWriter | None = None
@@ -411,7 +401,14 @@ def ur_rtde_kinematics(
     teleoperation's targets, ``follow_rate_hz`` a second (:class:`FollowingURRTDEKinematics`; run
     ``hapticlab_follow.script`` on the arm)."""
     if follow:
-        return FollowingURRTDEKinematics(address, rate_hz, receive_timeout, model, follow_rate_hz, tcp_force_accuracy)
+        return FollowingURRTDEKinematics(
+            follow_rate_hz,
+            address=address,
+            rate_hz=rate_hz,
+            receive_timeout=receive_timeout,
+            model=model,
+            tcp_force_accuracy=tcp_force_accuracy,
+        )
     if follow_rate_hz != FOLLOW_RATE_HZ:
         raise OptionError("follow_rate_hz", f"must be left out unless follow = true, got {follow_rate_hz!r}")
     return URRTDEKinematics(address, rate_hz, receive_timeout, model, tcp_force_accuracy)

@@ -11,7 +11,7 @@ haptic commands is the force the fault alone put on the trainee's hand:
   clean run's force, scaled by anything in [0, 1], cannot explain, N: a force
   the contact does not give. (A force zeroed, or ramping back up to the true
   one, makes up nothing: missing force is safe.)
-* **over 0.5 N for**: how long the made-up force was above 0.5 N (the issue's bound), s, summed over the
+* **over 0.5 N for**: how long the made-up force was above ``MADE_UP_BOUND_N``, s, summed over the
   commands (each lasting a loop period);
 * **detected after**: from the fault's start to the first zero command whose
   reason names a fault, s (None: never);
@@ -36,7 +36,8 @@ from hapticlab.sessions.recording import read_recording
 
 FAULT_START_S = 4.0
 MADE_UP_BOUND_N = 0.5
-"""The made-up force a fault may put on the hand, N (issue 39's bound): the time above it is reported."""
+"""The made-up force a single fault may put on the hand, N (about what a trainee starts to notice against a 2-4 N
+contact): the time above it is reported."""
 DURATION_S = 7.0
 FAULTS: dict[str, dict[str, Any]] = {
     "sensor spike +1000 N, 20 ms": {"kind": "sensor_spike", "force": [1000.0, 0.0, 0.0], "duration": 0.02},

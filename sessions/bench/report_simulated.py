@@ -137,37 +137,8 @@ def teleop_section(out: dict[str, Any], figures: str = "results") -> list[str]:
         "[teleoperation.md](teleoperation.md).",
         "",
     ]
-    rows = []
-    for stiffness, delays in out.items():
-        for k, (delay, runs) in enumerate(delays.items()):
-            for passivity, r in runs.items():
-                rows.append(
-                    (
-                        stiffness if k == 0 and passivity == "off" else "",
-                        f"{float(delay.removesuffix(' s')) * 1e3:g} ms" if passivity == "off" else "",
-                        passivity,
-                        num(r["max_energy_J"], 3),
-                        num(r["force_std_N"], 2),
-                        num(r["handle_travel_mm"], 1),
-                        f"{num(r['felt_N'], 2)} / {num(r['contact_N'], 2)}",
-                        num(r["transparency_rms_N"], 2),
-                        f"{100 * r['controller_active']:.0f} %",
-                    )
-                )
-    lines += table(
-        (
-            "tissue",
-            "delay each way",
-            "passivity",
-            "max energy into the hand (J)",
-            "force std in contact (N)",
-            "handle travel (mm)",
-            "felt / contact (N)",
-            "transparency RMS (N)",
-            "controller active",
-        ),
-        rows,
-        align="lllr",
-    )
+    from hapticlab.sessions.bench.teleop import COLUMNS, table_rows
+
+    lines += table([str(c) for c in COLUMNS], [row for row, _ in table_rows(out, num)], align="lllr")
     lines += ["", f"![force and energy, worst case]({figures}/teleop_energy.png)", ""]
     return lines

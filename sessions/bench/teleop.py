@@ -96,6 +96,43 @@ def bench_teleop(progress: Callable[[str], None] | None = None) -> tuple[dict[st
     return out, series
 
 
+COLUMNS = (
+    "tissue",
+    "delay each way",
+    "passivity",
+    "max energy into the hand (J)",
+    "force std in contact (N)",
+    "handle travel (mm)",
+    "felt / contact (N)",
+    "transparency RMS (N)",
+    "controller active",
+)
+"""The table's columns (``bench teleop``'s printout and docs/results.md)."""
+
+
+def table_rows(out: dict[str, Any], fmt: Callable[[Any, int], str]) -> list[tuple[tuple[str, ...], bool]]:
+    """The rows of ``bench_teleop``'s numbers under :data:`COLUMNS`, each with whether it ends a stiffness,
+    numbers written with ``fmt(value, digits)``."""
+    rows: list[tuple[tuple[str, ...], bool]] = []
+    for stiffness, delays in out.items():
+        for k, (delay, runs) in enumerate(delays.items()):
+            for passivity, r in runs.items():
+                first = passivity == "off"
+                row = (
+                    stiffness if k == 0 and first else "",
+                    f"{float(delay.removesuffix(' s')) * 1e3:g} ms" if first else "",
+                    passivity,
+                    fmt(r["max_energy_J"], 3),
+                    fmt(r["force_std_N"], 2),
+                    fmt(r["handle_travel_mm"], 1),
+                    f"{fmt(r['felt_N'], 2)} / {fmt(r['contact_N'], 2)}",
+                    fmt(r["transparency_rms_N"], 2),
+                    f"{100 * r['controller_active']:.0f} %",
+                )
+                rows.append((row, passivity == "on" and k == len(delays) - 1))
+    return rows
+
+
 def write_plot(series: dict[str, Any], path: Path, force: bool = False) -> Path:
     """Force and port energy against time, with and without the controller, for ``series``: a PNG written
     atomically (an existing file only with ``force``)."""

@@ -225,32 +225,11 @@ def print_loop_tables(out: dict) -> None:
 
 def print_teleop_table(out: dict) -> None:
     """One row per stiffness, delay and passivity: the port's energy, the oscillation, the transparency."""
+    from hapticlab.sessions.bench.teleop import COLUMNS, table_rows
+
     t = Table(title="teleop-sim: the hand presses the tool into tissue through a delayed link")
-    for col in (
-        "tissue",
-        "delay each way",
-        "passivity",
-        "max energy into the hand (J)",
-        "force std in contact (N)",
-        "handle travel (mm)",
-        "felt / contact (N)",
-        "transparency RMS (N)",
-        "controller active",
-    ):
+    for col in COLUMNS:
         t.add_column(col, justify="right")
-    for stiffness, delays in out.items():
-        for k, (delay, runs) in enumerate(delays.items()):
-            for passivity, r in runs.items():
-                t.add_row(
-                    stiffness if k == 0 and passivity == "off" else "",
-                    f"{float(delay.removesuffix(' s')) * 1e3:g} ms" if passivity == "off" else "",
-                    passivity,
-                    fmt(r["max_energy_J"], 3),
-                    fmt(r["force_std_N"], 2),
-                    fmt(r["handle_travel_mm"], 1),
-                    f"{fmt(r['felt_N'], 2)} / {fmt(r['contact_N'], 2)}",
-                    fmt(r["transparency_rms_N"], 2),
-                    f"{100 * r['controller_active']:.0f} %",
-                    end_section=passivity == "on" and k == len(delays) - 1,
-                )
+    for row, last in table_rows(out, fmt):
+        t.add_row(*row, end_section=last)
     wide_console(160).print(t)

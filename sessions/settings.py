@@ -234,8 +234,8 @@ class TeleopSettings:
             remote link: 0.1–0.3 s). The simulated robot's own servo lag comes on top.
         passivity: "on": the passivity controller on the haptic port adds the least damping that keeps the port
             from putting energy into the hand (``sessions/live/passivity.py``); "off": it only observes.
-        max_damping: the most damping the controller may add, N·s/m: what the device can render stably at
-            its rate (a desktop master: tens of N·s/m).
+        max_damping: the most damping the controller may add, N·s/m: what the device renders stably at its
+            rate (from a velocity a period old: below m/T, m the handle's and hand's mass, T the period).
     """
 
     enabled: bool = False
@@ -263,7 +263,7 @@ class TeleopSettings:
         "require_haptics": boolean,
         "delay_s": check(number, minimum=0, maximum=2, hint=" (s, one way)"),
         "passivity": check(choice, choices=("on", "off")),
-        "max_damping": check(number, minimum=0, maximum=1000, hint=" (N·s/m)"),
+        "max_damping": check(number, minimum=0, maximum=500, hint=" (N·s/m)"),
     }
 
     def __post_init__(self) -> None:

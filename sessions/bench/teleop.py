@@ -14,7 +14,8 @@ from the recording:
   the hand is down to its release), N, and the handle's peak-to-peak travel there, mm;
 * **transparency**: the RMS difference, in the same window, between the force the hand felt and the contact
   force the robot's side estimated (the primary estimator's, before the link), N;
-* **controller active**: the share of the session's ticks the controller added damping.
+* **controller active**: the share of the session's ticks the controller added damping, and in brackets the
+  share it added its cap (``max_damping``: a fixed damper then, not the least damping that would do).
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ def run(delay_s: float, passivity: str, stiffness: float) -> dict[str, Any]:
         "contact_N": float(contact[hold].mean()),
         "transparency_rms_N": float(np.sqrt(np.mean((felt[hold] - contact[hold]) ** 2))),
         "controller_active": float(np.mean(damping > 0)) if len(damping) else 0.0,
+        "controller_capped": float(np.mean(damping >= config["teleop"]["max_damping"])) if len(damping) else 0.0,
         "series": {"t": t, "force_z": force[:, 2], "energy": energy, "contact": contact},
     }
 
@@ -105,7 +107,7 @@ COLUMNS = (
     "handle travel (mm)",
     "felt / contact (N)",
     "transparency RMS (N)",
-    "controller active",
+    "controller active (capped)",
 )
 """The table's columns (``bench teleop``'s printout and docs/results.md)."""
 
@@ -127,7 +129,7 @@ def table_rows(out: dict[str, Any], fmt: Callable[[Any, int], str]) -> list[tupl
                     fmt(r["handle_travel_mm"], 1),
                     f"{fmt(r['felt_N'], 2)} / {fmt(r['contact_N'], 2)}",
                     fmt(r["transparency_rms_N"], 2),
-                    f"{100 * r['controller_active']:.0f} %",
+                    f"{100 * r['controller_active']:.0f} % ({100 * r.get('controller_capped', 0.0):.0f} %)",
                 )
                 rows.append((row, passivity == "on" and k == len(delays) - 1))
     return rows

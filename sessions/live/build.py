@@ -251,6 +251,11 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
                 else ""
             )
             raise ConfigError(f"teleop.enabled: kinematics {name!r} cannot follow a target (it has no servo_cp){hint}")
+    if teleop.delay_s > 0 and plugins["haptic"]["name"] != "sim":  # (a delayed zero reaches a real hand late)
+        raise ConfigError(
+            f'teleop.delay_s: a delayed link is simulated with the simulated master only (haptic.name = "sim"), '
+            f"got {plugins['haptic']['name']!r}: the gate's zero would reach a real hand {teleop.delay_s:g} s late"
+        )
     return Session(
         config=config,
         settings=settings,

@@ -67,9 +67,9 @@ class HapticCommander:
         self.haptic_on_ticks = 0
         teleop = session.teleop_settings
         self.delay_ns = round(teleop.delay_s * 1e9) if self.teleop is not None else 0
-        self.in_flight: deque[HapticCommand] = deque()  # commands on the link to the master (``delay_s``)
+        self.in_flight: deque[tuple[int, tuple]] = deque()  # the governor's inputs on the link to the master
         self.states_in_flight: deque[DeviceState] = deque()  # and the master's states on their way back
-        self.arrived: HapticCommand | None = None  # the newest command the master has received
+        self.arrived: tuple | None = None  # the newest inputs the master has received
         self.passivity = (
             PassivityController(teleop.max_damping, teleop.passivity == "on") if self.teleop is not None else None
         )
@@ -94,9 +94,10 @@ class HapticCommander:
             except Exception:  # a device that cannot say its limit now: the governor zeroes a NaN limit
                 self.governor.device_max_force = float("nan")
         force_S, R_BS, source_t_ns = self.last_estimate or (None, None, None)
-        command = self.governor.command(now_ns, force_S, R_BS, reason=reason, source_t_ns=source_t_ns)
-        if self.passivity is not None:
-            command = self._at_the_master(now_ns, command)
+        if self.passivity is None:
+            command = self.governor.command(now_ns, force_S, R_BS, reason=reason, source_t_ns=source_t_ns)
+        else:
+            command = self._at_the_master(now_ns, (force_S, R_BS, source_t_ns, reason))
         try:
             self.s.haptic.send(command)
             state = self.s.haptic.state()
@@ -111,7 +112,8 @@ class HapticCommander:
             self.last_state = state
             if self.passivity is not None:
                 taps.passivity(now_ns, self.passivity.energy_J, self.passivity.damping)
-            self._servo(now_ns, self._delayed_state(now_ns, state), command.enabled, taps)
+            # (the robot holds when the force is off on its side at once, or at the master)
+            self._servo(now_ns, self._delayed_state(now_ns, state), command.enabled and not reason, taps)
         self.haptic_on_ticks += command.enabled
         if command.reason.split(" (")[0] != self.haptic_reason.split(" (")[0]:  # not each new figure in it
             self.on_event(
@@ -123,33 +125,30 @@ class HapticCommander:
         self.status.haptic_enabled, self.status.reason = command.enabled, command.reason
         self.status.latched = self.gate.latched
 
-    def _at_the_master(self, now_ns: int, command: HapticCommand) -> HapticCommand:
-        """What the master renders at ``now_ns``: the command sent ``delay_s`` ago (none yet: zero), through the
-        passivity controller with the handle's newest velocity (clamped again to the force limit)."""
+    def _at_the_master(self, now_ns: int, inputs: tuple) -> HapticCommand:
+        """The master's command at ``now_ns``: from the governor's inputs (the estimate and the gate's reason) sent
+        ``delay_s`` ago (none yet: zero), the passivity controller's damping added before the governor's clamp,
+        rate limit and output check."""
         if self.delay_ns:
-            self.in_flight.append(command)
-            while self.in_flight and self.in_flight[0].t_ns <= now_ns - self.delay_ns:
-                self.arrived = self.in_flight.popleft()
-            if self.arrived is None:
-                return self.governor.command(now_ns, None, None, reason="link delay: no command has arrived yet")
-            command = HapticCommand(
-                now_ns, self.arrived.force_D, self.arrived.enabled, self.arrived.reason, self.arrived.source_t_ns
-            )
+            self.in_flight.append((now_ns, inputs))
+            while self.in_flight and self.in_flight[0][0] <= now_ns - self.delay_ns:
+                self.arrived = self.in_flight.popleft()[1]
+            inputs = self.arrived or (None, None, None, "link delay: nothing has arrived from the robot's side yet")
+        force_S, R_BS, source_t_ns, reason = inputs
         assert self.passivity is not None  # (teleoperation is on)
         dt = 0.0 if self.last_sent_ns is None else (now_ns - self.last_sent_ns) * 1e-9
         self.last_sent_ns = now_ns
-        v_D = None if self.last_state is None else self.last_state.v_DHo_D
-        force_D = self.passivity.apply(command.force_D, v_D, dt, add=command.enabled)
-        if force_D is command.force_D:
-            return command
-        size, limit = float(np.linalg.norm(force_D)), self.governor.limit()
-        if size > limit:
-            force_D = force_D * (limit / size)
-        return HapticCommand(now_ns, force_D, command.enabled, command.reason, command.source_t_ns)
+        self.passivity.observe(None if self.last_state is None else self.last_state.v_DHo_D, dt)
+        command = self.governor.command(
+            now_ns, force_S, R_BS, reason=reason, source_t_ns=source_t_ns, port=self.passivity.damp
+        )
+        self.passivity.hold(command.force_D)
+        return command
 
     def _delayed_state(self, now_ns: int, state: DeviceState | None) -> DeviceState | None:
-        """The master's state as teleoperation receives it ``delay_s`` later (stamped on arrival: the link's
-        delay is not a stale device); None until the first has arrived."""
+        """The master's state as teleoperation receives it ``delay_s`` later (stamped with its own time plus the
+        delay: the link's delay is not a stale device, a device that repeats an old state is); None until the
+        first has arrived."""
         if not self.delay_ns:
             return state
         if state is not None:
@@ -159,7 +158,8 @@ class HapticCommander:
             arrived = self.states_in_flight.popleft()
         if arrived is None:
             return None
-        return DeviceState(now_ns, arrived.quat_DH, arrived.p_DoHo_D, arrived.buttons, arrived.v_DHo_D)
+        t_ns = arrived.t_ns + self.delay_ns  # (when it arrived: a master that repeats an old state still goes stale)
+        return DeviceState(t_ns, arrived.quat_DH, arrived.p_DoHo_D, arrived.buttons, arrived.v_DHo_D)
 
     def zero(self, end_ns: int, reason: str, taps: Taps) -> HapticCommand:
         """The session's final zero command: sent (an ``error`` event if it cannot be) and recorded."""

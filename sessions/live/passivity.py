@@ -29,10 +29,14 @@ handle takes no energy from the port."""
 
 
 class PassivityController:
-    """The observer and controller of one haptic port (module docstring).
+    """The observer and controller of one haptic port (module docstring), once a device period:
+    :meth:`observe` the handle's velocity, give the governor :meth:`damp` as its ``port``, :meth:`hold` what it
+    sent.
 
     Args:
-        max_damping: the most damping added, N·s/m.
+        max_damping: the most damping added, N·s/m. A damping rendered from a velocity one device period old is
+            stable while ``max_damping · T / m < 1`` (m the handle's and hand's mass, T the period): 350 N·s/m for
+            the simulated master at 1 kHz.
         enabled: False: observe only.
     """
 
@@ -42,34 +46,43 @@ class PassivityController:
         self.energy_J = 0.0  # E: the energy the device has put into the hand up to now, J (≤ 0 while passive)
         self.damping = 0.0  # the damping added at the last tick, N·s/m
         self.active_ticks = 0  # ticks with damping added
-        self._last: tuple[list[float], float] | None = None  # the force sent last (N) and for how long (s)
+        self.capped_ticks = 0  # ...of which at max_damping
+        self._held = [0.0, 0.0, 0.0]  # the force sent last, N: held since
+        self._v: list[float] | None = None  # the handle's velocity now, m/s (None: unknown)
+        self._dt = 0.0  # the last tick's length, s: what this one's is taken to be
 
     def reset(self) -> None:
         """Start the account afresh (teleoperation re-engaged: the hand took the handle where it now is)."""
-        self.energy_J, self._last = 0.0, None
+        self.energy_J = 0.0
 
-    def apply(self, force_D: np.ndarray, v_D: np.ndarray | None, dt: float, add: bool = True) -> np.ndarray:
-        """The force (3,) N to send instead of ``force_D`` for the next ``dt`` s, the handle moving at ``v_D``
-        (3,) m/s now (None: the device reports no velocity: nothing observed, nothing added). ``add`` False:
-        observe only (a command the gate holds at zero stays zero: damping is a force too).
+    def observe(self, v_D: np.ndarray | None, dt: float) -> None:
+        """The handle moves at ``v_D`` (3,) m/s now, ``dt`` s after the last force was sent: that force, held
+        over ``dt``, is accounted with this velocity, as an independent check of the recording does (None or
+        a non-finite velocity: unknown, nothing accounted, nothing added this tick)."""
+        self.damping, self._dt = 0.0, dt
+        v = None if v_D is None else v_D.tolist()
+        if v is None or not math.isfinite(v[0] + v[1] + v[2]):
+            self._v = None
+            return
+        self._v = v
+        f = self._held
+        self.energy_J += (f[0] * v[0] + f[1] * v[1] + f[2] * v[2]) * dt
 
-        First the last tick is accounted with the velocity it ended at (the force sent then times the velocity
-        now, as an independent check of the recording computes it); then the damping is chosen so that this
-        tick, at the velocity now, leaves the energy at zero at most."""
-        self.damping = 0.0
-        if v_D is None or dt <= 0:
-            self._last = None
+    def damp(self, force_D: list[float]) -> list[float]:
+        """``force_D`` (N, in D) with the least damping that keeps E at zero at most over a tick as long as the
+        last, at the velocity now, capped at ``max_damping`` (the governor then clamps and rate-limits it)."""
+        v, f, dt = self._v, force_D, self._dt
+        if v is None or not self.enabled or dt <= 0:
             return force_D
-        v = v_D.tolist()
-        if self._last is not None:
-            (fx, fy, fz), last_dt = self._last
-            self.energy_J += (fx * v[0] + fy * v[1] + fz * v[2]) * last_dt
-        f = force_D.tolist()
         speed2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
         energy = self.energy_J + (f[0] * v[0] + f[1] * v[1] + f[2] * v[2]) * dt
-        if add and self.enabled and energy > 0.0 and speed2 > MIN_SPEED * MIN_SPEED and math.isfinite(energy):
-            self.damping = min(energy / (speed2 * dt), self.max_damping)
-            self.active_ticks += 1
-            force_D = force_D - self.damping * v_D
-        self._last = (force_D.tolist(), dt)
-        return force_D
+        if energy <= 0.0 or speed2 <= MIN_SPEED * MIN_SPEED:
+            return force_D
+        self.damping = min(energy / (speed2 * dt), self.max_damping)
+        self.active_ticks += 1
+        self.capped_ticks += self.damping == self.max_damping
+        return [f[0] - self.damping * v[0], f[1] - self.damping * v[1], f[2] - self.damping * v[2]]
+
+    def hold(self, force_D: np.ndarray) -> None:
+        """The force the device was sent, N in D: held until the next tick."""
+        self._held = force_D.tolist()

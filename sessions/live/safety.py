@@ -30,6 +30,7 @@ the reason, so nothing else ever reaches the device.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -122,6 +123,7 @@ class ForceGovernor:
         R_BS: np.ndarray | None,
         reason: str = "",
         source_t_ns: int | None = None,
+        port: Callable[[list[float]], list[float]] | None = None,
     ) -> HapticCommand:
         """The command for this device period; ``reason`` non-empty forces zero.
 
@@ -132,6 +134,8 @@ class ForceGovernor:
                 orientation and the sensor's mount, identity unless an estimator knows it).
             reason: why the force must be zero ("" when it may be on).
             source_t_ns: stamp of the sensor sample the contact force was estimated from, ns.
+            port: what the haptic port adds to the filtered force (D, N) before the clamp, the rate limit and the
+                output check (teleoperation's passivity controller: its damping is a force like any other).
         """
         limit = self.limit()
         if not reason and not math.isfinite(limit):
@@ -159,6 +163,8 @@ class ForceGovernor:
         x0, x1, x2 = _deadband3(self.settings.deadband, *mapped_D)
         y0, y1, y2 = self._filtered
         self._filtered = target = [y0 + gain * (x0 - y0), y1 + gain * (x1 - y1), y2 + gain * (x2 - y2)]
+        if port is not None:
+            target = port(target)
         norm = math.hypot(*target)
         if norm > limit:
             target = [v * (limit / norm) for v in target]

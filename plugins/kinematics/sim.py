@@ -21,7 +21,7 @@ from hapticlab.plugins.simworld.faults import kinematics_faults_act, kinematics_
 from hapticlab.plugins.simworld.physics import SimWorld
 from hapticlab.plugins.simworld.prefetch import PREFETCH_S, Prefetch
 from hapticlab.plugins.simworld.randomness import gaussian_noise
-from hapticlab.plugins.simworld.robot_wrench import RobotWrench
+from hapticlab.plugins.simworld.robot_wrench import WRENCH_NOISE_N, WRENCH_OFFSET_N, RobotWrench
 
 ENCODER_STREAM = 2
 """The world's random stream of the robot's encoder jitter (0: sensor noise, 1: bias drift)."""
@@ -53,8 +53,8 @@ class SimKinematics:
         encoder_noise: float = 1e-7,
         world: SimWorld | None = None,
         wrench_accuracy: float = UR5E_FORCE_ACCURACY_N,
-        wrench_offset: float = 1.5,
-        wrench_noise: float = 0.6,
+        wrench_offset: float = WRENCH_OFFSET_N,
+        wrench_noise: float = WRENCH_NOISE_N,
     ):
         if world is None:
             raise ConfigError(
@@ -177,8 +177,8 @@ def sim_kinematics(
     encoder_noise: float = 1e-7,
     world: SimWorld | None = None,
     wrench_accuracy: float = UR5E_FORCE_ACCURACY_N,
-    wrench_offset: float = 1.5,
-    wrench_noise: float = 0.6,
+    wrench_offset: float = WRENCH_OFFSET_N,
+    wrench_noise: float = WRENCH_NOISE_N,
 ) -> SimKinematics:
     """The ``sim`` kinematics (options as :class:`SimKinematics`): one that follows targets when the world's
     motion is ``servo`` (:class:`ServoedSimKinematics`), else one that reports the scripted motion."""

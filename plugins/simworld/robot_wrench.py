@@ -20,6 +20,11 @@ from hapticlab.plugins.simworld.randomness import gaussian_noise
 
 ROBOT_WRENCH_STREAM = 4
 """The world's random stream of the robot's wrench error (0 sensor noise, 1 drift, 2 encoders and motion)."""
+WRENCH_OFFSET_N = 1.5
+"""The largest force offset per axis the simulated robot draws for a session, N (a real arm's zero wanders
+between zeroings)."""
+WRENCH_NOISE_N = 0.6
+"""The simulated robot's force noise, N per axis (1σ): offset + 4σ = 3.9 N stays within the UR5e's 4 N."""
 TORQUE_PER_FORCE_M = 0.075
 """The torque's error per newton of the force's, m (the UR5e's torque accuracy, 0.3 N·m, over its force's)."""
 
@@ -39,7 +44,11 @@ class RobotWrench:
     """
 
     def __init__(
-        self, world: SimWorld, accuracy: float = UR5E_FORCE_ACCURACY_N, offset: float = 1.5, noise: float = 0.6
+        self,
+        world: SimWorld,
+        accuracy: float = UR5E_FORCE_ACCURACY_N,
+        offset: float = WRENCH_OFFSET_N,
+        noise: float = WRENCH_NOISE_N,
     ):
         self.world = world
         self.accuracy = number("wrench_accuracy", accuracy, minimum=0, maximum=1e3, hint=" N")

@@ -190,3 +190,40 @@ def bench_faults(
                 clean[key] = session(estimator, {"settings": settings} if settings else None, duration_s)
             out[estimator][label] = measure(estimator, clean[key], fault)
     return out
+
+
+COLUMNS = (
+    "estimator",
+    "fault",
+    "made-up force (N)",
+    "over 0.5 N for (ms)",
+    "detected after (ms)",
+    "zero after detection (ms)",
+    "event",
+)
+"""The table's columns (``bench faults``'s printout and docs/results.md)."""
+
+
+def table_rows(
+    out: dict[str, Any], fmt: Callable[[Any, int], str], name: Callable[[str], str] = str
+) -> list[tuple[tuple[str, ...], bool]]:
+    """The rows of ``bench_faults``'s numbers under :data:`COLUMNS`, each with whether it ends an estimator's;
+    numbers written with ``fmt(value, digits)``, estimators with ``name``."""
+
+    def ms(value: float | None) -> str:
+        return "never" if value is None else f"{1e3 * value:.0f}"
+
+    rows: list[tuple[tuple[str, ...], bool]] = []
+    for estimator, faults in out.items():
+        for k, (label, r) in enumerate(faults.items()):
+            row = (
+                name(estimator) if k == 0 else "",
+                label,
+                fmt(r["made_up_force_N"], 2),
+                ms(r.get("over_half_newton_s")),
+                ms(r["detected_after_s"]),
+                ms(r["zero_after_detection_s"]),
+                r["event"] or "none",
+            )
+            rows.append((row, k == len(faults) - 1))
+    return rows

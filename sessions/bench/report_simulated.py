@@ -90,36 +90,10 @@ def faults_section(out: dict[str, Any]) -> list[str]:
         "",
     ]
 
-    def ms(value: float | None) -> str:
-        return "never" if value is None else f"{1e3 * value:.0f}"
+    from hapticlab.sessions.bench.faults import COLUMNS, table_rows
 
-    rows = []
-    for estimator, faults in out.items():
-        for k, (label, r) in enumerate(faults.items()):
-            rows.append(
-                (
-                    f"`{estimator}`" if k == 0 else "",
-                    label,
-                    num(r["made_up_force_N"], 2),
-                    ms(r.get("over_half_newton_s")),
-                    ms(r["detected_after_s"]),
-                    ms(r["zero_after_detection_s"]),
-                    r["event"] or "none",
-                )
-            )
-    lines += table(
-        (
-            "estimator",
-            "fault",
-            "made-up force (N)",
-            "over 0.5 N for (ms)",
-            "detected after (ms)",
-            "zero after detection (ms)",
-            "event",
-        ),
-        rows,
-        align="llrrrrl",
-    )
+    rows = [row for row, _ in table_rows(out, num, name=lambda estimator: f"`{estimator}`")]
+    lines += table(COLUMNS, rows, align="llrrrrl")
     return lines
 
 

@@ -120,35 +120,16 @@ def print_real_table(out: dict) -> None:
 
 def print_faults_table(out: dict) -> None:
     """One row per estimator and fault: what reached the hand, how soon it was caught, the event."""
-    from hapticlab.sessions.bench.faults import FAULT_START_S
+    from hapticlab.sessions.bench.faults import COLUMNS, FAULT_START_S, table_rows
 
     t = Table(
         title=f"Injected faults (demo session, fault at {FAULT_START_S:g} s): force on the device that the "
         f"contact does not explain, and how soon it went to zero"
     )
-    for col in (
-        "estimator",
-        "fault",
-        "made-up force (N)",
-        "over 0.5 N for (ms)",
-        "detected after (ms)",
-        "zero after detection (ms)",
-        "event",
-    ):
+    for col in COLUMNS:
         t.add_column(col, justify="right" if col != "event" else "left")
-    for estimator, faults in out.items():
-        for k, (label, r) in enumerate(faults.items()):
-            ms = lambda v: "never" if v is None else f"{1e3 * v:.0f}"  # noqa: E731
-            t.add_row(
-                estimator if k == 0 else "",
-                label,
-                fmt(r["made_up_force_N"], 2),
-                ms(r.get("over_half_newton_s")),
-                ms(r["detected_after_s"]),
-                ms(r["zero_after_detection_s"]),
-                r["event"] or "none",
-                end_section=k == len(faults) - 1,
-            )
+    for row, last in table_rows(out, fmt):
+        t.add_row(*row, end_section=last)
     wide_console(140).print(t)
 
 

@@ -74,6 +74,7 @@ class HapticCommander:
             PassivityController(teleop.max_damping, teleop.passivity == "on") if self.teleop is not None else None
         )
         self.last_state: DeviceState | None = None  # the master's newest state, where it is (no delay)
+        self.fresh_state: DeviceState | None = None  # and its newest that was not None
         self.last_sent_ns: int | None = None
 
     def command(self, now_ns: int, taps: Taps) -> None:
@@ -97,7 +98,7 @@ class HapticCommander:
         if self.passivity is None:
             command = self.governor.command(now_ns, force_S, R_BS, reason=reason, source_t_ns=source_t_ns)
         else:
-            command = self._at_the_master(now_ns, (force_S, R_BS, source_t_ns, reason))
+            command = self._at_the_master(now_ns, (force_S, R_BS, source_t_ns, reason), self._silent_master(now_ns))
         try:
             self.s.haptic.send(command)
             state = self.s.haptic.state()
@@ -110,9 +111,11 @@ class HapticCommander:
         self.watch_button(state)
         if self.teleop is not None:
             self.last_state = state
+            self.fresh_state = state or self.fresh_state
             if self.passivity is not None:
                 taps.passivity(now_ns, self.passivity.energy_J, self.passivity.damping)
-            # (the robot holds when the force is off on its side at once, or at the master)
+            # (the robot holds when the force is off on its side at once, or at the master: the tick after a silent
+            # master too, whose command was made before its state came back)
             self._servo(now_ns, self._delayed_state(now_ns, state), command.enabled and not reason, taps)
         self.haptic_on_ticks += command.enabled
         if command.reason.split(" (")[0] != self.haptic_reason.split(" (")[0]:  # not each new figure in it
@@ -125,16 +128,24 @@ class HapticCommander:
         self.status.haptic_enabled, self.status.reason = command.enabled, command.reason
         self.status.latched = self.gate.latched
 
-    def _at_the_master(self, now_ns: int, inputs: tuple) -> HapticCommand:
+    def _silent_master(self, now_ns: int) -> str:
+        """Why the master's own state says no hand is on it now ("" when it is fresh and sane): a master silent for
+        ``teleop.WATCHDOG_NS`` gets zero force, as the robot holds (the first tick, before any state, too)."""
+        assert self.teleop is not None  # (teleoperation is on)
+        return self.teleop.absent(now_ns, self.fresh_state)
+
+    def _at_the_master(self, now_ns: int, inputs: tuple, silent: str) -> HapticCommand:
         """The master's command at ``now_ns``: from the governor's inputs (the estimate and the gate's reason) sent
         ``delay_s`` ago (none yet: zero), the passivity controller's damping added before the governor's clamp,
-        rate limit and output check."""
+        rate limit and output check; zero while the master itself is ``silent`` (its reason, no delay: it is
+        the master's own)."""
         if self.delay_ns:
             self.in_flight.append((now_ns, inputs))
             while self.in_flight and self.in_flight[0][0] <= now_ns - self.delay_ns:
                 self.arrived = self.in_flight.popleft()[1]
             inputs = self.arrived or (None, None, None, "link delay: nothing has arrived from the robot's side yet")
         force_S, R_BS, source_t_ns, reason = inputs
+        reason = reason or silent
         assert self.passivity is not None  # (teleoperation is on)
         dt = 0.0 if self.last_sent_ns is None else (now_ns - self.last_sent_ns) * 1e-9
         self.last_sent_ns = now_ns

@@ -16,9 +16,12 @@ phases:
    person at the console); without one the robot holds.
 2. **following** while the trainee may drive the robot, **holding** otherwise,
    with the reason: the clutch button is pressed (the hand repositions on the
-   master without moving the robot), there is no fresh device state (a lost
-   device), or the haptic force is off (``require_haptics``: the trainee must
-   feel what the tool touches while moving it).
+   master without moving the robot), the master or the robot has been silent
+   for more than ``WATCHDOG_NS`` (a lost device or link: the force is zeroed
+   too), or the haptic force is off (``require_haptics``: the trainee must
+   feel what the tool touches while moving it). After a silent channel the
+   robot waits for the handle to come back to where it left (``REENGAGE_M``),
+   or for a clutch press, before it follows again.
 
 Following: each time it (re-)engages, the offset between hand and robot is
 captured, so the robot never jumps: with ``p_engaged`` the target then and
@@ -41,6 +44,7 @@ goal at most ``max_angular_speed`` (rad/s), its position moves at most
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
@@ -48,13 +52,24 @@ from hapticlab.core.frames import matrix_from_quat_wxyz, matrix_from_rotvec, rot
 from hapticlab.core.types import DeviceState, Event, PoseSample, RobotTarget
 from hapticlab.sessions.settings import TeleopSettings
 
-STATE_TIMEOUT_NS = 50_000_000
-"""A device state older than this (ns) is no longer the hand's: the robot holds."""
+WATCHDOG_NS = 30_000_000
+"""A master state or a robot pose older than this (ns) is a silent channel: the robot holds and the force goes to
+zero. The dVRK's watchdog (``io.watchdog-timeout``, 30 ms by default in ``mtsIntuitiveResearchKit.h``): three
+periods of a 100 Hz link, thirty of a 1 kHz one, so a late packet is not a lost device."""
+REENGAGE_M = 0.01
+"""After a silent channel the robot follows again only once the handle is back within this distance (m) of where
+it was when the channel went silent (or after a clutch press): the hand and the tool keep their correspondence, and
+a robot never starts moving again on a hand that has gone elsewhere."""
 MAX_HANDLE_M = 1.0
 """A handle reported farther than this from the device's origin (m) is no hand's: the robot holds. Desktop
 masters reach 0.1-0.4 m (Haply Inverse3: a ~0.4 m sphere), so 1 m leaves any real device its whole workspace."""
 TOUR_ROLL_RAD = math.pi / 3
 """The calibration tour's roll about the tool's axis, rad (±60°)."""
+
+
+def _kind(reason: str) -> str:
+    """A hold's reason without its figures (a stream 31 ms old and 32 ms old is one hold)."""
+    return re.sub(r"[0-9.]+", "#", reason)
 
 
 def calibration_tour(R_BE_0: np.ndarray, tilt_deg: float) -> list[np.ndarray]:
@@ -107,6 +122,8 @@ class Teleoperation:
         self.p_target = np.zeros(3)
         self.R_target = np.eye(3)
         self.engaged: tuple[np.ndarray, np.ndarray] | None = None  # (p_engaged, h_engaged)
+        self.handle = np.zeros(3)  # the handle at the last tick the robot followed it, m in D
+        self.left_at: np.ndarray | None = None  # where the handle was when a channel went silent, m in D
         self.last_ns: int | None = None
 
     def step(
@@ -144,10 +161,10 @@ class Teleoperation:
         dt_s = 0.0 if self.last_ns is None else max(now_ns - self.last_ns, 0) * 1e-9
         self.last_ns = now_ns
         if self.mode == "calibrating":
-            return self._tour(now_ns, state, dt_s, events), events
-        reason = self._hold_reason(now_ns, state, haptic_on)
+            return self._tour(now_ns, pose, state, dt_s, events), events
+        reason = self._hold_reason(now_ns, pose, state, haptic_on)
         if reason:
-            if self.mode != "holding" or reason != self.reason:
+            if self.mode != "holding" or _kind(reason) != _kind(self.reason):  # (not each new figure in it)
                 events.append(Event(now_ns, "teleop_holding", f"robot holding: {reason}", {"reason": reason}))
             self.mode, self.reason, self.engaged = "holding", reason, None
             return self._target(now_ns, "holding", reason), events
@@ -156,7 +173,7 @@ class Teleoperation:
         if self.engaged is None:  # (re-)engaging: the offset is captured, nothing jumps
             self.engaged = (self.p_target.copy(), handle.copy())
             events.append(Event(now_ns, "teleop_following", "robot following the handle"))
-        self.mode, self.reason = "following", ""
+        self.mode, self.reason, self.handle = "following", "", handle
         p_engaged, h_engaged = self.engaged
         desired = p_engaged + self.settings.scale * (self.R_BD @ (handle - h_engaged))
         offset = desired - self.start[1]  # the workspace: a ball about where the robot started
@@ -172,12 +189,15 @@ class Teleoperation:
         self._turn(self.start[0], dt_s)  # back to the start orientation, should anything have turned it
         return self._target(now_ns, "following"), events
 
-    def _tour(self, now_ns: int, state: DeviceState | None, dt_s: float, events: list[Event]) -> RobotTarget:
+    def _tour(
+        self, now_ns: int, pose: PoseSample | None, state: DeviceState | None, dt_s: float, events: list[Event]
+    ) -> RobotTarget:
         """The calibration tour's target: towards the current orientation, held ``calibration_dwell_s`` once
-        there, then the next; paused (holding its target) while no person is at the master."""
-        absent = self._absent(now_ns, state)
+        there, then the next; paused (holding its target) while no person is at the master or the robot is
+        silent."""
+        absent = self.absent(now_ns, state) or self._silent_robot(now_ns, pose)
         if absent:
-            if self.reason != absent:
+            if _kind(self.reason) != _kind(absent):
                 events.append(Event(now_ns, "teleop_holding", f"calibration tour paused: {absent}", {"reason": absent}))
             self.reason, self.reached_ns = absent, None
             return self._target(now_ns, "calibrating", absent)
@@ -212,11 +232,11 @@ class Teleoperation:
     def _target(self, now_ns: int, mode: str, reason: str = "") -> RobotTarget:
         return RobotTarget(now_ns, self.R_target, self.p_target.copy(), mode, reason)
 
-    def _absent(self, now_ns: int, state: DeviceState | None) -> str:
+    def absent(self, now_ns: int, state: DeviceState | None) -> str:
         """Why no person is known to be at the master ("" when the master reports a fresh, finite state)."""
         if state is None:
             return "no state from the master device"
-        if now_ns - state.t_ns > STATE_TIMEOUT_NS:
+        if now_ns - state.t_ns > WATCHDOG_NS:
             return f"the master's state is {(now_ns - state.t_ns) * 1e-6:.0f} ms old"
         if not np.all(np.isfinite(state.p_DoHo_D)):
             return "the master reports a non-finite handle position"
@@ -225,15 +245,34 @@ class Teleoperation:
             return f"the master reports its handle {distance:.3g} m from its origin (more than {MAX_HANDLE_M:g} m)"
         return ""
 
-    def _hold_reason(self, now_ns: int, state: DeviceState | None, haptic_on: bool) -> str:
+    @staticmethod
+    def _silent_robot(now_ns: int, pose: PoseSample | None) -> str:
+        """Why the robot's own stream is not trusted to be live ("" when its newest pose is fresh)."""
+        if pose is not None and now_ns - pose.t_ns > WATCHDOG_NS:
+            return f"no pose from the robot for {(now_ns - pose.t_ns) * 1e-6:.0f} ms"
+        return ""
+
+    def _hold_reason(self, now_ns: int, pose: PoseSample | None, state: DeviceState | None, haptic_on: bool) -> str:
         """Why the robot must not follow the hand now ("" when it may)."""
-        absent = self._absent(now_ns, state)
-        if absent:
-            return absent
+        silent = self.absent(now_ns, state) or self._silent_robot(now_ns, pose)
+        if silent:
+            if self.mode == "following":
+                self.left_at = self.handle.copy()
+            return silent
         assert state is not None  # not absent: the master reports a state
         bit = self.settings.clutch_button
         if bit >= 0 and (int(state.buttons) >> bit) & 1:
+            self.left_at = None  # the trainee repositions on purpose: the clutch re-anchors the hand
             return "clutch pressed"
         if self.settings.require_haptics and not haptic_on:
             return "haptic force off"
+        if self.left_at is not None:
+            away = float(np.linalg.norm(np.asarray(state.p_DoHo_D, dtype=float) - self.left_at))
+            if away > REENGAGE_M:
+                clutch = " or press the clutch" if bit >= 0 else ""
+                return (
+                    f"after a silent channel: bring the handle back to where it left ({away * 1e3:.0f} mm away, "
+                    f"within {REENGAGE_M * 1e3:.0f} mm){clutch}"
+                )
+            self.left_at = None
         return ""

@@ -35,7 +35,8 @@ STIFFNESS = 300.0  # N/m, the tissue's
 
 def hand_z(t: float) -> float:
     """The scripted hand in D (m): still during the tour, then presses 5 cm down and back up over 2 s,
-    clutched from 7.5 to 8.0 s while it moves 2 cm sideways (along D's x), lost from 8.5 to 8.7 s."""
+    clutched from 7.5 to 8.0 s while it moves 2 cm sideways (along D's x), lost from 8.5 to 8.7 s, silent from 9.0
+    to 9.1 s (the device repeats its state of 9.0 s, stamp and all)."""
     s = t - PRESS_AT
     return -0.025 * (1 - math.cos(2 * math.pi * s / 2.0)) if 0 <= s <= 2.0 else 0.0
 
@@ -69,12 +70,12 @@ class ScriptedHand:
         t = (self.t_ns - self.t0_ns) * 1e-9
         if 8.5 <= t < 8.7:
             return None  # lost
+        t_ns = self.t_ns
+        if 9.0 <= t < 9.1:  # silent: the state of 9.0 s again
+            t, t_ns = 9.0, self.t0_ns + 9_000_000_000
         clutch = 7.5 <= t < 8.0
         return DeviceState(
-            self.t_ns,
-            np.array([1.0, 0.0, 0.0, 0.0]),
-            np.array([hand_x(t), 0.0, hand_z(t)]),
-            buttons=0b10 if clutch else 0,
+            t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.array([hand_x(t), 0.0, hand_z(t)]), buttons=0b10 if clutch else 0
         )
 
 
@@ -199,7 +200,34 @@ def test_a_master_that_stops_reporting_its_state_holds_the_robot(scripted):
     assert set(np.array(reason)[lost]) == {"no state from the master device"}
     assert np.ptp(p[lost], axis=0).max() < 1e-12
     holding = [m["message"] for _, m in rec.topics["/events"] if m["kind"] == "teleop_holding"]
-    assert holding == ["robot holding: clutch pressed", "robot holding: no state from the master device"]
+    assert holding[:2] == ["robot holding: clutch pressed", "robot holding: no state from the master device"]
+
+
+def test_a_silent_master_gets_zero_force_within_a_tick_of_the_watchdog(scripted):
+    """The master repeats its state of 9.0 s until 9.1 s: from the first tick that state is more than 30 ms old
+    (the dVRK's watchdog) the force sent to it is zero, saying why, and the robot holds; both come back once it
+    speaks again (the robot a tick later), the hand where it left (nothing jumps)."""
+    from hapticlab.sessions.live.teleop import WATCHDOG_NS
+
+    _, rec, _ = scripted
+    t0 = rec.t_ns("/robot/target")[0]
+    commands = rec.topics["/haptic/command"]
+    states = rec.t_ns("/haptic/state")
+    silent_ticks = []
+    for t_ns, m in commands:
+        newest = states[states < t_ns]  # the state the tick's command was made with (read after the send)
+        if len(newest) and t_ns - newest[-1] > WATCHDOG_NS and 9.0 <= (t_ns - t0) * 1e-9 < 9.2:
+            silent_ticks.append(m)
+    assert len(silent_ticks) >= 60  # 100 ms silent, less the watchdog's 30 ms, at 1 kHz
+    assert all(not m["enabled"] and m["reason"].startswith("the master's state is ") for m in silent_ticks)
+    t, p, mode, reason = targets(rec)
+    window = (t > 8.95) & (t < 9.3)
+    held = window & (np.array(mode) == "holding")
+    reasons = [r.split(" is ")[0] for r in np.array(reason)[held]]
+    # the tick it speaks again still holds: its command was made (zero) before its state came back
+    assert reasons[-1] == "haptic force off" and set(reasons[:-1]) == {"the master's state"}
+    assert (np.array(mode)[window & (t > 9.11)] == "following").all()
+    assert np.ptp(p[window], axis=0).max() < 1e-12  # the hand is still: the robot never moved
 
 
 def test_the_target_moves_no_faster_than_its_limit_and_stays_in_its_workspace(registry, tmp_path):
@@ -232,11 +260,12 @@ def holds_explained(rec, after) -> np.ndarray:
     program's is that it holds exactly then, saying so, and follows otherwise.
 
     * "the master's state is N ms old": a state stamped N ms before the tick was recorded, and N is past
-      teleoperation's timeout (``STATE_TIMEOUT_NS``);
+      teleoperation's watchdog (``WATCHDOG_NS``);
     * "no state from the master device": the device reported none;
+    * "after a silent channel: bring the handle back ...": a hold for one of those two came first;
     * "haptic force off": the tick's own haptic command was off (the trainee would not feel the contact).
     """
-    from hapticlab.sessions.live.teleop import STATE_TIMEOUT_NS
+    from hapticlab.sessions.live.teleop import WATCHDOG_NS
 
     t_ns = rec.t_ns("/robot/target")
     messages = [m for _, m in rec.topics["/robot/target"]]
@@ -254,8 +283,11 @@ def holds_explained(rec, after) -> np.ndarray:
             assert not command_on[int(t_ns[k])], k
         elif reason.startswith("the master's state is "):
             age_ms = int(reason.split()[4])
-            assert age_ms * 1_000_000 >= STATE_TIMEOUT_NS - 500_000, reason
+            assert age_ms * 1_000_000 >= WATCHDOG_NS - 500_000, reason
             assert np.any(np.abs(t_ns[k] - age_ms * 1_000_000 - state_ns) <= 500_000), (k, reason)  # that state
+        elif reason.startswith("after a silent channel: "):
+            before = [messages[j]["reason"] for j in range(k) if messages[j]["mode"] == "holding"]
+            assert any(r.startswith(("the master's state", "no state")) for r in before), (k, reason)
         else:
             assert reason == "no state from the master device", (k, reason)
     return held
@@ -316,11 +348,14 @@ def test_the_hand_moves_the_tool_along_the_direction_the_force_comes_back_along(
     R_DB = ForceGovernor(haptic, 1e-3).R_DB
     assert np.allclose(R_DB @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     teleop = Teleoperation(TeleopSettings(enabled=True, scale=0.5, calibration_tilt_deg=0.0), R_DB)
-    pose = PoseSample(0, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+
+    def pose(t_ns):  # the robot streams its pose (one older than the watchdog's 30 ms holds the robot)
+        return PoseSample(t_ns, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+
     quat_DH = np.array([1.0, 0.0, 0.0, 0.0])
-    first, _ = teleop.step(0, pose, DeviceState(0, quat_DH, np.zeros(3)), True)
+    first, _ = teleop.step(0, pose(0), DeviceState(0, quat_DH, np.zeros(3)), True)
     later, _events = teleop.step(
-        1_000_000_000, pose, DeviceState(1_000_000_000, quat_DH, np.array([0.0, 0.02, 0.0])), True
+        1_000_000_000, pose(1_000_000_000), DeviceState(1_000_000_000, quat_DH, np.array([0.0, 0.02, 0.0])), True
     )
     assert np.allclose(later.p_BoEo_B - first.p_BoEo_B, [0.01, 0.0, 0.0])
     assert np.allclose(later.R_BE, matrix_from_rotvec(np.array([math.pi, 0.0, 0.0])))  # orientation held
@@ -422,16 +457,19 @@ def test_the_calibration_tour_moves_the_robot_only_while_someone_is_at_the_maste
     from hapticlab.sessions.settings import TeleopSettings
 
     teleop = Teleoperation(TeleopSettings(enabled=True, max_angular_speed=1.0, calibration_dwell_s=0.1), np.eye(3))
-    pose = PoseSample(0, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+
+    def pose(t_ns):  # the robot streams its pose
+        return PoseSample(t_ns, np.array([0.0, 1.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+
     present = lambda t_ns: DeviceState(t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3))  # noqa: E731 (a one-line closure)
     events = []
     for k in range(500):  # 0.5 s with no master: the tour waits where the robot stands
-        target, ev = teleop.step(k * 1_000_000, pose, None, False)
+        target, ev = teleop.step(k * 1_000_000, pose(k * 1_000_000), None, False)
         events += ev
         assert target.mode == "calibrating" and target.reason == "no state from the master device"
         assert np.array_equal(target.R_BE, teleop.start[0])
     for k in range(500, 800):  # someone at the master: it turns, at most 1 rad/s
-        target, ev = teleop.step(k * 1_000_000, pose, present(k * 1_000_000), False)
+        target, ev = teleop.step(k * 1_000_000, pose(k * 1_000_000), present(k * 1_000_000), False)
         events += ev
     turned = np.degrees(np.linalg.norm(Rotation.from_matrix(target.R_BE @ teleop.start[0].T).as_rotvec()))
     assert 16.0 < turned <= 0.3 * np.degrees(1.0) + 1e-6  # 0.3 s at 1 rad/s (17.2°), on its way to 25°
@@ -447,16 +485,87 @@ def test_a_handle_no_hand_could_hold_stops_the_robot_with_its_reason(glitch):
     from hapticlab.sessions.settings import TeleopSettings
 
     teleop = Teleoperation(TeleopSettings(enabled=True, calibration_tilt_deg=0.0, require_haptics=False), np.eye(3))
-    pose = PoseSample(0, np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+
+    def pose(t_ns):  # the robot streams its pose
+        return PoseSample(t_ns, np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+
     quat = np.array([1.0, 0.0, 0.0, 0.0])
     ms = 1_000_000
-    first, _ = teleop.step(0, pose, DeviceState(0, quat, np.zeros(3)), True)
-    moved, _ = teleop.step(100 * ms, pose, DeviceState(100 * ms, quat, np.array([0.0, 0.0, 0.004])), True)
+    first, _ = teleop.step(0, pose(0), DeviceState(0, quat, np.zeros(3)), True)
+    moved, _ = teleop.step(100 * ms, pose(100 * ms), DeviceState(100 * ms, quat, np.array([0.0, 0.0, 0.004])), True)
     assert moved.mode == "following" and moved.p_BoEo_B[2] > first.p_BoEo_B[2]
-    held, events = teleop.step(101 * ms, pose, DeviceState(101 * ms, quat, np.array([0.0, 0.0, glitch])), True)
+    held, events = teleop.step(
+        101 * ms, pose(101 * ms), DeviceState(101 * ms, quat, np.array([0.0, 0.0, glitch])), True
+    )
     assert held.mode == "holding" and np.array_equal(held.p_BoEo_B, moved.p_BoEo_B)
     assert [e.kind for e in events] == ["teleop_holding"]
     assert f"its handle {glitch:.3g} m from its origin" in events[0].message, events[0].message
-    back, events = teleop.step(102 * ms, pose, DeviceState(102 * ms, quat, np.array([0.0, 0.0, 0.004])), True)
+    back, events = teleop.step(102 * ms, pose(102 * ms), DeviceState(102 * ms, quat, np.array([0.0, 0.0, 0.004])), True)
     assert back.mode == "following" and np.array_equal(back.p_BoEo_B, moved.p_BoEo_B)
     assert [e.kind for e in events] == ["teleop_following"]
+
+
+def test_a_silent_master_holds_the_robot_until_the_handle_is_back_where_it_left():
+    """The dVRK's watchdog: a master whose state stops changing its stamp holds the robot from the first tick
+    it is more than 30 ms old; when it speaks again with the handle 2 cm from where it left, the robot still
+    holds (saying why) and follows only once the handle is back within 10 mm, from where it held."""
+    from hapticlab.core.types import PoseSample
+    from hapticlab.sessions.live.teleop import REENGAGE_M, WATCHDOG_NS, Teleoperation
+    from hapticlab.sessions.settings import TeleopSettings
+
+    teleop = Teleoperation(TeleopSettings(enabled=True, calibration_tilt_deg=0.0, require_haptics=False), np.eye(3))
+    quat, ms = np.array([1.0, 0.0, 0.0, 0.0]), 1_000_000
+
+    def step(t_ms, state_ms, x):
+        pose = PoseSample(t_ms * ms, np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+        return teleop.step(t_ms * ms, pose, DeviceState(state_ms * ms, quat, np.array([x, 0.0, 0.0])), True)
+
+    for t in range(0, 101):  # following, the hand 1 cm along x by 100 ms
+        target, _ = step(t, t, 0.0001 * t)
+    assert target.mode == "following"
+    left = target.p_BoEo_B.copy()
+    modes = []
+    for t in range(101, 161):  # the master repeats its state of 100 ms for 60 ms
+        target, events = step(t, 100, 0.01)
+        modes.append((t, target.mode, target.reason))
+    first_hold = next(t for t, mode, _ in modes if mode == "holding")
+    assert first_hold == 100 + WATCHDOG_NS // ms + 1  # the first tick past the watchdog
+    assert modes[-1][2] == "the master's state is 60 ms old"
+    target, events = step(161, 161, 0.03)  # back, 2 cm from where it left
+    assert target.mode == "holding" and np.array_equal(target.p_BoEo_B, left)
+    assert target.reason.startswith("after a silent channel: bring the handle back to where it left (20 mm away")
+    for t in range(162, 200):  # the hand comes back slowly: it follows once within REENGAGE_M
+        x = 0.03 - 0.0005 * (t - 161)
+        target, events = step(t, t, x)
+        if target.mode == "following":
+            break
+    assert abs(x - 0.01) <= REENGAGE_M and [e.kind for e in events] == ["teleop_following"]
+    assert np.array_equal(target.p_BoEo_B, left)  # from where it held: nothing jumps
+
+
+def test_a_silent_robot_holds_and_a_clutch_press_re_anchors_the_hand():
+    """A robot whose newest pose is more than 30 ms old holds the target; the hand has moved on meanwhile, and a
+    press of the clutch (the trainee repositioning on purpose) lets it follow again from the new offset."""
+    from hapticlab.core.types import PoseSample
+    from hapticlab.sessions.live.teleop import Teleoperation
+    from hapticlab.sessions.settings import TeleopSettings
+
+    settings = TeleopSettings(enabled=True, calibration_tilt_deg=0.0, require_haptics=False, clutch_button=1)
+    teleop = Teleoperation(settings, np.eye(3))
+    quat, ms = np.array([1.0, 0.0, 0.0, 0.0]), 1_000_000
+
+    def step(t_ms, pose_ms, x, buttons=0):
+        pose = PoseSample(pose_ms * ms, np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+        return teleop.step(t_ms * ms, pose, DeviceState(t_ms * ms, quat, np.array([x, 0.0, 0.0]), buttons), True)
+
+    for t in range(0, 50):
+        target, _ = step(t, t, 0.0)
+    target, events = step(81, 50, 0.0)  # the robot silent since 50 ms
+    assert target.reason == "no pose from the robot for 31 ms" and [e.kind for e in events] == ["teleop_holding"]
+    target, events = step(90, 89, 0.05)  # it speaks again; the hand is 5 cm away
+    assert target.mode == "holding" and "or press the clutch" in target.reason
+    step(91, 90, 0.05, buttons=0b10)  # clutch pressed ...
+    target, events = step(92, 91, 0.05)  # ... and released: following from here
+    assert target.mode == "following" and [e.kind for e in events] == ["teleop_following"]
+    moved, _ = step(93, 92, 0.051)
+    assert moved.p_BoEo_B[0] > target.p_BoEo_B[0]

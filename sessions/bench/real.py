@@ -6,7 +6,8 @@ convergence rule, whose flag waits for the motion to identify the tool where the
 default's is up once the wrench is known at the pose; and once more with the
 simulated Gamma sensor's noise and the covariance convergence rule, its defaults
 before it estimated the noise; and once more without the bias's walk over the tool's tilt,
-``bias_force_tilt_rw = 0``, its former default):
+``bias_force_tilt_rw = 0``, its former default; and once more with its torque stage started early,
+``torque_start = "early"``):
 the online RMS of the estimated contact force per axis over every row after the first convergence, against the
 offline batch fit of the whole file evaluated over the same rows (their ratio); the same ratio over
 the file's second half, a window that does not depend on each estimator's own
@@ -61,12 +62,19 @@ REAL_COLUMNS = (
     "ratio per axis",
     "ratio ‖·‖",
     "2nd half",
+    "last 70 %: force",
+    "torque",
 )
-"""The columns of bench real's table, on the terminal and in docs/results.md."""
+"""The columns of bench real's table, on the terminal and in docs/results.md (``table_rows``)."""
+LAST_SHARE = 0.7
+"""The window every estimator is scored over beside its own convergence: the file's last 70 % of rows, as
+issue 41 measures force and torque (the worst axis's RMS over the batch fit's on the same rows)."""
 IDENTIFIED = {"convergence": "identified"}
 """kalman's convergence rule before "pose": the wrench known at the pose and the tool identified by the motion."""
 GAMMA_COVARIANCE = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
 """kalman's options before it estimated the noise: the simulated Gamma-class sensor's noise, convergence from P."""
+EARLY_TORQUE = {"torque_start": "early"}
+"""kalman's torque stage started with the force stage's first accepted sample, not once it has settled."""
 NO_TILT_WALK = {"bias_force_tilt_rw": 0.0}
 """kalman without the bias's walk over the tool's tilt (learnt by default: docs/estimators.md, "The tilt walk")."""
 
@@ -74,7 +82,8 @@ NO_TILT_WALK = {"bias_force_tilt_rw": 0.0}
 def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[str, Any] | str]]:
     """(label, estimator name, options or an error): every registered estimator with its defaults, the
     default (kalman) first; kalman with the identified rule, with the Gamma figures and the covariance rule
-    (its defaults before), and without the bias's tilt walk (its default before); and
+    (its defaults before), without the bias's tilt walk (its default before), with its torque stage started
+    early; and
     kalman with the effects ``hapticlab discrepancy`` names on the file."""
     names = registry.names("estimator")
     names = sorted(names, key=lambda name: name != "kalman")  # the default first, then the others as registered
@@ -83,6 +92,7 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
         out.append(("kalman convergence=identified", "kalman", dict(IDENTIFIED)))
         out.append(("kalman noise=0.12 N, convergence=covariance", "kalman", dict(GAMMA_COVARIANCE)))
         out.append(("kalman bias_force_tilt_rw=0", "kalman", dict(NO_TILT_WALK)))
+        out.append(("kalman torque_start=early", "kalman", dict(EARLY_TORQUE)))
         from hapticlab.sessions.discrepancy.workflow import discrepancy
 
         try:
@@ -91,6 +101,13 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
             named = f"discrepancy: {exc}"
         out.append(("kalman + named effects", "kalman", named))
     return out
+
+
+def last_rows_ratio(online: np.ndarray, residual: np.ndarray) -> list[float]:
+    """Per axis, the online RMS over the batch fit's over the last ``LAST_SHARE`` of the rows (finite online
+    ones): force (N) or torque (N·m), whatever each estimator's flag says; NaN with no such row."""
+    rows = scored_rows(len(online) - round(LAST_SHARE * len(online)), online)
+    return (rms(online[rows]) / rms(residual[rows])).tolist()
 
 
 def second_half_ratio(contact_force_S: np.ndarray, residual_force_S: np.ndarray) -> float:
@@ -153,6 +170,8 @@ def bench_file(path: Path, registry: Registry, progress: Callable[[str], None] |
             result["held_out_rows"] = estimator.held_out_samples
             result["held_out_pct"] = 100.0 * estimator.held_out_samples / max(len(stream), 1)
         result["ratio_norm_second_half"] = second_half_ratio(est.contact_force_S, residual)
+        result["last_ratio_force"] = last_rows_ratio(est.contact_force_S, residual)
+        result["last_ratio_torque"] = last_rows_ratio(est.contact_torque_S, fit["residual_torque_S"])
         if first_f is not None:  # contact rows are scored too: every one is a false contact
             rows = scored_rows(first_f, est.contact_force_S)
             online, batch = rms(est.contact_force_S[rows]), rms(residual[rows])
@@ -167,3 +186,50 @@ def bench_file(path: Path, registry: Registry, progress: Callable[[str], None] |
             )
         entry["estimators"][label] = result
     return entry
+
+
+def table_rows(
+    out: dict[str, Any],
+    fmt: Callable[[Any, int], str],
+    vec: Callable[[Any, int], str],
+    name: Callable[[str], str] = str,
+) -> list[tuple[tuple[str, ...], bool]]:
+    """The rows of ``bench_real``'s numbers under :data:`REAL_COLUMNS`, each with whether it ends a file's;
+    numbers written with ``fmt(value, digits)``, vectors with ``vec(values, digits)``, names with ``name``.
+    The last two columns are the worst axis of ``last_ratio_force`` and ``last_ratio_torque``."""
+
+    def worst(values: list[float] | None) -> str:
+        return "–" if not values or not np.isfinite(values).any() else fmt(float(np.nanmax(values)), 2)
+
+    rows: list[tuple[tuple[str, ...], bool]] = []
+    blank = ("",) * (len(REAL_COLUMNS) - 7)
+    for file, entry in out.items():
+        if "error" in entry:
+            rows.append(((name(file), "", "", "", "", "", entry["error"], *blank), True))
+            continue
+        for k, (label, r) in enumerate(entry["estimators"].items()):
+            first = f"{name(file)} ({entry['rows']} rows)" if k == 0 else ""
+            last = k == len(entry["estimators"]) - 1
+            if label.endswith("named effects"):
+                label += " (" + (", ".join(entry.get("named_effects", [])) or "none") + ")"
+            if "error" in r:
+                rows.append(((first, name(label), "", "", "", "", r["error"], *blank), last))
+                continue
+            held = f"{r['held_out_pct']:.1f} % ({r['held_out_rows']})" if "held_out_pct" in r else "–"
+            row = (
+                first,
+                name(label),
+                fmt(r["converged_force_at"], 0),
+                fmt(r["converged_torque_at"], 0),
+                f"{r['contact_pct']:.1f} % ({r['contact_rows']})",
+                held,
+                vec(r["rms_force_S"], 3) if r.get("rms_force_S") else "never converged",
+                vec(r.get("batch_rms_same_rows"), 3),
+                vec(r.get("ratio"), 2),
+                fmt(r.get("ratio_norm"), 2),
+                fmt(r.get("ratio_norm_second_half"), 2),
+                worst(r.get("last_ratio_force")),
+                worst(r.get("last_ratio_torque")),
+            )
+            rows.append((row, last))
+    return rows

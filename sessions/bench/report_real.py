@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from hapticlab.sessions.bench.real import REAL_COLUMNS
+from hapticlab.sessions.bench.real import REAL_COLUMNS, table_rows
 from hapticlab.sessions.bench.report_markdown import norm, num, table, vec
 
 
@@ -21,37 +21,12 @@ def real_section(out: dict[str, Any]) -> list[str]:
         '(below 1: better than the offline fit). "2nd half" scores every estimator over the file\'s second half,',
         "whatever its own convergence flag says. The row `kalman + named effects` runs `kalman` with the effects",
         "`hapticlab discrepancy` names on the same file (fitted on that file: in-sample). `batch` does not gate:",
-        "its contact column is for comparison only.",
+        'its contact column is for comparison only. "last 70 %" scores force and torque over the file\'s last 70 %',
+        "of rows, whatever the flags say: the worst axis's RMS over the batch fit's on the same rows (torque in",
+        "N·m, where an estimator whose torque stage has not started writes the raw torque).",
         "",
     ]
-    rows = []
-    for name, entry in out.items():
-        if "error" in entry:
-            rows.append((f"`{name}`", "", "", "", "", "", entry["error"], "", "", "", ""))
-            continue
-        for k, (est, r) in enumerate(entry["estimators"].items()):
-            first = f"`{name}` ({entry['rows']} rows)" if k == 0 else ""
-            if "error" in r:
-                rows.append((first, est, "", "", "", "", r["error"], "", "", "", ""))
-                continue
-            if est.endswith("named effects"):
-                est += " (" + (", ".join(entry.get("named_effects", [])) or "none") + ")"
-            held = f"{r['held_out_pct']:.1f} % ({r['held_out_rows']})" if "held_out_pct" in r else "–"
-            rows.append(
-                (
-                    first,
-                    f"`{est}`",
-                    num(r["converged_force_at"], 0),
-                    num(r["converged_torque_at"], 0),
-                    f"{r['contact_pct']:.1f} % ({r['contact_rows']})",
-                    held,
-                    vec(r.get("rms_force_S")) if r.get("rms_force_S") else "never converged",
-                    vec(r.get("batch_rms_same_rows")),
-                    vec(r.get("ratio"), 2),
-                    num(r.get("ratio_norm"), 2),
-                    num(r.get("ratio_norm_second_half"), 2),
-                )
-            )
+    rows = [row for row, _ in table_rows(out, num, vec, name=lambda label: f"`{label}`")]
     lines += table(REAL_COLUMNS, rows, align="llr")
     lines += [
         "The paper's convergence flag is the weak part on these files: on the LWR4 logs the first rows repeat, so",

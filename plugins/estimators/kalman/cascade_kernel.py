@@ -59,6 +59,7 @@ from hapticlab.plugins.estimators.kalman.state_layout import (
     ADAPT_TILT_AUTO,
     ADAPT_TILT_SPAN,
     ADAPT_TILT_TORQUE,
+    ADAPT_TORQUE_EARLY,
     ADAPT_TORQUE_SEEN,
     ADAPT_TURN_F,
     ADAPT_TURN_T,
@@ -169,6 +170,7 @@ def kalman_cascade(
     noise_f, noise_t = adapt[ADAPT_NOISE_F] != 0.0, adapt[ADAPT_NOISE_T] != 0.0
     identified = adapt[ADAPT_IDENTIFIED] != 0.0
     at_pose = adapt[ADAPT_IDENTIFIED] == CONVERGENCE_AT_POSE
+    torque_early = adapt[ADAPT_TORQUE_EARLY] != 0.0
     noise = noise_f or noise_t
     pred_f, pred_t = adapt[ADAPT_PRED_F : ADAPT_PRED_F + 3], scratch[6, :3]
     before_f, before_t = scratch[7], scratch[8]
@@ -271,7 +273,7 @@ def kalman_cascade(
         A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
         A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
         A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
-        seen = usable[k] and what != GATED and settled  # (its regressor needs gravity identified, not only here)
+        seen = usable[k] and what != GATED and (settled or torque_early)  # (torque_start; settled: gravity known)
         before_t[:] = x_t[:6]
         if rate:
             what_t, _ = stage_step_rate(
@@ -324,6 +326,9 @@ def kalman_cascade(
                 and what_t != FAILED
             )
             settled_t = converged_torque[k]
+        if torque_early:  # (started early: its flag and its settling still wait for the force stage's)
+            converged_torque[k] = converged_torque[k] and conv
+            settled_t = settled_t and settled
         if settled_t:
             adapt[ADAPT_TORQUE_SEEN] = 1.0
         if converged_torque[k] and first_t < 0:

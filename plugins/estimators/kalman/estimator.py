@@ -196,6 +196,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = round(o.payload_change_s * 1e9)
         self.torque_reopen_s = float(o.torque_reopen_s)
+        self.torque_early = o.torque_start == "early"
         # the noise estimate's, the identified rule's, the contact judge's and the tilt walk's state, in the
         # compiled cascade's layout (both paths use it)
         self._adapt = new_state(
@@ -297,7 +298,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
             conv_f &= ~run_f.failed
             settled_f &= ~run_f.failed
         x_t_before = self.torque.x[:6].copy()
-        seen_t = force_seen = accepted_f & settled_f  # (its regressor needs gravity identified, not only here)
+        seen_t = force_seen = accepted_f & (settled_f | self.torque_early)  # (torque_start; settled: gravity known)
         run_t = self.torque.run(torque_S, A_t, dt, seen_t, self.gate2, self.method, tilt)
         if run_t.failed is not None:
             seen_t = seen_t & ~run_t.failed
@@ -306,6 +307,9 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         if run_t.failed is not None:
             conv_t &= ~run_t.failed
             settled_t &= ~run_t.failed
+        if self.torque_early:  # (started early: its flag and its settling still wait for the force stage's)
+            conv_t &= conv_f
+            settled_t &= settled_f
         if settled_t.any():  # (at the pose: the centre of gravity identified as well)
             self._adapt[ADAPT_TORQUE_SEEN] = 1.0
         torque_for_contact = torque_S

@@ -33,7 +33,7 @@ ADAPT_TORQUE_SEEN, ADAPT_CONTACT_AFTER, ADAPT_REFUSED_RUN, ADAPT_HELD_OUT, ADAPT
 
 ADAPT_TILT, ADAPT_GRAVITY_DIR, ADAPT_TILT_AUTO, ADAPT_TILT_TORQUE = 34, 43, 46, 47
 
-ADAPT_GRAVITY_KNOWN, ADAPT_TILT_SPAN, ADAPT_TURN_F, ADAPT_TURN_T, ADAPT_TW = 48, 49, 50, 51, 52
+ADAPT_GRAVITY_KNOWN, ADAPT_TILT_SPAN, ADAPT_TURN_F, ADAPT_TURN_T, ADAPT_TORQUE_EARLY, ADAPT_TW = 48, 49, 50, 51, 52, 53
 
 ADAPT_SIZE = ADAPT_TW + TW_SIZE
 
@@ -64,8 +64,10 @@ NaN before the first) and the direction of gravity in B its tilt is measured abo
 qt_f after each sample, and into qt_t times ``ADAPT_TILT_TORQUE`` ((N·m/N)²; negative: qt_t is the torque's own, fixed).
 ``ADAPT_TILT_SPAN``: the least turn either bias follows its tilt walk over, rad (0: the plain walk;
 ``stage_kernel.add_tilt_noise``), and each stage's turn since it last tested a sample (``ADAPT_TURN_F``,
-``ADAPT_TURN_T``, rad; state). Out: the force reading's predicted variance per axis at the last sample (3 values from
-``ADAPT_PRED_F``), the block's row of its last torque bias re-opening (−1: none)."""
+``ADAPT_TURN_T``, rad; state). ``ADAPT_TORQUE_EARLY`` (1.0): the torque stage sees every sample the force
+stage accepts, settled or not (``torque_start = "early"``). Out: the force reading's predicted variance per
+axis at the last sample (3 values from ``ADAPT_PRED_F``), the block's row of its last torque bias re-opening
+(−1: none)."""
 
 
 def new_state(
@@ -99,6 +101,7 @@ def new_state(
     adapt[ADAPT_GRAVITY_DIR : ADAPT_GRAVITY_DIR + 3] = (0.0, 0.0, 1.0)  # B's z until the weight is known
     adapt[ADAPT_TILT_AUTO] = tilt_walk_auto
     adapt[ADAPT_TILT_SPAN] = options.bias_tilt_span
+    adapt[ADAPT_TORQUE_EARLY] = options.torque_start == "early"
     adapt[ADAPT_TW:] = tilt_walk_kernel.new_state()
     adapt[ADAPT_TILT_TORQUE] = TORQUE_PER_FORCE**2 if tilt_torque_follows else -1.0  # (q: variances)
     adapt[ADAPT_REOPEN_S], adapt[ADAPT_REOPEN_LEVER] = (

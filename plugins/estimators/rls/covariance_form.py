@@ -17,10 +17,11 @@ the BLAS rounds: most in the first samples when the orientation changes at
 every sample, little on a slow tour. As samples accumulate the gains shrink
 and the deviation decays (docs/estimators.md, ``rls``, measures it).
 
-It is here so the paper's own update can be measured (the ``rls`` option
-``covariance_update = "printed"``), not to be preferred. It performs the same
-operations in the same order as ``plugins.estimators.rls.algorithm1`` with ``joseph=False``, so
-the two agree to the last bit wherever they see the same numbers.
+It is the ``rls`` default (``covariance_update = "printed"``): the paper's numbers are this update's,
+rounding included. This module is the numpy reference (``kernel = "numpy"``) of
+``covariance_form_kernel``. It performs the same operations in the same order as
+``plugins.estimators.rls.algorithm1`` with ``joseph=False``, so the two agree to the last bit
+wherever they see the same numbers.
 """
 
 from __future__ import annotations

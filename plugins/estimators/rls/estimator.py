@@ -8,12 +8,11 @@ a sample whose residual norm reaches the contact threshold is not used (the
 stage is frozen during contact). The initial estimates are random, as in the
 paper (seeded, so runs repeat).
 
-Each stage is evaluated in information form (``plugins.estimators.rls.information_form``): the paper's
-estimate at every sample, without the rounding of its printed covariance
-update. ``covariance_update = "printed"`` runs that update as printed,
-P_k = (I − K_k C_k) P_{k−1} one sample at a time (``plugins.estimators.rls.covariance_form``), with
-the same gating and convergence test, so the difference can be measured
-(docs/estimators.md, ``rls``).
+Each stage runs the paper's printed update, P_k = (I − K_k C_k) P_{k−1}, one sample at a time
+(``plugins.estimators.rls.covariance_form``), so the estimator gives Algorithm 1's numbers, its
+convergence decisions included. ``covariance_update = "information"`` evaluates the same estimate in
+information form (``plugins.estimators.rls.information_form``), without the printed update's rounding,
+which moves some of its convergence decisions (docs/estimators.md, ``rls``, measures the difference).
 
 Bad input (docs/estimators.md, "Refused samples"): a sample with a NaN or inf,
 an R_EB that is not a rotation, or a force or torque component beyond
@@ -25,9 +24,9 @@ and ``drain_events()`` reports them (``sample_refused``). A solve that fails on
 finite input leaves the stage as it was and marks that sample not converged.
 
 Kernel (``kernel``, docs/estimators.md): ``"numba"`` (the default) runs both stages and the
-contact wrench of each block in one compiled call (``information_form_kernel.py``); ``"numpy"`` runs
-the reference above (``information_form.py``), which the tests compare it to. The printed update
-(``covariance_update = "printed"``) exists only as the numpy reference.
+contact wrench of each block in one compiled call (``covariance_form_kernel.py``, held to
+``algorithm1`` bit for bit; ``information_form_kernel.py`` for the information form); ``"numpy"`` runs
+the references above, which the tests compare them to.
 
 Nothing here improves on the paper: improvements are other estimators or
 named options elsewhere, so the paper's method stays measurable.
@@ -42,6 +41,7 @@ import numpy as np
 from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench, named_params
 from hapticlab.core.frames import skew_stack
 from hapticlab.core.types import AlignedSamples, Estimates
+from hapticlab.plugins.estimators.rls import covariance_form_kernel as printed_kernel
 from hapticlab.plugins.estimators.rls import information_form_kernel as rls_kernel
 from hapticlab.plugins.estimators.rls.covariance_form import PrintedRecursiveLeastSquares
 from hapticlab.plugins.estimators.rls.information_form import RecursiveLeastSquares, RLSStage, run_gated
@@ -54,8 +54,8 @@ class RLSEstimator(RefusesBadSamples):
     Options: :class:`RLSOptions` (``RLSEstimator(force_threshold=0.6)`` or ``RLSEstimator(options)``).
 
     Attributes:
-        force, torque: the two stages (``RecursiveLeastSquares``, or
-            ``PrintedRecursiveLeastSquares`` with ``covariance_update = "printed"``).
+        force, torque: the two stages (``PrintedRecursiveLeastSquares``, or ``RecursiveLeastSquares`` with
+            ``covariance_update = "information"``).
         converged_force, converged_torque: the stages' flags as Algorithm 1
             keeps them (recomputed at every sample a stage uses).
         first_converged_force, first_converged_torque: index of the sample at
@@ -89,8 +89,14 @@ class RLSEstimator(RefusesBadSamples):
         self.first_converged_force: int | None = None
         self.first_converged_torque: int | None = None
         self.samples = 0
-        self._compiled = kernel == "numba" and covariance_update == "information"
-        if self._compiled:  # what the kernel needs, allocated once
+        self._compiled = kernel == "numba"
+        self._printed = covariance_update == "printed"
+        if self._compiled and self._printed:  # what the kernel needs, allocated once
+            printed_kernel.warm_up()
+            self._settings = np.array([R, R, force_threshold, torque_threshold, epsilon])
+            self._status = printed_kernel.status_array()
+            self._work = printed_kernel.work_arrays()
+        elif self._compiled:
             rls_kernel.warm_up()
             force, torque = cast(RecursiveLeastSquares, self.force), cast(RecursiveLeastSquares, self.torque)
             self._settings = np.array([1.0 / force.r, 1.0 / torque.r, force_threshold, torque_threshold, epsilon])
@@ -134,38 +140,54 @@ class RLSEstimator(RefusesBadSamples):
         )
 
     def _update_compiled(self, block: AlignedSamples) -> Estimates:
-        """``_update`` by the compiled kernel: the stages' x, Λ, η updated in place."""
+        """``_update`` by the compiled kernel: the stages' x and P (printed) or x, Λ, η updated in place."""
         m = len(block)
-        # (compiled: the information form's stages)
-        force, torque = cast(RecursiveLeastSquares, self.force), cast(RecursiveLeastSquares, self.torque)
         status = self._status
         status[0], status[1], status[2:] = self.converged_force, self.converged_torque, 0
         wrench, flags = np.empty((2, m, 3)), np.empty((3, m), dtype=bool)  # (rows of each are contiguous)
         contiguous = np.ascontiguousarray  # (a no-op on the aligner's arrays; one compiled layout)
-        rls_kernel.rls_cascade(
-            contiguous(block.force_S, float),
-            contiguous(block.torque_S, float),
-            contiguous(block.R_EB, float),
-            force.x,
-            force.Lambda,
-            force.eta,
-            torque.x,
-            torque.Lambda,
-            torque.eta,
-            self._settings,
-            status,
-            self._work,
-            rls_kernel.DPOSV,
-            wrench,
-            flags,
-        )
+        data = contiguous(block.force_S, float), contiguous(block.torque_S, float), contiguous(block.R_EB, float)
+        if self._printed:
+            pf, pt = cast(PrintedRecursiveLeastSquares, self.force), cast(PrintedRecursiveLeastSquares, self.torque)
+            printed_kernel.printed_cascade(
+                *data,
+                pf.x,
+                pf.P,
+                pf.K,
+                pt.x,
+                pt.P,
+                pt.K,
+                self._settings,
+                status,
+                self._work,
+                printed_kernel.DGESV,
+                wrench,
+                flags,
+            )
+        else:
+            force, torque = cast(RecursiveLeastSquares, self.force), cast(RecursiveLeastSquares, self.torque)
+            rls_kernel.rls_cascade(
+                *data,
+                force.x,
+                force.Lambda,
+                force.eta,
+                torque.x,
+                torque.Lambda,
+                torque.eta,
+                self._settings,
+                status,
+                self._work,
+                rls_kernel.DPOSV,
+                wrench,
+                flags,
+            )
         out = Estimates(block.t_ns, wrench[0], wrench[1], flags[0], flags[1], flags[2])
         u_f, f_f, u_t, f_t = status[2:6].tolist()
         self.converged_force, self.converged_torque = bool(status[0]), bool(status[1])
-        force.updates += u_f
-        force.failed += f_f
-        torque.updates += u_t
-        torque.failed += f_t
+        self.force.updates += u_f
+        self.force.failed += f_f
+        self.torque.updates += u_t
+        self.torque.failed += f_t
         return out
 
     def _note_first(self, conv_f: np.ndarray, conv_t: np.ndarray) -> None:
@@ -207,8 +229,10 @@ class RLSEstimator(RefusesBadSamples):
     def _P_diag(self, stage: RLSStage) -> np.ndarray:
         """(6,) diag P of a stage: from Λ's Cholesky factor on the compiled path, else diag Λ⁻¹ (``P``)."""
         # (compiled: the information form's stage)
-        if self._compiled and rls_kernel.inverse_diag(
-            cast(RecursiveLeastSquares, stage).Lambda, self._work[1], self._diag
+        if (
+            self._compiled
+            and not self._printed
+            and rls_kernel.inverse_diag(cast(RecursiveLeastSquares, stage).Lambda, self._work[1], self._diag)
         ):
             return self._diag
         return np.diag(stage.P)

@@ -81,9 +81,11 @@ def _fma(typingctx, a, b, c):
 
 
 @intrinsic
-def _dposv(typingctx, address, uplo, n, nrhs, a, lda, b, ldb, info):
-    """Call the Fortran dposv at ``address`` (uintp) with pointer arguments (uintp each), by reference."""
-    sig = types.void(address, uplo, n, nrhs, a, lda, b, ldb, info)
+def lapack8(typingctx, address, a1, a2, a3, a4, a5, a6, a7, a8):
+    """Call the Fortran LAPACK routine at ``address`` (uintp) that takes eight arguments, all by reference
+    (pointers, uintp each): dposv (uplo, n, nrhs, a, lda, b, ldb, info), dgesv (n, nrhs, a, lda, ipiv, b,
+    ldb, info)."""
+    sig = types.void(address, a1, a2, a3, a4, a5, a6, a7, a8)
 
     def codegen(context, builder, signature, args):
         pointer = ir.IntType(8).as_pointer()
@@ -106,7 +108,7 @@ def _solve(Lam, eta, L, x, lapack, dposv) -> bool:
             L[i, j] = Lam[i, j]
     lapack[0], lapack[1], lapack[2], lapack[3] = 6, 1, 0, 85  # n, nrhs, info, 'U'
     address = lapack.ctypes.data
-    _dposv(dposv, address + 12, address, address + 4, L.ctypes.data, address, x.ctypes.data, address, address + 8)  # type: ignore[call-arg]  # an @intrinsic is called without its typingctx
+    lapack8(dposv, address + 12, address, address + 4, L.ctypes.data, address, x.ctypes.data, address, address + 8)  # type: ignore[call-arg]  # an @intrinsic is called without its typingctx
     if lapack[2] == 0:
         return True
     # not numerically positive definite: LU with partial pivoting (np.linalg.solve) on a copy of Λ (in L)

@@ -25,12 +25,14 @@ class RLSOptions:
         R: measurement-noise variance (R·I): N² for force, (N·m)² for torque.
         epsilon: convergence threshold on ‖Δx‖₂ (mixed units, as in Algorithm 1).
         seed: seed of the random initial estimates (the paper starts from random ones; seeded, runs repeat).
-        covariance_update: "information" (the information form, the paper's estimate without the rounding
-            of its printed P update) or "printed" (P_k = (I − K_k C_k) P_{k−1} exactly as printed, eq. 28).
+        covariance_update: "printed" (the default: P_k = (I − K_k C_k) P_{k−1} exactly as printed, eq. 28, so
+            ``rls`` gives Algorithm 1's numbers, convergence decisions included) or "information" (the
+            information form: the same estimate in exact arithmetic, without the printed update's rounding,
+            which moves its convergence decisions; docs/estimators.md, "rls", measures the difference).
         max_force: a sample with a force component beyond this (N) is refused as implausible.
         max_torque: the same for a torque component (N·m).
-        kernel: "numba" (the cascade compiled, ``information_form_kernel.py``) or "numpy" (the reference,
-            ``information_form.py``). The printed update runs in numpy either way.
+        kernel: "numba" (the cascade compiled: ``covariance_form_kernel.py``, or ``information_form_kernel.py``
+            for the information form) or "numpy" (the references, ``covariance_form.py``, ``information_form.py``).
     """
 
     force_threshold: float = 1.0
@@ -39,7 +41,7 @@ class RLSOptions:
     R: float = 2.5e-3
     epsilon: float = 1e-3
     seed: int = 0
-    covariance_update: str = "information"
+    covariance_update: str = "printed"
     max_force: float = MAX_FORCE
     max_torque: float = MAX_TORQUE
     kernel: str = "numba"
@@ -51,7 +53,7 @@ class RLSOptions:
         choice(
             "covariance_update",
             self.covariance_update,
-            ("information", "printed"),
+            ("printed", "information"),
             hint=" (the paper's eq. 28 as printed)",
         )
         wrench_bound("max_force", self.max_force, MAX_FORCE)

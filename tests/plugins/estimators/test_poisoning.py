@@ -34,7 +34,7 @@ from hapticlab.sessions.bench import family as familybench
 
 ESTIMATORS = {
     "rls": RLSEstimator,
-    "rls printed": lambda: RLSEstimator(covariance_update="printed"),
+    "rls information": lambda: RLSEstimator(covariance_update="information"),
     "batch": BatchEstimator,
     "kalman": KalmanEstimator,
     "kalman inertia, auto noise": lambda: KalmanEstimator(inertia=True, noise_force="auto", noise_torque="auto"),
@@ -400,7 +400,8 @@ def raising(*args, **kwargs):
     [
         ("rls numpy", "solve"),
         ("rls", "nan"),
-        ("rls printed", "inv"),
+        ("rls printed numpy", "inv"),
+        ("rls information", "nan"),
         ("batch", "svd"),
         ("kalman filterpy", "solve"),
         ("kalman mount numpy", "solve"),
@@ -414,7 +415,8 @@ def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour
         "kalman filterpy": lambda: KalmanEstimator(implementation="filterpy"),
         "kalman mount": lambda: KalmanEstimator(mount_rotation=True),  # (compiled)
         "kalman mount numpy": lambda: KalmanEstimator(mount_rotation=True, kernel="numpy"),
-        "rls numpy": lambda: RLSEstimator(kernel="numpy"),
+        "rls numpy": lambda: RLSEstimator(kernel="numpy", covariance_update="information"),
+        "rls printed numpy": lambda: RLSEstimator(kernel="numpy", covariance_update="printed"),
     }
     est = makers[name]()
     est.update_block(tour.subset(slice(0, 6000)))
@@ -423,9 +425,10 @@ def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour
     if patch == "indefinite":  # S = C P Cᵀ + R not positive definite: the fast filter's LDLᵀ cannot update
         est.force.P = -1e3 * np.eye(est.force.n)
         before = est.params()
-    elif patch == "nan":  # the compiled kernel cannot be patched: a Λ that no solve gets a finite x from
-        saved = est.force.Lambda.copy()
-        est.force.Lambda[:] = np.nan
+    elif patch == "nan":  # a compiled kernel cannot be patched: a Λ (or P) that no solve gets a finite x from
+        matrix = est.force.Lambda if hasattr(est.force, "Lambda") else est.force.P
+        saved = matrix.copy()
+        matrix[:] = np.nan
     elif patch == "solve":
         monkeypatch.setattr(np.linalg, "solve", raising)
         monkeypatch.setattr("hapticlab.plugins.estimators.rls.information_form.dposv", lambda a, b: (None, None, 1))
@@ -445,6 +448,6 @@ def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour
         assert est.params() == before  # the whole state (biases too) as it was
     monkeypatch.undo()
     if patch == "nan":
-        np.copyto(est.force.Lambda, saved)
+        np.copyto(matrix, saved)
     if patch != "indefinite":  # solves work again: the estimator goes on
         assert est.update_block(tour.subset(slice(6009, 6100))).converged_force[-1]

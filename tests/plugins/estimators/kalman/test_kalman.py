@@ -597,3 +597,24 @@ def test_identified_convergence_is_not_held_back_by_the_bias_random_walk():
 def test_convergence_option_is_validated():
     with pytest.raises(ValueError, match=r"^convergence: must be 'pose', 'identified', 'covariance' or 'step'"):
         KalmanEstimator(convergence="fast")
+
+
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
+def test_an_early_torque_start_estimates_the_torque_before_the_force_stage_settles(sim6, kernel):
+    """``torque_start = "early"``: the torque stage runs from the force stage's first accepted sample, so while
+    the force stage is still identifying the tool the compensated torque is an estimate (near the sensor's
+    0.01 N·m noise once the first second has passed) where the settled start writes the raw torque (the tool's
+    weight times its lever, ~0.1 N·m); the torque flag never rises before the force flag."""
+    settled = KalmanEstimator(kernel=kernel).update_block(sim6)
+    early_est = KalmanEstimator(kernel=kernel, torque_start="early")
+    early = early_est.update_block(sim6)
+    assert early_est.options.torque_start == "early" and KalmanEstimator().options.torque_start == "settled"
+    waiting = np.flatnonzero(~settled.converged_torque)
+    window = waiting[(waiting >= 1000)]  # (the first second: the torque stage learning)
+    assert len(window) > 500, "the settled start converges its torque too soon on this tour to tell"
+    raw = np.sqrt(np.mean(settled.contact_torque_S[window] ** 2))
+    estimated = np.sqrt(np.mean(early.contact_torque_S[window] ** 2))
+    assert raw > 5 * estimated and estimated < 0.03, (raw, estimated)
+    first_t, first_f = np.argmax(early.converged_torque), np.argmax(early.converged_force)
+    assert early.converged_torque.any() and first_t >= first_f
+    assert np.array_equal(early.contact_force_S, settled.contact_force_S)  # the force stage is the same

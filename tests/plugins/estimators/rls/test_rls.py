@@ -67,11 +67,15 @@ def _reference(block, seed, joseph):
     )
 
 
+INFO = "information"
+"""The information form (an option; the default is the printed update)."""
+
+
 def test_cascade_reproduces_algorithm1_line_by_line():
     block, _ = static_model_stream(2000, seed=2, noise_force=0.1, noise_torque=0.008)
     block.force_S[900:1000] += [2.0, 0.0, -3.0]  # a contact the gates must refuse
     block.torque_S[900:1000] += np.cross([0, 0, 0.25], [2.0, 0.0, -3.0])
-    out = run_blocks(RLSEstimator(seed=4, kernel="numpy"), block, 64)
+    out = run_blocks(RLSEstimator(seed=4, kernel="numpy", covariance_update=INFO), block, 64)
     ref = _reference(block, 4, joseph=True)
     for key in ("converged_force", "converged_torque"):
         assert np.array_equal(out[key], ref[key]), key
@@ -82,8 +86,8 @@ def test_cascade_reproduces_algorithm1_line_by_line():
     # the compiled kernel runs sample by sample, like the numpy path in blocks of 1: the same flags, and
     # the same distance from the Joseph form as that path (1.007e-6 N·m on the torque here: the numpy
     # path in blocks of 1 is itself just past the 1e-6 above, which its blocks of 64 meet)
-    fast = run_blocks(RLSEstimator(seed=4), block, 64)
-    one = run_blocks(RLSEstimator(seed=4, kernel="numpy"), block, 1)
+    fast = run_blocks(RLSEstimator(seed=4, covariance_update=INFO), block, 64)
+    one = run_blocks(RLSEstimator(seed=4, kernel="numpy", covariance_update=INFO), block, 1)
     for key in ("converged_force", "converged_torque", "contact"):
         assert np.array_equal(fast[key], out[key]), key
     assert np.abs(fast["contact_force_S"] - ref["contact_force_S"]).max() < 1e-6
@@ -122,7 +126,7 @@ def test_printed_covariance_update_deviates_early_and_the_deviation_decays():
     far below the sensor noise.
     """
     block, _ = static_model_stream(2000, seed=2, noise_force=0.1, noise_torque=0.008)
-    out = run_blocks(RLSEstimator(seed=4), block, 64)
+    out = run_blocks(RLSEstimator(seed=4, covariance_update=INFO), block, 64)
     printed = run_blocks(RLSEstimator(seed=4, covariance_update="printed"), block, 64)
 
     def gap(key, a, b):
@@ -218,9 +222,9 @@ def test_run_gated_inactive_samples_leave_state_unchanged():
 def test_bad_options_are_refused():
     with pytest.raises(ValueError, match=r"^force_threshold: must be a finite number > 0, got 0.0$"):
         RLSEstimator(force_threshold=0.0)
-    with pytest.raises(ValueError, match=r"^covariance_update: must be 'information' or 'printed'"):
+    with pytest.raises(ValueError, match=r"^covariance_update: must be 'printed' or 'information'"):
         RLSEstimator(covariance_update="joseph")
-    with pytest.raises(ConfigError, match=r"^estimator.covariance_update: must be 'information' or 'printed'"):
+    with pytest.raises(ConfigError, match=r"^estimator.covariance_update: must be 'printed' or 'information'"):
         Registry().create("estimator", "rls", {"covariance_update": "joseph"}, where="estimator")
     with pytest.raises(
         ConfigError, match=r"^estimator.covariance_update: must be a string, got 1 \(a number read as text needs quotes"
@@ -236,9 +240,12 @@ def _mixed_blocks(n, rng):
     return np.cumsum([0] + sizes)
 
 
+@pytest.mark.parametrize("form", ["printed", INFO])
 @pytest.mark.parametrize("seed", range(6))
-def test_adversarial_streams_match_algorithm1(seed):
-    """Contacts before and after convergence, straddling blocks, thresholds near the noise."""
+def test_adversarial_streams_match_algorithm1(seed, form):
+    """Contacts before and after convergence, straddling blocks, thresholds near the noise: the default (the
+    printed update, compiled) against Algorithm 1 as printed, the information form against its Joseph form
+    (the same algebra, accurate in double precision)."""
     rng = np.random.default_rng(100 + seed)
     block, _ = static_model_stream(1500, seed=200 + seed, noise_force=0.1, noise_torque=0.008)
     for _ in range(4):
@@ -246,7 +253,7 @@ def test_adversarial_streams_match_algorithm1(seed):
         push = rng.normal(0, 3, 3)
         block.force_S[start : start + int(rng.integers(5, 100))] += push
     f_th, t_th = float(rng.uniform(0.3, 1.0)), float(rng.uniform(0.03, 0.1))
-    est = RLSEstimator(force_threshold=f_th, torque_threshold=t_th, seed=seed)
+    est = RLSEstimator(force_threshold=f_th, torque_threshold=t_th, seed=seed, covariance_update=form)
     edges = _mixed_blocks(len(block), rng)
     parts = [est.update_block(block.subset(slice(a, b))) for a, b in itertools.pairwise(edges)]
     out = {
@@ -255,7 +262,14 @@ def test_adversarial_streams_match_algorithm1(seed):
     }
     r = np.random.default_rng(seed)
     ref = algorithm1(
-        block.force_S, block.torque_S, block.R_EB, f_th, t_th, r.standard_normal(6), r.standard_normal(6), joseph=True
+        block.force_S,
+        block.torque_S,
+        block.R_EB,
+        f_th,
+        t_th,
+        r.standard_normal(6),
+        r.standard_normal(6),
+        joseph=form == INFO,
     )
     assert np.array_equal(out["converged_force"], ref["converged_force"])
     assert np.array_equal(out["converged_torque"], ref["converged_torque"])

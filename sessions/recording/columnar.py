@@ -128,7 +128,7 @@ def iter_chunks(
     [(t_ns, message)]}`` for the ``topics`` in it (see above).
 
     ``json_fields`` asks for a JSON topic as columns too: ``{topic: {field: width}}`` (width 0: a
-    boolean; else an array of that many numbers, null read as NaN), e.g. ``{"/haptic/command":
+    boolean; ``NUMBER``: one number; else an array of that many numbers; null read as NaN), e.g. ``{"/haptic/command":
     {"force_D": 3, "enabled": 0}}``: ``{"t_ns", field...}`` arrays, the messages never decoded one by
     one (a chunk whose messages do not all have the fields so is decoded and picked from)."""
     json_fields = json_fields or {}
@@ -177,12 +177,18 @@ def iter_chunks(
             yield out
 
 
+NUMBER = -1
+"""A ``json_fields`` width: the field is one number (null read as NaN)."""
+
+
 def _picked(messages: list[dict[str, Any]], log_times: np.ndarray, fields: dict[str, int]) -> dict[str, np.ndarray]:
     """``fields`` of decoded JSON messages as columns (a missing or null value NaN, a missing flag False)."""
     out = {"t_ns": log_times}
     for name, width in fields.items():
         if width == 0:
             out[name] = np.array([bool(m.get(name)) for m in messages], dtype=bool)
+        elif width == NUMBER:
+            out[name] = np.array([math.nan if m.get(name) is None else m[name] for m in messages], dtype=float)
         else:
             out[name] = np.array(
                 [[math.nan if v is None else v for v in (m.get(name) or [None] * width)] for m in messages], dtype=float
@@ -208,6 +214,12 @@ def _json_columns(text: bytes, log_times: np.ndarray, fields: dict[str, int]) ->
             if len(found) != n:
                 return None
             out[name] = np.array(found) == b"true"
+            continue
+        if width == NUMBER:
+            found = re.findall(key + rb"(-?[0-9][0-9.eE+-]*|null)\s*[,}]", text)
+            if len(found) != n:
+                return None
+            out[name] = np.array([b"nan" if v == b"null" else v for v in found], dtype="S").astype(float)
             continue
         found = re.findall(key + rb"\[([^\]]*)\]", text)
         if len(found) != n:

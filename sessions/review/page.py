@@ -167,7 +167,17 @@ def summary_rows(r: SessionReview) -> list[tuple[str, str]]:
         (f"time over {r.force_limit_N:g} N", f"{r.over_limit_s:.2f} s"),
         ("haptic force on", f"{r.haptic_on_s:.1f} s of {r.duration_s:.1f} s"),
         ("faults and fail-safes", str(len(faults(r.events)))),
-    ]
+    ] + (
+        []
+        if r.port_energy_max_J is None
+        else [
+            (
+                "haptic port (passivity)",
+                f"most energy put into the hand {r.port_energy_max_J:.3f} J (passive: ≤ 0); damping added on "
+                f"{100 * (r.damping_share or 0.0):.0f} % of ticks",
+            )
+        ]
+    )
 
 
 def error_rows(e) -> list[tuple[str, ...]]:

@@ -135,7 +135,8 @@ def contact(r: SessionReview):
 
 def command(r: SessionReview):
     assert r.series is not None  # drawn only for a review made with plots (write_plots and the page check)
-    plt, fig, axes = _figure(2, 1.8)
+    port = r.series.passivity
+    plt, fig, axes = _figure(3 if port is not None else 2, 1.8)
     env = r.series.command
     if env is None or not env.count.any():
         axes[0].text(0.5, 0.5, "no haptic commands recorded", ha="center", va="center", transform=axes[0].transAxes)
@@ -146,10 +147,23 @@ def command(r: SessionReview):
     axes[0].set_ylabel("force [N]")
     axes[1].set_ylabel("force on (share)")
     axes[1].set_ylim(-0.05, 1.05)
+    title = f"{TITLES['command']}: on {r.haptic_on_s:.1f} of {r.duration_s:.1f} s"
+    if port is not None:  # teleoperation: the port's energy (passive while ≤ 0) and the damping that kept it so
+        _band(axes[2], port, 0, "tab:purple", "energy into the hand E(t)")
+        axes[2].axhline(0.0, color="black", linewidth=0.6)
+        axes[2].set_ylabel("E [J]")
+        damping = axes[2].twinx()
+        ok = port.count[:, 1] > 0
+        damping.plot(port.t_s[ok], port.hi[ok, 1], color="tab:orange", linewidth=0.8, label="damping added")
+        damping.set_ylabel("damping [N·s/m]")
+        axes[2].legend(loc="upper left", fontsize=8)
+        damping.legend(loc="upper right", fontsize=8)
+        if r.port_energy_max_J is not None:
+            title += f"; port energy at most {r.port_energy_max_J:.3f} J"
     axes[-1].set_xlabel("time [s]")
     for ax in axes:
         ax.grid(alpha=0.3)
-    fig.suptitle(f"{TITLES['command']}: on {r.haptic_on_s:.1f} of {r.duration_s:.1f} s")
+    fig.suptitle(title)
     return plt, fig
 
 

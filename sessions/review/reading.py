@@ -18,18 +18,21 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.sessions.recording.columnar import iter_chunks
+from hapticlab.sessions.recording.columnar import NUMBER, iter_chunks
 from hapticlab.sessions.recording.messages import iter_blocks
 
 COMMAND_FIELDS = {"force_D": 3, "enabled": 0}
 """What a review reads of each ``/haptic/command`` (as columns: ``recording.columnar``)."""
+PASSIVITY_FIELDS = {"energy_J": NUMBER, "damping": NUMBER}
+"""...and of each ``/haptic/passivity`` (teleoperation: the port's energy, J, and the damping added, N·s/m)."""
+COLUMNS = {"/haptic/command": COMMAND_FIELDS, "/haptic/passivity": PASSIVITY_FIELDS}
 
 
 def file_batches(path: Path, topics: list[str], fast: bool) -> Iterator[tuple[str, Any]]:
     """``(topic, batch)`` in file order: a block topic's samples as columns (with ``params``:
     ``[(t_ns, params)]``), any other topic's ``[(t_ns, message)]``; a chunk's aligned samples first."""
     if fast:
-        for chunk in iter_chunks(path, topics, json_fields={"/haptic/command": COMMAND_FIELDS}):
+        for chunk in iter_chunks(path, topics, json_fields={t: COLUMNS[t] for t in topics if t in COLUMNS}):
             for topic in sorted(chunk, key=lambda t: t != "/aligned/sample"):
                 if len(chunk[topic]):
                     yield topic, chunk[topic]
@@ -45,6 +48,10 @@ def file_batches(path: Path, topics: list[str], fast: bool) -> Iterator[tuple[st
                     "enabled": np.array([bool(m.get("enabled"))]),
                 },
             )
+            continue
+        if topic == "/haptic/passivity":
+            values = {k: np.array([math.nan if m.get(k) is None else float(m[k])]) for k in PASSIVITY_FIELDS}
+            yield topic, {"t_ns": np.array([t_ns]), **values}
             continue
         if not is_block:
             yield topic, [(t_ns, m)]

@@ -57,6 +57,8 @@ class Series:
         contact_force: ‖contact force‖, N.
         command: ‖haptic command‖, N, and the share of ticks with the force on (2 columns); None when
             the review was asked without plots.
+        passivity: the haptic port's energy E, J, and the damping its controller added, N·s/m (2 columns;
+            teleoperation's ``/haptic/passivity``); None without plots or without that topic.
         params: (t s, {name: list}) the primary estimator's parameters as recorded (every 100 ms).
     """
 
@@ -64,6 +66,7 @@ class Series:
     compensated: Envelope
     contact_force: Envelope
     command: Envelope | None
+    passivity: Envelope | None = None
     params: list[tuple[float, dict[str, list[float]]]] = field(default_factory=list)
 
 
@@ -96,6 +99,8 @@ class SessionReview:
     complete: bool
     start_ns: int = 0
     series: Series | None = None
+    port_energy_max_J: float | None = None  # teleoperation: max_t E(t), J (> 0: the port created energy)
+    damping_share: float | None = None  # teleoperation: share of the ticks the passivity controller damped
 
     def t_s(self, t_ns: int) -> float:
         """A recorded time as s from the session's start."""
@@ -211,6 +216,9 @@ def review(
     health: dict[str, Any] = {"samples": 0, "lost": 0, "bad": 0, "last_seq": None, "first_t": None, "last_t": None}
     commands: list[dict[str, np.ndarray]] = []
     command_rows = 0
+    port = {"max_J": -math.inf, "damped": 0, "ticks": 0}  # /haptic/passivity, folded as it comes
+    if plots and "/haptic/passivity" in rec.topic_names:
+        series.passivity = Envelope(t0, t1, 2)
 
     def fold_aligned() -> None:
         nonlocal aligned_rows
@@ -264,6 +272,8 @@ def review(
     topics = ["/aligned/sample", "/events", *(ESTIMATOR_TOPIC_PREFIX + n for n in names)]
     if plots:
         topics.append("/haptic/command")
+    if "/haptic/passivity" in rec.topic_names:
+        topics.append("/haptic/passivity")
     fast = fast and can_read(rec.path)
     recent: deque[dict[str, np.ndarray]] = deque(maxlen=3 if fast else 32)
     for topic, batch in file_batches(rec.path, topics, fast):
@@ -280,6 +290,14 @@ def review(
             command_rows += len(batch["t_ns"])
             if command_rows >= CHUNK_ROWS:
                 fold_commands()
+        elif topic == "/haptic/passivity":
+            energy, damping = batch["energy_J"], batch["damping"]
+            if len(energy):
+                port["max_J"] = max(port["max_J"], float(np.nanmax(energy)) if np.isfinite(energy).any() else -math.inf)
+                port["damped"] += int(np.count_nonzero(damping > 0))
+                port["ticks"] += len(energy)
+            if series.passivity is not None:
+                series.passivity.add(batch["t_ns"], np.column_stack((energy, damping)))
         elif topic == "/events":
             events.extend(Event(t_ns, m["kind"], m["message"], m.get("data") or {}) for t_ns, m in batch)
         else:
@@ -329,6 +347,8 @@ def review(
         contact_s=(contact.contact_samples * contact.period_s) if contact is not None else 0.0,
         peak_force_N=contact.peak if contact is not None else float("nan"),
         haptic_on_s=_haptic_on_s(events, t1),
+        port_energy_max_J=port["max_J"] if port["ticks"] and math.isfinite(port["max_J"]) else None,
+        damping_share=port["damped"] / port["ticks"] if port["ticks"] else None,
         events=events,
         complete=bool(summary),
         start_ns=t0,

@@ -323,3 +323,35 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
     assert float(rows[1]["duration_s"]) == pytest.approx(8.0, abs=0.01) and int(rows[1]["contacts"]) == 1
     page = html.read_text()
     assert 'id="cohort"' in page and 'id="refused"' in page and page.count("data:image/png;base64,") == 1
+
+
+def test_a_teleoperation_review_shows_the_haptic_port_s_energy_and_damping(tmp_path, long_session):
+    """teleop-sim with 300 ms of delay and the passivity controller on: the review reports the most energy the
+    port put into the hand, as an independent sum of each command's force times the handle's next velocity
+    gives it, and how often the controller damped; its command plot gains the energy and damping axis."""
+    from hapticlab.sessions.recording import read_recording
+    from hapticlab.sessions.review.plots import command, figure_png
+
+    config, _ = load_config("teleop-sim")
+    config = apply_overrides(config, ["teleop.delay_s=0.3", "teleop.passivity=on"])
+    result = long_session(build_session(config), out=tmp_path / "teleop.mcap")
+    rec = read_recording(result.path)
+    force = np.array([m["force_D"] for _, m in rec.topics["/haptic/command"][:-1]])
+    v = np.array([m["v_DHo_D"] for _, m in rec.topics["/haptic/state"]])
+    n = min(len(force), len(v))
+    energy = np.cumsum(np.einsum("ij,ij->i", force[: n - 1], v[1:n]) * 1e-3)  # J, at 1 kHz
+    r = review(result.path)
+    assert r.port_energy_max_J is not None and abs(r.port_energy_max_J - energy.max()) < 0.005
+    assert r.damping_share is not None and 0.0 < r.damping_share < 1.0
+    assert any(row[0] == "haptic port (passivity)" for row in summary_module_rows(r))
+    plt, fig = command(r)
+    assert len(fig.axes) == 4  # force, force on, energy and its twin (damping)
+    assert figure_png(plt, fig).startswith(b"\x89PNG")
+    demo = review(record(tmp_path / "demo.mcap", "session.duration=2.0"))
+    assert demo.port_energy_max_J is None and demo.damping_share is None  # no teleoperation, no port row
+
+
+def summary_module_rows(r):
+    from hapticlab.sessions.review.page import summary_rows
+
+    return summary_rows(r)

@@ -17,7 +17,7 @@ def print_paper_tables(out: dict) -> None:
         "stage",
         "paper's ‖Δx‖ < 1e-3",
         "samples after force",
-        "the same, P as printed",
+        "information form",
         "paper (samples)",
         "truth-based",
     ):
@@ -26,7 +26,7 @@ def print_paper_tables(out: dict) -> None:
         "force",
         str(conv["force_paper"]),
         "",
-        str(conv.get("force_paper_printed")),
+        str(conv.get("force_paper_information")),
         str(paper["convergence"]["force_paper"]),
         str(conv["force_truth"]),
     )
@@ -34,7 +34,7 @@ def print_paper_tables(out: dict) -> None:
         "torque",
         str(conv["torque_paper"]),
         str(conv["torque_paper_after_force"]),
-        str(conv.get("torque_paper_printed")),
+        str(conv.get("torque_paper_information")),
         str(paper["convergence"]["torque_paper"]),
         str(conv["torque_truth"]),
     )

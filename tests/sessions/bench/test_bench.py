@@ -191,3 +191,19 @@ def test_the_teleoperation_stage_table_times_a_press_into_the_tissue():
     bare = stage_table(1000.0, 0.5, stopwatches=False)
     assert bare["us_per_tick"]["loop body"] > 0 and bare["x_real_time"] > 0
     assert all(bare["us_per_tick"][stage] == 0 for stage in STAGES if stage != "loop body")
+
+
+def test_the_paper_s_flag_converges_sooner_on_a_faster_tour():
+    """bench paper's conditions: under Algorithm 1's flag the force stage converges sooner the faster the tour
+    shows new orientations (at the set-up's noise), and the set-up's own condition is the bench's run."""
+    from hapticlab.core.host.registry import Registry
+    from hapticlab.sessions.bench.paper import PACES_S, closest_condition, convergence_conditions, estimator_factory
+    from hapticlab.sessions.bench.paper_setup import PaperSetup
+
+    setup = PaperSetup()
+    rows = convergence_conditions(setup, estimator_factory(Registry(), "rls", setup))
+    full = {r["pace_s"]: r for r in rows if r["noise_scale"] == 1.0}
+    assert [full[p]["force"] for p in PACES_S] == sorted((full[p]["force"] for p in PACES_S), reverse=True)
+    assert full[3.0]["force"] > 2 * full[0.3]["force"]
+    near = closest_condition(rows, 242, 238)
+    assert near is not None and abs(near["force"] - 242) + abs(near["torque_after_force"] - 238) < 150

@@ -31,7 +31,13 @@ import numpy as np
 from numba import njit
 from numba.extending import get_cython_function_address
 
-from hapticlab.plugins.estimators.rls.information_form_kernel import STATUS, _fma, lapack8
+from hapticlab.plugins.estimators.rls.information_form_kernel import (
+    STATUS,
+    _fma,
+    lapack8,
+    torque_regressor,
+    write_contact_wrench,
+)
 
 __all__ = ["DGESV", "STATUS", "printed_cascade", "status_array", "warm_up", "work_arrays"]
 
@@ -194,10 +200,7 @@ def printed_cascade(
             status[2] += 1
         gated_t = False
         if out_f:  # the torque stage sees the samples after which the force stage's flag is up
-            d0, d1, d2 = f0 - x_f[3], f1 - x_f[4], f2 - x_f[5]  # C_k = [−[Δf]ₓ, I3]
-            A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
-            A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
-            A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
+            torque_regressor(A_t, f0, f1, f2, x_f)
             out_t, gated_t, conv_t, failed = _stage(
                 torque_S[k, 0],
                 torque_S[k, 1],
@@ -220,16 +223,7 @@ def printed_cascade(
                 status[4] += 1
         else:
             out_t = conv_t
-        # contact wrench at the states after the sample (core.estimation.model.contact_wrench)
-        g0 = R[0, 0] * x_f[0] + R[0, 1] * x_f[1] + R[0, 2] * x_f[2]
-        g1 = R[1, 0] * x_f[0] + R[1, 1] * x_f[1] + R[1, 2] * x_f[2]
-        g2 = R[2, 0] * x_f[0] + R[2, 1] * x_f[1] + R[2, 2] * x_f[2]
-        contact_force_S[k, 0] = f0 - g0 - x_f[3]
-        contact_force_S[k, 1] = f1 - g1 - x_f[4]
-        contact_force_S[k, 2] = f2 - g2 - x_f[5]
-        contact_torque_S[k, 0] = torque_S[k, 0] - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
-        contact_torque_S[k, 1] = torque_S[k, 1] - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
-        contact_torque_S[k, 2] = torque_S[k, 2] - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
+        write_contact_wrench(k, R, force_S, torque_S, x_f, x_t, contact_force_S, contact_torque_S)
         contact[k] = gated_f or gated_t
         converged_force[k] = out_f
         converged_torque[k] = out_t

@@ -191,6 +191,31 @@ def _stage(y0, y1, y2, A, x, Lam, eta, inv_r, threshold, epsilon, converged, wor
 
 
 @njit(cache=True)
+def torque_regressor(A_t, f0, f1, f2, x_f) -> None:
+    """The torque stage's A_k = −[force_S − bias_force_S]ₓ into ``A_t`` (3, 3), from the force stage's x after the
+    sample (C_k = [A_k, I3]; −0.0 on the diagonal, as −skew writes it)."""
+    d0, d1, d2 = f0 - x_f[3], f1 - x_f[4], f2 - x_f[5]
+    A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
+    A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
+    A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
+
+
+@njit(cache=True)
+def write_contact_wrench(k, R, force_S, torque_S, x_f, x_t, contact_force_S, contact_torque_S) -> None:
+    """Row ``k`` of the contact wrench at the stages' states after the sample (paper eqs. 20–21,
+    ``core.estimation.model.contact_wrench``): force_S − R g − b_f, N; torque_S − cog × (R g) − b_t, N·m."""
+    g0 = R[0, 0] * x_f[0] + R[0, 1] * x_f[1] + R[0, 2] * x_f[2]
+    g1 = R[1, 0] * x_f[0] + R[1, 1] * x_f[1] + R[1, 2] * x_f[2]
+    g2 = R[2, 0] * x_f[0] + R[2, 1] * x_f[1] + R[2, 2] * x_f[2]
+    contact_force_S[k, 0] = force_S[k, 0] - g0 - x_f[3]
+    contact_force_S[k, 1] = force_S[k, 1] - g1 - x_f[4]
+    contact_force_S[k, 2] = force_S[k, 2] - g2 - x_f[5]
+    contact_torque_S[k, 0] = torque_S[k, 0] - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
+    contact_torque_S[k, 1] = torque_S[k, 1] - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
+    contact_torque_S[k, 2] = torque_S[k, 2] - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
+
+
+@njit(cache=True)
 def rls_cascade(
     force_S, torque_S, R_EB, x_f, Lambda_f, eta_f, x_t, Lambda_t, eta_t, settings, status, work, dposv, wrench, flags
 ):
@@ -225,10 +250,7 @@ def rls_cascade(
             status[2] += 1
         gated_t = False
         if out_f:  # the torque stage sees the samples after which the force stage's flag is up
-            d0, d1, d2 = f0 - x_f[3], f1 - x_f[4], f2 - x_f[5]  # C_k = [−[Δf]ₓ, I3]
-            A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
-            A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
-            A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
+            torque_regressor(A_t, f0, f1, f2, x_f)
             out_t, gated_t, conv_t, failed = _stage(
                 torque_S[k, 0],
                 torque_S[k, 1],
@@ -251,16 +273,7 @@ def rls_cascade(
                 status[4] += 1
         else:
             out_t = conv_t
-        # contact wrench at the states after the sample (core.estimation.model.contact_wrench)
-        g0 = R[0, 0] * x_f[0] + R[0, 1] * x_f[1] + R[0, 2] * x_f[2]
-        g1 = R[1, 0] * x_f[0] + R[1, 1] * x_f[1] + R[1, 2] * x_f[2]
-        g2 = R[2, 0] * x_f[0] + R[2, 1] * x_f[1] + R[2, 2] * x_f[2]
-        contact_force_S[k, 0] = f0 - g0 - x_f[3]
-        contact_force_S[k, 1] = f1 - g1 - x_f[4]
-        contact_force_S[k, 2] = f2 - g2 - x_f[5]
-        contact_torque_S[k, 0] = torque_S[k, 0] - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
-        contact_torque_S[k, 1] = torque_S[k, 1] - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
-        contact_torque_S[k, 2] = torque_S[k, 2] - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
+        write_contact_wrench(k, R, force_S, torque_S, x_f, x_t, contact_force_S, contact_torque_S)
         contact[k] = gated_f or gated_t
         converged_force[k] = out_f
         converged_torque[k] = out_t

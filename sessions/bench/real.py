@@ -67,8 +67,8 @@ REAL_COLUMNS = (
 )
 """The columns of bench real's table, on the terminal and in docs/results.md (``table_rows``)."""
 LAST_SHARE = 0.7
-"""The window every estimator is scored over beside its own convergence: the file's last 70 % of rows, as
-issue 41 measures force and torque (the worst axis's RMS over the batch fit's on the same rows)."""
+"""The window every estimator is scored over beside its own convergence: the file's last 70 % of rows, wherever
+each flag rose (a torque stage that starts late shows here, its raw torque standing in until then)."""
 IDENTIFIED = {"convergence": "identified"}
 """kalman's convergence rule before "pose": the wrench known at the pose and the tool identified by the motion."""
 GAMMA_COVARIANCE = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}

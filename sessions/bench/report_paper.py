@@ -215,7 +215,7 @@ def conditions_section(rows: list[dict[str, Any]] | None, paper: dict[str, int])
     """Why the convergence differs from the paper's: the same flag against the tour's pace and the noise."""
     if not rows:
         return []
-    from hapticlab.sessions.bench.paper import CONDITION_S, closest_condition
+    from hapticlab.sessions.bench.paper_convergence import CONDITION_S, closest_condition
 
     forces = [r["force"] for r in rows if r["force"] is not None]
     torques = [r["torque_after_force"] for r in rows if r["torque_after_force"] is not None]

@@ -195,8 +195,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         self.prior_f = np.array(prior_f, dtype=float)
         self.prior_t = np.array(prior_t, dtype=float)
         self.payload_change_ns = round(o.payload_change_s * 1e9)
-        self.torque_reopen_s = float(o.torque_reopen_s)
-        self.torque_early = o.torque_start == "early"
+        self.torque_reopen_s, self.torque_early = float(o.torque_reopen_s), o.torque_start == "early"
         # the noise estimate's, the identified rule's, the contact judge's and the tilt walk's state, in the
         # compiled cascade's layout (both paths use it)
         self._adapt = new_state(
@@ -308,8 +307,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
             conv_t &= ~run_t.failed
             settled_t &= ~run_t.failed
         if self.torque_early:  # (started early: its flag and its settling still wait for the force stage's)
-            conv_t &= conv_f
-            settled_t &= settled_f
+            conv_t, settled_t = conv_t & conv_f, settled_t & settled_f
         if settled_t.any():  # (at the pose: the centre of gravity identified as well)
             self._adapt[ADAPT_TORQUE_SEEN] = 1.0
         torque_for_contact = torque_S

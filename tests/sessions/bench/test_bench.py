@@ -133,7 +133,7 @@ def test_bench_real_keeps_going_past_a_bad_file(tmp_path):
 
 
 def test_metric_helpers_on_hand_made_input():
-    from hapticlab.sessions.bench.paper import first_stays, truth_convergence
+    from hapticlab.sessions.bench.paper_convergence import first_stays, truth_convergence
     from hapticlab.sessions.offline.metrics import error_stats
 
     before = np.array([[2.0], [-4.0], [6.0]])
@@ -197,7 +197,8 @@ def test_the_paper_s_flag_converges_sooner_on_a_faster_tour():
     """bench paper's conditions: under Algorithm 1's flag the force stage converges sooner the faster the tour
     shows new orientations (at the set-up's noise), and the set-up's own condition is the bench's run."""
     from hapticlab.core.host.registry import Registry
-    from hapticlab.sessions.bench.paper import PACES_S, closest_condition, convergence_conditions, estimator_factory
+    from hapticlab.sessions.bench.paper import estimator_factory
+    from hapticlab.sessions.bench.paper_convergence import PACES_S, closest_condition, convergence_conditions
     from hapticlab.sessions.bench.paper_setup import PaperSetup
 
     setup = PaperSetup()

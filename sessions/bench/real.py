@@ -22,6 +22,7 @@ update without calling them contacts (``HoldsOutOutliers``) has those counted be
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -198,8 +199,9 @@ def table_rows(
     numbers written with ``fmt(value, digits)``, vectors with ``vec(values, digits)``, names with ``name``.
     The last two columns are the worst axis of ``last_ratio_force`` and ``last_ratio_torque``."""
 
-    def worst(values: list[float] | None) -> str:
-        return "–" if not values or not np.isfinite(values).any() else fmt(float(np.nanmax(values)), 2)
+    def worst(values: list[float | None] | None) -> str:  # (a NaN saved to JSON comes back None)
+        finite = [v for v in values or [] if v is not None and math.isfinite(v)]
+        return fmt(max(finite), 2) if finite else "–"
 
     rows: list[tuple[tuple[str, ...], bool]] = []
     blank = ("",) * (len(REAL_COLUMNS) - 7)

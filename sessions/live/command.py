@@ -28,7 +28,7 @@ from hapticlab.sessions.live.gate import HapticGate
 from hapticlab.sessions.live.passivity import PassivityController
 from hapticlab.sessions.live.status import SessionStatus
 from hapticlab.sessions.live.taps import Taps
-from hapticlab.sessions.live.teleop import Teleoperation
+from hapticlab.sessions.live.teleop import Teleoperation, reason_kind
 
 
 class HapticCommander:
@@ -118,7 +118,7 @@ class HapticCommander:
             # master too, whose command was made before its state came back)
             self._servo(now_ns, self._delayed_state(now_ns, state), command.enabled and not reason, taps)
         self.haptic_on_ticks += command.enabled
-        if command.reason.split(" (")[0] != self.haptic_reason.split(" (")[0]:  # not each new figure in it
+        if reason_kind(command.reason.split(" (")[0]) != reason_kind(self.haptic_reason.split(" (")[0]):
             self.on_event(
                 Event(now_ns, "haptic_enabled", "haptic force on")
                 if command.enabled

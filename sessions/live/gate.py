@@ -208,7 +208,8 @@ class HapticGate:
             if self.parameters_known and std is not None:
                 events.append(Event(now_ns, "parameters_known", f"force parameters known to ±{std:.3g} N (1σ)"))
         elif self.parameters_known and (std := self._std()) is not None:  # (None: no parameter_std)
-            self.parameters_lost = std > self.ready_force_std  # e.g. a drifting estimator in a long contact
+            # (e.g. a drifting estimator in a long contact; NaN, a covariance whose rounding lost a direction: lost)
+            self.parameters_lost = not std <= self.ready_force_std
         if self.bias_hold == "drop" and not self.converged[0]:
             self.bias_hold = "rise"
         # (and the parameters known again: kalman's flag at the pose is back before the tool is re-identified)

@@ -67,7 +67,7 @@ TOUR_ROLL_RAD = math.pi / 3
 """The calibration tour's roll about the tool's axis, rad (±60°)."""
 
 
-def _kind(reason: str) -> str:
+def reason_kind(reason: str) -> str:
     """A hold's reason without its figures (a stream 31 ms old and 32 ms old is one hold)."""
     return re.sub(r"[0-9.]+", "#", reason)
 
@@ -122,7 +122,8 @@ class Teleoperation:
         self.p_target = np.zeros(3)
         self.R_target = np.eye(3)
         self.engaged: tuple[np.ndarray, np.ndarray] | None = None  # (p_engaged, h_engaged)
-        self.handle = np.zeros(3)  # the handle at the last tick the robot followed it, m in D
+        self.handle: np.ndarray | None = None  # the handle at the last tick the robot followed it, m in D (None:
+        # no hand-tool correspondence to keep: not yet followed, or re-anchored by the clutch)
         self.left_at: np.ndarray | None = None  # where the handle was when a channel went silent, m in D
         self.last_ns: int | None = None
 
@@ -164,7 +165,7 @@ class Teleoperation:
             return self._tour(now_ns, pose, state, dt_s, events), events
         reason = self._hold_reason(now_ns, pose, state, haptic_on)
         if reason:
-            if self.mode != "holding" or _kind(reason) != _kind(self.reason):  # (not each new figure in it)
+            if self.mode != "holding" or reason_kind(reason) != reason_kind(self.reason):  # (not each new figure in it)
                 events.append(Event(now_ns, "teleop_holding", f"robot holding: {reason}", {"reason": reason}))
             self.mode, self.reason, self.engaged = "holding", reason, None
             return self._target(now_ns, "holding", reason), events
@@ -197,7 +198,7 @@ class Teleoperation:
         silent."""
         absent = self.absent(now_ns, state) or self._silent_robot(now_ns, pose)
         if absent:
-            if _kind(self.reason) != _kind(absent):
+            if reason_kind(self.reason) != reason_kind(absent):
                 events.append(Event(now_ns, "teleop_holding", f"calibration tour paused: {absent}", {"reason": absent}))
             self.reason, self.reached_ns = absent, None
             return self._target(now_ns, "calibrating", absent)
@@ -256,13 +257,13 @@ class Teleoperation:
         """Why the robot must not follow the hand now ("" when it may)."""
         silent = self.absent(now_ns, state) or self._silent_robot(now_ns, pose)
         if silent:
-            if self.mode == "following":
+            if self.left_at is None and self.handle is not None:  # (holding already or not: the last followed)
                 self.left_at = self.handle.copy()
             return silent
         assert state is not None  # not absent: the master reports a state
         bit = self.settings.clutch_button
         if bit >= 0 and (int(state.buttons) >> bit) & 1:
-            self.left_at = None  # the trainee repositions on purpose: the clutch re-anchors the hand
+            self.left_at = self.handle = None  # the trainee repositions on purpose: the clutch re-anchors the hand
             return "clutch pressed"
         if self.settings.require_haptics and not haptic_on:
             return "haptic force off"

@@ -347,7 +347,7 @@ def review(
         contact_s=(contact.contact_samples * contact.period_s) if contact is not None else 0.0,
         peak_force_N=contact.peak if contact is not None else float("nan"),
         haptic_on_s=_haptic_on_s(events, t1),
-        port_energy_max_J=port["max_J"] if port["ticks"] and math.isfinite(port["max_J"]) else None,
+        port_energy_max_J=port["max_J"] if port["ticks"] and port["max_J"] > -math.inf else None,
         damping_share=port["damped"] / port["ticks"] if port["ticks"] else None,
         events=events,
         complete=bool(summary),

@@ -300,7 +300,7 @@ def kalman_cascade(
         if tilt_walk:
             adapt[ADAPT_TURN_T] = 0.0 if what_t == UPDATED or what_t == GATED else turn_t
         n_failed_t += what_t == FAILED
-        force_seen = seen
+        force_seen = seen and settled  # (the torque re-opening counts the force stage's settled samples only)
         seen = seen and what_t != FAILED
         weight2 = x_f[0] ** 2 + x_f[1] ** 2 + x_f[2] ** 2  # |gravity_force_B|², N²
         if identified or noise:

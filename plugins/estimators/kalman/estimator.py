@@ -297,7 +297,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
             conv_f &= ~run_f.failed
             settled_f &= ~run_f.failed
         x_t_before = self.torque.x[:6].copy()
-        seen_t = force_seen = accepted_f & (settled_f | self.torque_early)  # (torque_start; settled: gravity known)
+        seen_t = (force_seen := accepted_f & settled_f) | (accepted_f & self.torque_early)  # (settled; early: all)
         run_t = self.torque.run(torque_S, A_t, dt, seen_t, self.gate2, self.method, tilt)
         if run_t.failed is not None:
             seen_t = seen_t & ~run_t.failed

@@ -217,8 +217,10 @@ class RLSEstimator(RefusesBadSamples):
 
         P is scaled by the paper's R (2.5e-3 N²), so this measures how well the
         poses seen so far determine each parameter, not the sensor's noise. The haptic gate asks every
-        tick: the compiled path takes diag(Λ⁻¹) from a Cholesky factor (``rls_kernel.inverse_diag``, cheaper
-        than ``np.linalg.inv``), and inverts Λ as ``P`` does where it is not positive definite.
+        tick. The printed update (the default) keeps P itself; its rounding can leave a diagonal entry
+        negative for a few samples (after a restart, at random orientations), and the std is then NaN, which
+        the gate takes as not known. The information form's compiled path takes diag(Λ⁻¹) from a Cholesky
+        factor (``rls_kernel.inverse_diag``), and inverts Λ as ``P`` does where it is not positive definite.
         """
         return np.sqrt(self._P_diag(self.force))
 
@@ -227,7 +229,7 @@ class RLSEstimator(RefusesBadSamples):
         return self._P_diag(self.force).tolist() + self._P_diag(self.torque).tolist()
 
     def _P_diag(self, stage: RLSStage) -> np.ndarray:
-        """(6,) diag P of a stage: from Λ's Cholesky factor on the compiled path, else diag Λ⁻¹ (``P``)."""
+        """(6,) diag P of a stage: P's own (printed), or diag Λ⁻¹ (information: by Cholesky when compiled)."""
         # (compiled: the information form's stage)
         if (
             self._compiled

@@ -569,3 +569,42 @@ def test_a_silent_robot_holds_and_a_clutch_press_re_anchors_the_hand():
     assert target.mode == "following" and [e.kind for e in events] == ["teleop_following"]
     moved, _ = step(93, 92, 0.051)
     assert moved.p_BoEo_B[0] > target.p_BoEo_B[0]
+
+
+def test_a_channel_that_goes_silent_while_the_robot_already_holds_still_needs_the_hand_back():
+    """The default require_haptics: a silent robot stream zeroes the force first (stale kinematics), so the robot
+    is already holding ("haptic force off") when the watchdog trips; the hand-tool correspondence is still the
+    last one followed, and the robot waits for the handle to come back to it before following again."""
+    from hapticlab.core.types import PoseSample
+    from hapticlab.sessions.live.teleop import Teleoperation
+    from hapticlab.sessions.settings import TeleopSettings
+
+    teleop = Teleoperation(TeleopSettings(enabled=True, calibration_tilt_deg=0.0), np.eye(3))
+    quat, ms = np.array([1.0, 0.0, 0.0, 0.0]), 1_000_000
+
+    def step(t_ms, pose_ms, x, haptic_on):
+        pose = PoseSample(pose_ms * ms, np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.4, 0.0, 0.3]))
+        return teleop.step(t_ms * ms, pose, DeviceState(t_ms * ms, quat, np.array([x, 0.0, 0.0])), haptic_on)
+
+    for t in range(0, 50):
+        target, _ = step(t, t, 0.0, True)
+    assert target.mode == "following"
+    target, _ = step(50, 49, 0.0, False)  # the force off first (the gate saw the stale poses)
+    assert target.reason == "haptic force off"
+    target, _ = step(81, 49, 0.01, False)  # then the watchdog: the robot's stream silent for 32 ms
+    assert target.reason.startswith("no pose from the robot")
+    target, _ = step(120, 119, 0.05, True)  # both back; the hand 5 cm from where the robot last followed it
+    assert target.mode == "holding" and target.reason.startswith("after a silent channel")
+    target, events = step(121, 120, 0.005, True)  # within 10 mm of it: following, from where it held
+    assert target.mode == "following" and [e.kind for e in events] == ["teleop_following"]
+
+
+def test_a_silent_master_is_one_haptic_disabled_event_not_one_a_tick(scripted):
+    _, rec, _ = scripted
+    t0 = rec.t_ns("/robot/target")[0]
+    silent = [
+        m["message"]
+        for t, m in rec.topics["/events"]
+        if m["kind"] == "haptic_disabled" and 9.0 <= (t - t0) * 1e-9 < 9.2
+    ]
+    assert len(silent) == 1 and silent[0].startswith("haptic force zeroed: the master's state is "), silent

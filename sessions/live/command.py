@@ -118,7 +118,7 @@ class HapticCommander:
             # master too, whose command was made before its state came back)
             self._servo(now_ns, self._delayed_state(now_ns, state), command.enabled and not reason, taps)
         self.haptic_on_ticks += command.enabled
-        if reason_kind(command.reason.split(" (")[0]) != reason_kind(self.haptic_reason.split(" (")[0]):
+        if reason_kind(command.reason) != reason_kind(self.haptic_reason):
             self.on_event(
                 Event(now_ns, "haptic_enabled", "haptic force on")
                 if command.enabled

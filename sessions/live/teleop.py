@@ -68,8 +68,9 @@ TOUR_ROLL_RAD = math.pi / 3
 
 
 def reason_kind(reason: str) -> str:
-    """A hold's reason without its figures (a stream 31 ms old and 32 ms old is one hold)."""
-    return re.sub(r"[0-9.]+", "#", reason)
+    """A reason without its details in brackets and its figures: a stream 31 ms old and one 32 ms old are one hold,
+    one event (the haptic command's reasons are compared so too)."""
+    return re.sub(r"[0-9.]+", "#", reason.split(" (")[0])
 
 
 def calibration_tour(R_BE_0: np.ndarray, tilt_deg: float) -> list[np.ndarray]:

@@ -52,6 +52,11 @@ def _rotation_vector(key: str, value: Any) -> tuple[float, float, float]:
     return (x, y, z)
 
 
+def _direction(key: str, value: Any) -> tuple[float, float, float]:
+    x, y, z = vector(key, value, hint=" (a direction in the sensor frame; (0, 0, 0): none)").tolist()
+    return (x, y, z)
+
+
 def _button(what: str) -> Check:
     return check(integer, minimum=-1, maximum=MAX_BUTTON_BIT, hint=f" (a bit of the device's buttons; -1: {what})")
 
@@ -171,6 +176,10 @@ class HapticSettings:
             0 = not stated. Stated, a weight the motion identifies off it by more than 0.3 N (or 5 %) holds the
             force: the session started with the tool resting on something, which the motion cannot tell from a
             lighter tool; it is re-identified once the missing weight shows as the tool is lifted.
+        tool_axis: the tool's axis in the sensor frame S, a direction (the usual coaxial mount: +z). A force
+            across it has a lever arm its torque tells; one acting within 5 cm of the sensor, where nothing
+            touches the tool, is held as no contact (``sessions/live/lever.py``). (0, 0, 0): the lever arm is
+            not read (the twist test still is).
     """
 
     max_force: float = 4.0
@@ -182,6 +191,7 @@ class HapticSettings:
     rearm_button: int = -1
     ready_force_std: float = 0.05
     tool_mass: float = 0.0
+    tool_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
     CHECKS: ClassVar[Mapping[str, Check]] = {
         "max_force": check(number, above=0, hint=" (N)"),
@@ -193,6 +203,7 @@ class HapticSettings:
         "rearm_button": _button("none"),
         "ready_force_std": check(number, above=0, hint=" (N)"),
         "tool_mass": check(number, minimum=0, maximum=100, hint=" (kg; 0: not stated)"),
+        "tool_axis": _direction,
     }
 
     def __post_init__(self) -> None:

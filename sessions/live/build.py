@@ -180,6 +180,7 @@ class Session:
             reidentifies_weight=self.primary.reidentifies_weight,
             wrench_accuracy_N=self.kinematics.wrench_accuracy_N if isinstance(self.kinematics, MeasuresWrench) else 0.0,
             tool_mass=self.haptic_settings.tool_mass,
+            tool_axis_S=self.haptic_settings.tool_axis,
         )
 
 

@@ -17,6 +17,8 @@ rules with their reasons):
   or drift, in contact or not) is re-identified by the estimator (or latches the force off until a
   re-arm, :meth:`HapticGate.rearm`), and the force waits for the residual to settle (a full window under
   ``drift.MIN_OFFSET_N``: a bias still drifting, or one that moved unseen during a contact, stays off);
+* where the residual acts, by its torque (``lever.LeverWatch``): twisting about its own line, or across the tool
+  at the sensor, no touch gives it: held; at the sensor for 0.1 s, a bias step (re-identified as above);
 * the second channel, where the robot measures its own wrench (``crosscheck.WrenchCrossCheck``): the
   contact force off the robot's by more than its stated accuracy; a sudden step both show is a contact.
 
@@ -37,6 +39,7 @@ from hapticlab.sessions.live import gate_kernel as screen_kernel
 from hapticlab.sessions.live.convergence import ConvergenceFlags
 from hapticlab.sessions.live.crosscheck import WrenchCrossCheck
 from hapticlab.sessions.live.drift import MIN_OFFSET_N, WEIGHT_TILT, DriftWatch, along
+from hapticlab.sessions.live.lever import LeverWatch
 from hapticlab.sessions.live.stated_weight import StatedWeight
 from hapticlab.sessions.live.watch import LAG_LIMIT_S, LagWatch, PoseWatch, StepWatch, StuckWatch
 
@@ -72,6 +75,7 @@ class HapticGate:
         max_speed: fastest motion between two poses before "kinematics jumped", m/s.
         wrench_accuracy_N: the robot's own wrench's stated accuracy, N (``MeasuresWrench``; 0: it has none).
         tool_mass: the tool's stated mass, kg (``[haptic] tool_mass``; 0: not stated).
+        tool_axis_S: the tool's axis in S (``[haptic] tool_axis``), for the lever arm of the residual.
     """
 
     def __init__(
@@ -88,6 +92,7 @@ class HapticGate:
         reidentifies_weight: ReidentifiesWeight | None = None,
         wrench_accuracy_N: float = 0.0,
         tool_mass: float = 0.0,
+        tool_axis_S: tuple[float, float, float] = (0.0, 0.0, 1.0),
     ):
         self.label = label
         self.ready_force_std = ready_force_std
@@ -95,7 +100,7 @@ class HapticGate:
         self.reidentifies, self.reidentifies_weight = reidentifies, reidentifies_weight
         self.stale_timeout_ns = stale_timeout_ns
         self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
-        self.drift = DriftWatch()
+        self.drift, self.lever = DriftWatch(), LeverWatch(tool_axis_S)
         self.steps, self.stuck = StepWatch(), StuckWatch()
         self.lag = LagWatch(max_turn_rate)
         self.stated = StatedWeight(tool_mass) if tool_mass > 0 else None  # the identified weight checked against it
@@ -103,13 +108,11 @@ class HapticGate:
         screen_kernel.warm_up()  # compiled (or loaded) before the first tick
         self.flags = ConvergenceFlags(label)
         self.ready, self.converged, self.flips = self.flags.ready, self.flags.converged, self.flags.flips  # (its lists)
-        self.parameters_known = self.parameters_lost = False
-        self.hold_until_ns = 0
+        self.parameters_known, self.parameters_lost, self.hold_until_ns = False, False, 0
         self.unidentified = ""  # the estimator's last not_identifiable message about the weight ("" none)
         self.bias_hold = ""  # "" | "drop", "rise" (waiting for the flag to) | "settle" (the residual) | "latched"
         self.hold_cause = "sensor bias step"  # what the hold is for: "sensor bias step" | "weight step" | "re-armed"
-        self.contact_now = False  # the estimator's contact flag for the newest sample
-        self.doubt = ""  # the sudden step in hand ("" none)
+        self.contact_now, self.doubt = False, ""  # the estimator's newest contact flag; the sudden step in hand
         self.doubt_from_contact = False  # the estimator saw a contact when the doubt began
         self.free_since_ns: int | None = None  # the estimator has seen free motion since (None: a contact now)
         self.last_sample_ns: int | None = None
@@ -250,6 +253,8 @@ class HapticGate:
                 message = f"the sudden step ({self.doubt}) turned with the world: a contact"
                 events.append(Event(now_ns, "contact_confirmed", message))
                 self.doubt = ""
+        if self.lever.on_estimates(est, params, self.parameters_known and self.bias_hold in ("", "settle")):
+            events += self._reidentify(self.lever.offset_S, now_ns, self.lever.reason)
         if self.doubt and self.cross.confirmed:  # the robot's own wrench saw it too: a contact
             events.append(Event(now_ns, "contact_confirmed", f"the sudden step ({self.doubt}): {self.cross.confirmed}"))
             self.doubt = ""
@@ -295,6 +300,7 @@ class HapticGate:
             return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
         self.steps, self.doubt, self.bias_hold, self.hold_cause = StepWatch(), "", "settle", "re-armed"
         self.drift.reset()
+        self.lever.reset()
         message = f"haptic force re-armed by {source}; it ramps in from zero once the residual has settled"
         return Event(now_ns, "haptic_rearmed", message, {"source": source})
 
@@ -304,6 +310,7 @@ class HapticGate:
         what = self.hold_cause = "sensor bias step" if kind == "bias_step" else "weight step"
         message = f"{what} of {np.linalg.norm(step):.2f} N: {how}"
         self.drift.reset()
+        self.lever.reset()
         self.doubt = ""
         if kind == "weight_step" and self.reidentifies_weight is not None:
             self.reidentifies_weight.reidentify_weight(what)
@@ -375,7 +382,7 @@ class HapticGate:
             return f"{self.label} reports no weight model ({' and '.join(WEIGHT_MODEL)}): the poses cannot be checked"
         if now_ns < self.hold_until_ns:
             return "payload change: tool weight re-identified, holding"
-        return self.cross.holding
+        return self.lever.reason or self.cross.holding
 
     def fault_event(self, reason: str, now_ns: int) -> Event | None:
         """An event when a new fault starts (a reason that is not the estimator warming up)."""

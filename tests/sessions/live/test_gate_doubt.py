@@ -2,8 +2,9 @@
 step gone, a weight step) and what must not (a world verdict while a contact was already there).
 
 The gate is driven directly with one-sample blocks at 1 kHz from a tool turning at 1 rad/s about B's x; the
-estimator's residual is given (seeded noise), and the raw reading is the residual (the step watch sees the
-step in it). The lag watch is left out: it has tests of its own, and these residuals are contacts to it.
+estimator's residual is given (seeded noise), acting at the tool's tip (its torque, for the lever watch), and
+the raw reading is the residual (the step watch sees the step in it). The lag watch is left out: it has
+tests of its own, and these residuals are contacts to it.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from hapticlab.sessions.live.gate import HapticGate
 
 GRAVITY_B = np.array([0.0, 0.0, -3.4])  # the tool's weight in B, N
 UP_B, SIDE_B = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
+TIP_S = np.array([0.0, 0.0, 0.25])  # where the residual acts, m: the tool's tip (a contact, a load hung on it)
 
 
 def run(residual_B, contact, seconds: float, seed: int = 0, reidentifies_weight=None):
@@ -24,7 +26,7 @@ def run(residual_B, contact, seconds: float, seed: int = 0, reidentifies_weight=
     gate = HapticGate("test", 0.1, None, None, 100_000_000, 500_000_000, 10.0, 5.0)
     gate.reidentifies_weight = reidentifies_weight
     gate.lag.add = lambda *args: None  # (see the module)
-    rng = np.random.default_rng(seed)
+    rng, torque_rng = np.random.default_rng(seed), np.random.default_rng([seed, 1])  # (the force's noise as before)
     params = {"gravity_force_B": GRAVITY_B.tolist(), "bias_force_S": [0.0, 0.0, 0.0]}
     events, reasons = [], []
     for k in range(int(seconds * 1000)):
@@ -32,6 +34,7 @@ def run(residual_B, contact, seconds: float, seed: int = 0, reidentifies_weight=
         t = k * 1e-3
         R_EB = Rotation.from_rotvec([t, 0.0, 0.0]).as_matrix()
         residual_S = R_EB @ residual_B(t) + rng.normal(0.0, 0.12, 3)
+        torque_S = np.cross(TIP_S, R_EB @ residual_B(t)) + torque_rng.normal(0.0, 0.01, 3)
         one = np.array([t_ns], dtype=np.int64)
         block = AlignedSamples(
             one,
@@ -46,7 +49,7 @@ def run(residual_B, contact, seconds: float, seed: int = 0, reidentifies_weight=
         est = Estimates(
             one,
             residual_S[None],
-            np.zeros((1, 3)),
+            torque_S[None],
             np.array([contact(t)]),
             np.ones(1, dtype=bool),
             np.ones(1, dtype=bool),

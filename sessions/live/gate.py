@@ -18,7 +18,7 @@ rules with their reasons):
   re-arm, :meth:`HapticGate.rearm`), and the force waits for the residual to settle (a full window under
   ``drift.MIN_OFFSET_N``: a bias still drifting, or one that moved unseen during a contact, stays off);
 * where the residual acts, by its torque (``lever.LeverWatch``): twisting about its own line, or across the tool
-  at the sensor, no touch gives it: held; at the sensor for 0.1 s, a bias step (re-identified as above);
+  at the sensor, no touch gives it: held (what it is, the drift watch tells);
 * the second channel, where the robot measures its own wrench (``crosscheck.WrenchCrossCheck``): the
   contact force off the robot's by more than its stated accuracy; a sudden step both show is a contact.
 
@@ -95,8 +95,7 @@ class HapticGate:
         tool_axis_S: tuple[float, float, float] = (0.0, 0.0, 1.0),
     ):
         self.label = label
-        self.ready_force_std = ready_force_std
-        self.parameter_std = parameter_std
+        self.ready_force_std, self.parameter_std = ready_force_std, parameter_std
         self.reidentifies, self.reidentifies_weight = reidentifies, reidentifies_weight
         self.stale_timeout_ns = stale_timeout_ns
         self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
@@ -253,8 +252,9 @@ class HapticGate:
                 message = f"the sudden step ({self.doubt}) turned with the world: a contact"
                 events.append(Event(now_ns, "contact_confirmed", message))
                 self.doubt = ""
-        if self.lever.on_estimates(est, params, self.parameters_known and self.bias_hold in ("", "settle")):
-            events += self._reidentify(self.lever.offset_S, now_ns, self.lever.reason)
+        judge = self.parameters_known and self.parameter_std is not None and self.bias_hold in ("", "settle")
+        # (batch, no parameter std: its residual torque errs as no touch does)
+        self.lever.add(est.t_ns, est.contact_force_S, est.contact_torque_S, judge and bool(est.converged_torque[-1]))
         if self.doubt and self.cross.confirmed:  # the robot's own wrench saw it too: a contact
             events.append(Event(now_ns, "contact_confirmed", f"the sudden step ({self.doubt}): {self.cross.confirmed}"))
             self.doubt = ""

@@ -29,15 +29,19 @@ import math
 
 import numpy as np
 
-from hapticlab.core.types import Estimates
 from hapticlab.sessions.live.drift import BIN_NS, MIN_OFFSET_N
 
-PITCH_N_M = 0.03
-"""A bin's residual may twist about its own line by this much, N·m, plus ``PATCH_M`` times its force: the
-estimators' torque error in free motion (a bin's mean; rls, kalman on the demo: under 0.005 N·m) and a
-margin, for kalman's residual in a long touch (its force bias takes a little of the touch in: at 0.02 N·m
-plus 0.004 m·F it held 7 % of the touching time of 60 s of random touches, here 0.7 %). A 0.4 N bias beside
-a 3 N tip contact 25 cm out, across it, exceeds it."""
+PITCH_N_M = 0.05
+"""A bin's residual may twist about its own line by this much, N·m, plus ``PATCH_M`` times its force. Two
+point forces at different places twist: the estimator's own force error beside a tip contact does, and rls's
+and batch's errors in a contact reach 0.045 N·m on demo seeds (kalman's in 60 s of random touches, 0.035). A
+bias of about 0.4 N beside a 3 N tip contact 25 cm out, across it, exceeds it."""
+TORQUE_ERRORS = 5.0
+"""...or this many times the residual torque's RMS over free motion (bins under ``MIN_OFFSET_N``, the last
+``FREE_BINS``), if more: an estimator whose torque model misses by more than 0.01 N·m wherever the tool turns
+(a centre of gravity off by millimetres on a heavy tool) twists by as much in a contact."""
+FREE_BINS = 250
+"""The free-motion torque error is an average over about this many bins (5 s), exponentially forgetting."""
 PATCH_M = 0.003
 """...per newton of the residual, m: a touch spread over a patch (a jaw, a blunt tip) a few millimetres wide
 twists by up to its half-width times the force."""
@@ -48,111 +52,88 @@ torque error over a 0.2-0.5 N force)."""
 ACROSS = math.sin(math.radians(45.0))
 """The lever arm is read only for a force at least 45° off the tool's axis (its part across the tool at least
 this share): a push along the tool, with the axis stated a few degrees off, would read as a short lever."""
-SENSOR_BINS = 5
-"""A residual with no lever arm this many bins in a row (0.1 s) is a bias, to re-identify: kalman's residual
-just after a touch's release can be one for 40-60 ms (the touch it took into its bias coming back out), held
-but not worth re-opening the bias for."""
 CLEAR_BINS = 5
 """A hold ends after this many bins in a row (0.1 s) a touch can give: a bias near the bound, its residual
 in and out of it with the noise, keeps the force off rather than flicker it on and off."""
 
 
 class LeverWatch:
-    """Tells a residual a touch can give from one it cannot, by its torque.
+    """Tells a residual a touch can give from one it cannot, by its torque: it holds, it never re-identifies.
 
     Args:
         tool_axis_S: the tool's axis in S (any length; zero: the lever arm is not read, the twist still is).
 
-    ``add`` takes each block the primary estimator refined and returns ``"sensor"`` when the residual acted
-    nearer the sensor than half the tool's centre of gravity (``cog_m``) for ``SENSOR_BINS`` bins (a bias:
-    re-identify it), else ""; ``reason`` says why no touch gives
-    the residual, from the first bin none could until ``CLEAR_BINS`` in a row one could ("" otherwise): the
-    gate holds the force on it.
+    ``add`` takes each block the primary estimator refined; ``reason`` then says why no touch gives the
+    residual, from the first bin none could until ``CLEAR_BINS`` in a row one could ("" otherwise): the gate
+    holds the force on it. What the residual is, it leaves to the drift watch (``drift.py``) once the tool
+    turns: re-identifying a bias as soon as its torque shows it (a ramp 0.26 N in) gave the force back while
+    the bias still drifted, and a contact then hid the rest (kalman: 0.65 N made up, 0.25 N held until the
+    motion told).
     """
 
     def __init__(self, tool_axis_S: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> None:
         norm = math.sqrt(sum(v * v for v in tool_axis_S))
         self.a = [v / norm for v in tool_axis_S] if norm > 0 else None
-        self.cog_m = 0.0  # the estimated centre of gravity's distance along the axis, m (``gate``; 0: unknown)
+        self.free_torque2 = 0.0  # the residual torque's mean square over free motion, (N·m)² (kept over resets)
         self.reset()
 
     def reset(self) -> None:
-        """Forget the bin in hand and the verdicts (after a bias step was acted on)."""
+        """Forget the bin in hand and the hold (after the drift watch's bias step, a re-arm)."""
         self.bin_start_ns: int | None = None
         self.total = [0.0] * 6
         self.count = 0
         self.reason = ""
-        self.short = 0  # bins in a row with no lever arm
         self.clear = 0  # bins in a row a touch can give, since the last that none could
-        self.offset_S = np.zeros(3)  # the newest judged bin's force, N
 
-    def on_estimates(self, est: Estimates, params: dict[str, list[float]] | None, judge: bool) -> bool:
-        """One block of the primary estimator's output, with its parameters (``cog_S``: where a weight model that
-        is off acts), judged when ``judge`` and its torque stage has converged: True on a bias verdict."""
-        if params is not None and "cog_S" in params and self.a is not None:
-            self.cog_m = float(np.dot(params["cog_S"], self.a))
-        judge = judge and bool(est.converged_torque[-1])
-        return self.add(est.t_ns, est.contact_force_S, est.contact_torque_S, judge) == "sensor"
-
-    def add(self, t_ns: np.ndarray, force_S: np.ndarray, torque_S: np.ndarray, judge: bool) -> str:
+    def add(self, t_ns: np.ndarray, force_S: np.ndarray, torque_S: np.ndarray, judge: bool) -> None:
         """One block: stamps (n,) ns, the residual force (n, 3) N and torque (n, 3) N·m in S; ``judge``: the
-        torque stage is converged (else the bins are only counted). The verdict of the bins it closed."""
-        verdict = ""
+        estimator is known and its torque stage converged (else the bins are only counted, and nothing held)."""
         for t, f, m in zip(t_ns.tolist(), force_S.tolist(), torque_S.tolist()):
             if not all(map(math.isfinite, f + m)):
                 continue
             if self.bin_start_ns is None:
                 self.bin_start_ns = t
             elif t - self.bin_start_ns >= BIN_NS:
-                verdict = (self._close() if judge else "") or verdict
+                if judge:
+                    self._close()
                 self.bin_start_ns, self.total, self.count = t, [0.0] * 6, 0
             total = self.total
             for k, v in enumerate(f + m):
                 total[k] += v
             self.count += 1
         if not judge:
-            self.reason, self.short = "", 0
-        return verdict
+            self.reason = ""
 
-    def _close(self) -> str:
-        """Judge the bin in hand: set ``reason``; "sensor" once no lever arm held for ``SENSOR_BINS``."""
+    def _close(self) -> None:
+        """Judge the bin in hand: ``reason`` set when no touch gives it, cleared after ``CLEAR_BINS`` that one can."""
         fx, fy, fz, mx, my, mz = (v / self.count for v in self.total)
         size = math.sqrt(fx * fx + fy * fy + fz * fz)
         self.clear += 1  # (until the bin is found to be none a touch gives)
         if self.clear >= CLEAR_BINS:
             self.reason = ""
-        if size < MIN_OFFSET_N:
-            self.short = 0
-            return ""
+        if size < MIN_OFFSET_N:  # (free motion: what the estimator's torque model misses there)
+            self.free_torque2 += (mx * mx + my * my + mz * mz - self.free_torque2) / FREE_BINS
+            return
         pitch = (mx * fx + my * fy + mz * fz) / size
-        if abs(pitch) > PITCH_N_M + PATCH_M * size:
+        if abs(pitch) > max(PITCH_N_M, TORQUE_ERRORS * math.sqrt(self.free_torque2)) + PATCH_M * size:
             self.reason = (
                 f"residual not a contact's: it twists about its own line ({pitch:+.3f} N·m at {size:.2f} N: "
                 "no single touch gives that; a force bias beside a contact)"
             )
-            self.short = self.clear = 0
-            return ""
+            self.clear = 0
+            return
         if self.a is None:
-            return ""
+            return
         ax, ay, az = self.a
         cx, cy, cz = ay * fz - az * fy, az * fx - ax * fz, ax * fy - ay * fx  # a × F
         across = cx * cx + cy * cy + cz * cz
         if across < (ACROSS * size) ** 2:
-            self.short = 0
-            return ""
+            return
         lever = (cx * mx + cy * my + cz * mz) / across
-        if lever >= MIN_LEVER_M:
-            self.short = 0
-            return ""
-        # (a weight model that is off, a pose late or a mass wrong, acts at the centre of gravity: only a residual
-        # nearer the sensor than half-way to it counts towards a bias; the hold is the same, and its message names
-        # every cause: kalman's residual of a force bias acts 10-30 mm out, the centre of gravity 43 mm)
-        at_sensor = lever < 0.5 * (self.cog_m if self.cog_m > 0 else MIN_LEVER_M)
-        self.reason = (
-            f"residual not a contact's: it acts where nothing touches the tool ({size:.2f} N across it, "
-            f"{lever * 1e3:.0f} mm along it, within {MIN_LEVER_M * 1e3:.0f} mm of the sensor: its zero moved, the "
-            "weight model is off, or the estimator took a contact into its bias)"
-        )
-        self.offset_S = np.array([fx, fy, fz])
-        self.short, self.clear = self.short + 1 if at_sensor else 0, 0
-        return "sensor" if self.short >= SENSOR_BINS else ""
+        if lever < MIN_LEVER_M:
+            self.reason = (
+                f"residual not a contact's: it acts where nothing touches the tool ({size:.2f} N across it, "
+                f"{lever * 1e3:.0f} mm along it, within {MIN_LEVER_M * 1e3:.0f} mm of the sensor: its zero moved, "
+                "the weight model is off, or the estimator took a contact into its bias)"
+            )
+            self.clear = 0

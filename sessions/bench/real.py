@@ -6,8 +6,8 @@ convergence rule, whose flag waits for the motion to identify the tool where the
 default's is up once the wrench is known at the pose; and once more with the
 simulated Gamma sensor's noise and the covariance convergence rule, its defaults
 before it estimated the noise; and once more without the bias's walk over the tool's tilt,
-``bias_force_tilt_rw = 0``, its former default; and once more with its torque stage started early,
-``torque_start = "early"``):
+``bias_force_tilt_rw = 0``, its former default; and once more with its torque stage started once the force
+stage has settled, ``torque_start = "settled"``, its former default):
 the online RMS of the estimated contact force per axis over every row after the first convergence, against the
 offline batch fit of the whole file evaluated over the same rows (their ratio); the same ratio over
 the file's second half, a window that does not depend on each estimator's own
@@ -74,8 +74,8 @@ IDENTIFIED = {"convergence": "identified"}
 """kalman's convergence rule before "pose": the wrench known at the pose and the tool identified by the motion."""
 GAMMA_COVARIANCE = {"noise_force": 0.12, "noise_torque": 0.01, "convergence": "covariance"}
 """kalman's options before it estimated the noise: the simulated Gamma-class sensor's noise, convergence from P."""
-EARLY_TORQUE = {"torque_start": "early"}
-"""kalman's torque stage started with the force stage's first accepted sample, not once it has settled."""
+SETTLED_TORQUE = {"torque_start": "settled"}
+"""kalman's torque stage started once the force stage has settled (its default before), not from the first sample."""
 NO_TILT_WALK = {"bias_force_tilt_rw": 0.0}
 """kalman without the bias's walk over the tool's tilt (learnt by default: docs/estimators.md, "The tilt walk")."""
 
@@ -84,7 +84,7 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
     """(label, estimator name, options or an error): every registered estimator with its defaults, the
     default (kalman) first; kalman with the identified rule, with the Gamma figures and the covariance rule
     (its defaults before), without the bias's tilt walk (its default before), with its torque stage started
-    early; and
+    once the force stage has settled (its default before); and
     kalman with the effects ``hapticlab discrepancy`` names on the file."""
     names = registry.names("estimator")
     names = sorted(names, key=lambda name: name != "kalman")  # the default first, then the others as registered
@@ -93,7 +93,7 @@ def variants(registry: Registry, stream: Stream) -> list[tuple[str, str, dict[st
         out.append(("kalman convergence=identified", "kalman", dict(IDENTIFIED)))
         out.append(("kalman noise=0.12 N, convergence=covariance", "kalman", dict(GAMMA_COVARIANCE)))
         out.append(("kalman bias_force_tilt_rw=0", "kalman", dict(NO_TILT_WALK)))
-        out.append(("kalman torque_start=early", "kalman", dict(EARLY_TORQUE)))
+        out.append(("kalman torque_start=settled", "kalman", dict(SETTLED_TORQUE)))
         from hapticlab.sessions.discrepancy.workflow import discrepancy
 
         try:

@@ -269,7 +269,7 @@ def kalman_cascade(
         converged_force[k] = conv
         if conv and first_f < 0:
             first_f = k
-        d0, d1, d2 = force_S[k, 0] - x_f[3], force_S[k, 1] - x_f[4], force_S[k, 2] - x_f[5]
+        d0, d1, d2 = force_S[k, 0], force_S[k, 1], force_S[k, 2]  # about the measured force (torque_bias.py)
         A_t[0, 0], A_t[0, 1], A_t[0, 2] = -0.0, d2, -d1
         A_t[1, 0], A_t[1, 1], A_t[1, 2] = -d2, -0.0, d0
         A_t[2, 0], A_t[2, 1], A_t[2, 2] = d1, -d0, -0.0
@@ -395,9 +395,10 @@ def kalman_cascade(
                 t1 - (x_t[2] * i0 - x_t[0] * i2),
                 t2 - (x_t[0] * i1 - x_t[1] * i0),
             )
-        contact_torque_S[k, 0] = t0 - (x_t[1] * g2 - x_t[2] * g1) - x_t[3]
-        contact_torque_S[k, 1] = t1 - (x_t[2] * g0 - x_t[0] * g2) - x_t[4]
-        contact_torque_S[k, 2] = t2 - (x_t[0] * g1 - x_t[1] * g0) - x_t[5]
+        w0, w1, w2 = g0 + x_f[3], g1 + x_f[4], g2 + x_f[5]  # the force model: x_t's bias is about it (b')
+        contact_torque_S[k, 0] = t0 - (x_t[1] * w2 - x_t[2] * w1) - x_t[3]
+        contact_torque_S[k, 1] = t1 - (x_t[2] * w0 - x_t[0] * w2) - x_t[4]
+        contact_torque_S[k, 2] = t2 - (x_t[0] * w1 - x_t[1] * w0) - x_t[5]
         contact[k] = judge_contact(adapt, gated_f[k] or gated_t[k], usable[k])
         if torque_only_refusal(adapt, what == GATED, force_seen, what_t, dt, contact_force_S[k], contact_torque_S[k]):
             reopen_bias(P_t, info_t, adapt[ADAPT_PRIOR_TB : ADAPT_PRIOR_TB + 3])  # (from the next sample on)

@@ -16,7 +16,7 @@ import numpy as np
 from hapticlab.core.estimation.model import named_params
 from hapticlab.core.frames import rotvec_from_matrix
 from hapticlab.core.types import Event
-from hapticlab.plugins.estimators.kalman import identified, identified_kernel
+from hapticlab.plugins.estimators.kalman import identified, identified_kernel, torque_bias
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
 from hapticlab.plugins.estimators.kalman.noise import AUTO_BOUND_FRACTION
 from hapticlab.plugins.estimators.kalman.state_layout import (
@@ -193,7 +193,9 @@ class Convergence(KalmanBase):
         return np.sqrt(np.diag(self.force.P)[:6])
 
     def torque_parameter_std(self) -> np.ndarray:
-        """(6,) standard deviation of [cog_S (m), bias_torque_S (N·m)]: sqrt of diag P_torque."""
+        """(6,) standard deviation of the torque stage's state [cog_S (m), its bias about the measured force
+        (N·m): ``torque_bias``]: sqrt of diag P_torque, what the covariance flag bounds (the compensated torque is
+        τ − cog_S × the force model − that bias)."""
         return np.sqrt(np.diag(self.torque.P)[:6])
 
     def params(self) -> dict[str, list[float]]:
@@ -202,7 +204,8 @@ class Convergence(KalmanBase):
         far identifies them, and NaN for an axis it has not identified at all (``plugins.estimators.kalman.identified.
         unidentified_axes``: a still tool leaves all three, a turn about B's vertical alone gravity's vertical
         component; the ``not_identifiable`` event names them); with auto noise the noise estimates."""
-        out = named_params(self.force.x[:6], self.torque.x[:6])
+        x_t, _ = torque_bias.to_physical(self.torque.x[:6], self.torque.P[:6, :6], self.force.x[3:6])
+        out = named_params(self.force.x[:6], x_t)
         if self.mount_rotation or self.mount_configured:
             out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
         if self.identifies:  # how well the motion so far has identified the constants

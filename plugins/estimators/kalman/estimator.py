@@ -288,7 +288,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
             A_f = self._to_S(R_EB)  # R_SB per sample
             run_f = self.force.run(y_f, A_f, dt, usable, self.gate2, self.method, tilt)
         X_f = run_f.X
-        A_t = -skew_stack(force_S - X_f[:, 3:6])  # C_k = [-skew(Δf), I3]; Δf includes the inertial force
+        A_t = -skew_stack(force_S)  # C_k = [-skew(f), I3] about the measured force (torque_bias.py)
         if run_f.failed is not None:  # updates that could not be computed: not used, not converged
             usable = usable & ~run_f.failed
         accepted_f = usable & ~run_f.gated
@@ -313,7 +313,9 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         torque_for_contact = torque_S
         if inertial_S is not None:  # the inertial force acts at the centre of mass like the weight
             torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
-        contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], run_t.X[:, :6])
+        X_t = run_t.X[:, :6].copy()  # the physical bias per sample: b' + cog_S × bias_force_S (torque_bias.py)
+        X_t[:, 3:6] += cross(X_t[:, :3], X_f[:, 3:6])
+        contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], X_t)
         if self.torque_reopen_s > 0:
             self._watch_torque_only(t_ns, run_f.gated, force_seen, run_t, dt, contact_force_S, contact_torque_S)
         if self.noise_auto:

@@ -85,11 +85,11 @@ class KalmanOptions:
         payload_change_s: after this long (s) of continuous refusal by the force stage, test whether
             the refused residual is a change of the tool's weight (a payload change); if so, re-open
             gravity and the centre of gravity (0 disables the test).
-        torque_start: "settled" (the torque stage waits until the force stage has identified the tool, and the
-            compensated torque is the raw torque until then) or "early" (it sees every sample the force stage
-            accepts, from the first: a force bias still wrong is a constant error in Δf, which the torque bias
-            absorbs, so the compensated torque is an estimate from the start; its flag still waits for the
-            force stage's). docs/estimators.md measures "early" on the real recordings.
+        torque_start: "early" (default: the torque stage sees every sample the force stage accepts, from the
+            first; regressed on the measured force, nothing of the force stage's estimate enters it, so the
+            compensated torque is an estimate from the start; its flag still waits for the force stage's) or
+            "settled" (it waits until the force stage has identified the tool, and the compensated torque is the
+            raw torque until then). docs/estimators.md measures both on the real recordings.
         torque_reopen_s: after this long (s) of samples the force stage accepts with its flag up but
             the torque stage refuses, re-open the torque bias (a ``torque_bias_reopened`` event) when the
             run's torque residual is more than ``torque_reopen_lever`` times its force residual (0 never).
@@ -136,7 +136,7 @@ class KalmanOptions:
     prior_torque_std: float = 5.0
     implementation: str = "auto"
     payload_change_s: float = 0.3
-    torque_start: str = "settled"
+    torque_start: str = "early"
     torque_reopen_s: float = 5.0
     torque_reopen_lever: float = 0.5
     warm_start: str = ""

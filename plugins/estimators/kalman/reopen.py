@@ -12,7 +12,7 @@ import numpy as np
 
 from hapticlab.core.frames import skew_stack
 from hapticlab.core.types import Event
-from hapticlab.plugins.estimators.kalman import tilt_walk_kernel
+from hapticlab.plugins.estimators.kalman import tilt_walk_kernel, torque_bias
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
 from hapticlab.plugins.estimators.kalman.rules_kernel import torque_only_refusal
 from hapticlab.plugins.estimators.kalman.stage import StageRun, innovations
@@ -90,7 +90,7 @@ class Reopening(KalmanBase):
         else:
             run_f = self.force.run(window["y"], window["A"], zeros, ones, self.gate2, self.method)
         accepted = ~run_f.gated
-        A_t = -skew_stack(window["f"] - run_f.X[:, 3:6])
+        A_t = -skew_stack(window["f"])  # (about the measured force: torque_bias.py)
         self.torque.run(window["tq"], A_t, zeros, accepted, self.gate2, self.method)
         if self.mount_rotation:  # (the replay refined the mount too)
             self.R_SE = cast("MountStage", self.force).R_SE.copy()  # (mount_rotation: the force stage is one)
@@ -105,11 +105,12 @@ class Reopening(KalmanBase):
         u = g / max(float(np.linalg.norm(g)), 1e-9)
         P[:3, :3] += self.prior_f[0] ** 2 * np.outer(u, u)
         self.force.P = P
-        P = self.torque.P.copy()
+        b_f = self.force.x[3:6]  # (the centre of gravity re-opened with the physical bias kept: torque_bias.py)
+        x, P = torque_bias.to_physical(self.torque.x, self.torque.P, b_f)
         P[:3, :] = 0.0
         P[:, :3] = 0.0
         P[:3, :3] = np.diag(self.prior_t[:3] ** 2)
-        self.torque.P = P
+        self.torque.x, self.torque.P = torque_bias.from_physical(x, P, b_f)
 
     def reidentify_weight(self, reason: str) -> None:
         """ReidentifiesWeight: the tool's weight unknown again along gravity and its centre of gravity back to

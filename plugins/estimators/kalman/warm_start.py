@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from hapticlab.plugins.estimators.kalman import tilt_walk_kernel
+from hapticlab.plugins.estimators.kalman import tilt_walk_kernel, torque_bias
 from hapticlab.plugins.estimators.kalman.base import KalmanBase
 from hapticlab.plugins.estimators.kalman.noise import NOISE_FLOOR, NOISE_WINDOW
 from hapticlab.plugins.estimators.kalman.options import mount_matrix
@@ -33,6 +33,11 @@ if TYPE_CHECKING:
     from hapticlab.plugins.estimators.kalman.mount_stage import MountStage
 
 
+TORQUE_BIAS = "about the measured force"
+"""How a state saved since the torque stage's bias is about the measured force says so (``torque_bias``); one
+without it holds the physical bias, converted on loading."""
+
+
 class WarmStart(KalmanBase):
     """Saving and restoring the estimator's state (a part of :class:`KalmanEstimator`)."""
 
@@ -45,6 +50,7 @@ class WarmStart(KalmanBase):
             "bias_rate": self.bias_rate,
             "force": {"x": self.force.x.tolist(), "P": (0.5 * (self.force.P + self.force.P.T)).tolist()},
             "torque": {"x": self.torque.x.tolist(), "P": (0.5 * (self.torque.P + self.torque.P.T)).tolist()},
+            "torque_bias": TORQUE_BIAS,  # its bias about the measured force (torque_bias.py; params: the physical)
             "converged_force": self.converged_force,
             "converged_torque": self.converged_torque,
             # the stages settled (at the pose: identified as well, which the flags above need not say)
@@ -111,6 +117,8 @@ class WarmStart(KalmanBase):
             information[key] = info
         for stage, x, P in loaded:
             stage.x, stage.P = x, P
+        if loaded and source.get("torque_bias") != TORQUE_BIAS:  # (saved before: the physical bias)
+            self.torque.x, self.torque.P = torque_bias.from_physical(self.torque.x, self.torque.P, self.force.x[3:6])
         if loaded:
             self._seed_information()
             self._information.update(information)  # what the motion had identified, not only what P still holds

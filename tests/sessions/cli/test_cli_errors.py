@@ -84,10 +84,12 @@ def test_a_master_port_that_does_not_exist_is_the_users_to_fix(capsys, tmp_path)
 
 def test_the_run_summary_shows_every_parameter_unidentified_ones_too(capsys, tmp_path):
     """``hapticlab run``'s summary: parameters the motion has not identified are NaN (kalman's cog_S a second
-    into the demo), and are printed as such (rich took "[nan, nan, nan]" for a style tag and printed nothing);
-    the samples the estimator held out have their row."""
+    into the demo, with its torque stage started once the force stage has settled), and are printed as such
+    (rich took "[nan, nan, nan]" for a style tag and printed nothing); the samples the estimator held out have
+    their row."""
     out = tmp_path / "short.mcap"
-    assert main(["run", "--duration", "1", "--out", str(out), "--set", "session.realtime=false"]) == 0
+    settled = "estimator.torque_start=settled"
+    assert main(["run", "--duration", "1", "--out", str(out), "--set", "session.realtime=false", "--set", settled]) == 0
     rows = {
         line.split("│")[1].strip(): line.split("│")[2].strip()
         for line in capsys.readouterr().err.splitlines()

@@ -154,6 +154,18 @@ def test_the_robot_s_wrench_is_recorded_with_each_pose():
     assert all(m["wrench_B"] is None for _, m in rec.topics["/kinematics/pose"])
 
 
+RAMP_IN_CONTACT = "sensor offset ramping +6 N over 0.5 s, during a contact"
+
+
+def ramp_in_contact() -> dict:
+    """The bench's +6 N ramp in a contact against the same session without it (kalman): ``measure``'s numbers."""
+    fault = dict(FAULTS[RAMP_IN_CONTACT])
+    duration_s = fault.pop("session_s")
+    r = measure("kalman", session("kalman", None, duration_s), {**fault, "session_s": duration_s})
+    print(f"\n{RAMP_IN_CONTACT}: {r}")
+    return r
+
+
 def test_a_bias_ramping_fast_in_a_contact_is_cut_short_by_the_second_channel(monkeypatch):
     """6 N over 0.5 s in a contact: too slow for a step, and the drift watch cannot judge in a contact. With the
     lever watch out of the way (as on an estimator whose torque stage has not converged), the robot's wrench
@@ -161,12 +173,8 @@ def test_a_bias_ramping_fast_in_a_contact_is_cut_short_by_the_second_channel(mon
     drift watch sees the bias."""
     from hapticlab.sessions.live.lever import LeverWatch
 
-    monkeypatch.setattr(LeverWatch, "_close", lambda self: "")
-    label = "sensor offset ramping +6 N over 0.5 s, during a contact"
-    fault = dict(FAULTS[label])
-    duration_s = fault.pop("session_s")
-    with_robot = measure("kalman", session("kalman", None, duration_s), {**fault, "session_s": duration_s})
-    print(f"\n{label}: {with_robot}")
+    monkeypatch.setattr(LeverWatch, "_close", lambda self: None)
+    with_robot = ramp_in_contact()
     assert with_robot["event"].startswith("fault: wrist sensor and robot disagree")
     assert with_robot["detected_after_s"] <= 0.6
 
@@ -175,11 +183,7 @@ def test_a_bias_ramping_fast_in_a_contact_twists_the_residual_before_the_robot_d
     """The same fault with the defaults: the contact's torque is its tip's lever times its force, the bias
     adds force with no torque, so the residual twists about its own line within about half a newton of bias
     (measured: 0.58 N made up, caught after 60 ms), long before the robot's 4 N accuracy (4.0 N made up)."""
-    label = "sensor offset ramping +6 N over 0.5 s, during a contact"
-    fault = dict(FAULTS[label])
-    duration_s = fault.pop("session_s")
-    r = measure("kalman", session("kalman", None, duration_s), {**fault, "session_s": duration_s})
-    print(f"\n{label}: {r}")
+    r = ramp_in_contact()
     assert r["event"].startswith("fault: residual not a contact's: it twists about its own line")
     assert r["detected_after_s"] <= 0.1 and r["made_up_force_N"] <= 0.65
 

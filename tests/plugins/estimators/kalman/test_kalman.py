@@ -536,7 +536,8 @@ def test_pose_convergence_is_up_where_the_force_is_known_and_the_weight_waits_fo
     """The default rule (convergence = "pose") on the same yaw-then-tilt stream: at every yaw pose gravity and
     the bias add up to one known force, so the flag is up within a tenth of a second and the compensated force
     is at the noise; the weight's vertical is still not identifiable (NaN, the event), so what the haptic gate
-    reads stays above its ready bound and the torque stage, whose regressor needs gravity, waits. When the
+    reads stays above its ready bound. The torque stage, regressed on the measured force from the first sample,
+    is known at the pose as well: its flag rises with the force's and its compensated torque is noise. When the
     tool first tilts the pose is new: the flag drops until the force there is known, and the weight is then
     identified. Wherever the flag is up, the compensated force is noise."""
     t = np.arange(0.0, 60.0, 0.01)
@@ -558,7 +559,9 @@ def test_pose_convergence_is_up_where_the_force_is_known_and_the_weight_waits_fo
     rms = np.sqrt(np.mean(out.contact_force_S[yaw_phase] ** 2, axis=0))
     assert np.all(rms < 0.1 * 1.1), rms
     assert np.isnan(yaw_params["gravity_force_B"][2]) and (gate_std[yaw_phase] > 1.0).all()  # N; ready at 0.05
-    assert t[est.first_converged_torque] > 30.0 and not out.converged_torque[t < 30.0].any()
+    assert t[est.first_converged_torque] < 0.2 and not (out.converged_torque & ~flag).any()
+    torque_rms = np.sqrt(np.mean(out.contact_torque_S[yaw_phase & out.converged_torque] ** 2, axis=0))
+    assert np.all(torque_rms < 0.01 * 1.1), torque_rms  # N·m: the stream's torque noise
     dropped = np.flatnonzero(~flag & (t > 0.1))
     assert len(dropped) and 30.0 <= t[dropped[0]] < 30.2  # the first tilted poses: not yet known there
     said = [(e.kind, e.data["parameter"], e.t_ns * 1e-9) for e in est.drain_events()]
@@ -601,14 +604,14 @@ def test_convergence_option_is_validated():
 
 @pytest.mark.parametrize("kernel", ["numba", "numpy"])
 def test_an_early_torque_start_estimates_the_torque_before_the_force_stage_settles(sim6, kernel):
-    """``torque_start = "early"``: the torque stage runs from the force stage's first accepted sample, so while
-    the force stage is still identifying the tool the compensated torque is an estimate (near the sensor's
-    0.01 N·m noise once the first second has passed) where the settled start writes the raw torque (the tool's
-    weight times its lever, ~0.1 N·m); the torque flag never rises before the force flag."""
-    settled = KalmanEstimator(kernel=kernel).update_block(sim6)
-    early_est = KalmanEstimator(kernel=kernel, torque_start="early")
+    """``torque_start = "early"`` (the default): the torque stage runs from the force stage's first accepted
+    sample, so while the force stage is still identifying the tool the compensated torque is an estimate (near
+    the sensor's 0.01 N·m noise once the first second has passed) where the settled start writes the raw torque
+    (the tool's weight times its lever, ~0.1 N·m); the torque flag never rises before the force flag."""
+    settled = KalmanEstimator(kernel=kernel, torque_start="settled").update_block(sim6)
+    early_est = KalmanEstimator(kernel=kernel)
     early = early_est.update_block(sim6)
-    assert early_est.options.torque_start == "early" and KalmanEstimator().options.torque_start == "settled"
+    assert early_est.options.torque_start == "early"
     waiting = np.flatnonzero(~settled.converged_torque)
     window = waiting[(waiting >= 1000)]  # (the first second: the torque stage learning)
     assert len(window) > 500, "the settled start converges its torque too soon on this tour to tell"

@@ -310,12 +310,10 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
             conv_t, settled_t = conv_t & conv_f, settled_t & settled_f
         if settled_t.any():  # (at the pose: the centre of gravity identified as well)
             self._adapt[ADAPT_TORQUE_SEEN] = 1.0
-        torque_for_contact = torque_S
+        torque_for_contact = torque_S - cross(run_t.X[:, :3], X_f[:, 3:6])  # (b' is about f: torque_bias.py)
         if inertial_S is not None:  # the inertial force acts at the centre of mass like the weight
-            torque_for_contact = torque_S - cross(run_t.X[:, :3], inertial_S)
-        X_t = run_t.X[:, :6].copy()  # the physical bias per sample: b' + cog_S × bias_force_S (torque_bias.py)
-        X_t[:, 3:6] += cross(X_t[:, :3], X_f[:, 3:6])
-        contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], X_t)
+            torque_for_contact = torque_for_contact - cross(run_t.X[:, :3], inertial_S)
+        contact_force_S, contact_torque_S = contact_wrench(y_f, torque_for_contact, A_f, X_f[:, :6], run_t.X[:, :6])
         if self.torque_reopen_s > 0:
             self._watch_torque_only(t_ns, run_f.gated, force_seen, run_t, dt, contact_force_S, contact_torque_S)
         if self.noise_auto:

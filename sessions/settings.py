@@ -176,7 +176,8 @@ class HapticSettings:
             0 = not stated. Stated, a weight the motion identifies off it by more than 0.3 N (or 5 %) holds the
             force: the session started with the tool resting on something, which the motion cannot tell from a
             lighter tool; it is re-identified once the missing weight shows as the tool is lifted.
-        tool_axis: the tool's axis in the sensor frame S, a direction (the usual coaxial mount: +z). A force
+        tool_axis: the tool's axis in the sensor frame S, from the sensor towards the tip (the usual coaxial
+            mount: +z; the other way round, every contact across the tool would read as behind the sensor). A force
             across it has a lever arm its torque tells; one acting within 5 cm of the sensor, where nothing
             touches the tool, is held as no contact (``sessions/live/lever.py``). (0, 0, 0): the lever arm is
             not read (the twist test still is).

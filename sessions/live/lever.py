@@ -35,13 +35,7 @@ PITCH_N_M = 0.05
 """A bin's residual may twist about its own line by this much, N·m, plus ``PATCH_M`` times its force. Two
 point forces at different places twist: the estimator's own force error beside a tip contact does, and rls's
 and batch's errors in a contact reach 0.045 N·m on demo seeds (kalman's in 60 s of random touches, 0.035). A
-bias of about 0.4 N beside a 3 N tip contact 25 cm out, across it, exceeds it."""
-TORQUE_ERRORS = 5.0
-"""...or this many times the residual torque's RMS over free motion (bins under ``MIN_OFFSET_N``, the last
-``FREE_BINS``), if more: an estimator whose torque model misses by more than 0.01 N·m wherever the tool turns
-(a centre of gravity off by millimetres on a heavy tool) twists by as much in a contact."""
-FREE_BINS = 250
-"""The free-motion torque error is an average over about this many bins (5 s), exponentially forgetting."""
+bias of about half a newton beside a 3 N tip contact 25 cm out, across it, exceeds it."""
 PATCH_M = 0.003
 """...per newton of the residual, m: a touch spread over a patch (a jaw, a blunt tip) a few millimetres wide
 twists by up to its half-width times the force."""
@@ -61,7 +55,8 @@ class LeverWatch:
     """Tells a residual a touch can give from one it cannot, by its torque: it holds, it never re-identifies.
 
     Args:
-        tool_axis_S: the tool's axis in S (any length; zero: the lever arm is not read, the twist still is).
+        tool_axis_S: the tool's axis in S, from the sensor towards the tip (any length; zero: the lever arm is
+            not read, the twist still is).
 
     ``add`` takes each block the primary estimator refined; ``reason`` then says why no touch gives the
     residual, from the first bin none could until ``CLEAR_BINS`` in a row one could ("" otherwise): the gate
@@ -72,9 +67,8 @@ class LeverWatch:
     """
 
     def __init__(self, tool_axis_S: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> None:
-        norm = math.sqrt(sum(v * v for v in tool_axis_S))
+        norm = math.hypot(*tool_axis_S)
         self.a = [v / norm for v in tool_axis_S] if norm > 0 else None
-        self.free_torque2 = 0.0  # the residual torque's mean square over free motion, (N·m)² (kept over resets)
         self.reset()
 
     def reset(self) -> None:
@@ -87,7 +81,8 @@ class LeverWatch:
 
     def add(self, t_ns: np.ndarray, force_S: np.ndarray, torque_S: np.ndarray, judge: bool) -> None:
         """One block: stamps (n,) ns, the residual force (n, 3) N and torque (n, 3) N·m in S; ``judge``: the
-        estimator is known and its torque stage converged (else the bins are only counted, and nothing held)."""
+        estimator is known and its torque stage converged. Unjudged bins are only counted: a hold in hand stays
+        (kalman's flag at the pose drops at every new pose, a bias does not go with it); ``reset`` ends it."""
         for t, f, m in zip(t_ns.tolist(), force_S.tolist(), torque_S.tolist()):
             if not all(map(math.isfinite, f + m)):
                 continue
@@ -101,8 +96,6 @@ class LeverWatch:
             for k, v in enumerate(f + m):
                 total[k] += v
             self.count += 1
-        if not judge:
-            self.reason = ""
 
     def _close(self) -> None:
         """Judge the bin in hand: ``reason`` set when no touch gives it, cleared after ``CLEAR_BINS`` that one can."""
@@ -111,11 +104,10 @@ class LeverWatch:
         self.clear += 1  # (until the bin is found to be none a touch gives)
         if self.clear >= CLEAR_BINS:
             self.reason = ""
-        if size < MIN_OFFSET_N:  # (free motion: what the estimator's torque model misses there)
-            self.free_torque2 += (mx * mx + my * my + mz * mz - self.free_torque2) / FREE_BINS
+        if size < MIN_OFFSET_N:
             return
         pitch = (mx * fx + my * fy + mz * fz) / size
-        if abs(pitch) > max(PITCH_N_M, TORQUE_ERRORS * math.sqrt(self.free_torque2)) + PATCH_M * size:
+        if abs(pitch) > PITCH_N_M + PATCH_M * size:
             self.reason = (
                 f"residual not a contact's: it twists about its own line ({pitch:+.3f} N·m at {size:.2f} N: "
                 "no single touch gives that; a force bias beside a contact)"
@@ -131,9 +123,10 @@ class LeverWatch:
             return
         lever = (cx * mx + cy * my + cz * mz) / across
         if lever < MIN_LEVER_M:
+            where = "behind the sensor" if lever < 0 else f"within {MIN_LEVER_M * 1e3:.0f} mm of the sensor"
             self.reason = (
                 f"residual not a contact's: it acts where nothing touches the tool ({size:.2f} N across it, "
-                f"{lever * 1e3:.0f} mm along it, within {MIN_LEVER_M * 1e3:.0f} mm of the sensor: its zero moved, "
-                "the weight model is off, or the estimator took a contact into its bias)"
+                f"{lever * 1e3:.0f} mm along it, {where}: its zero moved, the weight model is off, or the "
+                "estimator took a contact into its bias)"
             )
             self.clear = 0

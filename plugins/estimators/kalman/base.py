@@ -81,6 +81,10 @@ class KalmanBase:
     _limits: np.ndarray
     _L6: np.ndarray
 
+    def _force_biases(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The force stage's bias (3,) N and, with ``bias_rate``, its rate (3,) N/s: what ``torque_bias`` needs."""
+        return self.force.x[3:6], (self.force.x[6:9] if self.bias_rate else None)
+
     def _seed_information(self) -> None:
         """Λ of each stage from its current P (6×6: the constant and the bias): at the start, and after a
         payload change, a bias re-identification or a warm start re-opened or set what is known."""

@@ -204,8 +204,8 @@ class Convergence(KalmanBase):
         far identifies them, and NaN for an axis it has not identified at all (``plugins.estimators.kalman.identified.
         unidentified_axes``: a still tool leaves all three, a turn about B's vertical alone gravity's vertical
         component; the ``not_identifiable`` event names them); with auto noise the noise estimates."""
-        x_t, _ = torque_bias.to_physical(self.torque.x[:6], self.torque.P[:6, :6], self.force.x[3:6])
-        out = named_params(self.force.x[:6], x_t)
+        x_t, _ = torque_bias.to_physical(self.torque.x, self.torque.P, *self._force_biases())
+        out = named_params(self.force.x[:6], x_t[:6])
         if self.mount_rotation or self.mount_configured:
             out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad
         if self.identifies:  # how well the motion so far has identified the constants
@@ -222,7 +222,7 @@ class Convergence(KalmanBase):
             out["tilt_walk_pairs"] = [float(self._adapt[ADAPT_TW + TW_PAIRS])]
         if self.bias_rate:
             out["bias_force_rate_S"] = self.force.x[6:9].tolist()  # N/s
-            out["bias_torque_rate_S"] = self.torque.x[6:9].tolist()  # N·m/s
+            out["bias_torque_rate_S"] = x_t[6:9].tolist()  # N·m/s
         return out
 
     def cov_diag(self) -> list[float]:

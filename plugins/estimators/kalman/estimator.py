@@ -1,9 +1,9 @@
 """``kalman``: the paper's cascade as Kalman filters, with drifting biases, Mahalanobis gating and
 convergence from what is known.
 
-Force stage: x = [gravity_force_B, bias_force_S], C_k = [R_EB, I3]. Torque stage, at samples where the
-force stage has converged and accepted the sample: x = [cog_S, bias_torque_S],
-C_k = [-skew(force_S - bias_force_S), I3]. Unlike the paper's RLS, the biases are random walks (in time
+Force stage: x = [gravity_force_B, bias_force_S], C_k = [R_EB, I3]. Torque stage, at every sample the force
+stage accepts: x = [cog_S, b'], b' = bias_torque_S - cog_S × bias_force_S, C_k = [-skew(force_S), I3]
+(``torque_bias.py``). Unlike the paper's RLS, the biases are random walks (in time
 and with the tool's tilt), R is the sensor's noise (estimated as it runs, or given), a sample outside
 ``gate_probability`` of its predicted distribution is refused (time still propagates, so the gate reopens
 on a bias that has truly moved), and convergence comes from what is known, never from a small step.

@@ -74,8 +74,9 @@ class KalmanOptions:
             "step" (the paper's ‖Δx‖ < 1e-3).
         converged_force_std: bound on the std of gravity_force_B and bias_force_S, N (default: half
             the estimated noise, or 0.02 N with the noise given).
-        converged_torque_std: bound on the std of bias_torque_S and of std(cog_S)·|gravity_force_B|,
-            N·m (default: half the estimated noise, or 0.002 N·m).
+        converged_torque_std: bound on the std of the torque stage's bias (about the measured force:
+            ``torque_bias``) and of std(cog_S)·|gravity_force_B|, N·m (default: half the estimated noise, or
+            0.002 N·m).
         prior_force_std: prior std of gravity_force_B and bias_force_S, N (a surgical tool's weight
             plus a sensor bias; far wider priors make the first samples ill-conditioned).
         prior_cog_std: prior std of cog_S, m.

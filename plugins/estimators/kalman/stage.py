@@ -5,8 +5,8 @@ Measurement model of a stage (the same shape as ``plugins.estimators.rls.informa
     y_k = A_k a + b_k + v_k,      v_k ~ N(0, R_k)
 
 * force stage: y = force_S, A_k = R_EB, a = gravity_force_B, b = bias_force_S;
-* torque stage: y = torque_S, A_k = -skew(force_S - bias_force_S), a = cog_S,
-  b = bias_torque_S.
+* torque stage: y = torque_S, A_k = -skew(force_S), a = cog_S, b = bias_torque_S - cog_S × bias_force_S
+  (``torque_bias.py``).
 
 Unlike the paper's RLS, the bias is not a constant: it is a random walk
 (b_k = b_{k-1} + w_k, w_k ~ N(0, q·dt_k·I), q = rw², rw in units/√s), and with

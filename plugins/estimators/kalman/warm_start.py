@@ -118,7 +118,10 @@ class WarmStart(KalmanBase):
         for stage, x, P in loaded:
             stage.x, stage.P = x, P
         if loaded and source.get("torque_bias") != TORQUE_BIAS:  # (saved before: the physical bias)
-            self.torque.x, self.torque.P = torque_bias.from_physical(self.torque.x, self.torque.P, self.force.x[3:6])
+            torque = self.torque
+            torque.x, torque.P = torque_bias.from_physical(torque.x, torque.P, *self._force_biases())
+            if "torque" in information:
+                information["torque"] = torque_bias.information_from_physical(information["torque"], self.force.x[3:6])
         if loaded:
             self._seed_information()
             self._information.update(information)  # what the motion had identified, not only what P still holds

@@ -272,6 +272,32 @@ def test_state_is_json_and_round_trips(saved_state):
     assert np.array_equal(warm.torque.x, est.torque.x) and np.array_equal(warm.torque.P, est.torque.P)
 
 
+def test_a_state_saved_with_the_physical_torque_bias_is_converted_on_loading(saved_state, tmp_path):
+    """A state saved before the torque stage's bias was about the measured force holds [cog_S, bias_torque_S],
+    its P and its information in those coordinates and no ``torque_bias`` key: loaded, it is the same estimator
+    as the state saved now (x, P and the torque information through J = [[I, 0], [[bias_force_S]×, I]])."""
+    from hapticlab.core.frames import skew
+
+    path, est = saved_state
+    state = json.loads(path.read_text())
+    J = np.eye(6)
+    J[3:6, :3] = skew(np.array(state["force"]["x"][3:6]))
+    x, P = np.array(state["torque"]["x"]), np.array(state["torque"]["P"])
+    x_phys, P_phys = np.linalg.solve(J, x), np.linalg.solve(J, np.linalg.solve(J, P).T)  # J⁻¹ x, J⁻¹ P J⁻ᵀ
+    old = dict(state, torque={"x": x_phys.tolist(), "P": P_phys.tolist()})
+    old["information"] = dict(
+        state["information"], torque=(J.T @ np.array(state["information"]["torque"]) @ J).tolist()
+    )
+    del old["torque_bias"]
+    assert np.allclose(x_phys[3:6], est.params()["bias_torque_S"], rtol=1e-12, atol=1e-15)  # physical, as reported
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    now, before = KalmanEstimator(warm_start=str(path)), KalmanEstimator(warm_start=str(tmp_path / "old.json"))
+    assert np.allclose(before.torque.x, now.torque.x, rtol=1e-12, atol=1e-15)
+    assert np.allclose(before.torque.P, now.torque.P, rtol=1e-9, atol=1e-18)
+    assert np.allclose(before._information["torque"], now._information["torque"], rtol=1e-9)
+    assert before.params()["bias_torque_S"] == pytest.approx(now.params()["bias_torque_S"], rel=1e-12, abs=1e-15)
+
+
 @pytest.mark.parametrize("rule", ["covariance", "identified"])
 def test_warm_start_with_the_same_tool_converges_at_once(saved_state, rule):
     path, _ = saved_state

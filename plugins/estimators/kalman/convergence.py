@@ -204,7 +204,7 @@ class Convergence(KalmanBase):
         far identifies them, and NaN for an axis it has not identified at all (``plugins.estimators.kalman.identified.
         unidentified_axes``: a still tool leaves all three, a turn about B's vertical alone gravity's vertical
         component; the ``not_identifiable`` event names them); with auto noise the noise estimates."""
-        x_t, _ = torque_bias.to_physical(self.torque.x, self.torque.P, *self._force_biases())
+        x_t = torque_bias.physical(self.torque.x, *self._force_biases())
         out = named_params(self.force.x[:6], x_t[:6])
         if self.mount_rotation or self.mount_configured:
             out["mount_rotation_SE"] = rotvec_from_matrix(self.R_SE).tolist()  # rad

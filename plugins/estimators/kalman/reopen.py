@@ -105,12 +105,12 @@ class Reopening(KalmanBase):
         u = g / max(float(np.linalg.norm(g)), 1e-9)
         P[:3, :3] += self.prior_f[0] ** 2 * np.outer(u, u)
         self.force.P = P
-        b_f = self.force.x[3:6]  # (the centre of gravity re-opened with the physical bias kept: torque_bias.py)
-        x, P = torque_bias.to_physical(self.torque.x, self.torque.P, b_f)
+        biases = self._force_biases()  # (the centre of gravity re-opened, the physical bias kept: torque_bias.py)
+        x, P = torque_bias.to_physical(self.torque.x, self.torque.P, *biases)
         P[:3, :] = 0.0
         P[:, :3] = 0.0
         P[:3, :3] = np.diag(self.prior_t[:3] ** 2)
-        self.torque.x, self.torque.P = torque_bias.from_physical(x, P, b_f)
+        self.torque.x, self.torque.P = torque_bias.from_physical(x, P, *biases)
 
     def reidentify_weight(self, reason: str) -> None:
         """ReidentifiesWeight: the tool's weight unknown again along gravity and its centre of gravity back to

@@ -43,6 +43,11 @@ def to_physical(
     return J_inv @ x_t, J_inv @ P_t @ J_inv.T
 
 
+def physical(x_t: np.ndarray, bias_force_S: np.ndarray, bias_force_rate_S: np.ndarray | None = None) -> np.ndarray:
+    """The state alone, as :func:`to_physical` turns it (``params`` asks for it every block: no P to turn)."""
+    return _J(bias_force_S, len(x_t), -1.0, bias_force_rate_S) @ x_t
+
+
 def from_physical(
     x: np.ndarray, P: np.ndarray, bias_force_S: np.ndarray, bias_force_rate_S: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -2,7 +2,8 @@
 
 The handle has mass and a little viscous friction, the force commanded acts on it, and a hand holds it:
 an impedance (mass, damping, stiffness) pulling the handle toward where the trainee means it to be (the
-*intent*: rest, then press down into the tissue, hold, release). So the loop hand → master → robot → tissue →
+*intent*: rest, then press down into the tissue, hold, release; or search for an inclusion, or trace a line:
+``sim_hand.py``). So the loop hand → master → robot → tissue →
 force → hand is closed: a force that pushes back moves the handle, as it moves a real hand, and an unstable
 setting (a stiff contact, a delay, too little damping) shows as the handle oscillating and the port putting
 energy into the hand (``sessions.live.passivity``).
@@ -24,13 +25,12 @@ Ranges (the defaults in brackets), as the literature on stylus and finger-tip gr
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.options import number
+from hapticlab.core.host.options import choice, integer, number
 from hapticlab.core.types import DeviceState, HapticCommand
+from hapticlab.plugins.haptics.sim_hand import SCRIPTS, hand_script
 
 SUBSTEP_S = 0.00025
 """Integration step, s: four a 1 kHz command, and ω·h ≤ 0.02 for the stiffest hand of the ranges below (1000 N/m
@@ -48,7 +48,12 @@ class SimMaster:
         press_at: when the intent starts pressing, s after the first command.
         depth: how far down (D's −z) the intent presses, m.
         ramp: how long the intent takes to go down (and to come back up), s (a raised cosine).
-        hold: how long it stays down, s.
+        hold: how long it stays down, s (each probe's, ``palpate``; the slide's, ``trace``).
+        script: what the hand does (``sim_hand.SCRIPTS``): ``press`` (one indentation), ``palpate`` (search
+            for the firmest spot and mark it), ``trace`` (slide along a line while pressing).
+        span: the row of probes' (``palpate``) or the line's (``trace``) length along D's x, m.
+        probes: how many presses ``palpate`` makes over ``span``.
+        mark_button: the bit of the buttons ``palpate`` presses to mark the spot it chose.
     """
 
     def __init__(
@@ -63,6 +68,10 @@ class SimMaster:
         depth: float = 0.03,
         ramp: float = 1.0,
         hold: float = 3.0,
+        script: str = "press",
+        span: float = 0.06,
+        probes: int = 5,
+        mark_button: int = 1,
     ):
         self.rate_hz = number("rate_hz", rate_hz, above=0, maximum=10_000, hint=" Hz")
         self.mass = number("handle_mass", handle_mass, above=0, maximum=10, hint=" kg") + number(
@@ -75,6 +84,17 @@ class SimMaster:
         self.depth = number("depth", depth, minimum=0, maximum=0.5, hint=" m")
         self.ramp = number("ramp", ramp, above=0, maximum=60, hint=" s")
         self.hold = number("hold", hold, minimum=0, hint=" s")
+        self.script = hand_script(
+            choice("script", script, SCRIPTS),
+            press_at=self.press_at,
+            depth=self.depth,
+            ramp=self.ramp,
+            hold=self.hold,
+            span=number("span", span, minimum=0, maximum=1, hint=" m"),
+            probes=integer("probes", probes, minimum=1, maximum=50),
+            mark_button=integer("mark_button", mark_button, minimum=-1, maximum=31),
+        )
+        self.buttons = 0
         self.p = np.zeros(3)  # the handle's position in D, m
         self.v = np.zeros(3)  # its velocity, m/s
         self.force = np.zeros(3)  # the command in force, N
@@ -83,17 +103,8 @@ class SimMaster:
 
     def intent(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Where the hand means the handle to be at ``t`` s after the first command, m in D, and how fast, m/s."""
-        s, w = t - self.press_at, math.pi / self.ramp
-        if s <= 0 or s >= 2 * self.ramp + self.hold:
-            return np.zeros(3), np.zeros(3)
-        if s < self.ramp:  # going down
-            z, vz = -0.5 * self.depth * (1 - math.cos(w * s)), -0.5 * self.depth * w * math.sin(w * s)
-        elif s < self.ramp + self.hold:
-            z, vz = -self.depth, 0.0
-        else:  # coming back up
-            u = s - self.ramp - self.hold
-            z, vz = -0.5 * self.depth * (1 + math.cos(w * u)), 0.5 * self.depth * w * math.sin(w * u)
-        return np.array([0.0, 0.0, z]), np.array([0.0, 0.0, vz])
+        p, v, self.buttons = self.script.intent(t, self.force)
+        return p, v
 
     def open(self) -> None:
         """Nothing to open: the handle rests at the origin of D."""
@@ -116,7 +127,7 @@ class SimMaster:
 
     def state(self) -> DeviceState | None:
         """The handle's pose and velocity (CRTK ``measured_cp``, ``measured_cv``) at the newest command."""
-        return DeviceState(self.t_ns, HOME_QUAT_DH, self.p.copy(), 0, self.v.copy())
+        return DeviceState(self.t_ns, HOME_QUAT_DH, self.p.copy(), self.buttons, self.v.copy())
 
     def close(self) -> None:
         """Nothing to close."""

@@ -191,6 +191,9 @@ CONTACT_OPTIONS: dict[str, dict[str, Check]] = {
         "stiffness": check(number, above=0, hint=" (N/m)"),
         "damping": check(number, minimum=0, hint=" (N·s/m)"),
         "point_S": vector,
+        "inclusion_B": vector,
+        "inclusion_radius": check(number, above=0, maximum=1, hint=" (m)"),
+        "inclusion_stiffness": check(number, above=0, hint=" (N/m)"),
     },
     "cable": {
         "anchor_B": vector,

@@ -16,6 +16,11 @@ never pulls the tool in), and it is zero at the surface, so the force
 starts continuously as the tip touches. Soft tissues under a 5 mm probe are
 of the order 100–1000 N/m (liver ~ 200–500 N/m); the default 300 N/m gives
 3 N at 1 cm depth.
+
+An **inclusion** (a stiffer nodule under the surface, what palpation looks for: ``sessions/tasks``) is a
+vertical cylinder of radius ``inclusion_radius`` about ``inclusion_B`` where the stiffness is
+``inclusion_stiffness``: a tip pressed within it meets the nodule (breast and prostate nodules are several
+times stiffer than the tissue around them, Krouskop et al. 1998).
 """
 
 from __future__ import annotations
@@ -37,6 +42,9 @@ class Tissue:
         stiffness: k, the push per metre of depth, N/m (> 0).
         damping: c, the push per m/s the tip moves into the tissue, N·s/m (>= 0).
         point_S: (3,) the point of the tool that touches, in S, m; None: the tool tip.
+        inclusion_B: (3,) the inclusion's centre, in B, m; None: no inclusion.
+        inclusion_radius: its radius across the normal, m.
+        inclusion_stiffness: the stiffness a tip pressed within it meets, N/m.
     """
 
     surface_B: np.ndarray = (0.45, 0.0, 0.0)  # type: ignore[assignment]  # an array after __post_init__
@@ -44,6 +52,9 @@ class Tissue:
     stiffness: float = 300.0
     damping: float = 2.0
     point_S: np.ndarray | None = None
+    inclusion_B: np.ndarray | None = None
+    inclusion_radius: float = 0.006
+    inclusion_stiffness: float = 12000.0
 
     def __post_init__(self) -> None:
         check_fields(
@@ -53,6 +64,8 @@ class Tissue:
                 "normal_B": vector,
                 "stiffness": check(number, above=0, hint=" (N/m)"),
                 "damping": check(number, minimum=0, hint=" (N·s/m)"),
+                "inclusion_radius": check(number, above=0, maximum=1, hint=" (m)"),
+                "inclusion_stiffness": check(number, above=0, hint=" (N/m)"),
             },
         )
         norm = float(np.linalg.norm(self.normal_B))
@@ -63,6 +76,8 @@ class Tissue:
         object.__setattr__(self, "normal_B", self.normal_B / norm)
         if self.point_S is not None:
             object.__setattr__(self, "point_S", vector("point_S", self.point_S))
+        if self.inclusion_B is not None:
+            object.__setattr__(self, "inclusion_B", vector("inclusion_B", self.inclusion_B))
 
     def depth(self, x_B: np.ndarray) -> np.ndarray:
         """(N,) how deep the points ``x_B`` (N, 3) m are in the tissue, m (negative: above it)."""
@@ -72,6 +87,12 @@ class Tissue:
         """(N, 3) force of the tissue on the tool, in B, N, for the touching point at ``x_B`` (N, 3) m
         moving at ``v_B`` (N, 3) m/s."""
         depth = self.depth(x_B)
-        push = self.stiffness * depth - self.damping * (v_B @ self.normal_B)
+        stiffness: float | np.ndarray = self.stiffness
+        if self.inclusion_B is not None:
+            across = x_B - self.inclusion_B
+            across = across - np.outer(across @ self.normal_B, self.normal_B)
+            inside = np.linalg.norm(across, axis=1) < self.inclusion_radius
+            stiffness = np.where(inside, self.inclusion_stiffness, self.stiffness)
+        push = stiffness * depth - self.damping * (v_B @ self.normal_B)
         magnitude = np.where(depth > 0, np.maximum(push, 0.0), 0.0)
         return magnitude[:, None] * self.normal_B

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import statistics
 from pathlib import Path
 
 from rich.table import Table
@@ -11,6 +14,7 @@ from hapticlab.core.errors import UserError
 from hapticlab.sessions.cli.offline import add_folder_options, add_force, print_folder_run
 from hapticlab.sessions.cli.render import err, fmt, wide_console
 from hapticlab.sessions.output import check_output, check_plots_folder, write_text
+from hapticlab.sessions.review.skill_names import KEYS
 
 
 def print_review(r) -> None:
@@ -97,8 +101,8 @@ def review_session(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from hapticlab.sessions.review import review
-    from hapticlab.sessions.review.page import session_page
     from hapticlab.sessions.review.plots import PLOTS, write_plots
+    from hapticlab.sessions.review.report import session_page
 
     html = (
         check_output(args.html, args.force, label="--html", inputs=[args.input], role="recording")
@@ -106,6 +110,14 @@ def review_session(args: argparse.Namespace) -> int:
         else None
     )
     plots = check_plots_folder(args.plots, args.force, patterns=[f"{n}.png" for n in PLOTS]) if args.plots else None
+    out_json = (
+        check_output(args.json, args.force, label="--json", inputs=[args.input], role="recording")
+        if args.json
+        else None
+    )
+    cohort = Path(args.cohort) if args.cohort else None
+    if cohort is not None and not cohort.is_dir():
+        raise UserError(f"--cohort: {args.cohort}: not a folder of recordings")
     if args.csv:
         raise UserError("--csv: a cohort's table; give a folder of recordings (hapticlab review DIR/ --csv FILE)")
     with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
@@ -117,13 +129,78 @@ def review_session(args: argparse.Namespace) -> int:
             progress=lambda done: progress.update(task, completed=done),
         )
     print_review(r)
+    medians, size = None, 0
+    if cohort is not None:
+        rows = cohort_rows(cohort, r.task)
+        size = len(rows)
+        medians = {k: _median([row.get(k) for row in rows]) for k in KEYS}
+    if out_json is not None:
+        write_text(out_json, json.dumps(review_json(r, medians), indent=2) + "\n", args.force, label="--json")
+        err.print(f"wrote {out_json}")
     if plots is not None:
         for path in write_plots(r, plots, args.force):
             err.print(f"wrote {path}")
     if html is not None:
-        write_text(html, session_page(r), args.force, label="--html")
+        write_text(html, session_page(r, medians, size), args.force, label="--html")
         err.print(f"wrote {html}")
     return 0
+
+
+def cohort_rows(folder: Path, task: str) -> list[dict]:
+    """The rows of ``folder``'s sessions of ``task`` (reviewed here, one after the other, with a progress bar: a
+    report's medians need no cluster); a file that is not a recording is left out, with its one line."""
+    from rich.progress import track
+
+    from hapticlab.sessions.offline.folders import recordings_in
+    from hapticlab.sessions.review.cohort import review_row
+
+    rows = []
+    for path in track(recordings_in(folder), description="the cohort", console=err, disable=not err.is_terminal):
+        try:
+            row = review_row(path)
+        except ValueError as exc:
+            err.print(f"--cohort: left out {path.name}: {exc}")
+            continue
+        if row["task"] == task:
+            rows.append(row)
+    return rows
+
+
+def _median(values) -> float | None:
+    finite = [float(v) for v in values if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)]
+    return statistics.median(finite) if finite else None
+
+
+def review_json(r, medians: dict | None = None) -> dict:
+    """``review --json``: the cohort row's keys (the skill metrics among them, ``docs/review.md``), the task's
+    outcome, the moments in words, the contacts, and the cohort's medians when asked."""
+    from dataclasses import asdict
+
+    from hapticlab.sessions.review.skill_names import METRICS
+    from hapticlab.sessions.review.timeline import moments
+
+    def plain(value):
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [plain(v) for v in value]
+        if hasattr(value, "tolist"):
+            return value.tolist()
+        return None if isinstance(value, float) and not math.isfinite(value) else value
+
+    row = r.row()
+    row["recording"] = r.path.name
+    return plain(
+        {
+            **row,
+            "task_outcome": r.outcome,
+            "task_settings": r.task_settings,
+            "moments": [asdict(m) for m in moments(r)],
+            "contacts_list": [asdict(c) for c in r.contacts],
+            "cohort_median": medians,
+            "units": {key: unit for key, _, unit in METRICS},
+        }
+    )
 
 
 def review_cohort(args: argparse.Namespace) -> int:
@@ -131,6 +208,8 @@ def review_cohort(args: argparse.Namespace) -> int:
 
     if args.plots:
         raise UserError("--plots: one session's figures; the cohort's progress plot is in --html")
+    if args.json or args.cohort:
+        raise UserError("--json and --cohort: for one session (hapticlab review REC.mcap --json OUT --cohort DIR)")
     if args.workers is not None and args.workers < 1:
         raise UserError(f"--workers: at least 1, got {args.workers}")
     html = check_output(args.html, args.force, label="--html") if args.html else None
@@ -162,7 +241,8 @@ def review_cohort(args: argparse.Namespace) -> int:
     status = print_folder_run(
         run,
         args.input,
-        f"{args.input}: {len(run.outcomes)} recordings (force limit {args.force_limit:g} N)",
+        f"{args.input}: {len(run.outcomes)} recordings (force limit "
+        + (f"{args.force_limit:g} N)" if args.force_limit is not None else "each session's task's, else 3 N)"),
         shown,
         row,
     )
@@ -178,7 +258,7 @@ def review_cohort(args: argparse.Namespace) -> int:
 
 
 def cmd_review(args: argparse.Namespace) -> int:
-    if not args.force_limit > 0:
+    if args.force_limit is not None and not args.force_limit > 0:
         raise UserError(f"--force-limit: must be > 0 N, got {args.force_limit:g}")
     path = Path(args.input)
     if path.is_dir():
@@ -204,11 +284,24 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plots", default=None, metavar="DIR", help="write the session's plots as PNG into DIR")
     p.add_argument("--csv", default=None, metavar="FILE.csv", help="a cohort: write its table as CSV")
     p.add_argument(
+        "--json",
+        default=None,
+        metavar="FILE.json",
+        help="one session: write every metric of the report as JSON (keys as in the cohort CSV: docs/review.md)",
+    )
+    p.add_argument(
+        "--cohort",
+        default=None,
+        metavar="DIR",
+        help="one session: show the median of DIR's sessions of the same task beside each metric",
+    )
+    p.add_argument(
         "--force-limit",
         type=float,
-        default=DEFAULT_FORCE_LIMIT_N,
+        default=None,
         metavar="N",
-        help=f"contact force limit the review counts time above, N (default {DEFAULT_FORCE_LIMIT_N:g})",
+        help=f"contact force limit the review counts time above, N (default: the session's task's, "
+        f"else {DEFAULT_FORCE_LIMIT_N:g})",
     )
     add_folder_options(p)
     add_force(p)

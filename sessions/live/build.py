@@ -50,6 +50,7 @@ from hapticlab.sessions.settings import (
     session_settings,
     teleop_settings,
 )
+from hapticlab.sessions.tasks import prepare as prepare_task
 
 INTERFACES = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator, "haptic": HapticOutput}
 """The interface each plugin table's object must have (checked at build time)."""
@@ -200,6 +201,7 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     registry = registry if registry is not None else Registry()
     context_names = registry.names("context")
     check_tables(config, extra_tables=context_names)
+    config = prepare_task(config)  # (in a simulated world: the task's inclusion, the simulated hand's script)
     settings = session_settings(config)
     safety = haptic_settings(config)
     contexts = {
@@ -239,6 +241,8 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     ]
     teleop = teleop_settings(config)
     resolved["teleop"] = asdict(teleop)
+    if "task" in config:
+        resolved["task"] = config["task"]
     robot = None
     if teleop.enabled:
         robot = built["kinematics"]

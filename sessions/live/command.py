@@ -105,7 +105,7 @@ class HapticCommander:
         except Exception as exc:  # a lost device: zero is all we can still ask for
             command = self.governor.command(now_ns, None, None, reason=f"device error: {exc}")
             state = None
-        taps.command(command)
+        taps.command(command, None if force_S is None else float(np.linalg.norm(force_S)), self.status.contact)
         if state is not None:
             taps.device_state(state)
         self.watch_button(state)

@@ -229,7 +229,9 @@ class Taps:
                 **{k: v for k, v in (("params", params), ("cov_diag", cov_diag)) if v is not None},
             )
 
-    def command(self, command: HapticCommand) -> None:
+    def command(self, command: HapticCommand, contact_force_N: float | None = None, contact: bool = False) -> None:
+        """``/haptic/command``, with the tool–tissue force it was made from: the primary estimator's newest
+        ‖contact force‖ (N; None before its first estimate) and whether it judged that a contact."""
         self.rec.write(
             "/haptic/command",
             command.t_ns,
@@ -238,6 +240,8 @@ class Taps:
                 "enabled": command.enabled,
                 "reason": command.reason,
                 "source_t_ns": command.source_t_ns,
+                "contact_force_N": contact_force_N,
+                "contact": contact,
             },
         )
 

@@ -162,6 +162,12 @@ _COMMAND_SCHEMA = _schema(
             "type": ["integer", "null"],
             "description": "Stamp of the newest sensor sample behind the force, ns (null: zero command).",
         },
+        "contact_force_N": {
+            "type": ["number", "null"],
+            "description": "The tool-tissue force the command was made from: the primary estimator's newest "
+            "|contact force|, N (null: no estimate yet).",
+        },
+        "contact": {"type": "boolean", "description": "Whether the primary estimator judged that sample a contact."},
     },
     ["force_D", "enabled"],
 )

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from hapticlab.sessions.offline.folders import FolderRun, map_recordings, recordings_in
-from hapticlab.sessions.review.summary import DEFAULT_FORCE_LIMIT_N, review
+from hapticlab.sessions.review.summary import review
 
 COLUMNS = (
     "recording",
@@ -43,14 +43,14 @@ COLUMNS = (
 """The cohort's columns (CSV header), in order."""
 
 
-def review_row(path: Path, force_limit: float = DEFAULT_FORCE_LIMIT_N) -> dict[str, Any]:
+def review_row(path: Path, force_limit: float | None = None) -> dict[str, Any]:
     """One session's cohort row (the task each worker runs)."""
     return review(path, force_limit=force_limit, plots=False).row()
 
 
 def review_folder(
     folder: str | os.PathLike[str],
-    force_limit: float = DEFAULT_FORCE_LIMIT_N,
+    force_limit: float | None = None,
     *,
     scheduler: str | None = None,
     workers: int | None = None,
@@ -61,7 +61,7 @@ def review_folder(
     The rows' ``recording`` is the path relative to ``folder``. A file that is
     not a session recording is an outcome with its one-line error, not the end of the job.
     """
-    if not force_limit > 0:
+    if force_limit is not None and not force_limit > 0:
         raise ValueError(f"--force-limit: must be > 0 N, got {force_limit!r}")
     folder = Path(folder)
     run = map_recordings(

@@ -1,4 +1,5 @@
-"""Reviews as one self-contained HTML page: a session's report, or a cohort's table and progress plot.
+"""The review pages' HTML parts: style, tables, embedded images (a session's report: ``report.py``; a cohort's:
+``cohort.py``), and the summary and paper's rows the terminal shows too.
 
 The plots are embedded as PNG data URIs and the style is inline, so the page
 is one file an instructor can mail, archive or open offline. Every text that
@@ -12,7 +13,6 @@ import html
 import math
 from collections.abc import Iterable, Sequence
 
-from hapticlab.sessions.review import plots
 from hapticlab.sessions.review.figures import AXES
 from hapticlab.sessions.review.summary import SessionReview, faults
 
@@ -56,101 +56,6 @@ def document(title: str, body: str) -> str:
         f"<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8><title>{_e(title)}</title>"
         f"<style>{STYLE}</style></head><body>{body}</body></html>\n"
     )
-
-
-def session_page(r: SessionReview) -> str:
-    """One session's report as a self-contained HTML page."""
-    who = r.trainee or "(no trainee recorded)"
-    parts = [
-        f"<h1>Session review: {_e(r.name or r.path.name)}</h1>",
-        table(
-            ("session", ""),
-            [
-                (k, _e(v))
-                for k, v in (
-                    ("trainee", who),
-                    ("task", r.task or "–"),
-                    ("date", r.date or "–"),
-                    ("recording", r.path.name),
-                    ("duration", f"{r.duration_s:.1f} s"),
-                    ("estimator", r.estimator),
-                    ("complete", "yes" if r.complete else "no (recovered or cut short)"),
-                )
-            ],
-            id="who",
-            text_columns=2,
-        ),
-    ]
-    if r.notes:
-        parts.append(f"<div class=notes>{_e(r.notes)}</div>")
-    parts.append("<h2>Summary</h2>")
-    parts.append(table(("measure", "value"), [(k, _e(v)) for k, v in summary_rows(r)], id="summary", text_columns=2))
-    parts.append("<h2>Contacts</h2>")
-    parts.append(
-        table(
-            ("#", "start [s]", "duration [s]", "peak [N]", "mean [N]", f"over {r.force_limit_N:g} N [s]"),
-            [
-                (str(i + 1), _num(c.start_s), _num(c.duration_s), _num(c.peak_N), _num(c.mean_N), _num(c.over_limit_s))
-                for i, c in enumerate(r.contacts)
-            ],
-            id="contacts",
-        )
-        if r.contacts
-        else "<p>No contact.</p>"
-    )
-    parts.append("<h2>Estimators</h2>")
-    parts.append(
-        table(
-            ("estimator", "samples", "force converged [s]", "torque converged [s]", "converged at end"),
-            [
-                (
-                    _e(e.name),
-                    str(e.samples),
-                    _num(e.converged_force_s),
-                    _num(e.converged_torque_s),
-                    "yes" if e.converged_at_end else "<span class=warn>no</span>",
-                )
-                for e in r.estimators
-            ],
-            id="estimators",
-        )
-    )
-    for e in r.estimators:
-        parts.append(f"<h2>Compensation error, {_e(e.name)} (the paper's table; no contact, after convergence)</h2>")
-        parts.append(
-            table(
-                (
-                    "axis",
-                    "MAE before",
-                    "Max AE before",
-                    "Std before",
-                    "MAE after",
-                    "Max AE after",
-                    "Std after",
-                    "MAE comp. %",
-                ),
-                error_rows(e),
-                id=f"errors-{_e(e.name)}",
-            )
-            if e.table
-            else "<p>Not scored: the estimator never converged, or no contact-free sample followed.</p>"
-        )
-    parts.append("<h2>Faults and fail-safes</h2>")
-    shown = faults(r.events)
-    parts.append(
-        table(
-            ("time [s]", "event", "message"),
-            [(_num(r.t_s(ev.t_ns)), _e(ev.kind), _e(ev.message)) for ev in shown],
-            id="events",
-            text_columns=0,
-        )
-        if shown
-        else "<p>None.</p>"
-    )
-    if r.series is not None:
-        for name in plots.PLOTS:
-            parts.append(f"<h2>{_e(plots.TITLES[name])}</h2>{_img(plots.png(r, name), plots.TITLES[name])}")
-    return document(f"Review: {r.name or r.path.name}, {who}", "".join(parts))
 
 
 def summary_rows(r: SessionReview) -> list[tuple[str, str]]:

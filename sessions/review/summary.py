@@ -28,8 +28,6 @@ from __future__ import annotations
 import math
 import os
 from collections import deque
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,141 +36,26 @@ from hapticlab.core.types import STATUS_OK, Event
 from hapticlab.sessions.recording import ESTIMATOR_TOPIC_PREFIX, RecordingError, open_recording
 from hapticlab.sessions.recording.columnar import can_read
 from hapticlab.sessions.recording.mcapfile import file_stats
-from hapticlab.sessions.review.figures import Contact, ContactFold, Envelope, EstimatorFold, EstimatorReview
+from hapticlab.sessions.review.figures import ContactFold, Envelope, EstimatorFold
 from hapticlab.sessions.review.reading import file_batches, join_raw
+from hapticlab.sessions.review.session import DEFAULT_FORCE_LIMIT_N, ROUTINE_EVENTS, Series, SessionReview, faults  # noqa: F401  (re-exported: where they were first)
+from hapticlab.sessions.review.skill_fold import SkillFold
+from hapticlab.sessions.review.skill_names import KEYS
+from hapticlab.sessions.tasks.scoring import score
 
 CHUNK_ROWS = 16384
 """Samples gathered before they are folded into the running figures (memory: a few MB, whatever the file)."""
-DEFAULT_FORCE_LIMIT_N = 3.0
-"""The contact force limit a review counts time above, N, unless told another (set it to your task's)."""
-
-
-@dataclass
-class Series:
-    """What the plots draw, every one bounded in size whatever the session's length.
-
-    Attributes:
-        raw: (fx..tz) raw aligned wrench of the primary estimator's samples, N and N·m.
-        compensated: the primary estimator's contact wrench, same samples.
-        contact_force: ‖contact force‖, N.
-        command: ‖haptic command‖, N, and the share of ticks with the force on (2 columns); None when
-            the review was asked without plots.
-        passivity: the haptic port's energy E, J, and the damping its controller added, N·s/m (2 columns;
-            teleoperation's ``/haptic/passivity``); None without plots or without that topic.
-        params: (t s, {name: list}) the primary estimator's parameters as recorded (every 100 ms).
-    """
-
-    raw: Envelope
-    compensated: Envelope
-    contact_force: Envelope
-    command: Envelope | None
-    passivity: Envelope | None = None
-    params: list[tuple[float, dict[str, list[float]]]] = field(default_factory=list)
-
-
-@dataclass
-class SessionReview:
-    """A session, reviewed (:func:`review`). Times are s from the session's start, forces N."""
-
-    path: Path
-    name: str
-    trainee: str
-    task: str
-    notes: str
-    date: str
-    duration_s: float
-    estimator: str
-    sensor_rate_hz: float
-    samples: int
-    lost_samples: int
-    bad_samples: int
-    kinematics_rate_hz: float
-    poses: int
-    estimators: list[EstimatorReview]
-    contacts: list[Contact]
-    force_limit_N: float
-    over_limit_s: float
-    contact_s: float
-    peak_force_N: float
-    haptic_on_s: float
-    events: list[Event]
-    complete: bool
-    start_ns: int = 0
-    series: Series | None = None
-    port_energy_max_J: float | None = None  # teleoperation: max_t E(t), J (> 0: the port created energy)
-    damping_share: float | None = None  # teleoperation: share of the ticks the passivity controller damped
-
-    def t_s(self, t_ns: int) -> float:
-        """A recorded time as s from the session's start."""
-        return (t_ns - self.start_ns) / 1e9
-
-    @property
-    def primary(self) -> EstimatorReview | None:
-        return next((e for e in self.estimators if e.name == self.estimator), None)
-
-    def row(self) -> dict[str, Any]:
-        """The cohort's row: one line per session (CSV columns)."""
-        primary = self.primary
-        conv = primary.converged_force_s if primary else None
-        return {
-            "recording": str(self.path),
-            "trainee": self.trainee,
-            "task": self.task,
-            "date": self.date,
-            "duration_s": round(self.duration_s, 3),
-            "contacts": len(self.contacts),
-            "peak_force_N": _round(self.peak_force_N),
-            "over_limit_s": round(self.over_limit_s, 3),
-            "contact_s": round(self.contact_s, 3),
-            "force_limit_N": self.force_limit_N,
-            "estimator": self.estimator,
-            "converged_s": _round(conv),
-            "lost_samples": self.lost_samples,
-            "faults": len(faults(self.events)),
-            "complete": self.complete,
-        }
-
-
-ROUTINE_EVENTS = frozenset(
-    {
-        "session_start",
-        "session_end",
-        "converged",
-        "identified",
-        "parameters_known",
-        "haptic_enabled",
-        "haptic_disabled",
-        "teleop",
-        "teleop_engaged",
-        "teleop_calibrated",
-        "haptic_rearmed",
-        "overrun_summary",
-    }
-)
-"""Event kinds that are the session's ordinary course; every other kind is a fault or a fail-safe to look at."""
-
-
-def faults(events: list[Event]) -> list[Event]:
-    """The events an instructor should look at: faults, fail-safes, errors (not the session's ordinary course)."""
-    return [e for e in events if e.kind not in ROUTINE_EVENTS]
-
-
-def _round(x: float | None, digits: int = 3) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(x, digits)
 
 
 def review(
-    path: str | os.PathLike[str],
-    force_limit: float = DEFAULT_FORCE_LIMIT_N,
-    plots: bool = True,
-    progress=None,
-    fast: bool = True,
+    path: str | os.PathLike[str], force_limit: float | None = None, plots: bool = True, progress=None, fast: bool = True
 ) -> SessionReview:
     """Review one recording (streamed; memory bounded whatever its length).
 
     Args:
         path: the session's ``.mcap``.
-        force_limit: the contact force limit to count time above, N.
+        force_limit: the contact force limit to count time above, N; None: the session's task's
+            (``task.force_limit``), else :data:`DEFAULT_FORCE_LIMIT_N`.
         plots: also gather what the plots draw (the haptic commands are read only then).
         progress: ``progress(done_fraction)`` called as the file is read (a progress bar), or None.
         fast: read the file a chunk at a time as columns (``recording.columnar``; a finished format-3
@@ -182,13 +65,16 @@ def review(
     Raises ``RecordingError`` (a ``ValueError``, one line) for a file that is not a
     hapticlab recording, is truncated or has no estimator.
     """
-    if not force_limit > 0:
+    if force_limit is not None and not force_limit > 0:
         raise ValueError(f"force limit: must be > 0 N, got {force_limit!r}")
     rec = open_recording(path)
     config = rec.meta("hapticlab.session", "config", {}) or {}
     if not isinstance(config, dict):
         config = {}
     session = config.get("session", {})
+    task = config.get("task") if isinstance(config.get("task"), dict) else {}
+    if force_limit is None:
+        force_limit = float(task.get("force_limit") or DEFAULT_FORCE_LIMIT_N)
     estimator = rec.meta("hapticlab.session", "estimator", "") or ""
     names = [t[len(ESTIMATOR_TOPIC_PREFIX) :] for t in rec.topic_names if t.startswith(ESTIMATOR_TOPIC_PREFIX)]
     if "/aligned/sample" not in rec.topic_names or not names:
@@ -203,7 +89,10 @@ def review(
     period_s = 1.0 / sensor_rate if sensor_rate > 0 else 0.0
 
     folds = {name: EstimatorFold(name, t0) for name in names}
-    contact = None  # built once the sensor period is known
+    contact: ContactFold | None = None  # built once the sensor period is known
+    band = task.get("band") if task.get("name") == "retraction" else None
+    marks = int(task.get("mark_button", -1)) if task.get("name") == "palpation" else -1
+    skill = SkillFold(t0, force_limit, band, marks)
     series = Series(
         Envelope(t0, t1, 6), Envelope(t0, t1, 6), Envelope(t0, t1, 1), Envelope(t0, t1, 2) if plots else None
     )
@@ -253,7 +142,9 @@ def review(
             force = np.linalg.norm(c["contact_force_S"], axis=1)
             if contact is None:
                 contact = ContactFold(t0, force_limit, period_s or _period(c["t_ns"]))
+                skill.period_s = contact.period_s
             contact.add(c["t_ns"], c["contact"].astype(bool), force)
+            skill.add_force(c["t_ns"], force, c["contact"].astype(bool))
             series.raw.add(c["t_ns"], np.hstack((c["raw_force"], c["raw_torque"])))
             series.compensated.add(c["t_ns"], np.hstack((c["contact_force_S"], c["contact_torque_S"])))
             series.contact_force.add(c["t_ns"], force)
@@ -274,6 +165,9 @@ def review(
         topics.append("/haptic/command")
     if "/haptic/passivity" in rec.topic_names:
         topics.append("/haptic/passivity")
+    topics += [
+        t for t in ("/robot/target", "/haptic/state") if t in rec.topic_names and (t != "/haptic/state" or marks >= 0)
+    ]
     fast = fast and can_read(rec.path)
     recent: deque[dict[str, np.ndarray]] = deque(maxlen=3 if fast else 32)
     for topic, batch in file_batches(rec.path, topics, fast):
@@ -298,6 +192,10 @@ def review(
                 port["ticks"] += len(energy)
             if series.passivity is not None:
                 series.passivity.add(batch["t_ns"], np.column_stack((energy, damping)))
+        elif topic == "/robot/target":
+            skill.add_targets(batch)
+        elif topic == "/haptic/state":
+            skill.add_states(batch)
         elif topic == "/events":
             events.extend(Event(t_ns, m["kind"], m["message"], m.get("data") or {}) for t_ns, m in batch)
         else:
@@ -325,6 +223,13 @@ def review(
     )
     contacts = contact.finish() if contact is not None else []
     summary = rec.metadata.get("hapticlab.summary", {})
+    gathered = skill.finish(
+        contacts,
+        contact.contact_samples * contact.period_s if contact is not None else 0.0,
+        contact.over_limit_s if contact is not None else 0.0,
+    )
+    gathered["peak_force_N"] = contact.peak if contact is not None else None  # (every sample's: as recorded)
+    task_score, outcome = score(task, gathered, config.get("haptic", {}).get("rotation_DB", (0.0, 0.0, 0.0)))
     return SessionReview(
         path=rec.path,
         name=str(session.get("name", "")),
@@ -353,6 +258,10 @@ def review(
         complete=bool(summary),
         start_ns=t0,
         series=series if plots else None,
+        skill={**{k: gathered.get(k) for k in KEYS}, "task_score": task_score},
+        outcome=outcome,
+        task_settings=task,
+        excess_events=gathered["events"],
     )
 
 

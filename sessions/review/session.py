@@ -1,0 +1,133 @@
+"""What a review of one session holds (:class:`SessionReview`, built by ``summary.review``) and its cohort row."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hapticlab.core.types import Event
+from hapticlab.sessions.review.figures import Contact, Envelope, EstimatorReview
+
+DEFAULT_FORCE_LIMIT_N = 3.0
+"""The contact force limit a review counts time above, N, unless told another or the session's task states one."""
+
+
+@dataclass
+class Series:
+    """What the plots draw, every one bounded in size whatever the session's length.
+
+    Attributes:
+        raw: (fx..tz) raw aligned wrench of the primary estimator's samples, N and N·m.
+        compensated: the primary estimator's contact wrench, same samples.
+        contact_force: ‖contact force‖, N.
+        command: ‖haptic command‖, N, and the share of ticks with the force on (2 columns); None when
+            the review was asked without plots.
+        passivity: the haptic port's energy E, J, and the damping its controller added, N·s/m (2 columns;
+            teleoperation's ``/haptic/passivity``); None without plots or without that topic.
+        params: (t s, {name: list}) the primary estimator's parameters as recorded (every 100 ms).
+    """
+
+    raw: Envelope
+    compensated: Envelope
+    contact_force: Envelope
+    command: Envelope | None
+    passivity: Envelope | None = None
+    params: list[tuple[float, dict[str, list[float]]]] = field(default_factory=list)
+
+
+@dataclass
+class SessionReview:
+    """A session, reviewed (:func:`review`). Times are s from the session's start, forces N."""
+
+    path: Path
+    name: str
+    trainee: str
+    task: str
+    notes: str
+    date: str
+    duration_s: float
+    estimator: str
+    sensor_rate_hz: float
+    samples: int
+    lost_samples: int
+    bad_samples: int
+    kinematics_rate_hz: float
+    poses: int
+    estimators: list[EstimatorReview]
+    contacts: list[Contact]
+    force_limit_N: float
+    over_limit_s: float
+    contact_s: float
+    peak_force_N: float
+    haptic_on_s: float
+    events: list[Event]
+    complete: bool
+    start_ns: int = 0
+    series: Series | None = None
+    port_energy_max_J: float | None = None  # teleoperation: max_t E(t), J (> 0: the port created energy)
+    damping_share: float | None = None  # teleoperation: share of the ticks the passivity controller damped
+    skill: dict[str, Any] = field(default_factory=dict)  # skill_names.KEYS -> value (None: not applicable)
+    outcome: dict[str, Any] = field(default_factory=dict)  # the task's own figures (mark error, time in band...)
+    task_settings: dict[str, Any] = field(default_factory=dict)  # the recorded [task] table ({}: no task)
+    excess_events: list[tuple[float, float, float]] = field(default_factory=list)  # (start s, duration s, peak N)
+
+    def t_s(self, t_ns: int) -> float:
+        """A recorded time as s from the session's start."""
+        return (t_ns - self.start_ns) / 1e9
+
+    @property
+    def primary(self) -> EstimatorReview | None:
+        return next((e for e in self.estimators if e.name == self.estimator), None)
+
+    def row(self) -> dict[str, Any]:
+        """The cohort's row: one line per session (CSV columns)."""
+        primary = self.primary
+        conv = primary.converged_force_s if primary else None
+        return {
+            "recording": str(self.path),
+            "trainee": self.trainee,
+            "task": self.task,
+            "date": self.date,
+            "duration_s": round(self.duration_s, 3),
+            "contacts": len(self.contacts),
+            "peak_force_N": _round(self.peak_force_N),
+            "over_limit_s": round(self.over_limit_s, 3),
+            "contact_s": round(self.contact_s, 3),
+            "force_limit_N": self.force_limit_N,
+            "estimator": self.estimator,
+            "converged_s": _round(conv),
+            "lost_samples": self.lost_samples,
+            "faults": len(faults(self.events)),
+            "complete": self.complete,
+            **{k: _round(v, 6) if isinstance(v, float) else v for k, v in self.skill.items()},
+        }
+
+
+ROUTINE_EVENTS = frozenset(
+    {
+        "session_start",
+        "session_end",
+        "converged",
+        "identified",
+        "parameters_known",
+        "haptic_enabled",
+        "haptic_disabled",
+        "teleop",
+        "teleop_engaged",
+        "teleop_calibrated",
+        "haptic_rearmed",
+        "overrun_summary",
+    }
+)
+"""Event kinds that are the session's ordinary course; every other kind is a fault or a fail-safe to look at."""
+
+
+def faults(events: list[Event]) -> list[Event]:
+    """The events an instructor should look at: faults, fail-safes, errors (not the session's ordinary course)."""
+    return [e for e in events if e.kind not in ROUTINE_EVENTS]
+
+
+def _round(x: float | None, digits: int = 3) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(x, digits)

@@ -1,0 +1,164 @@
+"""The skill metrics of one recording, gathered as the review streams it (``skill.py`` computes them).
+
+:class:`SkillFold` takes the primary estimator's ‖contact force‖ a chunk at a time (full rate: the force–time
+integral, the time in the task's force band; and 10 ms bin means, :data:`BIN_S`, for the force's derivative,
+SPARC and the excessive-force events), the robot's targets (``/robot/target``: the path, the time following,
+holding and clutching, the place of each mark) and the master's buttons (``/haptic/state``: the marks).
+Memory: a few floats per 10 ms (~3 MB an hour), whatever the sensor's rate.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from hapticlab.sessions.review import skill
+from hapticlab.sessions.review.figures import MERGE_GAP_S, Contact
+
+BIN_S = 0.01
+"""The force profile the derivative and SPARC read: 10 ms means (100 Hz; SPARC looks below 10 Hz)."""
+
+
+class SkillFold:
+    """Running figures for :func:`skill.*` (``add_force``, ``add_targets``, ``add_states``; then ``finish``).
+
+    Args:
+        t0_ns: the session's start, ns.
+        force_limit: the limit excessive-force events are counted above, N.
+        band: [low, high] N of the force band the time in band counts (retraction), or None.
+        mark_button: the button bit whose presses are marks (palpation), or -1.
+    """
+
+    period_s = 1e-3
+    """The sensor's period, s (each sample holds for one): set by the review once it knows it."""
+
+    def __init__(self, t0_ns: int, force_limit: float, band=None, mark_button: int = -1):
+        self.t0, self.force_limit = t0_ns, force_limit
+        self.band, self.mark_bit = band, mark_button
+        self.bins: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (bin index, sum, count) per chunk
+        self.fti = 0.0  # N·s in contact
+        self.in_band_s = 0.0
+        self.path_m = 0.0
+        self.mode_s = {"following": 0.0, "holding": 0.0, "clutching": 0.0}
+        self.last_target: tuple[int, np.ndarray, str] | None = None  # (t_ns, p, mode)
+        self.first_following: tuple[int, np.ndarray] | None = None
+        self.targets: list[tuple[float, np.ndarray]] = []  # (t s, p) every BIN_S, for the tracing error
+        self.buttons = 0
+        self.marks_ns: list[int] = []
+
+    def add_force(self, t_ns: np.ndarray, force: np.ndarray, contact: np.ndarray) -> None:
+        """The primary estimator's samples: stamps (ns), ‖contact force‖ (N) and its contact flag."""
+        force = np.where(np.isfinite(force), force, 0.0)
+        touching = force[contact]
+        self.fti += skill.force_time_integral(touching, self.period_s)
+        if self.band is not None:
+            low, high = self.band
+            self.in_band_s += float(np.count_nonzero((touching >= low) & (touching <= high))) * self.period_s
+        k = ((t_ns - self.t0) // round(BIN_S * 1e9)).astype(np.int64)
+        keys, where = np.unique(k, return_inverse=True)
+        self.bins.append((keys, np.bincount(where, weights=force), np.bincount(where).astype(float)))
+
+    def add_targets(self, batch: list[tuple[int, dict[str, Any]]]) -> None:
+        """``/robot/target`` messages, in order: the path, the time per mode, the flange where marks fall."""
+        for t_ns, m in batch:
+            p = np.asarray((m.get("pose") or {}).get("p_BoEo_B") or (math.nan,) * 3, dtype=float)
+            mode = str(m.get("mode", ""))
+            if mode == "holding" and str(m.get("reason", "")).startswith("clutch"):
+                mode = "clutching"
+            if self.last_target is not None:
+                t_last, p_last, mode_last = self.last_target
+                if mode_last in self.mode_s:
+                    self.mode_s[mode_last] += (t_ns - t_last) / 1e9
+                step = float(np.linalg.norm(p - p_last))
+                self.path_m += step if math.isfinite(step) else 0.0
+            if mode == "following" and self.first_following is None:
+                self.first_following = (t_ns, p)
+            if not self.targets or (t_ns - self.t0) / 1e9 - self.targets[-1][0] >= BIN_S:
+                self.targets.append(((t_ns - self.t0) / 1e9, p))
+            self.last_target = (t_ns, p, mode)
+
+    def add_states(self, batch: list[tuple[int, dict[str, Any]]]) -> None:
+        """``/haptic/state`` messages, in order: each press (an edge) of the mark button is a mark."""
+        if self.mark_bit < 0:
+            return
+        bit = 1 << self.mark_bit
+        for t_ns, m in batch:
+            buttons = int(m.get("buttons") or 0)
+            if buttons & bit and not self.buttons & bit:
+                self.marks_ns.append(t_ns)
+            self.buttons = buttons
+
+    def _marks(self) -> list[tuple[float, np.ndarray]]:
+        """Each mark: (t s, the flange's target then, m in B: the newest target at or before it)."""
+        if not self.targets:
+            return []
+        t = np.array([t for t, _ in self.targets])
+        out = []
+        for t_ns in self.marks_ns:
+            t_s = (t_ns - self.t0) / 1e9
+            out.append((t_s, self.targets[max(0, int(np.searchsorted(t, t_s, side="right")) - 1)][1]))
+        return out
+
+    def profile(self) -> np.ndarray:
+        """The 10 ms means of ‖contact force‖ over the session (N; NaN where no sample fell)."""
+        if not self.bins:
+            return np.zeros(0)
+        keys = np.concatenate([b[0] for b in self.bins])
+        total = np.zeros(int(keys.max()) + 1)
+        count = np.zeros_like(total)
+        for k, s, c in self.bins:
+            np.add.at(total, k, s)
+            np.add.at(count, k, c)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return total / count
+
+    def finish(self, contacts: list[Contact], contact_s: float, over_limit_s: float) -> dict[str, Any]:
+        """The metrics (keys of ``skill_names``, but the task's score) and what the task's score reads."""
+        mean = self.profile()
+        t_bins = (np.arange(len(mean)) + 0.5) * BIN_S
+        rates, smooth, weights = [], [], []
+        for c in contacts:
+            seg = mean[int(c.start_s / BIN_S) : math.ceil((c.start_s + c.duration_s) / BIN_S)]
+            seg = seg[np.isfinite(seg)]
+            rates.append(skill.force_rate(seg, BIN_S))
+            smooth.append(skill.sparc(seg, 1.0 / BIN_S))
+            weights.append(c.duration_s)
+        events = skill.excess_force_events(t_bins, np.nan_to_num(mean), self.force_limit, MERGE_GAP_S)
+        start_s = (self.first_following[0] - self.t0) / 1e9 if self.first_following else None
+        if start_s is None and contacts:
+            start_s = contacts[0].start_s
+        end = max((c.start_s + c.duration_s for c in contacts), default=None)
+        return {
+            "task_time_s": end - start_s if end is not None and start_s is not None and end > start_s else None,
+            "force_time_integral_Ns": self.fti,
+            "mean_force_rate_N_s": _weighted([r[0] for r in rates], weights),
+            "max_force_rate_N_s": _finite_max([r[1] for r in rates]),
+            "sparc": _weighted(smooth, weights),
+            "excess_force_events": len(events),
+            "excess_force_time_s": over_limit_s,
+            "contact_time_s": contact_s,
+            "path_length_m": self.path_m if self.last_target is not None else None,
+            "following_time_s": self.mode_s["following"] if self.last_target is not None else None,
+            "holding_time_s": self.mode_s["holding"] if self.last_target is not None else None,
+            "clutching_time_s": self.mode_s["clutching"] if self.last_target is not None else None,
+            "events": events,
+            "in_band_s": self.in_band_s,
+            "start_s": start_s,
+            "first_p": None if self.first_following is None else self.first_following[1],
+            "marks": self._marks(),
+            "targets": self.targets,
+            "contacts": [(c.start_s, c.start_s + c.duration_s) for c in contacts],
+        }
+
+
+def _weighted(values: list[float], weights: list[float]) -> float | None:
+    pairs = [(v, w) for v, w in zip(values, weights, strict=True) if math.isfinite(v) and w > 0]
+    total = sum(w for _, w in pairs)
+    return sum(v * w for v, w in pairs) / total if total > 0 else None
+
+
+def _finite_max(values: list[float]) -> float | None:
+    finite = [v for v in values if math.isfinite(v)]
+    return max(finite) if finite else None

@@ -127,10 +127,11 @@ def review_session(args: argparse.Namespace) -> int:
 
 
 def review_cohort(args: argparse.Namespace) -> int:
-    from hapticlab.sessions.review.cohort import COLUMNS, cohort_page, csv_text, review_folder, rows_of
+    from hapticlab.sessions.review.cohort import COLUMNS, csv_text, review_folder, rows_of
+    from hapticlab.sessions.review.cohort_page import cohort_page
 
     if args.plots:
-        raise UserError("--plots: one session's figures; the cohort's progress plot is in --html")
+        raise UserError("--plots: one session's figures; the cohort's learning curves are in --html")
     if args.workers is not None and args.workers < 1:
         raise UserError(f"--workers: at least 1, got {args.workers}")
     html = check_output(args.html, args.force, label="--html") if args.html else None
@@ -138,23 +139,23 @@ def review_cohort(args: argparse.Namespace) -> int:
     run = review_folder(
         args.input, args.force_limit, scheduler=args.scheduler, workers=args.workers, progress=err.is_terminal
     )
-    rows = {r["recording"]: r for r in rows_of(run)}
     shown = (
         "trainee",
         "task",
         "date",
         "duration_s",
         "contacts",
+        "task_score",
         "peak_force_N",
-        "over_limit_s",
+        "excess_force_events",
         "estimator",
-        "converged_s",
+        "parameters_known_s",
     )
 
     def row(value) -> list[str]:
         return [
             "–"
-            if value[c] is None or value[c] == ""
+            if value.get(c) is None or value.get(c) == ""
             else (fmt(value[c], 2) if isinstance(value[c], float) else str(value[c]))
             for c in shown
         ]
@@ -166,7 +167,7 @@ def review_cohort(args: argparse.Namespace) -> int:
         shown,
         row,
     )
-    ordered = list(rows.values())
+    ordered = rows_of(run)  # task, trainee, session: the CSV's and the page's order
     if out_csv is not None:
         write_text(out_csv, csv_text(ordered), args.force, label="--csv")
         err.print(f"wrote {out_csv} ({len(ordered)} rows, columns {', '.join(COLUMNS)})")
@@ -195,7 +196,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "review",
         help="review a recorded session (summary, tables, plots, HTML) or a folder of them "
-        "(a cohort: one row per session, CSV, HTML with progress per trainee)",
+        "(a cohort: one row per session, CSV, HTML with learning curves per trainee and task)",
     )
     p.add_argument("input", help="a session's .mcap, or a folder of them (a cohort)")
     p.add_argument(

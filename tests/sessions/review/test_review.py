@@ -321,8 +321,13 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
     assert int(rows[0]["contacts"]) == len(alone.contacts) == 3
     assert float(rows[0]["peak_force_N"]) == pytest.approx(alone.peak_force_N, abs=1e-3)
     assert float(rows[1]["duration_s"]) == pytest.approx(8.0, abs=0.01) and int(rows[1]["contacts"]) == 1
+    assert [r["session"] for r in rows] == ["1", "1"]  # each trainee's first session of the task
+    known = next(e for e in alone.events if e.kind == "parameters_known")  # the gate's, not kalman's first flag
+    assert float(rows[0]["parameters_known_s"]) == pytest.approx(alone.t_s(known.t_ns), abs=1e-3)
+    assert alone.t_s(known.t_ns) > 1.0 > alone.primary.converged_force_s  # 0.00 in the old converged_s
     page = html.read_text()
     assert 'id="cohort"' in page and 'id="refused"' in page and page.count("data:image/png;base64,") == 1
+    assert "2 session(s), 2 trainee(s), 1 task(s)" in page
 
 
 def test_a_teleoperation_review_shows_the_haptic_port_s_energy_and_damping(tmp_path, long_session):

@@ -108,6 +108,10 @@ def review_session(args: argparse.Namespace) -> int:
     plots = check_plots_folder(args.plots, args.force, patterns=[f"{n}.png" for n in PLOTS]) if args.plots else None
     if args.csv:
         raise UserError("--csv: a cohort's table; give a folder of recordings (hapticlab review DIR/ --csv FILE)")
+    if args.parquet:
+        raise UserError(
+            "--parquet: a cohort's table; give a folder of recordings (hapticlab review DIR/ --parquet FILE)"
+        )
     with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(f"reviewing {Path(args.input).name}", total=1.0)
         r = review(
@@ -127,7 +131,7 @@ def review_session(args: argparse.Namespace) -> int:
 
 
 def review_cohort(args: argparse.Namespace) -> int:
-    from hapticlab.sessions.review.cohort import COLUMNS, csv_text, review_folder, rows_of
+    from hapticlab.sessions.review.cohort import COLUMNS, PARQUET_MISSING, csv_text, review_folder, rows_of
     from hapticlab.sessions.review.cohort_page import cohort_page
 
     if args.plots:
@@ -136,6 +140,12 @@ def review_cohort(args: argparse.Namespace) -> int:
         raise UserError(f"--workers: at least 1, got {args.workers}")
     html = check_output(args.html, args.force, label="--html") if args.html else None
     out_csv = check_output(args.csv, args.force, label="--csv") if args.csv else None
+    parquet = check_output(args.parquet, args.force, label="--parquet") if args.parquet else None
+    if parquet is not None:
+        try:
+            import pyarrow.parquet  # noqa: F401  (asked before the work, not after it)
+        except ImportError:
+            raise UserError(PARQUET_MISSING) from None
     run = review_folder(
         args.input, args.force_limit, scheduler=args.scheduler, workers=args.workers, progress=err.is_terminal
     )
@@ -167,10 +177,15 @@ def review_cohort(args: argparse.Namespace) -> int:
         shown,
         row,
     )
-    ordered = rows_of(run)  # task, trainee, session: the CSV's and the page's order
+    ordered = rows_of(run)  # task, trainee, session: the CSV's, the Parquet file's and the page's order
     if out_csv is not None:
         write_text(out_csv, csv_text(ordered), args.force, label="--csv")
         err.print(f"wrote {out_csv} ({len(ordered)} rows, columns {', '.join(COLUMNS)})")
+    if parquet is not None:
+        from hapticlab.sessions.review.cohort import write_parquet
+
+        write_parquet(parquet, ordered, args.force)
+        err.print(f"wrote {parquet} ({len(ordered)} rows, the CSV's columns)")
     if html is not None:
         refused = [(str(o.path.relative_to(args.input)), o.error) for o in run.outcomes if o.error]
         write_text(html, cohort_page(ordered, f"Cohort review: {args.input}", refused), args.force, label="--html")
@@ -196,7 +211,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "review",
         help="review a recorded session (summary, tables, plots, HTML) or a folder of them "
-        "(a cohort: one row per session, CSV, HTML with learning curves per trainee and task)",
+        "(a cohort: one row per session, CSV, Parquet, HTML with learning curves per trainee and task)",
     )
     p.add_argument("input", help="a session's .mcap, or a folder of them (a cohort)")
     p.add_argument(
@@ -204,6 +219,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--plots", default=None, metavar="DIR", help="write the session's plots as PNG into DIR")
     p.add_argument("--csv", default=None, metavar="FILE.csv", help="a cohort: write its table as CSV")
+    p.add_argument(
+        "--parquet",
+        default=None,
+        metavar="FILE.parquet",
+        help="a cohort: write the CSV's table as Parquet, typed (pandas, DuckDB; needs hapticlab[parquet])",
+    )
     p.add_argument(
         "--force-limit",
         type=float,

@@ -6,7 +6,8 @@ default, an existing Dask cluster with ``scheduler``) and keeps each
 session's row (:meth:`~.summary.SessionReview.row`). :func:`rows_of` numbers
 each trainee's sessions of a task (``session``: 1, 2, ... in date order) and
 orders the rows by task, trainee, session: the order of the CSV
-(:func:`csv_text`) and the HTML page's tables (``cohort_page.py``). A session without a trainee is kept apart: not a
+(:func:`csv_text`), the Parquet file (:func:`write_parquet`) and the HTML page's
+tables (``cohort_page.py``). A session without a trainee is kept apart: not a
 trainee, not a learning curve, numbered among the task's other unnamed sessions.
 """
 
@@ -43,8 +44,12 @@ COLUMNS = (
     "faults",
     "complete",
 )
-"""The cohort's columns (CSV header), in order; each number's unit ends its name
+"""The cohort's columns (CSV header, Parquet schema), in order; each number's unit ends its name
 (``_s``, ``_N``, ...), except ``task_score`` (%), ``sparc`` (no unit) and the counts."""
+
+TEXT = frozenset({"recording", "trainee", "task", "date", "estimator"})
+INTEGER = frozenset({"session", "contacts", "lost_samples", "faults", "excess_force_events"})
+"""Columns of whole numbers (Parquet int64); ``complete`` is a bool; every other number a float64."""
 
 
 def parameters_known_s(r: SessionReview) -> float | None:
@@ -140,3 +145,36 @@ def csv_text(rows: Sequence[dict[str, Any]]) -> str:
     for row in rows:
         writer.writerow({k: "" if row.get(k) is None else row[k] for k in COLUMNS})
     return out.getvalue()
+
+
+PARQUET_MISSING = "--parquet: needs pyarrow; pip install 'hapticlab[parquet]'"
+
+
+def parquet_table(rows: Sequence[dict[str, Any]]):
+    """The rows as a ``pyarrow.Table``: the CSV's columns in its order, typed (text, int64, float64, bool; an
+    unknown value null). Raises ImportError without pyarrow (an optional extra: ``hapticlab[parquet]``)."""
+    import pyarrow as pa
+
+    def kind(column: str):
+        if column in TEXT:
+            return pa.string()
+        if column in INTEGER:
+            return pa.int64()
+        return pa.bool_() if column == "complete" else pa.float64()
+
+    return pa.table(
+        {c: pa.array([row.get(c) for row in rows], type=kind(c)) for c in COLUMNS},
+        schema=pa.schema([(c, kind(c)) for c in COLUMNS]),
+    )
+
+
+def write_parquet(path: str | os.PathLike[str], rows: Sequence[dict[str, Any]], force: bool = False) -> Path:
+    """Write :func:`parquet_table` to ``path`` (through ``atomic_output``: refused if it exists, unless force)."""
+    import pyarrow.parquet as pq
+
+    from hapticlab.sessions.output import atomic_output
+
+    table = parquet_table(rows)
+    with atomic_output(path, force, label="--parquet") as tmp:
+        pq.write_table(table, str(tmp))
+    return Path(path)

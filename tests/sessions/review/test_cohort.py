@@ -1,4 +1,4 @@
-"""A cohort's rows, CSV, learning curves and page (rows built here, no recording needed); the
+"""A cohort's rows, CSV, Parquet file, learning curves and page (rows built here, no recording needed); the
 page in headless Chromium at 1400 and 400 px, nothing cut off. The whole command on recordings is in
 test_review.py (a cohort on a Dask cluster)."""
 
@@ -10,14 +10,18 @@ import io
 import json
 import re
 import shutil
+import sys
 from html.parser import HTMLParser
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from hapticlab.core.types import Event
+from hapticlab.sessions.cli import main
+from hapticlab.sessions.output import OutputExistsError
 from hapticlab.sessions.review import learning
-from hapticlab.sessions.review.cohort import COLUMNS, csv_text, numbered, parameters_known_s
+from hapticlab.sessions.review.cohort import COLUMNS, csv_text, numbered, parameters_known_s, write_parquet
 from hapticlab.sessions.review.cohort_page import cohort_page
 from hapticlab.sessions.review.skill_names import KEYS, METRICS
 
@@ -122,6 +126,42 @@ def test_the_csv_and_the_page_have_the_same_rows_in_the_same_order_and_metrics_w
     assert shown == [[r["trainee"] or "(no trainee)", r["session"]] for r in table]
     peak = tables["task-1-forces"][1][2]
     assert peak == f"{float(table[0]['peak_force_N']):.2f}"
+
+
+def test_the_parquet_file_reads_back_as_the_csv(tmp_path):
+    import pyarrow.parquet as pq
+
+    rows = numbered(cohort_rows())
+    path = write_parquet(tmp_path / "cohort.parquet", rows)
+    back = pq.read_table(path)
+    table = list(csv.DictReader(io.StringIO(csv_text(rows))))
+    assert back.column_names == list(COLUMNS) and back.num_rows == len(table)
+    assert str(back.schema.field("session").type) == "int64" and str(back.schema.field("sparc").type) == "double"
+    for row, got in zip(table, back.to_pylist()):
+        for column in COLUMNS:
+            value = got[column]
+            assert ("" if value is None else str(value)) == row[column], column
+    with pytest.raises(OutputExistsError):
+        write_parquet(tmp_path / "cohort.parquet", rows)
+    write_parquet(tmp_path / "cohort.parquet", rows[:3], force=True)
+    assert pq.read_table(tmp_path / "cohort.parquet").num_rows == 3
+
+
+def test_parquet_without_pyarrow_or_over_a_file_is_one_line_and_status_2(tmp_path, capsys, monkeypatch):
+    folder = tmp_path / "cohort"
+    folder.mkdir()
+    (tmp_path / "old.parquet").write_bytes(b"PAR1")
+    assert main(["review", str(folder), "--parquet", str(tmp_path / "old.parquet")]) == 2
+    assert "already exists" in capsys.readouterr().err
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow raises ImportError
+    monkeypatch.setitem(sys.modules, "pyarrow.parquet", None)
+    assert main(["review", str(folder), "--parquet", str(tmp_path / "new.parquet")]) == 2
+    err = capsys.readouterr().err
+    assert "pip install 'hapticlab[parquet]'" in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "new.parquet").exists()
+    (tmp_path / "one.mcap").write_bytes(b"")
+    assert main(["review", str(tmp_path / "one.mcap"), "--parquet", str(tmp_path / "new.parquet")]) == 2
+    assert "--parquet: a cohort's table" in capsys.readouterr().err  # one session has no cohort table
 
 
 def test_parameters_known_is_the_gates_event_not_the_estimators_first_flag():

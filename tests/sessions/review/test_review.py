@@ -298,7 +298,7 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
         "world.seed=5",
     )
     (folder / "broken.mcap").write_text("not a recording\n")
-    out_csv, html = tmp_path / "cohort.csv", tmp_path / "cohort.html"
+    out_csv, html, parquet = tmp_path / "cohort.csv", tmp_path / "cohort.html", tmp_path / "cohort.parquet"
     with LocalCluster(n_workers=dask_workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         status = main(
             [
@@ -308,6 +308,8 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
                 str(out_csv),
                 "--html",
                 str(html),
+                "--parquet",
+                str(parquet),
                 "--scheduler",
                 cluster.scheduler_address,
             ]
@@ -325,6 +327,9 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
     known = next(e for e in alone.events if e.kind == "parameters_known")  # the gate's, not kalman's first flag
     assert float(rows[0]["parameters_known_s"]) == pytest.approx(alone.t_s(known.t_ns), abs=1e-3)
     assert alone.t_s(known.t_ns) > 1.0 > alone.primary.converged_force_s  # 0.00 in the old converged_s
+    import pyarrow.parquet as pq
+
+    assert pq.read_table(parquet).to_pydict()["recording"] == ["t07-1.mcap", "t08/t08-1.mcap"]
     page = html.read_text()
     assert 'id="cohort"' in page and 'id="refused"' in page and page.count("data:image/png;base64,") == 1
     assert "2 session(s), 2 trainee(s), 1 task(s)" in page

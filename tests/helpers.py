@@ -5,6 +5,7 @@ command line's one-line error is checked."""
 
 from __future__ import annotations
 
+import html as html_module
 import warnings
 from pathlib import Path
 
@@ -175,3 +176,70 @@ def one_line_error(capsys, argv: list[str]) -> str:
     problem, line = cli_error(capsys, argv)
     assert problem is None, (problem, line)
     return line
+
+
+FIT_CHECK = """<script>
+window.addEventListener("load", () => {
+  const page = document.documentElement, width = page.clientWidth, bad = [];
+  if (page.scrollWidth > width) bad.push(`the page is ${page.scrollWidth} px wide`);
+  for (const el of document.querySelectorAll("h1, h2, p, img, table, .fit")) {
+    const box = el.closest(".fit"), r = (box || el).getBoundingClientRect();
+    const name = el.tagName + (el.id ? "#" + el.id : "");
+    if (r.left < -0.5 || r.right > width + 0.5) bad.push(`${name} spans ${r.left}-${r.right} px`);
+    if (el.tagName === "IMG" && !(el.naturalWidth > 0 && el.getBoundingClientRect().width > 100)) bad.push(name);
+  }
+  const scrolled = [];
+  for (const box of document.querySelectorAll(".fit")) {
+    if (box.scrollWidth <= box.clientWidth + 1) continue;
+    scrolled.push(box.firstElementChild.id);
+    if (!["auto", "scroll"].includes(getComputedStyle(box).overflowX)) bad.push(`${box.firstElementChild.id} cut`);
+  }
+  const out = parent.document.createElement("pre");  // in the frame's parent, the page --dump-dom prints
+  out.id = "fit-check";
+  out.textContent = JSON.stringify({width, bad, scrolled});
+  parent.document.body.append(out);
+});
+</script>"""
+
+
+def _framed(page: str, width: int, script: str = "") -> str:
+    """The page in a ``width`` px wide frame (headless Chromium's window is 500 px at least), ``script`` in it."""
+    inner = html_module.escape(page.replace("</body>", script + "</body>"), quote=True)
+    return (
+        "<!DOCTYPE html><html><body style='margin:0'>"
+        f"<iframe style='border:0;display:block' width={width} height=3000 srcdoc=\"{inner}\"></iframe></body></html>"
+    )
+
+
+def chromium_fit(chromium: str, page: str, width: int, folder: Path, run_command) -> dict:
+    """A review page (HTML text) in headless Chromium at ``width`` px: asserts nothing is cut off (the page never
+    wider than the window; every heading, paragraph, image and table box inside it; a box that scrolls, a
+    ``fit`` box that may) and that its screenshot is drawn, with text; returns the check (``width``, ``bad``,
+    ``scrolled``: the tables that scroll in their box)."""
+    import json
+    import re
+
+    import matplotlib.image
+
+    flags = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"]
+    flags.append(f"--user-data-dir={folder / 'profile'}")
+    checked, shown = folder / f"checked-{width}.html", folder / f"page-{width}.html"
+    checked.write_text(_framed(page, width, FIT_CHECK))
+    shown.write_text(_framed(page, width))
+    dom = run_command(
+        [*flags, "--window-size=1500,3100", "--dump-dom", checked.as_uri()], "chromium --dump-dom", timeout=120
+    ).stdout
+    found = re.search(r'<pre id="fit-check">(.*?)</pre>', dom)
+    assert found, dom[-500:]
+    check = json.loads(found.group(1).replace("&quot;", '"'))
+    assert width - 30 < check["width"] <= width and check["bad"] == [], check
+    shot = folder / f"page-{width}.png"
+    done = run_command(
+        [*flags, f"--window-size={width},3000", f"--screenshot={shot}", shown.as_uri()],
+        "chromium --screenshot",
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    pixels = matplotlib.image.imread(shot)[..., :3]
+    assert pixels.shape[1] == width and pixels.std() > 0.05 and (pixels < 0.5).mean() > 0.01  # drawn, with text
+    return check

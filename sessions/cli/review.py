@@ -120,6 +120,10 @@ def review_session(args: argparse.Namespace) -> int:
         raise UserError(f"--cohort: {args.cohort}: not a folder of recordings")
     if args.csv:
         raise UserError("--csv: a cohort's table; give a folder of recordings (hapticlab review DIR/ --csv FILE)")
+    if args.parquet:
+        raise UserError(
+            "--parquet: a cohort's table; give a folder of recordings (hapticlab review DIR/ --parquet FILE)"
+        )
     with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(f"reviewing {Path(args.input).name}", total=1.0)
         r = review(
@@ -204,36 +208,43 @@ def review_json(r, medians: dict | None = None) -> dict:
 
 
 def review_cohort(args: argparse.Namespace) -> int:
-    from hapticlab.sessions.review.cohort import COLUMNS, cohort_page, csv_text, review_folder, rows_of
+    from hapticlab.sessions.review.cohort import COLUMNS, PARQUET_MISSING, csv_text, review_folder, rows_of
+    from hapticlab.sessions.review.cohort_page import cohort_page
 
     if args.plots:
-        raise UserError("--plots: one session's figures; the cohort's progress plot is in --html")
+        raise UserError("--plots: one session's figures; the cohort's learning curves are in --html")
     if args.json or args.cohort:
         raise UserError("--json and --cohort: for one session (hapticlab review REC.mcap --json OUT --cohort DIR)")
     if args.workers is not None and args.workers < 1:
         raise UserError(f"--workers: at least 1, got {args.workers}")
     html = check_output(args.html, args.force, label="--html") if args.html else None
     out_csv = check_output(args.csv, args.force, label="--csv") if args.csv else None
+    parquet = check_output(args.parquet, args.force, label="--parquet") if args.parquet else None
+    if parquet is not None:
+        try:
+            import pyarrow.parquet  # noqa: F401  (asked before the work, not after it)
+        except ImportError:
+            raise UserError(PARQUET_MISSING) from None
     run = review_folder(
         args.input, args.force_limit, scheduler=args.scheduler, workers=args.workers, progress=err.is_terminal
     )
-    rows = {r["recording"]: r for r in rows_of(run)}
     shown = (
         "trainee",
         "task",
         "date",
         "duration_s",
         "contacts",
+        "task_score",
         "peak_force_N",
-        "over_limit_s",
+        "excess_force_events",
         "estimator",
-        "converged_s",
+        "parameters_known_s",
     )
 
     def row(value) -> list[str]:
         return [
             "–"
-            if value[c] is None or value[c] == ""
+            if value.get(c) is None or value.get(c) == ""
             else (fmt(value[c], 2) if isinstance(value[c], float) else str(value[c]))
             for c in shown
         ]
@@ -246,10 +257,15 @@ def review_cohort(args: argparse.Namespace) -> int:
         shown,
         row,
     )
-    ordered = list(rows.values())
+    ordered = rows_of(run)  # task, trainee, session: the CSV's, the Parquet file's and the page's order
     if out_csv is not None:
         write_text(out_csv, csv_text(ordered), args.force, label="--csv")
         err.print(f"wrote {out_csv} ({len(ordered)} rows, columns {', '.join(COLUMNS)})")
+    if parquet is not None:
+        from hapticlab.sessions.review.cohort import write_parquet
+
+        write_parquet(parquet, ordered, args.force)
+        err.print(f"wrote {parquet} ({len(ordered)} rows, the CSV's columns)")
     if html is not None:
         refused = [(str(o.path.relative_to(args.input)), o.error) for o in run.outcomes if o.error]
         write_text(html, cohort_page(ordered, f"Cohort review: {args.input}", refused), args.force, label="--html")
@@ -275,7 +291,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "review",
         help="review a recorded session (summary, tables, plots, HTML) or a folder of them "
-        "(a cohort: one row per session, CSV, HTML with progress per trainee)",
+        "(a cohort: one row per session, CSV, Parquet, HTML with learning curves per trainee and task)",
     )
     p.add_argument("input", help="a session's .mcap, or a folder of them (a cohort)")
     p.add_argument(
@@ -294,6 +310,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="DIR",
         help="one session: show the median of DIR's sessions of the same task beside each metric",
+    )
+    p.add_argument(
+        "--parquet",
+        default=None,
+        metavar="FILE.parquet",
+        help="a cohort: write the CSV's table as Parquet, typed (pandas, DuckDB; needs hapticlab[parquet])",
     )
     p.add_argument(
         "--force-limit",

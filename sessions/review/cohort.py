@@ -3,11 +3,12 @@
 :func:`review_folder` runs :func:`~.summary.review` (without plots) over each
 recording on ``offline.folders.map_recordings`` (local worker processes by
 default, an existing Dask cluster with ``scheduler``) and keeps each
-session's row (:meth:`~.summary.SessionReview.row`): trainee, task, date,
-duration, contacts, peak force, time over the limit, estimator, convergence.
-The rows become a CSV (:func:`csv_text`), an HTML page with each trainee's
-progress plotted across their sessions (:func:`cohort_page`), or the
-terminal's table.
+session's row (:meth:`~.summary.SessionReview.row`). :func:`rows_of` numbers
+each trainee's sessions of a task (``session``: 1, 2, ... in date order) and
+orders the rows by task, trainee, session: the order of the CSV
+(:func:`csv_text`), the Parquet file (:func:`write_parquet`) and the HTML page's
+tables (``cohort_page.py``). A session without a trainee is kept apart: not a
+trainee, not a learning curve, numbered among the task's other unnamed sessions.
 """
 
 from __future__ import annotations
@@ -21,26 +22,34 @@ from pathlib import Path
 from typing import Any
 
 from hapticlab.sessions.offline.folders import FolderRun, map_recordings, recordings_in
+from hapticlab.sessions.review.skill_names import KEYS
 from hapticlab.sessions.review.summary import review
+
+NO_TRAINEE = "(no trainee)"
+"""How the page names the sessions recorded without a trainee (the CSV leaves ``trainee`` empty)."""
 
 COLUMNS = (
     "recording",
     "trainee",
     "task",
+    "session",
     "date",
+    *KEYS,
     "duration_s",
     "contacts",
-    "peak_force_N",
-    "over_limit_s",
-    "contact_s",
     "force_limit_N",
     "estimator",
-    "converged_s",
+    "parameters_known_s",
     "lost_samples",
     "faults",
     "complete",
 )
-"""The cohort's columns (CSV header), in order."""
+"""The cohort's columns (CSV header, Parquet schema), in order; each number's unit ends its name
+(``_s``, ``_N``, ...), except ``task_score`` (%), ``sparc`` (no unit) and the counts."""
+
+TEXT = frozenset({"recording", "trainee", "task", "date", "estimator"})
+INTEGER = frozenset({"session", "contacts", "lost_samples", "faults", "excess_force_events"})
+"""Columns of whole numbers (Parquet int64); ``complete`` is a bool; every other number a float64."""
 
 
 def review_row(path: Path, force_limit: float | None = None) -> dict[str, Any]:
@@ -79,13 +88,41 @@ def review_folder(
 
 
 def rows_of(run: FolderRun) -> list[dict[str, Any]]:
-    """The rows of the sessions that were reviewed, in date order (then path)."""
-    rows = [o.value for o in run.outcomes if o.value is not None]
-    return sorted(rows, key=lambda r: (r["date"], r["recording"]))
+    """The rows of the sessions that were reviewed, numbered and ordered (:func:`numbered`)."""
+    return numbered([o.value for o in run.outcomes if o.value is not None])
+
+
+def numbered(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows (copies) with ``session``, ordered by task, trainee (the unnamed last), session.
+
+    ``session`` is the trainee's n-th session of that task (1-based, by date, then path): a learning
+    curve's x. Numbered per task because a curve compares attempts at the same task; a trainee's
+    sessions of another task would leave gaps in it. The unnamed sessions of a task are numbered
+    among themselves (so the column stays an integer), and drawn apart.
+    """
+    by_date = sorted(rows, key=lambda r: (r.get("date") or "", r.get("recording") or ""))
+    counts: dict[tuple[str, str], int] = {}
+    out = []
+    for row in by_date:
+        key = (row.get("task") or "", row.get("trainee") or "")
+        counts[key] = counts.get(key, 0) + 1
+        out.append({**row, "session": counts[key]})
+    return sorted(out, key=order)
+
+
+def order(row: dict[str, Any]) -> tuple:
+    """The cohort's row order: task (the unnamed task last), trainee (the unnamed last), session."""
+    task, trainee = row.get("task") or "", row.get("trainee") or ""
+    return (not task, task, not trainee, trainee, row["session"], row.get("recording") or "")
+
+
+def trainee_of(row: dict[str, Any]) -> str:
+    """The trainee's name, or :data:`NO_TRAINEE`."""
+    return row.get("trainee") or NO_TRAINEE
 
 
 def csv_text(rows: Sequence[dict[str, Any]]) -> str:
-    """The rows as CSV (header :data:`COLUMNS`; an unknown value empty)."""
+    """The rows as CSV (header :data:`COLUMNS`; an unknown value empty), in the order given."""
     out = io.StringIO()
     writer = csv.DictWriter(out, COLUMNS, lineterminator="\n")
     writer.writeheader()
@@ -94,58 +131,34 @@ def csv_text(rows: Sequence[dict[str, Any]]) -> str:
     return out.getvalue()
 
 
-def progress_png(rows: Sequence[dict[str, Any]]) -> bytes:
-    """Each trainee's sessions in date order: peak contact force and time over the limit, one line per trainee."""
-    import matplotlib
-
-    from hapticlab.sessions.review.plots import figure_png
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    by_trainee: dict[str, list[dict[str, Any]]] = {}
-    for row in rows:
-        by_trainee.setdefault(row["trainee"] or "(unnamed)", []).append(row)
-    for trainee, sessions in sorted(by_trainee.items()):
-        n = range(1, len(sessions) + 1)
-        axes[0].plot(
-            n,
-            [s["peak_force_N"] if s["peak_force_N"] is not None else float("nan") for s in sessions],
-            marker="o",
-            label=trainee,
-        )
-        axes[1].plot(n, [s["over_limit_s"] for s in sessions], marker="o", label=trainee)
-    limits = sorted({r["force_limit_N"] for r in rows})
-    if len(limits) == 1:
-        axes[0].axhline(limits[0], color="tab:red", linestyle="--", linewidth=1.0, label=f"limit {limits[0]:g} N")
-    axes[0].set_ylabel("peak contact force [N]")
-    axes[1].set_ylabel("time over the limit [s]")
-    axes[1].set_xlabel("the trainee's session (in date order)")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8, ncol=4)
-    fig.suptitle("Progress per trainee")
-    return figure_png(plt, fig)
+PARQUET_MISSING = "--parquet: needs pyarrow; pip install 'hapticlab[parquet]'"
 
 
-def cohort_page(rows: Sequence[dict[str, Any]], title: str, refused: Sequence[tuple[str, str]] = ()) -> str:
-    """The cohort as a self-contained HTML page: the table, the refused files, the progress plot."""
-    from hapticlab.sessions.review.page import _e, _img, document, table
+def parquet_table(rows: Sequence[dict[str, Any]]):
+    """The rows as a ``pyarrow.Table``: the CSV's columns in its order, typed (text, int64, float64, bool; an
+    unknown value null). Raises ImportError without pyarrow (an optional extra: ``hapticlab[parquet]``)."""
+    import pyarrow as pa
 
-    shown = [c for c in COLUMNS if c != "complete"]
-    body = [
-        f"<h1>{_e(title)}</h1>",
-        f"<p>{len(rows)} session(s), {len({r['trainee'] for r in rows})} trainee(s).</p>",
-        table(
-            shown, [[_e("" if r.get(c) is None else r[c]) for c in shown] for r in rows], id="cohort", text_columns=4
-        ),
-    ]
-    if refused:
-        body.append(
-            "<h2>Not reviewed</h2>"
-            + table(("recording", "why"), [(_e(p), _e(w)) for p, w in refused], id="refused", text_columns=2)
-        )
-    if rows:
-        body.append(f"<h2>Progress per trainee</h2>{_img(progress_png(rows), 'progress per trainee')}")
-    return document(title, "".join(body))
+    def kind(column: str):
+        if column in TEXT:
+            return pa.string()
+        if column in INTEGER:
+            return pa.int64()
+        return pa.bool_() if column == "complete" else pa.float64()
+
+    return pa.table(
+        {c: pa.array([row.get(c) for row in rows], type=kind(c)) for c in COLUMNS},
+        schema=pa.schema([(c, kind(c)) for c in COLUMNS]),
+    )
+
+
+def write_parquet(path: str | os.PathLike[str], rows: Sequence[dict[str, Any]], force: bool = False) -> Path:
+    """Write :func:`parquet_table` to ``path`` (through ``atomic_output``: refused if it exists, unless force)."""
+    import pyarrow.parquet as pq
+
+    from hapticlab.sessions.output import atomic_output
+
+    table = parquet_table(rows)
+    with atomic_output(path, force, label="--parquet") as tmp:
+        pq.write_table(table, str(tmp))
+    return Path(path)

@@ -1,5 +1,5 @@
 """The review pages' HTML parts: style, tables, embedded images (a session's report: ``report.py``; a cohort's:
-``cohort.py``), and the summary and paper's rows the terminal shows too.
+``cohort_page.py``), and the summary and paper's rows the terminal shows too.
 
 The plots are embedded as PNG data URIs and the style is inline, so the page
 is one file an instructor can mail, archive or open offline. Every text that
@@ -17,13 +17,18 @@ from hapticlab.sessions.review.figures import AXES
 from hapticlab.sessions.review.summary import SessionReview, faults
 
 STYLE = """
-body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1000px; color: #222; }
-h1 { font-size: 1.5em; } h2 { font-size: 1.15em; margin-top: 1.8em; border-bottom: 1px solid #ccc; }
+body { font-family: system-ui, sans-serif; margin: 2em auto; padding: 0 1em; max-width: 1000px; color: #222; }
+h1 { font-size: 1.5em; overflow-wrap: anywhere; }
+h2 { font-size: 1.15em; margin-top: 1.8em; border-bottom: 1px solid #ccc; }
 table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
 th { background: #f2f2f2; } td.text, th.text { text-align: left; }
-.warn { color: #b00; } img { max-width: 100%; } .notes { white-space: pre-wrap; background: #f8f8f8; padding: 0.6em; }
+.warn { color: #b00; } img { max-width: 100%; height: auto; }
+.notes { white-space: pre-wrap; background: #f8f8f8; padding: 0.6em; }
+.fit { max-width: 100%; overflow-x: auto; } .nowrap { white-space: nowrap; }
 """
+"""The pages' style. ``fit``: a table box no wider than the page, scrolling sideways on its own when a
+narrow window cannot hold the table (the page never does)."""
 
 
 def _e(value) -> str:
@@ -47,13 +52,19 @@ def table(header: Sequence[str], rows: Iterable[Sequence[str]], id: str = "", te
     return f"<table{attr}><thead><tr>{cells(header, 'th')}</tr></thead><tbody>{body}</tbody></table>"
 
 
+def fit(table_html: str) -> str:
+    """A table in a ``fit`` box (:data:`STYLE`): it fits the page, or scrolls inside the box on a phone."""
+    return f"<div class=fit>{table_html}</div>"
+
+
 def _img(png: bytes, alt: str) -> str:
     return f'<img alt="{_e(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode()}">'
 
 
 def document(title: str, body: str) -> str:
     return (
-        f"<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8><title>{_e(title)}</title>"
+        "<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8>"
+        f"<meta name=viewport content='width=device-width, initial-scale=1'><title>{_e(title)}</title>"
         f"<style>{STYLE}</style></head><body>{body}</body></html>\n"
     )
 

@@ -13,7 +13,7 @@ import math
 from typing import Any
 
 from hapticlab.sessions.review import plots
-from hapticlab.sessions.review.page import _e, _img, _num, document, error_rows, summary_rows, table
+from hapticlab.sessions.review.page import _e, _img, _num, document, error_rows, fit, summary_rows, table
 from hapticlab.sessions.review.session import SessionReview, faults
 from hapticlab.sessions.review.skill_names import METRICS
 from hapticlab.sessions.review.timeline import moments, timeline
@@ -108,16 +108,25 @@ def session_page(r: SessionReview, medians: dict[str, float] | None = None, coho
         if medians:
             row.append(_value(key, medians.get(key)))
         rows.append(row)
-    parts.append(table(header, rows, id="metrics"))
+    parts.append(fit(table(header, rows, id="metrics")))
     parts.append("<h2>Contacts</h2>")
     parts.append(
-        table(
-            ("#", "start [s]", "duration [s]", "peak [N]", "mean [N]", f"over {r.force_limit_N:g} N [s]"),
-            [
-                (str(i + 1), _num(c.start_s), _num(c.duration_s), _num(c.peak_N), _num(c.mean_N), _num(c.over_limit_s))
-                for i, c in enumerate(r.contacts)
-            ],
-            id="contacts",
+        fit(
+            table(
+                ("#", "start [s]", "duration [s]", "peak [N]", "mean [N]", f"over {r.force_limit_N:g} N [s]"),
+                [
+                    (
+                        str(i + 1),
+                        _num(c.start_s),
+                        _num(c.duration_s),
+                        _num(c.peak_N),
+                        _num(c.mean_N),
+                        _num(c.over_limit_s),
+                    )
+                    for i, c in enumerate(r.contacts)
+                ],
+                id="contacts",
+            )
         )
         if r.contacts
         else "<p>No contact.</p>"
@@ -126,8 +135,13 @@ def session_page(r: SessionReview, medians: dict[str, float] | None = None, coho
         parts.append("<p>Give <code>--cohort DIR</code> to see the cohort's median beside each metric.</p>")
     parts.append('<div class=appendix id="appendix"><h2>Appendix: the session and the machine</h2>')
     parts.append(
-        table(
-            ("measure", "value"), [(k, _e(v)) for k, v in _details(r) + summary_rows(r)], id="summary", text_columns=2
+        fit(
+            table(
+                ("measure", "value"),
+                [(k, _e(v)) for k, v in _details(r) + summary_rows(r)],
+                id="summary",
+                text_columns=2,
+            )
         )
     )
     parts.append(_engineering(r))
@@ -150,37 +164,41 @@ def _engineering(r: SessionReview) -> str:
     """The estimators, the paper's tables, the faults and every engineering plot."""
     parts = [
         "<h3>Estimators</h3>",
-        table(
-            ("estimator", "samples", "force converged [s]", "torque converged [s]", "converged at end"),
-            [
-                (
-                    _e(e.name),
-                    str(e.samples),
-                    _num(e.converged_force_s),
-                    _num(e.converged_torque_s),
-                    "yes" if e.converged_at_end else "<span class=warn>no</span>",
-                )
-                for e in r.estimators
-            ],
-            id="estimators",
+        fit(
+            table(
+                ("estimator", "samples", "force converged [s]", "torque converged [s]", "converged at end"),
+                [
+                    (
+                        _e(e.name),
+                        str(e.samples),
+                        _num(e.converged_force_s),
+                        _num(e.converged_torque_s),
+                        "yes" if e.converged_at_end else "<span class=warn>no</span>",
+                    )
+                    for e in r.estimators
+                ],
+                id="estimators",
+            )
         ),
     ]
     for e in r.estimators:
         parts.append(f"<h3>Compensation error, {_e(e.name)} (the paper's table; no contact, after convergence)</h3>")
         parts.append(
-            table(
-                (
-                    "axis",
-                    "MAE before",
-                    "Max AE before",
-                    "Std before",
-                    "MAE after",
-                    "Max AE after",
-                    "Std after",
-                    "MAE comp. %",
-                ),
-                error_rows(e),
-                id=f"errors-{_e(e.name)}",
+            fit(
+                table(
+                    (
+                        "axis",
+                        "MAE before",
+                        "Max AE before",
+                        "Std before",
+                        "MAE after",
+                        "Max AE after",
+                        "Std after",
+                        "MAE comp. %",
+                    ),
+                    error_rows(e),
+                    id=f"errors-{_e(e.name)}",
+                )
             )
             if e.table
             else "<p>Not scored: the estimator never converged, or no contact-free sample followed.</p>"
@@ -188,11 +206,13 @@ def _engineering(r: SessionReview) -> str:
     shown = faults(r.events)
     parts.append("<h3>Faults and fail-safes</h3>")
     parts.append(
-        table(
-            ("time [s]", "event", "message"),
-            [(_num(r.t_s(ev.t_ns)), _e(ev.kind), _e(ev.message)) for ev in shown],
-            id="events",
-            text_columns=3,
+        fit(
+            table(
+                ("time [s]", "event", "message"),
+                [(_num(r.t_s(ev.t_ns)), _e(ev.kind), _e(ev.message)) for ev in shown],
+                id="events",
+                text_columns=3,
+            )
         )
         if shown
         else "<p>None.</p>"

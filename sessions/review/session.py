@@ -82,27 +82,35 @@ class SessionReview:
         return next((e for e in self.estimators if e.name == self.estimator), None)
 
     def row(self) -> dict[str, Any]:
-        """The cohort's row: one line per session (CSV columns)."""
-        primary = self.primary
-        conv = primary.converged_force_s if primary else None
+        """The cohort's row: one line per session (the CSV's columns, ``cohort.COLUMNS``, but the session's index
+        among its trainee's, which only a cohort knows); ``review --json`` has the same keys."""
         return {
             "recording": str(self.path),
             "trainee": self.trainee,
             "task": self.task,
             "date": self.date,
+            **{k: _round(v, 6) if isinstance(v, float) else v for k, v in self.skill.items()},
             "duration_s": round(self.duration_s, 3),
             "contacts": len(self.contacts),
-            "peak_force_N": _round(self.peak_force_N),
-            "over_limit_s": round(self.over_limit_s, 3),
-            "contact_s": round(self.contact_s, 3),
             "force_limit_N": self.force_limit_N,
             "estimator": self.estimator,
-            "converged_s": _round(conv),
+            "parameters_known_s": parameters_known_s(self),
             "lost_samples": self.lost_samples,
             "faults": len(faults(self.events)),
             "complete": self.complete,
-            **{k: _round(v, 6) if isinstance(v, float) else v for k, v in self.skill.items()},
         }
+
+
+def parameters_known_s(r: Any) -> float | None:
+    """When the gate first knew the force parameters (its ``parameters_known`` event), s from the start.
+
+    The time the haptic force could first come on. The estimator's own convergence flag is no such time:
+    kalman's is up within milliseconds of the start (its covariance test passes on its prior), so the old
+    ``converged_s`` read 0.00 for every kalman session. None: never known (or an estimator without a
+    parameter std, whose gate has no such event).
+    """
+    first = next((e for e in r.events if e.kind == "parameters_known"), None)
+    return None if first is None else round(r.t_s(first.t_ns), 3)
 
 
 ROUTINE_EVENTS = frozenset(

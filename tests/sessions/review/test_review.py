@@ -223,7 +223,8 @@ def test_cli_prints_the_review_writes_plots_and_a_page_and_never_overwrites(sess
         image = matplotlib.image.imread(plots / f"{name}.png")
         assert image.shape[0] > 200 and image.shape[1] > 600 and image[..., :3].std() > 0.05  # drawn, not blank
     page = html.read_text()
-    assert page.count("data:image/png;base64,") == 4 and 'src="http' not in page  # self-contained
+    # self-contained: the force timeline and the four engineering plots of the appendix
+    assert page.count("data:image/png;base64,") == 5 and 'src="http' not in page
     assert "first try &lt;b&gt;left hand&lt;/b&gt;" in page  # the notes escaped, not markup
     before = html.read_bytes()
     assert main(["review", str(session), "--html", str(html)]) == 2
@@ -246,7 +247,7 @@ def test_the_page_renders_in_headless_chromium(session, tmp_path, run_command):
         f"--user-data-dir={tmp_path / 'profile'}",
     ]
     dom = run_command([*flags, "--dump-dom", html.as_uri()], "chromium --dump-dom", timeout=120).stdout
-    for table_id in ("who", "summary", "contacts", "estimators", "errors-rls", "errors-kalman"):
+    for table_id in ("outcome", "metrics", "summary", "contacts", "estimators", "errors-rls", "errors-kalman"):
         assert f'id="{table_id}"' in dom, table_id
     assert dom.count("<tr>") > 30 and "T07" in dom
     shot = tmp_path / "shot.png"
@@ -298,7 +299,7 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
         "world.seed=5",
     )
     (folder / "broken.mcap").write_text("not a recording\n")
-    out_csv, html = tmp_path / "cohort.csv", tmp_path / "cohort.html"
+    out_csv, html, parquet = tmp_path / "cohort.csv", tmp_path / "cohort.html", tmp_path / "cohort.parquet"
     with LocalCluster(n_workers=dask_workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         status = main(
             [
@@ -308,6 +309,8 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
                 str(out_csv),
                 "--html",
                 str(html),
+                "--parquet",
+                str(parquet),
                 "--scheduler",
                 cluster.scheduler_address,
             ]
@@ -321,8 +324,16 @@ def test_a_cohort_in_parallel_on_an_existing_dask_cluster(session, tmp_path, cap
     assert int(rows[0]["contacts"]) == len(alone.contacts) == 3
     assert float(rows[0]["peak_force_N"]) == pytest.approx(alone.peak_force_N, abs=1e-3)
     assert float(rows[1]["duration_s"]) == pytest.approx(8.0, abs=0.01) and int(rows[1]["contacts"]) == 1
+    assert [r["session"] for r in rows] == ["1", "1"]  # each trainee's first session of the task
+    known = next(e for e in alone.events if e.kind == "parameters_known")  # the gate's, not kalman's first flag
+    assert float(rows[0]["parameters_known_s"]) == pytest.approx(alone.t_s(known.t_ns), abs=1e-3)
+    assert alone.t_s(known.t_ns) > 1.0 > alone.primary.converged_force_s  # 0.00 in the old converged_s
+    import pyarrow.parquet as pq
+
+    assert pq.read_table(parquet).to_pydict()["recording"] == ["t07-1.mcap", "t08/t08-1.mcap"]
     page = html.read_text()
     assert 'id="cohort"' in page and 'id="refused"' in page and page.count("data:image/png;base64,") == 1
+    assert "2 session(s), 2 trainee(s), 1 task(s)" in page
 
 
 def test_a_teleoperation_review_shows_the_haptic_port_s_energy_and_damping(tmp_path, long_session):

@@ -126,6 +126,11 @@ def log_offset(path: Path) -> int:
     ``hapticlab.session`` record's ``clock_offset_ns`` (log times are Unix time), 0 without one (a file
     from before, or from another tool: log time is the time). Read once per version of the file, as
     the summary is; a value that is not an offset is a :class:`RecordingError`."""
+    with contextlib.suppress(OSError):
+        stat = os.stat(path)
+        known = _OFFSETS.get((str(path), stat.st_mtime_ns, stat.st_size))
+        if known is not None:
+            return known
     f, reader, _ = open_reader(path)
     with f:
         stat = os.fstat(f.fileno())

@@ -243,3 +243,35 @@ def chromium_fit(chromium: str, page: str, width: int, folder: Path, run_command
     pixels = matplotlib.image.imread(shot)[..., :3]
     assert pixels.shape[1] == width and pixels.std() > 0.05 and (pixels < 0.5).mean() > 0.01  # drawn, with text
     return check
+
+
+def as_before_the_offset(src: Path, dst: Path, shift: bool = True) -> Path:
+    """``src`` (a recording) copied as hapticlab wrote it before log times were Unix time: every log and publish
+    time minus the session's ``clock_offset_ns`` and the offset left out of its metadata (with ``shift`` False,
+    the same copy with the times and the offset kept: a control whose chunks are cut as the copy's). The
+    schemas, channels, metadata and message bytes are copied as they are, the messages in file order."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as out:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        records = list(reader.iter_metadata())
+        offset = int(next(r.metadata for r in records if r.name == "hapticlab.session")["clock_offset_ns"])
+        writer = Writer(out, chunk_size=128 * 1024, compression=CompressionType.ZSTD)
+        writer.start(profile="", library="tests/helpers.py")
+        schemas = {i: writer.register_schema(s.name, s.encoding, s.data) for i, s in summary.schemas.items()}
+        channels = {
+            i: writer.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), dict(c.metadata))
+            for i, c in summary.channels.items()
+        }
+        for record in records:
+            drop = shift and record.name == "hapticlab.session"
+            writer.add_metadata(
+                record.name, {k: v for k, v in record.metadata.items() if not (drop and k == "clock_offset_ns")}
+            )
+        by = offset if shift else 0
+        for _, channel, m in reader.iter_messages(log_time_order=False):
+            writer.add_message(channels[channel.id], m.log_time - by, m.data, m.publish_time - by, m.sequence)
+        writer.finish()
+    return dst

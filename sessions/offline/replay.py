@@ -3,7 +3,8 @@
 The recorded sensor and pose streams are aligned offline (every sample
 interpolated between poses) and fed to the named estimator exactly as a session
 would; the new MCAP holds everything the original did plus the new estimator's
-topic, and a table compares every estimator in it. :func:`replay_folder` does it
+topic, at the original's log times (its ``clock_offset_ns``), and a table
+compares every estimator in it. :func:`replay_folder` does it
 for every recording in a folder, in parallel (Dask: ``folders.py``).
 """
 
@@ -26,6 +27,8 @@ from hapticlab.sessions.output import atomic_output, check_output
 from hapticlab.sessions.recording import Recorder, RecordingError, read_recording, schema_for_topic
 from hapticlab.sessions.recording.loader import load_stream
 from hapticlab.sessions.recording.mcapimport import message_field
+from hapticlab.sessions.recording.metadata import clock_offset_from_start
+from hapticlab.sessions.recording.schemas import SESSION_METADATA
 
 
 def replay(
@@ -75,6 +78,9 @@ def replay(
     comparison = compare(original, stream.samples.t_ns, {topic: est})
     if out_path is not None:
         metadata = {name: dict(values) for name, values in original.metadata.items()}
+        session = metadata.setdefault(SESSION_METADATA, {})
+        if "clock_offset_ns" not in session and (derived := clock_offset_from_start(session)) is not None:
+            session["clock_offset_ns"] = str(derived)  # a file from before the offset: its log times on its dates
         metadata["hapticlab.replay"] = {
             "source": str(recording_path),
             "estimator": estimator_name,

@@ -82,7 +82,12 @@ def _col(name: str, ros_type: str, width: int, doc: str) -> CdrColumn:
     return CdrColumn(name, ros_type, width, doc)
 
 
-_T_NS = _col("t_ns", "int64", 1, "time of each sample, ns on the session's monotonic clock (log time = the last)")
+_T_NS = _col(
+    "t_ns",
+    "int64",
+    1,
+    "time of each sample, ns on the session's monotonic clock (log time: the last + clock_offset_ns)",
+)
 
 
 _SENSOR = (

@@ -19,7 +19,8 @@ long file"). :func:`iter_chunks` reads the file a chunk at a time instead:
 What it yields per group of chunks, per topic asked: for a CDR block topic the chunk's
 samples as columns (``t_ns`` and every field present, rows in time order) with
 ``params`` as ``[(t_ns of the block's last sample, params)]``; for any other
-topic ``[(log time, message)]``. Files whose blocks are JSON (format 2) or
+topic ``[(t_ns, message)]``, the log time on the session clock (as every reader
+gives it: minus :func:`~.mcapfile.log_offset`). Files whose blocks are JSON (format 2) or
 that have no chunk index (unfinished) are not for this reader
 (:func:`can_read`): :func:`~.messages.iter_blocks` reads every format.
 """
@@ -45,6 +46,7 @@ from hapticlab.sessions.recording.mcapfile import (
     block_kind,
     inflates,
     json_loads,
+    log_offset,
     open_reader,
 )
 
@@ -134,6 +136,7 @@ def iter_chunks(
     json_fields = json_fields or {}
     path = Path(path)
     wanted = set(topics)
+    clock_offset = log_offset(path)  # the chunks' message indexes hold log times: Unix time in a recent file
     f, _, summary = open_reader(path)
     with f:
         channels = {cid: c for cid, c in summary.channels.items() if c.topic in wanted}
@@ -167,6 +170,7 @@ def iter_chunks(
             for cid, per_chunk in pairs.items():
                 both = np.concatenate(per_chunk)
                 both = both[np.argsort(both[:, 1], kind="stable")]  # file order
+                both[:, 0] -= clock_offset  # the session clock
                 topic = channels[cid].topic
                 try:
                     out[topic] = _messages(data, buf, both[:, 0], both[:, 1], kinds[cid], json_fields.get(topic))

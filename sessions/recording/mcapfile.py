@@ -4,7 +4,9 @@ A file that is not MCAP, or is truncated or damaged, is a :class:`RecordingError
 with one line that says what is wrong and to run ``hapticlab recover``. The
 summary (channels, schemas, message counts, chunk indexes) is parsed once per
 version of a file; :func:`read_head` and :func:`file_stats` answer from it
-without reading a message.
+without reading a message. :func:`log_offset` is what every reader subtracts
+from a log time to give a message's time on the session clock (the session's
+``clock_offset_ns``: log times are Unix time; 0 in older files).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from mcap.records import Channel
 
 from hapticlab.core.errors import UserError
 from hapticlab.sessions.recording.cdr_layouts import CDR_BLOCK_SCHEMAS
-from hapticlab.sessions.recording.schemas import BLOCK_SCHEMA_TITLES, MCAP_MAGIC
+from hapticlab.sessions.recording.metadata import clock_offset
+from hapticlab.sessions.recording.schemas import BLOCK_SCHEMA_TITLES, MCAP_MAGIC, SESSION_METADATA
 
 
 class RecordingError(UserError, ValueError):
@@ -115,6 +118,41 @@ def _summary(path: str, mtime_ns: int, size: int, reader) -> Any:
     return _SUMMARIES[key]
 
 
+_OFFSETS: dict[tuple[str, int, int], int] = {}
+
+
+def log_offset(path: Path) -> int:
+    """How far a message's log time in ``path`` is ahead of its time on the session clock, ns: the
+    ``hapticlab.session`` record's ``clock_offset_ns`` (log times are Unix time), 0 without one (a file
+    from before, or from another tool: log time is the time). Read once per version of the file, as
+    the summary is; a value that is not an offset is a :class:`RecordingError`."""
+    with contextlib.suppress(OSError):
+        stat = os.stat(path)
+        known = _OFFSETS.get((str(path), stat.st_mtime_ns, stat.st_size))
+        if known is not None:
+            return known
+    f, reader, _ = open_reader(path)
+    with f:
+        stat = os.fstat(f.fileno())
+        key = (str(path), stat.st_mtime_ns, stat.st_size)
+        if key not in _OFFSETS:
+            session: dict[str, str] = {}
+            try:
+                for record in reader.iter_metadata():
+                    if record.name == SESSION_METADATA:
+                        session.update(record.metadata)
+            except Exception as exc:
+                raise damaged(path, exc) from None
+            try:
+                offset = clock_offset(session)
+            except ValueError as exc:
+                raise RecordingError(f"{path}: metadata {SESSION_METADATA}, {exc}") from None
+            if len(_OFFSETS) >= 2:  # as _SUMMARIES: the file in hand and the one before
+                _OFFSETS.clear()
+            _OFFSETS[key] = offset
+        return _OFFSETS[key]
+
+
 def block_kind(schema: Any, channel: Channel) -> Any:
     """None for a channel of single messages, ``"json"`` for JSON blocks (format 2), the
     :class:`~.cdr_layouts.CdrBlock` layout for CDR blocks (format 3)."""
@@ -130,7 +168,8 @@ class FileStats:
     """What a recording's MCAP summary says without reading its messages (:func:`file_stats`).
 
     Attributes:
-        start_ns, end_ns: the first and last message's log time, ns.
+        start_ns, end_ns: the first and last message's time, ns on the session clock (log time
+            minus :func:`log_offset`).
         counts: messages per topic.
     """
 
@@ -151,7 +190,8 @@ def file_stats(path: str | os.PathLike[str]) -> FileStats:
     counts: dict[str, int] = {}
     for channel_id, channel in summary.channels.items():
         counts[channel.topic] = counts.get(channel.topic, 0) + int(stats.channel_message_counts.get(channel_id, 0))
-    return FileStats(int(stats.message_start_time), int(stats.message_end_time), counts)
+    offset = log_offset(path) if stats.message_count else 0
+    return FileStats(int(stats.message_start_time) - offset, int(stats.message_end_time) - offset, counts)
 
 
 def read_head(path: Path) -> tuple[dict[str, dict[str, str]], dict[str, dict[str, Any]], dict[str, int], set[str]]:

@@ -26,6 +26,7 @@ from hapticlab.sessions.recording.mcapfile import (
     check_mcap,
     damaged,
     json_loads,
+    log_offset,
     open_reader,
 )
 from hapticlab.sessions.recording.schemas import BLOCK_LAST_SAMPLE_FIELDS, BLOCK_TOPICS, ESTIMATOR_TOPIC_PREFIX
@@ -55,7 +56,7 @@ def iter_raw(
 def iter_messages(
     path: str | os.PathLike[str], topics: Iterable[str] | str | None = None
 ) -> Iterator[tuple[str, int, dict[str, Any]]]:
-    """Stream ``(topic, t_ns, message)`` in log-time order without loading the file.
+    """Stream ``(topic, t_ns, message)`` in log-time order without loading the file (``t_ns`` on the session clock).
 
     ``topics`` limits the topics read (chunks without them are skipped). A
     block message (format 2) comes out as one message per sample, each at its
@@ -70,7 +71,8 @@ def iter_messages(
 def iter_blocks(
     path: str | os.PathLike[str], topics: Iterable[str] | str | None = None
 ) -> Iterator[tuple[str, int, dict[str, Any], bool]]:
-    """Stream ``(topic, log time ns, message, is a block)`` in file order, blocks kept whole.
+    """Stream ``(topic, time ns, message, is a block)`` in file order, blocks kept whole (the time: the log time on
+    the session clock).
 
     The fast way through a long file: a block message (formats 2 and 3) comes
     out once, columnar (``{"t_ns": (n,) int64, field: (n,) or (n, k) array}``;
@@ -116,22 +118,23 @@ def _decoder(path: Path, channel: Channel):
 def decode_messages(
     raw: Iterator[tuple[Any, Channel, Message]], path: Path
 ) -> Iterator[tuple[bool, str, int, dict[str, Any]]]:
-    """``(is a block, topic, log time, decoded message)``; a block message is checked."""
+    """``(is a block, topic, time, decoded message)``, the time the log time on the session clock (minus
+    :func:`~.mcapfile.log_offset`); a block message is checked."""
     decoders: dict[int, Any] = {}
+    offset = log_offset(path)
     for block, channel, message in raw:
+        t_ns = message.log_time - offset
         if block is None or block == "json":
             decode = decoders.get(channel.id) or decoders.setdefault(channel.id, _decoder(path, channel))
             decoded = decode(message.data)
             if block:
-                check_block(path, channel.topic, message.log_time, decoded)
+                check_block(path, channel.topic, t_ns, decoded)
         else:
             try:
                 decoded = decode_block(block, message.data, json_loads)
             except (CdrBlockError, UnicodeDecodeError, ValueError) as exc:
-                raise RecordingError(
-                    f"{path.name}: {channel.topic} block message at {message.log_time} ns: {exc}"
-                ) from None
-        yield block is not None, channel.topic, message.log_time, decoded
+                raise RecordingError(f"{path.name}: {channel.topic} block message at {t_ns} ns: {exc}") from None
+        yield block is not None, channel.topic, t_ns, decoded
 
 
 def _expanded(

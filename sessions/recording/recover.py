@@ -40,7 +40,8 @@ def recover(
     Returns ``{"messages": n, "topics": {topic: n}, "lost_tail_bytes": k,
     "chunks": salvaged chunks, "corrupt_chunks": skipped, "orphan_messages":
     messages whose channel was lost, "metadata": [record names], "complete":
-    the input had a proper end, "last_t_ns": latest log time or None}``.
+    the input had a proper end, "last_t_ns": latest log time (as the file holds it: Unix time in a
+    recording with a ``clock_offset_ns``) or None}``.
     Raises :class:`RecordingError` when the input is not an MCAP file. The
     output is checked first (its folder must exist; an existing file is refused
     unless ``force``) and written whole or not at all (``sessions.output``).

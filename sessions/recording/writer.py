@@ -5,8 +5,10 @@ JSON-schema channels (viewable in Foxglove). The chunk in progress is finished
 and flushed to the OS about once a second (``time.monotonic``) and on close,
 so a crash of the process loses at most the last second;
 :func:`~.recover.recover` salvages the rest of a file whose writer died. Log
-time and publish time of a message are its ``t_ns`` (integer ns on the
-session's monotonic clock).
+time and publish time of a message are Unix time: its ``t_ns`` (integer ns on
+the session's monotonic clock, as every caller gives it and every payload
+holds it) plus the session's ``clock_offset_ns``, read once at the start, so
+Foxglove shows real dates; the readers subtract it again.
 
 The Recorder encodes (and checks) every message where it is written; the
 ``mcap`` writer runs in this process (``writer="inline"``) or in a child
@@ -58,7 +60,14 @@ from hapticlab.core.errors import OutputExistsError
 from hapticlab.core.version import __version__
 from hapticlab.sessions.recording.cdr import encode_block
 from hapticlab.sessions.recording.cdr_layouts import cdr_block_for_topic
-from hapticlab.sessions.recording.metadata import json_default, metadata_strings, session_record, utc_now_iso
+from hapticlab.sessions.recording.metadata import (
+    clock_offset,
+    json_default,
+    metadata_strings,
+    session_record,
+    utc_now_iso,
+    wall_clock_offset,
+)
 from hapticlab.sessions.recording.process_sink import ProcessSink
 from hapticlab.sessions.recording.schemas import (
     FORMAT_VERSION,
@@ -97,7 +106,10 @@ class Recorder:
             writes: :data:`~.schemas.FORMAT_VERSION`, 2 with ``block_encoding="json"``),
             ``hapticlab_version``, ``git_revision``
             (where known), ``start_time`` (UTC, ISO 8601), ``start_monotonic_ns`` (the session
-            clock at that instant), ``python`` and ``mcap`` are filled in unless given.
+            clock at that instant), ``python`` and ``mcap`` are filled in unless given;
+            ``clock_offset_ns`` (Unix time minus the session clock, ns, what every log time
+            adds to its ``t_ns``) is read from the clocks at the start unless given (a copy
+            of another recording keeps that one's, so its log times stay its dates).
             Put the resolved config under ``config`` and plugin names/versions under
             ``plugins``; put counts per unit etc. in ``hapticlab.calibration``.
         flush_interval_s: finish the chunk in progress and flush it to the OS when
@@ -142,6 +154,13 @@ class Recorder:
             raise ValueError(f"writer must be 'inline' or 'process', got {writer!r}")
         if live and writer != "process":
             raise ValueError("live: the live view is served by the writer process (writer='process')")
+        given = {name: dict(values) for name, values in (metadata or {}).items()}
+        session = given.pop(SESSION_METADATA, {})
+        self.clock_offset_ns = (
+            wall_clock_offset() if "clock_offset_ns" not in session else clock_offset(metadata_strings(session))
+        )
+        """Unix time minus the session clock, ns: a message's log time is its ``t_ns`` plus this."""
+        self._t_end = _U64 - self.clock_offset_ns  # a t_ns from here on would not fit in a log time
         self.block_encoding = block_encoding
         self._cdr_blocks: dict[str, Any] = {}  # block topic -> its CdrBlock layout
         self.path = Path(path)
@@ -178,9 +197,8 @@ class Recorder:
                 self.path.unlink()
             raise
         try:
-            given = {name: dict(values) for name, values in (metadata or {}).items()}
-            session = given.pop(SESSION_METADATA, {})
-            session = session_record(session, self.start_monotonic_ns, FORMAT_VERSION if block_encoding == "cdr" else 2)
+            version = FORMAT_VERSION if block_encoding == "cdr" else 2
+            session = session_record(session, self.start_monotonic_ns, version, self.clock_offset_ns)
             self._sink.add_metadata(SESSION_METADATA, session)
             for name, values in given.items():
                 self._sink.add_metadata(str(name), metadata_strings(values))
@@ -194,8 +212,8 @@ class Recorder:
     def write(self, topic: str, t_ns: int, message: Mapping[str, Any]) -> None:
         """Record ``message`` (a dict of lists/floats/ints/bools/str, numpy allowed) on ``topic`` at ``t_ns``.
 
-        ``t_ns`` is the log (and publish) time: integer ns on the session's
-        monotonic clock. Raises ``ValueError`` for an unknown topic or a bad
+        ``t_ns``: integer ns on the session's monotonic clock; the log (and
+        publish) time is ``t_ns + clock_offset_ns`` (Unix time). Raises ``ValueError`` for an unknown topic or a bad
         time, ``TypeError`` for a value JSON cannot hold, ``RuntimeError``
         after :meth:`close`.
         """
@@ -204,7 +222,7 @@ class Recorder:
             channel_id = self._register(topic, block=False)
         if type(t_ns) is not int:
             t_ns = operator.index(t_ns)  # numpy integers; floats raise TypeError
-        if not 0 <= t_ns < _U64:
+        if not 0 <= t_ns < self._t_end:
             raise ValueError(f"{topic}: t_ns must be a non-negative 64-bit integer (ns), got {t_ns}")
         self._add(topic, channel_id, t_ns, message)
 
@@ -217,7 +235,7 @@ class Recorder:
         3-vector), but for the estimator's ``params``/``cov_diag``, which
         describe the block's last sample (see :data:`~.schemas.BLOCK_LAST_SAMPLE_FIELDS`).
         A field left out is recorded as absent. The message's log time is the
-        last sample's. Raises ``ValueError`` for a topic that is not written in
+        last sample's (plus ``clock_offset_ns``). Raises ``ValueError`` for a topic that is not written in
         blocks (or was written per sample in this file), bad times, a field of
         the wrong length or one the block does not have, ``TypeError`` for a
         value of the wrong type, ``RuntimeError`` after :meth:`close`.
@@ -236,7 +254,7 @@ class Recorder:
             first, last = min(t_ns), max(t_ns)
         except (KeyError, TypeError, ValueError):
             raise ValueError(f"{topic}: a block needs t_ns, a non-empty list of integer times (ns)") from None
-        if not (0 <= first and last < _U64):
+        if not (0 <= first and last < self._t_end):
             raise ValueError(f"{topic}: t_ns must be non-negative 64-bit integers (ns), got {first}..{last}")
         if t_ns is not given:
             message = {**message, "t_ns": t_ns}
@@ -253,7 +271,7 @@ class Recorder:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"recording {self.path} is closed")
-            self._sink.add_message(channel_id, t_ns, data, self._messages_written & 0xFFFFFFFF)
+            self._sink.add_message(channel_id, t_ns + self.clock_offset_ns, data, self._messages_written & 0xFFFFFFFF)
             self._messages_written += 1
 
     def send(self) -> None:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import as_before_the_offset
+from mcap.reader import make_reader
 
 from hapticlab.core.host.registry import ConfigError
 from hapticlab.sessions.cli import main
@@ -79,3 +81,35 @@ def test_replay_command(with_shadows, tmp_path, capsys):
     assert "/estimator/batch_replay (new)" in text and "contact agreement" in text
     assert main(["replay", str(result.path), "--estimator", "batch", "-o", str(result.path)]) == 2
     assert "would overwrite the recording" in capsys.readouterr().err
+
+
+def log_times(path) -> dict[str, list[int]]:
+    """Each topic's log times as the file holds them (Unix time since the offset), sorted."""
+    out: dict[str, list[int]] = {}
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            out.setdefault(channel.topic, []).append(message.log_time)
+    return {topic: sorted(times) for topic, times in out.items()}
+
+
+def test_a_replay_keeps_the_original_s_log_times_and_dates_an_older_file_from_its_start(with_shadows, tmp_path):
+    result, rec = with_shadows
+    offset = int(rec.metadata["hapticlab.session"]["clock_offset_ns"])
+    replay(result.path, "rls", tmp_path / "new.mcap")
+    replayed = read_recording(tmp_path / "new.mcap")
+    assert int(replayed.metadata["hapticlab.session"]["clock_offset_ns"]) == offset
+    original, copied = log_times(result.path), log_times(tmp_path / "new.mcap")
+    for topic, times in original.items():  # every sample at its original date (a block's: its last sample's)
+        assert set(times) <= set(copied[topic]), topic
+        np.testing.assert_array_equal(replayed.t_ns(topic), rec.t_ns(topic), err_msg=topic)
+    assert copied["/events"] == original["/events"] and copied["/haptic/command"] == original["/haptic/command"]
+    t_ns = rec.t_ns("/sensor/wrench")  # the new estimator's samples at the wrench's times, on the same clock
+    np.testing.assert_array_equal(replayed.t_ns("/estimator/rls_replay"), t_ns)
+    assert copied["/estimator/rls_replay"] == (t_ns + offset).tolist()
+    # a file from before the offset (log times on the session clock): the replay dates it from its start_time
+    # (ms, read a moment after start_monotonic_ns), and reads back the same times
+    old = as_before_the_offset(result.path, tmp_path / "old.mcap")
+    replay(old, "rls", tmp_path / "old-replayed.mcap")
+    again = read_recording(tmp_path / "old-replayed.mcap")
+    assert abs(int(again.metadata["hapticlab.session"]["clock_offset_ns"]) - offset) < 10**9
+    assert again.topics == replayed.topics

@@ -1,4 +1,5 @@
-"""The Foxglove layout shipped in docs/ names only topics and fields a session records (it cannot go stale)."""
+"""The Foxglove layout shipped in docs/ names only topics and fields a session records (it cannot go stale), plots
+the primary estimator every preset records, and draws the review's force limit."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ from mcap.reader import make_reader
 
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session, run_session
+from hapticlab.sessions.review import DEFAULT_FORCE_LIMIT_N
 
 LAYOUT = ROOT / "docs" / "foxglove-layout.json"
+PRESETS = sorted(p.stem for p in (ROOT / "sessions" / "presets").glob("*.toml"))
 PATH = re.compile(r"^(?P<topic>/[A-Za-z0-9_/]+)(?:\{(?P<filter>[^}]*)\})?(?:\.(?P<field>[A-Za-z_][A-Za-z0-9_]*))?")
 
 
@@ -42,10 +45,16 @@ def test_every_path_in_the_layout_is_a_recorded_topic_and_field(tmp_path):
                 }
             else:  # JSON: the keys of the schema's properties
                 fields[channel.topic] = set(json.loads(schema.data)["properties"])
+    primary = _session(path)["estimator"]  # the session's estimator, the one the haptic output follows
     checked = 0
+    estimators: set[str] = set()
+    references: dict[str, list[float]] = {}
     for panel, panel_config in layout["configById"].items():
         assert "foxglovePanelTitle" in panel_config, panel
         for text in message_paths(panel_config):
+            if _is_number(text):  # Foxglove draws a path that is a number as a horizontal line at that value
+                references.setdefault(panel, []).append(float(text))
+                continue
             m = PATH.match(text)
             assert m and m["topic"] in fields, (panel, text)
             if m["field"]:
@@ -53,6 +62,26 @@ def test_every_path_in_the_layout_is_a_recorded_topic_and_field(tmp_path):
             if m["filter"]:
                 name = m["filter"].split("==")[0]
                 assert name in fields[m["topic"]], (panel, text)
+            if m["topic"].startswith("/estimator/"):
+                estimators.add(m["topic"])
             checked += 1
     assert checked >= 15
     assert layout["configById"]["3D!tool"]["topics"] == {"/tf": {"visible": True}} and "/tf" in fields
+    # every estimator panel plots the primary (the one driving the haptic output), whichever preset recorded
+    assert estimators == {f"/estimator/{primary}"}
+    assert {load_config(name)[0]["estimator"]["name"] for name in PRESETS} == {primary}
+    # the contact force panel draws the review's default force limit (the limit a review counts time above)
+    assert references == {"Plot!contact": [DEFAULT_FORCE_LIMIT_N]}
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _session(path) -> dict[str, str]:
+    with open(path, "rb") as f:
+        return next(r.metadata for r in make_reader(f).iter_metadata() if r.name == "hapticlab.session")

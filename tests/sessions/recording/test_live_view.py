@@ -6,6 +6,7 @@ import asyncio
 import json
 import struct
 import threading
+import time
 
 import pytest
 from mcap.reader import make_reader
@@ -98,9 +99,11 @@ def test_a_running_session_is_served_live_with_the_recording_s_topics_and_bytes(
     } <= set(topics)
     assert topics["/sensor/wrench"]["encoding"] == "cdr" and topics["/sensor/wrench"]["schemaEncoding"] == "ros2msg"
     assert topics["/haptic/command"]["encoding"] == "json"
+    offset = int(rec.metadata["hapticlab.session"]["clock_offset_ns"])
+    assert abs(received[0][1] - time.time_ns()) < 3600 * 10**9  # served in Unix time, as the file holds it
     by_topic: dict[str, list[tuple[int, bytes]]] = {}
-    for channel_id, log_time, payload in received:
-        by_topic.setdefault(channels[channel_id]["topic"], []).append((log_time, payload))
+    for channel_id, log_time, payload in received:  # on the session clock, as the reader gives it
+        by_topic.setdefault(channels[channel_id]["topic"], []).append((log_time - offset, payload))
     commands = by_topic["/haptic/command"]
     recorded = dict(rec.topics["/haptic/command"])
     # every command the file holds over the span watched was served, in order (one a tick: the span is the
@@ -111,7 +114,8 @@ def test_a_running_session_is_served_live_with_the_recording_s_topics_and_bytes(
     assert json.loads(payload) == recorded[t]  # the same message the file holds, at the same time
     with open(result["r"].path, "rb") as f:  # the CDR blocks: byte for byte the file's messages
         in_file = {
-            message.log_time: message.data for _, _, message in make_reader(f).iter_messages(topics=["/sensor/wrench"])
+            message.log_time - offset: message.data
+            for _, _, message in make_reader(f).iter_messages(topics=["/sensor/wrench"])
         }
     live_blocks = by_topic["/sensor/wrench"]
     blocks_t = [t for t, _ in live_blocks]  # one block per hand-over (20 ms): every one of the span watched

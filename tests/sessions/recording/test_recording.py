@@ -185,15 +185,23 @@ def every_topic(tmp_path):
 
 
 def _chunks(path: Path) -> list[tuple[int, int, list[tuple[str, int, bytes]]]]:
-    """(start offset, end offset, [(topic, log_time, data)]) of every chunk, in file order, via mcap."""
+    """(start offset, end offset, [(topic, time, data)]) of every chunk, in file order, via mcap (the time: the log
+    time minus the session's clock offset, as the reader gives it)."""
     with open(path, "rb") as f:
-        summary = make_reader(f).get_summary()
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        session = next(m.metadata for m in reader.iter_metadata() if m.name == "hapticlab.session")
+        offset = int(session["clock_offset_ns"])
         topics = {c.id: c.topic for c in summary.channels.values()}
         out = []
         for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
             f.seek(index.chunk_start_offset + 9)
             chunk = Chunk.read(ReadDataStream(f))
-            msgs = [(topics[r.channel_id], r.log_time, r.data) for r in breakup_chunk(chunk) if isinstance(r, Message)]
+            msgs = [
+                (topics[r.channel_id], r.log_time - offset, r.data)
+                for r in breakup_chunk(chunk)
+                if isinstance(r, Message)
+            ]
             out.append((index.chunk_start_offset, index.chunk_start_offset + index.chunk_length, msgs))
     return out
 

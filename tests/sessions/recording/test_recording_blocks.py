@@ -241,6 +241,7 @@ def test_cdr_blocks_are_valid_for_their_ros2msg_schemas(both_layouts):
     every CDR block message to the last byte, with the values our reader gives."""
     _, new_path, _, _ = both_layouts
     rec = read_recording(new_path)
+    offset = int(rec.metadata["hapticlab.session"]["clock_offset_ns"])
     factory = DecoderFactory()
     seen = set()
     with open(new_path, "rb") as f:
@@ -250,8 +251,8 @@ def test_cdr_blocks_are_valid_for_their_ros2msg_schemas(both_layouts):
             ros = decode(message.data)
             layout = CDR_BLOCK_SCHEMAS[schema.name]
             n = len(ros.t_ns)
-            assert message.log_time == ros.t_ns[-1]
-            ours = next(b for b in rec.blocks[channel.topic] if b["t_ns"][-1] == message.log_time)
+            assert message.log_time == ros.t_ns[-1] + offset  # Unix time: the session clock + the offset
+            ours = next(b for b in rec.blocks[channel.topic] if b["t_ns"][-1] == ros.t_ns[-1])
             for column in layout.columns:
                 assert np.array_equal(
                     np.asarray(getattr(ros, column.ros_name)).reshape(ours[column.name].shape),
@@ -354,6 +355,7 @@ def test_non_finite_values_in_a_block_read_back_as_nan(tmp_path, encoding):
     path = tmp_path / "nan.mcap"
     force = np.array([[1.0, NAN, 2.0], [math.inf, 0.0, -math.inf], [1, 2, 3]])
     with Recorder(path, block_encoding=encoding) as rec:
+        offset = rec.clock_offset_ns
         rec.write_block(
             "/sensor/wrench",
             {
@@ -366,7 +368,7 @@ def test_non_finite_values_in_a_block_read_back_as_nan(tmp_path, encoding):
         )
     with open(path, "rb") as f:
         ((_, _, message),) = make_reader(f).iter_messages()
-    assert message.log_time == 30  # the last sample's time
+    assert message.log_time == 30 + offset  # the last sample's time, as Unix time
     if encoding == "json":
         assert json.loads(message.data)["force_S"] == [[1.0, None, 2.0], [None, 0.0, None], [1, 2, 3]]
     else:  # the values as they are, from the 4th float64 of force_S on: header, t_ns (4+4+24), count + pad

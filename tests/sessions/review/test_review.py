@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import as_before_the_offset
 
 from hapticlab.sessions.cli import main
 from hapticlab.sessions.config import apply_overrides, load_config
@@ -19,6 +20,7 @@ from hapticlab.sessions.offline.metrics import error_stats
 from hapticlab.sessions.recording import open_recording
 from hapticlab.sessions.review import figures, review
 from hapticlab.sessions.review import summary as summary_module
+from hapticlab.sessions.review.page import session_page
 
 # the demo world's contacts (sessions/presets/demo.toml): start s, duration s, peak N
 DEMO_CONTACTS = [(6.0, 1.5, 3.0), (9.5, 1.5, 2.0), (12.5, 1.0, 4.0)]
@@ -366,3 +368,17 @@ def summary_module_rows(r):
     from hapticlab.sessions.review.page import summary_rows
 
     return summary_rows(r)
+
+
+def test_a_review_reads_the_same_figures_from_unix_log_times_as_from_a_file_before_them(tmp_path):
+    """Log times are Unix time now; the same session with its log times on the session clock (as files were
+    written before) reviews to the same figures, page and times from the start (its first contact at 6 s)."""
+    new = record(tmp_path / "new" / "s.mcap", "session.duration=8")
+    (tmp_path / "old").mkdir()
+    old = as_before_the_offset(new, tmp_path / "old" / "s.mcap")
+    a, b = review(new, force_limit=2.5, plots=False), review(old, force_limit=2.5, plots=False)
+    assert len(a.contacts) == 1 and 6.0 <= a.contacts[0].start_s <= 6.3
+    assert a.start_ns == b.start_ns < 10**17  # the session clock either way
+    assert (a.contacts, a.events, a.estimators) == (b.contacts, b.events, b.estimators)
+    assert {**a.row(), "recording": ""} == {**b.row(), "recording": ""}
+    assert session_page(a).replace(str(new), "") == session_page(b).replace(str(old), "")

@@ -32,6 +32,7 @@ from hapticlab.plugins.simworld import config as world
 from hapticlab.plugins.simworld.faults import DEFAULT_DURATION_S, Fault
 from hapticlab.plugins.simworld.params import RobotParams, SensorParams, ToolParams
 from hapticlab.sessions.settings import HapticSettings, SessionSettings, TeleopSettings
+from hapticlab.sessions.tasks.settings import TaskSettings
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "sessions.md"
 """The page in a source checkout (the package's root is the repository's)."""
@@ -212,6 +213,7 @@ def tables() -> dict[str, list[Row]]:
         "session": settings_rows(SessionSettings),
         "haptic": settings_rows(HapticSettings),
         "teleop": settings_rows(TeleopSettings),
+        "task": settings_rows(TaskSettings),
         "world": _world_rows(),
         "world.tool": _tool_rows(),
         "world.sensor": record_rows(

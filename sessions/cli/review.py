@@ -19,7 +19,7 @@ from hapticlab.sessions.review.skill_names import KEYS
 
 def print_review(r) -> None:
     """A session's review as the terminal's tables."""
-    from hapticlab.sessions.review.page import error_rows, summary_rows
+    from hapticlab.sessions.review.page import ERROR_HEADER, error_rows, summary_rows
     from hapticlab.sessions.review.summary import faults
 
     console = wide_console(120)
@@ -71,16 +71,7 @@ def print_review(r) -> None:
             title=f"{e.name}: compensation error on {e.scored} no-contact samples after convergence "
             "(the paper's table; N, N·m)"
         )
-        for col in (
-            "axis",
-            "MAE before",
-            "Max AE before",
-            "Std before",
-            "MAE after",
-            "Max AE after",
-            "Std after",
-            "MAE comp. %",
-        ):
+        for col in ERROR_HEADER:
             t.add_column(col, justify="right")
         for row in error_rows(e):
             t.add_row(*row)

@@ -96,6 +96,19 @@ def summary_rows(r: SessionReview) -> list[tuple[str, str]]:
     )
 
 
+ERROR_HEADER = (
+    "axis",
+    "MAE before",
+    "Max AE before",
+    "Std before",
+    "MAE after",
+    "Max AE after",
+    "Std after",
+    "MAE comp. %",
+)
+"""The paper's table's columns (:func:`error_rows`'s cells), as the terminal and the report head it."""
+
+
 def error_rows(e) -> list[tuple[str, ...]]:
     """The paper's table of one estimator, a row per axis (N or N·m)."""
     return [

@@ -13,7 +13,7 @@ import math
 from typing import Any
 
 from hapticlab.sessions.review import plots
-from hapticlab.sessions.review.page import _e, _img, _num, document, error_rows, fit, summary_rows, table
+from hapticlab.sessions.review.page import ERROR_HEADER, _e, _img, _num, document, error_rows, fit, summary_rows, table
 from hapticlab.sessions.review.session import SessionReview, faults
 from hapticlab.sessions.review.skill_names import METRICS
 from hapticlab.sessions.review.timeline import moments, timeline
@@ -72,7 +72,7 @@ def _value(key: str, value: Any) -> str:
     return _num(value, 4 if key == "path_length_m" else 2)
 
 
-def session_page(r: SessionReview, medians: dict[str, float] | None = None, cohort_size: int = 0) -> str:
+def session_page(r: SessionReview, medians: dict[str, float | None] | None = None, cohort_size: int = 0) -> str:
     """The report (module docstring); ``medians``: the cohort's median per metric key, or None."""
     who = r.trainee or "(no trainee recorded)"
     task = r.task_settings
@@ -184,22 +184,7 @@ def _engineering(r: SessionReview) -> str:
     for e in r.estimators:
         parts.append(f"<h3>Compensation error, {_e(e.name)} (the paper's table; no contact, after convergence)</h3>")
         parts.append(
-            fit(
-                table(
-                    (
-                        "axis",
-                        "MAE before",
-                        "Max AE before",
-                        "Std before",
-                        "MAE after",
-                        "Max AE after",
-                        "Std after",
-                        "MAE comp. %",
-                    ),
-                    error_rows(e),
-                    id=f"errors-{_e(e.name)}",
-                )
-            )
+            fit(table(ERROR_HEADER, error_rows(e), id=f"errors-{_e(e.name)}"))
             if e.table
             else "<p>Not scored: the estimator never converged, or no contact-free sample followed.</p>"
         )

@@ -72,7 +72,8 @@ def review(
     if not isinstance(config, dict):
         config = {}
     session = config.get("session", {})
-    task = config.get("task") if isinstance(config.get("task"), dict) else {}
+    recorded = config.get("task")
+    task: dict[str, Any] = recorded if isinstance(recorded, dict) else {}
     if force_limit is None:
         force_limit = float(task.get("force_limit") or DEFAULT_FORCE_LIMIT_N)
     estimator = rec.meta("hapticlab.session", "estimator", "") or ""

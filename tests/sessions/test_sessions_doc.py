@@ -15,6 +15,7 @@ from hapticlab.plugins.simworld.faults import KINDS as FAULT_KINDS
 from hapticlab.sessions import settings_doc
 from hapticlab.sessions.config import TABLES
 from hapticlab.sessions.settings import HapticSettings, SessionSettings, TeleopSettings
+from hapticlab.sessions.tasks.settings import TaskSettings
 
 PAGE = ROOT / "docs" / "sessions.md"
 
@@ -35,6 +36,7 @@ def accepted() -> dict[str, set[str]]:
         "session": {f.name for f in dataclasses.fields(SessionSettings)},
         "haptic": {f.name for f in dataclasses.fields(HapticSettings)},
         "teleop": {f.name for f in dataclasses.fields(TeleopSettings)},
+        "task": {f.name for f in dataclasses.fields(TaskSettings)},
         "world": set(world.WORLD_OPTIONS),
         "world.tool": set(world.TOOL_OPTIONS),
         "world.sensor": set(world.SENSOR_OPTIONS),

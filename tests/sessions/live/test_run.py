@@ -30,10 +30,21 @@ ALL_TOPICS = {
 }
 
 
+FINAL_ZERO = {
+    "force_D": [0.0] * 3,
+    "enabled": False,
+    "reason": "session ended",
+    "source_t_ns": None,
+    "contact_force_N": None,
+    "contact": False,
+}
+"""The session's final zero command, as recorded."""
+
+
 def loop_commands(rec):
     """The loop's haptic commands, (t_ns array, messages): all but the session's final zero, checked here."""
     *live, (_, last) = rec.topics["/haptic/command"]
-    assert last == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended", "source_t_ns": None}
+    assert last == FINAL_ZERO
     return np.array([t for t, _ in live]), [m for _, m in live]
 
 
@@ -110,13 +121,13 @@ def test_haptics_wait_for_convergence_and_are_clamped(demo_recording):
     converged_at = next(t for t, m in rec.topics["/events"] if m["kind"] == "converged")
     assert not enabled[t_cmd < converged_at].any() and enabled[-100:-1].all()
     # the session ends with a zero command, sent and recorded
-    assert rec.topics["/haptic/command"][-1][1] == {
-        "force_D": [0.0] * 3,
-        "enabled": False,
-        "reason": "session ended",
-        "source_t_ns": None,
-    }
+    assert rec.topics["/haptic/command"][-1][1] == FINAL_ZERO
     assert np.all(force_D[~enabled] == 0.0)
+    # each command records the tool-tissue force it was made from: the primary's |contact force| at its source
+    estimates = rec.estimates("kalman")
+    at = {int(t): float(np.linalg.norm(f)) for t, f in zip(estimates.t_ns, estimates.contact_force_S, strict=True)}
+    made_from = [(m["source_t_ns"], m["contact_force_N"]) for _, m in rec.topics["/haptic/command"] if m["enabled"]]
+    assert made_from and all(f == pytest.approx(at[s], rel=1e-12) for s, f in made_from)
     # each force says which sample it was estimated from: one in this tick (not stale), an estimate's stamp
     source = np.array([m["source_t_ns"] for _, m in rec.topics["/haptic/command"]], dtype=object)
     assert all(s is None for s in source[~enabled])

@@ -20,7 +20,7 @@ from hapticlab.sessions.offline.metrics import error_stats
 from hapticlab.sessions.recording import open_recording
 from hapticlab.sessions.review import figures, review
 from hapticlab.sessions.review import summary as summary_module
-from hapticlab.sessions.review.page import session_page
+from hapticlab.sessions.review.report import session_page
 
 # the demo world's contacts (sessions/presets/demo.toml): start s, duration s, peak N
 DEMO_CONTACTS = [(6.0, 1.5, 3.0), (9.5, 1.5, 2.0), (12.5, 1.0, 4.0)]

@@ -3,8 +3,11 @@ recording's own topics say; the instructor's report in headless Chromium at a de
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +18,7 @@ from hapticlab.sessions.cli import main
 from hapticlab.sessions.config import apply_overrides, load_config
 from hapticlab.sessions.live import build_session
 from hapticlab.sessions.recording import open_recording
+from hapticlab.sessions.review.cohort import csv_text, numbered, review_row
 from hapticlab.sessions.review.skill_names import KEYS
 
 SESSIONS = {  # file stem: (trainee, task, seed)
@@ -89,3 +93,20 @@ def test_the_report_fits_a_desk_and_a_phone_in_headless_chromium(cohort, tmp_pat
     assert order == sorted(order)  # the trainee's part first, the engineer's last
     assert "cohort median (1)" in page  # the folder's palpation sessions: this one
     chromium_fit(chromium, page, width, tmp_path, run_command)
+
+
+def test_the_cohort_csv_numbers_each_trainees_sessions(cohort):
+    rows = numbered([review_row(path) for path in sorted(cohort.glob("*.mcap"))])
+    table = list(csv.DictReader(io.StringIO(csv_text(rows))))
+    assert len(table) == len(SESSIONS)  # one row per session
+    seen = {(r["trainee"], r["task"], int(r["session"])) for r in table}  # whole numbers
+    assert seen == {("t1", "retraction", 1), ("t2", "retraction", 1), ("t3", "retraction", 1), ("t1", "palpation", 1)}
+    assert all(r["peak_force_N"] and r["task_score"] for r in table)
+
+
+def test_every_message_is_stamped_with_the_wall_clock(cohort):
+    from mcap.reader import make_reader
+
+    with open(cohort / "t1-retraction.mcap", "rb") as f:
+        stamps = [m.log_time for _, _, m in make_reader(f).iter_messages()]
+    assert stamps and all(abs(t - time.time_ns()) < 86_400e9 for t in (min(stamps), max(stamps)))

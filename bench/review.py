@@ -37,7 +37,7 @@ from pathlib import Path
 REVIEW = """
 import json, resource, sys, time
 from hapticlab.sessions.review import review
-from hapticlab.sessions.review.page import session_page
+from hapticlab.sessions.review.report import session_page
 t = time.perf_counter()
 r = review(sys.argv[1], plots=sys.argv[2] == "plots", fast=sys.argv[3] == "fast")
 wall = time.perf_counter() - t

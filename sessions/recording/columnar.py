@@ -130,7 +130,8 @@ def iter_chunks(
     [(t_ns, message)]}`` for the ``topics`` in it (see above).
 
     ``json_fields`` asks for a JSON topic as columns too: ``{topic: {field: width}}`` (width 0: a
-    boolean; ``NUMBER``: one number; else an array of that many numbers; null read as NaN), e.g. ``{"/haptic/command":
+    boolean; ``NUMBER``: one number; ``TEXT``: a string; else an array of that many numbers; null read as
+    NaN; a key is found at a message's top level or in an object in it), e.g. ``{"/haptic/command":
     {"force_D": 3, "enabled": 0}}``: ``{"t_ns", field...}`` arrays, the messages never decoded one by
     one (a chunk whose messages do not all have the fields so is decoded and picked from)."""
     json_fields = json_fields or {}
@@ -183,19 +184,32 @@ def iter_chunks(
 
 NUMBER = -1
 """A ``json_fields`` width: the field is one number (null read as NaN)."""
+TEXT = -2
+"""A ``json_fields`` width: the field is a string (an object array of ``str``)."""
 
 
-def _picked(messages: list[dict[str, Any]], log_times: np.ndarray, fields: dict[str, int]) -> dict[str, np.ndarray]:
+def _field(message: dict[str, Any], name: str) -> Any:
+    """``name`` of a decoded message, at its top level or in an object inside it (as the keys are found in the
+    text: ``p_BoEo_B`` of ``/robot/target``'s ``pose``); None when absent."""
+    if name in message:
+        return message[name]
+    return next((v[name] for v in message.values() if isinstance(v, dict) and name in v), None)
+
+
+def picked(messages: list[dict[str, Any]], log_times: np.ndarray, fields: dict[str, int]) -> dict[str, np.ndarray]:
     """``fields`` of decoded JSON messages as columns (a missing or null value NaN, a missing flag False)."""
     out = {"t_ns": log_times}
     for name, width in fields.items():
+        values = [_field(m, name) for m in messages]
         if width == 0:
-            out[name] = np.array([bool(m.get(name)) for m in messages], dtype=bool)
+            out[name] = np.array([bool(v) for v in values], dtype=bool)
         elif width == NUMBER:
-            out[name] = np.array([math.nan if m.get(name) is None else m[name] for m in messages], dtype=float)
+            out[name] = np.array([math.nan if v is None else v for v in values], dtype=float)
+        elif width == TEXT:
+            out[name] = np.array(["" if v is None else str(v) for v in values], dtype=object)
         else:
             out[name] = np.array(
-                [[math.nan if v is None else v for v in (m.get(name) or [None] * width)] for m in messages], dtype=float
+                [[math.nan if x is None else x for x in (v or [None] * width)] for v in values], dtype=float
             ).reshape(len(messages), width)
     return out
 
@@ -218,6 +232,14 @@ def _json_columns(text: bytes, log_times: np.ndarray, fields: dict[str, int]) ->
             if len(found) != n:
                 return None
             out[name] = np.array(found) == b"true"
+            continue
+        if width == TEXT:
+            found = re.findall(key + rb'"((?:[^"\\]|\\.)*)"', text)
+            if len(found) != n:
+                return None
+            out[name] = np.array(
+                [json.loads(b'"' + v + b'"') if b"\\" in v else v.decode() for v in found], dtype=object
+            )
             continue
         if width == NUMBER:
             found = re.findall(key + rb"(-?[0-9][0-9.eE+-]*|null)\s*[,}]", text)
@@ -252,7 +274,7 @@ def _messages(
             columns = _json_columns(text, log_times, json_fields)
             if columns is not None:
                 return columns
-            return _picked(json_loads(text), log_times, json_fields)
+            return picked(json_loads(text), log_times, json_fields)
         return list(zip(log_times.tolist(), json_loads(text)))
     groups: list[dict[str, np.ndarray]] = []  # each: (rows, width) columns of some of the blocks
     params: list[tuple[int, Any]] = []

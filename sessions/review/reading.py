@@ -10,7 +10,6 @@ estimated from, so the paper's "before" and "after" are the same sample's.
 from __future__ import annotations
 
 import json
-import math
 from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,14 +17,23 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.sessions.recording.columnar import NUMBER, iter_chunks
+from hapticlab.sessions.recording.columnar import NUMBER, TEXT, iter_chunks, picked
 from hapticlab.sessions.recording.messages import iter_blocks
 
 COMMAND_FIELDS = {"force_D": 3, "enabled": 0}
 """What a review reads of each ``/haptic/command`` (as columns: ``recording.columnar``)."""
 PASSIVITY_FIELDS = {"energy_J": NUMBER, "damping": NUMBER}
 """...and of each ``/haptic/passivity`` (teleoperation: the port's energy, J, and the damping added, N·s/m)."""
-COLUMNS = {"/haptic/command": COMMAND_FIELDS, "/haptic/passivity": PASSIVITY_FIELDS}
+TARGET_FIELDS = {"p_BoEo_B": 3, "mode": TEXT, "reason": TEXT}
+"""...of each ``/robot/target`` (teleoperation: the flange's target, m in B, and why it follows or holds)."""
+STATE_FIELDS = {"buttons": NUMBER}
+"""...and of each ``/haptic/state`` (the master's buttons: a task's marks)."""
+COLUMNS = {
+    "/haptic/command": COMMAND_FIELDS,
+    "/haptic/passivity": PASSIVITY_FIELDS,
+    "/robot/target": TARGET_FIELDS,
+    "/haptic/state": STATE_FIELDS,
+}
 
 
 def file_batches(path: Path, topics: list[str], fast: bool) -> Iterator[tuple[str, Any]]:
@@ -38,20 +46,8 @@ def file_batches(path: Path, topics: list[str], fast: bool) -> Iterator[tuple[st
                     yield topic, chunk[topic]
         return
     for topic, t_ns, m, is_block in iter_blocks(path, topics):
-        if topic == "/haptic/command":
-            force = [math.nan if v is None else v for v in (m.get("force_D") or [math.nan] * 3)]
-            yield (
-                topic,
-                {
-                    "t_ns": np.array([t_ns]),
-                    "force_D": np.array([force], dtype=float),
-                    "enabled": np.array([bool(m.get("enabled"))]),
-                },
-            )
-            continue
-        if topic == "/haptic/passivity":
-            values = {k: np.array([math.nan if m.get(k) is None else float(m[k])]) for k in PASSIVITY_FIELDS}
-            yield topic, {"t_ns": np.array([t_ns]), **values}
+        if topic in COLUMNS:  # the same columns as the fast path's, from the one message
+            yield topic, picked([m], np.array([t_ns]), COLUMNS[topic])
             continue
         if not is_block:
             yield topic, [(t_ns, m)]

@@ -60,35 +60,42 @@ class SkillFold:
         keys, where = np.unique(k, return_inverse=True)
         self.bins.append((keys, np.bincount(where, weights=force), np.bincount(where).astype(float)))
 
-    def add_targets(self, batch: list[tuple[int, dict[str, Any]]]) -> None:
-        """``/robot/target`` messages, in order: the path, the time per mode, the flange where marks fall."""
-        for t_ns, m in batch:
-            p = np.asarray((m.get("pose") or {}).get("p_BoEo_B") or (math.nan,) * 3, dtype=float)
-            mode = str(m.get("mode", ""))
-            if mode == "holding" and str(m.get("reason", "")).startswith("clutch"):
-                mode = "clutching"
-            if self.last_target is not None:
-                t_last, p_last, mode_last = self.last_target
-                if mode_last in self.mode_s:
-                    self.mode_s[mode_last] += (t_ns - t_last) / 1e9
-                step = float(np.linalg.norm(p - p_last))
-                self.path_m += step if math.isfinite(step) else 0.0
-            if mode == "following" and self.first_following is None:
-                self.first_following = (t_ns, p)
-            if not self.targets or (t_ns - self.t0) / 1e9 - self.targets[-1][0] >= BIN_S:
-                self.targets.append(((t_ns - self.t0) / 1e9, p))
-            self.last_target = (t_ns, p, mode)
-
-    def add_states(self, batch: list[tuple[int, dict[str, Any]]]) -> None:
-        """``/haptic/state`` messages, in order: each press (an edge) of the mark button is a mark."""
-        if self.mark_bit < 0:
+    def add_targets(self, batch: dict[str, np.ndarray]) -> None:
+        """``/robot/target`` as columns (``t_ns``, ``p_BoEo_B`` m, ``mode``, ``reason``), in order: the path, the
+        time per mode, the flange where marks fall."""
+        t, p = batch["t_ns"].astype(np.int64), batch["p_BoEo_B"]
+        if not len(t):
             return
-        bit = 1 << self.mark_bit
-        for t_ns, m in batch:
-            buttons = int(m.get("buttons") or 0)
-            if buttons & bit and not self.buttons & bit:
-                self.marks_ns.append(t_ns)
-            self.buttons = buttons
+        holding = batch["mode"] == "holding"
+        clutch = np.array([str(r).startswith("clutch") for r in batch["reason"]], dtype=bool)
+        modes = np.where(holding & clutch, "clutching", batch["mode"]).astype(object)
+        if self.last_target is not None:  # joined to the previous batch's last target
+            t_last, p_last, mode_last = self.last_target
+            t, p, modes = np.concatenate(([t_last], t)), np.vstack((p_last, p)), np.concatenate(([mode_last], modes))
+        steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        self.path_m += float(steps[np.isfinite(steps)].sum())
+        dt = np.diff(t) / 1e9
+        for mode in self.mode_s:  # each interval counts for the mode it started in
+            self.mode_s[mode] += float(dt[modes[:-1] == mode].sum())
+        following = np.flatnonzero(modes == "following")
+        if self.first_following is None and len(following):
+            self.first_following = (int(t[following[0]]), p[following[0]])
+        t_s = (t - self.t0) / 1e9
+        last_s = self.targets[-1][0] if self.targets else -math.inf
+        for i in np.flatnonzero(np.diff(np.floor(np.concatenate(([last_s], t_s)) / BIN_S)) > 0).tolist():
+            self.targets.append((float(t_s[i]), p[i]))  # the first target of each BIN_S: the tracing, the marks
+        self.last_target = (int(t[-1]), p[-1], modes[-1])
+
+    def add_states(self, batch: dict[str, np.ndarray]) -> None:
+        """``/haptic/state`` as columns (``t_ns``, ``buttons``), in order: each press (an edge) of the mark
+        button is a mark."""
+        if self.mark_bit < 0 or not len(batch["t_ns"]):
+            return
+        buttons = np.nan_to_num(batch["buttons"]).astype(np.int64)
+        down = (buttons >> self.mark_bit) & 1
+        before = np.concatenate(([(self.buttons >> self.mark_bit) & 1], down[:-1]))
+        self.marks_ns.extend(batch["t_ns"][(down == 1) & (before == 0)].astype(np.int64).tolist())
+        self.buttons = int(buttons[-1])
 
     def _marks(self) -> list[tuple[float, np.ndarray]]:
         """Each mark: (t s, the flange's target then, m in B: the newest target at or before it)."""

@@ -174,7 +174,7 @@ def test_a_file_without_message_indexes_is_left_to_the_message_reader(tmp_path):
 
 
 def test_json_read_by_key_falls_back_to_decoding_when_a_message_lacks_the_key():
-    from hapticlab.sessions.recording.columnar import _json_columns, _picked
+    from hapticlab.sessions.recording.columnar import _json_columns, picked
 
     messages = [
         {"force_D": [1.0, None, 3.0], "enabled": True, "reason": '"force_D":[9,9,9]'},
@@ -183,11 +183,27 @@ def test_json_read_by_key_falls_back_to_decoding_when_a_message_lacks_the_key():
     text = json.dumps(messages).encode()
     t = np.array([1, 2])
     assert _json_columns(text, t, {"force_D": 3, "enabled": 0}) is None  # the second has no force_D
-    picked = _picked(messages, t, {"force_D": 3, "enabled": 0})
-    np.testing.assert_array_equal(picked["force_D"], [[1.0, np.nan, 3.0], [np.nan] * 3])
-    np.testing.assert_array_equal(picked["enabled"], [True, False])
+    columns = picked(messages, t, {"force_D": 3, "enabled": 0})
+    np.testing.assert_array_equal(columns["force_D"], [[1.0, np.nan, 3.0], [np.nan] * 3])
+    np.testing.assert_array_equal(columns["enabled"], [True, False])
     first = _json_columns(json.dumps(messages[:1]).encode(), t[:1], {"force_D": 3, "enabled": 0})
     np.testing.assert_array_equal(first["force_D"], [[1.0, np.nan, 3.0]])  # the key inside a string is not a key
+
+
+def test_json_read_by_key_finds_a_nested_key_and_strings_with_their_escapes():
+    from hapticlab.sessions.recording.columnar import TEXT, _json_columns, picked
+
+    targets = [
+        {"pose": {"quat_BE": [1, 0, 0, 0], "p_BoEo_B": [0.1, 0.2, 0.3]}, "mode": "holding", "reason": 'clutch "3"'},
+        {"pose": {"quat_BE": [1, 0, 0, 0], "p_BoEo_B": [0.4, 0.5, 0.6]}, "mode": "following", "reason": ""},
+    ]
+    fields = {"p_BoEo_B": 3, "mode": TEXT, "reason": TEXT}
+    t = np.array([1, 2])
+    found = _json_columns(json.dumps(targets).encode(), t, fields)
+    decoded = picked(targets, t, fields)
+    for columns in (found, decoded):  # read by key, and decoded: the same
+        np.testing.assert_array_equal(columns["p_BoEo_B"], [[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]])
+        assert columns["mode"].tolist() == ["holding", "following"] and columns["reason"].tolist() == ['clutch "3"', ""]
 
 
 def test_an_envelope_holds_every_samples_min_max_and_mean_per_bin():

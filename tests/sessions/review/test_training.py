@@ -110,3 +110,18 @@ def test_every_message_is_stamped_with_the_wall_clock(cohort):
     with open(cohort / "t1-retraction.mcap", "rb") as f:
         stamps = [m.log_time for _, _, m in make_reader(f).iter_messages()]
     assert stamps and all(abs(t - time.time_ns()) < 86_400e9 for t in (min(stamps), max(stamps)))
+
+
+def test_the_metrics_do_not_depend_on_how_the_file_is_read(cohort, monkeypatch):
+    """Columns a few chunks at a time (the default) and a message at a time (every target its own batch, the
+    force folded every 997 samples): the same metrics and outcome."""
+    from hapticlab.sessions.review import review
+    from hapticlab.sessions.review import summary as summary_module
+
+    path = cohort / "t1-palpation.mcap"
+    fast = review(path, plots=False)
+    monkeypatch.setattr(summary_module, "CHUNK_ROWS", 997)
+    slow = review(path, plots=False, fast=False)
+    for key in KEYS:
+        assert slow.skill[key] == pytest.approx(fast.skill[key], rel=1e-9, abs=1e-12), key
+    assert slow.outcome == pytest.approx(fast.outcome)

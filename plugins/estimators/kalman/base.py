@@ -63,6 +63,7 @@ class KalmanBase:
     torque_reopen_s: float
     payload_change_ns: int
     payload_changes: int
+    _positions: np.ndarray | None = None  # the block's flange positions, m in B (the payload watch's)
     events: list[Event]
     _adapt: np.ndarray
     _information: dict[str, np.ndarray]

@@ -33,7 +33,7 @@ class CompiledPath(KalmanBase):
     def _filter_compiled(self, block: AlignedSamples) -> Estimates:
         """``_filter_block`` in one compiled call (``cascade_kernel.kalman_cascade``): the default model, with
         inertia and a kinematics or sensor lag if set (their inputs from ``_prepare``, compiled too)."""
-        m = len(block)
+        m, self._positions = len(block), block.p_BoEo_B  # (the payload watch reads the flange's motion)
         contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
         t_ns = contiguous(block.t_ns, np.int64)
         inertial_S, stale = None, contiguous(block.stale, bool)

@@ -254,7 +254,7 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
 
     def _filter_block(self, block: AlignedSamples) -> Estimates:
         """Filter a block of samples that passed the guard, in order."""
-        m = len(block)
+        m, self._positions = len(block), block.p_BoEo_B  # (the payload watch reads the flange's motion)
         # the noise estimate and the identified rule follow sample by sample: the reference runs them one
         # sample at a time, the compiled cascade in its loop (but for the inertial force, whose mass and
         # centre of mass are the estimates before each sample)

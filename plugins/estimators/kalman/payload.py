@@ -47,6 +47,11 @@ whatever the block size."""
 ONSET_SAMPLES = 3
 """The fewest samples the onset is taken over (a 10 Hz sensor has one within 30 ms of the first). At such
 rates the test is blind: a 0.4 s ramp is 4 samples, and the first refused one is near the top."""
+MOVED_AGAINST_M = 0.0001
+"""m: a weight change is no payload when the flange moved at least this far against it over the run: the tool
+pressed into what pushes back (a touch: the force grows as the tool goes in, −k·Δx) or rose off what held it
+(the force it gave vanishes). A payload hangs whatever the flange does; a fast touch at a held orientation
+passes every other test (a step along gravity: teleoperation's palpation, 0.6 s presses at 3000 N/m)."""
 ONSET_SHARE = 0.8
 """The onset's mean change along the fitted Δg must be at least this share of |Δg|. Measured at 1 kHz on a
 random tour: see docs/estimators.md ("Payload change")."""
@@ -137,6 +142,7 @@ class PayloadWatch:
     def _end_run(self) -> None:
         """No run: what the next one starts from."""
         self.since: int | None = None  # t_ns of the run's first refused sample (None: no run)
+        self._p_start: np.ndarray | None = None  # the flange there, m in B (None: not known)
         self.window = RefusedWindow()
         self._accepted = 0  # consecutive accepted samples (a run survives a few)
         self._tested_full = False  # the run's whole window was tested (negative)
@@ -167,14 +173,17 @@ class PayloadWatch:
         R: np.ndarray,
         r: np.ndarray,
         g: np.ndarray,
+        p: np.ndarray | None = None,
     ) -> PayloadChange | None:
-        """One block's samples (``gated``: refused by the force stage; ``usable``: given to it): the payload
-        change found, None otherwise. After a change the run ends (the estimator has re-opened gravity)."""
+        """One block's samples (``gated``: refused by the force stage; ``usable``: given to it; ``p``: the
+        flange's positions, m in B, or None): the payload change found, None otherwise. After a change the run
+        ends (the estimator has re-opened gravity)."""
         start: int | np.intp = 0
         for k in np.flatnonzero(usable):
             if gated[k]:
                 if self.since is None:  # (its window and onset were left empty by _end_run)
                     self.since = int(t_ns[k])
+                    self._p_start = None if p is None or not len(p) else p[k].copy()
                     start = k
                 self._accepted = 0
             elif self.since is not None:
@@ -212,6 +221,10 @@ class PayloadWatch:
             return None
         if not self.onset_share(dg) >= ONSET_SHARE:
             return None  # a ramp: the run began below its plateau
+        if self._p_start is not None and p is not None and len(p):
+            moved = p[int(np.flatnonzero(usable)[-1]) if usable.any() else -1] - self._p_start
+            if -float(moved @ dg) / dn >= MOVED_AGAINST_M:
+                return None  # a touch: the flange went into what pushes back, or off what held it
         change = PayloadChange(t_last, dn, (t_last - self.since) * 1e-9, self.window.window())
         self._end_run()
         return change

@@ -55,7 +55,7 @@ class Reopening(KalmanBase):
             return
         e = innovations(y_f, A_f, x_before, run_f.X)
         change = self._payload.observe(
-            t_ns, gated, usable, e, A_f, y_f, force_S, torque_S, R_EB, self.force.r, self.force.x[:3]
+            t_ns, gated, usable, e, A_f, y_f, force_S, torque_S, R_EB, self.force.r, self.force.x[:3], self._positions
         )
         if change is None:
             return

@@ -213,6 +213,41 @@ def test_a_run_that_begins_below_its_plateau_is_not_a_payload_change():
     assert abs(named["step"].weight_change - 0.98) < 0.05
 
 
+def test_a_step_while_the_flange_goes_into_it_is_a_touch_not_a_payload():
+    """The same step along gravity, at one orientation (teleoperation holds it): with the flange still it is a
+    payload; with the flange going 0.3 mm down while the force pushes up (a tool pressed into tissue), or up
+    while the sensor grows heavier (lifted off a support), it is a touch, never named; a flange going with the
+    change (a payload hung while the arm lowers) is still a payload."""
+    from hapticlab.plugins.estimators.kalman import payload as pl
+
+    rng = np.random.default_rng(5)
+    m = 400
+    t_ns = 10**9 + np.arange(m) * 10**6
+    A = np.repeat(np.eye(3)[None], m, axis=0)
+    g = np.array([0.0, 0.0, -1.96])
+    r = np.full(3, 0.05**2)
+    down = np.outer(np.linspace(0.0, -3e-4, m), [0.0, 0.0, 1.0]) + [0.45, 0.0, 0.35]  # 0.3 mm down over the run
+
+    def named(change_B, p):
+        e = change_B + rng.normal(0.0, 0.05, (m, 3))
+        watch = pl.PayloadWatch(300_000_000)
+        for k in range(0, m, 32):
+            tick, refused = slice(k, k + 32), np.ones(len(t_ns[k : k + 32]), dtype=bool)
+            found = watch.observe(
+                t_ns[tick], refused, refused, e[tick], A[tick], e[tick], e[tick], e[tick], A[tick], r, g, p[tick]
+            )
+            if found is not None:
+                return True
+        return False
+
+    still = np.repeat(down[:1], m, axis=0)
+    up, heavier = np.array([0.0, 0.0, 1.4]), np.array([0.0, 0.0, -1.4])
+    assert named(up, still) and named(heavier, still)  # nothing moved: a weight change either way
+    assert not named(up, down)  # pressed in: the tissue pushes back
+    assert not named(heavier, down[::-1])  # lifted off what held it up
+    assert named(heavier, down)  # a mass hung as the arm lowers: the flange goes with the change
+
+
 def test_a_payload_whose_weight_comes_on_within_50_ms_is_still_named():
     """The onset test's price, bounded: 100 g whose weight comes on over 50 ms (a mass dropped onto a hook) still
     begins its run with nearly all of it, and is named. (Over 0.1 s it is on 1 seed of 5, over 0.2 s on none:

@@ -116,6 +116,7 @@ class Taps:
 
     def __init__(self, recorder: Recorder):
         self.rec = _HandOverQueue(recorder)
+        self.clock_offset_ns = int(getattr(recorder, "clock_offset_ns", 0))  # /tf's stamps: Unix time, as log times
         self._wrenches: list[WrenchBlock] = []  # the raw readings held until the hand-over
         self._blocks: dict[str, _Blocks] = {}
         self._hand_over_ns: int | None = None  # the next hand-over (set by the first send)
@@ -146,11 +147,12 @@ class Taps:
         """``/tf``: the frame ``child`` in the robot base (Foxglove's FrameTransform), at most every 20 ms."""
         self._next_tf_ns[child] = t_ns + TF_INTERVAL_NS
         w, x, y, z = quat_wxyz
+        stamp = t_ns + self.clock_offset_ns
         self.rec.write(
             "/tf",
             t_ns,
             {
-                "timestamp": {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000},
+                "timestamp": {"sec": stamp // 1_000_000_000, "nsec": stamp % 1_000_000_000},
                 "parent_frame_id": "base",
                 "child_frame_id": child,
                 "translation": {"x": p[0], "y": p[1], "z": p[2]},

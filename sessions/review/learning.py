@@ -128,12 +128,22 @@ def _figure(rows, tasks: list[str], keys: list[str], trainees: list[str]):
             if j == 0:
                 ax.set_ylabel(header(key), fontsize=9)
             if i == 0:
-                ax.set_title(task or NO_TASK)
+                ax.set_title(_plain(task or NO_TASK))
         axes[-1, j].set_xlabel("the trainee's session of this task")
     labels = [k for k in ("cohort 25–75 %", "cohort median", *trainees, "(no trainee)") if k in handles]
     fig.legend(
-        [handles[k] for k in labels], labels, loc="lower center", ncol=min(len(handles), 6), fontsize=8, frameon=False
+        [handles[k] for k in labels],
+        [_plain(k) for k in labels],
+        loc="lower center",
+        ncol=min(len(handles), 6),
+        fontsize=8,
+        frameon=False,
     )
     legend_in = 0.25 * math.ceil(len(handles) / 6) + 0.1  # its rows of 8 pt text, in
     fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1))  # room for the legend
     return fig
+
+
+def _plain(text: str) -> str:
+    """A name as matplotlib should draw it: as written (a ``$`` would start its maths: ``$x_{$`` raised)."""
+    return text.replace("$", r"\$")

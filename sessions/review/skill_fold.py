@@ -1,10 +1,11 @@
 """The skill metrics of one recording, gathered as the review streams it (``skill.py`` computes them).
 
-:class:`SkillFold` takes the primary estimator's ‖contact force‖ a chunk at a time (full rate: the force–time
-integral, the time in the task's force band; and 10 ms bin means, :data:`BIN_S`, for the force's derivative,
-SPARC and the excessive-force events), the robot's targets (``/robot/target``: the path, the time following,
+:class:`SkillFold` takes the primary estimator's ‖contact force‖ a chunk at a time: at full rate for the
+force–time integral and the time in the task's force band; as 10 ms bin means (:data:`BIN_S`) for the
+force's derivative and SPARC; as 10 ms bin maxima for the excessive-force events (a spike of one sample
+over the limit is one). It also takes the robot's targets (``/robot/target``: the path, the time following,
 holding and clutching, the place of each mark) and the master's buttons (``/haptic/state``: the marks).
-Memory: a few floats per 10 ms (~3 MB an hour), whatever the sensor's rate.
+Memory: a few floats per 10 ms (~4 MB an hour), whatever the sensor's rate.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ class SkillFold:
     def __init__(self, t0_ns: int, force_limit: float, band=None, mark_button: int = -1):
         self.t0, self.force_limit = t0_ns, force_limit
         self.band, self.mark_bit = band, mark_button
-        self.bins: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (bin index, sum, count) per chunk
+        self.bins: list[tuple[np.ndarray, ...]] = []  # (bin index, sum, count, max) per chunk
         self.fti = 0.0  # N·s in contact
         self.in_band_s = 0.0
         self.path_m = 0.0
@@ -58,7 +59,9 @@ class SkillFold:
             self.in_band_s += float(np.count_nonzero((touching >= low) & (touching <= high))) * self.period_s
         k = ((t_ns - self.t0) // round(BIN_S * 1e9)).astype(np.int64)
         keys, where = np.unique(k, return_inverse=True)
-        self.bins.append((keys, np.bincount(where, weights=force), np.bincount(where).astype(float)))
+        peak = np.full(len(keys), -np.inf)
+        np.maximum.at(peak, where, force)
+        self.bins.append((keys, np.bincount(where, weights=force), np.bincount(where).astype(float), peak))
 
     def add_targets(self, batch: dict[str, np.ndarray]) -> None:
         """``/robot/target`` as columns (``t_ns``, ``p_BoEo_B`` m, ``mode``, ``reason``), in order: the path, the
@@ -108,23 +111,24 @@ class SkillFold:
             out.append((t_s, self.targets[max(0, int(np.searchsorted(t, t_s, side="right")) - 1)][1]))
         return out
 
-    def profile(self) -> np.ndarray:
-        """The 10 ms means of ‖contact force‖ over the session (N; NaN where no sample fell)."""
+    def profile(self) -> tuple[np.ndarray, np.ndarray]:
+        """The 10 ms means and maxima of ‖contact force‖ over the session (N; NaN where no sample fell)."""
         if not self.bins:
-            return np.zeros(0)
+            return np.zeros(0), np.zeros(0)
         keys = np.concatenate([b[0] for b in self.bins])
         total = np.zeros(int(keys.max()) + 1)
         count = np.zeros_like(total)
-        for k, s, c in self.bins:
+        peak = np.full_like(total, -np.inf)
+        for k, s, c, m in self.bins:
             np.add.at(total, k, s)
             np.add.at(count, k, c)
+            np.maximum.at(peak, k, m)
         with np.errstate(invalid="ignore", divide="ignore"):
-            return total / count
+            return total / count, np.where(count > 0, peak, np.nan)
 
     def finish(self, contacts: list[Contact], contact_s: float, over_limit_s: float) -> dict[str, Any]:
         """The metrics (keys of ``skill_names``, but the task's score) and what the task's score reads."""
-        mean = self.profile()
-        t_bins = (np.arange(len(mean)) + 0.5) * BIN_S
+        mean, peak = self.profile()
         rates, smooth, weights = [], [], []
         for c in contacts:
             seg = mean[int(c.start_s / BIN_S) : math.ceil((c.start_s + c.duration_s) / BIN_S)]
@@ -132,7 +136,9 @@ class SkillFold:
             rates.append(skill.force_rate(seg, BIN_S))
             smooth.append(skill.sparc(seg, 1.0 / BIN_S))
             weights.append(c.duration_s)
-        events = skill.excess_force_events(t_bins, np.nan_to_num(mean), self.force_limit, MERGE_GAP_S)
+        # every sample counts (a 2 ms spike over the limit is an event): on each bin's largest
+        starts = np.arange(len(peak)) * BIN_S
+        events = skill.excess_force_events(starts, np.nan_to_num(peak), self.force_limit, MERGE_GAP_S)
         start_s = (self.first_following[0] - self.t0) / 1e9 if self.first_following else None
         if start_s is None and contacts:
             start_s = contacts[0].start_s

@@ -230,7 +230,8 @@ def review(
         contact.over_limit_s if contact is not None else 0.0,
     )
     gathered["peak_force_N"] = contact.peak if contact is not None else None  # (every sample's: as recorded)
-    task_score, outcome = score(task, gathered, config.get("haptic", {}).get("rotation_DB", (0.0, 0.0, 0.0)))
+    rotation_DB = config.get("haptic", {}).get("rotation_DB", (0.0, 0.0, 0.0))
+    task_score, outcome = score(task, gathered, rotation_DB, force_limit)
     return SessionReview(
         path=rec.path,
         name=str(session.get("name", "")),

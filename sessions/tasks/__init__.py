@@ -17,7 +17,7 @@ holds the task's truth and the review scores against it.
 from __future__ import annotations
 
 import copy
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from typing import Any
 
 import numpy as np
@@ -32,10 +32,10 @@ __all__ = ["TASKS", "TaskSettings", "prepare", "task_settings"]
 INCLUSION_STIFFNESS_RATIO = 3.0
 """How much stiffer than the tissue a simulated inclusion is (nodules read 3–7× their tissue, Krouskop 1998)."""
 PALPATION_DEPTH = 0.0135
-"""How far down the simulated hand means to press when it palpates, m at the master: about 1.2 N on the
-tissue and 2.8 N on the inclusion under ``teleop-sim``'s hand (a light touch, under the 3 N limit)."""
+"""How far down the simulated hand means to press when it palpates, m at the master: a light touch, 1.2 N on
+``teleop-sim``'s tissue and 2.7–3.0 N at the top of the inclusion's presses (seeds 11–13)."""
 HAND = {  # the simulated hand's script per task: (script, ramp s, hold s)
-    "palpation": ("palpate", 0.6, 1.0),
+    "palpation": ("palpate", 1.0, 1.0),  # (a 0.6 s press lands with a 4.5 N bounce on the inclusion)
     "retraction": ("press", 1.0, None),  # hold: the task's, plus a second
     "tracing": ("trace", 1.0, 4.0),
 }
@@ -46,7 +46,7 @@ def task_settings(config: dict[str, Any]) -> TaskSettings:
     table = config.get("task", {})
     if not isinstance(table, dict):
         raise ConfigError(f"task: must be a table, got {table!r}")
-    names = list(TaskSettings.__dataclass_fields__)
+    names = [f.name for f in fields(TaskSettings)]
     for key in table:
         if key not in names:
             raise unknown_key("task", key, names)
@@ -60,6 +60,11 @@ def prepare(config: dict[str, Any]) -> dict[str, Any]:
     task = task_settings(config)
     if not task.name:
         return config
+    if config.get("teleop", {}).get("enabled") is not True:
+        raise ConfigError(
+            f"task.name: {task.name} is done through teleoperation (a master moving the robot); set "
+            "teleop.enabled = true, as the teleop-sim and teleop-emulated presets do"
+        )
     config = copy.deepcopy(config)
     session = config.setdefault("session", {})
     if not session.get("task"):

@@ -25,8 +25,13 @@ EVENT_PENALTY = 10.0
 """Points a tracing loses per excessive-force event."""
 
 
-def score(task: dict[str, Any], gathered: dict[str, Any], rotation_DB=(0.0, 0.0, 0.0)) -> tuple[float | None, dict]:
-    """(score %, the outcome's details) of the recorded ``task`` table; (None, {}) without a task."""
+def score(
+    task: dict[str, Any], gathered: dict[str, Any], rotation_DB=(0.0, 0.0, 0.0), force_limit: float | None = None
+) -> tuple[float | None, dict]:
+    """(score %, the outcome's details) of the recorded ``task`` table; (None, {}) without a task.
+    ``force_limit``: the limit the review counted events above, N (the task's when None): the score uses it."""
+    if force_limit is not None:
+        task = {**task, "force_limit": force_limit}
     name = task.get("name", "")
     normal = np.asarray(task.get("normal_B", (0.0, 0.0, 1.0)), dtype=float)
     normal = normal / np.linalg.norm(normal)
@@ -48,10 +53,10 @@ def _across(v: np.ndarray, normal: np.ndarray) -> np.ndarray:
 
 def _palpation(task: dict[str, Any], gathered: dict[str, Any], normal: np.ndarray) -> tuple[float | None, dict]:
     offset = np.asarray(task.get("inclusion_offset_B") or (), dtype=float)
-    if not gathered["marks"] or gathered["first_p"] is None:
-        return 0.0, {"mark_error_m": None, "marks": 0}
     if offset.shape != (3,):
         return None, {"mark_error_m": None, "marks": len(gathered["marks"])}  # no truth to score against
+    if not gathered["marks"] or gathered["first_p"] is None:
+        return 0.0, {"mark_error_m": None, "marks": 0}
     t_mark, p_mark = gathered["marks"][0]
     error = float(np.linalg.norm(_across(p_mark - gathered["first_p"] - offset, normal)))
     radius = float(task["inclusion_radius"])

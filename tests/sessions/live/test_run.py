@@ -90,10 +90,11 @@ def test_the_flange_is_recorded_for_foxglove_s_3d_panel_at_50_hz(demo_recording)
     tf = rec.topics["/tf"]
     assert len(tf) == 401  # 0 to 8 s at 50 Hz, both ends: a pose every 2 ms, one in ten
     assert np.all(np.diff([t for t, _ in tf]) == 20_000_000)
+    offset = int(rec.meta("hapticlab.session", "clock_offset_ns"))  # its stamp: Unix time, as the log times
     for t, m in tf[::50]:
         pose = poses[t]  # the pose of that instant, base → flange, quaternion as x y z w
         assert (m["parent_frame_id"], m["child_frame_id"]) == ("base", "flange")
-        assert m["timestamp"] == {"sec": t // 10**9, "nsec": t % 10**9}
+        assert m["timestamp"] == {"sec": (t + offset) // 10**9, "nsec": (t + offset) % 10**9}
         w, x, y, z = pose["quat_BE"]
         assert m["rotation"] == {"x": x, "y": y, "z": z, "w": w}
         assert [m["translation"][k] for k in "xyz"] == pose["p_BoEo_B"]

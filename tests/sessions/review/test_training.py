@@ -75,6 +75,7 @@ def test_review_json_has_every_metric_consistent_with_the_recording(cohort, tmp_
     assert 1.5 < got["peak_force_N"] < 6.0 and got["contact_time_s"] > 2.0  # the hand pressed into the tissue
     assert got["force_time_integral_Ns"] > got["contact_time_s"] * 1.0  # over 1 N on average while touching
     assert -4.0 < got["sparc"] < -1.0 and got["task_time_s"] > got["contact_time_s"]
+    assert not [m for m in got["moments"] if m["kind"] == "dropout"]  # nothing took the force off the hand
     if task == "retraction":  # the simulated hand holds ~2 N for 3 s: inside the 1.5-2.5 N band most of it
         assert got["task_outcome"]["time_in_band_s"] > 1.0 and got["task_score"] > 50
     else:  # it found the inclusion: the mark within two radii of it, scored

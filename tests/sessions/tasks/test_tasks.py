@@ -53,6 +53,8 @@ def test_a_stated_inclusion_is_kept():
         ("task.band=[3.0, 1.0]", "task.band: must be [low, high] with low < high"),
         ("task.force_limit=-1", "task.force_limit: must be"),
         ("task.depth=1", "task.depth: unknown option"),
+        ("task.CHECKS=1", "task.CHECKS: unknown option"),
+        ("teleop.enabled=false", "task.name: palpation is done through teleoperation"),
     ],
 )
 def test_a_bad_task_is_one_line_naming_the_key(override, message):

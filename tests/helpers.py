@@ -275,3 +275,14 @@ def as_before_the_offset(src: Path, dst: Path, shift: bool = True) -> Path:
             writer.add_message(channels[channel.id], m.log_time - by, m.data, m.publish_time - by, m.sequence)
         writer.finish()
     return dst
+
+
+FINAL_ZERO = {
+    "force_D": [0.0] * 3,
+    "enabled": False,
+    "reason": "session ended",
+    "source_t_ns": None,
+    "contact_force_N": None,
+    "contact": False,
+}
+"""The session's final zero command, as recorded."""

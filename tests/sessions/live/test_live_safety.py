@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from helpers import FINAL_ZERO
 from processes import PROCESS_START_S
 
 from hapticlab.core.host.registry import ConfigError
@@ -300,7 +301,7 @@ def test_sigterm_and_sighup_end_a_session_like_ctrl_c(tmp_path, signum, spawn_pr
     assert rec.metadata["hapticlab.summary"]["interrupted"] == "true"
     assert rec.topics["/events"][-1][1]["message"] == f"interrupted ({signal.Signals(signum).name})"
     last = rec.topics["/haptic/command"][-1][1]
-    assert last == {"force_D": [0.0] * 3, "enabled": False, "reason": "session ended", "source_t_ns": None}
+    assert last == FINAL_ZERO
 
 
 def test_a_second_ctrl_c_still_leaves_a_readable_file(tmp_path, spawn_process):

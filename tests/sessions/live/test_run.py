@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from helpers import FINAL_ZERO
 
 from hapticlab.core import hookimpl
 from hapticlab.core.host.registry import ConfigError, Registry, make_plugin_manager
@@ -28,17 +29,6 @@ ALL_TOPICS = {
     "/tf",
     "/events",
 }
-
-
-FINAL_ZERO = {
-    "force_D": [0.0] * 3,
-    "enabled": False,
-    "reason": "session ended",
-    "source_t_ns": None,
-    "contact_force_N": None,
-    "contact": False,
-}
-"""The session's final zero command, as recorded."""
 
 
 def loop_commands(rec):

@@ -48,7 +48,7 @@ def print_discrepancy(result: dict) -> None:
                 if e["effect"] == named
                 else "significant, smaller"
                 if e["significant"]
-                else "not significant"
+                else e.get("note") or "not significant"
             )
             t.add_row(
                 e["effect"],

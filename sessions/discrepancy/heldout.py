@@ -33,7 +33,9 @@ class Evidence:
 
     effect: str
     gain: float
-    """relative reduction of the held-out weighted mean square (0.05 = 5 %)"""
+    """relative change of the held-out weighted mean square, (without − with) / max(without, with): a reduction
+    is its share of the error without (0.05 = 5 %), a rise its share of the error with, so it lies in [−1, 1]
+    whatever a candidate does on a fold it cannot predict (:func:`relative_gain`)"""
     folds_improved: int
     folds: int
     t: float
@@ -43,6 +45,8 @@ class Evidence:
     """the candidate's parameter step from the all-data fit (the start of its re-identification if named)"""
     wins_needed: int = 0
     """folds it had to improve (:func:`wins_needed`)"""
+    note: str = ""
+    """why a candidate is not fitted ("" when it is): its fit on the other folds did not carry to a fold"""
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -53,7 +57,23 @@ class Evidence:
             "wins_needed": self.wins_needed,
             "t": self.t,
             "significant": self.significant,
+            **({"note": self.note} if self.note else {}),
         }
+
+
+NOT_CARRIED = 10.0
+"""A candidate not significant whose fit on the other folds leaves a held-out fold with this many times its error
+without it is reported "not fitted" with that fold (a note: the decision is the fold rule's): the effect is
+determined by that fold alone (a warm-up's settling over in the first fold,
+which the later ones cannot say how large it was)."""
+
+
+def relative_gain(without: np.ndarray | float, with_: np.ndarray | float) -> np.ndarray:
+    """(without − with) / max(without, with), elementwise: a reduction's share of the error before, a rise's share
+    of the error after, in [−1, 1] by construction (a ratio to ``without`` alone ran to −10²⁹ when a candidate's
+    fit exploded on a fold), 0 where both are 0."""
+    without, with_ = np.asarray(without, dtype=float), np.asarray(with_, dtype=float)
+    return (without - with_) / np.maximum(np.maximum(without, with_), 1e-300)
 
 
 def sign_test_p(folds: int, wins: int) -> float:
@@ -143,8 +163,17 @@ def cross_validate(
         sl = full.slices[name]
         cols = np.concatenate([base_cols, np.arange(sl.start, sl.stop)])
         with_ = heldout(cols)
-        improvement = (without - with_) / np.maximum(without, 1e-300)
-        gain = float((without.sum() - with_.sum()) / max(without.sum(), 1e-300))
+        if not np.isfinite(with_).all():  # a singular step: nothing to score
+            with_ = np.where(np.isfinite(with_), with_, np.inf)
+        improvement = relative_gain(without, with_)
+        gain = float(relative_gain(without.sum(), with_.sum()))
+        worse = np.flatnonzero(with_ > NOT_CARRIED * np.maximum(without, 1e-300))
+        note = (
+            f"not fitted: its fit on the other folds does not carry to fold {int(worse[0]) + 1} of {folds} "
+            f"({with_[worse[0]] / max(without[worse[0]], 1e-300):.3g}× the error there without it)"
+            if len(worse)
+            else ""
+        )
         wins = int(np.sum(improvement > 0))
         sd = float(np.std(improvement, ddof=1)) if folds > 1 else 0.0
         tstat = (
@@ -153,6 +182,7 @@ def cross_validate(
             else math.copysign(math.inf, float(np.mean(improvement)) or -1.0)
         )
         significant = gain >= s.min_gain and wins >= wins_needed(folds, s.min_fold_share, s.max_sign_p)
+        note = "" if significant else note  # (a named effect's fold it cannot carry to is the fit's to tell)
         # the all-data step: the candidate's parameters if named
         out.append(
             Evidence(
@@ -164,6 +194,7 @@ def cross_validate(
                 significant,
                 solve(everything, cols),
                 wins_needed(folds, s.min_fold_share, s.max_sign_p),
+                note,
             )
         )
     return out, {"J": J, "full": full, "theta_full": theta_full}

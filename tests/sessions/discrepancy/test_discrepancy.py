@@ -594,3 +594,18 @@ def test_parameter_errors_are_the_spread_over_seeds_and_what_the_motion_cannot_t
     assert np.isnan(std["gravity_force_B.x"]) and np.isnan(std["bias_force_S.z"])
     assert all(np.isfinite(v) for k, v in std.items() if k not in ("gravity_force_B.x", "bias_force_S.z"))
     assert any(n.startswith("not identifiable from this motion: ") for n in result["notes"])
+
+
+def test_held_out_gains_are_bounded_and_a_fit_that_does_not_carry_says_so(tmp_path):
+    """Clean 60-pose files on which warm_up's held-out gain read -34, -103 and -340 (x100 %) as a ratio to the
+    error without it: the fold holding the first rows, where a settling would be, cannot be predicted by a fit
+    on the later ones. Every gain now lies in [-1, 1], and the candidate says why it is not fitted."""
+    for seed in (104, 107, 110):
+        path = tmp_path / f"poses_{seed}.csv"
+        static_poses_csv(path, seed, 60)
+        result = discrepancy(path)
+        assert result["effects"] == []
+        gains = [e["heldout_gain"] for rnd in result["rounds"] for e in rnd]
+        assert all(np.isfinite(gains)) and all(-1.0 <= g <= 1.0 for g in gains), gains
+        warm_up = next(e for e in result["rounds"][0] if e["effect"] == "warm_up")
+        assert warm_up["heldout_gain"] < -0.9 and warm_up["note"].startswith("not fitted: its fit on the other folds")

@@ -19,6 +19,7 @@ from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.sensor_model import Model
 from hapticlab.sessions.discrepancy.identify import Identification
 from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold, where_left, where_text
+from hapticlab.sessions.discrepancy.quality import data_quality, quality_notes
 from hapticlab.sessions.offline.metrics import rms
 
 AXES = ("fx", "fy", "fz", "tx", "ty", "tz")
@@ -104,12 +105,14 @@ def report(
         )
         for a in leftover
     }
+    quality = data_quality(fit.y, fit.motion.t, use, kept, noise)
     warnings = {
+        "saturated": bool(quality["saturated"]),
         "gate_not_applied": bool(fit.gate_fallback),
         "final_above_noise": bool(np.any(over > fit.settings.warn_rms_over_noise)),
         "leftover": bool(leftover),
     }
-    notes = list(notes)
+    notes = list(notes) + quality_notes(quality, "rows" if fit.motion.time_base == "index" else "s")
     for step in steps:
         if step["action"] == "set_aside":
             notes.append(
@@ -171,6 +174,7 @@ def report(
         "time_base": fit.motion.time_base,
         "rate_hz": fit.motion.rate_hz,
         "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
+        "data_quality": quality,
         "final_rms_over_noise": {"force_S": over[:3].tolist(), "torque_S": over[3:].tolist()},
         "axis_noise": {"force_S": own_noise[:3].tolist(), "torque_S": own_noise[3:].tolist()},
         "leftover": {

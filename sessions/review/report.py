@@ -146,9 +146,7 @@ def session_page(r: SessionReview, medians: dict[str, float | None] | None = Non
     )
     parts.append(_engineering(r))
     parts.append("</div>")
-    return document(f"Review: {who}, {r.task or r.name or r.path.name}", "".join(parts)).replace(
-        "</style>", REPORT_STYLE + "</style>", 1
-    )
+    return document(f"Review: {who}, {r.task or r.name or r.path.name}", "".join(parts), REPORT_STYLE)
 
 
 def _details(r: SessionReview) -> list[tuple[str, str]]:

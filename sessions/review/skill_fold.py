@@ -5,7 +5,7 @@ force–time integral and the time in the task's force band; as 10 ms bin means 
 force's derivative and SPARC; as 10 ms bin maxima for the excessive-force events (a spike of one sample
 over the limit is one). It also takes the robot's targets (``/robot/target``: the path, the time following,
 holding and clutching, the place of each mark) and the master's buttons (``/haptic/state``: the marks).
-Memory: a few floats per 10 ms (~4 MB an hour), whatever the sensor's rate.
+Memory: eight floats per 10 ms (~23 MB an hour), whatever the sensor's rate.
 """
 
 from __future__ import annotations
@@ -45,7 +45,9 @@ class SkillFold:
         self.mode_s = {"following": 0.0, "holding": 0.0, "clutching": 0.0}
         self.last_target: tuple[int, np.ndarray, str] | None = None  # (t_ns, p, mode)
         self.first_following: tuple[int, np.ndarray] | None = None
-        self.targets: list[tuple[float, np.ndarray]] = []  # (t s, p) every BIN_S, for the tracing error
+        self._target_t: list[np.ndarray] = []  # s, and the flange (m), every BIN_S: the tracing error, the marks
+        self._target_p: list[np.ndarray] = []
+        self._target_last_s = -math.inf
         self.buttons = 0
         self.marks_ns: list[int] = []
 
@@ -84,9 +86,11 @@ class SkillFold:
         if self.first_following is None and len(following):
             self.first_following = (int(t[following[0]]), p[following[0]])
         t_s = (t - self.t0) / 1e9
-        last_s = self.targets[-1][0] if self.targets else -math.inf
-        for i in np.flatnonzero(np.diff(np.floor(np.concatenate(([last_s], t_s)) / BIN_S)) > 0).tolist():
-            self.targets.append((float(t_s[i]), p[i]))  # the first target of each BIN_S: the tracing, the marks
+        first = np.flatnonzero(np.diff(np.floor(np.concatenate(([self._target_last_s], t_s)) / BIN_S)) > 0)
+        if len(first):  # the first target of each BIN_S
+            self._target_t.append(t_s[first])
+            self._target_p.append(p[first])
+            self._target_last_s = float(t_s[first[-1]])
         self.last_target = (int(t[-1]), p[-1], modes[-1])
 
     def add_states(self, batch: dict[str, np.ndarray]) -> None:
@@ -100,16 +104,18 @@ class SkillFold:
         self.marks_ns.extend(batch["t_ns"][(down == 1) & (before == 0)].astype(np.int64).tolist())
         self.buttons = int(buttons[-1])
 
-    def _marks(self) -> list[tuple[float, np.ndarray]]:
+    def targets(self) -> tuple[np.ndarray, np.ndarray]:
+        """The flange's targets, the first of each :data:`BIN_S`: (t (k,) s from the start, p (k, 3) m in B)."""
+        if not self._target_t:
+            return np.zeros(0), np.zeros((0, 3))
+        return np.concatenate(self._target_t), np.concatenate(self._target_p)
+
+    def _marks(self, t: np.ndarray, p: np.ndarray) -> list[tuple[float, np.ndarray]]:
         """Each mark: (t s, the flange's target then, m in B: the newest target at or before it)."""
-        if not self.targets:
+        if not len(t):
             return []
-        t = np.array([t for t, _ in self.targets])
-        out = []
-        for t_ns in self.marks_ns:
-            t_s = (t_ns - self.t0) / 1e9
-            out.append((t_s, self.targets[max(0, int(np.searchsorted(t, t_s, side="right")) - 1)][1]))
-        return out
+        seconds = [(t_ns - self.t0) / 1e9 for t_ns in self.marks_ns]
+        return [(s, p[max(0, int(np.searchsorted(t, s, side="right")) - 1)]) for s in seconds]
 
     def profile(self) -> tuple[np.ndarray, np.ndarray]:
         """The 10 ms means and maxima of ‖contact force‖ over the session (N; NaN where no sample fell)."""
@@ -143,6 +149,7 @@ class SkillFold:
         if start_s is None and contacts:
             start_s = contacts[0].start_s
         end = max((c.start_s + c.duration_s for c in contacts), default=None)
+        target_t, target_p = self.targets()
         return {
             "task_time_s": end - start_s if end is not None and start_s is not None and end > start_s else None,
             "force_time_integral_Ns": self.fti,
@@ -160,8 +167,8 @@ class SkillFold:
             "in_band_s": self.in_band_s,
             "start_s": start_s,
             "first_p": None if self.first_following is None else self.first_following[1],
-            "marks": self._marks(),
-            "targets": self.targets,
+            "marks": self._marks(target_t, target_p),
+            "targets": (target_t, target_p),
             "contacts": [(c.start_s, c.start_s + c.duration_s) for c in contacts],
         }
 

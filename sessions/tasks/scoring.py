@@ -71,10 +71,9 @@ def _palpation(task: dict[str, Any], gathered: dict[str, Any], normal: np.ndarra
 
 
 def _tracing(task: dict[str, Any], gathered: dict[str, Any], normal: np.ndarray, x_B: np.ndarray):
-    if gathered["first_p"] is None or not gathered["targets"]:
+    t, p = gathered["targets"]  # (k,) s and (k, 3) m: the flange's targets, every 10 ms
+    if gathered["first_p"] is None or not len(t):
         return 0.0, {"path_error_m": None, "coverage": 0.0}
-    t = np.array([t for t, _ in gathered["targets"]])
-    p = np.array([p for _, p in gathered["targets"]])
     touching = np.zeros(len(t), bool)
     for start, end in gathered["contacts"]:
         touching |= (t >= start) & (t <= end)

@@ -103,7 +103,7 @@ def _gathered(**changes):
         "first_p": np.zeros(3),
         "peak_force_N": 2.0,
         "in_band_s": 0.0,
-        "targets": [],
+        "targets": (np.zeros(0), np.zeros((0, 3))),
         "contacts": [],
         "excess_force_events": 0,
     }
@@ -138,7 +138,7 @@ def test_retraction_scores_the_share_of_the_hold_in_band():
 def test_tracing_scores_the_distance_from_the_line_its_coverage_and_the_events():
     task = {"name": "tracing", "span": 0.03, "tolerance": 0.003}
     xs = np.linspace(-0.015, 0.015, 31)
-    targets = [(i * 0.1, np.array([x, 0.0015, 0.002])) for i, x in enumerate(xs)]  # 1.5 mm beside it, all along
+    targets = (np.arange(len(xs)) * 0.1, np.c_[xs, np.full_like(xs, 0.0015), np.full_like(xs, 0.002)])  # 1.5 mm beside
     gathered = _gathered(targets=targets, contacts=[(0.0, 3.0)])
     points, outcome = score(task, gathered)
     assert outcome["path_error_m"] == pytest.approx(0.0015) and outcome["coverage"] == pytest.approx(1.0)

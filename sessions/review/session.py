@@ -101,6 +101,21 @@ class SessionReview:
         }
 
 
+def haptic_on_runs(events: list[Event], end_ns: int) -> list[tuple[int, int, str]]:
+    """The runs of the haptic force on, from the ``haptic_enabled``/``haptic_disabled`` events: (on ns, off ns,
+    why it went off: the ``haptic_disabled`` message without its prefix; "" for a run the session's end closed)."""
+    runs, on_since = [], None
+    for e in events:
+        if e.kind == "haptic_enabled" and on_since is None:
+            on_since = e.t_ns
+        elif e.kind == "haptic_disabled" and on_since is not None:
+            runs.append((on_since, e.t_ns, e.message.removeprefix("haptic force zeroed: ")))
+            on_since = None
+    if on_since is not None:
+        runs.append((on_since, end_ns, ""))
+    return runs
+
+
 def parameters_known_s(r: Any) -> float | None:
     """When the gate first knew the force parameters (its ``parameters_known`` event), s from the start.
 

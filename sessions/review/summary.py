@@ -38,7 +38,14 @@ from hapticlab.sessions.recording.columnar import can_read
 from hapticlab.sessions.recording.mcapfile import file_stats
 from hapticlab.sessions.review.figures import ContactFold, Envelope, EstimatorFold
 from hapticlab.sessions.review.reading import file_batches, join_raw
-from hapticlab.sessions.review.session import DEFAULT_FORCE_LIMIT_N, ROUTINE_EVENTS, Series, SessionReview, faults  # noqa: F401  (re-exported: where they were first)
+from hapticlab.sessions.review.session import (  # noqa: F401  (re-exported: where they were first)
+    DEFAULT_FORCE_LIMIT_N,
+    ROUTINE_EVENTS,
+    Series,
+    SessionReview,
+    faults,
+    haptic_on_runs,
+)
 from hapticlab.sessions.review.skill_fold import SkillFold
 from hapticlab.sessions.review.skill_names import KEYS
 from hapticlab.sessions.tasks.scoring import score
@@ -253,7 +260,7 @@ def review(
         over_limit_s=contact.over_limit_s if contact is not None else 0.0,
         contact_s=(contact.contact_samples * contact.period_s) if contact is not None else 0.0,
         peak_force_N=contact.peak if contact is not None else float("nan"),
-        haptic_on_s=_haptic_on_s(events, t1),
+        haptic_on_s=sum(off - on for on, off, _ in haptic_on_runs(events, t1)) / 1e9,
         port_energy_max_J=port["max_J"] if port["ticks"] and port["max_J"] > -math.inf else None,
         damping_share=port["damped"] / port["ticks"] if port["ticks"] else None,
         events=events,
@@ -270,17 +277,3 @@ def review(
 def _period(t_ns: np.ndarray) -> float:
     """A sample period from the samples' stamps, s (median step; 1 ms when there is one sample)."""
     return float(np.median(np.diff(t_ns))) / 1e9 if len(t_ns) > 1 else 1e-3
-
-
-def _haptic_on_s(events: list[Event], end_ns: int) -> float:
-    """How long the haptic force was on, s, from the ``haptic_enabled``/``haptic_disabled`` events."""
-    on_since, total = None, 0
-    for e in events:
-        if e.kind == "haptic_enabled" and on_since is None:
-            on_since = e.t_ns
-        elif e.kind == "haptic_disabled" and on_since is not None:
-            total += e.t_ns - on_since
-            on_since = None
-    if on_since is not None:
-        total += end_ns - on_since
-    return total / 1e9

@@ -9,10 +9,11 @@ the limit and each moment marked and numbered, so the list below the plot reads 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
-from hapticlab.sessions.review.session import SessionReview
+from hapticlab.sessions.review.session import SessionReview, haptic_on_runs
 
 
 @dataclass(frozen=True)
@@ -27,17 +28,13 @@ class Moment:
 
 def dropouts(r: SessionReview) -> list[tuple[float, float, str]]:
     """(start s, duration s, why) of each time the haptic force went off after it first came on (every one,
-    however short: the trainee's hand was on the device and the force it felt went to zero)."""
-    out, first_on, off = [], False, None
-    for e in r.events:
-        if e.kind == "haptic_enabled":
-            if off is not None:
-                out.append((off[0], r.t_s(e.t_ns) - off[0], off[1]))
-            first_on, off = True, None
-        elif e.kind == "haptic_disabled" and first_on and off is None:
-            off = (r.t_s(e.t_ns), e.message.removeprefix("haptic force zeroed: "))
-    if off is not None:  # off to the end
-        out.append((off[0], max(0.0, r.duration_s - off[0]), off[1]))
+    however short: the trainee's hand was on the device and the force it felt went to zero): the gaps between
+    the runs of ``haptic_on_runs``, and the time after the last to the end when an event turned it off."""
+    end_ns = r.start_ns + round(r.duration_s * 1e9)
+    runs = haptic_on_runs(r.events, end_ns)
+    out = [(r.t_s(off), (on_next - off) / 1e9, why) for (_, off, why), (on_next, _, _) in pairwise(runs)]
+    if runs and runs[-1][2]:  # off to the end
+        out.append((r.t_s(runs[-1][1]), max(0.0, (end_ns - runs[-1][1]) / 1e9), runs[-1][2]))
     return out
 
 

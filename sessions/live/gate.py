@@ -13,8 +13,8 @@ rules with their reasons):
 * the frame the residual lives in (``drift.DriftWatch``): a step faster than soft tissue pushes is held
   until the residual turns with the world (a contact), keeps its direction in the world along gravity (a
   weight step), keeps it in the sensor (a bias step), or the estimator sees free motion for
-  ``DOUBT_FREE_NS``; a residual that keeps its direction in the sensor while the tool turns (a bias step
-  or drift, in contact or not) is re-identified by the estimator (or latches the force off until a
+  ``doubt.DOUBT_FREE_NS``; a residual that keeps its direction in the sensor while the tool turns (a bias
+  step or drift, in contact or not) is re-identified by the estimator (or latches the force off until a
   re-arm, :meth:`HapticGate.rearm`), and the force waits for the residual to settle (a full window under
   ``drift.MIN_OFFSET_N``: a bias still drifting, or one that moved unseen during a contact, stays off);
 * where the residual acts, by its torque (``lever.LeverWatch``): twisting about its own line, or across the tool
@@ -38,20 +38,17 @@ from hapticlab.core.types import AlignedSamples, Estimates, Event, PoseSample
 from hapticlab.sessions.live import gate_kernel as screen_kernel
 from hapticlab.sessions.live.convergence import ConvergenceFlags
 from hapticlab.sessions.live.crosscheck import WrenchCrossCheck
+from hapticlab.sessions.live.doubt import SUDDEN, Doubt
 from hapticlab.sessions.live.drift import MIN_OFFSET_N, WEIGHT_TILT, DriftWatch, along
 from hapticlab.sessions.live.lever import LeverWatch
+from hapticlab.sessions.live.pose_trust import PoseTrust
 from hapticlab.sessions.live.stated_weight import StatedWeight
-from hapticlab.sessions.live.watch import LAG_LIMIT_S, LagWatch, PoseWatch, StepWatch, StuckWatch
+from hapticlab.sessions.live.watch import StepWatch, StuckWatch
 
 PAYLOAD_HOLD_NS = 1_000_000_000
 """After an estimator's payload change the haptic force is held at zero this long (1 s): the change
 may be a load held by the tool (a grasped object) rather than a new tool, and its release would then
 show as a phantom force until the estimator sees the second change."""
-JUMP_HOLD_NS = 500_000_000
-"""After the poses jump the force is held at zero this long (0.5 s): long enough for the lag watch, started
-afresh, to resolve a lag while the tool turns fast enough for the lag to matter."""
-DOUBT_FREE_NS = 100_000_000
-"""A sudden step is over once the estimator has seen free motion this long (0.1 s): the step went away."""
 CONVERGENCE_LOSS_NS = 20_000_000
 """A converged force stage whose flag has been down this long (20 ms of samples) is no longer converged."""
 LATCHED = "sensor bias step: re-arm needed"
@@ -98,10 +95,10 @@ class HapticGate:
         self.ready_force_std, self.parameter_std = ready_force_std, parameter_std
         self.reidentifies, self.reidentifies_weight = reidentifies, reidentifies_weight
         self.stale_timeout_ns = stale_timeout_ns
-        self.poses = PoseWatch(frozen_pose_timeout_ns, max_turn_rate, max_speed)
+        self.trust = PoseTrust(frozen_pose_timeout_ns, max_turn_rate, max_speed, reports_params)
+        self.poses, self.lag = self.trust.poses, self.trust.lag
         self.drift, self.lever = DriftWatch(), LeverWatch(tool_axis_S)
         self.steps, self.stuck = StepWatch(), StuckWatch()
-        self.lag = LagWatch(max_turn_rate)
         self.stated = StatedWeight(tool_mass) if tool_mass > 0 else None  # the identified weight checked against it
         self.cross = WrenchCrossCheck(wrench_accuracy_N)  # the robot's own wrench (accuracy 0: none, it idles)
         screen_kernel.warm_up()  # compiled (or loaded) before the first tick
@@ -111,49 +108,25 @@ class HapticGate:
         self.unidentified = ""  # the estimator's last not_identifiable message about the weight ("" none)
         self.bias_hold = ""  # "" | "drop", "rise" (waiting for the flag to) | "settle" (the residual) | "latched"
         self.hold_cause = "sensor bias step"  # what the hold is for: "sensor bias step" | "weight step" | "re-armed"
-        self.contact_now, self.doubt = False, ""  # the estimator's newest contact flag; the sudden step in hand
-        self.doubt_from_contact = False  # the estimator saw a contact when the doubt began
-        self.free_since_ns: int | None = None  # the estimator has seen free motion since (None: a contact now)
+        self.contact_now, self.doubt = False, Doubt()  # the estimator's newest contact flag; the step in hand
         self.last_sample_ns: int | None = None
         self.data_reason = self.fault = ""  # (the fault: what the last event named)
-        self.weight_model = reports_params  # the lag watch's weight model (False: none in the first params)
-
-    def frozen(self) -> bool:
-        """The robot's poses are frozen now (their samples must not reach the estimators)."""
-        return self.poses.frozen_for_ns > 0
 
     def trusts_poses(self, now_ns: int) -> bool:
-        """The poses may be paired with the wrench: not frozen, not just jumped, not out of step.
-
-        When they may not, the samples are kept from the estimators (which would learn the fault into
-        their parameters); :meth:`on_withheld` still feeds the lag watch with them.
-        """
-        return not (self.frozen() or self._jumped(now_ns) or self._out_of_step())
+        """The poses may be paired with the wrench (``pose_trust``); when they may not, the samples are kept from
+        the estimators, and :meth:`on_withheld` still feeds the lag watch with them."""
+        return self.trust.trusted(now_ns)
 
     def on_withheld(
         self, block: AlignedSamples, params: dict[str, list[float]] | None, R_SE: np.ndarray | None
     ) -> None:
         """Samples kept from the estimators because the poses are not trusted: the lag watch still sees them."""
-        if self.parameters_known and params is not None and not self.frozen():
-            self._watch_lag(block, params, R_SE)
-
-    def _watch_lag(self, block: AlignedSamples, params: dict[str, list[float]], R_SE: np.ndarray | None) -> None:
-        """Feed the lag watch, with the estimator's weight model; without one the poses cannot be checked."""
-        if all(key in params for key in WEIGHT_MODEL):
-            self.lag.add(block, params, R_SE)
-        else:
-            self.weight_model = False
-
-    def _jumped(self, now_ns: int) -> bool:
-        return self.poses.jump is not None and now_ns - self.poses.jump[0] < JUMP_HOLD_NS
-
-    def _out_of_step(self) -> bool:
-        return self.lag.lag_s is not None and abs(self.lag.lag_s) > LAG_LIMIT_S
+        if self.parameters_known and params is not None and not self.trust.frozen():
+            self.trust.watch_lag(block, params, R_SE)
 
     def on_poses(self, poses: list[PoseSample], now_ns: int) -> None:
         """New poses arrived at ``now_ns``: a jump starts the lag watch afresh."""
-        if self.poses.add(poses, now_ns):
-            self.lag.reset()
+        self.trust.add_poses(poses, now_ns)
         self.cross.add_robot(poses)
 
     def on_samples(self, block: AlignedSamples, usable: np.ndarray, reason: str, now_ns: int) -> tuple[np.ndarray, str]:
@@ -182,12 +155,10 @@ class HapticGate:
         self.data_reason = reason
         return usable, reason
 
-    def _start_doubt(self, what: str) -> None:
+    def _start_doubt(self, what: str, kind: str = SUDDEN) -> None:
         """Hold the force over a step ``what`` until the motion tells a contact from the sensor: the drift watch
         starts afresh, so that only what came after the step is judged (a contact before it is no verdict)."""
-        if not self.doubt:  # (a step within a doubt keeps where the first one began)
-            self.doubt_from_contact = self.contact_now
-        self.doubt, self.free_since_ns = what, None
+        self.doubt.open(what, kind, self.contact_now)
         self.drift.reset()
         self.cross.mark(self.last_sample_ns or 0)
 
@@ -220,7 +191,8 @@ class HapticGate:
             self.drift.reset()
             events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
         if self.parameters_known and params is not None:
-            self._watch_lag(block, params, R_SE)
+            self.trust.watch_lag(block, params, R_SE)
+        g_B = None if params is None else params.get("gravity_force_B")
         # (once the parameters are known, as the lag watch: a residual before the tool is identified says
         # nothing of the sensor's bias)
         verdict = (
@@ -239,42 +211,33 @@ class HapticGate:
                 "or the estimator took a contact into its bias"
             )
             events += self._reidentify(self.drift.offset_S, now_ns, how)
-        elif verdict == "world" and self.doubt and not self.doubt_from_contact:
+        elif verdict == "world" and self.doubt and not self.doubt.from_contact:
             # (from a contact, the window holds the contact with the step: only its end or the sensor tells)
-            gravity_force_B = None if params is None else params.get("gravity_force_B")
-            if gravity_force_B is not None and along(self.drift.direction_B, gravity_force_B, WEIGHT_TILT):
+            down = g_B is not None and along(self.drift.direction_B, g_B, WEIGHT_TILT)
+            if down:
                 how = (
-                    f"the sudden step ({self.doubt}) kept its direction in the world, pulling down: the tool's "
+                    f"{self.doubt} kept its direction in the world, pulling down: the tool's "
                     "weight changed (a load hung on it, or the support it started resting on gone), not a contact"
                 )
                 events += self._reidentify(self.drift.size * self.drift.direction_B, now_ns, how, "weight_step")
             else:
-                message = f"the sudden step ({self.doubt}) turned with the world: a contact"
+                message = f"{self.doubt} turned with the world: a contact"
                 events.append(Event(now_ns, "contact_confirmed", message))
-                self.doubt = ""
+                self.doubt.close()
         judge = self.parameters_known and self.parameter_std is not None and self.bias_hold in ("", "settle")
         # (batch, no parameter std: its residual torque errs as no touch does)
         self.lever.add(est.t_ns, est.contact_force_S, est.contact_torque_S, judge and bool(est.converged_torque[-1]))
         if self.doubt and self.cross.confirmed:  # the robot's own wrench saw it too: a contact
-            events.append(Event(now_ns, "contact_confirmed", f"the sudden step ({self.doubt}): {self.cross.confirmed}"))
-            self.doubt = ""
-        if self.stated is not None and params is not None and "gravity_force_B" in params and not self.bias_hold:
-            # (without ReidentifiesWeight the force stays held, the reason says why: a latch would not re-arm)
-            g_B = params["gravity_force_B"]  # (a reason while off the stated weight; re-identified once it shows)
-            self.stated.check(g_B)
+            message = f"{self.doubt}: {self.cross.confirmed}"
+            events.append(Event(now_ns, "contact_confirmed", message))
+            self.doubt.close()
+        if self.stated is not None and g_B is not None and not self.bias_hold:  # (a reason while off it)
+            self.stated.check(g_B)  # (without ReidentifiesWeight the force stays held: a latch would not re-arm)
             residual_B = self.drift.means_B[-1] if self.drift.means_B else None
-            if self.reidentifies_weight is not None and self.stated.gone(int(est.t_ns[-1]), residual_B, g_B):
-                how = f"the residual shows the {self.stated.missing_N:+.2f} N of weight the motion missed: now free"
-                step_B = np.array(g_B) * (self.stated.missing_N / np.linalg.norm(g_B))
-                events += self._reidentify(step_B, now_ns, how, "weight_step")
+            if self.reidentifies_weight and (gone := self.stated.step(int(est.t_ns[-1]), residual_B, g_B)):
+                events += self._reidentify(gone[0], now_ns, gone[1], "weight_step")
         if self.doubt:
-            f = self.drift.offset_S.tolist()  # (the newest 20 ms mean: one sample's noise alone passes 0.25 N)
-            if self.contact_now or f[0] * f[0] + f[1] * f[1] + f[2] * f[2] >= MIN_OFFSET_N**2:
-                self.free_since_ns = None
-            elif self.free_since_ns is None:
-                self.free_since_ns = int(est.t_ns[-1])
-            elif int(est.t_ns[-1]) - self.free_since_ns >= DOUBT_FREE_NS:
-                self.doubt = ""
+            self.doubt.watch_free(self.contact_now, self.drift.offset_S.tolist(), int(est.t_ns[-1]))
         return events
 
     @property
@@ -298,7 +261,8 @@ class HapticGate:
         if other:
             self.bias_hold = "latched"
             return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
-        self.steps, self.doubt, self.bias_hold, self.hold_cause = StepWatch(), "", "settle", "re-armed"
+        self.steps, self.bias_hold, self.hold_cause = StepWatch(), "settle", "re-armed"
+        self.doubt.close()
         self.drift.reset()
         self.lever.reset()
         message = f"haptic force re-armed by {source}; it ramps in from zero once the residual has settled"
@@ -311,7 +275,7 @@ class HapticGate:
         message = f"{what} of {np.linalg.norm(step):.2f} N: {how}"
         self.drift.reset()
         self.lever.reset()
-        self.doubt = ""
+        self.doubt.close()
         if kind == "weight_step" and self.reidentifies_weight is not None:
             self.reidentifies_weight.reidentify_weight(what)
             self.hold_until_ns, self.bias_hold = now_ns + PAYLOAD_HOLD_NS, "settle"  # as after a payload change
@@ -326,9 +290,14 @@ class HapticGate:
         key = "bias_step_force_S" if kind == "bias_step" else "weight_step_force_B"
         events = [Event(now_ns, kind, message, {key: step.tolist()})]
         if self.bias_hold == "latched":
-            latched = f"haptic force latched off: {what}: re-arm needed; {self.label} cannot re-identify it"
-            events.append(Event(now_ns, "haptic_latched", latched, {"cause": what}))
+            events += self._latch(what, now_ns, f"re-arm needed; {self.label} cannot re-identify it")
         return events
+
+    def _latch(self, cause: str, now_ns: int, why: str) -> list[Event]:
+        """Latch the force off for ``cause`` until a re-arm: the ``haptic_latched`` event, saying ``why``."""
+        self.doubt.close()
+        self.bias_hold, self.hold_cause = "latched", cause
+        return [Event(now_ns, "haptic_latched", f"haptic force latched off: {cause}: {why}", {"cause": cause})]
 
     def on_event(self, event: Event, now_ns: int) -> None:
         """An event of the primary estimator: a payload change holds the force at zero for a while; what the
@@ -344,15 +313,8 @@ class HapticGate:
             return "no sensor data"
         if self.data_reason:
             return self.data_reason
-        if self.frozen():
-            return f"kinematics frozen (the same pose for {self.poses.frozen_for_ns * 1e-6:.0f} ms)"
-        if self._jumped(now_ns):
-            assert self.poses.jump is not None  # _jumped: a jump was seen
-            return f"kinematics jumped ({self.poses.jump[1]})"
-        if self._out_of_step():
-            lag_ms = (self.lag.lag_s or 0.0) * 1e3  # (a lag was measured)
-            late = "late" if lag_ms > 0 else "early"
-            return f"kinematics out of step with the sensor (poses {abs(lag_ms):.0f} ms {late})"
+        if poses := self.trust.reason(now_ns):
+            return poses
         if self.bias_hold == "latched":
             return f"{self.hold_cause}: re-arm needed"
         if self.bias_hold == "settle":
@@ -362,7 +324,7 @@ class HapticGate:
         if self.bias_hold:
             return f"{self.hold_cause}: re-identifying"
         if self.doubt:
-            return f"sudden force step ({self.doubt}): held until the motion tells a contact from the sensor"
+            return self.doubt.reason()
         unidentified = f" ({self.unidentified})" if self.unidentified else ""
         if not self.ready[0]:
             return f"estimator not converged{unidentified}"
@@ -378,7 +340,7 @@ class HapticGate:
             return "parameters no longer known (uncertainty grew)"
         if self.stated is not None and self.stated.reason:
             return self.stated.reason
-        if not self.weight_model:
+        if not self.trust.weight_model:
             return f"{self.label} reports no weight model ({' and '.join(WEIGHT_MODEL)}): the poses cannot be checked"
         if now_ns < self.hold_until_ns:
             return "payload change: tool weight re-identified, holding"

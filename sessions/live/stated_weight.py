@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 STANDARD_GRAVITY = 9.80665
 """m/s² (the weight of the stated mass; local gravity differs by under 0.3 %)."""
 TOLERANCE_N = 0.3
@@ -51,6 +53,16 @@ class StatedWeight:
             f"weighs {self.weight_N:.2f} N: the tool rests on something or hangs from it; free it, or state its mass)"
         )
         return self.reason
+
+    def step(
+        self, t_ns: int, residual_B: list[float] | None, gravity_force_B: list[float]
+    ) -> tuple[np.ndarray, str] | None:
+        """:meth:`gone` (after :meth:`check`), as the weight step (3,) N in B and how it showed, else None."""
+        if not self.gone(t_ns, residual_B, gravity_force_B):
+            return None
+        how = f"the residual shows the {self.missing_N:+.2f} N of weight the motion missed: now free"
+        g = np.asarray(gravity_force_B, dtype=float)
+        return g * (self.missing_N / np.linalg.norm(g)), how
 
     def gone(self, t_ns: int, residual_B: list[float] | None, gravity_force_B: list[float]) -> bool:
         """What the tool rested on (or hung from) is gone: for ``STILL_NS`` up to ``t_ns`` the residual (3,) N in

@@ -1,9 +1,10 @@
 """A step in the residual the motion has yet to explain: the force held until it tells what the step was.
 
-A sudden step (``watch.StepWatch``: faster than soft tissue pushes) opens a :class:`Doubt`, and the gate
-holds the force while one is open. It closes when the drift watch gives a verdict the gate acts on (a
-contact, a weight step, a bias step), when the robot's own wrench confirms a contact, or when the estimator
-has seen free motion for ``DOUBT_FREE_NS``.
+A sudden step (``watch.StepWatch``: faster than soft tissue pushes) or a session's first residual pulling
+straight down (``pull.PullWatch``) opens a :class:`Doubt`, and the gate holds the force while one is open.
+It closes when the drift watch gives a verdict the gate acts on (a contact, a weight step, a bias step; a
+pull's latches), when the robot's own wrench confirms a contact, or when the estimator has seen free motion
+for ``DOUBT_FREE_NS``.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from hapticlab.sessions.live.drift import MIN_OFFSET_N
 DOUBT_FREE_NS = 100_000_000
 """A doubt is over once the estimator has seen free motion this long (0.1 s): the step went away."""
 SUDDEN = "sudden step"
-"""The kind of doubt a step faster than any contact opens."""
+"""The kind of doubt a step faster than any contact opens (the other: ``pull.PULL``)."""
 
 
 class Doubt:
@@ -32,7 +33,8 @@ class Doubt:
         return f"the {self.kind} ({self.what})"
 
     def open(self, what: str, kind: str, contact_now: bool) -> None:
-        """A step ``what`` of ``kind``: a step within a doubt keeps where (and how) the first one began."""
+        """A step ``what`` of ``kind``: a step within a doubt keeps where (and how) the first one began (a pull
+        straight down is the contact's own onset, not a step within one)."""
         if not self.what:
             self.from_contact, self.kind = contact_now and kind == SUDDEN, kind
         self.what, self.free_since_ns = what, None

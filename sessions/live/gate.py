@@ -13,10 +13,12 @@ rules with their reasons):
 * the frame the residual lives in (``drift.DriftWatch``): a step faster than soft tissue pushes is held
   until the residual turns with the world (a contact), keeps its direction in the world along gravity (a
   weight step), keeps it in the sensor (a bias step), or the estimator sees free motion for
-  ``doubt.DOUBT_FREE_NS``; a residual that keeps its direction in the sensor while the tool turns (a bias
-  step or drift, in contact or not) is re-identified by the estimator (or latches the force off until a
-  re-arm, :meth:`HapticGate.rearm`), and the force waits for the residual to settle (a full window under
-  ``drift.MIN_OFFSET_N``: a bias still drifting, or one that moved unseen during a contact, stays off);
+  ``doubt.DOUBT_FREE_NS``; so is the session's first residual when it pulls straight down with no stated tool mass
+  (``pull.PullWatch``: the support the tool started resting on gone, or a contact); a residual that keeps
+  its direction in the sensor while the tool turns (a bias step or drift, in contact or not) is
+  re-identified by the estimator (or latches the force off until a re-arm, :meth:`HapticGate.rearm`), and
+  the force waits for the residual to settle (a full window under ``drift.MIN_OFFSET_N``: a bias still
+  drifting, or one that moved unseen during a contact, stays off);
 * where the residual acts, by its torque (``lever.LeverWatch``): twisting about its own line, or across the tool
   at the sensor, no touch gives it: held (what it is, the drift watch tells);
 * the second channel, where the robot measures its own wrench (``crosscheck.WrenchCrossCheck``): the
@@ -42,6 +44,7 @@ from hapticlab.sessions.live.doubt import SUDDEN, Doubt
 from hapticlab.sessions.live.drift import MIN_OFFSET_N, WEIGHT_TILT, DriftWatch, along
 from hapticlab.sessions.live.lever import LeverWatch
 from hapticlab.sessions.live.pose_trust import PoseTrust
+from hapticlab.sessions.live.pull import PULL, PullWatch
 from hapticlab.sessions.live.stated_weight import StatedWeight
 from hapticlab.sessions.live.watch import StepWatch, StuckWatch
 
@@ -100,6 +103,7 @@ class HapticGate:
         self.drift, self.lever = DriftWatch(), LeverWatch(tool_axis_S)
         self.steps, self.stuck = StepWatch(), StuckWatch()
         self.stated = StatedWeight(tool_mass) if tool_mass > 0 else None  # the identified weight checked against it
+        self.pull = None if self.stated else PullWatch()  # (a stated weight tells a pull down from the weight)
         self.cross = WrenchCrossCheck(wrench_accuracy_N)  # the robot's own wrench (accuracy 0: none, it idles)
         screen_kernel.warm_up()  # compiled (or loaded) before the first tick
         self.flags = ConvergenceFlags(label)
@@ -193,6 +197,10 @@ class HapticGate:
         if self.parameters_known and params is not None:
             self.trust.watch_lag(block, params, R_SE)
         g_B = None if params is None else params.get("gravity_force_B")
+        if self.pull is not None and g_B is not None and self.parameters_known:  # (fed throughout: it tracks onsets)
+            pull = self.pull.add(est.contact_force_S, block.R_EB, R_SE, g_B)
+            if pull and not self.doubt and not self.bias_hold:
+                self._start_doubt(pull, PULL)
         # (once the parameters are known, as the lag watch: a residual before the tool is identified says
         # nothing of the sensor's bias)
         verdict = (
@@ -214,7 +222,11 @@ class HapticGate:
         elif verdict == "world" and self.doubt and not self.doubt.from_contact:
             # (from a contact, the window holds the contact with the step: only its end or the sensor tells)
             down = g_B is not None and along(self.drift.direction_B, g_B, WEIGHT_TILT)
-            if down:
+            if down and self.doubt.kind == PULL:  # (a contact pulling down reads the same: a person says which)
+                why = f"{self.doubt.what}; it kept its direction in the world: the support it rested on gone, or "
+                why += "a contact; free the tool and re-arm to take it as its weight (or state haptic.tool_mass)"
+                events += self._latch(PULL, now_ns, why)
+            elif down:
                 how = (
                     f"{self.doubt} kept its direction in the world, pulling down: the tool's "
                     "weight changed (a load hung on it, or the support it started resting on gone), not a contact"
@@ -256,13 +268,17 @@ class HapticGate:
             return None
         self.bias_hold = ""
         other = self.reason(now_ns)
-        if not other and self.contact_now:
+        weight = self.hold_cause == PULL and self.reidentifies_weight is not None  # (its residual: the weight)
+        if not other and self.contact_now and not weight:
             other = "the estimator still sees a contact (the bias step, or a real one): free the tool"
         if other:
             self.bias_hold = "latched"
             return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
         self.steps, self.bias_hold, self.hold_cause = StepWatch(), "settle", "re-armed"
         self.doubt.close()
+        if weight and self.reidentifies_weight is not None:
+            self.reidentifies_weight.reidentify_weight(f"re-armed by {source} after a {PULL}")
+            self.hold_until_ns = now_ns + PAYLOAD_HOLD_NS
         self.drift.reset()
         self.lever.reset()
         message = f"haptic force re-armed by {source}; it ramps in from zero once the residual has settled"

@@ -144,3 +144,41 @@ def test_the_r_key_is_read_without_blocking_from_a_terminal(pty_pair):
     console = Console(width=200, record=True)
     console.print(_status_table(SessionStatus(latched=True, reason=LATCHED), rearm_hint(True, 0)))
     assert "latched: press r or the device's re-arm button (0)" in console.export_text()
+
+
+def lifted_session(tmp_path, rested: bool, pressed):
+    """The demo (kalman, not realtime, 10 s), one 3 N push at 8-9.5 s; ``rested``: it starts resting on tissue
+    (2 N straight up), lifted off over 0.1 s at 5 s, with no stated mass. (times, forces, events) as above."""
+    config, _ = load_config("demo")
+    config = apply_settings(
+        config, {"session.realtime": False, "session.duration": 10.0, "haptic.rearm_button": REARM_BIT}
+    )
+    push = {"kind": "indentation", "start": 8.0, "duration": 1.5, "peak_force": 3.0, "ramp": 0.3}
+    rest = {"kind": "indentation", "start": -1.1, "duration": 6.2, "peak_force": 2.0, "ramp": 0.1}
+    config["world"]["contacts"] = [rest, push] if rested else [push]
+    session = build_session(config)
+    session.haptic = ButtonHaptic(pressed)
+    result = LiveLoop(session, tmp_path / f"lifted{rested}.mcap", None, None, 0.25).run()
+    haptic = session.haptic
+    t = np.array([(c.t_ns - haptic.t0_ns) * 1e-9 for c in haptic.commands])
+    events = [(round((e.t_ns - haptic.t0_ns) * 1e-9, 3), e.kind, e.message) for e in result.events]
+    return t, np.array([c.force_D for c in haptic.commands]), events
+
+
+def test_a_pull_straight_down_that_stays_latches_and_a_re_arm_takes_it_as_the_tools_weight(tmp_path):
+    """Lifted slowly off what it rested on, the tool shows the weight the motion missed as a pull straight down
+    that keeps its direction in the world while it turns: a contact pulling down would read the same, so the
+    force latches off; the re-arm (the tool free) re-identifies the weight, and the next push is felt as in a
+    session that never rested."""
+    t, force, events = lifted_session(tmp_path, True, [(6.2, 6.3)])
+    latched = [(s, m) for s, k, m in events if k == "haptic_latched"]
+    rearmed = [s for s, k, _ in events if k == "haptic_rearmed"]
+    assert len(latched) == 1 and 5.0 < latched[0][0] < 6.2 and "pull straight down" in latched[0][1], events
+    assert "free the tool and re-arm to take it as its weight" in latched[0][1]
+    assert len(rearmed) == 1 and 6.2 <= rearmed[0] < 6.21 and "weight_reopened" in [k for _, k, _ in events]
+    assert not np.any(force[(t > 5.03) & (t < rearmed[0] + 0.5)])  # held from the lift's first 30 ms on
+    t_ref, force_ref, _ = lifted_session(tmp_path, False, [])
+    n = min(len(t), len(t_ref))
+    push = (t[:n] > 8.4) & (t[:n] < 9.2)
+    assert np.linalg.norm(force_ref[:n][push], axis=1).min() > 2.5
+    assert np.linalg.norm(force[:n][push] - force_ref[:n][push], axis=1).max() < 0.5

@@ -33,7 +33,7 @@ from hapticlab.sessions.settings import HAPTIC_SAFETY_KEYS
 MAX_SESSION_FILE_BYTES = 1 << 20
 """A session file is read up to 1 MiB (the presets are ~2 kB): anything larger is not one."""
 
-TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "task", "shadows")
+TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "task", "tool", "shadows")
 """The host's own tables; a plugin's context (``register_contexts``, e.g. ``world``) adds its own."""
 PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator", "haptic": "haptic_output"}
 

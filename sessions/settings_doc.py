@@ -33,6 +33,7 @@ from hapticlab.plugins.simworld.faults import DEFAULT_DURATION_S, Fault
 from hapticlab.plugins.simworld.params import RobotParams, SensorParams, ToolParams
 from hapticlab.sessions.settings import HapticSettings, SessionSettings, TeleopSettings
 from hapticlab.sessions.tasks.settings import TaskSettings
+from hapticlab.sessions.tools.settings import ToolSettings
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "sessions.md"
 """The page in a source checkout (the package's root is the repository's)."""
@@ -214,6 +215,7 @@ def tables() -> dict[str, list[Row]]:
         "haptic": settings_rows(HapticSettings),
         "teleop": settings_rows(TeleopSettings),
         "task": settings_rows(TaskSettings),
+        "tool": settings_rows(ToolSettings),
         "world": _world_rows(),
         "world.tool": _tool_rows(),
         "world.sensor": record_rows(

@@ -13,11 +13,11 @@ import sys
 
 from hapticlab.core.host.registry import make_plugin_manager
 from hapticlab.core.version import __version__
-from hapticlab.sessions.cli import bench, discrepancy, emulate, offline, review, run
+from hapticlab.sessions.cli import bench, discrepancy, emulate, offline, review, run, tool
 from hapticlab.sessions.cli.errors import is_user_error, one_line
 from hapticlab.sessions.cli.render import err
 
-COMMAND_MODULES = (run, offline, bench, discrepancy, review)
+COMMAND_MODULES = (run, offline, bench, discrepancy, review, tool)
 
 
 def build_parser(load_plugins: bool = True) -> argparse.ArgumentParser:

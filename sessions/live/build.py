@@ -51,6 +51,8 @@ from hapticlab.sessions.settings import (
     teleop_settings,
 )
 from hapticlab.sessions.tasks import prepare as prepare_task
+from hapticlab.sessions.tools import ToolPlan
+from hapticlab.sessions.tools import prepare as prepare_tool
 
 INTERFACES = {"sensor": SensorSource, "kinematics": KinematicsSource, "estimator": Estimator, "haptic": HapticOutput}
 """The interface each plugin table's object must have (checked at build time)."""
@@ -142,6 +144,7 @@ class Session:
     device_events: list[tuple[str, EmitsEvents]] = field(default_factory=list)  # (label, device)
     teleop_settings: TeleopSettings = field(default_factory=TeleopSettings)
     robot: ServosCartesian | None = None  # the kinematics, when teleoperation drives it
+    tool: ToolPlan = field(default_factory=ToolPlan)  # the tool on the sensor ([tool]), and what came of the library
 
     @property
     def estimator(self) -> Estimator:
@@ -202,6 +205,11 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     context_names = registry.names("context")
     check_tables(config, extra_tables=context_names)
     config = prepare_task(config)  # (in a simulated world: the task's inclusion, the simulated hand's script)
+    estimator_name = plugin_options(config, "estimator")[0]
+    takes_warm_start = estimator_name in registry.names("estimator") and "warm_start" in registry.resolved_options(
+        "estimator", estimator_name, {}
+    )  # (an unknown name: refused below, with the names)
+    config, tool = prepare_tool(config, takes_warm_start)  # (a known tool: its state and mass)
     settings = session_settings(config)
     safety = haptic_settings(config)
     contexts = {
@@ -243,6 +251,8 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
     resolved["teleop"] = asdict(teleop)
     if "task" in config:
         resolved["task"] = config["task"]
+    if tool.name:
+        resolved["tool"] = tool.resolved()
     robot = None
     if teleop.enabled:
         robot = built["kinematics"]
@@ -271,6 +281,7 @@ def build_session(config: dict[str, Any], registry: Registry | None = None) -> S
         haptic=built["haptic"],
         plugins=plugins,
         resolved_config=resolved,
+        tool=tool,
         shadows=shadows,
         contexts=contexts,
         device_events=device_events,

@@ -23,9 +23,11 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from hapticlab.core.errors import UserError
 from hapticlab.core.types import Event
 from hapticlab.sessions.live.build import EstimatorSlot, Session, calibration_path
 from hapticlab.sessions.recording import Recorder
+from hapticlab.sessions.tools import save as save_tool_record
 
 
 class PartFailedError(Exception):
@@ -108,6 +110,26 @@ def save_estimator_state(
     except Exception as exc:
         on_event(Event(end_ns, "estimator_state_not_saved", f"estimator state not saved: {exc}"))
         return None
+
+
+def save_tool(
+    session: Session, params: dict | None, recording: str, end_ns: int, on_event: Callable[[Event], None]
+) -> None:
+    """The session's tool written back to its library (``sessions.tools.save``) when the primary identified it
+    (``params``; None: not identified): a ``tool_saved`` event, or ``tool_not_saved`` saying why."""
+    plan, primary = session.tool, session.primary
+    why = "the tool was not identified" if params is None else ""
+    if not why:
+        try:
+            state = primary.saves.state() if primary.saves is not None else None
+            message = save_tool_record(plan, params, state, primary.label, recording)
+            why = "" if message else f"{primary.label} reports no weight and centre of gravity"
+        except (OSError, UserError) as exc:
+            why = str(exc)
+    if why:
+        on_event(Event(end_ns, "tool_not_saved", f"tool {plan.name!r} not saved to its library: {why}"))
+    else:
+        on_event(Event(end_ns, "tool_saved", message))
 
 
 def ending_message(interrupted: bool, stopped_by: str, failed: bool) -> str:

@@ -44,6 +44,7 @@ from hapticlab.sessions.live.ending import (
     close_devices,
     ending_message,
     save_estimator_state,
+    save_tool,
     signals_end_the_session,
     signals_noted,
 )
@@ -350,6 +351,8 @@ class LiveLoop:
                 f"session {self.s.settings.name!r} started, estimator {self.s.estimator_name}",
             )
         )
+        if self.s.tool.name:
+            self._event(Event(self.t0_ns, "tool", self.s.tool.message()))
 
     def _finish(self, end_ns: int, interrupted: bool, failure: PartFailedError | None) -> SessionResult:
         """Zero the device and record it, close the devices, save the state, finish the file."""
@@ -386,6 +389,9 @@ class LiveLoop:
             state_path = save_estimator_state(primary, self.recorder, self.path, end_ns, self._event)
             if state_path is not None:
                 summary["estimator_state_path"] = state_path
+        if self.s.tool.name and failure is None:
+            known = params if self.gate.parameters_known else None
+            save_tool(self.s, known, str(Path(self.path).resolve()), end_ns, self._event)
         self._event(Event(end_ns, "session_end", ending_message(interrupted, self.stopped_by, failure is not None)))
         try:
             self.taps.send()

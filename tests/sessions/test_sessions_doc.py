@@ -16,6 +16,7 @@ from hapticlab.sessions import settings_doc
 from hapticlab.sessions.config import TABLES
 from hapticlab.sessions.settings import HapticSettings, SessionSettings, TeleopSettings
 from hapticlab.sessions.tasks.settings import TaskSettings
+from hapticlab.sessions.tools.settings import ToolSettings
 
 PAGE = ROOT / "docs" / "sessions.md"
 
@@ -37,6 +38,7 @@ def accepted() -> dict[str, set[str]]:
         "haptic": {f.name for f in dataclasses.fields(HapticSettings)},
         "teleop": {f.name for f in dataclasses.fields(TeleopSettings)},
         "task": {f.name for f in dataclasses.fields(TaskSettings)},
+        "tool": {f.name for f in dataclasses.fields(ToolSettings)},
         "world": set(world.WORLD_OPTIONS),
         "world.tool": set(world.TOOL_OPTIONS),
         "world.sensor": set(world.SENSOR_OPTIONS),

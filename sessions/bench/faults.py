@@ -96,13 +96,24 @@ FAULTS: dict[str, dict[str, Any]] = {
         "start": 5.0,
         "settings": {"haptic.tool_mass": 0.35},
     },
+    "tool changed for one 0.5 kg heavier at 8.5 s (its centre of gravity 15 cm out)": {
+        "contact": {"kind": "hanging_mass", "mass": 0.5, "start": 8.5, "point_S": [0.01, 0.0, 0.15]},
+        "start": 8.5,
+        "session_s": 15.0,
+    },
+    "the same, 0.2 kg heavier (2 cm off the axis)": {
+        "contact": {"kind": "hanging_mass", "mass": 0.2, "start": 8.5, "point_S": [0.0, 0.02, 0.10]},
+        "start": 8.5,
+        "session_s": 15.0,
+    },
 }
 """The faults, each injected at ``FAULT_START_S`` into a ``DURATION_S`` session unless it says otherwise
 (``start``, ``session_s``: the bias step lands in the demo's first contact, 6-7.5 s; the ramp needs 10 s; the
 fast ramp during a contact is the second channel's row: the drift watch cannot judge in a contact).
-A row with a ``contact`` adds it to the world instead (the session starts with the tool resting on
-tissue, straight up: a lighter tool to any estimator), and is measured from its ``start`` (the lift); one with
-``settings`` runs with them (the clean run too)."""
+A row with a ``contact`` adds it to the world instead, and is measured from its ``start``: the session starts
+with the tool resting on tissue, straight up (a lighter tool to any estimator), lifted at ``start``; or a mass
+hung on at ``start`` for good (a tool changed for a heavier one, its centre of gravity moved: the weight the
+robot's own wrench and the sensor both see). One with ``settings`` runs with them (the clean run too)."""
 
 
 def session(

@@ -29,6 +29,7 @@ from hapticlab.sessions.live.passivity import PassivityController
 from hapticlab.sessions.live.status import SessionStatus
 from hapticlab.sessions.live.taps import Taps
 from hapticlab.sessions.live.teleop import Teleoperation, reason_kind
+from hapticlab.sessions.tools import change_tool_plan
 
 
 class HapticCommander:
@@ -60,6 +61,7 @@ class HapticCommander:
         self.rearm_bit = session.haptic_settings.rearm_button  # -1: no button
         self.button_down = True  # unknown counts as held: a button held at the start must be released first
         self.rearm_requests: deque[str] = deque()
+        self.tool_changes: deque[tuple[str, str]] = deque()  # (the new tool's name, "" unnamed; by whom)
         self.teleop = Teleoperation(session.teleop_settings, self.governor.R_DB) if session.robot is not None else None
         self.last_pose: PoseSample | None = None
         self.last_estimate: tuple[np.ndarray, np.ndarray, int] | None = None  # (contact_force_S, R_BS, t_ns)
@@ -77,6 +79,19 @@ class HapticCommander:
         self.fresh_state: DeviceState | None = None  # and its newest that was not None
         self.last_sent_ns: int | None = None
 
+    def _change_tool(self, now_ns: int, name: str, source: str) -> list[Event]:
+        """A told tool change: the new tool from the session's library when it knows it (its state loaded into
+        the primary, when it takes one), the gate told (``HapticGate.change_tool``)."""
+        plan = change_tool_plan(self.s.tool, name)
+        load: Callable[[str], None] | None = getattr(self.s.primary.estimator, "load_state", None)
+        state = plan.warm_start if plan.record is not None and load is not None else ""
+        if state and load is not None:
+            load(state)
+        self.s.tool = plan
+        what = f"tool {name!r}" if name else "an unnamed tool"
+        known = " (known: its saved state loaded)" if state else " (identified from the motion)"
+        return self.gate.change_tool(now_ns, f"tool changed by {source} to {what}{known}", bool(state))
+
     def command(self, now_ns: int, taps: Taps) -> None:
         """The tick's force command from the gate's reason and the last estimate: sent, recorded, then the
         robot's target from the device's state."""
@@ -86,6 +101,10 @@ class HapticCommander:
             if event is not None:
                 self.on_event(event)
                 reason = self.gate.reason(now_ns)
+        while self.tool_changes:
+            for event in self._change_tool(now_ns, *self.tool_changes.popleft()):
+                self.on_event(event)
+            reason = self.gate.reason(now_ns)
         fault = self.gate.fault_event(reason, now_ns)
         if fault is not None:
             self.on_event(fault)

@@ -112,6 +112,27 @@ def save_estimator_state(
         return None
 
 
+def final_params(primary: EstimatorSlot, samples: int, end_ns: int, on_event: Callable[[Event], None]) -> dict:
+    """The primary's parameters at the end ({} before any sample, or when it fails again: an ``error`` event)."""
+    try:
+        return (primary.params() or {}) if samples else {}
+    except Exception as exc:  # the estimator that just failed may fail again
+        on_event(Event(end_ns, "error", f"estimator parameters unavailable: {exc}"))
+        return {}
+
+
+def save_for_next(
+    session: Session, recorder: Recorder, path: Path, params: dict, identified: bool, end_ns: int, on_event: Callable
+) -> str | None:
+    """What later sessions start from, once the session ended without a failure: the primary's state beside the
+    recording (:func:`save_estimator_state`: its path, or None) and the tool in its library (:func:`save_tool`;
+    ``identified``: the gate saw the parameters known)."""
+    saved = save_estimator_state(session.primary, recorder, path, end_ns, on_event) if session.primary.saves else None
+    if session.tool.name:
+        save_tool(session, params if identified else None, str(Path(path).resolve()), end_ns, on_event)
+    return saved
+
+
 def save_tool(
     session: Session, params: dict | None, recording: str, end_ns: int, on_event: Callable[[Event], None]
 ) -> None:

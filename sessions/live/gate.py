@@ -239,7 +239,9 @@ class HapticGate:
         judge = self.parameters_known and self.parameter_std is not None and self.bias_hold in ("", "settle")
         # (batch, no parameter std: its residual torque errs as no touch does)
         self.lever.add(est.t_ns, est.contact_force_S, est.contact_torque_S, judge and bool(est.converged_torque[-1]))
-        if self.doubt and self.cross.confirmed:  # the robot's own wrench saw it too: a contact
+        step = np.asarray(self.cross.step_B) / (math.hypot(*self.cross.step_B) or 1.0)
+        if self.doubt and self.cross.confirmed and not (g_B is not None and along(step, g_B, WEIGHT_TILT)):
+            # the robot's own wrench saw it too: a contact (a load hung on, or a tool changed, steps both alike)
             message = f"{self.doubt}: {self.cross.confirmed}"
             events.append(Event(now_ns, "contact_confirmed", message))
             self.doubt.close()
@@ -283,6 +285,21 @@ class HapticGate:
         self.lever.reset()
         message = f"haptic force re-armed by {source}; it ramps in from zero once the residual has settled"
         return Event(now_ns, "haptic_rearmed", message, {"source": source})
+
+    def change_tool(self, now_ns: int, how: str, warm: bool) -> list[Event]:
+        """The session was told its tool changed (``how``: by whom, and to what): the weight and centre of gravity
+        are re-identified (``warm``: the estimator was just given the new tool's saved state instead; the
+        sensor's bias is kept either way) and the force held until they are known again; an estimator that
+        cannot re-identify latches the force off. The events: ``tool_change`` (and ``haptic_latched``)."""
+        self.doubt.close()
+        self.drift.reset()
+        self.lever.reset()
+        self.parameters_known, self.hold_until_ns = False, now_ns + PAYLOAD_HOLD_NS
+        event = Event(now_ns, "tool_change", f"{how}: the force is held until the new tool is identified")
+        if warm or self.reidentifies_weight is None:
+            return [event, *([] if warm else self._latch("tool change", now_ns, f"{self.label} cannot re-identify it"))]
+        self.reidentifies_weight.reidentify_weight("tool change")
+        return [event]
 
     def _reidentify(self, step: np.ndarray, now_ns: int, how: str, kind: str = "bias_step") -> list[Event]:
         """A bias step of ``step`` (3,) N (``kind`` "weight_step": a weight step), seen as ``how``: re-identified,

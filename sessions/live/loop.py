@@ -43,8 +43,8 @@ from hapticlab.sessions.live.ending import (
     PartFailedError,
     close_devices,
     ending_message,
-    save_estimator_state,
-    save_tool,
+    final_params,
+    save_for_next,
     signals_end_the_session,
     signals_noted,
 )
@@ -56,6 +56,7 @@ from hapticlab.sessions.live.taps import HAND_OVER_NS, Taps
 from hapticlab.sessions.recording import Recorder
 from hapticlab.sessions.recording.process_sink import WriterProcessError
 from hapticlab.sessions.settings import check_duration
+from hapticlab.sessions.tools.library import check_name
 
 PARAMS_INTERVAL_NS = 100_000_000
 """Parameters and covariance are recorded at 10 Hz (they change slowly; P⁻¹ costs µs)."""
@@ -140,6 +141,10 @@ class LiveLoop:
     def rearm(self, source: str = "api") -> None:
         """Ask to re-arm a latched stop (any thread); honoured at the next tick, granted only once its cause is gone."""
         self.commander.rearm_requests.append(source)
+
+    def change_tool(self, name: str = "", source: str = "api") -> None:
+        """Tell the session (any thread) its tool changed to ``name`` ("" unnamed): the force held until identified."""
+        self.commander.tool_changes.append((name and check_name(name, "tool name"), source))
 
     def run(self) -> SessionResult:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -363,11 +368,7 @@ class LiveLoop:
         if failure is not None:
             self._event(Event(end_ns, "error", str(failure), {"part": failure.part}))
         primary = self.s.primary
-        try:
-            params = (primary.params() or {}) if self.samples else {}
-        except Exception as exc:  # the estimator that just failed may fail again
-            params = {}
-            self._event(Event(end_ns, "error", f"estimator parameters unavailable: {exc}"))
+        params = final_params(primary, self.samples, end_ns, self._event)
         summary = {
             "samples": self.samples,
             "poses": self.poses,
@@ -385,13 +386,10 @@ class LiveLoop:
             "signals_while_ending": self.signals_while_ending,
         }
         assert self.recorder is not None  # run() made it before the session started
-        if primary.saves is not None and failure is None:
-            state_path = save_estimator_state(primary, self.recorder, self.path, end_ns, self._event)
-            if state_path is not None:
-                summary["estimator_state_path"] = state_path
-        if self.s.tool.name and failure is None:
-            known = params if self.gate.parameters_known else None
-            save_tool(self.s, known, str(Path(self.path).resolve()), end_ns, self._event)
+        known = self.gate.parameters_known  # (the tool is saved only when identified)
+        saved = None if failure else save_for_next(self.s, self.recorder, self.path, params, known, end_ns, self._event)
+        if saved:
+            summary["estimator_state_path"] = saved
         self._event(Event(end_ns, "session_end", ending_message(interrupted, self.stopped_by, failure is not None)))
         try:
             self.taps.send()

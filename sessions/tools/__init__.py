@@ -19,7 +19,16 @@ from hapticlab.core.host.options import unknown_key
 from hapticlab.sessions.tools.library import ToolLibrary, ToolRecord
 from hapticlab.sessions.tools.settings import ToolSettings
 
-__all__ = ["ToolLibrary", "ToolPlan", "ToolRecord", "ToolSettings", "prepare", "save", "tool_settings"]
+__all__ = [
+    "ToolLibrary",
+    "ToolPlan",
+    "ToolRecord",
+    "ToolSettings",
+    "change_tool_plan",
+    "prepare",
+    "save",
+    "tool_settings",
+]
 
 
 def tool_settings(config: dict[str, Any]) -> ToolSettings:
@@ -87,6 +96,17 @@ def prepare(config: dict[str, Any], takes_warm_start: bool) -> tuple[dict[str, A
     if not haptic.get("tool_mass"):
         mass = haptic["tool_mass"] = round(record.mass_kg, 6)
     return config, ToolPlan(settings.name, str(library.folder), record, warm, mass)
+
+
+def change_tool_plan(plan: ToolPlan, name: str) -> ToolPlan:
+    """The plan after the session's tool changed to ``name`` ("" unnamed: nothing read, nothing saved), in the
+    same library: its record and saved state when the library knows it."""
+    if not name:
+        return ToolPlan()
+    library = ToolLibrary(plan.library or None)
+    record = library.get(name)
+    state = library.state(name) if record is not None else None
+    return ToolPlan(name, str(library.folder), record, str(state or ""), 0.0)
 
 
 def save(

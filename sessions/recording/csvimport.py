@@ -100,7 +100,7 @@ def _bounded_lines(fh: TextIO, name: str) -> Iterator[str]:
     while line := fh.readline(MAX_LINE_CHARS + 1):
         n += 1
         if len(line) > MAX_LINE_CHARS:
-            raise CsvError(f"{name} line {n}: longer than {MAX_LINE_CHARS >> 10} Ki characters: not a CSV of samples")
+            raise CsvError(f"{name} line {n}: longer than {MAX_LINE_CHARS:,} characters: not a CSV of samples")
         yield line
 
 

@@ -39,6 +39,8 @@ class Probe:
     in_process: bool = True
     cohort: bool = False
     """A folder of files: a bad one is a row of the command's table naming it (exit 2), not its one line."""
+    unwritable: bool = False
+    """Its output folder is read-only (mode 0o555): nothing to probe as root (permission bits do not stop it)."""
 
 
 READERS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -120,7 +122,7 @@ BAD_SETS = (
 """``run --set`` values: infinite, absurd, tiny, beyond 64 bits, wrong types, nested without end."""
 
 
-def probes(root_is_root: bool) -> list[Probe]:
+def probes() -> list[Probe]:
     """Every probe: inputs for each reading command, session files, warm starts, ``--set`` values, outputs."""
     out: list[Probe] = []
     for command, (exts, argv) in READERS.items():
@@ -180,8 +182,6 @@ def probes(root_is_root: bool) -> list[Probe]:
         out.append(Probe(f"run-duration-{duration}", argv, "duration"))
     for writer, (ext, argv) in WRITERS.items():
         for target, (path, extra) in TARGETS.items():
-            if target == "in-an-unwritable-folder" and root_is_root:
-                continue  # permission bits do not stop root: nothing to probe
             if target == "link-to-a-file-force" and writer not in CHEAP_WRITERS:
                 continue
             if writer == "run-out" and extra:  # run has no --force: a recording is never overwritten
@@ -190,9 +190,8 @@ def probes(root_is_root: bool) -> list[Probe]:
                 extra = ()
             path = path.replace("{ext}", ext)
             in_process = "fifo" not in target and "dev" not in target
-            out.append(
-                Probe(f"{writer}-{target}", tuple(a.replace("{target}", path) for a in argv) + extra, path, in_process)
-            )
+            line = tuple(a.replace("{target}", path) for a in argv) + extra
+            out.append(Probe(f"{writer}-{target}", line, path, in_process, unwritable="unwritable" in target))
     for command in ("discrepancy", "review"):
         source = "{lab}/good.csv" if command == "discrepancy" else "{lab}/good.mcap"
         for target, path in (

@@ -35,6 +35,9 @@ MAX_SESSION_FILE_BYTES = 1 << 20
 
 TABLES = ("session", "sensor", "kinematics", "estimator", "haptic", "teleop", "task", "tool", "shadows")
 """The host's own tables; a plugin's context (``register_contexts``, e.g. ``world``) adds its own."""
+MAX_NESTING = 32
+"""Tables and arrays nest at most this deep in a session config (the presets: 4): deeper is no session, and
+would exhaust the recursion of every reader after the parser (a deep copy, the checks)."""
 PLUGIN_TABLES = {"sensor": "sensor", "kinematics": "kinematics", "estimator": "estimator", "haptic": "haptic_output"}
 
 
@@ -51,7 +54,8 @@ def load_config(session: str | None) -> tuple[dict[str, Any], str]:
     # a preset name unless it looks like a path (a folder named "demo" is no session)
     if session.endswith(".toml") or "/" in session or (path.is_file() and session not in preset_names()):
         if not path.is_file():
-            raise ConfigError(f"{session}: no such session file")
+            what = "not a regular file (a folder, a device or a FIFO)" if path.exists() else "no such session file"
+            raise ConfigError(f"{session}: {what}")
         text, origin = read_session_file(path), str(path)
     else:
         if session not in preset_names():
@@ -61,11 +65,27 @@ def load_config(session: str | None) -> tuple[dict[str, Any], str]:
         text = (resources.files("hapticlab.sessions") / "presets" / f"{session}.toml").read_text("utf-8")
         origin = f"preset:{session}"
     try:
-        return tomllib.loads(text), origin
+        config = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{origin}: invalid TOML: {exc}") from None
     except RecursionError:  # tomllib parses nested arrays and inline tables recursively
         raise ConfigError(f"{origin}: invalid TOML: arrays or tables nested too deeply") from None
+    if nesting_depth(config) > MAX_NESTING:  # dotted keys and [a.b.c] headers nest without recursing
+        raise ConfigError(f"{origin}: tables or arrays nested more than {MAX_NESTING} deep: not a session file")
+    return config, origin
+
+
+def nesting_depth(value: Any) -> int:
+    """How deep tables and arrays nest in ``value`` (a scalar: 0), counted without recursion, stopping
+    past ``MAX_NESTING``."""
+    deepest, todo = 0, [(value, 0)]
+    while todo and deepest <= MAX_NESTING:
+        node, depth = todo.pop()
+        children = node.values() if isinstance(node, dict) else node if isinstance(node, list) else None
+        if children is not None:
+            deepest = max(deepest, depth + 1)
+            todo.extend((child, depth + 1) for child in children)
+    return deepest
 
 
 def read_session_file(path: Path) -> str:
@@ -86,12 +106,17 @@ def read_session_file(path: Path) -> str:
         ) from None
 
 
-def parse_value(text: str) -> Any:
+def parse_value(text: str, key: str = "") -> Any:
     """A ``--set`` value: TOML syntax when it parses (2, 1.5, true, [1, 2], "x"), else a bare string."""
     try:
-        return tomllib.loads(f"v = {text}")["v"]
+        value = tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise ConfigError(f"--set {key}: arrays or tables nested too deeply") from None
+    if nesting_depth(value) > MAX_NESTING:
+        raise ConfigError(f"--set {key}: arrays or tables nested more than {MAX_NESTING} deep")
+    return value
 
 
 def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
@@ -101,7 +126,7 @@ def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, A
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise ConfigError(f"--set {item!r}: expected key=value, e.g. estimator.name=batch")
-        settings[key.strip()] = parse_value(value)
+        settings[key.strip()] = parse_value(value, key.strip())
     return apply_settings(config, settings)
 
 
@@ -139,6 +164,8 @@ def apply_settings(config: dict[str, Any], settings: dict[str, Any]) -> dict[str
         if not key:
             raise ConfigError("settings: an empty key; give dotted keys such as session.duration")
         parts = key.split(".")
+        if len(parts) > MAX_NESTING:
+            raise ConfigError(f"{key[:40]}...: a key of {len(parts)} parts (at most {MAX_NESTING})")
         if parts[0] not in TABLES and parts[0] not in config:
             known = (*TABLES, *_context_tables())
             if parts[0] not in known:

@@ -30,7 +30,7 @@ def _named(label: str, path: Path) -> str:
     return f"{label} {path}" if label else str(path)
 
 
-def _check_writable(folder: Path, named: str) -> None:
+def check_writable(folder: Path, named: str) -> None:
     """UserError unless a file can be created in ``folder`` (tried: permission bits do not stop root)."""
     try:
         fd, probe = tempfile.mkstemp(dir=folder, prefix=".hapticlab-", suffix=".probe")
@@ -79,7 +79,7 @@ def check_output(
             raise UserError(f"{named}: the output would overwrite the {role} {source}; write to a different file")
     if (path.exists() or path.is_symlink()) and not force:
         raise OutputExistsError(f"{named}: already exists; --force overwrites it")
-    _check_writable(parent, named)
+    check_writable(parent, named)
     return path
 
 
@@ -100,7 +100,7 @@ def check_plots_folder(
         if clash:
             more = f" and {len(clash) - 1} more figure(s)" if len(clash) > 1 else ""
             raise OutputExistsError(f"{named}: {folder} already holds {clash[0]}{more}; --force overwrites them")
-    _check_writable(existing, named)
+    check_writable(existing, named)
     return folder
 
 

@@ -27,6 +27,8 @@ ENCODER_STREAM = 2
 """The world's random stream of the robot's encoder jitter (0: sensor noise, 1: bias drift)."""
 MAX_RATE_HZ = 10_000.0
 """Fastest kinematics stream accepted (an absurd rate would flood the loop)."""
+MIN_RATE_HZ = 1.0
+"""Slowest sample rate accepted: a period longer than a second is a typo (1e-300 Hz overflowed the aligner)."""
 
 
 class SimKinematics:
@@ -61,7 +63,7 @@ class SimKinematics:
                 "kinematics sim: needs the session's simulated world; "
                 "add a [world] table to the session (or pass world=SimWorld(...))"
             )
-        rate_hz = number("rate_hz", rate_hz, above=0, maximum=MAX_RATE_HZ, hint=" Hz")
+        rate_hz = number("rate_hz", rate_hz, minimum=MIN_RATE_HZ, maximum=MAX_RATE_HZ, hint=" Hz")
         self.encoder_noise = number("encoder_noise", encoder_noise, minimum=0, maximum=1e-3, hint=" (rad and m)")
         self._noise_key = int(
             np.random.SeedSequence(world.seed, spawn_key=(ENCODER_STREAM,)).generate_state(1, np.uint64)[0]

@@ -22,6 +22,8 @@ from hapticlab.plugins.simworld.prefetch import PREFETCH_S, Prefetch
 
 MAX_RATE_HZ = 100_000.0
 """Fastest sample rate accepted (a Net F/T streams at up to 7 kHz; an absurd rate would flood the loop)."""
+MIN_RATE_HZ = 1.0
+"""Slowest sample rate accepted: a period longer than a second is a typo (1e-300 Hz overflowed the aligner)."""
 
 
 class SimSensor:
@@ -43,7 +45,7 @@ class SimSensor:
                 "sensor sim: needs the session's simulated world; "
                 "add a [world] table to the session (or pass world=SimWorld(...))"
             )
-        self.rate_hz = number("rate_hz", rate_hz, above=0, maximum=MAX_RATE_HZ, hint=" Hz")
+        self.rate_hz = number("rate_hz", rate_hz, minimum=MIN_RATE_HZ, maximum=MAX_RATE_HZ, hint=" Hz")
         self.world = world
         self.range_force_S = world.sensor.saturation_force_S.copy()
         """(3,) measurement range per force axis, N (HasRange): the sensor saturates beyond it."""

@@ -69,8 +69,13 @@ class WorldSpec:
 
 # --------------------------------------------------------------------------- what each key accepts
 
+MAX_SPAN_S = 86_400.0
+"""s: the longest a motion's segment, dwell, hold or ramp may last (a session lasts a day at most): longer
+is a typo, and its arithmetic overflows (1e300 s segments raised OverflowError inside the sim kinematics)."""
 _positive = check(number, above=0)
 _seconds = check(number, hint=" (s)")
+_span = check(number, above=0, maximum=MAX_SPAN_S, hint=" (s)")
+_pause = check(number, minimum=0, maximum=MAX_SPAN_S, hint=" (s)")
 _forever = check(number, minimum=0, finite=False, hint=" (s; inf: for ever)")
 _degrees = check(number, hint=" (degrees)")
 
@@ -131,25 +136,25 @@ MOTION_OPTIONS: dict[str, dict[str, Check]] = {
     "random_tour": {
         "max_tilt_deg": check(number, minimum=0, maximum=180, hint=" (degrees)"),
         "max_roll_deg": check(number, minimum=0, hint=" (degrees)"),
-        "segment_s": check(number, above=0, hint=" (s)"),
-        "dwell_s": check(number, minimum=0, hint=" (s)"),
+        "segment_s": _span,
+        "dwell_s": _pause,
         "max_translation": check(number, minimum=0, hint=" (m)"),
         "waypoints": _count,
     },
     "static_poses": {
         "max_tilt_deg": check(number, minimum=0, maximum=180, hint=" (degrees)"),
         "max_roll_deg": check(number, minimum=0, hint=" (degrees)"),
-        "hold_s": check(number, minimum=0, hint=" (s)"),
-        "move_s": check(number, above=0, hint=" (s)"),
+        "hold_s": _pause,
+        "move_s": _span,
         "max_translation": check(number, minimum=0, hint=" (m)"),
         "poses": _count,
     },
     "axial_rotation": {
         "speed_deg_s": check(number, hint=" (deg/s)"),
-        "duration": check(number, above=0, hint=" (s)"),
+        "duration": _span,
         "turns": _positive,
-        "ramp_s": check(number, above=0, hint=" (s)"),
-        "start_s": check(number, minimum=0, hint=" (s)"),
+        "ramp_s": _span,
+        "start_s": _pause,
         "roll0_deg": _degrees,
     },
     "hold": _hold,
@@ -161,8 +166,8 @@ MOTION_OPTIONS: dict[str, dict[str, Check]] = {
         "max_accel": check(number, above=0, hint=" (m/s²)"),
         "max_angular_speed": check(number, above=0, hint=" (rad/s)"),
         "max_angular_accel": check(number, above=0, hint=" (rad/s²)"),
-        "step_s": check(number, above=0, hint=" (s)"),
-        "history_s": check(number, above=0, hint=" (s)"),
+        "step_s": _span,
+        "history_s": _span,
     },
 }
 """``[world.motion]``: script -> its options (``script`` itself aside; the seed and the flange position come

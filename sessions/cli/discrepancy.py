@@ -166,7 +166,7 @@ def cmd_discrepancy(args: argparse.Namespace) -> int:
             raise UserError(
                 f"--set {item!r}: unknown effect {effect!r}; available: {', '.join(registry.names('effect'))}"
             )
-        settings.effect_options.setdefault(effect, {})[option] = parse_value(value)
+        settings.effect_options.setdefault(effect, {})[option] = parse_value(value, key)
     if args.folds < 3:
         raise UserError(f"--folds: at least 3, got {args.folds}")
     if Path(args.input).is_dir():

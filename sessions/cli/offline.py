@@ -120,8 +120,9 @@ def replay_folder_table(args: argparse.Namespace) -> int:
         ("samples", "recorded estimators: conv. / |RMS|", "new: conv. / |RMS|"),
         row,
     )
-    if args.output:
-        err.print(f"wrote the replayed recordings under {args.output}")
+    written = sum(not outcome.error for outcome in run.outcomes)
+    if args.output and written:  # (every file refused: nothing was written, the table says why)
+        err.print(f"wrote {written} replayed recording(s) under {args.output}")
     return status
 
 

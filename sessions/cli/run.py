@@ -12,6 +12,7 @@ import contextlib
 import os
 import select
 import sys
+from pathlib import Path
 from typing import IO, Any
 
 from rich.console import Console
@@ -130,17 +131,21 @@ def _status_table(status, hint: str = "") -> Table:
 def cmd_run(args: argparse.Namespace) -> int:
     from hapticlab.sessions.config import apply_overrides, load_config
     from hapticlab.sessions.live import SessionError, build_session, run_session
-    from hapticlab.sessions.live.build import check_live_address
+    from hapticlab.sessions.live.build import check_live_address, refuse_existing_outputs
     from hapticlab.sessions.settings import check_duration
 
     config, origin = load_config(args.session)
     config = apply_overrides(config, args.set or [])
     if args.live:  # before the build: a refused address costs no compile
         check_live_address(args.live, allow_network=args.allow_network)
+    if args.out:  # before the build too; the estimator's saved state beside it once the build names the estimator
+        refuse_existing_outputs(Path(args.out), saves_state=False)
     # the estimators' and the aligner's kernels are compiled on the first run (numba, ~10 s here), then loaded
     with err.status("building the session (the first run compiles the numba kernels, ~10 s)"):
         session = build_session(config)
     duration = session.settings.duration if args.duration is None else check_duration("--duration", args.duration)
+    if args.out:  # before the banner: a refused --out is the only line
+        refuse_existing_outputs(Path(args.out), saves_state=session.primary.saves is not None)
     err.print(
         f"[bold]hapticlab run[/] {origin}: {duration:g} s, sensor {session.plugins['sensor']['name']}, "
         f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "

@@ -16,7 +16,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from hapticlab.core.errors import ConfigError, OutputExistsError
+from hapticlab.core.errors import ConfigError, OutputExistsError, UserError
 from hapticlab.core.host.interfaces import (
     CountsConvergence,
     EmitsEvents,
@@ -42,6 +42,7 @@ from hapticlab.core.host.registry import Registry
 from hapticlab.sessions.config import PLUGIN_TABLES, check_tables, plugin_options, shadow_tables
 from hapticlab.sessions.live.gate import HapticGate
 from hapticlab.sessions.live.safety import ForceGovernor
+from hapticlab.sessions.output import check_writable
 from hapticlab.sessions.settings import (
     HapticSettings,
     SessionSettings,
@@ -346,10 +347,18 @@ def calibration_path(path: Path) -> Path:
 
 
 def refuse_existing_outputs(path: Path, saves_state: bool) -> None:
-    """OutputExistsError when the recording ``path`` exists, or (``saves_state``: the primary saves its state)
-    its :func:`calibration_path` does: a session never overwrites what an earlier one wrote."""
-    if path.exists():
+    """OutputExistsError when the recording ``path`` exists (a symlink, even to nowhere, too), or
+    (``saves_state``: the primary saves its state) its :func:`calibration_path` does: a session never
+    overwrites what an earlier one wrote. UserError when it is a folder, or its nearest existing folder is
+    a file or cannot be written in (the missing ones are made when the session starts)."""
+    if path.is_dir():
+        raise UserError(f"--out {path}: is a folder; give a recording's file name (.mcap)")
+    if path.exists() or path.is_symlink():
         raise OutputExistsError(f"{path} already exists; choose another --out (recordings are never overwritten)")
+    existing = next(p for p in path.parents if p.exists() or p.is_symlink())  # "." or "/" at last
+    if not existing.is_dir():
+        raise UserError(f"--out {path}: {existing} is not a folder")
+    check_writable(existing, f"--out {path}")
     if saves_state and calibration_path(path).exists():
         raise OutputExistsError(
             f"{calibration_path(path)} already exists (the estimator's state of an earlier session); "

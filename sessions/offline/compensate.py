@@ -48,7 +48,7 @@ def estimator_options(overrides: list[str]) -> dict[str, Any]:
             key = key[len("estimator.") :]
         elif "." in key:
             raise ConfigError(f"{key}: compensate takes estimator options only (estimator.<option>=value)")
-        options[key] = parse_value(value)
+        options[key] = parse_value(value, key)
     return options
 
 

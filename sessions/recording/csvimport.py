@@ -29,6 +29,9 @@ from hapticlab.sessions.recording.stream import CHUNK_ROWS, Stream, off_unit
 REQUIRED = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "qw", "qx", "qy", "qz")
 POSITION = ("px", "py", "pz")
 JOINTS = tuple(f"q{i}" for i in range(1, 7))
+MAX_LINE_CHARS = 1 << 20
+"""Characters a line may hold (a row of samples holds ~300): a longer one is no CSV of samples, and reading
+it whole would take the memory of the whole line (a 4 GiB file of NUL bytes has one line)."""
 
 
 class CsvError(UserError, ValueError):
@@ -61,7 +64,7 @@ def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
     except OSError as exc:
         raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
     with fh:
-        records = _records(csv.reader(fh), path)
+        records = _records(csv.reader(_bounded_lines(fh, name)), path)
         first = next(records, None)
         if first is None:
             raise CsvError(f"{name}: empty file; expected a header row with {','.join(REQUIRED)}")
@@ -89,6 +92,16 @@ def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
             del stream
         if done == 0:
             raise CsvError(f"{name}: no data rows after the header")
+
+
+def _bounded_lines(fh: TextIO, name: str) -> Iterator[str]:
+    """The file's lines, each read up to ``MAX_LINE_CHARS``; CsvError at a longer one."""
+    n = 0
+    while line := fh.readline(MAX_LINE_CHARS + 1):
+        n += 1
+        if len(line) > MAX_LINE_CHARS:
+            raise CsvError(f"{name} line {n}: longer than {MAX_LINE_CHARS:,} characters: not a CSV of samples")
+        yield line
 
 
 def _records(reader, path: Path) -> Iterator[tuple[int, list[str]]]:

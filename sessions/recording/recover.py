@@ -47,6 +47,8 @@ def recover(
     unless ``force``) and written whole or not at all (``sessions.output``).
     """
     src = Path(broken_path)
+    if src.exists() and not src.is_file():  # refused before it is opened: a FIFO blocks, a device never ends
+        raise RecordingError(f"{src}: not a regular file (a folder, a device or a FIFO); give an MCAP file")
     dst = check_output(fixed_path, force, label="-o", inputs=[src], role="broken input")
     size = src.stat().st_size
 

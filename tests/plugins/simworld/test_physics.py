@@ -473,7 +473,7 @@ def test_empty_config_gives_the_defaults():
             {"motion": {"script": "axial_rotation", "turns": 1, "duration": 3}},
             "world.motion.turns: give either duration or turns, not both",
         ),
-        ({"motion": {"segment_s": 0}}, "world.motion.segment_s: must be a finite number > 0 (s), got 0"),
+        ({"motion": {"segment_s": 0}}, "world.motion.segment_s: must be a finite number > 0 and <= 86400 (s), got 0"),
         (
             {"contacts": [{"kind": "poke"}]},
             "world.contacts[0].kind: must be 'indentation', 'hanging_mass', 'tissue' or 'cable', got 'poke'",

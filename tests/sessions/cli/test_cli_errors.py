@@ -145,6 +145,8 @@ def test_an_earlier_session_s_calibration_file_is_never_overwritten(tmp_path, ca
         ["discrepancy", "{fifo}"],
         ["replay", "{zero}", "--estimator", "rls", "-o", "{tmp}/out.csv"],
         ["replay", "{fifo}.mcap", "--estimator", "rls", "-o", "{tmp}/out.csv"],
+        ["recover", "{zero}", "-o", "{tmp}/out.csv"],
+        ["recover", "{fifo}.mcap", "-o", "{tmp}/out.csv"],
     ],
 )
 def test_an_input_that_is_not_a_regular_file_is_refused_before_it_is_read(tmp_path, capsys, argv):

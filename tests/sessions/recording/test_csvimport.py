@@ -131,3 +131,19 @@ def test_a_chunk_that_only_repeats_the_row_before_it_yields_no_samples_and_its_n
         "stuck.csv: dropped 5 row(s) that exactly repeat the row before them (line(s) 7, 8, 9, 10, 11)"
     ]
     assert parts[2].samples.seq.tolist() == [10, 11, 12, 13, 14]
+
+
+def test_a_line_longer_than_the_bound_is_refused_before_it_is_read_whole(tmp_path, monkeypatch):
+    """A 4 GiB file of NUL bytes is one line: read whole it took the memory of the file (MemoryError under
+    the probe harness's limit). The bound lowered to 1000 characters here, so the file stays small."""
+    from hapticlab.sessions.recording import csvimport
+
+    monkeypatch.setattr(csvimport, "MAX_LINE_CHARS", 1000)
+    path = tmp_path / "long.csv"
+    path.write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n" + "0," * 600 + "\n")
+    with pytest.raises(CsvError, match=r"^long\.csv line 2: longer than 1,000 characters: not a CSV of samples$"):
+        read_csv(path)
+    path.write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz\n" + "0," * 400 + "\n")  # 800 characters: read whole
+    with pytest.raises(CsvError, match=r"^long\.csv line 2: ") as refused:
+        read_csv(path)
+    assert "longer than" not in str(refused.value)  # refused by the contract (401 fields), not by the bound

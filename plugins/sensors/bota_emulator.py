@@ -157,6 +157,11 @@ class BotaEmulator:
             return np.zeros(np.shape(timestamp_us))
         return np.maximum(0.0, np.asarray(timestamp_us) * 1e-6 - (self.run_ns - self.boot_ns) * 1e-9)
 
+    def run_timestamps_us(self, index: np.ndarray) -> np.ndarray:
+        """The device timestamps (µs, unwrapped) of the frames ``index`` (0, 1, ...) of the current run."""
+        t_ns = self.origin_ns + np.rint(np.asarray(index) * (1e9 / self.rate_hz)).astype(np.int64)
+        return np.rint((t_ns - self.boot_ns) * 1e-3).astype(np.int64)
+
     # ------------------------------------------------------------------ faults
 
     def corrupt_frames(self, n: int) -> None:
@@ -270,7 +275,7 @@ class BotaEmulator:
         index = np.arange(self._next, last + 1)
         self._next = last + 1
         t_ns = self.origin_ns + np.rint(index * period_ns).astype(np.int64)
-        device_us = np.rint((t_ns - self.boot_ns) * 1e-3).astype(np.int64)
+        device_us = self.run_timestamps_us(index)
         t = self.world_time(device_us)
         reading = self.world.wrench(t)
         force_S, torque_S = reading["force_S"].copy(), reading["torque_S"].copy()

@@ -1,7 +1,8 @@
 """``hapticlab emulate bota``: the Bota serial sensor emulator (``bota_emulator.py``) as a command, with faults.
 
 The first line printed is the pty's port, so a script or a test can read it and open the port;
-``--fault KIND@SECONDS[:ARG]`` injects faults at set times, counted from the emulator's start.
+``--fault KIND@SECONDS[:ARG]`` injects faults at set times of the world's clock (from the first ``R``: a
+session's start), as the Net F/T emulator's faults act over windows of world time.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ FAULT_KINDS = ("crc", "garbage", "overrange", "invalid", "stall", "unplug")
 
 @dataclass(frozen=True)
 class ScheduledFault:
-    """A fault injected ``at`` s after the emulator started.
+    """A fault injected ``at`` s of world time (after the first ``R``).
 
     ``crc@T:N`` breaks the CRC of the next N frames (default 1), ``garbage@T:N`` writes N noise
     bytes into the stream (default 64), ``overrange@T:D`` and ``invalid@T:D`` set that status bit
@@ -50,8 +51,12 @@ class ScheduledFault:
             raise ValueError(f"--fault {text!r}: times and counts must be >= 0")
         return fault
 
-    def inject(self, emulator: BotaEmulator, started: float, stop: threading.Event) -> None:
-        """Wait until the fault is due (or ``stop``), then inject it."""
+    def inject(self, emulator: BotaEmulator, stop: threading.Event) -> None:
+        """Wait until the fault is due on the world's clock (from the first ``R``) or ``stop``, then inject it."""
+        while emulator.run_ns is None:
+            if stop.wait(0.01):
+                return
+        started = emulator.run_ns * 1e-9
         if stop.wait(max(0.0, started + self.at - time.monotonic())):
             return
         if self.kind == "crc":
@@ -107,9 +112,8 @@ def run(args: argparse.Namespace, world: SimWorld) -> int:
             f"e.g. hapticlab run --set sensor.name=bota --set sensor.port={emulator.port}",
             flush=True,
         )
-        started = time.monotonic()
         for fault in faults:
-            threading.Thread(target=fault.inject, args=(emulator, started, stop), daemon=True).start()
+            threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
 
     with emulator:
         serve_until_stopped(args.duration, stop, ready)
@@ -117,8 +121,12 @@ def run(args: argparse.Namespace, world: SimWorld) -> int:
     print(
         f"sent {c.frames} frames ({c.corrupted} corrupted, {c.status_frames} with a status, {c.stalled_frames} "
         f"stalled, {c.garbage_bytes} noise bytes, {c.unsent_bytes} bytes no one read); {c.commands} command(s), "
-        f"{c.refused} refused, {c.unknown_bytes} unknown byte(s); world started at the first R: "
-        f"{'yes' if emulator.run_ns is not None else 'no R received'}",
+        f"{c.refused} refused, {c.unknown_bytes} unknown byte(s); "
+        + (
+            f"world time 0 at the first R, run_after_boot_ns={emulator.run_ns - emulator.boot_ns}"
+            if emulator.run_ns is not None
+            else "no R received: the world stayed at time 0"
+        ),
         flush=True,
     )
     return 0

@@ -177,7 +177,7 @@ def pytest_configure(config):
 
     def guarded_openpty():
         if _outside("realtime"):
-            _tier_fail("opens a pseudo-terminal", "pty_pair` or `master_emulator", "realtime")
+            _tier_fail("opens a pseudo-terminal", "pty_pair`, `master_emulator` or `bota_emulator", "realtime")
         return openpty()
 
     os.openpty = guarded_openpty

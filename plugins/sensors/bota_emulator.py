@@ -213,7 +213,7 @@ class BotaEmulator:
                 data = b""
             if data:
                 self.received += data
-                self._text += data
+                self._text += data.translate(None, b" \t\r\n")  # a newline after a command (bota-driver's) ends it
                 self._last_byte = time.monotonic()
             if self._text:
                 self._commands()

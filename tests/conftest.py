@@ -60,6 +60,7 @@ REALTIME = {
     "pty_pair": "a pseudo-terminal pair",
     "master_emulator": "the master emulator on a pseudo-terminal",
     "netft_emulator": "the Net F/T emulator streaming RDT over UDP at its own rate",
+    "bota_emulator": "the Bota serial sensor emulator on a pseudo-terminal, streaming at its own rate",
     "dask_workers": "Dask worker processes",
     "child_processes": "processes the code under test starts",
 }
@@ -176,7 +177,7 @@ def pytest_configure(config):
 
     def guarded_openpty():
         if _outside("realtime"):
-            _tier_fail("opens a pseudo-terminal", "pty_pair` or `master_emulator", "realtime")
+            _tier_fail("opens a pseudo-terminal", "pty_pair`, `master_emulator` or `bota_emulator", "realtime")
         return openpty()
 
     os.openpty = guarded_openpty
@@ -272,6 +273,24 @@ def netft_emulator():
     from hapticlab.plugins.sensors.netft_emulator import NetFTEmulator
 
     return NetFTEmulator
+
+
+@pytest.fixture
+def bota_emulator():
+    """``bota_emulator(world, **kwargs)`` → a :class:`BotaEmulator` (a Bota serial sensor on a pty, served by a
+    thread of this process); use it as a context manager. Any left serving is stopped at the test's end."""
+    from hapticlab.plugins.sensors.bota_emulator import BotaEmulator
+
+    made: list[BotaEmulator] = []
+
+    def make(*args, **kwargs) -> BotaEmulator:
+        emulator = BotaEmulator(*args, **kwargs)
+        made.append(emulator)
+        return emulator
+
+    yield make
+    for emulator in made:
+        emulator.stop()
 
 
 @pytest.fixture

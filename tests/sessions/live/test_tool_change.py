@@ -51,7 +51,8 @@ def test_a_tool_change_the_session_is_told_of_holds_the_force_until_the_new_tool
     result = loop.run()
     t0 = result.events[0].t_ns
     changes = [(e.t_ns - t0) * 1e-9 for e in result.events if e.kind == "tool_change"]
-    assert len(changes) == 1 and 8.5 <= changes[0] < 8.6, result.events
+    # (status calls come by the wall clock, a simulated session's time runs faster: when it was told varies)
+    assert len(changes) == 1 and told[0] <= changes[0] <= told[0] + 0.01 and changes[0] < 9.5, (told, changes)
     message = next(e.message for e in result.events if e.kind == "tool_change")
     assert message.startswith("tool changed by script to tool 'big' (identified from the motion)")
     rec = read_recording(result.path)

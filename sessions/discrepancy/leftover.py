@@ -15,17 +15,31 @@ from typing import Any
 
 import numpy as np
 
+from hapticlab.sessions.discrepancy.quality import quantised_noise
 from hapticlab.sessions.offline.metrics import rms
 
 
-def axis_noise(residual: np.ndarray) -> np.ndarray:
+def axis_noise(
+    residual: np.ndarray, steps: np.ndarray | None = None, predicted: np.ndarray | None = None
+) -> np.ndarray:
     """(6,) each channel's noise from sample-to-sample differences (MAD/√2, repeated rows skipped): what is
-    left that changes slower than the sampling (an unmodelled effect) does not count in it."""
+    left that changes slower than the sampling (an unmodelled effect) does not count in it.
+
+    A channel read on a grid (``steps`` (6,): its step, NaN where none; ``predicted`` (m, 6): the model's reading
+    on the same rows) gets :func:`~hapticlab.sessions.discrepancy.quality.quantised_noise` instead: a quiet
+    sensor's differences are mostly zero there and their MAD falls far below what the rounding leaves."""
     d = np.diff(residual, axis=0)
-    d = d[np.any(d != 0, axis=1)]
+    moved = np.any(d != 0, axis=1)
+    d = d[moved]
     if len(d) < 5:
         d = residual - np.median(residual, axis=0)
     mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2)
+    if steps is not None and predicted is not None and moved.sum() >= 5:
+        delta = np.diff(predicted, axis=0)[moved]
+        for k in np.flatnonzero(np.isfinite(steps)):
+            step = float(steps[k])
+            level = predicted[:, k] - (residual[0, k] + predicted[0, k]) % step  # from a grid point
+            mad[k] = quantised_noise(d[:, k], delta[:, k], step, level)
     return np.maximum(mad, np.maximum(1e-3 * rms(residual), 1e-9))
 
 

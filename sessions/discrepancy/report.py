@@ -92,7 +92,7 @@ def report(
         final_params[name] = effect.describe(params)
     noise = 1.0 / fit.weights
     over = rms_kept[-1] / noise
-    own_noise = axis_noise(final.residual[kept])
+    own_noise = axis_noise(final.residual[kept], fit.steps, fit.y[kept] - final.residual[kept])
     over_own = rms_kept[-1] / own_noise
     threshold = leftover_threshold(int(kept.sum()))
     leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
@@ -105,7 +105,7 @@ def report(
         )
         for a in leftover
     }
-    quality = data_quality(fit.y, fit.motion.t, use, kept, noise)
+    quality = data_quality(fit.y, fit.motion.t, use, kept, own_noise, fit.y - final.residual)
     warnings = {
         "saturated": bool(quality["saturated"]),
         "gate_not_applied": bool(fit.gate_fallback),

@@ -101,11 +101,13 @@ class Discrepancy(Identification):
         fit0 = batch_fit(self.y[use, :3], self.y[use, 3:], self.motion.R_EB[use])
         theta = np.concatenate([fit0["gravity_force_B"], fit0["bias_force_S"], fit0["cog_S"], fit0["bias_torque_S"]])
         model = Model()
-        self.weights = 1.0 / noise_scale(np.concatenate([fit0["residual_force_S"], fit0["residual_torque_S"]], 1))
+        residual0 = np.concatenate([fit0["residual_force_S"], fit0["residual_torque_S"]], 1)
+        self.weights = 1.0 / noise_scale(residual0, self.steps, self.y[use] - residual0)
         theta = self.robust_start(model, theta)
         theta = self.fit(model, theta)
         # weights from the base model's own residual (once; fixed for every comparison after)
-        self.weights = 1.0 / noise_scale((self.y - self.predict_all(model, theta))[self.kept])
+        predicted = self.predict_all(model, theta)[self.kept]
+        self.weights = 1.0 / noise_scale(self.y[self.kept] - predicted, self.steps, predicted)
         theta = self.fit(model, theta)
         states = [State("baseline", model, theta)]
         candidates, skipped, notes = self.candidates()
@@ -217,7 +219,7 @@ class Discrepancy(Identification):
         while model.effects and min_share > 0:  # 0: no structure test
             rows = self.kept[self.fit_rows]
             predicted = model.predict6(self.fit_motion, theta)[rows]
-            own_noise = axis_noise(self.y_fit[rows] - predicted)
+            own_noise = axis_noise(self.y_fit[rows] - predicted, self.steps, predicted)
             shares = {name: self.structure_share(model, theta, name, predicted, own_noise) for name, _ in model.effects}
             name = min(shares, key=shares.__getitem__)
             if shares[name] >= min_share:

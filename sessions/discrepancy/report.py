@@ -17,6 +17,7 @@ import numpy as np
 
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.sensor_model import Model
+from hapticlab.sessions.discrepancy.gated import CONTACT_FREE_SHARE, set_aside, set_aside_notes
 from hapticlab.sessions.discrepancy.identify import Identification
 from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold, where_left, where_text
 from hapticlab.sessions.discrepancy.quality import data_quality, quality_notes
@@ -106,13 +107,25 @@ def report(
         for a in leftover
     }
     quality = data_quality(fit.y, fit.motion.t, use, kept, own_noise, fit.y - final.residual)
+    residual_use = final.residual[use]
+    gate = set_aside(
+        fit.motion.t[use],
+        residual_use,
+        fit.y[use] - residual_use,
+        kept[use],
+        own_noise,
+        fit.motion.time_base == "seconds",
+    )
     warnings = {
         "saturated": bool(quality["saturated"]),
+        "ringing": gate["ringing"] is not None,
+        "gated_on_contact_free": bool(fit.settings.contact_free) and gate["share"] > CONTACT_FREE_SHARE,
         "gate_not_applied": bool(fit.gate_fallback),
         "final_above_noise": bool(np.any(over > fit.settings.warn_rms_over_noise)),
         "leftover": bool(leftover),
     }
     notes = list(notes) + quality_notes(quality, "rows" if fit.motion.time_base == "index" else "s")
+    notes += set_aside_notes(gate, fit.settings.contact_free)
     for step in steps:
         if step["action"] == "set_aside":
             notes.append(
@@ -175,6 +188,7 @@ def report(
         "rate_hz": fit.motion.rate_hz,
         "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
         "data_quality": quality,
+        "contact_gate": gate,
         "final_rms_over_noise": {"force_S": over[:3].tolist(), "torque_S": over[3:].tolist()},
         "axis_noise": {"force_S": own_noise[:3].tolist(), "torque_S": own_noise[3:].tolist()},
         "leftover": {

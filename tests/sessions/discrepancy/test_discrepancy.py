@@ -375,6 +375,8 @@ def test_a_long_contact_is_gated_and_the_mount_under_it_named(tmp_path):
     assert np.all(np.array(result["final"]["rms_force_S"]) <= 1.05 * NOISE)
     assert result["warnings"] == {
         "saturated": False,
+        "ringing": False,  # one press is contact
+        "gated_on_contact_free": False,
         "gate_not_applied": False,
         "final_above_noise": False,
         "leftover": False,

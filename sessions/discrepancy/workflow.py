@@ -49,14 +49,18 @@ from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.host.registry import Registry
 from hapticlab.core.sensor_model import Effect, Model
 from hapticlab.sessions.discrepancy.blas import single_threaded_blas
-from hapticlab.sessions.discrepancy.heldout import cross_validate
+from hapticlab.sessions.discrepancy.heldout import Evidence, cross_validate
 from hapticlab.sessions.discrepancy.identify import Identification, noise_scale
 from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold
 from hapticlab.sessions.discrepancy.report import State, json_ready, report
 from hapticlab.sessions.discrepancy.settings import Settings
+from hapticlab.sessions.discrepancy.skew import ClockSkew
 from hapticlab.sessions.offline.numerics import numerical_failures
 from hapticlab.sessions.recording.loader import load_stream
 from hapticlab.sessions.recording.stream import Stream
+
+SKEW = "clock_skew"
+"""The workflow's own candidate refining ``time_lag`` (:mod:`hapticlab.sessions.discrepancy.skew`)."""
 
 
 class Discrepancy(Identification):
@@ -75,13 +79,18 @@ class Discrepancy(Identification):
         self.say = progress or (lambda message: None)
 
     def candidates(self) -> tuple[list[tuple[str, Effect]], list[dict[str, str]], list[str]]:
-        """The effect plugins to test, those that cannot be tested here (with why), and their notes."""
+        """The effect plugins to test, those that cannot be tested here (with why), and their notes; with
+        ``time_lag``, the workflow's own refinement of it, ``clock_skew`` (:mod:`.skew`)."""
         names = self.settings.effects if self.settings.effects is not None else self.registry.names("effect")
+        if "time_lag" in names and SKEW not in names and SKEW not in self.registry.names("effect"):
+            names = [*names, SKEW]
         testable, skipped, notes = [], [], []
         for name in names:
-            effect = self.registry.create(
-                "effect", name, self.settings.effect_options.get(name, {}), where=f"effects.{name}"
-            )
+            options = self.settings.effect_options.get(name, {})
+            if name == SKEW and SKEW not in self.registry.names("effect"):
+                effect: Effect = ClockSkew(**options)
+            else:
+                effect = self.registry.create("effect", name, options, where=f"effects.{name}")
             reason = effect.check(self.motion)
             if reason:
                 skipped.append({"effect": name, "reason": reason})
@@ -89,6 +98,26 @@ class Discrepancy(Identification):
             notes.extend(effect.notes(self.motion))
             testable.append((name, effect))
         return testable, skipped, notes
+
+    def eligible(self, evidence: Evidence, round_: list[Evidence], model: Model) -> bool:
+        """Whether a significant candidate may be named. ``clock_skew`` refines ``time_lag``: beside a model
+        with the constant lag its test is nested (the skew beyond the lag must be significant); beside a
+        model without it, it must beat the constant lag on held-out data, fold by fold, as a candidate must
+        beat the model (a larger gain, in ``wins_needed`` of the folds), else the lag is the simpler answer
+        and a constant lag is not called a skew by chance; its ``note`` says why not."""
+        if evidence.effect != SKEW or "time_lag" in dict(model.effects):
+            return True
+        lag = next((e for e in round_ if e.effect == "time_lag"), None)
+        if lag is None or evidence.fold_error is None or lag.fold_error is None:
+            return True
+        wins = int(np.sum(evidence.fold_error < lag.fold_error))
+        if evidence.gain > lag.gain and wins >= evidence.wins_needed:
+            return True
+        evidence.note = (
+            f"not named: it beats time_lag ({100 * lag.gain:.2f} %) in {wins} of {evidence.folds} folds "
+            f"({evidence.wins_needed} needed)"
+        )
+        return False
 
     def run(self) -> dict[str, Any]:
         """Everything: the JSON-ready result (``"_states"`` holds arrays for the plots)."""
@@ -116,8 +145,12 @@ class Discrepancy(Identification):
         while candidates:
             self.say(f"round {len(rounds) + 1}: testing {', '.join(n for n, _ in candidates)}")
             evidence, lin = cross_validate(self, model, theta, candidates)
+            best = max(
+                (e for e in evidence if e.significant and self.eligible(e, evidence, model)),
+                key=lambda e: e.gain,
+                default=None,
+            )
             rounds.append([e.as_dict() for e in evidence])
-            best = max((e for e in evidence if e.significant), key=lambda e: e.gain, default=None)
             if best is None:
                 break
             name = best.effect

@@ -98,13 +98,16 @@ def solve_scaled(H: np.ndarray, g: np.ndarray, rcond: float = 1e-10) -> np.ndarr
 
 
 def noise_scale(
-    residual: np.ndarray, steps: np.ndarray | None = None, predicted: np.ndarray | None = None
+    residual: np.ndarray,
+    steps: np.ndarray | None = None,
+    predicted: np.ndarray | None = None,
+    rate_hz: float | None = None,
 ) -> np.ndarray:
     """(6,) channel weights' noise: one value for the three force channels and one for the three torque
     channels (the RMS over the axes of :func:`axis_noise`, with its ``steps`` and ``predicted`` for quantised
-    channels): a sensor's axes are alike, and equal weights within force and within torque keep the base fit's
-    force residual that of the offline batch fit."""
-    sigma = axis_noise(residual, steps, predicted)
+    channels, ``rate_hz`` for coloured noise): a sensor's axes are alike, and equal weights within force and
+    within torque keep the base fit's force residual that of the offline batch fit."""
+    sigma = axis_noise(residual, steps, predicted, rate_hz)
     return np.repeat([rms(sigma[:3]), rms(sigma[3:])], 3)
 
 

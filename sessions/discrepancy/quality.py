@@ -20,6 +20,10 @@ quiet sensor whose step is comparable to its noise are mostly whole steps or zer
 (to 1/16-1/120 of the residual on a 16-bit-like sensor); it is taken instead from the differences' trimmed
 variance, less what the rounding of a slow load cancels in them, plus the rounding's own variance where the
 load sat (step²/12 when it swept the levels evenly).
+
+:func:`noise_lag` is how many samples a channel's noise stays correlated over: the noise figures come from
+sample-to-sample differences, which see only the part of a coloured (low-passed) noise that changes between
+neighbours (an AR(1) noise of coefficient ρ: √(1 − ρ) of it); from differences over that lag they see it all.
 """
 
 from __future__ import annotations
@@ -106,6 +110,52 @@ def quantised_noise(d: np.ndarray, delta: np.ndarray, step: float, level: np.nda
         + float(at_levels @ (smooth * (step * step / (np.pi * k) ** 2 + 4 * sigma**2)))
     )
     return math.sqrt(max(mean_square, 0.0))
+
+
+COLOUR_SIGMAS = 4.0
+"""The noise is taken as coloured when its differences' lag-1 correlation is this many standard errors (1/√m) above
+−0.5, white noise's (a 0.06 correlation between neighbouring samples at 7 500 rows)."""
+MAX_NOISE_CORRELATION_S = 0.1
+"""A noise correlated longer than this (s: the time constant −dt/ln ρ; a sensor's low-pass filter at 1.6 Hz or
+above) is no sensor noise but a structure, and is not followed: a 10 Hz log's slow residual stays a leftover."""
+NOISE_LAG_CORRELATION = 0.005
+"""The noise's correlation at the lag :func:`noise_lag` chooses (an AR(1) model from the differences)."""
+MAX_NOISE_LAG = 64
+"""The longest lag, in samples, over which coloured noise is followed (and at most 0.26 s: a structure slower
+than that is not noise)."""
+
+
+def noise_colour(d: np.ndarray, rate_hz: float | None) -> tuple[int, float]:
+    """The lag (samples) over which a channel's noise decorrelates, from its sample-to-sample differences ``d``
+    (m,) sampled at ``rate_hz`` (None: ``t`` counts rows, whose order says nothing of time: white): 1 for white
+    noise, whose differences correlate −0.5 with their neighbours. A noise correlated over a
+    few samples (a sensor's low-pass filter) lifts that correlation to −(1 − ρ)/2 for an AR(1) noise of
+    coefficient ρ; the lag is where ρᵏ falls under :data:`NOISE_LAG_CORRELATION` (0.5 %: the figure is then
+    within 0.3 % of the noise's), and at least the first lag k from which the differences' correlations stay
+    within 3 standard errors of 0 up to 2k (a noise that is not AR(1)); at most :data:`MAX_NOISE_LAG` and 0.26 s.
+    A slow structure hardly enters the differences, so it does not lengthen the lag; a correlation longer than
+    :data:`MAX_NOISE_CORRELATION_S` is taken for structure, not noise (white). Returns (lag, ρ), ρ = 0 for white
+    noise."""
+    m = len(d)
+    if m < 50 or not rate_hz:
+        return 1, 0.0
+    x = d - d.mean()
+    power = float(x @ x)
+    if power <= 0:
+        return 1, 0.0
+    top = max(1, min(MAX_NOISE_LAG, m // 20, int(MAX_NOISE_LAG / 250.0 * rate_hz)))
+    corr = np.array([float(x[j:] @ x[:-j]) / power for j in range(1, 2 * top + 1)])
+    se = 1.0 / math.sqrt(m)
+    if corr[0] + 0.5 <= COLOUR_SIGMAS * se:
+        return 1, 0.0
+    rho = min(1.0 + 2.0 * float(corr[0]), 0.999)
+    if rho > 0 and -1.0 / (rate_hz * math.log(rho)) > MAX_NOISE_CORRELATION_S:
+        return 1, 0.0
+    lag = math.ceil(math.log(NOISE_LAG_CORRELATION) / math.log(rho)) if rho > 0 else 1
+    for k in range(2, top + 1):
+        if np.all(np.abs(corr[k - 1 : 2 * k]) < 3.0 * se):
+            return int(min(max(lag, k), top)), rho
+    return top, rho
 
 
 def channel_steps(y: np.ndarray) -> np.ndarray:

@@ -19,7 +19,13 @@ from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.sensor_model import Model
 from hapticlab.sessions.discrepancy.gated import CONTACT_FREE_SHARE, set_aside, set_aside_notes
 from hapticlab.sessions.discrepancy.identify import Identification
-from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold, where_left, where_text
+from hapticlab.sessions.discrepancy.leftover import (
+    axis_noise,
+    effective_samples,
+    leftover_threshold,
+    where_left,
+    where_text,
+)
 from hapticlab.sessions.discrepancy.quality import data_quality, quality_notes
 from hapticlab.sessions.offline.metrics import rms
 
@@ -93,9 +99,11 @@ def report(
         final_params[name] = effect.describe(params)
     noise = 1.0 / fit.weights
     over = rms_kept[-1] / noise
-    own_noise = axis_noise(final.residual[kept], fit.steps, fit.y[kept] - final.residual[kept])
+    rate = fit.motion.rate_hz
+    own_noise = axis_noise(final.residual[kept], fit.steps, fit.y[kept] - final.residual[kept], rate)
     over_own = rms_kept[-1] / own_noise
-    threshold = leftover_threshold(int(kept.sum()))
+    independent = effective_samples(final.residual[kept], rate)  # the kept samples, or fewer for a coloured noise
+    threshold = leftover_threshold(independent)
     leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
     where = {
         a: where_left(
@@ -168,7 +176,8 @@ def report(
         notes.append(
             "something the tested effects do not explain is left on "
             + ", ".join(f"{a} ({over_own[AXES.index(a)]:.2f}x its own noise)" for a in leftover)
-            + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples)"
+            + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples"
+            + (f", worth {independent} independent ones: the noise is coloured)" if independent < kept.sum() else ")")
             + "".join(where_text(a, where[a], fit.motion.time_base) for a in leftover)
             + "; see --plots"
         )
@@ -194,6 +203,7 @@ def report(
         "leftover": {
             "axes": leftover,
             "threshold": threshold,
+            "independent_samples": independent,
             "where": where,
             "rms_over_axis_noise": {"force_S": over_own[:3].tolist(), "torque_S": over_own[3:].tolist()},
         },

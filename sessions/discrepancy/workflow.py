@@ -131,12 +131,12 @@ class Discrepancy(Identification):
         theta = np.concatenate([fit0["gravity_force_B"], fit0["bias_force_S"], fit0["cog_S"], fit0["bias_torque_S"]])
         model = Model()
         residual0 = np.concatenate([fit0["residual_force_S"], fit0["residual_torque_S"]], 1)
-        self.weights = 1.0 / noise_scale(residual0, self.steps, self.y[use] - residual0)
+        self.weights = 1.0 / noise_scale(residual0, self.steps, self.y[use] - residual0, self.motion.rate_hz)
         theta = self.robust_start(model, theta)
         theta = self.fit(model, theta)
         # weights from the base model's own residual (once; fixed for every comparison after)
         predicted = self.predict_all(model, theta)[self.kept]
-        self.weights = 1.0 / noise_scale(self.y[self.kept] - predicted, self.steps, predicted)
+        self.weights = 1.0 / noise_scale(self.y[self.kept] - predicted, self.steps, predicted, self.motion.rate_hz)
         theta = self.fit(model, theta)
         states = [State("baseline", model, theta)]
         candidates, skipped, notes = self.candidates()
@@ -252,7 +252,8 @@ class Discrepancy(Identification):
         while model.effects and min_share > 0:  # 0: no structure test
             rows = self.kept[self.fit_rows]
             predicted = model.predict6(self.fit_motion, theta)[rows]
-            own_noise = axis_noise(self.y_fit[rows] - predicted, self.steps, predicted)
+            rate = self.motion.rate_hz / self.stride if self.motion.rate_hz else None  # every stride-th row
+            own_noise = axis_noise(self.y_fit[rows] - predicted, self.steps, predicted, rate)
             shares = {name: self.structure_share(model, theta, name, predicted, own_noise) for name, _ in model.effects}
             name = min(shares, key=shares.__getitem__)
             if shares[name] >= min_share:

@@ -52,6 +52,7 @@ from hapticlab.sessions.discrepancy.blas import single_threaded_blas
 from hapticlab.sessions.discrepancy.heldout import Evidence, cross_validate
 from hapticlab.sessions.discrepancy.identify import Identification, noise_scale
 from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold
+from hapticlab.sessions.discrepancy.ramp import PayloadRamp
 from hapticlab.sessions.discrepancy.report import State, json_ready, report
 from hapticlab.sessions.discrepancy.settings import Settings
 from hapticlab.sessions.discrepancy.skew import ClockSkew
@@ -61,6 +62,12 @@ from hapticlab.sessions.recording.stream import Stream
 
 SKEW = "clock_skew"
 """The workflow's own candidate refining ``time_lag`` (:mod:`hapticlab.sessions.discrepancy.skew`)."""
+REFINEMENTS: dict[str, tuple[str, type[Effect]]] = {
+    SKEW: ("time_lag", ClockSkew),
+    "payload_ramp": ("payload_change", PayloadRamp),
+}
+"""The workflow's own candidates, each refining a library effect (:mod:`.skew`, :mod:`.ramp`): name → (the
+effect it refines, its class)."""
 
 
 class Discrepancy(Identification):
@@ -79,16 +86,18 @@ class Discrepancy(Identification):
         self.say = progress or (lambda message: None)
 
     def candidates(self) -> tuple[list[tuple[str, Effect]], list[dict[str, str]], list[str]]:
-        """The effect plugins to test, those that cannot be tested here (with why), and their notes; with
-        ``time_lag``, the workflow's own refinement of it, ``clock_skew`` (:mod:`.skew`)."""
+        """The effect plugins to test, those that cannot be tested here (with why), and their notes; beside an
+        effect the workflow refines, its refinement (:data:`REFINEMENTS`: ``clock_skew``, ``payload_ramp``)."""
         names = self.settings.effects if self.settings.effects is not None else self.registry.names("effect")
-        if "time_lag" in names and SKEW not in names and SKEW not in self.registry.names("effect"):
-            names = [*names, SKEW]
+        registered = self.registry.names("effect")
+        for name, (base, _) in REFINEMENTS.items():
+            if base in names and name not in names and name not in registered:
+                names = [*names, name]
         testable, skipped, notes = [], [], []
         for name in names:
             options = self.settings.effect_options.get(name, {})
-            if name == SKEW and SKEW not in self.registry.names("effect"):
-                effect: Effect = ClockSkew(**options)
+            if name in REFINEMENTS and name not in registered:
+                effect: Effect = REFINEMENTS[name][1](**options)
             else:
                 effect = self.registry.create("effect", name, options, where=f"effects.{name}")
             reason = effect.check(self.motion)
@@ -100,21 +109,24 @@ class Discrepancy(Identification):
         return testable, skipped, notes
 
     def eligible(self, evidence: Evidence, round_: list[Evidence], model: Model) -> bool:
-        """Whether a significant candidate may be named. ``clock_skew`` refines ``time_lag``: beside a model
-        with the constant lag its test is nested (the skew beyond the lag must be significant); beside a
-        model without it, it must beat the constant lag on held-out data, fold by fold, as a candidate must
-        beat the model (a larger gain, in ``wins_needed`` of the folds), else the lag is the simpler answer
-        and a constant lag is not called a skew by chance; its ``note`` says why not."""
-        if evidence.effect != SKEW or "time_lag" in dict(model.effects):
+        """Whether a significant candidate may be named. A refinement (``clock_skew`` of ``time_lag``,
+        ``payload_ramp`` of ``payload_change``): beside a model with the effect it refines, its test is nested
+        (what it adds must be significant); beside a model without it, it must beat that effect on held-out
+        data, fold by fold, as a candidate must beat the model (a larger gain, in ``wins_needed`` of the
+        folds), else the simpler effect is the answer and is not replaced by chance; its ``note`` says why not."""
+        if evidence.effect not in REFINEMENTS:
             return True
-        lag = next((e for e in round_ if e.effect == "time_lag"), None)
-        if lag is None or evidence.fold_error is None or lag.fold_error is None:
+        base = REFINEMENTS[evidence.effect][0]
+        if base in dict(model.effects):
             return True
-        wins = int(np.sum(evidence.fold_error < lag.fold_error))
-        if evidence.gain > lag.gain and wins >= evidence.wins_needed:
+        rival = next((e for e in round_ if e.effect == base), None)
+        if rival is None or evidence.fold_error is None or rival.fold_error is None:
+            return True
+        wins = int(np.sum(evidence.fold_error < rival.fold_error))
+        if evidence.gain > rival.gain and wins >= evidence.wins_needed:
             return True
         evidence.note = (
-            f"not named: it beats time_lag ({100 * lag.gain:.2f} %) in {wins} of {evidence.folds} folds "
+            f"not named: it beats {base} ({100 * rival.gain:.2f} %) in {wins} of {evidence.folds} folds "
             f"({evidence.wins_needed} needed)"
         )
         return False

@@ -90,8 +90,9 @@ def test_a_clean_recording_names_nothing(tmp_path, seed):
     result, _ = run(tmp_path, "none", seed=seed)
     assert result["effects"] == [] and result["steps"] == []
     assert all(not e["significant"] for e in result["rounds"][0])
-    # every built-in was tested, and the workflow's own clock_skew beside time_lag
-    assert sorted(e["effect"] for e in result["rounds"][0]) == sorted([*Registry().names("effect"), "clock_skew"])
+    # every built-in was tested, and the workflow's own refinements beside time_lag and payload_change
+    tested = sorted(e["effect"] for e in result["rounds"][0])
+    assert tested == sorted([*Registry().names("effect"), "clock_skew", "payload_ramp"])
     assert np.all(np.array(result["final"]["rms_force_S"]) <= 1.10 * NOISE)
     assert result["estimator_options"] == {"effects": []}
     assert result["leftover"]["axes"] == [] and not result["warnings"]["leftover"]
@@ -342,7 +343,13 @@ def test_every_real_recording(real_data):
         else:
             np.testing.assert_allclose(final, batch, rtol=0.02)  # the baseline's force fit is the batch fit's
         if result["time_base"] == "index":
-            assert {s["effect"] for s in result["skipped"]} == {"time_lag", "clock_skew", "inertia", "payload_change"}
+            assert {s["effect"] for s in result["skipped"]} == {
+                "time_lag",
+                "clock_skew",
+                "inertia",
+                "payload_change",
+                "payload_ramp",
+            }
     log = results["axia80_ur_log_10hz"]
     assert log["effects"][0] == "time_lag" and log["final"]["params"]["time_lag"]["time_lag_s"] < -0.4
     assert np.linalg.norm(log["final"]["rms_force_S"]) < 0.5 * np.linalg.norm(log["batch_fit"]["rms_force_S"])

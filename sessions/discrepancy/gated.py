@@ -144,8 +144,9 @@ def set_aside_notes(gate: dict[str, Any], contact_free: bool | None) -> list[str
             if ring["damping_ratio"] is not None
             else ", its damping unclear"
         )
+        did = "set aside" if gate.get("applied", True) else "would have set aside (it was not applied)"
         notes.append(
-            f"the contact gate set aside {100 * gate['share']:.1f} % of the rows in {gate['stretches']} stretches, "
+            f"the contact gate {did} {100 * gate['share']:.1f} % of the rows in {gate['stretches']} stretches, "
             f"and they ring: {100 * ring['peak_share']:.0f} % of their power at {ring['frequency_hz']:.3g} Hz"
             f"{damping}, a frequency the motion does not contain ({100 * ring['motion_share']:.2g} % of its power): "
             f"a ringing tool (a flexible shaft, a loose clamp swinging after each stop), not contact; every figure "

@@ -145,6 +145,8 @@ class Identification:
         """(n,) the contact gate, over every row"""
         self.gate_fallback = False
         """a gate would have set aside half the data and was not applied"""
+        self.refused_gate: np.ndarray | None = None
+        """(n,) the rows the last gate not applied would have kept (None: every gate was applied)"""
         self.weights = np.ones(6)
         """(6,) each channel's weight: 1 / its noise (1/N for forces, 1/(N·m) for torques)"""
         self.n = n
@@ -300,6 +302,7 @@ class Identification:
         kept = use & ~bad
         if kept.sum() < 0.5 * use.sum():  # a gate that drops half the data is not gating contact (flagged)
             self.gate_fallback = True
+            self.refused_gate = kept
             return use.copy()
         return kept
 

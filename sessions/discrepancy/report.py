@@ -116,14 +116,17 @@ def report(
     }
     quality = data_quality(fit.y, fit.motion.t, use, kept, own_noise, fit.y - final.residual)
     residual_use = final.residual[use]
+    # a gate not applied (half the rows or more) is looked at as it would have been: ringing is no contact either
+    gated_as = fit.refused_gate if fit.gate_fallback and fit.refused_gate is not None else kept
     gate = set_aside(
         fit.motion.t[use],
         residual_use,
         fit.y[use] - residual_use,
-        kept[use],
+        gated_as[use],
         own_noise,
         fit.motion.time_base == "seconds",
     )
+    gate["applied"] = not fit.gate_fallback
     warnings = {
         "saturated": bool(quality["saturated"]),
         "ringing": gate["ringing"] is not None,

@@ -93,3 +93,19 @@ def test_presses_are_contact_not_ringing_and_a_contact_free_file_says_so(tmp_pat
         assert any(note.startswith("the file is described as contact-free") for note in described["notes"])
     clean = discrepancy(recording(tmp_path, 316), Settings(contact_free=True))
     assert clean["gated"] == 0 and not any(clean["warnings"].values()) and clean["contact_gate"]["stretches"] == 0
+
+
+def test_a_ringing_tool_the_gate_is_not_applied_to_is_still_told_from_contact(tmp_path):
+    """A stronger ringing (10 Hz, damping ratio 0.1, 50 g): the gate would set aside 60 % of the rows, so it is
+    not applied, and the note said only that the recording had that much contact. The rows it would have set
+    aside are looked at all the same: they ring, at the damped frequency, and the note says so."""
+    path = recording(tmp_path, 353, ringing={"frequency_hz": 10.0, "damping_ratio": 0.1, "mass": 0.05})
+    result = discrepancy(path)
+    gate = result["contact_gate"]
+    assert result["warnings"]["gate_not_applied"] and result["gated"] == 0 and not gate["applied"]
+    assert gate["share"] > 0.5 and result["warnings"]["ringing"]
+    assert gate["ringing"]["frequency_hz"] == pytest.approx(10.0 * math.sqrt(1 - 0.1**2), rel=0.03)
+    assert gate["ringing"]["damping_ratio"] == pytest.approx(0.1, rel=0.35)
+    assert any(
+        note.startswith("the contact gate would have set aside (it was not applied)") for note in result["notes"]
+    )

@@ -47,6 +47,9 @@ class Evidence:
     """folds it had to improve (:func:`wins_needed`)"""
     note: str = ""
     """why a candidate is not fitted ("" when it is): its fit on the other folds did not carry to a fold"""
+    fold_error: np.ndarray | None = None
+    """(folds,) the held-out weighted squared error on each fold with the candidate: to set two candidates
+    against each other fold by fold (``Discrepancy.eligible``)"""
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -195,6 +198,7 @@ def cross_validate(
                 solve(everything, cols),
                 wins_needed(folds, s.min_fold_share, s.max_sign_p),
                 note,
+                with_,
             )
         )
     return out, {"J": J, "full": full, "theta_full": theta_full}

@@ -30,6 +30,7 @@ from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.sensor_model import Model, Motion, motion_from_poses
 from hapticlab.sessions.discrepancy.leftover import axis_noise
+from hapticlab.sessions.discrepancy.quality import channel_steps
 from hapticlab.sessions.discrepancy.settings import Settings
 from hapticlab.sessions.offline.metrics import rms
 from hapticlab.sessions.recording.csvimport import CsvError
@@ -96,11 +97,17 @@ def solve_scaled(H: np.ndarray, g: np.ndarray, rcond: float = 1e-10) -> np.ndarr
     return (V[:, keep] @ (gs[keep] / lam[keep])) / d
 
 
-def noise_scale(residual: np.ndarray) -> np.ndarray:
+def noise_scale(
+    residual: np.ndarray,
+    steps: np.ndarray | None = None,
+    predicted: np.ndarray | None = None,
+    rate_hz: float | None = None,
+) -> np.ndarray:
     """(6,) channel weights' noise: one value for the three force channels and one for the three torque
-    channels (the RMS over the axes of :func:`axis_noise`): a sensor's axes are alike, and equal weights
-    within force and within torque keep the base fit's force residual that of the offline batch fit."""
-    sigma = axis_noise(residual)
+    channels (the RMS over the axes of :func:`axis_noise`, with its ``steps`` and ``predicted`` for quantised
+    channels, ``rate_hz`` for coloured noise): a sensor's axes are alike, and equal weights within force and
+    within torque keep the base fit's force residual that of the offline batch fit."""
+    sigma = axis_noise(residual, steps, predicted, rate_hz)
     return np.repeat([rms(sigma[:3]), rms(sigma[3:])], 3)
 
 
@@ -123,6 +130,9 @@ class Identification:
         """(n, 6) measured force (N) and torque (N·m) in S"""
         self.usable = stream.samples.usable
         """(n,) rows with a finite wrench, good status and a fresh orientation"""
+        self.steps = channel_steps(self.y[self.usable])
+        """(6,) each channel's quantisation step (N, N·m; NaN where its values lie on no grid): the noise
+        figures count the rounding (:func:`~hapticlab.sessions.discrepancy.quality.quantised_noise`)"""
         n = len(self.y)
         usable_rows = np.flatnonzero(self.usable)
         stride = max(1, math.ceil(len(usable_rows) / self.settings.max_fit_samples))
@@ -135,6 +145,8 @@ class Identification:
         """(n,) the contact gate, over every row"""
         self.gate_fallback = False
         """a gate would have set aside half the data and was not applied"""
+        self.refused_gate: np.ndarray | None = None
+        """(n,) the rows the last gate not applied would have kept (None: every gate was applied)"""
         self.weights = np.ones(6)
         """(6,) each channel's weight: 1 / its noise (1/N for forces, 1/(N·m) for torques)"""
         self.n = n
@@ -290,6 +302,7 @@ class Identification:
         kept = use & ~bad
         if kept.sum() < 0.5 * use.sum():  # a gate that drops half the data is not gating contact (flagged)
             self.gate_fallback = True
+            self.refused_gate = kept
             return use.copy()
         return kept
 

@@ -15,18 +15,55 @@ from typing import Any
 
 import numpy as np
 
+from hapticlab.sessions.discrepancy.quality import noise_colour, quantised_noise
 from hapticlab.sessions.offline.metrics import rms
 
 
-def axis_noise(residual: np.ndarray) -> np.ndarray:
+def axis_noise(
+    residual: np.ndarray,
+    steps: np.ndarray | None = None,
+    predicted: np.ndarray | None = None,
+    rate_hz: float | None = None,
+) -> np.ndarray:
     """(6,) each channel's noise from sample-to-sample differences (MAD/√2, repeated rows skipped): what is
-    left that changes slower than the sampling (an unmodelled effect) does not count in it."""
+    left that changes slower than the sampling (an unmodelled effect) does not count in it.
+
+    A channel read on a grid (``steps`` (6,): its step, NaN where none; ``predicted`` (m, 6): the model's reading
+    on the same rows) gets :func:`~hapticlab.sessions.discrepancy.quality.quantised_noise` instead: a quiet
+    sensor's differences are mostly zero there and their MAD falls far below what the rounding leaves. A channel
+    whose noise is coloured (:func:`~hapticlab.sessions.discrepancy.quality.noise_colour` at ``rate_hz``, the
+    rows' rate, Hz; None: never) takes its differences over the lag where it decorrelates: over neighbours a
+    low-passed noise mostly cancels (0.63x at ρ = 0.6)."""
     d = np.diff(residual, axis=0)
-    d = d[np.any(d != 0, axis=1)]
+    moved = np.any(d != 0, axis=1)
+    d = d[moved]
     if len(d) < 5:
         d = residual - np.median(residual, axis=0)
     mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2)
+    for c in range(residual.shape[1]):
+        lag = noise_colour(d[:, c], rate_hz)[0] if steps is None or not np.isfinite(steps[c]) else 1
+        if lag > 1:
+            dk = residual[lag:, c] - residual[:-lag, c]
+            mad[c] = 1.4826 * float(np.median(np.abs(dk - np.median(dk)))) / math.sqrt(2)
+    if steps is not None and predicted is not None and moved.sum() >= 5:
+        delta = np.diff(predicted, axis=0)[moved]
+        for k in np.flatnonzero(np.isfinite(steps)):
+            step = float(steps[k])
+            level = predicted[:, k] - (residual[0, k] + predicted[0, k]) % step  # from a grid point
+            mad[k] = quantised_noise(d[:, k], delta[:, k], step, level)
     return np.maximum(mad, np.maximum(1e-3 * rms(residual), 1e-9))
+
+
+def effective_samples(residual: np.ndarray, rate_hz: float | None) -> int:
+    """How many independent samples the ``residual`` (m, 6), rows at ``rate_hz``, is worth for the leftover
+    test: m, or, when a
+    channel's noise is coloured (:func:`~hapticlab.sessions.discrepancy.quality.noise_colour`, AR(1) coefficient
+    ρ), m·(1 − ρ)/(1 + ρ) for the most coloured channel (a correlated noise's RMS scatters as that many white
+    samples' would)."""
+    m = len(residual)
+    d = np.diff(residual, axis=0)
+    rho = max(noise_colour(d[:, k], rate_hz)[1] for k in range(residual.shape[1])) if m > 1 else 0.0
+    return max(1, int(m * (1.0 - rho) / (1.0 + rho)))
 
 
 LEFTOVER_SIGMAS = 4.0

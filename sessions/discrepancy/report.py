@@ -17,8 +17,15 @@ import numpy as np
 
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.sensor_model import Model
+from hapticlab.sessions.discrepancy.gated import CONTACT_FREE_SHARE, set_aside, set_aside_notes
 from hapticlab.sessions.discrepancy.identify import Identification
-from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold, where_left, where_text
+from hapticlab.sessions.discrepancy.leftover import (
+    axis_noise,
+    effective_samples,
+    leftover_threshold,
+    where_left,
+    where_text,
+)
 from hapticlab.sessions.discrepancy.quality import data_quality, quality_notes
 from hapticlab.sessions.offline.metrics import rms
 
@@ -92,9 +99,11 @@ def report(
         final_params[name] = effect.describe(params)
     noise = 1.0 / fit.weights
     over = rms_kept[-1] / noise
-    own_noise = axis_noise(final.residual[kept])
+    rate = fit.motion.rate_hz
+    own_noise = axis_noise(final.residual[kept], fit.steps, fit.y[kept] - final.residual[kept], rate)
     over_own = rms_kept[-1] / own_noise
-    threshold = leftover_threshold(int(kept.sum()))
+    independent = effective_samples(final.residual[kept], rate)  # the kept samples, or fewer for a coloured noise
+    threshold = leftover_threshold(independent)
     leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
     where = {
         a: where_left(
@@ -105,14 +114,29 @@ def report(
         )
         for a in leftover
     }
-    quality = data_quality(fit.y, fit.motion.t, use, kept, noise)
+    quality = data_quality(fit.y, fit.motion.t, use, kept, own_noise, fit.y - final.residual)
+    residual_use = final.residual[use]
+    # a gate not applied (half the rows or more) is looked at as it would have been: ringing is no contact either
+    gated_as = fit.refused_gate if fit.gate_fallback and fit.refused_gate is not None else kept
+    gate = set_aside(
+        fit.motion.t[use],
+        residual_use,
+        fit.y[use] - residual_use,
+        gated_as[use],
+        own_noise,
+        fit.motion.time_base == "seconds",
+    )
+    gate["applied"] = not fit.gate_fallback
     warnings = {
         "saturated": bool(quality["saturated"]),
+        "ringing": gate["ringing"] is not None,
+        "gated_on_contact_free": bool(fit.settings.contact_free) and gate["share"] > CONTACT_FREE_SHARE,
         "gate_not_applied": bool(fit.gate_fallback),
         "final_above_noise": bool(np.any(over > fit.settings.warn_rms_over_noise)),
         "leftover": bool(leftover),
     }
     notes = list(notes) + quality_notes(quality, "rows" if fit.motion.time_base == "index" else "s")
+    notes += set_aside_notes(gate, fit.settings.contact_free)
     for step in steps:
         if step["action"] == "set_aside":
             notes.append(
@@ -155,7 +179,8 @@ def report(
         notes.append(
             "something the tested effects do not explain is left on "
             + ", ".join(f"{a} ({over_own[AXES.index(a)]:.2f}x its own noise)" for a in leftover)
-            + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples)"
+            + f" (threshold {threshold:.3f}x for {int(kept.sum())} samples"
+            + (f", worth {independent} independent ones: the noise is coloured)" if independent < kept.sum() else ")")
             + "".join(where_text(a, where[a], fit.motion.time_base) for a in leftover)
             + "; see --plots"
         )
@@ -175,11 +200,13 @@ def report(
         "rate_hz": fit.motion.rate_hz,
         "noise_estimate": {"force_S": noise[:3].tolist(), "torque_S": noise[3:].tolist()},
         "data_quality": quality,
+        "contact_gate": gate,
         "final_rms_over_noise": {"force_S": over[:3].tolist(), "torque_S": over[3:].tolist()},
         "axis_noise": {"force_S": own_noise[:3].tolist(), "torque_S": own_noise[3:].tolist()},
         "leftover": {
             "axes": leftover,
             "threshold": threshold,
+            "independent_samples": independent,
             "where": where,
             "rms_over_axis_noise": {"force_S": over_own[:3].tolist(), "torque_S": over_own[3:].tolist()},
         },

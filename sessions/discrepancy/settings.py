@@ -35,6 +35,8 @@ class Settings:
     min_structure_share: float = 0.5
     """a named effect must remove at least this share of the structure (excess over the noise) the model
     leaves without it (``Discrepancy.structure_test``)"""
+    contact_free: bool | None = None
+    """the file is described as having no contact (None: not said); a gate that sets rows aside there is noted"""
     time_base: str = "auto"
     """what ``t`` is: "seconds", "index" (row numbers), or "auto" (index when it counts rows)"""
     effects: list[str] | None = None

@@ -49,14 +49,25 @@ from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.host.registry import Registry
 from hapticlab.core.sensor_model import Effect, Model
 from hapticlab.sessions.discrepancy.blas import single_threaded_blas
-from hapticlab.sessions.discrepancy.heldout import cross_validate
+from hapticlab.sessions.discrepancy.heldout import Evidence, cross_validate
 from hapticlab.sessions.discrepancy.identify import Identification, noise_scale
 from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold
+from hapticlab.sessions.discrepancy.ramp import PayloadRamp
 from hapticlab.sessions.discrepancy.report import State, json_ready, report
 from hapticlab.sessions.discrepancy.settings import Settings
+from hapticlab.sessions.discrepancy.skew import ClockSkew
 from hapticlab.sessions.offline.numerics import numerical_failures
 from hapticlab.sessions.recording.loader import load_stream
 from hapticlab.sessions.recording.stream import Stream
+
+SKEW = "clock_skew"
+"""The workflow's own candidate refining ``time_lag`` (:mod:`hapticlab.sessions.discrepancy.skew`)."""
+REFINEMENTS: dict[str, tuple[str, type[Effect]]] = {
+    SKEW: ("time_lag", ClockSkew),
+    "payload_ramp": ("payload_change", PayloadRamp),
+}
+"""The workflow's own candidates, each refining a library effect (:mod:`.skew`, :mod:`.ramp`): name → (the
+effect it refines, its class)."""
 
 
 class Discrepancy(Identification):
@@ -75,13 +86,20 @@ class Discrepancy(Identification):
         self.say = progress or (lambda message: None)
 
     def candidates(self) -> tuple[list[tuple[str, Effect]], list[dict[str, str]], list[str]]:
-        """The effect plugins to test, those that cannot be tested here (with why), and their notes."""
+        """The effect plugins to test, those that cannot be tested here (with why), and their notes; beside an
+        effect the workflow refines, its refinement (:data:`REFINEMENTS`: ``clock_skew``, ``payload_ramp``)."""
         names = self.settings.effects if self.settings.effects is not None else self.registry.names("effect")
+        registered = self.registry.names("effect")
+        for name, (base, _) in REFINEMENTS.items():
+            if base in names and name not in names and name not in registered:
+                names = [*names, name]
         testable, skipped, notes = [], [], []
         for name in names:
-            effect = self.registry.create(
-                "effect", name, self.settings.effect_options.get(name, {}), where=f"effects.{name}"
-            )
+            options = self.settings.effect_options.get(name, {})
+            if name in REFINEMENTS and name not in registered:
+                effect: Effect = REFINEMENTS[name][1](**options)
+            else:
+                effect = self.registry.create("effect", name, options, where=f"effects.{name}")
             reason = effect.check(self.motion)
             if reason:
                 skipped.append({"effect": name, "reason": reason})
@@ -89,6 +107,29 @@ class Discrepancy(Identification):
             notes.extend(effect.notes(self.motion))
             testable.append((name, effect))
         return testable, skipped, notes
+
+    def eligible(self, evidence: Evidence, round_: list[Evidence], model: Model) -> bool:
+        """Whether a significant candidate may be named. A refinement (``clock_skew`` of ``time_lag``,
+        ``payload_ramp`` of ``payload_change``): beside a model with the effect it refines, its test is nested
+        (what it adds must be significant); beside a model without it, it must beat that effect on held-out
+        data, fold by fold, as a candidate must beat the model (a larger gain, in ``wins_needed`` of the
+        folds), else the simpler effect is the answer and is not replaced by chance; its ``note`` says why not."""
+        if evidence.effect not in REFINEMENTS:
+            return True
+        base = REFINEMENTS[evidence.effect][0]
+        if base in dict(model.effects):
+            return True
+        rival = next((e for e in round_ if e.effect == base), None)
+        if rival is None or evidence.fold_error is None or rival.fold_error is None:
+            return True
+        wins = int(np.sum(evidence.fold_error < rival.fold_error))
+        if evidence.gain > rival.gain and wins >= evidence.wins_needed:
+            return True
+        evidence.note = (
+            f"not named: it beats {base} ({100 * rival.gain:.2f} %) in {wins} of {evidence.folds} folds "
+            f"({evidence.wins_needed} needed)"
+        )
+        return False
 
     def run(self) -> dict[str, Any]:
         """Everything: the JSON-ready result (``"_states"`` holds arrays for the plots)."""
@@ -101,11 +142,13 @@ class Discrepancy(Identification):
         fit0 = batch_fit(self.y[use, :3], self.y[use, 3:], self.motion.R_EB[use])
         theta = np.concatenate([fit0["gravity_force_B"], fit0["bias_force_S"], fit0["cog_S"], fit0["bias_torque_S"]])
         model = Model()
-        self.weights = 1.0 / noise_scale(np.concatenate([fit0["residual_force_S"], fit0["residual_torque_S"]], 1))
+        residual0 = np.concatenate([fit0["residual_force_S"], fit0["residual_torque_S"]], 1)
+        self.weights = 1.0 / noise_scale(residual0, self.steps, self.y[use] - residual0, self.motion.rate_hz)
         theta = self.robust_start(model, theta)
         theta = self.fit(model, theta)
         # weights from the base model's own residual (once; fixed for every comparison after)
-        self.weights = 1.0 / noise_scale((self.y - self.predict_all(model, theta))[self.kept])
+        predicted = self.predict_all(model, theta)[self.kept]
+        self.weights = 1.0 / noise_scale(self.y[self.kept] - predicted, self.steps, predicted, self.motion.rate_hz)
         theta = self.fit(model, theta)
         states = [State("baseline", model, theta)]
         candidates, skipped, notes = self.candidates()
@@ -114,8 +157,12 @@ class Discrepancy(Identification):
         while candidates:
             self.say(f"round {len(rounds) + 1}: testing {', '.join(n for n, _ in candidates)}")
             evidence, lin = cross_validate(self, model, theta, candidates)
+            best = max(
+                (e for e in evidence if e.significant and self.eligible(e, evidence, model)),
+                key=lambda e: e.gain,
+                default=None,
+            )
             rounds.append([e.as_dict() for e in evidence])
-            best = max((e for e in evidence if e.significant), key=lambda e: e.gain, default=None)
             if best is None:
                 break
             name = best.effect
@@ -217,7 +264,8 @@ class Discrepancy(Identification):
         while model.effects and min_share > 0:  # 0: no structure test
             rows = self.kept[self.fit_rows]
             predicted = model.predict6(self.fit_motion, theta)[rows]
-            own_noise = axis_noise(self.y_fit[rows] - predicted)
+            rate = self.motion.rate_hz / self.stride if self.motion.rate_hz else None  # every stride-th row
+            own_noise = axis_noise(self.y_fit[rows] - predicted, self.steps, predicted, rate)
             shares = {name: self.structure_share(model, theta, name, predicted, own_noise) for name, _ in model.effects}
             name = min(shares, key=shares.__getitem__)
             if shares[name] >= min_share:

@@ -32,6 +32,7 @@ from hapticlab.core.host.options import OptionError
 DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.sensors.sim",
     "hapticlab.plugins.sensors.netft",
+    "hapticlab.plugins.sensors.robotiq_ft300",
     "hapticlab.plugins.kinematics.sim",
     "hapticlab.plugins.kinematics.ur_rtde",
     "hapticlab.plugins.kinematics.urdf",
@@ -45,6 +46,7 @@ DEFAULT_PLUGINS: tuple[str, ...] = (
     "hapticlab.plugins.sensors.netft_emulator",
     "hapticlab.plugins.kinematics.ur_emulator",
     "hapticlab.plugins.haptics.master_emulator_cli",
+    "hapticlab.plugins.sensors.robotiq_emulator_cli",
     "hapticlab.plugins.lab_emulator",
     "hapticlab.plugins.simworld.context",
     "hapticlab.plugins.effects.mount_rotation",

@@ -19,8 +19,11 @@ Single faults, each safe on its own:
 Times: the stream carries no counter, so each frame's place in the stream (its slot: good frames and
 damaged ones) is the device counter of a :class:`~hapticlab.plugins.device_clock.DeviceClock` at
 100 Hz, which stamps frames by the sensor's own spacing on the lower envelope of their receipt
-times. A batch whose newest frame comes more than ``GAP_PERIODS`` periods late was preceded by a
-stall: the counter skips the missed slots (``skipped``) so the clock stays on time.
+times. A batch whose newest frame comes more than ``GAP_PERIODS`` periods late follows a stall
+(``stalls``): the clock's offset jumps by the whole periods it is late, so the stamps follow time
+(a lower envelope alone would rise only at ``clock_slew_ppm`` and leave them in the past). ``seq`` does
+not jump: the stream has no counter to say whether the sensor paused or frames were lost, and a
+process starved for the while (an emulator on a loaded machine) makes frames late without losing any.
 """
 
 from __future__ import annotations
@@ -43,8 +46,8 @@ LATENCY_S = 0.01
 8.3 ms on the wire at 19200 bit/s, plus the USB adapter's latency (set an FTDI adapter's
 ``latency_timer`` to 1 ms; its default 16 ms makes frames arrive in pairs, late)."""
 GAP_PERIODS = 5
-"""A batch's newest frame this many periods later than the clock expects: the stream skipped slots."""
-HEALTH_COUNTERS = ("frames", "crc_errors", "garbage_bytes", "skipped", "timeouts", "restarts", "disconnects")
+"""A batch's newest frame this many periods later than the clock expects: a stall, the clock jumps."""
+HEALTH_COUNTERS = ("frames", "crc_errors", "garbage_bytes", "stalls", "timeouts", "restarts", "disconnects")
 """The stream's health counters (:meth:`RobotiqFT300Sensor.health_counters`), counts since ``open``."""
 FAULT_COUNTERS = frozenset(HEALTH_COUNTERS) - {"frames"}
 
@@ -126,7 +129,7 @@ class RobotiqFT300Sensor:
         self.health_interval_ns = int(health_interval * 1e9)
         self.parser = rq.StreamParser()
         self._link: FT300Link | None = None
-        self._slot_base = 0  # the counter of the parser's slot 0 (moves on at a stall)
+        self._slot_base = 0  # the counter of the parser's slot 0 (a new stream goes on from the last)
         self._last_k: int | None = None
         self._last_t_ns = -1
         self._pending = NO_WRENCHES
@@ -229,11 +232,9 @@ class RobotiqFT300Sensor:
         k = np.asarray(slots, dtype=np.int64) + self._slot_base
         if self.clock.offset_ns is not None:
             late = (received_ns - (k[-1] * self.clock.period_ns + self.clock.offset_ns)) / self.clock.period_ns
-            if late > GAP_PERIODS:  # the stream skipped slots (a stall): the counter catches up with time
-                skip = int(late)  # never too few: this frame's delay is at least the envelope's
-                self._slot_base += skip
-                self._counters["skipped"] += skip
-                k = k + skip
+            if late > GAP_PERIODS:  # after a stall: the clock jumps to time, by whole periods
+                self.clock.offset_ns += int(late) * self.clock.period_ns  # never past this frame's receipt
+                self._counters["stalls"] += 1
         if (
             self.clock.offset_ns is None
         ):  # a new stream: anchored on the batch's newest frame, so the earlier are earlier
@@ -344,7 +345,8 @@ class RobotiqFT300Sensor:
 
     def health_counters(self) -> dict[str, int]:
         """Since ``open``: ``frames`` parsed, ``crc_errors`` (frames dropped), ``garbage_bytes`` skipped,
-        ``skipped`` slots after a stall, ``timeouts``, ``restarts`` (start requests sent again), ``disconnects``."""
+        ``stalls`` (a frame more than ``GAP_PERIODS`` periods late: the clock jumped), ``timeouts``,
+        ``restarts`` (start requests sent again), ``disconnects``."""
         return dict(self._counters)
 
     def drain_events(self) -> list[Event]:

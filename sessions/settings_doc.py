@@ -42,6 +42,7 @@ PLUGIN_DOCS = {
     ("sensor", "sim"): "`plugins/sensors/sim.py` (`SimSensor`); the world it reads: `[world]` below",
     ("sensor", "netft"): '[devices.md](devices.md), "ATI Net F/T"',
     ("sensor", "bota"): '[devices.md](devices.md), "Bota Systems serial sensors"',
+    ("sensor", "robotiq_ft300"): '[devices.md](devices.md), "Robotiq FT 300"',
     ("kinematics", "sim"): "`plugins/kinematics/sim.py` (`SimKinematics`); the world it reads: `[world]` below",
     ("kinematics", "ur_rtde"): '[devices.md](devices.md), "Universal Robots arm over RTDE"',
     ("kinematics", "urdf"): '[devices.md](devices.md), "URDF kinematics"',

@@ -59,6 +59,7 @@ REALTIME = {
     "spawn_process": "a process beside the test",
     "pty_pair": "a pseudo-terminal pair",
     "master_emulator": "the master emulator on a pseudo-terminal",
+    "ft300_emulator": "the Robotiq FT 300 emulator on a pseudo-terminal, streaming at 100 Hz",
     "netft_emulator": "the Net F/T emulator streaming RDT over UDP at its own rate",
     "bota_emulator": "the Bota serial sensor emulator on a pseudo-terminal, streaming at its own rate",
     "dask_workers": "Dask worker processes",
@@ -258,6 +259,24 @@ def master_emulator():
 
     def make(*args, **kwargs) -> MasterEmulator:
         emulator = MasterEmulator(*args, **kwargs)
+        made.append(emulator)
+        return emulator
+
+    yield make
+    for emulator in made:
+        emulator.stop()
+
+
+@pytest.fixture
+def ft300_emulator():
+    """``ft300_emulator(world, **kwargs)`` → an :class:`FT300Emulator` (a Robotiq FT 300 on a pty, served by a thread
+    of this process); use it as a context manager. Any left serving is stopped at the test's end."""
+    from hapticlab.plugins.sensors.robotiq_emulator import FT300Emulator
+
+    made: list[FT300Emulator] = []
+
+    def make(*args, **kwargs) -> FT300Emulator:
+        emulator = FT300Emulator(*args, **kwargs)
         made.append(emulator)
         return emulator
 

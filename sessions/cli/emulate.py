@@ -39,7 +39,9 @@ def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> N
         # register_emulators registers EmulatorCommand objects (docs/plugins.md); the registry types every
         # factory as a callable
         emulator = cast(EmulatorCommand, registry.get("emulator", name).factory)
-        device = devices.add_parser(name, help=emulator.help, description=emulator.help)
+        # a registered name is an identifier; the command line also takes it with hyphens (robotiq-ft300)
+        aliases = [name.replace("_", "-")] if "_" in name else []
+        device = devices.add_parser(name, aliases=aliases, help=emulator.help, description=emulator.help)
         emulator.add_arguments(device)
         if getattr(emulator, "needs_world", False):
             device.add_argument(

@@ -10,11 +10,11 @@ from __future__ import annotations
 import argparse
 import os
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 
 from hapticlab.core import hookimpl
 from hapticlab.core.types import EmulatorCommand
+from hapticlab.plugins import scheduled_fault
 from hapticlab.plugins.haptics.handle_motion import PATHS, recorded_motion, scripted_motion
 from hapticlab.plugins.haptics.master_emulator import MasterEmulator
 from hapticlab.plugins.serving import serve_until_stopped
@@ -22,8 +22,7 @@ from hapticlab.plugins.serving import serve_until_stopped
 FAULT_KINDS = ("crc", "garbage", "silent", "restart", "unplug")
 
 
-@dataclass(frozen=True)
-class ScheduledFault:
+class ScheduledFault(scheduled_fault.ScheduledFault):
     """A fault the command-line emulator injects ``at`` s after it starts.
 
     ``crc@T:N`` breaks the next N replies (default 1), ``garbage@T:N`` writes N
@@ -32,23 +31,8 @@ class ScheduledFault:
     handshake, ``unplug@T`` closes the pty's master side.
     """
 
-    kind: str
-    at: float
-    arg: float | None = None
-
-    @classmethod
-    def parse(cls, text: str) -> ScheduledFault:
-        kind, _, rest = text.partition("@")
-        when, _, arg = rest.partition(":")
-        try:
-            fault = cls(kind.strip(), float(when), float(arg) if arg else None)
-        except ValueError:
-            raise ValueError(f"--fault {text!r}: expected KIND@SECONDS[:ARG], e.g. crc@5:3 or unplug@10") from None
-        if fault.kind not in FAULT_KINDS:
-            raise ValueError(f"--fault {text!r}: unknown kind {fault.kind!r}; known: {', '.join(FAULT_KINDS)}")
-        if not (fault.at >= 0 and (fault.arg is None or fault.arg >= 0)):
-            raise ValueError(f"--fault {text!r}: times and counts must be >= 0")
-        return fault
+    KINDS = FAULT_KINDS
+    EXAMPLE = "crc@5:3 or unplug@10"
 
     def inject(self, emulator: MasterEmulator, stop: threading.Event) -> None:
         """Wait until the fault is due (or ``stop``), then inject it."""

@@ -11,10 +11,10 @@ import argparse
 import os
 import threading
 import time
-from dataclasses import dataclass
 
 from hapticlab.core import hookimpl
 from hapticlab.core.types import EmulatorCommand
+from hapticlab.plugins import scheduled_fault
 from hapticlab.plugins.sensors import bota_protocol as bp
 from hapticlab.plugins.sensors.bota_emulator import BotaEmulator
 from hapticlab.plugins.serving import serve_until_stopped
@@ -23,8 +23,7 @@ from hapticlab.plugins.simworld.physics import SimWorld
 FAULT_KINDS = ("crc", "garbage", "overrange", "invalid", "stall", "unplug")
 
 
-@dataclass(frozen=True)
-class ScheduledFault:
+class ScheduledFault(scheduled_fault.ScheduledFault):
     """A fault injected ``at`` s of world time (after the first ``R``).
 
     ``crc@T:N`` breaks the CRC of the next N frames (default 1), ``garbage@T:N`` writes N noise
@@ -33,23 +32,8 @@ class ScheduledFault:
     the pty's master side.
     """
 
-    kind: str
-    at: float
-    arg: float | None = None
-
-    @classmethod
-    def parse(cls, text: str) -> ScheduledFault:
-        kind, _, rest = text.partition("@")
-        when, _, arg = rest.partition(":")
-        try:
-            fault = cls(kind.strip(), float(when), float(arg) if arg else None)
-        except ValueError:
-            raise ValueError(f"--fault {text!r}: expected KIND@SECONDS[:ARG], e.g. crc@5:3 or stall@8:0.5") from None
-        if fault.kind not in FAULT_KINDS:
-            raise ValueError(f"--fault {text!r}: unknown kind {fault.kind!r}; known: {', '.join(FAULT_KINDS)}")
-        if not (fault.at >= 0 and (fault.arg is None or fault.arg >= 0)):
-            raise ValueError(f"--fault {text!r}: times and counts must be >= 0")
-        return fault
+    KINDS = FAULT_KINDS
+    EXAMPLE = "crc@5:3 or stall@8:0.5"
 
     def inject(self, emulator: BotaEmulator, stop: threading.Event) -> None:
         """Wait until the fault is due on the world's clock (from the first ``R``) or ``stop``, then inject it."""

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hapticlab.plugins import scheduled_fault
 from hapticlab.plugins.sensors import robotiq_protocol as rq
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.simworld.physics import SimWorld
@@ -60,27 +61,11 @@ class EmulatorCounts:
     stops: int = 0
 
 
-@dataclass(frozen=True)
-class ScheduledFault:
+class ScheduledFault(scheduled_fault.ScheduledFault):
     """A fault injected once the world's time reaches ``at`` s (``KIND@SECONDS[:ARG]``)."""
 
-    kind: str
-    at: float
-    arg: float | None = None
-
-    @classmethod
-    def parse(cls, text: str) -> ScheduledFault:
-        kind, _, rest = text.partition("@")
-        when, _, arg = rest.partition(":")
-        try:
-            fault = cls(kind.strip(), float(when), float(arg) if arg else None)
-        except ValueError:
-            raise ValueError(f"--fault {text!r}: expected KIND@SECONDS[:ARG], e.g. crc@5:3 or stall@8:0.5") from None
-        if fault.kind not in FAULT_KINDS:
-            raise ValueError(f"--fault {text!r}: unknown kind {fault.kind!r}; known: {', '.join(FAULT_KINDS)}")
-        if not (fault.at >= 0 and (fault.arg is None or fault.arg >= 0)):
-            raise ValueError(f"--fault {text!r}: times and counts must be >= 0")
-        return fault
+    KINDS = FAULT_KINDS
+    EXAMPLE = "crc@5:3 or stall@8:0.5"
 
 
 class FT300Emulator:

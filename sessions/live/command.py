@@ -29,7 +29,7 @@ from hapticlab.sessions.live.passivity import PassivityController
 from hapticlab.sessions.live.status import SessionStatus
 from hapticlab.sessions.live.taps import Taps
 from hapticlab.sessions.live.teleop import Teleoperation, reason_kind
-from hapticlab.sessions.tools import change_tool_plan
+from hapticlab.sessions.tools import ToolLibrary, ToolPlan, change_tool_plan
 
 
 class HapticCommander:
@@ -61,7 +61,7 @@ class HapticCommander:
         self.rearm_bit = session.haptic_settings.rearm_button  # -1: no button
         self.button_down = True  # unknown counts as held: a button held at the start must be released first
         self.rearm_requests: deque[str] = deque()
-        self.tool_changes: deque[tuple[str, str]] = deque()  # (the new tool's name, "" unnamed; by whom)
+        self.tool_changes: deque[tuple[ToolPlan, dict | None, str]] = deque()  # (new tool, its state, by whom)
         self.teleop = Teleoperation(session.teleop_settings, self.governor.R_DB) if session.robot is not None else None
         self.last_pose: PoseSample | None = None
         self.last_estimate: tuple[np.ndarray, np.ndarray, int] | None = None  # (contact_force_S, R_BS, t_ns)
@@ -79,18 +79,29 @@ class HapticCommander:
         self.fresh_state: DeviceState | None = None  # and its newest that was not None
         self.last_sent_ns: int | None = None
 
-    def _change_tool(self, now_ns: int, name: str, source: str) -> list[Event]:
-        """A told tool change: the new tool from the session's library when it knows it (its state loaded into
-        the primary, when it takes one), the gate told (``HapticGate.change_tool``)."""
+    def request_tool_change(self, name: str, source: str) -> None:
+        """A told tool change, from any thread: the new tool's record and saved state are read here, in the
+        caller's thread (a bad one is the caller's error, never the tick's); the next tick takes it."""
         plan = change_tool_plan(self.s.tool, name)
-        load: Callable[[str], None] | None = getattr(self.s.primary.estimator, "load_state", None)
-        state = plan.warm_start if plan.record is not None and load is not None else ""
-        if state and load is not None:
-            load(state)
+        takes_state = callable(getattr(self.s.primary.estimator, "load_state", None)) and plan.record is not None
+        state = ToolLibrary(plan.library).read_state(plan.name) if takes_state else None
+        self.tool_changes.append((plan, state, source))
+
+    def _change_tool(self, now_ns: int, plan: ToolPlan, state: dict | None, source: str) -> list[Event]:
+        """A told tool change: the primary given the new tool's saved state (when the library had one), the
+        gate told (``HapticGate.change_tool``); a state the estimator refuses leaves it to re-identify."""
+        events, warm = [], False
+        if state is not None:
+            try:
+                self.s.primary.estimator.load_state(state)  # type: ignore[attr-defined]
+                warm = True
+            except Exception as exc:  # (a state of another estimator, or of another version)
+                message = f"tool {plan.name!r}: its saved state not loaded ({exc}): identified from the motion"
+                events.append(Event(now_ns, "tool_state_not_loaded", message))
         self.s.tool = plan
-        what = f"tool {name!r}" if name else "an unnamed tool"
-        known = " (known: its saved state loaded)" if state else " (identified from the motion)"
-        return self.gate.change_tool(now_ns, f"tool changed by {source} to {what}{known}", bool(state))
+        what = f"tool {plan.name!r}" if plan.name else "an unnamed tool"
+        known = " (known: its saved state loaded)" if warm else " (identified from the motion)"
+        return events + self.gate.change_tool(now_ns, f"tool changed by {source} to {what}{known}", warm)
 
     def command(self, now_ns: int, taps: Taps) -> None:
         """The tick's force command from the gate's reason and the last estimate: sent, recorded, then the

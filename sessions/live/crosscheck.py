@@ -97,7 +97,7 @@ class WrenchCrossCheck:
         self.reference: tuple[list[float], list[float]] | None = None  # (robot, sensor) before a sudden step
         self.marked = self.window_from = -1  # the bins of the step's first mark and of the last (at their time)
         self.confirmed = ""  # the newest bin confirmed the step: how ("" not)
-        self.step_B = [0.0, 0.0, 0.0]  # the robot's step that confirmed it, N in B
+        self.step_B = [0.0, 0.0, 0.0]  # the sensor's step the robot's confirmed, N in B
         self.bad_bins = 0  # consecutive compared bins that disagreed
         self.origin_ns: int | None = None  # bin 0 starts at the first stamp either channel brought
 
@@ -186,5 +186,5 @@ class WrenchCrossCheck:
             return ""
         if sum(r[i] * robot_step[i] for i in range(3)) < self.accuracy_N * size:  # the robot's force, along the step
             return ""  # (a contact that ended, or one the robot cannot tell from its own zero: no contact to confirm)
-        self.step_B = robot_step
+        self.step_B = sensor_step  # (the sensor's: the robot's noise turns a small step's direction)
         return f"the robot's own force stepped {size:.1f} N with it"

@@ -23,7 +23,6 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from hapticlab.core.errors import UserError
 from hapticlab.core.types import Event
 from hapticlab.sessions.live.build import EstimatorSlot, Session, calibration_path
 from hapticlab.sessions.recording import Recorder
@@ -122,31 +121,32 @@ def final_params(primary: EstimatorSlot, samples: int, end_ns: int, on_event: Ca
 
 
 def save_for_next(
-    session: Session, recorder: Recorder, path: Path, params: dict, identified: bool, end_ns: int, on_event: Callable
+    session: Session, recorder: Recorder, path: Path, params: dict, held: str, end_ns: int, on_event: Callable
 ) -> str | None:
     """What later sessions start from, once the session ended without a failure: the primary's state beside the
-    recording (:func:`save_estimator_state`: its path, or None) and the tool in its library (:func:`save_tool`;
-    ``identified``: the gate saw the parameters known)."""
+    recording (:func:`save_estimator_state`: its path, or None) and the tool in its library (:func:`save_tool`,
+    unless the gate ``held`` the force at the end: why, "" it did not: a latch, a doubt, a weight off)."""
     saved = save_estimator_state(session.primary, recorder, path, end_ns, on_event) if session.primary.saves else None
     if session.tool.name:
-        save_tool(session, params if identified else None, str(Path(path).resolve()), end_ns, on_event)
+        save_tool(session, params, held, str(Path(path).resolve()), end_ns, on_event)
     return saved
 
 
 def save_tool(
-    session: Session, params: dict | None, recording: str, end_ns: int, on_event: Callable[[Event], None]
+    session: Session, params: dict, held: str, recording: str, end_ns: int, on_event: Callable[[Event], None]
 ) -> None:
-    """The session's tool written back to its library (``sessions.tools.save``) when the primary identified it
-    (``params``; None: not identified): a ``tool_saved`` event, or ``tool_not_saved`` saying why."""
+    """The session's tool written back to its library (``sessions.tools.save``) when nothing held the force at the
+    end (``held``: why it was, "" nothing): a ``tool_saved`` event, or ``tool_not_saved`` saying why. A failing
+    save never costs the recording."""
     plan, primary = session.tool, session.primary
-    why = "the tool was not identified" if params is None else ""
+    why = f"the force was held at the end ({held})" if held else ""
     if not why:
         try:
             state = primary.saves.state() if primary.saves is not None else None
             message = save_tool_record(plan, params, state, primary.label, recording)
             why = "" if message else f"{primary.label} reports no weight and centre of gravity"
-        except (OSError, UserError) as exc:
-            why = str(exc)
+        except Exception as exc:  # (as the estimator's state: the recording comes first)
+            why = f"{type(exc).__name__}: {exc}"
     if why:
         on_event(Event(end_ns, "tool_not_saved", f"tool {plan.name!r} not saved to its library: {why}"))
     else:

@@ -44,7 +44,7 @@ from hapticlab.sessions.live.doubt import SUDDEN, Doubt
 from hapticlab.sessions.live.drift import MIN_OFFSET_N, WEIGHT_TILT, DriftWatch, along
 from hapticlab.sessions.live.lever import LeverWatch
 from hapticlab.sessions.live.pose_trust import PoseTrust
-from hapticlab.sessions.live.pull import PULL, PullWatch
+from hapticlab.sessions.live.pull import PULL, PullWatch, rearm_refusal
 from hapticlab.sessions.live.stated_weight import StatedWeight
 from hapticlab.sessions.live.watch import StepWatch, StuckWatch
 
@@ -113,6 +113,8 @@ class HapticGate:
         self.bias_hold = ""  # "" | "drop", "rise" (waiting for the flag to) | "settle" (the residual) | "latched"
         self.hold_cause = "sensor bias step"  # what the hold is for: "sensor bias step" | "weight step" | "re-armed"
         self.contact_now, self.doubt = False, Doubt()  # the estimator's newest contact flag; the step in hand
+        self.last_residual: tuple = (np.zeros(3), np.eye(3), None)  # newest block's mean residual (S), R_EB, R_SE
+        self.pull_latched_B = np.zeros(3)  # (the pull straight down that latched, N in B)
         self.last_sample_ns: int | None = None
         self.data_reason = self.fault = ""  # (the fault: what the last event named)
 
@@ -177,6 +179,7 @@ class HapticGate:
         """The primary estimator's output for the usable samples: the events it makes (convergence, bias step)."""
         events = []
         self.contact_now = bool(est.contact[-1])
+        self.last_residual = (est.contact_force_S.mean(axis=0), block.R_EB[-1], R_SE)
         self.cross.add_contact(est.t_ns, est.contact_force_S, block.R_EB, R_SE)
         events += self.flags.add(est)
         if self.ready[0] and not self.parameters_known:
@@ -226,6 +229,7 @@ class HapticGate:
                 why = f"{self.doubt.what}; it kept its direction in the world: the support it rested on gone, or "
                 why += "a contact; free the tool and re-arm to take it as its weight (or state haptic.tool_mass)"
                 events += self._latch(PULL, now_ns, why)
+                self.pull_latched_B = self.drift.size * self.drift.direction_B
             elif down:
                 how = (
                     f"{self.doubt} kept its direction in the world, pulling down: the tool's "
@@ -255,8 +259,7 @@ class HapticGate:
         return events
 
     @property
-    def latched(self) -> bool:
-        """A latched stop holds the force off until an explicit re-arm."""
+    def latched(self) -> bool:  # (a latched stop holds the force off until an explicit re-arm)
         return self.bias_hold == "latched"
 
     def rearm(self, now_ns: int, source: str) -> Event | None:
@@ -270,15 +273,17 @@ class HapticGate:
             return None
         self.bias_hold = ""
         other = self.reason(now_ns)
-        weight = self.hold_cause == PULL and self.reidentifies_weight is not None  # (its residual: the weight)
-        if not other and self.contact_now and not weight:
+        weight = self.hold_cause == PULL  # (its residual: the weight the motion missed, if still the pull that latched)
+        if not other and weight:
+            other = rearm_refusal(self.pull_latched_B, self.last_residual, self.label, self.reidentifies_weight)
+        elif not other and self.contact_now:
             other = "the estimator still sees a contact (the bias step, or a real one): free the tool"
         if other:
             self.bias_hold = "latched"
             return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
         self.steps, self.bias_hold, self.hold_cause = StepWatch(), "settle", "re-armed"
         self.doubt.close()
-        if weight and self.reidentifies_weight is not None:
+        if weight and self.reidentifies_weight is not None:  # (_pull_rearm_refusal: None refuses)
             self.reidentifies_weight.reidentify_weight(f"re-armed by {source} after a {PULL}")
             self.hold_until_ns = now_ns + PAYLOAD_HOLD_NS
         self.drift.reset()
@@ -287,10 +292,10 @@ class HapticGate:
         return Event(now_ns, "haptic_rearmed", message, {"source": source})
 
     def change_tool(self, now_ns: int, how: str, warm: bool) -> list[Event]:
-        """The session was told its tool changed (``how``: by whom, and to what): the weight and centre of gravity
-        are re-identified (``warm``: the estimator was just given the new tool's saved state instead; the
-        sensor's bias is kept either way) and the force held until they are known again; an estimator that
-        cannot re-identify latches the force off. The events: ``tool_change`` (and ``haptic_latched``)."""
+        """Told its tool changed (``how``): the weight and centre of gravity re-identified (``warm``: the new tool's
+        saved state given instead, its bias with it), the force held until known (an estimator that cannot: a
+        latch); the old stated mass gone, the pull watch afresh. Events ``tool_change`` (``haptic_latched``)."""
+        self.stated, self.pull = None, PullWatch()
         self.doubt.close()
         self.drift.reset()
         self.lever.reset()

@@ -144,7 +144,7 @@ class LiveLoop:
 
     def change_tool(self, name: str = "", source: str = "api") -> None:
         """Tell the session (any thread) its tool changed to ``name`` ("" unnamed): the force held until identified."""
-        self.commander.tool_changes.append((name and check_name(name, "tool name"), source))
+        self.commander.request_tool_change(name and check_name(name, "tool name"), source)
 
     def run(self) -> SessionResult:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -386,8 +386,8 @@ class LiveLoop:
             "signals_while_ending": self.signals_while_ending,
         }
         assert self.recorder is not None  # run() made it before the session started
-        known = self.gate.parameters_known  # (the tool is saved only when identified)
-        saved = None if failure else save_for_next(self.s, self.recorder, self.path, params, known, end_ns, self._event)
+        held = self.gate.reason(end_ns)  # (a tool is saved only when nothing held the force at the end)
+        saved = None if failure else save_for_next(self.s, self.recorder, self.path, params, held, end_ns, self._event)
         if saved:
             summary["estimator_state_path"] = saved
         self._event(Event(end_ns, "session_end", ending_message(interrupted, self.stopped_by, failure is not None)))

@@ -42,6 +42,10 @@ outside at 1 in 10,000; ``WEIGHT_TILT`` (14°) would miss one in six. The drift 
 second, is then held to ``WEIGHT_TILT``."""
 QUIET_N = 0.15
 """...after the mean was under this, N (an onset is judged once, until the residual has gone again)."""
+REARM_N, REARM_SHARE = 0.5, 0.2
+"""A re-arm after a pull straight down's latch needs the residual within this of the pull that latched, N, or
+this share of it: the newest block's mean (one to seven samples of 0.12 N noise an axis) wanders by ~0.2 N,
+and a contact since (learned as weight by the re-arm) would be rendered, reversed, when it ends."""
 PULL = "pull straight down"
 """The onset the gate holds (the first words of its reason)."""
 
@@ -93,3 +97,17 @@ def off(u: np.ndarray, v) -> float:
     v = np.asarray(v, dtype=float)
     norm = float(np.linalg.norm(u)) * float(np.linalg.norm(v))
     return math.acos(max(-1.0, min(1.0, float(u @ v) / norm))) if norm > 0 else math.pi
+
+
+def rearm_refusal(latched_B: np.ndarray, residual: tuple, label: str, reidentifies_weight: object) -> str:
+    """Why a re-arm of a pull straight down's latch is refused ("" granted): ``latched_B`` (3,) N the pull that
+    latched, ``residual`` the newest block's (mean (3,) N in S, R_EB, R_SE); an estimator without
+    ``reidentifies_weight`` (None) cannot take it as the weight."""
+    if reidentifies_weight is None:
+        return f"{label} cannot re-identify the tool's weight: state haptic.tool_mass and start a new session"
+    f_S, R_EB, R_SE = residual
+    now_B = (R_EB.T if R_SE is None else R_EB.T @ R_SE.T) @ f_S
+    off = float(np.linalg.norm(now_B - latched_B))
+    if off > max(REARM_N, REARM_SHARE * float(np.linalg.norm(latched_B))):
+        return f"the residual is {off:.2f} N off the pull that latched (a contact since?): free the tool"
+    return ""

@@ -2,9 +2,10 @@
 (``settings.py``), and what a session does with them.
 
 :func:`prepare` runs once, before the session is built: a named tool the library knows starts the primary
-estimator from its saved state (when the estimator takes a ``warm_start`` and none is given) and states its
-identified mass (``haptic.tool_mass``, when not given). :func:`save` runs at the session's end: the primary's
-parameters and state become the tool's record, when the tool was identified.
+estimator from its saved state (when the estimator takes a ``warm_start`` and none is given). Its mass is not
+stated from the record: identified, not weighed, it may hold a support taken in (a stated mass also turns
+the pull watch off). :func:`save` runs at the session's end: the primary's parameters and state become the
+tool's record, when the tool was identified and nothing held the force for a fault at the end.
 """
 
 from __future__ import annotations
@@ -46,14 +47,12 @@ def tool_settings(config: dict[str, Any]) -> ToolSettings:
 @dataclass(frozen=True)
 class ToolPlan:
     """What a session does with its tool: ``name`` ("" none), the ``library``'s folder, the ``record`` it
-    started from (None: unknown), and what it took from it (``warm_start`` path, ``tool_mass`` kg; "" and
-    0 when nothing)."""
+    started from (None: unknown), and the ``warm_start`` it took from it ("" none)."""
 
     name: str = ""
     library: str = ""
     record: ToolRecord | None = None
     warm_start: str = ""
-    tool_mass: float = 0.0
 
     def message(self) -> str:
         """What the session does with its tool, for the ``tool`` event at its start."""
@@ -64,14 +63,15 @@ class ToolPlan:
             )
         r = self.record
         warm = "the estimator starts from its state" if self.warm_start else "the estimator starts cold"
-        mass = f"its {r.mass_kg:.3f} kg stated" if self.tool_mass else "the mass stated in [haptic] kept"
-        return f"tool {self.name!r} from the library ({r.sessions} sessions, last {r.updated}): {warm}, {mass}"
+        return (
+            f"tool {self.name!r} from the library ({r.mass_kg:.3f} kg, {r.sessions} sessions, last {r.updated}): {warm}"
+        )
 
     def resolved(self) -> dict[str, Any]:
         """The ``[tool]`` table as the recording keeps it."""
         out: dict[str, Any] = {"name": self.name, "library": self.library, "known": self.record is not None}
         if self.record is not None:
-            out.update(record=asdict(self.record), warm_start=self.warm_start, tool_mass=self.tool_mass)
+            out.update(record=asdict(self.record), warm_start=self.warm_start)
         return out
 
 
@@ -79,34 +79,31 @@ def prepare(config: dict[str, Any], takes_warm_start: bool) -> tuple[dict[str, A
     """The config with the named tool's record applied (a copy; the same config with no tool), and the plan.
     ``takes_warm_start``: the primary estimator has a ``warm_start`` option."""
     settings = tool_settings(config)
-    if not settings.name:
-        return config, ToolPlan()
     library = ToolLibrary(settings.library or None)
+    if not settings.name:
+        return config, ToolPlan(library=str(library.folder))  # (a told change saves in this library)
     record = library.get(settings.name)
     plan = ToolPlan(settings.name, str(library.folder), record)
     if record is None:
         return config, plan
     config = copy.deepcopy(config)
-    estimator, haptic = config.setdefault("estimator", {}), config.setdefault("haptic", {})
+    estimator = config.setdefault("estimator", {})
     state = library.state(settings.name)
     warm = ""
     if takes_warm_start and state is not None and not estimator.get("warm_start"):
         warm = estimator["warm_start"] = str(state)
-    mass = 0.0
-    if not haptic.get("tool_mass"):
-        mass = haptic["tool_mass"] = round(record.mass_kg, 6)
-    return config, ToolPlan(settings.name, str(library.folder), record, warm, mass)
+    return config, ToolPlan(settings.name, str(library.folder), record, warm)
 
 
 def change_tool_plan(plan: ToolPlan, name: str) -> ToolPlan:
     """The plan after the session's tool changed to ``name`` ("" unnamed: nothing read, nothing saved), in the
     same library: its record and saved state when the library knows it."""
-    if not name:
-        return ToolPlan()
     library = ToolLibrary(plan.library or None)
+    if not name:
+        return ToolPlan(library=str(library.folder))
     record = library.get(name)
     state = library.state(name) if record is not None else None
-    return ToolPlan(name, str(library.folder), record, str(state or ""), 0.0)
+    return ToolPlan(name, str(library.folder), record, str(state or ""))
 
 
 def save(

@@ -124,8 +124,12 @@ class ToolLibrary:
                 int(table.get("sessions", 0)),
                 str(table.get("recording", "")),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise UserError(f"{path}: not a tool record ({type(exc).__name__}: {exc}); forget it or fix it") from None
+        if record.sessions < 0 or not all(
+            map(math.isfinite, (*record.cog_S, *record.bias_force_S, *record.bias_torque_S))
+        ):
+            raise UserError(f"{path}: not a tool record (a negative session count or a non-finite vector)")
         if not (math.isfinite(record.mass_kg) and record.mass_kg > 0):
             raise UserError(f"{path}: mass_kg must be a positive number of kg, got {record.mass_kg!r}")
         return record
@@ -134,6 +138,19 @@ class ToolLibrary:
         """The tool's saved estimator state, when there is one."""
         path = self.state_path(name)
         return path if path.is_file() else None
+
+    def read_state(self, name: str) -> dict[str, Any] | None:
+        """The tool's saved estimator state as JSON (None: none saved); UserError naming the file when it is not."""
+        path = self.state(name)
+        if path is None:
+            return None
+        try:
+            state = json.loads(_read(path, MAX_STATE_BYTES))
+        except (json.JSONDecodeError, RecursionError) as exc:
+            raise UserError(f"{path}: not an estimator state ({type(exc).__name__})") from None
+        if not isinstance(state, dict):
+            raise UserError(f"{path}: not an estimator state (a JSON object is)")
+        return state
 
     def save(self, record: ToolRecord, state: dict[str, Any] | None) -> Path:
         """Write ``record`` (and ``state``, or remove a stale one) atomically: a reader never sees half a file."""
@@ -184,7 +201,7 @@ def _read(path: Path, limit: int) -> str:
     with path.open("rb") as f:
         data = f.read(limit + 1)
     if len(data) > limit:
-        raise UserError(f"{path}: larger than {limit >> 10} KiB: not a tool record")
+        raise UserError(f"{path}: larger than {limit >> 10} KiB: not a tool record or state")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

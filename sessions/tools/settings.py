@@ -24,10 +24,10 @@ class ToolSettings:
 
     Attributes:
         name: the tool on the sensor, as the library knows it (``hapticlab tool list``). Known: the session's
-            estimator starts from its saved state (where it takes a ``warm_start``) and its identified mass is
-            stated (``haptic.tool_mass``, unless given), so the force is on from the first second and a tool
-            resting on something at the start is told from a lighter one. Either way the session writes the
-            tool back when it ends with the tool identified. ``""``: no tool named, nothing read or written.
+            estimator starts from its saved state (where it takes a ``warm_start``), so the force is on from the
+            first second (its identified mass is not stated: ``haptic.tool_mass`` is for a weighed one). Either
+            way the session writes the tool back when it ends with the tool identified and nothing holding the
+            force. ``""``: no tool named, nothing read or written.
         library: the folder of the tool library; ``""``: ``$XDG_CONFIG_HOME/hapticlab/tools``
             (``~/.config/hapticlab/tools``).
     """

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from hapticlab.core.errors import ConfigError
+from hapticlab.core.errors import ConfigError, UserError
 from hapticlab.sessions.bench.faults import FAULTS, measure, session
 from hapticlab.sessions.config import apply_settings, load_config
 from hapticlab.sessions.live import build_session
@@ -40,6 +41,11 @@ def test_a_tool_change_the_session_is_told_of_holds_the_force_until_the_new_tool
     loop = LiveLoop(build_session(config), tmp_path / "told.mcap", None, None, 0.05)
     with pytest.raises(ConfigError, match="tool name"):
         loop.change_tool("../big")
+    (tmp_path / "tools").mkdir()
+    (tmp_path / "tools" / "bad.toml").write_text("mass_kg = 0.3\ncog_S = [0, 0, 0.04]\nsessions = inf\n")
+    with pytest.raises(UserError, match=r"bad\.toml: not a tool record"):  # (read here, not in the loop's tick)
+        loop.change_tool("bad")
+    assert not loop.commander.tool_changes
     told = []
 
     def on_status(status):
@@ -61,7 +67,9 @@ def test_a_tool_change_the_session_is_told_of_holds_the_force_until_the_new_tool
     # off to the end: re-identified, then the robot's wrench (its payload still the old tool's) disagrees
     assert held and not any(m["enabled"] for m in held)
     assert "robot disagree" in held[-1]["reason"]
-    saved = [e.kind for e in result.events if e.kind in ("tool_saved", "tool_not_saved")]
-    big = ToolLibrary(tmp_path / "tools").get("big")  # the simulated tool, 0.35 kg, and 0.5 kg 15 cm out
-    assert saved == ["tool_saved"] and big is not None and abs(big.mass_kg - 0.85) < 0.02
-    assert ToolLibrary(tmp_path / "tools").get("small") is None  # (saved at the end only: the change replaced it)
+    # identified (0.85 kg: the simulated 0.35 kg tool and 0.5 kg 15 cm out), but not saved: the force was held
+    saved = [e.message for e in result.events if e.kind in ("tool_saved", "tool_not_saved")]
+    assert len(saved) == 1 and saved[0].startswith("tool 'big' not saved to its library: the force was held")
+    assert "robot disagree" in saved[0] and ToolLibrary(tmp_path / "tools").names() == ["bad"]  # (nothing saved)
+    params = result.params
+    assert abs(np.linalg.norm(params["gravity_force_B"]) / 9.80665 - 0.85) < 0.02

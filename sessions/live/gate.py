@@ -273,7 +273,7 @@ class HapticGate:
             return None
         self.bias_hold = ""
         other = self.reason(now_ns)
-        weight = self.hold_cause == PULL  # (its residual: the weight the motion missed, if still the pull that latched)
+        weight = self.hold_cause in (PULL, "tool change")  # (the weight the motion missed: rearm_refusal tells)
         if not other and weight:
             other = rearm_refusal(self.pull_latched_B, self.last_residual, self.label, self.reidentifies_weight)
         elif not other and self.contact_now:
@@ -283,7 +283,7 @@ class HapticGate:
             return Event(now_ns, "haptic_rearm_refused", f"re-arm by {source} refused: {other}", {"source": source})
         self.steps, self.bias_hold, self.hold_cause = StepWatch(), "settle", "re-armed"
         self.doubt.close()
-        if weight and self.reidentifies_weight is not None:  # (_pull_rearm_refusal: None refuses)
+        if weight and self.reidentifies_weight is not None:  # (rearm_refusal: None refuses)
             self.reidentifies_weight.reidentify_weight(f"re-armed by {source} after a {PULL}")
             self.hold_until_ns = now_ns + PAYLOAD_HOLD_NS
         self.drift.reset()

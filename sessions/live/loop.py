@@ -340,7 +340,7 @@ class LiveLoop:
         s.elapsed_s, s.samples = elapsed, self.samples
         s.rate_hz = self.samples / elapsed if elapsed > 0 else 0.0
         s.converged_force, s.converged_torque = self.gate.ready
-        self.on_status(s)
+        self._call("status callback", self.on_status, s)  # (raising in the tick: the session still ends cleanly)
 
     def _open(self) -> None:
         self._call("sensor", self.s.sensor.open, self.t0_ns)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hapticlab.sessions.bench.faults import FAULTS, measure, session
-from hapticlab.sessions.live.pull import JUDGE_N, PullWatch
+from hapticlab.sessions.live.pull import JUDGE_N, PullWatch, rearm_refusal
 
 G_B = [0.0, 0.0, -1.43]  # the identified weight (a lighter tool: it rested on tissue), N in B
 
@@ -87,3 +87,14 @@ def test_a_tool_lifted_slowly_off_the_tissue_it_started_on_is_held_then_latched(
     assert len(latched) == 1 and latched[0].data["cause"] == "pull straight down"
     assert (latched[0].t_ns - t0) * 1e-9 - FAULTS[label]["start"] < 1.5
     assert not [e for e in events if e.kind in ("weight_step", "contact_confirmed")]
+
+
+def test_a_re_arm_needs_the_residual_to_be_the_pull_that_latched_and_finite():
+    latched_B = np.array([0.0, 0.0, -2.0])
+    still = (np.array([0.05, -0.1, -1.9]), np.eye(3), None)  # (S = B here: R_EB identity)
+    assert rearm_refusal(latched_B, still, "kalman", object()) == ""
+    pushed = (np.array([0.0, 0.0, 1.0]), np.eye(3), None)
+    assert "3.00 N off the pull that latched" in rearm_refusal(latched_B, pushed, "kalman", object())
+    lost = (np.array([np.nan, 0.0, -2.0]), np.eye(3), None)  # (one non-finite row makes the block's mean NaN)
+    assert "off the pull that latched" in rearm_refusal(latched_B, lost, "kalman", object())
+    assert "cannot re-identify the tool's weight" in rearm_refusal(latched_B, still, "batch", None)

@@ -10,6 +10,7 @@ from hapticlab.sessions.bench.faults import FAULTS, measure, session
 from hapticlab.sessions.config import apply_settings, load_config
 from hapticlab.sessions.live import build_session
 from hapticlab.sessions.live.loop import LiveLoop
+from hapticlab.sessions.live.status import SessionError
 from hapticlab.sessions.recording import read_recording
 from hapticlab.sessions.tools import ToolLibrary
 
@@ -73,3 +74,25 @@ def test_a_tool_change_the_session_is_told_of_holds_the_force_until_the_new_tool
     assert "robot disagree" in saved[0] and ToolLibrary(tmp_path / "tools").names() == ["bad"]  # (nothing saved)
     params = result.params
     assert abs(np.linalg.norm(params["gravity_force_B"]) / 9.80665 - 0.85) < 0.02
+
+
+def test_a_bad_record_named_from_a_status_callback_ends_the_session_cleanly(tmp_path):
+    """The status callback runs in the loop's thread: a record that is not one raises there, inside the tick.
+    Before, the loop ended without its finish (the last command 2.82 N, the recording truncated: the review)."""
+    (tmp_path / "tools").mkdir()
+    (tmp_path / "tools" / "bad.toml").write_text("mass_kg = 0.3\ncog_S = [0, 0, 0.04]\nsessions = nan\n")
+    config, _ = load_config("demo")
+    settings = {"session.realtime": False, "session.duration": 7.0, "tool.library": str(tmp_path / "tools")}
+    loop = LiveLoop(build_session(apply_settings(config, settings)), tmp_path / "cb.mcap", None, None, 0.05)
+
+    def on_status(status):
+        if status.elapsed_s >= 6.3:  # (in the demo's first contact: the force is on)
+            loop.change_tool("bad")
+
+    loop.on_status = on_status
+    with pytest.raises(SessionError, match=r"status callback raised UserError: .*bad\.toml: not a tool record"):
+        loop.run()
+    rec = read_recording(tmp_path / "cb.mcap")  # complete: finished, not truncated
+    _, last = rec.topics["/haptic/command"][-1]
+    assert not last["enabled"] and not any(last["force_D"])
+    assert any(m["kind"] == "session_end" for _, m in rec.topics["/events"])

@@ -96,6 +96,11 @@ FAULTS: dict[str, dict[str, Any]] = {
         "start": 5.0,
         "settings": {"haptic.tool_mass": 0.35},
     },
+    "the same, on 4 N (more than the tool weighs), the robot's own wrench off": {
+        "contact": {"kind": "indentation", "start": -1.1, "duration": 6.2, "peak_force": 4.0, "ramp": 0.1},
+        "start": 5.0,
+        "settings": {"kinematics.wrench_accuracy": 0.0},
+    },
     "tool changed for one 0.5 kg heavier at 8.5 s (its centre of gravity 15 cm out)": {
         "contact": {"kind": "hanging_mass", "mass": 0.5, "start": 8.5, "point_S": [0.01, 0.0, 0.15]},
         "start": 8.5,

@@ -44,7 +44,7 @@ from hapticlab.sessions.live.doubt import SUDDEN, Doubt
 from hapticlab.sessions.live.drift import MIN_OFFSET_N, WEIGHT_TILT, DriftWatch, along
 from hapticlab.sessions.live.lever import LeverWatch
 from hapticlab.sessions.live.pose_trust import PoseTrust
-from hapticlab.sessions.live.pull import PULL, PullWatch, rearm_refusal
+from hapticlab.sessions.live.pull import PULL, PullWatch, down_B, rearm_refusal
 from hapticlab.sessions.live.stated_weight import StatedWeight
 from hapticlab.sessions.live.watch import StepWatch, StuckWatch
 
@@ -224,7 +224,7 @@ class HapticGate:
             events += self._reidentify(self.drift.offset_S, now_ns, how)
         elif verdict == "world" and self.doubt and not self.doubt.from_contact:
             # (from a contact, the window holds the contact with the step: only its end or the sensor tells)
-            down = g_B is not None and along(self.drift.direction_B, g_B, WEIGHT_TILT)
+            down = g_B is not None and along(self.drift.direction_B, down_B(g_B), WEIGHT_TILT)
             if down and self.doubt.kind == PULL:  # (a contact pulling down reads the same: a person says which)
                 why = f"{self.doubt.what}; it kept its direction in the world: the support it rested on gone, or "
                 why += "a contact; free the tool and re-arm to take it as its weight (or state haptic.tool_mass)"

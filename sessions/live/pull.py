@@ -85,7 +85,7 @@ class PullWatch:
                 self.armed = True
             elif self.armed and size >= JUDGE_N:
                 self.first = False
-                angle = off(np.array(total), gravity_force_B)
+                angle = off(np.array(total), down_B(gravity_force_B))
                 if angle <= ONSET_TILT:
                     return f"{size:.2f} N, {math.degrees(angle):.0f}° off the weight, no stated tool mass"
                 return ""
@@ -113,3 +113,11 @@ def rearm_refusal(latched_B: np.ndarray, residual: tuple, label: str, reidentifi
             f"the residual is {off:.2f} N off the pull that latched (a contact since, or no finite one): free the tool"
         )
     return ""
+
+
+def down_B(gravity_force_B: list[float]) -> list[float]:
+    """Which way is down in B, N (3,): the identified weight, or B's −z when that points up. A support that pushed
+    harder than the tool weighs identifies a weight pointing up (a negative mass), and its lift is then a pull
+    straight down at 180° from it: B's −z is the way gravity points for an arm mounted upright (mounted
+    otherwise, more onsets are held, not fewer)."""
+    return list(gravity_force_B) if gravity_force_B[2] < 0 else [0.0, 0.0, -1.0]

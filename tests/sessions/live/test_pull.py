@@ -98,3 +98,15 @@ def test_a_re_arm_needs_the_residual_to_be_the_pull_that_latched_and_finite():
     lost = (np.array([np.nan, 0.0, -2.0]), np.eye(3), None)  # (one non-finite row makes the block's mean NaN)
     assert "off the pull that latched" in rearm_refusal(latched_B, lost, "kalman", object())
     assert "cannot re-identify the tool's weight" in rearm_refusal(latched_B, still, "batch", None)
+
+
+@pytest.mark.parametrize("estimator", ["rls", "kalman"])
+def test_a_support_that_pushed_harder_than_the_tool_weighs_is_held_too(estimator):
+    """Resting on 4 N, the 0.35 kg tool (3.43 N) is identified as a weight pointing up; its lift is a pull
+    straight down at 180° from that "weight": judged against B's -z instead. Before, 4.0 N (the limit) reached
+    the hand with the robot's wrench off (the review's reproduction)."""
+    label = "the same, on 4 N (more than the tool weighs), the robot's own wrench off"
+    fault = FAULTS[label]
+    r = measure(estimator, session(estimator, {"settings": fault["settings"]}), fault)
+    print(f"\n{estimator}: {r}")
+    assert r["made_up_force_N"] <= 0.5 and r["event"].startswith("fault: pull straight down")

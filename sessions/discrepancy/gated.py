@@ -3,7 +3,7 @@
 The gate (``identify.Identification.gate``) sets aside rows far off the model, as contact. On a file that had
 no contact that is wrong and must be said: a tool whose flexible part swings after each stop of the robot (a
 long shaft, a loose clamp) is far off the model for a moment at every stop, and the gate hid 5-20 % of
-simulated recordings of one with no word (38 % of the one in issue 43). :func:`set_aside` reports the share
+simulated recordings of one with no word. :func:`set_aside` reports the share
 and the stretches, and looks for ringing in them: the residual of each stretch, noise-weighted and over the six
 channels, has its power at one frequency that the motion does not contain, over several periods, decaying;
 then it gives the frequency and the damping ratio (from the decay of the swing's peaks). A press, a hung mass

@@ -107,10 +107,10 @@ def rearm_refusal(latched_B: np.ndarray, residual: tuple, label: str, reidentifi
         return f"{label} cannot re-identify the tool's weight: state haptic.tool_mass and start a new session"
     f_S, R_EB, R_SE = residual
     now_B = (R_EB.T if R_SE is None else R_EB.T @ R_SE.T) @ f_S
-    off = float(np.linalg.norm(now_B - latched_B))
-    if not off <= max(REARM_N, REARM_SHARE * float(np.linalg.norm(latched_B))):  # (a NaN refuses too)
+    miss = float(np.linalg.norm(now_B - latched_B))
+    if not miss <= max(REARM_N, REARM_SHARE * float(np.linalg.norm(latched_B))):  # (a NaN refuses too)
         return (
-            f"the residual is {off:.2f} N off the pull that latched (a contact since, or no finite one): free the tool"
+            f"the residual is {miss:.2f} N off the pull that latched (a contact since, or no finite one): free the tool"
         )
     return ""
 

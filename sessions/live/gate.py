@@ -13,12 +13,11 @@ rules with their reasons):
 * the frame the residual lives in (``drift.DriftWatch``): a step faster than soft tissue pushes is held
   until the residual turns with the world (a contact), keeps its direction in the world along gravity (a
   weight step), keeps it in the sensor (a bias step), or the estimator sees free motion for
-  ``doubt.DOUBT_FREE_NS``; so is the session's first residual when it pulls straight down with no stated tool mass
-  (``pull.PullWatch``: the support the tool started resting on gone, or a contact); a residual that keeps
-  its direction in the sensor while the tool turns (a bias step or drift, in contact or not) is
-  re-identified by the estimator (or latches the force off until a re-arm, :meth:`HapticGate.rearm`), and
-  the force waits for the residual to settle (a full window under ``drift.MIN_OFFSET_N``: a bias still
-  drifting, or one that moved unseen during a contact, stays off);
+  ``doubt.DOUBT_FREE_NS``; so is the session's first residual pulling straight down, no mass stated
+  (``pull.PullWatch``: a support gone, or a contact); a residual that keeps its direction in the sensor
+  while the tool turns (a bias step or drift, in contact or not) is re-identified by the estimator (or
+  latches the force off until a re-arm, :meth:`HapticGate.rearm`), and the force waits for the residual to
+  settle (a full window under ``drift.MIN_OFFSET_N``: a bias still drifting, or moved in a contact, stays off);
 * where the residual acts, by its torque (``lever.LeverWatch``): twisting about its own line, or across the tool
   at the sensor, no touch gives it: held (what it is, the drift watch tells);
 * the second channel, where the robot measures its own wrench (``crosscheck.WrenchCrossCheck``): the
@@ -162,8 +161,7 @@ class HapticGate:
         return usable, reason
 
     def _start_doubt(self, what: str, kind: str = SUDDEN) -> None:
-        """Hold the force over a step ``what`` until the motion tells a contact from the sensor: the drift watch
-        starts afresh, so that only what came after the step is judged (a contact before it is no verdict)."""
+        """Hold the force over a step ``what`` until the motion tells (the drift watch afresh: only what follows)."""
         self.doubt.open(what, kind, self.contact_now)
         self.drift.reset()
         self.cross.mark(self.last_sample_ns or 0)
@@ -338,10 +336,12 @@ class HapticGate:
         return [Event(now_ns, "haptic_latched", f"haptic force latched off: {cause}: {why}", {"cause": cause})]
 
     def on_event(self, event: Event, now_ns: int) -> None:
-        """An event of the primary estimator: a payload change holds the force at zero for a while; what the
-        motion has not identified of the tool's weight goes into the reason while the estimator converges."""
+        """A primary estimator's event: a payload change holds the force a while (and ends a pull straight down's
+        doubt: the estimator took it as weight); the weight not yet identified goes into the reason."""
         if event.kind == "payload_change":
             self.hold_until_ns = now_ns + PAYLOAD_HOLD_NS
+            if self.doubt.kind == PULL:
+                self.doubt.close()
         elif event.kind in ("not_identifiable", "identified") and event.data.get("parameter") == "gravity_force_B":
             self.unidentified = event.message if event.kind == "not_identifiable" else ""
 

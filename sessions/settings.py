@@ -167,6 +167,8 @@ class HapticSettings:
             Hz; 0 = off. Discretised exactly for the loop period.
         rearm_button: bit of ``DeviceState.buttons`` whose press re-arms a latched stop
             (-1 = none: only the ``r`` key or the Python API re-arm).
+        tare_button: bit of ``DeviceState.buttons`` whose press asks for a tare (-1 = none: only the ``t``
+            key or the Python API; a tare is never taken unasked: ``sessions/live/tare.py``).
         ready_force_std: the force goes on only once the estimator's force-stage
             parameters are known to this standard deviation, N (for estimators
             that report one, e.g. ``rls``: sqrt of diag P). Algorithm 1's own
@@ -190,6 +192,7 @@ class HapticSettings:
     deadband: float = 0.0
     cutoff_hz: float = 0.0
     rearm_button: int = -1
+    tare_button: int = -1
     ready_force_std: float = 0.05
     tool_mass: float = 0.0
     tool_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
@@ -202,6 +205,7 @@ class HapticSettings:
         "deadband": check(number, minimum=0, hint=" (N; 0: off)"),
         "cutoff_hz": check(number, minimum=0, maximum=MAX_LOOP_RATE_HZ, hint=" (Hz; 0: off)"),
         "rearm_button": _button("none"),
+        "tare_button": _button("none"),
         "ready_force_std": check(number, above=0, hint=" (N)"),
         "tool_mass": check(number, minimum=0, maximum=100, hint=" (kg; 0: not stated)"),
         "tool_axis": _direction,
@@ -209,6 +213,8 @@ class HapticSettings:
 
     def __post_init__(self) -> None:
         _check_fields(self, "haptic")
+        if self.tare_button >= 0 and self.tare_button == self.rearm_button:
+            raise ConfigError(f"haptic.tare_button: {self.tare_button} is also haptic.rearm_button (one job a button)")
 
 
 @dataclass(frozen=True)

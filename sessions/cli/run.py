@@ -43,10 +43,12 @@ def cmd_plugins(args: argparse.Namespace) -> int:
 
 
 REARM_KEY = b"r"
+TARE_KEY = b"t"
 
 
 class RearmKey:
-    """The ``r`` key on an interactive stdin, read without blocking (a context manager; inactive off a TTY).
+    """The ``r`` (re-arm) and ``t`` (tare) keys on an interactive stdin, read without blocking (a context manager;
+    inactive off a TTY).
 
     Attributes:
         active: stdin is a terminal in cbreak mode, read by :meth:`pressed`.
@@ -86,8 +88,12 @@ class RearmKey:
 
     def pressed(self) -> bool:
         """The ``r`` key was pressed since the last call (never waits; other keys are dropped)."""
+        return REARM_KEY in self.typed()
+
+    def typed(self) -> bytes:
+        """The keys typed since the last call, lower case (never waits; b"" off a terminal)."""
         if not self.active:
-            return False
+            return b""
         fd = self._fd
         assert fd is not None  # set with active
         data = b""
@@ -99,8 +105,8 @@ class RearmKey:
                 data += chunk
         except (OSError, ValueError):  # the terminal hung up: no more keys, the session goes on
             self.active = False
-            return False
-        return REARM_KEY in data.lower()
+            return b""
+        return data.lower()
 
 
 def rearm_hint(key: bool, button: int) -> str:
@@ -164,8 +170,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             hint = rearm_hint(key.active, session.haptic_settings.rearm_button)
 
             def on_status(status) -> None:
-                if key.pressed() and status.rearm is not None:
+                typed = key.typed()
+                if REARM_KEY in typed and status.rearm is not None:
                     status.rearm(f"key {REARM_KEY.decode()}")
+                if TARE_KEY in typed and status.tare is not None:
+                    status.tare(f"key {TARE_KEY.decode()}")
                 if live is not None:
                     live.update(_status_table(status, hint))
 

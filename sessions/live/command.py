@@ -11,6 +11,8 @@ A latched stop (``gate``) holds the force off until an explicit re-arm: a press
 of the device's ``haptic.rearm_button`` (an edge: released, then pressed), the
 ``r`` key of ``hapticlab run``, or :meth:`~.loop.LiveLoop.rearm` (also handed to
 status callbacks as ``SessionStatus.rearm``); each is honoured at the next tick.
+So is a tare (``tare``): the device's ``haptic.tare_button``, the ``t`` key, or
+:meth:`~.loop.LiveLoop.tare`.
 """
 
 from __future__ import annotations
@@ -21,13 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.host.interfaces import HasForceLimit
+from hapticlab.core.host.interfaces import HasForceLimit, Reidentifies
 from hapticlab.core.types import DeviceState, Event, HapticCommand, PoseSample
 from hapticlab.sessions.live.build import Session
 from hapticlab.sessions.live.gate import HapticGate
 from hapticlab.sessions.live.passivity import PassivityController
 from hapticlab.sessions.live.status import SessionStatus
 from hapticlab.sessions.live.taps import Taps
+from hapticlab.sessions.live.tare import Tare
 from hapticlab.sessions.live.teleop import Teleoperation, reason_kind
 from hapticlab.sessions.tools import ToolLibrary, ToolPlan, change_tool_plan
 
@@ -39,6 +42,7 @@ class HapticCommander:
         governor: how much force, and the zero command (``safety.ForceGovernor``).
         teleop: the robot's targets from the master's state, or None without ``[teleop]``.
         rearm_requests: re-arm requests not yet honoured, by source (``"api"``, ``"key r"``, ``"button 3"``).
+        tare: the sensor's zero and the tare requests not yet honoured (``tare.Tare``).
         last_estimate: the primary estimator's newest ``(contact_force_S, R_BS, t_ns)``, None before the first.
         last_pose: the newest measured flange pose (what teleoperation starts from).
         haptic_on_ticks: ticks whose command had the force on.
@@ -59,7 +63,10 @@ class HapticCommander:
         self.governor = session.governor()
         self.force_limit = session.haptic if isinstance(session.haptic, HasForceLimit) else None
         self.rearm_bit = session.haptic_settings.rearm_button  # -1: no button
-        self.button_down = True  # unknown counts as held: a button held at the start must be released first
+        self.tare_bit = session.haptic_settings.tare_button  # -1: no button
+        self.button_down = {self.rearm_bit: True, self.tare_bit: True}  # unknown counts as held: a button held
+        # at the start must be released first
+        self.tare = Tare()
         self.rearm_requests: deque[str] = deque()
         self.tool_changes: deque[tuple[ToolPlan, dict | None, str]] = deque()  # (new tool, its state, by whom)
         self.teleop = Teleoperation(session.teleop_settings, self.governor.R_DB) if session.robot is not None else None
@@ -112,6 +119,12 @@ class HapticCommander:
             if event is not None:
                 self.on_event(event)
                 reason = self.gate.reason(now_ns)
+        if self.tare.requests or self.tare.collecting:
+            for event in self.tare.honour(now_ns, self.gate):
+                self.on_event(event)
+                if event.kind == "sensor_tared":
+                    self._shadows_tared()
+            reason = self.gate.reason(now_ns)
         while self.tool_changes:
             for event in self._change_tool(now_ns, *self.tool_changes.popleft()):
                 self.on_event(event)
@@ -226,10 +239,18 @@ class HapticCommander:
             self.status.teleop = target.mode if not target.reason else f"{target.mode}: {target.reason}"
 
     def watch_button(self, state) -> None:
-        """A press of the re-arm button (up, then down: a held button counts once) asks for a re-arm."""
-        if self.rearm_bit < 0:
-            return
-        down = True if state is None else bool((int(state.buttons) >> self.rearm_bit) & 1)  # no state: unknown
-        if down and not self.button_down and state is not None:
-            self.rearm_requests.append(f"button {self.rearm_bit}")
-        self.button_down = down
+        """A press of the re-arm (tare) button (up, then down: a held button counts once) asks for a re-arm (tare)."""
+        for bit, requests in ((self.rearm_bit, self.rearm_requests), (self.tare_bit, self.tare.requests)):
+            if bit < 0:
+                continue
+            down = True if state is None else bool((int(state.buttons) >> bit) & 1)  # no state: unknown
+            if down and not self.button_down[bit] and state is not None:
+                requests.append(f"button {bit}")
+            self.button_down[bit] = down
+
+    def _shadows_tared(self) -> None:
+        """The shadow estimators told of a tare (each that can re-identifies its bias: they see the zeroed
+        readings too)."""
+        for shadow in self.s.shadows:
+            if isinstance(shadow.estimator, Reidentifies):
+                shadow.estimator.reidentify_bias("tare")

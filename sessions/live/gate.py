@@ -143,9 +143,8 @@ class HapticGate:
         held = self.steps.add(block.t_ns, block.force_S)
         stuck = self.stuck.add(block.t_ns, block.force_S, block.torque_S)
         step, self.steps.persisted = self.steps.persisted, None  # (held out until now: the new level goes on)
-        what = self.steps.sudden or (
-            "" if step is None else f"the reading jumped {np.linalg.norm(step):.3g} N and stayed"
-        )
+        jumped = "" if step is None else f"the reading jumped {np.linalg.norm(step):.3g} N and stayed"
+        what = self.steps.sudden or jumped
         self.steps.sudden = ""
         if what and self.parameters_known and self.bias_hold in ("", "settle"):  # the motion decides what it was
             self._start_doubt(what)
@@ -153,10 +152,8 @@ class HapticGate:
             self.cross.mark(self.last_sample_ns)  # (the step, if it stays, is measured from before it)
             usable, reason = usable & ~held, reason or self.steps.jump
         if stuck.any():
-            usable, reason = (
-                usable & ~stuck,
-                reason or f"sensor stuck (the same reading for {self.stuck.stuck_ns * 1e-6:.0f} ms)",
-            )
+            stuck_for = f"sensor stuck (the same reading for {self.stuck.stuck_ns * 1e-6:.0f} ms)"
+            usable, reason = usable & ~stuck, reason or stuck_for
         self.data_reason = reason
         return usable, reason
 
@@ -194,7 +191,8 @@ class HapticGate:
         elif self.bias_hold == "rise" and self.converged[0] and not self.parameters_lost:
             self.bias_hold = "settle"
             self.drift.reset()
-            events.append(Event(now_ns, "bias_reidentified", f"{self.label} converged again after the bias step"))
+            message = f"{self.label} converged again after the {self.hold_cause}"
+            events.append(Event(now_ns, "bias_reidentified", message))
         if self.parameters_known and params is not None:
             self.trust.watch_lag(block, params, R_SE)
         g_B = None if params is None else params.get("gravity_force_B")
@@ -202,23 +200,17 @@ class HapticGate:
             pull = self.pull.add(est.contact_force_S, block.R_EB, R_SE, g_B)
             if pull and not self.doubt and not self.bias_hold:
                 self._start_doubt(pull, PULL)
-        # (once the parameters are known, as the lag watch: a residual before the tool is identified says
-        # nothing of the sensor's bias)
-        verdict = (
-            self.drift.add(est.t_ns, est.contact_force_S, block.R_EB, R_SE)
-            if self.parameters_known and self.bias_hold in ("", "settle")
-            else ""
-        )
+        # (once the parameters are known, as the lag watch: before, a residual says nothing of the sensor's bias)
+        judged = self.parameters_known and self.bias_hold in ("", "settle")
+        verdict = self.drift.add(est.t_ns, est.contact_force_S, block.R_EB, R_SE) if judged else ""
         if self.bias_hold == "settle" and self.drift.size < MIN_OFFSET_N:
             self.bias_hold = ""
             events.append(Event(now_ns, "bias_settled", f"the residual settled under {MIN_OFFSET_N:g} N"))
         if verdict == "sensor":
             in_S, in_B = self.drift.misfits
-            how = (
-                "the residual force kept its direction in the sensor frame while the tool turned "
-                f"(off it by {in_S:.2f} N RMS in the sensor, {in_B:.2f} N in the world): the sensor's zero moved, "
-                "or the estimator took a contact into its bias"
-            )
+            how = "the residual force kept its direction in the sensor frame while the tool turned "
+            how += f"(off it by {in_S:.2f} N RMS in the sensor, {in_B:.2f} N in the world): the sensor's zero moved, "
+            how += "or the estimator took a contact into its bias"
             events += self._reidentify(self.drift.offset_S, now_ns, how)
         elif verdict == "world" and self.doubt and not self.doubt.from_contact:
             # (from a contact, the window holds the contact with the step: only its end or the sensor tells)
@@ -229,10 +221,8 @@ class HapticGate:
                 events += self._latch(PULL, now_ns, why)
                 self.pull_latched_B = self.drift.size * self.drift.direction_B
             elif down:
-                how = (
-                    f"{self.doubt} kept its direction in the world, pulling down: the tool's "
-                    "weight changed (a load hung on it, or the support it started resting on gone), not a contact"
-                )
+                how = f"{self.doubt} kept its direction in the world, pulling down: the tool's weight changed "
+                how += "(a load hung on it, or the support it started resting on gone), not a contact"
                 events += self._reidentify(self.drift.size * self.drift.direction_B, now_ns, how, "weight_step")
             else:
                 message = f"{self.doubt} turned with the world: a contact"
@@ -303,6 +293,16 @@ class HapticGate:
             return [event, *([] if warm else self._latch("tool change", now_ns, f"{self.label} cannot re-identify it"))]
         self.reidentifies_weight.reidentify_weight("tool change")
         return [event]
+
+    def tared(self) -> None:
+        """The readings' zero moved (a tare, ``tare.py``): the raw watches afresh, the bias re-identified, held till."""
+        assert self.reidentifies is not None  # (a tare is refused to an estimator that cannot)
+        self.steps, self.stuck, self.bias_hold, self.hold_cause = StepWatch(), StuckWatch(), "drop", "tare"
+        self.drift.reset()
+        self.lever.reset()
+        self.doubt.close()
+        self.cross.mark(self.last_sample_ns or 0)  # (the step measured from before it)
+        self.reidentifies.reidentify_bias("tare")
 
     def _reidentify(self, step: np.ndarray, now_ns: int, how: str, kind: str = "bias_step") -> list[Event]:
         """A bias step of ``step`` (3,) N (``kind`` "weight_step": a weight step), seen as ``how``: re-identified,

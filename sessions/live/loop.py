@@ -122,7 +122,7 @@ class LiveLoop:
             latency_s=session.kinematics.latency_s if isinstance(session.kinematics, HasLatency) else 0.0,
         )
         self.on_status, self.status_interval_s = on_status, status_interval_s
-        self.status = SessionStatus(rearm=self.rearm)
+        self.status = SessionStatus(rearm=self.rearm, tare=self.tare)
         self.commander = HapticCommander(session, self.gate, self.status, self._event, self._call)
         self.pacer = Pacer(
             self.period_ns, settings.realtime, settings.loop_rate_hz, preparing, self._call, self._event, self.status
@@ -141,6 +141,10 @@ class LiveLoop:
     def rearm(self, source: str = "api") -> None:
         """Ask to re-arm a latched stop (any thread); honoured at the next tick, granted only once its cause is gone."""
         self.commander.rearm_requests.append(source)
+
+    def tare(self, source: str = "api") -> None:
+        """Ask (any thread) for a tare: the still, free tool's reading the zero (``tare.py``), at the next tick."""
+        self.commander.tare.requests.append(source)
 
     def change_tool(self, name: str = "", source: str = "api") -> None:
         """Tell the session (any thread) its tool changed to ``name`` ("" unnamed): the force held until identified."""
@@ -176,13 +180,8 @@ class LiveLoop:
                 with fifo_priority(self.priority) as refused:  # paced: woken on time (priority.py)
                     if refused:
                         self.priority = 0
-                        self._event(
-                            Event(
-                                time.monotonic_ns(),
-                                "realtime_priority_unavailable",
-                                f"the loop runs at the ordinary priority: {refused}",
-                            )
-                        )
+                        why = f"the loop runs at the ordinary priority: {refused}"
+                        self._event(Event(time.monotonic_ns(), "realtime_priority_unavailable", why))
                     tick = 0
                     while (tick + 1) * self.period_ns <= self.duration_ns:  # every tick due within the session
                         # (paced: the one due at its end too, read just after)
@@ -228,7 +227,8 @@ class LiveLoop:
             self.samples += len(wrenches)
             block = self.aligner.align(wrenches)
             self.taps.aligned(block)
-            usable, _, reason = screen(block, self.sensor_range)
+            usable, _, reason = screen(block, self.sensor_range)  # (the sensor's own readings: its range)
+            block = self.commander.tare.apply(block)  # (less the zero asked for: recorded as read, above)
             usable, reason = self.gate.on_samples(block, usable, reason, now_ns)
             some = True if not reason else usable.any()  # no reason: every sample is usable (the usual case)
             if not self.gate.trusts_poses(now_ns):  # their orientation is not the robot's: not for the estimators
@@ -257,6 +257,8 @@ class LiveLoop:
         primary = self.s.primary
         est = self._call("estimator", primary.estimator.update_block, block)
         self._record_estimates(primary, est, with_params)
+        if self.commander.tare.collecting:  # (a tare asked for: its window)
+            self.commander.tare.watch(block, est)
         for event in self._drain(primary):
             self.gate.on_event(event, now_ns)
         params, R_SE = self._primary_model()
@@ -349,13 +351,8 @@ class LiveLoop:
             self.recorder.add_metadata("hapticlab.calibration", dict(self.s.sensor.calibration))
         self._call("kinematics", self.s.kinematics.open, self.t0_ns)
         self._call("haptic", self.s.haptic.open)
-        self._event(
-            Event(
-                self.t0_ns,
-                "session_start",
-                f"session {self.s.settings.name!r} started, estimator {self.s.estimator_name}",
-            )
-        )
+        started = f"session {self.s.settings.name!r} started, estimator {self.s.estimator_name}"
+        self._event(Event(self.t0_ns, "session_start", started))
         if self.s.tool.name:
             self._event(Event(self.t0_ns, "tool", self.s.tool.message()))
 

@@ -16,7 +16,8 @@ class SessionStatus:
 
     ``latched`` is True while a latched stop waits for a re-arm; ``rearm(source)``
     asks for one (the session's :meth:`LiveLoop.rearm`: honoured at the next tick,
-    granted only once the cause is gone).
+    granted only once the cause is gone); ``tare(source)`` asks for a tare
+    (:meth:`LiveLoop.tare`: granted only with the tool still and free).
     """
 
     elapsed_s: float = 0.0
@@ -33,6 +34,7 @@ class SessionStatus:
     live_address: str = ""  # where the Foxglove live view listens ("" without one)
     teleop: str = ""  # teleoperation's mode ("following", "holding: clutch pressed", ...); "" when off
     rearm: Callable[[str], None] | None = field(default=None, repr=False)
+    tare: Callable[[str], None] | None = field(default=None, repr=False)
 
 
 @dataclass

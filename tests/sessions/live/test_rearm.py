@@ -124,7 +124,7 @@ def test_a_rearm_with_nothing_latched_is_no_event(tmp_path):
     assert list(loop.commander.rearm_requests) == ["api", "key r"]
 
 
-def test_the_r_key_is_read_without_blocking_from_a_terminal(pty_pair):
+def test_the_r_and_t_keys_are_read_without_blocking_from_a_terminal(pty_pair):
     import os
 
     from hapticlab.sessions.cli.run import RearmKey, _status_table, rearm_hint
@@ -135,6 +135,8 @@ def test_the_r_key_is_read_without_blocking_from_a_terminal(pty_pair):
         assert key.active and not key.pressed()  # nothing typed: returns at once
         os.write(master, b"xR")
         assert key.pressed() and not key.pressed()  # taken once
+        os.write(master, b"tR")  # the tare key and the re-arm key in one read: both seen
+        assert key.typed() == b"tr" and key.typed() == b""
     with open(os.devnull, "rb") as stream, RearmKey(stream) as key:
         assert not key.active and not key.pressed()  # not a terminal: no reader
     assert rearm_hint(True, 1) == "press r or the device's re-arm button (1)"

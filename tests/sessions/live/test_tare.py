@@ -1,0 +1,163 @@
+"""A tare only when asked, refused in contact or motion, recorded with the values removed, no force made up."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hapticlab.core.errors import ConfigError
+from hapticlab.core.types import AlignedSamples, DeviceState, Estimates
+from hapticlab.sessions.bench.faults import made_up_force
+from hapticlab.sessions.config import apply_settings, load_config
+from hapticlab.sessions.live import build_session
+from hapticlab.sessions.live.loop import LiveLoop
+from hapticlab.sessions.live.tare import STILL_TURN_RAD, TOUCH_N, WINDOW_NS, Tare
+from hapticlab.sessions.recording import read_recording
+from hapticlab.sessions.settings import HapticSettings
+
+DURATION_S = 9.0  # (the fast tier: under 10 s of session)
+
+
+def rotation_z(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def feed(tare: Tare, rng, n=150, turn_rad=0.0, move_m=0.0, residual_N=0.0, contact_at=-1, wrench=None):
+    """``n`` 1 kHz samples of a reading ``wrench`` (6,) plus noise, turning and moving linearly, with the given
+    estimator residual along x; a contact flagged at sample ``contact_at``."""
+    wrench = np.array([1.0, -2.0, 3.0, 0.1, 0.2, -0.3]) if wrench is None else wrench
+    for k in range(n):
+        noisy = wrench + rng.normal(0.0, [0.1] * 3 + [0.005] * 3)
+        block = AlignedSamples(
+            t_ns=np.array([k * 1_000_000]),
+            force_S=noisy[None, :3],
+            torque_S=noisy[None, 3:],
+            R_EB=rotation_z(turn_rad * k / n)[None],
+            seq=np.array([k]),
+            status=np.zeros(1, dtype=np.int64),
+            stale=np.zeros(1, dtype=bool),
+            p_BoEo_B=np.array([[move_m * k / n, 0.0, 0.3]]),
+        )
+        residual = np.array([[residual_N, 0.0, 0.0]]) + rng.normal(0.0, 0.1, (1, 3))
+        est = Estimates(
+            t_ns=block.t_ns,
+            contact_force_S=residual,
+            contact_torque_S=np.zeros((1, 3)),
+            contact=np.array([k == contact_at]),
+            converged_force=np.ones(1, dtype=bool),
+            converged_torque=np.ones(1, dtype=bool),
+        )
+        tare.watch(tare.apply(block), est)
+    return (n - 1) * 1_000_000
+
+
+def test_a_tare_is_judged_by_the_last_tenth_of_a_second():
+    rng = np.random.default_rng(3)
+    still = Tare()
+    now = feed(still, rng)
+    assert still.refusal(now, "", True, "kalman") == ""
+    removed, zero = still.take()
+    # the mean of the last 0.1 s of a 1 N, -2 N, 3 N reading: what leaves every following one
+    assert np.allclose(removed, [1.0, -2.0, 3.0, 0.1, 0.2, -0.3], atol=0.04) and np.array_equal(removed, zero)
+    now = feed(still, rng)  # (the same reading again: now zeroed, a second tare removes next to nothing)
+    again, zero2 = still.take()
+    assert np.all(np.abs(again) < 0.04) and np.allclose(zero2, zero + again)
+    assert "held (tare" in still.refusal(now, "tare: re-identifying", True, "kalman")
+    assert still.refusal(now, "", False, "batch") == "batch cannot re-identify its bias after a tare"
+    # what refuses it, each just over its bound within the window (and a turn just under it does not)
+    slow = Tare()
+    now = feed(slow, rng, turn_rad=0.8 * STILL_TURN_RAD * 1.5)  # over 0.15 s: 0.8 of the bound within 0.1 s
+    assert slow.refusal(now, "", True, "kalman") == ""
+    for kwargs, words in (
+        ({"turn_rad": 2 * STILL_TURN_RAD}, "the tool is moving (turned 0.3"),
+        ({"move_m": 1.5e-3}, "moved 1.0"),
+        ({"residual_N": 1.5 * TOUCH_N}, "the tool is in contact (a mean residual of 0.3"),
+        ({"contact_at": 100}, "the tool is in contact"),
+    ):
+        tare = Tare()
+        now = feed(tare, rng, **kwargs)
+        assert words in tare.refusal(now, "", True, "kalman"), kwargs
+    # a contact flagged before the window is past; too few readings in it, or none at all
+    tare = Tare()
+    now = feed(tare, rng, contact_at=10)
+    assert tare.refusal(now, "", True, "kalman") == ""
+    assert "too few readings" in tare.refusal(now + WINDOW_NS // 2 + 2_000_000, "", True, "kalman")
+    assert "too few readings" in Tare().refusal(now, "", True, "kalman")
+
+
+@pytest.mark.parametrize("estimator", ["kalman", "rls"])
+def test_tares_asked_for_all_along_are_granted_only_when_still_and_free_and_make_up_no_force(tmp_path, estimator):
+    """A script asks for a tare at every status call: the demo's dwells (0.3 s) are granted, its motion and
+    contacts refused. Each grant holds the force while the estimator re-identifies its bias; the commands
+    then match the same session's without tares (the same seeds), and the recording keeps the sensor's own
+    readings."""
+    config, _ = load_config("demo")
+    settings = {"session.realtime": False, "session.duration": DURATION_S, "estimator.name": estimator}
+    loop = LiveLoop(build_session(apply_settings(config, settings)), tmp_path / "tare.mcap", None, None, 0.01)
+    loop.on_status = lambda status: status.tare("script")
+    result = loop.run()
+    rec = read_recording(result.path)
+    events = [(t, m) for t, m in rec.topics["/events"] if m["kind"] in ("sensor_tared", "tare_refused")]
+    granted = [(t, m) for t, m in events if m["kind"] == "sensor_tared"]
+    refused = [m["message"] for _, m in events if m["kind"] == "tare_refused"]
+    assert granted and any("the tool is moving" in m for m in refused), refused
+    assert any("parameters not yet identified" in m or "not converged" in m for m in refused)
+    # the zero is the sum of what each tare removed; every grant's last 0.1 s still, by the recorded poses
+    assert np.allclose(granted[-1][1]["data"]["zero_S"], np.sum([m["data"]["removed_S"] for _, m in granted], axis=0))
+    pose_t = np.array([t for t, _ in rec.topics["/kinematics/pose"]])
+    quat = np.array([m["quat_BE"] for _, m in rec.topics["/kinematics/pose"]])
+    for t, m in granted:
+        window = quat[(pose_t >= t - WINDOW_NS + 5_000_000) & (pose_t <= t)]
+        assert len(window) > 10 and np.min(np.abs(window @ window[-1])) > math.cos(STILL_TURN_RAD / 2), m
+        assert m["message"].startswith(f"sensor tared by script: ({m['data']['removed_S'][0]:.3f}, ")
+    # the force held from each grant until the residual settled again
+    commands = rec.topics["/haptic/command"][:-1]
+    for t, _ in granted:
+        after = [m for tc, m in commands if t <= tc < t + 20_000_000]
+        assert after and not any(m["enabled"] for m in after) and "tare" in after[-1]["reason"]
+    # no force made up against the same session without tares (the same seeds), whose sensor readings the
+    # recording kept as read
+    reference = LiveLoop(build_session(apply_settings(config, settings)), tmp_path / "ref.mcap", None, None, 1.0)
+    plain = read_recording(reference.run().path).topics
+    force = np.array([m["force_D"] for _, m in commands])
+    force_ref = np.array([m["force_D"] for _, m in plain["/haptic/command"][:-1]])
+    assert (
+        len(force) == len(force_ref) and made_up_force(force, force_ref).max() < 0.25
+    )  # (N; 0.03-0.08 measured, a tare not followed 4 N)
+    assert [m["force_S"] for _, m in rec.topics["/sensor/wrench"]] == [m["force_S"] for _, m in plain["/sensor/wrench"]]
+
+
+def test_batch_cannot_follow_a_tare_and_a_tare_button_is_an_edge(tmp_path):
+    config, _ = load_config("demo")
+    settings = {"session.realtime": False, "session.duration": 4.0, "estimator.name": "batch"}
+    loop = LiveLoop(
+        build_session(apply_settings(config, {**settings, "haptic.tare_button": 2, "haptic.rearm_button": 0})),
+        tmp_path / "batch.mcap",
+        None,
+        None,
+        0.01,
+    )
+
+    def state(buttons):
+        return DeviceState(0, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), buttons)
+
+    for buttons in (0b100, 0, 0b101, 0b100, 0, 0b001):  # held at the start; pressed with the re-arm; re-arm alone
+        loop.commander.watch_button(state(buttons))
+    assert list(loop.commander.tare.requests) == ["button 2"] and list(loop.commander.rearm_requests) == [
+        "button 0",
+        "button 0",
+    ]
+    loop.on_status = lambda status: status.tare("script") if status.elapsed_s > 3.0 else None
+    result = loop.run()
+    refused = {e.message for e in result.events if e.kind == "tare_refused"}
+    assert (
+        "tare by button 2 refused: the force is held (estimator not converged): a zero taken now could take in a "
+        "fault or a contact" in refused
+    )
+    assert "tare by script refused: batch cannot re-identify its bias after a tare" in refused
+    assert not any(e.kind == "sensor_tared" for e in result.events)
+    with pytest.raises(ConfigError, match=r"haptic\.tare_button: 2 is also haptic\.rearm_button"):
+        HapticSettings(rearm_button=2, tare_button=2)

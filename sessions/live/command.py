@@ -26,6 +26,7 @@ import numpy as np
 from hapticlab.core.host.interfaces import HasForceLimit, Reidentifies
 from hapticlab.core.types import DeviceState, Event, HapticCommand, PoseSample
 from hapticlab.sessions.live.build import Session
+from hapticlab.sessions.live.ending import ToolSnapshot, snapshot
 from hapticlab.sessions.live.gate import HapticGate
 from hapticlab.sessions.live.passivity import PassivityController
 from hapticlab.sessions.live.status import SessionStatus
@@ -69,6 +70,7 @@ class HapticCommander:
         self.tare = Tare()
         self.rearm_requests: deque[str] = deque()
         self.tool_changes: deque[tuple[ToolPlan, dict | None, str]] = deque()  # (new tool, its state, by whom)
+        self.changed_from: list[ToolSnapshot] = []  # the named tools changed from, as they were then
         self.teleop = Teleoperation(session.teleop_settings, self.governor.R_DB) if session.robot is not None else None
         self.last_pose: PoseSample | None = None
         self.last_estimate: tuple[np.ndarray, np.ndarray, int] | None = None  # (contact_force_S, R_BS, t_ns)
@@ -98,6 +100,9 @@ class HapticCommander:
         """A told tool change: the primary given the new tool's saved state (when the library had one), the
         gate told (``HapticGate.change_tool``); a state the estimator refuses leaves it to re-identify."""
         events, warm = [], False
+        if self.s.tool.name:  # the tool it changed from, as it was: saved to its library at the end (``ending``)
+            held = self.gate.reason(now_ns)
+            self.changed_from.append(snapshot(self.s, self.s.primary.params() or {}, held, "at the change"))
         if state is not None:
             try:
                 self.s.primary.estimator.load_state(state)  # type: ignore[attr-defined]

@@ -19,13 +19,15 @@ from __future__ import annotations
 import json
 import signal
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from hapticlab.core.types import Event
 from hapticlab.sessions.live.build import EstimatorSlot, Session, calibration_path
 from hapticlab.sessions.recording import Recorder
+from hapticlab.sessions.tools import ToolPlan
 from hapticlab.sessions.tools import save as save_tool_record
 
 
@@ -121,34 +123,67 @@ def final_params(primary: EstimatorSlot, samples: int, end_ns: int, on_event: Ca
 
 
 def save_for_next(
-    session: Session, recorder: Recorder, path: Path, params: dict, held: str, end_ns: int, on_event: Callable
+    session: Session,
+    recorder: Recorder,
+    path: Path,
+    params: dict,
+    held: str,
+    end_ns: int,
+    on_event: Callable,
+    changed_from: Sequence[ToolSnapshot] = (),
 ) -> str | None:
     """What later sessions start from, once the session ended without a failure: the primary's state beside the
     recording (:func:`save_estimator_state`: its path, or None) and the tool in its library (:func:`save_tool`,
-    unless the gate ``held`` the force at the end: why, "" it did not: a latch, a doubt, a weight off)."""
+    unless the gate ``held`` the force at the end: why, "" it did not: a latch, a doubt, a weight off); first
+    each tool the session was told it changed from, as it was at the change (``changed_from``)."""
     saved = save_estimator_state(session.primary, recorder, path, end_ns, on_event) if session.primary.saves else None
+    recording = str(Path(path).resolve())
+    for old in changed_from:
+        save_tool(old, session.primary.label, recording, end_ns, on_event)
     if session.tool.name:
-        save_tool(session, params, held, str(Path(path).resolve()), end_ns, on_event)
+        save_tool(snapshot(session, params, held), session.primary.label, recording, end_ns, on_event)
     return saved
 
 
-def save_tool(
-    session: Session, params: dict, held: str, recording: str, end_ns: int, on_event: Callable[[Event], None]
-) -> None:
-    """The session's tool written back to its library (``sessions.tools.save``) when nothing held the force at the
-    end (``held``: why it was, "" nothing): a ``tool_saved`` event, or ``tool_not_saved`` saying why. A failing
-    save never costs the recording."""
-    plan, primary = session.tool, session.primary
-    why = f"the force was held at the end ({held})" if held else ""
+@dataclass(frozen=True)
+class ToolSnapshot:
+    """A named tool as the session knew it at a moment: what :func:`save_tool` writes to its library.
+
+    Attributes:
+        plan: the tool (its name, library and earlier record).
+        params: the primary's parameters then (``gravity_force_B``, ``cog_S``, biases).
+        state: the primary's saved state then (None: it saves none).
+        held: why the gate held the force then ("" it did not: only then is the tool saved).
+        when: the moment, for the messages ("at the end", "at the change").
+    """
+
+    plan: ToolPlan
+    params: dict
+    state: dict | None
+    held: str
+    when: str = "at the end"
+
+
+def snapshot(session: Session, params: dict, held: str, when: str = "at the end") -> ToolSnapshot:
+    """The session's tool now, with the primary's ``params`` (its state taken only when ``held`` is "")."""
+    primary = session.primary
+    state = primary.saves.state() if primary.saves is not None and not held else None
+    return ToolSnapshot(session.tool, params, state, held, when)
+
+
+def save_tool(tool: ToolSnapshot, label: str, recording: str, end_ns: int, on_event: Callable[[Event], None]) -> None:
+    """A tool written back to its library (``sessions.tools.save``) when nothing held the force at its moment
+    (``tool.held``): a ``tool_saved`` event, or ``tool_not_saved`` saying why. A failing save never costs the
+    recording."""
+    why = f"the force was held {tool.when} ({tool.held})" if tool.held else ""
     if not why:
         try:
-            state = primary.saves.state() if primary.saves is not None else None
-            message = save_tool_record(plan, params, state, primary.label, recording)
-            why = "" if message else f"{primary.label} reports no weight and centre of gravity"
+            message = save_tool_record(tool.plan, tool.params, tool.state, label, recording)
+            why = "" if message else f"{label} reports no weight and centre of gravity"
         except Exception as exc:  # (as the estimator's state: the recording comes first)
             why = f"{type(exc).__name__}: {exc}"
     if why:
-        on_event(Event(end_ns, "tool_not_saved", f"tool {plan.name!r} not saved to its library: {why}"))
+        on_event(Event(end_ns, "tool_not_saved", f"tool {tool.plan.name!r} not saved to its library: {why}"))
     else:
         on_event(Event(end_ns, "tool_saved", message))
 

@@ -284,14 +284,8 @@ class LiveLoop:
                 shadow_est = shadow.estimator.update_block(block)
             except Exception as exc:
                 self.shadows.remove(shadow)
-                self._event(
-                    Event(
-                        now_ns,
-                        "error",
-                        f"shadow estimator {shadow.label} raised {type(exc).__name__}: {exc}; dropped",
-                        {"source": shadow.label},
-                    )
-                )
+                why = f"shadow estimator {shadow.label} raised {type(exc).__name__}: {exc}; dropped"
+                self._event(Event(now_ns, "error", why, {"source": shadow.label}))
                 continue
             self._record_estimates(shadow, shadow_est, with_params)
             self._drain(shadow)
@@ -384,7 +378,13 @@ class LiveLoop:
         }
         assert self.recorder is not None  # run() made it before the session started
         held = self.gate.reason(end_ns)  # (a tool is saved only when nothing held the force at the end)
-        saved = None if failure else save_for_next(self.s, self.recorder, self.path, params, held, end_ns, self._event)
+        saved = (
+            None
+            if failure
+            else save_for_next(
+                self.s, self.recorder, self.path, params, held, end_ns, self._event, self.commander.changed_from
+            )
+        )
         if saved:
             summary["estimator_state_path"] = saved
         self._event(Event(end_ns, "session_end", ending_message(interrupted, self.stopped_by, failure is not None)))

@@ -68,10 +68,16 @@ def test_a_tool_change_the_session_is_told_of_holds_the_force_until_the_new_tool
     # off to the end: re-identified, then the robot's wrench (its payload still the old tool's) disagrees
     assert held and not any(m["enabled"] for m in held)
     assert "robot disagree" in held[-1]["reason"]
-    # identified (0.85 kg: the simulated 0.35 kg tool and 0.5 kg 15 cm out), but not saved: the force was held
+    # identified (0.85 kg: the simulated 0.35 kg tool and 0.5 kg 15 cm out), but not saved: the force was held;
+    # nor the tool it changed from (told after the mass hung on: the jump held the force at the change)
     saved = [e.message for e in result.events if e.kind in ("tool_saved", "tool_not_saved")]
-    assert len(saved) == 1 and saved[0].startswith("tool 'big' not saved to its library: the force was held")
-    assert "robot disagree" in saved[0] and ToolLibrary(tmp_path / "tools").names() == ["bad"]  # (nothing saved)
+    assert len(saved) == 2 and saved[0].startswith(
+        "tool 'small' not saved to its library: the force was held at the ch"
+    )
+    assert "jumped" in saved[0] and saved[1].startswith(
+        "tool 'big' not saved to its library: the force was held at the e"
+    )
+    assert "robot disagree" in saved[1] and ToolLibrary(tmp_path / "tools").names() == ["bad"]  # (nothing saved)
     params = result.params
     assert abs(np.linalg.norm(params["gravity_force_B"]) / 9.80665 - 0.85) < 0.02
 
@@ -96,3 +102,31 @@ def test_a_bad_record_named_from_a_status_callback_ends_the_session_cleanly(tmp_
     _, last = rec.topics["/haptic/command"][-1]
     assert not last["enabled"] and not any(last["force_D"])
     assert any(m["kind"] == "session_end" for _, m in rec.topics["/events"])
+
+
+def test_the_tool_changed_from_is_saved_as_it_was_at_the_change(tmp_path):
+    """Told at 5 s, free and identified, that the tool changed (the same 0.35 kg tool, under a new name): the old
+    tool's record is written at the end as it was at the change, the new one's from the motion after it."""
+    config, _ = load_config("demo")
+    settings = {"session.realtime": False, "session.duration": 9.0, "tool.library": str(tmp_path / "tools")}
+    session = build_session(apply_settings(config, {**settings, "tool.name": "old"}))
+    loop = LiveLoop(session, tmp_path / "changed.mcap", None, None, 0.05)
+    told = []
+
+    def on_status(status):
+        if status.elapsed_s >= 5.0 and not told:
+            told.append(status.elapsed_s)
+            loop.change_tool("new")
+
+    loop.on_status = on_status
+    result = loop.run()
+    changes = [e for e in result.events if e.kind == "tool_change"]
+    saved = [e.message for e in result.events if e.kind in ("tool_saved", "tool_not_saved")]
+    assert len(changes) == 1 and len(saved) == 2, saved
+    assert saved[0].startswith("tool 'old' saved to ") and saved[1].startswith("tool 'new' saved to "), saved
+    library = ToolLibrary(tmp_path / "tools")
+    assert library.names() == ["new", "old"]
+    for name in ("old", "new"):
+        record = library.get(name)
+        assert record is not None and abs(record.mass_kg - 0.35) < 0.01 and record.sessions == 1, record
+        assert library.read_state(name) is not None

@@ -40,6 +40,7 @@ from hapticlab.core.types import (
 from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.sensors import bota_protocol as bp
 from hapticlab.plugins.sensors.bota_link import BotaLink
+from hapticlab.plugins.sensors.stream_events import health_event, status_event
 
 SERIAL_LATENCY_S = 0.003
 """How much older than now the newest frame can be in ordinary operation (HasLatency), s: the USB adapter's
@@ -266,23 +267,8 @@ class BotaSensor:
     def _status_event(self, t_ns: int, word: int) -> None:
         previous, self._word = self._word, word
         bits = int(stream_status(np.array([word]))[0])
-        kind = (
-            "sensor_status_ok"
-            if word == 0
-            else "sensor_saturated"
-            if bits & STATUS_SATURATED
-            else "sensor_error"
-            if bits
-            else "sensor_warning"
-        )
-        self._events.append(
-            Event(
-                t_ns,
-                kind,
-                f"Bota sensor {self.port} status 0x{word:04x}: {bp.describe_status(word)}",
-                {"status_word": word, "previous_status_word": previous, "stream_status": bits},
-            )
-        )
+        description = f"0x{word:04x}: {bp.describe_status(word)}"
+        self._events.append(status_event(t_ns, f"Bota sensor {self.port}", word, previous, bits, description))
 
     def _watch(self, now_ns: int) -> None:
         """Receive timeout, temperature and health: events."""
@@ -326,20 +312,11 @@ class BotaSensor:
             self._health_event(now_ns)
 
     def _health_event(self, t_ns: int, final: bool = False) -> None:
-        recorded = self._recorded
-        changed = {k: v - recorded[k] for k, v in self._counters.items() if k != "frames" and v != recorded[k]}
-        if not changed and not final:
-            return
-        self._recorded = dict(self._counters)
-        what = ", ".join(f"{k} +{v}" for k, v in changed.items()) or "no faults"
-        self._events.append(
-            Event(
-                t_ns,
-                "sensor_health",
-                f"Bota sensor {self.port}: {what}" + (" (stream closed)" if final else ""),
-                dict(self._counters),
-            )
-        )
+        faults = self._counters.keys() - {"frames"}
+        event = health_event(t_ns, f"Bota sensor {self.port}", self._counters, self._recorded, faults, final)
+        if event is not None:
+            self._recorded = dict(self._counters)
+            self._events.append(event)
 
     # ------------------------------------------------------------------ capabilities
 

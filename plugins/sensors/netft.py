@@ -38,7 +38,7 @@ import numpy as np
 
 from hapticlab.core import hookimpl
 from hapticlab.core.host.options import OptionError, choice, integer, number, vector
-from hapticlab.core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
+from hapticlab.core.types import NO_WRENCHES, Event, WrenchBlock, WrenchSample
 from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.sensors.netft_protocol import (
     FORCE_UNITS,
@@ -52,6 +52,7 @@ from hapticlab.plugins.sensors.netft_protocol import (
 )
 from hapticlab.plugins.sensors.netft_receivers import HapticlabLink, PynetftLink
 from hapticlab.plugins.sensors.rdt import COUNTER_DOC, RdtBatch
+from hapticlab.plugins.sensors.stream_events import health_event, status_event
 
 HEALTH_COUNTERS = tuple(COUNTER_DOC)
 """The stream's health counters (:meth:`NetFTSensor.health_counters`), counts since ``open``."""
@@ -279,23 +280,9 @@ class NetFTSensor:
 
     def _status_event(self, t_ns: int, word: int) -> None:
         previous, self._word = self._word, word
-        bits = stream_status(word)
-        kind = (
-            "sensor_status_ok"
-            if word == 0
-            else "sensor_saturated"
-            if bits & STATUS_SATURATED
-            else "sensor_error"
-            if bits
-            else "sensor_warning"
-        )
+        description = f"0x{word:08x}: {describe_status(word)}"
         self._events.append(
-            Event(
-                t_ns,
-                kind,
-                f"Net F/T {self.address} status 0x{word:08x}: {describe_status(word)}",
-                {"status_word": word, "previous_status_word": previous, "stream_status": bits},
-            )
+            status_event(t_ns, f"Net F/T {self.address}", word, previous, stream_status(word), description)
         )
 
     def _watch(self, now_ns: int) -> None:
@@ -331,23 +318,12 @@ class NetFTSensor:
 
     def _health_event(self, t_ns: int, final: bool = False) -> None:
         """The counters as an event when a fault counter moved (or at the end of the stream)."""
-        changed = {
-            k: v - self._recorded_counters[k]
-            for k, v in self._counters.items()
-            if k != "received" and v != self._recorded_counters[k]
-        }
-        if not changed and not final:
-            return
-        self._recorded_counters = dict(self._counters)
-        what = ", ".join(f"{k} +{v}" for k, v in changed.items()) or "no faults"
-        self._events.append(
-            Event(
-                t_ns,
-                "sensor_health",
-                f"Net F/T {self.address}: {what}" + (" (stream closed)" if final else ""),
-                dict(self._counters),
-            )
-        )
+        faults = self._counters.keys() - {"received"}
+        who = f"Net F/T {self.address}"
+        event = health_event(t_ns, who, self._counters, self._recorded_counters, faults, final)
+        if event is not None:
+            self._recorded_counters = dict(self._counters)
+            self._events.append(event)
 
     # ------------------------------------------------------------------ capabilities
 

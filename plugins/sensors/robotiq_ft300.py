@@ -40,6 +40,7 @@ from hapticlab.core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlo
 from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.sensors import robotiq_protocol as rq
 from hapticlab.plugins.sensors.robotiq_link import FT300Link, FT300LinkError, start_request
+from hapticlab.plugins.sensors.stream_events import health_event
 
 LATENCY_S = 0.01
 """How much older than now the newest frame can be in ordinary operation (HasLatency), s: a frame takes
@@ -325,23 +326,11 @@ class RobotiqFT300Sensor:
 
     def _health_event(self, t_ns: int, final: bool = False) -> None:
         """The counters as an event when a fault counter moved (or at the end of the stream)."""
-        changed = {
-            k: v - self._recorded[k]
-            for k, v in self._counters.items()
-            if k in FAULT_COUNTERS and v != self._recorded[k]
-        }
-        if not changed and not final:
-            return
-        self._recorded = dict(self._counters)
-        what = ", ".join(f"{k} +{v}" for k, v in changed.items()) or "no faults"
-        self._events.append(
-            Event(
-                t_ns,
-                "sensor_health",
-                f"Robotiq FT 300 on {self.port}: {what}" + (" (stream closed)" if final else ""),
-                dict(self._counters),
-            )
-        )
+        who = f"Robotiq FT 300 on {self.port}"
+        event = health_event(t_ns, who, self._counters, self._recorded, FAULT_COUNTERS, final)
+        if event is not None:
+            self._recorded = dict(self._counters)
+            self._events.append(event)
 
     def health_counters(self) -> dict[str, int]:
         """Since ``open``: ``frames`` parsed, ``crc_errors`` (frames dropped), ``garbage_bytes`` skipped,

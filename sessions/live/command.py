@@ -102,7 +102,8 @@ class HapticCommander:
         events, warm = [], False
         if self.s.tool.name:  # the tool it changed from, as it was: saved to its library at the end (``ending``)
             held = self.gate.reason(now_ns)
-            self.changed_from.append(snapshot(self.s, self.s.primary.params() or {}, held, "at the change"))
+            params = self.tare.own(self.s.primary.params() or {})  # (the sensor's own zero: tare.py)
+            self.changed_from.append(snapshot(self.s, params, held, "at the change", tared=self.tare.active))
         if state is not None:
             try:
                 self.s.primary.estimator.load_state(state)  # type: ignore[attr-defined]

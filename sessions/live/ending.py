@@ -131,17 +131,25 @@ def save_for_next(
     end_ns: int,
     on_event: Callable,
     changed_from: Sequence[ToolSnapshot] = (),
+    tared: bool = False,
 ) -> str | None:
     """What later sessions start from, once the session ended without a failure: the primary's state beside the
     recording (:func:`save_estimator_state`: its path, or None) and the tool in its library (:func:`save_tool`,
     unless the gate ``held`` the force at the end: why, "" it did not: a latch, a doubt, a weight off); first
-    each tool the session was told it changed from, as it was at the change (``changed_from``)."""
-    saved = save_estimator_state(session.primary, recorder, path, end_ns, on_event) if session.primary.saves else None
+    each tool the session was told it changed from, as it was at the change (``changed_from``). ``tared``: a
+    tare moved the zero (``params`` are given in the sensor's own readings): no estimator state is saved, its
+    biases are against the tared zero, and a warm start from it would put the zero on the hand."""
+    saved = None
+    if tared and session.primary.saves:
+        why = "a tare moved the sensor's zero: its state is against it, not the sensor's own readings"
+        on_event(Event(end_ns, "estimator_state_not_saved", f"estimator state not saved: {why}"))
+    elif session.primary.saves:
+        saved = save_estimator_state(session.primary, recorder, path, end_ns, on_event)
     recording = str(Path(path).resolve())
     for old in changed_from:
         save_tool(old, session.primary.label, recording, end_ns, on_event)
     if session.tool.name:
-        save_tool(snapshot(session, params, held), session.primary.label, recording, end_ns, on_event)
+        save_tool(snapshot(session, params, held, tared=tared), session.primary.label, recording, end_ns, on_event)
     return saved
 
 
@@ -164,10 +172,11 @@ class ToolSnapshot:
     when: str = "at the end"
 
 
-def snapshot(session: Session, params: dict, held: str, when: str = "at the end") -> ToolSnapshot:
-    """The session's tool now, with the primary's ``params`` (its state taken only when ``held`` is "")."""
+def snapshot(session: Session, params: dict, held: str, when: str = "at the end", tared: bool = False) -> ToolSnapshot:
+    """The session's tool now, with the primary's ``params`` (its state taken only when ``held`` is "" and no
+    ``tared`` zero stands: the state's biases are against it, the record's ``params`` the sensor's own)."""
     primary = session.primary
-    state = primary.saves.state() if primary.saves is not None and not held else None
+    state = primary.saves.state() if primary.saves is not None and not held and not tared else None
     return ToolSnapshot(session.tool, params, state, held, when)
 
 

@@ -359,7 +359,7 @@ class LiveLoop:
         if failure is not None:
             self._event(Event(end_ns, "error", str(failure), {"part": failure.part}))
         primary = self.s.primary
-        params = final_params(primary, self.samples, end_ns, self._event)
+        params = self.commander.tare.own(final_params(primary, self.samples, end_ns, self._event))  # (tare.py)
         summary = {
             "samples": self.samples,
             "poses": self.poses,
@@ -378,13 +378,8 @@ class LiveLoop:
         }
         assert self.recorder is not None  # run() made it before the session started
         held = self.gate.reason(end_ns)  # (a tool is saved only when nothing held the force at the end)
-        saved = (
-            None
-            if failure
-            else save_for_next(
-                self.s, self.recorder, self.path, params, held, end_ns, self._event, self.commander.changed_from
-            )
-        )
+        ending = (self.s, self.recorder, self.path, params, held, end_ns, self._event)
+        saved = None if failure else save_for_next(*ending, self.commander.changed_from, self.commander.tare.active)
         if saved:
             summary["estimator_state_path"] = saved
         self._event(Event(end_ns, "session_end", ending_message(interrupted, self.stopped_by, failure is not None)))

@@ -127,6 +127,10 @@ class Tare:
             )
         ]
 
+    def own(self, params: dict[str, list[float]]) -> dict[str, list[float]]:
+        """``params`` in the sensor's own readings (:func:`own_zero`; the same dict while no tare was granted)."""
+        return own_zero(params, self.zero) if self.active else params
+
     def refusal(self, now_ns: int, held: str, reidentifies: bool, label: str) -> str:
         """Why a tare at ``now_ns`` must be refused ("" when it may be granted); ``held``: the gate's reason."""
         if held:
@@ -155,6 +159,16 @@ class Tare:
         self.active = True
         self._seen.clear()  # (what follows is read against the new zero)
         return removed, self.zero.copy()
+
+
+def own_zero(params: dict[str, list[float]], zero: np.ndarray) -> dict[str, list[float]]:
+    """``params`` identified against a tared zero, turned to the sensor's own readings: the biases plus the zero
+    ((6,) N, N·m; the weight and centre of gravity do not move: ``f − bias_force_S`` is the same either way)."""
+    own = dict(params)
+    for key, part in (("bias_force_S", zero[:3]), ("bias_torque_S", zero[3:])):
+        if key in own:
+            own[key] = (np.asarray(own[key], dtype=float) + part).tolist()
+    return own
 
 
 def _distance(p_a: np.ndarray | None, p_b: np.ndarray | None) -> float:

@@ -113,7 +113,7 @@ class Blocks:
 
 
 def parse(chunk: Any, block: Block, offset: int) -> Stream | None:
-    """The block as a stream of ``chunk`` (a :class:`~.csvimport._Chunk`: the header and what spans blocks),
+    """The block as a stream of ``chunk`` (a :class:`~.csvimport.ChunkParser`: the header and what spans blocks),
     its rows numbered from ``offset``; None when the block is not plain (the careful reader takes it)."""
     if not block.lines or not _plain(block.data):
         return None

@@ -78,9 +78,9 @@ def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
             first = next(records, None)
             if first is None:
                 raise CsvError(f"{path.name}: empty file; expected a header row with {','.join(REQUIRED)}")
-            chunk = _Chunk(path, [h.strip() for h in first[1]], first[0])
+            chunk = ChunkParser(path, [h.strip() for h in first[1]], first[0])
         else:
-            chunk = _Chunk(path, header, 1)
+            chunk = ChunkParser(path, header, 1)
         done = 0
         for block in csvfast.Blocks(fh, rows, MAX_LINE_CHARS) if header is not None else ():
             stream = csvfast.parse(chunk, block, done)
@@ -132,7 +132,7 @@ def _records(reader, path: Path, before: int = 0) -> Iterator[tuple[int, list[st
         raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
-class _Chunk:
+class ChunkParser:
     """Parses consecutive batches of rows of one file into streams, carrying what spans them."""
 
     def __init__(self, path: Path, header: list[str], line: int):
@@ -152,6 +152,8 @@ class _Chunk:
         """the columns read"""
         self.notes = [f"{name}: ignoring column(s) {', '.join(ignored)}"] if ignored else []
         """for the first chunk"""
+        self.unit = "line"
+        """what the numbers in messages count (a Parquet file's: "row")"""
         self.t0: float | None = None  # the file's first t: t_ns counts from it
         self.last: tuple[int, float] | None = None  # (line, t) of the previous chunk's last row
         self.last_cells: list[str] | bytes | None = None  # ... and its cells, or its line (a duplicate may follow it)
@@ -203,12 +205,12 @@ class _Chunk:
             k = int(bad[0])
             if t_all[k + 1] == t_all[k]:
                 raise CsvError(
-                    f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} repeats the "
-                    f"time of line {lines_all[k]} with other values (a conflicting duplicate; rows "
+                    f"{name} {self.unit} {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} repeats the "
+                    f"time of {self.unit} {lines_all[k]} with other values (a conflicting duplicate; rows "
                     f"repeated exactly are dropped)"
                 )
             raise CsvError(
-                f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} does not increase "
+                f"{name} {self.unit} {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} does not increase "
                 f"(previous {float(t_all[k])!r})"
             )
         force_S = columns(("fx", "fy", "fz"))
@@ -217,7 +219,7 @@ class _Chunk:
         norm = np.linalg.norm(quat, axis=1)
         if (off := off_unit(norm)) is not None:
             raise CsvError(
-                f"{name} line {lines[off]}, columns qw,qx,qy,qz: not a unit quaternion (norm {norm[off]:.6g})"
+                f"{name} {self.unit} {lines[off]}, columns qw,qx,qy,qz: not a unit quaternion (norm {norm[off]:.6g})"
             )
         quat = quat / norm[:, None]
         p = columns(POSITION) if self.has_position else None

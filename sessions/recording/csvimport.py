@@ -70,7 +70,10 @@ def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
     except OSError as exc:
         raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
     with fh:
-        header = csvfast.read_header(fh, MAX_LINE_CHARS)
+        try:
+            header = csvfast.read_header(fh, MAX_LINE_CHARS)
+        except OSError as exc:
+            raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
         records: Iterator[tuple[int, list[str]]] = iter(())
         if header is None:  # an unusual first line (or none): the whole file the careful way
             fh.seek(0)
@@ -82,13 +85,20 @@ def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
         else:
             chunk = ChunkParser(path, header, 1)
         done = 0
-        for block in csvfast.Blocks(fh, rows, MAX_LINE_CHARS) if header is not None else ():
+        blocks = csvfast.Blocks(fh, rows, MAX_LINE_CHARS) if header is not None else None
+        while blocks is not None:
+            try:
+                block = blocks.next()
+            except OSError as exc:
+                raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
+            if block is None:
+                break
             stream = csvfast.parse(chunk, block, done)
             if stream is None:  # not plain: the rest of the file the careful way, from this block's first line
                 fh.seek(block.offset)
                 records = _text_records(fh, path, "utf-8", block.line)
                 break
-            done += len(stream)
+            done += len(block)
             yield stream
             del stream
         while batch := list(islice(records, rows)):

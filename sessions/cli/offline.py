@@ -173,8 +173,8 @@ def cmd_recover(args: argparse.Namespace) -> int:
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to the ``hapticlab`` parser."""
     p = sub.add_parser("compensate", help="run an estimator offline over a CSV or MCAP recording")
-    p.add_argument("input", help="CSV (import contract) or .mcap recording")
-    p.add_argument("-o", "--output", required=True, help="output CSV of the contact wrench per row")
+    p.add_argument("input", help="CSV (import contract), .parquet with its columns, or .mcap recording")
+    p.add_argument("-o", "--output", required=True, help="output CSV (or .parquet) of the contact wrench per row")
     p.add_argument("--estimator", default="rls", help="estimator name (default: rls)")
     p.add_argument(
         "--set", action="append", metavar="KEY=VALUE", help="estimator option, e.g. --set estimator.force_threshold=2"

@@ -1,4 +1,4 @@
-"""Offline compensation: run an estimator over a CSV file or an MCAP recording.
+"""Offline compensation: run an estimator over a CSV, Parquet or MCAP recording; the output CSV or Parquet.
 
 The estimator sees the rows in order, in blocks, exactly as it would live; the
 output has one row per input row (the estimated contact wrench in S and the
@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -177,6 +178,23 @@ class CompensateResult:
     notes: list[str]
 
 
+@contextmanager
+def _output(path: Path) -> Iterator[Callable[[np.ndarray, Estimates], None]]:
+    """A writer of output rows into ``path``: Parquet for a ``.parquet`` name, else the CSV."""
+    if path.suffix.lower() == ".parquet":
+        from hapticlab.sessions.recording.parquetio import CompensatedParquet
+
+        table = CompensatedParquet(path)
+        try:
+            yield table.write
+        finally:
+            table.close()
+        return
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        fh.write(COMPENSATED_HEADER)
+        yield lambda t_s, est: write_compensated_rows(fh, t_s, est)
+
+
 def compensate(
     recording: str | Path | Stream,
     out_csv: str | Path,
@@ -188,7 +206,8 @@ def compensate(
     force: bool = False,
     keep_estimates: bool = True,
 ) -> CompensateResult:
-    """Run ``estimator_name`` over a recording (a stream, or a CSV or MCAP file) and write the contact wrench per row.
+    """Run ``estimator_name`` over a recording (a stream, or a CSV, Parquet or MCAP file) and write the contact
+    wrench per row to ``out_csv`` (a CSV, or Parquet when its name ends in ``.parquet``).
 
     A file is streamed chunk by chunk; with ``keep_estimates`` false nothing
     grows with its length (the result's ``estimates`` is None). The outputs are
@@ -210,10 +229,9 @@ def compensate(
     notes: list[str] = []
     parts: list[Estimates] = []
     unused = 0
-    with atomic_output(out_csv, force, label="-o") as tmp, tmp.open("w", newline="", encoding="utf-8") as fh:
-        fh.write(COMPENSATED_HEADER)
+    with atomic_output(out_csv, force, label="-o") as tmp, _output(tmp) as write:
         for chunk, est in estimate_chunks(chunks, estimator, progress):
-            write_compensated_rows(fh, chunk.t_s, est)
+            write(chunk.t_s, est)
             scored_f.add(est.contact_force_S, est.contact, est.converged_force)
             scored_t.add(est.contact_torque_S, est.contact, est.converged_torque)
             notes += chunk.notes

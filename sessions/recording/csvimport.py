@@ -14,6 +14,7 @@ duplicate) is a ``CsvError`` naming the file, line and column.
 from __future__ import annotations
 
 import csv
+import io
 from collections.abc import Iterator
 from itertools import islice
 from pathlib import Path
@@ -24,6 +25,7 @@ import numpy as np
 from hapticlab.core.errors import UserError
 from hapticlab.core.frames import matrix_from_quat_wxyz
 from hapticlab.core.types import AlignedSamples, Estimates
+from hapticlab.sessions.recording import csvfast
 from hapticlab.sessions.recording.stream import CHUNK_ROWS, Stream, off_unit
 
 REQUIRED = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "qw", "qx", "qy", "qz")
@@ -56,47 +58,67 @@ def iter_csv(path: str | Path, rows: int = CHUNK_ROWS) -> Iterator[Stream]:
     the file's; ``t`` must increase across chunks too); ``t_ns`` counts from
     the file's first ``t`` and ``seq`` is the row number in the file. The
     first chunk carries the notes.
+
+    Plain chunks (ASCII, one record a line, every cell a finite number, ``t``
+    strictly increasing) are parsed by pyarrow's CSV parser (:mod:`.csvfast`);
+    from the first chunk that is not, the rest of the file is read by Python's
+    ``csv`` module and checked cell by cell, so every message is the same.
     """
     path = Path(path)
-    name = path.name
     try:
-        fh = path.open(newline="", encoding="utf-8-sig")
+        fh = path.open("rb")
     except OSError as exc:
         raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
     with fh:
-        records = _records(csv.reader(_bounded_lines(fh, name)), path)
-        first = next(records, None)
-        if first is None:
-            raise CsvError(f"{name}: empty file; expected a header row with {','.join(REQUIRED)}")
-        header = [h.strip() for h in first[1]]
-        index = {h: i for i, h in enumerate(header)}
-        missing = [c for c in REQUIRED if c not in index]
-        if missing:
-            raise CsvError(
-                f"{name} line {first[0]}: missing required column(s) {', '.join(missing)} "
-                f"(required: {','.join(REQUIRED)})"
-            )
-        has_position = all(c in index for c in POSITION)
-        joint_cols = [c for c in JOINTS if c in index]
-        known = set(REQUIRED) | (set(POSITION) if has_position else set()) | set(joint_cols)
-        ignored = [h for h in header if h not in known]
-        notes = [f"{name}: ignoring column(s) {', '.join(ignored)}"] if ignored else []
-        chunk = _Chunk(path, header, index, has_position, joint_cols)
+        try:
+            header = csvfast.read_header(fh, MAX_LINE_CHARS)
+        except OSError as exc:
+            raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
+        records: Iterator[tuple[int, list[str]]] = iter(())
+        if header is None:  # an unusual first line (or none): the whole file the careful way
+            fh.seek(0)
+            records = _text_records(fh, path, "utf-8-sig", 1)
+            first = next(records, None)
+            if first is None:
+                raise CsvError(f"{path.name}: empty file; expected a header row with {','.join(REQUIRED)}")
+            chunk = ChunkParser(path, [h.strip() for h in first[1]], first[0])
+        else:
+            chunk = ChunkParser(path, header, 1)
         done = 0
+        blocks = csvfast.Blocks(fh, rows, MAX_LINE_CHARS) if header is not None else None
+        while blocks is not None:
+            try:
+                block = blocks.next()
+            except OSError as exc:
+                raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
+            if block is None:
+                break
+            stream = csvfast.parse(chunk, block, done)
+            if stream is None:  # not plain: the rest of the file the careful way, from this block's first line
+                fh.seek(block.offset)
+                records = _text_records(fh, path, "utf-8", block.line)
+                break
+            done += len(block)
+            yield stream
+            del stream
         while batch := list(islice(records, rows)):
             stream = chunk.parse(batch, done)
-            stream.notes = (notes if done == 0 else []) + stream.notes  # the chunk's dropped duplicates
             done += len(batch)
             del batch  # one chunk's rows (Python strings: ~1 kB a row) in memory at a time
             yield stream
             del stream
         if done == 0:
-            raise CsvError(f"{name}: no data rows after the header")
+            raise CsvError(f"{path.name}: no data rows after the header")
 
 
-def _bounded_lines(fh: TextIO, name: str) -> Iterator[str]:
-    """The file's lines, each read up to ``MAX_LINE_CHARS``; CsvError at a longer one."""
-    n = 0
+def _text_records(fh, path: Path, encoding: str, line: int) -> Iterator[tuple[int, list[str]]]:
+    """The records of ``fh`` from where it stands (line number ``line``), read by the ``csv`` module."""
+    text = io.TextIOWrapper(fh, encoding=encoding, newline="")
+    return _records(csv.reader(_bounded_lines(text, path.name, line - 1)), path, line - 1)
+
+
+def _bounded_lines(fh: TextIO, name: str, n: int = 0) -> Iterator[str]:
+    """The file's lines (after line ``n``), each read up to ``MAX_LINE_CHARS``; CsvError at a longer one."""
     while line := fh.readline(MAX_LINE_CHARS + 1):
         n += 1
         if len(line) > MAX_LINE_CHARS:
@@ -104,11 +126,12 @@ def _bounded_lines(fh: TextIO, name: str) -> Iterator[str]:
         yield line
 
 
-def _records(reader, path: Path) -> Iterator[tuple[int, list[str]]]:
-    """(line number, cells) of every row that is not blank (a trailing newline or two are no rows)."""
-    n = 0
+def _records(reader, path: Path, before: int = 0) -> Iterator[tuple[int, list[str]]]:
+    """(line number, cells) of every row after line ``before`` that is not blank (a trailing newline or two are
+    no rows)."""
+    n = before
     try:
-        for n, row in enumerate(reader, start=1):
+        for n, row in enumerate(reader, start=before + 1):
             if any(cell.strip() for cell in row):
                 yield n, row
     except UnicodeDecodeError:
@@ -119,16 +142,31 @@ def _records(reader, path: Path) -> Iterator[tuple[int, list[str]]]:
         raise CsvError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
-class _Chunk:
+class ChunkParser:
     """Parses consecutive batches of rows of one file into streams, carrying what spans them."""
 
-    def __init__(self, path: Path, header: list[str], index: dict[str, int], has_position: bool, joint_cols: list[str]):
-        self.name, self.source = path.name, str(path)
-        self.header, self.index = header, index
-        self.has_position, self.joint_cols = has_position, joint_cols
+    def __init__(self, path: Path, header: list[str], line: int):
+        name = self.name = path.name
+        self.source = str(path)
+        self.header, self.index = header, {h: i for i, h in enumerate(header)}
+        missing = [c for c in REQUIRED if c not in self.index]
+        if missing:
+            raise CsvError(
+                f"{name} line {line}: missing required column(s) {', '.join(missing)} (required: {','.join(REQUIRED)})"
+            )
+        self.has_position = all(c in self.index for c in POSITION)
+        self.joint_cols = [c for c in JOINTS if c in self.index]
+        known = set(REQUIRED) | (set(POSITION) if self.has_position else set()) | set(self.joint_cols)
+        ignored = [h for h in header if h not in known]
+        self.used = known
+        """the columns read"""
+        self.notes = [f"{name}: ignoring column(s) {', '.join(ignored)}"] if ignored else []
+        """for the first chunk"""
+        self.unit = "line"
+        """what the numbers in messages count (a Parquet file's: "row")"""
         self.t0: float | None = None  # the file's first t: t_ns counts from it
         self.last: tuple[int, float] | None = None  # (line, t) of the previous chunk's last row
-        self.last_cells: list[str] | None = None  # ... and its cells (a duplicate may follow it)
+        self.last_cells: list[str] | bytes | None = None  # ... and its cells, or its line (a duplicate may follow it)
 
     def column(self, col: str, lines: list[int], data: list[list[str]]) -> np.ndarray:
         values = [row[self.index[col]].strip() for row in data]
@@ -161,18 +199,28 @@ class _Chunk:
         t = self.column("t", lines, data)
         rows = np.arange(offset, offset + len(batch))
         t, lines, data, rows, notes = self._drop_exact_duplicates(t, lines, data, rows)
+        stream = self.build(t, lines, rows, notes, columns)
+        if len(t):  # (a batch that only repeated the row before it leaves the last row as it was)
+            self.last_cells = data[-1]
+        return stream
+
+    def build(self, t: np.ndarray, lines, rows: np.ndarray, notes: list[str], columns) -> Stream:
+        """The stream of a batch whose cells are numbers: ``t`` is checked against the rows before (``lines``,
+        their line numbers), then each column asked of ``columns`` (names -> (n, k) floats), then the
+        quaternions; the first chunk carries the header's notes."""
+        name = self.name
         t_all, lines_all = (t, lines) if self.last is None else (np.r_[self.last[1], t], [self.last[0], *lines])
         bad = np.flatnonzero(np.diff(t_all) <= 0)
         if len(bad):
             k = int(bad[0])
             if t_all[k + 1] == t_all[k]:
                 raise CsvError(
-                    f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} repeats the "
-                    f"time of line {lines_all[k]} with other values (a conflicting duplicate; rows "
+                    f"{name} {self.unit} {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} repeats the "
+                    f"time of {self.unit} {lines_all[k]} with other values (a conflicting duplicate; rows "
                     f"repeated exactly are dropped)"
                 )
             raise CsvError(
-                f"{name} line {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} does not increase "
+                f"{name} {self.unit} {lines_all[k + 1]}, column 't': {float(t_all[k + 1])!r} does not increase "
                 f"(previous {float(t_all[k])!r})"
             )
         force_S = columns(("fx", "fy", "fz"))
@@ -181,15 +229,16 @@ class _Chunk:
         norm = np.linalg.norm(quat, axis=1)
         if (off := off_unit(norm)) is not None:
             raise CsvError(
-                f"{name} line {lines[off]}, columns qw,qx,qy,qz: not a unit quaternion (norm {norm[off]:.6g})"
+                f"{name} {self.unit} {lines[off]}, columns qw,qx,qy,qz: not a unit quaternion (norm {norm[off]:.6g})"
             )
         quat = quat / norm[:, None]
         p = columns(POSITION) if self.has_position else None
         joints = columns(self.joint_cols) if self.joint_cols else None
         if self.t0 is None:
             self.t0 = float(t[0])
-        if len(t):  # (a batch that only repeated the row before it leaves the last row as it was)
-            self.last, self.last_cells = (lines[-1], float(t[-1])), data[-1]
+        if len(t):
+            self.last = (int(lines[-1]), float(t[-1]))
+        notes, self.notes = self.notes + notes, []
         n = len(t)
         t_ns = np.round((t - self.t0) * 1e9).astype(np.int64)
         R_EB = matrix_from_quat_wxyz(quat).transpose(0, 2, 1)
@@ -206,10 +255,12 @@ class _Chunk:
         ``seq``) keep their gaps, so a dropped row stays visible."""
         prev_t = np.r_[self.last[1] if self.last is not None else np.nan, t[:-1]]
         same_t = np.flatnonzero(t == prev_t)
+        if isinstance(self.last_cells, bytes):  # the previous chunk was parsed whole (csvfast): its last line
+            self.last_cells = next(csv.reader([self.last_cells.decode()]))
         dropped = [
             k
             for k in same_t
-            if [c.strip() for c in data[k]] == [c.strip() for c in (data[k - 1] if k > 0 else self.last_cells)]
+            if [c.strip() for c in data[k]] == [c.strip() for c in (data[k - 1] if k > 0 else self.last_cells or [])]
         ]
         if not dropped:
             return t, lines, data, rows, []
@@ -226,15 +277,26 @@ OUTPUT_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "contact", "converged
 COMPENSATED_HEADER = ",".join(OUTPUT_COLUMNS) + "\n"
 
 
+_ROW_FORMAT = "%r," + ",".join(["%.9g"] * 6) + ",%d,%d,%d\n"
+"""t keeps full precision (``repr``: epoch seconds need 16 digits); the wrench 9 significant digits."""
+
+
 def write_compensated_rows(fh: TextIO, t_s: np.ndarray, est: Estimates) -> None:
     """Write rows of the ``compensate`` output (after :data:`COMPENSATED_HEADER`): the estimated
     contact wrench in S and the flags, one row per input row, in the order given.
 
     Rows the estimator could not use (non-finite, stale or flagged by the
-    sensor) carry NaN wrench values.
+    sensor) carry NaN wrench values. The rows are formatted by one ``%`` over
+    the whole batch (C's loop, no Python per row), exactly as ``f"{t!r}"`` and
+    ``f"{v:.9g}"`` would write each value.
     """
-    wrench = np.column_stack([est.contact_force_S, est.contact_torque_S])
-    flags = np.column_stack([est.contact, est.converged_force, est.converged_torque]).astype(int)
-    for t, values, f in zip(t_s.tolist(), wrench.tolist(), flags.tolist()):
-        # t keeps full precision (epoch seconds need 16 digits); the wrench 9
-        fh.write(f"{t!r}," + ",".join(f"{v:.9g}" for v in values) + f",{f[0]},{f[1]},{f[2]}\n")
+    n = len(t_s)
+    flags = np.column_stack([est.contact, est.converged_force, est.converged_torque])
+    table = np.column_stack([t_s, est.contact_force_S, est.contact_torque_S, flags])  # flags as 0.0/1.0 for %d
+    for a in range(0, n, _WRITE_ROWS):
+        part = table[a : a + _WRITE_ROWS]
+        fh.write((_ROW_FORMAT * len(part)) % tuple(part.ravel().tolist()))
+
+
+_WRITE_ROWS = 4096
+"""Rows formatted at a time (the text of a batch is held whole before it is written)."""

@@ -1,4 +1,5 @@
-"""The CSV import contract: good files load, bad ones name the line and column."""
+"""The CSV import contract: good files load, bad ones name the line and column; the reader's two lanes
+(pyarrow's parser for plain blocks, the csv module for the rest) read the same; the writer."""
 
 from __future__ import annotations
 
@@ -7,7 +8,10 @@ import pytest
 from helpers import static_model_stream
 
 from hapticlab.core.frames import quat_wxyz_from_matrix
-from hapticlab.sessions.recording.csvimport import CsvError, read_csv
+from hapticlab.core.types import Estimates
+from hapticlab.sessions.recording import csvfast
+from hapticlab.sessions.recording.csvimport import CsvError, iter_csv, read_csv, write_compensated_rows
+from hapticlab.sessions.recording.stream import Stream
 
 HEADER = "t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz"
 
@@ -147,3 +151,135 @@ def test_a_line_longer_than_the_bound_is_refused_before_it_is_read_whole(tmp_pat
     with pytest.raises(CsvError, match=r"^long\.csv line 2: ") as refused:
         read_csv(path)
     assert "longer than" not in str(refused.value)  # refused by the contract (401 fields), not by the bound
+
+
+def read_both(path, monkeypatch, rows=7):
+    """(stream, chunk sizes, blocks the fast lane parsed) read as shipped, then with the fast lane refusing all."""
+    parsed = []
+    real_parse = csvfast.parse
+
+    def counting(chunk, block, offset):
+        stream = real_parse(chunk, block, offset)
+        parsed.append(stream is not None)
+        return stream
+
+    out = []
+    for parse in (counting, lambda chunk, block, offset: None):
+        monkeypatch.setattr(csvfast, "parse", parse)
+        parts = list(iter_csv(path, rows=rows))
+        out.append((Stream.concatenate(parts), [len(p) for p in parts], [p.notes for p in parts]))
+    return out[0], out[1], sum(parsed)
+
+
+def assert_same(a: Stream, b: Stream) -> None:
+    for x, y in (
+        (a.t_s, b.t_s),
+        (a.samples.t_ns, b.samples.t_ns),
+        (a.samples.force_S, b.samples.force_S),
+        (a.samples.torque_S, b.samples.torque_S),
+        (a.samples.R_EB, b.samples.R_EB),
+        (a.samples.seq, b.samples.seq),
+    ):
+        assert x.dtype == y.dtype and np.array_equal(x, y)
+    for x, y in ((a.samples.p_BoEo_B, b.samples.p_BoEo_B), (a.joints, b.joints)):
+        assert (x is None and y is None) or np.array_equal(x, y)
+
+
+def edit(lines: list[str], how: str) -> bytes:
+    """The file's lines changed in one of the ways a logger or a spreadsheet writes them."""
+    if how == "crlf":
+        return ("\r\n".join(lines) + "\r\n").encode()
+    if how == "bom":
+        return b"\xef\xbb\xbf" + ("\n".join(lines) + "\n").encode()
+    if how == "quoted-cell-at-line-20":
+        lines[19] = lines[19].replace(lines[19].split(",")[2], '"' + lines[19].split(",")[2] + '"', 1)
+    if how == "blank-line-after-line-25":
+        lines.insert(25, "")
+    if how == "spaces-around-cells":
+        lines[30] = " , ".join(lines[30].split(","))
+    if how == "row-repeated-at-line-33":
+        lines.insert(33, lines[32])
+    if how == "no-final-newline":
+        return "\n".join(lines).encode()
+    if how == "trailing-blank-lines":
+        return ("\n".join(lines) + "\n\n\n").encode()
+    return ("\n".join(lines) + "\n").encode()
+
+
+@pytest.mark.parametrize(
+    "how",
+    [
+        "plain",
+        "crlf",
+        "bom",
+        "quoted-cell-at-line-20",
+        "blank-line-after-line-25",
+        "spaces-around-cells",
+        "row-repeated-at-line-33",
+        "no-final-newline",
+        "trailing-blank-lines",
+    ],
+)
+def test_both_lanes_read_the_same_samples_chunks_and_notes(tmp_path, monkeypatch, how):
+    path = tmp_path / "in.csv"
+    write_stream(path, n=50, extra_header=",px,py,pz,q1,q2,label", extra_value=",0.4,0.1,0.3,0.5,-0.25,ok")
+    path.write_bytes(edit(path.read_text().splitlines(), how))
+    (fast, fast_sizes, fast_notes), (slow, slow_sizes, slow_notes), parsed = read_both(path, monkeypatch)
+    assert_same(fast, slow)
+    assert fast_sizes == slow_sizes and fast_notes == slow_notes
+    assert len(fast) == 50 and fast_notes[0][0] == "in.csv: ignoring column(s) label"
+    if how in ("plain", "crlf", "bom", "no-final-newline", "spaces-around-cells"):
+        assert parsed == len(fast_sizes)  # every block by pyarrow
+    else:
+        assert 0 < parsed < len(fast_sizes)  # the blocks before the first unusual one by pyarrow
+
+
+@pytest.mark.parametrize(
+    ("line", "cell", "message"),
+    [
+        (40, "abc", r"in.csv line 40, column 'fy': 'abc' is not a finite number"),
+        (41, "inf", r"in.csv line 41, column 'fy': 'inf' is not a finite number"),
+        (42, "", r"in.csv line 42, column 'fy': '' is not a finite number"),
+        (43, "1_0", None),  # Python's float() reads it: so does the reader
+    ],
+)
+def test_a_bad_cell_deep_in_the_file_is_named_as_before(tmp_path, monkeypatch, line, cell, message):
+    path = tmp_path / "in.csv"
+    write_stream(path, n=50)
+    lines = path.read_text().splitlines()
+    cells = lines[line - 1].split(",")
+    cells[2] = cell
+    lines[line - 1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    if message is None:
+        (fast, *_), (slow, *_), _ = read_both(path, monkeypatch)
+        assert_same(fast, slow)
+        assert fast.samples.force_S[line - 2, 1] == 10.0
+        return
+    with pytest.raises(CsvError, match=f"^{message}$"):
+        list(iter_csv(path, rows=7))
+
+
+def test_the_writer_writes_each_value_as_the_row_by_row_format_did():
+    rng = np.random.default_rng(3)
+    n = 300
+    t = 1.7e9 + np.cumsum(rng.uniform(1e-4, 2e-3, n))  # epoch seconds: repr keeps 16-17 digits
+    wrench = rng.normal(0.0, 3.0, (n, 6)) * 10.0 ** rng.integers(-12, 12, (n, 6))
+    wrench[5] = np.nan
+    wrench[6] = -0.0
+    flags = rng.random((n, 3)) < 0.5
+    est = Estimates(np.zeros(n, np.int64), wrench[:, :3], wrench[:, 3:], flags[:, 0], flags[:, 1], flags[:, 2])
+
+    class Sink:
+        text = ""
+
+        def write(self, s):
+            self.text += s
+
+    sink = Sink()
+    write_compensated_rows(sink, t, est)  # type: ignore[arg-type]
+    expected = "".join(
+        f"{a!r}," + ",".join(f"{v:.9g}" for v in w) + "".join(f",{int(x)}" for x in f) + "\n"
+        for a, w, f in zip(t.tolist(), wrench.tolist(), flags.tolist())
+    )
+    assert sink.text == expected

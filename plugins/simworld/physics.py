@@ -55,28 +55,13 @@ from hapticlab.plugins.simworld.contacts import Contact
 from hapticlab.plugins.simworld.faults import Fault
 from hapticlab.plugins.simworld.motion import MotionScript, MotionState, RandomTour
 from hapticlab.plugins.simworld.params import RobotParams, SensorParams, ToolParams
+from hapticlab.plugins.simworld.rows import apply_rows as _apply
+from hapticlab.plugins.simworld.rows import cross_rows as _cross
 from hapticlab.plugins.simworld.sensor_channels import SensorChannels
 from hapticlab.plugins.simworld.servo import ServoedMotion
 from hapticlab.plugins.simworld.tissue import Tissue
 
 __all__ = ["SimWorld"]
-
-
-def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Matrix times vector per row: ``M[i] @ v[i]``.
-
-    M is (N, k, 3) or one (k, 3) matrix; v is (N, 3), one (3,) vector, or
-    (N, m, 3) (m vectors per row, each multiplied by that row's M[i]).
-    Returns (N, k) or (N, m, k).
-
-    Always a stacked matmul, one small product per row: unlike ``v @ M.T`` (one
-    BLAS call for all rows, which rounds a single row differently), each row
-    comes out the same whether it is asked for alone or among many, so chunked
-    reads give exactly the values of one big read.
-    """
-    if v.ndim == 3:
-        return v @ M.transpose(0, 2, 1)
-    return (M @ v[..., None])[..., 0]
 
 
 def _times(t: float | np.ndarray) -> np.ndarray:
@@ -124,6 +109,7 @@ class SimWorld:
         self.R_BG = self.robot.R_BG
         self.gravity_accel_B = self.robot.gravity_accel_B
         self._init_wrench_constants()
+        self._last_forces: tuple[MotionState, list[np.ndarray]] | None = None
         self.channels = SensorChannels(self.sensor, self.seed, lambda t: self._loaded(t)[1], ahead=not self.live)
         """What the sensor's channels make of the wrench on them (``sensor_channels.py``)."""
 
@@ -134,7 +120,7 @@ class SimWorld:
         number of numpy calls rather than their size: every constant product is
         folded into one matrix here, every cross product with a constant vector
         is a matrix (``c × v = [c]× v``), and per read each matrix is applied
-        once (see ``_apply``).
+        once (see ``rows.apply_rows``).
         """
         tool, sensor, R_SE = self.tool, self.sensor, self.R_SE
         self._weight_B = tool.mass * self.gravity_accel_B
@@ -232,13 +218,17 @@ class SimWorld:
         bias_S = self.channels.bias(_times(t))
         return bias_S[:, :3], bias_S[:, 3:]
 
-    def wrench(self, t: float | np.ndarray, noise: bool = True) -> dict[str, np.ndarray]:
+    def wrench(
+        self, t: float | np.ndarray, noise: bool = True, known: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> dict[str, np.ndarray]:
         """The sensor reading at times ``t`` (s), with the truth behind it.
 
         Parameters
         ----------
         t : scalar or (N,) times, s (world time: 0 when the session starts).
         noise : add the sensor's white noise (bias, drift and saturation always apply).
+        known : the channels' bias and noise at ``t``, (N, 6) each, when already computed
+            (``SensorChannels.read``: they are functions of time alone).
 
         Returns
         -------
@@ -258,7 +248,7 @@ class SimWorld:
         t = _times(t)
         parts, load_S = self._loaded(t)
         # What the sensor reads, force then torque side by side: (N, 6)
-        reading_S, bias_S, saturated = self.channels.read(t, load_S, noise)
+        reading_S, bias_S, saturated = self.channels.read(t, load_S, noise, known)
         parts.update(
             {
                 "force_S": reading_S[:, :3],
@@ -325,7 +315,18 @@ class SimWorld:
         }, reading_S
 
     def _contact_forces_B(self, t: np.ndarray, state: MotionState) -> list[np.ndarray]:
-        """The contact force at each point of ``_contacts_by_point`` at times ``t`` (N,) s, (N, 3) N in B each."""
+        """The contact force at each point of ``_contacts_by_point`` at times ``t`` (N,) s, (N, 3) N in B each.
+
+        The same ``state`` object asked for again (a servoed motion's, for the sensor and the robot of one
+        tick) gets the same forces back, not recomputed (to be read, never written)."""
+        last = self._last_forces  # (one read: another thread may replace it)
+        if last is not None and last[0] is state:
+            return last[1]
+        forces = self._contact_forces_at(t, state)
+        self._last_forces = (state, forces)
+        return forces
+
+    def _contact_forces_at(self, t: np.ndarray, state: MotionState) -> list[np.ndarray]:
         forces = []
         for _, p_EoP_E, events in self._contacts_by_point:
             force_B = np.zeros((len(t), 3))
@@ -349,7 +350,7 @@ class SimWorld:
         wrench_B = np.zeros((len(t), 6))
         for (_, p_EoP_E, _), force_B in zip(self._contacts_by_point, self._contact_forces_B(t, state)):
             wrench_B[:, :3] += force_B
-            wrench_B[:, 3:] += np.cross(_apply(state.R_BE, p_EoP_E), force_B)  # r × f
+            wrench_B[:, 3:] += _cross(_apply(state.R_BE, p_EoP_E), force_B)  # r × f
         return wrench_B
 
     # ---------------------------------------------------------------- truth

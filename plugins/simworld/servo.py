@@ -8,7 +8,8 @@ commands (``servo_cp``, the CRTK name), and answers ``evaluate(t)`` for any
 time it has already integrated (a window of ``history_s``) or, by
 integrating further, for a later one. Asking for a time ahead of the last
 command integrates with the last target: the simulated devices must not read
-ahead of the session's clock (``live`` tells them; they do not prefetch).
+ahead of the session's clock (``live`` tells them; they compute ahead only the
+part of their readings that depends on the time alone, their noise).
 
 The controller, per step of ``step_s`` (1 ms), for the translation p and the
 rotation (error ``e = Log(R_BEᵀ R_BE_target)`` in E) alike, is a critically

@@ -76,7 +76,7 @@ class SimSensor:
         if self._channels_ahead is not None:
             channels = self._channels_ahead.take(int(seq[0]), int(seq[-1]) + 1)
             known = (channels["bias_S"], channels["noise_S"])
-        reading = self.world.wrench((t_ns - self._clock.t0_ns) / 1e9, known=known)
+        reading = self.world.wrench((t_ns - self._clock.t0_ns) / 1e9, known=known, truth=False)
         return {
             "t_ns": t_ns,
             "force_S": reading["force_S"],

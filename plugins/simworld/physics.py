@@ -110,7 +110,7 @@ class SimWorld:
         self.gravity_accel_B = self.robot.gravity_accel_B
         self._init_wrench_constants()
         self._last_forces: tuple[MotionState, list[np.ndarray]] | None = None
-        self.channels = SensorChannels(self.sensor, self.seed, lambda t: self._loaded(t)[1], ahead=not self.live)
+        self.channels = SensorChannels(self.sensor, self.seed, lambda t: self._loaded(t, False)[1], ahead=not self.live)
         """What the sensor's channels make of the wrench on them (``sensor_channels.py``)."""
 
     def _init_wrench_constants(self) -> None:
@@ -138,6 +138,8 @@ class SimWorld:
         """The contacts grouped by where they act: ``([p]× (3, 3), p_EoP_E (3,), events)`` per point p
         (in S, m; ``p_EoP_E`` the point from the flange origin, in E, m), so that the forces at one
         point are rotated and crossed once."""
+        self._minus_lever_cross_E = [skew(-p_EoP_E) for _, p_EoP_E, _ in self._contacts_by_point]
+        """(3, 3) ``[−p_EoP_E]×`` per point: ``ω × p == _apply(it, ω)``."""
         # The rotational terms of the inertial wrench as maps of the flange's angular
         # motion in E, with ω = R_SE ω_E (in S) and r the centre of mass from the flange
         # origin: [ω̇ × r, I ω̇] is linear in ω̇_E, and [ω × (ω × r), ω × I ω] is linear in
@@ -219,7 +221,11 @@ class SimWorld:
         return bias_S[:, :3], bias_S[:, 3:]
 
     def wrench(
-        self, t: float | np.ndarray, noise: bool = True, known: tuple[np.ndarray, np.ndarray] | None = None
+        self,
+        t: float | np.ndarray,
+        noise: bool = True,
+        known: tuple[np.ndarray, np.ndarray] | None = None,
+        truth: bool = True,
     ) -> dict[str, np.ndarray]:
         """The sensor reading at times ``t`` (s), with the truth behind it.
 
@@ -229,6 +235,7 @@ class SimWorld:
         noise : add the sensor's white noise (bias, drift and saturation always apply).
         known : the channels' bias and noise at ``t``, (N, 6) each, when already computed
             (``SensorChannels.read``: they are functions of time alone).
+        truth : False: no ``contact`` flag, angular velocity or acceleration (what a live read skips).
 
         Returns
         -------
@@ -246,7 +253,7 @@ class SimWorld:
             ``R_EB`` (N, 3, 3); ``p_BoEo_B`` (N, 3) m; ``t`` (N,) s.
         """
         t = _times(t)
-        parts, load_S = self._loaded(t)
+        parts, load_S = self._loaded(t, truth)
         # What the sensor reads, force then torque side by side: (N, 6)
         reading_S, bias_S, saturated = self.channels.read(t, load_S, noise, known)
         parts.update(
@@ -260,9 +267,9 @@ class SimWorld:
         )
         return parts
 
-    def _loaded(self, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The true wrench at times ``t`` (N,) s, by part (see :meth:`wrench`), and the load the sensor's
-        channels see, (N, 6) force (N) then torque (N·m): the sum, after the calibration error."""
+    def _loaded(self, t: np.ndarray, truth: bool = True) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The true wrench at times ``t`` (N,) s, by part (see :meth:`wrench`, and its ``truth``), and the load
+        the sensor's channels see, (N, 6) force (N) then torque (N·m): the sum, after the calibration error."""
         n = len(t)
         tool = self.tool
         state = self.motion.evaluate(t)
@@ -273,8 +280,6 @@ class SimWorld:
         gravity_torque_S = _apply(self._cog_cross_S, gravity_force_S)  # c × m g_S
 
         w_E, alpha_E = state.w_BE_E, state.alpha_BE_E
-        w_S = _apply(self.R_SE, w_E)
-        alpha_S = _apply(self.R_SE, alpha_E)
         if self.inertia:
             # [ω̇ × r + ω × (ω × r), I ω̇ + ω × I ω] (N, 6), r the centre of mass from the flange origin
             w_products_E = (w_E[:, :, None] * w_E[:, None, :]).reshape(n, 9)  # ω_Ej ω_Ek
@@ -293,26 +298,27 @@ class SimWorld:
             force_S = _apply(R_SB, force_B)
             contact_force_S += force_S
             contact_torque_S += _apply(point_cross_S, force_S)  # p × f
-        contact = (contact_force_S != 0.0).any(axis=1) if self.contacts else np.zeros(n, dtype=bool)
 
         reading_S = np.empty((n, 6))
         reading_S[:, :3] = gravity_force_S + inertial_force_S + contact_force_S
         reading_S[:, 3:] = gravity_torque_S + inertial_torque_S + contact_torque_S
         reading_S = self.channels.calibrated(reading_S)
-        return {
+        parts = {
             "t": t,
-            "contact": contact,
             "contact_force_S": contact_force_S,
             "contact_torque_S": contact_torque_S,
             "gravity_force_S": gravity_force_S,
             "gravity_torque_S": gravity_torque_S,
             "inertial_force_S": inertial_force_S,
             "inertial_torque_S": inertial_torque_S,
-            "angular_velocity_S": w_S,
-            "angular_acceleration_S": alpha_S,
             "R_EB": R_EB,
             "p_BoEo_B": state.p_BoEo_B,
-        }, reading_S
+        }
+        if truth:
+            parts["contact"] = (contact_force_S != 0.0).any(axis=1) if self.contacts else np.zeros(n, dtype=bool)
+            parts["angular_velocity_S"] = _apply(self.R_SE, w_E)
+            parts["angular_acceleration_S"] = _apply(self.R_SE, alpha_E)
+        return parts, reading_S
 
     def _contact_forces_B(self, t: np.ndarray, state: MotionState) -> list[np.ndarray]:
         """The contact force at each point of ``_contacts_by_point`` at times ``t`` (N,) s, (N, 3) N in B each.
@@ -328,13 +334,13 @@ class SimWorld:
 
     def _contact_forces_at(self, t: np.ndarray, state: MotionState) -> list[np.ndarray]:
         forces = []
-        for _, p_EoP_E, events in self._contacts_by_point:
+        for (_, p_EoP_E, events), minus_lever_cross_E in zip(self._contacts_by_point, self._minus_lever_cross_E):
             force_B = np.zeros((len(t), 3))
             for event in events:
                 if isinstance(event, (Tissue, Cable)):  # a reaction to where the point is and how it moves, in B
                     r_B = _apply(state.R_BE, p_EoP_E)
                     x_B = state.p_BoEo_B + r_B
-                    v_B = state.v_BEo_B + _apply(state.R_BE, _apply(skew(-p_EoP_E), state.w_BE_E))  # ω × p
+                    v_B = state.v_BEo_B + _apply(state.R_BE, _apply(minus_lever_cross_E, state.w_BE_E))  # ω × p
                     force_B += event.force_B_at(x_B, v_B)
                 else:
                     force_B += event.force_B(t, self.gravity_accel_B)

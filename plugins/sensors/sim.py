@@ -95,7 +95,12 @@ class SimSensor:
         seq = self._clock.advance(until_ns)
         if not seq:
             return NO_WRENCHES
-        t_ns, force_S, torque_S, numbers, status = self._ahead.copies(seq.start, seq.stop)
+        if self._channels_ahead is None:
+            t_ns, force_S, torque_S, numbers, status = self._ahead.copies(seq.start, seq.stop)
+        else:  # a live world's samples, computed now for this read alone: no chunk to copy from
+            reading = self._reading(np.arange(seq.start, seq.stop, dtype=np.int64))
+            t_ns, numbers, status = reading["t_ns"], reading["seq"], reading["status"]
+            force_S, torque_S = np.ascontiguousarray(reading["force_S"]), np.ascontiguousarray(reading["torque_S"])
         if self.world.faults:  # injected faults ([[world.faults]]): what the sensor delivers, not the physics
             reading = {"force_S": force_S, "torque_S": torque_S, "status": status}  # changed in place
             keep = apply_sensor_faults(self.world.faults, (t_ns - self._clock.t0_ns) / 1e9, reading)

@@ -216,16 +216,14 @@ class ServoedMotion(MotionScript):
         """
         R_BE = np.asarray(R_BE, dtype=float)
         p_BoEo_B = np.asarray(p_BoEo_B, dtype=float)
-        if (
-            R_BE.shape != (3, 3)
-            or p_BoEo_B.shape != (3,)
-            or not (np.isfinite(R_BE).all() and np.isfinite(p_BoEo_B).all())
-        ):
+        shaped = R_BE.shape == (3, 3) and p_BoEo_B.shape == (3,)
+        target = (tuple(R_BE.ravel().tolist()), tuple(p_BoEo_B.tolist())) if shaped else ((), ())  # (floats)
+        if not shaped or not all(map(math.isfinite, target[0] + target[1])):
             raise ValueError(f"servo_cp: need a finite (3, 3) R_BE and (3,) p_BoEo_B, got {R_BE!r}, {p_BoEo_B!r}")
         with self._lock:
             self._advance(t)
             self.target = (R_BE.copy(), p_BoEo_B.copy())
-            self._target = (tuple(R_BE.ravel().tolist()), tuple(p_BoEo_B.tolist()))
+            self._target = target
 
     # ------------------------------------------------------------------ integration
 

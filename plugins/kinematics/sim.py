@@ -75,6 +75,9 @@ class SimKinematics:
         """The stated accuracy of the poses' ``wrench_B``, N per axis (MeasuresWrench; 0: none)."""
         self._clock = SampleClock(self.rate_hz)
         self._ahead = Prefetch(self._exact_poses, self.rate_hz, ahead_s=0.0 if world.live else PREFETCH_S)
+        self._noise_ahead = Prefetch(self._noise, self.rate_hz) if world.live else None
+        """A live world's poses come one at a time; their encoder jitter and wrench noise (functions of the
+        reading's time alone) ahead."""
         if world.live:
             pose_kernel.warm_up()  # compiled (or loaded from the cache) before the first live tick
 
@@ -82,28 +85,45 @@ class SimKinematics:
         """Start streaming: sample 0 is at ``t0_ns`` (world time 0)."""
         self._clock.start(t0_ns)
         self._ahead.reset()
+        if self._noise_ahead is not None:
+            self._noise_ahead.reset()
+
+    def _noise(self, seq: np.ndarray) -> dict[str, np.ndarray]:
+        """The encoder jitter and the wrench's noise of samples ``seq``, (N, 6) each (:meth:`_jitter`,
+        ``RobotWrench.noise_at``)."""
+        reading_ns = self._clock.times(seq) - self._clock.t0_ns
+        noise = self.robot_wrench.noise_at(reading_ns) if self.robot_wrench.noise > 0 else np.zeros((len(seq), 6))
+        return {"jitter": self._jitter(reading_ns, len(seq)), "wrench": noise}
 
     def _exact_poses(self, seq: np.ndarray) -> dict[str, np.ndarray]:
         """The poses of samples ``seq`` when no fault is injected (each reports its own time's pose)."""
         reading_ns = self._clock.times(seq) - self._clock.t0_ns
-        quat_BE, p_BoEo_B = self._poses(reading_ns / 1e9, reading_ns)
-        return {"quat_BE": quat_BE, "p_BoEo_B": p_BoEo_B, "wrench_B": self._wrenches(reading_ns / 1e9, reading_ns)}
+        jitter = noise = None
+        if self._noise_ahead is not None:  # (copies: the compiled quaternion takes writable arrays)
+            jitter, noise = self._noise_ahead.copies(int(seq[0]), int(seq[-1]) + 1)
+        quat_BE, p_BoEo_B = self._poses(reading_ns / 1e9, reading_ns, jitter)
+        wrench_B = self._wrenches(reading_ns / 1e9, reading_ns, noise)
+        return {"quat_BE": quat_BE, "p_BoEo_B": p_BoEo_B, "wrench_B": wrench_B}
 
-    def _wrenches(self, t: np.ndarray, reading_ns: np.ndarray) -> np.ndarray:
-        """(N, 6) the robot's wrench at world times ``t`` (s) read at ``reading_ns`` (ns); (N, 0) without one."""
+    def _wrenches(self, t: np.ndarray, reading_ns: np.ndarray, noise: np.ndarray | None = None) -> np.ndarray:
+        """(N, 6) the robot's wrench at world times ``t`` (s) read at ``reading_ns`` (ns); (N, 0) without one.
+        ``noise``: its noise at those readings, when already computed."""
         if self.wrench_accuracy_N > 0:
-            return self.robot_wrench.measured(t, reading_ns)
+            return self.robot_wrench.measured(t, reading_ns, noise)
         return np.zeros((len(t), 0))
 
-    def _poses(self, t: np.ndarray, reading_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _poses(
+        self, t: np.ndarray, reading_ns: np.ndarray, jitter: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``quat_BE`` (N, 4) and ``p_BoEo_B`` (N, 3) m reported: the pose at world times ``t`` (s) with the
-        encoder jitter of the readings taken at world times ``reading_ns`` (ns). A live world's poses come
-        one at a time: their quaternions are compiled (``plugins.kinematics.sim_kernel``; :meth:`_poses_reference`
-        is the numpy the others take, in chunks)."""
+        encoder jitter of the readings taken at world times ``reading_ns`` (ns) (``jitter``, when already
+        computed). A live world's poses come one at a time: their quaternions are compiled
+        (``plugins.kinematics.sim_kernel``; :meth:`_poses_reference` is the numpy the others take, in chunks)."""
         if not self.world.live:
             return self._poses_reference(t, reading_ns)
         R_BE, p_BoEo_B = self.world.pose(t)
-        jitter = self._jitter(reading_ns, len(t))
+        if jitter is None:
+            jitter = self._jitter(reading_ns, len(t))
         quat_BE = np.empty((len(t), 4))
         pose_kernel.reported_quat(R_BE, jitter[:, :3], self.encoder_noise > 0, quat_BE)
         return quat_BE, (p_BoEo_B + jitter[:, 3:] if self.encoder_noise > 0 else p_BoEo_B)
@@ -156,8 +176,12 @@ class SimKinematics:
         ]
 
     def prepare(self, until_ns: int) -> None:
-        """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; not with a live world)."""
-        self._ahead.prepare(self._clock.next_index, self._clock.end_index(until_ns))
+        """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; with a live world
+        only their jitter and noise)."""
+        lo, hi = self._clock.next_index, self._clock.end_index(until_ns)
+        self._ahead.prepare(lo, hi)
+        if self._noise_ahead is not None:
+            self._noise_ahead.prepare(lo, hi)
 
     def close(self) -> None:
         """Stop streaming (nothing to release)."""

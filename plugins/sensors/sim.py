@@ -53,17 +53,30 @@ class SimSensor:
         """(3,) measurement range per torque axis, N·m."""
         self._clock = SampleClock(self.rate_hz)
         self._ahead = Prefetch(self._reading, self.rate_hz, ahead_s=0.0 if world.live else PREFETCH_S)
+        self._channels_ahead = Prefetch(self._channels, self.rate_hz) if world.live else None
+        """A live world's readings come one at a time; their bias and noise (functions of time alone) ahead."""
 
     def open(self, t0_ns: int) -> None:
         """Start streaming: sample 0 is at ``t0_ns`` (world time 0)."""
         self._clock.start(t0_ns)
         self._ahead.reset()
+        if self._channels_ahead is not None:
+            self._channels_ahead.reset()
+
+    def _channels(self, seq: np.ndarray) -> dict[str, np.ndarray]:
+        """The channels' bias and noise, (N, 6) each, at the samples ``seq`` (``SensorChannels.read``)."""
+        t = (self._clock.times(seq) - self._clock.t0_ns) / 1e9
+        return {"bias_S": self.world.channels.bias(t), "noise_S": self.world.channels.noise(t)}
 
     def _reading(self, seq: np.ndarray) -> dict[str, np.ndarray]:
         """What the sensor reads for the samples ``seq`` (the world's physics, before any injected fault):
         :class:`WrenchBlock`'s fields, in its order."""
         t_ns = self._clock.times(seq)
-        reading = self.world.wrench((t_ns - self._clock.t0_ns) / 1e9)
+        known = None
+        if self._channels_ahead is not None:
+            channels = self._channels_ahead.take(int(seq[0]), int(seq[-1]) + 1)
+            known = (channels["bias_S"], channels["noise_S"])
+        reading = self.world.wrench((t_ns - self._clock.t0_ns) / 1e9, known=known, truth=False)
         return {
             "t_ns": t_ns,
             "force_S": reading["force_S"],
@@ -82,7 +95,12 @@ class SimSensor:
         seq = self._clock.advance(until_ns)
         if not seq:
             return NO_WRENCHES
-        t_ns, force_S, torque_S, numbers, status = self._ahead.copies(seq.start, seq.stop)
+        if self._channels_ahead is None:
+            t_ns, force_S, torque_S, numbers, status = self._ahead.copies(seq.start, seq.stop)
+        else:  # a live world's samples, computed now for this read alone: no chunk to copy from
+            reading = self._reading(np.arange(seq.start, seq.stop, dtype=np.int64))
+            t_ns, numbers, status = reading["t_ns"], reading["seq"], reading["status"]
+            force_S, torque_S = np.ascontiguousarray(reading["force_S"]), np.ascontiguousarray(reading["torque_S"])
         if self.world.faults:  # injected faults ([[world.faults]]): what the sensor delivers, not the physics
             reading = {"force_S": force_S, "torque_S": torque_S, "status": status}  # changed in place
             keep = apply_sensor_faults(self.world.faults, (t_ns - self._clock.t0_ns) / 1e9, reading)
@@ -91,8 +109,12 @@ class SimSensor:
         return WrenchBlock(t_ns, force_S, torque_S, numbers, status)
 
     def prepare(self, until_ns: int) -> None:
-        """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; not with a live world)."""
-        self._ahead.prepare(self._clock.next_index, self._clock.end_index(until_ns))
+        """Compute the readings up to ``until_ns`` now, if they are not yet (PreparesAhead; with a live world
+        only the channels' bias and noise)."""
+        lo, hi = self._clock.next_index, self._clock.end_index(until_ns)
+        self._ahead.prepare(lo, hi)
+        if self._channels_ahead is not None:
+            self._channels_ahead.prepare(lo, hi)
 
     def close(self) -> None:
         """Stop streaming (nothing to release)."""

@@ -55,28 +55,13 @@ from hapticlab.plugins.simworld.contacts import Contact
 from hapticlab.plugins.simworld.faults import Fault
 from hapticlab.plugins.simworld.motion import MotionScript, MotionState, RandomTour
 from hapticlab.plugins.simworld.params import RobotParams, SensorParams, ToolParams
+from hapticlab.plugins.simworld.rows import apply_rows as _apply
+from hapticlab.plugins.simworld.rows import cross_rows as _cross
 from hapticlab.plugins.simworld.sensor_channels import SensorChannels
 from hapticlab.plugins.simworld.servo import ServoedMotion
 from hapticlab.plugins.simworld.tissue import Tissue
 
 __all__ = ["SimWorld"]
-
-
-def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Matrix times vector per row: ``M[i] @ v[i]``.
-
-    M is (N, k, 3) or one (k, 3) matrix; v is (N, 3), one (3,) vector, or
-    (N, m, 3) (m vectors per row, each multiplied by that row's M[i]).
-    Returns (N, k) or (N, m, k).
-
-    Always a stacked matmul, one small product per row: unlike ``v @ M.T`` (one
-    BLAS call for all rows, which rounds a single row differently), each row
-    comes out the same whether it is asked for alone or among many, so chunked
-    reads give exactly the values of one big read.
-    """
-    if v.ndim == 3:
-        return v @ M.transpose(0, 2, 1)
-    return (M @ v[..., None])[..., 0]
 
 
 def _times(t: float | np.ndarray) -> np.ndarray:
@@ -124,7 +109,8 @@ class SimWorld:
         self.R_BG = self.robot.R_BG
         self.gravity_accel_B = self.robot.gravity_accel_B
         self._init_wrench_constants()
-        self.channels = SensorChannels(self.sensor, self.seed, lambda t: self._loaded(t)[1], ahead=not self.live)
+        self._last_forces: tuple[MotionState, list[np.ndarray]] | None = None
+        self.channels = SensorChannels(self.sensor, self.seed, lambda t: self._loaded(t, False)[1], ahead=not self.live)
         """What the sensor's channels make of the wrench on them (``sensor_channels.py``)."""
 
     def _init_wrench_constants(self) -> None:
@@ -134,7 +120,7 @@ class SimWorld:
         number of numpy calls rather than their size: every constant product is
         folded into one matrix here, every cross product with a constant vector
         is a matrix (``c × v = [c]× v``), and per read each matrix is applied
-        once (see ``_apply``).
+        once (see ``rows.apply_rows``).
         """
         tool, sensor, R_SE = self.tool, self.sensor, self.R_SE
         self._weight_B = tool.mass * self.gravity_accel_B
@@ -152,6 +138,8 @@ class SimWorld:
         """The contacts grouped by where they act: ``([p]× (3, 3), p_EoP_E (3,), events)`` per point p
         (in S, m; ``p_EoP_E`` the point from the flange origin, in E, m), so that the forces at one
         point are rotated and crossed once."""
+        self._minus_lever_cross_E = [skew(-p_EoP_E) for _, p_EoP_E, _ in self._contacts_by_point]
+        """(3, 3) ``[−p_EoP_E]×`` per point: ``ω × p == _apply(it, ω)``."""
         # The rotational terms of the inertial wrench as maps of the flange's angular
         # motion in E, with ω = R_SE ω_E (in S) and r the centre of mass from the flange
         # origin: [ω̇ × r, I ω̇] is linear in ω̇_E, and [ω × (ω × r), ω × I ω] is linear in
@@ -232,13 +220,22 @@ class SimWorld:
         bias_S = self.channels.bias(_times(t))
         return bias_S[:, :3], bias_S[:, 3:]
 
-    def wrench(self, t: float | np.ndarray, noise: bool = True) -> dict[str, np.ndarray]:
+    def wrench(
+        self,
+        t: float | np.ndarray,
+        noise: bool = True,
+        known: tuple[np.ndarray, np.ndarray] | None = None,
+        truth: bool = True,
+    ) -> dict[str, np.ndarray]:
         """The sensor reading at times ``t`` (s), with the truth behind it.
 
         Parameters
         ----------
         t : scalar or (N,) times, s (world time: 0 when the session starts).
         noise : add the sensor's white noise (bias, drift and saturation always apply).
+        known : the channels' bias and noise at ``t``, (N, 6) each, when already computed
+            (``SensorChannels.read``: they are functions of time alone).
+        truth : False: no ``contact`` flag, angular velocity or acceleration (what a live read skips).
 
         Returns
         -------
@@ -256,9 +253,9 @@ class SimWorld:
             ``R_EB`` (N, 3, 3); ``p_BoEo_B`` (N, 3) m; ``t`` (N,) s.
         """
         t = _times(t)
-        parts, load_S = self._loaded(t)
+        parts, load_S = self._loaded(t, truth)
         # What the sensor reads, force then torque side by side: (N, 6)
-        reading_S, bias_S, saturated = self.channels.read(t, load_S, noise)
+        reading_S, bias_S, saturated = self.channels.read(t, load_S, noise, known)
         parts.update(
             {
                 "force_S": reading_S[:, :3],
@@ -270,9 +267,9 @@ class SimWorld:
         )
         return parts
 
-    def _loaded(self, t: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The true wrench at times ``t`` (N,) s, by part (see :meth:`wrench`), and the load the sensor's
-        channels see, (N, 6) force (N) then torque (N·m): the sum, after the calibration error."""
+    def _loaded(self, t: np.ndarray, truth: bool = True) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The true wrench at times ``t`` (N,) s, by part (see :meth:`wrench`, and its ``truth``), and the load
+        the sensor's channels see, (N, 6) force (N) then torque (N·m): the sum, after the calibration error."""
         n = len(t)
         tool = self.tool
         state = self.motion.evaluate(t)
@@ -283,8 +280,6 @@ class SimWorld:
         gravity_torque_S = _apply(self._cog_cross_S, gravity_force_S)  # c × m g_S
 
         w_E, alpha_E = state.w_BE_E, state.alpha_BE_E
-        w_S = _apply(self.R_SE, w_E)
-        alpha_S = _apply(self.R_SE, alpha_E)
         if self.inertia:
             # [ω̇ × r + ω × (ω × r), I ω̇ + ω × I ω] (N, 6), r the centre of mass from the flange origin
             w_products_E = (w_E[:, :, None] * w_E[:, None, :]).reshape(n, 9)  # ω_Ej ω_Ek
@@ -303,37 +298,49 @@ class SimWorld:
             force_S = _apply(R_SB, force_B)
             contact_force_S += force_S
             contact_torque_S += _apply(point_cross_S, force_S)  # p × f
-        contact = (contact_force_S != 0.0).any(axis=1) if self.contacts else np.zeros(n, dtype=bool)
 
         reading_S = np.empty((n, 6))
         reading_S[:, :3] = gravity_force_S + inertial_force_S + contact_force_S
         reading_S[:, 3:] = gravity_torque_S + inertial_torque_S + contact_torque_S
         reading_S = self.channels.calibrated(reading_S)
-        return {
+        parts = {
             "t": t,
-            "contact": contact,
             "contact_force_S": contact_force_S,
             "contact_torque_S": contact_torque_S,
             "gravity_force_S": gravity_force_S,
             "gravity_torque_S": gravity_torque_S,
             "inertial_force_S": inertial_force_S,
             "inertial_torque_S": inertial_torque_S,
-            "angular_velocity_S": w_S,
-            "angular_acceleration_S": alpha_S,
             "R_EB": R_EB,
             "p_BoEo_B": state.p_BoEo_B,
-        }, reading_S
+        }
+        if truth:
+            parts["contact"] = (contact_force_S != 0.0).any(axis=1) if self.contacts else np.zeros(n, dtype=bool)
+            parts["angular_velocity_S"] = _apply(self.R_SE, w_E)
+            parts["angular_acceleration_S"] = _apply(self.R_SE, alpha_E)
+        return parts, reading_S
 
     def _contact_forces_B(self, t: np.ndarray, state: MotionState) -> list[np.ndarray]:
-        """The contact force at each point of ``_contacts_by_point`` at times ``t`` (N,) s, (N, 3) N in B each."""
+        """The contact force at each point of ``_contacts_by_point`` at times ``t`` (N,) s, (N, 3) N in B each.
+
+        The same ``state`` object asked for again (a servoed motion's, for the sensor and the robot of one
+        tick) gets the same forces back, not recomputed (to be read, never written)."""
+        last = self._last_forces  # (one read: another thread may replace it)
+        if last is not None and last[0] is state:
+            return last[1]
+        forces = self._contact_forces_at(t, state)
+        self._last_forces = (state, forces)
+        return forces
+
+    def _contact_forces_at(self, t: np.ndarray, state: MotionState) -> list[np.ndarray]:
         forces = []
-        for _, p_EoP_E, events in self._contacts_by_point:
+        for (_, p_EoP_E, events), minus_lever_cross_E in zip(self._contacts_by_point, self._minus_lever_cross_E):
             force_B = np.zeros((len(t), 3))
             for event in events:
                 if isinstance(event, (Tissue, Cable)):  # a reaction to where the point is and how it moves, in B
                     r_B = _apply(state.R_BE, p_EoP_E)
                     x_B = state.p_BoEo_B + r_B
-                    v_B = state.v_BEo_B + _apply(state.R_BE, _apply(skew(-p_EoP_E), state.w_BE_E))  # ω × p
+                    v_B = state.v_BEo_B + _apply(state.R_BE, _apply(minus_lever_cross_E, state.w_BE_E))  # ω × p
                     force_B += event.force_B_at(x_B, v_B)
                 else:
                     force_B += event.force_B(t, self.gravity_accel_B)
@@ -349,7 +356,7 @@ class SimWorld:
         wrench_B = np.zeros((len(t), 6))
         for (_, p_EoP_E, _), force_B in zip(self._contacts_by_point, self._contact_forces_B(t, state)):
             wrench_B[:, :3] += force_B
-            wrench_B[:, 3:] += np.cross(_apply(state.R_BE, p_EoP_E), force_B)  # r × f
+            wrench_B[:, 3:] += _cross(_apply(state.R_BE, p_EoP_E), force_B)  # r × f
         return wrench_B
 
     # ---------------------------------------------------------------- truth

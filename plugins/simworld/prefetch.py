@@ -7,7 +7,9 @@ tick spends nearly all of the time in numpy's per-call overhead; computing
 ``PREFETCH_S`` of samples at once and handing out slices gives the same numbers
 for a fraction of the cost (``hapticlab bench loop``: sensor and kinematics
 reads). A world whose robot follows live targets (``SimWorld.live``) is only
-known up to now: its devices pass ``ahead_s = 0`` and compute what is asked.
+known up to now: its devices pass ``ahead_s = 0`` for the physics and compute
+what is asked, and compute ahead only what depends on the time alone (the
+sensor channels' bias and noise, the encoders' jitter, the robot wrench's noise).
 """
 
 from __future__ import annotations

@@ -63,9 +63,14 @@ class RobotWrench:
             [1.0, 1.0, 1.0, TORQUE_PER_FORCE_M, TORQUE_PER_FORCE_M, TORQUE_PER_FORCE_M]
         )
 
-    def measured(self, t: np.ndarray, reading_ns: np.ndarray) -> np.ndarray:
-        """(N, 6) the wrench reported for world times ``t`` (s) by the readings stamped ``reading_ns`` (ns)."""
+    def measured(self, t: np.ndarray, reading_ns: np.ndarray, noise: np.ndarray | None = None) -> np.ndarray:
+        """(N, 6) the wrench reported for world times ``t`` (s) by the readings stamped ``reading_ns`` (ns);
+        ``noise``: :meth:`noise_at` those stamps, when already computed."""
         wrench_B = self.world.contact_wrench_B(t) + self.offset_B
         if self.noise > 0:
-            wrench_B += gaussian_noise(self._noise_key, np.asarray(reading_ns, dtype=np.int64), 6) * self._noise_scale
+            wrench_B += self.noise_at(reading_ns) if noise is None else noise
         return wrench_B
+
+    def noise_at(self, reading_ns: np.ndarray) -> np.ndarray:
+        """(N, 6) the white noise of the readings stamped ``reading_ns`` (ns): force N, torque N·m."""
+        return gaussian_noise(self._noise_key, np.asarray(reading_ns, dtype=np.int64), 6) * self._noise_scale

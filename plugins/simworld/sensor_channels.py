@@ -24,14 +24,9 @@ import numpy as np
 from hapticlab.core.sensor_model.play_kernel import play
 from hapticlab.plugins.simworld.params import SensorParams
 from hapticlab.plugins.simworld.randomness import DRIFT_STREAM, NOISE_STREAM, GrowingPath, RandomWalk, gaussian_noise
+from hapticlab.plugins.simworld.rows import apply_rows as _apply
 
 __all__ = ["PlayHysteresis", "SensorChannels"]
-
-
-def _apply(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``M @ v[i]`` for each row of v (N, 3), M (3, 3): a stacked matmul, as ``physics._apply`` and for the
-    same reason (each row comes out the same whether it is read alone or among many)."""
-    return (M @ v[..., None])[..., 0]
 
 
 class PlayHysteresis(GrowingPath):
@@ -121,8 +116,17 @@ class SensorChannels:
             bias_S = bias_S + self._walk(t) * self._drift_rw_S
         return bias_S
 
-    def read(self, t: np.ndarray, load_S: np.ndarray, noise: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def noise(self, t: np.ndarray) -> np.ndarray:
+        """(N, 6) the white noise at times ``t`` (N,) s: force (N) then torque (N·m)."""
+        return gaussian_noise(self.noise_key, np.rint(t * 1e9).astype(np.int64), 6) * self._noise_S
+
+    def read(
+        self, t: np.ndarray, load_S: np.ndarray, noise: bool = True, known: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the channels read at times ``t`` (N,) s for the calibrated load ``load_S`` (N, 6) there.
+
+        ``known``: ``(bias(t), noise(t))`` already computed (they depend on the time alone: a device
+        whose world is only known up to now still computes them ahead, in chunks), else computed here.
 
         Returns
         -------
@@ -133,11 +137,10 @@ class SensorChannels:
         reading_S = load_S
         if self._hysteresis is not None:  # the channels follow their load through play operators
             reading_S = self._hysteresis(t, reading_S)
-        bias_S = self.bias(t)
+        bias_S = self.bias(t) if known is None else known[0]
         reading_S += bias_S
         if noise:
-            t_ns = np.rint(t * 1e9).astype(np.int64)
-            reading_S += gaussian_noise(self.noise_key, t_ns, 6) * self._noise_S
+            reading_S += self.noise(t) if known is None else known[1]
         limit = self._saturation_S
         saturated = (np.abs(reading_S) > limit).any(axis=1)
         reading_S = np.minimum(np.maximum(reading_S, -limit), limit)  # np.clip, without its overhead

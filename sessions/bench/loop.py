@@ -25,9 +25,9 @@ Three tables, so the next change to the hot path is measured the same way:
   once the calibration tour is over, :class:`PressingHand`; ``kalman`` with the
   ``rls`` shadow, the preset's own), 1 kHz sensor, writer process: its rows
   add the shadow estimators and the teleoperation step (the robot's next
-  target and ``servo_cp``); the simulated sensor and robot are computed one
-  sample at a time there (they cannot run ahead of a robot that follows the
-  hand);
+  target and ``servo_cp``); the simulated sensor and robot's physics is
+  computed one sample at a time there (it cannot run ahead of a robot that
+  follows the hand; only their noise is computed ahead);
 * **per estimator**: µs per sample at block sizes 1 (a 1 kHz sensor read at
   1 kHz), 7 (a 7 kHz Net F/T) and 1024 (offline), median and p99 over the
   converged second half of a simulated tour, for each estimator named.

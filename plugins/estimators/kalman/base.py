@@ -110,7 +110,7 @@ class KalmanBase:
         raise NotImplementedError
 
     def _prepare(
-        self, block: AlignedSamples, usable: bool = True
+        self, block: AlignedSamples, usable: bool = True, motion: bool = False
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """The block's readings with the configured effects applied (``ModelInputs._prepare``)."""
         raise NotImplementedError

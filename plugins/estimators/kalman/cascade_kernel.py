@@ -18,6 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
+from hapticlab.plugins.estimators.kalman.derivatives_kernel import inertial_before
 from hapticlab.plugins.estimators.kalman.identified_kernel import add_information, constant_var_max, predicted_var
 from hapticlab.plugins.estimators.kalman.noise import NOISE_FLOOR, NOISE_REFUSED_WEIGHT, NOISE_WINDOW, NOISE_WINDOW_S
 from hapticlab.plugins.estimators.kalman.noise_kernel import _auto_bound2, adapt_noise
@@ -82,6 +83,8 @@ def kalman_cascade(
     status,
     p_BoEo_B,
     inertial_S,
+    motion,
+    known,
     usable,
     x_f,
     P_f,
@@ -144,6 +147,9 @@ def kalman_cascade(
         status (0: good).
         p_BoEo_B: (m, 3) positions, m, or (0, 3) when the stream has none. inertial_S: (m, 3) the
         tool's inertial force, N (y_f = force_S − inertial_S; it acts at the centre of mass), or (0, 3).
+        motion: (m, 9) [ω_E, α_E, a_B] per sample, or (0, 9): given, each sample's inertial force is computed
+        here from the states before it (``derivatives_kernel.inertial_before``, ``known`` (2,) [mass, centre
+        of mass] known from a warm start), written into inertial_S and y_f (out), as a block of one would.
         usable: (m,) bool out: the
         samples the filter may use (``AlignedSamples.usable``: the guard has already refused a
         non-finite wrench or R_EB), less those whose force update failed.
@@ -152,8 +158,9 @@ def kalman_cascade(
         estimate); qr_f, qr_t: (3,) the bias rates' random-walk variance per second (unused with 6 states);
         qt_f, qt_t: (3,) the biases' random-walk variance per radian of tilt, added to both stages before each
         sample (:func:`tilt_step` on A_f, :func:`add_tilt_noise`).
-        R_SE: (3, 3) the mount's nominal rotation, in place when it is estimated (then x_f is [a, b, (ḃ), θ],
-        9 or 12 states, and its flag waits for std(θ)·|gravity_force_B| under the bound as well).
+        R_SE: (3, 3) the mount's rotation, in place when it is estimated (then x_f is [a, b, (ḃ), θ],
+        9 or 12 states, and its flag waits for std(θ)·|gravity_force_B| under the bound as well); read only
+        then and with ``motion``.
         limits: (3,) [gate2, bound_f², bound_t²]. adapt: (ADAPT_SIZE,) see ``ADAPT_SIZE``.
         info_f, info_t: (6, 6) the stages' information Λ (identified rule), in place.
         A_t: (3, 3), scratch: (9, 6) scratch (the Cholesky factor, the torque reading's variance, the
@@ -179,6 +186,7 @@ def kalman_cascade(
     adapt[ADAPT_REOPEN_ROW] = -1.0
     positions = p_BoEo_B.shape[0] != 0
     inertia = inertial_S.shape[0] != 0
+    inertia_here = motion.shape[0] != 0
     rate = x_t.shape[0] == 9
     activate_var = adapt[ADAPT_MOUNT]
     mount = activate_var > 0.0
@@ -202,6 +210,10 @@ def kalman_cascade(
             step_ns = t_ns[k] - previous
         previous = t_ns[k]
         dt = max(step_ns, 0) * 1e-9
+        if inertia_here:  # (A_t: scratch until the torque stage's own, below)
+            inertial_before(
+                adapt, known, x_f, x_t, R_SE, A_f[k], mount, motion[k], force_S[k], y_f[k], inertial_S[k], A_t
+            )
         if adapt[ADAPT_AUTO_F] != 0.0:
             bound_f2 = _auto_bound2(r_f, adapt[ADAPT_CAP_F])
         if adapt[ADAPT_AUTO_T] != 0.0:
@@ -490,6 +502,8 @@ def warm_up() -> None:
             np.zeros(m, dtype=np.int64),
             p,
             p,
+            np.zeros((len(p), 9)),  # (with positions: the inertial force computed here)
+            np.zeros(2),
             np.ones(m, dtype=np.bool_),
             np.zeros(n),
             np.eye(n),

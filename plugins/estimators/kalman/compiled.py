@@ -23,25 +23,29 @@ if TYPE_CHECKING:
 
 NO_RATE = np.zeros(3)
 """What the compiled cascade is given for the bias rates' random walk without bias-rate states."""
-NO_MOUNT = np.eye(3)
-"""What the compiled cascade is given for the mount when it does not estimate one (it is not read)."""
+NO_MOTION = np.zeros((0, 9))
+"""What the compiled cascade is given when it does not compute the inertial force itself."""
 
 
 class CompiledPath(KalmanBase):
     """The block through the compiled cascade (a part of :class:`KalmanEstimator`)."""
 
-    def _filter_compiled(self, block: AlignedSamples) -> Estimates:
+    def _filter_compiled(self, block: AlignedSamples, inertia_per_sample: bool = False) -> Estimates:
         """``_filter_block`` in one compiled call (``cascade_kernel.kalman_cascade``): the default model, with
-        inertia and a kinematics or sensor lag if set (their inputs from ``_prepare``, compiled too)."""
+        inertia and a kinematics or sensor lag if set (their inputs from ``_prepare``, compiled too).
+        ``inertia_per_sample``: the cascade computes each sample's inertial force from the states before it
+        (the mass and centre of mass as estimated then), as blocks of one sample would."""
         m, self._positions = len(block), block.p_BoEo_B  # (the payload watch reads the flange's motion)
         contiguous = np.ascontiguousarray  # (no-ops on the aligner's arrays; one compiled layout)
         t_ns = contiguous(block.t_ns, np.int64)
-        inertial_S, stale = None, contiguous(block.stale, bool)
+        inertial_S, stale, motion = None, contiguous(block.stale, bool), NO_MOTION
         if self.derivatives is not None or self.time_lag_s < 0:  # inertia, a kinematics or sensor lag
-            force_S, torque_S, R_EB, inertial_S, known = self._prepare(block, usable=False)
+            force_S, torque_S, R_EB, inertial_S, known = self._prepare(block, usable=False, motion=inertia_per_sample)
             if known is not None:  # a late sensor stream's first samples: no pose yet, not used (as stale)
                 stale = stale | ~known
             force_S, torque_S, R_EB = contiguous(force_S, float), contiguous(torque_S, float), contiguous(R_EB, float)
+            if inertia_per_sample:  # _prepare gave the motion (m, 9): y_f and the inertial force are out
+                motion, inertial_S = contiguous(inertial_S, float), np.empty((m, 3))
         else:
             force_S, torque_S = contiguous(block.force_S, float), contiguous(block.torque_S, float)
             R_EB = contiguous(block.R_EB, float)
@@ -49,7 +53,7 @@ class CompiledPath(KalmanBase):
                 force_S = force_S @ self.gain_inverse_force.T
             if self.gain_inverse_torque is not None:
                 torque_S = torque_S @ self.gain_inverse_torque.T
-        y_f = force_S if inertial_S is None else force_S - inertial_S
+        y_f = force_S if inertial_S is None else (force_S.copy() if len(motion) else force_S - inertial_S)
         if self.mount_rotation:  # R_EB in (a copy: the cascade writes R_SB through its mount estimate into it)
             A_f = np.array(R_EB, dtype=float, order="C")
         else:
@@ -84,6 +88,8 @@ class CompiledPath(KalmanBase):
             contiguous(block.status, np.int64),
             p_BoEo_B,
             NO_POSITIONS if inertial_S is None else inertial_S,
+            motion,
+            np.array([self._mass_known, self._cog_known], dtype=float),
             b.usable,
             force.x,
             force.P,
@@ -99,7 +105,7 @@ class CompiledPath(KalmanBase):
             NO_RATE if torque.q_rate is None else torque.q_rate,
             force.q_tilt,
             torque.q_tilt,
-            cast("MountStage", force).R_SE if self.mount_rotation else NO_MOUNT,
+            cast("MountStage", force).R_SE if self.mount_rotation else self.R_SE,
             limits,
             self._adapt,
             self._information["force"],

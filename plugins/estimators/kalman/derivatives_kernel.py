@@ -7,7 +7,8 @@ reference, which stays callable: ``kernel = "numpy"``) at each sample k of a blo
 
 over the past samples of the window (at least the two previous ones), least squares of
 the 2×2 normal equations. ``inertial_force`` is ``KalmanEstimator._inertial_force``:
-−m (a_S + α_S × c + ω_S × (ω_S × c)), N.
+−m (a_S + α_S × c + ω_S × (ω_S × c)), N; ``inertial_before`` the same at one sample of the compiled
+cascade, from the states before it (a block then filters as its samples one at a time).
 
 Not bit-for-bit the numpy path: numpy sums a window's 20 terms pairwise (8 accumulators) and
 through ``einsum``, the kernel in order; the derivatives agree to ~1e-13 relative, and the
@@ -23,7 +24,9 @@ import math
 import numpy as np
 from numba import njit
 
+from hapticlab.core.frames import GRAVITY_M_S2
 from hapticlab.plugins.estimators.kalman.derivatives import MotionDerivatives
+from hapticlab.plugins.estimators.kalman.state_layout import ADAPT_FORCE_SEEN, ADAPT_TORQUE_SEEN
 
 
 @njit(cache=True)
@@ -152,21 +155,55 @@ def inertial_force(R_SE, R_SB, w_E, alpha_E, a_B, mass, cog_S, out):
     Args: R_SE (3, 3); R_SB (m, 3, 3); w_E, alpha_E (m, 3) rad/s, rad/s²; a_B (m, 3) m/s²; mass kg;
     cog_S (3,) m.
     """
-    cx, cy, cz = cog_S[0], cog_S[1], cog_S[2]
     for k in range(w_E.shape[0]):
-        wx = w_E[k, 0] * R_SE[0, 0] + w_E[k, 1] * R_SE[0, 1] + w_E[k, 2] * R_SE[0, 2]
-        wy = w_E[k, 0] * R_SE[1, 0] + w_E[k, 1] * R_SE[1, 1] + w_E[k, 2] * R_SE[1, 2]
-        wz = w_E[k, 0] * R_SE[2, 0] + w_E[k, 1] * R_SE[2, 1] + w_E[k, 2] * R_SE[2, 2]
-        ax = alpha_E[k, 0] * R_SE[0, 0] + alpha_E[k, 1] * R_SE[0, 1] + alpha_E[k, 2] * R_SE[0, 2]
-        ay = alpha_E[k, 0] * R_SE[1, 0] + alpha_E[k, 1] * R_SE[1, 1] + alpha_E[k, 2] * R_SE[1, 2]
-        az = alpha_E[k, 0] * R_SE[2, 0] + alpha_E[k, 1] * R_SE[2, 1] + alpha_E[k, 2] * R_SE[2, 2]
-        sx = R_SB[k, 0, 0] * a_B[k, 0] + R_SB[k, 0, 1] * a_B[k, 1] + R_SB[k, 0, 2] * a_B[k, 2]
-        sy = R_SB[k, 1, 0] * a_B[k, 0] + R_SB[k, 1, 1] * a_B[k, 1] + R_SB[k, 1, 2] * a_B[k, 2]
-        sz = R_SB[k, 2, 0] * a_B[k, 0] + R_SB[k, 2, 1] * a_B[k, 1] + R_SB[k, 2, 2] * a_B[k, 2]
-        ux, uy, uz = wy * cz - wz * cy, wz * cx - wx * cz, wx * cy - wy * cx  # ω × c
-        out[k, 0] = -mass * (sx + (ay * cz - az * cy) + (wy * uz - wz * uy))
-        out[k, 1] = -mass * (sy + (az * cx - ax * cz) + (wz * ux - wx * uz))
-        out[k, 2] = -mass * (sz + (ax * cy - ay * cx) + (wx * uy - wy * ux))
+        _inertial_at(R_SE, R_SB[k], w_E[k], alpha_E[k], a_B[k], mass, cog_S[0], cog_S[1], cog_S[2], out[k])
+
+
+@njit(cache=True)
+def _inertial_at(R_SE, R_SB, w, alpha, a, mass, cx, cy, cz, out):
+    """``inertial_force`` at one sample: R_SB (3, 3); w, alpha, a (3,) in E, E and B; out (3,) N."""
+    wx = w[0] * R_SE[0, 0] + w[1] * R_SE[0, 1] + w[2] * R_SE[0, 2]
+    wy = w[0] * R_SE[1, 0] + w[1] * R_SE[1, 1] + w[2] * R_SE[1, 2]
+    wz = w[0] * R_SE[2, 0] + w[1] * R_SE[2, 1] + w[2] * R_SE[2, 2]
+    ax = alpha[0] * R_SE[0, 0] + alpha[1] * R_SE[0, 1] + alpha[2] * R_SE[0, 2]
+    ay = alpha[0] * R_SE[1, 0] + alpha[1] * R_SE[1, 1] + alpha[2] * R_SE[1, 2]
+    az = alpha[0] * R_SE[2, 0] + alpha[1] * R_SE[2, 1] + alpha[2] * R_SE[2, 2]
+    sx = R_SB[0, 0] * a[0] + R_SB[0, 1] * a[1] + R_SB[0, 2] * a[2]
+    sy = R_SB[1, 0] * a[0] + R_SB[1, 1] * a[1] + R_SB[1, 2] * a[2]
+    sz = R_SB[2, 0] * a[0] + R_SB[2, 1] * a[1] + R_SB[2, 2] * a[2]
+    ux, uy, uz = wy * cz - wz * cy, wz * cx - wx * cz, wx * cy - wy * cx  # ω × c
+    out[0] = -mass * (sx + (ay * cz - az * cy) + (wy * uz - wz * uy))
+    out[1] = -mass * (sy + (az * cx - ax * cz) + (wz * ux - wx * uz))
+    out[2] = -mass * (sz + (ax * cy - ay * cx) + (wx * uy - wy * ux))
+
+
+@njit(cache=True)
+def inertial_before(adapt, known, x_f, x_t, R_SE, A, mount, motion, force, y, inertial, R_SB):
+    """One sample's inertial force from the states before it, inside ``cascade_kernel.kalman_cascade``: what
+    ``KalmanEstimator._prepare`` gives a block of one sample, so a block filters as its samples one by one.
+
+    Zero until the force stage has settled (``adapt[ADAPT_FORCE_SEEN]``) or ``known[0]`` (a warm start's);
+    the mass |x_f[:3]| / g, the centre of mass x_t[:3] once the torque stage has settled (or ``known[1]``),
+    else the sensor origin. Args: R_SE (3, 3) the mount as it is; A (3, 3) the force stage's A_f row (R_EB
+    when ``mount``: R_SB = R_SE R_EB; else R_SB); motion (9,) [ω_E rad/s, α_E rad/s², a_B m/s²]; force (3,) N.
+    Out: y (3,) = force − inertial, inertial (3,) N; R_SB (3, 3) scratch.
+    """
+    if adapt[ADAPT_FORCE_SEEN] == 0.0 and known[0] == 0.0:
+        for i in range(3):
+            inertial[i], y[i] = 0.0, force[i]
+        return
+    mass = math.sqrt(x_f[0] * x_f[0] + x_f[1] * x_f[1] + x_f[2] * x_f[2]) / GRAVITY_M_S2
+    cog_known = adapt[ADAPT_TORQUE_SEEN] != 0.0 or known[1] != 0.0
+    cx, cy, cz = (x_t[0], x_t[1], x_t[2]) if cog_known else (0.0, 0.0, 0.0)
+    if mount:
+        for i in range(3):
+            for j in range(3):
+                R_SB[i, j] = R_SE[i, 0] * A[0, j] + R_SE[i, 1] * A[1, j] + R_SE[i, 2] * A[2, j]
+    else:
+        R_SB[:, :] = A
+    _inertial_at(R_SE, R_SB, motion[0:3], motion[3:6], motion[6:9], mass, cx, cy, cz, inertial)
+    for i in range(3):
+        y[i] = force[i] - inertial[i]
 
 
 class CompiledMotionDerivatives(MotionDerivatives):

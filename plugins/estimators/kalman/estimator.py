@@ -256,12 +256,12 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         """Filter a block of samples that passed the guard, in order."""
         m, self._positions = len(block), block.p_BoEo_B  # (the payload watch reads the flange's motion)
         # the noise estimate and the identified rule follow sample by sample: the reference runs them one
-        # sample at a time, the compiled cascade in its loop (but for the inertial force, whose mass and
-        # centre of mass are the estimates before each sample)
-        if self._per_sample and m > 1 and (not self._cascade or self.inertia):
+        # sample at a time, the compiled cascade in its loop (the inertial force too, from the mass and
+        # centre of mass estimated before each sample)
+        if self._per_sample and m > 1 and not self._cascade:
             return Estimates.concatenate([self._filter_block(block.subset(slice(i, i + 1))) for i in range(m)])
         if self._cascade and m:
-            return self._filter_compiled(block)
+            return self._filter_compiled(block, inertia_per_sample=self._per_sample and self.inertia and m > 1)
         if m == 0:
             empty = np.zeros((0, 3))
             flags = np.zeros(0, dtype=bool)

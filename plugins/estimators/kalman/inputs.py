@@ -33,7 +33,7 @@ class ModelInputs(KalmanBase):
         return self.R_SE @ R_EB
 
     def _prepare(
-        self, block: AlignedSamples, usable: bool = True
+        self, block: AlignedSamples, usable: bool = True, motion: bool = False
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """The block's readings with the configured effects applied.
 
@@ -43,7 +43,9 @@ class ModelInputs(KalmanBase):
         samples that may update the filter (block.usable, less the first |τ| seconds of a
         late sensor stream, whose poses are not known). When ``usable`` is False (the
         compiled cascade tests the block's own flags itself) the last is None, or for a late
-        sensor stream the (m,) mask of the samples whose poses are known.
+        sensor stream the (m,) mask of the samples whose poses are known. With ``motion`` (inertia on)
+        the fourth is the motion the inertial force comes from, (m, 9) [ω_E rad/s, α_E rad/s², a_B
+        m/s²], for the compiled cascade to compute it sample by sample.
         """
         force_S, torque_S, R_EB = block.force_S, block.torque_S, block.R_EB
         mask = block.usable if usable else None
@@ -66,6 +68,8 @@ class ModelInputs(KalmanBase):
             R_EB = step.transpose(0, 2, 1) @ R_EB
             w_E = w_E + alpha_E * tau
             # (a_B is not shifted: a second-order term of a second-order term)
+        if motion and self.inertia:
+            return force_S, torque_S, R_EB, np.concatenate([w_E, alpha_E, a_B], axis=1), mask
         if not self.inertia or not (self._adapt[ADAPT_FORCE_SEEN] or self._mass_known):
             # the mass comes from the identified weight: until the force stage has settled it may be
             # far off, and subtracting a wrong inertial force would feed back into the weight

@@ -239,3 +239,38 @@ def test_world_tables_for_teleoperation_are_checked():
     with pytest.raises(TypeError, match="servo"):
         SimWorld().servo_cp(0.0, np.eye(3), np.zeros(3))
     assert isinstance(sim_kinematics(world=SimWorld()), SimKinematics)
+
+
+def test_a_live_worlds_devices_compute_their_noise_ahead_and_read_the_bits_of_one_sample_at_a_time():
+    """The sim sensor and kinematics of a servoed world compute the time-only part of their readings (the
+    channels' bias and noise, the encoders' jitter, the robot wrench's noise) ahead in chunks, and share one
+    motion state and contact force per tick; the physics stays one sample at a time. Driven as the live
+    loop drives them (prepare ahead, read, then a new target every tick, turning and pressing into the
+    tissue), they read the same bits as a twin world asked sample by sample with nothing computed ahead."""
+    world, twin = tissue_world(), tissue_world()
+    sensor = SimSensor(rate_hz=1000.0, world=world)
+    kinematics = sim_kinematics(rate_hz=500.0, encoder_noise=1e-4, world=world)
+    twin_kinematics = sim_kinematics(rate_hz=500.0, encoder_noise=1e-4, world=twin)
+    sensor.open(0)
+    kinematics.open(0)
+    R_0, p_0 = world.motion.target
+    wrenches, poses, expected_wrenches, expected_poses = [], [], [], []
+    for tick in range(1001):
+        now_ns, t = tick * 1_000_000, np.array([tick * 1e-3])
+        sensor.prepare(now_ns + 10_000_000)
+        kinematics.prepare(now_ns + 10_000_000)
+        block = sensor.read_block(now_ns)
+        wrenches.append(np.hstack([block.force_S, block.torque_S]))
+        poses += [np.hstack([s.quat_BE, s.p_BoEo_B, s.wrench_B]) for s in kinematics.read(now_ns)]
+        reading = twin.wrench(t)
+        expected_wrenches.append(np.hstack([reading["force_S"], reading["torque_S"]]))
+        if tick % 2 == 0:
+            ns = np.array([now_ns])
+            quat, p = twin_kinematics._poses(t, ns)
+            expected_poses.append(np.hstack([quat, p, twin_kinematics._wrenches(t, ns)])[0])
+        R_goal = Rotation.from_rotvec([0.3 * tick * 1e-3, 0.0, 0.0]).as_matrix() @ R_0
+        for w in (world, twin):
+            w.servo_cp(tick * 1e-3, R_goal, p_0 - [0.0, 0.0, 0.015 * min(tick * 2e-3, 1.0)])
+    np.testing.assert_array_equal(np.vstack(wrenches), np.vstack(expected_wrenches))
+    np.testing.assert_array_equal(np.array(poses), np.array(expected_poses))
+    assert len(poses) == 501 and np.ptp(np.vstack(wrenches)[:, 2]) > 1.0  # it pressed into the tissue

@@ -359,3 +359,36 @@ def test_constant_var_kernel_matches_numpy(sim6, numpy_reference):
     singular = np.zeros((6, 6))
     singular[3:, 3:] = np.eye(3)  # nothing known of the constant
     assert constant_var3(singular, L) == (np.inf, np.inf, np.inf)
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"inertia": True},
+        {"inertia": True, "mount_rotation": True},
+        {"inertia": True, "time_lag_s": 0.004},
+        {"inertia": True, "time_lag_s": -0.004},
+    ],
+    ids=["inertia", "inertia-mount", "inertia-lag", "inertia-sensor-late"],
+)
+def test_a_block_subtracts_each_samples_inertial_force_as_blocks_of_one_do(options):
+    """Offline (blocks of 1024) the compiled cascade computes each sample's inertial force from the mass and
+    centre of mass estimated before it; the live path (blocks of one) computes it in ``_prepare`` and hands
+    it to the cascade. A seeded tour that turns and translates (the tool's inertia in the physics): the same
+    flags, the contact wrench and the parameters within 1e-9 (N, N·m), where the inertial force itself
+    moves the contact force by more than 0.01 N."""
+    from hapticlab.sessions.bench import family as familybench
+
+    _, block = familybench.tour(8.0, seed=5, motion={"script": "random_tour", "max_translation": 0.05})
+    live, offline = (KalmanEstimator(kernel="numba", **options) for _ in range(2))
+    a, b = run_blocks(live, block, 1), run_blocks(offline, block, 1024)
+    for key in KEYS[2:]:
+        assert np.array_equal(a[key], b[key]), key
+    for key in KEYS[:2]:
+        assert np.abs(a[key] - b[key]).max() <= 1e-9, key
+    assert a["converged_force"].any() and a["converged_torque"].any()
+    p, q = live.params(), offline.params()
+    for key in p:
+        assert np.abs(np.subtract(p[key], q[key])).max() <= 1e-9, key
+    without = run_blocks(KalmanEstimator(kernel="numba", **{**options, "inertia": False}), block, 1024)
+    assert np.abs(without["contact_force_S"] - b["contact_force_S"]).max() > 0.01

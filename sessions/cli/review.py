@@ -277,7 +277,7 @@ def cmd_review(args: argparse.Namespace) -> int:
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add ``review`` to the ``hapticlab`` parser."""
-    from hapticlab.sessions.review.summary import DEFAULT_FORCE_LIMIT_N
+    from hapticlab.sessions.review.session import DEFAULT_FORCE_LIMIT_N
 
     p = sub.add_parser(
         "review",

@@ -17,14 +17,16 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 from functools import partial
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import pluggy
 
 from hapticlab.core.host.options import OptionError, listen_address
 from hapticlab.core.host.registry import Registry
-from hapticlab.core.types import EmulatorCommand
 from hapticlab.sessions.config import load_config
+
+if TYPE_CHECKING:  # core.types imports numpy, which building the parser does not need
+    from hapticlab.core.types import EmulatorCommand
 
 
 class _Devices(argparse._SubParsersAction):
@@ -82,7 +84,7 @@ def add_devices(registry: Registry, devices: argparse._SubParsersAction) -> None
     for name in registry.names("emulator"):
         # register_emulators registers EmulatorCommand objects (docs/plugins.md); the registry types every
         # factory as a callable
-        emulator = cast(EmulatorCommand, registry.get("emulator", name).factory)
+        emulator = cast("EmulatorCommand", registry.get("emulator", name).factory)
         # a registered name is an identifier; the command line also takes it with hyphens (robotiq-ft300)
         aliases = [name.replace("_", "-")] if "_" in name else []
         device = devices.add_parser(name, aliases=aliases, help=emulator.help, description=emulator.help)

@@ -1,5 +1,6 @@
 """The command line imports only what the chosen command needs: its parser, ``--version`` and ``plugins``
-never import scipy, matplotlib or numba (the built-in plugins and the commands' work are imported on use).
+never import numpy, scipy, matplotlib or numba (the built-in plugins and the commands' work are imported on
+use).
 
 Checked in this process, without a fresh interpreter: hapticlab's modules are set aside and imported again
 with the heavy libraries made unimportable, so an import of one at start-up fails here, naming who imported it.
@@ -12,7 +13,7 @@ from collections.abc import Iterator
 
 import pytest
 
-HEAVY = ("scipy", "matplotlib", "numba", "llvmlite", "mcap", "dask", "distributed", "pinocchio", "pyarrow")
+HEAVY = ("numpy", "scipy", "matplotlib", "numba", "llvmlite", "mcap", "dask", "distributed", "pinocchio", "pyarrow")
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from hapticlab.core.errors import PluginError
-from hapticlab.core.host.hookspecs import hookimpl
+from hapticlab.core.host.hookspecs import KINDS, hookimpl
 
 BUILTINS: dict[str, tuple[str, str]] = {
     "hapticlab.plugins.sensors.sim": ("sensor", "sim"),
@@ -51,23 +51,12 @@ BUILTINS: dict[str, tuple[str, str]] = {
     "hapticlab.plugins.effects.gain_crosstalk": ("effect", "gain_crosstalk"),
     "hapticlab.plugins.effects.hysteresis": ("effect", "hysteresis"),
 }
-"""Built-in module -> (kind, name) it registers through its own hook (``KINDS`` in the registry)."""
-
-HOOKS: dict[str, str] = {
-    "sensor": "register_sensors",
-    "kinematics": "register_kinematics",
-    "estimator": "register_estimators",
-    "haptic_output": "register_haptic_outputs",
-    "effect": "register_effects",
-    "context": "register_contexts",
-    "emulator": "register_emulators",
-}
-"""Kind -> the hook that registers it (the registry's ``KINDS``)."""
+"""Built-in module -> (kind, name) it registers through its own hook (``hookspecs.KINDS``)."""
 
 
 def registered_by(module: Any, kind: str) -> dict[str, Callable[..., Any]]:
     """What ``module``'s own hook for ``kind`` registers: name -> factory (empty without such a hook)."""
-    hook = getattr(module, HOOKS[kind], None)
+    hook = getattr(module, KINDS[kind], None)
     found: dict[str, Callable[..., Any]] = {}
     if hook is not None:
         hook(register=found.__setitem__)
@@ -114,7 +103,7 @@ class BuiltinPlugin:
         def hook(register: Callable[[str, Callable[..., Any]], None]) -> None:
             register(name, Deferred(module, kind, name))
 
-        setattr(self, HOOKS[kind], hook)
+        setattr(self, KINDS[kind], hook)
 
     def __repr__(self) -> str:
         return f"BuiltinPlugin({self.__name__!r})"

@@ -29,14 +29,12 @@ import pluggy
 
 from hapticlab.core.errors import ConfigError, PluginError
 from hapticlab.core.host import hookspecs
-from hapticlab.core.host.builtins import BUILTINS, HOOKS, BuiltinPlugin, Deferred
+from hapticlab.core.host.builtins import BUILTINS, BuiltinPlugin, Deferred
+from hapticlab.core.host.hookspecs import KINDS as KINDS  # re-exported: callers look kinds up here
 from hapticlab.core.host.options import OptionError
 
 DEFAULT_PLUGINS: tuple[str, ...] = tuple(BUILTINS)
 """The built-in plugin modules (indexed in ``core/host/builtins.py``, imported when first used)."""
-
-KINDS: dict[str, str] = HOOKS
-"""Kind -> the hook that registers it."""
 
 
 @dataclass(frozen=True)

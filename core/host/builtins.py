@@ -7,8 +7,8 @@ included, would pay at start-up. So the plugin manager holds, under each module'
 a :class:`BuiltinPlugin`: a stand-in whose hook registers the indexed name with a
 :class:`Deferred` factory. The module is imported, and its own hook run, the first
 time that factory is needed (``Registry.get(...).factory``, ``Registry.create``).
-A test checks the index against the modules' own hooks, so a new built-in that is
-missing here (or a renamed one) fails there, naming the line to add.
+Tests check the index against the modules' own hooks and against the modules under
+``plugins/`` that have one, so a new built-in missing here (or a renamed one) fails there.
 """
 
 from __future__ import annotations

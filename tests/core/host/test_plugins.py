@@ -207,6 +207,16 @@ def test_the_builtin_index_is_what_each_module_registers(module_name):
     assert entry.factory == registered[kind][name] and entry.origin == module_name
 
 
+def test_every_module_of_the_plugins_folder_with_a_hook_is_indexed():
+    """A new built-in (a module under plugins/ with an @hookimpl) is in the index, or nothing would register it."""
+    hooked = set()
+    for path in (ROOT / "plugins").rglob("*.py"):
+        if "@hookimpl" in path.read_text(encoding="utf-8"):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            hooked.add(".".join(("hapticlab", *(parts[:-1] if parts[-1] == "__init__" else parts))))
+    assert hooked == set(BUILTINS)
+
+
 def test_an_index_out_of_step_with_its_module_names_both():
     with pytest.raises(PluginError, match=r"hapticlab.plugins.effects.inertia: indexed as registering effect 'lag'"):
         Deferred("hapticlab.plugins.effects.inertia", "effect", "lag").load()

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 
@@ -38,6 +37,8 @@ def choose(package: Path) -> str:
         return "NUMBA_CACHE_DIR"
     if writable(package / "__pycache__") or writable(user_cache()):
         return "numba's own"
+    import tempfile  # only here: every command imports this module at start-up
+
     try:
         fallback = Path(tempfile.gettempdir()) / f"hapticlab-numba-{os.getuid()}"
     except FileNotFoundError:  # gettempdir found no writable temporary directory

@@ -59,3 +59,15 @@ def register_emulators(register: Register) -> None:
 @hookspec
 def register_commands(cli: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add subcommands to the ``hapticlab`` command line: cli.add_parser(...), set_defaults(func=...)."""
+
+
+KINDS: dict[str, str] = {
+    "sensor": "register_sensors",
+    "kinematics": "register_kinematics",
+    "estimator": "register_estimators",
+    "haptic_output": "register_haptic_outputs",
+    "effect": "register_effects",
+    "context": "register_contexts",
+    "emulator": "register_emulators",
+}
+"""Kind of plugin -> the hook that registers it."""

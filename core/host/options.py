@@ -24,11 +24,12 @@ import math
 import re
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from hapticlab.core.errors import ConfigError
+
+if TYPE_CHECKING:  # imported where used: the plugin host, and so every command's start-up, reads this module
+    import numpy as np
 
 Check = Callable[[str, Any], Any]
 """A check: (key, value) -> the checked value, or OptionError."""
@@ -52,6 +53,8 @@ class OptionError(ValueError):
 
 def is_number(value: Any) -> bool:
     """An int or float (numpy's too) that is not a bool and not NaN (inf passes: the range checks decide)."""
+    import numpy as np
+
     return (
         isinstance(value, (int, float, np.integer, np.floating))
         and not isinstance(value, bool)
@@ -111,6 +114,8 @@ def number(
 
 def integer(key: str, value: Any, *, minimum: int | None = None, maximum: int | None = None, hint: str = "") -> int:
     """A whole number (an int, not a bool) within the inclusive limits given."""
+    import numpy as np
+
     whole = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
     if not whole or not _in_range(value, minimum, None, maximum):
         limits = _range_words(minimum, None, maximum)
@@ -145,6 +150,8 @@ def choice(key: str, value: Any, choices: Sequence[Any], *, hint: str = "") -> A
 def _finite_array(value: Any, shape: tuple[int, ...]) -> np.ndarray | None:
     """``value`` (nested lists, tuples or a numpy array of numbers) as a new float array of ``shape``,
     or None when it is not that many finite numbers (bools and strings are not numbers)."""
+    import numpy as np
+
     if isinstance(value, np.ndarray):
         if value.shape != shape or value.dtype.kind not in "iuf" or not np.isfinite(value).all():
             return None
@@ -171,6 +178,8 @@ def vector(
 ) -> np.ndarray:
     """``size`` finite numbers (with ``broadcast``, one number stands for all), each within the limits;
     a read-only float array."""
+    import numpy as np
+
     array = _finite_array(value, (size,))
     if array is None and broadcast and is_number(value) and math.isfinite(value):
         array = np.full(size, float(value))

@@ -1,8 +1,10 @@
 """The plugin host: finds plugins once at start-up and builds them from config.
 
-Built-in plugins are the modules in ``DEFAULT_PLUGINS``, registered exactly
-like third-party plugins, which are found through the entry-point group
-``hapticlab``. Environment switches:
+Built-in plugins are the modules in ``DEFAULT_PLUGINS``, with hooks written
+exactly like those of third-party plugins, which are found through the
+entry-point group ``hapticlab``; a built-in module is imported the first time
+what it registers is used (``core/host/builtins.py``), so start-up stays light.
+Environment switches:
 
 * ``HAPTICLAB_LOAD_PLUGINS``: comma-separated entry-point names to load (empty
   string: load no third-party plugin); unset loads them all.
@@ -13,74 +15,44 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import importlib
 import inspect
 import os
 import sys
 import types
 import typing
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property, partial
 from typing import Any
 
 import pluggy
 
 from hapticlab.core.errors import ConfigError, PluginError
 from hapticlab.core.host import hookspecs
+from hapticlab.core.host.builtins import BUILTINS, BuiltinPlugin, Deferred
+from hapticlab.core.host.hookspecs import KINDS as KINDS  # re-exported: callers look kinds up here
 from hapticlab.core.host.options import OptionError
 
-DEFAULT_PLUGINS: tuple[str, ...] = (
-    "hapticlab.plugins.sensors.sim",
-    "hapticlab.plugins.sensors.netft",
-    "hapticlab.plugins.sensors.bota",
-    "hapticlab.plugins.sensors.robotiq_ft300",
-    "hapticlab.plugins.kinematics.sim",
-    "hapticlab.plugins.kinematics.ur_rtde",
-    "hapticlab.plugins.kinematics.urdf",
-    "hapticlab.plugins.estimators.rls",
-    "hapticlab.plugins.estimators.batch",
-    "hapticlab.plugins.estimators.kalman",
-    "hapticlab.plugins.haptics.null",
-    "hapticlab.plugins.haptics.sim_master",
-    "hapticlab.plugins.haptics.serial",
-    "hapticlab.plugins.haptics.hid",
-    "hapticlab.plugins.sensors.netft_emulator",
-    "hapticlab.plugins.kinematics.ur_emulator",
-    "hapticlab.plugins.haptics.master_emulator_cli",
-    "hapticlab.plugins.sensors.bota_emulator_cli",
-    "hapticlab.plugins.sensors.robotiq_emulator_cli",
-    "hapticlab.plugins.lab_emulator",
-    "hapticlab.plugins.simworld.context",
-    "hapticlab.plugins.effects.mount_rotation",
-    "hapticlab.plugins.effects.bias_drift",
-    "hapticlab.plugins.effects.warm_up",
-    "hapticlab.plugins.effects.inertia",
-    "hapticlab.plugins.effects.payload_change",
-    "hapticlab.plugins.effects.time_lag",
-    "hapticlab.plugins.effects.gain_crosstalk",
-    "hapticlab.plugins.effects.hysteresis",
-)
-
-# kind -> the hook that registers it
-KINDS: dict[str, str] = {
-    "sensor": "register_sensors",
-    "kinematics": "register_kinematics",
-    "estimator": "register_estimators",
-    "haptic_output": "register_haptic_outputs",
-    "effect": "register_effects",
-    "context": "register_contexts",
-    "emulator": "register_emulators",
-}
+DEFAULT_PLUGINS: tuple[str, ...] = tuple(BUILTINS)
+"""The built-in plugin modules (indexed in ``core/host/builtins.py``, imported when first used)."""
 
 
 @dataclass(frozen=True)
 class PluginEntry:
-    """One registered thing: its kind, name, factory and the plugin it came from."""
+    """One registered thing: its kind, name, factory and the plugin it came from.
+
+    A built-in's factory is found on first use (``core/host/builtins.py``): ``load`` gives it.
+    """
 
     kind: str
     name: str
-    factory: Callable[..., Any]
+    load: Callable[[], Callable[..., Any]] = field(repr=False, compare=False)
     origin: str
+
+    @cached_property
+    def factory(self) -> Callable[..., Any]:
+        """What builds the plugin (a class or a function), imported on first use for a built-in."""
+        return self.load()
 
 
 def make_plugin_manager(load_entry_points: bool = True) -> pluggy.PluginManager:
@@ -88,7 +60,7 @@ def make_plugin_manager(load_entry_points: bool = True) -> pluggy.PluginManager:
     pm = pluggy.PluginManager("hapticlab")
     pm.add_hookspecs(hookspecs)
     for module_name in DEFAULT_PLUGINS:
-        pm.register(importlib.import_module(module_name), name=module_name)
+        pm.register(BuiltinPlugin(module_name), name=module_name)
     if load_entry_points:
         wanted = os.environ.get("HAPTICLAB_LOAD_PLUGINS")
         if wanted is None:
@@ -101,6 +73,10 @@ def make_plugin_manager(load_entry_points: bool = True) -> pluggy.PluginManager:
         pm.trace.root.setwriter(lambda msg: sys.stderr.write(msg))
         pm.enable_tracing()
     return pm
+
+
+def _itself(factory: Callable[..., Any]) -> Callable[..., Any]:
+    return factory
 
 
 def _origin(pm: pluggy.PluginManager, plugin: object) -> str:
@@ -136,7 +112,8 @@ class Registry:
             existing = self._entries[kind].get(name)
             if existing is not None:
                 raise PluginError(f"{kind} {name!r} registered twice: by {existing.origin} and by {origin}")
-            self._entries[kind][name] = PluginEntry(kind, name, factory, origin)
+            load = factory.load if isinstance(factory, Deferred) else partial(_itself, factory)
+            self._entries[kind][name] = PluginEntry(kind, name, load, origin)
 
         return register
 

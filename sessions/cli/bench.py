@@ -9,14 +9,6 @@ import argparse
 from pathlib import Path
 
 from hapticlab.core.errors import UserError
-from hapticlab.sessions.cli.bench_paper_tables import print_paper_tables
-from hapticlab.sessions.cli.bench_tables import (
-    print_estimators_table,
-    print_faults_table,
-    print_loop_tables,
-    print_real_table,
-    print_teleop_table,
-)
 from hapticlab.sessions.cli.offline import add_force
 from hapticlab.sessions.cli.render import err, finite_json
 from hapticlab.sessions.output import check_output, check_plots_folder, write_text
@@ -27,6 +19,15 @@ TELEOP_FIGURE = "teleop_energy.png"
 
 def cmd_bench(args: argparse.Namespace) -> int:
     import json
+
+    from hapticlab.sessions.cli.bench_paper_tables import print_paper_tables
+    from hapticlab.sessions.cli.bench_tables import (
+        print_estimators_table,
+        print_faults_table,
+        print_loop_tables,
+        print_real_table,
+        print_teleop_table,
+    )
 
     if args.which != "paper" and (args.quick or args.all_estimators):
         raise UserError("--quick and --all-estimators go with 'bench paper'")

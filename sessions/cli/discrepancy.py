@@ -6,9 +6,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-from rich.table import Table
-
 from hapticlab.core.errors import UserError
 from hapticlab.core.host.registry import Registry
 from hapticlab.sessions.cli.offline import add_folder_options, add_force, print_folder_run
@@ -18,6 +15,9 @@ from hapticlab.sessions.output import check_output, check_plots_folder, write_te
 
 def print_discrepancy(result: dict) -> None:
     """Candidate tables per round, the steps table, the comparison with the batch fit."""
+    import numpy as np
+    from rich.table import Table
+
     console = wide_console(140)
     for note in result["notes"]:
         err.print(f"note: {note}")

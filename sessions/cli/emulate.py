@@ -15,30 +15,76 @@ vendor's own client (``pynetft``, ``ur-rtde``) connects to it as to the device.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from functools import partial
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import pluggy
 
 from hapticlab.core.host.options import OptionError, listen_address
 from hapticlab.core.host.registry import Registry
-from hapticlab.core.types import EmulatorCommand
 from hapticlab.sessions.config import load_config
+
+if TYPE_CHECKING:  # core.types imports numpy, which building the parser does not need
+    from hapticlab.core.types import EmulatorCommand
+
+
+class _Devices(argparse._SubParsersAction):
+    """``emulate``'s DEVICE subcommands, made the first time they are needed (parsing ``emulate ...`` or its
+    help): an emulator's options are in its module, whose import (the simulated world, numpy, the wire
+    codecs) no other command should pay for."""
+
+    def __init__(self, *args: Any, fill: Callable[[argparse._SubParsersAction], None], **kwargs: Any) -> None:
+        self._fill: Callable[[argparse._SubParsersAction], None] | None = fill
+        super().__init__(*args, **kwargs)
+
+    def _filled(self) -> None:
+        if self._fill is not None:
+            fill, self._fill = self._fill, None
+            fill(self)
+
+    @property
+    def choices(self) -> Any:  # argparse checks a device name against these
+        self._filled()
+        return self._name_parser_map
+
+    @choices.setter
+    def choices(self, value: Any) -> None:  # set by argparse.Action.__init__ (the same mapping)
+        pass
+
+    def _get_subactions(self) -> list[argparse.Action]:  # what ``emulate --help`` lists
+        self._filled()
+        return super()._get_subactions()
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        self._filled()
+        super().__call__(parser, namespace, values, option_string)
 
 
 def add_commands(sub: argparse._SubParsersAction, pm: pluggy.PluginManager) -> None:
-    """``emulate`` and one subcommand per registered emulator (``register_emulators``)."""
+    """``emulate`` and one subcommand per registered emulator (``register_emulators``), made on first use."""
     parser = sub.add_parser(
         "emulate",
         help="serve a real device's protocol on this machine (a loopback address by default), fed by the simulator",
         description=__doc__.split("\n\n")[0],
     )
-    devices = parser.add_subparsers(dest="device", required=True, metavar="DEVICE")
-    registry = Registry(pm)
+    parser.add_subparsers(
+        dest="device", required=True, metavar="DEVICE", action=_Devices, fill=partial(add_devices, Registry(pm))
+    )
+
+
+def add_devices(registry: Registry, devices: argparse._SubParsersAction) -> None:
+    """One subcommand of ``emulate`` per emulator the registry holds, with its options."""
     for name in registry.names("emulator"):
         # register_emulators registers EmulatorCommand objects (docs/plugins.md); the registry types every
         # factory as a callable
-        emulator = cast(EmulatorCommand, registry.get("emulator", name).factory)
+        emulator = cast("EmulatorCommand", registry.get("emulator", name).factory)
         # a registered name is an identifier; the command line also takes it with hyphens (robotiq-ft300)
         aliases = [name.replace("_", "-")] if "_" in name else []
         device = devices.add_parser(name, aliases=aliases, help=emulator.help, description=emulator.help)

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from rich.table import Table
-
 from hapticlab.sessions.cli.render import err, fmt, wide_console
 
 
@@ -58,6 +56,8 @@ def cmd_compensate(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
     from hapticlab.sessions.offline.replay import replay
 
     if Path(args.recording).is_dir():
@@ -129,6 +129,8 @@ def replay_folder_table(args: argparse.Namespace) -> int:
 def print_folder_run(run, folder, title: str, columns: tuple[str, ...], row) -> int:
     """A folder job's table (one row per recording, ``row(value)`` its cells; a refused file its error in
     the last column) and its workers' figures; exit status 2 when a file was refused, else 0."""
+    from rich.table import Table
+
     t = Table(title=title)
     for col in ("recording", *columns):
         t.add_column(col, justify="right")

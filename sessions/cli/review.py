@@ -8,8 +8,6 @@ import math
 import statistics
 from pathlib import Path
 
-from rich.table import Table
-
 from hapticlab.core.errors import UserError
 from hapticlab.sessions.cli.offline import add_folder_options, add_force, print_folder_run
 from hapticlab.sessions.cli.render import err, fmt, wide_console
@@ -19,6 +17,8 @@ from hapticlab.sessions.review.skill_names import KEYS
 
 def print_review(r) -> None:
     """A session's review as the terminal's tables."""
+    from rich.table import Table
+
     from hapticlab.sessions.review.page import ERROR_HEADER, error_rows, summary_rows
     from hapticlab.sessions.review.summary import faults
 
@@ -277,7 +277,7 @@ def cmd_review(args: argparse.Namespace) -> int:
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add ``review`` to the ``hapticlab`` parser."""
-    from hapticlab.sessions.review.summary import DEFAULT_FORCE_LIMIT_N
+    from hapticlab.sessions.review.session import DEFAULT_FORCE_LIMIT_N
 
     p = sub.add_parser(
         "review",

@@ -13,21 +13,23 @@ import os
 import select
 import sys
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from rich.console import Console
-from rich.live import Live
-from rich.table import Table
-from rich.text import Text
 
 from hapticlab.core.host.registry import KINDS, Registry
 from hapticlab.sessions.cli.errors import is_user_error
 from hapticlab.sessions.cli.render import err
 
+if TYPE_CHECKING:  # the tables are imported where drawn: `hapticlab --version` builds this module's parser
+    from rich.table import Table
+
 out = Console()
 
 
 def cmd_plugins(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
     registry = Registry()
     table = Table(title="hapticlab plugins")
     table.add_column("kind")
@@ -116,6 +118,8 @@ def rearm_hint(key: bool, button: int) -> str:
 
 
 def _status_table(status, hint: str = "") -> Table:
+    from rich.table import Table
+
     table = Table.grid(padding=(0, 2))
     haptic = "[green]on[/]" if status.haptic_enabled else f"[yellow]off[/] ({status.reason})"
     if status.latched:
@@ -135,6 +139,10 @@ def _status_table(status, hint: str = "") -> Table:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from rich.live import Live
+    from rich.table import Table
+    from rich.text import Text
+
     from hapticlab.sessions.config import apply_overrides, load_config
     from hapticlab.sessions.live import SessionError, build_session, run_session
     from hapticlab.sessions.live.build import check_live_address, refuse_existing_outputs

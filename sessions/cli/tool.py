@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from rich.table import Table
-
 from hapticlab.core.errors import UserError
 from hapticlab.sessions.cli.render import vec, wide_console
 from hapticlab.sessions.tools import ToolLibrary
@@ -33,6 +31,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def tool_list(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
     library = ToolLibrary(args.library)
     names = library.names()
     console = wide_console()

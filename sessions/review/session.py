@@ -5,10 +5,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from hapticlab.core.types import Event
-from hapticlab.sessions.review.figures import Contact, Envelope, EstimatorReview
+if TYPE_CHECKING:  # annotations only: the command line's parser reads DEFAULT_FORCE_LIMIT_N without numpy
+    from hapticlab.core.types import Event
+    from hapticlab.sessions.review.figures import Contact, Envelope, EstimatorReview
 
 DEFAULT_FORCE_LIMIT_N = 3.0
 """The contact force limit a review counts time above, N, unless told another or the session's task states one."""

@@ -20,7 +20,7 @@ import math
 from typing import Any, cast
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from hapticlab.core import aligner_kernel
 from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench
@@ -145,9 +145,8 @@ class KalmanEstimator(CompiledPath, ModelInputs, Convergence, Reopening, WarmSta
         self.method = None if o.implementation == "auto" else o.implementation
         if o.kernel == "numba" and o.implementation in ("auto", "fast") and not bias_rate:
             self.method = "numba"  # (the torque stage's with mount_rotation)
-        self.gate2 = (
-            math.inf if (o.gate_probability == 1 or o.gating == "none") else float(chi2.ppf(o.gate_probability, 3))
-        )
+        chi2_3 = 2 * gammaincinv(1.5, o.gate_probability)  # chi2.ppf(p, 3) bit for bit, without scipy.stats' import
+        self.gate2 = math.inf if (o.gate_probability == 1 or o.gating == "none") else float(chi2_3)
         self.convergence = o.convergence
         self.converged_force_std_option = o.converged_force_std
         self.converged_torque_std_option = o.converged_torque_std

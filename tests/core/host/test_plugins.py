@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import inspect
 import types
 from pathlib import Path
@@ -12,6 +13,7 @@ from helpers import ROOT
 
 from hapticlab.core import hookimpl
 from hapticlab.core.host import hookspecs
+from hapticlab.core.host.builtins import BUILTINS, Deferred, registered_by
 from hapticlab.core.host.interfaces import CAPABILITIES
 from hapticlab.core.host.registry import DEFAULT_PLUGINS, KINDS, ConfigError, PluginError, Registry, make_plugin_manager
 from hapticlab.sessions.live.build import REQUIRED
@@ -191,6 +193,33 @@ def test_builtins_are_registered():
     assert "null" in registry.names("haptic_output")
     assert registry.get("estimator", "rls").origin == "hapticlab.plugins.estimators.rls"
     assert len(DEFAULT_PLUGINS) == len(set(DEFAULT_PLUGINS))
+
+
+@pytest.mark.parametrize("module_name", DEFAULT_PLUGINS)
+def test_the_builtin_index_is_what_each_module_registers(module_name):
+    """The index the host lists built-ins from (without importing them) matches each module's own hooks; the
+    registry's factory, imported on first use, is the one the module registers."""
+    module = importlib.import_module(module_name)
+    registered = {kind: registered_by(module, kind) for kind in KINDS}
+    kind, name = BUILTINS[module_name]
+    assert {k: list(found) for k, found in registered.items() if found} == {kind: [name]}
+    entry = Registry(make_plugin_manager(load_entry_points=False)).get(kind, name)
+    assert entry.factory == registered[kind][name] and entry.origin == module_name
+
+
+def test_every_module_of_the_plugins_folder_with_a_hook_is_indexed():
+    """A new built-in (a module under plugins/ with an @hookimpl) is in the index, or nothing would register it."""
+    hooked = set()
+    for path in (ROOT / "plugins").rglob("*.py"):
+        if "@hookimpl" in path.read_text(encoding="utf-8"):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            hooked.add(".".join(("hapticlab", *(parts[:-1] if parts[-1] == "__init__" else parts))))
+    assert hooked == set(BUILTINS)
+
+
+def test_an_index_out_of_step_with_its_module_names_both():
+    with pytest.raises(PluginError, match=r"hapticlab.plugins.effects.inertia: indexed as registering effect 'lag'"):
+        Deferred("hapticlab.plugins.effects.inertia", "effect", "lag").load()
 
 
 def test_duplicate_name_is_an_error_naming_both_plugins():

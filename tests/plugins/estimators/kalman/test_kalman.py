@@ -415,6 +415,13 @@ def test_bad_options_are_refused(options, key):
         KalmanEstimator(**options)
 
 
+@pytest.mark.parametrize("probability", [0.5, 0.9, 0.99, 0.999, 0.9999, 1 - 1e-9])
+def test_the_gate_is_the_chi_square_quantile_with_three_degrees_of_freedom(probability):
+    from scipy.stats import chi2
+
+    assert KalmanEstimator(gate_probability=probability).gate2 == float(chi2.ppf(probability, 3))
+
+
 def test_gate_probability_one_never_refuses():
     contact = [{"kind": "indentation", "start": 12.0, "duration": 3.0, "peak_force": 3.0, "ramp": 0.3}]
     block, _ = world(contact, seconds=16.0)

@@ -29,6 +29,7 @@ import numpy as np
 from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.sensor_model import Model, Motion, motion_from_poses
+from hapticlab.sessions.discrepancy.blocks import predict_rows
 from hapticlab.sessions.discrepancy.leftover import axis_noise
 from hapticlab.sessions.discrepancy.quality import channel_steps
 from hapticlab.sessions.discrepancy.settings import Settings
@@ -150,10 +151,13 @@ class Identification:
         self.weights = np.ones(6)
         """(6,) each channel's weight: 1 / its noise (1/N for forces, 1/(N·m) for torques)"""
         self.n = n
+        self.batch_usable: dict[str, np.ndarray] | None = None
+        """the offline batch fit on every usable row, once computed (the base model's start, and beside the
+        report's RMS)"""
 
     def predict_all(self, model: Model, theta: np.ndarray) -> np.ndarray:
-        """(n, 6) the wrench ``model`` predicts at every row with parameters ``theta``."""
-        return model.predict6(self.motion, theta)
+        """(n, 6) the wrench ``model`` predicts at every row with parameters ``theta`` (block by block)."""
+        return predict_rows(model, self.motion, theta)
 
     def force_block(self, model: Model, J: np.ndarray) -> np.ndarray:
         """(p,) True for the parameters fitted from the force channels, False for the torque's.

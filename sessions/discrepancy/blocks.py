@@ -8,11 +8,14 @@ whole-array prediction of a 600 000-row file made (n, 3, 3) temporaries of
 43 MB each, many at once), and each block's arrays stay in the processor's
 cache. Results do not depend on the blocks:
 
-* a prediction is row by row once the timing stage has moved the motion (the
-  timing effects interpolate the whole recording, so they run first, on
-  every row, as :meth:`Model.predict` runs them); an effect not known to be
-  row by row (``hysteresis`` carries a state from row to row, and so may a
-  plugin's) is predicted on the whole arrays, as before;
+* a prediction is row by row once the timing stage has moved the motion; the
+  timing effects (``time_lag``, ``clock_skew``) interpolate the recording
+  between the samples either side of a shifted time, so each block's timing
+  stage runs on the block and the rows within the effects' reach (and a few
+  samples more) either side of it, whose interpolation is then that of the
+  whole recording; an effect not known to be row by row (``hysteresis``
+  carries a state from row to row; a plugin's timing or other effect) is
+  predicted on the whole arrays, as before;
 * the batch fit is solved by blockwise QR (TSQR: the R factor of each block's
   rows, stacked, factored again), the conditioning of ``lstsq`` on the
   stacked rows, with its residuals computed block by block; a recording of
@@ -35,8 +38,10 @@ from hapticlab.plugins.effects.gain_crosstalk import GainCrosstalk
 from hapticlab.plugins.effects.inertia import Inertia
 from hapticlab.plugins.effects.mount_rotation import MountRotation
 from hapticlab.plugins.effects.payload_change import PayloadChange
+from hapticlab.plugins.effects.time_lag import TimeLag
 from hapticlab.plugins.effects.warm_up import WarmUp
 from hapticlab.sessions.discrepancy.ramp import PayloadRamp
+from hapticlab.sessions.discrepancy.skew import ClockSkew
 
 BLOCK_ROWS = 16384
 """Rows per block: (n, 3) temporaries of 384 kB, in cache; larger blocks measured slower, not faster."""
@@ -67,43 +72,74 @@ def _rows(motion: Motion, rows: slice) -> Motion:
     )
 
 
-def _split(model: Model, motion: Motion, theta: np.ndarray) -> tuple[Model, np.ndarray, Motion] | None:
-    """The motion after ``model``'s timing stage, and the model and parameters of the stages after it; None
-    when an effect after the timing stage is not known to be row by row (:data:`ROW_BY_ROW`)."""
-    if not all(isinstance(e, ROW_BY_ROW) for _, e in model.effects if e.stage != "timing"):
-        return None
-    theta = np.asarray(theta, float)
-    state = ModelState(motion, np.eye(3), *np.split(theta[:12], 4))
+def _reach_s(model: Model, motion: Motion, theta: np.ndarray) -> float | None:
+    """How far in time the timing stage looks from a row, s (0 without timing effects; None when a timing
+    effect's reach is not known: a plugin's)."""
+    reach = 0.0
     for name, effect in model.effects:
-        if effect.stage == "timing":
-            state = effect.apply(state, theta[model.slices[name]])
+        if effect.stage != "timing":
+            continue
+        params = theta[model.slices[name]]
+        if isinstance(effect, TimeLag):
+            reach += abs(float(params[0]))
+        elif isinstance(effect, ClockSkew):
+            span = max(abs(float(motion.t[0]) - motion.t_ref), abs(float(motion.t[-1]) - motion.t_ref))
+            reach += abs(float(params[0])) + abs(float(params[1])) * span
+        else:
+            return None
+    return reach
+
+
+def _blockwise(model: Model, motion: Motion, theta: np.ndarray, block: int) -> Iterator[tuple[slice, Model, Motion]]:
+    """Each block of rows with the model of the stages after timing and the block's motion after the timing
+    stage; nothing when the model cannot be predicted block by block (:func:`predict_rows`)."""
+    theta = np.asarray(theta, float)
+    reach = _reach_s(model, motion, theta)
+    if len(motion) <= block or reach is None:
+        return
+    if not all(isinstance(e, ROW_BY_ROW) for _, e in model.effects if e.stage != "timing"):
+        return
+    timing = [(n, e) for n, e in model.effects if e.stage == "timing"]
     rest = Model([(n, e) for n, e in model.effects if e.stage != "timing"])
-    theta_rest = np.concatenate([theta[:12]] + [theta[model.slices[n]] for n, _ in rest.effects])
-    return rest, theta_rest, state.motion
+    t, n = motion.t, len(motion)
+    # rows either side of a block that the timing stage may interpolate between, with a margin of samples
+    cushion = 2 + 2 * len(timing)
+    for rows in row_blocks(n, block):
+        if not timing:
+            yield rows, rest, _rows(motion, rows)
+            continue
+        lo = max(0, int(np.searchsorted(t, t[rows.start] - reach, side="left")) - cushion)
+        hi = min(n, int(np.searchsorted(t, t[rows.stop - 1] + reach, side="right")) + cushion)
+        state = ModelState(_rows(motion, slice(lo, hi)), np.eye(3), *np.split(theta[:12], 4))
+        for name, effect in timing:
+            state = effect.apply(state, theta[model.slices[name]])
+        yield rows, rest, _rows(state.motion, slice(rows.start - lo, rows.stop - lo))
+
+
+def _rest_theta(model: Model, theta: np.ndarray) -> np.ndarray:
+    """``theta`` without the timing effects' parameters."""
+    keep = [theta[model.slices[n]] for n, e in model.effects if e.stage != "timing"]
+    return np.concatenate([np.asarray(theta[:12], float), *keep])
 
 
 def predict_rows(model: Model, motion: Motion, theta: np.ndarray, block: int = BLOCK_ROWS) -> np.ndarray:
     """(n, 6) ``model.predict6(motion, theta)``, block by block (the same numbers; see the module docstring)."""
-    split = _split(model, motion, theta) if len(motion) > block else None
-    if split is None:
-        return model.predict6(motion, theta)
-    rest, theta_rest, timed = split
-    out = np.empty((len(motion), 6))
-    for rows in row_blocks(len(motion), block):
-        out[rows] = rest.predict6(_rows(timed, rows), theta_rest)
-    return out
+    out = None
+    for rows, rest, chunk in _blockwise(model, motion, theta, block):
+        if out is None:
+            out, theta_rest = np.empty((len(motion), 6)), _rest_theta(model, theta)
+        out[rows] = rest.predict6(chunk, theta_rest)
+    return out if out is not None else model.predict6(motion, theta)
 
 
 def weight_rows(model: Model, motion: Motion, theta: np.ndarray, block: int = BLOCK_ROWS) -> np.ndarray:
     """(n, 3) ``model.weight_S(motion, theta)``, block by block."""
-    split = _split(model, motion, theta) if len(motion) > block else None
-    if split is None:
-        return model.weight_S(motion, theta)
-    rest, theta_rest, timed = split
-    out = np.empty((len(motion), 3))
-    for rows in row_blocks(len(motion), block):
-        out[rows] = rest.weight_S(_rows(timed, rows), theta_rest)
-    return out
+    out = None
+    for rows, rest, chunk in _blockwise(model, motion, theta, block):
+        if out is None:
+            out, theta_rest = np.empty((len(motion), 3)), _rest_theta(model, theta)
+        out[rows] = rest.weight_S(chunk, theta_rest)
+    return out if out is not None else model.weight_S(motion, theta)
 
 
 def _tsqr(blocks: Iterator[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:

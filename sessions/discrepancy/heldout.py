@@ -150,7 +150,8 @@ def cross_validate(
     theta_full[: model.size] = theta
     J = candidate_jacobian(model, candidates, full, fit.fit_motion, theta_full)
     force = fit.force_block(full, J)
-    Jw = J * fit.weights[None, :, None]
+    J *= fit.weights[None, :, None]  # weighted in place: the (m, 6, p) array is the candidate test's largest
+    Jw = J
     chunk, folds = fold_chunks(fit)
     nch = 5 * folds
     p = full.size
@@ -222,4 +223,4 @@ def cross_validate(
                 with_,
             )
         )
-    return out, {"J": J, "full": full, "theta_full": theta_full}
+    return out, {"full": full, "theta_full": theta_full}

@@ -32,7 +32,8 @@ effects; each step has its own module:
    with the ``kalman`` options that reproduce the named effects online.
 
 Large recordings are fitted and tested on at most ``max_fit_samples``
-samples (every k-th, evenly spread); the RMS figures use every sample.
+samples (every k-th, evenly spread); the RMS figures use every sample, by
+blocks of rows (:mod:`~hapticlab.sessions.discrepancy.blocks`).
 """
 
 from __future__ import annotations

@@ -61,7 +61,9 @@ def recorded_motion(stream: Stream, time_base: str = "auto", window_s: float = 0
     usable = int(samples.usable.sum())
     if usable < 20:
         raise CsvError(f"{name}: only {usable} usable rows; the workflow needs at least 20")
-    t = np.asarray(stream.t_s, dtype=float)
+    # contiguous float64 whatever the reader gave (columns of a wider table, another dtype): the analysis
+    # does not depend on how the rows arrived
+    t = np.ascontiguousarray(stream.t_s, dtype=float)
     notes = []
     base = detect_time_base(t) if time_base == "auto" else time_base
     if base == "index" and time_base == "auto":
@@ -77,7 +79,8 @@ def recorded_motion(stream: Stream, time_base: str = "auto", window_s: float = 0
                 f"{np.median(dt):.3g} s); derivatives next to them are unreliable"
             )
     quat = samples.quat_BE if samples.quat_BE is not None else quat_wxyz_from_matrix(samples.R_EB.transpose(0, 2, 1))
-    positions = samples.p_BoEo_B
+    quat = np.ascontiguousarray(quat, dtype=float)
+    positions = None if samples.p_BoEo_B is None else np.ascontiguousarray(samples.p_BoEo_B, dtype=float)
     if positions is not None and not np.isfinite(positions).all():
         positions = None
     return motion_from_poses(t, quat, positions, base, window_s), notes
@@ -127,7 +130,7 @@ class Identification:
         self.motion, notes = recorded_motion(stream, self.settings.time_base, self.settings.derivative_window_s)
         self.notes = stream.notes + notes
         """what the user should know about the input"""
-        self.y = np.concatenate([stream.samples.force_S, stream.samples.torque_S], axis=1)
+        self.y = np.concatenate([stream.samples.force_S, stream.samples.torque_S], axis=1, dtype=float)
         """(n, 6) measured force (N) and torque (N·m) in S"""
         self.usable = stream.samples.usable
         """(n,) rows with a finite wrench, good status and a fresh orientation"""

@@ -3,6 +3,8 @@ each candidate's Jacobian columns from the model with that candidate alone are t
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -14,7 +16,9 @@ from hapticlab.plugins.simworld.export import write_csv
 from hapticlab.sessions.discrepancy.blocks import batch_fit_rows, predict_rows, weight_rows
 from hapticlab.sessions.discrepancy.heldout import candidate_jacobian
 from hapticlab.sessions.discrepancy.identify import Identification
+from hapticlab.sessions.discrepancy.report import json_ready
 from hapticlab.sessions.discrepancy.skew import ClockSkew
+from hapticlab.sessions.discrepancy.workflow import discrepancy
 from hapticlab.sessions.recording import load_stream
 
 
@@ -94,3 +98,19 @@ def test_each_candidates_jacobian_columns_are_the_full_models(fit):
     theta_full[: model.size] = theta
     J = candidate_jacobian(model, candidates, full, fit.fit_motion, theta_full)
     assert np.array_equal(J, full.jacobian(fit.fit_motion, theta_full))
+
+
+def test_the_result_does_not_depend_on_how_the_rows_are_laid_out(fit):
+    """A reader may hand over columns of one wide table (strided views) instead of arrays of their own."""
+    stream = fit.stream
+    samples = stream.samples
+    parts = [stream.t_s[:, None], samples.force_S, samples.torque_S, samples.quat_BE, samples.p_BoEo_B]
+    table = np.asfortranarray(np.concatenate(parts, axis=1))  # column by column, as a columnar reader
+    rows = np.concatenate(parts, axis=1)  # row by row, as a row reader
+    results = []
+    for wide in (table, rows):
+        laid_out = dataclasses.replace(
+            samples, force_S=wide[:, 1:4], torque_S=wide[:, 4:7], quat_BE=wide[:, 7:11], p_BoEo_B=wide[:, 11:14]
+        )
+        results.append(json_ready(discrepancy(dataclasses.replace(stream, t_s=wide[:, 0], samples=laid_out))))
+    assert results[0] == results[1] == json_ready(discrepancy(stream))

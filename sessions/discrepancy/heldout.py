@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.sensor_model import Effect, LocatesItself, Model
+from hapticlab.core.sensor_model import Effect, LocatesItself, Model, Motion
 from hapticlab.sessions.discrepancy.identify import Identification
 
 
@@ -111,6 +111,27 @@ def fold_chunks(fit: Identification) -> tuple[np.ndarray, int]:
     return chunk, folds
 
 
+def candidate_jacobian(
+    model: Model, candidates: list[tuple[str, Effect]], full: Model, motion: Motion, theta_full: np.ndarray
+) -> np.ndarray:
+    """(m, 6, p) ``full.jacobian(motion, theta_full)``, ``full`` being ``model`` and every candidate: the
+    model's columns from ``model`` alone, each candidate's from ``model`` and that candidate alone.
+
+    The same numbers: a candidate's parameters are at their switched-off ``initial()`` values in
+    ``theta_full``, where an effect leaves the prediction unchanged, so the other candidates change nothing in
+    a column that is not theirs. But each prediction runs one candidate instead of all of them: the cost of
+    the candidate test grows with the number of candidates, not with its square.
+    """
+    J = np.empty((len(motion), 6, full.size))
+    J[:, :, : model.size] = model.jacobian(motion, theta_full[: model.size])
+    for name, effect in candidates:
+        sl = full.slices[name]
+        alone = model.with_effect(name, effect)
+        theta = np.concatenate([theta_full[: model.size], theta_full[sl]])
+        J[:, :, sl] = alone.jacobian(motion, theta, columns=slice(model.size, alone.size))
+    return J
+
+
 def cross_validate(
     fit: Identification, model: Model, theta: np.ndarray, candidates: list[tuple[str, Effect]]
 ) -> tuple[list[Evidence], dict]:
@@ -127,9 +148,10 @@ def cross_validate(
     full = Model(model.effects + candidates)
     theta_full = full.initial(theta[:12])
     theta_full[: model.size] = theta
-    J = full.jacobian(fit.fit_motion, theta_full)
+    J = candidate_jacobian(model, candidates, full, fit.fit_motion, theta_full)
     force = fit.force_block(full, J)
-    Jw = J * fit.weights[None, :, None]
+    J *= fit.weights[None, :, None]  # weighted in place: the (m, 6, p) array is the candidate test's largest
+    Jw = J
     chunk, folds = fold_chunks(fit)
     nch = 5 * folds
     p = full.size
@@ -201,4 +223,4 @@ def cross_validate(
                 with_,
             )
         )
-    return out, {"J": J, "full": full, "theta_full": theta_full}
+    return out, {"full": full, "theta_full": theta_full}

@@ -29,6 +29,7 @@ import numpy as np
 from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.sensor_model import Model, Motion, motion_from_poses
+from hapticlab.sessions.discrepancy.blocks import predict_rows
 from hapticlab.sessions.discrepancy.leftover import axis_noise
 from hapticlab.sessions.discrepancy.quality import channel_steps
 from hapticlab.sessions.discrepancy.settings import Settings
@@ -60,7 +61,9 @@ def recorded_motion(stream: Stream, time_base: str = "auto", window_s: float = 0
     usable = int(samples.usable.sum())
     if usable < 20:
         raise CsvError(f"{name}: only {usable} usable rows; the workflow needs at least 20")
-    t = np.asarray(stream.t_s, dtype=float)
+    # contiguous float64 whatever the reader gave (columns of a wider table, another dtype): the analysis
+    # does not depend on how the rows arrived
+    t = np.ascontiguousarray(stream.t_s, dtype=float)
     notes = []
     base = detect_time_base(t) if time_base == "auto" else time_base
     if base == "index" and time_base == "auto":
@@ -76,7 +79,8 @@ def recorded_motion(stream: Stream, time_base: str = "auto", window_s: float = 0
                 f"{np.median(dt):.3g} s); derivatives next to them are unreliable"
             )
     quat = samples.quat_BE if samples.quat_BE is not None else quat_wxyz_from_matrix(samples.R_EB.transpose(0, 2, 1))
-    positions = samples.p_BoEo_B
+    quat = np.ascontiguousarray(quat, dtype=float)
+    positions = None if samples.p_BoEo_B is None else np.ascontiguousarray(samples.p_BoEo_B, dtype=float)
     if positions is not None and not np.isfinite(positions).all():
         positions = None
     return motion_from_poses(t, quat, positions, base, window_s), notes
@@ -126,7 +130,7 @@ class Identification:
         self.motion, notes = recorded_motion(stream, self.settings.time_base, self.settings.derivative_window_s)
         self.notes = stream.notes + notes
         """what the user should know about the input"""
-        self.y = np.concatenate([stream.samples.force_S, stream.samples.torque_S], axis=1)
+        self.y = np.concatenate([stream.samples.force_S, stream.samples.torque_S], axis=1, dtype=float)
         """(n, 6) measured force (N) and torque (N·m) in S"""
         self.usable = stream.samples.usable
         """(n,) rows with a finite wrench, good status and a fresh orientation"""
@@ -150,10 +154,13 @@ class Identification:
         self.weights = np.ones(6)
         """(6,) each channel's weight: 1 / its noise (1/N for forces, 1/(N·m) for torques)"""
         self.n = n
+        self.batch_usable: dict[str, np.ndarray] | None = None
+        """the offline batch fit on every usable row, once computed (the base model's start, and beside the
+        report's RMS)"""
 
     def predict_all(self, model: Model, theta: np.ndarray) -> np.ndarray:
-        """(n, 6) the wrench ``model`` predicts at every row with parameters ``theta``."""
-        return model.predict6(self.motion, theta)
+        """(n, 6) the wrench ``model`` predicts at every row with parameters ``theta`` (block by block)."""
+        return predict_rows(model, self.motion, theta)
 
     def force_block(self, model: Model, J: np.ndarray) -> np.ndarray:
         """(p,) True for the parameters fitted from the force channels, False for the torque's.

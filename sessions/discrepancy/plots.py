@@ -75,10 +75,13 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
     written: list[Path] = []
     speed = np.linalg.norm(motion.w_E, axis=1) if motion.w_E is not None else None
     accel = np.linalg.norm(motion.alpha_E, axis=1) if motion.alpha_E is not None else None
+    rms_rows = []  # each state's RMS per channel on the kept rows, for steps.png
     for i, state in enumerate(states):
-        res = state.residual
+        res = state.residual  # computed on reading (one state's arrays at a time)
+        weight_S = state.weight_S
         norm_f = np.linalg.norm(res[:, :3], axis=1)
         rms_f = rms(res[rows, :3])
+        rms_rows.append(np.concatenate([rms_f, rms(res[rows, 3:])]))
         fig, axes = plt.subplots(2, 3, figsize=(16, 9))
         fig.suptitle(
             f"{result['input']}: {state.label} — force RMS [{', '.join(f'{v:.3f}' for v in rms_f)}] N "
@@ -103,7 +106,7 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
             ax.set(title=f"|force residual| against {name}", xlabel=f"{name} ({xunit})", ylabel="N")
             ax.legend(loc="upper left")
         ax = axes[1, 0]
-        g = state.weight_S / np.maximum(np.linalg.norm(state.weight_S, axis=1, keepdims=True), 1e-12)
+        g = weight_S / np.maximum(np.linalg.norm(weight_S, axis=1, keepdims=True), 1e-12)
         lon = np.degrees(np.arctan2(g[:, 1], g[:, 0]))
         lat = np.degrees(np.arcsin(np.clip(g[:, 2], -1, 1)))
         sc = ax.scatter(lon[thin], lat[thin], c=norm_f[thin], s=4, cmap="viridis")
@@ -146,7 +149,7 @@ def write_plots(result: dict[str, Any], folder: str | Path, force: bool = False)
     labels = [s.label for s in states]
     x = np.arange(len(states))
     for ax, offset, unit, key in ((axes[0], 0, "N", "rms_force_S"), (axes[1], 3, "N·m", "rms_torque_S")):
-        values = np.array([rms(s.residual[rows, offset : offset + 3]) for s in states])
+        values = np.array([r[offset : offset + 3] for r in rms_rows])
         for k in range(3):
             ax.bar(x + (k - 1) * 0.27, values[:, k], 0.27, color=COLORS[k], label="xyz"[k])
             ax.axhline(result["batch_fit"][key][k], color=COLORS[k], ls="--", lw=0.8)

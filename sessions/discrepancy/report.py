@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.sensor_model import Model
+from hapticlab.sessions.discrepancy.blocks import batch_fit_rows, weight_rows
 from hapticlab.sessions.discrepancy.gated import CONTACT_FREE_SHARE, set_aside, set_aside_notes
 from hapticlab.sessions.discrepancy.identify import Identification
 from hapticlab.sessions.discrepancy.leftover import (
@@ -39,9 +39,21 @@ class State:
     label: str
     model: Model
     theta: np.ndarray
-    # filled by report() before anything reads them (a State is built before its fit's rows are predicted)
-    residual: np.ndarray = None  # type: ignore[assignment]  # (n, 6) on every row
-    weight_S: np.ndarray = None  # type: ignore[assignment]  # (n, 3) predicted weight in S
+    fit: Identification | None = None
+    """the recording the state was fitted on (set by :func:`report`): where ``residual`` and ``weight_S`` are
+    computed each time they are read, so a result holds one model's (n, 6) arrays at a time, not every state's"""
+
+    @property
+    def residual(self) -> np.ndarray:
+        """(n, 6) measured minus predicted wrench on every row, N and N·m."""
+        assert self.fit is not None, "a State's arrays are computed once report() has set its fit"
+        return self.fit.y - self.fit.predict_all(self.model, self.theta)
+
+    @property
+    def weight_S(self) -> np.ndarray:
+        """(n, 3) the predicted weight in S on every row, N."""
+        assert self.fit is not None, "a State's arrays are computed once report() has set its fit"
+        return weight_rows(self.model, self.fit.motion, self.theta)
 
 
 def report(
@@ -59,11 +71,14 @@ def report(
     the candidates' notes on the input.
     """
     kept = fit.kept
+    rms_kept, rms_all = [], []
     for state in states:
-        state.residual = fit.y - fit.predict_all(state.model, state.theta)
-        state.weight_S = state.model.weight_S(fit.motion, state.theta)
-    rms_kept = [rms(s.residual[kept]) for s in states]
-    rms_all = [rms(s.residual[fit.usable]) for s in states]
+        state.fit = fit
+        residual = state.residual
+        rms_kept.append(rms(residual[kept]))
+        rms_all.append(rms(residual[fit.usable]))
+    final = states[-1]
+    final_residual, final_weight_S = residual, final.weight_S
     for i, step in enumerate(steps):
         if step["action"] != "named":  # dropped or set aside: what it was when it went
             effect, params = step.pop("_effect"), step.pop("_params")
@@ -81,10 +96,11 @@ def report(
                 "rms_torque_after": rms_kept[i + 1][3:].tolist(),
             }
         )
-    final = states[-1]
     use = fit.usable
-    batch_kept = batch_fit(fit.y[kept, :3], fit.y[kept, 3:], fit.motion.R_EB[kept])
-    batch_all = batch_fit(fit.y[use, :3], fit.y[use, 3:], fit.motion.R_EB[use])
+    batch_kept = batch_fit_rows(fit.y[:, :3], fit.y[:, 3:], fit.motion.R_EB, kept)
+    batch_all = fit.batch_usable
+    if batch_all is None:
+        batch_all = batch_fit_rows(fit.y[:, :3], fit.y[:, 3:], fit.motion.R_EB, use)
     named = [name for name, _ in final.model.effects]
     options: dict[str, Any] = {"effects": [name for name, effect in final.model.effects if effect.online]}
     final_params: dict[str, Any] = {
@@ -100,22 +116,22 @@ def report(
     noise = 1.0 / fit.weights
     over = rms_kept[-1] / noise
     rate = fit.motion.rate_hz
-    own_noise = axis_noise(final.residual[kept], fit.steps, fit.y[kept] - final.residual[kept], rate)
+    own_noise = axis_noise(final_residual[kept], fit.steps, fit.y[kept] - final_residual[kept], rate)
     over_own = rms_kept[-1] / own_noise
-    independent = effective_samples(final.residual[kept], rate)  # the kept samples, or fewer for a coloured noise
+    independent = effective_samples(final_residual[kept], rate)  # the kept samples, or fewer for a coloured noise
     threshold = leftover_threshold(independent)
     leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
     where = {
         a: where_left(
             fit.motion.t[kept],
-            final.residual[kept, AXES.index(a)],
+            final_residual[kept, AXES.index(a)],
             float(own_noise[AXES.index(a)]),
-            final.weight_S[kept],
+            final_weight_S[kept],
         )
         for a in leftover
     }
-    quality = data_quality(fit.y, fit.motion.t, use, kept, own_noise, fit.y - final.residual)
-    residual_use = final.residual[use]
+    quality = data_quality(fit.y, fit.motion.t, use, kept, own_noise, fit.y - final_residual)
+    residual_use = final_residual[use]
     # a gate not applied (half the rows or more) is looked at as it would have been: ringing is no contact either
     gated_as = fit.refused_gate if fit.gate_fallback and fit.refused_gate is not None else kept
     gate = set_aside(

@@ -32,7 +32,8 @@ effects; each step has its own module:
    with the ``kalman`` options that reproduce the named effects online.
 
 Large recordings are fitted and tested on at most ``max_fit_samples``
-samples (every k-th, evenly spread); the RMS figures use every sample.
+samples (every k-th, evenly spread); the RMS figures use every sample, by
+blocks of rows (:mod:`~hapticlab.sessions.discrepancy.blocks`).
 """
 
 from __future__ import annotations
@@ -45,10 +46,10 @@ from typing import Any
 
 import numpy as np
 
-from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.host.registry import Registry
 from hapticlab.core.sensor_model import Effect, Model
 from hapticlab.sessions.discrepancy.blas import single_threaded_blas
+from hapticlab.sessions.discrepancy.blocks import batch_fit_rows
 from hapticlab.sessions.discrepancy.heldout import Evidence, cross_validate
 from hapticlab.sessions.discrepancy.identify import Identification, noise_scale
 from hapticlab.sessions.discrepancy.leftover import axis_noise, leftover_threshold
@@ -139,7 +140,7 @@ class Discrepancy(Identification):
     def _run(self) -> dict[str, Any]:
         use = self.usable
         self.say("identifying the base model")
-        fit0 = batch_fit(self.y[use, :3], self.y[use, 3:], self.motion.R_EB[use])
+        fit0 = self.batch_usable = batch_fit_rows(self.y[:, :3], self.y[:, 3:], self.motion.R_EB, use)
         theta = np.concatenate([fit0["gravity_force_B"], fit0["bias_force_S"], fit0["cog_S"], fit0["bias_torque_S"]])
         model = Model()
         residual0 = np.concatenate([fit0["residual_force_S"], fit0["residual_torque_S"]], 1)

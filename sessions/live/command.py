@@ -102,9 +102,12 @@ class HapticCommander:
         events, warm = [], False
         if self.s.tool.name:  # the tool it changed from, as it was: saved to its library at the end (``ending``)
             held = self.gate.reason(now_ns)
-            params = self.tare.own(self.s.primary.params() or {})  # (the sensor's own zero: tare.py)
+            params = self.tare.own(self.call("estimator", self.s.primary.params) or {})  # (in the sensor's own zero)
             self.changed_from.append(snapshot(self.s, params, held, "at the change", tared=self.tare.active))
-        if state is not None:
+        if state is not None and self.tare.active:  # (its biases are the sensor's own: the zero would be rendered)
+            message = f"tool {plan.name!r}: its saved state not loaded (a tare moved the sensor's zero): identified "
+            events.append(Event(now_ns, "tool_state_not_loaded", message + "from the motion"))
+        elif state is not None:
             try:
                 self.s.primary.estimator.load_state(state)  # type: ignore[attr-defined]
                 warm = True

@@ -175,8 +175,12 @@ class ToolSnapshot:
 def snapshot(session: Session, params: dict, held: str, when: str = "at the end", tared: bool = False) -> ToolSnapshot:
     """The session's tool now, with the primary's ``params`` (its state taken only when ``held`` is "" and no
     ``tared`` zero stands: the state's biases are against it, the record's ``params`` the sensor's own)."""
-    primary = session.primary
-    state = primary.saves.state() if primary.saves is not None and not held and not tared else None
+    primary, state = session.primary, None
+    if primary.saves is not None and not held and not tared:
+        try:
+            state = primary.saves.state()
+        except Exception as exc:  # (a failing save never costs the session nor the recording: not saved, said why)
+            held = f"its estimator's state could not be taken: {type(exc).__name__}: {exc}"
     return ToolSnapshot(session.tool, params, state, held, when)
 
 

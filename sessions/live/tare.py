@@ -100,8 +100,10 @@ class Tare:
         answers (``sensor_tared`` with ``removed_S`` and ``zero_S``, (6,) N and N·m in S, or ``tare_refused``);
         a granted tare holds the force until the estimator has re-identified its bias."""
         if not self.collecting:
-            self._sources = list(dict.fromkeys(self.requests))  # (each source once)
-            self.requests.clear()
+            taken = []
+            while self.requests:  # (popleft: a request another thread appends meanwhile is kept for the next)
+                taken.append(self.requests.popleft())
+            self._sources = list(dict.fromkeys(taken))  # (each source once)
             self.collecting, self._since_ns = True, now_ns
             self._seen.clear()
         held = gate.reason(now_ns)

@@ -100,6 +100,10 @@ class Blocks:
             cut, lines = len(data), count + (not data.endswith(b"\n"))
         else:  # too big: handed over whole (parse refuses it)
             cut, lines = len(data), 0
+        if lines and cut > self.max_line:  # a line longer than the careful reader allows: it takes the block
+            ends = np.flatnonzero(np.frombuffer(data, dtype=np.uint8, count=cut) == 10)  # (and names the line)
+            if np.diff(np.concatenate(([-1], ends, [cut - 1]))).max() > self.max_line:
+                lines = 0
         block = Block(data[:cut], self.offset, self.line, lines)
         self.buffer = data[cut:]
         self.offset += cut

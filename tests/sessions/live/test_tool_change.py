@@ -130,3 +130,21 @@ def test_the_tool_changed_from_is_saved_as_it_was_at_the_change(tmp_path):
         record = library.get(name)
         assert record is not None and abs(record.mass_kg - 0.35) < 0.01 and record.sessions == 1, record
         assert library.read_state(name) is not None
+
+
+def test_a_state_that_cannot_be_taken_leaves_the_tool_unsaved_not_the_session_failed(tmp_path):
+    """The estimator's ``state()`` raising when the tool changed from is snapshot: before, the exception left the
+    tick (no final zero, the recording truncated: the review); now the tool is not saved, and says why."""
+    from hapticlab.sessions.live.ending import snapshot
+
+    config, _ = load_config("demo")
+    session = build_session(apply_settings(config, {"session.realtime": False, "tool.name": "a"}))
+
+    def fails():
+        raise RuntimeError("state() failed")
+
+    session.primary.saves.state = fails  # type: ignore[union-attr, method-assign]
+    taken = snapshot(session, {}, "", "at the change")
+    assert (
+        taken.state is None and taken.held == "its estimator's state could not be taken: RuntimeError: state() failed"
+    )

@@ -153,6 +153,19 @@ def test_a_line_longer_than_the_bound_is_refused_before_it_is_read_whole(tmp_pat
     assert "longer than" not in str(refused.value)  # refused by the contract (401 fields), not by the bound
 
 
+def test_a_long_line_in_an_ignored_column_is_refused_by_the_fast_lane_too(tmp_path, monkeypatch):
+    """A plain file (the fast lane's) whose ignored ``note`` cell passes the bound on line 5: refused as the careful
+    reader refuses it, naming the line (the fast lane accepted it: the review)."""
+    from hapticlab.sessions.recording import csvimport
+
+    monkeypatch.setattr(csvimport, "MAX_LINE_CHARS", 1000)
+    rows = [f"{k * 0.001:.3f},1,2,3,0.1,0.2,0.3,1,0,0,0,{'x' * (1200 if k == 3 else 5)}" for k in range(8)]
+    path = tmp_path / "note.csv"
+    path.write_text("t,fx,fy,fz,tx,ty,tz,qw,qx,qy,qz,note\n" + "\n".join(rows) + "\n")
+    with pytest.raises(CsvError, match=r"^note\.csv line 5: longer than 1,000 characters: not a CSV of samples$"):
+        read_csv(path)
+
+
 def read_both(path, monkeypatch, rows=7):
     """(stream, chunk sizes, blocks the fast lane parsed) read as shipped, then with the fast lane refusing all."""
     parsed = []

@@ -37,9 +37,10 @@ class _RunningFit:
     conditioning reaches ``min_rcond`` (``add``); failed: samples left out because their solve failed.
     """
 
-    def __init__(self, min_rcond: float, kernel: str):
+    def __init__(self, min_rcond: float, kernel: str, solver: str):
         self.min_rcond = min_rcond
         self.compiled = kernel == "numba"
+        self.cholesky = solver == "cholesky"
         self.CtC = np.zeros((6, 6))
         self.Cty = np.zeros(6)
         self.x = np.zeros(6)
@@ -60,31 +61,47 @@ class _RunningFit:
         d = np.sqrt(np.einsum("kii->ki", CtC))
         d = np.where(d > 0, d, 1.0)
         scaled = CtC / (d[:, :, None] * d[:, None, :])
+        code = None
+        if self.compiled or self.cholesky:
+            code = np.empty(len(scaled), dtype=np.int8)
+            conditioned_kernel.certain(scaled, self.min_rcond, code)
         try:
-            converged = self._converged(scaled)
-            X = (np.linalg.pinv(CtC, rcond=1e-12) @ Cty[:, :, None])[:, :, 0]
+            converged = self._converged(scaled, code)
+            X = self._solve(CtC, Cty, scaled, d, code)
         except np.linalg.LinAlgError:
             self.failed += len(y)
             return np.broadcast_to(self.x, (len(y), 6)).copy(), np.zeros(len(y), dtype=bool)
         self.CtC, self.Cty, self.x, self.converged = CtC[-1], Cty[-1], X[-1], bool(converged[-1])
         return X, converged
 
-    def _converged(self, scaled: np.ndarray) -> np.ndarray:
+    def _converged(self, scaled: np.ndarray, code: np.ndarray | None) -> np.ndarray:
         """(m,) whether gesdd's reciprocal condition number of each scaled matrix is at least ``min_rcond``.
 
-        The compiled kernel proves the flag where it can (``conditioned_kernel``) and asks gesdd for the rest.
+        With the kernel's ``code`` (``conditioned_kernel.certain``) gesdd is asked only where it proved nothing.
         """
-        if not self.compiled:
+        if not self.compiled or code is None:
             s = np.linalg.svd(scaled, compute_uv=False)
             return s[:, -1] / s[:, 0] >= self.min_rcond
-        code = np.empty(len(scaled), dtype=np.int8)
-        undecided = conditioned_kernel.certain(scaled, self.min_rcond, code)
         converged = code == conditioned_kernel.UP
-        if undecided:
+        if not converged.all():
             rest = np.flatnonzero(~converged)
             s = np.linalg.svd(scaled[rest], compute_uv=False)
             converged[rest] = s[:, -1] / s[:, 0] >= self.min_rcond
         return converged
+
+    def _solve(
+        self, CtC: np.ndarray, Cty: np.ndarray, scaled: np.ndarray, d: np.ndarray, code: np.ndarray | None
+    ) -> np.ndarray:
+        """(m, 6) the minimum-norm least-squares solutions: numpy's pinv, or (``solver = "cholesky"``) the
+        Cholesky solve where the kernel proved the scaled matrix well conditioned and pinv elsewhere."""
+        if not self.cholesky or code is None:
+            return (np.linalg.pinv(CtC, rcond=1e-12) @ Cty[:, :, None])[:, :, 0]
+        X = np.empty((len(CtC), 6))
+        conditioned_kernel.solve(scaled, d, Cty, code, X)
+        rest = np.flatnonzero(code != conditioned_kernel.UP)
+        if len(rest):
+            X[rest] = (np.linalg.pinv(CtC[rest], rcond=1e-12) @ Cty[rest, :, None])[:, :, 0]
+        return X
 
     def cov_diag(self) -> np.ndarray:
         """(6,) diagonal of (CᵀC)⁺ (inf if its SVD fails)."""
@@ -122,10 +139,10 @@ class BatchEstimator(RefusesBadSamples):
         self.torque_threshold = torque_threshold
         self.min_rcond = min_rcond
         self.kernel = o.kernel
-        if o.kernel == "numba":
+        if o.kernel == "numba" or o.solver == "cholesky":
             conditioned_kernel.warm_up()
-        self.force = _RunningFit(min_rcond, o.kernel)
-        self.torque = _RunningFit(min_rcond, o.kernel)
+        self.force = _RunningFit(min_rcond, o.kernel, o.solver)
+        self.torque = _RunningFit(min_rcond, o.kernel, o.solver)
         self.samples = 0
         self.fitted = 0
 

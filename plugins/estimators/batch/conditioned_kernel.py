@@ -5,8 +5,9 @@ normal matrix scaled to unit diagonal, ``s[-1] / s[0]`` from LAPACK's gesdd, is 
 6×6 SVD per sample and fit, a third of the estimator's time. Only the flag is used, so this kernel decides
 it where a Cholesky factorisation proves it and leaves the rest (``UNDECIDED``) to the very same gesdd.
 
-The proof. M (the scaled matrix) is symmetric, so its singular values are |eigenvalues|; its entries are at
-most 1 in magnitude (unit diagonal, Cauchy-Schwarz), so ‖M‖₂ ≤ u, its largest absolute row sum (≤ 6).
+The proof. M (the scaled matrix) is symmetric (up to rounding, within ``SLACK``), so its singular values
+are |eigenvalues|; its entries are at most 1 in magnitude (unit diagonal, Cauchy-Schwarz), so ‖M‖₂ ≤ u,
+its largest absolute row sum (≤ 6).
 gesdd is backward stable: each singular value it returns is within p·eps·‖M‖₂ of the exact one (p a
 small polynomial in n = 6; ``SLACK`` = 1e-12 ≫ 100·eps·6). If the factorisation of M − a·I succeeds
 with every pivot above ``SLACK`` for a = min_rcond·(1 + 1e-9)·(u + SLACK) + 3·SLACK, then λ_min(M) > a −

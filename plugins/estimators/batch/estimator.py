@@ -14,6 +14,11 @@ count towards ``calibration_samples`` either); its row is NaN, no contact, with
 the flags of the row before; ``refused_samples`` counts them and
 ``drain_events()`` reports them (``sample_refused``). A block whose solve fails
 (``LinAlgError``) leaves the fit as it was and its samples not converged.
+
+Speed (options ``kernel``, ``solver``): the convergence flags are proved by a compiled Cholesky test
+where it can (``conditioned_kernel``; the reference's SVD elsewhere, the same flags); the fit is numpy's
+pinv per sample (the reference's numbers) or, with ``solver = "cholesky"``, a Cholesky solve where proved
+well conditioned (the same solution within rounding, ~3x faster, not the same bits).
 """
 
 from __future__ import annotations

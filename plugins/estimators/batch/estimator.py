@@ -18,7 +18,7 @@ the flags of the row before; ``refused_samples`` counts them and
 Speed (options ``kernel``, ``solver``): the convergence flags are proved by a compiled Cholesky test
 where it can (``conditioned_kernel``; the reference's SVD elsewhere, the same flags); the fit is numpy's
 pinv per sample (the reference's numbers) or, with ``solver = "cholesky"``, a Cholesky solve where proved
-well conditioned (the same solution within rounding, ~3x faster, not the same bits).
+well conditioned (the same solution within rounding, ~2.5x faster than pinv, not the same bits).
 """
 
 from __future__ import annotations

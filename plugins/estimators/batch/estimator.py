@@ -14,6 +14,11 @@ count towards ``calibration_samples`` either); its row is NaN, no contact, with
 the flags of the row before; ``refused_samples`` counts them and
 ``drain_events()`` reports them (``sample_refused``). A block whose solve fails
 (``LinAlgError``) leaves the fit as it was and its samples not converged.
+
+Speed (options ``kernel``, ``solver``): the convergence flags are proved by a compiled Cholesky test
+where it can (``conditioned_kernel``; the reference's SVD elsewhere, the same flags); the fit is numpy's
+pinv per sample (the reference's numbers) or, with ``solver = "cholesky"``, a Cholesky solve where proved
+well conditioned (the same solution within rounding, ~2.5x faster than pinv, not the same bits).
 """
 
 from __future__ import annotations
@@ -26,28 +31,32 @@ from hapticlab.core.estimation.batch import normal_terms
 from hapticlab.core.estimation.model import RefusesBadSamples, SampleGuard, contact_wrench, named_params
 from hapticlab.core.frames import cross, skew_stack
 from hapticlab.core.types import AlignedSamples, Estimates
+from hapticlab.plugins.estimators.batch import conditioned_kernel
 from hapticlab.plugins.estimators.batch.options import BatchOptions
 
 
 class _RunningFit:
     """Least squares over a growing sample set, solved after every sample.
 
-    Attributes: CtC (6, 6), Cty (6,) the sums so far; x (6,) the solution; rcond its
-    conditioning (``add``); failed: samples left out because their solve failed.
+    Attributes: CtC (6, 6), Cty (6,) the sums so far; x (6,) the solution; converged whether its
+    conditioning reaches ``min_rcond`` (``add``); failed: samples left out because their solve failed.
     """
 
-    def __init__(self):
+    def __init__(self, min_rcond: float, kernel: str, solver: str):
+        self.min_rcond = min_rcond
+        self.compiled = kernel == "numba"
+        self.cholesky = solver == "cholesky"
         self.CtC = np.zeros((6, 6))
         self.Cty = np.zeros(6)
         self.x = np.zeros(6)
-        self.rcond = 0.0
+        self.converged = False
         self.failed = 0
 
     def add(self, y: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Add m samples; return x (m, 6) and rcond (m,) after each one.
+        """Add m samples; return x (m, 6) and whether the fit counts as converged (m,) after each one.
 
         If the solve fails (``LinAlgError``, e.g. "SVD did not converge"), nothing is added:
-        x stays as it was and rcond is 0 for the m samples (not converged).
+        x stays as it was and the m samples are not converged.
         """
         CtC, Cty = normal_terms(y, A)
         CtC = np.cumsum(CtC, axis=0) + self.CtC
@@ -57,15 +66,47 @@ class _RunningFit:
         d = np.sqrt(np.einsum("kii->ki", CtC))
         d = np.where(d > 0, d, 1.0)
         scaled = CtC / (d[:, :, None] * d[:, None, :])
+        code = None
+        if self.compiled or self.cholesky:
+            code = np.empty(len(scaled), dtype=np.int8)
+            conditioned_kernel.certain(scaled, self.min_rcond, code)
         try:
-            s = np.linalg.svd(scaled, compute_uv=False)
-            X = (np.linalg.pinv(CtC, rcond=1e-12) @ Cty[:, :, None])[:, :, 0]
+            converged = self._converged(scaled, code)
+            X = self._solve(CtC, Cty, scaled, d, code)
         except np.linalg.LinAlgError:
             self.failed += len(y)
-            return np.broadcast_to(self.x, (len(y), 6)).copy(), np.zeros(len(y))
-        rcond = s[:, -1] / s[:, 0]
-        self.CtC, self.Cty, self.x, self.rcond = CtC[-1], Cty[-1], X[-1], float(rcond[-1])
-        return X, rcond
+            return np.broadcast_to(self.x, (len(y), 6)).copy(), np.zeros(len(y), dtype=bool)
+        self.CtC, self.Cty, self.x, self.converged = CtC[-1], Cty[-1], X[-1], bool(converged[-1])
+        return X, converged
+
+    def _converged(self, scaled: np.ndarray, code: np.ndarray | None) -> np.ndarray:
+        """(m,) whether gesdd's reciprocal condition number of each scaled matrix is at least ``min_rcond``.
+
+        With the kernel's ``code`` (``conditioned_kernel.certain``) gesdd is asked only where it proved nothing.
+        """
+        if not self.compiled or code is None:
+            s = np.linalg.svd(scaled, compute_uv=False)
+            return s[:, -1] / s[:, 0] >= self.min_rcond
+        converged = code == conditioned_kernel.UP
+        if not converged.all():
+            rest = np.flatnonzero(~converged)
+            s = np.linalg.svd(scaled[rest], compute_uv=False)
+            converged[rest] = s[:, -1] / s[:, 0] >= self.min_rcond
+        return converged
+
+    def _solve(
+        self, CtC: np.ndarray, Cty: np.ndarray, scaled: np.ndarray, d: np.ndarray, code: np.ndarray | None
+    ) -> np.ndarray:
+        """(m, 6) the minimum-norm least-squares solutions: numpy's pinv, or (``solver = "cholesky"``) the
+        Cholesky solve where the kernel proved the scaled matrix well conditioned and pinv elsewhere."""
+        if not self.cholesky or code is None:
+            return (np.linalg.pinv(CtC, rcond=1e-12) @ Cty[:, :, None])[:, :, 0]
+        X = np.empty((len(CtC), 6))
+        conditioned_kernel.solve(scaled, d, Cty, code, X)
+        rest = np.flatnonzero(code != conditioned_kernel.UP)
+        if len(rest):
+            X[rest] = (np.linalg.pinv(CtC[rest], rcond=1e-12) @ Cty[rest, :, None])[:, :, 0]
+        return X
 
     def cov_diag(self) -> np.ndarray:
         """(6,) diagonal of (CᵀC)⁺ (inf if its SVD fails)."""
@@ -102,14 +143,17 @@ class BatchEstimator(RefusesBadSamples):
         self.force_threshold = force_threshold
         self.torque_threshold = torque_threshold
         self.min_rcond = min_rcond
-        self.force = _RunningFit()
-        self.torque = _RunningFit()
+        self.kernel = o.kernel
+        if o.kernel == "numba" or o.solver == "cholesky":
+            conditioned_kernel.warm_up()
+        self.force = _RunningFit(min_rcond, o.kernel, o.solver)
+        self.torque = _RunningFit(min_rcond, o.kernel, o.solver)
         self.samples = 0
         self.fitted = 0
 
     def update_block(self, block: AlignedSamples) -> Estimates:
         """Contact wrench of each sample with the fit over the samples up to it (bad samples refused first)."""
-        flags = (self.force.rcond >= self.min_rcond, self.torque.rcond >= self.min_rcond)
+        flags = (self.force.converged, self.torque.converged)
         out = self.guard.run(block, self._update, flags)
         self.samples += len(block)
         return out
@@ -121,13 +165,13 @@ class BatchEstimator(RefusesBadSamples):
         n_fit = m if not self.calibration_samples else max(0, min(m, self.calibration_samples - self.fitted))
         X_f = np.broadcast_to(self.force.x, (m, 6)).copy()
         X_t = np.broadcast_to(self.torque.x, (m, 6)).copy()
-        rc_f = np.full(m, self.force.rcond)
-        rc_t = np.full(m, self.torque.rcond)
+        ok_f = np.full(m, self.force.converged)
+        ok_t = np.full(m, self.torque.converged)
         if n_fit:
-            X_f[:n_fit], rc_f[:n_fit] = self.force.add(force_S[:n_fit], R_EB[:n_fit])
-            X_t[:n_fit], rc_t[:n_fit] = self.torque.add(torque_S[:n_fit], -skew_stack(force_S[:n_fit]))
+            X_f[:n_fit], ok_f[:n_fit] = self.force.add(force_S[:n_fit], R_EB[:n_fit])
+            X_t[:n_fit], ok_t[:n_fit] = self.torque.add(torque_S[:n_fit], -skew_stack(force_S[:n_fit]))
             X_f[n_fit:], X_t[n_fit:] = X_f[n_fit - 1], X_t[n_fit - 1]
-            rc_f[n_fit:], rc_t[n_fit:] = rc_f[n_fit - 1], rc_t[n_fit - 1]
+            ok_f[n_fit:], ok_t[n_fit:] = ok_f[n_fit - 1], ok_t[n_fit - 1]
         # The torque fit is linear in [p, tau0 − p × f0]; recover tau0.
         X_t[:, 3:] += cross(X_t[:, :3], X_f[:, 3:])
         contact_force_S, contact_torque_S = contact_wrench(force_S, torque_S, R_EB, X_f, X_t)
@@ -138,8 +182,8 @@ class BatchEstimator(RefusesBadSamples):
             contact_torque_S=contact_torque_S,
             contact=(np.linalg.norm(contact_force_S, axis=1) >= self.force_threshold)
             | (np.linalg.norm(contact_torque_S, axis=1) >= self.torque_threshold),
-            converged_force=rc_f >= self.min_rcond,
-            converged_torque=rc_t >= self.min_rcond,
+            converged_force=ok_f,
+            converged_torque=ok_t,
         )
 
     def params(self) -> dict[str, list[float]]:

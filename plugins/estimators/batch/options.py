@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hapticlab.core.estimation.kernels import kernel_option
 from hapticlab.core.estimation.model import MAX_FORCE, MAX_TORQUE, wrench_bound
-from hapticlab.core.host.options import OptionError, integer, is_number, number
+from hapticlab.core.host.options import OptionError, choice, integer, is_number, number
 
 
 @dataclass(frozen=True)
@@ -23,6 +24,11 @@ class BatchOptions:
             parameter); in [1e-12, 1]: below, a numerically singular fit would count as converged.
         max_force: a sample with a force component beyond this (N) is refused as implausible.
         max_torque: the same for a torque component (N·m).
+        kernel: "numba" (the convergence flags proved by a Cholesky factorisation where it can,
+            ``conditioned_kernel.py``, the same flags) or "numpy" (an SVD per sample, the reference).
+        solver: "pinv" (numpy's pinv per sample: the reference's numbers) or "cholesky" (a Cholesky solve
+            where the fit is proved well conditioned, pinv elsewhere: ~2x faster, not the same bits; the
+            difference is measured in docs/estimators.md, "batch").
     """
 
     calibration_samples: int = 0
@@ -31,6 +37,8 @@ class BatchOptions:
     min_rcond: float = 1e-4
     max_force: float = MAX_FORCE
     max_torque: float = MAX_TORQUE
+    kernel: str = "numba"
+    solver: str = "pinv"
 
     def __post_init__(self) -> None:
         integer("calibration_samples", self.calibration_samples, minimum=0)
@@ -45,3 +53,5 @@ class BatchOptions:
             )
         wrench_bound("max_force", self.max_force, MAX_FORCE)
         wrench_bound("max_torque", self.max_torque, MAX_TORQUE)
+        kernel_option(self.kernel)
+        choice("solver", self.solver, ("pinv", "cholesky"), hint=" (numpy's pinv, the reference)")

@@ -402,7 +402,8 @@ def raising(*args, **kwargs):
         ("rls", "nan"),
         ("rls printed numpy", "inv"),
         ("rls information", "nan"),
-        ("batch", "svd"),
+        ("batch", "pinv"),
+        ("batch numpy", "svd"),
         ("kalman filterpy", "solve"),
         ("kalman mount numpy", "solve"),
         ("kalman mount", "indefinite"),
@@ -417,6 +418,7 @@ def test_a_failed_solve_keeps_the_state_and_marks_the_samples_not_converged(tour
         "kalman mount numpy": lambda: KalmanEstimator(mount_rotation=True, kernel="numpy"),
         "rls numpy": lambda: RLSEstimator(kernel="numpy", covariance_update="information"),
         "rls printed numpy": lambda: RLSEstimator(kernel="numpy", covariance_update="printed"),
+        "batch numpy": lambda: BatchEstimator(kernel="numpy"),
     }
     est = makers[name]()
     est.update_block(tour.subset(slice(0, 6000)))

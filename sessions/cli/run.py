@@ -111,6 +111,14 @@ class RearmKey:
         return data.lower()
 
 
+def _stdin_is_terminal() -> bool:
+    """stdin is a terminal the keys can be read from (False when it is closed, absent or a file)."""
+    try:
+        return sys.stdin is not None and sys.stdin.isatty()
+    except (ValueError, OSError):
+        return False
+
+
 def rearm_hint(key: bool, button: int) -> str:
     """How to re-arm a latched stop here: the ``r`` key when stdin is a terminal, the device's button if configured."""
     ways = (["press r"] if key else []) + ([f"the device's re-arm button ({button})"] if button >= 0 else [])
@@ -163,7 +171,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     err.print(
         f"[bold]hapticlab run[/] {origin}: {duration:g} s, sensor {session.plugins['sensor']['name']}, "
         f"kinematics {session.plugins['kinematics']['name']}, estimator {session.estimator_name}, "
-        f"haptic {session.plugins['haptic']['name']}  (Ctrl-C stops and keeps the recording)"
+        f"haptic {session.plugins['haptic']['name']}  (Ctrl-C stops and keeps the recording"
+        + ("; r re-arms, t tares" if _stdin_is_terminal() else "")
+        + ")"
     )
     live_at = args.live or ""
     if live_at:

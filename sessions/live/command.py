@@ -225,8 +225,11 @@ class HapticCommander:
         return DeviceState(t_ns, arrived.quat_DH, arrived.p_DoHo_D, arrived.buttons, arrived.v_DHo_D)
 
     def zero(self, end_ns: int, reason: str, taps: Taps) -> HapticCommand:
-        """The session's final zero command: sent (an ``error`` event if it cannot be) and recorded."""
+        """The session's final zero command: sent (an ``error`` event if it cannot be) and recorded; a tare still
+        waiting refused."""
         zero = self.governor.command(end_ns, None, None, reason=reason)
+        for event in self.tare.unanswered(end_ns):
+            self.on_event(event)
         try:
             self.s.haptic.send(zero)
         except Exception as exc:

@@ -133,6 +133,17 @@ class Tare:
         """``params`` in the sensor's own readings (:func:`own_zero`; the same dict while no tare was granted)."""
         return own_zero(params, self.zero) if self.active else params
 
+    def unanswered(self, end_ns: int) -> list[Event]:
+        """At the session's end: the requests still waiting (or in a window) refused, each answered."""
+        sources = [*self._sources] if self.collecting else []
+        while self.requests:
+            sources.append(self.requests.popleft())
+        self.collecting = False
+        if not sources:
+            return []
+        source = ", ".join(dict.fromkeys(sources))
+        return [Event(end_ns, "tare_refused", f"tare by {source} refused: the session ended", {"source": source})]
+
     def refusal(self, now_ns: int, held: str, reidentifies: bool, label: str) -> str:
         """Why a tare at ``now_ns`` must be refused ("" when it may be granted); ``held``: the gate's reason."""
         if held:

@@ -209,6 +209,10 @@ def test_requests_from_another_thread_are_each_answered():
             answered += event.data["source"].split(", ")
     writer.join()
     assert len(answered) == asked and len(set(answered)) == asked
+    tare.requests.extend(["api", "key t", "api"])  # (at the session's end: each source refused once)
+    (ended,) = tare.unanswered(7)
+    assert ended.kind == "tare_refused" and ended.message == "tare by api, key t refused: the session ended"
+    assert not tare.unanswered(8)
 
 
 def test_a_tared_session_loads_no_saved_state_at_a_tool_change(tmp_path):

@@ -43,6 +43,16 @@ BASE_STEPS = np.array([1e-4] * 6 + [1e-6] * 3 + [1e-5] * 3)
 """Forward-difference steps of the base parameters (N, N, m, N·m): they enter (nearly) linearly."""
 
 
+def _loaded(state: ModelState) -> ModelState:
+    """The state with the tool's weight and its moment as the wrench (kept along the motion: most predictions of a
+    Jacobian share them)."""
+    weight_S = state.weight_S
+    c, g = np.asarray(state.cog_S, float), np.asarray(state.gravity_force_B, float)
+    key = ("cog_S x weight_S", state.R_SE.tobytes(), g.tobytes(), c.tobytes())
+    torque_S: np.ndarray = state.cached(key, lambda: cross(state.cog_S, weight_S))
+    return state.replace(force_S=weight_S, torque_S=torque_S)
+
+
 class Model:
     """The base model plus effects, with one parameter vector ``[base (12), effect 1, effect 2, ...]``.
 
@@ -107,8 +117,7 @@ class Model:
         state = ModelState(self._timed(motion, theta), np.eye(3), gravity_force_B, bias_force_S, cog_S, bias_torque_S)
         for stage in STAGES[1:]:
             if stage == "load":
-                weight_S = state.weight_S
-                state = state.replace(force_S=weight_S, torque_S=cross(state.cog_S, weight_S))
+                state = _loaded(state)
             if stage == "bias":
                 state = state.replace(
                     force_S=state.force_S + state.bias_force_S, torque_S=state.torque_S + state.bias_torque_S

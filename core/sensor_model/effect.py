@@ -35,10 +35,10 @@ from hapticlab.core.sensor_model.motion import Motion
 
 __all__ = ["STAGES", "Effect", "LocatesItself", "ModelState"]
 
-CACHE_ENTRIES = 16
+CACHE_ENTRIES = 32
 """Terms kept per motion by :meth:`ModelState.cached` (the oldest is dropped first)."""
 
-CACHE_ROWS = 65536
+CACHE_ROWS = 32768
 """Longer motions keep nothing (:meth:`ModelState.cached`): a whole long recording is predicted once or twice,
 block by block, and its terms would only hold memory; the fit's and the candidate test's rows are far fewer."""
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core.frames import cross
-from hapticlab.core.sensor_model.effect import STAGES, Effect, ModelState
+from hapticlab.core.sensor_model.effect import CACHE_ROWS, STAGES, Effect, ModelState
 from hapticlab.core.sensor_model.motion import Motion
 
 __all__ = ["BASE_LABELS", "BASE_STEPS", "Model"]
@@ -53,6 +53,10 @@ def _loaded(state: ModelState) -> ModelState:
     return state.replace(force_S=weight_S, torque_S=torque_S)
 
 
+PREDICTIONS_KEPT = 4
+"""Predictions a model keeps (:meth:`Model.predict6`) along motions of at most ``CACHE_ROWS`` rows."""
+
+
 class Model:
     """The base model plus effects, with one parameter vector ``[base (12), effect 1, effect 2, ...]``.
 
@@ -75,6 +79,7 @@ class Model:
         self.size = start
         self.labels = list(BASE_LABELS) + [f"{n}.{label}" for n, e in self.effects for label in e.labels]
         self._timing_cache: tuple[Motion, bytes, Motion] | None = None
+        self._predictions: list[tuple[Motion, bytes, np.ndarray]] = []
 
     def with_effect(self, name: str, effect: Effect) -> Model:
         """This model with one more effect (appended)."""
@@ -129,9 +134,24 @@ class Model:
         return state.force_S, state.torque_S
 
     def predict6(self, motion: Motion, theta: np.ndarray) -> np.ndarray:
-        """The predicted reading as (n, 6): force then torque."""
+        """The predicted reading as (n, 6): force then torque (read-only).
+
+        The last ``PREDICTIONS_KEPT`` along motions of at most ``CACHE_ROWS`` rows are kept: a fit's step
+        control and the next Jacobian ask for the same one.
+        """
+        key = np.asarray(theta, float).tobytes()
+        kept = self._predictions
+        for i, (source, k, prediction) in enumerate(kept):
+            if source is motion and k == key:
+                kept.append(kept.pop(i))  # the most recently used last
+                return prediction
         force_S, torque_S = self.predict(motion, theta)
-        return np.concatenate([force_S, torque_S], axis=1)
+        prediction = np.concatenate([force_S, torque_S], axis=1)
+        prediction.flags.writeable = False
+        if len(motion) <= CACHE_ROWS:
+            kept.append((motion, key, prediction))
+            del kept[: max(0, len(kept) - PREDICTIONS_KEPT)]
+        return prediction
 
     def jacobian(self, motion: Motion, theta: np.ndarray, columns: slice | None = None) -> np.ndarray:
         """(n, 6, k) derivative of ``predict6`` by each parameter in ``columns`` (default: all).

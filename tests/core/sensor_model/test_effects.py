@@ -304,8 +304,9 @@ def test_jacobian_of_linear_parameters_is_exact():
 
 
 def test_terms_kept_along_a_motion_change_no_bit_of_a_prediction():
-    """A Jacobian reuses the terms its predictions share (``ModelState.cached``): each column is the same to the
-    last bit as predictions on a fresh copy of the motion, and the kept terms are read-only."""
+    """A Jacobian reuses the terms its predictions share (``ModelState.cached``) and the predictions themselves:
+    each column is the same to the last bit as predictions on a fresh copy of the motion, and what is kept is
+    read-only."""
     world = SimWorld(sensor=SensorParams(mount_rotation_SE=np.deg2rad([2.0, -1.5, 1.0])), motion=lively(), seed=4)
     _, motion, _ = recorded(world, duration=2.0)
     model = Model([(n, BUILTINS[n]()) for n in ("time_lag", "mount_rotation", "inertia")])
@@ -327,3 +328,5 @@ def test_terms_kept_along_a_motion_change_no_bit_of_a_prediction():
         low = fresh(theta) if i < 12 else fresh(minus)  # forward differences for the base, central for effects
         expected = (fresh(plus) - low) / (steps[i] if i < 12 else 2 * steps[i])
         assert np.array_equal(J[:, :, i], expected), model.labels[i]
+    kept_prediction = model.predict6(motion, theta)  # kept from the Jacobian's own
+    assert np.array_equal(kept_prediction, fresh(theta)) and not kept_prediction.flags.writeable

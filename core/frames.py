@@ -38,7 +38,11 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     b = np.asarray(b)
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
     bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), np.result_type(a, b))  # (no np.stack copy)
+    np.subtract(ay * bz, az * by, out=out[..., 0])
+    np.subtract(az * bx, ax * bz, out=out[..., 1])
+    np.subtract(ax * by, ay * bx, out=out[..., 2])
+    return out
 
 
 def skew_stack(v: np.ndarray) -> np.ndarray:

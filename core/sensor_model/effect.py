@@ -24,8 +24,9 @@ into E, forces N, torques N·m, time s (or rows, see ``motion.py``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, TypeVar, cast, runtime_checkable
 
 import numpy as np
 
@@ -33,6 +34,15 @@ from hapticlab.core.frames import GRAVITY_M_S2
 from hapticlab.core.sensor_model.motion import Motion
 
 __all__ = ["STAGES", "Effect", "LocatesItself", "ModelState"]
+
+CACHE_ENTRIES = 32
+"""Terms kept per motion by :meth:`ModelState.cached` (the oldest is dropped first)."""
+
+CACHE_ROWS = 32768
+"""Longer motions keep nothing (:meth:`ModelState.cached`): a whole long recording is predicted once or twice,
+block by block, and its terms would only hold memory; the fit's and the candidate test's rows are far fewer."""
+
+T = TypeVar("T")
 
 STAGES = ("timing", "mount", "load", "sensor", "bias")
 """Where an effect acts in the measurement chain, in evaluation order (see the module docstring)."""
@@ -76,10 +86,48 @@ class ModelState:
         v_S: np.ndarray = v_E @ self.R_SE.T
         return v_S
 
+    def cached(self, key: tuple[Any, ...], compute: Callable[[], T]) -> T:
+        """``compute()``, or what it returned for the same ``key`` along this motion before.
+
+        A finite-difference Jacobian moves one parameter at a time, so most
+        terms of its predictions repeat exactly: an effect keys a term by the
+        exact bytes of everything it depends on besides the motion (``key``
+        starts with the term's name). The arrays are kept read-only: effects
+        never change arrays in place.
+        """
+        cache = self.motion.cache
+        if len(self.motion) > CACHE_ROWS:
+            return compute()
+        if key in cache:
+            return cast(T, cache[key])
+        value = compute()
+        for array in value if isinstance(value, tuple) else (value,):
+            if isinstance(array, np.ndarray):
+                array.flags.writeable = False
+        if len(cache) >= CACHE_ENTRIES:
+            del cache[next(iter(cache))]
+        cache[key] = value
+        return value
+
+    def motion_S(self, name: str) -> np.ndarray:
+        """(n, 3) the motion's ``w_E``, ``alpha_E`` or ``a_E`` (the flange's acceleration ``R_EB a_B``) in S.
+
+        The caller checks that the motion has it.
+        """
+
+        def compute() -> np.ndarray:
+            motion = self.motion
+            if name == "a_E":
+                return self.to_S(np.einsum("nij,nj->ni", motion.R_EB, cast(np.ndarray, motion.a_B)))
+            return self.to_S(cast(np.ndarray, getattr(motion, name)))
+
+        return self.cached(("motion_S", name, self.R_SE.tobytes()), compute)
+
     @property
     def weight_S(self) -> np.ndarray:
         """(n, 3) the tool's weight in S at each sample, ``R_SE R_EB gravity_force_B``, N."""
-        return self.to_S(self.motion.R_EB @ self.gravity_force_B)
+        key = ("weight_S", self.R_SE.tobytes(), np.asarray(self.gravity_force_B, float).tobytes())
+        return self.cached(key, lambda: self.to_S(self.motion.R_EB @ self.gravity_force_B))
 
     def replace(self, **changes: Any) -> ModelState:
         """A copy with some fields changed (effects never change arrays in place)."""

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from hapticlab.core.frames import cross
-from hapticlab.core.sensor_model.effect import STAGES, Effect, ModelState
+from hapticlab.core.sensor_model.effect import CACHE_ROWS, STAGES, Effect, ModelState
 from hapticlab.core.sensor_model.motion import Motion
 
 __all__ = ["BASE_LABELS", "BASE_STEPS", "Model"]
@@ -43,6 +43,20 @@ BASE_STEPS = np.array([1e-4] * 6 + [1e-6] * 3 + [1e-5] * 3)
 """Forward-difference steps of the base parameters (N, N, m, N·m): they enter (nearly) linearly."""
 
 
+def _loaded(state: ModelState) -> ModelState:
+    """The state with the tool's weight and its moment as the wrench (kept along the motion: most predictions of a
+    Jacobian share them)."""
+    weight_S = state.weight_S
+    c, g = np.asarray(state.cog_S, float), np.asarray(state.gravity_force_B, float)
+    key = ("cog_S x weight_S", state.R_SE.tobytes(), g.tobytes(), c.tobytes())
+    torque_S: np.ndarray = state.cached(key, lambda: cross(state.cog_S, weight_S))
+    return state.replace(force_S=weight_S, torque_S=torque_S)
+
+
+PREDICTIONS_KEPT = 4
+"""Predictions a model keeps (:meth:`Model.predict6`) along motions of at most ``CACHE_ROWS`` rows."""
+
+
 class Model:
     """The base model plus effects, with one parameter vector ``[base (12), effect 1, effect 2, ...]``.
 
@@ -65,6 +79,7 @@ class Model:
         self.size = start
         self.labels = list(BASE_LABELS) + [f"{n}.{label}" for n, e in self.effects for label in e.labels]
         self._timing_cache: tuple[Motion, bytes, Motion] | None = None
+        self._predictions: list[tuple[Motion, bytes, np.ndarray]] = []
 
     def with_effect(self, name: str, effect: Effect) -> Model:
         """This model with one more effect (appended)."""
@@ -107,8 +122,7 @@ class Model:
         state = ModelState(self._timed(motion, theta), np.eye(3), gravity_force_B, bias_force_S, cog_S, bias_torque_S)
         for stage in STAGES[1:]:
             if stage == "load":
-                weight_S = state.weight_S
-                state = state.replace(force_S=weight_S, torque_S=cross(state.cog_S, weight_S))
+                state = _loaded(state)
             if stage == "bias":
                 state = state.replace(
                     force_S=state.force_S + state.bias_force_S, torque_S=state.torque_S + state.bias_torque_S
@@ -120,9 +134,24 @@ class Model:
         return state.force_S, state.torque_S
 
     def predict6(self, motion: Motion, theta: np.ndarray) -> np.ndarray:
-        """The predicted reading as (n, 6): force then torque."""
+        """The predicted reading as (n, 6): force then torque (read-only).
+
+        The last ``PREDICTIONS_KEPT`` along motions of at most ``CACHE_ROWS`` rows are kept: a fit's step
+        control and the next Jacobian ask for the same one.
+        """
+        key = np.asarray(theta, float).tobytes()
+        kept = self._predictions
+        for i, (source, k, prediction) in enumerate(kept):
+            if source is motion and k == key:
+                kept.append(kept.pop(i))  # the most recently used last
+                return prediction
         force_S, torque_S = self.predict(motion, theta)
-        return np.concatenate([force_S, torque_S], axis=1)
+        prediction = np.concatenate([force_S, torque_S], axis=1)
+        prediction.flags.writeable = False
+        if len(motion) <= CACHE_ROWS:
+            kept.append((motion, key, prediction))
+            del kept[: max(0, len(kept) - PREDICTIONS_KEPT)]
+        return prediction
 
     def jacobian(self, motion: Motion, theta: np.ndarray, columns: slice | None = None) -> np.ndarray:
         """(n, 6, k) derivative of ``predict6`` by each parameter in ``columns`` (default: all).

@@ -14,7 +14,8 @@ into E, time s (or rows when the file's ``t`` counts them).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +43,8 @@ class Motion:
         t_ref: reference time of time-varying terms (the middle of the whole recording).
         shift: how far the kinematic quantities were shifted from the recording's, s.
         source: the recorded motion this one was shifted from (None: this is it).
+        cache: terms of the prediction that depend on this motion and a few parameters, by an exact key
+            (``ModelState.cached``; not an init field, so ``replace`` and ``subset`` start empty).
     """
 
     t: np.ndarray
@@ -55,6 +58,7 @@ class Motion:
     t_ref: float = 0.0
     shift: float = 0.0
     source: Motion | None = None
+    cache: dict[tuple[Any, ...], Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.t)

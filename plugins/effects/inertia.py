@@ -67,19 +67,40 @@ class Inertia(Effect):
         return []
 
     def apply(self, state: ModelState, params: np.ndarray) -> ModelState:
+        params = np.asarray(params, dtype=float)
+        c = np.asarray(state.cog_S, dtype=float)
+        key = ("inertia", state.R_SE.tobytes(), params.tobytes(), c.tobytes(), state.mass_kg)
+        force_i, moment_i, euler = state.cached(key, lambda: self._wrench(state, params))
+        return state.replace(force_S=state.force_S + force_i, torque_S=state.torque_S + moment_i - euler)
+
+    @staticmethod
+    def _wrench(state: ModelState, params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The inertial wrench's terms ``(F_i, c × F_i, I α + ω × I ω)`` in S, N and N·m.
+
+        The acceleration of the centre of mass and the Euler term are kept apart along the motion: a Jacobian's
+        inertia columns move one of them at a time, its weight columns neither."""
         motion = state.motion
         c = state.cog_S
-        r = c + np.asarray(params[7:10], dtype=float)  # the centre of mass from the flange origin, in S
-        # (check() asked for a time base: the derivatives exist)
-        w_S = state.to_S(cast(np.ndarray, motion.w_E))
-        alpha_S = state.to_S(cast(np.ndarray, motion.alpha_E))
-        a_cm = cross(alpha_S, r) + cross(w_S, cross(w_S, r))
-        if motion.a_B is not None:
-            a_cm = a_cm + state.to_S(np.einsum("nij,nj->ni", motion.R_EB, motion.a_B))
+        r = c + params[7:10]  # the centre of mass from the flange origin, in S
+        R_SE = state.R_SE.tobytes()
+
+        def acceleration() -> np.ndarray:
+            # (check() asked for a time base: the derivatives exist)
+            w_S, alpha_S = state.motion_S("w_E"), state.motion_S("alpha_E")
+            a_cm: np.ndarray = cross(alpha_S, r) + cross(w_S, cross(w_S, r))
+            if motion.a_B is not None:
+                a_cm = a_cm + state.motion_S("a_E")
+            return a_cm
+
+        def euler() -> np.ndarray:
+            w_S, alpha_S = state.motion_S("w_E"), state.motion_S("alpha_E")
+            inertia = _inertia_matrix(params[1:7])
+            term: np.ndarray = alpha_S @ inertia.T + cross(w_S, w_S @ inertia.T)
+            return term
+
+        a_cm = state.cached(("inertia a_cm", R_SE, np.asarray(r, float).tobytes()), acceleration)
         force_i = -params[0] * state.mass_kg * a_cm
-        inertia = _inertia_matrix(params[1:7])
-        euler = alpha_S @ inertia.T + cross(w_S, w_S @ inertia.T)
-        return state.replace(force_S=state.force_S + force_i, torque_S=state.torque_S + cross(c, force_i) - euler)
+        return force_i, cross(c, force_i), state.cached(("inertia euler", R_SE, params[1:7].tobytes()), euler)
 
     def describe(self, params: np.ndarray) -> dict:
         return {

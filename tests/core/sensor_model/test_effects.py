@@ -7,6 +7,7 @@ code under test.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -17,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from hapticlab.core.frames import quat_wxyz_from_matrix
 from hapticlab.core.host.registry import Registry, make_plugin_manager
 from hapticlab.core.sensor_model import STAGES, Effect, Model, motion_from_poses
+from hapticlab.core.sensor_model.model import BASE_STEPS
 from hapticlab.core.sensor_model.motion import savgol, savgol_t
 from hapticlab.plugins.effects.bias_drift import BiasDrift
 from hapticlab.plugins.effects.gain_crosstalk import GainCrosstalk, gain_matrix
@@ -299,3 +301,32 @@ def test_jacobian_of_linear_parameters_is_exact():
     np.testing.assert_allclose(J[:, 3:, 9:12], np.broadcast_to(np.eye(3), (len(motion), 3, 3)), atol=1e-6)
     np.testing.assert_allclose(J[:, 0, 12], motion.t - motion.t_ref, atol=1e-6)
     np.testing.assert_allclose(J[:, :3, 0:3], motion.R_EB, atol=1e-6)
+
+
+def test_terms_kept_along_a_motion_change_no_bit_of_a_prediction():
+    """A Jacobian reuses the terms its predictions share (``ModelState.cached``) and the predictions themselves:
+    each column is the same to the last bit as predictions on a fresh copy of the motion, and what is kept is
+    read-only."""
+    world = SimWorld(sensor=SensorParams(mount_rotation_SE=np.deg2rad([2.0, -1.5, 1.0])), motion=lively(), seed=4)
+    _, motion, _ = recorded(world, duration=2.0)
+    model = Model([(n, BUILTINS[n]()) for n in ("time_lag", "mount_rotation", "inertia")])
+    base = np.concatenate([world.truth()[k] for k in ("gravity_force_B", "bias_force_S", "cog_S", "bias_torque_S")])
+    theta = np.r_[base, 0.004, np.deg2rad([1.0, -0.5, 0.5]), 1.0, 1e-3, 2e-3, 1e-3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.03]
+    J = model.jacobian(motion, theta)
+    lagged = model._timed(motion, theta)  # the terms are kept along the motion after the time lag
+    kept = [a for v in lagged.cache.values() for a in (v if isinstance(v, tuple) else (v,))]
+    assert kept and not any(a.flags.writeable for a in kept)
+
+    def fresh(th: np.ndarray) -> np.ndarray:
+        return Model(model.effects).predict6(dataclasses.replace(motion), th)  # (a new motion keeps nothing)
+
+    steps = np.concatenate([BASE_STEPS] + [np.asarray(e.steps, float) for _, e in model.effects])
+    for i in (0, 4, 7, 12, 14, 17, 25):  # weight, bias, cog, lag, mount, inertia's Ixx and offset
+        plus, minus = theta.copy(), theta.copy()
+        plus[i] += steps[i]
+        minus[i] -= steps[i]
+        low = fresh(theta) if i < 12 else fresh(minus)  # forward differences for the base, central for effects
+        expected = (fresh(plus) - low) / (steps[i] if i < 12 else 2 * steps[i])
+        assert np.array_equal(J[:, :, i], expected), model.labels[i]
+    kept_prediction = model.predict6(motion, theta)  # kept from the Jacobian's own
+    assert np.array_equal(kept_prediction, fresh(theta)) and not kept_prediction.flags.writeable

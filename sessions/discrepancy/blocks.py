@@ -124,22 +124,22 @@ def _rest_theta(model: Model, theta: np.ndarray) -> np.ndarray:
 
 def predict_rows(model: Model, motion: Motion, theta: np.ndarray, block: int = BLOCK_ROWS) -> np.ndarray:
     """(n, 6) ``model.predict6(motion, theta)``, block by block (the same numbers; see the module docstring)."""
-    out = None
-    for rows, rest, chunk in _blockwise(model, motion, theta, block):
-        if out is None:
-            out, theta_rest = np.empty((len(motion), 6)), _rest_theta(model, theta)
-        out[rows] = rest.predict6(chunk, theta_rest)
-    return out if out is not None else model.predict6(motion, theta)
+    return _by_blocks(model, motion, theta, block, "predict6", 6)
 
 
 def weight_rows(model: Model, motion: Motion, theta: np.ndarray, block: int = BLOCK_ROWS) -> np.ndarray:
     """(n, 3) ``model.weight_S(motion, theta)``, block by block."""
+    return _by_blocks(model, motion, theta, block, "weight_S", 3)
+
+
+def _by_blocks(model: Model, motion: Motion, theta: np.ndarray, block: int, method: str, width: int) -> np.ndarray:
+    """(n, ``width``) ``model.<method>(motion, theta)`` block by block (whole when the model cannot be)."""
     out = None
     for rows, rest, chunk in _blockwise(model, motion, theta, block):
         if out is None:
-            out, theta_rest = np.empty((len(motion), 3)), _rest_theta(model, theta)
-        out[rows] = rest.weight_S(chunk, theta_rest)
-    return out if out is not None else model.weight_S(motion, theta)
+            out, theta_rest = np.empty((len(motion), width)), _rest_theta(model, theta)
+        out[rows] = getattr(rest, method)(chunk, theta_rest)
+    return out if out is not None else getattr(model, method)(motion, theta)
 
 
 def _tsqr(blocks: Iterator[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:

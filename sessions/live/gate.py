@@ -23,9 +23,8 @@ rules with their reasons):
 * the second channel, where the robot measures its own wrench (``crosscheck.WrenchCrossCheck``): the
   contact force off the robot's by more than its stated accuracy; a sudden step both show is a contact.
 
-Every fault (a reason that is not the estimator's ordinary warming up) is also an event naming it, recorded
-when it starts. A latched stop is the event ``haptic_latched``; a re-arm ``haptic_rearmed``, a refused one
-``haptic_rearm_refused`` naming why.
+Every fault (not the estimator's ordinary warming up) is also an event naming it, when it starts; a latched
+stop is ``haptic_latched``, a re-arm ``haptic_rearmed``, a refused one ``haptic_rearm_refused`` naming why.
 """
 
 from __future__ import annotations
@@ -118,8 +117,7 @@ class HapticGate:
         self.data_reason = self.fault = ""  # (the fault: what the last event named)
 
     def trusts_poses(self, now_ns: int) -> bool:
-        """The poses may be paired with the wrench (``pose_trust``); when they may not, the samples are kept from
-        the estimators, and :meth:`on_withheld` still feeds the lag watch with them."""
+        """The poses may be paired with the wrench (``pose_trust``; when not, :meth:`on_withheld` takes the samples)."""
         return self.trust.trusted(now_ns)
 
     def on_withheld(
@@ -183,8 +181,11 @@ class HapticGate:
             if self.parameters_known and std is not None:
                 events.append(Event(now_ns, "parameters_known", f"force parameters known to ±{std:.3g} N (1σ)"))
         elif self.parameters_known and (std := self._std()) is not None:  # (None: no parameter_std)
-            # (e.g. a drifting estimator in a long contact; NaN, a covariance whose rounding lost a direction: lost)
-            self.parameters_lost = not std <= self.ready_force_std
+            # (lost: e.g. a drifting estimator in a long contact, a NaN std; known again: held until it settles)
+            lost, self.parameters_lost = self.parameters_lost, not std <= self.ready_force_std
+            if lost and not self.parameters_lost and not self.bias_hold:  # (what it took in while lost shows then)
+                self.bias_hold, self.hold_cause = "settle", "parameters known again"
+                self.drift.reset()
         if self.bias_hold == "drop" and not self.converged[0]:
             self.bias_hold = "rise"
         # (and the parameters known again: kalman's flag at the pose is back before the tool is re-identified)
@@ -255,7 +256,7 @@ class HapticGate:
 
         Granted (``haptic_rearmed``) only while no other reason holds the force off and the estimator no longer
         refuses the newest sample as a contact (free the tool, then re-arm); the force then waits for a settled
-        residual (a bias still there keeps it off). Refused otherwise (``haptic_rearm_refused``, naming why).
+        residual. Refused otherwise (``haptic_rearm_refused``, naming why).
         """
         if not self.latched:
             return None
@@ -298,9 +299,8 @@ class HapticGate:
         """The readings' zero moved (a tare, ``tare.py``): the raw watches afresh, the bias re-identified, held till."""
         assert self.reidentifies is not None  # (a tare is refused to an estimator that cannot)
         self.steps, self.stuck, self.bias_hold, self.hold_cause = StepWatch(), StuckWatch(), "drop", "tare"
-        self.drift.reset()
+        self.drift.reset()  # (no doubt is open: a tare is granted only while nothing holds the force)
         self.lever.reset()
-        self.doubt.close()
         self.cross.mark(self.last_sample_ns or 0)  # (the step measured from before it)
         self.reidentifies.reidentify_bias("tare")
 

@@ -37,7 +37,6 @@ import os
 import select
 import threading
 import time
-import tty
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -48,6 +47,7 @@ import numpy as np
 from hapticlab.core.host.options import choice
 from hapticlab.plugins.haptics import framing, inverse3
 from hapticlab.plugins.haptics.handle_motion import HandleMotion, scripted_motion
+from hapticlab.plugins.pty_emulator import PtyEmulator
 
 
 @dataclass
@@ -68,7 +68,7 @@ class EmulatorCounts:
     unknown_bytes: int = 0
 
 
-class MasterEmulator:
+class MasterEmulator(PtyEmulator):
     """A serial haptic master on a pty, in a thread of its own; a context manager (start/stop).
 
     Args:
@@ -135,36 +135,10 @@ class MasterEmulator:
 
     # ------------------------------------------------------------------ life cycle
 
-    def start(self) -> MasterEmulator:
-        """Open the pty pair (raw) and serve in a daemon thread; ``port`` then names the slave side."""
-        self._master_fd, self._slave_fd = os.openpty()
-        tty.setraw(self._slave_fd)  # no echo, no line editing, no CR/LF translation: bytes as sent
-        self.port = os.ttyname(self._slave_fd)
-        self._t0 = time.monotonic()
-        self._thread = threading.Thread(target=self._serve, name=f"master-emulator {self.port}", daemon=True)
-        self._thread.start()
-        return self
+    THREAD = "master-emulator"
 
-    def stop(self) -> None:
-        """Stop serving and close the pty."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(2.0)
-            self._thread = None
-        self._close_fds()
-
-    def __enter__(self) -> MasterEmulator:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-    def _close_fds(self) -> None:
-        for fd in (self._master_fd, self._slave_fd):
-            if fd >= 0:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._master_fd = self._slave_fd = -1
+    def _powered_on(self) -> None:
+        self._t0 = time.monotonic()  # (scheduled faults count from here: ``now``)
 
     # ------------------------------------------------------------------ faults
 

@@ -20,19 +20,18 @@ unplug. Departures from the real sensor: docs/devices.md.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import re
 import select
 import threading
 import time
-import tty
 from dataclasses import dataclass
 
 import numpy as np
 
 from hapticlab.core.types import STATUS_SATURATED
+from hapticlab.plugins.pty_emulator import PtyEmulator
 from hapticlab.plugins.sensors import bota_protocol as bp
 from hapticlab.plugins.simworld.faults import apply_sensor_faults
 from hapticlab.plugins.simworld.physics import SimWorld
@@ -60,7 +59,7 @@ class EmulatorCounts:
     unsent_bytes: int = 0
 
 
-class BotaEmulator:
+class BotaEmulator(PtyEmulator):
     """A Bota serial sensor on a pty, served by a thread; a context manager (start/stop).
 
     Args:
@@ -113,38 +112,13 @@ class BotaEmulator:
 
     # ------------------------------------------------------------------ life cycle
 
-    def start(self) -> BotaEmulator:
-        """Open the pty pair (raw), power on (``App Init``, streaming) and serve in a daemon thread."""
-        self._master_fd, self._slave_fd = os.openpty()
-        tty.setraw(self._slave_fd)
-        os.set_blocking(self._master_fd, False)
-        self.port = os.ttyname(self._slave_fd)
+    THREAD = "bota-emulator"
+    NONBLOCKING = True
+
+    def _powered_on(self) -> None:
+        """Power on: ``App Init``, then streaming."""
         self.boot_ns = self.origin_ns = time.monotonic_ns()
         self._write(b"\r\n" + bp.APP_INIT + b"\r\n")
-        self._thread = threading.Thread(target=self._serve, name=f"bota-emulator {self.port}", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop serving and close the pty."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(2.0)
-            self._thread = None
-        self._close_fds()
-
-    def __enter__(self) -> BotaEmulator:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
-
-    def _close_fds(self) -> None:
-        for fd in (self._master_fd, self._slave_fd):
-            if fd >= 0:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._master_fd = self._slave_fd = -1
 
     @property
     def rate_hz(self) -> float:

@@ -26,18 +26,16 @@ sensor samples on), ``unplug@T`` closes the pty (the port's reads fail, its path
 from __future__ import annotations
 
 import collections
-import contextlib
-import fcntl
 import os
 import select
 import threading
 import time
-import tty
 from dataclasses import dataclass
 
 import numpy as np
 
 from hapticlab.plugins import scheduled_fault
+from hapticlab.plugins.pty_emulator import PtyEmulator
 from hapticlab.plugins.sensors import robotiq_protocol as rq
 from hapticlab.plugins.sensors.sim import SimSensor
 from hapticlab.plugins.simworld.physics import SimWorld
@@ -68,7 +66,7 @@ class ScheduledFault(scheduled_fault.ScheduledFault):
     EXAMPLE = "crc@5:3 or stall@8:0.5"
 
 
-class FT300Emulator:
+class FT300Emulator(PtyEmulator):
     """A Robotiq FT 300 on a pty, served by a thread of its own; a context manager (start/stop).
 
     Args:
@@ -126,37 +124,8 @@ class FT300Emulator:
 
     # ------------------------------------------------------------------ life cycle
 
-    def start(self) -> FT300Emulator:
-        """Open the pty pair (raw) and serve in a daemon thread; ``port`` then names the slave side."""
-        self._master_fd, self._slave_fd = os.openpty()
-        tty.setraw(self._slave_fd)  # bytes as sent: no echo, no line editing
-        flags = fcntl.fcntl(self._master_fd, fcntl.F_GETFL)
-        fcntl.fcntl(self._master_fd, fcntl.F_SETFL, flags | os.O_NONBLOCK)  # a full pty drops, never blocks
-        self.port = os.ttyname(self._slave_fd)
-        self._thread = threading.Thread(target=self._serve, name=f"ft300-emulator {self.port}", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop serving and close the pty."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(2.0)
-            self._thread = None
-        self._close_fds()
-
-    def __enter__(self) -> FT300Emulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def _close_fds(self) -> None:
-        for fd in (self._master_fd, self._slave_fd):
-            if fd >= 0:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._master_fd = self._slave_fd = -1
+    THREAD = "ft300-emulator"
+    NONBLOCKING = True
 
     def world_time(self) -> float:
         """The world's time, s: since the first byte a client sent (0 before)."""

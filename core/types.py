@@ -125,6 +125,15 @@ class WrenchBlock:
             self.t_ns[index], self.force_S[index], self.torque_S[index], self.seq[index], self.status[index]
         )
 
+    def split(self, until_ns: int) -> tuple[WrenchBlock, WrenchBlock]:
+        """(the readings due by ``until_ns``, the rest): what a sensor hands over now and what it keeps."""
+        if not len(self) or self.t_ns[0] > until_ns:
+            return NO_WRENCHES, self
+        if self.t_ns[-1] <= until_ns:
+            return self, NO_WRENCHES
+        cut = int(np.argmax(self.t_ns > until_ns))  # the first reading not yet due
+        return self.subset(slice(0, cut)), self.subset(slice(cut, None))
+
     def samples(self) -> list[WrenchSample]:
         """The readings one record each (rows of ``force_S``/``torque_S`` as read-only views: a record's
         reading cannot be changed; the block's own arrays stay as they are)."""

@@ -191,6 +191,14 @@ def vector(
     return array
 
 
+def rated_range(key: str, value: Any) -> np.ndarray:
+    """(3,) a sensor's rated range per axis, N or N·m, from a number or 3 (each above 0); unchecked (inf) when
+    ``value`` is None."""
+    import numpy as np
+
+    return np.full(3, np.inf) if value is None else np.array(vector(key, value, size=3, broadcast=True, above=0))
+
+
 def matrix(key: str, value: Any, *, shape: tuple[int, int] = (3, 3), hint: str = "") -> np.ndarray:
     """A matrix of finite numbers given as rows (``[[...], [...], [...]]``); a read-only float array."""
     array = _finite_array(value, shape)

@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.options import OptionError, boolean, number, vector
+from hapticlab.core.host.options import OptionError, boolean, number, rated_range
 from hapticlab.core.types import (
     NO_WRENCHES,
     STATUS_DEVICE_ERROR,
@@ -110,9 +110,9 @@ class BotaSensor:
             )
         )
         self.latency_s = number("latency", latency, minimum=0, hint=" s")
-        self.range_force_S = _range("range_force", range_force)
+        self.range_force_S = rated_range("range_force", range_force)
         """(3,) rated range per force axis, N (HasRange; inf: unchecked)."""
-        self.range_torque_S = _range("range_torque", range_torque)
+        self.range_torque_S = rated_range("range_torque", range_torque)
         """(3,) rated range per torque axis, N·m."""
         self.calibration: dict[str, str] = {
             "sensor": "Bota Systems serial (BFT-*-SER)",
@@ -201,15 +201,8 @@ class BotaSensor:
             raise RuntimeError("read() before open()")
         self._poll()
         self._watch(until_ns)
-        pending = self._pending
-        if not len(pending) or pending.t_ns[0] > until_ns:
-            return NO_WRENCHES
-        if pending.t_ns[-1] <= until_ns:
-            self._pending = NO_WRENCHES
-            return pending
-        cut = int(np.argmax(pending.t_ns > until_ns))
-        self._pending = pending.subset(slice(cut, None))
-        return pending.subset(slice(0, cut))
+        due, self._pending = self._pending.split(until_ns)
+        return due
 
     def _poll(self) -> None:
         data = self._link.read()  # type: ignore[union-attr]  # open() made it
@@ -330,13 +323,6 @@ class BotaSensor:
         """Settings, status changes, timeouts, temperature and health since the last call (EmitsEvents)."""
         events, self._events = self._events, []
         return events
-
-
-def _range(key: str, value: float | list[float] | None) -> np.ndarray:
-    """(3,) a rated range per axis from a number or 3; unchecked (inf) when not given."""
-    if value is None:
-        return np.full(3, np.inf)
-    return np.array(vector(key, value, size=3, broadcast=True, above=0))
 
 
 @hookimpl

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.options import OptionError, choice, integer, number, vector
+from hapticlab.core.host.options import OptionError, choice, integer, number, rated_range
 from hapticlab.core.types import NO_WRENCHES, Event, WrenchBlock, WrenchSample
 from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.sensors.netft_protocol import (
@@ -139,9 +139,9 @@ class NetFTSensor:
         self.latency_s = NETWORK_LATENCY_S
         self.health_interval_ns = int(health_interval * 1e9)
         self.override = _calibration_override(counts_per_force, counts_per_torque, force_unit, torque_unit)
-        self.range_force_S = _range("range_force", range_force)
+        self.range_force_S = rated_range("range_force", range_force)
         """(3,) rated range per force axis, N (HasRange; inf: unchecked)."""
-        self.range_torque_S = _range("range_torque", range_torque)
+        self.range_torque_S = rated_range("range_torque", range_torque)
         """(3,) rated range per torque axis, N·m."""
         self.calibration: dict[str, str] = {
             "sensor": "ATI Net F/T",
@@ -219,15 +219,8 @@ class NetFTSensor:
         if batch is not None:
             self._convert(batch)
         self._watch(until_ns)
-        pending = self._pending
-        if not len(pending) or pending.t_ns[0] > until_ns:
-            return NO_WRENCHES
-        if pending.t_ns[-1] <= until_ns:
-            self._pending = NO_WRENCHES
-            return pending
-        cut = int(np.argmax(pending.t_ns > until_ns))  # the first sample not yet due
-        self._pending = pending.subset(slice(cut, None))
-        return pending.subset(slice(0, cut))
+        due, self._pending = self._pending.split(until_ns)
+        return due
 
     def _convert(self, batch: RdtBatch) -> None:
         """A batch as a WrenchBlock (SI units, device time, stream status), onto the pending readings."""
@@ -360,13 +353,6 @@ def _calibration_override(cpf, cpt, force_unit, torque_unit) -> Calibration | No
             "force_unit and torque_unit together",
         )
     return Calibration.checked(cpf, cpt, force_unit, torque_unit)
-
-
-def _range(key: str, value: float | list[float] | None) -> np.ndarray:
-    """(3,) a rated range per axis from a number or 3; unchecked (inf) when not given."""
-    if value is None:
-        return np.full(3, np.inf)
-    return np.array(vector(key, value, size=3, broadcast=True, above=0))
 
 
 @hookimpl

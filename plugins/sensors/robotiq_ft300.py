@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 from hapticlab.core import hookimpl
-from hapticlab.core.host.options import OptionError, integer, number, vector
+from hapticlab.core.host.options import OptionError, integer, number, rated_range
 from hapticlab.core.types import NO_WRENCHES, STATUS_SATURATED, Event, WrenchBlock, WrenchSample
 from hapticlab.plugins.device_clock import DeviceClock
 from hapticlab.plugins.sensors import robotiq_protocol as rq
@@ -107,9 +107,9 @@ class RobotiqFT300Sensor:
                 ("health_interval", health_interval),
             )
         )
-        self.range_force_S = np.array(vector("range_force", range_force, size=3, broadcast=True, above=0))
+        self.range_force_S = rated_range("range_force", range_force)
         """(3,) rated range per force axis, N (HasRange)."""
-        self.range_torque_S = np.array(vector("range_torque", range_torque, size=3, broadcast=True, above=0))
+        self.range_torque_S = rated_range("range_torque", range_torque)
         """(3,) rated range per torque axis, N·m."""
         self.rate_hz = number(
             "rate_hz",
@@ -209,15 +209,8 @@ class RobotiqFT300Sensor:
         if until_ns >= self._next_health_ns:
             self._next_health_ns = until_ns + self.health_interval_ns
             self._health_event(until_ns)
-        pending = self._pending
-        if not len(pending) or pending.t_ns[0] > until_ns:
-            return NO_WRENCHES
-        if pending.t_ns[-1] <= until_ns:
-            self._pending = NO_WRENCHES
-            return pending
-        cut = int(np.argmax(pending.t_ns > until_ns))
-        self._pending = pending.subset(slice(cut, None))
-        return pending.subset(slice(0, cut))
+        due, self._pending = self._pending.split(until_ns)
+        return due
 
     def _take(self, data: bytes, received_ns: int) -> None:
         """Parse ``data``; the good frames, in SI units and stamped, onto the pending readings."""

@@ -66,3 +66,16 @@ def test_a_default_factory_is_refused():
         @record
         class WithFactory:
             data: dict = dataclasses.field(default_factory=dict)
+
+
+def test_a_wrench_block_splits_at_the_readings_due():
+    """What a sensor hands over by ``until_ns`` and what it keeps: none due, some, all; an empty block stays one."""
+    block = types.WrenchBlock(
+        np.array([10, 20, 30], dtype=np.int64), np.ones((3, 3)), np.zeros((3, 3)), np.arange(3), np.zeros(3, int)
+    )
+    for until_ns, due_t in ((9, []), (10, [10]), (25, [10, 20]), (30, [10, 20, 30]), (99, [10, 20, 30])):
+        due, rest = block.split(until_ns)
+        assert due.t_ns.tolist() == due_t and rest.t_ns.tolist() == [t for t in (10, 20, 30) if t not in due_t]
+        assert due.seq.tolist() == [t // 10 - 1 for t in due_t]
+    due, rest = types.NO_WRENCHES.split(99)
+    assert not len(due) and not len(rest)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import Any
 
 WAKE_S = 0.1
 """Longest the main thread sleeps before it runs a signal handler another thread received (s)."""
@@ -48,3 +49,21 @@ def serve_until_stopped(
         stop.set()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def serve_on_pty(
+    emulator: Any, duration_s: float | None, banner: Callable[[], str], faults: Sequence[Any] = ()
+) -> None:
+    """Serve a pseudo-terminal ``emulator`` (``pty_emulator.PtyEmulator``: started here, stopped on return) until
+    Ctrl-C, SIGTERM or ``duration_s``. Prints its port first (the line a script reads), then ``banner()``, then
+    injects each of ``faults`` (``scheduled_fault.ScheduledFault``) from a thread of its own."""
+    stop = threading.Event()
+
+    def ready() -> None:
+        print(emulator.port, flush=True)
+        print(banner(), flush=True)
+        for fault in faults:
+            threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
+
+    with emulator:
+        serve_until_stopped(duration_s, stop, ready)

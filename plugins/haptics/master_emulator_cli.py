@@ -17,7 +17,7 @@ from hapticlab.core.types import EmulatorCommand
 from hapticlab.plugins import scheduled_fault
 from hapticlab.plugins.haptics.handle_motion import PATHS, recorded_motion, scripted_motion
 from hapticlab.plugins.haptics.master_emulator import MasterEmulator
-from hapticlab.plugins.serving import serve_until_stopped
+from hapticlab.plugins.serving import serve_on_pty
 
 FAULT_KINDS = ("crc", "garbage", "silent", "restart", "unplug")
 
@@ -113,21 +113,16 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--log-forces {log}: exists; give a new file name")
     except ValueError as exc:
         raise ConfigError(f"emulate master: {exc}") from None
-    stop = threading.Event()
-
-    def ready() -> None:
-        print(emulator.port, flush=True)
-        print(
+    serve_on_pty(
+        emulator,
+        args.duration,
+        lambda: (
             f"{args.protocol} master emulator on {emulator.port}: handle on {args.path}, max "
             f"{args.max_force:g} N; e.g. hapticlab run --set haptic.name=serial --set haptic.port={emulator.port}"
-            f" --set haptic.protocol={args.protocol}",
-            flush=True,
-        )
-        for fault in faults:
-            threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
-
-    with emulator:
-        serve_until_stopped(args.duration, stop, ready)
+            f" --set haptic.protocol={args.protocol}"
+        ),
+        faults,
+    )
     c = emulator.counts
     print(
         f"{c.forces} force command(s), {c.heartbeats} heartbeat(s), {c.hellos} handshake(s); {c.crc_errors} CRC "

@@ -17,7 +17,7 @@ from hapticlab.core.types import EmulatorCommand
 from hapticlab.plugins import scheduled_fault
 from hapticlab.plugins.sensors import bota_protocol as bp
 from hapticlab.plugins.sensors.bota_emulator import BotaEmulator
-from hapticlab.plugins.serving import serve_until_stopped
+from hapticlab.plugins.serving import serve_on_pty
 from hapticlab.plugins.simworld.physics import SimWorld
 
 FAULT_KINDS = ("crc", "garbage", "overrange", "invalid", "stall", "unplug")
@@ -87,20 +87,15 @@ def run(args: argparse.Namespace, world: SimWorld) -> int:
         emulator = BotaEmulator(world, args.sinc_length, args.temperature, args.warm_up, args.warm_up_time)
     except ValueError as exc:
         raise ConfigError(f"emulate bota: {exc}") from None
-    stop = threading.Event()
-
-    def ready() -> None:
-        print(emulator.port, flush=True)
-        print(
+    serve_on_pty(
+        emulator,
+        args.duration,
+        lambda: (
             f"Bota serial sensor emulator on {emulator.port}: {emulator.rate_hz:g} Hz (sinc {emulator.sinc_length}); "
-            f"e.g. hapticlab run --set sensor.name=bota --set sensor.port={emulator.port}",
-            flush=True,
-        )
-        for fault in faults:
-            threading.Thread(target=fault.inject, args=(emulator, stop), daemon=True).start()
-
-    with emulator:
-        serve_until_stopped(args.duration, stop, ready)
+            f"e.g. hapticlab run --set sensor.name=bota --set sensor.port={emulator.port}"
+        ),
+        faults,
+    )
     c = emulator.counts
     print(
         f"sent {c.frames} frames ({c.corrupted} corrupted, {c.status_frames} with a status, {c.stalled_frames} "

@@ -13,7 +13,7 @@ from hapticlab.core import hookimpl
 from hapticlab.core.errors import ConfigError
 from hapticlab.core.types import EmulatorCommand
 from hapticlab.plugins.sensors.robotiq_emulator import FAULT_KINDS, FT300Emulator, ScheduledFault
-from hapticlab.plugins.serving import serve_until_stopped
+from hapticlab.plugins.serving import serve_on_pty
 from hapticlab.plugins.simworld.physics import SimWorld
 
 
@@ -42,16 +42,14 @@ def run(args: argparse.Namespace, world: SimWorld) -> int:
     except ValueError as exc:
         raise ConfigError(f"emulate robotiq-ft300: {exc}") from None
 
-    def ready() -> None:
-        print(emulator.port, flush=True)
-        print(
-            f"Robotiq FT 300 emulator on {emulator.port}: Modbus RTU slave 9, 100 Hz stream; world time starts at "
-            f"the first byte a client sends; e.g. hapticlab run SESSION --set sensor.port={emulator.port}",
-            flush=True,
-        )
-
-    with emulator:
-        serve_until_stopped(args.duration, ready=ready)
+    serve_on_pty(
+        emulator,
+        args.duration,
+        lambda: (
+            f"Robotiq FT 300 emulator on {emulator.port}: Modbus RTU slave 9, 100 Hz stream; world time starts "
+            f"at the first byte a client sends; e.g. hapticlab run SESSION --set sensor.port={emulator.port}"
+        ),
+    )
     c = emulator.counts
     print(
         f"sent {c.frames} frames ({c.frames_corrupted} with a broken CRC, {c.frames_stalled} held back by a stall, "

@@ -24,6 +24,7 @@ into E, forces N, torques N·m, time s (or rows, see ``motion.py``).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any, Protocol, TypeVar, cast, runtime_checkable
@@ -34,6 +35,9 @@ from hapticlab.core.frames import GRAVITY_M_S2
 from hapticlab.core.sensor_model.motion import Motion
 
 __all__ = ["STAGES", "Effect", "LocatesItself", "ModelState"]
+
+_CACHE_LOCK = threading.Lock()
+"""Guards the caches' inserts and evictions (a Jacobian's columns are predicted in threads)."""
 
 CACHE_ENTRIES = 32
 """Terms kept per motion by :meth:`ModelState.cached` (the oldest is dropped first)."""
@@ -93,20 +97,22 @@ class ModelState:
         terms of its predictions repeat exactly: an effect keys a term by the
         exact bytes of everything it depends on besides the motion (``key``
         starts with the term's name). The arrays are kept read-only: effects
-        never change arrays in place.
+        never change arrays in place. Safe from several threads (``hapticlab.core.parallel``).
         """
         cache = self.motion.cache
         if len(self.motion) > CACHE_ROWS:
             return compute()
-        if key in cache:
-            return cast(T, cache[key])
-        value = compute()
+        found = cache.get(key, cache)
+        if found is not cache:
+            return cast(T, found)
+        value = compute()  # two threads may both compute one term: the same value, kept once
         for array in value if isinstance(value, tuple) else (value,):
             if isinstance(array, np.ndarray):
                 array.flags.writeable = False
-        if len(cache) >= CACHE_ENTRIES:
-            del cache[next(iter(cache))]
-        cache[key] = value
+        with _CACHE_LOCK:
+            if len(cache) >= CACHE_ENTRIES:
+                cache.pop(next(iter(cache)), None)
+            cache[key] = value
         return value
 
     def motion_S(self, name: str) -> np.ndarray:

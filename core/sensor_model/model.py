@@ -15,9 +15,12 @@ into E, forces N, torques N·m, time s (or rows, see ``motion.py``).
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from hapticlab.core.frames import cross
+from hapticlab.core.parallel import thread_map
 from hapticlab.core.sensor_model.effect import CACHE_ROWS, STAGES, Effect, ModelState
 from hapticlab.core.sensor_model.motion import Motion
 
@@ -80,6 +83,7 @@ class Model:
         self.labels = list(BASE_LABELS) + [f"{n}.{label}" for n, e in self.effects for label in e.labels]
         self._timing_cache: tuple[Motion, bytes, Motion] | None = None
         self._predictions: list[tuple[Motion, bytes, np.ndarray]] = []
+        self._lock = threading.Lock()
 
     def with_effect(self, name: str, effect: Effect) -> Model:
         """This model with one more effect (appended)."""
@@ -141,16 +145,18 @@ class Model:
         """
         key = np.asarray(theta, float).tobytes()
         kept = self._predictions
-        for i, (source, k, prediction) in enumerate(kept):
-            if source is motion and k == key:
-                kept.append(kept.pop(i))  # the most recently used last
-                return prediction
+        with self._lock:
+            for i, (source, k, prediction) in enumerate(kept):
+                if source is motion and k == key:
+                    kept.append(kept.pop(i))  # the most recently used last
+                    return prediction
         force_S, torque_S = self.predict(motion, theta)
         prediction = np.concatenate([force_S, torque_S], axis=1)
         prediction.flags.writeable = False
         if len(motion) <= CACHE_ROWS:
-            kept.append((motion, key, prediction))
-            del kept[: max(0, len(kept) - PREDICTIONS_KEPT)]
+            with self._lock:
+                kept.append((motion, key, prediction))
+                del kept[: max(0, len(kept) - PREDICTIONS_KEPT)]
         return prediction
 
     def jacobian(self, motion: Motion, theta: np.ndarray, columns: slice | None = None) -> np.ndarray:
@@ -158,14 +164,21 @@ class Model:
 
         Forward differences for the base parameters (linear but for the mass
         in an inertial term), central differences with the effect's ``steps``
-        for effect parameters.
+        for effect parameters. The columns are independent predictions,
+        computed in threads (``hapticlab.core.parallel``; the same numbers),
+        the weight's three first: an effect may note the tool's mass from the
+        last prediction it made (``payload_change``, for ``describe``), which
+        is then the mass at ``theta``, as when the columns ran in order.
         """
         columns = columns if columns is not None else slice(0, self.size)
         index = range(self.size)[columns]
         steps = np.concatenate([BASE_STEPS] + [np.asarray(e.steps, float) for _, e in self.effects])
         f0 = self.predict6(motion, theta) if any(i < 12 for i in index) else None
+        self._timed(motion, theta)  # the columns that keep the timing share it
         out = np.empty((len(motion), 6, len(index)))
-        for j, i in enumerate(index):
+
+        def column(job: tuple[int, int]) -> None:
+            j, i = job
             h = steps[i]
             plus = theta.copy()
             plus[i] += h
@@ -175,4 +188,8 @@ class Model:
                 minus = theta.copy()
                 minus[i] -= h
                 out[:, :, j] = (self.predict6(motion, plus) - self.predict6(motion, minus)) / (2 * h)
+
+        jobs = list(enumerate(index))
+        thread_map(column, [job for job in jobs if job[1] < 3])  # the weight's columns
+        thread_map(column, [job for job in jobs if job[1] >= 3])
         return out

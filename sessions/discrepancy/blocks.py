@@ -24,13 +24,14 @@ cache. Results do not depend on the blocks:
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.estimation.model import contact_wrench
 from hapticlab.core.frames import skew_stack
+from hapticlab.core.parallel import thread_map
 from hapticlab.core.sensor_model import Model, Motion
 from hapticlab.core.sensor_model.effect import ModelState
 from hapticlab.plugins.effects.bias_drift import BiasDrift
@@ -90,30 +91,34 @@ def _reach_s(model: Model, motion: Motion, theta: np.ndarray) -> float | None:
     return reach
 
 
-def _blockwise(model: Model, motion: Motion, theta: np.ndarray, block: int) -> Iterator[tuple[slice, Model, Motion]]:
-    """Each block of rows with the model of the stages after timing and the block's motion after the timing
-    stage; nothing when the model cannot be predicted block by block (:func:`predict_rows`)."""
+def _block_plan(
+    model: Model, motion: Motion, theta: np.ndarray, block: int
+) -> tuple[Model, Callable[[slice], Motion]] | None:
+    """The model of the stages after timing, and a function giving a block's motion after the timing stage;
+    None when the model cannot be predicted block by block (:func:`predict_rows`)."""
     theta = np.asarray(theta, float)
     reach = _reach_s(model, motion, theta)
     if len(motion) <= block or reach is None:
-        return
+        return None
     if not all(isinstance(e, ROW_BY_ROW) for _, e in model.effects if e.stage != "timing"):
-        return
+        return None
     timing = [(n, e) for n, e in model.effects if e.stage == "timing"]
     rest = Model([(n, e) for n, e in model.effects if e.stage != "timing"])
     t, n = motion.t, len(motion)
     # rows either side of a block that the timing stage may interpolate between, with a margin of samples
     cushion = 2 + 2 * len(timing)
-    for rows in row_blocks(n, block):
+
+    def chunk(rows: slice) -> Motion:
         if not timing:
-            yield rows, rest, _rows(motion, rows)
-            continue
+            return _rows(motion, rows)
         lo = max(0, int(np.searchsorted(t, t[rows.start] - reach, side="left")) - cushion)
         hi = min(n, int(np.searchsorted(t, t[rows.stop - 1] + reach, side="right")) + cushion)
         state = ModelState(_rows(motion, slice(lo, hi)), np.eye(3), *np.split(theta[:12], 4))
         for name, effect in timing:
             state = effect.apply(state, theta[model.slices[name]])
-        yield rows, rest, _rows(state.motion, slice(rows.start - lo, rows.stop - lo))
+        return _rows(state.motion, slice(rows.start - lo, rows.stop - lo))
+
+    return rest, chunk
 
 
 def _rest_theta(model: Model, theta: np.ndarray) -> np.ndarray:
@@ -133,13 +138,20 @@ def weight_rows(model: Model, motion: Motion, theta: np.ndarray, block: int = BL
 
 
 def _by_blocks(model: Model, motion: Motion, theta: np.ndarray, block: int, method: str, width: int) -> np.ndarray:
-    """(n, ``width``) ``model.<method>(motion, theta)`` block by block (whole when the model cannot be)."""
-    out = None
-    for rows, rest, chunk in _blockwise(model, motion, theta, block):
-        if out is None:
-            out, theta_rest = np.empty((len(motion), width)), _rest_theta(model, theta)
-        out[rows] = getattr(rest, method)(chunk, theta_rest)
-    return out if out is not None else getattr(model, method)(motion, theta)
+    """(n, ``width``) ``model.<method>(motion, theta)`` block by block (whole when the model cannot be), the
+    blocks in threads (``hapticlab.core.parallel``: each writes its own rows)."""
+    plan = _block_plan(model, motion, theta, block)
+    if plan is None:
+        result: np.ndarray = getattr(model, method)(motion, theta)
+        return result
+    rest, chunk = plan
+    out, theta_rest = np.empty((len(motion), width)), _rest_theta(model, theta)
+
+    def one(rows: slice) -> None:
+        out[rows] = getattr(rest, method)(chunk(rows), theta_rest)
+
+    thread_map(one, row_blocks(len(motion), block))
+    return out
 
 
 def _tsqr(blocks: Iterator[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:

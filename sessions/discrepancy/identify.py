@@ -28,6 +28,7 @@ import numpy as np
 
 from hapticlab.core.errors import ConfigError
 from hapticlab.core.frames import quat_wxyz_from_matrix
+from hapticlab.core.parallel import column_median
 from hapticlab.core.sensor_model import Model, Motion, motion_from_poses
 from hapticlab.sessions.discrepancy.blocks import predict_rows
 from hapticlab.sessions.discrepancy.leftover import axis_noise
@@ -294,8 +295,8 @@ class Identification:
         z = (self.y - self.predict_all(model, theta)) * self.weights
         use = self.usable
         zu = z[use]
-        med = np.median(zu, axis=0)
-        scale = 1.4826 * np.median(np.abs(zu - med), axis=0)
+        med = column_median(zu)
+        scale = 1.4826 * column_median(np.abs(zu - med))
         scale = np.maximum(scale, 1e-12)
         bad = np.zeros(self.n, dtype=bool)
         bad[use] = np.any(np.abs(zu - med) > s.gate_sigmas * scale, axis=1)

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from hapticlab.core.parallel import column_median, thread_map
 from hapticlab.sessions.discrepancy.quality import noise_colour, quantised_noise
 from hapticlab.sessions.offline.metrics import rms
 
@@ -39,12 +40,15 @@ def axis_noise(
     d = d[moved]
     if len(d) < 5:
         d = residual - np.median(residual, axis=0)
-    mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / math.sqrt(2)
-    for c in range(residual.shape[1]):
+    mad = 1.4826 * column_median(np.abs(d - column_median(d))) / math.sqrt(2)
+
+    def coloured(c: int) -> None:  # a coloured channel's MAD over the lag where its noise decorrelates
         lag = noise_colour(d[:, c], rate_hz)[0] if steps is None or not np.isfinite(steps[c]) else 1
         if lag > 1:
             dk = residual[lag:, c] - residual[:-lag, c]
             mad[c] = 1.4826 * float(np.median(np.abs(dk - np.median(dk)))) / math.sqrt(2)
+
+    thread_map(coloured, range(residual.shape[1]))
     if steps is not None and predicted is not None and moved.sum() >= 5:
         delta = np.diff(predicted, axis=0)[moved]
         for k in np.flatnonzero(np.isfinite(steps)):

@@ -10,6 +10,7 @@ import pytest
 
 from hapticlab.core.estimation.batch import batch_fit
 from hapticlab.core.host.registry import Registry
+from hapticlab.core.parallel import workers
 from hapticlab.core.sensor_model import Model
 from hapticlab.plugins.simworld import RandomTour, RobotParams, SensorParams, SimWorld
 from hapticlab.plugins.simworld.export import write_csv
@@ -114,3 +115,29 @@ def test_the_result_does_not_depend_on_how_the_rows_are_laid_out(fit):
         )
         results.append(json_ready(discrepancy(dataclasses.replace(stream, t_s=wide[:, 0], samples=laid_out))))
     assert results[0] == results[1] == json_ready(discrepancy(stream))
+
+
+def test_threads_change_no_number_of_a_jacobian_nor_the_mass_an_effect_notes(fit):
+    """The Jacobian's columns are predicted in threads (``core/parallel.py``); ``payload_change`` notes the
+    tool's mass from its last prediction for ``describe``: the mass at theta, as in order."""
+    names = ["inertia", "mount_rotation", "time_lag", "payload_change"]
+    theta = Model([(name, effect(name)) for name in names]).initial(BASE)
+    results = []
+    for count in (1, 2):
+        effects = [(name, effect(name)) for name in names]
+        for _, e in effects:
+            assert e.check(fit.motion) is None
+        model = Model(effects)
+        with workers(count):
+            J = model.jacobian(fit.fit_motion, theta)
+        results.append((J, dict(effects)["payload_change"].mass_kg))
+    assert np.array_equal(results[0][0], results[1][0])
+    assert results[0][1] == results[1][1] == pytest.approx(np.linalg.norm(BASE[:3]) / 9.80665, rel=1e-12)
+
+
+def test_the_workflow_gives_the_same_result_on_one_thread_and_on_two(fit):
+    with workers(1):
+        one = json_ready(discrepancy(fit.stream))
+    with workers(2):
+        two = json_ready(discrepancy(fit.stream))
+    assert one == two

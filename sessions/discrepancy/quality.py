@@ -201,12 +201,13 @@ def data_quality(
     channels: dict[str, Any] = {}
     saturated = []
     rows = np.flatnonzero(usable)
+    y_rows = y[rows]
     for k, axis in enumerate(AXES):
-        x = y[rows, k]
+        x = np.ascontiguousarray(y_rows[:, k])
         step = quantisation_step(x)
         beyond = None if step is None or predicted is None else predicted[rows, k]
         margin = 0.0 if step is None else step + CLIP_MARGIN_NOISE * float(noise[k])
-        pinned = pinned_rows(x, np.delete(y[rows], k, axis=1), beyond, margin)
+        pinned = pinned_rows(x, np.delete(y_rows, k, axis=1), beyond, margin)
         entry: dict[str, Any] = {
             "step": step,
             "step_over_noise": None if step is None or not noise[k] > 0 else step / float(noise[k]),

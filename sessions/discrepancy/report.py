@@ -70,6 +70,8 @@ def report(
     or set aside), ``rounds`` each round's evidence, ``skipped`` the effects that could not be tested, ``notes``
     the candidates' notes on the input.
     """
+    # first, while no (n, 6) array of the report is held: the Jacobian's columns are predicted side by side
+    uncertainty = fit.uncertainty(states[-1].model, states[-1].theta)
     kept = fit.kept
     rms_kept, rms_all = [], []
     for state in states:
@@ -98,9 +100,13 @@ def report(
         )
     use = fit.usable
     batch_kept = batch_fit_rows(fit.y[:, :3], fit.y[:, 3:], fit.motion.R_EB, kept)
+    batch_rms_kept = [rms(np.c_[batch_kept["residual_force_S"]]), rms(np.c_[batch_kept["residual_torque_S"]])]
+    del batch_kept  # its (n, 6) residuals, not held through the rest of the report
     batch_all = fit.batch_usable
     if batch_all is None:
         batch_all = batch_fit_rows(fit.y[:, :3], fit.y[:, 3:], fit.motion.R_EB, use)
+    batch_rms_all = [rms(batch_all["residual_force_S"]), rms(batch_all["residual_torque_S"])]
+    del batch_all
     named = [name for name, _ in final.model.effects]
     options: dict[str, Any] = {"effects": [name for name, effect in final.model.effects if effect.online]}
     final_params: dict[str, Any] = {
@@ -116,9 +122,10 @@ def report(
     noise = 1.0 / fit.weights
     over = rms_kept[-1] / noise
     rate = fit.motion.rate_hz
-    own_noise = axis_noise(final_residual[kept], fit.steps, fit.y[kept] - final_residual[kept], rate)
+    residual_kept = final_residual[kept]
+    own_noise = axis_noise(residual_kept, fit.steps, fit.y[kept] - residual_kept, rate)
     over_own = rms_kept[-1] / own_noise
-    independent = effective_samples(final_residual[kept], rate)  # the kept samples, or fewer for a coloured noise
+    independent = effective_samples(residual_kept, rate)  # the kept samples, or fewer for a coloured noise
     threshold = leftover_threshold(independent)
     leftover = [AXES[k] for k in range(6) if over_own[k] > threshold]
     where = {
@@ -130,8 +137,10 @@ def report(
         )
         for a in leftover
     }
+    del residual_kept
     quality = data_quality(fit.y, fit.motion.t, use, kept, own_noise, fit.y - final_residual)
     residual_use = final_residual[use]
+    del final_residual, residual
     # a gate not applied (half the rows or more) is looked at as it would have been: ringing is no contact either
     gated_as = fit.refused_gate if fit.gate_fallback and fit.refused_gate is not None else kept
     gate = set_aside(
@@ -179,7 +188,6 @@ def report(
             f"(above {fit.settings.warn_rms_over_noise:g}x): something the tested effects do not explain remains "
             f"(or contact the gate did not catch); see --plots"
         )
-    uncertainty = fit.uncertainty(final.model, final.theta)
     for combination in uncertainty["not_identifiable"]:
         terms = " ".join(
             f"{'−' if w < 0 else '+'} {abs(w):.2f}·{name}"
@@ -237,15 +245,12 @@ def report(
         },
         "effects": named,
         "estimator_options": options,
-        "batch_fit": {
-            "rms_force_S": rms(np.c_[batch_kept["residual_force_S"]]).tolist(),
-            "rms_torque_S": rms(np.c_[batch_kept["residual_torque_S"]]).tolist(),
-        },
+        "batch_fit": {"rms_force_S": batch_rms_kept[0].tolist(), "rms_torque_S": batch_rms_kept[1].tolist()},
         "all_usable_rows": {
             "final_rms_force_S": rms_all[-1][:3].tolist(),
             "final_rms_torque_S": rms_all[-1][3:].tolist(),
-            "batch_rms_force_S": rms(batch_all["residual_force_S"]).tolist(),
-            "batch_rms_torque_S": rms(batch_all["residual_torque_S"]).tolist(),
+            "batch_rms_force_S": batch_rms_all[0].tolist(),
+            "batch_rms_torque_S": batch_rms_all[1].tolist(),
         },
         "rounds": rounds,
         "skipped": skipped,

@@ -14,6 +14,7 @@ at most :data:`MAX_WORKERS`; ``1`` runs everything in the calling thread).
 
 from __future__ import annotations
 
+import contextvars
 import ctypes
 import os
 import platform
@@ -75,13 +76,16 @@ def workers(count: int) -> Iterator[None]:
         _count = before
 
 
-def _mark(fn: Callable[[T], R]) -> Callable[[T], R]:
-    """``fn`` that marks its thread as a worker while it runs (so a nested map runs in line, not deadlocked)."""
+def _in_context(fn: Callable[[T], R]) -> Callable[[T], R]:
+    """``fn`` run in a copy of the caller's context (numpy's error state, ``np.errstate``, is a context
+    variable: a block that ignores overflow ignores it in its tasks too), its thread marked as a worker while
+    it runs (so a map inside it runs in line instead of waiting for a busy pool)."""
+    context = contextvars.copy_context()
 
     def run(item: T) -> R:
         _inside.active = True
         try:
-            return fn(item)
+            return context.copy().run(fn, item)
         finally:
             _inside.active = False
 
@@ -124,7 +128,7 @@ def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
             _share_arenas(count)
             _pool, _pool_size = ThreadPoolExecutor(count, thread_name_prefix="hapticlab-numpy"), count
         pool = _pool
-    return list(pool.map(_mark(fn), tasks))
+    return list(pool.map(_in_context(fn), tasks))
 
 
 def column_median(x: np.ndarray) -> np.ndarray:

@@ -4,6 +4,7 @@ count from ``HAPTICLAB_THREADS``, and per-column medians that are numpy's to the
 from __future__ import annotations
 
 import threading
+import warnings
 
 import numpy as np
 import pytest
@@ -81,3 +82,14 @@ def test_column_median_is_numpys_median_to_the_bit(rows):
     want = np.median(x, axis=0)
     assert np.array_equal(got, want, equal_nan=True)
     assert np.isnan(got[4]) and np.isfinite(np.delete(got, 4)).all()
+
+
+def test_the_callers_numpy_error_state_holds_in_the_tasks():
+    """``np.errstate`` is a context variable: a block that ignores overflow (``numerical_failures``) must
+    ignore it in its tasks too, and one that raises on it must raise."""
+    overflow = lambda x: np.float64(1e308) * x  # noqa: E731 (a one-line task)
+    with workers(2), np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("error")  # a warning from a task would fail here
+        assert np.isinf(thread_map(overflow, [10.0, 20.0, 30.0])).all()
+    with workers(2), np.errstate(over="raise"), pytest.raises(FloatingPointError):
+        thread_map(overflow, [10.0, 20.0, 30.0])

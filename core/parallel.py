@@ -39,9 +39,20 @@ MAX_WORKERS = 8
 
 _lock = threading.Lock()
 _inside = threading.local()
-_pool: ThreadPoolExecutor | None = None
-_pool_size = 0
-_count: int | None = None
+_pools: dict[int, ThreadPoolExecutor] = {}
+"""One pool per thread count asked for, kept for the process's life (never shut down under a caller)."""
+_default: int | None = None
+_override: contextvars.ContextVar[int | None] = contextvars.ContextVar("hapticlab_threads", default=None)
+
+
+def _forget_pools() -> None:
+    """In a forked child: the parent's pools are there but their threads are not (a map would wait forever)."""
+    global _lock, _pools
+    _lock, _pools = threading.Lock(), {}
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pools)
 
 
 def _default_count() -> int:
@@ -57,23 +68,25 @@ def _default_count() -> int:
 
 
 def worker_count() -> int:
-    """How many threads :func:`thread_map` uses now."""
-    global _count
-    if _count is None:
-        _count = _default_count()
-    return _count
+    """How many threads :func:`thread_map` uses here (:func:`workers`' count, else the default)."""
+    global _default
+    override = _override.get()
+    if override is not None:
+        return override
+    if _default is None:
+        _default = _default_count()
+    return _default
 
 
 @contextmanager
 def workers(count: int) -> Iterator[None]:
-    """Use ``count`` threads (1: none) inside the ``with`` block."""
-    global _count
-    before = worker_count()
-    _count = max(1, min(MAX_WORKERS, int(count)))
+    """Use ``count`` threads (1: none) inside the ``with`` block, in this thread (and what it runs in the
+    pool) only: a context variable, so two threads may each ask for their own."""
+    token = _override.set(max(1, min(MAX_WORKERS, int(count))))
     try:
         yield
     finally:
-        _count = before
+        _override.reset(token)
 
 
 def _in_context(fn: Callable[[T], R]) -> Callable[[T], R]:
@@ -96,19 +109,23 @@ M_ARENA_MAX = -8
 """glibc's ``mallopt`` parameter for the number of malloc arenas (``malloc.h``)."""
 
 
-def _share_arenas(count: int) -> None:
-    """Let the pool's threads share one glibc malloc arena (the process: two at most).
+def _share_arenas() -> None:
+    """Let the pools' threads share one glibc malloc arena (the process: two at most).
 
     By default glibc gives each thread its own arena, which keeps the blocks
     freed in it: the workers' block-sized temporaries then raised the peak of
     ``discrepancy`` on 600 000 rows by 50 MB (949 → 897 MB with two arenas, at
-    the same speed). Does nothing off glibc.
+    the same speed, on 2 cores; the tasks allocate a few arrays each, so
+    sharing a lock costs little). Does nothing off glibc, or when the user
+    set the arenas (``MALLOC_ARENA_MAX``, ``GLIBC_TUNABLES``' ``arena_max``).
     """
     if not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc":
         return
+    if "MALLOC_ARENA_MAX" in os.environ or "arena_max" in os.environ.get("GLIBC_TUNABLES", ""):
+        return
     try:
         libc = ctypes.CDLL(None)
-        libc.mallopt(ctypes.c_int(M_ARENA_MAX), ctypes.c_int(2 if count > 1 else 1))
+        libc.mallopt(ctypes.c_int(M_ARENA_MAX), ctypes.c_int(2))
     except (OSError, AttributeError):  # no mallopt in this process's C library: nothing to tune
         return
 
@@ -120,14 +137,11 @@ def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     count = worker_count()
     if count == 1 or len(tasks) < 2 or getattr(_inside, "active", False):
         return [fn(x) for x in tasks]
-    global _pool, _pool_size
     with _lock:
-        if _pool is None or _pool_size != count:
-            if _pool is not None:
-                _pool.shutdown(wait=False)
-            _share_arenas(count)
-            _pool, _pool_size = ThreadPoolExecutor(count, thread_name_prefix="hapticlab-numpy"), count
-        pool = _pool
+        pool = _pools.get(count)
+        if pool is None:
+            _share_arenas()
+            pool = _pools[count] = ThreadPoolExecutor(count, thread_name_prefix="hapticlab-numpy")
     return list(pool.map(_in_context(fn), tasks))
 
 

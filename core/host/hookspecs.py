@@ -43,7 +43,9 @@ def register_haptic_outputs(register: Register) -> None:
 
 @hookspec
 def register_effects(register: Register) -> None:
-    """Register physical effect models for the discrepancy workflow: register(name, factory)."""
+    """Register physical effect models for the discrepancy workflow: register(name, factory).
+
+    An effect's ``apply`` runs in several threads at once: it must not change the effect (``Effect.apply``)."""
 
 
 @hookspec

@@ -171,7 +171,13 @@ class Effect:
         return np.zeros(len(self.labels))
 
     def apply(self, state: ModelState, params: np.ndarray) -> ModelState:
-        """The state after this effect acted, with ``params`` (exact, not linearised)."""
+        """The state after this effect acted, with ``params`` (exact, not linearised).
+
+        Called from several threads at once (a Jacobian's columns, a recording's row blocks:
+        ``hapticlab.core.parallel``), so the result depends on ``state`` and ``params`` alone: keep
+        anything computed in ``state.cached``, not on ``self``. (``payload_change`` notes the tool's mass
+        for ``describe``; the weight's columns run first so it is the mass at the fitted parameters.)
+        """
         raise NotImplementedError
 
     def describe(self, params: np.ndarray) -> dict[str, Any]:

@@ -127,19 +127,23 @@ def _rest_theta(model: Model, theta: np.ndarray) -> np.ndarray:
     return np.concatenate([np.asarray(theta[:12], float), *keep])
 
 
-def predict_rows(model: Model, motion: Motion, theta: np.ndarray, block: int = BLOCK_ROWS) -> np.ndarray:
+def predict_rows(model: Model, motion: Motion, theta: np.ndarray, block: int | None = None) -> np.ndarray:
     """(n, 6) ``model.predict6(motion, theta)``, block by block (the same numbers; see the module docstring)."""
     return _by_blocks(model, motion, theta, block, "predict6", 6)
 
 
-def weight_rows(model: Model, motion: Motion, theta: np.ndarray, block: int = BLOCK_ROWS) -> np.ndarray:
+def weight_rows(model: Model, motion: Motion, theta: np.ndarray, block: int | None = None) -> np.ndarray:
     """(n, 3) ``model.weight_S(motion, theta)``, block by block."""
     return _by_blocks(model, motion, theta, block, "weight_S", 3)
 
 
-def _by_blocks(model: Model, motion: Motion, theta: np.ndarray, block: int, method: str, width: int) -> np.ndarray:
-    """(n, ``width``) ``model.<method>(motion, theta)`` block by block (whole when the model cannot be), the
-    blocks in threads (``hapticlab.core.parallel``: each writes its own rows)."""
+def _by_blocks(
+    model: Model, motion: Motion, theta: np.ndarray, block: int | None, method: str, width: int
+) -> np.ndarray:
+    """(n, ``width``) ``model.<method>(motion, theta)`` by blocks of ``block`` rows (None: ``BLOCK_ROWS``, read
+    now), whole when the model cannot be, the blocks in threads (``hapticlab.core.parallel``: each writes its
+    own rows)."""
+    block = BLOCK_ROWS if block is None else block
     plan = _block_plan(model, motion, theta, block)
     if plan is None:
         result: np.ndarray = getattr(model, method)(motion, theta)
@@ -164,10 +168,11 @@ def _tsqr(blocks: Iterator[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
 
 
 def batch_fit_rows(
-    force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, rows: np.ndarray, block: int = BLOCK_ROWS
+    force_S: np.ndarray, torque_S: np.ndarray, R_EB: np.ndarray, rows: np.ndarray, block: int | None = None
 ) -> dict[str, np.ndarray]:
     """``batch_fit(force_S[rows], torque_S[rows], R_EB[rows])`` (``rows`` a mask or an index), block by block
-    above ``block`` rows (blockwise QR; below, ``batch_fit`` itself)."""
+    above ``block`` rows (None: ``BLOCK_ROWS``; blockwise QR; below, ``batch_fit`` itself)."""
+    block = BLOCK_ROWS if block is None else block
     index = np.flatnonzero(rows) if np.asarray(rows).dtype == bool else np.asarray(rows)
     n = len(index)
     if n <= block:

@@ -42,7 +42,8 @@ def _power(z: np.ndarray, nfft: int) -> np.ndarray:
     """(nfft//2 + 1,) the power spectrum of ``z`` (m, k) summed over its columns, each detrended (a line).
 
     A column at a time: a whole recording's six spectra at once were 160 MB (600 000 rows), the report's peak
-    (the same numbers: each column's transform and the sum in column order are those of the 2-D call)."""
+    (the same numbers for up to 7 columns, as here: each column's transform is the 2-D call's, and below 8
+    terms numpy sums in column order; from 8 its pairwise sum differs in the last bit)."""
     m = len(z)
     x = np.arange(m) - (m - 1) / 2
     mean = z.mean(axis=0)

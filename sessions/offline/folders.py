@@ -76,10 +76,14 @@ class FolderRun:
     wall_s: float = 0.0
 
 
-def _run_one(func: Callable[[Path], Any], path: Path) -> tuple[Any, str]:
-    """The task on a worker: (value, "") or (None, the ValueError's line)."""
+def _run_one(func: Callable[[Path], Any], path: Path, threads: int = 1) -> tuple[Any, str]:
+    """The task on a worker: (value, "") or (None, the ValueError's line), its numpy work on ``threads``
+    threads (``hapticlab.core.parallel``: the worker processes already share the cores)."""
+    from hapticlab.core.parallel import workers as thread_workers
+
     try:
-        return func(path), ""
+        with thread_workers(threads):
+            return func(path), ""
     except ValueError as exc:  # bad input (RecordingError is one): a row, not the end of the job
         return None, str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
@@ -133,9 +137,11 @@ def map_recordings(
     files = [Path(p) for p in paths]
     start = time.perf_counter()
     cluster = None
+    threads = 1  # a scheduler's workers: as many processes as it has cores, as dask's own set BLAS's threads
     if scheduler is None:
         n = workers or os.cpu_count() or 1
         n = max(1, min(n, len(files)))
+        threads = max(1, (os.cpu_count() or 1) // n)  # the cores the worker processes leave each
         cluster = LocalCluster(
             n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40
         )
@@ -147,7 +153,7 @@ def map_recordings(
         except (OSError, TimeoutError) as exc:
             raise FolderError(f"--scheduler {scheduler}: no Dask scheduler answered: {exc}") from None
     try:
-        futures = {client.submit(_run_one, func, path, pure=False): i for i, path in enumerate(files)}
+        futures = {client.submit(_run_one, func, path, threads, pure=False): i for i, path in enumerate(files)}
         outcomes: list[Outcome | None] = [None] * len(files)
         bar = _progress(progress, description, len(files))
         with bar:

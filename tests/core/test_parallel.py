@@ -60,13 +60,13 @@ def test_a_map_inside_a_task_runs_in_line_instead_of_waiting_for_a_busy_pool():
 
 
 def test_the_count_comes_from_the_environment(monkeypatch):
-    monkeypatch.setattr(parallel, "_count", None)
+    monkeypatch.setattr(parallel, "_default", None)
     monkeypatch.setenv("HAPTICLAB_THREADS", "1")
     assert worker_count() == 1
-    monkeypatch.setattr(parallel, "_count", None)
+    monkeypatch.setattr(parallel, "_default", None)
     monkeypatch.setenv("HAPTICLAB_THREADS", "100")
     assert worker_count() == parallel.MAX_WORKERS
-    monkeypatch.setattr(parallel, "_count", None)
+    monkeypatch.setattr(parallel, "_default", None)
     monkeypatch.setenv("HAPTICLAB_THREADS", "two")
     with pytest.raises(ConfigError, match="HAPTICLAB_THREADS='two'"):
         worker_count()
@@ -93,3 +93,30 @@ def test_the_callers_numpy_error_state_holds_in_the_tasks():
         assert np.isinf(thread_map(overflow, [10.0, 20.0, 30.0])).all()
     with workers(2), np.errstate(over="raise"), pytest.raises(FloatingPointError):
         thread_map(overflow, [10.0, 20.0, 30.0])
+
+
+def test_workers_is_the_calling_threads_own():
+    seen: list[int] = []
+    with workers(1):
+        other = threading.Thread(target=lambda: seen.append(worker_count()))
+        other.start()
+        other.join()
+        assert worker_count() == 1
+    assert seen == [parallel._default_count()]
+
+
+def test_a_forked_child_maps_with_pools_of_its_own():
+    """The parent's pool is copied into a fork without its threads; a map there must not wait forever."""
+    import multiprocessing
+
+    with workers(2):
+        thread_map(abs, [-1, -2, -3])  # the parent's pool exists
+        context = multiprocessing.get_context("fork")
+        with context.Pool(1) as children:
+            result = children.apply_async(_map_in_child)
+            assert result.get(timeout=60) == [1, 4, 9]
+
+
+def _map_in_child() -> list[int]:
+    with workers(2):
+        return thread_map(lambda x: x * x, [1, 2, 3])

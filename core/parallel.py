@@ -114,8 +114,8 @@ def _share_arenas() -> None:
 
     By default glibc gives each thread its own arena, which keeps the blocks
     freed in it: the workers' block-sized temporaries then raised the peak of
-    ``discrepancy`` on 600 000 rows by 50 MB (949 → 897 MB with two arenas, at
-    the same speed, on 2 cores; the tasks allocate a few arrays each, so
+    ``discrepancy`` on 600 000 rows by 50 MiB (927 → 876 MiB with two arenas,
+    at the same speed, on 2 cores; the tasks allocate a few arrays each, so
     sharing a lock costs little). Does nothing off glibc, or when the user
     set the arenas (``MALLOC_ARENA_MAX``, ``GLIBC_TUNABLES``' ``arena_max``).
     """

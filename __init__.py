@@ -21,13 +21,13 @@ imported on first use, so ``import hapticlab`` stays light.
 
 from __future__ import annotations
 
-import importlib
 import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hapticlab import numba_cache
+from hapticlab.core.lazy import lazy_exports
 from hapticlab.core.version import __version__ as __version__
 
 numba_cache.choose(Path(__file__).parent)  # before any kernel is compiled (numba_cache.py says why)
@@ -66,13 +66,7 @@ _TYPES = {
 """The exported types, by the module that defines them (imported on first use: the sessions import numba)."""
 
 
-def __getattr__(name: str) -> Any:
-    module = _TYPES.get(name)
-    if module is None:
-        raise AttributeError(f"module 'hapticlab' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_exports(__name__, _TYPES)
 
 
 def __dir__() -> list[str]:

@@ -6,8 +6,9 @@ command line's parser reads) does not bring the review's numerics with it.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from hapticlab.core.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from hapticlab.sessions.review.figures import Contact, EstimatorReview
@@ -15,19 +16,13 @@ if TYPE_CHECKING:
 
 __all__ = ["DEFAULT_FORCE_LIMIT_N", "Contact", "EstimatorReview", "SessionReview", "review"]
 
-_HOMES = {
-    "Contact": "figures",
-    "EstimatorReview": "figures",
-    "DEFAULT_FORCE_LIMIT_N": "summary",
-    "SessionReview": "summary",
-    "review": "summary",
-}
-
-
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{home}"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_exports(
+    __name__,
+    {
+        "Contact": "hapticlab.sessions.review.figures",
+        "EstimatorReview": "hapticlab.sessions.review.figures",
+        "DEFAULT_FORCE_LIMIT_N": "hapticlab.sessions.review.summary",
+        "SessionReview": "hapticlab.sessions.review.summary",
+        "review": "hapticlab.sessions.review.summary",
+    },
+)

@@ -39,6 +39,31 @@ SLACK = 1e-12
 
 
 @njit(cache=True)
+def cholesky_shifted(M: np.ndarray, shift: float, L: np.ndarray) -> bool:
+    """Write the Cholesky factor of M − shift·I into the lower triangle of ``L``; False (``L`` unfinished) at
+    the first pivot not above ``SLACK``.
+
+    Args:
+        M: (n, n) symmetric (its lower triangle is read). shift: subtracted from the diagonal (0: M itself).
+        L: (n, n), written.
+    """
+    n = M.shape[0]
+    for j in range(n):
+        d = M[j, j] - shift
+        for p in range(j):
+            d -= L[j, p] * L[j, p]
+        if not d > SLACK:
+            return False
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, n):
+            v = M[i, j]
+            for p in range(j):
+                v -= L[i, p] * L[j, p]
+            L[i, j] = v / L[j, j]
+    return True
+
+
+@njit(cache=True)
 def certain(scaled: np.ndarray, min_rcond: float, out: np.ndarray) -> int:
     """Write ``UP`` or ``UNDECIDED`` for each matrix into ``out``; return how many are undecided.
 
@@ -59,22 +84,7 @@ def certain(scaled: np.ndarray, min_rcond: float, out: np.ndarray) -> int:
                 row += abs(M[i, j])
             u = max(u, row)
         a = min_rcond * (1.0 + 1e-9) * (u + SLACK) + 3.0 * SLACK
-        ok = math.isfinite(u)
-        for j in range(n):
-            if not ok:
-                break
-            d = M[j, j] - a
-            for p in range(j):
-                d -= L[j, p] * L[j, p]
-            if not d > SLACK:
-                ok = False
-                break
-            L[j, j] = math.sqrt(d)
-            for i in range(j + 1, n):
-                v = M[i, j]
-                for p in range(j):
-                    v -= L[i, p] * L[j, p]
-                L[i, j] = v / L[j, j]
+        ok = math.isfinite(u) and cholesky_shifted(M, a, L)
         out[k] = UP if ok else UNDECIDED
         undecided += 0 if ok else 1
     return undecided
@@ -94,17 +104,7 @@ def solve(scaled: np.ndarray, d: np.ndarray, Cty: np.ndarray, code: np.ndarray, 
     for k in range(scaled.shape[0]):
         if code[k] != UP:
             continue
-        M = scaled[k]
-        for j in range(n):
-            v = M[j, j]
-            for p in range(j):
-                v -= L[j, p] * L[j, p]
-            L[j, j] = math.sqrt(v)
-            for i in range(j + 1, n):
-                w = M[i, j]
-                for p in range(j):
-                    w -= L[i, p] * L[j, p]
-                L[i, j] = w / L[j, j]
+        cholesky_shifted(scaled[k], 0.0, L)  # proved positive definite (UP): every pivot is above SLACK
         for i in range(n):  # L z = D⁻¹ Cᵀy
             v = Cty[k, i] / d[k, i]
             for p in range(i):
